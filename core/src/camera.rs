@@ -1,0 +1,208 @@
+//! Perspective cameras and primary rays (DESIGN.md, "Camera").
+//!
+//! The default camera looks along −z at the centre of the volume box from `R / sin(15°)`
+//! (`R` the half-diagonal), with a 30° vertical field of view and +y up, so the whole box is
+//! in view. A view "at angle θ" orbits that camera about the box centre around +y by θ
+//! degrees. Image row 0 is the top; pixel `(i, j)` is sampled at its centre `(i + ½, j + ½)`.
+
+use crate::volume::Aabb;
+use glam::{Quat, Vec3};
+
+/// A perspective camera. Eye-space z is the distance along the view direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Eye position, world units.
+    pub eye: Vec3,
+    /// Point looked at.
+    pub target: Vec3,
+    /// Up hint (need not be orthogonal to the view direction).
+    pub up: Vec3,
+    /// Vertical field of view, degrees, in (0, 180).
+    pub fov_y_deg: f32,
+}
+
+/// A ray with unit direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Start point, world units.
+    pub origin: Vec3,
+    /// Unit direction.
+    pub dir: Vec3,
+}
+
+/// Orthonormal view frame and image-plane scale of a camera for one image size.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewFrame {
+    /// Eye position.
+    pub eye: Vec3,
+    /// Image-right axis.
+    pub right: Vec3,
+    /// Image-up axis.
+    pub up: Vec3,
+    /// View direction.
+    pub forward: Vec3,
+    /// `tan(fov_x / 2)`: x/z at the right image edge.
+    pub tan_half_x: f32,
+    /// `tan(fov_y / 2)`: y/z at the top image edge.
+    pub tan_half_y: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+}
+
+impl Camera {
+    /// The default view of a box: see the module documentation.
+    pub fn default_for_box(b: &Aabb) -> Self {
+        let c = b.center();
+        let r = b.half_diagonal().max(1e-3);
+        let dist = r / 15f32.to_radians().sin();
+        Self {
+            eye: c + Vec3::new(0.0, 0.0, dist),
+            target: c,
+            up: Vec3::Y,
+            fov_y_deg: 30.0,
+        }
+    }
+
+    /// This camera orbited about its target around +y by `angle_deg` degrees.
+    pub fn orbit_y(&self, angle_deg: f32) -> Self {
+        let q = Quat::from_rotation_y(angle_deg.to_radians());
+        Self {
+            eye: self.target + q * (self.eye - self.target),
+            up: q * self.up,
+            ..*self
+        }
+    }
+
+    /// Whether the camera is usable: finite, eye ≠ target, up not parallel to the view
+    /// direction, field of view in (0, 180).
+    pub fn is_valid(&self) -> bool {
+        let f = self.target - self.eye;
+        self.eye.is_finite()
+            && self.target.is_finite()
+            && self.up.is_finite()
+            && f.length() > 0.0
+            && f.normalize().cross(self.up).length() > 1e-6
+            && self.fov_y_deg.is_finite()
+            && self.fov_y_deg > 0.0
+            && self.fov_y_deg < 180.0
+    }
+
+    /// The view frame for a `width × height` image.
+    pub fn frame(&self, width: u32, height: u32) -> ViewFrame {
+        let forward = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
+        let right = forward.cross(self.up).normalize_or(Vec3::X);
+        let up = right.cross(forward);
+        let tan_half_y = (0.5 * self.fov_y_deg.to_radians()).tan();
+        let aspect = width.max(1) as f32 / height.max(1) as f32;
+        ViewFrame {
+            eye: self.eye,
+            right,
+            up,
+            forward,
+            tan_half_x: tan_half_y * aspect,
+            tan_half_y,
+            width,
+            height,
+        }
+    }
+}
+
+impl ViewFrame {
+    /// The primary ray through image position `(px, py)` in pixels (row 0 at the top).
+    #[inline]
+    pub fn ray(&self, px: f32, py: f32) -> Ray {
+        let sx = (2.0 * px / self.width as f32 - 1.0) * self.tan_half_x;
+        let sy = (1.0 - 2.0 * py / self.height as f32) * self.tan_half_y;
+        Ray {
+            origin: self.eye,
+            dir: (self.forward + sx * self.right + sy * self.up).normalize(),
+        }
+    }
+
+    /// The primary ray through the centre of pixel `(i, j)`.
+    #[inline]
+    pub fn pixel_ray(&self, i: u32, j: u32) -> Ray {
+        self.ray(i as f32 + 0.5, j as f32 + 0.5)
+    }
+
+    /// Eye-space coordinates `(x, y, z)` of a world point.
+    #[inline]
+    pub fn to_eye(&self, p: Vec3) -> Vec3 {
+        let d = p - self.eye;
+        Vec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))
+    }
+
+    /// Pixel coordinates of a world point in front of the camera, or `None` if `z ≤ 0`.
+    pub fn project(&self, p: Vec3) -> Option<(f32, f32)> {
+        let e = self.to_eye(p);
+        (e.z > 0.0).then(|| {
+            (
+                (e.x / (e.z * self.tan_half_x) + 1.0) * 0.5 * self.width as f32,
+                (1.0 - e.y / (e.z * self.tan_half_y)) * 0.5 * self.height as f32,
+            )
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_box() -> Aabb {
+        Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::new(10.0, 20.0, 30.0),
+        }
+    }
+
+    #[test]
+    fn default_camera_sees_the_whole_box() {
+        let b = unit_box();
+        let cam = Camera::default_for_box(&b);
+        let f = cam.frame(64, 64);
+        for i in 0..8 {
+            let corner = Vec3::new(
+                if i & 1 == 0 { b.min.x } else { b.max.x },
+                if i & 2 == 0 { b.min.y } else { b.max.y },
+                if i & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            for angle in [0.0, 45.0, 90.0, 180.0] {
+                let f = cam.orbit_y(angle).frame(64, 64);
+                let (px, py) = f.project(corner).unwrap();
+                assert!((0.0..=64.0).contains(&px) && (0.0..=64.0).contains(&py));
+            }
+        }
+        // Looking along −z, +y up.
+        assert!((f.forward - Vec3::NEG_Z).length() < 1e-6);
+        assert!((f.up - Vec3::Y).length() < 1e-6);
+    }
+
+    #[test]
+    fn pixel_rays_project_back_to_their_pixel() {
+        let cam = Camera::default_for_box(&unit_box()).orbit_y(30.0);
+        let f = cam.frame(40, 30);
+        for (i, j) in [(0, 0), (39, 29), (20, 3)] {
+            let r = f.pixel_ray(i, j);
+            let (px, py) = f.project(r.origin + 50.0 * r.dir).unwrap();
+            assert!((px - (i as f32 + 0.5)).abs() < 1e-3 && (py - (j as f32 + 0.5)).abs() < 1e-3);
+        }
+        // Row 0 is the top: its ray points up.
+        assert!(f.pixel_ray(20, 0).dir.y > 0.0);
+    }
+
+    #[test]
+    fn orbit_keeps_distance_and_target() {
+        let cam = Camera::default_for_box(&unit_box());
+        let o = cam.orbit_y(180.0);
+        assert!(((o.eye - o.target).length() - (cam.eye - cam.target).length()).abs() < 1e-3);
+        assert!((o.frame(8, 8).forward - Vec3::Z).length() < 1e-5);
+        assert!(cam.is_valid());
+        assert!(!Camera {
+            up: Vec3::NEG_Z,
+            ..cam
+        }
+        .is_valid());
+    }
+}

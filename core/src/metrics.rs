@@ -1,0 +1,228 @@
+//! Image quality metrics: PSNR (the paper's q, Sec. 5.3) and SSIM.
+//!
+//! Both compare RGB images with channels in [0, 1] and are computed in f64.
+//! - PSNR = `10·log10(1 / MSE)` with the MSE over all pixels and the three channels; identical
+//!   images give `+∞` (never NaN). Over several views, [`pooled_psnr`] is the PSNR of the mean
+//!   MSE (so one bad view weighs as much as it hurts).
+//! - SSIM (Wang et al. 2004) per channel with an 11×11 Gaussian window (σ = 1.5), `K1 = 0.01`,
+//!   `K2 = 0.03`, data range 1, population (not sample) covariances, averaged over the pixels
+//!   whose window lies inside the image and then over R, G and B. This is scikit-image's
+//!   `structural_similarity(a, b, channel_axis=2, data_range=1, gaussian_weights=True,
+//!   sigma=1.5, use_sample_covariance=False)`.
+
+use crate::image::Image;
+
+/// Errors from comparing images.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MetricError {
+    /// The two images differ in size.
+    #[error("images differ in size: {0}x{1} vs {2}x{3}")]
+    SizeMismatch(u32, u32, u32, u32),
+    /// Too small for the metric.
+    #[error("image of {0}x{1} is too small: {2}")]
+    TooSmall(u32, u32, &'static str),
+}
+
+fn check_sizes(a: &Image, b: &Image) -> Result<(), MetricError> {
+    if a.width() != b.width() || a.height() != b.height() {
+        return Err(MetricError::SizeMismatch(
+            a.width(),
+            a.height(),
+            b.width(),
+            b.height(),
+        ));
+    }
+    if a.pixels().is_empty() {
+        return Err(MetricError::TooSmall(a.width(), a.height(), "no pixels"));
+    }
+    Ok(())
+}
+
+/// Mean squared error over all pixels and channels.
+///
+/// # Errors
+/// [`MetricError`] for different sizes or empty images.
+pub fn mse(a: &Image, b: &Image) -> Result<f64, MetricError> {
+    check_sizes(a, b)?;
+    let sum: f64 = a
+        .pixels()
+        .iter()
+        .zip(b.pixels())
+        .flat_map(|(p, q)| p.iter().zip(q).map(|(x, y)| f64::from(x - y).powi(2)))
+        .sum();
+    Ok(sum / (a.pixels().len() * 3) as f64)
+}
+
+/// PSNR in dB from an MSE over a unit data range; `+∞` for 0.
+pub fn psnr_from_mse(mse: f64) -> f64 {
+    if mse <= 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
+/// PSNR in dB of `test` against `reference`.
+///
+/// # Errors
+/// As [`mse`].
+pub fn psnr(test: &Image, reference: &Image) -> Result<f64, MetricError> {
+    mse(test, reference).map(psnr_from_mse)
+}
+
+/// PSNR of the mean of per-view MSEs (pooled q over the test views); `+∞` for no views.
+pub fn pooled_psnr(mses: &[f64]) -> f64 {
+    if mses.is_empty() {
+        return f64::INFINITY;
+    }
+    psnr_from_mse(mses.iter().sum::<f64>() / mses.len() as f64)
+}
+
+const SSIM_RADIUS: usize = 5;
+const SSIM_SIGMA: f64 = 1.5;
+
+fn gaussian_window() -> [f64; 2 * SSIM_RADIUS + 1] {
+    let mut w = [0.0; 2 * SSIM_RADIUS + 1];
+    for (i, v) in w.iter_mut().enumerate() {
+        let x = i as f64 - SSIM_RADIUS as f64;
+        *v = (-x * x / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp();
+    }
+    let sum: f64 = w.iter().sum();
+    w.map(|v| v / sum)
+}
+
+/// Mean SSIM of `test` against `reference` (see the module documentation).
+///
+/// # Errors
+/// [`MetricError`] for different sizes, or images narrower or lower than 11 pixels.
+pub fn ssim(test: &Image, reference: &Image) -> Result<f64, MetricError> {
+    check_sizes(test, reference)?;
+    let (w, h) = (test.width() as usize, test.height() as usize);
+    let win = 2 * SSIM_RADIUS + 1;
+    if w < win || h < win {
+        return Err(MetricError::TooSmall(
+            test.width(),
+            test.height(),
+            "SSIM needs at least 11x11",
+        ));
+    }
+    let g = gaussian_window();
+    let (c1, c2) = ((0.01f64).powi(2), (0.03f64).powi(2));
+    let (ow, oh) = (w - win + 1, h - win + 1);
+    let mut total = 0.0;
+    for ch in 0..3 {
+        // Five fields: x, y, x², y², xy; filtered horizontally then vertically ("valid").
+        let field = |i: usize, k: usize| -> f64 {
+            let x = f64::from(test.pixels()[i][ch]);
+            let y = f64::from(reference.pixels()[i][ch]);
+            [x, y, x * x, y * y, x * y][k]
+        };
+        let mut horiz = vec![[0.0f64; 5]; ow * h];
+        for row in 0..h {
+            for col in 0..ow {
+                let mut acc = [0.0; 5];
+                for (t, wt) in g.iter().enumerate() {
+                    let i = row * w + col + t;
+                    for (k, a) in acc.iter_mut().enumerate() {
+                        *a += wt * field(i, k);
+                    }
+                }
+                horiz[row * ow + col] = acc;
+            }
+        }
+        let mut sum = 0.0;
+        for row in 0..oh {
+            for col in 0..ow {
+                let mut m = [0.0; 5];
+                for (t, wt) in g.iter().enumerate() {
+                    let src = &horiz[(row + t) * ow + col];
+                    for k in 0..5 {
+                        m[k] += wt * src[k];
+                    }
+                }
+                let [ux, uy, xx, yy, xy] = m;
+                let (vx, vy, vxy) = (xx - ux * ux, yy - uy * uy, xy - ux * uy);
+                sum += ((2.0 * ux * uy + c1) * (2.0 * vxy + c2))
+                    / ((ux * ux + uy * uy + c1) * (vx + vy + c2));
+            }
+        }
+        total += sum / (ow * oh) as f64;
+    }
+    Ok(total / 3.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The fixed test images; the same formulas are in the Python snippet below.
+    fn pattern(w: u32, h: u32, phase: f64) -> Image {
+        let mut px = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let (xf, yf) = (f64::from(x), f64::from(y));
+                let r = 0.5 + 0.5 * (0.3 * xf + phase).sin();
+                let g = 0.5 + 0.5 * (0.2 * yf - 0.5 * phase).cos();
+                let b = ((xf * yf + 10.0 * phase) % 17.0) / 17.0;
+                px.push([r as f32, g as f32, b as f32]);
+            }
+        }
+        Image::from_pixels(w, h, px).unwrap()
+    }
+
+    // Reference values from scikit-image 0.26.0 / numpy 2.4.6 with the same images built
+    // from the f32-rounded formulas in `pattern`:
+    //
+    //   import numpy as np; from skimage.metrics import peak_signal_noise_ratio as P, structural_similarity as S
+    //   def pat(w,h,ph):
+    //     y,x = np.mgrid[0:h,0:w].astype(np.float64)
+    //     return np.stack([0.5+0.5*np.sin(0.3*x+ph), 0.5+0.5*np.cos(0.2*y-0.5*ph),
+    //                      np.fmod(x*y+10*ph,17)/17], -1).astype(np.float32).astype(np.float64)
+    //   a, b = pat(40,32,0.0), pat(40,32,0.4)
+    //   P(b, a, data_range=1)
+    //   S(a, b, channel_axis=2, data_range=1, gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
+    const SKIMAGE_PSNR: f64 = 11.926436420440394;
+    const SKIMAGE_SSIM: f64 = 0.5495817299957163;
+
+    #[test]
+    fn agrees_with_scikit_image() {
+        let (a, b) = (pattern(40, 32, 0.0), pattern(40, 32, 0.4));
+        let p = psnr(&b, &a).unwrap();
+        let s = ssim(&a, &b).unwrap();
+        assert!((p - SKIMAGE_PSNR).abs() < 1e-6, "psnr {p}");
+        assert!((s - SKIMAGE_SSIM).abs() < 1e-6, "ssim {s}");
+    }
+
+    #[test]
+    fn identical_images_give_inf_and_one() {
+        let a = pattern(16, 12, 1.0);
+        assert_eq!(psnr(&a, &a).unwrap(), f64::INFINITY);
+        assert!((ssim(&a, &a).unwrap() - 1.0).abs() < 1e-12);
+        let black = Image::new(16, 12);
+        assert!((ssim(&black, &black).unwrap() - 1.0).abs() < 1e-12);
+        assert_eq!(pooled_psnr(&[0.0, 0.0]), f64::INFINITY);
+    }
+
+    #[test]
+    fn pooled_is_psnr_of_mean_mse() {
+        let q = pooled_psnr(&[1e-4, 1e-2]);
+        assert!((q - psnr_from_mse(0.00505)).abs() < 1e-12);
+        // Black vs white: MSE 1, PSNR 0.
+        let mut white = Image::new(4, 4);
+        white.pixels_mut().iter_mut().for_each(|p| *p = [1.0; 3]);
+        assert_eq!(psnr(&Image::new(4, 4), &white).unwrap(), 0.0);
+    }
+
+    #[test]
+    fn errors_on_bad_sizes() {
+        assert!(matches!(
+            psnr(&Image::new(2, 2), &Image::new(2, 3)),
+            Err(MetricError::SizeMismatch(..))
+        ));
+        assert!(matches!(
+            ssim(&Image::new(10, 20), &Image::new(10, 20)),
+            Err(MetricError::TooSmall(..))
+        ));
+        assert!(psnr(&Image::new(0, 0), &Image::new(0, 0)).is_err());
+    }
+}

@@ -1,0 +1,546 @@
+//! The VDI file format: versioned, compressed, checksummed, validated on decode.
+//!
+//! ```text
+//! offset  size  field
+//!  0       8    magic  89 'V' 'D' 'I' 0D 0A 1A 0A
+//!  8       2    format version (u16 LE) = 1
+//! 10       1    codec: 0 none, 1 bzip2, 2 zstd
+//! 11       1    reserved = 0
+//! 12       8    payload length after decompression (u64 LE)
+//! 20       8    body length (u64 LE) = file length − 32
+//! 28       4    CRC-32 of bytes 0..28 and the body
+//! 32       …    body: the payload compressed with the codec
+//! ```
+//!
+//! The payload (all little-endian): `r` u32, γ f32, step f32, termination f32, shaded u8;
+//! camera eye, target, up (3 × f32 each), fov_y_deg f32; volume box min, max (3 × f32 each);
+//! TF hash u64, TF name length u16 and UTF-8 bytes; supersegment count `n` u64; `r²` per-pixel
+//! counts (u32, row-major from the top); then six planes of `n` f32: `z_start`, `z_end`, red,
+//! green, blue, `â`. Planes compress better than interleaved records.
+//!
+//! σ (Sec. 5.3) is the length of the whole file. Decoding checks the header, the checksum,
+//! that the claimed size is under [`DecodeLimits`] before anything is allocated for it, that
+//! counts agree with lengths, and that every number is finite and in range, so a decoded
+//! [`Vdi`] is safe to render.
+
+use super::{Supersegment, Vdi, VdiMeta, VdiParams, MAX_RESOLUTION};
+use crate::camera::Camera;
+use crate::volume::Aabb;
+use glam::Vec3;
+use std::io::Read;
+
+/// File magic.
+pub const MAGIC: [u8; 8] = [0x89, b'V', b'D', b'I', 0x0d, 0x0a, 0x1a, 0x0a];
+/// Current format version.
+pub const FORMAT_VERSION: u16 = 1;
+const HEADER_LEN: usize = 32;
+const MAX_TF_NAME: usize = 1024;
+
+/// Compression applied to the payload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Codec {
+    /// Stored as is.
+    None,
+    /// bzip2, block size 900k: the paper's σ (Sec. 5.3).
+    Bzip2,
+    /// zstd, level 3: much faster, similar ratio on float planes.
+    Zstd,
+}
+
+impl Codec {
+    /// All codecs.
+    pub const ALL: [Codec; 3] = [Codec::None, Codec::Bzip2, Codec::Zstd];
+
+    fn id(self) -> u8 {
+        match self {
+            Self::None => 0,
+            Self::Bzip2 => 1,
+            Self::Zstd => 2,
+        }
+    }
+
+    fn from_id(id: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.id() == id)
+    }
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Bzip2 => "bzip2",
+            Self::Zstd => "zstd",
+        }
+    }
+}
+
+impl std::fmt::Display for Codec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Codec {
+    type Err = CodecError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|c| c.name() == s.to_ascii_lowercase())
+            .ok_or_else(|| CodecError::UnknownCodecName(s.to_owned()))
+    }
+}
+
+/// Bounds applied while decoding untrusted bytes.
+#[derive(Clone, Copy, Debug)]
+pub struct DecodeLimits {
+    /// Largest accepted payload after decompression, bytes.
+    pub max_payload_bytes: u64,
+}
+
+impl Default for DecodeLimits {
+    /// 4 GiB: a 16384² VDI with ~40 supersegments per pixel.
+    fn default() -> Self {
+        Self {
+            max_payload_bytes: 4 << 30,
+        }
+    }
+}
+
+/// Why bytes are not a valid VDI file.
+#[derive(Debug, thiserror::Error)]
+pub enum CodecError {
+    /// Fewer bytes than a field needs.
+    #[error("VDI data truncated: {what} needs {needed} bytes, {available} left")]
+    Truncated {
+        /// The field being read.
+        what: &'static str,
+        /// Bytes needed.
+        needed: u64,
+        /// Bytes left.
+        available: u64,
+    },
+    /// Not a VDI file.
+    #[error("not a VDI file (bad magic)")]
+    BadMagic,
+    /// A version this build does not read.
+    #[error("VDI format version {0} is not supported (this build reads version {FORMAT_VERSION})")]
+    UnsupportedVersion(u16),
+    /// Unknown codec byte.
+    #[error("unknown VDI codec id {0}")]
+    UnknownCodec(u8),
+    /// Unknown codec name (CLI, config).
+    #[error("unknown codec {0:?} (expected none, bzip2 or zstd)")]
+    UnknownCodecName(String),
+    /// Claimed size over the limit.
+    #[error("VDI payload of {claimed} bytes exceeds the limit of {limit} bytes")]
+    TooLarge {
+        /// Claimed payload length.
+        claimed: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// Checksum mismatch: the bytes were altered.
+    #[error("VDI checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupt")]
+    Checksum {
+        /// Stored CRC.
+        stored: u32,
+        /// Computed CRC.
+        computed: u32,
+    },
+    /// The decompressor failed.
+    #[error("VDI body does not decompress with {codec}: {source}")]
+    Decompress {
+        /// Codec used.
+        codec: Codec,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Compression failed (I/O inside the encoder).
+    #[error("VDI compression with {codec} failed: {source}")]
+    Compress {
+        /// Codec used.
+        codec: Codec,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A field is out of range or inconsistent with another.
+    #[error("invalid VDI: {0}")]
+    Invalid(String),
+}
+
+/// Serialises and compresses `vdi` with `codec`; the result's length is σ.
+///
+/// # Errors
+/// [`CodecError::Compress`] if the compressor fails.
+pub fn encode(vdi: &Vdi, codec: Codec) -> Result<Vec<u8>, CodecError> {
+    let payload = payload(vdi);
+    let body = match codec {
+        Codec::None => payload.clone(),
+        Codec::Bzip2 => {
+            let mut out = Vec::new();
+            let mut enc = bzip2::read::BzEncoder::new(&payload[..], bzip2::Compression::best());
+            enc.read_to_end(&mut out)
+                .map_err(|source| CodecError::Compress { codec, source })?;
+            out
+        }
+        Codec::Zstd => zstd::stream::encode_all(&payload[..], 3)
+            .map_err(|source| CodecError::Compress { codec, source })?,
+    };
+    let mut out = Vec::with_capacity(HEADER_LEN + body.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.push(codec.id());
+    out.push(0);
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    let crc = checksum(&out, &body);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out.extend_from_slice(&body);
+    Ok(out)
+}
+
+fn checksum(header: &[u8], body: &[u8]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(header);
+    h.update(body);
+    h.finalize()
+}
+
+fn payload(vdi: &Vdi) -> Vec<u8> {
+    let m = vdi.meta();
+    let segs = vdi.supersegments();
+    let r = vdi.resolution() as usize;
+    let name = truncate_utf8(&m.tf_name, MAX_TF_NAME);
+    let mut out = Vec::with_capacity(128 + name.len() + 4 * r * r + 24 * segs.len());
+    let f = |out: &mut Vec<u8>, v: f32| out.extend_from_slice(&v.to_le_bytes());
+    out.extend_from_slice(&m.params.resolution.to_le_bytes());
+    f(&mut out, m.params.gamma);
+    f(&mut out, m.step);
+    f(&mut out, m.termination);
+    out.push(u8::from(m.shaded));
+    for v in [m.camera.eye, m.camera.target, m.camera.up] {
+        v.to_array().into_iter().for_each(|c| f(&mut out, c));
+    }
+    f(&mut out, m.camera.fov_y_deg);
+    for v in [m.volume_box.min, m.volume_box.max] {
+        v.to_array().into_iter().for_each(|c| f(&mut out, c));
+    }
+    out.extend_from_slice(&m.tf_hash.to_le_bytes());
+    out.extend_from_slice(&(name.len() as u16).to_le_bytes());
+    out.extend_from_slice(name.as_bytes());
+    out.extend_from_slice(&(segs.len() as u64).to_le_bytes());
+    for w in vdi.offsets().windows(2) {
+        out.extend_from_slice(&(w[1] - w[0]).to_le_bytes());
+    }
+    let planes: [fn(&Supersegment) -> f32; 6] = [
+        |s| s.z_start,
+        |s| s.z_end,
+        |s| s.color[0],
+        |s| s.color[1],
+        |s| s.color[2],
+        |s| s.alpha,
+    ];
+    for get in planes {
+        segs.iter().for_each(|s| f(&mut out, get(s)));
+    }
+    out
+}
+
+fn truncate_utf8(s: &str, max: usize) -> &str {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
+}
+
+/// Decodes and validates a VDI file.
+///
+/// # Errors
+/// Any [`CodecError`]: wrong magic or version, unknown codec, a claimed size over `limits`,
+/// checksum mismatch, a body that does not decompress to exactly the claimed length, counts
+/// that disagree with lengths, a non-finite number, a depth range or colour out of range, or
+/// lists that are not depth-sorted.
+pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<Vdi, CodecError> {
+    let mut hdr = Reader::new(bytes);
+    if hdr.take(8, "magic")? != MAGIC {
+        return Err(CodecError::BadMagic);
+    }
+    let version = hdr.u16("version")?;
+    if version != FORMAT_VERSION {
+        return Err(CodecError::UnsupportedVersion(version));
+    }
+    let codec_id = hdr.u8("codec")?;
+    let codec = Codec::from_id(codec_id).ok_or(CodecError::UnknownCodec(codec_id))?;
+    if hdr.u8("reserved")? != 0 {
+        return Err(CodecError::Invalid("reserved header byte is not 0".into()));
+    }
+    let payload_len = hdr.u64("payload length")?;
+    let body_len = hdr.u64("body length")?;
+    let stored = hdr.u32("checksum")?;
+    let body = hdr.rest();
+    if body_len != body.len() as u64 {
+        return Err(CodecError::Invalid(format!(
+            "header says the body has {body_len} bytes, the file holds {}",
+            body.len()
+        )));
+    }
+    if payload_len > limits.max_payload_bytes {
+        return Err(CodecError::TooLarge {
+            claimed: payload_len,
+            limit: limits.max_payload_bytes,
+        });
+    }
+    let computed = checksum(&bytes[..28], body);
+    if computed != stored {
+        return Err(CodecError::Checksum { stored, computed });
+    }
+    let payload = decompress(codec, body, payload_len)?;
+    parse_payload(&payload)
+}
+
+/// Decompresses at most `expected + 1` bytes, growing the buffer only as data arrives.
+fn decompress(codec: Codec, body: &[u8], expected: u64) -> Result<Vec<u8>, CodecError> {
+    let err = |source| CodecError::Decompress { codec, source };
+    let mut out = Vec::with_capacity(expected.min(1 << 20) as usize);
+    match codec {
+        Codec::None => out.extend_from_slice(body),
+        Codec::Bzip2 => {
+            bzip2::read::BzDecoder::new(body)
+                .take(expected + 1)
+                .read_to_end(&mut out)
+                .map_err(err)?;
+        }
+        Codec::Zstd => {
+            zstd::stream::read::Decoder::new(body)
+                .map_err(err)?
+                .take(expected + 1)
+                .read_to_end(&mut out)
+                .map_err(err)?;
+        }
+    }
+    if out.len() as u64 != expected {
+        return Err(CodecError::Invalid(format!(
+            "body decompresses to {}{} bytes, header says {expected}",
+            out.len(),
+            if out.len() as u64 > expected { "+" } else { "" }
+        )));
+    }
+    Ok(out)
+}
+
+fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
+    let mut rd = Reader::new(p);
+    let resolution = rd.u32("r")?;
+    if !(1..=MAX_RESOLUTION).contains(&resolution) {
+        return Err(CodecError::Invalid(format!(
+            "r = {resolution} outside 1..={MAX_RESOLUTION}"
+        )));
+    }
+    let gamma = rd.finite("gamma")?;
+    let step = rd.finite("step")?;
+    let termination = rd.finite("termination")?;
+    if gamma < 0.0 || step <= 0.0 || !(termination > 0.0 && termination <= 1.0) {
+        return Err(CodecError::Invalid(format!(
+            "gamma {gamma}, step {step} or termination {termination} out of range"
+        )));
+    }
+    let shaded = match rd.u8("shaded")? {
+        0 => false,
+        1 => true,
+        v => {
+            return Err(CodecError::Invalid(format!(
+                "shaded flag {v} is not 0 or 1"
+            )))
+        }
+    };
+    let camera = Camera {
+        eye: rd.vec3("camera eye")?,
+        target: rd.vec3("camera target")?,
+        up: rd.vec3("camera up")?,
+        fov_y_deg: rd.finite("camera fov")?,
+    };
+    if !camera.is_valid() {
+        return Err(CodecError::Invalid(format!("degenerate camera {camera:?}")));
+    }
+    let volume_box = Aabb {
+        min: rd.vec3("box min")?,
+        max: rd.vec3("box max")?,
+    };
+    if !volume_box.min.cmple(volume_box.max).all() {
+        return Err(CodecError::Invalid(format!(
+            "volume box {volume_box:?} is inverted"
+        )));
+    }
+    let tf_hash = rd.u64("tf hash")?;
+    let name_len = rd.u16("tf name length")? as usize;
+    if name_len > MAX_TF_NAME {
+        return Err(CodecError::Invalid(format!("tf name of {name_len} bytes")));
+    }
+    let tf_name = std::str::from_utf8(rd.take(name_len, "tf name")?)
+        .map_err(|_| CodecError::Invalid("tf name is not UTF-8".into()))?
+        .to_owned();
+    let n = rd.u64("supersegment count")?;
+    let pixels = resolution as u64 * resolution as u64;
+    // Lengths first: nothing is allocated for a count the bytes cannot hold.
+    let needed = (pixels * 4).saturating_add(n.saturating_mul(24));
+    if needed != rd.remaining() as u64 {
+        return Err(CodecError::Invalid(format!(
+            "{pixels} counts and {n} supersegments need {needed} bytes, payload has {} left",
+            rd.remaining()
+        )));
+    }
+    let n = n as usize;
+    let counts = rd.take(pixels as usize * 4, "counts")?;
+    let mut offsets = Vec::with_capacity(pixels as usize + 1);
+    offsets.push(0u32);
+    let mut total = 0u64;
+    for c in counts.chunks_exact(4) {
+        total += u64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+        if total > n as u64 {
+            return Err(CodecError::Invalid(format!(
+                "pixel counts exceed the {n} supersegments"
+            )));
+        }
+        offsets.push(total as u32);
+    }
+    if total != n as u64 {
+        return Err(CodecError::Invalid(format!(
+            "pixel counts add up to {total}, header says {n} supersegments"
+        )));
+    }
+    let mut planes = [(); 6].map(|_| Vec::new());
+    for (k, plane) in planes.iter_mut().enumerate() {
+        *plane = rd
+            .take(n * 4, "supersegment plane")?
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        if let Some(i) = plane.iter().position(|v| !v.is_finite()) {
+            return Err(CodecError::Invalid(format!(
+                "supersegment {i}: field {k} is not finite"
+            )));
+        }
+    }
+    let [zs, ze, cr, cg, cb, ca] = planes;
+    let mut segs = Vec::with_capacity(n);
+    for i in 0..n {
+        let s = Supersegment {
+            z_start: zs[i],
+            z_end: ze[i],
+            color: [cr[i], cg[i], cb[i]],
+            alpha: ca[i],
+        };
+        if !(s.z_start >= 0.0 && s.z_start <= s.z_end) {
+            return Err(CodecError::Invalid(format!(
+                "supersegment {i}: depth range [{}, {}] is not 0 <= start <= end",
+                s.z_start, s.z_end
+            )));
+        }
+        if s.color
+            .iter()
+            .chain([&s.alpha])
+            .any(|v| !(0.0..=1.0).contains(v))
+        {
+            return Err(CodecError::Invalid(format!(
+                "supersegment {i}: colour {:?} or opacity {} outside [0, 1]",
+                s.color, s.alpha
+            )));
+        }
+        segs.push(s);
+    }
+    for w in offsets.windows(2) {
+        let list = &segs[w[0] as usize..w[1] as usize];
+        if list.windows(2).any(|p| p[1].z_start < p[0].z_end) {
+            return Err(CodecError::Invalid(format!(
+                "supersegments {}..{} are not depth-sorted without overlap",
+                w[0], w[1]
+            )));
+        }
+    }
+    let meta = VdiMeta {
+        camera,
+        params: VdiParams { resolution, gamma },
+        step,
+        termination,
+        shaded,
+        volume_box,
+        tf_hash,
+        tf_name,
+    };
+    Vdi::from_parts(meta, offsets, segs)
+        .ok_or_else(|| CodecError::Invalid("offsets do not match the lists".into()))
+}
+
+/// Bounds-checked little-endian reader.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn new(bytes: &'a [u8]) -> Self {
+        Self { bytes, pos: 0 }
+    }
+
+    fn remaining(&self) -> usize {
+        self.bytes.len() - self.pos
+    }
+
+    fn rest(&mut self) -> &'a [u8] {
+        let rest = &self.bytes[self.pos..];
+        self.pos = self.bytes.len();
+        rest
+    }
+
+    fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
+        if n > self.remaining() {
+            return Err(CodecError::Truncated {
+                what,
+                needed: n as u64,
+                available: self.remaining() as u64,
+            });
+        }
+        let out = &self.bytes[self.pos..self.pos + n];
+        self.pos += n;
+        Ok(out)
+    }
+
+    fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], CodecError> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N, what)?);
+        Ok(a)
+    }
+
+    fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
+        Ok(self.array::<1>(what)?[0])
+    }
+
+    fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
+        Ok(u16::from_le_bytes(self.array(what)?))
+    }
+
+    fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
+        Ok(u32::from_le_bytes(self.array(what)?))
+    }
+
+    fn u64(&mut self, what: &'static str) -> Result<u64, CodecError> {
+        Ok(u64::from_le_bytes(self.array(what)?))
+    }
+
+    fn finite(&mut self, what: &'static str) -> Result<f32, CodecError> {
+        let v = f32::from_le_bytes(self.array(what)?);
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(CodecError::Invalid(format!("{what} is {v}")))
+        }
+    }
+
+    fn vec3(&mut self, what: &'static str) -> Result<Vec3, CodecError> {
+        Ok(Vec3::new(
+            self.finite(what)?,
+            self.finite(what)?,
+            self.finite(what)?,
+        ))
+    }
+}

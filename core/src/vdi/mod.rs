@@ -1,0 +1,163 @@
+//! Volumetric Depth Images (Sec. 3.2, Fig. 2; DESIGN.md, "VDI").
+//!
+//! A [`Vdi`] holds, for an `r × r` grid of rays from the generation camera, a depth-ordered
+//! list of [`Supersegment`]s per pixel, laid out as prefix offsets (`r² + 1` entries) into
+//! one flat array: cheap to build, to traverse and to serialise.
+//!
+//! - [`generate`]: `R(S_A, P_A, P_M) → M`, the merge of ray samples into supersegments.
+//! - [`render`]: `I(M, P_I) → O`, compositing the frusta along rays of a new camera.
+//! - [`codec`]: the versioned, compressed, validated file format whose size is σ.
+
+pub mod codec;
+pub mod generate;
+pub mod render;
+
+use crate::camera::Camera;
+use crate::volume::Aabb;
+
+/// One supersegment: a frustum of a pixel's pyramid with constant colour and opacity.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
+pub struct Supersegment {
+    /// Eye-space depth (along the generation camera's view direction) where it starts.
+    pub z_start: f32,
+    /// Eye-space depth where it ends (`> z_start`).
+    pub z_end: f32,
+    /// Colour `ĉ`: accumulated premultiplied colour over accumulated opacity, in [0, 1].
+    pub color: [f32; 3],
+    /// Opacity per unit length `â = 1 − (1 − A)^(1/L)`, `L` its world length on the
+    /// generating ray, in [0, 1].
+    pub alpha: f32,
+}
+
+/// Generation parameters `P_M = (r, γ)` (Sec. 5.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VdiParams {
+    /// Resolution: `r × r` rays.
+    pub resolution: u32,
+    /// Interrupt threshold γ on `‖â·ĉ − a·c‖₂`.
+    pub gamma: f32,
+}
+
+/// Largest accepted resolution `r`.
+pub const MAX_RESOLUTION: u32 = 16384;
+
+/// Errors for VDI parameters.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum VdiParamError {
+    /// r outside 1..=16384.
+    #[error("VDI resolution r = {0} must be in 1..={MAX_RESOLUTION}")]
+    Resolution(u32),
+    /// γ negative or not finite.
+    #[error("interrupt threshold gamma = {0} must be finite and >= 0")]
+    Gamma(f32),
+    /// The generation camera is degenerate.
+    #[error("generation camera is degenerate: {0:?}")]
+    Camera(Camera),
+}
+
+impl VdiParams {
+    /// Checks ranges.
+    ///
+    /// # Errors
+    /// [`VdiParamError`] naming the bad value.
+    pub fn validate(&self) -> Result<(), VdiParamError> {
+        if !(1..=MAX_RESOLUTION).contains(&self.resolution) {
+            return Err(VdiParamError::Resolution(self.resolution));
+        }
+        if !(self.gamma.is_finite() && self.gamma >= 0.0) {
+            return Err(VdiParamError::Gamma(self.gamma));
+        }
+        Ok(())
+    }
+}
+
+/// What a VDI was made from: enough to tell whether two VDIs are comparable.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VdiMeta {
+    /// Generation camera (square `r × r` image).
+    pub camera: Camera,
+    /// `P_M`.
+    pub params: VdiParams,
+    /// Ray-casting step used, world units.
+    pub step: f32,
+    /// Early-termination threshold used.
+    pub termination: f32,
+    /// Whether samples were shaded.
+    pub shaded: bool,
+    /// The volume's world box.
+    pub volume_box: Aabb,
+    /// [`crate::tf::TransferFunction::identity_hash`] of the transfer function.
+    pub tf_hash: u64,
+    /// Human-readable transfer-function name (e.g. its file name), at most 1024 bytes.
+    pub tf_name: String,
+}
+
+/// A Volumetric Depth Image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Vdi {
+    meta: VdiMeta,
+    offsets: Vec<u32>,
+    supersegments: Vec<Supersegment>,
+}
+
+impl Vdi {
+    /// Assembles a VDI from its parts. `offsets` has `r² + 1` non-decreasing entries starting
+    /// at 0 and ending at `supersegments.len()`; pixel `(i, j)` (row `j` from the top) owns
+    /// `supersegments[offsets[i + r·j] .. offsets[i + r·j + 1]]`.
+    ///
+    /// Returns `None` when the offsets do not fit that shape.
+    pub fn from_parts(
+        meta: VdiMeta,
+        offsets: Vec<u32>,
+        supersegments: Vec<Supersegment>,
+    ) -> Option<Self> {
+        let r = meta.params.resolution as usize;
+        let ok = offsets.len() == r * r + 1
+            && offsets.first() == Some(&0)
+            && offsets.last().map(|&l| l as usize) == Some(supersegments.len())
+            && offsets.windows(2).all(|w| w[0] <= w[1]);
+        ok.then_some(Self {
+            meta,
+            offsets,
+            supersegments,
+        })
+    }
+
+    /// Generation metadata.
+    pub fn meta(&self) -> &VdiMeta {
+        &self.meta
+    }
+
+    /// Resolution `r`.
+    pub fn resolution(&self) -> u32 {
+        self.meta.params.resolution
+    }
+
+    /// Prefix offsets, `r² + 1` entries.
+    pub fn offsets(&self) -> &[u32] {
+        &self.offsets
+    }
+
+    /// All supersegments, pixel after pixel.
+    pub fn supersegments(&self) -> &[Supersegment] {
+        &self.supersegments
+    }
+
+    /// The depth-ordered list of pixel `(i, j)`.
+    #[inline]
+    pub fn pixel(&self, i: u32, j: u32) -> &[Supersegment] {
+        let p = i as usize + self.resolution() as usize * j as usize;
+        &self.supersegments[self.offsets[p] as usize..self.offsets[p + 1] as usize]
+    }
+
+    /// Supersegment count of pixel index `p = i + r·j`.
+    pub fn count(&self, p: usize) -> u32 {
+        self.offsets[p + 1] - self.offsets[p]
+    }
+
+    /// Bytes held in memory by the lists (what the renderer reads).
+    pub fn memory_bytes(&self) -> usize {
+        self.offsets.len() * 4 + self.supersegments.len() * std::mem::size_of::<Supersegment>()
+    }
+}

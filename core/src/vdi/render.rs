@@ -1,0 +1,270 @@
+//! VDI rendering `I(M, P_I) → O` from any camera (Sec. 3.2, Fig. 2b; DESIGN.md, "Rendering a
+//! VDI from a new camera").
+//!
+//! A ray of the new camera is clipped to the volume box and to the generation camera's
+//! frustum. Its projection into the generation image is a line segment, walked pixel by pixel
+//! with a 2D DDA (Amanatides–Woo, with crossing parameters solved on the projective line), so
+//! pixels come in ray order. In each pixel the ray spans a depth interval; the supersegments
+//! of that pixel's depth-sorted list that overlap it are found by binary search and
+//! composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
+//! the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
+//! generation view direction (constant depth) take the one supersegment that contains them.
+
+use super::{Supersegment, Vdi};
+use crate::camera::{Camera, Ray, ViewFrame};
+use crate::dvr::render_tiles;
+use crate::image::Image;
+use glam::Vec3;
+
+/// Renders `vdi` seen by `camera` at `width × height`, stopping each ray once its accumulated
+/// opacity reaches `termination` (in (0, 1]); background black.
+pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
+    let frame = camera.frame(width, height);
+    let walker = Walker::new(vdi, termination);
+    render_tiles(&frame, |i, j| walker.integrate(&frame.pixel_ray(i, j)))
+}
+
+/// Per-VDI constants of the walk.
+struct Walker<'a> {
+    vdi: &'a Vdi,
+    gen: ViewFrame,
+    r: i64,
+    termination: f32,
+}
+
+/// A linear function `f0 + f1·t` of the ray parameter.
+#[derive(Clone, Copy)]
+struct Lin {
+    f0: f32,
+    f1: f32,
+}
+
+impl Lin {
+    #[inline]
+    fn at(self, t: f32) -> f32 {
+        self.f0 + self.f1 * t
+    }
+}
+
+impl<'a> Walker<'a> {
+    fn new(vdi: &'a Vdi, termination: f32) -> Self {
+        let r = vdi.resolution();
+        Self {
+            vdi,
+            gen: vdi.meta().camera.frame(r, r),
+            r: i64::from(r),
+            termination,
+        }
+    }
+
+    /// Composited colour along `ray`.
+    fn integrate(&self, ray: &Ray) -> [f32; 3] {
+        let mut acc = Accum {
+            color: [0.0; 3],
+            transmittance: 1.0,
+            threshold: 1.0 - self.termination,
+        };
+        self.walk(ray, &mut acc);
+        acc.color.map(|c| c.clamp(0.0, 1.0))
+    }
+
+    fn walk(&self, ray: &Ray, acc: &mut Accum) {
+        let g = &self.gen;
+        let (mut t0, mut t1) = self
+            .vdi
+            .meta()
+            .volume_box
+            .intersect(ray.origin, ray.dir.recip());
+        t0 = t0.max(0.0);
+        // Eye-space coordinates of the ray in the generation camera, linear in t.
+        let e0 = g.to_eye(ray.origin);
+        let e1 = Vec3::new(
+            ray.dir.dot(g.right),
+            ray.dir.dot(g.up),
+            ray.dir.dot(g.forward),
+        );
+        let x = Lin { f0: e0.x, f1: e1.x };
+        let y = Lin { f0: e0.y, f1: e1.y };
+        let z = Lin { f0: e0.z, f1: e1.z };
+        let (tx, ty) = (g.tan_half_x, g.tan_half_y);
+        // Frustum: |x| ≤ tx·z, |y| ≤ ty·z, z > 0.
+        let planes = [
+            Lin {
+                f0: tx * z.f0 - x.f0,
+                f1: tx * z.f1 - x.f1,
+            },
+            Lin {
+                f0: tx * z.f0 + x.f0,
+                f1: tx * z.f1 + x.f1,
+            },
+            Lin {
+                f0: ty * z.f0 - y.f0,
+                f1: ty * z.f1 - y.f1,
+            },
+            Lin {
+                f0: ty * z.f0 + y.f0,
+                f1: ty * z.f1 + y.f1,
+            },
+            Lin {
+                f0: z.f0 - 1e-6,
+                f1: z.f1,
+            },
+        ];
+        for p in planes {
+            if p.f1 > 0.0 {
+                t0 = t0.max(-p.f0 / p.f1);
+            } else if p.f1 < 0.0 {
+                t1 = t1.min(-p.f0 / p.f1);
+            } else if p.f0 < 0.0 {
+                return;
+            }
+        }
+        if !(t1 > t0) {
+            return;
+        }
+        let r = self.r as f32;
+        // Pixel coordinates: px = (x/(z·tx) + 1)·r/2, py = (1 − y/(z·ty))·r/2.
+        let px = |t: f32| (x.at(t) / (z.at(t) * tx) + 1.0) * 0.5 * r;
+        let py = |t: f32| (1.0 - y.at(t) / (z.at(t) * ty)) * 0.5 * r;
+        let (px0, py0, px1, py1) = (px(t0), py(t0), px(t1), py(t1));
+        let step_x: i64 = if px1 > px0 {
+            1
+        } else if px1 < px0 {
+            -1
+        } else {
+            0
+        };
+        let step_y: i64 = if py1 > py0 {
+            1
+        } else if py1 < py0 {
+            -1
+        } else {
+            0
+        };
+        let start_cell = |p: f32, step: i64| -> i64 {
+            let c = if step < 0 {
+                p.ceil() as i64 - 1
+            } else {
+                p.floor() as i64
+            };
+            c.clamp(0, self.r - 1)
+        };
+        let mut ix = start_cell(px0, step_x);
+        let mut iy = start_cell(py0, step_y);
+        // Ray parameter where px (or py) reaches pixel boundary `b`.
+        let cross_x = |b: i64| {
+            let s = (2.0 * b as f32 / r - 1.0) * tx;
+            (s * z.f0 - x.f0) / (x.f1 - s * z.f1)
+        };
+        let cross_y = |b: i64| {
+            let s = (1.0 - 2.0 * b as f32 / r) * ty;
+            (s * z.f0 - y.f0) / (y.f1 - s * z.f1)
+        };
+        let mut t = t0;
+        for _ in 0..(2 * self.r + 4) {
+            let tnx = if step_x == 0 {
+                f32::INFINITY
+            } else {
+                cross_x(ix + i64::from(step_x > 0))
+            };
+            let tny = if step_y == 0 {
+                f32::INFINITY
+            } else {
+                cross_y(iy + i64::from(step_y > 0))
+            };
+            // Crossings behind t (rounding) count as immediate; NaN never wins.
+            let tnx = if tnx.is_nan() {
+                f32::INFINITY
+            } else {
+                tnx.max(t)
+            };
+            let tny = if tny.is_nan() {
+                f32::INFINITY
+            } else {
+                tny.max(t)
+            };
+            let t_next = tnx.min(tny).min(t1);
+            if t_next > t {
+                let list = self.vdi.pixel(ix as u32, iy as u32);
+                if !list.is_empty() && composite_span(list, z, t, t_next, acc) {
+                    return;
+                }
+            }
+            if t_next >= t1 {
+                return;
+            }
+            if tnx <= tny {
+                ix += step_x;
+            } else {
+                iy += step_y;
+            }
+            if !(0..self.r).contains(&ix) || !(0..self.r).contains(&iy) {
+                return;
+            }
+            t = t_next;
+        }
+    }
+}
+
+/// Front-to-back accumulator of one ray.
+struct Accum {
+    color: [f32; 3],
+    transmittance: f32,
+    /// Stop once transmittance falls to this.
+    threshold: f32,
+}
+
+impl Accum {
+    /// Adds a frustum passed over world length `len`; returns true when the ray is done.
+    #[inline]
+    fn add(&mut self, s: &Supersegment, len: f32) -> bool {
+        if len > 0.0 && s.alpha > 0.0 {
+            let alpha = 1.0 - (1.0 - s.alpha).powf(len);
+            let w = self.transmittance * alpha;
+            for k in 0..3 {
+                self.color[k] += w * s.color[k];
+            }
+            self.transmittance *= 1.0 - alpha;
+        }
+        self.transmittance <= self.threshold
+    }
+}
+
+/// Composites the supersegments of one pixel list met by the ray over `[ta, tb]`, where the
+/// generation depth is `z(t)`. Returns true when the ray is done.
+#[inline]
+fn composite_span(list: &[Supersegment], z: Lin, ta: f32, tb: f32, acc: &mut Accum) -> bool {
+    let span = tb - ta;
+    let (za, zb) = (z.at(ta), z.at(tb));
+    if z.f1 > 0.0 {
+        let first = list.partition_point(|s| s.z_end <= za);
+        for s in &list[first..] {
+            if s.z_start >= zb {
+                break;
+            }
+            let len = ((s.z_end.min(zb) - s.z_start.max(za)) / z.f1).clamp(0.0, span);
+            if acc.add(s, len) {
+                return true;
+            }
+        }
+    } else if z.f1 < 0.0 {
+        let end = list.partition_point(|s| s.z_start < za);
+        for s in list[..end].iter().rev() {
+            if s.z_end <= zb {
+                break;
+            }
+            let len = ((s.z_end.min(za) - s.z_start.max(zb)) / -z.f1).clamp(0.0, span);
+            if acc.add(s, len) {
+                return true;
+            }
+        }
+    } else {
+        let i = list.partition_point(|s| s.z_end <= za);
+        if let Some(s) = list.get(i) {
+            if s.z_start <= za && acc.add(s, span) {
+                return true;
+            }
+        }
+    }
+    false
+}
