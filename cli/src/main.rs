@@ -1,1 +1,65 @@
-fn main() {}
+//! `insitu`: the command line of the in situ VDI service.
+//!
+//! Subcommands: `render` (reference DVR → PNG), `generate` (VDI → file), `view` (VDI file +
+//! camera → PNG) and `evaluate` (σ, q, τ of one `P_M` at the test views, with a PNG strip).
+
+mod cmd;
+mod output;
+mod progress;
+mod scene;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "insitu",
+    version,
+    about = "Volumetric Depth Images for in situ visualization"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Direct volume rendering of the original data (the reference) to a PNG.
+    Render(cmd::render::Args),
+    /// Generate a VDI for P_M = (r, gamma) and write it compressed; prints sigma and tau.
+    Generate(cmd::generate::Args),
+    /// Render a VDI file from a camera to a PNG.
+    View(cmd::view::Args),
+    /// Generate, compress and render a VDI at the test views; score it against direct renders.
+    Evaluate(cmd::evaluate::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err}");
+            for cause in err.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Render(a) => cmd::render::run(a),
+        Command::Generate(a) => cmd::generate::run(a),
+        Command::View(a) => cmd::view::run(a),
+        Command::Evaluate(a) => cmd::evaluate::run(a),
+    }
+}

@@ -28,6 +28,7 @@
 
 pub mod camera;
 pub mod dvr;
+pub mod evaluate;
 pub mod image;
 pub mod metrics;
 pub mod raycast;

@@ -127,20 +127,19 @@ impl<'a> Walker<'a> {
         let px = |t: f32| (x.at(t) / (z.at(t) * tx) + 1.0) * 0.5 * r;
         let py = |t: f32| (1.0 - y.at(t) / (z.at(t) * ty)) * 0.5 * r;
         let (px0, py0, px1, py1) = (px(t0), py(t0), px(t1), py(t1));
-        let step_x: i64 = if px1 > px0 {
-            1
-        } else if px1 < px0 {
-            -1
-        } else {
-            0
+        // A projection shorter than this (pixels) is a point: the ray passes through the
+        // generation eye, as every ray of the generation view does.
+        const DEGENERATE_PX: f32 = 1e-3;
+        let direction = |d: f32| -> i64 {
+            if d > DEGENERATE_PX {
+                1
+            } else if d < -DEGENERATE_PX {
+                -1
+            } else {
+                0
+            }
         };
-        let step_y: i64 = if py1 > py0 {
-            1
-        } else if py1 < py0 {
-            -1
-        } else {
-            0
-        };
+        let (step_x, step_y) = (direction(px1 - px0), direction(py1 - py0));
         let start_cell = |p: f32, step: i64| -> i64 {
             let c = if step < 0 {
                 p.ceil() as i64 - 1
@@ -172,17 +171,17 @@ impl<'a> Walker<'a> {
             } else {
                 cross_y(iy + i64::from(step_y > 0))
             };
-            // Crossings behind t (rounding) count as immediate; NaN never wins.
-            let tnx = if tnx.is_nan() {
-                f32::INFINITY
-            } else {
-                tnx.max(t)
+            // The projective line can meet a boundary behind the clipped segment (through
+            // z < 0): such solutions before t0 are no crossing. A real crossing lies in
+            // [t0, t1]; one a rounding error behind t counts as immediate. NaN never wins.
+            let guard = |tc: f32| {
+                if tc.is_nan() || tc < t0 {
+                    f32::INFINITY
+                } else {
+                    tc.max(t)
+                }
             };
-            let tny = if tny.is_nan() {
-                f32::INFINITY
-            } else {
-                tny.max(t)
-            };
+            let (tnx, tny) = (guard(tnx), guard(tny));
             let t_next = tnx.min(tny).min(t1);
             if t_next > t {
                 let list = self.vdi.pixel(ix as u32, iy as u32);

@@ -1,0 +1,149 @@
+//! `insitu evaluate`: σ, q and τ of one `P_M` at the test views (Alg. 1, lines 11–18), with
+//! a PNG strip of VDI renders (top) over reference renders (bottom), like the paper's Fig. 3.
+
+use super::{q_json, q_text};
+use crate::output::write_png;
+use crate::progress::bar;
+use crate::scene::SceneArgs;
+use anyhow::{bail, Context, Result};
+use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
+use insitu_core::vdi::VdiParams;
+use insitu_core::{dvr, Image, Raycaster};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// VDI resolution r (r × r rays).
+    #[arg(long, default_value_t = 256)]
+    r: u32,
+    /// Interrupt threshold gamma.
+    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
+    gamma: f32,
+    /// Test view angles about +y, degrees, comma-separated.
+    #[arg(
+        long,
+        default_value = "0,10,20,30,40,50,60",
+        allow_hyphen_values = true
+    )]
+    views: String,
+    /// Output image size `N` (square, the paper's 768²) or `WxH`.
+    #[arg(long, default_value = "768")]
+    size: String,
+    /// Codec for sigma: bzip2 (the paper's), zstd or none.
+    #[arg(long, default_value = "bzip2")]
+    codec: String,
+    /// PNG strip: VDI renders over reference renders.
+    #[arg(long, default_value = "evaluate.png")]
+    out: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_views(s: &str) -> Result<Vec<f32>> {
+    let views: Vec<f32> = s
+        .split(',')
+        .map(|v| v.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--views {s:?} is not a comma-separated list of degrees"))?;
+    if views.is_empty() || views.iter().any(|v| !v.is_finite()) {
+        bail!("--views {s:?} must hold finite angles");
+    }
+    Ok(views)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let (w, h) = super::parse_size(&a.size)?;
+    let codec_kind = super::parse_codec(&a.codec)?;
+    let angles = if a.views.is_empty() {
+        DEFAULT_VIEW_ANGLES.to_vec()
+    } else {
+        parse_views(&a.views)?
+    };
+    let params = VdiParams {
+        resolution: a.r,
+        gamma: a.gamma,
+    };
+    params.validate()?;
+    let scene = a.scene.load()?;
+    let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
+    let camera = SceneArgs::camera(&scene);
+
+    let pb = bar(angles.len() as u64 + 1, "reference renders");
+    let t = Instant::now();
+    let mut references = Vec::with_capacity(angles.len());
+    for &angle in &angles {
+        references.push(dvr::render(&rc, &camera.orbit_y(angle), w, h));
+        pb.inc(1);
+    }
+    let tau_reference = t.elapsed().as_secs_f64() / angles.len() as f64;
+    pb.set_message("VDI generate, compress, render");
+    let (eval, images) = evaluate(
+        &rc,
+        &camera,
+        params,
+        codec_kind,
+        &angles,
+        &references,
+        scene.tf.identity_hash(),
+        &scene.tf_name,
+    )?;
+    pb.finish_and_clear();
+
+    let mut tiles: Vec<&Image> = images.iter().collect();
+    tiles.extend(references.iter());
+    let strip = Image::grid(&tiles, angles.len()).context("cannot assemble the strip")?;
+    write_png(&a.out, &strip)?;
+
+    if a.json {
+        let views: Vec<_> = eval
+            .views
+            .iter()
+            .map(|v| serde_json::json!({"angle_deg": v.angle_deg, "q_db": q_json(v.q_db), "ssim": v.ssim}))
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({
+                "volume": scene.volume_name, "tf": scene.tf_name,
+                "r": a.r, "gamma": a.gamma, "codec": codec_kind.name(),
+                "step": scene.params.step, "size": [w, h],
+                "sigma_bytes": eval.sigma_bytes, "supersegments": eval.supersegments,
+                "tau_s": eval.tau_secs, "tau_compress_s": eval.tau_compress_secs,
+                "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
+                "tau_reference_s": tau_reference,
+                "q_db": q_json(eval.q_db), "views": views, "strip": a.out,
+            })
+        );
+    } else {
+        println!(
+            "{} with {} | r = {}, gamma = {}, step = {}, {}x{}",
+            scene.volume_name, scene.tf_name, a.r, a.gamma, scene.params.step, w, h
+        );
+        println!(
+            "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
+            eval.sigma_bytes,
+            codec_kind,
+            eval.supersegments,
+            eval.supersegments as f64 / (f64::from(a.r) * f64::from(a.r))
+        );
+        println!(
+            "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",
+            eval.tau_secs, eval.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, tau_reference
+        );
+        println!(
+            "q = {} dB (pooled over {} views)",
+            q_text(eval.q_db),
+            angles.len()
+        );
+        println!("{:>8} {:>9} {:>7}", "angle", "q [dB]", "SSIM");
+        for v in &eval.views {
+            let ssim = v.ssim.map_or("-".to_owned(), |s| format!("{s:.4}"));
+            println!("{:>7}° {:>9} {:>7}", v.angle_deg, q_text(v.q_db), ssim);
+        }
+        println!("strip (VDI top, reference bottom) -> {}", a.out.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,49 @@
+//! One module per subcommand.
+
+pub mod evaluate;
+pub mod generate;
+pub mod render;
+pub mod view;
+
+use anyhow::{bail, Result};
+use insitu_core::vdi::codec::Codec;
+
+/// Parses `--size N` or `--size WxH`.
+pub fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let parse = |p: &str| -> Result<u32> {
+        match p.trim().parse::<u32>() {
+            Ok(v) if (1..=16384).contains(&v) => Ok(v),
+            _ => bail!("--size {s:?}: each side must be an integer in 1..=16384"),
+        }
+    };
+    match s.split_once('x') {
+        Some((w, h)) => Ok((parse(w)?, parse(h)?)),
+        None => {
+            let n = parse(s)?;
+            Ok((n, n))
+        }
+    }
+}
+
+/// Parses a codec name.
+pub fn parse_codec(s: &str) -> Result<Codec> {
+    Ok(s.parse::<Codec>()?)
+}
+
+/// q as JSON: a number, or the string "inf" when the images are identical.
+pub fn q_json(q: f64) -> serde_json::Value {
+    if q.is_finite() {
+        serde_json::json!(q)
+    } else {
+        serde_json::json!("inf")
+    }
+}
+
+/// q as text.
+pub fn q_text(q: f64) -> String {
+    if q.is_finite() {
+        format!("{q:.2}")
+    } else {
+        "inf".to_owned()
+    }
+}

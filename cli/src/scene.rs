@@ -1,0 +1,154 @@
+//! Scene flags shared by the subcommands: volume source, transfer function, camera, step.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use insitu_core::raycast::{DEFAULT_STEP, DEFAULT_TERMINATION};
+use insitu_core::volume::{GrayScott, RawFormat, ScalarType};
+use insitu_core::{Camera, RaycastParams, Shading, TransferFunction, Volume};
+use std::path::PathBuf;
+
+/// The embedded default volume source.
+pub const DEFAULT_SOURCE: &str = "gray-scott:64:1000";
+
+/// Where the data comes from and how it is classified and sampled.
+#[derive(Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// Volume: a raw file `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`, or `gray-scott:N[:STEPS]`
+    /// (the built-in simulation). Default: the built-in Gray–Scott run.
+    #[arg(long)]
+    pub volume: Option<String>,
+    /// Dimensions `XxYxZ[xT]` when the file name does not carry them.
+    #[arg(long)]
+    pub dims: Option<String>,
+    /// Voxel type (uint8, uint16, int16, float32, float64) when the file name does not carry it.
+    #[arg(long = "type")]
+    pub scalar_type: Option<String>,
+    /// Time step of a 4-D file.
+    #[arg(long, default_value_t = 0)]
+    pub t: usize,
+    /// Voxel spacing `sx,sy,sz` in world units.
+    #[arg(long, default_value = "1,1,1")]
+    pub spacing: String,
+    /// Transfer function JSON (DESIGN.md format). Default: a ramp over the data range.
+    #[arg(long)]
+    pub tf: Option<PathBuf>,
+    /// Ray-casting step, world units (voxels at spacing 1).
+    #[arg(long, default_value_t = DEFAULT_STEP)]
+    pub step: f32,
+    /// Early ray termination threshold on accumulated opacity, in (0, 1].
+    #[arg(long, default_value_t = DEFAULT_TERMINATION)]
+    pub termination: f32,
+    /// Turn on Blinn–Phong gradient shading (off: emission–absorption only).
+    #[arg(long)]
+    pub shading: bool,
+    /// Turn off empty-space skipping (same image, slower; for measurements).
+    #[arg(long)]
+    pub no_skipping: bool,
+}
+
+/// A loaded scene.
+pub struct Scene {
+    pub volume: Volume,
+    pub tf: TransferFunction,
+    pub tf_name: String,
+    pub volume_name: String,
+    pub params: RaycastParams,
+}
+
+impl SceneArgs {
+    /// Loads the volume and TF and checks the parameters.
+    pub fn load(&self) -> Result<Scene> {
+        let source = self.volume.as_deref().unwrap_or(DEFAULT_SOURCE);
+        let volume = if source.starts_with("gray-scott") {
+            tracing::info!(source, "running the built-in Gray-Scott simulation");
+            GrayScott::from_spec(source)?.v_volume()
+        } else {
+            self.load_raw(source)?
+        };
+        let tf_name;
+        let tf = match &self.tf {
+            Some(path) => {
+                tf_name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                TransferFunction::load(path)?
+            }
+            None => {
+                tf_name = "default-ramp".to_owned();
+                let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
+                TransferFunction::default_for_range(lo, hi)
+            }
+        };
+        let params = RaycastParams {
+            step: self.step,
+            termination: self.termination,
+            shading: self.shading.then(Shading::default),
+            empty_space_skipping: !self.no_skipping,
+        };
+        params.validate()?;
+        Ok(Scene {
+            volume,
+            tf,
+            tf_name,
+            volume_name: source.to_owned(),
+            params,
+        })
+    }
+
+    fn load_raw(&self, source: &str) -> Result<Volume> {
+        let path = PathBuf::from(source);
+        let spacing = parse_spacing(&self.spacing)?;
+        let from_name = || RawFormat::from_file_name(&path);
+        let format = match (&self.dims, &self.scalar_type) {
+            (None, None) => from_name()?,
+            (dims, scalar) => {
+                let (dims, steps) = match dims {
+                    Some(d) => parse_dims(d)?,
+                    None => from_name().map(|f| (f.dims, f.steps))?,
+                };
+                let scalar = match scalar {
+                    Some(t) => t.parse::<ScalarType>()?,
+                    None => from_name()?.scalar,
+                };
+                RawFormat {
+                    dims,
+                    steps,
+                    scalar,
+                }
+            }
+        };
+        Ok(format.load(&path, self.t, spacing)?)
+    }
+
+    /// The generation camera: the default view of the volume box.
+    pub fn camera(scene: &Scene) -> Camera {
+        Camera::default_for_box(&scene.volume.world_box())
+    }
+}
+
+fn parse_dims(s: &str) -> Result<([usize; 3], usize)> {
+    let nums: Vec<usize> = s
+        .split('x')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--dims {s:?} is not XxYxZ[xT]"))?;
+    match nums.as_slice() {
+        [x, y, z] => Ok(([*x, *y, *z], 1)),
+        [x, y, z, t] => Ok(([*x, *y, *z], *t)),
+        _ => bail!("--dims {s:?} is not XxYxZ[xT]"),
+    }
+}
+
+fn parse_spacing(s: &str) -> Result<glam::Vec3> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--spacing {s:?} is not sx,sy,sz"))?;
+    match v.as_slice() {
+        [x, y, z] => Ok(glam::Vec3::new(*x, *y, *z)),
+        [s] => Ok(glam::Vec3::splat(*s)),
+        _ => bail!("--spacing {s:?} is not sx,sy,sz"),
+    }
+}
