@@ -1,0 +1,51 @@
+//! Helpers shared by the integration tests.
+
+use insitu_core::volume::RawFormat;
+use insitu_core::{Image, Volume};
+use std::path::PathBuf;
+
+/// `../shared/data` beside the repository, or `$INSITU_DATA_DIR`.
+pub fn data_dir() -> PathBuf {
+    std::env::var_os("INSITU_DATA_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
+}
+
+/// `../shared/tf` beside the repository, or `$INSITU_TF_DIR`.
+pub fn tf_dir() -> PathBuf {
+    std::env::var_os("INSITU_TF_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/tf"))
+}
+
+/// Loads a shared volume by file name, time step `t`. A missing file fails the test with a
+/// message saying so, unless `INSITU_SKIP_DATA_TESTS=1`, in which case it returns `None`
+/// after printing that the test was skipped.
+pub fn shared_volume(name: &str, t: usize) -> Option<Volume> {
+    let path = data_dir().join(name);
+    if !path.exists() {
+        let msg = format!(
+            "real-data test needs {} (set INSITU_DATA_DIR, or INSITU_SKIP_DATA_TESTS=1 to skip)",
+            path.display()
+        );
+        if std::env::var("INSITU_SKIP_DATA_TESTS").as_deref() == Ok("1") {
+            eprintln!("SKIPPED: {msg}");
+            return None;
+        }
+        panic!("{msg}");
+    }
+    let format = RawFormat::from_file_name(&path).expect("shared data names carry their layout");
+    Some(
+        format
+            .load(&path, t, glam::Vec3::ONE)
+            .expect("shared volume loads"),
+    )
+}
+
+/// Asserts that no channel of the image is NaN or infinite, and all lie in [0, 1].
+pub fn assert_valid(image: &Image, what: &str) {
+    assert!(
+        image.is_valid(),
+        "{what}: image has NaN, Inf or out-of-range values"
+    );
+}
