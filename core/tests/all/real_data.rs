@@ -1,1 +1,146 @@
-//! placeholder
+//! Real volumes from `../shared/data` (see `common::shared_volume` for missing data).
+
+use crate::common::{assert_valid, shared_volume, tf_dir};
+use insitu_core::evaluate::{evaluate, render_references};
+use insitu_core::vdi::codec::Codec;
+use insitu_core::vdi::{generate::generate, render, VdiParams};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+
+const TEAPOT: &str = "teapot_256x256x178_uint8.raw";
+
+/// The shared volumes with their transfer function (a ramp over the data range where
+/// `../shared/tf` has none).
+fn scenes() -> Vec<(&'static str, Volume, TransferFunction)> {
+    let cases = [
+        (TEAPOT, 0, Some("teapot.json")),
+        ("stent_128x128x256_int16.raw", 0, None),
+        ("hydrogen_64x64x64_float32.raw", 0, Some("hydrogen.json")),
+        ("neghip_66x66x66_uint8.raw", 0, None),
+        ("ocean_temp_ts_180x90x19x12_float32.raw", 5, None),
+    ];
+    let mut out = Vec::new();
+    for (name, t, tf) in cases {
+        let Some(volume) = shared_volume(name, t) else {
+            continue;
+        };
+        let tf = match tf {
+            Some(f) => TransferFunction::load(&tf_dir().join(f)).expect("shared TF loads"),
+            None => {
+                let (lo, hi) = volume.finite_range().expect("volume has data");
+                TransferFunction::default_for_range(lo, hi)
+            }
+        };
+        out.push((name, volume, tf));
+    }
+    out
+}
+
+#[test]
+fn vdi_at_generation_view_reproduces_dvr() {
+    const SIZE: u32 = 128;
+    for (name, volume, tf) in scenes() {
+        let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let cam = Camera::default_for_box(&volume.world_box());
+        let reference = dvr::render(&rc, &cam, SIZE, SIZE);
+        assert_valid(&reference, name);
+        assert!(
+            reference.pixels().iter().any(|p| p[0] + p[1] + p[2] > 0.05),
+            "{name}: reference is blank"
+        );
+        for gamma in [0.001, 0.013, 0.05, 0.13, 0.26] {
+            let vdi = generate(
+                &rc,
+                &cam,
+                VdiParams {
+                    resolution: SIZE,
+                    gamma,
+                },
+                0,
+                name,
+            )
+            .unwrap();
+            let image = render::render(&vdi, &cam, SIZE, SIZE, rc.params().termination);
+            let q = metrics::psnr(&image, &reference).unwrap();
+            assert!(
+                q >= 60.0,
+                "{name} γ = {gamma}: q = {q} dB at the generation view"
+            );
+        }
+    }
+}
+
+#[test]
+fn teapot_quality_falls_smoothly_off_view() {
+    let Some(volume) = shared_volume(TEAPOT, 0) else {
+        return;
+    };
+    let tf = TransferFunction::load(&tf_dir().join("teapot.json")).unwrap();
+    let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&volume.world_box());
+    let angles = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0];
+    let refs = render_references(&rc, &cam, &angles, 256);
+    let params = VdiParams {
+        resolution: 256,
+        gamma: 0.013,
+    };
+    let (eval, images) = evaluate(
+        &rc,
+        &cam,
+        params,
+        Codec::Zstd,
+        &angles,
+        &refs,
+        tf.identity_hash(),
+        "teapot",
+    )
+    .unwrap();
+    for (v, image) in eval.views.iter().zip(&images) {
+        assert_valid(image, "teapot VDI view");
+        assert!(
+            v.q_db.is_finite() && v.q_db > 20.0,
+            "teapot at {}°: q = {} dB",
+            v.angle_deg,
+            v.q_db
+        );
+        assert!(
+            v.ssim.is_some_and(|s| s > 0.8),
+            "teapot at {}°: SSIM {:?}",
+            v.angle_deg,
+            v.ssim
+        );
+    }
+    assert!(eval.sigma_bytes > 0 && eval.supersegments > 0);
+}
+
+#[test]
+fn empty_space_skipping_leaves_the_teapot_unchanged() {
+    let Some(volume) = shared_volume(TEAPOT, 0) else {
+        return;
+    };
+    let tf = TransferFunction::load(&tf_dir().join("teapot.json")).unwrap();
+    let cam = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
+    let image = |skip: bool| {
+        let params = RaycastParams {
+            empty_space_skipping: skip,
+            ..Default::default()
+        };
+        dvr::render(&Raycaster::new(&volume, &tf, params).unwrap(), &cam, 96, 96)
+    };
+    assert_eq!(image(true), image(false), "skipping changed the image");
+}
+
+#[test]
+fn ocean_time_steps_load_and_differ() {
+    let (Some(a), Some(b)) = (
+        shared_volume("ocean_temp_ts_180x90x19x12_float32.raw", 0),
+        shared_volume("ocean_temp_ts_180x90x19x12_float32.raw", 11),
+    ) else {
+        return;
+    };
+    assert_eq!(a.dims(), [180, 90, 19]);
+    assert_ne!(a.content_hash(), b.content_hash());
+    let nan = a.data().iter().filter(|v| v.is_nan()).count() as f64 / a.data().len() as f64;
+    assert!((0.3..0.5).contains(&nan), "land fraction {nan}");
+    let (lo, hi) = a.finite_range().unwrap();
+    assert!(lo >= -3.5 && hi <= 35.0, "range {lo}..{hi}");
+}

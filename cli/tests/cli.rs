@@ -1,0 +1,199 @@
+//! The `insitu` command end to end: happy paths and bad input (clear error, non-zero exit,
+//! no output file left behind).
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn insitu(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_insitu"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("insitu runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn evaluate_json_on_the_embedded_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(
+        &[
+            "evaluate",
+            "--volume",
+            "gray-scott:24:100",
+            "--size",
+            "32",
+            "--r",
+            "32",
+            "--views",
+            "0,30",
+            "--json",
+            "--codec",
+            "zstd",
+            "--out",
+            "strip.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for key in [
+        "r",
+        "gamma",
+        "codec",
+        "sigma_bytes",
+        "supersegments",
+        "tau_s",
+        "tau_compress_s",
+        "q_db",
+        "views",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    let views = v["views"].as_array().unwrap();
+    assert_eq!(views.len(), 2);
+    // At the generation view with r = size the VDI reproduces the DVR.
+    let q0 = &views[0]["q_db"];
+    assert!(q0 == "inf" || q0.as_f64().unwrap() >= 60.0, "q at 0°: {q0}");
+    assert!(dir.path().join("strip.png").exists());
+}
+
+#[test]
+fn generate_then_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(
+        &[
+            "generate",
+            "--volume",
+            "gray-scott:16:50",
+            "--r",
+            "24",
+            "--out",
+            "a.vdi",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = insitu(
+        &[
+            "view", "--vdi", "a.vdi", "--angle", "90", "--size", "20", "--out", "v.png",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("v.png").exists());
+}
+
+fn assert_fails(args: &[&str], dir: &Path, needle: &str, out: &str) {
+    let o = insitu(args, dir);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    let err = stderr(&o);
+    assert!(
+        err.contains(needle),
+        "{args:?}: {err:?} does not mention {needle:?}"
+    );
+    assert!(!dir.join(out).exists(), "{args:?} left {out} behind");
+}
+
+#[test]
+fn bad_input_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("short_4x4x4_uint8.raw"), [0u8; 10]).unwrap();
+    std::fs::write(d.join("odd_2x2x2_int128.raw"), [0u8; 8]).unwrap();
+    std::fs::write(d.join("ok_4x4x4_uint8.raw"), [7u8; 64]).unwrap();
+    std::fs::write(
+        d.join("bad.json"),
+        r#"{"domain": [0, 1], "points": [[0.5,0,0,0,0],[0.2,0,0,0,0]]}"#,
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("range.json"),
+        r#"{"domain": [0, 1], "points": [[0,0,0,0,2]]}"#,
+    )
+    .unwrap();
+    std::fs::write(d.join("empty.json"), r#"{"domain": [0, 1], "points": []}"#).unwrap();
+    std::fs::write(d.join("corrupt.vdi"), b"\x89VDI\r\n\x1a\ngarbage").unwrap();
+    fn render(v: &str) -> Vec<&str> {
+        vec!["render", "--volume", v, "--size", "8", "--out", "o.png"]
+    }
+    assert_fails(&render("short_4x4x4_uint8.raw"), d, "10 bytes", "o.png");
+    assert_fails(&render("odd_2x2x2_int128.raw"), d, "int128", "o.png");
+    assert_fails(
+        &render("missing_4x4x4_uint8.raw"),
+        d,
+        "missing_4x4x4_uint8.raw",
+        "o.png",
+    );
+    assert_fails(&render("novolume.raw"), d, "novolume.raw", "o.png");
+    for (tf, needle) in [
+        ("bad.json", "increase"),
+        ("range.json", "outside"),
+        ("empty.json", "no points"),
+        ("nope.json", "nope.json"),
+    ] {
+        let args = [
+            "render",
+            "--volume",
+            "ok_4x4x4_uint8.raw",
+            "--tf",
+            tf,
+            "--size",
+            "8",
+            "--out",
+            "o.png",
+        ];
+        assert_fails(&args, d, needle, "o.png");
+    }
+    let generate = |r: &str, g: &str| {
+        vec![
+            "generate".to_owned(),
+            "--volume".into(),
+            "ok_4x4x4_uint8.raw".into(),
+            "--r".into(),
+            r.into(),
+            "--gamma".into(),
+            g.into(),
+            "--out".into(),
+            "o.vdi".into(),
+        ]
+    };
+    for (r, g, needle) in [
+        ("0", "0.01", "r = 0"),
+        ("8", "-0.5", "gamma = -0.5"),
+        ("8", "NaN", "gamma = NaN"),
+    ] {
+        let args = generate(r, g);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        assert_fails(&args, d, needle, "o.vdi");
+    }
+    assert_fails(
+        &["view", "--vdi", "corrupt.vdi", "--out", "o.png"],
+        d,
+        "corrupt.vdi",
+        "o.png",
+    );
+    assert_fails(
+        &[
+            "render",
+            "--volume",
+            "ok_4x4x4_uint8.raw",
+            "--step",
+            "0",
+            "--out",
+            "o.png",
+        ],
+        d,
+        "step",
+        "o.png",
+    );
+    assert_fails(
+        &["render", "--volume", "gray-scott:4", "--out", "o.png"],
+        d,
+        "gray-scott",
+        "o.png",
+    );
+}
