@@ -1,4 +1,6 @@
 //! The `insitu` command end to end: happy paths and bad input (clear error, non-zero exit,
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests fail loudly by design
 //! no output file left behind).
 
 use std::path::Path;

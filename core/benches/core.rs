@@ -1,1 +1,119 @@
-fn main() {}
+//! Benchmarks on the teapot at 768², step 0.5, `../shared/tf/teapot.json` (issue 3):
+//! reference DVR (with and without shading, with and without empty-space skipping), VDI
+//! generation at r = 768 and 256, VDI rendering at 30°, compression with each codec.
+//!
+//! Needs `../shared/data` (or `INSITU_DATA_DIR`) and `../shared/tf` (or `INSITU_TF_DIR`).
+
+#![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use insitu_core::vdi::codec::{encode, Codec};
+use insitu_core::vdi::{generate::generate, render, VdiParams};
+use insitu_core::volume::RawFormat;
+use insitu_core::{dvr, Camera, RaycastParams, Raycaster, Shading, TransferFunction};
+use std::hint::black_box;
+use std::path::PathBuf;
+
+const SIZE: u32 = 768;
+
+fn dir(var: &str, default: &str) -> PathBuf {
+    std::env::var_os(var)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(default))
+}
+
+fn benches(c: &mut Criterion) {
+    let path = dir("INSITU_DATA_DIR", "../../shared/data").join("teapot_256x256x178_uint8.raw");
+    let tf_path = dir("INSITU_TF_DIR", "../../shared/tf").join("teapot.json");
+    let (Ok(format), Ok(tf)) = (
+        RawFormat::from_file_name(&path),
+        TransferFunction::load(&tf_path),
+    ) else {
+        eprintln!(
+            "benchmarks need {} and {}",
+            path.display(),
+            tf_path.display()
+        );
+        return;
+    };
+    let volume = match format.load(&path, 0, glam::Vec3::ONE) {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("benchmarks need the teapot: {e}");
+            return;
+        }
+    };
+    let cam = Camera::default_for_box(&volume.world_box());
+    let side = cam.orbit_y(30.0);
+    let make = |params: RaycastParams| Raycaster::new(&volume, &tf, params).expect("valid params");
+    let rc = make(RaycastParams::default());
+    let shaded = make(RaycastParams {
+        shading: Some(Shading::default()),
+        ..Default::default()
+    });
+    let no_skip = make(RaycastParams {
+        empty_space_skipping: false,
+        ..Default::default()
+    });
+
+    let mut g = c.benchmark_group("teapot_768");
+    g.sample_size(10);
+    g.bench_function("dvr", |b| {
+        b.iter(|| black_box(dvr::render(&rc, &cam, SIZE, SIZE)))
+    });
+    g.bench_function("dvr_30deg", |b| {
+        b.iter(|| black_box(dvr::render(&rc, &side, SIZE, SIZE)))
+    });
+    g.bench_function("dvr_shaded", |b| {
+        b.iter(|| black_box(dvr::render(&shaded, &cam, SIZE, SIZE)))
+    });
+    g.bench_function("dvr_no_skipping", |b| {
+        b.iter(|| black_box(dvr::render(&no_skip, &cam, SIZE, SIZE)))
+    });
+    for r in [768, 256] {
+        let p = VdiParams {
+            resolution: r,
+            gamma: 0.013,
+        };
+        g.bench_function(format!("generate_r{r}"), |b| {
+            b.iter(|| black_box(generate(&rc, &cam, p, 0, "teapot").expect("valid")))
+        });
+    }
+    let vdi = generate(
+        &rc,
+        &cam,
+        VdiParams {
+            resolution: 768,
+            gamma: 0.013,
+        },
+        0,
+        "teapot",
+    )
+    .expect("valid");
+    g.bench_function("vdi_render_r768_30deg", |b| {
+        b.iter(|| black_box(render::render(&vdi, &side, SIZE, SIZE, 0.99)))
+    });
+    let vdi256 = generate(
+        &rc,
+        &cam,
+        VdiParams {
+            resolution: 256,
+            gamma: 0.013,
+        },
+        0,
+        "teapot",
+    )
+    .expect("valid");
+    g.bench_function("vdi_render_r256_30deg", |b| {
+        b.iter(|| black_box(render::render(&vdi256, &side, SIZE, SIZE, 0.99)))
+    });
+    for codec in [Codec::Zstd, Codec::Bzip2] {
+        g.bench_function(format!("compress_r256_{codec}"), |b| {
+            b.iter(|| black_box(encode(&vdi256, codec).expect("encodes")))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(core, benches);
+criterion_main!(core);

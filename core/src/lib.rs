@@ -26,6 +26,8 @@
 //! # let _ = bytes;
 //! ```
 
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
 pub mod camera;
 pub mod dvr;
 pub mod evaluate;

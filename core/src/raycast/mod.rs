@@ -176,7 +176,7 @@ impl<'a> Raycaster<'a> {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
         let t_in = t_near.max(0.0);
-        if !(t_far > t_in) {
+        if t_far.is_nan() || t_in.is_nan() || t_far <= t_in {
             return;
         }
         let step = self.params.step;

@@ -119,7 +119,7 @@ impl<'a> Walker<'a> {
                 return;
             }
         }
-        if !(t1 > t0) {
+        if t1.is_nan() || t0.is_nan() || t1 <= t0 {
             return;
         }
         let r = self.r as f32;

@@ -51,12 +51,15 @@ fn chord_sphere(cam: &Camera, i: u32, j: u32, c: DVec3, r: f64) -> f64 {
     }
 }
 
+/// Chord length of pixel `(i, j)`; the flag says the view is off the generation view.
+type ChordFn = Box<dyn Fn(&Camera, u32, u32, bool) -> f64>;
+
 struct Case {
     volume: Volume,
     tf: TransferFunction,
     kappa: f64,
     /// Chord length of a pixel ray; the flag says whether the view is off the generation view.
-    chord: Box<dyn Fn(&Camera, u32, u32, bool) -> f64>,
+    chord: ChordFn,
     /// Shortest chord checked: rays through the rim of a curved boundary are left out.
     min_chord: f64,
 }

@@ -1,5 +1,7 @@
 //! Integration tests of insitu-core, built as one binary.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests fail loudly by design
+
 mod analytic;
 mod codec_props;
 mod common;
