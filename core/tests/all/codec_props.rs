@@ -143,20 +143,14 @@ fn oversized_claims_are_refused_before_decompression() {
     // A header claiming 2^60 bytes (checksum fixed up) is refused, not allocated.
     let mut forged = bytes.clone();
     forged[12..20].copy_from_slice(&(1u64 << 60).to_le_bytes());
-    let mut h = crc32fast::Hasher::new();
-    h.update(&forged[..28]);
-    h.update(&forged[32..]);
-    forged[28..32].copy_from_slice(&h.finalize().to_le_bytes());
+    fix_checksum(&mut forged);
     assert!(matches!(
         decode(&forged, &DecodeLimits::default()),
         Err(CodecError::TooLarge { .. })
     ));
     // A claim within limits but larger than the body: decompression stops at the real end.
     forged[12..20].copy_from_slice(&(1u64 << 20).to_le_bytes());
-    let mut h = crc32fast::Hasher::new();
-    h.update(&forged[..28]);
-    h.update(&forged[32..]);
-    forged[28..32].copy_from_slice(&h.finalize().to_le_bytes());
+    fix_checksum(&mut forged);
     assert!(matches!(
         decode(&forged, &DecodeLimits::default()),
         Err(CodecError::Invalid(_))
@@ -168,4 +162,13 @@ fn oversized_claims_are_refused_before_decompression() {
         ),
         Err(CodecError::BadMagic)
     ));
+}
+
+/// Recomputes the header CRC after a deliberate edit, so the edit reaches the later checks.
+fn fix_checksum(bytes: &mut [u8]) {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&bytes[..28]);
+    h.update(&bytes[32..]);
+    let crc = h.finalize().to_le_bytes();
+    bytes[28..32].copy_from_slice(&crc);
 }
