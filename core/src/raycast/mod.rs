@@ -185,7 +185,7 @@ impl<'a> Raycaster<'a> {
         let n_full = n_full_f as u32;
         let rem = length - n_full_f * step;
         let n_samples = n_full + u32::from(rem > step * 1e-4);
-        let o_v = ray.origin * self.inv_spacing;
+        let o_v = (ray.origin - self.bounds.min) * self.inv_spacing;
         let d_v = ray.dir * self.inv_spacing;
         let inv_d_v = d_v.recip();
         let data = self.volume.data();
@@ -338,6 +338,55 @@ mod tests {
             assert!((len - 10.0).abs() < 1e-4, "step {step}: length {len}");
             assert_eq!(n, (10.0 / step).ceil() as usize);
         }
+    }
+
+    #[test]
+    fn a_brick_with_an_origin_samples_like_the_same_region_of_the_whole() {
+        // The brick is z ∈ [4, 10] of the whole grid (sharing the boundary plane), placed at
+        // its world origin: a ray through it sees the same values as through the whole.
+        let f = |x: usize, y: usize, z: usize| (x * 7 + y * 3 + z * z) as f32 * 0.01;
+        let whole = Volume::from_fn([9, 8, 11], f).unwrap();
+        let brick = Volume::from_fn([9, 8, 7], |x, y, z| f(x, y, z + 4))
+            .unwrap()
+            .with_origin(Vec3::new(0.0, 0.0, 4.0))
+            .unwrap();
+        assert_eq!(brick.world_box().min.z, 4.0);
+        assert_eq!(brick.world_box().max.z, 10.0);
+        let whole_rc = Raycaster::new(
+            &whole,
+            &TransferFunction::default_for_range(0.0, 3.0),
+            RaycastParams::default(),
+        )
+        .unwrap();
+        let brick_rc = Raycaster::new(
+            &brick,
+            &TransferFunction::default_for_range(0.0, 3.0),
+            RaycastParams::default(),
+        )
+        .unwrap();
+        for p in [
+            Vec3::new(1.5, 2.25, 4.0),
+            Vec3::new(7.9, 6.5, 9.75),
+            Vec3::new(3.0, 3.0, 6.5),
+        ] {
+            let pw = whole_rc.sample(p);
+            let pb = brick_rc.sample(p - Vec3::new(0.0, 0.0, 4.0));
+            assert!((pw - pb).abs() < 1e-6, "{p}: {pw} vs {pb}");
+        }
+        let ray = Ray {
+            origin: Vec3::new(3.3, 2.7, -5.0),
+            dir: Vec3::Z,
+        };
+        let mut zs = Vec::new();
+        brick_rc.march(&ray, |s| {
+            zs.push(-5.0 + s.t_start);
+            ControlFlow::Continue(())
+        });
+        assert!((zs[0] - 4.0).abs() < 1e-5, "brick entered at z = {}", zs[0]);
+        assert!(Volume::from_fn([2, 2, 2], f)
+            .unwrap()
+            .with_origin(Vec3::NAN)
+            .is_err());
     }
 
     #[test]

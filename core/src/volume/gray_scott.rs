@@ -203,6 +203,7 @@ impl GrayScott {
         Volume::new([self.n; 3], Vec3::ONE, data).unwrap_or_else(|_| Volume {
             dims: [1, 1, 1],
             spacing: Vec3::ONE,
+            origin: Vec3::ZERO,
             data: vec![0.0],
         })
     }

@@ -1,8 +1,9 @@
 //! Scalar volumes on a regular grid (DESIGN.md, "Volume").
 //!
 //! A [`Volume`] holds `nx × ny × nz` samples, x fastest, as `f32`, with a voxel spacing.
-//! Voxel centres sit at integer multiples of the spacing, so the world-space box is
-//! `[0, (n − 1)·s]` per axis. NaN marks missing data and is transparent everywhere.
+//! Voxel centres sit at integer multiples of the spacing from an origin (0 unless the volume is
+//! one rank's brick of a larger grid), so the world-space box is `origin + [0, (n − 1)·s]` per
+//! axis. NaN marks missing data and is transparent everywhere.
 
 mod gray_scott;
 mod raw;
@@ -73,6 +74,7 @@ pub enum VolumeError {
 pub struct Volume {
     dims: [usize; 3],
     spacing: Vec3,
+    origin: Vec3,
     data: Vec<f32>,
 }
 
@@ -106,6 +108,7 @@ impl Volume {
         Ok(Self {
             dims,
             spacing,
+            origin: Vec3::ZERO,
             data,
         })
     }
@@ -129,6 +132,26 @@ impl Volume {
         Self::new(dims, Vec3::ONE, data)
     }
 
+    /// Places the first voxel at world position `origin` (a brick of a larger grid starting at
+    /// voxel offset `o` has origin `o · spacing`).
+    ///
+    /// # Errors
+    /// [`VolumeError::Invalid`] when `origin` is not finite.
+    pub fn with_origin(mut self, origin: Vec3) -> Result<Self, VolumeError> {
+        if !origin.is_finite() {
+            return Err(VolumeError::Invalid(format!(
+                "origin {origin} must be finite"
+            )));
+        }
+        self.origin = origin;
+        Ok(self)
+    }
+
+    /// World position of the first voxel.
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
     /// Grid dimensions `[nx, ny, nz]`.
     pub fn dims(&self) -> [usize; 3] {
         self.dims
@@ -144,16 +167,17 @@ impl Volume {
         &self.data
     }
 
-    /// The world-space box `[0, (n − 1)·s]`.
+    /// The world-space box `origin + [0, (n − 1)·s]`.
     pub fn world_box(&self) -> Aabb {
         let [nx, ny, nz] = self.dims;
         Aabb {
-            min: Vec3::ZERO,
-            max: Vec3::new(
-                (nx - 1) as f32 * self.spacing.x,
-                (ny - 1) as f32 * self.spacing.y,
-                (nz - 1) as f32 * self.spacing.z,
-            ),
+            min: self.origin,
+            max: self.origin
+                + Vec3::new(
+                    (nx - 1) as f32 * self.spacing.x,
+                    (ny - 1) as f32 * self.spacing.y,
+                    (nz - 1) as f32 * self.spacing.z,
+                ),
         }
     }
 
@@ -175,7 +199,12 @@ impl Volume {
         for d in self.dims {
             h.write(&(d as u64).to_le_bytes());
         }
-        for s in self.spacing.to_array() {
+        for s in self
+            .spacing
+            .to_array()
+            .into_iter()
+            .chain(self.origin.to_array())
+        {
             h.write(&s.to_le_bytes());
         }
         for v in &self.data {

@@ -43,7 +43,9 @@ impl ScalarType {
         }
     }
 
-    fn decode(self, bytes: &[u8]) -> Vec<f32> {
+    /// Converts little-endian samples of this type to `f32`; a trailing partial sample is
+    /// ignored (callers check `bytes.len()` against the dims first).
+    pub fn decode(self, bytes: &[u8]) -> Vec<f32> {
         match self {
             Self::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
             Self::U16 => bytes

@@ -1,0 +1,192 @@
+//! Bearer tokens (issue 5, "Security basics").
+//!
+//! A daemon started with a token rejects every call whose `authorization` metadata is not
+//! `Bearer <token>` with `UNAUTHENTICATED`. Listening on anything but loopback without a token
+//! is refused by [`check_bind`].
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::Arc;
+use tonic::metadata::MetadataValue;
+use tonic::service::Interceptor;
+use tonic::{Request, Status};
+
+/// Environment variable a token is read from when no file is given.
+pub const TOKEN_ENV: &str = "INSITU_TOKEN";
+
+/// Errors reading a token or checking a bind address.
+#[derive(Debug, thiserror::Error)]
+pub enum AuthError {
+    /// The token file could not be read.
+    #[error("cannot read token file {path}: {source}")]
+    Read {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The token is empty or not printable ASCII.
+    #[error("token from {0} is empty or contains characters other than printable ASCII")]
+    Malformed(String),
+    /// A non-loopback address without a token.
+    #[error("refusing to listen on {0} without a token: set {TOKEN_ENV} or a token file (only loopback addresses may run without one)")]
+    TokenRequired(SocketAddr),
+}
+
+/// A shared secret, printable ASCII, never logged.
+#[derive(Clone)]
+pub struct Token(Arc<str>);
+
+impl std::fmt::Debug for Token {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Token(***)")
+    }
+}
+
+impl Token {
+    /// Wraps `s` (surrounding whitespace trimmed).
+    ///
+    /// # Errors
+    /// [`AuthError::Malformed`] when it is empty or not printable ASCII.
+    pub fn new(s: &str, source: &str) -> Result<Self, AuthError> {
+        let t = s.trim();
+        if t.is_empty() || !t.bytes().all(|b| b.is_ascii_graphic()) {
+            return Err(AuthError::Malformed(source.to_owned()));
+        }
+        Ok(Self(t.into()))
+    }
+
+    /// The token from `file` if given, else from [`TOKEN_ENV`] if set, else none.
+    ///
+    /// # Errors
+    /// [`AuthError`] when the file cannot be read or the token is malformed.
+    pub fn load(file: Option<&Path>) -> Result<Option<Self>, AuthError> {
+        if let Some(path) = file {
+            let s = std::fs::read_to_string(path).map_err(|source| AuthError::Read {
+                path: path.to_owned(),
+                source,
+            })?;
+            return Self::new(&s, &path.display().to_string()).map(Some);
+        }
+        match std::env::var(TOKEN_ENV) {
+            Ok(s) => Self::new(&s, TOKEN_ENV).map(Some),
+            Err(_) => Ok(None),
+        }
+    }
+
+    fn header(&self) -> String {
+        format!("Bearer {}", self.0)
+    }
+}
+
+/// Refuses a non-loopback `addr` without a token.
+///
+/// # Errors
+/// [`AuthError::TokenRequired`].
+pub fn check_bind(addr: SocketAddr, token: Option<&Token>) -> Result<(), AuthError> {
+    if addr.ip().is_loopback() || token.is_some() {
+        Ok(())
+    } else {
+        Err(AuthError::TokenRequired(addr))
+    }
+}
+
+/// Server side: checks the bearer token of every call (no token configured: lets all through).
+#[derive(Clone, Debug, Default)]
+pub struct RequireToken(Option<Token>);
+
+impl RequireToken {
+    /// Checks against `token`.
+    pub fn new(token: Option<Token>) -> Self {
+        Self(token)
+    }
+}
+
+impl Interceptor for RequireToken {
+    fn call(&mut self, req: Request<()>) -> Result<Request<()>, Status> {
+        let Some(token) = &self.0 else {
+            return Ok(req);
+        };
+        let expected = token.header();
+        let given = req
+            .metadata()
+            .get("authorization")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("");
+        if constant_time_eq(given.as_bytes(), expected.as_bytes()) {
+            Ok(req)
+        } else {
+            Err(Status::unauthenticated(
+                "missing or wrong bearer token in the `authorization` metadata",
+            ))
+        }
+    }
+}
+
+/// Client side: attaches the bearer token to every call.
+#[derive(Clone, Debug, Default)]
+pub struct AttachToken(Option<MetadataValue<tonic::metadata::Ascii>>);
+
+impl AttachToken {
+    /// Attaches `token` (none: attaches nothing).
+    pub fn new(token: Option<&Token>) -> Self {
+        // A Token is printable ASCII by construction, so the parse cannot fail.
+        Self(token.and_then(|t| t.header().parse().ok()))
+    }
+}
+
+impl Interceptor for AttachToken {
+    fn call(&mut self, mut req: Request<()>) -> Result<Request<()>, Status> {
+        if let Some(v) = &self.0 {
+            req.metadata_mut().insert("authorization", v.clone());
+        }
+        Ok(req)
+    }
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with_auth(v: Option<&str>) -> Request<()> {
+        let mut r = Request::new(());
+        if let Some(v) = v {
+            r.metadata_mut().insert("authorization", v.parse().unwrap());
+        }
+        r
+    }
+
+    #[test]
+    fn tokens_are_checked() {
+        let t = Token::new(" s3cret\n", "test").unwrap();
+        let mut need = RequireToken::new(Some(t.clone()));
+        assert!(need.call(with_auth(Some("Bearer s3cret"))).is_ok());
+        for bad in [
+            None,
+            Some("Bearer s3cre"),
+            Some("Bearer s3cret2"),
+            Some("s3cret"),
+        ] {
+            let e = need.call(with_auth(bad)).unwrap_err();
+            assert_eq!(e.code(), tonic::Code::Unauthenticated, "{bad:?}");
+        }
+        let attached = AttachToken::new(Some(&t)).call(Request::new(())).unwrap();
+        assert!(need.call(attached).is_ok());
+        assert!(RequireToken::new(None).call(with_auth(None)).is_ok());
+        assert!(Token::new("  ", "x").is_err());
+        assert!(Token::new("a b", "x").is_err());
+    }
+
+    #[test]
+    fn non_loopback_needs_a_token() {
+        let t = Token::new("x", "t").unwrap();
+        assert!(check_bind("127.0.0.1:1".parse().unwrap(), None).is_ok());
+        assert!(check_bind("[::1]:1".parse().unwrap(), None).is_ok());
+        assert!(check_bind("0.0.0.0:1".parse().unwrap(), None).is_err());
+        assert!(check_bind("0.0.0.0:1".parse().unwrap(), Some(&t)).is_ok());
+    }
+}

@@ -1,0 +1,147 @@
+//! Wire messages ↔ `insitu-core` types. Every conversion from the wire validates and says what
+//! was wrong, as a gRPC status the caller can return as is.
+
+use crate::pb;
+use glam::Vec3;
+use insitu_core::vdi::codec::Codec;
+use insitu_core::volume::ScalarType;
+use insitu_core::Camera;
+use tonic::Status;
+
+/// A world-space vector.
+pub fn vec3_to_pb(v: Vec3) -> pb::Vec3 {
+    pb::Vec3 {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
+}
+
+/// A world-space vector; an unset field is `None`.
+pub fn vec3_from_pb(v: Option<&pb::Vec3>) -> Option<Vec3> {
+    v.map(|v| Vec3::new(v.x, v.y, v.z))
+}
+
+/// A camera for the wire.
+pub fn camera_to_pb(c: &Camera) -> pb::Camera {
+    pb::Camera {
+        eye: Some(vec3_to_pb(c.eye)),
+        target: Some(vec3_to_pb(c.target)),
+        up: Some(vec3_to_pb(c.up)),
+        fov_y_deg: c.fov_y_deg,
+    }
+}
+
+/// A camera from the wire.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` when a vector is missing or the camera is degenerate (see
+/// [`Camera::is_valid`]).
+pub fn camera_from_pb(c: &pb::Camera) -> Result<Camera, Status> {
+    let field = |v: Option<&pb::Vec3>, name: &str| {
+        vec3_from_pb(v).ok_or_else(|| Status::invalid_argument(format!("camera.{name} is missing")))
+    };
+    let cam = Camera {
+        eye: field(c.eye.as_ref(), "eye")?,
+        target: field(c.target.as_ref(), "target")?,
+        up: field(c.up.as_ref(), "up")?,
+        fov_y_deg: c.fov_y_deg,
+    };
+    if cam.is_valid() {
+        Ok(cam)
+    } else {
+        Err(Status::invalid_argument(format!(
+            "camera {cam:?} is degenerate (non-finite, eye = target, up parallel to the view, or fov outside (0, 180))"
+        )))
+    }
+}
+
+/// A codec for the wire.
+pub fn codec_to_pb(c: Codec) -> pb::Codec {
+    match c {
+        Codec::None => pb::Codec::None,
+        Codec::Bzip2 => pb::Codec::Bzip2,
+        Codec::Zstd => pb::Codec::Zstd,
+    }
+}
+
+/// A codec from the wire (`i32` as prost stores enums); `Ok(None)` for "unspecified".
+///
+/// # Errors
+/// `INVALID_ARGUMENT` for an unknown value.
+pub fn codec_from_pb(v: i32) -> Result<Option<Codec>, Status> {
+    match pb::Codec::try_from(v) {
+        Ok(pb::Codec::Unspecified) => Ok(None),
+        Ok(pb::Codec::None) => Ok(Some(Codec::None)),
+        Ok(pb::Codec::Bzip2) => Ok(Some(Codec::Bzip2)),
+        Ok(pb::Codec::Zstd) => Ok(Some(Codec::Zstd)),
+        Err(_) => Err(Status::invalid_argument(format!("unknown codec {v}"))),
+    }
+}
+
+/// A scalar type for the wire.
+pub fn dtype_to_pb(t: ScalarType) -> pb::ScalarType {
+    match t {
+        ScalarType::U8 => pb::ScalarType::U8,
+        ScalarType::U16 => pb::ScalarType::U16,
+        ScalarType::I16 => pb::ScalarType::I16,
+        ScalarType::F32 => pb::ScalarType::F32,
+        ScalarType::F64 => pb::ScalarType::F64,
+    }
+}
+
+/// A scalar type from the wire.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` for "unspecified" or an unknown value.
+pub fn dtype_from_pb(v: i32) -> Result<ScalarType, Status> {
+    match pb::ScalarType::try_from(v) {
+        Ok(pb::ScalarType::U8) => Ok(ScalarType::U8),
+        Ok(pb::ScalarType::U16) => Ok(ScalarType::U16),
+        Ok(pb::ScalarType::I16) => Ok(ScalarType::I16),
+        Ok(pb::ScalarType::F32) => Ok(ScalarType::F32),
+        Ok(pb::ScalarType::F64) => Ok(ScalarType::F64),
+        Ok(pb::ScalarType::Unspecified) => Err(Status::invalid_argument("dtype is unspecified")),
+        Err(_) => Err(Status::invalid_argument(format!("unknown dtype {v}"))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips_and_rejects() {
+        let cam = Camera {
+            eye: Vec3::new(1.0, 2.0, 30.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_deg: 40.0,
+        };
+        assert_eq!(camera_from_pb(&camera_to_pb(&cam)).unwrap(), cam);
+        let mut bad = camera_to_pb(&cam);
+        bad.target = bad.eye;
+        assert_eq!(
+            camera_from_pb(&bad).unwrap_err().code(),
+            tonic::Code::InvalidArgument
+        );
+        bad.eye = None;
+        assert!(camera_from_pb(&bad).unwrap_err().message().contains("eye"));
+        for c in Codec::ALL {
+            assert_eq!(codec_from_pb(codec_to_pb(c) as i32).unwrap(), Some(c));
+        }
+        assert_eq!(codec_from_pb(0).unwrap(), None);
+        assert!(codec_from_pb(99).is_err());
+        for t in [
+            ScalarType::U8,
+            ScalarType::U16,
+            ScalarType::I16,
+            ScalarType::F32,
+            ScalarType::F64,
+        ] {
+            assert_eq!(dtype_from_pb(dtype_to_pb(t) as i32).unwrap(), t);
+        }
+        assert!(dtype_from_pb(0).is_err());
+        assert!(dtype_from_pb(42).is_err());
+    }
+}

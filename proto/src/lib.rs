@@ -1,0 +1,21 @@
+//! The gRPC contract of the in situ VDI service and the pieces every peer shares.
+//!
+//! - [`pb`]: the messages and services generated from `proto/insitu.proto` (tonic + prost,
+//!   compiled with protox, so no system `protoc` is needed).
+//! - [`chunk`]: large payloads travel as one header message plus data chunks; sending and
+//!   receiving such streams with every limit checked before allocating.
+//! - [`auth`]: bearer tokens (required off loopback) for servers and clients.
+//! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
+//! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
+
+pub mod auth;
+pub mod chunk;
+#[cfg(feature = "core")]
+pub mod convert;
+pub mod transport;
+
+/// Generated code for package `insitu.v1`.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod pb {
+    tonic::include_proto!("insitu.v1");
+}
