@@ -144,12 +144,18 @@ impl From<ChunkError> for Status {
 }
 
 /// Reassembles a stream into (header, payload) with the payload at most `limit` bytes.
-/// Generic over the stream so the rules are testable without a network
-/// (a server passes its `tonic::Streaming<M>`).
+/// `check` validates the header before any payload is read or allocated. Generic over the
+/// stream so the rules are testable without a network (a server passes its
+/// `tonic::Streaming<M>`).
 ///
 /// # Errors
-/// A [`ChunkError`] as a status; a transport error from the stream is passed through.
-pub async fn receive<M, S>(stream: &mut S, limit: u64) -> Result<(M::Header, Vec<u8>), Status>
+/// A [`ChunkError`] as a status, or `check`'s status; a transport error from the stream is
+/// passed through.
+pub async fn receive<M, S>(
+    stream: &mut S,
+    limit: u64,
+    check: impl FnOnce(&M::Header) -> Result<(), Status>,
+) -> Result<(M::Header, Vec<u8>), Status>
 where
     M: Chunked,
     S: Stream<Item = Result<M, Status>> + Unpin,
@@ -169,6 +175,7 @@ where
         }
         .into());
     }
+    check(&header)?;
     // `declared ≤ limit`, and the limit is a memory budget the node chose.
     let mut payload = Vec::with_capacity(usize::try_from(declared).unwrap_or(0));
     loop {
@@ -213,7 +220,7 @@ mod tests {
 
     async fn run(msgs: Vec<pb::VdiChunk>, limit: u64) -> Result<(pb::VdiHeader, Vec<u8>), Status> {
         let mut s = tokio_stream::iter(msgs.into_iter().map(Ok));
-        receive(&mut s, limit).await
+        receive(&mut s, limit, |_| Ok(())).await
     }
 
     fn block_on<F: std::future::Future>(f: F) -> F::Output {

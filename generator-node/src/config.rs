@@ -1,0 +1,343 @@
+//! The generator-node's configuration: one TOML file (every key documented in
+//! `deploy/generator-node.toml`), overridden by command-line flags.
+
+use crate::queue::Policy;
+use insitu_core::raycast::{RaycastParams, DEFAULT_STEP, DEFAULT_TERMINATION};
+use insitu_core::vdi::codec::Codec;
+use insitu_core::{Camera, TransferFunction, VdiParams};
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// Errors loading or validating a configuration; each names the file or key.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for this schema.
+    #[error("config {path}: {source}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: toml::de::Error,
+    },
+    /// A value is out of range.
+    #[error("config key {key}: {problem}")]
+    Invalid {
+        /// Dotted key.
+        key: &'static str,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// Limits and policy of a bounded queue.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct QueueConfig {
+    /// Items at most (≥ 1).
+    pub max_items: usize,
+    /// Bytes at most (field data for the input queue, compressed VDIs and references for the
+    /// outbox).
+    pub max_bytes: u64,
+    /// What a full queue does: `block`, `drop-oldest` or `latest-only`.
+    pub policy: Policy,
+}
+
+/// A camera in the config file.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Eye position, world units.
+    pub eye: [f32; 3],
+    /// Point looked at.
+    pub target: [f32; 3],
+    /// Up hint.
+    #[serde(default = "default_up")]
+    pub up: [f32; 3],
+    /// Vertical field of view, degrees.
+    #[serde(default = "default_fov")]
+    pub fov_y_deg: f32,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+fn default_fov() -> f32 {
+    30.0
+}
+
+impl From<CameraConfig> for Camera {
+    fn from(c: CameraConfig) -> Self {
+        Camera {
+            eye: c.eye.into(),
+            target: c.target.into(),
+            up: c.up.into(),
+            fov_y_deg: c.fov_y_deg,
+        }
+    }
+}
+
+/// What and how to generate (the scene and `P_M`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct GenerationConfig {
+    /// `r`: VDI resolution, pixels per side.
+    pub resolution: u32,
+    /// `γ`: interrupt threshold of the merge criterion.
+    pub gamma: f32,
+    /// Ray-casting step, world units.
+    pub step: f32,
+    /// Early-termination opacity.
+    pub termination: f32,
+    /// `bzip2` (σ as in the paper), `zstd` or `none`.
+    pub codec: String,
+    /// Transfer function file (DESIGN.md format); unset: a default over the first step's range.
+    pub tf: Option<PathBuf>,
+    /// Generation camera; unset: the default camera for the global box.
+    pub camera: Option<CameraConfig>,
+    /// Test views: orbit angles about +y, degrees.
+    pub view_angles_deg: Vec<f32>,
+    /// Render and ship reference frames every k-th step (by step index); 0 = never.
+    pub reference_every: u64,
+    /// Side of the reference frames, pixels; 0 = `resolution`.
+    pub reference_size: u32,
+}
+
+impl Default for GenerationConfig {
+    fn default() -> Self {
+        Self {
+            resolution: 256,
+            gamma: 0.013,
+            step: DEFAULT_STEP,
+            termination: DEFAULT_TERMINATION,
+            codec: "bzip2".into(),
+            tf: None,
+            camera: None,
+            view_angles_deg: insitu_core::evaluate::DEFAULT_VIEW_ANGLES.to_vec(),
+            reference_every: 10,
+            reference_size: 0,
+        }
+    }
+}
+
+/// The whole file.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Address to serve on (port 0: an ephemeral port). Anything but loopback needs a token.
+    pub listen: SocketAddr,
+    /// The viz-node, `host:port`; unset: VDIs are generated, counted and discarded.
+    pub viz: Option<String>,
+    /// File holding the bearer token (else the `INSITU_TOKEN` environment variable, if set);
+    /// used both to check callers and to call the viz-node.
+    pub token_file: Option<PathBuf>,
+    /// Largest accepted time step (one rank's brick), bytes.
+    pub max_step_bytes: u64,
+    /// Time steps waiting for generation.
+    pub queue: QueueConfig,
+    /// Finished VDIs waiting to be shipped.
+    pub outbox: QueueConfig,
+    /// On shutdown, how long to keep shipping before counting the rest as dropped, seconds.
+    pub drain_timeout_secs: f64,
+    /// Longest wait between reconnect attempts to the viz-node, seconds.
+    pub max_backoff_secs: f64,
+    /// Scene and `P_M`.
+    pub generation: GenerationConfig,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
+            viz: None,
+            token_file: None,
+            max_step_bytes: 4 << 30,
+            queue: QueueConfig {
+                max_items: 2,
+                max_bytes: 2 << 30,
+                policy: Policy::Block,
+            },
+            outbox: QueueConfig {
+                max_items: 16,
+                max_bytes: 1 << 30,
+                policy: Policy::Block,
+            },
+            drain_timeout_secs: 30.0,
+            max_backoff_secs: 5.0,
+            generation: GenerationConfig::default(),
+        }
+    }
+}
+
+/// The generation settings, validated and resolved (TF loaded, codec parsed).
+#[derive(Clone, Debug)]
+pub struct Generation {
+    /// `P_M`.
+    pub params: VdiParams,
+    /// Step, termination (shading off: emission–absorption).
+    pub raycast: RaycastParams,
+    /// Codec.
+    pub codec: Codec,
+    /// Transfer function and its name; `None` until the first step picks a default.
+    pub tf: Option<(TransferFunction, String)>,
+    /// Camera; `None`: default for the global box.
+    pub camera: Option<Camera>,
+    /// Test views, degrees.
+    pub view_angles_deg: Vec<f32>,
+    /// Reference cadence (0 = never).
+    pub reference_every: u64,
+    /// Reference side (0 = `r`).
+    pub reference_size: u32,
+}
+
+impl Generation {
+    /// Side of the reference frames for the current `r`.
+    pub fn reference_side(&self) -> u32 {
+        if self.reference_size == 0 {
+            self.params.resolution
+        } else {
+            self.reference_size
+        }
+    }
+}
+
+fn invalid(key: &'static str, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key,
+        problem: problem.into(),
+    }
+}
+
+impl Config {
+    /// Reads and validates a TOML file.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file or key.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        let cfg: Self = toml::from_str(&text).map_err(|source| ConfigError::Parse {
+            path: path.to_owned(),
+            source,
+        })?;
+        cfg.generation()?;
+        Ok(cfg)
+    }
+
+    /// Checks the limits and resolves the generation settings.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`] naming the key.
+    pub fn generation(&self) -> Result<Generation, ConfigError> {
+        for (key, q) in [("queue", &self.queue), ("outbox", &self.outbox)] {
+            if q.max_items == 0 || q.max_bytes == 0 {
+                return Err(invalid(key, "max_items and max_bytes must be ≥ 1"));
+            }
+        }
+        if !(self.drain_timeout_secs.is_finite() && self.drain_timeout_secs >= 0.0) {
+            return Err(invalid("drain_timeout_secs", "must be finite and ≥ 0"));
+        }
+        if !(self.max_backoff_secs.is_finite() && self.max_backoff_secs > 0.0) {
+            return Err(invalid("max_backoff_secs", "must be finite and > 0"));
+        }
+        let g = &self.generation;
+        let params = VdiParams {
+            resolution: g.resolution,
+            gamma: g.gamma,
+        };
+        params
+            .validate()
+            .map_err(|e| invalid("generation.resolution/gamma", e.to_string()))?;
+        let raycast = RaycastParams {
+            step: g.step,
+            termination: g.termination,
+            ..Default::default()
+        };
+        raycast
+            .validate()
+            .map_err(|e| invalid("generation.step/termination", e.to_string()))?;
+        let codec: Codec = g
+            .codec
+            .parse()
+            .map_err(|e: insitu_core::vdi::codec::CodecError| {
+                invalid("generation.codec", e.to_string())
+            })?;
+        let tf = match &g.tf {
+            Some(p) => {
+                let tf = TransferFunction::load(p)
+                    .map_err(|e| invalid("generation.tf", e.to_string()))?;
+                let name = p.file_name().map_or_else(
+                    || p.display().to_string(),
+                    |n| n.to_string_lossy().into_owned(),
+                );
+                Some((tf, name))
+            }
+            None => None,
+        };
+        let camera = g.camera.map(Camera::from);
+        if camera.is_some_and(|c| !c.is_valid()) {
+            return Err(invalid("generation.camera", "degenerate camera"));
+        }
+        if g.view_angles_deg.iter().any(|a| !a.is_finite()) {
+            return Err(invalid(
+                "generation.view_angles_deg",
+                "angles must be finite",
+            ));
+        }
+        if g.reference_size > insitu_core::vdi::MAX_RESOLUTION {
+            return Err(invalid("generation.reference_size", "too large"));
+        }
+        Ok(Generation {
+            params,
+            raycast,
+            codec,
+            tf,
+            camera,
+            view_angles_deg: g.view_angles_deg.clone(),
+            reference_every: g.reference_every,
+            reference_size: g.reference_size,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_documented_example_parses_and_matches_the_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/generator-node.toml");
+        let cfg = Config::load(&path).unwrap();
+        assert_eq!(cfg, Config::default());
+    }
+
+    #[test]
+    fn bad_values_name_their_key() {
+        let bad = |toml: &str| match toml::from_str::<Config>(toml) {
+            Ok(c) => c.generation().unwrap_err().to_string(),
+            Err(e) => e.to_string(),
+        };
+        assert!(bad("[generation]\nresolution = 0").contains("generation.resolution"));
+        assert!(bad("[generation]\ngamma = -1.0").contains("generation.resolution/gamma"));
+        assert!(bad("[generation]\ncodec = \"lzma\"").contains("generation.codec"));
+        assert!(bad("[queue]\nmax_items = 0\nmax_bytes = 1\npolicy = \"block\"").contains("queue"));
+        assert!(
+            bad("[queue]\nmax_items = 1\nmax_bytes = 1\npolicy = \"drop-newest\"")
+                .contains("drop-newest")
+        );
+        assert!(bad("listen = \"nowhere\"").contains("listen"));
+        assert!(bad("colour = 3").contains("colour"));
+        assert!(bad("[generation]\ntf = \"/no/such/tf.json\"").contains("generation.tf"));
+    }
+}

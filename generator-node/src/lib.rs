@@ -1,0 +1,20 @@
+//! The generator-node: the daemon beside a simulation (DESIGN.md, "The system").
+//!
+//! A simulation pushes time steps (one rank's brick each) over gRPC ([`service`]); they wait in
+//! a bounded [`queue`] with a named policy; a worker turns each into a compressed VDI on the
+//! blocking pool ([`work`]), with reference frames of the test views every k-th step; the
+//! [`ship`]per delivers them to the viz-node, reconnecting with back-off, from a bounded outbox.
+//! [`node`] wires it together and shuts it down gracefully; [`config`] is the TOML file.
+
+pub mod config;
+pub mod ingest;
+pub mod node;
+pub mod queue;
+pub mod service;
+pub mod ship;
+pub mod stats;
+pub mod work;
+
+pub use config::Config;
+pub use node::{start, RunningNode, Summary};
+pub use queue::Policy;

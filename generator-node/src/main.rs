@@ -1,0 +1,133 @@
+//! `generator-node`: the daemon. Reads a TOML config (see `deploy/generator-node.toml`),
+//! applies flag overrides, serves until SIGINT/SIGTERM, then drains and prints a summary.
+
+use anyhow::Result;
+use clap::Parser;
+use insitu_generator_node::{start, Config, Policy};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "generator-node",
+    version,
+    about = "Makes VDIs beside a simulation and ships them to a viz-node"
+)]
+struct Args {
+    /// TOML config file (every key is documented in deploy/generator-node.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
+    #[arg(long)]
+    listen: Option<SocketAddr>,
+    /// The viz-node, host:port.
+    #[arg(long)]
+    viz: Option<String>,
+    /// File holding the bearer token (else INSITU_TOKEN).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Input queue policy: block, drop-oldest or latest-only.
+    #[arg(long)]
+    policy: Option<Policy>,
+    /// Input queue length, steps.
+    #[arg(long)]
+    queue_steps: Option<usize>,
+    /// VDI resolution r.
+    #[arg(long)]
+    resolution: Option<u32>,
+    /// Interrupt threshold gamma.
+    #[arg(long)]
+    gamma: Option<f32>,
+    /// bzip2, zstd or none.
+    #[arg(long)]
+    codec: Option<String>,
+    /// Transfer function file.
+    #[arg(long)]
+    tf: Option<PathBuf>,
+    /// Ship reference frames every k-th step (0 = never).
+    #[arg(long)]
+    reference_every: Option<u64>,
+}
+
+fn config(a: Args) -> Result<Config> {
+    let mut c = match &a.config {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    if let Some(v) = a.listen {
+        c.listen = v;
+    }
+    if a.viz.is_some() {
+        c.viz = a.viz;
+    }
+    if a.token_file.is_some() {
+        c.token_file = a.token_file;
+    }
+    if let Some(v) = a.policy {
+        c.queue.policy = v;
+    }
+    if let Some(v) = a.queue_steps {
+        c.queue.max_items = v;
+    }
+    let g = &mut c.generation;
+    if let Some(v) = a.resolution {
+        g.resolution = v;
+    }
+    if let Some(v) = a.gamma {
+        g.gamma = v;
+    }
+    if let Some(v) = a.codec {
+        g.codec = v;
+    }
+    if a.tf.is_some() {
+        g.tf = a.tf;
+    }
+    if let Some(v) = a.reference_every {
+        g.reference_every = v;
+    }
+    c.generation()?;
+    Ok(c)
+}
+
+async fn signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let Ok(mut term) = signal(SignalKind::terminate()) {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+    }
+    let _ = tokio::signal::ctrl_c().await;
+}
+
+#[tokio::main]
+async fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let run = async {
+        let node = start(config(Args::parse())?).await?;
+        // Scripts and tests read the actual address from this line.
+        println!("listening on {}", node.local_addr());
+        signal().await;
+        eprintln!("generator-node: shutting down, draining");
+        let summary = node.shutdown().await;
+        println!("summary: {summary}");
+        anyhow::Ok(())
+    };
+    match run.await {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

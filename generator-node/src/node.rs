@@ -1,0 +1,219 @@
+//! A running generator-node: the gRPC server, the generation worker and the shipper, wired
+//! together, with a graceful shutdown that drains what it can and says what it dropped.
+
+use crate::config::Config;
+use crate::queue::BoundedQueue;
+use crate::service::{GeneratorService, Shared};
+use crate::ship::Shipper;
+use crate::stats::{Counters, Stats};
+use crate::work::{self, Product};
+use anyhow::Context;
+use insitu_proto::auth::{check_bind, RequireToken, Token};
+use insitu_proto::pb::generator_server::GeneratorServer;
+use insitu_proto::transport;
+use std::net::SocketAddr;
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tokio_stream::wrappers::TcpListenerStream;
+use tracing::{error, info, info_span, warn, Instrument};
+
+/// What a shutdown leaves behind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Summary {
+    /// The final counters (anything unshipped at the drain deadline is in `dropped_outbox`).
+    pub counters: Counters,
+    /// Of those, VDIs still unshipped when the drain deadline passed.
+    pub lost_at_shutdown: u64,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.counters;
+        write!(
+            f,
+            "received {}, generated {}, shipped {}, dropped from queue {}, dropped from outbox {} (of which unshipped at shutdown {}), failed {}",
+            c.received, c.generated, c.shipped, c.dropped_queue, c.dropped_outbox, self.lost_at_shutdown, c.failed
+        )
+    }
+}
+
+/// A started node.
+pub struct RunningNode {
+    addr: SocketAddr,
+    shared: Arc<Shared>,
+    outbox: Arc<BoundedQueue<Product>>,
+    stop_server: oneshot::Sender<()>,
+    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    worker: JoinHandle<()>,
+    shipper: Option<JoinHandle<()>>,
+    drain_timeout: Duration,
+}
+
+/// Binds, then starts the server, the worker and (with a viz-node configured) the shipper.
+///
+/// # Errors
+/// A bad config or token, a non-loopback address without a token, or a bind failure.
+pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
+    let generation = cfg.generation()?;
+    let token = Token::load(cfg.token_file.as_deref())?;
+    check_bind(cfg.listen, token.as_ref())?;
+    let listener = tokio::net::TcpListener::bind(cfg.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
+    let addr = listener.local_addr()?;
+    let outbox = Arc::new(BoundedQueue::new(
+        cfg.outbox.max_items,
+        cfg.outbox.max_bytes,
+        cfg.outbox.policy,
+    ));
+    let outbox_len = {
+        let o = outbox.clone();
+        Box::new(move || o.len())
+    };
+    let shared = Arc::new(Shared {
+        queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
+        generation: RwLock::new(generation),
+        stats: Arc::new(Stats::default()),
+        max_step_bytes: cfg.max_step_bytes,
+        shipping: cfg.viz.is_some(),
+        outbox_len,
+    });
+    let (stop_server, stopped) = oneshot::channel::<()>();
+    let svc = GeneratorServer::new(GeneratorService(shared.clone()))
+        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+    let svc =
+        tonic::service::interceptor::InterceptedService::new(svc, RequireToken::new(token.clone()));
+    let server = tokio::spawn(
+        transport::server()
+            .add_service(svc)
+            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
+                let _ = stopped.await;
+            }),
+    );
+    let worker = tokio::spawn(worker(shared.clone(), outbox.clone()));
+    let shipper = cfg.viz.as_deref().map(|viz| {
+        let s = Shipper::new(
+            viz,
+            token.clone(),
+            Duration::from_secs_f64(cfg.max_backoff_secs),
+        );
+        tokio::spawn(
+            s.run(outbox.clone(), shared.stats.clone())
+                .instrument(info_span!("shipper")),
+        )
+    });
+    info!(%addr, viz = ?cfg.viz, policy = %cfg.queue.policy, "generator-node listening");
+    Ok(RunningNode {
+        addr,
+        shared,
+        outbox,
+        stop_server,
+        server,
+        worker,
+        shipper,
+        drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
+    })
+}
+
+async fn worker(shared: Arc<Shared>, outbox: Arc<BoundedQueue<Product>>) {
+    while let Some(raw) = shared.queue.pop().await {
+        let (step, rank) = (raw.step, raw.rank);
+        let mut gen = shared.generation();
+        let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
+        let result = tokio::task::spawn_blocking(move || {
+            let tf = match gen.tf.take() {
+                Some(tf) => tf,
+                None => work::default_tf(&raw)?,
+            };
+            let product = work::run(&raw, &gen, &tf, with_refs)?;
+            Ok::<_, work::WorkError>((product, tf))
+        })
+        .instrument(info_span!("step", step, rank))
+        .await;
+        match result {
+            Ok(Ok((product, tf))) => {
+                {
+                    let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
+                    if g.tf.is_none() {
+                        info!(tf = %tf.1, "no transfer function configured: using a default over the first step's range");
+                        g.tf = Some(tf);
+                    }
+                }
+                shared.stats.update(|c| c.generated += 1);
+                if !shared.shipping {
+                    continue;
+                }
+                let n = product.bytes();
+                match outbox.push(product, n).await {
+                    Ok(dropped) if !dropped.is_empty() => {
+                        for d in &dropped {
+                            info!(
+                                step = d.vdi_header.step,
+                                rank = d.vdi_header.rank,
+                                "dropped an unshipped VDI (outbox full)"
+                            );
+                        }
+                        shared
+                            .stats
+                            .update(|c| c.dropped_outbox += dropped.len() as u64);
+                    }
+                    Ok(_) => {}
+                    Err(_) => shared.stats.update(|c| c.dropped_outbox += 1),
+                }
+            }
+            Ok(Err(e)) => {
+                error!(step, rank, error = %e, "generation failed");
+                shared.stats.update(|c| c.failed += 1);
+            }
+            Err(e) => {
+                error!(step, rank, error = %e, "generation task panicked");
+                shared.stats.update(|c| c.failed += 1);
+            }
+        }
+    }
+}
+
+impl RunningNode {
+    /// The address the server listens on (the actual port when 0 was asked for).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Shared state (status, counters).
+    pub fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
+
+    /// Stops taking steps, generates what is queued, ships for up to the drain timeout, and
+    /// counts whatever is left as dropped.
+    pub async fn shutdown(self) -> Summary {
+        self.shared.queue.close();
+        let _ = self.stop_server.send(());
+        if let Err(e) = self.server.await {
+            warn!(error = %e, "server task ended abnormally");
+        }
+        let _ = self.worker.await;
+        self.outbox.close();
+        let mut lost = 0;
+        if let Some(mut shipper) = self.shipper {
+            if tokio::time::timeout(self.drain_timeout, &mut shipper)
+                .await
+                .is_err()
+            {
+                shipper.abort();
+                let _ = shipper.await;
+                let c = self.shared.stats.get();
+                lost = c.received.saturating_sub(c.settled(true));
+                self.shared.stats.update(|c| c.dropped_outbox += lost);
+                warn!(lost, "drain timeout: VDIs left unshipped");
+            }
+        }
+        Summary {
+            counters: self.shared.stats.get(),
+            lost_at_shutdown: lost,
+        }
+    }
+}

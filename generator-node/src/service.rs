@@ -1,0 +1,219 @@
+//! The `Generator` gRPC service: receive steps into the bounded queue, take configuration
+//! pushed by a tuner or an operator, report status, flush.
+
+use crate::config::Generation;
+use crate::ingest::{check_header, RawStep};
+use crate::queue::BoundedQueue;
+use crate::stats::Stats;
+use insitu_core::raycast::RaycastParams;
+use insitu_core::{TransferFunction, VdiParams};
+use insitu_proto::convert::{camera_from_pb, codec_from_pb};
+use insitu_proto::pb::generator_server::Generator;
+use insitu_proto::{chunk, pb};
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+use tonic::{Request, Response, Status, Streaming};
+use tracing::{info, info_span, Instrument};
+
+/// Largest transfer function accepted over the wire, bytes.
+pub const MAX_TF_JSON: usize = 1 << 20;
+
+/// State shared by the service, the worker and the shipper.
+pub struct Shared {
+    /// Steps waiting for generation.
+    pub queue: BoundedQueue<RawStep>,
+    /// Current settings (a worker takes a snapshot per step).
+    pub generation: RwLock<Generation>,
+    /// Counters.
+    pub stats: Arc<Stats>,
+    /// Largest accepted step, bytes.
+    pub max_step_bytes: u64,
+    /// Whether a viz-node is configured.
+    pub shipping: bool,
+    /// Outbox length, for status.
+    pub outbox_len: Box<dyn Fn() -> usize + Send + Sync>,
+}
+
+impl Shared {
+    /// A snapshot of the current settings.
+    pub fn generation(&self) -> Generation {
+        self.generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// The status message.
+    pub fn status(&self) -> pb::GeneratorStatus {
+        let c = self.stats.get();
+        let g = self.generation();
+        pb::GeneratorStatus {
+            queue_depth: self.queue.len() as u32,
+            queue_limit: self.queue.max_items() as u32,
+            queue_bytes: self.queue.bytes(),
+            queue_policy: self.queue.policy().name().to_owned(),
+            outbox_depth: (self.outbox_len)() as u32,
+            steps_received: c.received,
+            steps_generated: c.generated,
+            steps_shipped: c.shipped,
+            dropped_queue: c.dropped_queue,
+            dropped_outbox: c.dropped_outbox,
+            failed: c.failed,
+            resolution: g.params.resolution,
+            gamma: g.params.gamma,
+            viz_connected: c.viz_connected,
+        }
+    }
+}
+
+/// The gRPC service.
+pub struct GeneratorService(pub Arc<Shared>);
+
+/// Applies a pushed config to `g`; nothing changes unless all of it is valid.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` naming the field.
+pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generation, Status> {
+    let bad =
+        |field: &str, e: &dyn std::fmt::Display| Status::invalid_argument(format!("{field}: {e}"));
+    let mut next = g.clone();
+    next.params = VdiParams {
+        resolution: c.resolution,
+        gamma: c.gamma,
+    };
+    next.params
+        .validate()
+        .map_err(|e| bad("resolution/gamma", &e))?;
+    next.raycast = RaycastParams {
+        step: c.step.unwrap_or(g.raycast.step),
+        termination: c.termination.unwrap_or(g.raycast.termination),
+        ..g.raycast
+    };
+    next.raycast
+        .validate()
+        .map_err(|e| bad("step/termination", &e))?;
+    if let Some(codec) = codec_from_pb(c.codec)? {
+        next.codec = codec;
+    }
+    if let Some(json) = &c.tf_json {
+        if json.len() > MAX_TF_JSON {
+            return Err(bad(
+                "tf_json",
+                &format!("{} bytes exceeds {MAX_TF_JSON}", json.len()),
+            ));
+        }
+        let name = c.tf_name.clone().unwrap_or_else(|| "pushed".into());
+        let tf = TransferFunction::from_json(json, &name).map_err(|e| bad("tf_json", &e))?;
+        next.tf = Some((tf, name));
+    }
+    if let Some(cam) = &c.camera {
+        next.camera = Some(camera_from_pb(cam)?);
+    }
+    if !c.view_angles_deg.is_empty() {
+        if c.view_angles_deg.iter().any(|a| !a.is_finite()) {
+            return Err(bad("view_angles_deg", &"angles must be finite"));
+        }
+        next.view_angles_deg = c.view_angles_deg.clone();
+    }
+    if let Some(k) = c.reference_every {
+        next.reference_every = u64::from(k);
+    }
+    if let Some(s) = c.reference_size {
+        if s > insitu_core::vdi::MAX_RESOLUTION {
+            return Err(bad("reference_size", &format!("{s} is too large")));
+        }
+        next.reference_size = s;
+    }
+    Ok(next)
+}
+
+#[tonic::async_trait]
+impl Generator for GeneratorService {
+    async fn push_step(
+        &self,
+        request: Request<Streaming<pb::StepChunk>>,
+    ) -> Result<Response<pb::PushReply>, Status> {
+        let s = &self.0;
+        let mut stream = request.into_inner();
+        let mut geometry = None;
+        let (_, bytes) = chunk::receive(&mut stream, s.max_step_bytes, |h: &pb::StepHeader| {
+            geometry = Some(check_header(h)?);
+            Ok(())
+        })
+        .await?;
+        let mut raw = geometry.ok_or_else(|| Status::internal("header not checked"))?;
+        raw.bytes = bytes;
+        let (step, rank, n) = (raw.step, raw.rank, raw.bytes.len() as u64);
+        let span = info_span!("receive", step, rank, bytes = n);
+        let dropped = s
+            .queue
+            .push(raw, n)
+            .instrument(span)
+            .await
+            .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
+        for d in &dropped {
+            info!(step = d.step, rank = d.rank, policy = %s.queue.policy(), "dropped a queued step");
+        }
+        let received = {
+            let mut received = 0;
+            s.stats.update(|c| {
+                c.received += 1;
+                c.dropped_queue += dropped.len() as u64;
+                received = c.received;
+            });
+            received
+        };
+        Ok(Response::new(pb::PushReply {
+            queue_depth: s.queue.len() as u32,
+            dropped_by_push: dropped.len() as u64,
+            steps_received: received,
+        }))
+    }
+
+    async fn set_config(
+        &self,
+        request: Request<pb::GenerationConfig>,
+    ) -> Result<Response<pb::ConfigReply>, Status> {
+        let c = request.into_inner();
+        let mut g = self.0.generation.write().unwrap_or_else(|e| e.into_inner());
+        *g = apply_config(&g, &c)?;
+        info!(r = g.params.resolution, gamma = g.params.gamma, codec = %g.codec, "new generation config");
+        Ok(Response::new(pb::ConfigReply {
+            resolution: g.params.resolution,
+            gamma: g.params.gamma,
+        }))
+    }
+
+    async fn get_status(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::GeneratorStatus>, Status> {
+        Ok(Response::new(self.0.status()))
+    }
+
+    async fn flush(
+        &self,
+        request: Request<pb::FlushRequest>,
+    ) -> Result<Response<pb::GeneratorStatus>, Status> {
+        let t = request.into_inner().timeout_secs;
+        let timeout = if t.is_finite() && t > 0.0 {
+            t.min(86_400.0)
+        } else {
+            600.0
+        };
+        let s = &self.0;
+        let target = s.stats.get().received;
+        let shipping = s.shipping;
+        tokio::time::timeout(
+            Duration::from_secs_f64(timeout),
+            s.stats.wait_for(|c| c.settled(shipping) >= target),
+        )
+        .await
+        .map_err(|_| {
+            Status::deadline_exceeded(format!(
+                "flush: not all of {target} steps were shipped within {timeout} s (is the viz-node reachable?)"
+            ))
+        })?;
+        Ok(Response::new(s.status()))
+    }
+}

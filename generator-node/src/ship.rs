@@ -1,0 +1,142 @@
+//! Shipping finished VDIs (and reference frames) to the viz-node: reconnect with exponential
+//! back-off while it is away; an item leaves the outbox for good only when the viz-node has
+//! acknowledged it (stored it), or when it fails with an error that retrying cannot fix.
+
+use crate::queue::BoundedQueue;
+use crate::stats::Stats;
+use crate::work::Product;
+use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{chunk, pb, transport};
+use std::sync::Arc;
+use std::time::Duration;
+use tonic::codegen::InterceptedService;
+use tonic::transport::Channel;
+use tonic::{Code, Status};
+use tracing::{info, info_span, warn, Instrument};
+
+type Client = VizClient<InterceptedService<Channel, AttachToken>>;
+
+/// Whether an error may go away by trying again (the peer is away or restarting).
+pub fn is_transient(code: Code) -> bool {
+    matches!(
+        code,
+        Code::Unavailable
+            | Code::Unknown
+            | Code::Cancelled
+            | Code::DeadlineExceeded
+            | Code::Aborted
+    )
+}
+
+/// Ships the outbox to one viz-node.
+pub struct Shipper {
+    uri: String,
+    token: Option<Token>,
+    max_backoff: Duration,
+    client: Option<Client>,
+}
+
+impl Shipper {
+    /// A shipper for the viz-node at `addr` (`host:port` or a URI).
+    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration) -> Self {
+        Self {
+            uri: transport::uri(addr),
+            token,
+            max_backoff,
+            client: None,
+        }
+    }
+
+    async fn client(&mut self) -> Result<&mut Client, Status> {
+        if self.client.is_none() {
+            let channel = transport::connect(&self.uri)
+                .await
+                .map_err(|e| Status::unavailable(format!("viz-node {}: {e}", self.uri)))?;
+            self.client = Some(
+                VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()))
+                    .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+                    .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
+            );
+        }
+        // Just set when it was `None`.
+        self.client
+            .as_mut()
+            .ok_or_else(|| Status::internal("viz client missing"))
+    }
+
+    async fn ship_references(
+        &mut self,
+        header: &pb::ReferenceHeader,
+        data: &bytes::Bytes,
+    ) -> Result<(), Status> {
+        let msgs = chunk::split::<pb::ReferenceChunk>(header.clone(), data.clone());
+        self.client()
+            .await?
+            .ship_references(tokio_stream::iter(msgs))
+            .await?;
+        Ok(())
+    }
+
+    async fn ship_vdi(&mut self, p: &Product) -> Result<(), Status> {
+        let msgs = chunk::split::<pb::VdiChunk>(p.vdi_header.clone(), p.vdi.clone());
+        self.client()
+            .await?
+            .ship_vdi(tokio_stream::iter(msgs))
+            .await?;
+        Ok(())
+    }
+
+    async fn try_once(&mut self, p: &Product, references_done: &mut bool) -> Result<(), Status> {
+        if let (false, Some((h, d))) = (*references_done, &p.references) {
+            self.ship_references(h, d).await?;
+            *references_done = true;
+        }
+        self.ship_vdi(p).await
+    }
+
+    /// Ships `p`, retrying transient failures with back-off (100 ms doubling up to the
+    /// maximum) for as long as it takes; returns a non-transient error.
+    ///
+    /// # Errors
+    /// The viz-node's status when it refuses the item for a reason retrying cannot fix.
+    pub async fn ship(&mut self, p: &Product, stats: &Stats) -> Result<(), Status> {
+        let mut backoff = Duration::from_millis(100);
+        let mut references_done = false;
+        loop {
+            match self.try_once(p, &mut references_done).await {
+                Ok(()) => {
+                    if !stats.get().viz_connected {
+                        info!(uri = %self.uri, "connected to the viz-node");
+                    }
+                    stats.update(|c| c.viz_connected = true);
+                    return Ok(());
+                }
+                Err(e) if !is_transient(e.code()) => return Err(e),
+                Err(e) => {
+                    if stats.get().viz_connected {
+                        warn!(error = %e.message(), "viz-node unreachable; retrying with back-off");
+                    }
+                    stats.update(|c| c.viz_connected = false);
+                    self.client = None;
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(self.max_backoff);
+                }
+            }
+        }
+    }
+
+    /// Ships items until the outbox is closed and empty.
+    pub async fn run(mut self, outbox: Arc<BoundedQueue<Product>>, stats: Arc<Stats>) {
+        while let Some(p) = outbox.pop().await {
+            let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);
+            match self.ship(&p, &stats).instrument(span).await {
+                Ok(()) => stats.update(|c| c.shipped += 1),
+                Err(e) => {
+                    warn!(step = p.vdi_header.step, rank = p.vdi_header.rank, code = ?e.code(), error = %e.message(), "the viz-node refused a VDI; it is counted as failed");
+                    stats.update(|c| c.failed += 1);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,134 @@
+//! The CPU-bound part of a step (run on the blocking pool): volume from bytes, VDI generation
+//! `R(S_A, P_A, P_M)` (Sec. 3.2), compression (σ), and on sampled steps the reference frames
+//! of the test views from the original data (Alg. 1, line 9).
+
+use crate::config::Generation;
+use crate::ingest::RawStep;
+use bytes::Bytes;
+use insitu_core::evaluate::render_references;
+use insitu_core::vdi::{codec, generate};
+use insitu_core::{Camera, Image, Raycaster, TransferFunction};
+use insitu_proto::convert::{camera_to_pb, codec_to_pb};
+use insitu_proto::pb;
+use std::time::Instant;
+use tracing::info_span;
+
+/// A finished step, ready to ship.
+#[derive(Debug, Clone)]
+pub struct Product {
+    /// VDI metadata (σ, τ, `P_M`, …).
+    pub vdi_header: pb::VdiHeader,
+    /// The compressed VDI file.
+    pub vdi: Bytes,
+    /// Reference frames, on sampled steps.
+    pub references: Option<(pb::ReferenceHeader, Bytes)>,
+}
+
+impl Product {
+    /// Bytes held (for the outbox's byte limit).
+    pub fn bytes(&self) -> u64 {
+        (self.vdi.len() + self.references.as_ref().map_or(0, |(_, b)| b.len())) as u64
+    }
+}
+
+/// Why a step could not be turned into a VDI.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkError {
+    /// The volume could not be built.
+    #[error(transparent)]
+    Volume(#[from] insitu_core::volume::VolumeError),
+    /// Ray-casting parameters were rejected.
+    #[error(transparent)]
+    Raycast(#[from] insitu_core::raycast::RaycastError),
+    /// `P_M` or the camera were rejected.
+    #[error(transparent)]
+    Params(#[from] insitu_core::vdi::VdiParamError),
+    /// Encoding failed.
+    #[error(transparent)]
+    Codec(#[from] codec::CodecError),
+}
+
+/// The transfer function for `raw` when none is configured: the default over its range
+/// (all-NaN data: over [0, 1]).
+pub fn default_tf(raw: &RawStep) -> Result<(TransferFunction, String), WorkError> {
+    let range = raw.volume()?.finite_range().unwrap_or((0.0, 1.0));
+    Ok((
+        TransferFunction::default_for_range(range.0, range.1),
+        format!("default[{}, {}]", range.0, range.1),
+    ))
+}
+
+/// Reference frames as bytes: `views × h × w × 3` little-endian f32 (see `ReferenceHeader`).
+pub fn frames_to_bytes(images: &[Image]) -> Vec<u8> {
+    images
+        .iter()
+        .flat_map(|im| im.pixels().iter().flatten().flat_map(|c| c.to_le_bytes()))
+        .collect()
+}
+
+/// Generates, compresses and (if `with_references`) renders the references for one step.
+///
+/// # Errors
+/// [`WorkError`] from the core.
+pub fn run(
+    raw: &RawStep,
+    gen: &Generation,
+    tf: &(TransferFunction, String),
+    with_references: bool,
+) -> Result<Product, WorkError> {
+    let volume = raw.volume()?;
+    let raycaster = Raycaster::new(&volume, &tf.0, gen.raycast)?;
+    let camera = gen
+        .camera
+        .unwrap_or_else(|| Camera::default_for_box(&raw.global_box()));
+    let tf_hash = tf.0.identity_hash();
+    let t = Instant::now();
+    let vdi = info_span!(
+        "generate",
+        r = gen.params.resolution,
+        gamma = gen.params.gamma
+    )
+    .in_scope(|| generate::generate(&raycaster, &camera, gen.params, tf_hash, &tf.1))?;
+    let tau_secs = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let file =
+        info_span!("compress", codec = %gen.codec).in_scope(|| codec::encode(&vdi, gen.codec))?;
+    let tau_compress_secs = t.elapsed().as_secs_f64();
+    let references = with_references.then(|| {
+        let size = gen.reference_side();
+        let frames = info_span!("references", views = gen.view_angles_deg.len(), size)
+            .in_scope(|| render_references(&raycaster, &camera, &gen.view_angles_deg, size));
+        let bytes = frames_to_bytes(&frames);
+        (
+            pb::ReferenceHeader {
+                step: raw.step,
+                rank: raw.rank,
+                width: size,
+                height: size,
+                camera: Some(camera_to_pb(&camera)),
+                view_angles_deg: gen.view_angles_deg.clone(),
+                total_bytes: bytes.len() as u64,
+            },
+            Bytes::from(bytes),
+        )
+    });
+    Ok(Product {
+        vdi_header: pb::VdiHeader {
+            step: raw.step,
+            sim_time: raw.sim_time,
+            rank: raw.rank,
+            world_size: raw.world_size,
+            resolution: gen.params.resolution,
+            gamma: gen.params.gamma,
+            codec: codec_to_pb(gen.codec) as i32,
+            total_bytes: file.len() as u64,
+            supersegments: vdi.supersegments().len() as u64,
+            tau_secs,
+            tau_compress_secs,
+            tf_hash,
+            tf_name: tf.1.clone(),
+        },
+        vdi: Bytes::from(file),
+        references,
+    })
+}
