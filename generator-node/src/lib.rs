@@ -6,6 +6,8 @@
 //! [`ship`]per delivers them to the viz-node, reconnecting with back-off, from a bounded outbox.
 //! [`node`] wires it together and shuts it down gracefully; [`config`] is the TOML file.
 
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
 pub mod config;
 pub mod ingest;
 pub mod node;

@@ -8,6 +8,8 @@
 //! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
 //! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
 
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
 pub mod auth;
 pub mod chunk;
 #[cfg(feature = "core")]

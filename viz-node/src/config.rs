@@ -1,0 +1,124 @@
+//! The viz-node's configuration: one TOML file (every key documented in
+//! `deploy/viz-node.toml`), overridden by command-line flags.
+
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// Errors loading a configuration; each names the file or key.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Not valid TOML for this schema.
+    #[error("config {path}: {source}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: toml::de::Error,
+    },
+    /// A value out of range.
+    #[error("config key {key}: {problem}")]
+    Invalid {
+        /// Key.
+        key: &'static str,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// The whole file.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token.
+    pub listen: SocketAddr,
+    /// Where VDIs, reference frames and the index are recorded (created if missing).
+    pub recording_dir: PathBuf,
+    /// File holding the bearer token (else `INSITU_TOKEN`, if set).
+    pub token_file: Option<PathBuf>,
+    /// Largest VDI file accepted, bytes.
+    pub max_vdi_bytes: u64,
+    /// Largest set of reference frames accepted (one step and rank), bytes.
+    pub max_reference_bytes: u64,
+    /// Early-termination opacity when rendering VDIs.
+    pub termination: f32,
+    /// Reports kept for slow subscribers before the oldest are skipped.
+    pub report_buffer: usize,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::from(([127, 0, 0, 1], 50052)),
+            recording_dir: PathBuf::from("recording"),
+            token_file: None,
+            max_vdi_bytes: 2 << 30,
+            max_reference_bytes: 2 << 30,
+            termination: insitu_core::raycast::DEFAULT_TERMINATION,
+            report_buffer: 1024,
+        }
+    }
+}
+
+impl Config {
+    /// Reads and validates a TOML file.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file or key.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        let cfg: Self = toml::from_str(&text).map_err(|source| ConfigError::Parse {
+            path: path.to_owned(),
+            source,
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Checks the values.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`].
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !(self.termination > 0.0 && self.termination <= 1.0) {
+            return Err(ConfigError::Invalid {
+                key: "termination",
+                problem: format!("{} is outside (0, 1]", self.termination),
+            });
+        }
+        if self.report_buffer == 0 || self.max_vdi_bytes == 0 || self.max_reference_bytes == 0 {
+            return Err(ConfigError::Invalid {
+                key: "report_buffer/max_vdi_bytes/max_reference_bytes",
+                problem: "must be ≥ 1".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_documented_example_parses_and_matches_the_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/viz-node.toml");
+        assert_eq!(Config::load(&path).unwrap(), Config::default());
+        assert!(toml::from_str::<Config>("termination = 0.0")
+            .unwrap()
+            .validate()
+            .is_err());
+        assert!(toml::from_str::<Config>("recording = \"x\"").is_err());
+    }
+}

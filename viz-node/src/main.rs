@@ -1,0 +1,82 @@
+//! `viz-node`: the daemon. Reads a TOML config (see `deploy/viz-node.toml`), applies flag
+//! overrides, serves until SIGINT/SIGTERM.
+
+use clap::Parser;
+use insitu_viz_node::{start, Config};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "viz-node",
+    version,
+    about = "Records, renders and scores VDIs shipped by generator-nodes"
+)]
+struct Args {
+    /// TOML config file (every key is documented in deploy/viz-node.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
+    #[arg(long)]
+    listen: Option<SocketAddr>,
+    /// Recording directory.
+    #[arg(long)]
+    recording_dir: Option<PathBuf>,
+    /// File holding the bearer token (else INSITU_TOKEN).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+}
+
+async fn signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let Ok(mut term) = signal(SignalKind::terminate()) {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+    }
+    let _ = tokio::signal::ctrl_c().await;
+}
+
+#[tokio::main]
+async fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let run = async {
+        let a = Args::parse();
+        let mut cfg = match &a.config {
+            Some(p) => Config::load(p)?,
+            None => Config::default(),
+        };
+        if let Some(v) = a.listen {
+            cfg.listen = v;
+        }
+        if let Some(v) = a.recording_dir {
+            cfg.recording_dir = v;
+        }
+        if a.token_file.is_some() {
+            cfg.token_file = a.token_file;
+        }
+        let node = start(cfg).await?;
+        println!("listening on {}", node.local_addr());
+        signal().await;
+        node.shutdown().await;
+        anyhow::Ok(())
+    };
+    match run.await {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! A running viz-node: the gRPC server and the scoring task.
+
+use crate::config::Config;
+use crate::service::{scorer, Shared, VizService};
+use crate::store::Recording;
+use anyhow::Context;
+use insitu_proto::auth::{check_bind, RequireToken, Token};
+use insitu_proto::pb::viz_server::VizServer;
+use insitu_proto::transport;
+use std::net::SocketAddr;
+use std::sync::atomic::AtomicU64;
+use std::sync::Arc;
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::task::JoinHandle;
+use tokio_stream::wrappers::TcpListenerStream;
+use tonic::service::interceptor::InterceptedService;
+use tracing::info;
+
+/// A started viz-node.
+pub struct RunningViz {
+    addr: SocketAddr,
+    shared: Arc<Shared>,
+    stop: oneshot::Sender<()>,
+    server: JoinHandle<Result<(), tonic::transport::Error>>,
+}
+
+/// Opens the recording, binds, and serves.
+///
+/// # Errors
+/// A bad config or token, a non-loopback address without a token, a corrupt index, or a bind
+/// failure.
+pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
+    cfg.validate()?;
+    let token = Token::load(cfg.token_file.as_deref())?;
+    check_bind(cfg.listen, token.as_ref())?;
+    let recording = Recording::open(&cfg.recording_dir)?;
+    let listener = tokio::net::TcpListener::bind(cfg.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
+    let addr = listener.local_addr()?;
+    let (to_score, score_rx) = mpsc::unbounded_channel();
+    let shared = Arc::new(Shared {
+        recording,
+        reports: broadcast::channel(cfg.report_buffer).0,
+        to_score,
+        max_vdi_bytes: cfg.max_vdi_bytes,
+        max_reference_bytes: cfg.max_reference_bytes,
+        termination: cfg.termination,
+        vdis_stored: AtomicU64::new(0),
+        references_stored: AtomicU64::new(0),
+        reports_sent: AtomicU64::new(0),
+        rejected: AtomicU64::new(0),
+    });
+    tokio::spawn(scorer(shared.clone(), score_rx));
+    let svc = VizServer::new(VizService(shared.clone()))
+        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+    let svc = InterceptedService::new(svc, RequireToken::new(token));
+    let (stop, stopped) = oneshot::channel::<()>();
+    let server = tokio::spawn(
+        transport::server()
+            .add_service(svc)
+            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
+                let _ = stopped.await;
+            }),
+    );
+    info!(%addr, recording = %cfg.recording_dir.display(), "viz-node listening");
+    Ok(RunningViz {
+        addr,
+        shared,
+        stop,
+        server,
+    })
+}
+
+impl RunningViz {
+    /// The address served (the actual port when 0 was asked for).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Shared state (recording, counters).
+    pub fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
+
+    /// Stops serving after in-flight calls finish.
+    pub async fn shutdown(self) {
+        let _ = self.stop.send(());
+        let _ = self.server.await;
+    }
+}
