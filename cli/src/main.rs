@@ -1,10 +1,13 @@
 //! `insitu`: the command line of the in situ VDI service.
 //!
 //! Subcommands: `render` (reference DVR → PNG), `generate` (VDI → file), `view` (VDI file +
-//! camera → PNG) and `evaluate` (σ, q, τ of one `P_M` at the test views, with a PNG strip).
+//! camera → PNG), `evaluate` (σ, q, τ of one `P_M` at the test views, with a PNG strip),
+//! `demo` (the in situ pipeline on the built-in simulation) and `replay` (a recorded series
+//! through the pipeline).
 
 mod cmd;
 mod output;
+mod pipeline;
 mod progress;
 mod scene;
 
@@ -32,6 +35,11 @@ enum Command {
     View(cmd::view::Args),
     /// Generate, compress and render a VDI at the test views; score it against direct renders.
     Evaluate(cmd::evaluate::Args),
+    /// The in situ pipeline on the built-in Gray–Scott simulation: client → generator-node →
+    /// viz-node on 127.0.0.1, one line per step (sigma, tau, q), then a summary.
+    Demo(cmd::demo::Args),
+    /// Feed a recorded time series (4-D raw file) through the pipeline, as a simulation would.
+    Replay(cmd::replay::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -61,5 +69,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Generate(a) => cmd::generate::run(a),
         Command::View(a) => cmd::view::run(a),
         Command::Evaluate(a) => cmd::evaluate::run(a),
+        Command::Demo(a) => cmd::demo::run(a),
+        Command::Replay(a) => cmd::replay::run(a),
     }
 }

@@ -1,8 +1,10 @@
 //! One module per subcommand.
 
+pub mod demo;
 pub mod evaluate;
 pub mod generate;
 pub mod render;
+pub mod replay;
 pub mod view;
 
 use anyhow::{bail, Result};

@@ -1,0 +1,126 @@
+//! `insitu demo`: the project's main job on an embedded default. The built-in Gray–Scott
+//! simulation pushes every k-th step through the simulation client to a generator-node, which
+//! ships compressed VDIs (and, on sampled steps, reference frames) to a viz-node; both run in
+//! this process on 127.0.0.1 with ephemeral ports. One line per stored VDI, then a summary.
+
+use crate::pipeline::{print_reports, print_summary, LocalNodes, PipelineArgs};
+use anyhow::{bail, Result};
+use insitu_client::{SimClient, Step};
+use insitu_core::volume::{GrayScott, GrayScottParams};
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Gray–Scott grid side N (N³ cells).
+    #[arg(long, default_value_t = 64)]
+    size: usize,
+    /// Simulation steps to run before the first push (lets the pattern form).
+    #[arg(long, default_value_t = 500)]
+    warmup: u64,
+    /// Push every k-th simulation step.
+    #[arg(long, default_value_t = 100)]
+    every: u64,
+    /// Time steps to push.
+    #[arg(long, default_value_t = 30)]
+    pushes: u64,
+    /// Ship reference frames (and so report q) on every m-th pushed step.
+    #[arg(long, default_value_t = 5)]
+    sample_every: u64,
+    #[command(flatten)]
+    pipeline: PipelineArgs,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.every == 0 || a.pushes == 0 || a.sample_every == 0 {
+        bail!("--every, --pushes and --sample-every must be ≥ 1");
+    }
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(demo(a))
+}
+
+async fn demo(a: Args) -> Result<()> {
+    let started = Instant::now();
+    let mut sim = GrayScott::new(a.size, GrayScottParams::default())?;
+    let reference_every = a.every * a.sample_every;
+    let nodes = LocalNodes::start(&a.pipeline, |c| {
+        c.generation.reference_every = reference_every;
+        // Small frames keep the demo quick; the VDI itself is r × r.
+        c.generation.reference_size = a.pipeline.r.min(256);
+    })
+    .await?;
+    println!(
+        "demo: Gray–Scott {n}³, push every {} steps after {} warm-up steps, {} pushes; generator-node {}, viz-node {}",
+        a.every,
+        a.warmup,
+        a.pushes,
+        nodes.generator.local_addr(),
+        nodes.viz.local_addr(),
+        n = a.size,
+    );
+    let (printer, collected) = print_reports(
+        nodes.viz.local_addr(),
+        Some(nodes.generator.shared().clone()),
+    )
+    .await?;
+    let mut client = SimClient::connect(&nodes.generator_addr(), None).await?;
+    let dims = [a.size as u32; 3];
+    let mut sim_secs = 0.0;
+    for k in 0..a.pushes {
+        let steps = if k == 0 { a.warmup.max(1) } else { a.every };
+        let t = Instant::now();
+        let (s, field) = tokio::task::spawn_blocking(move || {
+            sim.advance(steps);
+            let field: Vec<f32> = sim.v_volume().data().to_vec();
+            (sim, field)
+        })
+        .await?;
+        sim = s;
+        sim_secs += t.elapsed().as_secs_f64();
+        let index = sim.step_index();
+        let step = Step::whole_f32(
+            index,
+            index as f64 * GrayScottParams::default().dt,
+            dims,
+            &field,
+        );
+        client.push_step(step).await?;
+    }
+    let status = client.close(Duration::from_secs(600)).await?;
+    wait_for_reports(&collected, status.steps_shipped).await;
+    printer.abort();
+    let summary = nodes.generator.shutdown().await;
+    nodes.viz.shutdown().await;
+    let reports = collected
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .reports
+        .clone();
+    print_summary(
+        a.pushes,
+        started.elapsed().as_secs_f64(),
+        &status,
+        &reports,
+        &nodes.recording,
+    );
+    println!("  simulation time {sim_secs:.1} s; generator: {summary}");
+    Ok(())
+}
+
+/// Waits (up to a minute) until a report per stored VDI has arrived (scoring may lag storing).
+pub async fn wait_for_reports(
+    collected: &std::sync::Mutex<crate::pipeline::Collected>,
+    stored: u64,
+) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < deadline {
+        let n = collected
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .reports
+            .len() as u64;
+        if n >= stored {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}

@@ -1,0 +1,197 @@
+//! `insitu replay`: feeds a recorded time series (a 4-D raw file) through the simulation
+//! client, as a simulation would, optionally split into z-bricks over several ranks. Without
+//! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
+//! with it, it pushes to a running generator-node and sets its config first.
+
+use crate::pipeline::{print_reports, print_summary, LocalNodes, PipelineArgs};
+use anyhow::{bail, Context, Result};
+use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
+use insitu_core::volume::RawFormat;
+use insitu_core::{TransferFunction, Volume};
+use insitu_proto::auth::Token;
+use insitu_proto::convert::codec_to_pb;
+use insitu_proto::pb;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The series: `<name>_<X>x<Y>x<Z>x<T>_<type>.raw`.
+    #[arg(long)]
+    series: PathBuf,
+    /// Transfer function JSON. Default: a ramp over the first step's range (all ranks share it).
+    #[arg(long)]
+    tf: Option<PathBuf>,
+    /// Split each step into this many z-bricks, one rank each (bricks share their boundary
+    /// plane so that the ranks' boxes abut).
+    #[arg(long, default_value_t = 1)]
+    ranks: u32,
+    /// Ship reference frames (and so report q) on every m-th step (0 = never).
+    #[arg(long, default_value_t = 1)]
+    sample_every: u64,
+    /// Push to this running generator-node (host:port) instead of starting local nodes.
+    #[arg(long)]
+    generator: Option<String>,
+    /// Bearer token file for --generator (else INSITU_TOKEN).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pipeline: PipelineArgs,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let format = RawFormat::from_file_name(&a.series)?;
+    if a.ranks == 0 || a.ranks as usize >= format.dims[2] {
+        bail!(
+            "--ranks {}: need 1 ≤ ranks < {} (the z size of {})",
+            a.ranks,
+            format.dims[2],
+            a.series.display()
+        );
+    }
+    tokio::runtime::Runtime::new()?.block_on(replay(a, format))
+}
+
+/// Splits `z ∈ [0, nz − 1]` into `ranks` bricks `[z0, z1]` (inclusive) that share boundary
+/// planes, as even as integer planes allow.
+pub fn z_bricks(nz: usize, ranks: usize) -> Vec<(usize, usize)> {
+    (0..ranks)
+        .map(|k| (k * (nz - 1) / ranks, (k + 1) * (nz - 1) / ranks))
+        .collect()
+}
+
+fn brick_step(v: &Volume, step: u64, z: (usize, usize), rank: u32, world_size: u32) -> Step {
+    let [nx, ny, nz] = v.dims();
+    let plane = nx * ny;
+    let data = &v.data()[z.0 * plane..(z.1 + 1) * plane];
+    let dims = [nx as u32, ny as u32, nz as u32];
+    Step {
+        step,
+        sim_time: step as f64,
+        dtype: ScalarType::F32,
+        global_dims: dims,
+        brick_offset: [0, 0, z.0 as u32],
+        brick_dims: [nx as u32, ny as u32, (z.1 - z.0 + 1) as u32],
+        rank,
+        world_size,
+        spacing: v.spacing().to_array(),
+        data: f32_bytes(data),
+    }
+}
+
+async fn replay(a: Args, format: RawFormat) -> Result<()> {
+    let started = Instant::now();
+    let load = |t: usize| format.load(&a.series, t, glam::Vec3::ONE);
+    let first = load(0)?;
+    let (tf, tf_name) = match &a.tf {
+        Some(p) => (
+            TransferFunction::load(p)?,
+            p.file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        ),
+        None => {
+            let (lo, hi) = first.finite_range().unwrap_or((0.0, 1.0));
+            (
+                TransferFunction::default_for_range(lo, hi),
+                format!("default[{lo}, {hi}]"),
+            )
+        }
+    };
+    let config = pb::GenerationConfig {
+        resolution: a.pipeline.r,
+        gamma: a.pipeline.gamma,
+        codec: codec_to_pb(a.pipeline.codec.parse()?) as i32,
+        tf_json: Some(serde_json::to_string(&tf)?),
+        tf_name: Some(tf_name),
+        reference_every: Some(
+            u32::try_from(a.sample_every).context("--sample-every is too large")?,
+        ),
+        ..Default::default()
+    };
+    let local = match &a.generator {
+        Some(_) => None,
+        None => Some(LocalNodes::start(&a.pipeline, |_| {}).await?),
+    };
+    let token = Token::load(a.token_file.as_deref())?;
+    let addr = match (&a.generator, &local) {
+        (Some(g), _) => g.clone(),
+        (None, Some(n)) => n.generator_addr(),
+        (None, None) => bail!("no generator-node"),
+    };
+    let mut client = SimClient::connect(&addr, token.as_ref()).await?;
+    client.set_config(config).await?;
+    let (printer, collected) = match &local {
+        Some(n) => {
+            let (p, c) =
+                print_reports(n.viz.local_addr(), Some(n.generator.shared().clone())).await?;
+            (Some(p), Some(c))
+        }
+        None => (None, None),
+    };
+    let bricks = z_bricks(format.dims[2], a.ranks as usize);
+    println!(
+        "replay: {} ({} steps, {:?}), {} rank(s), pushing to {addr}",
+        a.series.display(),
+        format.steps,
+        format.dims,
+        a.ranks
+    );
+    let mut pushed = 0;
+    for t in 0..format.steps {
+        let v = if t == 0 { first.clone() } else { load(t)? };
+        for (rank, &z) in bricks.iter().enumerate() {
+            let reply = client
+                .push_step(brick_step(&v, t as u64, z, rank as u32, a.ranks))
+                .await?;
+            pushed += 1;
+            if local.is_none() {
+                println!(
+                    "pushed step {t} rank {rank}: queue {}, dropped by this push {}",
+                    reply.queue_depth, reply.dropped_by_push
+                );
+            }
+        }
+    }
+    let status = client.close(Duration::from_secs(600)).await?;
+    match (local, collected) {
+        (Some(nodes), Some(collected)) => {
+            crate::cmd::demo::wait_for_reports(&collected, status.steps_shipped).await;
+            if let Some(p) = printer {
+                p.abort();
+            }
+            let summary = nodes.generator.shutdown().await;
+            nodes.viz.shutdown().await;
+            let reports = collected
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .reports
+                .clone();
+            print_summary(
+                pushed,
+                started.elapsed().as_secs_f64(),
+                &status,
+                &reports,
+                &nodes.recording,
+            );
+            println!("  generator: {summary}");
+        }
+        _ => println!("flushed: {status:?}"),
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::z_bricks;
+
+    #[test]
+    fn bricks_cover_the_grid_and_share_boundaries() {
+        for (nz, ranks) in [(19, 1), (19, 2), (19, 4), (5, 4), (256, 3)] {
+            let b = z_bricks(nz, ranks);
+            assert_eq!(b.first().unwrap().0, 0);
+            assert_eq!(b.last().unwrap().1, nz - 1);
+            assert!(b.windows(2).all(|w| w[0].1 == w[1].0));
+            assert!(b.iter().all(|&(z0, z1)| z1 > z0), "{b:?}");
+        }
+    }
+}

@@ -1,0 +1,286 @@
+//! The simulation client: what a simulation links to hand its time steps to a generator-node
+//! (`proto/insitu.proto` is the contract for other languages).
+//!
+//! ```no_run
+//! # async fn run() -> Result<(), insitu_client::ClientError> {
+//! use insitu_client::{SimClient, Step};
+//! let mut client = SimClient::connect("127.0.0.1:50051", None).await?;
+//! let field = vec![0.0f32; 64 * 64 * 64];
+//! for step in 0..10u64 {
+//!     // ... advance the simulation ...
+//!     let reply = client.push_step(Step::whole_f32(step, step as f64, [64, 64, 64], &field)).await?;
+//!     println!("queued, depth {}", reply.queue_depth);
+//! }
+//! client.close(std::time::Duration::from_secs(60)).await?;
+//! # Ok(()) }
+//! ```
+//!
+//! `push_step` returns once the node has the whole step in its queue (with the node's `block`
+//! policy, once there is room), never after generation. Errors say whether the node was
+//! unreachable or refused the step; the simulation decides whether to go on.
+
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
+use bytes::Bytes;
+use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb::generator_client::GeneratorClient;
+use insitu_proto::{chunk, pb, transport};
+use std::time::Duration;
+use tonic::codegen::InterceptedService;
+use tonic::transport::Channel;
+
+pub use insitu_proto::auth::Token as BearerToken;
+pub use insitu_proto::pb::{ConfigReply, GenerationConfig, GeneratorStatus, PushReply, ScalarType};
+
+/// Errors of the client.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    /// The address is not usable.
+    #[error("invalid generator-node address {addr:?}: {source}")]
+    Address {
+        /// As given.
+        addr: String,
+        /// Why.
+        source: tonic::transport::Error,
+    },
+    /// Nothing answers at the address.
+    #[error("generator-node at {addr} is unreachable: {source}")]
+    Unreachable {
+        /// As given.
+        addr: String,
+        /// Why.
+        source: tonic::transport::Error,
+    },
+    /// The node answered with an error (bad step, shutting down, wrong token, …).
+    #[error("generator-node refused the call: {code:?}: {message}")]
+    Refused {
+        /// gRPC status code.
+        code: tonic::Code,
+        /// The node's message.
+        message: String,
+    },
+    /// The step's description is inconsistent (checked before sending).
+    #[error("invalid step: {0}")]
+    InvalidStep(String),
+}
+
+impl From<tonic::Status> for ClientError {
+    fn from(s: tonic::Status) -> Self {
+        Self::Refused {
+            code: s.code(),
+            message: s.message().to_owned(),
+        }
+    }
+}
+
+/// One time step (one rank's brick of it).
+#[derive(Clone, Debug)]
+pub struct Step {
+    /// Step index.
+    pub step: u64,
+    /// Simulation time.
+    pub sim_time: f64,
+    /// Scalar type of `data`.
+    pub dtype: ScalarType,
+    /// The whole grid, voxels.
+    pub global_dims: [u32; 3],
+    /// This brick's first voxel in the whole grid.
+    pub brick_offset: [u32; 3],
+    /// This brick's size, voxels.
+    pub brick_dims: [u32; 3],
+    /// This rank.
+    pub rank: u32,
+    /// Number of ranks.
+    pub world_size: u32,
+    /// Voxel spacing, world units.
+    pub spacing: [f32; 3],
+    /// The field, little-endian, x fastest: `brick voxels × dtype size` bytes.
+    pub data: Bytes,
+}
+
+impl Step {
+    /// A whole single-rank `f32` field (x fastest), unit spacing.
+    pub fn whole_f32(step: u64, sim_time: f64, dims: [u32; 3], field: &[f32]) -> Self {
+        Self {
+            step,
+            sim_time,
+            dtype: ScalarType::F32,
+            global_dims: dims,
+            brick_offset: [0; 3],
+            brick_dims: dims,
+            rank: 0,
+            world_size: 1,
+            spacing: [1.0; 3],
+            data: f32_bytes(field),
+        }
+    }
+
+    fn header(&self) -> Result<pb::StepHeader, ClientError> {
+        let size = match self.dtype {
+            ScalarType::U8 => 1,
+            ScalarType::U16 | ScalarType::I16 => 2,
+            ScalarType::F32 => 4,
+            ScalarType::F64 => 8,
+            ScalarType::Unspecified => {
+                return Err(ClientError::InvalidStep("dtype is unspecified".into()))
+            }
+        };
+        let voxels: u64 = self.brick_dims.iter().map(|&d| u64::from(d)).product();
+        if voxels * size != self.data.len() as u64 {
+            return Err(ClientError::InvalidStep(format!(
+                "{} bytes for a brick of {:?} voxels of {size} bytes",
+                self.data.len(),
+                self.brick_dims
+            )));
+        }
+        let d = |v: [u32; 3]| {
+            Some(pb::Dims3 {
+                x: v[0],
+                y: v[1],
+                z: v[2],
+            })
+        };
+        Ok(pb::StepHeader {
+            step: self.step,
+            sim_time: self.sim_time,
+            dtype: self.dtype as i32,
+            global_dims: d(self.global_dims),
+            brick_offset: d(self.brick_offset),
+            brick_dims: d(self.brick_dims),
+            rank: self.rank,
+            world_size: self.world_size,
+            total_bytes: self.data.len() as u64,
+            spacing: Some(pb::Vec3 {
+                x: self.spacing[0],
+                y: self.spacing[1],
+                z: self.spacing[2],
+            }),
+        })
+    }
+}
+
+/// `field` as little-endian bytes.
+pub fn f32_bytes(field: &[f32]) -> Bytes {
+    field
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect::<Vec<u8>>()
+        .into()
+}
+
+/// A connection to one generator-node.
+#[derive(Clone)]
+pub struct SimClient {
+    inner: GeneratorClient<InterceptedService<Channel, AttachToken>>,
+}
+
+impl SimClient {
+    /// Connects to the node at `addr` (`host:port` or a URI), sending `token` with every call.
+    ///
+    /// # Errors
+    /// [`ClientError::Address`] or [`ClientError::Unreachable`].
+    pub async fn connect(addr: &str, token: Option<&Token>) -> Result<Self, ClientError> {
+        let uri = transport::uri(addr);
+        let endpoint = transport::endpoint(&uri).map_err(|source| ClientError::Address {
+            addr: addr.to_owned(),
+            source,
+        })?;
+        let channel = endpoint
+            .connect()
+            .await
+            .map_err(|source| ClientError::Unreachable {
+                addr: addr.to_owned(),
+                source,
+            })?;
+        Ok(Self {
+            inner: GeneratorClient::with_interceptor(channel, AttachToken::new(token))
+                .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+                .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
+        })
+    }
+
+    /// Hands `step` to the node; returns once it is queued there (see the crate docs).
+    ///
+    /// # Errors
+    /// [`ClientError::InvalidStep`] before sending; [`ClientError::Refused`] from the node.
+    pub async fn push_step(&mut self, step: Step) -> Result<PushReply, ClientError> {
+        let msgs = chunk::split::<pb::StepChunk>(step.header()?, step.data);
+        Ok(self
+            .inner
+            .push_step(tokio_stream::iter(msgs))
+            .await?
+            .into_inner())
+    }
+
+    /// Sets `P_M` and the rest of the generation config for the steps that follow.
+    ///
+    /// # Errors
+    /// [`ClientError::Refused`] naming the bad field.
+    pub async fn set_config(
+        &mut self,
+        config: GenerationConfig,
+    ) -> Result<ConfigReply, ClientError> {
+        Ok(self.inner.set_config(config).await?.into_inner())
+    }
+
+    /// The node's counters.
+    ///
+    /// # Errors
+    /// [`ClientError::Refused`].
+    pub async fn status(&mut self) -> Result<GeneratorStatus, ClientError> {
+        Ok(self
+            .inner
+            .get_status(pb::StatusRequest {})
+            .await?
+            .into_inner())
+    }
+
+    /// Waits until everything pushed so far is shipped (or dropped by policy).
+    ///
+    /// # Errors
+    /// [`ClientError::Refused`] with `DeadlineExceeded` after `timeout`.
+    pub async fn flush(&mut self, timeout: Duration) -> Result<GeneratorStatus, ClientError> {
+        let req = pb::FlushRequest {
+            timeout_secs: timeout.as_secs_f64(),
+        };
+        Ok(self.inner.flush(req).await?.into_inner())
+    }
+
+    /// Flushes and disconnects; returns the final status.
+    ///
+    /// # Errors
+    /// As [`SimClient::flush`].
+    pub async fn close(mut self, timeout: Duration) -> Result<GeneratorStatus, ClientError> {
+        self.flush(timeout).await
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_whose_bytes_do_not_match_is_refused_before_sending() {
+        let mut s = Step::whole_f32(1, 0.0, [2, 2, 2], &[0.0; 8]);
+        assert_eq!(s.header().unwrap().total_bytes, 32);
+        s.brick_dims = [2, 2, 3];
+        assert!(matches!(s.header(), Err(ClientError::InvalidStep(m)) if m.contains("32 bytes")));
+        s.dtype = ScalarType::Unspecified;
+        assert!(s.header().is_err());
+    }
+
+    #[test]
+    fn an_unreachable_node_is_a_clear_error() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        // Port 1 on loopback: nothing listens there.
+        let e = rt
+            .block_on(SimClient::connect("127.0.0.1:1", None))
+            .err()
+            .unwrap();
+        assert!(matches!(e, ClientError::Unreachable { .. }), "{e}");
+        assert!(e.to_string().contains("127.0.0.1:1"));
+    }
+}
