@@ -26,6 +26,9 @@ pub struct Args {
     /// plane so that the ranks' boxes abut).
     #[arg(long, default_value_t = 1)]
     ranks: u32,
+    /// Replay only the first N steps (default: all).
+    #[arg(long)]
+    steps: Option<usize>,
     /// Ship reference frames (and so report q) on every m-th step (0 = never).
     #[arg(long, default_value_t = 1)]
     sample_every: u64,
@@ -137,7 +140,7 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
         a.ranks
     );
     let mut pushed = 0;
-    for t in 0..format.steps {
+    for t in 0..a.steps.unwrap_or(format.steps).min(format.steps) {
         let v = if t == 0 { first.clone() } else { load(t)? };
         for (rank, &z) in bricks.iter().enumerate() {
             let reply = client

@@ -1,0 +1,173 @@
+//! Harness for the end-to-end tests: builds and starts the real daemon binaries
+//! (`generator-node`, `viz-node`, and the `insitu` CLI) on 127.0.0.1 with ephemeral ports,
+//! reads the address each prints, stops them with SIGTERM, and finds the shared data.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+/// The directory the workspace's binaries are built into (next to this test's `deps/`).
+pub fn bin_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test> → target/<profile>
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("target dir")
+        .to_owned()
+}
+
+/// Builds the daemon and CLI binaries once per test process (a no-op when they are fresh),
+/// with the same profile as this test.
+pub fn ensure_built() {
+    static BUILT: OnceLock<()> = OnceLock::new();
+    BUILT.get_or_init(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let release = bin_dir().file_name().is_some_and(|n| n == "release");
+        let mut cmd = Command::new(cargo);
+        cmd.args([
+            "build",
+            "--bins",
+            "-p",
+            "insitu-generator-node",
+            "-p",
+            "insitu-viz-node",
+            "-p",
+            "insitu-cli",
+        ]);
+        if release {
+            cmd.arg("--release");
+        }
+        let status = cmd
+            .status()
+            .expect("running cargo build for the daemon binaries");
+        assert!(status.success(), "building the daemon binaries failed");
+    });
+}
+
+/// A binary of the workspace.
+pub fn bin(name: &str) -> PathBuf {
+    ensure_built();
+    bin_dir().join(name)
+}
+
+/// A daemon process; killed on drop if still running.
+pub struct Daemon {
+    /// The process.
+    pub child: Child,
+    /// The address it printed.
+    pub addr: String,
+    stdout: Option<BufReader<ChildStdout>>,
+    /// Its stderr log file.
+    pub log: PathBuf,
+}
+
+impl Daemon {
+    /// Starts `name` with `args` (and `envs`), logging stderr to `log_dir/name.log`, and waits
+    /// for its `listening on ADDR` line.
+    pub fn start(name: &str, args: &[&str], envs: &[(&str, &str)], log_dir: &Path) -> Self {
+        let log = log_dir.join(format!("{name}-{}.log", std::process::id()));
+        let log_file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log)
+            .unwrap();
+        let mut cmd = Command::new(bin(name));
+        cmd.args(args).stdout(Stdio::piped()).stderr(log_file);
+        cmd.env_remove("INSITU_TOKEN");
+        for (k, v) in envs {
+            cmd.env(k, v);
+        }
+        let mut child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {name}: {e}"));
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        stdout.read_line(&mut line).unwrap();
+        let Some(addr) = line.trim().strip_prefix("listening on ") else {
+            let _ = child.kill();
+            panic!(
+                "{name} did not start: printed {line:?}; log:\n{}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+        };
+        Self {
+            addr: addr.to_owned(),
+            child,
+            stdout: Some(stdout),
+            log,
+        }
+    }
+
+    /// Sends SIGTERM, waits, and returns the rest of its stdout (e.g. the summary).
+    pub fn terminate(mut self) -> String {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        let mut rest = String::new();
+        if let Some(mut s) = self.stdout.take() {
+            let _ = s.read_to_string(&mut rest);
+        }
+        let _ = self.child.wait();
+        rest
+    }
+
+    /// Kills it at once (SIGKILL), as a crash would.
+    pub fn kill(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The shared data directory (`INSITU_DATA_DIR` or `../shared/data`); panics with a clear
+/// message when it is missing, unless `INSITU_SKIP_DATA_TESTS=1` (then `None`).
+pub fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("INSITU_DATA_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    if std::env::var("INSITU_SKIP_DATA_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!(
+            "SKIPPED: data directory {} missing (INSITU_SKIP_DATA_TESTS=1)",
+            dir.display()
+        );
+        return None;
+    }
+    panic!(
+        "data directory {} is missing: set INSITU_DATA_DIR, or INSITU_SKIP_DATA_TESTS=1 to skip",
+        dir.display()
+    );
+}
+
+/// A current-thread runtime for async client calls inside a test.
+pub fn rt() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// Waits up to `secs` for `pred`, polling every 50 ms.
+pub fn wait_until(secs: f64, mut pred: impl FnMut() -> bool) -> bool {
+    let deadline = std::time::Instant::now() + Duration::from_secs_f64(secs);
+    while std::time::Instant::now() < deadline {
+        if pred() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    pred()
+}

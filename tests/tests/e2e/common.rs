@@ -1,0 +1,131 @@
+//! Helpers shared by the end-to-end tests.
+
+use insitu_client::{SimClient, Step};
+use insitu_core::vdi::codec::{decode, DecodeLimits};
+use insitu_core::Vdi;
+use insitu_e2e::{rt, Daemon};
+use insitu_viz_node::store::{Entry, INDEX};
+use std::net::TcpListener;
+use std::path::Path;
+
+/// A loopback port nobody listens on right now (for a viz-node that starts later).
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Starts a viz-node recording into `dir` on `listen`.
+pub fn viz(dir: &Path, listen: &str, logs: &Path) -> Daemon {
+    Daemon::start(
+        "viz-node",
+        &["--listen", listen, "--recording-dir", dir.to_str().unwrap()],
+        &[],
+        logs,
+    )
+}
+
+/// Starts a generator-node from a TOML config written to `logs/name.toml`.
+pub fn generator(toml: &str, logs: &Path, envs: &[(&str, &str)]) -> Daemon {
+    let path = logs.join(format!("generator-{}.toml", free_port()));
+    std::fs::write(&path, toml).unwrap();
+    Daemon::start(
+        "generator-node",
+        &["--config", path.to_str().unwrap()],
+        envs,
+        logs,
+    )
+}
+
+/// The recording's index entries.
+pub fn index(dir: &Path) -> Vec<Entry> {
+    let text =
+        std::fs::read_to_string(dir.join(INDEX)).unwrap_or_else(|_| "{\"entries\": []}".into());
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    serde_json::from_value(v["entries"].clone()).unwrap()
+}
+
+/// Decodes a stored VDI.
+pub fn load_vdi(dir: &Path, e: &Entry) -> Vdi {
+    let bytes = std::fs::read(dir.join(e.vdi.as_ref().unwrap())).unwrap();
+    decode(&bytes, &DecodeLimits::default()).unwrap()
+}
+
+/// A small smooth f32 field that changes with `step` (a blob moving along x).
+pub fn field(n: u32, step: u64) -> Vec<f32> {
+    let c = 4.0 + (step % 8) as f32;
+    let n = n as usize;
+    (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = ((i % n) as f32, ((i / n) % n) as f32, (i / (n * n)) as f32);
+            let d2 = (x - c).powi(2) + (y - 8.0).powi(2) + (z - 8.0).powi(2);
+            (-d2 / 20.0).exp()
+        })
+        .collect()
+}
+
+/// Pushes steps `range` of [`field`] (16³), returning the replies.
+pub fn push_steps(addr: &str, range: std::ops::Range<u64>) -> Vec<insitu_client::PushReply> {
+    rt().block_on(async {
+        let mut c = SimClient::connect(addr, None).await.unwrap();
+        let mut replies = Vec::new();
+        for s in range {
+            replies.push(
+                c.push_step(Step::whole_f32(s, s as f64, [16; 3], &field(16, s)))
+                    .await
+                    .unwrap(),
+            );
+        }
+        replies
+    })
+}
+
+/// The generator's status.
+pub fn status(addr: &str) -> insitu_client::GeneratorStatus {
+    rt().block_on(async {
+        SimClient::connect(addr, None)
+            .await
+            .unwrap()
+            .status()
+            .await
+            .unwrap()
+    })
+}
+
+/// Flushes the generator (up to 120 s).
+pub fn flush(addr: &str) -> insitu_client::GeneratorStatus {
+    rt().block_on(async {
+        SimClient::connect(addr, None)
+            .await
+            .unwrap()
+            .flush(std::time::Duration::from_secs(120))
+            .await
+            .unwrap()
+    })
+}
+
+/// A generator config shipping to `viz` with small, fast settings.
+pub fn small_config(viz: &str, policy: &str, outbox_items: usize) -> String {
+    format!(
+        r#"listen = "127.0.0.1:0"
+viz = "{viz}"
+max_backoff_secs = 0.2
+drain_timeout_secs = 5.0
+[queue]
+max_items = 2
+max_bytes = 1073741824
+policy = "{policy}"
+[outbox]
+max_items = {outbox_items}
+max_bytes = 1073741824
+policy = "block"
+[generation]
+resolution = 32
+gamma = 0.01
+codec = "zstd"
+reference_every = 0
+"#
+    )
+}

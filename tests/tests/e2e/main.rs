@@ -1,0 +1,10 @@
+//! End-to-end tests with the daemons as real processes on 127.0.0.1 (issue 5, "What must
+//! hold").
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod bad_input;
+mod common;
+mod outage;
+mod policies;
+mod replay;

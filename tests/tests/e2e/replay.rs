@@ -1,0 +1,140 @@
+//! The ocean series through `insitu replay` → generator-node → viz-node, all real processes.
+
+use crate::common::{generator, index, load_vdi, viz};
+use insitu_core::metrics::{mse, pooled_psnr};
+use insitu_core::vdi::render;
+use insitu_e2e::{bin, data_dir, Daemon};
+use insitu_viz_node::store::References;
+use std::process::Command;
+
+const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
+
+fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -> String {
+    let series = data_dir().map(|d| d.join(OCEAN));
+    let series = series.unwrap();
+    let out = Command::new(bin("insitu"))
+        .args([
+            "replay",
+            "--series",
+            series.to_str().unwrap(),
+            "--generator",
+            &generator.addr,
+        ])
+        .args(["--r", "64", "--codec", "zstd"])
+        .args(["--ranks", &ranks.to_string(), "--steps", &steps.to_string()])
+        .args(["--sample-every", &sample_every.to_string()])
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "replay failed: {}\n{text}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
+#[test]
+fn ocean_replay_is_stored_counted_and_scored_like_locally() {
+    if data_dir().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = generator(
+        &crate::common::small_config(&v.addr, "block", 16),
+        tmp.path(),
+        &[],
+    );
+    replay(&g, 1, 12, 4);
+    let summary = g.terminate();
+    assert!(summary.contains("received 12"), "{summary}");
+    let entries = index(&rec);
+    // Every step is stored or counted as dropped: with `block`, nothing is dropped.
+    assert!(summary.contains("dropped from queue 0"), "{summary}");
+    assert_eq!(entries.len(), 12, "{summary}");
+    let mut scored = 0;
+    for e in &entries {
+        let vdi = load_vdi(&rec, e);
+        assert_eq!(vdi.resolution(), 64);
+        let image = render::render(&vdi, &vdi.meta().camera.orbit_y(30.0), 48, 32, 0.99);
+        assert!(image.is_valid());
+        if e.step % 4 == 0 {
+            // The viz-node scores asynchronously after storing; wait for it.
+            let q_reported = insitu_e2e::wait_until(30.0, || {
+                index(&rec)
+                    .iter()
+                    .any(|x| x.step == e.step && x.quality.is_some())
+            });
+            assert!(q_reported, "step {} was never scored", e.step);
+            let e = index(&rec).into_iter().find(|x| x.step == e.step).unwrap();
+            let refs = References::read(&rec.join(e.references.as_ref().unwrap())).unwrap();
+            let mses: Vec<f64> = refs
+                .view_angles_deg
+                .iter()
+                .zip(&refs.frames)
+                .map(|(&a, f)| {
+                    let im =
+                        render::render(&vdi, &refs.camera.orbit_y(a), f.width(), f.height(), 0.99);
+                    mse(&im, f).unwrap()
+                })
+                .collect();
+            let local = pooled_psnr(&mses);
+            let reported = e.quality.unwrap().q_db.0;
+            assert!(
+                (local - reported).abs() < 1e-9 || (local.is_infinite() && reported.is_infinite()),
+                "step {}: reported q {reported} vs local {local}",
+                e.step
+            );
+            assert!(local > 20.0, "step {}: q {local}", e.step);
+            scored += 1;
+        }
+    }
+    assert_eq!(scored, 3);
+    v.terminate();
+}
+
+#[test]
+fn bricks_over_two_and_four_ranks_are_stored_and_render() {
+    if data_dir().is_none() {
+        return;
+    }
+    for ranks in [2u32, 4] {
+        let tmp = tempfile::tempdir().unwrap();
+        let rec = tmp.path().join("rec");
+        let v = viz(&rec, "127.0.0.1:0", tmp.path());
+        let g = generator(
+            &crate::common::small_config(&v.addr, "block", 16),
+            tmp.path(),
+            &[],
+        );
+        replay(&g, ranks, 3, 0);
+        g.terminate();
+        let entries = index(&rec);
+        assert_eq!(entries.len(), 3 * ranks as usize);
+        for step in 0..3u64 {
+            let mut boxes: Vec<(f32, f32)> = (0..ranks)
+                .map(|rank| {
+                    let e = entries
+                        .iter()
+                        .find(|e| e.step == step && e.rank == rank)
+                        .unwrap();
+                    assert_eq!(e.world_size, ranks);
+                    let vdi = load_vdi(&rec, e);
+                    let b = vdi.meta().volume_box;
+                    let image = render::render(&vdi, &vdi.meta().camera, 64, 64, 0.99);
+                    assert!(image.is_valid());
+                    (b.min.z, b.max.z)
+                })
+                .collect();
+            boxes.sort_by(|a, b| a.0.total_cmp(&b.0));
+            // The ranks' boxes tile z ∈ [0, 18] and abut.
+            assert_eq!(boxes.first().unwrap().0, 0.0);
+            assert_eq!(boxes.last().unwrap().1, 18.0);
+            assert!(boxes.windows(2).all(|w| w[0].1 == w[1].0), "{boxes:?}");
+        }
+        v.terminate();
+    }
+}
