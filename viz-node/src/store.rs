@@ -514,8 +514,7 @@ mod tests {
             fov_y_deg: 30.0,
         };
         assert!(References::from_bytes(cam, vec![0.0], 2, 2, &[0u8; 47]).is_err());
-        let nan: Vec<u8> = std::iter::repeat(f32::NAN.to_le_bytes())
-            .take(12)
+        let nan: Vec<u8> = std::iter::repeat_n(f32::NAN.to_le_bytes(), 12)
             .flatten()
             .collect();
         assert!(References::from_bytes(cam, vec![0.0], 2, 2, &nan).is_err());

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Starts a viz-node and a generator-node on 127.0.0.1 (ephemeral ports) from this checkout's
+# release binaries — the same binaries the end-to-end tests start — and keeps them running until
+# Ctrl-C, then stops both gracefully (the generator drains and prints what it dropped).
+#
+#   deploy/local.sh [RECORDING_DIR] [-- extra generator-node flags]
+#
+# Then push data, e.g.:
+#   target/release/insitu replay --series ../shared/data/ocean_temp_ts_180x90x19x12_float32.raw \
+#       --generator <generator address printed below>
+# Configs: deploy/generator-node.toml and deploy/viz-node.toml document every key; set
+# GENERATOR_CONFIG / VIZ_CONFIG to use your own.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rec=${1:-recording}
+shift $(( $# > 0 ? 1 : 0 ))
+[[ ${1:-} == "--" ]] && shift
+cargo build --release --quiet --bins -p insitu-generator-node -p insitu-viz-node -p insitu-cli
+bin=target/release
+logs=$(mktemp -d)
+
+wait_addr() { # file → prints the address once the daemon has printed it
+  for _ in $(seq 200); do
+    if grep -q '^listening on ' "$1" 2>/dev/null; then sed -n 's/^listening on //p' "$1" | head -1; return; fi
+    sleep 0.05
+  done
+  echo "daemon did not start; see $logs" >&2; exit 1
+}
+
+"$bin/viz-node" ${VIZ_CONFIG:+--config "$VIZ_CONFIG"} --listen 127.0.0.1:0 --recording-dir "$rec" \
+  >"$logs/viz.out" 2>"$logs/viz.log" &
+viz_pid=$!
+viz=$(wait_addr "$logs/viz.out")
+"$bin/generator-node" ${GENERATOR_CONFIG:+--config "$GENERATOR_CONFIG"} --listen 127.0.0.1:0 --viz "$viz" "$@" \
+  >"$logs/gen.out" 2>"$logs/gen.log" &
+gen_pid=$!
+gen=$(wait_addr "$logs/gen.out")
+
+stop() {
+  kill -TERM "$gen_pid" 2>/dev/null || true; wait "$gen_pid" 2>/dev/null || true
+  kill -TERM "$viz_pid" 2>/dev/null || true; wait "$viz_pid" 2>/dev/null || true
+  grep '^summary' "$logs/gen.out" || true
+  echo "recording: $rec   logs: $logs"
+}
+trap stop EXIT INT TERM
+echo "viz-node       $viz   (recording: $rec)"
+echo "generator-node $gen"
+echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops both)"
+wait "$gen_pid"
