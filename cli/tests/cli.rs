@@ -199,3 +199,41 @@ fn bad_input_fails_cleanly() {
         "o.png",
     );
 }
+
+#[test]
+fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(
+        &[
+            "demo",
+            "--size",
+            "24",
+            "--warmup",
+            "50",
+            "--every",
+            "10",
+            "--pushes",
+            "4",
+            "--sample-every",
+            "2",
+            "--r",
+            "32",
+            "--codec",
+            "zstd",
+            "--recording",
+            "rec",
+        ],
+        dir.path(),
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}\n{out}", stderr(&o));
+    let lines: Vec<&str> = out.lines().filter(|l| l.starts_with("step ")).collect();
+    assert_eq!(lines.len(), 4, "{out}");
+    // Pushes 0 and 2 (steps 50 and 70) carry reference frames, so their lines have q.
+    let with_q = lines.iter().filter(|l| l.contains(" dB")).count();
+    assert_eq!(with_q, 2, "{out}");
+    assert!(out.contains("stored 4, dropped 0"), "{out}");
+    assert!(out.contains("recording: rec"), "{out}");
+    let index = std::fs::read_to_string(dir.path().join("rec/index.json")).unwrap();
+    assert_eq!(index.matches("\"vdi\": \"step_").count(), 4, "{index}");
+}

@@ -4,6 +4,9 @@ use crate::common::{generator, index, load_vdi, viz};
 use insitu_core::metrics::{mse, pooled_psnr};
 use insitu_core::vdi::render;
 use insitu_e2e::{bin, data_dir, Daemon};
+use insitu_proto::convert::camera_to_pb;
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{pb, transport};
 use insitu_viz_node::store::References;
 use std::process::Command;
 
@@ -93,6 +96,31 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
         }
     }
     assert_eq!(scored, 3);
+    // Any stored step renders from any camera over the wire.
+    let png = insitu_e2e::rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        let camera = load_vdi(&rec, &entries[5]).meta().camera.orbit_y(90.0);
+        let req = pb::RenderRequest {
+            step: 5,
+            rank: 0,
+            camera: Some(camera_to_pb(&camera)),
+            width: 40,
+            height: 24,
+        };
+        let mut c = VizClient::new(channel);
+        let missing = c
+            .render(pb::RenderRequest {
+                step: 99,
+                ..req.clone()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(missing.code(), tonic::Code::NotFound);
+        c.render(req).await.unwrap().into_inner().png
+    });
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let dim = |at: usize| u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]]);
+    assert_eq!((dim(16), dim(20)), (40, 24));
     v.terminate();
 }
 

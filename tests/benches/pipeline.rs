@@ -1,0 +1,190 @@
+//! Pipeline benchmarks (issue 5, "Speed"), with the daemons as real processes on loopback:
+//!
+//! 1. ingest: field data pushed through the client (a push returns once the step is queued),
+//!    GB/s, for 64 MiB steps;
+//! 2. the simulation's time per step with a generator-node attached versus without
+//!    (Gray–Scott 128³, pushing every 10th step);
+//! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
+//!
+//! `cargo bench -p insitu-e2e --bench pipeline`. Numbers depend on the cores the simulation and
+//! the generator-node share: on a 2-core machine they compete.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use insitu_client::{SimClient, Step};
+use insitu_core::volume::{GrayScott, GrayScottParams};
+use insitu_e2e::{rt, Daemon};
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{pb, transport};
+use std::time::{Duration, Instant};
+use tokio_stream::StreamExt;
+
+fn generator(tmp: &std::path::Path, args: &[&str]) -> Daemon {
+    let mut all = vec!["--listen", "127.0.0.1:0"];
+    all.extend_from_slice(args);
+    Daemon::start("generator-node", &all, &[], tmp)
+}
+
+fn ingest(tmp: &std::path::Path) {
+    // r = 1 and no references: the node's work per step is converting the bytes, so the
+    // push rate is the transport's. latest-only keeps memory bounded.
+    let g = generator(
+        tmp,
+        &[
+            "--resolution",
+            "1",
+            "--reference-every",
+            "0",
+            "--policy",
+            "latest-only",
+            "--queue-steps",
+            "1",
+        ],
+    );
+    let n = 256u32;
+    let field: Vec<f32> = (0..n * n * n).map(|i| (i % 977) as f32).collect();
+    let step = Step::whole_f32(0, 0.0, [n; 3], &field);
+    let bytes = step.data.len() as f64;
+    let (secs, pushes) = rt().block_on(async {
+        let mut c = SimClient::connect(&g.addr, None).await.unwrap();
+        c.push_step(step.clone()).await.unwrap();
+        let t = Instant::now();
+        let pushes = 16;
+        for k in 0..pushes {
+            let mut s = step.clone();
+            s.step = k + 1;
+            c.push_step(s).await.unwrap();
+        }
+        (t.elapsed().as_secs_f64(), pushes)
+    });
+    println!(
+        "ingest: {pushes} pushes of {:.0} MiB in {secs:.2} s = {:.2} GB/s",
+        bytes / (1 << 20) as f64,
+        pushes as f64 * bytes / secs / 1e9
+    );
+    g.terminate();
+}
+
+fn simulation_overhead(tmp: &std::path::Path) {
+    let n = 128;
+    let (steps, every) = (200u64, 10u64);
+    let run = |addr: Option<&str>| {
+        rt().block_on(async {
+            let mut client = match addr {
+                Some(a) => Some(SimClient::connect(a, None).await.unwrap()),
+                None => None,
+            };
+            let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
+            sim.advance(200);
+            let t = Instant::now();
+            for k in 1..=steps {
+                sim.advance(1);
+                if k % every == 0 {
+                    if let Some(c) = client.as_mut() {
+                        let field = sim.v_volume().data().to_vec();
+                        c.push_step(Step::whole_f32(k, k as f64, [n as u32; 3], &field))
+                            .await
+                            .unwrap();
+                    }
+                }
+            }
+            let secs = t.elapsed().as_secs_f64();
+            if let Some(c) = client.as_mut() {
+                c.flush(Duration::from_secs(600)).await.unwrap();
+            }
+            secs / steps as f64
+        })
+    };
+    let without = run(None);
+    let g = generator(
+        tmp,
+        &[
+            "--resolution",
+            "256",
+            "--reference-every",
+            "0",
+            "--codec",
+            "zstd",
+        ],
+    );
+    let with = run(Some(&g.addr));
+    g.terminate();
+    println!(
+        "simulation step, Gray–Scott {n}³, push every {every}th: {:.2} ms without, {:.2} ms with a generator-node (r = 256, zstd) = {:.3}×",
+        without * 1e3,
+        with * 1e3,
+        with / without
+    );
+}
+
+fn latency(tmp: &std::path::Path) {
+    let rec = tmp.join("rec");
+    let v = Daemon::start(
+        "viz-node",
+        &[
+            "--listen",
+            "127.0.0.1:0",
+            "--recording-dir",
+            rec.to_str().unwrap(),
+        ],
+        &[],
+        tmp,
+    );
+    let g = generator(
+        tmp,
+        &[
+            "--viz",
+            &v.addr,
+            "--resolution",
+            "256",
+            "--reference-every",
+            "0",
+            "--codec",
+            "zstd",
+        ],
+    );
+    let lat = rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        let mut reports = VizClient::new(channel)
+            .subscribe(pb::SubscribeRequest {})
+            .await
+            .unwrap()
+            .into_inner();
+        let mut c = SimClient::connect(&g.addr, None).await.unwrap();
+        let mut sim = GrayScott::new(64, GrayScottParams::default()).unwrap();
+        let mut lat = Vec::new();
+        for k in 0..10u64 {
+            sim.advance(100);
+            let field = sim.v_volume().data().to_vec();
+            let t = Instant::now();
+            c.push_step(Step::whole_f32(k, 0.0, [64; 3], &field))
+                .await
+                .unwrap();
+            let r = reports.next().await.unwrap().unwrap();
+            assert_eq!(r.step, k);
+            lat.push(t.elapsed().as_secs_f64());
+        }
+        lat
+    });
+    let mut sorted = lat.clone();
+    sorted.sort_by(f64::total_cmp);
+    println!(
+        "latency push → stored VDI (Gray–Scott 64³, r = 256, zstd): median {:.1} ms, max {:.1} ms over {} steps",
+        sorted[sorted.len() / 2] * 1e3,
+        sorted[sorted.len() - 1] * 1e3,
+        lat.len()
+    );
+    g.terminate();
+    v.terminate();
+}
+
+fn main() {
+    // `cargo bench` passes --bench; `cargo test --benches` passes nothing: run only for bench.
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    ingest(tmp.path());
+    simulation_overhead(tmp.path());
+    latency(tmp.path());
+}
