@@ -111,7 +111,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
         let missing = c
             .render(pb::RenderRequest {
                 step: 99,
-                ..req.clone()
+                ..req
             })
             .await
             .unwrap_err();
