@@ -9,6 +9,7 @@ use insitu_proto::{pb, transport};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 use tokio::task::JoinHandle;
 use tokio_stream::StreamExt;
 
@@ -55,11 +56,30 @@ pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
     )
 }
 
-/// Reports received, for the summary.
-#[derive(Default)]
-pub struct Collected {
-    /// Every report, in arrival order.
-    pub reports: Vec<pb::QualityReport>,
+/// The task printing reports, and the reports it has seen (for the summary).
+pub struct Printer {
+    task: JoinHandle<()>,
+    reports: Arc<Mutex<Vec<pb::QualityReport>>>,
+}
+
+impl Printer {
+    fn reports(&self) -> Vec<pb::QualityReport> {
+        self.reports
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Waits (up to a minute) until `n` reports have arrived (scoring may lag storing), then
+    /// stops printing.
+    async fn finish(self, n: u64) -> Vec<pb::QualityReport> {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while Instant::now() < deadline && (self.reports().len() as u64) < n {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        self.task.abort();
+        self.reports()
+    }
 }
 
 /// Subscribes to the viz-node's reports and prints a line per report.
@@ -69,14 +89,14 @@ pub struct Collected {
 pub async fn print_reports(
     viz: SocketAddr,
     generator: Option<Arc<gen::service::Shared>>,
-) -> Result<(JoinHandle<()>, Arc<Mutex<Collected>>)> {
+) -> Result<Printer> {
     let channel = transport::connect(&transport::uri(&viz.to_string())).await?;
     let mut stream = VizClient::new(channel)
         .subscribe(pb::SubscribeRequest {})
         .await?
         .into_inner();
-    let collected = Arc::new(Mutex::new(Collected::default()));
-    let c = collected.clone();
+    let reports = Arc::new(Mutex::new(Vec::new()));
+    let c = reports.clone();
     let task = tokio::spawn(async move {
         while let Some(Ok(r)) = stream.next().await {
             let queue = generator.as_ref().map(|g| {
@@ -84,10 +104,10 @@ pub async fn print_reports(
                 (s.queue_depth, s.dropped_queue + s.dropped_outbox)
             });
             println!("{}", report_line(&r, queue));
-            c.lock().unwrap_or_else(|e| e.into_inner()).reports.push(r);
+            c.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         }
     });
-    Ok((task, collected))
+    Ok(Printer { task, reports })
 }
 
 /// The two nodes, in process.
@@ -147,10 +167,32 @@ impl LocalNodes {
     pub fn generator_addr(&self) -> String {
         self.generator.local_addr().to_string()
     }
+
+    /// Prints reports until one per stored VDI has arrived, shuts both nodes down, and prints
+    /// the summary.
+    pub async fn finish(
+        self,
+        printer: Printer,
+        status: &pb::GeneratorStatus,
+        pushed: u64,
+        started: Instant,
+    ) {
+        let reports = printer.finish(status.steps_shipped).await;
+        let summary = self.generator.shutdown().await;
+        self.viz.shutdown().await;
+        print_summary(
+            pushed,
+            started.elapsed().as_secs_f64(),
+            status,
+            &reports,
+            &self.recording,
+        );
+        println!("  generator: {summary}");
+    }
 }
 
 /// Prints the closing summary of a run.
-pub fn print_summary(
+fn print_summary(
     pushed: u64,
     elapsed_secs: f64,
     final_status: &pb::GeneratorStatus,

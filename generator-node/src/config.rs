@@ -5,38 +5,11 @@ use crate::queue::Policy;
 use insitu_core::raycast::{RaycastParams, DEFAULT_STEP, DEFAULT_TERMINATION};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::{Camera, TransferFunction, VdiParams};
+use insitu_proto::daemon::load_toml;
+pub use insitu_proto::daemon::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-
-/// Errors loading or validating a configuration; each names the file or key.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// The file is not valid TOML for this schema.
-    #[error("config {path}: {source}")]
-    Parse {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: toml::de::Error,
-    },
-    /// A value is out of range.
-    #[error("config key {key}: {problem}")]
-    Invalid {
-        /// Dotted key.
-        key: &'static str,
-        /// What is wrong.
-        problem: String,
-    },
-}
 
 /// Limits and policy of a bounded queue.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -223,14 +196,7 @@ impl Config {
     /// # Errors
     /// [`ConfigError`] naming the file or key.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-        let cfg: Self = toml::from_str(&text).map_err(|source| ConfigError::Parse {
-            path: path.to_owned(),
-            source,
-        })?;
+        let cfg: Self = load_toml(path)?;
         cfg.generation()?;
         Ok(cfg)
     }

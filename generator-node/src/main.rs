@@ -4,6 +4,7 @@
 use anyhow::Result;
 use clap::Parser;
 use insitu_generator_node::{start, Config, Policy};
+use insitu_proto::daemon::{run_main, shutdown_signal};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -36,7 +37,7 @@ struct Args {
     #[arg(long)]
     resolution: Option<u32>,
     /// Interrupt threshold gamma.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     gamma: Option<f32>,
     /// bzip2, zstd or none.
     #[arg(long)]
@@ -89,45 +90,17 @@ fn config(a: Args) -> Result<Config> {
     Ok(c)
 }
 
-async fn signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        if let Ok(mut term) = signal(SignalKind::terminate()) {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-            return;
-        }
-    }
-    let _ = tokio::signal::ctrl_c().await;
-}
-
 #[tokio::main]
 async fn main() -> std::process::ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    let run = async {
+    run_main(async {
         let node = start(config(Args::parse())?).await?;
         // Scripts and tests read the actual address from this line.
         println!("listening on {}", node.local_addr());
-        signal().await;
+        shutdown_signal().await;
         eprintln!("generator-node: shutting down, draining");
         let summary = node.shutdown().await;
         println!("summary: {summary}");
         anyhow::Ok(())
-    };
-    match run.await {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    })
+    .await
 }

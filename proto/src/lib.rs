@@ -7,6 +7,7 @@
 //! - [`auth`]: bearer tokens (required off loopback) for servers and clients.
 //! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
 //! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
+//! - `daemon` (feature `daemon`): logging, signals and TOML loading shared by the daemons.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
@@ -14,6 +15,8 @@ pub mod auth;
 pub mod chunk;
 #[cfg(feature = "core")]
 pub mod convert;
+#[cfg(feature = "daemon")]
+pub mod daemon;
 pub mod transport;
 
 /// Generated code for package `insitu.v1`.

@@ -1,38 +1,11 @@
 //! The viz-node's configuration: one TOML file (every key documented in
 //! `deploy/viz-node.toml`), overridden by command-line flags.
 
+use insitu_proto::daemon::load_toml;
+pub use insitu_proto::daemon::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-
-/// Errors loading a configuration; each names the file or key.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
-    /// Not valid TOML for this schema.
-    #[error("config {path}: {source}")]
-    Parse {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        source: toml::de::Error,
-    },
-    /// A value out of range.
-    #[error("config key {key}: {problem}")]
-    Invalid {
-        /// Key.
-        key: &'static str,
-        /// What is wrong.
-        problem: String,
-    },
-}
 
 /// The whole file.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -74,14 +47,7 @@ impl Config {
     /// # Errors
     /// [`ConfigError`] naming the file or key.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-        let cfg: Self = toml::from_str(&text).map_err(|source| ConfigError::Parse {
-            path: path.to_owned(),
-            source,
-        })?;
+        let cfg: Self = load_toml(path)?;
         cfg.validate()?;
         Ok(cfg)
     }

@@ -2,6 +2,7 @@
 //! overrides, serves until SIGINT/SIGTERM.
 
 use clap::Parser;
+use insitu_proto::daemon::{run_main, shutdown_signal};
 use insitu_viz_node::{start, Config};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -27,31 +28,9 @@ struct Args {
     token_file: Option<PathBuf>,
 }
 
-async fn signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        if let Ok(mut term) = signal(SignalKind::terminate()) {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-            return;
-        }
-    }
-    let _ = tokio::signal::ctrl_c().await;
-}
-
 #[tokio::main]
 async fn main() -> std::process::ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    let run = async {
+    run_main(async {
         let a = Args::parse();
         let mut cfg = match &a.config {
             Some(p) => Config::load(p)?,
@@ -68,15 +47,9 @@ async fn main() -> std::process::ExitCode {
         }
         let node = start(cfg).await?;
         println!("listening on {}", node.local_addr());
-        signal().await;
+        shutdown_signal().await;
         node.shutdown().await;
         anyhow::Ok(())
-    };
-    match run.await {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    })
+    .await
 }

@@ -3,7 +3,7 @@
 //! ships compressed VDIs (and, on sampled steps, reference frames) to a viz-node; both run in
 //! this process on 127.0.0.1 with ephemeral ports. One line per stored VDI, then a summary.
 
-use crate::pipeline::{print_reports, print_summary, LocalNodes, PipelineArgs};
+use crate::pipeline::{print_reports, LocalNodes, PipelineArgs};
 use anyhow::{bail, Result};
 use insitu_client::{SimClient, Step};
 use insitu_core::volume::{GrayScott, GrayScottParams};
@@ -57,7 +57,7 @@ async fn demo(a: Args) -> Result<()> {
         nodes.viz.local_addr(),
         n = a.size,
     );
-    let (printer, collected) = print_reports(
+    let printer = print_reports(
         nodes.viz.local_addr(),
         Some(nodes.generator.shared().clone()),
     )
@@ -86,41 +86,7 @@ async fn demo(a: Args) -> Result<()> {
         client.push_step(step).await?;
     }
     let status = client.close(Duration::from_secs(600)).await?;
-    wait_for_reports(&collected, status.steps_shipped).await;
-    printer.abort();
-    let summary = nodes.generator.shutdown().await;
-    nodes.viz.shutdown().await;
-    let reports = collected
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .reports
-        .clone();
-    print_summary(
-        a.pushes,
-        started.elapsed().as_secs_f64(),
-        &status,
-        &reports,
-        &nodes.recording,
-    );
-    println!("  simulation time {sim_secs:.1} s; generator: {summary}");
+    println!("simulation time {sim_secs:.1} s");
+    nodes.finish(printer, &status, a.pushes, started).await;
     Ok(())
-}
-
-/// Waits (up to a minute) until a report per stored VDI has arrived (scoring may lag storing).
-pub async fn wait_for_reports(
-    collected: &std::sync::Mutex<crate::pipeline::Collected>,
-    stored: u64,
-) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while Instant::now() < deadline {
-        let n = collected
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .reports
-            .len() as u64;
-        if n >= stored {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
 }

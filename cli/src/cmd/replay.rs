@@ -3,7 +3,7 @@
 //! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
 //! with it, it pushes to a running generator-node and sets its config first.
 
-use crate::pipeline::{print_reports, print_summary, LocalNodes, PipelineArgs};
+use crate::pipeline::{print_reports, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
 use insitu_core::volume::RawFormat;
@@ -123,13 +123,11 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     };
     let mut client = SimClient::connect(&addr, token.as_ref()).await?;
     client.set_config(config).await?;
-    let (printer, collected) = match &local {
+    let printer = match &local {
         Some(n) => {
-            let (p, c) =
-                print_reports(n.viz.local_addr(), Some(n.generator.shared().clone())).await?;
-            (Some(p), Some(c))
+            Some(print_reports(n.viz.local_addr(), Some(n.generator.shared().clone())).await?)
         }
-        None => (None, None),
+        None => None,
     };
     let bricks = z_bricks(format.dims[2], a.ranks as usize);
     println!(
@@ -156,28 +154,8 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
         }
     }
     let status = client.close(Duration::from_secs(600)).await?;
-    match (local, collected) {
-        (Some(nodes), Some(collected)) => {
-            crate::cmd::demo::wait_for_reports(&collected, status.steps_shipped).await;
-            if let Some(p) = printer {
-                p.abort();
-            }
-            let summary = nodes.generator.shutdown().await;
-            nodes.viz.shutdown().await;
-            let reports = collected
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .reports
-                .clone();
-            print_summary(
-                pushed,
-                started.elapsed().as_secs_f64(),
-                &status,
-                &reports,
-                &nodes.recording,
-            );
-            println!("  generator: {summary}");
-        }
+    match (local, printer) {
+        (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
         _ => println!("flushed: {status:?}"),
     }
     Ok(())

@@ -109,10 +109,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
         };
         let mut c = VizClient::new(channel);
         let missing = c
-            .render(pb::RenderRequest {
-                step: 99,
-                ..req
-            })
+            .render(pb::RenderRequest { step: 99, ..req })
             .await
             .unwrap_err();
         assert_eq!(missing.code(), tonic::Code::NotFound);
