@@ -86,7 +86,7 @@ async fn demo(a: Args) -> Result<()> {
         client.push_step(step).await?;
     }
     let status = client.close(Duration::from_secs(600)).await?;
-    println!("simulation time {sim_secs:.1} s");
+    println!("simulation compute time {sim_secs:.1} s (excluding pushes)");
     nodes.finish(printer, &status, a.pushes, started).await;
     Ok(())
 }
