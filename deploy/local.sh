@@ -42,7 +42,8 @@ stop() {
   grep '^summary' "$logs/gen.out" || true
   echo "recording: $rec   logs: $logs"
 }
-trap stop EXIT INT TERM
+trap stop EXIT
+trap 'exit 130' INT TERM
 echo "viz-node       $viz   (recording: $rec)"
 echo "generator-node $gen"
 echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops both)"

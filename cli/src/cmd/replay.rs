@@ -156,7 +156,16 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     let status = client.close(Duration::from_secs(600)).await?;
     match (local, printer) {
         (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
-        _ => println!("flushed: {status:?}"),
+        _ => println!(
+            "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}",
+            status.steps_received,
+            status.steps_generated,
+            status.steps_shipped,
+            status.dropped_queue + status.dropped_outbox,
+            status.dropped_queue,
+            status.dropped_outbox,
+            status.failed
+        ),
     }
     Ok(())
 }
