@@ -38,6 +38,39 @@ fn check_sizes(a: &Image, b: &Image) -> Result<(), MetricError> {
     Ok(())
 }
 
+/// A PSNR in dB that may be `+∞` (identical images); JSON has no infinity, so it is written as
+/// the string `"inf"`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Db(pub f64);
+
+impl serde::Serialize for Db {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        if self.0.is_finite() {
+            s.serialize_f64(self.0)
+        } else {
+            s.serialize_str("inf")
+        }
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Db {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(untagged)]
+        enum Repr {
+            Num(f64),
+            Str(String),
+        }
+        match <Repr as serde::Deserialize>::deserialize(d)? {
+            Repr::Num(v) => Ok(Db(v)),
+            Repr::Str(s) if s == "inf" => Ok(Db(f64::INFINITY)),
+            Repr::Str(s) => Err(serde::de::Error::custom(format!(
+                "expected a number or \"inf\", got {s:?}"
+            ))),
+        }
+    }
+}
+
 /// Mean squared error over all pixels and channels.
 ///
 /// # Errors

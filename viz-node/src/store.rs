@@ -4,8 +4,9 @@
 //! temporary name in the same directory, synced, and renamed, so a crash never leaves a half
 //! file under a final name (and the index never names a file that is not complete).
 
+pub use insitu_core::metrics::Db;
 use insitu_core::{Camera, Image};
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -40,39 +41,6 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
         path: path.to_owned(),
         source,
-    }
-}
-
-/// A PSNR in dB that may be `+∞` (identical images); JSON has no infinity, so it is written as
-/// the string `"inf"`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Db(pub f64);
-
-impl Serialize for Db {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        if self.0.is_finite() {
-            s.serialize_f64(self.0)
-        } else {
-            s.serialize_str("inf")
-        }
-    }
-}
-
-impl<'de> Deserialize<'de> for Db {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Repr {
-            Num(f64),
-            Str(String),
-        }
-        match Repr::deserialize(d)? {
-            Repr::Num(v) => Ok(Db(v)),
-            Repr::Str(s) if s == "inf" => Ok(Db(f64::INFINITY)),
-            Repr::Str(s) => Err(serde::de::Error::custom(format!(
-                "expected a number or \"inf\", got {s:?}"
-            ))),
-        }
     }
 }
 

@@ -260,19 +260,28 @@ impl Aabb {
 }
 
 /// 64-bit FNV-1a, used for content identities (not for security).
-pub(crate) struct Fnv1a(u64);
+pub struct Fnv1a(u64);
+
+impl Default for Fnv1a {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 impl Fnv1a {
-    pub(crate) fn new() -> Self {
+    /// The FNV-1a 64-bit offset basis.
+    pub fn new() -> Self {
         Self(0xcbf2_9ce4_8422_2325)
     }
-    pub(crate) fn write(&mut self, bytes: &[u8]) {
+    /// Mixes `bytes` in.
+    pub fn write(&mut self, bytes: &[u8]) {
         for &b in bytes {
             self.0 ^= u64::from(b);
             self.0 = self.0.wrapping_mul(0x0100_0000_01b3);
         }
     }
-    pub(crate) fn finish(&self) -> u64 {
+    /// The hash so far.
+    pub fn finish(&self) -> u64 {
         self.0
     }
 }

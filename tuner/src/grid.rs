@@ -1,0 +1,170 @@
+//! The candidate set of `P_M = (r, γ)` (Sec. 5.5): a grid of resolutions and thresholds.
+
+use insitu_core::vdi::MAX_RESOLUTION;
+use serde::{Deserialize, Serialize};
+
+/// A candidate `P_M`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// `r`, pixels per side.
+    pub r: u32,
+    /// `γ`.
+    pub gamma: f32,
+}
+
+/// Errors of a grid description.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum GridError {
+    /// A range does not parse or is empty/backwards.
+    #[error("{what} {spec:?}: {problem} (expected START:END:STEP or a comma-separated list)")]
+    Range {
+        /// `r` or `gamma`.
+        what: &'static str,
+        /// As given.
+        spec: String,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// Resolutions × thresholds, each sorted ascending without duplicates.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ParamGrid {
+    /// Resolutions, ascending.
+    pub rs: Vec<u32>,
+    /// Thresholds, ascending.
+    pub gammas: Vec<f32>,
+}
+
+impl Default for ParamGrid {
+    /// The paper's grid: γ ∈ 0.001–0.26 step 0.004, r ∈ 160–768 step 32 (Sec. 5.5).
+    fn default() -> Self {
+        Self {
+            rs: (160..=768).step_by(32).collect(),
+            gammas: (0..65)
+                .map(|i| (0.001 + 0.004 * f64::from(i)) as f32)
+                .collect(),
+        }
+    }
+}
+
+fn range_f64(what: &'static str, spec: &str) -> Result<Vec<f64>, GridError> {
+    let err = |problem: &str| GridError::Range {
+        what,
+        spec: spec.to_owned(),
+        problem: problem.to_owned(),
+    };
+    let num = |s: &str| s.trim().parse::<f64>().map_err(|_| err("not a number"));
+    let values: Vec<f64> = if spec.contains(':') {
+        let parts: Vec<&str> = spec.split(':').collect();
+        let [a, b, step] = parts.as_slice() else {
+            return Err(err("a range has three parts"));
+        };
+        let (a, b, step) = (num(a)?, num(b)?, num(step)?);
+        if !(a.is_finite() && b.is_finite() && step.is_finite() && step > 0.0 && b >= a) {
+            return Err(err("need START ≤ END and STEP > 0"));
+        }
+        let n = ((b - a) / step + 1e-9).floor() as usize + 1;
+        if n > 100_000 {
+            return Err(err("more than 100000 values"));
+        }
+        (0..n).map(|i| a + step * i as f64).collect()
+    } else {
+        spec.split(',').map(num).collect::<Result<_, _>>()?
+    };
+    if values.is_empty() {
+        return Err(err("empty"));
+    }
+    Ok(values)
+}
+
+impl ParamGrid {
+    /// Parses `r` and `γ` specs (`START:END:STEP` or `a,b,c`), sorts and checks them.
+    ///
+    /// # Errors
+    /// [`GridError`] naming the spec: unparsable, empty, `r` outside 1..=16384, `γ` negative
+    /// or not finite.
+    pub fn parse(r: &str, gamma: &str) -> Result<Self, GridError> {
+        let bad = |what, spec: &str, problem: String| GridError::Range {
+            what,
+            spec: spec.to_owned(),
+            problem,
+        };
+        let mut rs = Vec::new();
+        for v in range_f64("r", r)? {
+            if v.fract() != 0.0 || !(1.0..=f64::from(MAX_RESOLUTION)).contains(&v) {
+                return Err(bad(
+                    "r",
+                    r,
+                    format!("{v} is not an integer in 1..={MAX_RESOLUTION}"),
+                ));
+            }
+            rs.push(v as u32);
+        }
+        let mut gammas = Vec::new();
+        for v in range_f64("gamma", gamma)? {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad("gamma", gamma, format!("{v} must be finite and ≥ 0")));
+            }
+            gammas.push(v as f32);
+        }
+        rs.sort_unstable();
+        rs.dedup();
+        gammas.sort_by(f32::total_cmp);
+        gammas.dedup();
+        Ok(Self { rs, gammas })
+    }
+
+    /// Every candidate, r-major.
+    pub fn candidates(&self) -> Vec<Candidate> {
+        self.rs
+            .iter()
+            .flat_map(|&r| self.gammas.iter().map(move |&gamma| Candidate { r, gamma }))
+            .collect()
+    }
+
+    /// Number of candidates.
+    pub fn len(&self) -> usize {
+        self.rs.len() * self.gammas.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_is_the_papers_grid() {
+        let g = ParamGrid::default();
+        assert_eq!((g.rs.len(), g.gammas.len()), (20, 65));
+        assert_eq!((g.rs[0], g.rs[19]), (160, 768));
+        assert!((g.gammas[64] - 0.257).abs() < 1e-6);
+        assert_eq!(
+            ParamGrid::parse("160:768:32", "0.001:0.26:0.004").unwrap(),
+            g
+        );
+    }
+
+    #[test]
+    fn bad_specs_name_the_problem() {
+        assert!(ParamGrid::parse("0:10:5", "0.1")
+            .unwrap_err()
+            .to_string()
+            .contains("r"));
+        assert!(ParamGrid::parse("100", "-0.1").is_err());
+        assert!(ParamGrid::parse("100", "0.2:0.1:0.01").is_err());
+        assert!(ParamGrid::parse("100", "").is_err());
+        assert!(ParamGrid::parse("100.5", "0.1").is_err());
+        assert!(ParamGrid::parse("100", "nan").is_err());
+        assert!(ParamGrid::parse("1:2:0", "0.1").is_err());
+        assert_eq!(
+            ParamGrid::parse("64,32,64", "0.1,0.05").unwrap().rs,
+            vec![32, 64]
+        );
+    }
+}

@@ -1,0 +1,25 @@
+//! Auto-tuning of `P_M = (r, γ)` (Frey & Ertl, Sec. 4–6).
+//!
+//! - [`grid`]: the candidate set (the paper's grid by default).
+//! - [`study`]: Alg. 1's measurement loop — references rendered once per view, every
+//!   measurement ([`measure::Measurement`]: σ, q per view and pooled, SSIM, τ, compression
+//!   time) cached on disk ([`cache`]) under the identity of everything that determines it.
+//! - [`utility`]: ν_size (Eq. 1), ν_time (Eq. 2), both, and the dual; a trait for more.
+//! - [`search`]: exhaustive grid and an adaptive search that needs a fraction of the
+//!   measurements.
+//! - [`report`]: CSV and JSON of a study.
+
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
+pub mod cache;
+pub mod grid;
+pub mod measure;
+pub mod report;
+pub mod search;
+pub mod study;
+pub mod utility;
+
+pub use grid::{Candidate, ParamGrid};
+pub use measure::Measurement;
+pub use study::{Oracle, Study, StudyScene, TableOracle};
+pub use utility::{parse_utility, Utility};

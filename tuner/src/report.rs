@@ -1,0 +1,37 @@
+//! A study table as CSV (one row per `P_M`) and JSON.
+
+use crate::measure::Measurement;
+
+/// CSV with a header; q is `inf` when the images were identical.
+pub fn csv(rows: &[Measurement]) -> String {
+    let mut out = String::from(
+        "r,gamma,sigma_bytes,supersegments,tau_secs,tau_compress_secs,tau_render_secs,q_db,ssim\n",
+    );
+    for m in rows {
+        out.push_str(&format!(
+            "{},{},{},{},{:.6},{:.6},{:.6},{},{}\n",
+            m.r,
+            m.gamma,
+            m.sigma_bytes,
+            m.supersegments,
+            m.tau_secs,
+            m.tau_compress_secs,
+            m.tau_render_secs,
+            if m.q().is_finite() {
+                format!("{:.4}", m.q())
+            } else {
+                "inf".into()
+            },
+            m.ssim.map_or_else(String::new, |s| format!("{s:.5}")),
+        ));
+    }
+    out
+}
+
+/// JSON array of the rows.
+///
+/// # Errors
+/// Never in practice (plain data); the serializer's error otherwise.
+pub fn json(rows: &[Measurement]) -> Result<String, serde_json::Error> {
+    serde_json::to_string_pretty(rows)
+}

@@ -1,0 +1,252 @@
+//! Search strategies over a [`ParamGrid`]: the paper's exhaustive grid (Sec. 5.5) and an
+//! adaptive search (the paper's future work, Sec. 5.5 and 7).
+//!
+//! The adaptive search exploits the monotonicity the paper observes (Sec. 6.1): σ falls and q
+//! falls as γ grows, and σ rises with r. For a size budget, the best γ at a given r is the
+//! smallest one whose σ is under the budget — a bisection over the γ axis (≈ log₂ of its
+//! length measurements). The best r is then found by probing about five resolutions spread
+//! over the r axis and climbing to better neighbours; resolutions above the first one where
+//! even the largest γ misses the budget are skipped. For a quality target it is the mirror
+//! image: the largest γ whose q still meets the target, then the r with the smallest σ.
+
+use crate::grid::{Candidate, ParamGrid};
+use crate::measure::Measurement;
+use crate::study::{Oracle, StudyError};
+use crate::utility::{best, QualityTarget, SizeBudget, Utility};
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// What a search found and what it cost.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// The best candidate, `None` when no candidate meets the constraint.
+    pub best: Option<Measurement>,
+    /// ν of the best candidate (`+∞` when none).
+    pub value: f64,
+    /// Candidates generated (cache hits excluded).
+    pub generations: u64,
+    /// Sum of τ over those generations, seconds.
+    pub generation_secs: f64,
+    /// Wall clock of the search, seconds.
+    pub wall_secs: f64,
+}
+
+fn outcome(
+    found: Option<(Measurement, f64)>,
+    oracle: &dyn Oracle,
+    g0: u64,
+    s0: f64,
+    t: Instant,
+) -> Outcome {
+    Outcome {
+        value: found.as_ref().map_or(f64::INFINITY, |(_, v)| *v),
+        best: found.map(|(m, _)| m),
+        generations: oracle.generations() - g0,
+        generation_secs: oracle.generation_secs() - s0,
+        wall_secs: t.elapsed().as_secs_f64(),
+    }
+}
+
+/// Measures every candidate of `grid` and returns the one minimising `u` (Alg. 1).
+///
+/// # Errors
+/// [`StudyError`] from a measurement; an empty grid.
+pub fn grid_search(
+    oracle: &mut dyn Oracle,
+    grid: &ParamGrid,
+    u: &dyn Utility,
+) -> Result<Outcome, StudyError> {
+    if grid.is_empty() {
+        return Err(StudyError::Invalid("the grid is empty".into()));
+    }
+    let (t, g0, s0) = (
+        Instant::now(),
+        oracle.generations(),
+        oracle.generation_secs(),
+    );
+    let rows = grid
+        .candidates()
+        .into_iter()
+        .map(|c| oracle.measure(c))
+        .collect::<Result<Vec<_>, _>>()?;
+    let found = best(&rows, u).map(|(m, v)| (m.clone(), v));
+    Ok(outcome(found, oracle, g0, s0, t))
+}
+
+/// The constraint an adaptive search bisects against.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Target {
+    /// ν_size (Eq. 1): best q with σ < σ_target (bytes).
+    Size(u64),
+    /// The dual: smallest σ with q ≥ q_target (dB).
+    Quality(f64),
+}
+
+impl Target {
+    fn utility(self) -> Box<dyn Utility> {
+        match self {
+            Self::Size(s) => Box::new(SizeBudget { sigma_target: s }),
+            Self::Quality(q) => Box::new(QualityTarget { q_target: q }),
+        }
+    }
+}
+
+struct Adaptive<'o> {
+    oracle: &'o mut dyn Oracle,
+    grid: &'o ParamGrid,
+    target: Target,
+    utility: Box<dyn Utility>,
+    per_r: BTreeMap<usize, Option<(Measurement, f64)>>,
+}
+
+impl Adaptive<'_> {
+    fn measure(&mut self, ri: usize, gi: usize) -> Result<Measurement, StudyError> {
+        self.oracle.measure(Candidate {
+            r: self.grid.rs[ri],
+            gamma: self.grid.gammas[gi],
+        })
+    }
+
+    fn feasible(&self, m: &Measurement) -> bool {
+        self.utility.value(m) < f64::INFINITY
+    }
+
+    /// The best feasible γ at resolution `ri` (bisection), with its ν.
+    fn best_at(&mut self, ri: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
+        if let Some(v) = self.per_r.get(&ri) {
+            return Ok(v.clone());
+        }
+        let n = self.grid.gammas.len();
+        let found = match self.target {
+            // Feasible for γ ≥ γ*: the smallest feasible index.
+            Target::Size(_) => {
+                let last = self.measure(ri, n - 1)?;
+                if !self.feasible(&last) {
+                    None
+                } else {
+                    let (mut lo, mut hi) = (0, n - 1);
+                    while lo < hi {
+                        let mid = (lo + hi) / 2;
+                        let m = self.measure(ri, mid)?;
+                        if self.feasible(&m) {
+                            hi = mid;
+                        } else {
+                            lo = mid + 1;
+                        }
+                    }
+                    Some(self.measure(ri, lo)?)
+                }
+            }
+            // Feasible for γ ≤ γ*: the largest feasible index.
+            Target::Quality(_) => {
+                let first = self.measure(ri, 0)?;
+                if !self.feasible(&first) {
+                    None
+                } else {
+                    let (mut lo, mut hi) = (0, n - 1);
+                    while lo < hi {
+                        let mid = (lo + hi).div_ceil(2);
+                        let m = self.measure(ri, mid)?;
+                        if self.feasible(&m) {
+                            lo = mid;
+                        } else {
+                            hi = mid - 1;
+                        }
+                    }
+                    Some(self.measure(ri, lo)?)
+                }
+            }
+        };
+        let found = found.map(|m| {
+            let v = self.utility.value(&m);
+            (m, v)
+        });
+        self.per_r.insert(ri, found.clone());
+        Ok(found)
+    }
+
+    fn run(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
+        let n = self.grid.rs.len();
+        let stride = (n / 5).max(1);
+        let mut probes: Vec<usize> = (0..n).step_by(stride).collect();
+        if probes.last() != Some(&(n - 1)) {
+            probes.push(n - 1);
+        }
+        let mut best: Option<(usize, f64)> = None;
+        for ri in probes {
+            match self.best_at(ri)? {
+                Some((_, v)) => {
+                    if best.is_none_or(|(_, b)| v < b) {
+                        best = Some((ri, v));
+                    }
+                }
+                // σ rises with r: no larger r can meet a size budget this one misses.
+                None if matches!(self.target, Target::Size(_)) => break,
+                None => {}
+            }
+        }
+        let Some((mut at, mut value)) = best else {
+            return Ok(None);
+        };
+        // Climb to better neighbours.
+        loop {
+            let mut moved = false;
+            for ri in [at.wrapping_sub(1), at + 1] {
+                if ri >= n {
+                    continue;
+                }
+                if let Some((_, v)) = self.best_at(ri)? {
+                    if v < value {
+                        (at, value, moved) = (ri, v, true);
+                    }
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        Ok(self.per_r.get(&at).cloned().flatten())
+    }
+}
+
+/// The adaptive search for `target` over `grid` (see the module docs).
+///
+/// # Errors
+/// [`StudyError`] from a measurement; an empty grid.
+pub fn adaptive_search(
+    oracle: &mut dyn Oracle,
+    grid: &ParamGrid,
+    target: Target,
+) -> Result<Outcome, StudyError> {
+    if grid.is_empty() {
+        return Err(StudyError::Invalid("the grid is empty".into()));
+    }
+    let (t, g0, s0) = (
+        Instant::now(),
+        oracle.generations(),
+        oracle.generation_secs(),
+    );
+    let mut a = Adaptive {
+        oracle,
+        grid,
+        target,
+        utility: target.utility(),
+        per_r: BTreeMap::new(),
+    };
+    let found = a.run()?;
+    Ok(outcome(found, a.oracle, g0, s0, t))
+}
+
+/// The paper's ladder of size budgets (Fig. 8): from just above the smallest σ of `rows`,
+/// each 1.5× the previous, up to the largest σ.
+pub fn size_ladder(rows: &[Measurement]) -> Vec<u64> {
+    let lo = rows.iter().map(|m| m.sigma_bytes).min().unwrap_or(0);
+    let hi = rows.iter().map(|m| m.sigma_bytes).max().unwrap_or(0);
+    let mut out = Vec::new();
+    let mut t = (lo as f64 * 1.5).max(1.0);
+    while t <= hi as f64 * 1.5 {
+        out.push(t.round() as u64);
+        t *= 1.5;
+    }
+    out
+}

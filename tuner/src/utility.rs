@@ -1,0 +1,266 @@
+//! Utility functions ν (Sec. 5.4): map (σ, q, τ) to one number, smaller is better, `+∞` for
+//! infeasible. Implement [`Utility`] to add one.
+
+use crate::measure::Measurement;
+
+/// A utility function ν.
+pub trait Utility {
+    /// A short description, e.g. `size < 2.0 MB`.
+    fn describe(&self) -> String;
+    /// ν(σ, q, τ): smaller is better; `+∞` when the constraint is not met.
+    fn value(&self, m: &Measurement) -> f64;
+}
+
+/// ν_size (Eq. 1): `−q` if `σ < σ_target`, else `∞`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SizeBudget {
+    /// σ_target, bytes.
+    pub sigma_target: u64,
+}
+
+/// ν_time (Eq. 2): `−q` if `τ < τ_target`, else `∞`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimeBudget {
+    /// τ_target, seconds.
+    pub tau_target: f64,
+}
+
+/// Both budgets at once: `−q` if `σ < σ_target` and `τ < τ_target`, else `∞`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SizeAndTime {
+    /// σ_target, bytes.
+    pub sigma_target: u64,
+    /// τ_target, seconds.
+    pub tau_target: f64,
+}
+
+/// The dual: the smallest σ with `q ≥ q_target` (value σ in bytes, `∞` below the target).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QualityTarget {
+    /// q_target, dB.
+    pub q_target: f64,
+}
+
+impl Utility for SizeBudget {
+    fn describe(&self) -> String {
+        format!("max q with σ < {}", bytes_text(self.sigma_target))
+    }
+    fn value(&self, m: &Measurement) -> f64 {
+        if m.sigma_bytes < self.sigma_target {
+            -m.q()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+impl Utility for TimeBudget {
+    fn describe(&self) -> String {
+        format!("max q with τ < {} s", self.tau_target)
+    }
+    fn value(&self, m: &Measurement) -> f64 {
+        if m.tau_secs < self.tau_target {
+            -m.q()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+impl Utility for SizeAndTime {
+    fn describe(&self) -> String {
+        format!(
+            "max q with σ < {} and τ < {} s",
+            bytes_text(self.sigma_target),
+            self.tau_target
+        )
+    }
+    fn value(&self, m: &Measurement) -> f64 {
+        if m.sigma_bytes < self.sigma_target && m.tau_secs < self.tau_target {
+            -m.q()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+impl Utility for QualityTarget {
+    fn describe(&self) -> String {
+        format!("min σ with q ≥ {} dB", self.q_target)
+    }
+    fn value(&self, m: &Measurement) -> f64 {
+        if m.q() >= self.q_target {
+            m.sigma_bytes as f64
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// Errors parsing a utility or a size.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("utility {spec:?}: {problem}")]
+pub struct UtilityError {
+    /// As given.
+    pub spec: String,
+    /// What is wrong.
+    pub problem: String,
+}
+
+/// `1.5MB`, `800kB`, `2MiB`, `123456` (bytes) → bytes.
+pub fn parse_bytes(s: &str) -> Option<u64> {
+    let s = s.trim();
+    let split = s.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(s.len());
+    let (num, unit) = s.split_at(split);
+    let v: f64 = num.trim().parse().ok()?;
+    let mul = match unit.trim() {
+        "" | "B" => 1.0,
+        "kB" | "KB" | "k" => 1e3,
+        "MB" | "M" => 1e6,
+        "GB" | "G" => 1e9,
+        "KiB" => 1024.0,
+        "MiB" => 1024.0 * 1024.0,
+        "GiB" => 1024.0 * 1024.0 * 1024.0,
+        _ => return None,
+    };
+    let b = v * mul;
+    (b.is_finite() && b >= 0.0 && b < 1.8e19).then_some(b.round() as u64)
+}
+
+/// Bytes as text with a decimal unit.
+pub fn bytes_text(b: u64) -> String {
+    match b {
+        b if b >= 1_000_000_000 => format!("{:.2} GB", b as f64 / 1e9),
+        b if b >= 1_000_000 => format!("{:.2} MB", b as f64 / 1e6),
+        b if b >= 1_000 => format!("{:.1} kB", b as f64 / 1e3),
+        b => format!("{b} B"),
+    }
+}
+
+/// A built-in utility from text: `size:2MB` (Eq. 1), `time:0.5` (Eq. 2, seconds),
+/// `size:2MB,time:0.5` (both), `quality:40` (smallest σ with q ≥ 40 dB).
+///
+/// # Errors
+/// [`UtilityError`] naming the spec: unknown kind, unparsable or non-positive budget.
+pub fn parse_utility(spec: &str) -> Result<Box<dyn Utility>, UtilityError> {
+    let err = |problem: &str| UtilityError {
+        spec: spec.to_owned(),
+        problem: problem.to_owned(),
+    };
+    let (mut size, mut time, mut quality) = (None, None, None);
+    for part in spec.split(',') {
+        let (kind, value) = part
+            .split_once(':')
+            .ok_or_else(|| err("expected KIND:VALUE with KIND size, time or quality"))?;
+        match kind.trim() {
+            "size" => {
+                let b = parse_bytes(value)
+                    .ok_or_else(|| err("size must be bytes such as 2MB, 800kB or 123456"))?;
+                if b == 0 {
+                    return Err(err("a size budget must be > 0"));
+                }
+                size = Some(b);
+            }
+            "time" => {
+                let t: f64 = value
+                    .trim()
+                    .parse()
+                    .map_err(|_| err("time must be seconds"))?;
+                if !(t.is_finite() && t > 0.0) {
+                    return Err(err("a time budget must be finite and > 0"));
+                }
+                time = Some(t);
+            }
+            "quality" => {
+                let q: f64 = value
+                    .trim()
+                    .parse()
+                    .map_err(|_| err("quality must be dB"))?;
+                if !q.is_finite() {
+                    return Err(err("a quality target must be finite"));
+                }
+                quality = Some(q);
+            }
+            other => {
+                return Err(err(&format!(
+                    "unknown kind {other:?}; use size, time or quality"
+                )))
+            }
+        }
+    }
+    Ok(match (size, time, quality) {
+        (Some(s), None, None) => Box::new(SizeBudget { sigma_target: s }),
+        (None, Some(t), None) => Box::new(TimeBudget { tau_target: t }),
+        (Some(s), Some(t), None) => Box::new(SizeAndTime {
+            sigma_target: s,
+            tau_target: t,
+        }),
+        (None, None, Some(q)) => Box::new(QualityTarget { q_target: q }),
+        _ => return Err(err("quality cannot be combined with budgets")),
+    })
+}
+
+/// The row minimising ν, or `None` when every row is infeasible (Alg. 1, lines 19–25).
+pub fn best<'m>(rows: &'m [Measurement], u: &dyn Utility) -> Option<(&'m Measurement, f64)> {
+    rows.iter()
+        .map(|m| (m, u.value(m)))
+        .filter(|(_, v)| *v < f64::INFINITY)
+        .min_by(|a, b| {
+            a.1.total_cmp(&b.1)
+                .then(a.0.sigma_bytes.cmp(&b.0.sigma_bytes))
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insitu_core::metrics::Db;
+
+    fn m(sigma: u64, q: f64, tau: f64) -> Measurement {
+        Measurement {
+            r: 1,
+            gamma: 0.1,
+            sigma_bytes: sigma,
+            supersegments: 0,
+            tau_secs: tau,
+            tau_compress_secs: 0.0,
+            tau_render_secs: 0.0,
+            q_db: Db(q),
+            view_q_db: vec![],
+            ssim: None,
+        }
+    }
+
+    #[test]
+    fn the_papers_equations_and_the_dual() {
+        let rows = [m(100, 30.0, 1.0), m(200, 35.0, 2.0), m(300, 40.0, 3.0)];
+        let pick = |spec: &str| {
+            best(&rows, parse_utility(spec).unwrap().as_ref()).map(|(m, _)| m.sigma_bytes)
+        };
+        assert_eq!(pick("size:250"), Some(200));
+        assert_eq!(pick("size:200"), Some(100), "σ < σ_target is strict");
+        assert_eq!(pick("size:100"), None, "infeasible is None, not a default");
+        assert_eq!(pick("time:2.5"), Some(200));
+        assert_eq!(pick("size:1kB,time:1.5"), Some(100));
+        assert_eq!(pick("quality:34"), Some(200));
+        assert_eq!(pick("quality:41"), None);
+    }
+
+    #[test]
+    fn bad_specs_are_refused() {
+        for s in [
+            "size:0",
+            "size:-1MB",
+            "time:0",
+            "time:inf",
+            "speed:3",
+            "size",
+            "quality:40,size:1MB",
+            "size:3XB",
+        ] {
+            assert!(parse_utility(s).is_err(), "{s}");
+        }
+        assert_eq!(parse_bytes("1.5MB"), Some(1_500_000));
+        assert_eq!(parse_bytes("2MiB"), Some(2 << 20));
+    }
+}

@@ -1,0 +1,227 @@
+//! The tuner against brute force and against itself (issue 4, "What must hold").
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use insitu_core::vdi::codec::Codec;
+use insitu_core::volume::RawFormat;
+use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Target};
+use insitu_tuner::utility::{best, QualityTarget, SizeBudget};
+use insitu_tuner::{Measurement, Oracle, ParamGrid, Study, StudyScene, TableOracle};
+use std::path::{Path, PathBuf};
+
+fn shared(sub: &str) -> Option<PathBuf> {
+    let (var, dir) = if sub == "data" {
+        ("INSITU_DATA_DIR", "data")
+    } else {
+        ("INSITU_TF_DIR", "tf")
+    };
+    let p = std::env::var_os(var).map(PathBuf::from).unwrap_or_else(|| {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared")
+            .join(dir)
+    });
+    if p.is_dir() {
+        return Some(p);
+    }
+    if std::env::var("INSITU_SKIP_DATA_TESTS").is_ok_and(|v| v == "1") {
+        eprintln!(
+            "SKIPPED: {} missing (INSITU_SKIP_DATA_TESTS=1)",
+            p.display()
+        );
+        return None;
+    }
+    panic!(
+        "{} is missing: set {var}, or INSITU_SKIP_DATA_TESTS=1 to skip",
+        p.display()
+    );
+}
+
+fn blob() -> Volume {
+    Volume::from_fn([24, 24, 24], |x, y, z| {
+        let d = ((x as f32 - 12.0).powi(2) + (y as f32 - 10.0).powi(2) + (z as f32 - 13.0).powi(2))
+            .sqrt();
+        (9.0 - d).max(0.0) + 0.3 * ((x * 7 + y * 3 + z) % 5) as f32
+    })
+    .unwrap()
+}
+
+fn scene<'a>(v: &'a Volume, tf: &TransferFunction, size: u32, codec: Codec) -> StudyScene<'a> {
+    let rc = Raycaster::new(v, tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&v.world_box());
+    StudyScene::new(
+        rc,
+        v.content_hash(),
+        tf,
+        "tf",
+        cam,
+        &[0.0, 30.0],
+        (size, size),
+        codec,
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_second_identical_run_generates_nothing_and_changed_inputs_are_not_trusted() {
+    let dir = tempfile::tempdir().unwrap();
+    let v = blob();
+    let tf = TransferFunction::default_for_range(0.0, 10.0);
+    let grid = ParamGrid::parse("16,24,32", "0.01,0.05,0.2").unwrap();
+    let mut s = Study::new(scene(&v, &tf, 24, Codec::Zstd), Some(dir.path()));
+    let first = s.run(&grid.candidates(), |_, _| {}).unwrap();
+    assert_eq!(s.generations(), 9);
+    let mut again = Study::new(scene(&v, &tf, 24, Codec::Zstd), Some(dir.path()));
+    let second = again.run(&grid.candidates(), |_, _| {}).unwrap();
+    assert_eq!(again.generations(), 0, "the cache should answer everything");
+    assert_eq!(first, second);
+    // Any input the rows depend on changes the identity: TF, codec, image size.
+    for sc in [
+        scene(
+            &v,
+            &TransferFunction::default_for_range(0.0, 11.0),
+            24,
+            Codec::Zstd,
+        ),
+        scene(&v, &tf, 24, Codec::Bzip2),
+        scene(&v, &tf, 20, Codec::Zstd),
+    ] {
+        let mut other = Study::new(sc, Some(dir.path()));
+        other.run(&grid.candidates()[..1], |_, _| {}).unwrap();
+        assert_eq!(other.generations(), 1);
+    }
+    // A corrupt cache file is rebuilt, not trusted.
+    let files: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    for f in &files {
+        std::fs::write(f, b"{\"version\": 1, \"entries\": [tru").unwrap();
+    }
+    let mut rebuilt = Study::new(scene(&v, &tf, 24, Codec::Zstd), Some(dir.path()));
+    rebuilt.run(&grid.candidates(), |_, _| {}).unwrap();
+    assert_eq!(rebuilt.generations(), 9);
+    let mut trusted = Study::new(scene(&v, &tf, 24, Codec::Zstd), Some(dir.path()));
+    trusted.run(&grid.candidates(), |_, _| {}).unwrap();
+    assert_eq!(trusted.generations(), 0);
+}
+
+/// Brute force: the largest q among rows with σ < target.
+fn brute_best_q(rows: &[Measurement], target: u64) -> Option<f64> {
+    rows.iter()
+        .filter(|m| m.sigma_bytes < target)
+        .map(Measurement::q)
+        .max_by(f64::total_cmp)
+}
+
+fn real(name: &str, tf: &str, grid: &ParamGrid) -> Option<Vec<Measurement>> {
+    let data = shared("data")?;
+    let tfs = shared("tf")?;
+    let path = data.join(name);
+    let v = RawFormat::from_file_name(&path)
+        .unwrap()
+        .load(&path, 0, glam::Vec3::ONE)
+        .unwrap();
+    let tf = TransferFunction::load(&tfs.join(tf)).unwrap();
+    let mut s = Study::new(scene(&v, &tf, 64, Codec::Bzip2), None);
+    Some(s.run(&grid.candidates(), |_, _| {}).unwrap())
+}
+
+fn check_ladder(rows: &[Measurement]) {
+    let ladder = size_ladder(rows);
+    assert!(ladder.len() >= 3, "{ladder:?}");
+    for &target in &ladder {
+        let (m, _) = best(
+            rows,
+            &SizeBudget {
+                sigma_target: target,
+            },
+        )
+        .unwrap();
+        assert!(m.sigma_bytes < target);
+        assert_eq!(Some(m.q()), brute_best_q(rows, target), "σ_target {target}");
+    }
+    let smallest = rows.iter().map(|m| m.sigma_bytes).min().unwrap();
+    assert!(
+        best(
+            rows,
+            &SizeBudget {
+                sigma_target: smallest
+            }
+        )
+        .is_none(),
+        "infeasible must be None"
+    );
+}
+
+fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
+    for target in size_ladder(rows) {
+        let mut full = TableOracle::new(rows);
+        let g = grid_search(
+            &mut full,
+            grid,
+            &SizeBudget {
+                sigma_target: target,
+            },
+        )
+        .unwrap();
+        let mut table = TableOracle::new(rows);
+        let a = adaptive_search(&mut table, grid, Target::Size(target)).unwrap();
+        let (gq, aq) = (g.best.as_ref().unwrap().q(), a.best.as_ref().unwrap().q());
+        assert!(a.best.as_ref().unwrap().sigma_bytes < target);
+        assert!(
+            aq >= gq - 0.25,
+            "σ_target {target}: adaptive {aq} dB vs grid {gq} dB"
+        );
+        assert!(
+            a.generations < g.generations,
+            "adaptive used {} of {}",
+            a.generations,
+            g.generations
+        );
+    }
+    // The dual, at a quality the grid can reach.
+    let q_target = rows
+        .iter()
+        .map(Measurement::q)
+        .fold(f64::INFINITY, f64::min)
+        + 3.0;
+    let (g, _) = best(rows, &QualityTarget { q_target }).unwrap();
+    let a = adaptive_search(&mut TableOracle::new(rows), grid, Target::Quality(q_target)).unwrap();
+    let a = a.best.unwrap();
+    assert!(a.q() >= q_target);
+    assert!(
+        a.sigma_bytes as f64 <= g.sigma_bytes as f64 * 1.25,
+        "adaptive σ {} vs grid σ {}",
+        a.sigma_bytes,
+        g.sigma_bytes
+    );
+    // Below the smallest σ nothing is feasible: a clear None.
+    let smallest = rows.iter().map(|m| m.sigma_bytes).min().unwrap();
+    assert!(
+        adaptive_search(&mut TableOracle::new(rows), grid, Target::Size(smallest))
+            .unwrap()
+            .best
+            .is_none()
+    );
+}
+
+#[test]
+fn teapot_grid_and_adaptive_optima_match_brute_force() {
+    let grid = ParamGrid::parse("48:128:16", "0.002,0.006,0.013,0.03,0.06,0.12,0.26").unwrap();
+    let Some(rows) = real("teapot_256x256x178_uint8.raw", "teapot.json", &grid) else {
+        return;
+    };
+    check_ladder(&rows);
+    check_adaptive(&rows, &grid);
+}
+
+#[test]
+fn hydrogen_grid_and_adaptive_optima_match_brute_force() {
+    let grid = ParamGrid::parse("32:128:16", "0.001,0.004,0.013,0.03,0.06,0.12,0.26").unwrap();
+    let Some(rows) = real("hydrogen_64x64x64_float32.raw", "hydrogen.json", &grid) else {
+        return;
+    };
+    check_ladder(&rows);
+    check_adaptive(&rows, &grid);
+}
