@@ -175,11 +175,8 @@ impl Adaptive<'_> {
         let mut best: Option<(usize, f64)> = None;
         for ri in probes {
             match self.best_at(ri)? {
-                Some((_, v)) => {
-                    if best.is_none_or(|(_, b)| v < b) {
-                        best = Some((ri, v));
-                    }
-                }
+                Some((_, v)) if best.is_none_or(|(_, b)| v < b) => best = Some((ri, v)),
+                Some(_) => {}
                 // σ rises with r: no larger r can meet a size budget this one misses.
                 None if matches!(self.target, Target::Size(_)) => break,
                 None => {}

@@ -124,7 +124,7 @@ pub fn parse_bytes(s: &str) -> Option<u64> {
         _ => return None,
     };
     let b = v * mul;
-    (b.is_finite() && b >= 0.0 && b < 1.8e19).then_some(b.round() as u64)
+    (0.0..1.8e19).contains(&b).then_some(b.round() as u64)
 }
 
 /// Bytes as text with a decimal unit.
