@@ -40,6 +40,10 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Feed a recorded time series (4-D raw file) through the pipeline, as a simulation would.
     Replay(cmd::replay::Args),
+    /// Parameter study over a grid of (r, gamma): sigma, q, tau per candidate, cached; CSV + JSON.
+    Study(cmd::study::Args),
+    /// The best (r, gamma) for a utility function (size or time budget, quality target).
+    Tune(cmd::tune::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -71,5 +75,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Evaluate(a) => cmd::evaluate::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Replay(a) => cmd::replay::run(a),
+        Command::Study(a) => cmd::study::run(a),
+        Command::Tune(a) => cmd::tune::run(a),
     }
 }

@@ -237,3 +237,58 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let index = std::fs::read_to_string(dir.path().join("rec/index.json")).unwrap();
     assert_eq!(index.matches("\"vdi\": \"step_").count(), 4, "{index}");
 }
+
+#[test]
+fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
+    let dir = tempfile::tempdir().unwrap();
+    let common = [
+        "--volume",
+        "gray-scott:24:300",
+        "--r-grid",
+        "16:32:8",
+        "--gamma-grid",
+        "0.01,0.05,0.2",
+        "--views",
+        "0,30",
+        "--size",
+        "24",
+        "--codec",
+        "zstd",
+        "--cache-dir",
+        "cache",
+    ];
+    let mut study = vec!["study", "--json", "--out", "s"];
+    study.extend_from_slice(&common);
+    let o = insitu(&study, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (v["candidates"].as_u64(), v["generated"].as_u64()),
+        (Some(9), Some(9))
+    );
+    let csv = std::fs::read_to_string(dir.path().join("s.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 10, "{csv}");
+    // tune on the same scene: everything comes from the cache.
+    let mut tune = vec!["tune", "--json", "--utility", "size:1GB"];
+    tune.extend_from_slice(&common);
+    let o = insitu(&tune, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["generated"].as_u64(), Some(0), "{v}");
+    assert_eq!(
+        v["best"]["gamma"].as_f64().map(|g| (g * 100.0).round()),
+        Some(1.0),
+        "{v}"
+    );
+    // An impossible budget is a clear error, not a default.
+    let mut bad = vec!["tune", "--utility", "size:10B"];
+    bad.extend_from_slice(&common);
+    let o = insitu(&bad, dir.path());
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("infeasible"), "{}", stderr(&o));
+    let mut bad = vec!["tune", "--utility", "time:0.1", "--strategy", "adaptive"];
+    bad.extend_from_slice(&common);
+    let o = insitu(&bad, dir.path());
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--strategy grid"), "{}", stderr(&o));
+}

@@ -5,7 +5,7 @@ use super::{q_json, q_text};
 use crate::output::write_png;
 use crate::progress::bar;
 use crate::scene::SceneArgs;
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
 use insitu_core::vdi::VdiParams;
 use insitu_core::{dvr, Image, Raycaster};
@@ -43,25 +43,13 @@ pub struct Args {
     json: bool,
 }
 
-fn parse_views(s: &str) -> Result<Vec<f32>> {
-    let views: Vec<f32> = s
-        .split(',')
-        .map(|v| v.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("--views {s:?} is not a comma-separated list of degrees"))?;
-    if views.is_empty() || views.iter().any(|v| !v.is_finite()) {
-        bail!("--views {s:?} must hold finite angles");
-    }
-    Ok(views)
-}
-
 pub fn run(a: Args) -> Result<()> {
     let (w, h) = super::parse_size(&a.size)?;
     let codec_kind = super::parse_codec(&a.codec)?;
     let angles = if a.views.is_empty() {
         DEFAULT_VIEW_ANGLES.to_vec()
     } else {
-        parse_views(&a.views)?
+        super::parse_views(&a.views)?
     };
     let params = VdiParams {
         resolution: a.r,

@@ -5,9 +5,11 @@ pub mod evaluate;
 pub mod generate;
 pub mod render;
 pub mod replay;
+pub mod study;
+pub mod tune;
 pub mod view;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use insitu_core::vdi::codec::Codec;
 
 /// Parses `--size N` or `--size WxH`.
@@ -48,4 +50,17 @@ pub fn q_text(q: f64) -> String {
     } else {
         "inf".to_owned()
     }
+}
+
+/// Parses `--views a,b,c` (degrees).
+pub fn parse_views(s: &str) -> Result<Vec<f32>> {
+    let views: Vec<f32> = s
+        .split(',')
+        .map(|v| v.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--views {s:?} is not a comma-separated list of degrees"))?;
+    if views.is_empty() || views.iter().any(|v| !v.is_finite()) {
+        bail!("--views {s:?} must hold finite angles");
+    }
+    Ok(views)
 }

@@ -1,0 +1,151 @@
+//! `insitu study`: Alg. 1's parameter study over a grid of `P_M` (Sec. 5.5), cached on disk,
+//! written as CSV and JSON.
+
+use crate::output::write_atomic;
+use crate::progress::bar;
+use crate::scene::{Scene, SceneArgs};
+use anyhow::Result;
+use insitu_core::evaluate::DEFAULT_VIEW_ANGLES;
+use insitu_core::vdi::codec::Codec;
+use insitu_core::Raycaster;
+use insitu_tuner::{report, Oracle, ParamGrid, Study, StudyScene};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// What a study measures and where it caches: shared by `study` and `tune`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct StudyArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Resolutions r: START:END:STEP or a list (the paper's 160:768:32).
+    #[arg(long, default_value = "160:768:32")]
+    pub r_grid: String,
+    /// Thresholds gamma: START:END:STEP or a list (the paper's 0.001:0.26:0.004).
+    #[arg(long, default_value = "0.001:0.26:0.004", allow_hyphen_values = true)]
+    pub gamma_grid: String,
+    /// Test view angles about +y, degrees.
+    #[arg(
+        long,
+        default_value = "0,10,20,30,40,50,60",
+        allow_hyphen_values = true
+    )]
+    pub views: String,
+    /// Image size of references and VDI renders: N or WxH (the paper's 768²).
+    #[arg(long, default_value = "768")]
+    pub size: String,
+    /// Codec for sigma: bzip2 (the paper's), zstd or none.
+    #[arg(long, default_value = "bzip2")]
+    pub codec: String,
+    /// Cache directory (results are reused whenever nothing they depend on changed).
+    #[arg(long, default_value = ".insitu-cache")]
+    pub cache_dir: PathBuf,
+    /// Do not read or write the cache.
+    #[arg(long)]
+    pub no_cache: bool,
+}
+
+/// A loaded scene with the study's settings.
+pub struct Prepared {
+    pub scene: Scene,
+    pub grid: ParamGrid,
+    pub views: Vec<f32>,
+    pub size: (u32, u32),
+    pub codec: Codec,
+}
+
+impl StudyArgs {
+    /// Parses everything and loads the scene.
+    pub fn prepare(&self) -> Result<Prepared> {
+        let grid = ParamGrid::parse(&self.r_grid, &self.gamma_grid)?;
+        let views = if self.views.is_empty() {
+            DEFAULT_VIEW_ANGLES.to_vec()
+        } else {
+            super::parse_views(&self.views)?
+        };
+        let size = super::parse_size(&self.size)?;
+        let codec = super::parse_codec(&self.codec)?;
+        Ok(Prepared {
+            scene: self.scene.load()?,
+            grid,
+            views,
+            size,
+            codec,
+        })
+    }
+
+    /// A study of `p` (references rendered here, once).
+    pub fn study<'a>(&self, p: &'a Prepared) -> Result<Study<'a>> {
+        let s = &p.scene;
+        let rc = Raycaster::new(&s.volume, &s.tf, s.params)?;
+        let scene = StudyScene::new(
+            rc,
+            s.volume.content_hash(),
+            &s.tf,
+            &s.tf_name,
+            SceneArgs::camera(s),
+            &p.views,
+            p.size,
+            p.codec,
+        )?;
+        Ok(Study::new(
+            scene,
+            (!self.no_cache).then_some(self.cache_dir.as_path()),
+        ))
+    }
+}
+
+/// Runs the whole grid with a progress bar; returns the rows.
+pub fn run_grid(study: &mut Study, grid: &ParamGrid) -> Result<Vec<insitu_tuner::Measurement>> {
+    let pb = bar(grid.len() as u64, "study");
+    let rows = study.run(&grid.candidates(), |i, m| {
+        pb.set_position(i as u64);
+        pb.set_message(format!("study r={} γ={:.3}", m.r, m.gamma));
+    })?;
+    pb.finish_and_clear();
+    Ok(rows)
+}
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[command(flatten)]
+    study: StudyArgs,
+    /// Output prefix: writes PREFIX.csv and PREFIX.json.
+    #[arg(long, default_value = "study")]
+    out: PathBuf,
+    /// Print a JSON summary instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let p = a.study.prepare()?;
+    let t = Instant::now();
+    let mut study = a.study.study(&p)?;
+    let rows = run_grid(&mut study, &p.grid)?;
+    let csv = a.out.with_extension("csv");
+    let json = a.out.with_extension("json");
+    write_atomic(&csv, report::csv(&rows).as_bytes())?;
+    write_atomic(&json, report::json(&rows)?.as_bytes())?;
+    let (generated, secs) = (study.generations(), t.elapsed().as_secs_f64());
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "volume": p.scene.volume_name, "tf": p.scene.tf_name,
+                "candidates": rows.len(), "generated": generated, "cached": rows.len() as u64 - generated,
+                "secs": secs, "csv": csv, "json": json,
+            })
+        );
+    } else {
+        println!(
+            "{} with {}: {} candidates ({} generated, {} from the cache) in {secs:.1} s",
+            p.scene.volume_name,
+            p.scene.tf_name,
+            rows.len(),
+            generated,
+            rows.len() as u64 - generated
+        );
+        println!("-> {} and {}", csv.display(), json.display());
+    }
+    Ok(())
+}

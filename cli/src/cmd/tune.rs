@@ -1,0 +1,179 @@
+//! `insitu tune`: the best `P_M` for a utility function (Sec. 5.4), by the paper's grid or the
+//! adaptive search; `--ladder` compares both over the paper's ladder of size budgets (Fig. 8).
+
+use super::q_text;
+use super::study::{run_grid, StudyArgs};
+use anyhow::{bail, Result};
+use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Outcome, Target};
+use insitu_tuner::utility::{bytes_text, parse_utility, SizeBudget};
+use insitu_tuner::{Measurement, Oracle, TableOracle};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Strategy {
+    /// Measure every candidate of the grid (the paper).
+    Grid,
+    /// Bisection on gamma per r and a climb over r (size or quality targets).
+    Adaptive,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[command(flatten)]
+    study: StudyArgs,
+    /// Utility: size:2MB (Eq. 1), time:0.5 (Eq. 2, seconds), size:2MB,time:0.5, quality:40.
+    #[arg(long, default_value = "size:1MB")]
+    utility: String,
+    /// Search strategy.
+    #[arg(long, value_enum, default_value_t = Strategy::Grid)]
+    strategy: Strategy,
+    /// Instead: study the whole grid, then for each size budget of the paper's ladder (each
+    /// 1.5x the previous) compare the grid optimum with the adaptive one (priced from the table).
+    #[arg(long)]
+    ladder: bool,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn target(spec: &str) -> Result<Target> {
+    let (kind, value) = spec.split_once(':').unwrap_or((spec, ""));
+    let u = parse_utility(spec)?;
+    match kind {
+        "size" if !spec.contains(',') => Ok(Target::Size(
+            insitu_tuner::utility::parse_bytes(value).unwrap_or(u64::MAX),
+        )),
+        "quality" => Ok(Target::Quality(value.trim().parse()?)),
+        _ => bail!(
+            "--strategy adaptive supports size:BYTES and quality:DB utilities, not {:?} ({}); use --strategy grid",
+            spec,
+            u.describe()
+        ),
+    }
+}
+
+fn row_json(m: &Measurement) -> serde_json::Value {
+    serde_json::json!({
+        "r": m.r, "gamma": m.gamma, "sigma_bytes": m.sigma_bytes, "tau_s": m.tau_secs,
+        "q_db": super::q_json(m.q()), "ssim": m.ssim,
+    })
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.ladder {
+        return ladder(&a);
+    }
+    let utility = parse_utility(&a.utility)?;
+    let p = a.study.prepare()?;
+    let mut study = a.study.study(&p)?;
+    let out: Outcome = match a.strategy {
+        Strategy::Grid => {
+            // Measure with a progress bar, then pick from the (now cached) rows.
+            let t = std::time::Instant::now();
+            run_grid(&mut study, &p.grid)?;
+            let mut o = grid_search(&mut study, &p.grid, utility.as_ref())?;
+            o.generations = study.generations();
+            o.generation_secs = study.generation_secs();
+            o.wall_secs = t.elapsed().as_secs_f64();
+            o
+        }
+        Strategy::Adaptive => adaptive_search(&mut study, &p.grid, target(&a.utility)?)?,
+    };
+    study.save()?;
+    let Some(best) = &out.best else {
+        bail!(
+            "no P_M of the {} candidates meets \"{}\" (infeasible budget); loosen it or widen the grid",
+            p.grid.len(),
+            utility.describe()
+        );
+    };
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "utility": utility.describe(), "strategy": format!("{:?}", a.strategy).to_lowercase(),
+                "best": row_json(best), "generated": out.generations, "grid_candidates": p.grid.len(),
+                "generation_secs": out.generation_secs, "wall_secs": out.wall_secs,
+            })
+        );
+    } else {
+        println!("{} ({:?} search)", utility.describe(), a.strategy);
+        println!(
+            "best P_M: r = {}, gamma = {} | sigma = {} ({}), q = {} dB, tau = {:.3} s",
+            best.r,
+            best.gamma,
+            best.sigma_bytes,
+            bytes_text(best.sigma_bytes),
+            q_text(best.q()),
+            best.tau_secs
+        );
+        println!(
+            "generated {} of {} candidates (the rest from the cache or not needed), sum of tau {:.2} s, wall clock {:.1} s",
+            out.generations,
+            p.grid.len(),
+            out.generation_secs,
+            out.wall_secs
+        );
+    }
+    Ok(())
+}
+
+fn ladder(a: &Args) -> Result<()> {
+    let p = a.study.prepare()?;
+    let mut study = a.study.study(&p)?;
+    let rows = run_grid(&mut study, &p.grid)?;
+    let grid_tau: f64 = rows.iter().map(|m| m.tau_secs).sum();
+    let mut out = Vec::new();
+    if !a.json {
+        println!(
+            "{} with {}: {} candidates, grid sum of tau {:.1} s",
+            p.scene.volume_name,
+            p.scene.tf_name,
+            rows.len(),
+            grid_tau
+        );
+        println!(
+            "{:>11} | {:>5} {:>6} {:>7} | {:>5} {:>6} {:>7} {:>7} | {:>6} {:>9}",
+            "sigma_tgt", "r", "gamma", "q dB", "r", "gamma", "q dB", "dq", "evals", "tau share"
+        );
+    }
+    for t in size_ladder(&rows) {
+        let g = insitu_tuner::utility::best(&rows, &SizeBudget { sigma_target: t });
+        let mut oracle = TableOracle::new(&rows);
+        let ad = adaptive_search(&mut oracle, &p.grid, Target::Size(t))?;
+        let share = ad.generation_secs / grid_tau.max(1e-12);
+        match (g, &ad.best) {
+            (Some((gm, _)), Some(am)) => {
+                if a.json {
+                    out.push(serde_json::json!({
+                        "sigma_target": t, "grid": row_json(gm), "adaptive": row_json(am),
+                        "adaptive_evaluations": ad.generations, "grid_evaluations": rows.len(),
+                        "adaptive_tau_share": share,
+                    }));
+                } else {
+                    println!(
+                        "{:>11} | {:>5} {:>6.3} {:>7} | {:>5} {:>6.3} {:>7} {:>7.2} | {:>6} {:>8.1}%",
+                        bytes_text(t),
+                        gm.r,
+                        gm.gamma,
+                        q_text(gm.q()),
+                        am.r,
+                        am.gamma,
+                        q_text(am.q()),
+                        am.q() - gm.q(),
+                        ad.generations,
+                        100.0 * share
+                    );
+                }
+            }
+            _ => {
+                if !a.json {
+                    println!("{:>11} | infeasible", bytes_text(t));
+                }
+            }
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::Value::Array(out));
+    }
+    Ok(())
+}
