@@ -44,6 +44,8 @@ enum Command {
     Study(cmd::study::Args),
     /// The best (r, gamma) for a utility function (size or time budget, quality target).
     Tune(cmd::tune::Args),
+    /// Tune across a time series: characteristic steps, conservative (r, gamma), cross-evaluation.
+    Series(cmd::series::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -77,5 +79,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Replay(a) => cmd::replay::run(a),
         Command::Study(a) => cmd::study::run(a),
         Command::Tune(a) => cmd::tune::run(a),
+        Command::Series(a) => cmd::series::run(a),
     }
 }

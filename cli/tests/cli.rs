@@ -292,3 +292,65 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--strategy grid"), "{}", stderr(&o));
 }
+
+#[test]
+fn series_picks_one_step_per_regime_and_cross_evaluates() {
+    let dir = tempfile::tempdir().unwrap();
+    // 12³ × 6 steps: steps 0–2 a dim blob, steps 3–5 a bright, larger one.
+    let mut bytes = Vec::new();
+    for t in 0..6 {
+        let (amp, rad) = if t < 3 { (1.0f32, 3.0f32) } else { (4.0, 5.0) };
+        for z in 0..12 {
+            for y in 0..12 {
+                for x in 0..12 {
+                    let d = ((x as f32 - 6.0).powi(2)
+                        + (y as f32 - 6.0).powi(2)
+                        + (z as f32 - 6.0).powi(2))
+                    .sqrt();
+                    let v = amp * (rad - d).max(0.0) + 0.001 * t as f32;
+                    bytes.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+    }
+    std::fs::write(dir.path().join("s_12x12x12x6_float32.raw"), bytes).unwrap();
+    let o = insitu(
+        &[
+            "series",
+            "--volume",
+            "s_12x12x12x6_float32.raw",
+            "--r-grid",
+            "16,24",
+            "--gamma-grid",
+            "0.01,0.1",
+            "--views",
+            "0,30",
+            "--size",
+            "16",
+            "--codec",
+            "zstd",
+            "--utility",
+            "size:1GB",
+            "--no-cache",
+            "--json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let steps: Vec<u64> = v["characteristic_steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_u64().unwrap())
+        .collect();
+    assert_eq!(steps.len(), 2, "{v}");
+    assert!(steps[0] < 3 && steps[1] >= 3, "{steps:?}");
+    assert_eq!(v["cross"].as_array().unwrap().len(), 4);
+    assert!(v["cross"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c["holds"] == true));
+    assert!(v["conservative"]["r"].is_u64(), "{v}");
+}

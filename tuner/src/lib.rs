@@ -7,6 +7,7 @@
 //! - [`utility`]: ν_size (Eq. 1), ν_time (Eq. 2), both, and the dual; a trait for more.
 //! - [`search`]: exhaustive grid and an adaptive search that needs a fraction of the
 //!   measurements.
+//! - [`series`]: characteristic time steps, the conservative `P_M`, cross-evaluation.
 //! - [`report`]: CSV and JSON of a study.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
@@ -16,6 +17,7 @@ pub mod grid;
 pub mod measure;
 pub mod report;
 pub mod search;
+pub mod series;
 pub mod study;
 pub mod utility;
 

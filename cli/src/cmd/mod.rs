@@ -5,6 +5,7 @@ pub mod evaluate;
 pub mod generate;
 pub mod render;
 pub mod replay;
+pub mod series;
 pub mod study;
 pub mod tune;
 pub mod view;
