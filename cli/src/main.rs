@@ -46,6 +46,8 @@ enum Command {
     Tune(cmd::tune::Args),
     /// Tune across a time series: characteristic steps, conservative (r, gamma), cross-evaluation.
     Series(cmd::series::Args),
+    /// What accuracy costs in time: q, tau and sigma for each knob that trades quality for speed.
+    Accuracy(cmd::accuracy::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -80,5 +82,6 @@ fn run(cli: Cli) -> Result<()> {
         Command::Study(a) => cmd::study::run(a),
         Command::Tune(a) => cmd::tune::run(a),
         Command::Series(a) => cmd::series::run(a),
+        Command::Accuracy(a) => cmd::accuracy::run(a),
     }
 }

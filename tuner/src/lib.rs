@@ -8,10 +8,12 @@
 //! - [`search`]: exhaustive grid and an adaptive search that needs a fraction of the
 //!   measurements.
 //! - [`series`]: characteristic time steps, the conservative `P_M`, cross-evaluation.
+//! - [`accuracy`]: what accuracy costs in time, knob by knob.
 //! - [`report`]: CSV and JSON of a study.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod accuracy;
 pub mod cache;
 pub mod grid;
 pub mod measure;

@@ -225,3 +225,56 @@ fn hydrogen_grid_and_adaptive_optima_match_brute_force() {
     check_ladder(&rows);
     check_adaptive(&rows, &grid);
 }
+
+#[test]
+fn the_accuracy_sweep_shows_the_expected_trade_offs() {
+    use insitu_tuner::accuracy::{sweep, Sweep};
+    let v = Volume::from_fn([20, 20, 20], |x, y, z| {
+        ((x as f32 * 0.4).sin() + (y as f32 * 0.3).cos() + z as f32 * 0.05).abs()
+    })
+    .unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 3.0);
+    let rows = sweep(&Sweep {
+        volume: &v,
+        tf: &tf,
+        tf_name: "ramp",
+        base: RaycastParams::default(),
+        camera: Camera::default_for_box(&v.world_box()),
+        views: &[0.0, 40.0],
+        size: 32,
+        base_pm: insitu_tuner::Candidate {
+            r: 32,
+            gamma: 0.013,
+        },
+        codec: Codec::Zstd,
+    })
+    .unwrap();
+    let of = |knob: &str| rows.iter().filter(|r| r.knob == knob).collect::<Vec<_>>();
+    // Coarser steps are less accurate.
+    let q: Vec<f64> = of("ray-casting step")
+        .iter()
+        .map(|r| r.q_db.unwrap())
+        .collect();
+    assert!(q.windows(2).all(|w| w[0] > w[1]), "{q:?}");
+    // Empty-space skipping does not change the image.
+    assert!(of("empty-space skipping")
+        .iter()
+        .all(|r| r.q_db == Some(f64::INFINITY)));
+    // σ falls as γ grows; a lossless codec does not enlarge the file.
+    let s: Vec<u64> = of("VDI threshold γ")
+        .iter()
+        .map(|r| r.sigma_bytes.unwrap())
+        .collect();
+    assert!(s.windows(2).all(|w| w[0] >= w[1]), "{s:?}");
+    let c = of("codec (lossless)");
+    let none = c
+        .iter()
+        .find(|r| r.value == "none")
+        .unwrap()
+        .sigma_bytes
+        .unwrap();
+    assert!(c.iter().all(|r| r.sigma_bytes.unwrap() <= none));
+    assert!(rows
+        .iter()
+        .all(|r| r.tau_secs.is_finite() && r.tau_secs >= 0.0));
+}

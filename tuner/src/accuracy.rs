@@ -1,0 +1,244 @@
+//! What accuracy costs in time: one scene, each knob that trades quality for speed swept on
+//! its own from a base setting, with q, τ and σ per setting (issue 4, item 6).
+//!
+//! - Ray-casting step and early-termination threshold: the direct rendering at each setting
+//!   against a ground truth at a quarter of the base step without early termination; τ is the
+//!   rendering time per view.
+//! - Empty-space skipping and shading: τ of the direct rendering with each on and off (skipping
+//!   must not change the image: its q against the rendering without it is reported).
+//! - r, γ: the VDI (generated, compressed, decoded, rendered at the test views) against the
+//!   direct rendering at the base setting, as in the paper; τ is generation time.
+//! - Codec: σ and compression time (lossless: q does not change).
+//!
+//! Supersegments are stored as f32: there is no storage-precision knob yet.
+
+use crate::grid::Candidate;
+use crate::measure::Measurement;
+use crate::study::{Oracle, Study, StudyError, StudyScene};
+use insitu_core::metrics::{mse, pooled_psnr};
+use insitu_core::raycast::RaycastError;
+use insitu_core::vdi::codec::Codec;
+use insitu_core::{
+    dvr, Camera, Image, RaycastParams, Raycaster, Shading, TransferFunction, Volume,
+};
+use std::time::Instant;
+
+/// One setting of one knob.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AccuracyRow {
+    /// The knob.
+    pub knob: &'static str,
+    /// Its value, as text.
+    pub value: String,
+    /// q against the knob's reference, dB (`None` where quality is not what the row shows).
+    pub q_db: Option<f64>,
+    /// Time of what the knob affects, seconds.
+    pub tau_secs: f64,
+    /// What `tau_secs` measures.
+    pub tau_of: &'static str,
+    /// σ, bytes (VDI rows).
+    pub sigma_bytes: Option<u64>,
+}
+
+/// Errors of a sweep.
+#[derive(Debug, thiserror::Error)]
+pub enum AccuracyError {
+    /// Bad ray-casting parameters.
+    #[error(transparent)]
+    Raycast(#[from] RaycastError),
+    /// A VDI measurement failed.
+    #[error(transparent)]
+    Study(#[from] StudyError),
+}
+
+/// The scene and the base setting of a sweep.
+pub struct Sweep<'a> {
+    /// The volume.
+    pub volume: &'a Volume,
+    /// Its transfer function and name.
+    pub tf: &'a TransferFunction,
+    /// The transfer function's name.
+    pub tf_name: &'a str,
+    /// Base ray-casting parameters.
+    pub base: RaycastParams,
+    /// Generation camera; views orbit it.
+    pub camera: Camera,
+    /// Test views, degrees.
+    pub views: &'a [f32],
+    /// Image side, pixels.
+    pub size: u32,
+    /// Base `P_M`.
+    pub base_pm: Candidate,
+    /// Base codec.
+    pub codec: Codec,
+}
+
+fn dvr_at(s: &Sweep, params: RaycastParams) -> Result<(Vec<Image>, f64), RaycastError> {
+    let rc = Raycaster::new(s.volume, s.tf, params)?;
+    let t = Instant::now();
+    let images: Vec<Image> = s
+        .views
+        .iter()
+        .map(|&a| dvr::render(&rc, &s.camera.orbit_y(a), s.size, s.size))
+        .collect();
+    Ok((
+        images,
+        t.elapsed().as_secs_f64() / s.views.len().max(1) as f64,
+    ))
+}
+
+fn pooled(images: &[Image], references: &[Image]) -> f64 {
+    let mses: Vec<f64> = images
+        .iter()
+        .zip(references)
+        .map(|(a, b)| mse(a, b).unwrap_or(f64::INFINITY))
+        .collect();
+    pooled_psnr(&mses)
+}
+
+fn vdi_rows(
+    study: &mut Study,
+    knob: &'static str,
+    cands: &[(String, Candidate)],
+) -> Result<Vec<AccuracyRow>, StudyError> {
+    cands
+        .iter()
+        .map(|(value, c)| {
+            let m: Measurement = study.measure(*c)?;
+            Ok(AccuracyRow {
+                knob,
+                value: value.clone(),
+                q_db: Some(m.q()),
+                tau_secs: m.tau_secs,
+                tau_of: "VDI generation",
+                sigma_bytes: Some(m.sigma_bytes),
+            })
+        })
+        .collect()
+}
+
+/// Runs the sweep (see the module docs).
+///
+/// # Errors
+/// [`AccuracyError`] for bad base parameters or a failed measurement.
+pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
+    let mut rows = Vec::new();
+    let truth_params = RaycastParams {
+        step: s.base.step / 4.0,
+        termination: 1.0,
+        ..s.base
+    };
+    let (truth, _) = dvr_at(s, truth_params)?;
+    let b = s.base.step;
+    for step in [b / 2.0, b, 2.0 * b, 4.0 * b] {
+        let (im, tau) = dvr_at(s, RaycastParams { step, ..s.base })?;
+        rows.push(AccuracyRow {
+            knob: "ray-casting step",
+            value: format!("{step}"),
+            q_db: Some(pooled(&im, &truth)),
+            tau_secs: tau,
+            tau_of: "DVR per view",
+            sigma_bytes: None,
+        });
+    }
+    for termination in [0.9f32, 0.95, 0.99, 0.999, 1.0] {
+        let (im, tau) = dvr_at(
+            s,
+            RaycastParams {
+                termination,
+                ..s.base
+            },
+        )?;
+        rows.push(AccuracyRow {
+            knob: "early termination",
+            value: format!("{termination}"),
+            q_db: Some(pooled(&im, &truth)),
+            tau_secs: tau,
+            tau_of: "DVR per view",
+            sigma_bytes: None,
+        });
+    }
+    let (base_images, _) = dvr_at(s, s.base)?;
+    for skipping in [true, false] {
+        let (im, tau) = dvr_at(
+            s,
+            RaycastParams {
+                empty_space_skipping: skipping,
+                ..s.base
+            },
+        )?;
+        rows.push(AccuracyRow {
+            knob: "empty-space skipping",
+            value: if skipping { "on" } else { "off" }.into(),
+            q_db: Some(pooled(&im, &base_images)),
+            tau_secs: tau,
+            tau_of: "DVR per view",
+            sigma_bytes: None,
+        });
+    }
+    for shading in [None, Some(Shading::default())] {
+        let (_, tau) = dvr_at(s, RaycastParams { shading, ..s.base })?;
+        rows.push(AccuracyRow {
+            knob: "shading (effect, not accuracy)",
+            value: if shading.is_some() {
+                "Blinn-Phong"
+            } else {
+                "off"
+            }
+            .into(),
+            q_db: None,
+            tau_secs: tau,
+            tau_of: "DVR per view",
+            sigma_bytes: None,
+        });
+    }
+    let rc = Raycaster::new(s.volume, s.tf, s.base)?;
+    let scene = StudyScene::new(
+        rc,
+        s.volume.content_hash(),
+        s.tf,
+        s.tf_name,
+        s.camera,
+        s.views,
+        (s.size, s.size),
+        s.codec,
+    )?;
+    let mut study = Study::new(scene, None);
+    let pm = s.base_pm;
+    let rs: Vec<(String, Candidate)> = [pm.r / 2, pm.r, pm.r * 2]
+        .into_iter()
+        .filter(|&r| r >= 1)
+        .map(|r| (format!("{r}"), Candidate { r, ..pm }))
+        .collect();
+    rows.extend(vdi_rows(&mut study, "VDI resolution r", &rs)?);
+    let gammas: Vec<(String, Candidate)> = [0.001f32, 0.013, 0.05, 0.13, 0.26]
+        .into_iter()
+        .map(|gamma| (format!("{gamma}"), Candidate { gamma, ..pm }))
+        .collect();
+    rows.extend(vdi_rows(&mut study, "VDI threshold γ", &gammas)?);
+    for codec in Codec::ALL {
+        let rc = Raycaster::new(s.volume, s.tf, s.base)?;
+        let scene = StudyScene::new(
+            rc,
+            s.volume.content_hash(),
+            s.tf,
+            s.tf_name,
+            s.camera,
+            &s.views[..1],
+            (8, 8),
+            codec,
+        )?;
+        let m = Study::new(scene, None)
+            .measure(pm)
+            .map_err(AccuracyError::Study)?;
+        rows.push(AccuracyRow {
+            knob: "codec (lossless)",
+            value: codec.name().into(),
+            q_db: None,
+            tau_secs: m.tau_compress_secs,
+            tau_of: "compression",
+            sigma_bytes: Some(m.sigma_bytes),
+        });
+    }
+    Ok(rows)
+}
