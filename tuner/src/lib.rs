@@ -9,12 +9,14 @@
 //!   measurements.
 //! - [`series`]: characteristic time steps, the conservative `P_M`, cross-evaluation.
 //! - [`accuracy`]: what accuracy costs in time, knob by knob.
+//! - [`charts`]: the study map (Fig. 7), Pareto fronts, the budget ladder (Fig. 8), accuracy.
 //! - [`report`]: CSV and JSON of a study.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod accuracy;
 pub mod cache;
+pub mod charts;
 pub mod grid;
 pub mod measure;
 pub mod report;

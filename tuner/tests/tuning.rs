@@ -278,3 +278,30 @@ fn the_accuracy_sweep_shows_the_expected_trade_offs() {
         .iter()
         .all(|r| r.tau_secs.is_finite() && r.tau_secs >= 0.0));
 }
+
+#[test]
+fn charts_are_drawn_and_empty_input_is_an_error() {
+    use insitu_tuner::charts;
+    let dir = tempfile::tempdir().unwrap();
+    let v = blob();
+    let tf = TransferFunction::default_for_range(0.0, 10.0);
+    let grid = ParamGrid::parse("16,24,32", "0.01,0.05,0.2").unwrap();
+    let rows = Study::new(scene(&v, &tf, 24, Codec::Zstd), None)
+        .run(&grid.candidates(), |_, _| {})
+        .unwrap();
+    let map = dir.path().join("map.png");
+    charts::study_map(&rows, "blob", &map).unwrap();
+    charts::pareto(&rows, "blob", &dir.path().join("p.png")).unwrap();
+    let img = image::open(&map).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (1200, 800));
+    let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+    assert!(
+        colours.len() > 50,
+        "the map looks blank: {} colours",
+        colours.len()
+    );
+    assert!(matches!(
+        charts::study_map(&[], "x", &map),
+        Err(charts::ChartError::Empty(_))
+    ));
+}

@@ -28,6 +28,9 @@ pub struct Args {
     /// Base codec.
     #[arg(long, default_value = "bzip2")]
     codec: String,
+    /// Chart of q against tau per knob.
+    #[arg(long, default_value = "accuracy.png")]
+    chart: std::path::PathBuf,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -52,6 +55,12 @@ pub fn run(a: Args) -> Result<()> {
         },
         codec,
     })?;
+    let title = format!(
+        "{} ({})",
+        super::study::short_name(&scene.volume_name),
+        scene.tf_name
+    );
+    insitu_tuner::charts::accuracy(&rows, &title, &a.chart)?;
     if a.json {
         let rows: Vec<_> = rows
             .iter()
@@ -84,6 +93,7 @@ pub fn run(a: Args) -> Result<()> {
             r.sigma_bytes.map_or_else(|| "-".to_owned(), bytes_text)
         );
     }
+    println!("chart -> {}", a.chart.display());
     println!("q of step/termination rows: against a direct rendering at a quarter of the base step without early termination; of VDI rows: against the direct rendering at the base setting (Alg. 1).");
     Ok(())
 }

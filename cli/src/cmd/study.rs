@@ -8,7 +8,11 @@ use anyhow::Result;
 use insitu_core::evaluate::DEFAULT_VIEW_ANGLES;
 use insitu_core::vdi::codec::Codec;
 use insitu_core::Raycaster;
-use insitu_tuner::{report, Oracle, ParamGrid, Study, StudyScene};
+use insitu_tuner::charts::{self, LadderPoint};
+use insitu_tuner::search::size_ladder;
+use insitu_tuner::utility::{best, SizeBudget};
+use insitu_tuner::{report, Measurement, Oracle, ParamGrid, Study, StudyScene};
+use std::path::Path;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -112,9 +116,37 @@ pub struct Args {
     /// Output prefix: writes PREFIX.csv and PREFIX.json.
     #[arg(long, default_value = "study")]
     out: PathBuf,
+    /// Do not draw PREFIX_map.png (Fig. 7), PREFIX_pareto.png and PREFIX_ladder.png (Fig. 8).
+    #[arg(long)]
+    no_charts: bool,
     /// Print a JSON summary instead of text.
     #[arg(long)]
     json: bool,
+}
+
+/// Draws the study's charts next to `prefix`; returns the files written.
+pub fn draw_charts(rows: &[Measurement], title: &str, prefix: &Path) -> Result<Vec<PathBuf>> {
+    let name = |suffix: &str| {
+        let stem = prefix
+            .file_name()
+            .map_or_else(|| "study".into(), |s| s.to_string_lossy().into_owned());
+        prefix.with_file_name(format!("{stem}_{suffix}.png"))
+    };
+    let (map, par, lad) = (name("map"), name("pareto"), name("ladder"));
+    charts::study_map(rows, title, &map)?;
+    charts::pareto(rows, title, &par)?;
+    let points: Vec<LadderPoint> = size_ladder(rows)
+        .into_iter()
+        .filter_map(|t| {
+            best(rows, &SizeBudget { sigma_target: t }).map(|(m, _)| LadderPoint {
+                sigma_target: t,
+                grid: (m.r, m.gamma, m.q()),
+                adaptive: None,
+            })
+        })
+        .collect();
+    charts::ladder(&points, title, &lad)?;
+    Ok(vec![map, par, lad])
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -127,13 +159,19 @@ pub fn run(a: Args) -> Result<()> {
     write_atomic(&csv, report::csv(&rows).as_bytes())?;
     write_atomic(&json, report::json(&rows)?.as_bytes())?;
     let (generated, secs) = (study.generations(), t.elapsed().as_secs_f64());
+    let title = format!("{} ({})", short_name(&p.scene.volume_name), p.scene.tf_name);
+    let charts = if a.no_charts {
+        Vec::new()
+    } else {
+        draw_charts(&rows, &title, &a.out)?
+    };
     if a.json {
         println!(
             "{}",
             serde_json::json!({
                 "volume": p.scene.volume_name, "tf": p.scene.tf_name,
                 "candidates": rows.len(), "generated": generated, "cached": rows.len() as u64 - generated,
-                "secs": secs, "csv": csv, "json": json,
+                "secs": secs, "csv": csv, "json": json, "charts": charts,
             })
         );
     } else {
@@ -146,6 +184,16 @@ pub fn run(a: Args) -> Result<()> {
             rows.len() as u64 - generated
         );
         println!("-> {} and {}", csv.display(), json.display());
+        for c in &charts {
+            println!("-> {}", c.display());
+        }
     }
     Ok(())
+}
+
+/// The file name of a volume source, for chart titles.
+pub fn short_name(source: &str) -> String {
+    Path::new(source)
+        .file_name()
+        .map_or_else(|| source.to_owned(), |n| n.to_string_lossy().into_owned())
 }

@@ -4,6 +4,7 @@
 use super::q_text;
 use super::study::{run_grid, StudyArgs};
 use anyhow::{bail, Result};
+use insitu_tuner::charts::{self, LadderPoint};
 use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Outcome, Target};
 use insitu_tuner::utility::{bytes_text, parse_utility, SizeBudget};
 use insitu_tuner::{Measurement, Oracle, TableOracle};
@@ -30,6 +31,9 @@ pub struct Args {
     /// 1.5x the previous) compare the grid optimum with the adaptive one (priced from the table).
     #[arg(long)]
     ladder: bool,
+    /// With --ladder: draw the ladder (grid and adaptive) to this PNG.
+    #[arg(long, default_value = "ladder.png")]
+    chart: std::path::PathBuf,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -123,6 +127,7 @@ fn ladder(a: &Args) -> Result<()> {
     let rows = run_grid(&mut study, &p.grid)?;
     let grid_tau: f64 = rows.iter().map(|m| m.tau_secs).sum();
     let mut out = Vec::new();
+    let mut points = Vec::new();
     if !a.json {
         println!(
             "{} with {}: {} candidates, grid sum of tau {:.1} s",
@@ -143,6 +148,11 @@ fn ladder(a: &Args) -> Result<()> {
         let share = ad.generation_secs / grid_tau.max(1e-12);
         match (g, &ad.best) {
             (Some((gm, _)), Some(am)) => {
+                points.push(LadderPoint {
+                    sigma_target: t,
+                    grid: (gm.r, gm.gamma, gm.q()),
+                    adaptive: Some((am.r, am.gamma, am.q())),
+                });
                 if a.json {
                     out.push(serde_json::json!({
                         "sigma_target": t, "grid": row_json(gm), "adaptive": row_json(am),
@@ -172,8 +182,16 @@ fn ladder(a: &Args) -> Result<()> {
             }
         }
     }
+    let title = format!(
+        "{} ({})",
+        super::study::short_name(&p.scene.volume_name),
+        p.scene.tf_name
+    );
+    charts::ladder(&points, &title, &a.chart)?;
     if a.json {
         println!("{}", serde_json::Value::Array(out));
+    } else {
+        println!("-> {}", a.chart.display());
     }
     Ok(())
 }
