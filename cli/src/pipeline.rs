@@ -16,12 +16,8 @@ use tokio_stream::StreamExt;
 /// Settings of the local pipeline that the commands expose as flags.
 #[derive(clap::Args, Debug, Clone)]
 pub struct PipelineArgs {
-    /// VDI resolution r.
-    #[arg(long, default_value_t = 256)]
-    pub r: u32,
-    /// Interrupt threshold gamma.
-    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
-    pub gamma: f32,
+    #[command(flatten)]
+    pub pm: crate::cmd::PmArgs,
     /// Codec: bzip2 (the paper's sigma), zstd or none.
     #[arg(long, default_value = "bzip2")]
     pub codec: String,
@@ -149,8 +145,8 @@ impl LocalNodes {
         };
         cfg.queue.policy = a.policy;
         cfg.queue.max_items = a.queue_steps;
-        cfg.generation.resolution = a.r;
-        cfg.generation.gamma = a.gamma;
+        cfg.generation.resolution = a.pm.r;
+        cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec.clone();
         tweak(&mut cfg);
         let generator = gen::start(cfg)

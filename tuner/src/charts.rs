@@ -160,6 +160,18 @@ pub fn study_map(rows: &[Measurement], title: &str, path: &Path) -> Result<(), C
 
 type Axis = fn(&Measurement) -> f64;
 
+fn legend<'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, CT>,
+) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .label_font(("sans-serif", 16))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
 fn front(points: &mut [(f64, f64)]) -> Vec<(f64, f64)> {
     points.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut best = f64::NEG_INFINITY;
@@ -226,13 +238,7 @@ pub fn pareto(rows: &[Measurement], title: &str, path: &Path) -> Result<(), Char
                 .map_err(|e| e.to_string())?
                 .label("Pareto front")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(3)));
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::LowerRight)
-                .label_font(("sans-serif", 16))
-                .border_style(BLACK)
-                .draw()
-                .map_err(|e| e.to_string())?;
+            legend(&mut chart)?;
         }
         Ok(())
     })
@@ -325,13 +331,7 @@ pub fn ladder(points: &[LadderPoint], title: &str, path: &Path) -> Result<(), Ch
                 .label("adaptive")
                 .legend(|(x, y)| Cross::new((x + 10, y), 6, RED.stroke_width(2)));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font(("sans-serif", 16))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| e.to_string())?;
+        legend(&mut chart)?;
         Ok(())
     })
 }
@@ -398,13 +398,7 @@ pub fn accuracy(rows: &[AccuracyRow], title: &str, path: &Path) -> Result<(), Ch
                 }))
                 .map_err(|e| e.to_string())?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font(("sans-serif", 16))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| e.to_string())?;
+        legend(&mut chart)?;
         Ok(())
     })
 }

@@ -13,12 +13,8 @@ use insitu_tuner::Candidate;
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Base VDI resolution r.
-    #[arg(long, default_value_t = 256)]
-    r: u32,
-    /// Base threshold gamma.
-    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
-    gamma: f32,
+    #[command(flatten)]
+    pm: super::PmArgs,
     /// Test view angles about +y, degrees.
     #[arg(long, default_value = "0,30,60", allow_hyphen_values = true)]
     views: String,
@@ -50,8 +46,8 @@ pub fn run(a: Args) -> Result<()> {
         views: &views,
         size,
         base_pm: Candidate {
-            r: a.r,
-            gamma: a.gamma,
+            r: a.pm.r,
+            gamma: a.pm.gamma,
         },
         codec,
     })?;
@@ -76,7 +72,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     println!(
         "{} with {} | base: step {}, termination {}, r = {}, γ = {}, {codec}; views {views:?} at {size}²",
-        scene.volume_name, scene.tf_name, scene.params.step, scene.params.termination, a.r, a.gamma
+        scene.volume_name, scene.tf_name, scene.params.step, scene.params.termination, a.pm.r, a.pm.gamma
     );
     println!(
         "{:<32} {:>12} {:>9} {:>10}  {:<16} {:>10}",

@@ -45,7 +45,7 @@ async fn demo(a: Args) -> Result<()> {
     let nodes = LocalNodes::start(&a.pipeline, |c| {
         c.generation.reference_every = reference_every;
         // Small frames keep the demo quick; the VDI itself is r × r.
-        c.generation.reference_size = a.pipeline.r.min(256);
+        c.generation.reference_size = a.pipeline.pm.r.min(256);
     })
     .await?;
     println!(

@@ -16,12 +16,8 @@ use std::time::Instant;
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
-    /// VDI resolution r (r × r rays).
-    #[arg(long, default_value_t = 256)]
-    r: u32,
-    /// Interrupt threshold gamma.
-    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
-    gamma: f32,
+    #[command(flatten)]
+    pm: super::PmArgs,
     /// Test view angles about +y, degrees, comma-separated.
     #[arg(
         long,
@@ -52,8 +48,8 @@ pub fn run(a: Args) -> Result<()> {
         super::parse_views(&a.views)?
     };
     let params = VdiParams {
-        resolution: a.r,
-        gamma: a.gamma,
+        resolution: a.pm.r,
+        gamma: a.pm.gamma,
     };
     params.validate()?;
     let scene = a.scene.load()?;
@@ -96,7 +92,7 @@ pub fn run(a: Args) -> Result<()> {
             "{}",
             serde_json::json!({
                 "volume": scene.volume_name, "tf": scene.tf_name,
-                "r": a.r, "gamma": a.gamma, "codec": codec_kind.name(),
+                "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
                 "step": scene.params.step, "size": [w, h],
                 "sigma_bytes": eval.sigma_bytes, "supersegments": eval.supersegments,
                 "tau_s": eval.tau_secs, "tau_compress_s": eval.tau_compress_secs,
@@ -108,14 +104,14 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         println!(
             "{} with {} | r = {}, gamma = {}, step = {}, {}x{}",
-            scene.volume_name, scene.tf_name, a.r, a.gamma, scene.params.step, w, h
+            scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.step, w, h
         );
         println!(
             "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
             eval.sigma_bytes,
             codec_kind,
             eval.supersegments,
-            eval.supersegments as f64 / (f64::from(a.r) * f64::from(a.r))
+            eval.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
         );
         println!(
             "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",

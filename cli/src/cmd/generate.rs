@@ -12,12 +12,8 @@ use std::time::Instant;
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
-    /// VDI resolution r (r × r rays).
-    #[arg(long, default_value_t = 256)]
-    r: u32,
-    /// Interrupt threshold gamma.
-    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
-    gamma: f32,
+    #[command(flatten)]
+    pm: super::PmArgs,
     /// Generation camera orbit angle about +y, degrees.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     angle: f32,
@@ -35,8 +31,8 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let codec_kind = super::parse_codec(&a.codec)?;
     let params = VdiParams {
-        resolution: a.r,
-        gamma: a.gamma,
+        resolution: a.pm.r,
+        gamma: a.pm.gamma,
     };
     params.validate()?;
     let scene = a.scene.load()?;
@@ -59,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
         println!(
             "{}",
             serde_json::json!({
-                "r": a.r, "gamma": a.gamma, "codec": codec_kind.name(),
+                "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
                 "sigma_bytes": bytes.len(), "supersegments": vdi.supersegments().len(),
                 "tau_s": tau, "tau_compress_s": tau_compress, "out": a.out,
             })
@@ -67,8 +63,8 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         println!(
             "VDI r={} gamma={} of {}: {} supersegments, sigma = {} bytes ({}), tau = {:.3} s, compression {:.3} s -> {}",
-            a.r,
-            a.gamma,
+            a.pm.r,
+            a.pm.gamma,
             scene.volume_name,
             vdi.supersegments().len(),
             bytes.len(),

@@ -14,6 +14,17 @@ pub mod view;
 use anyhow::{bail, Context, Result};
 use insitu_core::vdi::codec::Codec;
 
+/// `P_M = (r, γ)` flags, shared by every command that makes one VDI.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct PmArgs {
+    /// VDI resolution r (r × r rays).
+    #[arg(long, default_value_t = 256)]
+    pub r: u32,
+    /// Interrupt threshold gamma.
+    #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
+    pub gamma: f32,
+}
+
 /// Parses `--size N` or `--size WxH`.
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     let parse = |p: &str| -> Result<u32> {

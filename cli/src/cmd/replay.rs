@@ -101,8 +101,8 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
         }
     };
     let config = pb::GenerationConfig {
-        resolution: a.pipeline.r,
-        gamma: a.pipeline.gamma,
+        resolution: a.pipeline.pm.r,
+        gamma: a.pipeline.pm.gamma,
         codec: codec_to_pb(a.pipeline.codec.parse()?) as i32,
         tf_json: Some(serde_json::to_string(&tf)?),
         tf_name: Some(tf_name),
