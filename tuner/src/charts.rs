@@ -146,12 +146,12 @@ pub fn study_map(rows: &[Measurement], title: &str, path: &Path) -> Result<(), C
             .draw_series(rows.iter().map(|m| {
                 let t = ((m.q().min(qhi) - qlo) / (qhi - qlo)).clamp(0.0, 1.0);
                 let fill = ViridisRGB::get_color(t as f32);
-                let radius = (rmax_px * (m.sigma_bytes as f64 / smax).sqrt()).max(1.5) as i32;
+                let radius = (rmax_px * (m.sigma_bytes as f64 / smax).sqrt()).max(3.0) as i32;
                 let rim = (255.0 * (m.tau_secs / tmax.max(1e-12)).clamp(0.0, 1.0)) as u8;
                 let at = (f64::from(m.gamma), f64::from(m.r));
                 EmptyElement::at(at)
                     + Circle::new((0, 0), radius, fill.filled())
-                    + Circle::new((0, 0), radius, RGBColor(rim, rim, rim).stroke_width(2))
+                    + Circle::new((0, 0), radius, RGBColor(rim, rim, rim).stroke_width(1))
             }))
             .map_err(|e| e.to_string())?;
         Ok(())
