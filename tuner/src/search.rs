@@ -111,6 +111,36 @@ impl Adaptive<'_> {
         self.utility.value(m) < f64::INFINITY
     }
 
+    /// Bounds on the γ index of resolution `ri`'s answer from the nearest resolutions already
+    /// answered below and above it (the whole axis when there are none or they disagree).
+    fn bracket(&self, ri: usize) -> (usize, usize) {
+        let n = self.grid.gammas.len();
+        let index = |v: &Option<(Measurement, f64)>| {
+            v.as_ref().and_then(|(m, _)| {
+                self.grid
+                    .gammas
+                    .iter()
+                    .position(|g| g.to_bits() == m.gamma.to_bits())
+            })
+        };
+        let lo = self
+            .per_r
+            .range(..ri)
+            .rev()
+            .find_map(|(_, v)| index(v))
+            .unwrap_or(0);
+        let hi = self
+            .per_r
+            .range(ri + 1..)
+            .find_map(|(_, v)| index(v))
+            .unwrap_or(n - 1);
+        if lo <= hi {
+            (lo, hi)
+        } else {
+            (0, n - 1)
+        }
+    }
+
     /// The best feasible γ at resolution `ri` (bisection), with its ν.
     fn best_at(&mut self, ri: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
         if let Some(v) = self.per_r.get(&ri) {
@@ -118,13 +148,20 @@ impl Adaptive<'_> {
         }
         let n = self.grid.gammas.len();
         let found = match self.target {
-            // Feasible for γ ≥ γ*: the smallest feasible index.
+            // Feasible for γ ≥ γ*: the smallest feasible index, searched between the
+            // neighbouring resolutions' answers (γ* grows with r as σ does).
             Target::Size(_) => {
-                let last = self.measure(ri, n - 1)?;
-                if !self.feasible(&last) {
+                let (mut lo, mut hi) = self.bracket(ri);
+                let at_hi = self.measure(ri, hi)?;
+                let mut feasible = self.feasible(&at_hi);
+                if !feasible && hi < n - 1 {
+                    (lo, hi) = (hi + 1, n - 1);
+                    let last = self.measure(ri, hi)?;
+                    feasible = self.feasible(&last);
+                }
+                if !feasible {
                     None
                 } else {
-                    let (mut lo, mut hi) = (0, n - 1);
                     while lo < hi {
                         let mid = (lo + hi) / 2;
                         let m = self.measure(ri, mid)?;
