@@ -286,6 +286,33 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     let o = insitu(&bad, dir.path());
     assert!(!o.status.success());
     assert!(stderr(&o).contains("infeasible"), "{}", stderr(&o));
+    // The config picks the utility and the strategy; flags override it.
+    std::fs::write(
+        dir.path().join("t.toml"),
+        "utility = \"size:10B\"\nstrategy = \"adaptive\"\n",
+    )
+    .unwrap();
+    let mut cfg = vec!["tune", "--config", "t.toml", "--json"];
+    cfg.extend_from_slice(&common);
+    let o = insitu(&cfg, dir.path());
+    assert!(
+        !o.status.success() && stderr(&o).contains("infeasible"),
+        "{}",
+        stderr(&o)
+    );
+    let mut cfg = vec![
+        "tune",
+        "--config",
+        "t.toml",
+        "--utility",
+        "size:1GB",
+        "--json",
+    ];
+    cfg.extend_from_slice(&common);
+    let o = insitu(&cfg, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["strategy"], "adaptive", "{v}");
     let mut bad = vec!["tune", "--utility", "time:0.1", "--strategy", "adaptive"];
     bad.extend_from_slice(&common);
     let o = insitu(&bad, dir.path());

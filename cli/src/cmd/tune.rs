@@ -3,7 +3,7 @@
 
 use super::q_text;
 use super::study::{run_grid, StudyArgs};
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use insitu_tuner::charts::{self, LadderPoint};
 use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Outcome, Target};
 use insitu_tuner::utility::{bytes_text, parse_utility, SizeBudget};
@@ -22,11 +22,15 @@ pub struct Args {
     #[command(flatten)]
     study: StudyArgs,
     /// Utility: size:2MB (Eq. 1), time:0.5 (Eq. 2, seconds), size:2MB,time:0.5, quality:40.
-    #[arg(long, default_value = "size:1MB")]
-    utility: String,
-    /// Search strategy.
-    #[arg(long, value_enum, default_value_t = Strategy::Grid)]
-    strategy: Strategy,
+    /// Default: the config's, else size:1MB.
+    #[arg(long)]
+    utility: Option<String>,
+    /// Search strategy. Default: the config's, else grid.
+    #[arg(long, value_enum)]
+    strategy: Option<Strategy>,
+    /// TOML file with `utility` and `strategy` (see deploy/tuner.toml); flags override it.
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
     /// Instead: study the whole grid, then for each size budget of the paper's ladder (each
     /// 1.5x the previous) compare the grid optimum with the adaptive one (priced from the table).
     #[arg(long)]
@@ -62,14 +66,54 @@ fn row_json(m: &Measurement) -> serde_json::Value {
     })
 }
 
+/// The tuner's config file: which built-in utility, with which budget, and how to search.
+#[derive(serde::Deserialize, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TuneConfig {
+    /// As `--utility`.
+    pub utility: Option<String>,
+    /// As `--strategy`: "grid" or "adaptive".
+    pub strategy: Option<String>,
+}
+
+impl TuneConfig {
+    /// Reads a config file.
+    pub fn load(path: &std::path::Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read tuner config {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("tuner config {}", path.display()))
+    }
+}
+
+/// The utility spec and strategy: flags, else the config, else the defaults.
+fn resolve(a: &Args) -> Result<(String, Strategy)> {
+    let cfg = match &a.config {
+        Some(p) => TuneConfig::load(p)?,
+        None => TuneConfig::default(),
+    };
+    let utility = a
+        .utility
+        .clone()
+        .or(cfg.utility)
+        .unwrap_or_else(|| "size:1MB".into());
+    let strategy = match (a.strategy, cfg.strategy.as_deref()) {
+        (Some(s), _) => s,
+        (None, None | Some("grid")) => Strategy::Grid,
+        (None, Some("adaptive")) => Strategy::Adaptive,
+        (None, Some(other)) => bail!("tuner config: strategy {other:?} is not grid or adaptive"),
+    };
+    Ok((utility, strategy))
+}
+
 pub fn run(a: Args) -> Result<()> {
     if a.ladder {
         return ladder(&a);
     }
-    let utility = parse_utility(&a.utility)?;
+    let (spec, strategy) = resolve(&a)?;
+    let utility = parse_utility(&spec)?;
     let p = a.study.prepare()?;
     let mut study = a.study.study(&p)?;
-    let out: Outcome = match a.strategy {
+    let out: Outcome = match strategy {
         Strategy::Grid => {
             // Measure with a progress bar, then pick from the (now cached) rows.
             let t = std::time::Instant::now();
@@ -80,7 +124,7 @@ pub fn run(a: Args) -> Result<()> {
             o.wall_secs = t.elapsed().as_secs_f64();
             o
         }
-        Strategy::Adaptive => adaptive_search(&mut study, &p.grid, target(&a.utility)?)?,
+        Strategy::Adaptive => adaptive_search(&mut study, &p.grid, target(&spec)?)?,
     };
     study.save()?;
     let Some(best) = &out.best else {
@@ -94,13 +138,13 @@ pub fn run(a: Args) -> Result<()> {
         println!(
             "{}",
             serde_json::json!({
-                "utility": utility.describe(), "strategy": format!("{:?}", a.strategy).to_lowercase(),
+                "utility": utility.describe(), "strategy": format!("{strategy:?}").to_lowercase(),
                 "best": row_json(best), "generated": out.generations, "grid_candidates": p.grid.len(),
                 "generation_secs": out.generation_secs, "wall_secs": out.wall_secs,
             })
         );
     } else {
-        println!("{} ({:?} search)", utility.describe(), a.strategy);
+        println!("{} ({strategy:?} search)", utility.describe());
         println!(
             "best P_M: r = {}, gamma = {} | sigma = {} ({}), q = {} dB, tau = {:.3} s",
             best.r,
@@ -194,4 +238,20 @@ fn ladder(a: &Args) -> Result<()> {
         println!("-> {}", a.chart.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::TuneConfig;
+    use insitu_tuner::parse_utility;
+
+    #[test]
+    fn the_documented_config_holds_the_defaults() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/tuner.toml");
+        let cfg = TuneConfig::load(&path).unwrap_or_default();
+        assert_eq!(cfg.utility.as_deref(), Some("size:1MB"));
+        assert_eq!(cfg.strategy.as_deref(), Some("grid"));
+        assert!(parse_utility(cfg.utility.as_deref().unwrap_or("")).is_ok());
+        assert!(toml::from_str::<TuneConfig>("budget = 3").is_err());
+    }
 }
