@@ -89,6 +89,53 @@ pub fn render_references(
         .collect()
 }
 
+/// Renders `vdi` at each test view (`camera` orbited by each angle, at its reference's size)
+/// and scores it against `references` (Alg. 1, lines 13–17). Returns the per-view scores,
+/// the renders, and the total render time in seconds.
+///
+/// # Errors
+/// [`EvalError::ReferenceCount`] when there is not one reference per angle;
+/// [`EvalError::Metric`] when images cannot be compared.
+pub fn score_views(
+    vdi: &crate::Vdi,
+    camera: &Camera,
+    angles: &[f32],
+    references: &[Image],
+    termination: f32,
+) -> Result<(Vec<ViewScore>, Vec<Image>, f64), EvalError> {
+    if references.len() != angles.len() {
+        return Err(EvalError::ReferenceCount {
+            references: references.len(),
+            views: angles.len(),
+        });
+    }
+    let mut views = Vec::with_capacity(angles.len());
+    let mut images = Vec::with_capacity(angles.len());
+    let mut render_secs = 0.0;
+    for (&angle_deg, reference) in angles.iter().zip(references) {
+        let (w, h) = (reference.width(), reference.height());
+        let t = Instant::now();
+        let image = render::render(vdi, &camera.orbit_y(angle_deg), w, h, termination);
+        render_secs += t.elapsed().as_secs_f64();
+        let mse = metrics::mse(&image, reference)?;
+        views.push(ViewScore {
+            angle_deg,
+            mse,
+            q_db: metrics::psnr_from_mse(mse),
+            ssim: metrics::ssim(&image, reference).ok(),
+        });
+        images.push(image);
+    }
+    Ok((views, images, render_secs))
+}
+
+/// Mean SSIM over the views, `None` when any view has none (images under 11×11).
+pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
+    let ssims: Vec<f64> = views.iter().filter_map(|v| v.ssim).collect();
+    (!ssims.is_empty() && ssims.len() == views.len())
+        .then(|| ssims.iter().sum::<f64>() / ssims.len() as f64)
+}
+
 /// Measures `params`: generate, encode, decode, render at each angle and compare with
 /// `references` (one per angle, from [`render_references`]). The VDI is rendered from the
 /// decoded file, so what is scored is what a viz-node would see. Returns the VDI renders too.
@@ -121,24 +168,13 @@ pub fn evaluate(
     let t = Instant::now();
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
     let tau_decode_secs = t.elapsed().as_secs_f64();
-    let termination = raycaster.params().termination;
-    let mut views = Vec::with_capacity(angles.len());
-    let mut images = Vec::with_capacity(angles.len());
-    let mut render_secs = 0.0;
-    for (&angle_deg, reference) in angles.iter().zip(references) {
-        let (w, h) = (reference.width(), reference.height());
-        let t = Instant::now();
-        let image = render::render(&decoded, &camera.orbit_y(angle_deg), w, h, termination);
-        render_secs += t.elapsed().as_secs_f64();
-        let mse = metrics::mse(&image, reference)?;
-        views.push(ViewScore {
-            angle_deg,
-            mse,
-            q_db: metrics::psnr_from_mse(mse),
-            ssim: metrics::ssim(&image, reference).ok(),
-        });
-        images.push(image);
-    }
+    let (views, images, render_secs) = score_views(
+        &decoded,
+        camera,
+        angles,
+        references,
+        raycaster.params().termination,
+    )?;
     let tau_render_secs = render_secs / angles.len().max(1) as f64;
     let mses: Vec<f64> = views.iter().map(|v| v.mse).collect();
     Ok((

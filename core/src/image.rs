@@ -52,6 +52,36 @@ impl Image {
         self.pixels[x as usize + self.width as usize * y as usize]
     }
 
+    /// The pixels as little-endian f32 RGB, row-major (12 bytes per pixel): the wire and file
+    /// layout of reference frames.
+    pub fn to_f32_le(&self) -> Vec<u8> {
+        self.pixels
+            .iter()
+            .flatten()
+            .flat_map(|c| c.to_le_bytes())
+            .collect()
+    }
+
+    /// The inverse of [`Image::to_f32_le`]; `None` unless `bytes` holds exactly
+    /// `width · height` pixels, each channel finite and in [0, 1].
+    pub fn from_f32_le(width: u32, height: u32, bytes: &[u8]) -> Option<Self> {
+        if bytes.len() != width as usize * height as usize * 12 {
+            return None;
+        }
+        let values: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
+            return None;
+        }
+        Self::from_pixels(
+            width,
+            height,
+            values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        )
+    }
+
     /// 8-bit RGB bytes (value × 255, rounded, clamped), row-major: what a PNG stores.
     pub fn to_rgb8(&self) -> Vec<u8> {
         self.pixels
@@ -97,6 +127,20 @@ impl Image {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn f32_bytes_round_trip_and_refuse_bad_values() {
+        let im = Image::from_pixels(2, 1, vec![[0.0, 0.5, 1.0], [0.25, 0.125, 1e-7]]).unwrap();
+        let b = im.to_f32_le();
+        assert_eq!(b.len(), 24);
+        assert_eq!(Image::from_f32_le(2, 1, &b), Some(im));
+        assert!(Image::from_f32_le(2, 1, &b[..20]).is_none());
+        let mut nan = b.clone();
+        nan[..4].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert!(Image::from_f32_le(2, 1, &nan).is_none());
+        nan[..4].copy_from_slice(&1.5f32.to_le_bytes());
+        assert!(Image::from_f32_le(2, 1, &nan).is_none());
+    }
 
     #[test]
     fn grid_places_tiles() {

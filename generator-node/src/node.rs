@@ -6,7 +6,7 @@ use crate::queue::BoundedQueue;
 use crate::service::{GeneratorService, Shared};
 use crate::ship::Shipper;
 use crate::stats::{Counters, Stats};
-use crate::work::{self, Product};
+use crate::work;
 use anyhow::Context;
 use insitu_proto::auth::{check_bind, RequireToken, Token};
 use insitu_proto::pb::generator_server::GeneratorServer;
@@ -43,7 +43,6 @@ impl std::fmt::Display for Summary {
 pub struct RunningNode {
     addr: SocketAddr,
     shared: Arc<Shared>,
-    outbox: Arc<BoundedQueue<Product>>,
     stop_server: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     worker: JoinHandle<()>,
@@ -63,22 +62,17 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
     let addr = listener.local_addr()?;
-    let outbox = Arc::new(BoundedQueue::new(
-        cfg.outbox.max_items,
-        cfg.outbox.max_bytes,
-        cfg.outbox.policy,
-    ));
-    let outbox_len = {
-        let o = outbox.clone();
-        Box::new(move || o.len())
-    };
     let shared = Arc::new(Shared {
         queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
         generation: RwLock::new(generation),
         stats: Arc::new(Stats::default()),
         max_step_bytes: cfg.max_step_bytes,
         shipping: cfg.viz.is_some(),
-        outbox_len,
+        outbox: Arc::new(BoundedQueue::new(
+            cfg.outbox.max_items,
+            cfg.outbox.max_bytes,
+            cfg.outbox.policy,
+        )),
     });
     let (stop_server, stopped) = oneshot::channel::<()>();
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
@@ -93,7 +87,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
                 let _ = stopped.await;
             }),
     );
-    let worker = tokio::spawn(worker(shared.clone(), outbox.clone()));
+    let worker = tokio::spawn(worker(shared.clone()));
     let shipper = cfg.viz.as_deref().map(|viz| {
         let s = Shipper::new(
             viz,
@@ -101,7 +95,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
             Duration::from_secs_f64(cfg.max_backoff_secs),
         );
         tokio::spawn(
-            s.run(outbox.clone(), shared.stats.clone())
+            s.run(shared.outbox.clone(), shared.stats.clone())
                 .instrument(info_span!("shipper")),
         )
     });
@@ -109,7 +103,6 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     Ok(RunningNode {
         addr,
         shared,
-        outbox,
         stop_server,
         server,
         worker,
@@ -118,17 +111,15 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     })
 }
 
-async fn worker(shared: Arc<Shared>, outbox: Arc<BoundedQueue<Product>>) {
+async fn worker(shared: Arc<Shared>) {
     while let Some(raw) = shared.queue.pop().await {
         let (step, rank) = (raw.step, raw.rank);
         let mut gen = shared.generation();
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
         let result = tokio::task::spawn_blocking(move || {
-            let tf = match gen.tf.take() {
-                Some(tf) => tf,
-                None => work::default_tf(&raw)?,
-            };
-            let product = work::run(&raw, &gen, &tf, with_refs)?;
+            let volume = raw.volume()?;
+            let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
+            let product = work::run(&raw, &volume, &gen, &tf, with_refs)?;
             Ok::<_, work::WorkError>((product, tf))
         })
         .instrument(info_span!("step", step, rank))
@@ -147,7 +138,7 @@ async fn worker(shared: Arc<Shared>, outbox: Arc<BoundedQueue<Product>>) {
                     continue;
                 }
                 let n = product.bytes();
-                match outbox.push(product, n).await {
+                match shared.outbox.push(product, n).await {
                     Ok(dropped) if !dropped.is_empty() => {
                         for d in &dropped {
                             info!(
@@ -196,7 +187,7 @@ impl RunningNode {
             warn!(error = %e, "server task ended abnormally");
         }
         let _ = self.worker.await;
-        self.outbox.close();
+        self.shared.outbox.close();
         let mut lost = 0;
         if let Some(mut shipper) = self.shipper {
             if tokio::time::timeout(self.drain_timeout, &mut shipper)

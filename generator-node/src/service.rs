@@ -30,8 +30,8 @@ pub struct Shared {
     pub max_step_bytes: u64,
     /// Whether a viz-node is configured.
     pub shipping: bool,
-    /// Outbox length, for status.
-    pub outbox_len: Box<dyn Fn() -> usize + Send + Sync>,
+    /// Finished VDIs waiting to be shipped.
+    pub outbox: Arc<BoundedQueue<crate::work::Product>>,
 }
 
 impl Shared {
@@ -52,7 +52,7 @@ impl Shared {
             queue_limit: self.queue.max_items() as u32,
             queue_bytes: self.queue.bytes(),
             queue_policy: self.queue.policy().name().to_owned(),
-            outbox_depth: (self.outbox_len)() as u32,
+            outbox_depth: self.outbox.len() as u32,
             steps_received: c.received,
             steps_generated: c.generated,
             steps_shipped: c.shipped,

@@ -7,7 +7,7 @@ use crate::ingest::RawStep;
 use bytes::Bytes;
 use insitu_core::evaluate::render_references;
 use insitu_core::vdi::{codec, generate};
-use insitu_core::{Camera, Image, Raycaster, TransferFunction};
+use insitu_core::{Camera, Image, Raycaster, TransferFunction, Volume};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
 use std::time::Instant;
@@ -48,36 +48,29 @@ pub enum WorkError {
     Codec(#[from] codec::CodecError),
 }
 
-/// The transfer function for `raw` when none is configured: the default over its range
+/// The transfer function for `volume` when none is configured: the default over its range
 /// (all-NaN data: over [0, 1]).
-pub fn default_tf(raw: &RawStep) -> Result<(TransferFunction, String), WorkError> {
-    let range = raw.volume()?.finite_range().unwrap_or((0.0, 1.0));
-    Ok((
+pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
+    let range = volume.finite_range().unwrap_or((0.0, 1.0));
+    (
         TransferFunction::default_for_range(range.0, range.1),
         format!("default[{}, {}]", range.0, range.1),
-    ))
+    )
 }
 
-/// Reference frames as bytes: `views × h × w × 3` little-endian f32 (see `ReferenceHeader`).
-pub fn frames_to_bytes(images: &[Image]) -> Vec<u8> {
-    images
-        .iter()
-        .flat_map(|im| im.pixels().iter().flatten().flat_map(|c| c.to_le_bytes()))
-        .collect()
-}
-
-/// Generates, compresses and (if `with_references`) renders the references for one step.
+/// Generates, compresses and (if `with_references`) renders the references for one step;
+/// `volume` is [`RawStep::volume`] of `raw`.
 ///
 /// # Errors
 /// [`WorkError`] from the core.
 pub fn run(
     raw: &RawStep,
+    volume: &Volume,
     gen: &Generation,
     tf: &(TransferFunction, String),
     with_references: bool,
 ) -> Result<Product, WorkError> {
-    let volume = raw.volume()?;
-    let raycaster = Raycaster::new(&volume, &tf.0, gen.raycast)?;
+    let raycaster = Raycaster::new(volume, &tf.0, gen.raycast)?;
     let camera = gen
         .camera
         .unwrap_or_else(|| Camera::default_for_box(&raw.global_box()));
@@ -98,7 +91,8 @@ pub fn run(
         let size = gen.reference_side();
         let frames = info_span!("references", views = gen.view_angles_deg.len(), size)
             .in_scope(|| render_references(&raycaster, &camera, &gen.view_angles_deg, size));
-        let bytes = frames_to_bytes(&frames);
+        // `views × h × w × 3` little-endian f32 (see `ReferenceHeader`).
+        let bytes: Vec<u8> = frames.iter().flat_map(Image::to_f32_le).collect();
         (
             pb::ReferenceHeader {
                 step: raw.step,

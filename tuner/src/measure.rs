@@ -1,7 +1,7 @@
 //! One row of a study: the performance indicators (σ, q, τ) of one `P_M` (Sec. 5.3).
 
 use crate::grid::Candidate;
-use insitu_core::evaluate::Evaluation;
+use insitu_core::evaluate::{mean_ssim, Evaluation};
 use insitu_core::metrics::Db;
 use serde::{Deserialize, Serialize};
 
@@ -46,7 +46,6 @@ impl Measurement {
 
     /// From a core evaluation.
     pub fn from_evaluation(e: &Evaluation) -> Self {
-        let ssims: Vec<f64> = e.views.iter().filter_map(|v| v.ssim).collect();
         Self {
             r: e.params.resolution,
             gamma: e.params.gamma,
@@ -57,8 +56,7 @@ impl Measurement {
             tau_render_secs: e.tau_render_secs,
             q_db: Db(e.q_db),
             view_q_db: e.views.iter().map(|v| Db(v.q_db)).collect(),
-            ssim: (!ssims.is_empty() && ssims.len() == e.views.len())
-                .then(|| ssims.iter().sum::<f64>() / ssims.len() as f64),
+            ssim: mean_ssim(&e.views),
         }
     }
 }

@@ -146,53 +146,40 @@ impl Adaptive<'_> {
         if let Some(v) = self.per_r.get(&ri) {
             return Ok(v.clone());
         }
+        // Search in "boundary order" k: feasibility is upward-closed in k and the best γ is
+        // the smallest feasible k. For a size budget k is the γ index (feasible for γ ≥ γ*,
+        // smallest γ best); for a quality target it runs backwards (feasible for γ ≤ γ*,
+        // largest γ best). Either way γ* grows with r, so the neighbouring resolutions'
+        // answers bracket it.
         let n = self.grid.gammas.len();
-        let found = match self.target {
-            // Feasible for γ ≥ γ*: the smallest feasible index, searched between the
-            // neighbouring resolutions' answers (γ* grows with r as σ does).
-            Target::Size(_) => {
-                let (mut lo, mut hi) = self.bracket(ri);
-                let at_hi = self.measure(ri, hi)?;
-                let mut feasible = self.feasible(&at_hi);
-                if !feasible && hi < n - 1 {
-                    (lo, hi) = (hi + 1, n - 1);
-                    let last = self.measure(ri, hi)?;
-                    feasible = self.feasible(&last);
-                }
-                if !feasible {
-                    None
+        let forward = matches!(self.target, Target::Size(_));
+        let gamma_index = |k: usize| if forward { k } else { n - 1 - k };
+        let (blo, bhi) = self.bracket(ri);
+        let (mut lo, mut hi) = if forward {
+            (blo, bhi)
+        } else {
+            (n - 1 - bhi, n - 1 - blo)
+        };
+        let at_hi = self.measure(ri, gamma_index(hi))?;
+        let mut feasible = self.feasible(&at_hi);
+        if !feasible && hi < n - 1 {
+            (lo, hi) = (hi + 1, n - 1);
+            let last = self.measure(ri, gamma_index(hi))?;
+            feasible = self.feasible(&last);
+        }
+        let found = if feasible {
+            while lo < hi {
+                let mid = (lo + hi) / 2;
+                let m = self.measure(ri, gamma_index(mid))?;
+                if self.feasible(&m) {
+                    hi = mid;
                 } else {
-                    while lo < hi {
-                        let mid = (lo + hi) / 2;
-                        let m = self.measure(ri, mid)?;
-                        if self.feasible(&m) {
-                            hi = mid;
-                        } else {
-                            lo = mid + 1;
-                        }
-                    }
-                    Some(self.measure(ri, lo)?)
+                    lo = mid + 1;
                 }
             }
-            // Feasible for γ ≤ γ*: the largest feasible index.
-            Target::Quality(_) => {
-                let first = self.measure(ri, 0)?;
-                if !self.feasible(&first) {
-                    None
-                } else {
-                    let (mut lo, mut hi) = (0, n - 1);
-                    while lo < hi {
-                        let mid = (lo + hi).div_ceil(2);
-                        let m = self.measure(ri, mid)?;
-                        if self.feasible(&m) {
-                            lo = mid;
-                        } else {
-                            hi = mid - 1;
-                        }
-                    }
-                    Some(self.measure(ri, lo)?)
-                }
-            }
+            Some(self.measure(ri, gamma_index(lo))?)
+        } else {
+            None
         };
         let found = found.map(|m| {
             let v = self.utility.value(&m);

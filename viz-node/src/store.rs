@@ -14,6 +14,8 @@ use std::sync::Mutex;
 
 /// The index file's name.
 pub const INDEX: &str = "index.json";
+/// The index file's format version.
+pub const INDEX_VERSION: u32 = 1;
 const REFS_MAGIC: &[u8; 8] = b"INSREF1\n";
 
 /// Errors of the recording; each names the file.
@@ -117,7 +119,14 @@ impl Entry {
     }
 }
 
-#[derive(Serialize, Deserialize)]
+/// The index as written: entries borrowed, by step then rank.
+#[derive(Serialize)]
+struct IndexRef<'a> {
+    version: u32,
+    entries: Vec<&'a Entry>,
+}
+
+#[derive(Deserialize)]
 struct IndexFile {
     version: u32,
     entries: Vec<Entry>,
@@ -166,21 +175,11 @@ impl References {
                 view_angles_deg.len()
             ));
         }
-        let values: Vec<f32> = bytes
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
-            return Err("reference pixels must be finite and in [0, 1]".into());
-        }
-        let frames = values
-            .chunks_exact(per * 3)
-            .map(|f| {
-                let px = f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-                Image::from_pixels(width, height, px)
-            })
+        let frames = bytes
+            .chunks_exact(per * 12)
+            .map(|f| Image::from_f32_le(width, height, f))
             .collect::<Option<Vec<_>>>()
-            .ok_or("frame shape mismatch")?;
+            .ok_or("reference pixels must be finite and in [0, 1]")?;
         Ok(Self {
             camera,
             view_angles_deg,
@@ -210,9 +209,7 @@ impl References {
         out.extend_from_slice(&(json.len() as u64).to_le_bytes());
         out.extend_from_slice(&json);
         for f in &self.frames {
-            for c in f.pixels().iter().flatten() {
-                out.extend_from_slice(&c.to_le_bytes());
-            }
+            out.extend_from_slice(&f.to_f32_le());
         }
         out
     }
@@ -306,6 +303,15 @@ impl Recording {
                     path: index.clone(),
                     problem: format!("{e}; move it away to start a new recording here"),
                 })?;
+            if file.version != INDEX_VERSION {
+                return Err(StoreError::Corrupt {
+                    path: index,
+                    problem: format!(
+                        "index version {} is not {INDEX_VERSION}; move it away to start a new recording here",
+                        file.version
+                    ),
+                });
+            }
             for e in file.entries {
                 entries.insert((e.step, e.rank), e);
             }
@@ -325,6 +331,8 @@ impl Recording {
         self.entries.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Applies `f` to the entry of `key` and rewrites the index; on failure the in-memory
+    /// index is left as it was.
     fn update(&self, key: (u64, u32), f: impl FnOnce(&mut Entry)) -> Result<Entry, StoreError> {
         let mut entries = self.lock();
         let mut next = entries
@@ -332,22 +340,23 @@ impl Recording {
             .cloned()
             .unwrap_or_else(|| Entry::empty(key.0, key.1));
         f(&mut next);
-        let mut all: Vec<Entry> = entries.values().cloned().collect();
-        match all.iter_mut().find(|e| (e.step, e.rank) == key) {
-            Some(e) => *e = next.clone(),
-            None => all.push(next.clone()),
-        }
-        all.sort_by_key(|e| (e.step, e.rank));
-        let json = serde_json::to_vec_pretty(&IndexFile {
-            version: 1,
-            entries: all,
+        let previous = entries.insert(key, next.clone());
+        let written = serde_json::to_vec_pretty(&IndexRef {
+            version: INDEX_VERSION,
+            entries: entries.values().collect(),
         })
         .map_err(|e| StoreError::Corrupt {
             path: self.dir.join(INDEX),
             problem: e.to_string(),
-        })?;
-        write_atomic(&self.dir, INDEX, &json)?;
-        entries.insert(key, next.clone());
+        })
+        .and_then(|json| write_atomic(&self.dir, INDEX, &json));
+        if let Err(e) = written {
+            match previous {
+                Some(p) => entries.insert(key, p),
+                None => entries.remove(&key),
+            };
+            return Err(e);
+        }
         Ok(next)
     }
 

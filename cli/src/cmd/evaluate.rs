@@ -7,7 +7,6 @@ use crate::progress::bar;
 use crate::scene::SceneArgs;
 use anyhow::{Context, Result};
 use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
-use insitu_core::vdi::VdiParams;
 use insitu_core::{dvr, Image, Raycaster};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -47,11 +46,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         super::parse_views(&a.views)?
     };
-    let params = VdiParams {
-        resolution: a.pm.r,
-        gamma: a.pm.gamma,
-    };
-    params.validate()?;
+    let params = a.pm.params()?;
     let scene = a.scene.load()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
     let camera = SceneArgs::camera(&scene);

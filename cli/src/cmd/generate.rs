@@ -3,7 +3,7 @@
 use crate::output::write_atomic;
 use crate::scene::SceneArgs;
 use anyhow::Result;
-use insitu_core::vdi::{codec, generate, VdiParams};
+use insitu_core::vdi::{codec, generate};
 use insitu_core::Raycaster;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -30,11 +30,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let codec_kind = super::parse_codec(&a.codec)?;
-    let params = VdiParams {
-        resolution: a.pm.r,
-        gamma: a.pm.gamma,
-    };
-    params.validate()?;
+    let params = a.pm.params()?;
     let scene = a.scene.load()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
     let camera = SceneArgs::camera(&scene).orbit_y(a.angle);

@@ -25,6 +25,18 @@ pub struct PmArgs {
     pub gamma: f32,
 }
 
+impl PmArgs {
+    /// The validated `P_M`.
+    pub fn params(&self) -> Result<insitu_core::VdiParams> {
+        let p = insitu_core::VdiParams {
+            resolution: self.r,
+            gamma: self.gamma,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
 /// Parses `--size N` or `--size WxH`.
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     let parse = |p: &str| -> Result<u32> {
