@@ -31,6 +31,8 @@
 pub mod camera;
 pub mod dvr;
 pub mod evaluate;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod image;
 pub mod metrics;
 pub mod raycast;

@@ -246,6 +246,16 @@ impl Lut {
         self.entries[self.index(value)]
     }
 
+    /// All [`LUT_SIZE`] entries.
+    pub fn entries(&self) -> &[LutEntry] {
+        &self.entries
+    }
+
+    /// `(lo, scale)`: value `v` maps to table position `(v − lo)·scale` before rounding.
+    pub fn mapping(&self) -> (f32, f32) {
+        (self.lo, self.scale)
+    }
+
     /// Entry by table index.
     #[inline(always)]
     pub fn entry(&self, index: usize) -> &LutEntry {

@@ -67,6 +67,16 @@ impl MacroGrid {
         self.visible[self.cell_index(ix, iy, iz)]
     }
 
+    /// Cells per axis.
+    pub fn cells(&self) -> [usize; 3] {
+        self.cells
+    }
+
+    /// Visibility per cell, x fastest.
+    pub fn visibility(&self) -> &[bool] {
+        &self.visible
+    }
+
     /// Fraction of cells that are visible (for reports).
     pub fn visible_fraction(&self) -> f32 {
         self.visible.iter().filter(|&&v| v).count() as f32 / self.visible.len().max(1) as f32

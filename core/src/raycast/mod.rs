@@ -158,6 +158,21 @@ impl<'a> Raycaster<'a> {
         &self.bounds
     }
 
+    /// The volume being ray-cast.
+    pub fn volume(&self) -> &Volume {
+        self.volume
+    }
+
+    /// The classification table (transfer function with opacity correction for the step).
+    pub fn lut(&self) -> &Lut {
+        &self.lut
+    }
+
+    /// The macro-cell grid used for empty-space skipping.
+    pub fn macro_grid(&self) -> &MacroGrid {
+        &self.grid
+    }
+
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
     /// returns `Break` or the ray leaves the volume.
     pub fn march(&self, ray: &Ray, visit: impl FnMut(&Sample) -> ControlFlow<()>) {

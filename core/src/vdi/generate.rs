@@ -63,8 +63,21 @@ pub fn generate(
         }
         supersegments.extend_from_slice(&segs);
     }
+    let meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
+    // More than u32::MAX supersegments would saturate the offsets; from_parts rejects that.
+    Vdi::from_parts(meta, offsets, supersegments).ok_or(VdiParamError::Resolution(r))
+}
+
+/// The metadata of a VDI generated from `raycaster`'s scene (shared with the GPU path).
+pub(crate) fn meta_for(
+    raycaster: &Raycaster,
+    camera: &Camera,
+    params: VdiParams,
+    tf_hash: u64,
+    tf_name: &str,
+) -> VdiMeta {
     let rc_params = raycaster.params();
-    let meta = VdiMeta {
+    VdiMeta {
         camera: *camera,
         params,
         step: rc_params.step,
@@ -73,9 +86,7 @@ pub fn generate(
         volume_box: *raycaster.bounds(),
         tf_hash,
         tf_name: tf_name.chars().take(256).collect(),
-    };
-    // More than u32::MAX supersegments would saturate the offsets; from_parts rejects that.
-    Vdi::from_parts(meta, offsets, supersegments).ok_or(VdiParamError::Resolution(r))
+    }
 }
 
 /// The supersegment being built.

@@ -1,8 +1,11 @@
 //! Helpers shared by the integration tests.
 
 use insitu_core::volume::RawFormat;
-use insitu_core::{Image, Volume};
+use insitu_core::{Image, TransferFunction, Volume};
 use std::path::PathBuf;
+
+/// The CT teapot, the issues' benchmark volume.
+pub const TEAPOT: &str = "teapot_256x256x178_uint8.raw";
 
 /// `../shared/data` beside the repository, or `$INSITU_DATA_DIR`.
 pub fn data_dir() -> PathBuf {
@@ -48,4 +51,31 @@ pub fn assert_valid(image: &Image, what: &str) {
         image.is_valid(),
         "{what}: image has NaN, Inf or out-of-range values"
     );
+}
+
+/// The shared volumes with their transfer function (a ramp over the data range where
+/// `../shared/tf` has none).
+pub fn shared_scenes() -> Vec<(&'static str, Volume, TransferFunction)> {
+    let cases = [
+        (TEAPOT, 0, Some("teapot.json")),
+        ("stent_128x128x256_int16.raw", 0, None),
+        ("hydrogen_64x64x64_float32.raw", 0, Some("hydrogen.json")),
+        ("neghip_66x66x66_uint8.raw", 0, None),
+        ("ocean_temp_ts_180x90x19x12_float32.raw", 5, None),
+    ];
+    let mut out = Vec::new();
+    for (name, t, tf) in cases {
+        let Some(volume) = shared_volume(name, t) else {
+            continue;
+        };
+        let tf = match tf {
+            Some(f) => TransferFunction::load(&tf_dir().join(f)).expect("shared TF loads"),
+            None => {
+                let (lo, hi) = volume.finite_range().expect("volume has data");
+                TransferFunction::default_for_range(lo, hi)
+            }
+        };
+        out.push((name, volume, tf));
+    }
+    out
 }

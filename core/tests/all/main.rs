@@ -5,5 +5,7 @@
 mod analytic;
 mod codec_props;
 mod common;
+#[cfg(feature = "gpu")]
+mod gpu;
 mod hard_cases;
 mod real_data;

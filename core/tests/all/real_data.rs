@@ -1,39 +1,12 @@
 //! Real volumes from `../shared/data` (see `common::shared_volume` for missing data).
 
-use crate::common::{assert_valid, shared_volume, tf_dir};
+use crate::common::{assert_valid, shared_scenes as scenes, shared_volume, tf_dir};
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::{generate::generate, render, VdiParams};
 use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 
-const TEAPOT: &str = "teapot_256x256x178_uint8.raw";
-
-/// The shared volumes with their transfer function (a ramp over the data range where
-/// `../shared/tf` has none).
-fn scenes() -> Vec<(&'static str, Volume, TransferFunction)> {
-    let cases = [
-        (TEAPOT, 0, Some("teapot.json")),
-        ("stent_128x128x256_int16.raw", 0, None),
-        ("hydrogen_64x64x64_float32.raw", 0, Some("hydrogen.json")),
-        ("neghip_66x66x66_uint8.raw", 0, None),
-        ("ocean_temp_ts_180x90x19x12_float32.raw", 5, None),
-    ];
-    let mut out = Vec::new();
-    for (name, t, tf) in cases {
-        let Some(volume) = shared_volume(name, t) else {
-            continue;
-        };
-        let tf = match tf {
-            Some(f) => TransferFunction::load(&tf_dir().join(f)).expect("shared TF loads"),
-            None => {
-                let (lo, hi) = volume.finite_range().expect("volume has data");
-                TransferFunction::default_for_range(lo, hi)
-            }
-        };
-        out.push((name, volume, tf));
-    }
-    out
-}
+use crate::common::TEAPOT;
 
 #[test]
 fn vdi_at_generation_view_reproduces_dvr() {

@@ -1,0 +1,349 @@
+//! The wgpu device: adapter selection, limits, error capture, submission with GPU timestamps,
+//! buffer upload and read-back.
+
+use super::GpuError;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use wgpu::util::DeviceExt;
+
+/// Longest wait for one submission before it is reported as [`GpuError::Timeout`] (a stuck
+/// or lost device must not hang the caller).
+pub const SUBMISSION_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// An opened GPU: adapter, device, queue, the limits granted and the compiled kernels.
+pub struct Gpu {
+    pub(super) device: wgpu::Device,
+    pub(super) queue: wgpu::Queue,
+    pub(super) limits: wgpu::Limits,
+    pub(super) kernels: super::kernels::Kernels,
+    info: wgpu::AdapterInfo,
+    timestamps: bool,
+    /// First asynchronous failure (device lost, uncaptured error), reported by the next call.
+    failure: Arc<Mutex<Option<String>>>,
+}
+
+impl std::fmt::Debug for Gpu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Gpu")
+            .field("adapter", &self.describe())
+            .finish()
+    }
+}
+
+impl Gpu {
+    /// Opens the default adapter, obeying `WGPU_BACKEND` / `WGPU_ADAPTER_NAME`, with the
+    /// adapter's own limits (the defaults cap buffers far below what adapters allow) and GPU
+    /// timestamps when the adapter has them.
+    ///
+    /// # Errors
+    /// [`GpuError::NoAdapter`] when no adapter is found (no driver, or `WGPU_BACKEND` naming
+    /// one that is absent); [`GpuError::Device`] when the device cannot be opened.
+    pub fn new() -> Result<Self, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(wgpu::util::initialize_adapter_from_env_or_default(
+            &instance, None,
+        ))
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let required_features = if timestamps {
+            wgpu::Features::TIMESTAMP_QUERY
+        } else {
+            wgpu::Features::empty()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("insitu"),
+            required_features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+        let failure = Arc::new(Mutex::new(None));
+        let lost = Arc::clone(&failure);
+        device.set_device_lost_callback(move |reason, message| {
+            if let Ok(mut f) = lost.lock() {
+                f.get_or_insert(format!("device lost ({reason:?}): {message}"));
+            }
+        });
+        let uncaptured = Arc::clone(&failure);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            tracing::error!("wgpu: {e}");
+            if let Ok(mut f) = uncaptured.lock() {
+                f.get_or_insert(e.to_string());
+            }
+        }));
+        let kernels = super::kernels::Kernels::new(&device)?;
+        Ok(Self {
+            device,
+            queue,
+            limits,
+            kernels,
+            info,
+            timestamps,
+            failure,
+        })
+    }
+
+    /// "name (backend, device type)", e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        )
+    }
+
+    /// Whether kernel times come from GPU timestamps (else wall clock around the submission).
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps
+    }
+
+    /// Largest storage-buffer binding, bytes.
+    pub fn max_storage_binding(&self) -> u64 {
+        u64::from(self.limits.max_storage_buffer_binding_size).min(self.limits.max_buffer_size)
+    }
+
+    /// Fails if an asynchronous error or device loss was recorded.
+    pub(super) fn check_failure(&self) -> Result<(), GpuError> {
+        match self.failure.lock() {
+            Ok(f) => match f.as_ref() {
+                Some(m) => Err(GpuError::Lost(m.clone())),
+                None => Ok(()),
+            },
+            Err(_) => Err(GpuError::Lost("error state poisoned".into())),
+        }
+    }
+
+    /// Runs `f` (resource creation, encoding, submission) with validation and out-of-memory
+    /// errors captured and returned instead of reaching the uncaptured handler.
+    pub(super) fn scoped<T>(
+        &self,
+        what: &str,
+        f: impl FnOnce() -> Result<T, GpuError>,
+    ) -> Result<T, GpuError> {
+        self.check_failure()?;
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let result = f();
+        let oom = pollster::block_on(oom.pop());
+        let validation = pollster::block_on(validation.pop());
+        if let Some(e) = oom {
+            return Err(GpuError::OutOfMemory(format!("{what}: {e}")));
+        }
+        if let Some(e) = validation {
+            return Err(GpuError::Validation(format!("{what}: {e}")));
+        }
+        self.check_failure()?;
+        result
+    }
+
+    /// A buffer initialised with `bytes` (at least 4 bytes, so empty data still binds).
+    pub(super) fn buffer_init(
+        &self,
+        label: &str,
+        bytes: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        let padded;
+        let contents = if bytes.len() < 4 {
+            padded = [0u8; 4];
+            &padded[..]
+        } else {
+            bytes
+        };
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+    }
+
+    /// An uninitialised storage buffer of `size` bytes (at least 4) that can be copied from.
+    pub(super) fn storage(&self, label: &str, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(4).next_multiple_of(4),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Encodes one compute pass with `pipeline`, `groups` bind groups and a dispatch of
+    /// `workgroups`, submits it and waits. Returns the kernel time in seconds from GPU
+    /// timestamps, or `None` when the adapter has none.
+    ///
+    /// # Errors
+    /// Validation, out-of-memory, device loss or a wait past [`SUBMISSION_TIMEOUT`].
+    pub(super) fn dispatch(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        groups: &[&wgpu::BindGroup],
+        workgroups: [u32; 3],
+    ) -> Result<Option<f64>, GpuError> {
+        let query = self.timestamps.then(|| {
+            let set = self.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let resolve = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps resolve"),
+                size: 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (set, resolve)
+        });
+        self.scoped(label, || {
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+            {
+                let timestamp_writes =
+                    query
+                        .as_ref()
+                        .map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                            query_set: set,
+                            beginning_of_pass_write_index: Some(0),
+                            end_of_pass_write_index: Some(1),
+                        });
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some(label),
+                    timestamp_writes,
+                });
+                pass.set_pipeline(pipeline);
+                for (i, g) in groups.iter().enumerate() {
+                    pass.set_bind_group(i as u32, *g, &[]);
+                }
+                pass.dispatch_workgroups(workgroups[0], workgroups[1], workgroups[2]);
+            }
+            if let Some((set, resolve)) = &query {
+                encoder.resolve_query_set(set, 0..2, resolve, 0);
+            }
+            self.queue.submit([encoder.finish()]);
+            Ok(())
+        })?;
+        self.wait(label)?;
+        match &query {
+            None => Ok(None),
+            Some((_, resolve)) => {
+                let bytes = self.read(resolve, 16)?;
+                let t = |k: usize| {
+                    let mut b = [0u8; 8];
+                    b.copy_from_slice(&bytes[8 * k..8 * k + 8]);
+                    u64::from_le_bytes(b)
+                };
+                let ticks = t(1).saturating_sub(t(0));
+                let period_ns = f64::from(self.queue.get_timestamp_period());
+                Ok(Some(ticks as f64 * period_ns * 1e-9))
+            }
+        }
+    }
+
+    /// Waits for all submitted work.
+    fn wait(&self, what: &str) -> Result<(), GpuError> {
+        match self.device.poll(wgpu::PollType::Wait {
+            submission_index: None,
+            timeout: Some(SUBMISSION_TIMEOUT),
+        }) {
+            Ok(_) => self.check_failure(),
+            Err(wgpu::PollError::Timeout) => Err(GpuError::Timeout(format!(
+                "{what}: no completion within {} s",
+                SUBMISSION_TIMEOUT.as_secs()
+            ))),
+            Err(e) => Err(GpuError::Lost(format!("{what}: {e}"))),
+        }
+    }
+
+    /// Copies the first `size` bytes of `buffer` (usage COPY_SRC) to the host.
+    pub(super) fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let staging = self.scoped("read-back", || {
+            let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("read-back"),
+                size: padded,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
+            self.queue.submit([encoder.finish()]);
+            Ok(staging)
+        })?;
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait("read-back")?;
+        match rx.recv_timeout(Duration::from_secs(1)) {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(GpuError::Lost(format!("read-back mapping: {e}"))),
+            Err(_) => return Err(GpuError::Lost("read-back mapping never completed".into())),
+        }
+        let view = staging
+            .get_mapped_range(..)
+            .map_err(|e| GpuError::Lost(format!("read-back view: {e}")))?;
+        let out = view[..size as usize].to_vec();
+        drop(view);
+        staging.unmap();
+        Ok(out)
+    }
+}
+
+/// Little-endian packing of uniform blocks made of 16-byte vec4 rows.
+#[derive(Default)]
+pub(super) struct Uniform(Vec<u8>);
+
+impl Uniform {
+    pub(super) fn vec4(mut self, v: [f32; 4]) -> Self {
+        for x in v {
+            self.0.extend_from_slice(&x.to_le_bytes());
+        }
+        self
+    }
+
+    pub(super) fn uvec4(mut self, v: [u32; 4]) -> Self {
+        for x in v {
+            self.0.extend_from_slice(&x.to_le_bytes());
+        }
+        self
+    }
+
+    pub(super) fn bytes(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+/// `f32` values as little-endian bytes.
+pub(super) fn f32_bytes(values: impl IntoIterator<Item = f32>) -> Vec<u8> {
+    values.into_iter().flat_map(f32::to_le_bytes).collect()
+}
+
+/// `u32` values as little-endian bytes.
+pub(super) fn u32_bytes(values: impl IntoIterator<Item = u32>) -> Vec<u8> {
+    values.into_iter().flat_map(u32::to_le_bytes).collect()
+}
+
+/// Little-endian bytes back to `f32` values.
+pub(super) fn to_f32s(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// Little-endian bytes back to `u32` values.
+pub(super) fn to_u32s(bytes: &[u8]) -> Vec<u32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}

@@ -1,0 +1,188 @@
+//! The WGSL kernels, their bind-group layouts and pipelines, compiled once per device.
+//! Shading is a pipeline-overridable constant: scenes without it run code with no shading
+//! in it at all.
+
+use super::GpuError;
+
+const COMMON: &str = include_str!("shaders/common.wgsl");
+const DVR: &str = include_str!("shaders/dvr.wgsl");
+const GENERATE: &str = include_str!("shaders/generate.wgsl");
+const COMPACT: &str = include_str!("shaders/compact.wgsl");
+const RENDER: &str = include_str!("shaders/render.wgsl");
+
+/// Layouts and pipelines of every kernel.
+pub(super) struct Kernels {
+    pub scene_layout: wgpu::BindGroupLayout,
+    pub dvr_out_layout: wgpu::BindGroupLayout,
+    pub generate_out_layout: wgpu::BindGroupLayout,
+    pub compact_layout: wgpu::BindGroupLayout,
+    pub render_layout: wgpu::BindGroupLayout,
+    /// Indexed by `shaded as usize`.
+    pub dvr: [wgpu::ComputePipeline; 2],
+    pub generate: [wgpu::ComputePipeline; 2],
+    pub compact: wgpu::ComputePipeline,
+    pub render: wgpu::ComputePipeline,
+}
+
+fn entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty,
+        count: None,
+    }
+}
+
+fn uniform(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    entry(
+        binding,
+        wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+    )
+}
+
+fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    entry(
+        binding,
+        wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+    )
+}
+
+fn texture(binding: u32, view_dimension: wgpu::TextureViewDimension) -> wgpu::BindGroupLayoutEntry {
+    entry(
+        binding,
+        wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension,
+            multisampled: false,
+        },
+    )
+}
+
+impl Kernels {
+    pub(super) fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let layout = |label: &str, entries: &[wgpu::BindGroupLayoutEntry]| {
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries,
+            })
+        };
+        let scene_layout = layout(
+            "scene",
+            &[
+                uniform(0),
+                texture(1, wgpu::TextureViewDimension::D3),
+                texture(2, wgpu::TextureViewDimension::D1),
+                texture(3, wgpu::TextureViewDimension::D1),
+                storage(4, true),
+            ],
+        );
+        let dvr_out_layout = layout("dvr out", &[storage(0, false)]);
+        let generate_out_layout = layout("generate out", &[storage(0, false), storage(1, false)]);
+        let compact_layout = layout(
+            "compact",
+            &[
+                uniform(0),
+                storage(1, true),
+                storage(2, true),
+                storage(3, false),
+            ],
+        );
+        let render_layout = layout(
+            "render",
+            &[
+                uniform(0),
+                storage(1, true),
+                storage(2, true),
+                storage(3, false),
+            ],
+        );
+        let module = |label: &str, parts: &[&str]| {
+            device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+            })
+        };
+        let pipeline = |label: &str,
+                        module: &wgpu::ShaderModule,
+                        entry_point: &str,
+                        layouts: &[&wgpu::BindGroupLayout],
+                        constants: &[(&str, f64)]| {
+            let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &layouts.iter().map(|l| Some(*l)).collect::<Vec<_>>(),
+                immediate_size: 0,
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                module,
+                entry_point: Some(entry_point),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        };
+        let dvr_module = module("dvr", &[COMMON, DVR]);
+        let generate_module = module("generate", &[COMMON, GENERATE]);
+        let compact_module = module("compact", &[COMPACT]);
+        let render_module = module("render", &[RENDER]);
+        let shade = |on: bool| [("SHADE", if on { 1.0 } else { 0.0 })];
+        let dvr = [false, true].map(|on| {
+            pipeline(
+                "dvr",
+                &dvr_module,
+                "dvr_main",
+                &[&scene_layout, &dvr_out_layout],
+                &shade(on),
+            )
+        });
+        let generate = [false, true].map(|on| {
+            pipeline(
+                "generate",
+                &generate_module,
+                "generate_main",
+                &[&scene_layout, &generate_out_layout],
+                &shade(on),
+            )
+        });
+        let compact = pipeline(
+            "compact",
+            &compact_module,
+            "compact_main",
+            &[&compact_layout],
+            &[],
+        );
+        let render = pipeline(
+            "render",
+            &render_module,
+            "render_main",
+            &[&render_layout],
+            &[],
+        );
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Validation(format!("compiling the kernels: {e}")));
+        }
+        Ok(Self {
+            scene_layout,
+            dvr_out_layout,
+            generate_out_layout,
+            compact_layout,
+            render_layout,
+            dvr,
+            generate,
+            compact,
+            render,
+        })
+    }
+}

@@ -1,0 +1,123 @@
+// VDI generation R (Sec. 3.2, 5.2): one invocation per ray of a band of rows of the r × r
+// generation image. Samples are merged front to back into the open supersegment until
+// ‖â·ĉ − a·c‖₂ ≥ γ (mirrors `vdi::generate`'s builder). Each ray writes at most `budget`
+// supersegments to its slot of `segments` and its full count to `counts`; the host re-runs a
+// band whose rays overflowed with a larger budget, then `compact.wgsl` packs the slots.
+
+struct Segment {
+    z_start: f32,
+    z_end: f32,
+    r: f32,
+    g: f32,
+    b: f32,
+    alpha: f32,
+};
+
+@group(1) @binding(0) var<storage, read_write> segments: array<Segment>;
+@group(1) @binding(1) var<storage, read_write> counts: array<u32>;
+
+struct Open {
+    last_index: u32,
+    t_start: f32,
+    t_end: f32,
+    color: vec3<f32>,
+    transmittance: f32,
+    optical_depth: f32,
+    unit_over_total: f32,
+};
+
+fn update_ratio(o: ptr<function, Open>, len: f32) {
+    let total = -expm1_f(-(*o).optical_depth);
+    let unit = -expm1_f(-(*o).optical_depth / len);
+    (*o).unit_over_total = select(1.0 / len, unit / total, total > 0.0);
+}
+
+fn distance_sq(o: ptr<function, Open>, ac: vec3<f32>) -> f32 {
+    let d = (*o).unit_over_total * (*o).color - ac;
+    return dot(d, d);
+}
+
+fn open_new(s: Sample) -> Open {
+    var o = Open(s.index, s.t_start, s.t_end, s.rgb * s.alpha, 1.0 - s.alpha, s.kappa * s.len, 0.0);
+    update_ratio(&o, o.t_end - o.t_start);
+    return o;
+}
+
+fn close(o: Open, z_per_t: f32) -> Segment {
+    let len = max(o.t_end - o.t_start, 1.17549435e-38);
+    let total = -expm1_f(-o.optical_depth);
+    let alpha = clamp(-expm1_f(-o.optical_depth / len), 0.0, 1.0);
+    var color = vec3<f32>(0.0);
+    if (total > 0.0) {
+        color = clamp(o.color / total, vec3<f32>(0.0), vec3<f32>(1.0));
+    }
+    return Segment(o.t_start * z_per_t, o.t_end * z_per_t, color.x, color.y, color.z, alpha);
+}
+
+@compute @workgroup_size(8, 8)
+fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let r = P.image.x;
+    let i = gid.x;
+    let row = gid.y;
+    let j = P.image.z + row;
+    if (i >= r || j >= P.image.y) {
+        return;
+    }
+    let local = i + r * row;
+    let budget = P.image.w;
+    let base = local * budget;
+    let ray = pixel_ray(i, j);
+    let z_per_t = dot(ray.dir, P.forward.xyz);
+    let gamma_sq = P.box_max.w * P.box_max.w;
+    let termination = P.box_min.w;
+    var m = marcher_new(ray);
+    var s: Sample;
+    var o: Open;
+    var has_open = false;
+    var n = 0u;
+    var transmittance = 1.0;
+    while (marcher_next(&m, &s)) {
+        let ac = s.rgb * s.alpha_unit;
+        var keep = false;
+        if (has_open) {
+            if (s.index > o.last_index + 1u) {
+                // A run of transparent samples: the first compares a·c = 0.
+                if (distance_sq(&o, vec3<f32>(0.0)) < gamma_sq) {
+                    update_ratio(&o, s.t_start - o.t_start);
+                    keep = distance_sq(&o, ac) < gamma_sq;
+                }
+            } else {
+                keep = distance_sq(&o, ac) < gamma_sq;
+            }
+        }
+        if (keep) {
+            let w = o.transmittance * s.alpha;
+            o.color += w * s.rgb;
+            o.transmittance *= 1.0 - s.alpha;
+            o.optical_depth += s.kappa * s.len;
+            o.last_index = s.index;
+            o.t_end = s.t_end;
+            update_ratio(&o, o.t_end - o.t_start);
+        } else {
+            if (has_open) {
+                if (n < budget) {
+                    segments[base + n] = close(o, z_per_t);
+                }
+                n += 1u;
+            }
+            o = open_new(s);
+            has_open = true;
+        }
+        transmittance *= 1.0 - s.alpha;
+        if (1.0 - transmittance >= termination) {
+            break;
+        }
+    }
+    if (has_open) {
+        if (n < budget) {
+            segments[base + n] = close(o, z_per_t);
+        }
+        n += 1u;
+    }
+    counts[local] = n;
+}
