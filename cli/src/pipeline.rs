@@ -18,6 +18,8 @@ use tokio_stream::StreamExt;
 pub struct PipelineArgs {
     #[command(flatten)]
     pub pm: crate::cmd::PmArgs,
+    #[command(flatten)]
+    pub backend: crate::cmd::BackendArgs,
     /// Codec: bzip2 (the paper's sigma), zstd or none.
     #[arg(long, default_value = "bzip2")]
     pub codec: String,
@@ -134,6 +136,7 @@ impl LocalNodes {
         let viz = insitu_viz_node::start(insitu_viz_node::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             recording_dir: recording.clone(),
+            backend: a.backend.backend,
             ..Default::default()
         })
         .await
@@ -143,6 +146,7 @@ impl LocalNodes {
             viz: Some(viz.local_addr().to_string()),
             ..Default::default()
         };
+        cfg.backend = a.backend.backend;
         cfg.queue.policy = a.policy;
         cfg.queue.max_items = a.queue_steps;
         cfg.generation.resolution = a.pm.r;

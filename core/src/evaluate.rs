@@ -4,13 +4,12 @@
 //! Reference images depend only on the scene and the views, so they are rendered once
 //! ([`render_references`]) and reused across candidates ([`evaluate`]).
 
+use crate::backend::{BackendError, Scene, SceneVdi, TimeSource};
 use crate::camera::Camera;
-use crate::dvr;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
-use crate::raycast::Raycaster;
 use crate::vdi::codec::{self, Codec, CodecError, DecodeLimits};
-use crate::vdi::{generate, render, VdiParamError, VdiParams};
+use crate::vdi::{VdiParamError, VdiParams};
 use std::time::Instant;
 
 /// The paper's test views: the generation camera orbited by 0°, 10°, …, 60° (Sec. 6.1).
@@ -28,6 +27,9 @@ pub enum EvalError {
     /// Images could not be compared.
     #[error(transparent)]
     Metric(#[from] MetricError),
+    /// The backend failed (GPU limits or device).
+    #[error(transparent)]
+    Backend(BackendError),
     /// Reference images do not match the views.
     #[error("{references} reference images for {views} views")]
     ReferenceCount {
@@ -36,6 +38,15 @@ pub enum EvalError {
         /// Views asked for.
         views: usize,
     },
+}
+
+impl From<BackendError> for EvalError {
+    fn from(e: BackendError) -> Self {
+        match e {
+            BackendError::Params(p) => Self::Params(p),
+            other => Self::Backend(other),
+        }
+    }
 }
 
 /// Quality at one test view.
@@ -62,13 +73,15 @@ pub struct Evaluation {
     pub sigma_bytes: u64,
     /// Supersegments in the VDI.
     pub supersegments: u64,
-    /// τ: wall-clock seconds of VDI generation.
+    /// τ: seconds of VDI generation, from `tau_source`.
     pub tau_secs: f64,
+    /// Where τ comes from: wall clock (CPU) or GPU timestamps (kernel time, Sec. 5.3).
+    pub tau_source: TimeSource,
     /// Wall-clock seconds of compression (reported apart from τ).
     pub tau_compress_secs: f64,
     /// Wall-clock seconds to decode the file again.
     pub tau_decode_secs: f64,
-    /// Mean wall-clock seconds to render the VDI at one test view.
+    /// Mean seconds to render the VDI at one test view (same source as τ).
     pub tau_render_secs: f64,
     /// q: PSNR of the mean MSE over the views, dB.
     pub q_db: f64,
@@ -76,28 +89,32 @@ pub struct Evaluation {
     pub views: Vec<ViewScore>,
 }
 
-/// Renders the reference (direct ray-casting) image at each view angle, `size × size`.
+/// Renders the reference (direct ray-casting) image at each view angle, `size × size`, on
+/// the scene's backend.
+///
+/// # Errors
+/// [`BackendError`] from the GPU path.
 pub fn render_references(
-    raycaster: &Raycaster,
+    scene: &Scene,
     camera: &Camera,
     angles: &[f32],
     size: u32,
-) -> Vec<Image> {
+) -> Result<Vec<Image>, BackendError> {
     angles
         .iter()
-        .map(|&a| dvr::render(raycaster, &camera.orbit_y(a), size, size))
+        .map(|&a| Ok(scene.dvr(&camera.orbit_y(a), size, size)?.value))
         .collect()
 }
 
 /// Renders `vdi` at each test view (`camera` orbited by each angle, at its reference's size)
 /// and scores it against `references` (Alg. 1, lines 13–17). Returns the per-view scores,
-/// the renders, and the total render time in seconds.
+/// the renders, and the total render time in seconds (kernel time on a GPU with timestamps).
 ///
 /// # Errors
 /// [`EvalError::ReferenceCount`] when there is not one reference per angle;
-/// [`EvalError::Metric`] when images cannot be compared.
+/// [`EvalError::Metric`] when images cannot be compared; [`EvalError::Backend`] from the GPU.
 pub fn score_views(
-    vdi: &crate::Vdi,
+    vdi: &SceneVdi,
     camera: &Camera,
     angles: &[f32],
     references: &[Image],
@@ -114,9 +131,9 @@ pub fn score_views(
     let mut render_secs = 0.0;
     for (&angle_deg, reference) in angles.iter().zip(references) {
         let (w, h) = (reference.width(), reference.height());
-        let t = Instant::now();
-        let image = render::render(vdi, &camera.orbit_y(angle_deg), w, h, termination);
-        render_secs += t.elapsed().as_secs_f64();
+        let rendered = vdi.render(&camera.orbit_y(angle_deg), w, h, termination)?;
+        render_secs += rendered.seconds;
+        let image = rendered.value;
         let mse = metrics::mse(&image, reference)?;
         views.push(ViewScore {
             angle_deg,
@@ -137,14 +154,16 @@ pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
 }
 
 /// Measures `params`: generate, encode, decode, render at each angle and compare with
-/// `references` (one per angle, from [`render_references`]). The VDI is rendered from the
-/// decoded file, so what is scored is what a viz-node would see. Returns the VDI renders too.
+/// `references` (one per angle, from [`render_references`]), generation and rendering on the
+/// scene's backend. The VDI is rendered from the decoded file, so what is scored is what a
+/// viz-node would see. Returns the VDI renders too.
 ///
 /// # Errors
-/// [`EvalError`] for bad parameters, a codec failure, or references that do not match.
+/// [`EvalError`] for bad parameters, a codec failure, references that do not match, or a
+/// GPU failure.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate(
-    raycaster: &Raycaster,
+    scene: &Scene,
     camera: &Camera,
     params: VdiParams,
     codec_kind: Codec,
@@ -159,9 +178,8 @@ pub fn evaluate(
             views: angles.len(),
         });
     }
-    let t = Instant::now();
-    let vdi = generate::generate(raycaster, camera, params, tf_hash, tf_name)?;
-    let tau_secs = t.elapsed().as_secs_f64();
+    let generated = scene.generate(camera, params, tf_hash, tf_name)?;
+    let (vdi, tau_secs, tau_source) = (generated.value, generated.seconds, generated.source);
     let t = Instant::now();
     let bytes = codec::encode(&vdi, codec_kind)?;
     let tau_compress_secs = t.elapsed().as_secs_f64();
@@ -169,11 +187,11 @@ pub fn evaluate(
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
     let tau_decode_secs = t.elapsed().as_secs_f64();
     let (views, images, render_secs) = score_views(
-        &decoded,
+        &scene.prepare_vdi(&decoded)?,
         camera,
         angles,
         references,
-        raycaster.params().termination,
+        scene.raycaster().params().termination,
     )?;
     let tau_render_secs = render_secs / angles.len().max(1) as f64;
     let mses: Vec<f64> = views.iter().map(|v| v.mse).collect();
@@ -184,6 +202,7 @@ pub fn evaluate(
             sigma_bytes: bytes.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
             tau_secs,
+            tau_source,
             tau_compress_secs,
             tau_decode_secs,
             tau_render_secs,

@@ -28,6 +28,7 @@
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod backend;
 pub mod camera;
 pub mod dvr;
 pub mod evaluate;
@@ -40,6 +41,7 @@ pub mod tf;
 pub mod vdi;
 pub mod volume;
 
+pub use backend::{Backend, BackendChoice};
 pub use camera::{Camera, Ray};
 pub use image::Image;
 pub use raycast::{RaycastParams, Raycaster, Shading};

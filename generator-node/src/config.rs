@@ -4,6 +4,7 @@
 use crate::queue::Policy;
 use insitu_core::raycast::{RaycastParams, DEFAULT_STEP, DEFAULT_TERMINATION};
 use insitu_core::vdi::codec::Codec;
+use insitu_core::BackendChoice;
 use insitu_core::{Camera, TransferFunction, VdiParams};
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
@@ -123,6 +124,9 @@ pub struct Config {
     pub drain_timeout_secs: f64,
     /// Longest wait between reconnect attempts to the viz-node, seconds.
     pub max_backoff_secs: f64,
+    /// Where VDIs and reference frames are made: `cpu`, `gpu` or `auto` (a hardware GPU if
+    /// found, else the CPU).
+    pub backend: BackendChoice,
     /// Scene and `P_M`.
     pub generation: GenerationConfig,
 }
@@ -146,6 +150,7 @@ impl Default for Config {
             },
             drain_timeout_secs: 30.0,
             max_backoff_secs: 5.0,
+            backend: BackendChoice::Auto,
             generation: GenerationConfig::default(),
         }
     }

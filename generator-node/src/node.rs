@@ -58,6 +58,11 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let generation = cfg.generation()?;
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
+    let choice = cfg.backend;
+    let backend = tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
+        .await?
+        .with_context(|| format!("backend {choice}"))?;
+    info!("generating on {}", backend.describe());
     let listener = tokio::net::TcpListener::bind(cfg.listen)
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
@@ -73,6 +78,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
             cfg.outbox.max_bytes,
             cfg.outbox.policy,
         )),
+        backend,
     });
     let (stop_server, stopped) = oneshot::channel::<()>();
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
@@ -116,10 +122,11 @@ async fn worker(shared: Arc<Shared>) {
         let (step, rank) = (raw.step, raw.rank);
         let mut gen = shared.generation();
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
+        let s = shared.clone();
         let result = tokio::task::spawn_blocking(move || {
             let volume = raw.volume()?;
             let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
-            let product = work::run(&raw, &volume, &gen, &tf, with_refs)?;
+            let product = work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs)?;
             Ok::<_, work::WorkError>((product, tf))
         })
         .instrument(info_span!("step", step, rank))

@@ -32,6 +32,8 @@ pub struct Shared {
     pub shipping: bool,
     /// Finished VDIs waiting to be shipped.
     pub outbox: Arc<BoundedQueue<crate::work::Product>>,
+    /// Where VDIs and reference frames are made.
+    pub backend: insitu_core::Backend,
 }
 
 impl Shared {

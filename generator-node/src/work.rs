@@ -5,9 +5,10 @@
 use crate::config::Generation;
 use crate::ingest::RawStep;
 use bytes::Bytes;
+use insitu_core::backend::{BackendError, TimeSource};
 use insitu_core::evaluate::render_references;
-use insitu_core::vdi::{codec, generate};
-use insitu_core::{Camera, Image, Raycaster, TransferFunction, Volume};
+use insitu_core::vdi::codec;
+use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Volume};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
 use std::time::Instant;
@@ -46,6 +47,18 @@ pub enum WorkError {
     /// Encoding failed.
     #[error(transparent)]
     Codec(#[from] codec::CodecError),
+    /// The backend failed (GPU limits or device).
+    #[error(transparent)]
+    Backend(BackendError),
+}
+
+impl From<BackendError> for WorkError {
+    fn from(e: BackendError) -> Self {
+        match e {
+            BackendError::Params(p) => Self::Params(p),
+            other => Self::Backend(other),
+        }
+    }
 }
 
 /// The transfer function for `volume` when none is configured: the default over its range
@@ -58,12 +71,13 @@ pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
     )
 }
 
-/// Generates, compresses and (if `with_references`) renders the references for one step;
-/// `volume` is [`RawStep::volume`] of `raw`.
+/// Generates, compresses and (if `with_references`) renders the references for one step on
+/// `backend`; `volume` is [`RawStep::volume`] of `raw`.
 ///
 /// # Errors
-/// [`WorkError`] from the core.
+/// [`WorkError`] from the core or the backend.
 pub fn run(
+    backend: &Backend,
     raw: &RawStep,
     volume: &Volume,
     gen: &Generation,
@@ -71,29 +85,29 @@ pub fn run(
     with_references: bool,
 ) -> Result<Product, WorkError> {
     let raycaster = Raycaster::new(volume, &tf.0, gen.raycast)?;
+    let scene = backend.prepare(&raycaster)?;
     let camera = gen
         .camera
         .unwrap_or_else(|| Camera::default_for_box(&raw.global_box()));
     let tf_hash = tf.0.identity_hash();
-    let t = Instant::now();
-    let vdi = info_span!(
+    let generated = info_span!(
         "generate",
         r = gen.params.resolution,
         gamma = gen.params.gamma
     )
-    .in_scope(|| generate::generate(&raycaster, &camera, gen.params, tf_hash, &tf.1))?;
-    let tau_secs = t.elapsed().as_secs_f64();
+    .in_scope(|| scene.generate(&camera, gen.params, tf_hash, &tf.1))?;
+    let (vdi, tau_secs) = (&generated.value, generated.seconds);
     let t = Instant::now();
     let file =
-        info_span!("compress", codec = %gen.codec).in_scope(|| codec::encode(&vdi, gen.codec))?;
+        info_span!("compress", codec = %gen.codec).in_scope(|| codec::encode(vdi, gen.codec))?;
     let tau_compress_secs = t.elapsed().as_secs_f64();
-    let references = with_references.then(|| {
+    let references = if with_references {
         let size = gen.reference_side();
         let frames = info_span!("references", views = gen.view_angles_deg.len(), size)
-            .in_scope(|| render_references(&raycaster, &camera, &gen.view_angles_deg, size));
+            .in_scope(|| render_references(&scene, &camera, &gen.view_angles_deg, size))?;
         // `views × h × w × 3` little-endian f32 (see `ReferenceHeader`).
         let bytes: Vec<u8> = frames.iter().flat_map(Image::to_f32_le).collect();
-        (
+        Some((
             pb::ReferenceHeader {
                 step: raw.step,
                 rank: raw.rank,
@@ -104,8 +118,10 @@ pub fn run(
                 total_bytes: bytes.len() as u64,
             },
             Bytes::from(bytes),
-        )
-    });
+        ))
+    } else {
+        None
+    };
     Ok(Product {
         vdi_header: pb::VdiHeader {
             step: raw.step,
@@ -121,6 +137,12 @@ pub fn run(
             tau_compress_secs,
             tf_hash,
             tf_name: tf.1.clone(),
+            tau_source: match generated.source {
+                TimeSource::WallClock => "wall-clock",
+                TimeSource::GpuTimestamps => "gpu-timestamps",
+            }
+            .into(),
+            backend: backend.describe(),
         },
         vdi: Bytes::from(file),
         references,

@@ -15,13 +15,14 @@
 use crate::grid::Candidate;
 use crate::measure::Measurement;
 use crate::study::{Oracle, Study, StudyError, StudyScene};
+use insitu_core::backend::BackendError;
 use insitu_core::evaluate::EvalError;
 use insitu_core::metrics::{mse, pooled_psnr};
 use insitu_core::raycast::RaycastError;
 use insitu_core::vdi::codec::{self, Codec};
-use insitu_core::vdi::{generate, VdiParams};
+use insitu_core::vdi::VdiParams;
 use insitu_core::{
-    dvr, Camera, Image, RaycastParams, Raycaster, Shading, TransferFunction, Volume,
+    Backend, Camera, Image, RaycastParams, Raycaster, Shading, TransferFunction, Volume,
 };
 use std::time::Instant;
 
@@ -54,6 +55,9 @@ pub enum AccuracyError {
     /// Generating or encoding the codec rows' VDI failed.
     #[error(transparent)]
     Eval(#[from] EvalError),
+    /// The backend failed (GPU limits or device).
+    #[error(transparent)]
+    Backend(#[from] BackendError),
 }
 
 /// The scene and the base setting of a sweep.
@@ -76,20 +80,21 @@ pub struct Sweep<'a> {
     pub base_pm: Candidate,
     /// Base codec.
     pub codec: Codec,
+    /// Where rendering and generation run (τ is that backend's time).
+    pub backend: &'a Backend,
 }
 
-fn dvr_at(s: &Sweep, params: RaycastParams) -> Result<(Vec<Image>, f64), RaycastError> {
+fn dvr_at(s: &Sweep, params: RaycastParams) -> Result<(Vec<Image>, f64), AccuracyError> {
     let rc = Raycaster::new(s.volume, s.tf, params)?;
-    let t = Instant::now();
-    let images: Vec<Image> = s
-        .views
-        .iter()
-        .map(|&a| dvr::render(&rc, &s.camera.orbit_y(a), s.size, s.size))
-        .collect();
-    Ok((
-        images,
-        t.elapsed().as_secs_f64() / s.views.len().max(1) as f64,
-    ))
+    let scene = s.backend.prepare(&rc)?;
+    let mut secs = 0.0;
+    let mut images = Vec::with_capacity(s.views.len());
+    for &a in s.views {
+        let r = scene.dvr(&s.camera.orbit_y(a), s.size, s.size)?;
+        secs += r.seconds;
+        images.push(r.value);
+    }
+    Ok((images, secs / s.views.len().max(1) as f64))
 }
 
 fn pooled(images: &[Image], references: &[Image]) -> f64 {
@@ -109,7 +114,7 @@ fn dvr_row(
     value: String,
     params: RaycastParams,
     reference: Option<&[Image]>,
-) -> Result<AccuracyRow, RaycastError> {
+) -> Result<AccuracyRow, AccuracyError> {
     let (images, tau_secs) = dvr_at(s, params)?;
     Ok(AccuracyRow {
         knob,
@@ -210,7 +215,7 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
     }
     let rc = Raycaster::new(s.volume, s.tf, s.base)?;
     let scene = StudyScene::new(
-        rc,
+        s.backend.prepare(&rc)?,
         s.volume.content_hash(),
         s.tf,
         s.tf_name,
@@ -233,13 +238,16 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
         .collect();
     rows.extend(vdi_rows(&mut study, "VDI threshold γ", &gammas)?);
     // The codec is lossless: one VDI at the base P_M, encoded by each codec.
-    let rc = Raycaster::new(s.volume, s.tf, s.base)?;
     let params = VdiParams {
         resolution: pm.r,
         gamma: pm.gamma,
     };
-    let vdi = generate::generate(&rc, &s.camera, params, s.tf.identity_hash(), s.tf_name)
-        .map_err(EvalError::from)?;
+    let vdi = s
+        .backend
+        .prepare(&rc)?
+        .generate(&s.camera, params, s.tf.identity_hash(), s.tf_name)
+        .map_err(EvalError::from)?
+        .value;
     for codec in Codec::ALL {
         let t = Instant::now();
         let bytes = codec::encode(&vdi, codec).map_err(EvalError::from)?;

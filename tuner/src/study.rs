@@ -4,11 +4,12 @@
 use crate::cache::{Cache, CacheError};
 use crate::grid::Candidate;
 use crate::measure::Measurement;
+use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{evaluate, EvalError};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::VdiParams;
 use insitu_core::volume::Fnv1a;
-use insitu_core::{Camera, Image, Raycaster, TransferFunction};
+use insitu_core::{Camera, Image, TransferFunction};
 use std::path::Path;
 use std::time::Instant;
 
@@ -21,6 +22,9 @@ pub enum StudyError {
     /// The cache could not be written.
     #[error(transparent)]
     Cache(#[from] CacheError),
+    /// The backend failed while rendering the references.
+    #[error(transparent)]
+    Backend(#[from] BackendError),
     /// Nothing to measure.
     #[error("{0}")]
     Invalid(String),
@@ -41,7 +45,7 @@ pub trait Oracle {
 
 /// What a study measures: the scene, the test views and their reference images.
 pub struct StudyScene<'a> {
-    raycaster: Raycaster<'a>,
+    scene: Scene<'a>,
     camera: Camera,
     view_angles: Vec<f32>,
     references: Vec<Image>,
@@ -55,10 +59,11 @@ pub struct StudyScene<'a> {
 impl<'a> StudyScene<'a> {
     /// Renders the reference image of each view (`width × height`) once.
     ///
-    /// `volume_hash` is [`insitu_core::Volume::content_hash`] of the raycaster's volume.
+    /// `volume_hash` is [`insitu_core::Volume::content_hash`] of the scene's volume. The
+    /// backend is part of the identity (τ depends on it).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        raycaster: Raycaster<'a>,
+        scene: Scene<'a>,
         volume_hash: u64,
         tf: &TransferFunction,
         tf_name: &str,
@@ -72,7 +77,8 @@ impl<'a> StudyScene<'a> {
                 "a study needs at least one test view".into(),
             ));
         }
-        let p = raycaster.params();
+        let p = *scene.raycaster().params();
+        let backend = scene.describe();
         let mut h = Fnv1a::new();
         h.write(&volume_hash.to_le_bytes());
         h.write(&tf.identity_hash().to_le_bytes());
@@ -92,21 +98,22 @@ impl<'a> StudyScene<'a> {
         h.write(&[u8::from(p.shading.is_some())]);
         h.write(codec.name().as_bytes());
         h.write(crate::cache::code_version().as_bytes());
+        h.write(backend.as_bytes());
         let key = h.finish();
         let description = format!(
-            "tf {tf_name}, views {view_angles:?}, {}×{}, step {}, termination {}, shading {}, codec {codec}",
+            "tf {tf_name}, views {view_angles:?}, {}×{}, step {}, termination {}, shading {}, codec {codec}, {backend}",
             size.0,
             size.1,
             p.step,
             p.termination,
             p.shading.is_some()
         );
-        let references: Vec<Image> = view_angles
+        let references = view_angles
             .iter()
-            .map(|&a| insitu_core::dvr::render(&raycaster, &camera.orbit_y(a), size.0, size.1))
-            .collect();
+            .map(|&a| Ok(scene.dvr(&camera.orbit_y(a), size.0, size.1)?.value))
+            .collect::<Result<Vec<Image>, BackendError>>()?;
         Ok(Self {
-            raycaster,
+            scene,
             camera,
             view_angles: view_angles.to_vec(),
             references,
@@ -197,7 +204,7 @@ impl Oracle for Study<'_> {
         let s = &self.scene;
         let t = Instant::now();
         let (e, _) = evaluate(
-            &s.raycaster,
+            &s.scene,
             &s.camera,
             VdiParams {
                 resolution: c.r,

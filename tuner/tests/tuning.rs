@@ -47,10 +47,13 @@ fn blob() -> Volume {
 }
 
 fn scene<'a>(v: &'a Volume, tf: &TransferFunction, size: u32, codec: Codec) -> StudyScene<'a> {
-    let rc = Raycaster::new(v, tf, RaycastParams::default()).unwrap();
+    // The scene borrows its ray-caster; a test's few small ones may live to the end.
+    let rc: &'a Raycaster<'a> = Box::leak(Box::new(
+        Raycaster::new(v, tf, RaycastParams::default()).unwrap(),
+    ));
     let cam = Camera::default_for_box(&v.world_box());
     StudyScene::new(
-        rc,
+        insitu_core::backend::Scene::Cpu(rc),
         v.content_hash(),
         tf,
         "tf",
@@ -247,6 +250,7 @@ fn the_accuracy_sweep_shows_the_expected_trade_offs() {
             gamma: 0.013,
         },
         codec: Codec::Zstd,
+        backend: &insitu_core::Backend::Cpu,
     })
     .unwrap();
     let of = |knob: &str| rows.iter().filter(|r| r.knob == knob).collect::<Vec<_>>();

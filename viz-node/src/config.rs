@@ -1,6 +1,7 @@
 //! The viz-node's configuration: one TOML file (every key documented in
 //! `deploy/viz-node.toml`), overridden by command-line flags.
 
+use insitu_core::BackendChoice;
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
 use serde::{Deserialize, Serialize};
@@ -25,6 +26,8 @@ pub struct Config {
     pub termination: f32,
     /// Reports kept for slow subscribers before the oldest are skipped.
     pub report_buffer: usize,
+    /// Where VDIs are rendered: `cpu`, `gpu` or `auto` (a hardware GPU if found, else CPU).
+    pub backend: BackendChoice,
 }
 
 impl Default for Config {
@@ -37,6 +40,7 @@ impl Default for Config {
             max_reference_bytes: 2 << 30,
             termination: insitu_core::raycast::DEFAULT_TERMINATION,
             report_buffer: 1024,
+            backend: BackendChoice::Auto,
         }
     }
 }

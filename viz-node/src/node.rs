@@ -4,6 +4,7 @@ use crate::config::Config;
 use crate::service::{scorer, Shared, VizService};
 use crate::store::Recording;
 use anyhow::Context;
+use insitu_core::Backend;
 use insitu_proto::auth::{check_bind, RequireToken, Token};
 use insitu_proto::pb::viz_server::VizServer;
 use insitu_proto::transport;
@@ -34,6 +35,11 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
     let recording = Recording::open(&cfg.recording_dir)?;
+    let choice = cfg.backend;
+    let backend = tokio::task::spawn_blocking(move || Backend::select(choice))
+        .await?
+        .with_context(|| format!("backend {choice}"))?;
+    tracing::info!("rendering on {}", backend.describe());
     let listener = tokio::net::TcpListener::bind(cfg.listen)
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
@@ -46,6 +52,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         max_vdi_bytes: cfg.max_vdi_bytes,
         max_reference_bytes: cfg.max_reference_bytes,
         termination: cfg.termination,
+        backend,
         vdis_stored: AtomicU64::new(0),
         references_stored: AtomicU64::new(0),
         reports_sent: AtomicU64::new(0),

@@ -5,16 +5,21 @@
 use crate::store::{Db, Quality, References};
 use insitu_core::evaluate::{mean_ssim, score_views, EvalError};
 use insitu_core::metrics;
-use insitu_core::Vdi;
+use insitu_core::{Backend, Vdi};
 
-/// Renders `vdi` at each view of `refs` (same size as the frames) and scores it.
+/// Renders `vdi` on `backend` at each view of `refs` (same size as the frames) and scores it.
 ///
 /// # Errors
 /// [`EvalError`] when the frames do not match the views (cannot happen for frames built by
-/// [`References::from_bytes`]).
-pub fn score(vdi: &Vdi, refs: &References, termination: f32) -> Result<Quality, EvalError> {
+/// [`References::from_bytes`]) or the backend fails.
+pub fn score(
+    backend: &Backend,
+    vdi: &Vdi,
+    refs: &References,
+    termination: f32,
+) -> Result<Quality, EvalError> {
     let (views, _, _) = score_views(
-        vdi,
+        &backend.prepare_vdi(vdi)?,
         &refs.camera,
         &refs.view_angles_deg,
         &refs.frames,

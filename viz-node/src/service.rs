@@ -3,8 +3,7 @@
 use crate::score::score;
 use crate::store::{Entry, Recording, References};
 use insitu_core::vdi::codec::{self, DecodeLimits};
-use insitu_core::vdi::render;
-use insitu_core::Vdi;
+use insitu_core::{Backend, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb};
 use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::{chunk, pb};
@@ -36,6 +35,8 @@ pub struct Shared {
     pub max_reference_bytes: u64,
     /// Early termination for rendering.
     pub termination: f32,
+    /// Where VDIs are rendered (scoring and `Render`).
+    pub backend: Backend,
     /// VDIs stored.
     pub vdis_stored: AtomicU64,
     /// Reference sets stored.
@@ -108,7 +109,7 @@ impl Shared {
             .ok_or_else(|| Status::not_found("no references"))?;
         let refs = References::read(&self.recording.dir().join(refs_name))
             .map_err(|err| Status::data_loss(err.to_string()))?;
-        let q = score(&vdi, &refs, self.termination)
+        let q = score(&self.backend, &vdi, &refs, self.termination)
             .map_err(|err| Status::invalid_argument(err.to_string()))?;
         let e = self
             .recording
@@ -342,7 +343,12 @@ impl Viz for VizService {
             })?;
             let vdi = s.load_vdi(&e)?;
             let cam = camera.unwrap_or(vdi.meta().camera);
-            let image = render::render(&vdi, &cam, r.width, r.height, s.termination);
+            let image = s
+                .backend
+                .prepare_vdi(&vdi)
+                .and_then(|v| v.render(&cam, r.width, r.height, s.termination))
+                .map_err(|e| Status::internal(format!("rendering: {e}")))?
+                .value;
             let rgb = image::RgbImage::from_raw(r.width, r.height, image.to_rgb8())
                 .ok_or_else(|| Status::internal("image size mismatch"))?;
             let mut png = std::io::Cursor::new(Vec::new());

@@ -15,6 +15,8 @@ pub struct Args {
     scene: SceneArgs,
     #[command(flatten)]
     pm: super::PmArgs,
+    #[command(flatten)]
+    backend: super::BackendArgs,
     /// Test view angles about +y, degrees.
     #[arg(long, default_value = "0,30,60", allow_hyphen_values = true)]
     views: String,
@@ -37,6 +39,7 @@ pub fn run(a: Args) -> Result<()> {
     let codec = super::parse_codec(&a.codec)?;
     let (size, _) = super::parse_size(&a.size.to_string())?;
     let scene = a.scene.load()?;
+    let backend = a.backend.open()?;
     let rows = sweep(&Sweep {
         volume: &scene.volume,
         tf: &scene.tf,
@@ -50,6 +53,7 @@ pub fn run(a: Args) -> Result<()> {
             gamma: a.pm.gamma,
         },
         codec,
+        backend: &backend,
     })?;
     let title = format!(
         "{} ({})",

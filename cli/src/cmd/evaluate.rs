@@ -7,9 +7,8 @@ use crate::progress::bar;
 use crate::scene::SceneArgs;
 use anyhow::{Context, Result};
 use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
-use insitu_core::{dvr, Image, Raycaster};
+use insitu_core::{Image, Raycaster};
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -17,6 +16,8 @@ pub struct Args {
     scene: SceneArgs,
     #[command(flatten)]
     pm: super::PmArgs,
+    #[command(flatten)]
+    backend: super::BackendArgs,
     /// Test view angles about +y, degrees, comma-separated.
     #[arg(
         long,
@@ -48,20 +49,23 @@ pub fn run(a: Args) -> Result<()> {
     };
     let params = a.pm.params()?;
     let scene = a.scene.load()?;
+    let backend = a.backend.open()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
+    let prepared = backend.prepare(&rc)?;
     let camera = SceneArgs::camera(&scene);
 
     let pb = bar(angles.len() as u64 + 1, "reference renders");
-    let t = Instant::now();
+    let mut tau_reference = 0.0;
     let mut references = Vec::with_capacity(angles.len());
     for &angle in &angles {
-        references.push(dvr::render(&rc, &camera.orbit_y(angle), w, h));
+        let r = prepared.dvr(&camera.orbit_y(angle), w, h)?;
+        tau_reference += r.seconds / angles.len() as f64;
+        references.push(r.value);
         pb.inc(1);
     }
-    let tau_reference = t.elapsed().as_secs_f64() / angles.len() as f64;
     pb.set_message("VDI generate, compress, render");
     let (eval, images) = evaluate(
-        &rc,
+        &prepared,
         &camera,
         params,
         codec_kind,
@@ -92,7 +96,8 @@ pub fn run(a: Args) -> Result<()> {
                 "sigma_bytes": eval.sigma_bytes, "supersegments": eval.supersegments,
                 "tau_s": eval.tau_secs, "tau_compress_s": eval.tau_compress_secs,
                 "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
-                "tau_reference_s": tau_reference,
+                "tau_reference_s": tau_reference, "tau_source": eval.tau_source,
+                "backend": backend.describe(),
                 "q_db": q_json(eval.q_db), "views": views, "strip": a.out,
             })
         );
@@ -111,6 +116,11 @@ pub fn run(a: Args) -> Result<()> {
         println!(
             "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",
             eval.tau_secs, eval.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, tau_reference
+        );
+        println!(
+            "backend {}: generation, render and DVR times from {}",
+            backend.describe(),
+            eval.tau_source
         );
         println!(
             "q = {} dB (pooled over {} views)",

@@ -3,7 +3,7 @@
 use crate::output::write_atomic;
 use crate::scene::SceneArgs;
 use anyhow::Result;
-use insitu_core::vdi::{codec, generate};
+use insitu_core::vdi::codec;
 use insitu_core::Raycaster;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -14,6 +14,8 @@ pub struct Args {
     scene: SceneArgs,
     #[command(flatten)]
     pm: super::PmArgs,
+    #[command(flatten)]
+    backend: super::BackendArgs,
     /// Generation camera orbit angle about +y, degrees.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     angle: f32,
@@ -32,19 +34,18 @@ pub fn run(a: Args) -> Result<()> {
     let codec_kind = super::parse_codec(&a.codec)?;
     let params = a.pm.params()?;
     let scene = a.scene.load()?;
+    let backend = a.backend.open()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
     let camera = SceneArgs::camera(&scene).orbit_y(a.angle);
-    let t = Instant::now();
-    let vdi = generate::generate(
-        &rc,
+    let generated = backend.prepare(&rc)?.generate(
         &camera,
         params,
         scene.tf.identity_hash(),
         &scene.tf_name,
     )?;
-    let tau = t.elapsed().as_secs_f64();
+    let (vdi, tau) = (&generated.value, generated.seconds);
     let t = Instant::now();
-    let bytes = codec::encode(&vdi, codec_kind)?;
+    let bytes = codec::encode(vdi, codec_kind)?;
     let tau_compress = t.elapsed().as_secs_f64();
     write_atomic(&a.out, &bytes)?;
     if a.json {
@@ -53,12 +54,14 @@ pub fn run(a: Args) -> Result<()> {
             serde_json::json!({
                 "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
                 "sigma_bytes": bytes.len(), "supersegments": vdi.supersegments().len(),
-                "tau_s": tau, "tau_compress_s": tau_compress, "out": a.out,
+                "tau_s": tau, "tau_source": generated.source, "tau_wall_s": generated.wall_s,
+                "backend": backend.describe(),
+                "tau_compress_s": tau_compress, "out": a.out,
             })
         );
     } else {
         println!(
-            "VDI r={} gamma={} of {}: {} supersegments, sigma = {} bytes ({}), tau = {:.3} s, compression {:.3} s -> {}",
+            "VDI r={} gamma={} of {}: {} supersegments, sigma = {} bytes ({}), tau = {:.3} s ({}), compression {:.3} s -> {}",
             a.pm.r,
             a.pm.gamma,
             scene.volume_name,
@@ -66,6 +69,7 @@ pub fn run(a: Args) -> Result<()> {
             bytes.len(),
             codec_kind,
             tau,
+            generated.source,
             tau_compress,
             a.out.display()
         );

@@ -14,6 +14,25 @@ pub mod view;
 use anyhow::{bail, Context, Result};
 use insitu_core::vdi::codec::Codec;
 
+/// `--backend`, shared by every command that renders or generates.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct BackendArgs {
+    /// Where DVR, VDI generation and VDI rendering run: cpu, gpu (any adapter, software ones
+    /// such as lavapipe too) or auto (a hardware GPU when one is found, else the CPU).
+    #[arg(long, default_value = "auto")]
+    pub backend: insitu_core::BackendChoice,
+}
+
+impl BackendArgs {
+    /// Opens the backend and says on stderr which one was chosen and why.
+    pub fn open(&self) -> Result<insitu_core::Backend> {
+        let (backend, why) = insitu_core::Backend::select_explained(self.backend)
+            .with_context(|| format!("--backend {}", self.backend))?;
+        eprintln!("{why}");
+        Ok(backend)
+    }
+}
+
 /// `P_M = (r, γ)` flags, shared by every command that makes one VDI.
 #[derive(clap::Args, Debug, Clone, Copy)]
 pub struct PmArgs {

@@ -3,14 +3,15 @@
 use crate::output::write_png;
 use crate::scene::SceneArgs;
 use anyhow::Result;
-use insitu_core::{dvr, Raycaster};
+use insitu_core::Raycaster;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    backend: super::BackendArgs,
     /// Camera orbit angle about +y, degrees.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     angle: f32,
@@ -25,20 +26,21 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let (w, h) = super::parse_size(&a.size)?;
     let scene = a.scene.load()?;
+    let backend = a.backend.open()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
     let camera = SceneArgs::camera(&scene).orbit_y(a.angle);
-    let t = Instant::now();
-    let image = dvr::render(&rc, &camera, w, h);
-    let secs = t.elapsed().as_secs_f64();
-    write_png(&a.out, &image)?;
+    let image = backend.prepare(&rc)?.dvr(&camera, w, h)?;
+    write_png(&a.out, &image.value)?;
     println!(
-        "rendered {} at {}x{} ({}°, step {}) in {:.3} s -> {}",
+        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({}; {:.3} s wall) -> {}",
         scene.volume_name,
         w,
         h,
         a.angle,
         scene.params.step,
-        secs,
+        image.seconds,
+        image.source,
+        image.wall_s,
         a.out.display()
     );
     Ok(())

@@ -89,8 +89,10 @@ pub fn run(a: Args) -> Result<()> {
             views: base.views.clone(),
             size: base.size,
             codec: base.codec,
+            backend: base.backend.clone(),
         };
-        let mut study = a.study.study(&p)?;
+        let rc = p.raycaster()?;
+        let mut study = a.study.study(&p, &rc)?;
         per_step.push(run_grid(&mut study, &p.grid)?);
     }
     let optima: Vec<_> = per_step

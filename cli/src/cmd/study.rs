@@ -21,6 +21,8 @@ use std::time::Instant;
 pub struct StudyArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
+    #[command(flatten)]
+    pub backend: super::BackendArgs,
     /// Resolutions r: START:END:STEP or a list (the paper's 160:768:32).
     #[arg(long, default_value = "160:768:32")]
     pub r_grid: String,
@@ -55,6 +57,15 @@ pub struct Prepared {
     pub views: Vec<f32>,
     pub size: (u32, u32),
     pub codec: Codec,
+    pub backend: insitu_core::Backend,
+}
+
+impl Prepared {
+    /// The scene's ray-caster.
+    pub fn raycaster(&self) -> Result<Raycaster<'_>> {
+        let s = &self.scene;
+        Ok(Raycaster::new(&s.volume, &s.tf, s.params)?)
+    }
 }
 
 impl StudyArgs {
@@ -74,15 +85,15 @@ impl StudyArgs {
             views,
             size,
             codec,
+            backend: self.backend.open()?,
         })
     }
 
-    /// A study of `p` (references rendered here, once).
-    pub fn study<'a>(&self, p: &'a Prepared) -> Result<Study<'a>> {
+    /// A study of `p` with its ray-caster `rc` (references rendered here, once).
+    pub fn study<'a>(&self, p: &'a Prepared, rc: &'a Raycaster<'a>) -> Result<Study<'a>> {
         let s = &p.scene;
-        let rc = Raycaster::new(&s.volume, &s.tf, s.params)?;
         let scene = StudyScene::new(
-            rc,
+            p.backend.prepare(rc)?,
             s.volume.content_hash(),
             &s.tf,
             &s.tf_name,
@@ -152,7 +163,8 @@ pub fn draw_charts(rows: &[Measurement], title: &str, prefix: &Path) -> Result<V
 pub fn run(a: Args) -> Result<()> {
     let p = a.study.prepare()?;
     let t = Instant::now();
-    let mut study = a.study.study(&p)?;
+    let rc = p.raycaster()?;
+    let mut study = a.study.study(&p, &rc)?;
     let rows = run_grid(&mut study, &p.grid)?;
     let csv = a.out.with_extension("csv");
     let json = a.out.with_extension("json");

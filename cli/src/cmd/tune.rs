@@ -112,7 +112,8 @@ pub fn run(a: Args) -> Result<()> {
     let (spec, strategy) = resolve(&a)?;
     let utility = parse_utility(&spec)?;
     let p = a.study.prepare()?;
-    let mut study = a.study.study(&p)?;
+    let rc = p.raycaster()?;
+    let mut study = a.study.study(&p, &rc)?;
     let out: Outcome = match strategy {
         Strategy::Grid => {
             // Measure with a progress bar, then pick from the (now cached) rows.
@@ -167,7 +168,8 @@ pub fn run(a: Args) -> Result<()> {
 
 fn ladder(a: &Args) -> Result<()> {
     let p = a.study.prepare()?;
-    let mut study = a.study.study(&p)?;
+    let rc = p.raycaster()?;
+    let mut study = a.study.study(&p, &rc)?;
     let rows = run_grid(&mut study, &p.grid)?;
     let grid_tau: f64 = rows.iter().map(|m| m.tau_secs).sum();
     let mut out = Vec::new();

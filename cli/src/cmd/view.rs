@@ -3,9 +3,7 @@
 use crate::output::write_png;
 use anyhow::{Context, Result};
 use insitu_core::vdi::codec::{decode, DecodeLimits};
-use insitu_core::vdi::render;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -24,6 +22,8 @@ pub struct Args {
     /// Output PNG.
     #[arg(long, default_value = "view.png")]
     out: PathBuf,
+    #[command(flatten)]
+    backend: super::BackendArgs,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -37,19 +37,21 @@ pub fn run(a: Args) -> Result<()> {
         anyhow::bail!("--termination {termination} must be in (0, 1]");
     }
     let camera = vdi.meta().camera.orbit_y(a.angle);
-    let t = Instant::now();
-    let image = render::render(&vdi, &camera, w, h, termination);
-    let secs = t.elapsed().as_secs_f64();
-    write_png(&a.out, &image)?;
+    let backend = a.backend.open()?;
+    let image = backend
+        .prepare_vdi(&vdi)?
+        .render(&camera, w, h, termination)?;
+    write_png(&a.out, &image.value)?;
     println!(
-        "rendered VDI {} (r={}, {} supersegments) at {}° {}x{} in {:.3} s -> {}",
+        "rendered VDI {} (r={}, {} supersegments) at {}° {}x{} in {:.3} s ({}) -> {}",
         a.vdi.display(),
         vdi.resolution(),
         vdi.supersegments().len(),
         a.angle,
         w,
         h,
-        secs,
+        image.seconds,
+        image.source,
         a.out.display()
     );
     Ok(())

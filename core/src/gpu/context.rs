@@ -33,12 +33,14 @@ impl std::fmt::Debug for Gpu {
 impl Gpu {
     /// Opens the default adapter, obeying `WGPU_BACKEND` / `WGPU_ADAPTER_NAME`, with the
     /// adapter's own limits (the defaults cap buffers far below what adapters allow) and GPU
-    /// timestamps when the adapter has them.
+    /// timestamps when the adapter has them. `allow_software` accepts a CPU-emulated adapter
+    /// (lavapipe, llvmpipe).
     ///
     /// # Errors
     /// [`GpuError::NoAdapter`] when no adapter is found (no driver, or `WGPU_BACKEND` naming
-    /// one that is absent); [`GpuError::Device`] when the device cannot be opened.
-    pub fn new() -> Result<Self, GpuError> {
+    /// one that is absent) or only a software one is and `allow_software` is false;
+    /// [`GpuError::Device`] when the device cannot be opened.
+    pub fn new(allow_software: bool) -> Result<Self, GpuError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = pollster::block_on(wgpu::util::initialize_adapter_from_env_or_default(
@@ -46,6 +48,12 @@ impl Gpu {
         ))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let info = adapter.get_info();
+        if info.device_type == wgpu::DeviceType::Cpu && !allow_software {
+            return Err(GpuError::NoAdapter(format!(
+                "only a software adapter, {} ({:?}), which is slower than the CPU path",
+                info.name, info.backend
+            )));
+        }
         let limits = adapter.limits();
         let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
         let required_features = if timestamps {
@@ -101,7 +109,9 @@ impl Gpu {
 
     /// Largest storage-buffer binding, bytes.
     pub fn max_storage_binding(&self) -> u64 {
-        u64::from(self.limits.max_storage_buffer_binding_size).min(self.limits.max_buffer_size)
+        self.limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size)
     }
 
     /// Fails if an asynchronous error or device loss was recorded.

@@ -176,6 +176,16 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         })
     }
 
+    /// The device this scene lives on.
+    pub fn gpu(&self) -> &'g Gpu {
+        self.gpu
+    }
+
+    /// The ray-caster this scene was uploaded from.
+    pub fn raycaster(&self) -> &'v Raycaster<'v> {
+        self.raycaster
+    }
+
     /// The uniform block of `common.wgsl` for `camera` at `width × height`, band from `row0`.
     fn params(
         &self,

@@ -10,7 +10,7 @@ use std::sync::OnceLock;
 /// One device for the whole test binary.
 pub fn gpu() -> Option<&'static Gpu> {
     static GPU: OnceLock<Option<Gpu>> = OnceLock::new();
-    GPU.get_or_init(|| match Gpu::new() {
+    GPU.get_or_init(|| match Gpu::new(true) {
         Ok(g) => {
             eprintln!("GPU tests on {}", g.describe());
             Some(g)

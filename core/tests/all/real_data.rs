@@ -4,7 +4,7 @@ use crate::common::{assert_valid, shared_scenes as scenes, shared_volume, tf_dir
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction};
 
 use crate::common::TEAPOT;
 
@@ -51,13 +51,14 @@ fn teapot_quality_falls_smoothly_off_view() {
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
     let cam = Camera::default_for_box(&volume.world_box());
     let angles = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0];
-    let refs = render_references(&rc, &cam, &angles, 256);
+    let scene = insitu_core::backend::Scene::Cpu(&rc);
+    let refs = render_references(&scene, &cam, &angles, 256).unwrap();
     let params = VdiParams {
         resolution: 256,
         gamma: 0.013,
     };
     let (eval, images) = evaluate(
-        &rc,
+        &scene,
         &cam,
         params,
         Codec::Zstd,

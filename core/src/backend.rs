@@ -1,0 +1,362 @@
+//! Backend selection: the CPU path (rayon) or the GPU path (wgpu compute shaders) behind the
+//! same three functions (DESIGN.md: both implement the same functions and are tested against
+//! each other): reference DVR, VDI generation `R` and VDI rendering `I`.
+//!
+//! [`BackendChoice`] is what a user asks for (`cpu`, `gpu`, `auto`); [`Backend::select`]
+//! opens it and logs what it chose. `auto` takes a hardware GPU when one is found and the CPU
+//! otherwise: a software adapter (Mesa's lavapipe) is slower than the CPU path, so `auto`
+//! passes it over, while `gpu` accepts it (that is how CI tests the shaders). Results carry
+//! their time and its source: GPU timestamps (kernel time, the paper's τ, Sec. 5.3) or wall
+//! clock.
+
+use crate::camera::Camera;
+use crate::image::Image;
+use crate::raycast::Raycaster;
+use crate::vdi::{generate, render, Vdi, VdiParamError, VdiParams};
+use std::fmt;
+use std::str::FromStr;
+use std::time::Instant;
+
+/// What the user asked for.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// rayon on the CPU.
+    Cpu,
+    /// wgpu; fails when there is no adapter.
+    Gpu,
+    /// A hardware GPU when one is found, else the CPU.
+    #[default]
+    Auto,
+}
+
+impl BackendChoice {
+    /// The accepted names.
+    pub const NAMES: [&'static str; 3] = ["cpu", "gpu", "auto"];
+}
+
+impl fmt::Display for BackendChoice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Cpu => "cpu",
+            Self::Gpu => "gpu",
+            Self::Auto => "auto",
+        })
+    }
+}
+
+impl FromStr for BackendChoice {
+    type Err = BackendError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "cpu" => Ok(Self::Cpu),
+            "gpu" => Ok(Self::Gpu),
+            "auto" => Ok(Self::Auto),
+            _ => Err(BackendError::UnknownChoice(s.to_string())),
+        }
+    }
+}
+
+/// Errors of backend selection and of the backend's functions.
+#[derive(Debug, thiserror::Error)]
+pub enum BackendError {
+    /// A name that is not `cpu`, `gpu` or `auto`.
+    #[error("unknown backend {0:?}: expected one of cpu, gpu, auto")]
+    UnknownChoice(String),
+    /// `gpu` asked for in a build without the `gpu` feature.
+    #[error("backend gpu asked for, but this build has no GPU support (feature \"gpu\")")]
+    NotBuilt,
+    /// Bad generation parameters or camera.
+    #[error(transparent)]
+    Params(#[from] VdiParamError),
+    /// The GPU failed (no adapter, a limit, device loss, ...).
+    #[cfg(feature = "gpu")]
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
+}
+
+/// Where a reported time comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TimeSource {
+    /// Wall clock around the call (CPU path; GPU without timestamps: includes transfers).
+    WallClock,
+    /// GPU timestamps around the kernels (no transfers).
+    GpuTimestamps,
+}
+
+impl fmt::Display for TimeSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::WallClock => "wall clock",
+            Self::GpuTimestamps => "GPU timestamps",
+        })
+    }
+}
+
+/// A result with its time.
+#[derive(Clone, Debug)]
+pub struct Timed<T> {
+    /// The result.
+    pub value: T,
+    /// Seconds, from `source`.
+    pub seconds: f64,
+    /// Where `seconds` comes from.
+    pub source: TimeSource,
+    /// Wall-clock seconds of the whole call (uploads and read-backs included).
+    pub wall_s: f64,
+}
+
+/// An opened backend.
+#[derive(Clone, Debug)]
+pub enum Backend {
+    /// rayon on the CPU.
+    Cpu,
+    /// A wgpu device.
+    #[cfg(feature = "gpu")]
+    Gpu(std::sync::Arc<crate::gpu::Gpu>),
+}
+
+impl Backend {
+    /// Opens `choice` and logs (tracing, info) which backend it chose and why.
+    ///
+    /// # Errors
+    /// As [`Backend::select_explained`].
+    pub fn select(choice: BackendChoice) -> Result<Self, BackendError> {
+        let (backend, why) = Self::select_explained(choice)?;
+        tracing::info!("{why}");
+        Ok(backend)
+    }
+
+    /// Opens `choice`; also returns one line saying which backend was chosen and why (for a
+    /// command line to print).
+    ///
+    /// # Errors
+    /// [`BackendError::NotBuilt`] for `gpu` without the feature; [`BackendError::Gpu`] for
+    /// `gpu` when no adapter is found or the device fails to open. `auto` never fails: it
+    /// falls back to the CPU and the line says why.
+    pub fn select_explained(choice: BackendChoice) -> Result<(Self, String), BackendError> {
+        match choice {
+            BackendChoice::Cpu => Ok((Self::Cpu, format!("backend: {}", Self::Cpu.describe()))),
+            #[cfg(not(feature = "gpu"))]
+            BackendChoice::Gpu => Err(BackendError::NotBuilt),
+            #[cfg(not(feature = "gpu"))]
+            BackendChoice::Auto => Ok((
+                Self::Cpu,
+                format!(
+                    "backend auto: {} (this build has no GPU support)",
+                    Self::Cpu.describe()
+                ),
+            )),
+            #[cfg(feature = "gpu")]
+            BackendChoice::Gpu => {
+                let gpu = Self::Gpu(std::sync::Arc::new(crate::gpu::Gpu::new(true)?));
+                let why = format!("backend: {}", gpu.describe());
+                Ok((gpu, why))
+            }
+            #[cfg(feature = "gpu")]
+            BackendChoice::Auto => match crate::gpu::Gpu::new(false) {
+                Ok(gpu) => {
+                    let gpu = Self::Gpu(std::sync::Arc::new(gpu));
+                    let why = format!("backend auto: {}", gpu.describe());
+                    Ok((gpu, why))
+                }
+                Err(e) => Ok((
+                    Self::Cpu,
+                    format!("backend auto: {} ({e})", Self::Cpu.describe()),
+                )),
+            },
+        }
+    }
+
+    /// A one-line description: `cpu (rayon, N threads)` or `gpu: <adapter>`.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => format!("gpu: {}", g.describe()),
+        }
+    }
+
+    /// Whether this is the GPU path.
+    pub fn is_gpu(&self) -> bool {
+        !matches!(self, Self::Cpu)
+    }
+
+    /// Prepares `raycaster`'s scene (on the GPU: uploads volume, transfer function and
+    /// macro-cell grid once for many cameras).
+    ///
+    /// # Errors
+    /// [`BackendError::Gpu`] when the scene exceeds a device limit or the device fails.
+    pub fn prepare<'a>(&'a self, raycaster: &'a Raycaster<'a>) -> Result<Scene<'a>, BackendError> {
+        match self {
+            Self::Cpu => Ok(Scene::Cpu(raycaster)),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => Ok(Scene::Gpu(crate::gpu::GpuScene::new(g, raycaster)?)),
+        }
+    }
+
+    /// Prepares `vdi` for rendering from many cameras (on the GPU: uploads its lists).
+    ///
+    /// # Errors
+    /// [`BackendError::Gpu`] when the VDI exceeds the storage-binding limit or the device
+    /// fails.
+    pub fn prepare_vdi<'a>(&'a self, vdi: &'a Vdi) -> Result<SceneVdi<'a>, BackendError> {
+        match self {
+            Self::Cpu => Ok(SceneVdi::Cpu(vdi)),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(g, vdi)?)),
+        }
+    }
+}
+
+/// A scene prepared on a backend: reference DVR and VDI generation for any camera.
+pub enum Scene<'a> {
+    /// The CPU path reads the ray-caster directly.
+    Cpu(&'a Raycaster<'a>),
+    /// Uploaded to the GPU.
+    #[cfg(feature = "gpu")]
+    Gpu(crate::gpu::GpuScene<'a, 'a>),
+}
+
+#[cfg(feature = "gpu")]
+fn from_kernel<T>(run: crate::gpu::KernelRun<T>, start: Instant) -> Timed<T> {
+    let wall_s = start.elapsed().as_secs_f64();
+    match run.kernel_s {
+        Some(s) => Timed {
+            value: run.value,
+            seconds: s,
+            source: TimeSource::GpuTimestamps,
+            wall_s,
+        },
+        None => Timed {
+            value: run.value,
+            seconds: wall_s,
+            source: TimeSource::WallClock,
+            wall_s,
+        },
+    }
+}
+
+fn wall<T>(value: T, start: Instant) -> Timed<T> {
+    let s = start.elapsed().as_secs_f64();
+    Timed {
+        value,
+        seconds: s,
+        source: TimeSource::WallClock,
+        wall_s: s,
+    }
+}
+
+impl Scene<'_> {
+    /// The backend, as [`Backend::describe`] says it.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu(_) => Backend::Cpu.describe(),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(s) => format!("gpu: {}", s.gpu().describe()),
+        }
+    }
+
+    /// The ray-caster this scene was made from.
+    pub fn raycaster(&self) -> &Raycaster<'_> {
+        match self {
+            Self::Cpu(rc) => rc,
+            #[cfg(feature = "gpu")]
+            Self::Gpu(s) => s.raycaster(),
+        }
+    }
+
+    /// Prepares `vdi` for rendering on the same backend as this scene.
+    ///
+    /// # Errors
+    /// As [`Backend::prepare_vdi`].
+    pub fn prepare_vdi<'v>(&'v self, vdi: &'v Vdi) -> Result<SceneVdi<'v>, BackendError> {
+        match self {
+            Self::Cpu(_) => Ok(SceneVdi::Cpu(vdi)),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(s) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(s.gpu(), vdi)?)),
+        }
+    }
+
+    /// Reference DVR of `camera`'s view at `width × height` ([`crate::dvr::render`]).
+    ///
+    /// # Errors
+    /// [`BackendError::Gpu`] on the GPU path (limits, device failures); never on the CPU.
+    pub fn dvr(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+    ) -> Result<Timed<Image>, BackendError> {
+        let start = Instant::now();
+        match self {
+            Self::Cpu(rc) => Ok(wall(crate::dvr::render(rc, camera, width, height), start)),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(s) => Ok(from_kernel(s.dvr(camera, width, height)?, start)),
+        }
+    }
+
+    /// VDI generation `R` ([`crate::vdi::generate::generate`]).
+    ///
+    /// # Errors
+    /// [`BackendError::Params`] for bad `params` or camera; [`BackendError::Gpu`] on the GPU
+    /// path.
+    pub fn generate(
+        &self,
+        camera: &Camera,
+        params: VdiParams,
+        tf_hash: u64,
+        tf_name: &str,
+    ) -> Result<Timed<Vdi>, BackendError> {
+        let start = Instant::now();
+        match self {
+            Self::Cpu(rc) => Ok(wall(
+                generate::generate(rc, camera, params, tf_hash, tf_name)?,
+                start,
+            )),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(s) => Ok(from_kernel(
+                s.generate(camera, params, tf_hash, tf_name)?,
+                start,
+            )),
+        }
+    }
+}
+
+/// A VDI prepared on a backend for rendering from any camera.
+pub enum SceneVdi<'a> {
+    /// The CPU path reads the lists directly.
+    Cpu(&'a Vdi),
+    /// Uploaded to the GPU.
+    #[cfg(feature = "gpu")]
+    Gpu(crate::gpu::GpuVdi<'a>),
+}
+
+impl SceneVdi<'_> {
+    /// VDI rendering `I` from `camera` at `width × height` ([`crate::vdi::render::render`]).
+    ///
+    /// # Errors
+    /// [`BackendError::Gpu`] on the GPU path; never on the CPU.
+    pub fn render(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        termination: f32,
+    ) -> Result<Timed<Image>, BackendError> {
+        let start = Instant::now();
+        match self {
+            Self::Cpu(vdi) => Ok(wall(
+                render::render(vdi, camera, width, height, termination),
+                start,
+            )),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(v) => Ok(from_kernel(
+                v.render(camera, width, height, termination)?,
+                start,
+            )),
+        }
+    }
+}
