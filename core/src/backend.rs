@@ -193,7 +193,9 @@ impl Backend {
         match self {
             Self::Cpu => Ok(Scene::Cpu(raycaster)),
             #[cfg(feature = "gpu")]
-            Self::Gpu(g) => Ok(Scene::Gpu(crate::gpu::GpuScene::new(g, raycaster)?)),
+            Self::Gpu(g) => Ok(Scene::Gpu(Box::new(crate::gpu::GpuScene::new(
+                g, raycaster,
+            )?))),
         }
     }
 
@@ -217,7 +219,7 @@ pub enum Scene<'a> {
     Cpu(&'a Raycaster<'a>),
     /// Uploaded to the GPU.
     #[cfg(feature = "gpu")]
-    Gpu(crate::gpu::GpuScene<'a, 'a>),
+    Gpu(Box<crate::gpu::GpuScene<'a, 'a>>),
 }
 
 #[cfg(feature = "gpu")]

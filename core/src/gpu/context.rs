@@ -6,6 +6,9 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use wgpu::util::DeviceExt;
 
+/// Smallest buffer made: one element of every array the kernels bind (a 24-byte supersegment).
+const MIN_BUFFER: usize = 32;
+
 /// Longest wait for one submission before it is reported as [`GpuError::Timeout`] (a stuck
 /// or lost device must not hang the caller).
 pub const SUBMISSION_TIMEOUT: Duration = Duration::from_secs(300);
@@ -107,11 +110,21 @@ impl Gpu {
         self.timestamps
     }
 
-    /// Largest storage-buffer binding, bytes.
+    /// Largest storage-buffer binding used, bytes.
     pub fn max_storage_binding(&self) -> u64 {
         self.limits
             .max_storage_buffer_binding_size
             .min(self.limits.max_buffer_size)
+    }
+
+    /// Uses at most `bytes` per storage binding (and buffer), below what the device allows:
+    /// leaves room for other users of the device, and lets tests exercise the banding that
+    /// large images and VDIs need. Values above the device's limits are ignored.
+    pub fn cap_storage_binding(&mut self, bytes: u64) {
+        let cap = bytes.max(MIN_BUFFER as u64);
+        self.limits.max_storage_buffer_binding_size =
+            self.limits.max_storage_buffer_binding_size.min(cap);
+        self.limits.max_buffer_size = self.limits.max_buffer_size.min(cap);
     }
 
     /// Fails if an asynchronous error or device loss was recorded.
@@ -148,7 +161,8 @@ impl Gpu {
         result
     }
 
-    /// A buffer initialised with `bytes` (at least 4 bytes, so empty data still binds).
+    /// A buffer initialised with `bytes`, zero-padded to at least [`MIN_BUFFER`] bytes so
+    /// that empty data (a VDI without supersegments) still binds as an array of structs.
     pub(super) fn buffer_init(
         &self,
         label: &str,
@@ -156,8 +170,10 @@ impl Gpu {
         usage: wgpu::BufferUsages,
     ) -> wgpu::Buffer {
         let padded;
-        let contents = if bytes.len() < 4 {
-            padded = [0u8; 4];
+        let contents = if bytes.len() < MIN_BUFFER {
+            let mut p = [0u8; MIN_BUFFER];
+            p[..bytes.len()].copy_from_slice(bytes);
+            padded = p;
             &padded[..]
         } else {
             bytes
@@ -170,11 +186,12 @@ impl Gpu {
             })
     }
 
-    /// An uninitialised storage buffer of `size` bytes (at least 4) that can be copied from.
+    /// An uninitialised storage buffer of `size` bytes (at least [`MIN_BUFFER`]) that can be
+    /// copied from.
     pub(super) fn storage(&self, label: &str, size: u64) -> wgpu::Buffer {
         self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            size: size.max(4).next_multiple_of(4),
+            size: size.max(MIN_BUFFER as u64).next_multiple_of(4),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         })

@@ -2,9 +2,12 @@
 //! finds (lavapipe in CI). No adapter fails the test unless `INSITU_SKIP_GPU_TESTS=1`.
 
 use crate::common::{assert_valid, shared_scenes};
+use crate::hard_cases::assert_vdi_finite;
+use glam::Vec3;
 use insitu_core::gpu::{Gpu, GpuError, GpuScene, GpuVdi};
+use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
 use std::sync::OnceLock;
 
 /// One device for the whole test binary.
@@ -26,6 +29,45 @@ pub fn gpu() -> Option<&'static Gpu> {
         Err(e) => panic!("opening the GPU failed: {e}"),
     })
     .as_ref()
+}
+
+/// The GPU side of a hard case (`hard_cases::exercise`): DVR, generation and rendering at
+/// 0°, 90°, 180°, 270° and 45° give finite images and VDIs, close to the CPU's, and the
+/// CPU's VDI renders on the GPU.
+pub fn exercise(rc: &Raycaster, cam: &Camera, vp: VdiParams, cpu_vdi: &Vdi, what: &str) {
+    let Some(gpu) = gpu() else { return };
+    let scene = GpuScene::new(gpu, rc).unwrap();
+    let vdi = scene.generate(cam, vp, 0, what).unwrap().value;
+    assert_vdi_finite(&vdi, &format!("GPU {what}"));
+    let on_gpu = GpuVdi::new(gpu, &vdi).unwrap();
+    let cpu_vdi_on_gpu = GpuVdi::new(gpu, cpu_vdi).unwrap();
+    let termination = rc.params().termination;
+    for angle in [0.0, 90.0, 180.0, 270.0, 45.0] {
+        let view = cam.orbit_y(angle);
+        let gpu_dvr = scene.dvr(&view, 24, 24).unwrap().value;
+        assert_valid(&gpu_dvr, &format!("GPU DVR {what} at {angle}°"));
+        let cpu_dvr = dvr::render(rc, &view, 24, 24);
+        let q = metrics::psnr(&gpu_dvr, &cpu_dvr).unwrap();
+        assert!(q >= 40.0, "{what} at {angle}°: GPU vs CPU DVR {q} dB");
+        for (image, which) in [
+            (
+                on_gpu.render(&view, 24, 24, termination).unwrap().value,
+                "GPU VDI on GPU",
+            ),
+            (
+                cpu_vdi_on_gpu
+                    .render(&view, 24, 24, termination)
+                    .unwrap()
+                    .value,
+                "CPU VDI on GPU",
+            ),
+        ] {
+            assert_valid(&image, &format!("{which}, {what} at {angle}°"));
+            let cpu = render::render(cpu_vdi, &view, 24, 24, termination);
+            let q = metrics::psnr(&image, &cpu).unwrap();
+            assert!(!q.is_nan(), "{which}, {what} at {angle}°: PSNR NaN");
+        }
+    }
 }
 
 #[test]
@@ -79,5 +121,144 @@ fn gpu_matches_cpu_on_real_data() {
         let q0 = metrics::psnr(&at_gen, &gpu_dvr).unwrap();
         eprintln!("{name}: GPU VDI render at generation view vs GPU DVR {q0:.2} dB");
         assert!(q0 >= 60.0, "{name}: {q0} dB");
+    }
+}
+
+#[test]
+fn bands_and_budget_overflow_give_the_same_result_as_one_pass() {
+    let Some(shared) = gpu() else { return };
+    // γ = 0 closes a supersegment at every sample: ~40 per ray, over the first budget (16).
+    let v = Volume::from_fn([20, 18, 22], |x, y, z| {
+        ((x * 7 + y * 3 + z * 5) % 13) as f32 / 12.0
+    })
+    .unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 1.0);
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&v.world_box()).orbit_y(20.0);
+    let params = VdiParams {
+        resolution: 40,
+        gamma: 0.0,
+    };
+    let whole = GpuScene::new(shared, &rc).unwrap();
+    let reference_vdi = whole.generate(&cam, params, 0, "t").unwrap().value;
+    let most = (0..40 * 40).map(|p| reference_vdi.count(p)).max().unwrap();
+    assert!(
+        most > insitu_core::gpu::INITIAL_BUDGET,
+        "the case must overflow the first budget ({most})"
+    );
+    // 64 KiB per binding: one generation row of 40 rays × 64 slots per band.
+    let mut mid = Gpu::new(true).unwrap();
+    mid.cap_storage_binding(64 << 10);
+    let vdi = GpuScene::new(&mid, &rc)
+        .unwrap()
+        .generate(&cam, params, 0, "t")
+        .unwrap()
+        .value;
+    assert_eq!(vdi, reference_vdi, "banded generation differs");
+    let cpu = generate(&rc, &cam, params, 0, "t").unwrap();
+    let equal = (0..40 * 40)
+        .filter(|&p| cpu.count(p) == vdi.count(p))
+        .count();
+    assert!(
+        equal >= 1584,
+        "GPU and CPU counts equal on only {equal} of 1600 pixels"
+    );
+    // 4 KiB per binding: images of 40 × 40 in bands of 8 rows.
+    let mut tiny = Gpu::new(true).unwrap();
+    tiny.cap_storage_binding(4 << 10);
+    let reference_dvr = whole.dvr(&cam, 40, 40).unwrap().value;
+    let dvr_img = GpuScene::new(&tiny, &rc)
+        .unwrap()
+        .dvr(&cam, 40, 40)
+        .unwrap()
+        .value;
+    assert_eq!(
+        dvr_img.pixels(),
+        reference_dvr.pixels(),
+        "banded DVR differs"
+    );
+    let coarse = whole
+        .generate(
+            &cam,
+            VdiParams {
+                resolution: 4,
+                gamma: 0.26,
+            },
+            0,
+            "t",
+        )
+        .unwrap()
+        .value;
+    assert!(coarse.memory_bytes() < 4 << 10);
+    let view = cam.orbit_y(30.0);
+    let reference_render = GpuVdi::new(shared, &coarse)
+        .unwrap()
+        .render(&view, 40, 40, 0.99)
+        .unwrap()
+        .value;
+    let render_img = GpuVdi::new(&tiny, &coarse)
+        .unwrap()
+        .render(&view, 40, 40, 0.99)
+        .unwrap()
+        .value;
+    assert_eq!(
+        render_img.pixels(),
+        reference_render.pixels(),
+        "banded render differs"
+    );
+    // A VDI over the binding limit is refused with the limit's name, not split.
+    let err = GpuVdi::new(&tiny, &vdi).err().expect("over the limit");
+    assert!(
+        err.to_string().contains("max_storage_buffer_binding_size"),
+        "{err}"
+    );
+    // So is a generation row that cannot fit: 40 rays × 16 slots × 24 bytes > 4 KiB.
+    let err = GpuScene::new(&tiny, &rc)
+        .unwrap()
+        .generate(&cam, params, 0, "t")
+        .err()
+        .expect("row over the limit");
+    assert!(
+        err.to_string().contains("max_storage_buffer_binding_size"),
+        "{err}"
+    );
+}
+
+#[test]
+fn vdis_cross_between_backends_through_the_codec() {
+    let Some(gpu) = gpu() else { return };
+    let v = Volume::from_fn([24, 20, 16], |x, y, z| {
+        let d = Vec3::new(x as f32 - 12.0, y as f32 - 9.0, z as f32 - 8.0).length();
+        (8.0 - d).max(0.0)
+    })
+    .unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 8.0);
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&v.world_box());
+    let params = VdiParams {
+        resolution: 48,
+        gamma: 0.01,
+    };
+    let gpu_vdi = GpuScene::new(gpu, &rc)
+        .unwrap()
+        .generate(&cam, params, tf.identity_hash(), "blob")
+        .unwrap()
+        .value;
+    let cpu_vdi = generate(&rc, &cam, params, tf.identity_hash(), "blob").unwrap();
+    assert_eq!(gpu_vdi.meta(), cpu_vdi.meta());
+    for codec in Codec::ALL {
+        let from_gpu = decode(&encode(&gpu_vdi, codec).unwrap(), &DecodeLimits::default()).unwrap();
+        assert_eq!(from_gpu, gpu_vdi, "{codec}: GPU VDI round trip");
+        let from_cpu = decode(&encode(&cpu_vdi, codec).unwrap(), &DecodeLimits::default()).unwrap();
+        let view = cam.orbit_y(30.0);
+        // A GPU VDI rendered on the CPU against a CPU VDI rendered on the GPU.
+        let a = render::render(&from_gpu, &view, 48, 48, 0.99);
+        let b = GpuVdi::new(gpu, &from_cpu)
+            .unwrap()
+            .render(&view, 48, 48, 0.99)
+            .unwrap()
+            .value;
+        let q = metrics::psnr(&a, &b).unwrap();
+        assert!(q >= 45.0, "{codec}: {q} dB");
     }
 }

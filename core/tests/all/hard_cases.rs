@@ -6,7 +6,7 @@ use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
 use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
 
-fn assert_vdi_finite(vdi: &Vdi, what: &str) {
+pub fn assert_vdi_finite(vdi: &Vdi, what: &str) {
     for s in vdi.supersegments() {
         let vals = [
             s.z_start, s.z_end, s.color[0], s.color[1], s.color[2], s.alpha,
@@ -50,6 +50,8 @@ fn exercise(
         let s = metrics::ssim(&image, &reference).unwrap();
         assert!(s.is_finite(), "{what}: SSIM {s} at {angle}°");
     }
+    #[cfg(feature = "gpu")]
+    crate::gpu::exercise(&rc, &cam, vp, &vdi, what);
 }
 
 fn ramp_tf() -> TransferFunction {
