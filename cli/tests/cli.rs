@@ -381,3 +381,96 @@ fn series_picks_one_step_per_regime_and_cross_evaluates() {
         .all(|c| c["holds"] == true));
     assert!(v["conservative"]["r"].is_u64(), "{v}");
 }
+
+/// `evaluate --json` on a small Gray–Scott field with `--backend B` and environment `env`.
+fn evaluate_on(backend: &str, env: &[(&str, &str)], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_insitu"))
+        .args([
+            "evaluate",
+            "--volume",
+            "gray-scott:24:100",
+            "--size",
+            "32",
+            "--r",
+            "32",
+            "--views",
+            "0,30",
+            "--json",
+            "--codec",
+            "zstd",
+            "--backend",
+            backend,
+        ])
+        .envs(env.iter().copied())
+        .current_dir(dir)
+        .output()
+        .expect("insitu runs")
+}
+
+#[test]
+fn the_gpu_backend_agrees_with_the_cpu_and_reports_its_time_source() {
+    if std::env::var("INSITU_SKIP_GPU_TESTS").as_deref() == Ok("1") {
+        eprintln!("SKIPPED: INSITU_SKIP_GPU_TESTS=1");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cpu = evaluate_on("cpu", &[], dir.path());
+    assert!(cpu.status.success(), "{}", stderr(&cpu));
+    let gpu = evaluate_on("gpu", &[], dir.path());
+    assert!(
+        gpu.status.success(),
+        "--backend gpu needs an adapter (lavapipe: mesa-vulkan-drivers): {}",
+        stderr(&gpu)
+    );
+    let cpu: serde_json::Value = serde_json::from_slice(&cpu.stdout).unwrap();
+    let gpu: serde_json::Value = serde_json::from_slice(&gpu.stdout).unwrap();
+    assert!(cpu["backend"].as_str().unwrap().starts_with("cpu"), "{cpu}");
+    assert!(gpu["backend"].as_str().unwrap().starts_with("gpu"), "{gpu}");
+    assert_eq!(cpu["tau_source"], "wall-clock");
+    assert!(
+        ["wall-clock", "gpu-timestamps"].contains(&gpu["tau_source"].as_str().unwrap()),
+        "{gpu}"
+    );
+    // Same data, same kernels: the same supersegments (up to rounding) and the same quality.
+    let count = |v: &serde_json::Value| v["supersegments"].as_f64().unwrap();
+    assert!(
+        (count(&cpu) - count(&gpu)).abs() <= 0.01 * count(&cpu),
+        "{cpu}\n{gpu}"
+    );
+    let q30 = |v: &serde_json::Value| v["views"][1]["q_db"].as_f64().unwrap();
+    assert!((q30(&cpu) - q30(&gpu)).abs() < 0.5, "{cpu}\n{gpu}");
+}
+
+#[test]
+fn without_an_adapter_auto_falls_back_and_gpu_fails_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    // This build has only the Vulkan backend: asking wgpu for Metal finds no adapter.
+    let none = [("WGPU_BACKEND", "metal")];
+    let auto = evaluate_on("auto", &none, dir.path());
+    assert!(auto.status.success(), "{}", stderr(&auto));
+    let lines: Vec<String> = stderr(&auto)
+        .lines()
+        .filter(|l| l.contains("backend"))
+        .map(str::to_owned)
+        .collect();
+    assert_eq!(lines.len(), 1, "one line says what auto chose: {lines:?}");
+    assert!(
+        lines[0].starts_with("backend auto: cpu") && lines[0].contains("no GPU adapter"),
+        "{lines:?}"
+    );
+    let gpu = evaluate_on("gpu", &none, dir.path());
+    assert!(!gpu.status.success());
+    let err = stderr(&gpu);
+    assert!(
+        err.contains("--backend gpu") && err.contains("no GPU adapter found"),
+        "{err}"
+    );
+    assert!(gpu.stdout.is_empty(), "no output on failure");
+    let bad = evaluate_on("cuda", &[], dir.path());
+    assert!(!bad.status.success());
+    assert!(
+        stderr(&bad).contains("expected one of cpu, gpu, auto"),
+        "{}",
+        stderr(&bad)
+    );
+}

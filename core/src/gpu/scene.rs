@@ -27,6 +27,9 @@ pub struct GpuScene<'g, 'v> {
     color_view: wgpu::TextureView,
     extinction_view: wgpu::TextureView,
     macro_cells: wgpu::Buffer,
+    /// Per-ray budget that sufficed last time: later generations of the scene (a study's many
+    /// candidates, the frames of a time series) start there instead of overflowing again.
+    budget: std::sync::atomic::AtomicU32,
 }
 
 /// An image or VDI with the kernel time spent making it.
@@ -172,6 +175,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 color_view,
                 extinction_view,
                 macro_cells,
+                budget: std::sync::atomic::AtomicU32::new(INITIAL_BUDGET),
             })
         })
     }
@@ -327,7 +331,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
     /// invocation per ray writes up to a per-ray budget of supersegments, the host prefix-sums
     /// the counts, and a compaction kernel packs the band into the compact list layout. Bands
     /// of rows keep every buffer under the storage-binding limit; a band with a ray over the
-    /// budget is run again with a larger budget (its time counts).
+    /// budget is run again with a larger budget (its time counts), and the scene keeps that
+    /// budget for its next generations.
     ///
     /// # Errors
     /// [`GpuError::Params`] for bad `params` or a degenerate camera; [`GpuError::Limit`] when
@@ -345,7 +350,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             return Err(crate::vdi::VdiParamError::Camera(*camera).into());
         }
         let r = params.resolution;
-        let mut budget = INITIAL_BUDGET;
+        let mut budget = self.budget.load(std::sync::atomic::Ordering::Relaxed);
         let mut offsets = Vec::with_capacity(r as usize * r as usize + 1);
         offsets.push(0u32);
         let mut supersegments: Vec<Supersegment> = Vec::new();
@@ -387,6 +392,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             let most = counts.iter().copied().max().unwrap_or(0);
             if most > budget {
                 budget = most.checked_next_power_of_two().unwrap_or(most);
+                self.budget
+                    .fetch_max(budget, std::sync::atomic::Ordering::Relaxed);
                 continue;
             }
             // Band-local prefix offsets, then the global ones.
