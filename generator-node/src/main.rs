@@ -48,6 +48,10 @@ struct Args {
     /// Ship reference frames every k-th step (0 = never).
     #[arg(long)]
     reference_every: Option<u64>,
+    /// Where VDIs and references are made: cpu, gpu or auto (a hardware GPU if found, else
+    /// the CPU).
+    #[arg(long)]
+    backend: Option<insitu_core::BackendChoice>,
 }
 
 fn config(a: Args) -> Result<Config> {
@@ -66,6 +70,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.policy {
         c.queue.policy = v;
+    }
+    if let Some(v) = a.backend {
+        c.backend = v;
     }
     if let Some(v) = a.queue_steps {
         c.queue.max_items = v;

@@ -26,6 +26,9 @@ struct Args {
     /// File holding the bearer token (else INSITU_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
+    /// Where VDIs are rendered: cpu, gpu or auto (a hardware GPU if found, else the CPU).
+    #[arg(long)]
+    backend: Option<insitu_core::BackendChoice>,
 }
 
 #[tokio::main]
@@ -44,6 +47,9 @@ async fn main() -> std::process::ExitCode {
         }
         if a.token_file.is_some() {
             cfg.token_file = a.token_file;
+        }
+        if let Some(v) = a.backend {
+            cfg.backend = v;
         }
         let node = start(cfg).await?;
         println!("listening on {}", node.local_addr());

@@ -5,6 +5,7 @@
 
 mod bad_input;
 mod common;
+mod gpu;
 mod outage;
 mod policies;
 mod replay;

@@ -12,7 +12,7 @@ use std::process::Command;
 
 const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
 
-fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -> String {
+pub fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -> String {
     let series = data_dir().map(|d| d.join(OCEAN));
     let series = series.unwrap();
     let out = Command::new(bin("insitu"))
