@@ -21,25 +21,7 @@ fn stderr(o: &Output) -> String {
 #[test]
 fn evaluate_json_on_the_embedded_default() {
     let dir = tempfile::tempdir().unwrap();
-    let o = insitu(
-        &[
-            "evaluate",
-            "--volume",
-            "gray-scott:24:100",
-            "--size",
-            "32",
-            "--r",
-            "32",
-            "--views",
-            "0,30",
-            "--json",
-            "--codec",
-            "zstd",
-            "--out",
-            "strip.png",
-        ],
-        dir.path(),
-    );
+    let o = evaluate_on("auto", &[], dir.path());
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     for key in [
@@ -60,7 +42,7 @@ fn evaluate_json_on_the_embedded_default() {
     // At the generation view with r = size the VDI reproduces the DVR.
     let q0 = &views[0]["q_db"];
     assert!(q0 == "inf" || q0.as_f64().unwrap() >= 60.0, "q at 0°: {q0}");
-    assert!(dir.path().join("strip.png").exists());
+    assert!(dir.path().join("evaluate.png").exists());
 }
 
 #[test]

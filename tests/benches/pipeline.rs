@@ -119,17 +119,7 @@ fn simulation_overhead(tmp: &std::path::Path) {
 
 fn latency(tmp: &std::path::Path) {
     let rec = tmp.join("rec");
-    let v = Daemon::start(
-        "viz-node",
-        &[
-            "--listen",
-            "127.0.0.1:0",
-            "--recording-dir",
-            rec.to_str().unwrap(),
-        ],
-        &[],
-        tmp,
-    );
+    let v = insitu_e2e::start_viz(&rec, "127.0.0.1:0", &[], tmp);
     let g = generator(
         tmp,
         &[

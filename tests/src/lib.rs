@@ -131,6 +131,15 @@ impl Drop for Daemon {
 
 /// The shared data directory (`INSITU_DATA_DIR` or `../shared/data`); panics with a clear
 /// message when it is missing, unless `INSITU_SKIP_DATA_TESTS=1` (then `None`).
+/// Starts a viz-node recording into `dir` on `listen`, with `extra` flags, logs in `logs`.
+pub fn start_viz(dir: &Path, listen: &str, extra: &[&str], logs: &Path) -> Daemon {
+    let mut args = vec!["--listen", listen, "--recording-dir"];
+    let dir = dir.to_string_lossy().into_owned();
+    args.push(&dir);
+    args.extend_from_slice(extra);
+    Daemon::start("viz-node", &args, &[], logs)
+}
+
 pub fn data_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("INSITU_DATA_DIR")
         .map(PathBuf::from)

@@ -197,6 +197,28 @@ impl Gpu {
         })
     }
 
+    /// A bind group of `layout` whose binding `i` is `resources[i]`.
+    pub(super) fn bind_group(
+        &self,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        resources: &[wgpu::BindingResource<'_>],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = resources
+            .iter()
+            .enumerate()
+            .map(|(i, r)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: r.clone(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
+    }
+
     /// Encodes one compute pass with `pipeline`, `groups` bind groups and a dispatch of
     /// `workgroups`, submits it and waits. Returns the kernel time in seconds from GPU
     /// timestamps, or `None` when the adapter has none.

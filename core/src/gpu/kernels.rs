@@ -4,6 +4,7 @@
 
 use super::GpuError;
 
+const PRELUDE: &str = include_str!("shaders/prelude.wgsl");
 const COMMON: &str = include_str!("shaders/common.wgsl");
 const DVR: &str = include_str!("shaders/dvr.wgsl");
 const GENERATE: &str = include_str!("shaders/generate.wgsl");
@@ -133,10 +134,10 @@ impl Kernels {
                 cache: None,
             })
         };
-        let dvr_module = module("dvr", &[COMMON, DVR]);
-        let generate_module = module("generate", &[COMMON, GENERATE]);
-        let compact_module = module("compact", &[COMPACT]);
-        let render_module = module("render", &[RENDER]);
+        let dvr_module = module("dvr", &[PRELUDE, COMMON, DVR]);
+        let generate_module = module("generate", &[PRELUDE, COMMON, GENERATE]);
+        let compact_module = module("compact", &[PRELUDE, COMPACT]);
+        let render_module = module("render", &[PRELUDE, RENDER]);
         let shade = |on: bool| [("SHADE", if on { 1.0 } else { 0.0 })];
         let dvr = [false, true].map(|on| {
             pipeline(

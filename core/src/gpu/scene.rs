@@ -137,32 +137,23 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 height: 1,
                 depth_or_array_layers: 1,
             };
-            let color_view = texture_view(
-                gpu,
-                "tf colour",
-                lut_size,
-                wgpu::TextureDimension::D1,
-                wgpu::TextureFormat::Rgba32Float,
-                16,
-                &f32_bytes(
-                    entries
-                        .iter()
-                        .flat_map(|e| [e.rgb[0], e.rgb[1], e.rgb[2], e.alpha_unit]),
-                ),
-            );
-            let extinction_view = texture_view(
-                gpu,
-                "tf extinction",
-                lut_size,
-                wgpu::TextureDimension::D1,
-                wgpu::TextureFormat::Rgba32Float,
-                16,
-                &f32_bytes(
-                    entries
-                        .iter()
-                        .flat_map(|e| [e.kappa.min(KAPPA_MAX), e.alpha_step, 0.0, 0.0]),
-                ),
-            );
+            let lut_texture = |label: &str, texel: fn(&crate::tf::LutEntry) -> [f32; 4]| {
+                texture_view(
+                    gpu,
+                    label,
+                    lut_size,
+                    wgpu::TextureDimension::D1,
+                    wgpu::TextureFormat::Rgba32Float,
+                    16,
+                    &f32_bytes(entries.iter().flat_map(texel)),
+                )
+            };
+            let color_view = lut_texture("tf colour", |e| {
+                [e.rgb[0], e.rgb[1], e.rgb[2], e.alpha_unit]
+            });
+            let extinction_view = lut_texture("tf extinction", |e| {
+                [e.kappa.min(KAPPA_MAX), e.alpha_step, 0.0, 0.0]
+            });
             let macro_cells = gpu.buffer_init(
                 "macro cells",
                 &u32_bytes(grid.visibility().iter().map(|&v| u32::from(v))),
@@ -238,34 +229,17 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let buffer =
             self.gpu
                 .buffer_init("scene params", uniform.bytes(), wgpu::BufferUsages::UNIFORM);
-        self.gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("scene"),
-                layout: &self.gpu.kernels.scene_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::TextureView(&self.volume_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&self.color_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: wgpu::BindingResource::TextureView(&self.extinction_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: self.macro_cells.as_entire_binding(),
-                    },
-                ],
-            })
+        self.gpu.bind_group(
+            "scene",
+            &self.gpu.kernels.scene_layout,
+            &[
+                buffer.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&self.volume_view),
+                wgpu::BindingResource::TextureView(&self.color_view),
+                wgpu::BindingResource::TextureView(&self.extinction_view),
+                self.macro_cells.as_entire_binding(),
+            ],
+        )
     }
 
     fn shaded(&self) -> usize {
@@ -284,46 +258,19 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         width: u32,
         height: u32,
     ) -> Result<KernelRun<Image>, GpuError> {
-        let rows = band_rows(self.gpu, width, 12, "DVR image row")?;
-        let mut image = Image::new(width, height);
-        let mut kernel_s = Some(0.0);
-        let mut row0 = 0;
-        while row0 < height {
-            let n = rows.min(height - row0);
-            let bytes = u64::from(width) * u64::from(n) * 12;
-            let out = self.gpu.storage("dvr image", bytes);
+        image_in_bands(self.gpu, width, height, "DVR", |row0, rows, out| {
             let scene = self.scene_group(&self.params(camera, width, height, row0, (0.0, 0)));
-            let out_group = self
-                .gpu
-                .device
-                .create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("dvr out"),
-                    layout: &self.gpu.kernels.dvr_out_layout,
-                    entries: &[wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: out.as_entire_binding(),
-                    }],
-                });
-            let t = self.gpu.dispatch(
+            let out_group = self.gpu.bind_group(
+                "dvr out",
+                &self.gpu.kernels.dvr_out_layout,
+                &[out.as_entire_binding()],
+            );
+            self.gpu.dispatch(
                 "dvr",
                 &self.gpu.kernels.dvr[self.shaded()],
                 &[&scene, &out_group],
-                [width.div_ceil(8), n.div_ceil(8), 1],
-            )?;
-            add_time(&mut kernel_s, t);
-            let values = to_f32s(&self.gpu.read(&out, bytes)?);
-            let start = (row0 * width) as usize;
-            for (p, rgb) in image.pixels_mut()[start..]
-                .iter_mut()
-                .zip(values.chunks_exact(3))
-            {
-                *p = [rgb[0], rgb[1], rgb[2]];
-            }
-            row0 += n;
-        }
-        Ok(KernelRun {
-            value: image,
-            kernel_s,
+                [width.div_ceil(8), rows.div_ceil(8), 1],
+            )
         })
     }
 
@@ -364,23 +311,11 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             let slots = self.gpu.storage("vdi slots", rays * per_ray);
             let counts_buf = self.gpu.storage("vdi counts", rays * 4);
             let scene = self.scene_group(&self.params(camera, r, r, row0, (params.gamma, budget)));
-            let out_group = self
-                .gpu
-                .device
-                .create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("generate out"),
-                    layout: &self.gpu.kernels.generate_out_layout,
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: slots.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: counts_buf.as_entire_binding(),
-                        },
-                    ],
-                });
+            let out_group = self.gpu.bind_group(
+                "generate out",
+                &self.gpu.kernels.generate_out_layout,
+                &[slots.as_entire_binding(), counts_buf.as_entire_binding()],
+            );
             let t = self.gpu.dispatch(
                 "generate",
                 &self.gpu.kernels.generate[self.shaded()],
@@ -461,28 +396,16 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         );
         let bytes = total * SEGMENT_BYTES;
         let packed = gpu.storage("vdi packed", bytes);
-        let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("compact"),
-            layout: &gpu.kernels.compact_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: slots.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: offsets.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: packed.as_entire_binding(),
-                },
+        let group = gpu.bind_group(
+            "compact",
+            &gpu.kernels.compact_layout,
+            &[
+                params.as_entire_binding(),
+                slots.as_entire_binding(),
+                offsets.as_entire_binding(),
+                packed.as_entire_binding(),
             ],
-        });
+        );
         let t = gpu.dispatch(
             "compact",
             &gpu.kernels.compact,
@@ -501,6 +424,41 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             .collect();
         Ok((segs, t))
     }
+}
+
+/// An RGB image rendered in bands of rows whose output (12 bytes a pixel) fits one storage
+/// binding: `run(row0, rows, out)` dispatches a kernel writing the band into `out` and
+/// returns its kernel time.
+pub(super) fn image_in_bands(
+    gpu: &Gpu,
+    width: u32,
+    height: u32,
+    what: &str,
+    mut run: impl FnMut(u32, u32, &wgpu::Buffer) -> Result<Option<f64>, GpuError>,
+) -> Result<KernelRun<Image>, GpuError> {
+    let rows = band_rows(gpu, width, 12, &format!("{what} image row"))?;
+    let mut image = Image::new(width, height);
+    let mut kernel_s = Some(0.0);
+    let mut row0 = 0;
+    while row0 < height {
+        let n = rows.min(height - row0);
+        let bytes = u64::from(width) * u64::from(n) * 12;
+        let out = gpu.storage(what, bytes);
+        add_time(&mut kernel_s, run(row0, n, &out)?);
+        let values = to_f32s(&gpu.read(&out, bytes)?);
+        let start = (row0 * width) as usize;
+        for (p, rgb) in image.pixels_mut()[start..]
+            .iter_mut()
+            .zip(values.chunks_exact(3))
+        {
+            *p = [rgb[0], rgb[1], rgb[2]];
+        }
+        row0 += n;
+    }
+    Ok(KernelRun {
+        value: image,
+        kernel_s,
+    })
 }
 
 /// Rows per band so that `width × bytes_per_item` per row fits one storage binding and the

@@ -1,7 +1,7 @@
 //! A VDI uploaded to the GPU and rendered from new cameras.
 
-use super::context::{f32_bytes, to_f32s, u32_bytes, Uniform};
-use super::scene::{band_rows, KernelRun};
+use super::context::{f32_bytes, u32_bytes, Uniform};
+use super::scene::{image_in_bands, KernelRun};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -84,12 +84,7 @@ impl<'g> GpuVdi<'g> {
         let r = self.resolution;
         let g = self.generation.frame(r, r);
         let b = self.volume_box;
-        let rows = band_rows(gpu, width, 12, "rendered image row")?;
-        let mut image = Image::new(width, height);
-        let mut kernel_s = Some(0.0);
-        let mut row0 = 0;
-        while row0 < height {
-            let n = rows.min(height - row0);
+        image_in_bands(gpu, width, height, "render", |row0, rows, out| {
             let uniform = Uniform::default()
                 .vec4([f.eye.x, f.eye.y, f.eye.z, 0.0])
                 .vec4([f.right.x, f.right.y, f.right.z, f.tan_half_x])
@@ -107,50 +102,22 @@ impl<'g> GpuVdi<'g> {
                 uniform.bytes(),
                 wgpu::BufferUsages::UNIFORM,
             );
-            let bytes = u64::from(width) * u64::from(n) * 12;
-            let out = gpu.storage("render image", bytes);
-            let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("render"),
-                layout: &gpu.kernels.render_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: params.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: self.offsets.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: self.segments.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: out.as_entire_binding(),
-                    },
+            let group = gpu.bind_group(
+                "render",
+                &gpu.kernels.render_layout,
+                &[
+                    params.as_entire_binding(),
+                    self.offsets.as_entire_binding(),
+                    self.segments.as_entire_binding(),
+                    out.as_entire_binding(),
                 ],
-            });
-            let t = gpu.dispatch(
+            );
+            gpu.dispatch(
                 "render",
                 &gpu.kernels.render,
                 &[&group],
-                [width.div_ceil(8), n.div_ceil(8), 1],
-            )?;
-            kernel_s = kernel_s.zip(t).map(|(a, b)| a + b);
-            let values = to_f32s(&gpu.read(&out, bytes)?);
-            let start = (row0 * width) as usize;
-            for (p, rgb) in image.pixels_mut()[start..]
-                .iter_mut()
-                .zip(values.chunks_exact(3))
-            {
-                *p = [rgb[0], rgb[1], rgb[2]];
-            }
-            row0 += n;
-        }
-        Ok(KernelRun {
-            value: image,
-            kernel_s,
+                [width.div_ceil(8), rows.div_ceil(8), 1],
+            )
         })
     }
 }

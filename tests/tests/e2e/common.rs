@@ -1,10 +1,12 @@
 //! Helpers shared by the end-to-end tests.
 
 use insitu_client::{SimClient, Step};
+use insitu_core::metrics::{mse, pooled_psnr};
 use insitu_core::vdi::codec::{decode, DecodeLimits};
+use insitu_core::vdi::render;
 use insitu_core::Vdi;
 use insitu_e2e::{rt, Daemon};
-use insitu_viz_node::store::{Entry, INDEX};
+use insitu_viz_node::store::{Entry, References, INDEX};
 use std::net::TcpListener;
 use std::path::Path;
 
@@ -19,12 +21,24 @@ pub fn free_port() -> u16 {
 
 /// Starts a viz-node recording into `dir` on `listen`.
 pub fn viz(dir: &Path, listen: &str, logs: &Path) -> Daemon {
-    Daemon::start(
-        "viz-node",
-        &["--listen", listen, "--recording-dir", dir.to_str().unwrap()],
-        &[],
-        logs,
-    )
+    insitu_e2e::start_viz(dir, listen, &[], logs)
+}
+
+/// q of a stored, scored entry recomputed here with the CPU renderer from the stored VDI and
+/// reference frames (pooled PSNR over the views, as the viz-node reports it).
+pub fn local_q(rec: &Path, e: &Entry) -> f64 {
+    let vdi = load_vdi(rec, e);
+    let refs = References::read(&rec.join(e.references.as_ref().unwrap())).unwrap();
+    let mses: Vec<f64> = refs
+        .view_angles_deg
+        .iter()
+        .zip(&refs.frames)
+        .map(|(&a, f)| {
+            let im = render::render(&vdi, &refs.camera.orbit_y(a), f.width(), f.height(), 0.99);
+            mse(&im, f).unwrap()
+        })
+        .collect();
+    pooled_psnr(&mses)
 }
 
 /// Starts a generator-node from a TOML config written to `logs/name.toml`.

@@ -1,12 +1,9 @@
 //! Both daemons on the GPU backend (lavapipe in CI): the ocean series is generated, shipped,
 //! stored and scored, and the GPU's q agrees with the CPU path's on the stored files.
 
-use crate::common::{generator, index, load_vdi, small_config};
+use crate::common::{generator, index, local_q, small_config};
 use crate::replay::replay;
-use insitu_core::metrics::{mse, pooled_psnr};
-use insitu_core::vdi::render;
-use insitu_e2e::{data_dir, Daemon};
-use insitu_viz_node::store::References;
+use insitu_e2e::data_dir;
 
 #[test]
 fn the_pipeline_runs_on_the_gpu_backend() {
@@ -19,19 +16,7 @@ fn the_pipeline_runs_on_the_gpu_backend() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let rec = tmp.path().join("rec");
-    let v = Daemon::start(
-        "viz-node",
-        &[
-            "--listen",
-            "127.0.0.1:0",
-            "--recording-dir",
-            rec.to_str().unwrap(),
-            "--backend",
-            "gpu",
-        ],
-        &[],
-        tmp.path(),
-    );
+    let v = insitu_e2e::start_viz(&rec, "127.0.0.1:0", &["--backend", "gpu"], tmp.path());
     let g = generator(
         &format!("backend = \"gpu\"\n{}", small_config(&v.addr, "block", 16)),
         tmp.path(),
@@ -48,18 +33,7 @@ fn the_pipeline_runs_on_the_gpu_backend() {
     assert_eq!(entries.len(), 4);
     for e in entries.iter().filter(|e| e.quality.is_some()) {
         // Reference frames made and q scored on the GPU, recomputed here on the CPU.
-        let vdi = load_vdi(&rec, e);
-        let refs = References::read(&rec.join(e.references.as_ref().unwrap())).unwrap();
-        let mses: Vec<f64> = refs
-            .view_angles_deg
-            .iter()
-            .zip(&refs.frames)
-            .map(|(&a, f)| {
-                let im = render::render(&vdi, &refs.camera.orbit_y(a), f.width(), f.height(), 0.99);
-                mse(&im, f).unwrap()
-            })
-            .collect();
-        let cpu = pooled_psnr(&mses);
+        let cpu = local_q(&rec, e);
         let gpu = e.quality.as_ref().unwrap().q_db.0;
         assert!(
             gpu > 20.0 && (cpu - gpu).abs() < 0.05,

@@ -1,13 +1,11 @@
 //! The ocean series through `insitu replay` → generator-node → viz-node, all real processes.
 
-use crate::common::{generator, index, load_vdi, viz};
-use insitu_core::metrics::{mse, pooled_psnr};
+use crate::common::{generator, index, load_vdi, local_q, viz};
 use insitu_core::vdi::render;
 use insitu_e2e::{bin, data_dir, Daemon};
 use insitu_proto::convert::camera_to_pb;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{pb, transport};
-use insitu_viz_node::store::References;
 use std::process::Command;
 
 const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
@@ -73,18 +71,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
             });
             assert!(q_reported, "step {} was never scored", e.step);
             let e = index(&rec).into_iter().find(|x| x.step == e.step).unwrap();
-            let refs = References::read(&rec.join(e.references.as_ref().unwrap())).unwrap();
-            let mses: Vec<f64> = refs
-                .view_angles_deg
-                .iter()
-                .zip(&refs.frames)
-                .map(|(&a, f)| {
-                    let im =
-                        render::render(&vdi, &refs.camera.orbit_y(a), f.width(), f.height(), 0.99);
-                    mse(&im, f).unwrap()
-                })
-                .collect();
-            let local = pooled_psnr(&mses);
+            let local = local_q(&rec, &e);
             let reported = e.quality.unwrap().q_db.0;
             assert!(
                 (local - reported).abs() < 1e-9 || (local.is_infinite() && reported.is_infinite()),

@@ -1,11 +1,7 @@
 // Shared by the DVR and VDI-generation kernels: scene bindings, primary rays and the ray
 // marcher. Mirrors `raycast::Raycaster::march_impl` operation for operation, so the GPU visits
 // the same samples as the CPU (up to float rounding and fused multiply-adds).
-//
-// WGSL lets implementations assume finite floats, so NaN is tested on the bit pattern and
-// "infinity" is the largest finite float.
 
-const BIG: f32 = 3.0e38;
 const LUT_LAST: f32 = 4095.0;
 
 struct Params {
@@ -31,10 +27,6 @@ struct Params {
 
 // Blinn–Phong shading is compiled in only when the scene turns it on.
 override SHADE: bool = false;
-
-fn is_nan_f(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
-}
 
 // e^x − 1 without cancellation for small |x| (Kahan's trick on top of exp/log).
 fn expm1_f(x: f32) -> f32 {
@@ -64,26 +56,6 @@ fn pixel_ray(i: u32, j: u32) -> Ray {
     let sx = (2.0 * (f32(i) + 0.5) / w - 1.0) * P.right.w;
     let sy = (1.0 - 2.0 * (f32(j) + 0.5) / h) * P.up.w;
     return Ray(P.eye.xyz, normalize(P.forward.xyz + sx * P.right.xyz + sy * P.up.xyz));
-}
-
-// Slab test; returns (t_near, t_far), empty when t_near > t_far.
-fn intersect_box(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
-    var t_near = -BIG;
-    var t_far = BIG;
-    for (var a = 0; a < 3; a++) {
-        if (d[a] == 0.0) {
-            if (o[a] < lo[a] || o[a] > hi[a]) {
-                return vec2<f32>(1.0, 0.0);
-            }
-            continue;
-        }
-        let inv = 1.0 / d[a];
-        let t0 = (lo[a] - o[a]) * inv;
-        let t1 = (hi[a] - o[a]) * inv;
-        t_near = max(t_near, min(t0, t1));
-        t_far = min(t_far, max(t0, t1));
-    }
-    return vec2<f32>(t_near, t_far);
 }
 
 fn voxel(x: u32, y: u32, z: u32) -> f32 {

@@ -1,15 +1,6 @@
 // Packs the per-ray budget slots of a band into the compact list layout (counts + prefix
 // offsets + one flat array), the layout of the CPU path.
 
-struct Segment {
-    z_start: f32,
-    z_end: f32,
-    r: f32,
-    g: f32,
-    b: f32,
-    alpha: f32,
-};
-
 struct CompactParams {
     rays: u32,
     budget: u32,

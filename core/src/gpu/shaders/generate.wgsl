@@ -4,15 +4,6 @@
 // supersegments to its slot of `segments` and its full count to `counts`; the host re-runs a
 // band whose rays overflowed with a larger budget, then `compact.wgsl` packs the slots.
 
-struct Segment {
-    z_start: f32,
-    z_end: f32,
-    r: f32,
-    g: f32,
-    b: f32,
-    alpha: f32,
-};
-
 @group(1) @binding(0) var<storage, read_write> segments: array<Segment>;
 @group(1) @binding(1) var<storage, read_write> counts: array<u32>;
 

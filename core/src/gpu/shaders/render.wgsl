@@ -4,17 +4,6 @@
 // depth-sorted list (compact layout: prefix offsets + flat array) are composited with
 // α' = 1 − (1 − â)^ℓ.
 
-const BIG: f32 = 3.0e38;
-
-struct Segment {
-    z_start: f32,
-    z_end: f32,
-    r: f32,
-    g: f32,
-    b: f32,
-    alpha: f32,
-};
-
 struct RenderParams {
     eye: vec4<f32>,        // new camera: xyz eye
     right: vec4<f32>,      // xyz right, w tan(fov_x / 2)
@@ -33,10 +22,6 @@ struct RenderParams {
 @group(0) @binding(1) var<storage, read> offsets: array<u32>;
 @group(0) @binding(2) var<storage, read> segments: array<Segment>;
 @group(0) @binding(3) var<storage, read_write> image_out: array<f32>;
-
-fn is_nan_f(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
-}
 
 struct Accum {
     color: vec3<f32>,
@@ -127,25 +112,6 @@ fn composite_span(lo: u32, hi: u32, z0: f32, z1: f32, ta: f32, tb: f32, acc: ptr
         }
     }
     return false;
-}
-
-fn intersect_box(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
-    var t_near = -BIG;
-    var t_far = BIG;
-    for (var a = 0; a < 3; a++) {
-        if (d[a] == 0.0) {
-            if (o[a] < lo[a] || o[a] > hi[a]) {
-                return vec2<f32>(1.0, 0.0);
-            }
-            continue;
-        }
-        let inv = 1.0 / d[a];
-        let t0 = (lo[a] - o[a]) * inv;
-        let t1 = (hi[a] - o[a]) * inv;
-        t_near = max(t_near, min(t0, t1));
-        t_far = min(t_far, max(t0, t1));
-    }
-    return vec2<f32>(t_near, t_far);
 }
 
 fn direction(d: f32) -> i32 {
