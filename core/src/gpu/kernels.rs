@@ -104,6 +104,7 @@ impl Kernels {
                 storage(1, true),
                 storage(2, true),
                 storage(3, false),
+                storage(4, true),
             ],
         );
         let module = |label: &str, parts: &[&str]| {

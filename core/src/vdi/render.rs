@@ -28,6 +28,23 @@ pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: 
 /// (the 2D analogue of macro-cell empty-space skipping).
 pub const SKIP_TILE: i64 = 8;
 
+/// Whether each `SKIP_TILE × SKIP_TILE` tile of the generation image holds a supersegment,
+/// row-major, `⌈r / SKIP_TILE⌉²` entries (shared with the GPU walk).
+pub fn occupied_tiles(vdi: &Vdi) -> Vec<bool> {
+    let r = vdi.resolution() as usize;
+    let tile = SKIP_TILE as usize;
+    let tiles_x = r.div_ceil(tile);
+    let mut occupied = vec![false; tiles_x * tiles_x];
+    for j in 0..r {
+        for i in 0..r {
+            if vdi.count(i + r * j) > 0 {
+                occupied[i / tile + tiles_x * (j / tile)] = true;
+            }
+        }
+    }
+    occupied
+}
+
 /// Per-VDI constants of the walk.
 struct Walker<'a> {
     vdi: &'a Vdi,
@@ -63,14 +80,7 @@ impl<'a> Walker<'a> {
         let r = vdi.resolution();
         let ri = i64::from(r);
         let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
-        let mut occupied = vec![false; (tiles_x * tiles_x) as usize];
-        for j in 0..ri {
-            for i in 0..ri {
-                if vdi.count((i + ri * j) as usize) > 0 {
-                    occupied[(i / SKIP_TILE + tiles_x * (j / SKIP_TILE)) as usize] = true;
-                }
-            }
-        }
+        let occupied = occupied_tiles(vdi);
         Self {
             vdi,
             gen: vdi.meta().camera.frame(r, r),

@@ -22,6 +22,7 @@ struct RenderParams {
 @group(0) @binding(1) var<storage, read> offsets: array<u32>;
 @group(0) @binding(2) var<storage, read> segments: array<Segment>;
 @group(0) @binding(3) var<storage, read_write> image_out: array<f32>;
+@group(0) @binding(4) var<storage, read> occupied: array<u32>;  // per 8×8 tile: any supersegment
 
 struct Accum {
     color: vec3<f32>,
@@ -133,6 +134,30 @@ fn start_cell(p: f32, step: i32, r: i32) -> i32 {
     return clamp(c, 0, r - 1);
 }
 
+// Side, in generation pixels, of the tiles the walk skips when they are empty.
+const SKIP_TILE: i32 = 8;
+
+// The eye-space slope x/z (sign 1) or y/z (sign −1, rows grow downwards) of pixel boundary b.
+fn boundary(b: i32, r: f32, tan_half: f32, sign: f32) -> f32 {
+    return sign * (2.0 * f32(b) / r - 1.0) * tan_half;
+}
+
+// Crossings behind the clipped segment are none; one a rounding error behind t is now.
+fn guard(tc: f32, t0: f32, t: f32) -> f32 {
+    if (is_nan_f(tc) || tc < t0) {
+        return BIG;
+    }
+    return max(tc, t);
+}
+
+// Where the ray leaves pixel column (or row) i stepping by `step`; BIG for no step.
+fn next_crossing(i: i32, step: i32, r: f32, tan_half: f32, z0: f32, z1: f32, a0: f32, a1: f32, sign: f32) -> f32 {
+    if (step == 0) {
+        return BIG;
+    }
+    return crossing(boundary(i + select(0, 1, step > 0), r, tan_half, sign), z0, z1, a0, a1);
+}
+
 // Solution t of (s·z0 − a0) / (a1 − s·z1), or BIG where there is none.
 fn crossing(s: f32, z0: f32, z1: f32, a0: f32, a1: f32) -> f32 {
     let den = a1 - s * z1;
@@ -180,30 +205,50 @@ fn walk(origin: vec3<f32>, dir: vec3<f32>, acc: ptr<function, Accum>) {
     let step_y = direction(py1 - py0);
     var ix = start_cell(px0, step_x, ri);
     var iy = start_cell(py0, step_y, ri);
+    let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
+    var raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
+    var raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
     var t = t0;
     let max_iter = 2 * ri + 4;
     for (var it = 0; it < max_iter; it++) {
-        var tnx = BIG;
-        if (step_x != 0) {
-            let b = ix + select(0, 1, step_x > 0);
-            tnx = crossing((2.0 * f32(b) / r - 1.0) * tx, z0, z1, x0, x1);
+        if (occupied[u32(ix / SKIP_TILE + tiles_x * (iy / SKIP_TILE))] == 0u) {
+            // An empty tile: jump to where the ray leaves it (mirrors the CPU walk).
+            let x0t = ix / SKIP_TILE * SKIP_TILE;
+            let y0t = iy / SKIP_TILE * SKIP_TILE;
+            var ex = BIG;
+            if (step_x != 0) {
+                let b = select(x0t, x0t + SKIP_TILE, step_x > 0);
+                ex = guard(crossing(boundary(b, r, tx, 1.0), z0, z1, x0, x1), t0, t);
+            }
+            var ey = BIG;
+            if (step_y != 0) {
+                let b = select(y0t, y0t + SKIP_TILE, step_y > 0);
+                ey = guard(crossing(boundary(b, r, ty, -1.0), z0, z1, y0, y1), t0, t);
+            }
+            let t_next = min(min(ex, ey), t1);
+            if (t_next >= t1) {
+                return;
+            }
+            let z_at = z0 + z1 * t_next;
+            if (ex <= ey) {
+                ix = select(x0t - 1, x0t + SKIP_TILE, step_x > 0);
+                let py = (1.0 - (y0 + y1 * t_next) / (z_at * ty)) * 0.5 * r;
+                iy = clamp(start_cell(py, step_y, ri), y0t, y0t + SKIP_TILE - 1);
+            } else {
+                iy = select(y0t - 1, y0t + SKIP_TILE, step_y > 0);
+                let px = ((x0 + x1 * t_next) / (z_at * tx) + 1.0) * 0.5 * r;
+                ix = clamp(start_cell(px, step_x, ri), x0t, x0t + SKIP_TILE - 1);
+            }
+            if (ix < 0 || ix >= ri || iy < 0 || iy >= ri) {
+                return;
+            }
+            t = t_next;
+            raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
+            raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
+            continue;
         }
-        var tny = BIG;
-        if (step_y != 0) {
-            let b = iy + select(0, 1, step_y > 0);
-            tny = crossing((1.0 - 2.0 * f32(b) / r) * ty, z0, z1, y0, y1);
-        }
-        // Crossings behind the clipped segment are none; one a rounding error behind t is now.
-        if (is_nan_f(tnx) || tnx < t0) {
-            tnx = BIG;
-        } else {
-            tnx = max(tnx, t);
-        }
-        if (is_nan_f(tny) || tny < t0) {
-            tny = BIG;
-        } else {
-            tny = max(tny, t);
-        }
+        let tnx = guard(raw_x, t0, t);
+        let tny = guard(raw_y, t0, t);
         let t_next = min(min(tnx, tny), t1);
         if (t_next > t) {
             let p = u32(ix) + P.image.w * u32(iy);
@@ -218,8 +263,10 @@ fn walk(origin: vec3<f32>, dir: vec3<f32>, acc: ptr<function, Accum>) {
         }
         if (tnx <= tny) {
             ix += step_x;
+            raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
         } else {
             iy += step_y;
+            raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
         }
         if (ix < 0 || ix >= ri || iy < 0 || iy >= ri) {
             return;
