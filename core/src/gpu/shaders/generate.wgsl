@@ -17,9 +17,17 @@ struct Open {
     unit_over_total: f32,
 };
 
+// 1 − e^(−x) for the interrupt test (mirrors `generate::one_minus_exp_neg`).
+fn one_minus_exp_neg(x: f32) -> f32 {
+    if (x < 1.0 / 64.0) {
+        return x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))));
+    }
+    return 1.0 - exp(-x);
+}
+
 fn update_ratio(o: ptr<function, Open>, len: f32) {
-    let total = -expm1_f(-(*o).optical_depth);
-    let unit = -expm1_f(-(*o).optical_depth / len);
+    let total = one_minus_exp_neg((*o).optical_depth);
+    let unit = one_minus_exp_neg((*o).optical_depth / len);
     (*o).unit_over_total = select(1.0 / len, unit / total, total > 0.0);
 }
 
