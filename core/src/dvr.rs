@@ -6,7 +6,7 @@
 
 use crate::camera::{Camera, ViewFrame};
 use crate::image::Image;
-use crate::raycast::Raycaster;
+use crate::raycast::{Raycaster, Sample};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 
@@ -21,7 +21,7 @@ pub fn render(raycaster: &Raycaster, camera: &Camera, width: u32, height: u32) -
         let ray = frame.pixel_ray(i, j);
         let mut color = [0.0f32; 3];
         let mut transmittance = 1.0f32;
-        raycaster.march(&ray, |s| {
+        raycaster.march(&ray, |s: &Sample| {
             let w = transmittance * s.alpha;
             for (c, s) in color.iter_mut().zip(s.rgb) {
                 *c += w * s;

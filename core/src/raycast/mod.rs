@@ -105,6 +105,21 @@ pub struct Sample {
     pub alpha: f32,
 }
 
+/// What [`Raycaster::march`] hands each sample to: any `FnMut(&Sample) -> ControlFlow<()>`,
+/// or a type whose `visit` is `#[inline(always)]` so that a large per-sample body (VDI
+/// generation's supersegment builder) is inlined into the marching loop, not called.
+pub trait Visit {
+    /// Takes one sample; `Break` stops the ray.
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()>;
+}
+
+impl<F: FnMut(&Sample) -> ControlFlow<()>> Visit for F {
+    #[inline(always)]
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
+        self(s)
+    }
+}
+
 /// A volume prepared for ray-casting with one transfer function and parameters: the
 /// classification table and the macro-cell grid are built once here.
 pub struct Raycaster<'a> {
@@ -175,7 +190,7 @@ impl<'a> Raycaster<'a> {
 
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
     /// returns `Break` or the ray leaves the volume.
-    pub fn march(&self, ray: &Ray, visit: impl FnMut(&Sample) -> ControlFlow<()>) {
+    pub fn march(&self, ray: &Ray, visit: impl Visit) {
         match self.params.shading {
             None => self.march_impl::<false>(ray, visit),
             Some(_) => self.march_impl::<true>(ray, visit),
@@ -183,11 +198,7 @@ impl<'a> Raycaster<'a> {
     }
 
     #[inline(always)]
-    fn march_impl<const SHADE: bool>(
-        &self,
-        ray: &Ray,
-        mut visit: impl FnMut(&Sample) -> ControlFlow<()>,
-    ) {
+    fn march_impl<const SHADE: bool>(&self, ray: &Ray, mut visit: impl Visit) {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
         let t_in = t_near.max(0.0);
@@ -269,7 +280,7 @@ impl<'a> Raycaster<'a> {
                 kappa: e.kappa,
                 alpha,
             };
-            if visit(&sample).is_break() {
+            if visit.visit(&sample).is_break() {
                 return;
             }
         }
@@ -323,7 +334,7 @@ mod tests {
 
     fn count_samples(rc: &Raycaster, ray: &Ray) -> (usize, f32) {
         let (mut n, mut len) = (0, 0.0);
-        rc.march(ray, |s| {
+        rc.march(ray, |s: &Sample| {
             n += 1;
             len += s.len;
             ControlFlow::Continue(())
@@ -393,7 +404,7 @@ mod tests {
             dir: Vec3::Z,
         };
         let mut zs = Vec::new();
-        brick_rc.march(&ray, |s| {
+        brick_rc.march(&ray, |s: &Sample| {
             zs.push(-5.0 + s.t_start);
             ControlFlow::Continue(())
         });
@@ -413,7 +424,7 @@ mod tests {
             origin: Vec3::new(-1.0, 2.0, 2.0),
             dir: Vec3::X,
         };
-        rc.march(&ray, |s| {
+        rc.march(&ray, |s: &Sample| {
             let x = -1.0 + s.t_start + 0.5 * s.len;
             assert!(x >= 2.0, "NaN region at x = {x} gave a sample");
             assert!(s.alpha.is_finite() && s.rgb.iter().all(|c| c.is_finite()));
@@ -451,12 +462,12 @@ mod tests {
             for i in 0..48 {
                 let ray = f.pixel_ray(i, j);
                 let mut a = Vec::new();
-                with.march(&ray, |s| {
+                with.march(&ray, |s: &Sample| {
                     a.push((s.index, s.alpha.to_bits()));
                     ControlFlow::Continue(())
                 });
                 let mut b = Vec::new();
-                without.march(&ray, |s| {
+                without.march(&ray, |s: &Sample| {
                     b.push((s.index, s.alpha.to_bits()));
                     ControlFlow::Continue(())
                 });

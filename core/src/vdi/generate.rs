@@ -10,7 +10,7 @@
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::Camera;
-use crate::raycast::{Raycaster, Sample};
+use crate::raycast::{Raycaster, Sample, Visit};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 
@@ -44,7 +44,7 @@ pub fn generate(
                 let z_per_t = ray.dir.dot(frame.forward);
                 let before = segs.len();
                 let mut builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
-                raycaster.march(&ray, |s| builder.push(s));
+                raycaster.march(&ray, &mut builder);
                 builder.finish();
                 counts.push((segs.len() - before) as u32);
             }
@@ -185,6 +185,13 @@ impl Open {
     }
 }
 
+impl Visit for &mut Builder<'_> {
+    #[inline(always)]
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
+        self.push(s)
+    }
+}
+
 /// Merges one ray's samples into supersegments.
 struct Builder<'a> {
     gamma_sq: f32,
@@ -207,7 +214,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    #[inline]
+    #[inline(always)]
     fn push(&mut self, s: &Sample) -> ControlFlow<()> {
         let ac = s.rgb.map(|c| c * s.alpha_unit);
         let keep = match &mut self.open {
