@@ -179,11 +179,6 @@ impl Backend {
         }
     }
 
-    /// Whether this is the GPU path.
-    pub fn is_gpu(&self) -> bool {
-        !matches!(self, Self::Cpu)
-    }
-
     /// Prepares `raycaster`'s scene (on the GPU: uploads volume, transfer function and
     /// macro-cell grid once for many cameras).
     ///

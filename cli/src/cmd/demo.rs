@@ -57,6 +57,10 @@ async fn demo(a: Args) -> Result<()> {
         nodes.viz.local_addr(),
         n = a.size,
     );
+    println!(
+        "generating on {}",
+        nodes.generator.shared().backend.describe()
+    );
     let printer = print_reports(
         nodes.viz.local_addr(),
         Some(nodes.generator.shared().clone()),

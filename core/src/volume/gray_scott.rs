@@ -100,7 +100,7 @@ impl GrayScott {
     }
 
     /// Parses `gray-scott:N[:STEPS]` and runs the model for STEPS (default
-    /// [`DEFAULT_GRAY_SCOTT_STEPS`]) steps.
+    /// `DEFAULT_GRAY_SCOTT_STEPS`, 1000) steps.
     ///
     /// # Errors
     /// [`VolumeError::Invalid`] naming the spec when it does not parse or N is out of range.
