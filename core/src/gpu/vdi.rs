@@ -5,7 +5,7 @@ use super::scene::{image_in_bands, KernelRun};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
-use crate::vdi::render::occupied_tiles;
+use crate::vdi::render::tile_depth_ranges;
 use crate::vdi::Vdi;
 
 /// A VDI's compact lists in two storage buffers (prefix offsets, supersegments), read by
@@ -14,8 +14,8 @@ pub struct GpuVdi<'g> {
     gpu: &'g Gpu,
     offsets: wgpu::Buffer,
     segments: wgpu::Buffer,
-    /// Per `SKIP_TILE²` tile of the generation image: 1 if it holds a supersegment.
-    occupied: wgpu::Buffer,
+    /// Per `SKIP_TILE²` tile of the generation image: its supersegments' depth range.
+    tile_depth: wgpu::Buffer,
     generation: Camera,
     resolution: u32,
     volume_box: crate::volume::Aabb,
@@ -57,9 +57,9 @@ impl<'g> GpuVdi<'g> {
                 })),
                 wgpu::BufferUsages::STORAGE,
             );
-            let occupied = gpu.buffer_init(
-                "vdi tiles",
-                &u32_bytes(occupied_tiles(vdi).into_iter().map(u32::from)),
+            let tile_depth = gpu.buffer_init(
+                "vdi tile depths",
+                &f32_bytes(tile_depth_ranges(vdi).into_iter().flatten()),
                 wgpu::BufferUsages::STORAGE,
             );
             let meta = vdi.meta();
@@ -67,7 +67,7 @@ impl<'g> GpuVdi<'g> {
                 gpu,
                 offsets,
                 segments,
-                occupied,
+                tile_depth,
                 generation: meta.camera,
                 resolution: vdi.resolution(),
                 volume_box: meta.volume_box,
@@ -119,7 +119,7 @@ impl<'g> GpuVdi<'g> {
                     self.offsets.as_entire_binding(),
                     self.segments.as_entire_binding(),
                     out.as_entire_binding(),
-                    self.occupied.as_entire_binding(),
+                    self.tile_depth.as_entire_binding(),
                 ],
             );
             gpu.dispatch(

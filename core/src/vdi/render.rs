@@ -28,21 +28,27 @@ pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: 
 /// (the 2D analogue of macro-cell empty-space skipping).
 pub const SKIP_TILE: i64 = 8;
 
-/// Whether each `SKIP_TILE × SKIP_TILE` tile of the generation image holds a supersegment,
-/// row-major, `⌈r / SKIP_TILE⌉²` entries (shared with the GPU walk).
-pub fn occupied_tiles(vdi: &Vdi) -> Vec<bool> {
+/// Depth range `[z_min, z_max]` of the supersegments in each `SKIP_TILE × SKIP_TILE` tile of
+/// the generation image, row-major, `⌈r / SKIP_TILE⌉²` entries; `[f32::MAX, −f32::MAX]` for an
+/// empty tile (shared with the GPU walk). The walk skips a tile whose depth range the ray's
+/// depth over the tile does not meet: empty tiles, and content the ray passes in front of or
+/// behind.
+pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     let r = vdi.resolution() as usize;
     let tile = SKIP_TILE as usize;
     let tiles_x = r.div_ceil(tile);
-    let mut occupied = vec![false; tiles_x * tiles_x];
+    let mut ranges = vec![[f32::MAX, -f32::MAX]; tiles_x * tiles_x];
     for j in 0..r {
         for i in 0..r {
-            if vdi.count(i + r * j) > 0 {
-                occupied[i / tile + tiles_x * (j / tile)] = true;
+            let list = vdi.pixel(i as u32, j as u32);
+            if let (Some(first), Some(last)) = (list.first(), list.last()) {
+                let range = &mut ranges[i / tile + tiles_x * (j / tile)];
+                range[0] = range[0].min(first.z_start);
+                range[1] = range[1].max(last.z_end);
             }
         }
     }
-    occupied
+    ranges
 }
 
 /// Per-VDI constants of the walk.
@@ -53,8 +59,8 @@ struct Walker<'a> {
     termination: f32,
     /// Tiles per row of the generation image.
     tiles_x: i64,
-    /// Whether each `SKIP_TILE²` tile has a supersegment, row-major.
-    occupied: Vec<bool>,
+    /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
+    tile_depth: Vec<[f32; 2]>,
     /// Per supersegment, packed: `z_end` (the depth searches touch two cache lines where the
     /// 24-byte supersegments would take four) and `log2(1 − â)` (so `α' = 1 − 2^(ℓ·log2(1 − â))`
     /// costs one `exp2`, not a `powf`). 8 bytes per supersegment on top of its 24.
@@ -80,14 +86,14 @@ impl<'a> Walker<'a> {
         let r = vdi.resolution();
         let ri = i64::from(r);
         let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
-        let occupied = occupied_tiles(vdi);
+        let tile_depth = tile_depth_ranges(vdi);
         Self {
             vdi,
             gen: vdi.meta().camera.frame(r, r),
             r: ri,
             termination,
             tiles_x,
-            occupied,
+            tile_depth,
             keys: vdi
                 .supersegments()
                 .iter()
@@ -216,6 +222,8 @@ impl<'a> Walker<'a> {
         };
         let (mut raw_x, mut raw_y) = (next_x(ix), next_y(iy));
         let mut t = t0;
+        // The tile whose pixels are being walked (its depth range meets the ray's).
+        let mut walking = -1i64;
         for _ in 0..(2 * self.r + 4) {
             // The projective line can meet a boundary behind the clipped segment (through
             // z < 0): such solutions before t0 are no crossing. A real crossing lies in
@@ -227,9 +235,10 @@ impl<'a> Walker<'a> {
                     tc.max(t)
                 }
             };
-            if !self.occupied[(ix / SKIP_TILE + self.tiles_x * (iy / SKIP_TILE)) as usize] {
-                // An empty tile: jump to where the ray leaves it, entering the next tile at
-                // the pixel that holds the ray there.
+            let tile = ix / SKIP_TILE + self.tiles_x * (iy / SKIP_TILE);
+            if tile != walking {
+                // Entering a tile: where does the ray leave it, and does its depth over the
+                // tile meet the tile's supersegments?
                 let (x0t, y0t) = (ix / SKIP_TILE * SKIP_TILE, iy / SKIP_TILE * SKIP_TILE);
                 let exit = |step: i64, lo: i64, cross: &dyn Fn(i64) -> f32| match step {
                     0 => f32::INFINITY,
@@ -238,24 +247,34 @@ impl<'a> Walker<'a> {
                 };
                 let (ex, ey) = (exit(step_x, x0t, &cross_x), exit(step_y, y0t, &cross_y));
                 let t_next = ex.min(ey).min(t1);
-                if t_next >= t1 {
-                    return;
-                }
-                let inside =
-                    |p: f32, step: i64, lo: i64| start_cell(p, step).clamp(lo, lo + SKIP_TILE - 1);
-                if ex <= ey {
-                    ix = if step_x > 0 { x0t + SKIP_TILE } else { x0t - 1 };
-                    iy = inside(py(t_next), step_y, y0t);
+                let [z_min, z_max] = self.tile_depth[tile as usize];
+                let (za, zb) = (z.at(t), z.at(t_next));
+                let margin = 1e-5 * za.abs().max(zb.abs());
+                if !(za.min(zb) > z_max + margin || za.max(zb) < z_min - margin) {
+                    walking = tile;
                 } else {
-                    iy = if step_y > 0 { y0t + SKIP_TILE } else { y0t - 1 };
-                    ix = inside(px(t_next), step_x, x0t);
+                    // Nothing to meet here: jump to the next tile, entering it at the pixel
+                    // that holds the ray there.
+                    if t_next >= t1 {
+                        return;
+                    }
+                    let inside = |p: f32, step: i64, lo: i64| {
+                        start_cell(p, step).clamp(lo, lo + SKIP_TILE - 1)
+                    };
+                    if ex <= ey {
+                        ix = if step_x > 0 { x0t + SKIP_TILE } else { x0t - 1 };
+                        iy = inside(py(t_next), step_y, y0t);
+                    } else {
+                        iy = if step_y > 0 { y0t + SKIP_TILE } else { y0t - 1 };
+                        ix = inside(px(t_next), step_x, x0t);
+                    }
+                    if !(0..self.r).contains(&ix) || !(0..self.r).contains(&iy) {
+                        return;
+                    }
+                    t = t_next;
+                    (raw_x, raw_y) = (next_x(ix), next_y(iy));
+                    continue;
                 }
-                if !(0..self.r).contains(&ix) || !(0..self.r).contains(&iy) {
-                    return;
-                }
-                t = t_next;
-                (raw_x, raw_y) = (next_x(ix), next_y(iy));
-                continue;
             }
             let (tnx, tny) = (guard(raw_x), guard(raw_y));
             let t_next = tnx.min(tny).min(t1);
@@ -364,4 +383,75 @@ fn composite_span(
         }
     }
     false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raycast::{RaycastParams, Raycaster};
+    use crate::tf::TransferFunction;
+    use crate::vdi::{generate::generate, VdiParams};
+    use crate::volume::Volume;
+
+    /// Skipping tiles by depth range is an optimisation: it must not change the image.
+    #[test]
+    fn tile_skipping_leaves_the_image_unchanged() {
+        // Two blobs at different depths with empty space around and between them.
+        let v = Volume::from_fn([48, 40, 44], |x, y, z| {
+            let blob = |c: [f32; 3], r: f32| {
+                let d = ((x as f32 - c[0]).powi(2)
+                    + (y as f32 - c[1]).powi(2)
+                    + (z as f32 - c[2]).powi(2))
+                .sqrt();
+                (r - d).max(0.0)
+            };
+            blob([14.0, 20.0, 10.0], 7.0) + blob([33.0, 18.0, 32.0], 9.0)
+        })
+        .unwrap();
+        let tf = TransferFunction::default_for_range(0.0, 9.0);
+        let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+        let cam = Camera::default_for_box(&v.world_box());
+        let vdi = generate(
+            &rc,
+            &cam,
+            VdiParams {
+                resolution: 96,
+                gamma: 0.01,
+            },
+            0,
+            "t",
+        )
+        .unwrap();
+        let skipping = Walker::new(&vdi, 0.99);
+        let mut walking_all = Walker::new(&vdi, 0.99);
+        walking_all.tile_depth.fill([-f32::MAX, f32::MAX]);
+        let inside = Camera {
+            eye: Vec3::new(24.0, 20.0, 22.0),
+            ..cam.orbit_y(35.0)
+        };
+        let mut seen = 0;
+        for view in [
+            cam,
+            cam.orbit_y(30.0),
+            cam.orbit_y(90.0),
+            cam.orbit_y(180.0),
+            inside,
+        ] {
+            let f = view.frame(64, 64);
+            for j in 0..64 {
+                for i in 0..64 {
+                    let ray = f.pixel_ray(i, j);
+                    let (a, b) = (skipping.integrate(&ray), walking_all.integrate(&ray));
+                    for k in 0..3 {
+                        assert!(
+                            (a[k] - b[k]).abs() < 1e-6,
+                            "pixel ({i}, {j}): {a:?} vs {b:?}"
+                        );
+                    }
+                    seen += usize::from(a != [0.0; 3]);
+                }
+            }
+        }
+        assert!(seen > 1000, "the blobs must be seen ({seen} pixels)");
+    }
 }

@@ -22,7 +22,8 @@ struct RenderParams {
 @group(0) @binding(1) var<storage, read> offsets: array<u32>;
 @group(0) @binding(2) var<storage, read> segments: array<Segment>;
 @group(0) @binding(3) var<storage, read_write> image_out: array<f32>;
-@group(0) @binding(4) var<storage, read> occupied: array<u32>;  // per 8×8 tile: any supersegment
+// Per 8×8 tile of the generation image: depth range of its supersegments (empty: [MAX, −MAX]).
+@group(0) @binding(4) var<storage, read> tile_depth: array<vec2<f32>>;
 
 struct Accum {
     color: vec3<f32>,
@@ -209,10 +210,13 @@ fn walk(origin: vec3<f32>, dir: vec3<f32>, acc: ptr<function, Accum>) {
     var raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
     var raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
     var t = t0;
+    var walking = -1;  // the tile whose pixels are being walked
     let max_iter = 2 * ri + 4;
     for (var it = 0; it < max_iter; it++) {
-        if (occupied[u32(ix / SKIP_TILE + tiles_x * (iy / SKIP_TILE))] == 0u) {
-            // An empty tile: jump to where the ray leaves it (mirrors the CPU walk).
+        let tile = ix / SKIP_TILE + tiles_x * (iy / SKIP_TILE);
+        if (tile != walking) {
+            // Entering a tile: where does the ray leave it, and does its depth over the tile
+            // meet the tile's supersegments? (mirrors the CPU walk)
             let x0t = ix / SKIP_TILE * SKIP_TILE;
             let y0t = iy / SKIP_TILE * SKIP_TILE;
             var ex = BIG;
@@ -226,26 +230,34 @@ fn walk(origin: vec3<f32>, dir: vec3<f32>, acc: ptr<function, Accum>) {
                 ey = guard(crossing(boundary(b, r, ty, -1.0), z0, z1, y0, y1), t0, t);
             }
             let t_next = min(min(ex, ey), t1);
-            if (t_next >= t1) {
-                return;
-            }
-            let z_at = z0 + z1 * t_next;
-            if (ex <= ey) {
-                ix = select(x0t - 1, x0t + SKIP_TILE, step_x > 0);
-                let py = (1.0 - (y0 + y1 * t_next) / (z_at * ty)) * 0.5 * r;
-                iy = clamp(start_cell(py, step_y, ri), y0t, y0t + SKIP_TILE - 1);
+            let range = tile_depth[u32(tile)];
+            let za = z0 + z1 * t;
+            let zb = z0 + z1 * t_next;
+            let margin = 1e-5 * max(abs(za), abs(zb));
+            if (!(min(za, zb) > range.y + margin || max(za, zb) < range.x - margin)) {
+                walking = tile;
             } else {
-                iy = select(y0t - 1, y0t + SKIP_TILE, step_y > 0);
-                let px = ((x0 + x1 * t_next) / (z_at * tx) + 1.0) * 0.5 * r;
-                ix = clamp(start_cell(px, step_x, ri), x0t, x0t + SKIP_TILE - 1);
+                if (t_next >= t1) {
+                    return;
+                }
+                let z_at = z0 + z1 * t_next;
+                if (ex <= ey) {
+                    ix = select(x0t - 1, x0t + SKIP_TILE, step_x > 0);
+                    let py = (1.0 - (y0 + y1 * t_next) / (z_at * ty)) * 0.5 * r;
+                    iy = clamp(start_cell(py, step_y, ri), y0t, y0t + SKIP_TILE - 1);
+                } else {
+                    iy = select(y0t - 1, y0t + SKIP_TILE, step_y > 0);
+                    let px = ((x0 + x1 * t_next) / (z_at * tx) + 1.0) * 0.5 * r;
+                    ix = clamp(start_cell(px, step_x, ri), x0t, x0t + SKIP_TILE - 1);
+                }
+                if (ix < 0 || ix >= ri || iy < 0 || iy >= ri) {
+                    return;
+                }
+                t = t_next;
+                raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
+                raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
+                continue;
             }
-            if (ix < 0 || ix >= ri || iy < 0 || iy >= ri) {
-                return;
-            }
-            t = t_next;
-            raw_x = next_crossing(ix, step_x, r, tx, z0, z1, x0, x1, 1.0);
-            raw_y = next_crossing(iy, step_y, r, ty, z0, z1, y0, y1, -1.0);
-            continue;
         }
         let tnx = guard(raw_x, t0, t);
         let tny = guard(raw_y, t0, t);
