@@ -186,6 +186,11 @@ impl Gpu {
             })
     }
 
+    /// A uniform buffer holding `u`.
+    pub(super) fn uniform(&self, label: &str, u: &Uniform) -> wgpu::Buffer {
+        self.buffer_init(label, u.bytes(), wgpu::BufferUsages::UNIFORM)
+    }
+
     /// An uninitialised storage buffer of `size` bytes (at least [`MIN_BUFFER`]) that can be
     /// copied from.
     pub(super) fn storage(&self, label: &str, size: u64) -> wgpu::Buffer {
@@ -352,6 +357,15 @@ impl Gpu {
 pub(super) struct Uniform(Vec<u8>);
 
 impl Uniform {
+    /// A camera's view frame as four rows: eye, right + `tan(fov_x/2)`, up + `tan(fov_y/2)`,
+    /// forward + `forward_w` (the layout `common.wgsl` and `render.wgsl` read).
+    pub(super) fn frame(self, f: &crate::camera::ViewFrame, forward_w: f32) -> Self {
+        self.vec4([f.eye.x, f.eye.y, f.eye.z, 0.0])
+            .vec4([f.right.x, f.right.y, f.right.z, f.tan_half_x])
+            .vec4([f.up.x, f.up.y, f.up.z, f.tan_half_y])
+            .vec4([f.forward.x, f.forward.y, f.forward.z, forward_w])
+    }
+
     pub(super) fn vec4(mut self, v: [f32; 4]) -> Self {
         for x in v {
             self.0.extend_from_slice(&x.to_le_bytes());

@@ -201,10 +201,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let cells = self.raycaster.macro_grid().cells();
         let (gamma, budget) = extra;
         Uniform::default()
-            .vec4([f.eye.x, f.eye.y, f.eye.z, 0.0])
-            .vec4([f.right.x, f.right.y, f.right.z, f.tan_half_x])
-            .vec4([f.up.x, f.up.y, f.up.z, f.tan_half_y])
-            .vec4([f.forward.x, f.forward.y, f.forward.z, rc.step])
+            .frame(&f, rc.step)
             .vec4([b.min.x, b.min.y, b.min.z, rc.termination])
             .vec4([b.max.x, b.max.y, b.max.z, gamma])
             .vec4([inv.x, inv.y, inv.z, lo])
@@ -226,9 +223,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
     }
 
     fn scene_group(&self, uniform: &Uniform) -> wgpu::BindGroup {
-        let buffer =
-            self.gpu
-                .buffer_init("scene params", uniform.bytes(), wgpu::BufferUsages::UNIFORM);
+        let buffer = self.gpu.uniform("scene params", uniform);
         self.gpu.bind_group(
             "scene",
             &self.gpu.kernels.scene_layout,
@@ -384,11 +379,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let gx = groups.min(max_x);
         let gy = groups.div_ceil(gx);
         let uniform = Uniform::default().uvec4([rays as u32, budget, gx as u32, 0]);
-        let params = gpu.buffer_init(
-            "compact params",
-            uniform.bytes(),
-            wgpu::BufferUsages::UNIFORM,
-        );
+        let params = gpu.uniform("compact params", &uniform);
         let offsets = gpu.buffer_init(
             "compact offsets",
             &u32_bytes(local_offsets.iter().copied()),

@@ -95,22 +95,12 @@ impl<'g> GpuVdi<'g> {
         let b = self.volume_box;
         image_in_bands(gpu, width, height, "render", |row0, rows, out| {
             let uniform = Uniform::default()
-                .vec4([f.eye.x, f.eye.y, f.eye.z, 0.0])
-                .vec4([f.right.x, f.right.y, f.right.z, f.tan_half_x])
-                .vec4([f.up.x, f.up.y, f.up.z, f.tan_half_y])
-                .vec4([f.forward.x, f.forward.y, f.forward.z, termination])
-                .vec4([g.eye.x, g.eye.y, g.eye.z, 0.0])
-                .vec4([g.right.x, g.right.y, g.right.z, g.tan_half_x])
-                .vec4([g.up.x, g.up.y, g.up.z, g.tan_half_y])
-                .vec4([g.forward.x, g.forward.y, g.forward.z, 0.0])
+                .frame(&f, termination)
+                .frame(&g, 0.0)
                 .vec4([b.min.x, b.min.y, b.min.z, 0.0])
                 .vec4([b.max.x, b.max.y, b.max.z, 0.0])
                 .uvec4([width, height, row0, r]);
-            let params = gpu.buffer_init(
-                "render params",
-                uniform.bytes(),
-                wgpu::BufferUsages::UNIFORM,
-            );
+            let params = gpu.uniform("render params", &uniform);
             let group = gpu.bind_group(
                 "render",
                 &gpu.kernels.render_layout,
