@@ -201,7 +201,7 @@ impl Backend {
     /// fails.
     pub fn prepare_vdi<'a>(&'a self, vdi: &'a Vdi) -> Result<SceneVdi<'a>, BackendError> {
         match self {
-            Self::Cpu => Ok(SceneVdi::Cpu(vdi)),
+            Self::Cpu => Ok(SceneVdi::Cpu(render::Walker::new(vdi))),
             #[cfg(feature = "gpu")]
             Self::Gpu(g) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(g, vdi)?)),
         }
@@ -271,7 +271,7 @@ impl Scene<'_> {
     /// As [`Backend::prepare_vdi`].
     pub fn prepare_vdi<'v>(&'v self, vdi: &'v Vdi) -> Result<SceneVdi<'v>, BackendError> {
         match self {
-            Self::Cpu(_) => Ok(SceneVdi::Cpu(vdi)),
+            Self::Cpu(_) => Ok(SceneVdi::Cpu(render::Walker::new(vdi))),
             #[cfg(feature = "gpu")]
             Self::Gpu(s) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(s.gpu(), vdi)?)),
         }
@@ -324,8 +324,8 @@ impl Scene<'_> {
 
 /// A VDI prepared on a backend for rendering from any camera.
 pub enum SceneVdi<'a> {
-    /// The CPU path reads the lists directly.
-    Cpu(&'a Vdi),
+    /// The CPU path: the lists with the walk's per-VDI tables.
+    Cpu(render::Walker<'a>),
     /// Uploaded to the GPU.
     #[cfg(feature = "gpu")]
     Gpu(crate::gpu::GpuVdi<'a>),
@@ -345,8 +345,8 @@ impl SceneVdi<'_> {
     ) -> Result<Timed<Image>, BackendError> {
         let start = Instant::now();
         match self {
-            Self::Cpu(vdi) => Ok(wall(
-                render::render(vdi, camera, width, height, termination),
+            Self::Cpu(walker) => Ok(wall(
+                walker.render(camera, width, height, termination),
                 start,
             )),
             #[cfg(feature = "gpu")]

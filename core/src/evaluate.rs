@@ -9,7 +9,7 @@ use crate::camera::Camera;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
 use crate::vdi::codec::{self, Codec, CodecError, DecodeLimits};
-use crate::vdi::{VdiParamError, VdiParams};
+use crate::vdi::VdiParams;
 use std::time::Instant;
 
 /// The paper's test views: the generation camera orbited by 0°, 10°, …, 60° (Sec. 6.1).
@@ -18,18 +18,15 @@ pub const DEFAULT_VIEW_ANGLES: [f32; 7] = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60
 /// Errors of an evaluation.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
-    /// Bad `P_M` or camera.
-    #[error(transparent)]
-    Params(#[from] VdiParamError),
     /// Encoding or decoding failed.
     #[error(transparent)]
     Codec(#[from] CodecError),
     /// Images could not be compared.
     #[error(transparent)]
     Metric(#[from] MetricError),
-    /// The backend failed (GPU limits or device).
+    /// The backend failed (bad parameters on any backend; GPU limits or device).
     #[error(transparent)]
-    Backend(BackendError),
+    Backend(#[from] BackendError),
     /// Reference images do not match the views.
     #[error("{references} reference images for {views} views")]
     ReferenceCount {
@@ -38,15 +35,6 @@ pub enum EvalError {
         /// Views asked for.
         views: usize,
     },
-}
-
-impl From<BackendError> for EvalError {
-    fn from(e: BackendError) -> Self {
-        match e {
-            BackendError::Params(p) => Self::Params(p),
-            other => Self::Backend(other),
-        }
-    }
 }
 
 /// Quality at one test view.

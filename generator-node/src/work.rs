@@ -41,24 +41,12 @@ pub enum WorkError {
     /// Ray-casting parameters were rejected.
     #[error(transparent)]
     Raycast(#[from] insitu_core::raycast::RaycastError),
-    /// `P_M` or the camera were rejected.
-    #[error(transparent)]
-    Params(#[from] insitu_core::vdi::VdiParamError),
     /// Encoding failed.
     #[error(transparent)]
     Codec(#[from] codec::CodecError),
-    /// The backend failed (GPU limits or device).
+    /// The backend failed (bad `P_M` or camera on any backend; GPU limits or device).
     #[error(transparent)]
-    Backend(BackendError),
-}
-
-impl From<BackendError> for WorkError {
-    fn from(e: BackendError) -> Self {
-        match e {
-            BackendError::Params(p) => Self::Params(p),
-            other => Self::Backend(other),
-        }
-    }
+    Backend(#[from] BackendError),
 }
 
 /// The transfer function for `volume` when none is configured: the default over its range

@@ -17,11 +17,10 @@ use crate::image::Image;
 use glam::Vec3;
 
 /// Renders `vdi` seen by `camera` at `width × height`, stopping each ray once its accumulated
-/// opacity reaches `termination` (in (0, 1]); background black.
+/// opacity reaches `termination` (in (0, 1]); background black. For several views of one VDI,
+/// build a [`Walker`] once and call [`Walker::render`].
 pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
-    let frame = camera.frame(width, height);
-    let walker = Walker::new(vdi, termination);
-    render_tiles(&frame, |i, j| walker.integrate(&frame.pixel_ray(i, j)))
+    Walker::new(vdi).render(camera, width, height, termination)
 }
 
 /// Side, in generation pixels, of the tiles the walk skips when they hold no supersegment
@@ -51,12 +50,12 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     ranges
 }
 
-/// Per-VDI constants of the walk.
-struct Walker<'a> {
+/// A VDI prepared for rendering from many cameras: the per-VDI constants of the walk (tile
+/// depth ranges, packed search keys), built once.
+pub struct Walker<'a> {
     vdi: &'a Vdi,
     gen: ViewFrame,
     r: i64,
-    termination: f32,
     /// Tiles per row of the generation image.
     tiles_x: i64,
     /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
@@ -82,7 +81,9 @@ impl Lin {
 }
 
 impl<'a> Walker<'a> {
-    fn new(vdi: &'a Vdi, termination: f32) -> Self {
+    /// Prepares `vdi`: one pass over its pixels and supersegments (8 bytes of keys per
+    /// supersegment, 8 per tile).
+    pub fn new(vdi: &'a Vdi) -> Self {
         let r = vdi.resolution();
         let ri = i64::from(r);
         let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
@@ -91,7 +92,6 @@ impl<'a> Walker<'a> {
             vdi,
             gen: vdi.meta().camera.frame(r, r),
             r: ri,
-            termination,
             tiles_x,
             tile_depth,
             keys: vdi
@@ -102,12 +102,21 @@ impl<'a> Walker<'a> {
         }
     }
 
+    /// Renders the VDI seen by `camera` at `width × height`, stopping rays at accumulated
+    /// opacity `termination` (in (0, 1]); background black.
+    pub fn render(&self, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
+        let frame = camera.frame(width, height);
+        render_tiles(&frame, |i, j| {
+            self.integrate(&frame.pixel_ray(i, j), termination)
+        })
+    }
+
     /// Composited colour along `ray`.
-    fn integrate(&self, ray: &Ray) -> [f32; 3] {
+    fn integrate(&self, ray: &Ray, termination: f32) -> [f32; 3] {
         let mut acc = Accum {
             color: [0.0; 3],
             transmittance: 1.0,
-            threshold: 1.0 - self.termination,
+            threshold: 1.0 - termination,
         };
         self.walk(ray, &mut acc);
         acc.color.map(|c| c.clamp(0.0, 1.0))
@@ -240,12 +249,18 @@ impl<'a> Walker<'a> {
                 // Entering a tile: where does the ray leave it, and does its depth over the
                 // tile meet the tile's supersegments?
                 let (x0t, y0t) = (ix / SKIP_TILE * SKIP_TILE, iy / SKIP_TILE * SKIP_TILE);
-                let exit = |step: i64, lo: i64, cross: &dyn Fn(i64) -> f32| match step {
-                    0 => f32::INFINITY,
-                    s if s > 0 => guard(cross(lo + SKIP_TILE)),
-                    _ => guard(cross(lo)),
+                // The tile's far boundary along each axis (its low one when stepping down).
+                let far = |step: i64, lo: i64| if step > 0 { lo + SKIP_TILE } else { lo };
+                let ex = if step_x == 0 {
+                    f32::INFINITY
+                } else {
+                    guard(cross_x(far(step_x, x0t)))
                 };
-                let (ex, ey) = (exit(step_x, x0t, &cross_x), exit(step_y, y0t, &cross_y));
+                let ey = if step_y == 0 {
+                    f32::INFINITY
+                } else {
+                    guard(cross_y(far(step_y, y0t)))
+                };
                 let t_next = ex.min(ey).min(t1);
                 let [z_min, z_max] = self.tile_depth[tile as usize];
                 let (za, zb) = (z.at(t), z.at(t_next));
@@ -422,8 +437,8 @@ mod tests {
             "t",
         )
         .unwrap();
-        let skipping = Walker::new(&vdi, 0.99);
-        let mut walking_all = Walker::new(&vdi, 0.99);
+        let skipping = Walker::new(&vdi);
+        let mut walking_all = Walker::new(&vdi);
         walking_all.tile_depth.fill([-f32::MAX, f32::MAX]);
         let inside = Camera {
             eye: Vec3::new(24.0, 20.0, 22.0),
@@ -441,7 +456,10 @@ mod tests {
             for j in 0..64 {
                 for i in 0..64 {
                     let ray = f.pixel_ray(i, j);
-                    let (a, b) = (skipping.integrate(&ray), walking_all.integrate(&ray));
+                    let (a, b) = (
+                        skipping.integrate(&ray, 0.99),
+                        walking_all.integrate(&ray, 0.99),
+                    );
                     for k in 0..3 {
                         assert!(
                             (a[k] - b[k]).abs() < 1e-6,
