@@ -32,6 +32,7 @@ pub mod backend;
 pub mod camera;
 pub mod dvr;
 pub mod evaluate;
+pub(crate) mod fastmath;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod image;

@@ -16,6 +16,7 @@ pub use macrocell::MacroGrid;
 pub use shading::Shading;
 
 use crate::camera::Ray;
+use crate::fastmath;
 use crate::tf::{Lut, TransferFunction};
 use crate::volume::{Aabb, Volume};
 use glam::Vec3;
@@ -191,19 +192,26 @@ impl<'a> Raycaster<'a> {
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
     /// returns `Break` or the ray leaves the volume.
     pub fn march(&self, ray: &Ray, visit: impl Visit) {
+        let _ = self.march_owned(ray, visit);
+    }
+
+    /// [`Raycaster::march`] taking the visitor by value and handing it back: a visitor owned
+    /// by the loop keeps its state in registers across samples (VDI generation's builder),
+    /// where one behind a `&mut` is reloaded and stored at every sample.
+    pub fn march_owned<V: Visit>(&self, ray: &Ray, visit: V) -> V {
         match self.params.shading {
-            None => self.march_impl::<false>(ray, visit),
-            Some(_) => self.march_impl::<true>(ray, visit),
+            None => self.march_impl::<false, V>(ray, visit),
+            Some(_) => self.march_impl::<true, V>(ray, visit),
         }
     }
 
     #[inline(always)]
-    fn march_impl<const SHADE: bool>(&self, ray: &Ray, mut visit: impl Visit) {
+    fn march_impl<const SHADE: bool, V: Visit>(&self, ray: &Ray, mut visit: V) -> V {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
         let t_in = t_near.max(0.0);
         if t_far.is_nan() || t_in.is_nan() || t_far <= t_in {
-            return;
+            return visit;
         }
         let step = self.params.step;
         let length = t_far - t_in;
@@ -238,7 +246,7 @@ impl<'a> Raycaster<'a> {
             let iz = (p.z as usize).min(self.volume.dims()[2].saturating_sub(2));
             if skip && !self.grid.visible(ix, iy, iz) {
                 let t_exit = self.grid.cell_exit(ix, iy, iz, o_v, inv_d_v);
-                let k_first = ((t_exit - t_in) / step - 0.5).ceil();
+                let k_first = fastmath::ceil((t_exit - t_in) / step - 0.5);
                 // Back off one step so rounding can never skip a sample outside the cell.
                 k = (k + 1).max((k_first - 1.0).clamp(0.0, n_samples as f32) as u32);
                 continue;
@@ -281,9 +289,10 @@ impl<'a> Raycaster<'a> {
                 alpha,
             };
             if visit.visit(&sample).is_break() {
-                return;
+                return visit;
             }
         }
+        visit
     }
 
     /// Trilinear value at voxel-space position `p` (clamped to the grid).

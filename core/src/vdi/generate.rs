@@ -10,6 +10,7 @@
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::Camera;
+use crate::fastmath::one_minus_exp_neg;
 use crate::raycast::{Raycaster, Sample, Visit};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
@@ -43,29 +44,48 @@ pub fn generate(
                 let ray = frame.pixel_ray(i, j);
                 let z_per_t = ray.dir.dot(frame.forward);
                 let before = segs.len();
-                let mut builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
-                raycaster.march(&ray, &mut builder);
-                builder.finish();
+                let builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
+                raycaster.march_owned(&ray, builder).finish();
                 counts.push((segs.len() - before) as u32);
             }
             (counts, segs)
         })
         .collect();
-    let total: usize = rows.iter().map(|(_, s)| s.len()).sum();
-    let mut offsets = Vec::with_capacity(r as usize * r as usize + 1);
-    let mut supersegments = Vec::with_capacity(total);
-    offsets.push(0u32);
-    let mut acc = 0u32;
-    for (counts, segs) in rows {
-        for c in counts {
-            acc = acc.saturating_add(c);
-            offsets.push(acc);
-        }
-        supersegments.extend_from_slice(&segs);
-    }
+    let (offsets, supersegments) = flatten(rows);
     let meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
     // More than u32::MAX supersegments would saturate the offsets; from_parts rejects that.
     Vdi::from_parts(meta, offsets, supersegments).ok_or(VdiParamError::Resolution(r))
+}
+
+/// Joins per-row `(counts, supersegments)` into prefix offsets and one flat array.
+///
+/// The array is allocated zeroed (`calloc`: fresh pages, not yet touched) and the rows are
+/// copied into it in parallel, so the page faults of a large VDI (tens of MB) are spread
+/// over the threads instead of following the parallel pass as a serial copy.
+fn flatten(rows: Vec<(Vec<u32>, Vec<Supersegment>)>) -> (Vec<u32>, Vec<Supersegment>) {
+    let pixels: usize = rows.iter().map(|(c, _)| c.len()).sum();
+    let mut offsets = Vec::with_capacity(pixels + 1);
+    offsets.push(0u32);
+    let mut acc = 0u32;
+    for (counts, _) in &rows {
+        for &c in counts {
+            acc = acc.saturating_add(c);
+            offsets.push(acc);
+        }
+    }
+    let total: usize = rows.iter().map(|(_, s)| s.len()).sum();
+    let mut supersegments: Vec<Supersegment> = bytemuck::allocation::zeroed_vec(total);
+    let mut rest = supersegments.as_mut_slice();
+    let mut parts = Vec::with_capacity(rows.len());
+    for (_, segs) in &rows {
+        let (part, tail) = std::mem::take(&mut rest).split_at_mut(segs.len());
+        parts.push((part, segs.as_slice()));
+        rest = tail;
+    }
+    parts
+        .into_par_iter()
+        .for_each(|(dst, src)| dst.copy_from_slice(src));
+    (offsets, supersegments)
 }
 
 /// The metadata of a VDI generated from `raycaster`'s scene (shared with the GPU path).
@@ -89,18 +109,6 @@ pub(crate) fn meta_for(
     }
 }
 
-/// `1 − e^(−x)` for `x ≥ 0` (`+∞` gives 1): a Taylor polynomial below 1/64 (truncation
-/// error under `x⁵/120`, relative < 1e-9), else `1 − exp(−x)` (relative error < 1e-5, where
-/// `exp_m1` would cost twice as much). The generation hot loop calls it twice per sample.
-#[inline]
-pub(crate) fn one_minus_exp_neg(x: f32) -> f32 {
-    if x < 1.0 / 64.0 {
-        x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))))
-    } else {
-        1.0 - (-x).exp()
-    }
-}
-
 /// The supersegment being built.
 struct Open {
     /// Index of the last merged (non-transparent) sample.
@@ -111,49 +119,110 @@ struct Open {
     /// Accumulated premultiplied colour `C` and local transmittance `1 − A`.
     color: [f32; 3],
     transmittance: f32,
-    /// Optical depth `Σ κ·len`; `A = 1 − e^(−τ)` and `â = 1 − e^(−τ/L)`.
+    /// Optical depth `τ = Σ κ·len`.
     optical_depth: f32,
-    /// `â / A` of the current extent: `â·ĉ = (â/A)·C`.
+    /// Of the current extent `L = t_end − t_start`: accumulated opacity `A = 1 − e^(−τ)`,
+    /// unit-length opacity `â = 1 − e^(−τ/L)` and the ratio `â/A` (`â·ĉ = (â/A)·C`).
+    total: f32,
+    unit: f32,
     unit_over_total: f32,
 }
 
 impl Open {
+    /// Placeholder before a ray's first sample.
+    const EMPTY: Self = Self {
+        last_index: 0,
+        t_start: 0.0,
+        t_end: 0.0,
+        color: [0.0; 3],
+        transmittance: 1.0,
+        optical_depth: 0.0,
+        total: 0.0,
+        unit: 0.0,
+        unit_over_total: 0.0,
+    };
+
+    /// A supersegment of one sample: `A` is its opacity `α` and `â` its opacity per unit
+    /// length `a`, both from the classification table, so opening needs no exponential.
+    #[inline(always)]
     fn new(s: &Sample) -> Self {
-        let mut open = Self {
+        let len = s.t_end - s.t_start;
+        Self {
             last_index: s.index,
             t_start: s.t_start,
             t_end: s.t_end,
             color: s.rgb.map(|c| c * s.alpha),
             transmittance: 1.0 - s.alpha,
             optical_depth: s.kappa * s.len,
-            unit_over_total: 0.0,
+            total: s.alpha,
+            unit: s.alpha_unit,
+            unit_over_total: if s.alpha > 0.0 {
+                s.alpha_unit / s.alpha
+            } else {
+                1.0 / len
+            },
+        }
+    }
+
+    /// Recomputes `A`, `â` and `â/A` after the extent or the optical depth changed, with one
+    /// exponential: `A` is the complement of the local transmittance already tracked (its
+    /// Taylor polynomial for small `τ`, where the subtraction would cancel), `â` comes from
+    /// [`one_minus_exp_neg`] (relative error < 1e-5). `A` carries the rounding of the product
+    /// of `1 − α`, exactly as the DVR's accumulated opacity does; the stored `â` and `ĉ = C/A`
+    /// are these values.
+    #[inline(always)]
+    fn update(&mut self) {
+        let tau = self.optical_depth;
+        self.total = if tau < 1.0 / 64.0 {
+            one_minus_exp_neg(tau)
+        } else {
+            1.0 - self.transmittance
         };
-        open.update_ratio(open.t_end - open.t_start);
-        open
+        let len = self.t_end - self.t_start;
+        self.unit = one_minus_exp_neg(tau / len);
+        self.unit_over_total = self.ratio(self.unit, len);
     }
 
-    /// Recomputes `â/A` for world length `len`. Only the interrupt test reads it, once per
-    /// sample, so it uses [`one_minus_exp_neg`] (relative error < 1e-5); the stored `â` and
-    /// `ĉ` are computed exactly in [`Open::close`].
-    #[inline]
-    fn update_ratio(&mut self, len: f32) {
-        let total = one_minus_exp_neg(self.optical_depth);
-        let unit = one_minus_exp_neg(self.optical_depth / len);
-        self.unit_over_total = if total > 0.0 { unit / total } else { 1.0 / len };
+    /// `â/A` for unit-length opacity `unit` over length `len` (its limit `1/L` when `A = 0`).
+    #[inline(always)]
+    fn ratio(&self, unit: f32, len: f32) -> f32 {
+        if self.total > 0.0 {
+            unit / self.total
+        } else {
+            1.0 / len
+        }
     }
 
-    /// `‖â·ĉ − a·c‖²` against a sample with per-unit premultiplied colour `ac`.
-    #[inline]
-    fn distance_sq(&self, ac: [f32; 3]) -> f32 {
+    /// `‖r·C − a·c‖²` for ratio `r` against a sample with per-unit premultiplied colour `ac`.
+    #[inline(always)]
+    fn distance_sq(&self, ratio: f32, ac: [f32; 3]) -> f32 {
         (0..3)
             .map(|k| {
-                let d = self.unit_over_total * self.color[k] - ac[k];
+                let d = ratio * self.color[k] - ac[k];
                 d * d
             })
             .sum()
     }
 
-    #[inline]
+    /// Whether a sample at `s` with per-unit premultiplied colour `ac` joins this supersegment.
+    /// After a run of transparent samples the first of them (`a·c = 0`, the largest distance,
+    /// since `â` only falls as the run lengthens) is tested, then `s` against the extent
+    /// stretched to its start.
+    #[inline(always)]
+    fn accepts(&self, s: &Sample, ac: [f32; 3], gamma_sq: f32) -> bool {
+        if s.index > self.last_index + 1 {
+            if self.distance_sq(self.unit_over_total, [0.0; 3]) >= gamma_sq {
+                return false;
+            }
+            let len = s.t_start - self.t_start;
+            let unit = one_minus_exp_neg(self.optical_depth / len);
+            self.distance_sq(self.ratio(unit, len), ac) < gamma_sq
+        } else {
+            self.distance_sq(self.unit_over_total, ac) < gamma_sq
+        }
+    }
+
+    #[inline(always)]
     fn merge(&mut self, s: &Sample) {
         let w = self.transmittance * s.alpha;
         for k in 0..3 {
@@ -163,16 +232,16 @@ impl Open {
         self.optical_depth += s.kappa * s.len;
         self.last_index = s.index;
         self.t_end = s.t_end;
-        self.update_ratio(self.t_end - self.t_start);
+        self.update();
     }
 
-    /// The finished supersegment, depths scaled to eye space by `z_per_t`.
+    /// The finished supersegment, depths scaled to eye space by `z_per_t`: `â` as computed
+    /// for the last merge, `ĉ = C/A`.
+    #[inline]
     fn close(&self, z_per_t: f32) -> Supersegment {
-        let len = (self.t_end - self.t_start).max(f32::MIN_POSITIVE);
-        let total = -(-self.optical_depth).exp_m1();
-        let alpha = (-(-self.optical_depth / len).exp_m1()).clamp(0.0, 1.0);
-        let color = if total > 0.0 {
-            self.color.map(|c| (c / total).clamp(0.0, 1.0))
+        let color = if self.total > 0.0 {
+            let inv = 1.0 / self.total;
+            self.color.map(|c| (c * inv).clamp(0.0, 1.0))
         } else {
             [0.0; 3]
         };
@@ -180,12 +249,12 @@ impl Open {
             z_start: self.t_start * z_per_t,
             z_end: self.t_end * z_per_t,
             color,
-            alpha,
+            alpha: self.unit.clamp(0.0, 1.0),
         }
     }
 }
 
-impl Visit for &mut Builder<'_> {
+impl Visit for Builder<'_> {
     #[inline(always)]
     fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
         self.push(s)
@@ -198,7 +267,9 @@ struct Builder<'a> {
     termination: f32,
     z_per_t: f32,
     transmittance: f32,
-    open: Option<Open>,
+    /// Whether `open` holds a supersegment (false before the ray's first sample).
+    has_open: bool,
+    open: Open,
     out: &'a mut Vec<Supersegment>,
 }
 
@@ -209,7 +280,8 @@ impl<'a> Builder<'a> {
             termination,
             z_per_t,
             transmittance: 1.0,
-            open: None,
+            has_open: false,
+            open: Open::EMPTY,
             out,
         }
     }
@@ -217,31 +289,14 @@ impl<'a> Builder<'a> {
     #[inline(always)]
     fn push(&mut self, s: &Sample) -> ControlFlow<()> {
         let ac = s.rgb.map(|c| c * s.alpha_unit);
-        let keep = match &mut self.open {
-            None => false,
-            Some(open) => {
-                if s.index > open.last_index + 1 {
-                    // A run of transparent samples: the first compares a·c = 0.
-                    if open.distance_sq([0.0; 3]) >= self.gamma_sq {
-                        false
-                    } else {
-                        open.update_ratio(s.t_start - open.t_start);
-                        open.distance_sq(ac) < self.gamma_sq
-                    }
-                } else {
-                    open.distance_sq(ac) < self.gamma_sq
-                }
-            }
-        };
-        if keep {
-            if let Some(open) = &mut self.open {
-                open.merge(s);
-            }
+        if self.has_open && self.open.accepts(s, ac, self.gamma_sq) {
+            self.open.merge(s);
         } else {
-            if let Some(open) = self.open.take() {
-                self.out.push(open.close(self.z_per_t));
+            if self.has_open {
+                self.out.push(self.open.close(self.z_per_t));
             }
-            self.open = Some(Open::new(s));
+            self.open = Open::new(s);
+            self.has_open = true;
         }
         self.transmittance *= 1.0 - s.alpha;
         if 1.0 - self.transmittance >= self.termination {
@@ -251,9 +306,9 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn finish(mut self) {
-        if let Some(open) = self.open.take() {
-            self.out.push(open.close(self.z_per_t));
+    fn finish(self) {
+        if self.has_open {
+            self.out.push(self.open.close(self.z_per_t));
         }
     }
 }

@@ -16,7 +16,7 @@ use crate::camera::Camera;
 use crate::volume::Aabb;
 
 /// One supersegment: a frustum of a pixel's pyramid with constant colour and opacity.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct Supersegment {
     /// Eye-space depth (along the generation camera's view direction) where it starts.

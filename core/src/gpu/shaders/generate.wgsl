@@ -14,10 +14,13 @@ struct Open {
     color: vec3<f32>,
     transmittance: f32,
     optical_depth: f32,
+    // Of the current extent: A = 1 − e^(−τ), â = 1 − e^(−τ/L), and â/A.
+    total: f32,
+    unit: f32,
     unit_over_total: f32,
 };
 
-// 1 − e^(−x) for the interrupt test (mirrors `generate::one_minus_exp_neg`).
+// 1 − e^(−x) (mirrors `fastmath::one_minus_exp_neg`).
 fn one_minus_exp_neg(x: f32) -> f32 {
     if (x < 1.0 / 64.0) {
         return x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))));
@@ -25,32 +28,39 @@ fn one_minus_exp_neg(x: f32) -> f32 {
     return 1.0 - exp(-x);
 }
 
-fn update_ratio(o: ptr<function, Open>, len: f32) {
-    let total = one_minus_exp_neg((*o).optical_depth);
-    let unit = one_minus_exp_neg((*o).optical_depth / len);
-    (*o).unit_over_total = select(1.0 / len, unit / total, total > 0.0);
+fn ratio(o: ptr<function, Open>, unit: f32, len: f32) -> f32 {
+    return select(1.0 / len, unit / (*o).total, (*o).total > 0.0);
 }
 
-fn distance_sq(o: ptr<function, Open>, ac: vec3<f32>) -> f32 {
-    let d = (*o).unit_over_total * (*o).color - ac;
+// A, â and â/A after a merge (mirrors `Open::update`: A from the local transmittance).
+fn update(o: ptr<function, Open>) {
+    let tau = (*o).optical_depth;
+    (*o).total = select(1.0 - (*o).transmittance, one_minus_exp_neg(tau), tau < 1.0 / 64.0);
+    let len = (*o).t_end - (*o).t_start;
+    (*o).unit = one_minus_exp_neg(tau / len);
+    (*o).unit_over_total = ratio(o, (*o).unit, len);
+}
+
+fn distance_sq(o: ptr<function, Open>, r: f32, ac: vec3<f32>) -> f32 {
+    let d = r * (*o).color - ac;
     return dot(d, d);
 }
 
+// A supersegment of one sample: A = α and â = a from the classification.
 fn open_new(s: Sample) -> Open {
-    var o = Open(s.index, s.t_start, s.t_end, s.rgb * s.alpha, 1.0 - s.alpha, s.kappa * s.len, 0.0);
-    update_ratio(&o, o.t_end - o.t_start);
-    return o;
+    let len = s.t_end - s.t_start;
+    let r = select(1.0 / len, s.alpha_unit / s.alpha, s.alpha > 0.0);
+    return Open(s.index, s.t_start, s.t_end, s.rgb * s.alpha, 1.0 - s.alpha, s.kappa * s.len,
+        s.alpha, s.alpha_unit, r);
 }
 
 fn close(o: Open, z_per_t: f32) -> Segment {
-    let len = max(o.t_end - o.t_start, 1.17549435e-38);
-    let total = -expm1_f(-o.optical_depth);
-    let alpha = clamp(-expm1_f(-o.optical_depth / len), 0.0, 1.0);
     var color = vec3<f32>(0.0);
-    if (total > 0.0) {
-        color = clamp(o.color / total, vec3<f32>(0.0), vec3<f32>(1.0));
+    if (o.total > 0.0) {
+        color = clamp(o.color / o.total, vec3<f32>(0.0), vec3<f32>(1.0));
     }
-    return Segment(o.t_start * z_per_t, o.t_end * z_per_t, color.x, color.y, color.z, alpha);
+    return Segment(o.t_start * z_per_t, o.t_end * z_per_t, color.x, color.y, color.z,
+        clamp(o.unit, 0.0, 1.0));
 }
 
 @compute @workgroup_size(8, 8)
@@ -80,13 +90,15 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var keep = false;
         if (has_open) {
             if (s.index > o.last_index + 1u) {
-                // A run of transparent samples: the first compares a·c = 0.
-                if (distance_sq(&o, vec3<f32>(0.0)) < gamma_sq) {
-                    update_ratio(&o, s.t_start - o.t_start);
-                    keep = distance_sq(&o, ac) < gamma_sq;
+                // A run of transparent samples: the first compares a·c = 0, then the sample
+                // against the extent stretched to its start.
+                if (distance_sq(&o, o.unit_over_total, vec3<f32>(0.0)) < gamma_sq) {
+                    let len = s.t_start - o.t_start;
+                    let r = ratio(&o, one_minus_exp_neg(o.optical_depth / len), len);
+                    keep = distance_sq(&o, r, ac) < gamma_sq;
                 }
             } else {
-                keep = distance_sq(&o, ac) < gamma_sq;
+                keep = distance_sq(&o, o.unit_over_total, ac) < gamma_sq;
             }
         }
         if (keep) {
@@ -96,7 +108,7 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             o.optical_depth += s.kappa * s.len;
             o.last_index = s.index;
             o.t_end = s.t_end;
-            update_ratio(&o, o.t_end - o.t_start);
+            update(&o);
         } else {
             if (has_open) {
                 if (n < budget) {
