@@ -58,10 +58,12 @@ pub fn exp_neg(x: f32) -> f32 {
     // Branch-free (the marching loops call it with unpredictable arguments): the value for
     // the clamped argument, then a select.
     let y = -f64::from(x.clamp(0.0, 87.0)) * (32.0 / LN_2);
-    let n = (y + ROUND) - ROUND;
+    let shifted = y + ROUND;
+    let n = shifted - ROUND;
     let r = (y - n) * (LN_2 / 32.0);
-    let k = n as i64;
-    // k ∈ [−4017, 0], so m = ⌊k/32⌋ ∈ [−126, 0] and the biased exponent m + 1023 is normal.
+    // The low bits of `shifted` hold n in two's complement (no saturating float-to-int
+    // conversion). k ∈ [−4017, 0], so m = ⌊k/32⌋ ∈ [−126, 0]: a normal biased exponent.
+    let k = shifted.to_bits() as i32;
     let scale = f64::from_bits((((k >> 5) + 1023) as u64) << 52);
     let p = 1.0 + r + r * r * (0.5 + r * (1.0 / 6.0));
     let v = (EXP2_TABLE[(k & 31) as usize] * p * scale) as f32;
@@ -77,7 +79,7 @@ pub fn exp_neg(x: f32) -> f32 {
 /// (relative error < 1e-5 at `x = 1/64`, falling as `x` grows).
 #[inline(always)]
 pub fn one_minus_exp_neg(x: f32) -> f32 {
-    let series = x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))));
+    let series = one_minus_exp_neg_series(x);
     let complement = 1.0 - exp_neg(x);
     if x < 1.0 / 64.0 {
         series
@@ -86,18 +88,29 @@ pub fn one_minus_exp_neg(x: f32) -> f32 {
     }
 }
 
-/// The smallest integer `≥ v`, for `|v| < 2^31` (`f32::ceil` without the call); values
-/// outside that range saturate towards ±2^31 and NaN gives 0, so callers clamp the result.
+/// The Taylor polynomial of `1 − e^(−x)` to degree 4, for `0 ≤ x < 1/64` (relative error
+/// < 1e-9 there): the branch of [`one_minus_exp_neg`] without cancellation.
+#[inline(always)]
+pub fn one_minus_exp_neg_series(x: f32) -> f32 {
+    x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))))
+}
+
+/// The smallest integer `≥ v`: `f32::ceil` without the libm call. Below 2^22 in magnitude
+/// (every ray's step count here) by rounding with [`ROUND_F32`] and a correction; beyond it,
+/// and for NaN and infinities, by `f32::ceil`.
 #[inline(always)]
 pub fn ceil(v: f32) -> f32 {
-    // Truncation rounds towards zero: already the ceiling for v ≤ 0.
-    let t = v as i32 as f32;
-    if t < v {
-        t + 1.0
-    } else {
-        t
+    if v.is_nan() || v.abs() >= 4_194_304.0 {
+        return v.ceil();
     }
+    let nearest = (v + ROUND_F32) - ROUND_F32;
+    // An addition, not a branch: whether rounding went down is unpredictable.
+    nearest + f32::from(u8::from(nearest < v))
 }
+
+/// `1.5 · 2^23`: adding and subtracting it rounds an `f32` of magnitude < 2^22 to the nearest
+/// integer.
+const ROUND_F32: f32 = 12_582_912.0;
 
 #[cfg(test)]
 mod tests {
@@ -152,6 +165,18 @@ mod tests {
             let v = i as f32 * 0.013_7;
             assert_eq!(ceil(v), v.ceil(), "ceil({v})");
         }
-        assert_eq!(ceil(f32::NAN), 0.0);
+        for v in [
+            4_194_303.5f32,
+            4_194_304.5,
+            -4_194_303.5,
+            8_388_607.5,
+            1e10,
+            -1e10,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
+            assert_eq!(ceil(v), v.ceil(), "ceil({v})");
+        }
+        assert!(ceil(f32::NAN).is_nan());
     }
 }

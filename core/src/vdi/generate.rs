@@ -10,7 +10,7 @@
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::Camera;
-use crate::fastmath::one_minus_exp_neg;
+use crate::fastmath::{one_minus_exp_neg, one_minus_exp_neg_series};
 use crate::raycast::{Raycaster, Sample, Visit};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
@@ -35,21 +35,27 @@ pub fn generate(
     let r = params.resolution;
     let frame = camera.frame(r, r);
     let termination = raycaster.params().termination;
+    // Each row's list is reserved at the size of the row before it on the same worker (and a
+    // quarter more): neighbouring rows see similar content, so lists rarely grow by copying.
     let rows: Vec<(Vec<u32>, Vec<Supersegment>)> = (0..r)
         .into_par_iter()
-        .map(|j| {
-            let mut counts = Vec::with_capacity(r as usize);
-            let mut segs = Vec::new();
-            for i in 0..r {
-                let ray = frame.pixel_ray(i, j);
-                let z_per_t = ray.dir.dot(frame.forward);
-                let before = segs.len();
-                let builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
-                raycaster.march_owned(&ray, builder).finish();
-                counts.push((segs.len() - before) as u32);
-            }
-            (counts, segs)
-        })
+        .map_init(
+            || 0usize,
+            |previous, j| {
+                let mut counts = Vec::with_capacity(r as usize);
+                let mut segs = Vec::with_capacity(*previous + *previous / 4);
+                for i in 0..r {
+                    let ray = frame.pixel_ray(i, j);
+                    let z_per_t = ray.dir.dot(frame.forward);
+                    let before = segs.len();
+                    let builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
+                    raycaster.march_owned(&ray, builder).finish();
+                    counts.push((segs.len() - before) as u32);
+                }
+                *previous = segs.len();
+                (counts, segs)
+            },
+        )
         .collect();
     let (offsets, supersegments) = flatten(rows);
     let meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
@@ -173,11 +179,10 @@ impl Open {
     #[inline(always)]
     fn update(&mut self) {
         let tau = self.optical_depth;
-        self.total = if tau < 1.0 / 64.0 {
-            one_minus_exp_neg(tau)
-        } else {
-            1.0 - self.transmittance
-        };
+        // Both sides are computed and one selected: the comparison is unpredictable.
+        let series = one_minus_exp_neg_series(tau);
+        let complement = 1.0 - self.transmittance;
+        self.total = if tau < 1.0 / 64.0 { series } else { complement };
         let len = self.t_end - self.t_start;
         self.unit = one_minus_exp_neg(tau / len);
         self.unit_over_total = self.ratio(self.unit, len);

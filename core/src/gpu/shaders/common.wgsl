@@ -214,8 +214,10 @@ fn marcher_next(m: ptr<function, Marcher>, s: ptr<function, Sample>) -> bool {
         let c = lower_corner(p);
         if (P.dims.w != 0u && macro_visible[macro_index(c)] == 0u) {
             let t_exit = cell_exit(c, (*m).o_v, (*m).d_v);
-            let k_first = ceil((t_exit - (*m).t_in) / step - 0.5);
-            (*m).k = max(k + 1u, u32(clamp(k_first - 1.0, 0.0, f32((*m).n_samples))));
+            // The CPU marcher's margin: never skip a sample outside the cell.
+            let margin = 0.125 * step + 1e-5 * abs(t_exit);
+            let k_first = ceil((t_exit - margin - (*m).t_in) / step - 0.5);
+            (*m).k = max(k + 1u, u32(clamp(k_first, 0.0, f32((*m).n_samples))));
             continue;
         }
         let v = trilinear(c, p - vec3<f32>(c));
