@@ -112,6 +112,10 @@ pub struct Sample {
 pub trait Visit {
     /// Takes one sample; `Break` stops the ray.
     fn visit(&mut self, s: &Sample) -> ControlFlow<()>;
+
+    /// Called once when the ray ends (it left the volume, or `visit` returned `Break`).
+    #[inline(always)]
+    fn end(&mut self) {}
 }
 
 impl<F: FnMut(&Sample) -> ControlFlow<()>> Visit for F {
@@ -190,28 +194,25 @@ impl<'a> Raycaster<'a> {
     }
 
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
-    /// returns `Break` or the ray leaves the volume.
-    pub fn march(&self, ray: &Ray, visit: impl Visit) {
-        let _ = self.march_owned(ray, visit);
-    }
-
-    /// [`Raycaster::march`] taking the visitor by value and handing it back: a visitor owned
-    /// by the loop keeps its state in registers across samples (VDI generation's builder),
-    /// where one behind a `&mut` is reloaded and stored at every sample.
-    pub fn march_owned<V: Visit>(&self, ray: &Ray, visit: V) -> V {
+    /// returns `Break` or the ray leaves the volume, then [`Visit::end`].
+    ///
+    /// The visitor is taken by value and told when the ray ends, not handed back: a visitor
+    /// returned to the caller (or reached through a `&mut`) costs loads and stores per sample.
+    pub fn march<V: Visit>(&self, ray: &Ray, mut visit: V) {
         match self.params.shading {
-            None => self.march_impl::<false, V>(ray, visit),
-            Some(_) => self.march_impl::<true, V>(ray, visit),
+            None => self.march_impl::<false, V>(ray, &mut visit),
+            Some(_) => self.march_impl::<true, V>(ray, &mut visit),
         }
+        visit.end();
     }
 
     #[inline(always)]
-    fn march_impl<const SHADE: bool, V: Visit>(&self, ray: &Ray, mut visit: V) -> V {
+    fn march_impl<const SHADE: bool, V: Visit>(&self, ray: &Ray, visit: &mut V) {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
         let t_in = t_near.max(0.0);
         if t_far.is_nan() || t_in.is_nan() || t_far <= t_in {
-            return visit;
+            return;
         }
         let step = self.params.step;
         let length = t_far - t_in;
@@ -293,10 +294,9 @@ impl<'a> Raycaster<'a> {
                 alpha,
             };
             if visit.visit(&sample).is_break() {
-                return visit;
+                return;
             }
         }
-        visit
     }
 
     /// Trilinear value at voxel-space position `p` (clamped to the grid).

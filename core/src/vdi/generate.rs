@@ -49,7 +49,7 @@ pub fn generate(
                     let z_per_t = ray.dir.dot(frame.forward);
                     let before = segs.len();
                     let builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
-                    raycaster.march_owned(&ray, builder).finish();
+                    raycaster.march(&ray, builder);
                     counts.push((segs.len() - before) as u32);
                 }
                 *previous = segs.len();
@@ -264,6 +264,13 @@ impl Visit for Builder<'_> {
     fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
         self.push(s)
     }
+
+    #[inline(always)]
+    fn end(&mut self) {
+        if self.has_open {
+            self.out.push(self.open.close(self.z_per_t));
+        }
+    }
 }
 
 /// Merges one ray's samples into supersegments.
@@ -308,12 +315,6 @@ impl<'a> Builder<'a> {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
-        }
-    }
-
-    fn finish(self) {
-        if self.has_open {
-            self.out.push(self.open.close(self.z_per_t));
         }
     }
 }
