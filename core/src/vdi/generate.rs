@@ -65,9 +65,10 @@ pub fn generate(
 
 /// Joins per-row `(counts, supersegments)` into prefix offsets and one flat array.
 ///
-/// The array is allocated zeroed (`calloc`: fresh pages, not yet touched) and the rows are
-/// copied into it in parallel, so the page faults of a large VDI (tens of MB) are spread
-/// over the threads instead of following the parallel pass as a serial copy.
+/// The array is allocated zeroed (`calloc`: fresh pages, not yet touched) and each row is
+/// copied into it and freed by a parallel task, so the page faults of a large VDI (tens of
+/// MB) and the rows' deallocation are spread over the threads instead of following the
+/// parallel pass as serial work.
 fn flatten(rows: Vec<(Vec<u32>, Vec<Supersegment>)>) -> (Vec<u32>, Vec<Supersegment>) {
     let pixels: usize = rows.iter().map(|(c, _)| c.len()).sum();
     let mut offsets = Vec::with_capacity(pixels + 1);
@@ -83,14 +84,14 @@ fn flatten(rows: Vec<(Vec<u32>, Vec<Supersegment>)>) -> (Vec<u32>, Vec<Supersegm
     let mut supersegments: Vec<Supersegment> = bytemuck::allocation::zeroed_vec(total);
     let mut rest = supersegments.as_mut_slice();
     let mut parts = Vec::with_capacity(rows.len());
-    for (_, segs) in &rows {
+    for (_, segs) in rows {
         let (part, tail) = std::mem::take(&mut rest).split_at_mut(segs.len());
-        parts.push((part, segs.as_slice()));
+        parts.push((part, segs));
         rest = tail;
     }
     parts
         .into_par_iter()
-        .for_each(|(dst, src)| dst.copy_from_slice(src));
+        .for_each(|(dst, src)| dst.copy_from_slice(&src));
     (offsets, supersegments)
 }
 
