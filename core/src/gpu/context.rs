@@ -117,6 +117,23 @@ impl Gpu {
             .min(self.limits.max_buffer_size)
     }
 
+    /// Checks that `bytes` of `what` fit one storage binding.
+    ///
+    /// # Errors
+    /// [`GpuError::Limit`] naming `what` and `max_storage_buffer_binding_size`.
+    pub(super) fn check_binding(&self, what: &str, bytes: u64) -> Result<(), GpuError> {
+        let limit = self.max_storage_binding();
+        if bytes > limit {
+            return Err(GpuError::Limit {
+                what: what.into(),
+                needed: bytes,
+                limit,
+                name: "max_storage_buffer_binding_size",
+            });
+        }
+        Ok(())
+    }
+
     /// Uses at most `bytes` per storage binding (and buffer), below what the device allows:
     /// leaves room for other users of the device, and lets tests exercise the banding that
     /// large images and VDIs need. Values above the device's limits are ignored.

@@ -8,7 +8,7 @@ use crate::raycast::Raycaster;
 use crate::vdi::{generate::meta_for, Supersegment, Vdi, VdiParams};
 
 /// Bytes of one supersegment on the GPU (six `f32`, the layout of [`Supersegment`]).
-const SEGMENT_BYTES: u64 = 24;
+pub(super) const SEGMENT_BYTES: u64 = 24;
 /// Per-ray supersegment budget of the first generation pass; a band whose rays need more is
 /// run again with the next power of two above the largest count.
 pub const INITIAL_BUDGET: u32 = 16;
@@ -461,16 +461,9 @@ pub(super) fn band_rows(
     what: &str,
 ) -> Result<u32, GpuError> {
     let row_bytes = u64::from(width) * bytes_per_item;
+    gpu.check_binding(what, row_bytes)?;
     let limit = gpu.max_storage_binding();
     let max_groups = u64::from(gpu.limits.max_compute_workgroups_per_dimension);
-    if row_bytes > limit {
-        return Err(GpuError::Limit {
-            what: what.into(),
-            needed: row_bytes,
-            limit,
-            name: "max_storage_buffer_binding_size",
-        });
-    }
     if u64::from(width).div_ceil(8) > max_groups {
         return Err(GpuError::Limit {
             what: format!("{what}: workgroups across a row of {width}"),

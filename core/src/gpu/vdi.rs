@@ -1,7 +1,7 @@
 //! A VDI uploaded to the GPU and rendered from new cameras.
 
 use super::context::{f32_bytes, u32_bytes, Uniform};
-use super::scene::{image_in_bands, KernelRun};
+use super::scene::{image_in_bands, KernelRun, SEGMENT_BYTES};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -29,19 +29,9 @@ impl<'g> GpuVdi<'g> {
     /// `max_storage_buffer_binding_size` (a walk may cross any pixel, so the lists are not
     /// split); errors of the device.
     pub fn new(gpu: &'g Gpu, vdi: &Vdi) -> Result<Self, GpuError> {
-        let limit = gpu.max_storage_binding();
-        let seg_bytes = vdi.supersegments().len() as u64 * 24;
-        let off_bytes = vdi.offsets().len() as u64 * 4;
-        for (what, bytes) in [("VDI supersegments", seg_bytes), ("VDI offsets", off_bytes)] {
-            if bytes > limit {
-                return Err(GpuError::Limit {
-                    what: what.into(),
-                    needed: bytes,
-                    limit,
-                    name: "max_storage_buffer_binding_size",
-                });
-            }
-        }
+        let seg_bytes = vdi.supersegments().len() as u64 * SEGMENT_BYTES;
+        gpu.check_binding("VDI supersegments", seg_bytes)?;
+        gpu.check_binding("VDI offsets", vdi.offsets().len() as u64 * 4)?;
         gpu.scoped("uploading the VDI", || {
             let offsets = gpu.buffer_init(
                 "vdi offsets",

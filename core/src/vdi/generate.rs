@@ -153,8 +153,7 @@ impl Open {
     /// length `a`, both from the classification table, so opening needs no exponential.
     #[inline(always)]
     fn new(s: &Sample) -> Self {
-        let len = s.t_end - s.t_start;
-        Self {
+        let mut open = Self {
             last_index: s.index,
             t_start: s.t_start,
             t_end: s.t_end,
@@ -163,12 +162,10 @@ impl Open {
             optical_depth: s.kappa * s.len,
             total: s.alpha,
             unit: s.alpha_unit,
-            unit_over_total: if s.alpha > 0.0 {
-                s.alpha_unit / s.alpha
-            } else {
-                1.0 / len
-            },
-        }
+            unit_over_total: 0.0,
+        };
+        open.unit_over_total = open.ratio(open.unit, open.t_end - open.t_start);
+        open
     }
 
     /// Recomputes `A`, `â` and `â/A` after the extent or the optical depth changed, with one
