@@ -106,25 +106,6 @@ pub struct Sample {
     pub alpha: f32,
 }
 
-/// What [`Raycaster::march`] hands each sample to: any `FnMut(&Sample) -> ControlFlow<()>`,
-/// or a type whose `visit` is `#[inline(always)]` so that a large per-sample body (VDI
-/// generation's supersegment builder) is inlined into the marching loop, not called.
-pub trait Visit {
-    /// Takes one sample; `Break` stops the ray.
-    fn visit(&mut self, s: &Sample) -> ControlFlow<()>;
-
-    /// Called once when the ray ends (it left the volume, or `visit` returned `Break`).
-    #[inline(always)]
-    fn end(&mut self) {}
-}
-
-impl<F: FnMut(&Sample) -> ControlFlow<()>> Visit for F {
-    #[inline(always)]
-    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
-        self(s)
-    }
-}
-
 /// A volume prepared for ray-casting with one transfer function and parameters: the
 /// classification table and the macro-cell grid are built once here.
 pub struct Raycaster<'a> {
@@ -194,20 +175,20 @@ impl<'a> Raycaster<'a> {
     }
 
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
-    /// returns `Break` or the ray leaves the volume, then [`Visit::end`].
-    ///
-    /// The visitor is taken by value and told when the ray ends, not handed back: a visitor
-    /// returned to the caller (or reached through a `&mut`) costs loads and stores per sample.
-    pub fn march<V: Visit>(&self, ray: &Ray, mut visit: V) {
+    /// returns `Break` or the ray leaves the volume.
+    pub fn march(&self, ray: &Ray, mut visit: impl FnMut(&Sample) -> ControlFlow<()>) {
         match self.params.shading {
-            None => self.march_impl::<false, V>(ray, &mut visit),
-            Some(_) => self.march_impl::<true, V>(ray, &mut visit),
+            None => self.march_impl::<false>(ray, &mut visit),
+            Some(_) => self.march_impl::<true>(ray, &mut visit),
         }
-        visit.end();
     }
 
     #[inline(always)]
-    fn march_impl<const SHADE: bool, V: Visit>(&self, ray: &Ray, visit: &mut V) {
+    fn march_impl<const SHADE: bool>(
+        &self,
+        ray: &Ray,
+        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+    ) {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
         let t_in = t_near.max(0.0);
@@ -293,7 +274,7 @@ impl<'a> Raycaster<'a> {
                 kappa: e.kappa,
                 alpha,
             };
-            if visit.visit(&sample).is_break() {
+            if visit(&sample).is_break() {
                 return;
             }
         }

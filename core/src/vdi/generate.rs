@@ -9,9 +9,9 @@
 //! `d`, since `â` only falls as the run lengthens) and trailing ones are cut off.
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
-use crate::camera::Camera;
-use crate::fastmath::{one_minus_exp_neg, one_minus_exp_neg_series};
-use crate::raycast::{Raycaster, Sample, Visit};
+use crate::camera::{Camera, Ray};
+use crate::fastmath::one_minus_exp_neg;
+use crate::raycast::{Raycaster, Sample};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 
@@ -35,21 +35,21 @@ pub fn generate(
     let r = params.resolution;
     let frame = camera.frame(r, r);
     let termination = raycaster.params().termination;
+    let gamma_sq = params.gamma * params.gamma;
     // Each row's list is reserved at the size of the row before it on the same worker (and a
     // quarter more): neighbouring rows see similar content, so lists rarely grow by copying.
     let rows: Vec<(Vec<u32>, Vec<Supersegment>)> = (0..r)
         .into_par_iter()
         .map_init(
-            || 0usize,
-            |previous, j| {
+            || (0usize, Vec::new()),
+            |(previous, samples), j| {
                 let mut counts = Vec::with_capacity(r as usize);
                 let mut segs = Vec::with_capacity(*previous + *previous / 4);
                 for i in 0..r {
                     let ray = frame.pixel_ray(i, j);
-                    let z_per_t = ray.dir.dot(frame.forward);
+                    collect_samples(raycaster, &ray, termination, samples);
                     let before = segs.len();
-                    let builder = Builder::new(params.gamma, termination, z_per_t, &mut segs);
-                    raycaster.march(&ray, builder);
+                    build(samples, gamma_sq, ray.dir.dot(frame.forward), &mut segs);
                     counts.push((segs.len() - before) as u32);
                 }
                 *previous = segs.len();
@@ -123,76 +123,35 @@ struct Open {
     /// Ray parameter where it starts and where its last merged sample ends.
     t_start: f32,
     t_end: f32,
-    /// Accumulated premultiplied colour `C` and local transmittance `1 − A`.
+    /// Accumulated premultiplied colour `C`, accumulated opacity `A = Σ Tᵢ·αᵢ` (a sum of
+    /// positive terms, so no cancellation where `A` is small) and local transmittance
+    /// `T = Π (1 − αᵢ) = 1 − A`.
     color: [f32; 3],
+    total: f32,
     transmittance: f32,
     /// Optical depth `τ = Σ κ·len`.
     optical_depth: f32,
-    /// Of the current extent `L = t_end − t_start`: accumulated opacity `A = 1 − e^(−τ)`,
-    /// unit-length opacity `â = 1 − e^(−τ/L)` and the ratio `â/A` (`â·ĉ = (â/A)·C`).
-    total: f32,
+    /// Of the current extent `L = t_end − t_start`: unit-length opacity
+    /// `â = 1 − e^(−τ/L)` and the ratio `â/A` (`â·ĉ = (â/A)·C`).
     unit: f32,
     unit_over_total: f32,
 }
 
 impl Open {
-    /// Placeholder before a ray's first sample.
-    const EMPTY: Self = Self {
-        last_index: 0,
-        t_start: 0.0,
-        t_end: 0.0,
-        color: [0.0; 3],
-        transmittance: 1.0,
-        optical_depth: 0.0,
-        total: 0.0,
-        unit: 0.0,
-        unit_over_total: 0.0,
-    };
-
     /// A supersegment of one sample: `A` is its opacity `α` and `â` its opacity per unit
     /// length `a`, both from the classification table, so opening needs no exponential.
     #[inline(always)]
     fn new(s: &Sample) -> Self {
-        let mut open = Self {
+        Self {
             last_index: s.index,
             t_start: s.t_start,
             t_end: s.t_end,
             color: s.rgb.map(|c| c * s.alpha),
+            total: s.alpha,
             transmittance: 1.0 - s.alpha,
             optical_depth: s.kappa * s.len,
-            total: s.alpha,
             unit: s.alpha_unit,
-            unit_over_total: 0.0,
-        };
-        open.unit_over_total = open.ratio(open.unit, open.t_end - open.t_start);
-        open
-    }
-
-    /// Recomputes `A`, `â` and `â/A` after the extent or the optical depth changed, with one
-    /// exponential: `A` is the complement of the local transmittance already tracked (its
-    /// Taylor polynomial for small `τ`, where the subtraction would cancel), `â` comes from
-    /// [`one_minus_exp_neg`] (relative error < 1e-5). `A` carries the rounding of the product
-    /// of `1 − α`, exactly as the DVR's accumulated opacity does; the stored `â` and `ĉ = C/A`
-    /// are these values.
-    #[inline(always)]
-    fn update(&mut self) {
-        let tau = self.optical_depth;
-        // Both sides are computed and one selected: the comparison is unpredictable.
-        let series = one_minus_exp_neg_series(tau);
-        let complement = 1.0 - self.transmittance;
-        self.total = if tau < 1.0 / 64.0 { series } else { complement };
-        let len = self.t_end - self.t_start;
-        self.unit = one_minus_exp_neg(tau / len);
-        self.unit_over_total = self.ratio(self.unit, len);
-    }
-
-    /// `â/A` for unit-length opacity `unit` over length `len` (its limit `1/L` when `A = 0`).
-    #[inline(always)]
-    fn ratio(&self, unit: f32, len: f32) -> f32 {
-        if self.total > 0.0 {
-            unit / self.total
-        } else {
-            1.0 / len
+            unit_over_total: ratio(s.alpha_unit, s.alpha),
         }
     }
 
@@ -217,37 +176,36 @@ impl Open {
             if self.distance_sq(self.unit_over_total, [0.0; 3]) >= gamma_sq {
                 return false;
             }
-            let len = s.t_start - self.t_start;
-            let unit = one_minus_exp_neg(self.optical_depth / len);
-            self.distance_sq(self.ratio(unit, len), ac) < gamma_sq
+            let unit = one_minus_exp_neg(self.optical_depth / (s.t_start - self.t_start));
+            self.distance_sq(ratio(unit, self.total), ac) < gamma_sq
         } else {
             self.distance_sq(self.unit_over_total, ac) < gamma_sq
         }
     }
 
+    /// Adds `s` behind the merged samples and recomputes `â` and `â/A` with one
+    /// exponential ([`one_minus_exp_neg`], relative error < 1e-6).
     #[inline(always)]
     fn merge(&mut self, s: &Sample) {
         let w = self.transmittance * s.alpha;
         for k in 0..3 {
             self.color[k] += w * s.rgb[k];
         }
+        self.total += w;
         self.transmittance *= 1.0 - s.alpha;
         self.optical_depth += s.kappa * s.len;
         self.last_index = s.index;
         self.t_end = s.t_end;
-        self.update();
+        self.unit = one_minus_exp_neg(self.optical_depth / (self.t_end - self.t_start));
+        self.unit_over_total = ratio(self.unit, self.total);
     }
 
     /// The finished supersegment, depths scaled to eye space by `z_per_t`: `â` as computed
     /// for the last merge, `ĉ = C/A`.
     #[inline]
     fn close(&self, z_per_t: f32) -> Supersegment {
-        let color = if self.total > 0.0 {
-            let inv = 1.0 / self.total;
-            self.color.map(|c| (c * inv).clamp(0.0, 1.0))
-        } else {
-            [0.0; 3]
-        };
+        let inv = 1.0 / self.total.max(f32::MIN_POSITIVE);
+        let color = self.color.map(|c| (c * inv).clamp(0.0, 1.0));
         Supersegment {
             z_start: self.t_start * z_per_t,
             z_end: self.t_end * z_per_t,
@@ -257,62 +215,48 @@ impl Open {
     }
 }
 
-impl Visit for Builder<'_> {
-    #[inline(always)]
-    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
-        self.push(s)
-    }
-
-    #[inline(always)]
-    fn end(&mut self) {
-        if self.has_open {
-            self.out.push(self.open.close(self.z_per_t));
-        }
-    }
+/// `â/A`. `A ≥ α > 0` for every supersegment (transparent samples never open one); the
+/// floor keeps the ratio finite regardless.
+#[inline(always)]
+fn ratio(unit: f32, total: f32) -> f32 {
+    unit / total.max(f32::MIN_POSITIVE)
 }
 
-/// Merges one ray's samples into supersegments.
-struct Builder<'a> {
-    gamma_sq: f32,
-    termination: f32,
-    z_per_t: f32,
-    transmittance: f32,
-    /// Whether `open` holds a supersegment (false before the ray's first sample).
-    has_open: bool,
-    open: Open,
-    out: &'a mut Vec<Supersegment>,
-}
-
-impl<'a> Builder<'a> {
-    fn new(gamma: f32, termination: f32, z_per_t: f32, out: &'a mut Vec<Supersegment>) -> Self {
-        Self {
-            gamma_sq: gamma * gamma,
-            termination,
-            z_per_t,
-            transmittance: 1.0,
-            has_open: false,
-            open: Open::EMPTY,
-            out,
-        }
-    }
-
-    #[inline(always)]
-    fn push(&mut self, s: &Sample) -> ControlFlow<()> {
-        let ac = s.rgb.map(|c| c * s.alpha_unit);
-        if self.has_open && self.open.accepts(s, ac, self.gamma_sq) {
-            self.open.merge(s);
-        } else {
-            if self.has_open {
-                self.out.push(self.open.close(self.z_per_t));
-            }
-            self.open = Open::new(s);
-            self.has_open = true;
-        }
-        self.transmittance *= 1.0 - s.alpha;
-        if 1.0 - self.transmittance >= self.termination {
+/// Fills `samples` with `ray`'s non-transparent samples up to early ray termination (the
+/// accumulated opacity reaching `termination`, as in the DVR).
+///
+/// Collecting a ray's samples first and merging them in a second loop ([`build`]) keeps each
+/// loop's live values in registers: merging inside the marching loop spilled both loops'
+/// state around every sample (half of generation's extra instructions over the DVR).
+fn collect_samples(raycaster: &Raycaster, ray: &Ray, termination: f32, samples: &mut Vec<Sample>) {
+    samples.clear();
+    let mut transmittance = 1.0f32;
+    raycaster.march(ray, |s: &Sample| {
+        samples.push(*s);
+        transmittance *= 1.0 - s.alpha;
+        if 1.0 - transmittance >= termination {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         }
+    });
+}
+
+/// Merges one ray's `samples` (front to back) into supersegments appended to `out`, depths
+/// scaled to eye space by `z_per_t` (the ray direction's component along the view axis).
+fn build(samples: &[Sample], gamma_sq: f32, z_per_t: f32, out: &mut Vec<Supersegment>) {
+    let Some((first, rest)) = samples.split_first() else {
+        return;
+    };
+    let mut open = Open::new(first);
+    for s in rest {
+        let ac = s.rgb.map(|c| c * s.alpha_unit);
+        if open.accepts(s, ac, gamma_sq) {
+            open.merge(s);
+        } else {
+            out.push(open.close(z_per_t));
+            open = Open::new(s);
+        }
     }
+    out.push(open.close(z_per_t));
 }

@@ -12,15 +12,17 @@ struct Open {
     t_start: f32,
     t_end: f32,
     color: vec3<f32>,
+    // A = Σ Tᵢ·αᵢ (no cancellation where A is small) and T = Π (1 − αᵢ).
+    total: f32,
     transmittance: f32,
     optical_depth: f32,
-    // Of the current extent: A = 1 − e^(−τ), â = 1 − e^(−τ/L), and â/A.
-    total: f32,
+    // Of the current extent L: â = 1 − e^(−τ/L), and â/A.
     unit: f32,
     unit_over_total: f32,
 };
 
-// 1 − e^(−x) (mirrors `fastmath::one_minus_exp_neg`).
+// 1 − e^(−x) without cancellation near 0 (the CPU's `fastmath::one_minus_exp_neg` avoids a
+// libm call; here `exp` is the hardware's).
 fn one_minus_exp_neg(x: f32) -> f32 {
     if (x < 1.0 / 64.0) {
         return x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))));
@@ -28,17 +30,9 @@ fn one_minus_exp_neg(x: f32) -> f32 {
     return 1.0 - exp(-x);
 }
 
-fn ratio(o: ptr<function, Open>, unit: f32, len: f32) -> f32 {
-    return select(1.0 / len, unit / (*o).total, (*o).total > 0.0);
-}
-
-// A, â and â/A after a merge (mirrors `Open::update`: A from the local transmittance).
-fn update(o: ptr<function, Open>) {
-    let tau = (*o).optical_depth;
-    (*o).total = select(1.0 - (*o).transmittance, one_minus_exp_neg(tau), tau < 1.0 / 64.0);
-    let len = (*o).t_end - (*o).t_start;
-    (*o).unit = one_minus_exp_neg(tau / len);
-    (*o).unit_over_total = ratio(o, (*o).unit, len);
+// â/A; A ≥ α > 0 (mirrors `generate::ratio`).
+fn ratio(unit: f32, total: f32) -> f32 {
+    return unit / max(total, 1.17549435e-38);
 }
 
 fn distance_sq(o: ptr<function, Open>, r: f32, ac: vec3<f32>) -> f32 {
@@ -48,17 +42,12 @@ fn distance_sq(o: ptr<function, Open>, r: f32, ac: vec3<f32>) -> f32 {
 
 // A supersegment of one sample: A = α and â = a from the classification.
 fn open_new(s: Sample) -> Open {
-    let len = s.t_end - s.t_start;
-    let r = select(1.0 / len, s.alpha_unit / s.alpha, s.alpha > 0.0);
-    return Open(s.index, s.t_start, s.t_end, s.rgb * s.alpha, 1.0 - s.alpha, s.kappa * s.len,
-        s.alpha, s.alpha_unit, r);
+    return Open(s.index, s.t_start, s.t_end, s.rgb * s.alpha, s.alpha, 1.0 - s.alpha,
+        s.kappa * s.len, s.alpha_unit, ratio(s.alpha_unit, s.alpha));
 }
 
 fn close(o: Open, z_per_t: f32) -> Segment {
-    var color = vec3<f32>(0.0);
-    if (o.total > 0.0) {
-        color = clamp(o.color / o.total, vec3<f32>(0.0), vec3<f32>(1.0));
-    }
+    let color = clamp(o.color / max(o.total, 1.17549435e-38), vec3<f32>(0.0), vec3<f32>(1.0));
     return Segment(o.t_start * z_per_t, o.t_end * z_per_t, color.x, color.y, color.z,
         clamp(o.unit, 0.0, 1.0));
 }
@@ -93,8 +82,8 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // A run of transparent samples: the first compares a·c = 0, then the sample
                 // against the extent stretched to its start.
                 if (distance_sq(&o, o.unit_over_total, vec3<f32>(0.0)) < gamma_sq) {
-                    let len = s.t_start - o.t_start;
-                    let r = ratio(&o, one_minus_exp_neg(o.optical_depth / len), len);
+                    let unit = one_minus_exp_neg(o.optical_depth / (s.t_start - o.t_start));
+                    let r = ratio(unit, o.total);
                     keep = distance_sq(&o, r, ac) < gamma_sq;
                 }
             } else {
@@ -104,11 +93,14 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (keep) {
             let w = o.transmittance * s.alpha;
             o.color += w * s.rgb;
+            o.total += w;
             o.transmittance *= 1.0 - s.alpha;
             o.optical_depth += s.kappa * s.len;
             o.last_index = s.index;
             o.t_end = s.t_end;
-            update(&o);
+            // â and â/A of the new extent (mirrors `Open::merge`).
+            o.unit = one_minus_exp_neg(o.optical_depth / (o.t_end - o.t_start));
+            o.unit_over_total = ratio(o.unit, o.total);
         } else {
             if (has_open) {
                 if (n < budget) {
