@@ -210,18 +210,9 @@ impl<'a> Raycaster<'a> {
         let skip = self.params.empty_space_skipping;
         let mut k = 0u32;
         while k < n_samples {
-            let (t0, t1, len) = if k + 1 < n_full {
-                (t_in + k as f32 * step, t_in + (k + 1) as f32 * step, step)
-            } else if k + 1 == n_full {
-                let t1 = if n_samples > n_full {
-                    t_in + n_full_f * step
-                } else {
-                    t_far
-                };
-                (t_in + k as f32 * step, t1, step)
-            } else {
-                (t_in + n_full_f * step, t_far, rem)
-            };
+            // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder.
+            let t0 = t_in + k as f32 * step;
+            let len = if k < n_full { step } else { rem };
             let p = (o_v + (t0 + 0.5 * len) * d_v).clamp(Vec3::ZERO, self.max_voxel);
             let ix = (p.x as usize).min(nx.saturating_sub(2));
             let iy = (p.y as usize).min(ny.saturating_sub(2));
@@ -264,10 +255,16 @@ impl<'a> Raycaster<'a> {
             } else {
                 e.rgb
             };
+            // The interval ends where the next one starts, or at the box exit.
+            let t_end = if k < n_samples {
+                t_in + k as f32 * step
+            } else {
+                t_far
+            };
             let sample = Sample {
                 index: k - 1,
                 t_start: t0,
-                t_end: t1,
+                t_end,
                 len,
                 rgb,
                 alpha_unit: e.alpha_unit,

@@ -12,6 +12,7 @@ use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::{Camera, Ray};
 use crate::fastmath::one_minus_exp_neg;
 use crate::raycast::{Raycaster, Sample};
+use glam::Vec3A;
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 
@@ -126,7 +127,7 @@ struct Open {
     /// Accumulated premultiplied colour `C`, accumulated opacity `A = Σ Tᵢ·αᵢ` (a sum of
     /// positive terms, so no cancellation where `A` is small) and local transmittance
     /// `T = Π (1 − αᵢ) = 1 − A`.
-    color: [f32; 3],
+    color: Vec3A,
     total: f32,
     transmittance: f32,
     /// Optical depth `τ = Σ κ·len`.
@@ -146,7 +147,7 @@ impl Open {
             last_index: s.index,
             t_start: s.t_start,
             t_end: s.t_end,
-            color: s.rgb.map(|c| c * s.alpha),
+            color: Vec3A::from(s.rgb) * s.alpha,
             total: s.alpha,
             transmittance: 1.0 - s.alpha,
             optical_depth: s.kappa * s.len,
@@ -157,13 +158,8 @@ impl Open {
 
     /// `‖r·C − a·c‖²` for ratio `r` against a sample with per-unit premultiplied colour `ac`.
     #[inline(always)]
-    fn distance_sq(&self, ratio: f32, ac: [f32; 3]) -> f32 {
-        (0..3)
-            .map(|k| {
-                let d = ratio * self.color[k] - ac[k];
-                d * d
-            })
-            .sum()
+    fn distance_sq(&self, ratio: f32, ac: Vec3A) -> f32 {
+        (ratio * self.color - ac).length_squared()
     }
 
     /// Whether a sample at `s` with per-unit premultiplied colour `ac` joins this supersegment.
@@ -171,9 +167,9 @@ impl Open {
     /// since `â` only falls as the run lengthens) is tested, then `s` against the extent
     /// stretched to its start.
     #[inline(always)]
-    fn accepts(&self, s: &Sample, ac: [f32; 3], gamma_sq: f32) -> bool {
+    fn accepts(&self, s: &Sample, ac: Vec3A, gamma_sq: f32) -> bool {
         if s.index > self.last_index + 1 {
-            if self.distance_sq(self.unit_over_total, [0.0; 3]) >= gamma_sq {
+            if self.distance_sq(self.unit_over_total, Vec3A::ZERO) >= gamma_sq {
                 return false;
             }
             let unit = one_minus_exp_neg(self.optical_depth / (s.t_start - self.t_start));
@@ -188,15 +184,16 @@ impl Open {
     #[inline(always)]
     fn merge(&mut self, s: &Sample) {
         let w = self.transmittance * s.alpha;
-        for k in 0..3 {
-            self.color[k] += w * s.rgb[k];
-        }
+        self.color += w * Vec3A::from(s.rgb);
         self.total += w;
         self.transmittance *= 1.0 - s.alpha;
         self.optical_depth += s.kappa * s.len;
         self.last_index = s.index;
         self.t_end = s.t_end;
-        self.unit = one_minus_exp_neg(self.optical_depth / (self.t_end - self.t_start));
+        // Reciprocals, not divisions: they do not depend on the exponential, so they are
+        // computed beside it instead of lengthening the chain the next test waits on.
+        let inv_len = 1.0 / (self.t_end - self.t_start);
+        self.unit = one_minus_exp_neg(self.optical_depth * inv_len);
         self.unit_over_total = ratio(self.unit, self.total);
     }
 
@@ -205,7 +202,7 @@ impl Open {
     #[inline]
     fn close(&self, z_per_t: f32) -> Supersegment {
         let inv = 1.0 / self.total.max(f32::MIN_POSITIVE);
-        let color = self.color.map(|c| (c * inv).clamp(0.0, 1.0));
+        let color = (self.color * inv).clamp(Vec3A::ZERO, Vec3A::ONE).to_array();
         Supersegment {
             z_start: self.t_start * z_per_t,
             z_end: self.t_end * z_per_t,
@@ -216,10 +213,11 @@ impl Open {
 }
 
 /// `â/A`. `A ≥ α > 0` for every supersegment (transparent samples never open one); the
-/// floor keeps the ratio finite regardless.
+/// floor keeps the ratio finite regardless. `1/A` does not depend on `â` and is computed
+/// beside it (see [`Open::merge`]).
 #[inline(always)]
 fn ratio(unit: f32, total: f32) -> f32 {
-    unit / total.max(f32::MIN_POSITIVE)
+    unit * (1.0 / total.max(f32::MIN_POSITIVE))
 }
 
 /// Fills `samples` with `ray`'s non-transparent samples up to early ray termination (the
@@ -250,7 +248,7 @@ fn build(samples: &[Sample], gamma_sq: f32, z_per_t: f32, out: &mut Vec<Superseg
     };
     let mut open = Open::new(first);
     for s in rest {
-        let ac = s.rgb.map(|c| c * s.alpha_unit);
+        let ac = Vec3A::from(s.rgb) * s.alpha_unit;
         if open.accepts(s, ac, gamma_sq) {
             open.merge(s);
         } else {
