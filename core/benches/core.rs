@@ -9,37 +9,18 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use insitu_core::vdi::codec::{encode, Codec};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::volume::RawFormat;
-use insitu_core::{dvr, Camera, RaycastParams, Raycaster, Shading, TransferFunction};
+use insitu_core::{dvr, Camera, RaycastParams, Raycaster, Shading};
 use std::hint::black_box;
-use std::path::PathBuf;
+
+mod common;
 
 const SIZE: u32 = 768;
 
-fn dir(var: &str, default: &str) -> PathBuf {
-    std::env::var_os(var)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(default))
-}
-
 fn benches(c: &mut Criterion) {
-    let path = dir("INSITU_DATA_DIR", "../../shared/data").join("teapot_256x256x178_uint8.raw");
-    let tf_path = dir("INSITU_TF_DIR", "../../shared/tf").join("teapot.json");
-    let (Ok(format), Ok(tf)) = (
-        RawFormat::from_file_name(&path),
-        TransferFunction::load(&tf_path),
-    ) else {
-        eprintln!(
-            "benchmarks need {} and {}",
-            path.display(),
-            tf_path.display()
-        );
-        return;
-    };
-    let volume = match format.load(&path, 0, glam::Vec3::ONE) {
-        Ok(v) => v,
+    let (volume, tf) = match common::teapot() {
+        Ok(scene) => scene,
         Err(e) => {
-            eprintln!("benchmarks need the teapot: {e}");
+            eprintln!("benchmarks skipped: {e}");
             return;
         }
     };

@@ -11,15 +11,9 @@
 #![allow(clippy::expect_used, clippy::unwrap_used)] // a benchmark without its inputs cannot run
 
 use insitu_core::backend::{Backend, BackendChoice, Timed};
-use insitu_core::volume::RawFormat;
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, VdiParams, Volume};
-use std::path::PathBuf;
 
-fn dir(var: &str, default: &str) -> PathBuf {
-    std::env::var_os(var)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(default))
-}
+mod common;
 
 /// Median wall and median reported time (with its source) of `runs` calls after a warm-up.
 fn time<T>(runs: usize, mut f: impl FnMut() -> Timed<T>) -> (f64, f64, &'static str) {
@@ -124,21 +118,9 @@ fn main() {
         "kernel", "CPU wall", "GPU wall", "GPU kern", "CPU/GPU"
     );
     let sizes = [(768, 768), (1920, 1080)];
-    let path = dir("INSITU_DATA_DIR", "../../shared/data").join("teapot_256x256x178_uint8.raw");
-    let tf_path = dir("INSITU_TF_DIR", "../../shared/tf").join("teapot.json");
-    match (
-        RawFormat::from_file_name(&path),
-        TransferFunction::load(&tf_path),
-    ) {
-        (Ok(format), Ok(tf)) => match format.load(&path, 0, glam::Vec3::ONE) {
-            Ok(v) => bench_scene("teapot", &v, &tf, &sizes, (&cpu, &gpu), runs),
-            Err(e) => eprintln!("skipping the teapot: {e}"),
-        },
-        _ => eprintln!(
-            "skipping the teapot: needs {} and {}",
-            path.display(),
-            tf_path.display()
-        ),
+    match common::teapot() {
+        Ok((v, tf)) => bench_scene("teapot", &v, &tf, &sizes, (&cpu, &gpu), runs),
+        Err(e) => eprintln!("skipping the teapot: {e}"),
     }
     // A smooth 256³ field with structure at several scales (no data files needed).
     let n = 256usize;

@@ -16,7 +16,10 @@
 /// generation's interrupt test waits on it.
 #[inline(always)]
 pub fn one_minus_exp_neg(x: f32) -> f32 {
-    debug_assert!(x >= 0.0 || x.is_nan(), "one_minus_exp_neg({x}): x must be >= 0");
+    debug_assert!(
+        x >= 0.0 || x.is_nan(),
+        "one_minus_exp_neg({x}): x must be >= 0"
+    );
     let y = (-x * std::f32::consts::LOG2_E).max(-126.0);
     let shifted = y + ROUND;
     let n = shifted - ROUND;
