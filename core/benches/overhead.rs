@@ -1,16 +1,18 @@
 //! VDI generation's cost over the reference DVR pass, the target of issue 3: generation at
 //! r = 768 ≤ 1.15× the DVR at 768² (teapot, step 0.5, `../shared/tf/teapot.json`), for
-//! γ = 0.013 and, to show what a finer γ costs, 0.001 and 0.26.
+//! γ = 0.013 and, to show what a finer γ costs, 0.001 and 0.26; generating into the previous
+//! VDI (`generate_into`, as the generator-node does step after step) is timed as well.
 //!
 //! A bench binary rather than criterion: on a shared machine both passes drift by tens of
 //! percent within minutes, and a ratio of two separately timed criterion groups carries that
-//! drift. Here each ratio is of a generation and a DVR run back to back (their order alternating),
-//! so the drift cancels; the table gives medians and quartiles of `INSITU_BENCH_PAIRS` pairs
+//! drift. Here each ratio is of a generation and a DVR run in the same round (the order rotating),
+//! so the drift cancels; the table gives medians and quartiles of `INSITU_BENCH_PAIRS` rounds
 //! (default 20) after one warm-up of each. Run: `cargo bench -p insitu-core --bench overhead`.
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 
-use insitu_core::vdi::{generate::generate, VdiParams};
+use insitu_core::vdi::generate::{generate, generate_into};
+use insitu_core::vdi::VdiParams;
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster};
 use std::hint::black_box;
 use std::time::Instant;
@@ -18,6 +20,9 @@ use std::time::Instant;
 mod common;
 
 const SIZE: u32 = 768;
+
+/// A timed pass: its name and a run returning seconds.
+type Pass<'a> = (&'static str, Box<dyn FnMut() -> f64 + 'a>);
 
 /// Seconds taken by `f`.
 fn seconds(f: impl FnOnce()) -> f64 {
@@ -50,7 +55,7 @@ fn main() {
     let cam = Camera::default_for_box(&volume.world_box());
     let dvr_pass = || seconds(|| drop(black_box(dvr::render(&rc, &cam, SIZE, SIZE))));
     println!(
-        "teapot {SIZE}², step 0.5, {} threads, {pairs} pairs (ms: q1 / median / q3)",
+        "teapot {SIZE}², step 0.5, r = {SIZE}, {} threads, {pairs} rounds (q1 / median / q3)",
         rayon::current_num_threads()
     );
     for gamma in [0.013, 0.001, 0.26] {
@@ -58,34 +63,56 @@ fn main() {
             resolution: SIZE,
             gamma,
         };
-        let gen_pass = || {
-            seconds(|| {
-                drop(black_box(
-                    generate(&rc, &cam, params, 0, "teapot").expect("valid"),
-                ))
-            })
-        };
-        let (_, _) = (dvr_pass(), gen_pass());
-        let (mut dvr_s, mut gen_s, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
-        for k in 0..pairs {
-            let (d, g) = if k % 2 == 0 {
-                let d = dvr_pass();
-                (d, gen_pass())
-            } else {
-                let g = gen_pass();
-                (dvr_pass(), g)
-            };
-            dvr_s.push(d * 1e3);
-            gen_s.push(g * 1e3);
-            ratio.push(g / d);
+        let fresh = || generate(&rc, &cam, params, 0, "teapot").expect("valid");
+        let mut spare = fresh();
+        let mut passes: [Pass; 3] = [
+            ("DVR", Box::new(dvr_pass)),
+            (
+                "generation",
+                Box::new(|| seconds(|| drop(black_box(fresh())))),
+            ),
+            (
+                "generation into the last VDI",
+                Box::new(|| {
+                    seconds(|| {
+                        generate_into(&rc, &cam, params, 0, "teapot", &mut spare).expect("valid")
+                    })
+                }),
+            ),
+        ];
+        for (_, pass) in passes.iter_mut() {
+            pass();
         }
-        let [d1, d2, d3] = quartiles(dvr_s);
-        let [g1, g2, g3] = quartiles(gen_s);
-        let [r1, r2, r3] = quartiles(ratio);
-        println!(
-            "γ = {gamma:<6} DVR {d1:6.1} / {d2:6.1} / {d3:6.1}   generation r = {SIZE} \
-             {g1:6.1} / {g2:6.1} / {g3:6.1}   generation/DVR {r1:.3} / {r2:.3} / {r3:.3} \
-             (target ≤ 1.15)"
-        );
+        // Back to back, the order rotating; ratios within each round.
+        let mut ms: [Vec<f64>; 3] = Default::default();
+        let mut ratios: [Vec<f64>; 2] = Default::default();
+        for k in 0..pairs {
+            let mut s = [0.0; 3];
+            for n in 0..3 {
+                let p = (k + n) % 3;
+                s[p] = (passes[p].1)();
+            }
+            for p in 0..3 {
+                ms[p].push(s[p] * 1e3);
+            }
+            ratios[0].push(s[1] / s[0]);
+            ratios[1].push(s[2] / s[0]);
+        }
+        println!("γ = {gamma}");
+        for (p, times) in ms.into_iter().enumerate() {
+            let [a, b, c] = quartiles(times);
+            let ratio = match p {
+                0 => String::new(),
+                _ => {
+                    let [r1, r2, r3] = quartiles(std::mem::take(&mut ratios[p - 1]));
+                    format!("   ×DVR {r1:.3} / {r2:.3} / {r3:.3}")
+                }
+            };
+            println!(
+                "  {:<30} {a:7.1} / {b:7.1} / {c:7.1} ms{ratio}",
+                passes[p].0
+            );
+        }
     }
+    println!("(target: generation ≤ 1.15 × DVR at γ = 0.013)");
 }

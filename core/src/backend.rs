@@ -307,12 +307,35 @@ impl Scene<'_> {
         tf_hash: u64,
         tf_name: &str,
     ) -> Result<Timed<Vdi>, BackendError> {
+        self.generate_reusing(camera, params, tf_hash, tf_name, None)
+    }
+
+    /// [`Self::generate`], reusing the allocations of `spare` (a VDI that is no longer needed)
+    /// on the CPU path ([`crate::vdi::generate::generate_into`]): a generator making a VDI
+    /// per time step hands back the previous one. The GPU path drops it.
+    ///
+    /// # Errors
+    /// As [`Self::generate`].
+    pub fn generate_reusing(
+        &self,
+        camera: &Camera,
+        params: VdiParams,
+        tf_hash: u64,
+        tf_name: &str,
+        spare: Option<Vdi>,
+    ) -> Result<Timed<Vdi>, BackendError> {
         let start = Instant::now();
         match self {
-            Self::Cpu(rc) => Ok(wall(
-                generate::generate(rc, camera, params, tf_hash, tf_name)?,
-                start,
-            )),
+            Self::Cpu(rc) => {
+                let vdi = match spare {
+                    Some(mut vdi) => {
+                        generate::generate_into(rc, camera, params, tf_hash, tf_name, &mut vdi)?;
+                        vdi
+                    }
+                    None => generate::generate(rc, camera, params, tf_hash, tf_name)?,
+                };
+                Ok(wall(vdi, start))
+            }
             #[cfg(feature = "gpu")]
             Self::Gpu(s) => Ok(from_kernel(
                 s.generate(camera, params, tf_hash, tf_name)?,

@@ -118,21 +118,26 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
 }
 
 async fn worker(shared: Arc<Shared>) {
+    // The last step's VDI (already compressed into its product): the next one reuses its memory.
+    let mut spare = None;
     while let Some(raw) = shared.queue.pop().await {
         let (step, rank) = (raw.step, raw.rank);
         let mut gen = shared.generation();
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
         let s = shared.clone();
+        let reused = spare.take();
         let result = tokio::task::spawn_blocking(move || {
             let volume = raw.volume()?;
             let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
-            let product = work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs)?;
-            Ok::<_, work::WorkError>((product, tf))
+            let (product, vdi) =
+                work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
+            Ok::<_, work::WorkError>((product, tf, vdi))
         })
         .instrument(info_span!("step", step, rank))
         .await;
         match result {
-            Ok(Ok((product, tf))) => {
+            Ok(Ok((product, tf, vdi))) => {
+                spare = Some(vdi);
                 {
                     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
                     if g.tf.is_none() {

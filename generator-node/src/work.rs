@@ -8,7 +8,7 @@ use bytes::Bytes;
 use insitu_core::backend::{BackendError, TimeSource};
 use insitu_core::evaluate::render_references;
 use insitu_core::vdi::codec;
-use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Volume};
+use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, Volume};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
 use std::time::Instant;
@@ -60,7 +60,9 @@ pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
 }
 
 /// Generates, compresses and (if `with_references`) renders the references for one step on
-/// `backend`; `volume` is [`RawStep::volume`] of `raw`.
+/// `backend`; `volume` is [`RawStep::volume`] of `raw`. Returns the product and the VDI,
+/// whose memory the next step reuses when handed back as `spare` (a VDI of tens of MB in
+/// fresh memory costs a page fault per 4 KiB).
 ///
 /// # Errors
 /// [`WorkError`] from the core or the backend.
@@ -71,7 +73,8 @@ pub fn run(
     gen: &Generation,
     tf: &(TransferFunction, String),
     with_references: bool,
-) -> Result<Product, WorkError> {
+    spare: Option<Vdi>,
+) -> Result<(Product, Vdi), WorkError> {
     let raycaster = Raycaster::new(volume, &tf.0, gen.raycast)?;
     let scene = backend.prepare(&raycaster)?;
     let camera = gen
@@ -83,7 +86,7 @@ pub fn run(
         r = gen.params.resolution,
         gamma = gen.params.gamma
     )
-    .in_scope(|| scene.generate(&camera, gen.params, tf_hash, &tf.1))?;
+    .in_scope(|| scene.generate_reusing(&camera, gen.params, tf_hash, &tf.1, spare))?;
     let (vdi, tau_secs) = (&generated.value, generated.seconds);
     let t = Instant::now();
     let file =
@@ -110,7 +113,7 @@ pub fn run(
     } else {
         None
     };
-    Ok(Product {
+    let product = Product {
         vdi_header: pb::VdiHeader {
             step: raw.step,
             sim_time: raw.sim_time,
@@ -134,5 +137,6 @@ pub fn run(
         },
         vdi: Bytes::from(file),
         references,
-    })
+    };
+    Ok((product, generated.value))
 }
