@@ -255,7 +255,8 @@ impl<'a> Raycaster<'a> {
             } else {
                 e.rgb
             };
-            // The interval ends where the next one starts, or at the box exit.
+            // The interval ends where the next one starts (`k` already counts this step), or at
+            // the box exit; computed only here, for visible samples.
             let t_end = if k < n_samples {
                 t_in + k as f32 * step
             } else {
