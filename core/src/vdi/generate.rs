@@ -1,7 +1,8 @@
 //! VDI generation `R(S_A, P_A, P_M) → M` (Sec. 3.2, 5.2; DESIGN.md, "VDI").
 //!
-//! Each of the `r²` rays is marched with the same [`Raycaster`] as the reference DVR. Samples
-//! are merged front to back into the open supersegment until the interrupt test fires:
+//! Each of the `r²` rays is marched with the same [`Raycaster`] as the reference DVR (rows in
+//! parallel); its samples are collected, then merged front to back in a separate loop into the
+//! open supersegment until the interrupt test fires:
 //! `d = ‖â·ĉ − a·c‖₂ ≥ γ`, comparing the open supersegment's premultiplied colour per unit
 //! length with the new sample's (`a`, `c` its per-unit-length opacity and colour). Then the
 //! supersegment is closed and the sample opens a new one. Transparent samples never open one;
