@@ -96,9 +96,17 @@ fn march_rows(
                 let mut segs = Vec::with_capacity(*previous + *previous / 4);
                 for i in 0..r {
                     let ray = frame.pixel_ray(i, j);
-                    collect_samples(raycaster, &ray, termination, samples);
                     let before = segs.len();
-                    build(samples, gamma_sq, ray.dir.dot(frame.forward), &mut segs);
+                    let z_per_t = ray.dir.dot(frame.forward);
+                    generate_ray(
+                        raycaster,
+                        &ray,
+                        termination,
+                        gamma_sq,
+                        z_per_t,
+                        samples,
+                        &mut segs,
+                    );
                     counts.push((segs.len() - before) as u32);
                 }
                 *previous = segs.len();
@@ -274,16 +282,37 @@ fn ratio(unit: f32, total: f32) -> f32 {
     unit * (1.0 / total.max(f32::MIN_POSITIVE))
 }
 
-/// Fills `samples` with `ray`'s non-transparent samples up to early ray termination (the
-/// accumulated opacity reaching `termination`, as in the DVR).
+/// Samples buffered per ray before they are merged: bounds the buffer (40 KiB) however long
+/// the ray and however small the step.
+const CHUNK: usize = 1024;
+
+/// Marches `ray` up to early ray termination (the accumulated opacity reaching `termination`,
+/// as in the DVR) and appends its supersegments to `out`; `samples` is scratch.
 ///
-/// Collecting a ray's samples first and merging them in a second loop ([`build`]) keeps each
-/// loop's live values in registers: merging inside the marching loop spilled both loops'
-/// state around every sample (half of generation's extra instructions over the DVR).
-fn collect_samples(raycaster: &Raycaster, ray: &Ray, termination: f32, samples: &mut Vec<Sample>) {
+/// The marcher's closure only buffers samples; [`Builder::merge`] merges them in a separate
+/// loop at the ray's end (and [`Builder::flush`] whenever [`CHUNK`] are buffered). That keeps each loop's live values in
+/// registers: merging inside the marching loop spilled both loops' state around every sample
+/// (half of generation's extra instructions over the DVR).
+fn generate_ray(
+    raycaster: &Raycaster,
+    ray: &Ray,
+    termination: f32,
+    gamma_sq: f32,
+    z_per_t: f32,
+    samples: &mut Vec<Sample>,
+    out: &mut Vec<Supersegment>,
+) {
     samples.clear();
+    let mut builder = Builder {
+        open: None,
+        gamma_sq,
+        z_per_t,
+    };
     let mut transmittance = 1.0f32;
     raycaster.march(ray, |s: &Sample| {
+        if samples.len() == CHUNK {
+            builder.flush(samples, out);
+        }
         samples.push(*s);
         transmittance *= 1.0 - s.alpha;
         if 1.0 - transmittance >= termination {
@@ -292,25 +321,53 @@ fn collect_samples(raycaster: &Raycaster, ray: &Ray, termination: f32, samples: 
             ControlFlow::Continue(())
         }
     });
+    builder.merge(samples, out);
+    if let Some(open) = builder.open {
+        out.push(open.close(z_per_t));
+    }
 }
 
-/// Merges one ray's `samples` (front to back) into supersegments appended to `out`, depths
-/// scaled to eye space by `z_per_t` (the ray direction's component along the view axis).
-fn build(samples: &[Sample], gamma_sq: f32, z_per_t: f32, out: &mut Vec<Supersegment>) {
-    let Some((first, rest)) = samples.split_first() else {
-        return;
-    };
-    let mut open = Open::new(first);
-    for s in rest {
-        let ac = Vec3A::from(s.rgb) * s.alpha_unit;
-        if open.accepts(s, ac, gamma_sq) {
-            open.merge(s);
-        } else {
-            out.push(open.close(z_per_t));
-            open = Open::new(s);
-        }
+/// Merges a ray's samples, chunk after chunk, into supersegments.
+struct Builder {
+    /// The supersegment being built (none before the ray's first sample).
+    open: Option<Open>,
+    gamma_sq: f32,
+    /// The ray direction's component along the view axis (eye-space depth per unit `t`).
+    z_per_t: f32,
+}
+
+impl Builder {
+    /// [`Self::merge`] of a full buffer from inside the marching loop, which it empties. Cold
+    /// and not inlined: inlined there, the merging loop would crowd the marching loop's
+    /// registers.
+    #[cold]
+    #[inline(never)]
+    fn flush(&mut self, samples: &mut Vec<Sample>, out: &mut Vec<Supersegment>) {
+        self.merge(samples, out);
+        samples.clear();
     }
-    out.push(open.close(z_per_t));
+
+    /// Merges the next `samples` (front to back), appending closed supersegments to `out`.
+    #[inline]
+    fn merge(&mut self, samples: &[Sample], out: &mut Vec<Supersegment>) {
+        let (mut open, rest) = match self.open.take() {
+            Some(open) => (open, samples),
+            None => match samples.split_first() {
+                Some((first, rest)) => (Open::new(first), rest),
+                None => return,
+            },
+        };
+        for s in rest {
+            let ac = Vec3A::from(s.rgb) * s.alpha_unit;
+            if open.accepts(s, ac, self.gamma_sq) {
+                open.merge(s);
+            } else {
+                out.push(open.close(self.z_per_t));
+                open = Open::new(s);
+            }
+        }
+        self.open = Some(open);
+    }
 }
 
 #[cfg(test)]
@@ -319,6 +376,58 @@ mod tests {
     use crate::raycast::RaycastParams;
     use crate::tf::TransferFunction;
     use crate::volume::Volume;
+    use glam::Vec3;
+
+    #[test]
+    fn merging_in_chunks_equals_merging_whole_rays() {
+        // A ray of ~4 000 samples (step 0.05 through 200 voxels), faint enough not to terminate
+        // (transmittance > 1e-6 at its end), whose colour varies along it: several chunks, with
+        // supersegments across their seams.
+        let volume =
+            Volume::from_fn([6, 6, 200], |_, _, z| (z as f32 * 0.37).sin() * 0.5 + 0.5).unwrap();
+        let tf = TransferFunction::from_json(
+            r#"{"domain": [0, 1], "points": [[0, 1, 0, 0, 0.04], [0.5, 0, 1, 0, 0.06],
+                [1, 0, 0, 1, 0.04]]}"#,
+            "faint",
+        )
+        .unwrap();
+        let params = RaycastParams {
+            step: 0.05,
+            ..Default::default()
+        };
+        let rc = Raycaster::new(&volume, &tf, params).unwrap();
+        let ray = Ray {
+            origin: Vec3::new(2.5, 2.5, -10.0),
+            dir: Vec3::Z,
+        };
+        let mut whole = Vec::new();
+        rc.march(&ray, |s: &Sample| {
+            whole.push(*s);
+            ControlFlow::Continue(())
+        });
+        assert!(whole.len() > 3 * CHUNK, "{} samples", whole.len());
+        let (gamma_sq, z_per_t) = (0.02f32.powi(2), 1.0);
+        let mut reference = Vec::new();
+        let mut builder = Builder {
+            open: None,
+            gamma_sq,
+            z_per_t,
+        };
+        builder.merge(&whole, &mut reference);
+        reference.extend(builder.open.map(|open| open.close(z_per_t)));
+        let mut chunked = Vec::new();
+        generate_ray(
+            &rc,
+            &ray,
+            1.0,
+            gamma_sq,
+            z_per_t,
+            &mut Vec::new(),
+            &mut chunked,
+        );
+        assert!(reference.len() > 20, "{} supersegments", reference.len());
+        assert_eq!(chunked, reference);
+    }
 
     #[test]
     fn generating_into_a_used_vdi_equals_generating_afresh() {
