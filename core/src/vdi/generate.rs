@@ -290,9 +290,9 @@ const CHUNK: usize = 1024;
 /// as in the DVR) and appends its supersegments to `out`; `samples` is scratch.
 ///
 /// The marcher's closure only buffers samples; [`Builder::merge`] merges them in a separate
-/// loop at the ray's end (and [`Builder::flush`] whenever [`CHUNK`] are buffered). That keeps each loop's live values in
-/// registers: merging inside the marching loop spilled both loops' state around every sample
-/// (half of generation's extra instructions over the DVR).
+/// loop at the ray's end (and [`Builder::flush`] whenever [`CHUNK`] are buffered). That keeps
+/// each loop's live values in registers: merging inside the marching loop spilled both loops'
+/// state around every sample (half of generation's extra instructions over the DVR).
 fn generate_ray(
     raycaster: &Raycaster,
     ray: &Ray,
