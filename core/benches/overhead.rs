@@ -6,7 +6,7 @@
 //! A bench binary rather than criterion: on a shared machine both passes drift by tens of
 //! percent within minutes, and a ratio of two separately timed criterion groups carries that
 //! drift. Here each ratio is of a generation and a DVR run in the same round (the order rotating),
-//! so the drift cancels; the table gives medians and quartiles of `INSITU_BENCH_PAIRS` rounds
+//! so the drift cancels; the table gives medians and quartiles of `INSITU_BENCH_ROUNDS` rounds
 //! (default 20) after one warm-up of each. Run: `cargo bench -p insitu-core --bench overhead`.
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
@@ -46,7 +46,7 @@ fn main() {
             return;
         }
     };
-    let pairs: usize = std::env::var("INSITU_BENCH_PAIRS")
+    let rounds: usize = std::env::var("INSITU_BENCH_ROUNDS")
         .ok()
         .and_then(|s| s.parse().ok())
         .filter(|&n| n > 0)
@@ -55,7 +55,7 @@ fn main() {
     let cam = Camera::default_for_box(&volume.world_box());
     let dvr_pass = || seconds(|| drop(black_box(dvr::render(&rc, &cam, SIZE, SIZE))));
     println!(
-        "teapot {SIZE}², step 0.5, r = {SIZE}, {} threads, {pairs} rounds (q1 / median / q3)",
+        "teapot {SIZE}², step 0.5, r = {SIZE}, {} threads, {rounds} rounds (q1 / median / q3)",
         rayon::current_num_threads()
     );
     for gamma in [0.013, 0.001, 0.26] {
@@ -86,7 +86,7 @@ fn main() {
         // Back to back, the order rotating; ratios within each round.
         let mut ms: [Vec<f64>; 3] = Default::default();
         let mut ratios: [Vec<f64>; 2] = Default::default();
-        for k in 0..pairs {
+        for k in 0..rounds {
             let mut s = [0.0; 3];
             for n in 0..3 {
                 let p = (k + n) % 3;

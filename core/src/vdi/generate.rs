@@ -322,9 +322,7 @@ fn generate_ray(
         }
     });
     builder.merge(samples, out);
-    if let Some(open) = builder.open {
-        out.push(open.close(z_per_t));
-    }
+    builder.finish(out);
 }
 
 /// Merges a ray's samples, chunk after chunk, into supersegments.
@@ -345,6 +343,13 @@ impl Builder {
     fn flush(&mut self, samples: &mut Vec<Sample>, out: &mut Vec<Supersegment>) {
         self.merge(samples, out);
         samples.clear();
+    }
+
+    /// Closes the ray's last supersegment, if it has one.
+    fn finish(self, out: &mut Vec<Supersegment>) {
+        if let Some(open) = self.open {
+            out.push(open.close(self.z_per_t));
+        }
     }
 
     /// Merges the next `samples` (front to back), appending closed supersegments to `out`.
@@ -414,7 +419,7 @@ mod tests {
             z_per_t,
         };
         builder.merge(&whole, &mut reference);
-        reference.extend(builder.open.map(|open| open.close(z_per_t)));
+        builder.finish(&mut reference);
         let mut chunked = Vec::new();
         generate_ray(
             &rc,
