@@ -127,6 +127,12 @@ pub struct Config {
     /// Where VDIs and reference frames are made: `cpu`, `gpu` or `auto` (a hardware GPU if
     /// found, else the CPU).
     pub backend: BackendChoice,
+    /// The tuner service, `host:port`; unset: `P_M` stays as configured (or as pushed with
+    /// SetConfig). The node dials out to it and reconnects with back-off.
+    pub tuner: Option<String>,
+    /// Most bytes of step fields held for the tuner's trials (field as f32 plus its reference
+    /// frames); a step that does not fit is not held, and the tuner is told so.
+    pub hold_bytes: u64,
     /// Scene and `P_M`.
     pub generation: GenerationConfig,
 }
@@ -151,6 +157,8 @@ impl Default for Config {
             drain_timeout_secs: 30.0,
             max_backoff_secs: 5.0,
             backend: BackendChoice::Auto,
+            tuner: None,
+            hold_bytes: 1 << 30,
             generation: GenerationConfig::default(),
         }
     }
@@ -175,6 +183,8 @@ pub struct Generation {
     pub reference_every: u64,
     /// Reference side (0 = `r`).
     pub reference_size: u32,
+    /// Version of the tuner's decision `params` came from (0: the config or an operator).
+    pub pm_version: u64,
 }
 
 impl Generation {
@@ -278,6 +288,7 @@ impl Config {
             view_angles_deg: g.view_angles_deg.clone(),
             reference_every: g.reference_every,
             reference_size: g.reference_size,
+            pm_version: 0,
         })
     }
 }

@@ -4,17 +4,21 @@
 //! a bounded [`queue`] with a named policy; a worker turns each into a compressed VDI on the
 //! blocking pool ([`work`]), with reference frames of the test views every k-th step; the
 //! [`ship`]per delivers them to the viz-node, reconnecting with back-off, from a bounded outbox.
+//! With a tuner configured, the node dials out to it ([`tuning`]): a summary per step up,
+//! claims on [`hold`]s of fields, trials and `P_M` decisions down.
 //! [`node`] wires it together and shuts it down gracefully; [`config`] is the TOML file.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod config;
+pub mod hold;
 pub mod ingest;
 pub mod node;
 pub mod queue;
 pub mod service;
 pub mod ship;
 pub mod stats;
+pub mod tuning;
 pub mod work;
 
 pub use config::Config;

@@ -47,6 +47,7 @@ pub struct RunningNode {
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     worker: JoinHandle<()>,
     shipper: Option<JoinHandle<()>>,
+    tuner: Option<JoinHandle<()>>,
     drain_timeout: Duration,
 }
 
@@ -67,6 +68,13 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
     let addr = listener.local_addr()?;
+    let (tuning, summaries) = match &cfg.tuner {
+        Some(_) => {
+            let (t, rx) = crate::tuning::Tuning::new(cfg.hold_bytes);
+            (Some(Arc::new(t)), Some(rx))
+        }
+        None => (None, None),
+    };
     let shared = Arc::new(Shared {
         queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
         generation: RwLock::new(generation),
@@ -79,6 +87,8 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
             cfg.outbox.policy,
         )),
         backend,
+        lane: tokio::sync::Mutex::new(()),
+        tuning: tuning.clone(),
     });
     let (stop_server, stopped) = oneshot::channel::<()>();
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
@@ -105,7 +115,22 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
                 .instrument(info_span!("shipper")),
         )
     });
-    info!(%addr, viz = ?cfg.viz, policy = %cfg.queue.policy, "generator-node listening");
+    let tuner = match (cfg.tuner.as_deref(), tuning, summaries) {
+        (Some(uri), Some(t), Some(rx)) => {
+            let link = crate::tuning::Link::new(
+                uri,
+                token.clone(),
+                Duration::from_secs_f64(cfg.max_backoff_secs),
+                format!("{addr}/{}", std::process::id()),
+            );
+            Some(tokio::spawn(
+                link.run(shared.clone(), t, rx)
+                    .instrument(info_span!("tuner")),
+            ))
+        }
+        _ => None,
+    };
+    info!(%addr, viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
     Ok(RunningNode {
         addr,
         shared,
@@ -113,6 +138,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         server,
         worker,
         shipper,
+        tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
 }
@@ -126,18 +152,27 @@ async fn worker(shared: Arc<Shared>) {
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
         let s = shared.clone();
         let reused = spare.take();
+        let lane = shared.lane.lock().await;
         let result = tokio::task::spawn_blocking(move || {
             let volume = raw.volume()?;
             let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
             let (product, vdi) =
                 work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
-            Ok::<_, work::WorkError>((product, tf, vdi))
+            let for_tuner = s
+                .tuning
+                .is_some()
+                .then(|| work::for_tuner(&raw, volume, &gen, &tf, &product));
+            Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
         })
         .instrument(info_span!("step", step, rank))
         .await;
+        drop(lane);
         match result {
-            Ok(Ok((product, tf, vdi))) => {
+            Ok(Ok((product, tf, vdi, for_tuner))) => {
                 spare = Some(vdi);
+                if let (Some(t), Some((summary, held))) = (&shared.tuning, for_tuner) {
+                    t.after_step(summary, held);
+                }
                 {
                     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
                     if g.tf.is_none() {
@@ -199,6 +234,9 @@ impl RunningNode {
             warn!(error = %e, "server task ended abnormally");
         }
         let _ = self.worker.await;
+        if let Some(t) = self.tuner {
+            t.abort();
+        }
         self.shared.outbox.close();
         let mut lost = 0;
         if let Some(mut shipper) = self.shipper {

@@ -34,6 +34,10 @@ pub struct Shared {
     pub outbox: Arc<BoundedQueue<crate::work::Product>>,
     /// Where VDIs and reference frames are made.
     pub backend: insitu_core::Backend,
+    /// Production steps and the tuner's trials take turns on this lane.
+    pub lane: tokio::sync::Mutex<()>,
+    /// The link to the tuner, when one is configured.
+    pub tuning: Option<Arc<crate::tuning::Tuning>>,
 }
 
 impl Shared {
@@ -64,6 +68,8 @@ impl Shared {
             resolution: g.params.resolution,
             gamma: g.params.gamma,
             viz_connected: c.viz_connected,
+            pm_version: g.pm_version,
+            tuner_connected: c.tuner_connected,
         }
     }
 }
@@ -79,6 +85,8 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     let bad =
         |field: &str, e: &dyn std::fmt::Display| Status::invalid_argument(format!("{field}: {e}"));
     let mut next = g.clone();
+    // An operator's P_M is not a tuner's decision.
+    next.pm_version = 0;
     next.params = VdiParams {
         resolution: c.resolution,
         gamma: c.gamma,

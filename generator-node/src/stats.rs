@@ -21,6 +21,8 @@ pub struct Counters {
     pub failed: u64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
+    /// Whether the stream to the tuner is up.
+    pub tuner_connected: bool,
 }
 
 impl Counters {

@@ -11,6 +11,7 @@ use insitu_core::vdi::codec;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, Volume};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
+use std::sync::Arc;
 use std::time::Instant;
 use tracing::info_span;
 
@@ -134,9 +135,59 @@ pub fn run(
             }
             .into(),
             backend: backend.describe(),
+            pm_version: gen.pm_version,
         },
         vdi: Bytes::from(file),
         references,
     };
     Ok((product, generated.value))
+}
+
+/// The tuner's view of a finished production step: its summary (64-bin histogram over the
+/// transfer function's domain, min/max, NaN count, and the production σ, τ, P_M) and the field
+/// with its scene, to hold for trials.
+pub fn for_tuner(
+    raw: &RawStep,
+    volume: Volume,
+    gen: &Generation,
+    tf: &(TransferFunction, String),
+    product: &Product,
+) -> (pb::StepSummary, crate::hold::HeldStep) {
+    let [lo, hi] = tf.0.domain;
+    let (counts, nan_count) = insitu_core::volume::histogram(volume.data(), lo, hi);
+    let (min, max) = volume
+        .finite_range()
+        .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));
+    let summary = pb::StepSummary {
+        step: raw.step,
+        rank: raw.rank,
+        world_size: raw.world_size,
+        histogram: counts.to_vec(),
+        range_lo: lo,
+        range_hi: hi,
+        min,
+        max,
+        nan_count,
+        voxels: volume.data().len() as u64,
+        held: false,
+        pm_version: gen.pm_version,
+        resolution: gen.params.resolution,
+        gamma: gen.params.gamma,
+        sigma_bytes: product.vdi_header.total_bytes,
+        tau_secs: product.vdi_header.tau_secs,
+        sampled: product.references.is_some(),
+    };
+    let held = crate::hold::HeldStep {
+        camera: gen
+            .camera
+            .unwrap_or_else(|| Camera::default_for_box(&raw.global_box())),
+        volume: Arc::new(volume),
+        tf: Arc::new(tf.clone()),
+        raycast: gen.raycast,
+        codec: gen.codec,
+        view_angles_deg: gen.view_angles_deg.clone(),
+        reference_side: gen.reference_side(),
+        references: None,
+    };
+    (summary, held)
 }

@@ -8,6 +8,8 @@
 //! - [`search`]: exhaustive grid and an adaptive search that needs a fraction of the
 //!   measurements.
 //! - [`series`]: characteristic time steps, the conservative `P_M`, cross-evaluation.
+//! - [`live`]: the same while a simulation runs (the tuner service's maths): characteristic
+//!   steps as they arrive, the worst case over steps as an oracle, budgets over ranks.
 //! - [`accuracy`]: what accuracy costs in time, knob by knob.
 //! - [`charts`]: the study map (Fig. 7), Pareto fronts, the budget ladder (Fig. 8), accuracy.
 //! - [`report`]: CSV and JSON of a study.
@@ -18,6 +20,7 @@ pub mod accuracy;
 pub mod cache;
 pub mod charts;
 pub mod grid;
+pub mod live;
 pub mod measure;
 pub mod report;
 pub mod search;

@@ -12,7 +12,9 @@
 use crate::grid::{Candidate, ParamGrid};
 use crate::measure::Measurement;
 use crate::study::{Oracle, StudyError};
-use crate::utility::{best, QualityTarget, SizeBudget, Utility};
+use crate::utility::{
+    best, parse_bytes, parse_utility, QualityTarget, SizeBudget, Utility, UtilityError,
+};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -83,6 +85,28 @@ pub enum Target {
 }
 
 impl Target {
+    /// The target an adaptive search bisects for a utility spec (see
+    /// [`crate::utility::parse_utility`]): `size:BYTES` or `quality:DB`.
+    ///
+    /// # Errors
+    /// [`UtilityError`] for a bad spec, or one the adaptive search cannot bisect (time budgets,
+    /// both budgets): those need the grid search.
+    pub fn for_spec(spec: &str) -> Result<Self, UtilityError> {
+        let u = parse_utility(spec)?;
+        let (kind, value) = spec.split_once(':').unwrap_or((spec, ""));
+        match kind.trim() {
+            "size" if !spec.contains(',') => Ok(Self::Size(parse_bytes(value).unwrap_or(u64::MAX))),
+            "quality" => Ok(Self::Quality(value.trim().parse().unwrap_or(f64::NAN))),
+            _ => Err(UtilityError {
+                spec: spec.to_owned(),
+                problem: format!(
+                    "the adaptive search supports size:BYTES and quality:DB, not {}; use the grid strategy",
+                    u.describe()
+                ),
+            }),
+        }
+    }
+
     fn utility(self) -> Box<dyn Utility> {
         match self {
             Self::Size(s) => Box::new(SizeBudget { sigma_target: s }),

@@ -14,7 +14,7 @@ use crate::measure::Measurement;
 use crate::utility::Utility;
 
 /// Histogram bins.
-pub const BINS: usize = 64;
+pub const BINS: usize = insitu_core::volume::HISTOGRAM_BINS;
 
 /// Normalised histograms of `steps` over their common finite range (all-NaN steps give an
 /// all-zero histogram).

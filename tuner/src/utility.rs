@@ -3,8 +3,8 @@
 
 use crate::measure::Measurement;
 
-/// A utility function ν.
-pub trait Utility {
+/// A utility function ν (shareable across threads, as the tuner service needs).
+pub trait Utility: Send + Sync {
     /// A short description, e.g. `size < 2.0 MB`.
     fn describe(&self) -> String;
     /// ν(σ, q, τ): smaller is better; `+∞` when the constraint is not met.

@@ -63,6 +63,8 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
         ssim: q.and_then(|q| q.ssim),
         path: e.vdi.clone().unwrap_or_default(),
+        pm_version: e.pm_version,
+        world_size: e.world_size,
     }
 }
 
@@ -188,6 +190,7 @@ impl VizService {
                 tf_name: vdi.meta().tf_name.clone(),
                 tf_hash: vdi.meta().tf_hash,
                 quality: None,
+                pm_version: h.pm_version,
             };
             s.recording
                 .store_vdi(meta, &bytes)

@@ -94,6 +94,9 @@ pub struct Entry {
     pub tf_hash: u64,
     /// q, once scored.
     pub quality: Option<Quality>,
+    /// The tuner's P_M version the VDI was made with (0: not from a tuner).
+    #[serde(default)]
+    pub pm_version: u64,
 }
 
 impl Entry {
@@ -115,6 +118,7 @@ impl Entry {
             tf_name: String::new(),
             tf_hash: 0,
             quality: None,
+            pm_version: 0,
         }
     }
 }

@@ -44,19 +44,7 @@ pub struct Args {
 }
 
 fn target(spec: &str) -> Result<Target> {
-    let (kind, value) = spec.split_once(':').unwrap_or((spec, ""));
-    let u = parse_utility(spec)?;
-    match kind {
-        "size" if !spec.contains(',') => Ok(Target::Size(
-            insitu_tuner::utility::parse_bytes(value).unwrap_or(u64::MAX),
-        )),
-        "quality" => Ok(Target::Quality(value.trim().parse()?)),
-        _ => bail!(
-            "--strategy adaptive supports size:BYTES and quality:DB utilities, not {:?} ({}); use --strategy grid",
-            spec,
-            u.describe()
-        ),
-    }
+    Ok(Target::for_spec(spec)?)
 }
 
 fn row_json(m: &Measurement) -> serde_json::Value {

@@ -286,6 +286,31 @@ impl Fnv1a {
     }
 }
 
+/// Bins of the summaries a generator-node sends its tuner (and of `insitu series`).
+pub const HISTOGRAM_BINS: usize = 64;
+
+/// Counts of the finite values of `data` in [`HISTOGRAM_BINS`] equal-width bins over `[lo, hi]` (values
+/// outside count in the edge bins, NaN is left out), with the NaN count. The range is fixed for
+/// a run (the generator-node uses the transfer function's domain), so histograms of different
+/// steps and ranks compare and add up.
+pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64) {
+    let mut counts = [0u64; HISTOGRAM_BINS];
+    let mut nan = 0;
+    let scale = if hi > lo { HISTOGRAM_BINS as f64 / (hi - lo) } else { 0.0 };
+    for &v in data {
+        if v.is_nan() {
+            nan += 1;
+            continue;
+        }
+        let x = (f64::from(v) - lo) * scale;
+        // `as` saturates: −∞ → 0, +∞ → usize::MAX.
+        let b = if x <= 0.0 { 0 } else { (x as usize).min(HISTOGRAM_BINS - 1) };
+        counts[b] += 1;
+    }
+    (counts, nan)
+}
+
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,181 @@
+//! Fields of recent steps kept for the tuner's trials, within a byte bound.
+//!
+//! After each production step the node holds the step's field as *pending* until the tuner
+//! answers its summary: a claim keeps it until released, a release (or no answer) frees it.
+//! Pending fields make room for newer ones, oldest first; claimed fields are never dropped by
+//! the node. When claimed fields alone leave no room, the step is not held and its summary says
+//! so (`held = false`): the tuner is refused politely rather than the node growing.
+
+use insitu_core::vdi::codec::Codec;
+use insitu_core::{raycast::RaycastParams, Camera, Image, TransferFunction, Volume};
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+/// Everything a trial on a held step needs: the field and the scene it was made with.
+#[derive(Clone)]
+pub struct HeldStep {
+    /// The field (this node's brick).
+    pub volume: Arc<Volume>,
+    /// Transfer function and name.
+    pub tf: Arc<(TransferFunction, String)>,
+    /// Generation camera.
+    pub camera: Camera,
+    /// Ray-casting step and termination.
+    pub raycast: RaycastParams,
+    /// Codec σ is measured with.
+    pub codec: Codec,
+    /// Test views, degrees.
+    pub view_angles_deg: Vec<f32>,
+    /// Side of the reference frames, pixels.
+    pub reference_side: u32,
+    /// Reference frames, rendered on the first trial.
+    pub references: Option<Arc<Vec<Image>>>,
+}
+
+impl HeldStep {
+    fn bytes(&self) -> u64 {
+        let refs = self
+            .references
+            .as_ref()
+            .map_or(0, |r| r.iter().map(|i| u64::from(i.width()) * u64::from(i.height()) * 12).sum());
+        self.volume.data().len() as u64 * 4 + refs
+    }
+}
+
+struct Slot {
+    step: HeldStep,
+    claimed: bool,
+}
+
+/// The held steps of one node.
+pub struct Holds {
+    max_bytes: u64,
+    slots: Mutex<BTreeMap<Key, Slot>>,
+}
+
+/// A held field: (step, rank). One node may serve several ranks.
+pub type Key = (u64, u32);
+
+impl Holds {
+    /// Holds at most `max_bytes` (0: holds nothing).
+    pub fn new(max_bytes: u64) -> Self {
+        Self {
+            max_bytes,
+            slots: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    fn slots(&self) -> std::sync::MutexGuard<'_, BTreeMap<Key, Slot>> {
+        self.slots.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Holds `step` as pending, dropping older pending steps when needed; whether it is held.
+    pub fn offer(&self, index: Key, step: HeldStep) -> bool {
+        let need = step.bytes();
+        let mut slots = self.slots();
+        slots.remove(&index);
+        let used = |s: &BTreeMap<Key, Slot>| s.values().map(|x| x.step.bytes()).sum::<u64>();
+        while used(&slots) + need > self.max_bytes {
+            let oldest = slots.iter().find(|(_, s)| !s.claimed).map(|(&k, _)| k);
+            match oldest {
+                Some(k) => {
+                    slots.remove(&k);
+                }
+                None => return false,
+            }
+        }
+        slots.insert(
+            index,
+            Slot {
+                step,
+                claimed: false,
+            },
+        );
+        true
+    }
+
+    /// Claims (`keep`) or releases every rank of `step` held here; whether any is held.
+    pub fn answer(&self, step: u64, keep: bool) -> bool {
+        let mut slots = self.slots();
+        if keep {
+            let mut any = false;
+            for (_, s) in slots.range_mut((step, 0)..=(step, u32::MAX)) {
+                s.claimed = true;
+                any = true;
+            }
+            any
+        } else {
+            slots.retain(|k, _| k.0 != step);
+            false
+        }
+    }
+
+    /// The ranks of `step` held here, for a trial.
+    pub fn ranks(&self, step: u64) -> Vec<(u32, HeldStep)> {
+        self.slots()
+            .range((step, 0)..=(step, u32::MAX))
+            .map(|(k, s)| (k.1, s.step.clone()))
+            .collect()
+    }
+
+    /// Keeps the reference frames rendered for `index`.
+    pub fn set_references(&self, index: Key, refs: Arc<Vec<Image>>) {
+        if let Some(s) = self.slots().get_mut(&index) {
+            s.step.references = Some(refs);
+        }
+    }
+
+    /// The claimed steps (told to a tuner on reconnect); pending ones are released, since no
+    /// one will answer their summaries.
+    pub fn claimed_after_reconnect(&self) -> Vec<Key> {
+        let mut slots = self.slots();
+        slots.retain(|_, s| s.claimed);
+        slots.keys().copied().collect()
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        self.slots().values().map(|s| s.step.bytes()).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    fn step(n: usize) -> HeldStep {
+        HeldStep {
+            volume: Arc::new(Volume::new([n, 1, 1], Vec3::ONE, vec![0.0; n]).unwrap()),
+            tf: Arc::new((TransferFunction::default_for_range(0.0, 1.0), "t".into())),
+            camera: Camera::default_for_box(&insitu_core::volume::Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::ONE,
+            }),
+            raycast: RaycastParams::default(),
+            codec: Codec::Zstd,
+            view_angles_deg: vec![0.0],
+            reference_side: 8,
+            references: None,
+        }
+    }
+
+    #[test]
+    fn pending_steps_make_room_claimed_ones_never_do() {
+        let h = Holds::new(100);
+        let held = |s: u64| h.ranks(s).len();
+        assert!(h.offer((1, 0), step(10)) && h.offer((2, 0), step(10))); // 40 B each
+        assert!(h.answer(1, true));
+        assert!(!h.answer(9, true), "not held");
+        assert!(h.offer((3, 0), step(5)) && h.offer((3, 1), step(5)), "step 2 (pending) makes room");
+        assert_eq!((held(1), held(2), held(3)), (1, 0, 2));
+        assert!(h.answer(3, true), "claims both ranks");
+        assert!(!h.offer((4, 0), step(10)), "only claimed steps left: refused");
+        assert_eq!(held(4), 0);
+        assert!(!h.answer(1, false) && held(1) == 0);
+        assert!(h.offer((4, 0), step(10)));
+        assert_eq!(h.claimed_after_reconnect(), vec![(3, 0), (3, 1)]);
+        assert_eq!(h.bytes(), 40);
+        assert!(!Holds::new(0).offer((1, 0), step(1)));
+    }
+}

@@ -1,0 +1,343 @@
+//! The link to the tuner service (DESIGN.md, "The system"): the node dials out (compute nodes
+//! often accept no inbound connections) and keeps one `Attach` stream open, reconnecting with
+//! back-off. Up the stream go a summary per production step and the results of trials; down it
+//! come claims on held fields, trial requests and P_M decisions.
+//!
+//! Trials run at lower priority than production: a trial starts only when no production step
+//! waits in the queue, and production and trials take turns on one compute lane, so a step
+//! that arrives during a trial waits for that one trial at most. Production VDIs keep the P_M
+//! in force until a decision arrives; it applies from the next step.
+
+use crate::hold::{HeldStep, Holds};
+use crate::service::Shared;
+use insitu_core::evaluate::{evaluate, render_references};
+use insitu_core::{Raycaster, VdiParams};
+use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb::node_message::Msg as Up;
+use insitu_proto::pb::tuner_client::TunerClient;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_proto::{pb, transport};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tracing::{info, warn};
+
+/// Summaries waiting to go up; when the tuner is slow, newer summaries are dropped (logged)
+/// rather than production waiting.
+const SUMMARY_BACKLOG: usize = 1024;
+
+/// The tuner side of a node's shared state.
+pub struct Tuning {
+    /// Fields held for trials.
+    pub holds: Holds,
+    summaries: mpsc::Sender<pb::StepSummary>,
+    connected: AtomicBool,
+    /// Connection number; trial results of an older connection are discarded.
+    epoch: AtomicU64,
+    /// Trials run (for status and tests).
+    pub trials_run: AtomicU64,
+}
+
+impl Tuning {
+    /// The state and the receiving end of the summaries (for [`Link::run`]).
+    pub fn new(hold_bytes: u64) -> (Self, mpsc::Receiver<pb::StepSummary>) {
+        let (summaries, rx) = mpsc::channel(SUMMARY_BACKLOG);
+        (
+            Self {
+                holds: Holds::new(hold_bytes),
+                summaries,
+                connected: AtomicBool::new(false),
+                epoch: AtomicU64::new(0),
+                trials_run: AtomicU64::new(0),
+            },
+            rx,
+        )
+    }
+
+    /// Whether the stream to the tuner is up.
+    pub fn connected(&self) -> bool {
+        self.connected.load(Ordering::Relaxed)
+    }
+
+    /// After a production step: holds its field (when connected and there is room) and sends
+    /// its summary.
+    pub fn after_step(&self, mut summary: pb::StepSummary, held: HeldStep) {
+        if !self.connected() {
+            return;
+        }
+        summary.held = self.holds.offer((summary.step, summary.rank), held);
+        if let Err(e) = self.summaries.try_send(summary) {
+            warn!(error = %e, "step summary not sent to the tuner (backlog full)");
+        }
+    }
+}
+
+/// Applies a tuner's decision to the node's settings (from the next step on).
+///
+/// # Errors
+/// A message naming the problem: not newer than the version applied, or a bad `P_M`.
+pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String> {
+    let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
+    if d.pm_version <= g.pm_version {
+        return Err(format!(
+            "decision version {} is not newer than the applied version {}",
+            d.pm_version, g.pm_version
+        ));
+    }
+    let params = VdiParams {
+        resolution: d.resolution,
+        gamma: d.gamma,
+    };
+    params
+        .validate()
+        .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
+    info!(
+        pm_version = d.pm_version,
+        r = params.resolution,
+        gamma = params.gamma,
+        old_r = g.params.resolution,
+        old_gamma = g.params.gamma,
+        "applying the tuner's P_M from the next step"
+    );
+    g.params = params;
+    g.pm_version = d.pm_version;
+    Ok(())
+}
+
+/// Measures one candidate on one held rank of a step (Alg. 1, lines 11–18, with the same
+/// scoring code as the viz-node: [`insitu_core::evaluate::score_views`]). The step's
+/// reference frames are rendered on its first trial and kept.
+fn run_trial(shared: &Shared, tuning: &Tuning, rank: u32, h: HeldStep, req: &pb::TrialRequest) -> pb::TrialResult {
+    let t = Instant::now();
+    let mut out = pb::TrialResult {
+        trial_id: req.trial_id,
+        step: req.step,
+        rank,
+        resolution: req.resolution,
+        gamma: req.gamma,
+        ..Default::default()
+    };
+    let result = (|| -> Result<(), String> {
+        let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
+        let scene = shared.backend.prepare(&raycaster).map_err(|e| e.to_string())?;
+        let refs = match &h.references {
+            Some(r) => r.clone(),
+            None => {
+                let t = Instant::now();
+                let r = Arc::new(
+                    render_references(&scene, &h.camera, &h.view_angles_deg, h.reference_side)
+                        .map_err(|e| e.to_string())?,
+                );
+                out.reference_secs = t.elapsed().as_secs_f64();
+                tuning.holds.set_references((req.step, rank), r.clone());
+                r
+            }
+        };
+        let params = VdiParams {
+            resolution: req.resolution,
+            gamma: req.gamma,
+        };
+        let (e, _) = evaluate(
+            &scene,
+            &h.camera,
+            params,
+            h.codec,
+            &h.view_angles_deg,
+            &refs,
+            h.tf.0.identity_hash(),
+            &h.tf.1,
+        )
+        .map_err(|e| e.to_string())?;
+        out.sigma_bytes = e.sigma_bytes;
+        out.supersegments = e.supersegments;
+        out.tau_secs = e.tau_secs;
+        out.tau_compress_secs = e.tau_compress_secs;
+        out.tau_render_secs = e.tau_render_secs;
+        out.view_mse = e.views.iter().map(|v| v.mse).collect();
+        out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
+        out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
+        Ok(())
+    })();
+    if let Err(e) = result {
+        out.error = e;
+    }
+    out.trial_secs = t.elapsed().as_secs_f64();
+    out
+}
+
+/// Runs trial requests one at a time, after production.
+async fn trials(
+    shared: Arc<Shared>,
+    tuning: Arc<Tuning>,
+    mut requests: mpsc::UnboundedReceiver<(u64, pb::TrialRequest)>,
+    results: mpsc::UnboundedSender<(u64, pb::TrialResult)>,
+) {
+    while let Some((epoch, req)) = requests.recv().await {
+        if epoch != tuning.epoch.load(Ordering::Relaxed) {
+            continue; // asked on a stream that is gone: the tuner abandoned it
+        }
+        let ranks = tuning.holds.ranks(req.step);
+        if ranks.is_empty() {
+            let _ = results.send((
+                epoch,
+                pb::TrialResult {
+                    trial_id: req.trial_id,
+                    step: req.step,
+                    resolution: req.resolution,
+                    gamma: req.gamma,
+                    error: format!("step {} is not held by this node (released or never held)", req.step),
+                    ..Default::default()
+                },
+            ));
+            continue;
+        }
+        for (rank, held) in ranks {
+            // Production first: wait while steps are queued, then take the lane.
+            while !shared.queue.is_empty() {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+            let _lane = shared.lane.lock().await;
+            let (s, t, r) = (shared.clone(), tuning.clone(), req.clone());
+            let result = tokio::task::spawn_blocking(move || run_trial(&s, &t, rank, held, &r))
+                .await
+                .unwrap_or_else(|e| pb::TrialResult {
+                    trial_id: req.trial_id,
+                    step: req.step,
+                    rank,
+                    error: format!("trial task failed: {e}"),
+                    ..Default::default()
+                });
+            tuning.trials_run.fetch_add(1, Ordering::Relaxed);
+            let _ = results.send((epoch, result));
+        }
+    }
+}
+
+/// The dialling side of the stream.
+pub struct Link {
+    uri: String,
+    token: Option<Token>,
+    max_backoff: Duration,
+    node_id: String,
+}
+
+impl Link {
+    /// A link to the tuner at `addr` (`host:port` or a URI).
+    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration, node_id: String) -> Self {
+        Self {
+            uri: transport::uri(addr),
+            token,
+            max_backoff,
+            node_id,
+        }
+    }
+
+    /// Keeps the stream up until the node shuts down (the task is aborted then).
+    pub async fn run(
+        self,
+        shared: Arc<Shared>,
+        tuning: Arc<Tuning>,
+        mut summaries: mpsc::Receiver<pb::StepSummary>,
+    ) {
+        let (trial_tx, trial_rx) = mpsc::unbounded_channel();
+        let (result_tx, mut result_rx) = mpsc::unbounded_channel();
+        tokio::spawn(trials(shared.clone(), tuning.clone(), trial_rx, result_tx));
+        let mut backoff = Duration::from_millis(100);
+        loop {
+            let epoch = tuning.epoch.fetch_add(1, Ordering::Relaxed) + 1;
+            let r = self
+                .session(&shared, &tuning, &mut summaries, &trial_tx, &mut result_rx, epoch)
+                .await;
+            let was = tuning.connected.swap(false, Ordering::Relaxed);
+            shared.stats.update(|c| c.tuner_connected = false);
+            match r {
+                Ok(()) => return, // the node is shutting down
+                Err(e) if was => {
+                    warn!(uri = %self.uri, error = %e, "tuner stream lost; keeping the current P_M and reconnecting");
+                    backoff = Duration::from_millis(100);
+                }
+                Err(e) => tracing::debug!(uri = %self.uri, error = %e, "tuner unreachable"),
+            }
+            tokio::time::sleep(backoff).await;
+            backoff = (backoff * 2).min(self.max_backoff);
+        }
+    }
+
+    async fn session(
+        &self,
+        shared: &Arc<Shared>,
+        tuning: &Arc<Tuning>,
+        summaries: &mut mpsc::Receiver<pb::StepSummary>,
+        trial_tx: &mpsc::UnboundedSender<(u64, pb::TrialRequest)>,
+        result_rx: &mut mpsc::UnboundedReceiver<(u64, pb::TrialResult)>,
+        epoch: u64,
+    ) -> Result<(), String> {
+        let channel = transport::connect(&self.uri)
+            .await
+            .map_err(|e| format!("tuner {}: {e}", self.uri))?;
+        let mut client = TunerClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+        let (out, out_rx) = mpsc::channel::<pb::NodeMessage>(256);
+        let g = shared.generation();
+        let hello = pb::NodeHello {
+            node_id: self.node_id.clone(),
+            pm_version: g.pm_version,
+            resolution: g.params.resolution,
+            gamma: g.params.gamma,
+            held: tuning
+                .holds
+                .claimed_after_reconnect()
+                .into_iter()
+                .map(|(step, rank)| pb::StepRank { step, rank })
+                .collect(),
+        };
+        let send = |m: Up| pb::NodeMessage { msg: Some(m) };
+        out.send(send(Up::Hello(hello)))
+            .await
+            .map_err(|e| e.to_string())?;
+        let mut incoming = client
+            .attach(ReceiverStream::new(out_rx))
+            .await
+            .map_err(|e| format!("tuner {}: {}", self.uri, e.message()))?
+            .into_inner();
+        tuning.connected.store(true, Ordering::Relaxed);
+        shared.stats.update(|c| c.tuner_connected = true);
+        info!(uri = %self.uri, "connected to the tuner");
+        let closed = |_| "tuner stream closed".to_owned();
+        loop {
+            tokio::select! {
+                s = summaries.recv() => match s {
+                    Some(s) => out.send(send(Up::Summary(s))).await.map_err(closed)?,
+                    None => return Ok(()),
+                },
+                Some((e, r)) = result_rx.recv() => {
+                    if e == epoch {
+                        out.send(send(Up::Trial(r))).await.map_err(closed)?;
+                    }
+                }
+                m = incoming.message() => {
+                    let m = m.map_err(|e| e.message().to_owned())?.ok_or("the tuner ended the stream")?;
+                    match m.msg {
+                        Some(Down::Hold(h)) => {
+                            tuning.holds.answer(h.step, h.keep);
+                        }
+                        Some(Down::Trial(t)) => {
+                            let _ = trial_tx.send((epoch, t));
+                        }
+                        Some(Down::Decision(d)) => {
+                            let error = apply_decision(shared, &d).err().unwrap_or_default();
+                            if !error.is_empty() {
+                                warn!(%error, "refused a decision");
+                            }
+                            let ack = pb::DecisionAck { pm_version: d.pm_version, error };
+                            out.send(send(Up::Ack(ack))).await.map_err(closed)?;
+                        }
+                        Some(Down::Error(e)) => warn!(error = %e.message, "the tuner refused a message"),
+                        None => {}
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,256 @@
+//! The tuner-node's configuration: one TOML file (every key documented in
+//! `deploy/tuner-node.toml`), overridden by command-line flags.
+
+use insitu_proto::daemon::load_toml;
+pub use insitu_proto::daemon::ConfigError;
+use insitu_tuner::search::Target;
+use insitu_tuner::utility::{parse_utility, Utility};
+use insitu_tuner::ParamGrid;
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// How candidates are searched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Strategy {
+    /// Bisection over γ per r and a climb over r (size and quality utilities).
+    Adaptive,
+    /// Every candidate of the grid (any utility).
+    Grid,
+}
+
+/// The candidate grid, as `START:END:STEP` or comma lists.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GridConfig {
+    /// Resolutions `r`.
+    pub r: String,
+    /// Thresholds `γ`.
+    pub gamma: String,
+}
+
+impl Default for GridConfig {
+    fn default() -> Self {
+        Self {
+            r: "64:512:64".into(),
+            gamma: "0.001:0.26:0.008".into(),
+        }
+    }
+}
+
+/// Characteristic steps.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CharacteristicConfig {
+    /// Histogram distance (total variation, in [0, 1]) above which a step is characteristic.
+    pub threshold: f64,
+    /// Most characteristic steps kept (≥ 1); the most redundant is evicted beyond it.
+    pub max: usize,
+}
+
+impl Default for CharacteristicConfig {
+    fn default() -> Self {
+        Self {
+            threshold: 0.15,
+            max: 6,
+        }
+    }
+}
+
+/// What trials may cost.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrialConfig {
+    /// A trial whose results do not arrive within this many seconds is abandoned (and with it
+    /// the tuning that asked for it; the previous decision stays).
+    pub timeout_secs: f64,
+    /// Share of the wall clock the trials may take in the long run, in (0, 1]: trials (their
+    /// wall clock on the nodes) may use `burst_secs + share × seconds since start`; beyond
+    /// that the next trial waits.
+    pub share: f64,
+    /// Trial seconds allowed before the share applies (lets the first tuning run at once).
+    pub burst_secs: f64,
+    /// How long a trial waits for a node that holds its step to (re)connect, seconds.
+    pub hold_wait_secs: f64,
+}
+
+impl Default for TrialConfig {
+    fn default() -> Self {
+        Self {
+            timeout_secs: 120.0,
+            share: 0.1,
+            burst_secs: 60.0,
+            hold_wait_secs: 10.0,
+        }
+    }
+}
+
+/// The whole file.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token.
+    pub listen: SocketAddr,
+    /// File holding the bearer token (else `INSITU_TOKEN`); checked on every call and sent
+    /// to the viz-node.
+    pub token_file: Option<PathBuf>,
+    /// Directory of the persisted state (`tuner-state.json`); created if missing.
+    pub state_dir: PathBuf,
+    /// The viz-node, `host:port`, whose quality reports are watched; unset: only σ and τ of
+    /// production steps are watched.
+    pub viz: Option<String>,
+    /// The utility ν: `size:BYTES`, `time:SECS`, `size:BYTES,time:SECS` or `quality:DB`.
+    /// For a world of ranks σ is a step's VDIs summed over ranks and τ the slowest rank's.
+    pub utility: String,
+    /// `adaptive` (size and quality utilities) or `grid`.
+    pub strategy: Strategy,
+    /// Candidates.
+    pub grid: GridConfig,
+    /// Characteristic steps.
+    pub characteristic: CharacteristicConfig,
+    /// Trial budget.
+    pub trials: TrialConfig,
+    /// A production step whose q is more than this many dB below the decision's prediction
+    /// becomes characteristic (re-tuning).
+    pub q_margin_db: f64,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::from(([127, 0, 0, 1], 50053)),
+            token_file: None,
+            state_dir: PathBuf::from("tuner-state"),
+            viz: None,
+            utility: "size:1MB".into(),
+            strategy: Strategy::Adaptive,
+            grid: GridConfig::default(),
+            characteristic: CharacteristicConfig::default(),
+            trials: TrialConfig::default(),
+            q_margin_db: 3.0,
+        }
+    }
+}
+
+fn invalid(key: &'static str, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key,
+        problem: problem.into(),
+    }
+}
+
+/// The settings, validated and parsed.
+pub struct Resolved {
+    /// ν.
+    pub utility: Box<dyn Utility>,
+    /// For the adaptive strategy.
+    pub target: Option<Target>,
+    /// Candidates.
+    pub grid: ParamGrid,
+    /// σ_target (bytes) and τ_target (seconds) of the utility, where it has them: what a
+    /// production step is checked against.
+    pub budgets: (Option<u64>, Option<f64>),
+}
+
+impl Config {
+    /// Reads and validates a TOML file.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file or key.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let cfg: Self = load_toml(path)?;
+        cfg.resolve()?;
+        Ok(cfg)
+    }
+
+    /// Checks every key and parses the utility and the grid.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`] naming the key: a bad or non-positive budget, an adaptive
+    /// strategy with a time budget, an empty or malformed grid, a threshold outside [0, 1],
+    /// `max` 0, a non-positive timeout or share.
+    pub fn resolve(&self) -> Result<Resolved, ConfigError> {
+        let utility = parse_utility(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
+        let target = match self.strategy {
+            Strategy::Adaptive => Some(
+                Target::for_spec(&self.utility).map_err(|e| invalid("strategy", e.to_string()))?,
+            ),
+            Strategy::Grid => None,
+        };
+        let grid = ParamGrid::parse(&self.grid.r, &self.grid.gamma)
+            .map_err(|e| invalid("grid", e.to_string()))?;
+        if grid.is_empty() {
+            return Err(invalid("grid", "the grid is empty"));
+        }
+        let c = &self.characteristic;
+        if !(0.0..=1.0).contains(&c.threshold) {
+            return Err(invalid("characteristic.threshold", "must be in [0, 1]"));
+        }
+        if c.max == 0 {
+            return Err(invalid("characteristic.max", "must be ≥ 1"));
+        }
+        let t = &self.trials;
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(t.timeout_secs) {
+            return Err(invalid("trials.timeout_secs", "must be finite and > 0"));
+        }
+        if !(positive(t.share) && t.share <= 1.0) {
+            return Err(invalid("trials.share", "must be in (0, 1]"));
+        }
+        if !(t.burst_secs.is_finite() && t.burst_secs >= 0.0) {
+            return Err(invalid("trials.burst_secs", "must be finite and ≥ 0"));
+        }
+        if !(t.hold_wait_secs.is_finite() && t.hold_wait_secs >= 0.0) {
+            return Err(invalid("trials.hold_wait_secs", "must be finite and ≥ 0"));
+        }
+        if !(self.q_margin_db.is_finite() && self.q_margin_db >= 0.0) {
+            return Err(invalid("q_margin_db", "must be finite and ≥ 0"));
+        }
+        let mut budgets = (None, None);
+        for part in self.utility.split(',') {
+            match part.split_once(':') {
+                Some(("size", v)) => budgets.0 = insitu_tuner::utility::parse_bytes(v),
+                Some(("time", v)) => budgets.1 = v.trim().parse().ok(),
+                _ => {}
+            }
+        }
+        Ok(Resolved {
+            utility,
+            target,
+            grid,
+            budgets,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_documented_example_parses_and_matches_the_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/tuner-node.toml");
+        assert_eq!(Config::load(&path).unwrap(), Config::default());
+    }
+
+    #[test]
+    fn bad_values_name_their_key() {
+        let bad = |toml: &str| match toml::from_str::<Config>(toml) {
+            Ok(c) => c.resolve().err().map(|e| e.to_string()).unwrap_or_default(),
+            Err(e) => e.to_string(),
+        };
+        assert!(bad("utility = \"size:0\"").contains("utility"));
+        assert!(bad("utility = \"size:-1MB\"").contains("utility"));
+        assert!(bad("utility = \"time:0\"\nstrategy = \"grid\"").contains("utility"));
+        assert!(bad("utility = \"time:0.5\"").contains("strategy"));
+        assert!(bad("utility = \"time:0.5\"\nstrategy = \"grid\"").is_empty());
+        assert!(bad("[grid]\nr = \"\"").contains("grid"));
+        assert!(bad("[grid]\ngamma = \"0.2:0.1:0.01\"").contains("grid"));
+        assert!(bad("[characteristic]\nthreshold = 1.5").contains("characteristic.threshold"));
+        assert!(bad("[characteristic]\nmax = 0").contains("characteristic.max"));
+        assert!(bad("[trials]\nshare = 0").contains("trials.share"));
+        assert!(bad("[trials]\ntimeout_secs = -1").contains("trials.timeout_secs"));
+        assert!(bad("colour = 3").contains("colour"));
+    }
+}

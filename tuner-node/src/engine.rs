@@ -1,0 +1,690 @@
+//! The tuner's decisions: which steps are characteristic, when to tune, and what to push.
+//!
+//! One task ([`Engine::run`]) takes the events in order (step summaries, quality reports,
+//! nodes coming and going). A step is classified when the summaries of all its ranks are in
+//! (their 64-bin counts add up to the step's histogram). A new characteristic step, or a
+//! production step that broke the budget, marks the set *dirty*; when no tuning runs, a
+//! dirty set starts one on the blocking pool: a search ([`insitu_tuner::search`]) over
+//! [`WorstCase`] of one [`StepOracle`] per characteristic step, i.e. the conservative choice
+//! (meets the budget on every step, best worst-case ν). Trials already measured (in this
+//! process or, persisted, in an earlier one) are answered from the state; only new ones go to
+//! the nodes. The result is pushed with the next version when it differs from the P_M in force.
+
+use crate::config::{Config, Resolved};
+use crate::hub::Hub;
+use crate::state::{Decision, State, Trial};
+use insitu_core::metrics::{pooled_psnr, psnr_from_mse, Db};
+use insitu_proto::pb;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_tuner::live::{combine_ranks, normalise, Verdict, WorstCase};
+use insitu_tuner::search::{adaptive_search, grid_search};
+use insitu_tuner::series::BINS;
+use insitu_tuner::study::{Oracle, StudyError};
+use insitu_tuner::{Candidate, Measurement};
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::{broadcast, mpsc};
+use tracing::{info, warn};
+
+/// Steps kept waiting for their last rank or their q before they are given up.
+const STALE_STEPS: u64 = 32;
+
+/// What the engine is told.
+#[derive(Debug)]
+pub enum Event {
+    /// A node's first message.
+    Hello(u64, pb::NodeHello),
+    /// A checked step summary from a connection.
+    Summary(u64, pb::StepSummary),
+    /// A quality report from the viz-node.
+    Report(pb::QualityReport),
+    /// A node's stream ended.
+    Gone(u64),
+}
+
+/// Counters (for the status).
+#[derive(Clone, Debug, Default)]
+pub struct Counters {
+    /// Summaries received.
+    pub summaries: u64,
+    /// Trials run by this process.
+    pub trials_run: u64,
+    /// Trials answered from the state.
+    pub trials_reused: u64,
+    /// Trials that failed, timed out or lost their node.
+    pub trials_failed: u64,
+    /// Node seconds of the trials run.
+    pub trial_secs: f64,
+    /// Tunings started.
+    pub retunes: u64,
+    /// Decisions made by this process.
+    pub decisions: u64,
+    /// Whether a tuning runs.
+    pub tuning: bool,
+}
+
+/// The engine's shared part (the service, the search and the engine task use it).
+pub struct Engine {
+    cfg: Config,
+    resolved: Resolved,
+    /// Persisted state.
+    pub state: Mutex<State>,
+    /// Connected nodes.
+    pub hub: Arc<Hub>,
+    counters: Mutex<Counters>,
+    decisions: broadcast::Sender<pb::PmDecision>,
+    started: Instant,
+    process: u64,
+    lost: Mutex<Vec<u64>>,
+    events: mpsc::UnboundedSender<Event>,
+}
+
+/// A decision as a wire message.
+pub fn decision_pb(d: &Decision) -> pb::PmDecision {
+    pb::PmDecision {
+        pm_version: d.pm_version,
+        resolution: d.candidate.r,
+        gamma: d.candidate.gamma,
+        characteristic_steps: d.characteristic_steps.clone(),
+        predicted_sigma_bytes: d.predicted.sigma_bytes,
+        predicted_q_db: d.predicted.q(),
+        predicted_tau_secs: d.predicted.tau_secs,
+        reason: d.reason.clone(),
+        trials: d.trials,
+        trial_secs: d.trial_secs,
+        old_resolution: d.old.map_or(0, |c| c.r),
+        old_gamma: d.old.map_or(0.0, |c| c.gamma),
+        trigger_step: d.trigger_step,
+        utility: d.utility.clone(),
+    }
+}
+
+/// A trial result as a measurement (q pooled over its views, as the viz-node pools).
+fn measurement(r: &pb::TrialResult) -> Measurement {
+    Measurement {
+        r: r.resolution,
+        gamma: r.gamma,
+        sigma_bytes: r.sigma_bytes,
+        supersegments: r.supersegments,
+        tau_secs: r.tau_secs,
+        tau_compress_secs: r.tau_compress_secs,
+        tau_render_secs: r.tau_render_secs,
+        q_db: Db(pooled_psnr(&r.view_mse)),
+        view_q_db: r.view_q_db.iter().map(|&q| Db(q)).collect(),
+        ssim: r.ssim,
+    }
+}
+
+impl Engine {
+    /// An engine over `state`; events go to the returned receiver (for [`Engine::run`]).
+    pub fn new(
+        cfg: Config,
+        resolved: Resolved,
+        state: State,
+    ) -> (Arc<Self>, mpsc::UnboundedReceiver<Event>) {
+        let (events, rx) = mpsc::unbounded_channel();
+        let process = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        (
+            Arc::new(Self {
+                cfg,
+                resolved,
+                state: Mutex::new(state),
+                hub: Arc::new(Hub::default()),
+                counters: Mutex::new(Counters::default()),
+                decisions: broadcast::channel(64).0,
+                started: Instant::now(),
+                process,
+                lost: Mutex::new(Vec::new()),
+                events,
+            }),
+            rx,
+        )
+    }
+
+    /// Sends an event to the engine task.
+    pub fn event(&self, e: Event) {
+        let _ = self.events.send(e);
+    }
+
+    fn state(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn counters(&self) -> std::sync::MutexGuard<'_, Counters> {
+        self.counters.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A snapshot of the counters.
+    pub fn counters_now(&self) -> Counters {
+        self.counters().clone()
+    }
+
+    /// Every new decision.
+    pub fn subscribe(&self) -> broadcast::Receiver<pb::PmDecision> {
+        self.decisions.subscribe()
+    }
+
+    /// The utility's description.
+    pub fn utility(&self) -> String {
+        self.resolved.utility.describe()
+    }
+
+    fn save(&self, s: &State) {
+        if let Err(e) = s.save(&self.cfg.state_dir) {
+            warn!(error = %e, "could not persist the tuner state");
+        }
+    }
+
+    /// The status message.
+    pub fn status(&self) -> pb::TunerStatus {
+        let s = self.state();
+        let c = self.counters();
+        let cur = s.current();
+        pb::TunerStatus {
+            pm_version: cur.map_or(0, |d| d.pm_version),
+            resolution: cur.map_or(0, |d| d.candidate.r),
+            gamma: cur.map_or(0.0, |d| d.candidate.gamma),
+            characteristic_steps: s.tracker.step_indices(),
+            nodes_connected: self.hub.nodes() as u32,
+            summaries: c.summaries,
+            trials_run: c.trials_run,
+            trials_reused: c.trials_reused,
+            trials_failed: c.trials_failed,
+            trial_secs: c.trial_secs,
+            retunes: c.retunes,
+            decisions: c.decisions,
+            utility: self.utility(),
+            tuning: c.tuning,
+        }
+    }
+
+    /// The current decision, as a message.
+    pub fn current(&self) -> Option<pb::PmDecision> {
+        self.state().current().map(decision_pb)
+    }
+
+    /// A decision by version.
+    pub fn decision(&self, version: u64) -> Option<pb::PmDecision> {
+        self.state()
+            .decisions
+            .iter()
+            .find(|d| d.pm_version == version)
+            .map(decision_pb)
+    }
+
+    fn hello(&self, conn: u64, h: &pb::NodeHello) {
+        for s in &h.held {
+            self.hub.held(conn, s.step, s.rank);
+        }
+        let current = {
+            let mut s = self.state();
+            if h.pm_version > s.highest_seen {
+                s.highest_seen = h.pm_version;
+                self.save(&s);
+            }
+            s.current().map(decision_pb)
+        };
+        info!(node = %h.node_id, pm_version = h.pm_version, r = h.resolution, gamma = h.gamma, held = h.held.len(), "node attached");
+        if let Some(d) = current.filter(|d| d.pm_version > h.pm_version) {
+            self.hub.send(conn, Down::Decision(d));
+        }
+    }
+}
+
+/// A step whose summaries are coming in.
+struct Pending {
+    world_size: u32,
+    counts: [u64; BINS],
+    ranks: u32,
+    sigma_bytes: u64,
+    tau_secs: f64,
+    pm_version: u64,
+    sampled: bool,
+}
+
+/// A step waiting for its q reports before its fields are released.
+struct AwaitingQ {
+    world_size: u32,
+    mses: Vec<f64>,
+    pm_version: u64,
+}
+
+/// Why the characteristic set changed.
+#[derive(Clone, Debug)]
+struct Trigger {
+    step: u64,
+    reason: String,
+}
+
+/// The engine task's own state.
+struct Loop {
+    engine: Arc<Engine>,
+    pending: BTreeMap<u64, Pending>,
+    awaiting: BTreeMap<u64, AwaitingQ>,
+    recent: VecDeque<(u64, [f64; BINS])>,
+    newest: u64,
+    dirty: Option<Trigger>,
+    /// The version a budget break already forced a step for (one per version).
+    forced_for: Option<u64>,
+}
+
+impl Loop {
+    fn summary(&mut self, conn: u64, s: pb::StepSummary) {
+        let e = self.engine.clone();
+        e.counters().summaries += 1;
+        if s.held {
+            e.hub.held(conn, s.step, s.rank);
+        }
+        let p = self.pending.entry(s.step).or_insert(Pending {
+            world_size: s.world_size,
+            counts: [0; BINS],
+            ranks: 0,
+            sigma_bytes: 0,
+            tau_secs: 0.0,
+            pm_version: s.pm_version,
+            sampled: s.sampled,
+        });
+        for (c, &n) in p.counts.iter_mut().zip(&s.histogram) {
+            *c += n;
+        }
+        p.ranks += 1;
+        p.sigma_bytes += s.sigma_bytes;
+        p.tau_secs = p.tau_secs.max(s.tau_secs);
+        if p.ranks >= p.world_size {
+            if let Some(p) = self.pending.remove(&s.step) {
+                self.complete(s.step, p);
+            }
+        }
+        self.newest = self.newest.max(s.step);
+        let stale: Vec<u64> = self
+            .pending
+            .keys()
+            .chain(self.awaiting.keys())
+            .copied()
+            .filter(|&k| k + STALE_STEPS < self.newest)
+            .collect();
+        for k in stale {
+            if self.pending.remove(&k).is_some() {
+                warn!(step = k, "not every rank of the step was summarised; it is left out");
+            }
+            self.awaiting.remove(&k);
+            e.hub.hold(k, false);
+        }
+    }
+
+    /// σ and τ of a production step against the budget (σ summed over ranks, τ the slowest).
+    fn over_budget(&self, p: &Pending) -> Option<String> {
+        let (size, time) = self.engine.resolved.budgets;
+        if let Some(t) = size.filter(|&t| p.sigma_bytes >= t) {
+            return Some(format!("σ {} B ≥ σ_target {t} B", p.sigma_bytes));
+        }
+        if let Some(t) = time.filter(|&t| p.tau_secs >= t) {
+            return Some(format!("τ {:.4} s ≥ τ_target {t} s", p.tau_secs));
+        }
+        None
+    }
+
+    fn current_version(&self) -> Option<u64> {
+        self.engine.state().current().map(|d| d.pm_version)
+    }
+
+    fn force(&mut self, step: u64, h: &[f64; BINS], world_size: u32, why: String) {
+        let e = self.engine.clone();
+        let evicted = {
+            let mut s = e.state();
+            let ev = s.tracker.force(step, h);
+            s.world_sizes.insert(step, world_size);
+            if let Some((gone, _)) = ev {
+                s.world_sizes.remove(&gone);
+            }
+            e.save(&s);
+            ev
+        };
+        self.forced_for = self.current_version();
+        e.hub.hold(step, true);
+        if let Some((gone, d)) = evicted {
+            info!(evicted = gone, nearest = d, "evicted the most redundant characteristic step");
+            e.hub.hold(gone, false);
+        }
+        let reason = format!("production step {step} broke the budget ({why})");
+        info!(step, %reason, "step becomes characteristic");
+        self.dirty = Some(Trigger { step, reason });
+    }
+
+    fn complete(&mut self, step: u64, p: Pending) {
+        let e = self.engine.clone();
+        let Ok(h) = normalise(&p.counts) else { return };
+        self.recent.push_back((step, h));
+        if self.recent.len() > STALE_STEPS as usize {
+            self.recent.pop_front();
+        }
+        let current = self.current_version();
+        if current.is_some() && current == Some(p.pm_version) && self.forced_for != current {
+            if let Some(why) = self.over_budget(&p) {
+                self.force(step, &h, p.world_size, why);
+                return;
+            }
+        }
+        let verdict = {
+            let mut s = e.state();
+            let v = s.tracker.observe(step, &h);
+            if let Verdict::New { evicted, .. } = &v {
+                s.world_sizes.insert(step, p.world_size);
+                if let Some((gone, _)) = evicted {
+                    s.world_sizes.remove(gone);
+                }
+                e.save(&s);
+            }
+            v
+        };
+        match verdict {
+            Verdict::New { distance, evicted } => {
+                e.hub.hold(step, true);
+                if let Some((gone, d)) = evicted {
+                    info!(evicted = gone, nearest = d, max = e.cfg.characteristic.max, "evicted the most redundant characteristic step (its nearest other one is closest)");
+                    e.hub.hold(gone, false);
+                }
+                let reason = match distance {
+                    None => format!("step {step} is the first characteristic step"),
+                    Some(d) => format!(
+                        "step {step} became characteristic (histogram distance {d:.3} > threshold {})",
+                        e.cfg.characteristic.threshold
+                    ),
+                };
+                info!(step, %reason, "characteristic step");
+                self.dirty = Some(Trigger { step, reason });
+            }
+            Verdict::Alike { .. } if p.sampled && e.cfg.viz.is_some() => {
+                // Keep the field until its q is known: a q far below the prediction makes
+                // the step characteristic, and then its field is needed.
+                self.awaiting.insert(
+                    step,
+                    AwaitingQ {
+                        world_size: p.world_size,
+                        mses: Vec::new(),
+                        pm_version: p.pm_version,
+                    },
+                );
+            }
+            Verdict::Alike { .. } => e.hub.hold(step, false),
+        }
+    }
+
+    fn report(&mut self, r: &pb::QualityReport) {
+        let Some(q) = r.q_db else { return };
+        let Some(a) = self.awaiting.get_mut(&r.step) else {
+            return;
+        };
+        a.mses.push(if q.is_infinite() {
+            0.0
+        } else {
+            10f64.powf(-q / 10.0)
+        });
+        if a.mses.len() < r.world_size.max(a.world_size) as usize {
+            return;
+        }
+        let Some(a) = self.awaiting.remove(&r.step) else {
+            return;
+        };
+        let q = psnr_from_mse(a.mses.iter().sum::<f64>() / a.mses.len() as f64);
+        let e = self.engine.clone();
+        let predicted = e.state().current().map(|d| (d.pm_version, d.predicted.q()));
+        if let Some((v, pq)) = predicted {
+            if v == a.pm_version && self.forced_for != Some(v) && q < pq - e.cfg.q_margin_db {
+                let h = self.recent.iter().find(|(s, _)| *s == r.step).map(|x| x.1);
+                if let Some(h) = h {
+                    let why = format!(
+                        "q {q:.2} dB is more than {} dB below the predicted {pq:.2} dB",
+                        e.cfg.q_margin_db
+                    );
+                    self.force(r.step, &h, a.world_size, why);
+                    return;
+                }
+            }
+        }
+        e.hub.hold(r.step, false);
+    }
+}
+
+/// The measurements of one characteristic step, through the nodes that hold it.
+struct StepOracle {
+    engine: Arc<Engine>,
+    handle: tokio::runtime::Handle,
+    step: u64,
+    world_size: u32,
+    generations: u64,
+    generation_secs: f64,
+}
+
+impl StepOracle {
+    /// Waits until the trials may spend more (the share of the wall clock, after the burst).
+    fn pace(&self) {
+        let t = &self.engine.cfg.trials;
+        loop {
+            let spent = self.engine.counters().trial_secs;
+            let allowed = t.burst_secs + t.share * self.engine.started.elapsed().as_secs_f64();
+            if spent <= allowed {
+                return;
+            }
+            let wait = ((spent - allowed) / t.share).clamp(0.05, 1.0);
+            std::thread::sleep(Duration::from_secs_f64(wait));
+        }
+    }
+
+    fn fail(&self, step_lost: bool, problem: String) -> StudyError {
+        self.engine.counters().trials_failed += 1;
+        if step_lost {
+            self.engine
+                .lost
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(self.step);
+        }
+        StudyError::Invalid(problem)
+    }
+}
+
+impl Oracle for StepOracle {
+    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
+        let e = self.engine.clone();
+        if let Some(t) = e.state().trial(self.step, c) {
+            e.counters().trials_reused += 1;
+            return Ok(t.measurement.clone());
+        }
+        self.pace();
+        let deadline = Instant::now() + Duration::from_secs_f64(e.cfg.trials.hold_wait_secs);
+        let (id, rx) = loop {
+            match e.hub.request_trial(self.step, self.world_size, c) {
+                Ok(x) => break x,
+                Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
+                Err(err) => return Err(self.fail(true, err.to_string())),
+            }
+        };
+        let timeout = Duration::from_secs_f64(e.cfg.trials.timeout_secs);
+        let reply = self.handle.block_on(tokio::time::timeout(timeout, rx));
+        let what = format!("trial r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
+        let results = match reply {
+            Err(_) => {
+                e.hub.abandon(id);
+                return Err(self.fail(false, format!("{what} timed out after {} s", timeout.as_secs_f64())));
+            }
+            Ok(Err(_)) => return Err(self.fail(true, format!("{what}: abandoned"))),
+            Ok(Ok(Err(problem))) => {
+                let lost = problem.contains("not held") || problem.contains("disconnected");
+                return Err(self.fail(lost, format!("{what}: {problem}")));
+            }
+            Ok(Ok(Ok(r))) => r,
+        };
+        let ms: Vec<Measurement> = results.iter().map(measurement).collect();
+        let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
+        let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
+        {
+            let mut s = e.state();
+            s.trials.push(Trial {
+                step: self.step,
+                measurement: m.clone(),
+                ranks: results.len() as u32,
+                trial_secs: secs,
+                run_by: e.process,
+            });
+            e.save(&s);
+        }
+        {
+            let mut k = e.counters();
+            k.trials_run += 1;
+            k.trial_secs += secs;
+        }
+        info!(step = self.step, r = c.r, gamma = c.gamma, sigma = m.sigma_bytes, q_db = m.q(), tau = m.tau_secs, secs, "trial");
+        self.generations += 1;
+        self.generation_secs += m.tau_secs;
+        Ok(m)
+    }
+
+    fn generations(&self) -> u64 {
+        self.generations
+    }
+
+    fn generation_secs(&self) -> f64 {
+        self.generation_secs
+    }
+}
+
+/// Runs one tuning over the characteristic steps (blocking: trials wait on the nodes).
+fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger) {
+    let (steps, world_sizes) = {
+        let s = engine.state();
+        (s.tracker.step_indices(), s.world_sizes.clone())
+    };
+    let secs0 = engine.counters().trial_secs;
+    let oracles: Vec<Box<dyn Oracle>> = steps
+        .iter()
+        .map(|&step| {
+            Box::new(StepOracle {
+                engine: engine.clone(),
+                handle: handle.clone(),
+                step,
+                world_size: world_sizes.get(&step).copied().unwrap_or(1),
+                generations: 0,
+                generation_secs: 0.0,
+            }) as Box<dyn Oracle>
+        })
+        .collect();
+    let mut oracle = WorstCase::new(oracles);
+    let r = &engine.resolved;
+    let outcome = match r.target {
+        Some(t) => adaptive_search(&mut oracle, &r.grid, t),
+        None => grid_search(&mut oracle, &r.grid, r.utility.as_ref()),
+    };
+    let trial_secs = engine.counters().trial_secs - secs0;
+    let outcome = match outcome {
+        Ok(o) => o,
+        Err(e) => {
+            warn!(error = %e, "tuning failed; the decision in force stays");
+            return;
+        }
+    };
+    let Some(best) = outcome.best else {
+        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
+        return;
+    };
+    let mut s = engine.state();
+    let old = s.current().map(|d| d.candidate);
+    if old == Some(best.candidate()) {
+        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
+        return;
+    }
+    let d = Decision {
+        pm_version: s.next_version(),
+        candidate: best.candidate(),
+        old,
+        characteristic_steps: steps,
+        predicted: best,
+        reason: trigger.reason.clone(),
+        trigger_step: trigger.step,
+        trials: outcome.generations,
+        trial_secs,
+        utility: engine.utility(),
+    };
+    s.decisions.push(d.clone());
+    engine.save(&s);
+    drop(s);
+    engine.counters().decisions += 1;
+    let m = decision_pb(&d);
+    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
+    engine.hub.broadcast(&Down::Decision(m.clone()));
+    let _ = engine.decisions.send(m);
+}
+
+impl Engine {
+    /// The engine task: takes events in order and tunes when the characteristic set changed.
+    pub async fn run(self: Arc<Self>, mut events: mpsc::UnboundedReceiver<Event>) {
+        let resume = {
+            let s = self.state();
+            let steps = s.tracker.step_indices();
+            let tuned = s.current().map(|d| d.characteristic_steps.clone());
+            (!steps.is_empty() && tuned.as_ref() != Some(&steps)).then(|| Trigger {
+                step: steps.last().copied().unwrap_or(0),
+                reason: "resuming the tuning of a restarted tuner".into(),
+            })
+        };
+        let mut l = Loop {
+            engine: self.clone(),
+            pending: BTreeMap::new(),
+            awaiting: BTreeMap::new(),
+            recent: VecDeque::new(),
+            newest: 0,
+            dirty: resume,
+            forced_for: None,
+        };
+        let mut tuning: Option<tokio::task::JoinHandle<()>> = None;
+        loop {
+            if tuning.is_none() {
+                if let Some(trigger) = l.dirty.take() {
+                    let e = self.clone();
+                    let handle = tokio::runtime::Handle::current();
+                    {
+                        let mut c = self.counters();
+                        c.retunes += 1;
+                        c.tuning = true;
+                    }
+                    info!(reason = %trigger.reason, "tuning");
+                    tuning = Some(tokio::task::spawn_blocking(move || tune(&e, handle, &trigger)));
+                }
+            }
+            tokio::select! {
+                ev = events.recv() => match ev {
+                    None => return,
+                    Some(Event::Hello(conn, h)) => self.hello(conn, &h),
+                    Some(Event::Summary(conn, s)) => l.summary(conn, s),
+                    Some(Event::Report(r)) => l.report(&r),
+                    Some(Event::Gone(conn)) => {
+                        if let Some(id) = self.hub.disconnect(conn) {
+                            warn!(node = %id, "node detached; its trials fail, its held fields are gone");
+                        }
+                    }
+                },
+                _ = async { if let Some(t) = tuning.as_mut() { let _ = t.await; } }, if tuning.is_some() => {
+                    tuning = None;
+                    self.counters().tuning = false;
+                    let lost: Vec<u64> = std::mem::take(&mut *self.lost.lock().unwrap_or_else(|e| e.into_inner()));
+                    if !lost.is_empty() {
+                        let mut s = self.state();
+                        for step in &lost {
+                            if s.tracker.remove(*step) {
+                                s.world_sizes.remove(step);
+                                warn!(step, "no node holds this characteristic step any more: it leaves the set");
+                            }
+                        }
+                        self.save(&s);
+                        if l.dirty.is_none() && !s.tracker.steps.is_empty() {
+                            l.dirty = Some(Trigger { step: lost[0], reason: format!("characteristic step(s) {lost:?} lost with their node") });
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

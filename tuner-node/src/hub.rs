@@ -1,0 +1,301 @@
+//! The connected generator-nodes: their streams, which (step, rank) fields each holds, and the
+//! trials in flight. A node's disconnection fails its trials at once (their data is gone with
+//! it) instead of letting them run into the timeout.
+
+use insitu_proto::pb;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_tuner::Candidate;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+use tokio::sync::{mpsc, oneshot};
+use tonic::Status;
+use tracing::info;
+
+/// The sending half of a node's stream.
+pub type NodeTx = mpsc::Sender<Result<pb::TunerMessage, Status>>;
+
+/// What a finished trial sends back: every rank's result, or why it failed.
+pub type TrialReply = Result<Vec<pb::TrialResult>, String>;
+
+/// Why a trial could not be started.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NotHeld {
+    /// Some ranks of the step are held by no connected node.
+    #[error("step {step}: {held} of {world_size} ranks are held by connected nodes")]
+    Ranks {
+        /// The step.
+        step: u64,
+        /// Ranks held.
+        held: usize,
+        /// Ranks of the step.
+        world_size: u32,
+    },
+}
+
+struct Node {
+    id: String,
+    tx: NodeTx,
+}
+
+struct Pending {
+    expected: usize,
+    conns: BTreeSet<u64>,
+    results: Vec<pb::TrialResult>,
+    reply: oneshot::Sender<TrialReply>,
+}
+
+#[derive(Default)]
+struct Inner {
+    nodes: HashMap<u64, Node>,
+    next_conn: u64,
+    /// step → rank → connection holding it.
+    holders: BTreeMap<u64, BTreeMap<u32, u64>>,
+    pending: HashMap<u64, Pending>,
+}
+
+/// The registry.
+#[derive(Default)]
+pub struct Hub {
+    inner: Mutex<Inner>,
+    next_trial: AtomicU64,
+}
+
+fn msg(m: Down) -> Result<pb::TunerMessage, Status> {
+    Ok(pb::TunerMessage { msg: Some(m) })
+}
+
+impl Hub {
+    fn inner(&self) -> std::sync::MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Registers a node's stream; returns its connection number.
+    pub fn connect(&self, id: &str, tx: NodeTx) -> u64 {
+        let mut i = self.inner();
+        i.next_conn += 1;
+        let conn = i.next_conn;
+        i.nodes.insert(
+            conn,
+            Node {
+                id: id.to_owned(),
+                tx,
+            },
+        );
+        conn
+    }
+
+    /// Forgets a node: its holds, and its trials in flight fail. Returns its id.
+    pub fn disconnect(&self, conn: u64) -> Option<String> {
+        let mut i = self.inner();
+        let node = i.nodes.remove(&conn)?;
+        for ranks in i.holders.values_mut() {
+            ranks.retain(|_, c| *c != conn);
+        }
+        i.holders.retain(|_, r| !r.is_empty());
+        let failed: Vec<u64> = i
+            .pending
+            .iter()
+            .filter(|(_, p)| p.conns.contains(&conn))
+            .map(|(&id, _)| id)
+            .collect();
+        for id in failed {
+            if let Some(p) = i.pending.remove(&id) {
+                let _ = p.reply.send(Err(format!(
+                    "node {} disconnected during trial {id}",
+                    node.id
+                )));
+            }
+        }
+        Some(node.id)
+    }
+
+    /// Connected nodes.
+    pub fn nodes(&self) -> usize {
+        self.inner().nodes.len()
+    }
+
+    /// Records that `conn` holds `(step, rank)`.
+    pub fn held(&self, conn: u64, step: u64, rank: u32) {
+        self.inner()
+            .holders
+            .entry(step)
+            .or_default()
+            .insert(rank, conn);
+    }
+
+    /// Sends one message to one node (a full or closed stream drops it: the node is leaving).
+    pub fn send(&self, conn: u64, m: Down) {
+        if let Some(n) = self.inner().nodes.get(&conn) {
+            let _ = n.tx.try_send(msg(m));
+        }
+    }
+
+    /// Sends one message to every node.
+    pub fn broadcast(&self, m: &Down) {
+        for n in self.inner().nodes.values() {
+            let _ = n.tx.try_send(msg(m.clone()));
+        }
+    }
+
+    /// Claims (`keep`) or releases `step` on the nodes holding it; a release forgets it.
+    pub fn hold(&self, step: u64, keep: bool) {
+        let mut i = self.inner();
+        let conns: BTreeSet<u64> = i
+            .holders
+            .get(&step)
+            .map(|r| r.values().copied().collect())
+            .unwrap_or_default();
+        for c in conns {
+            if let Some(n) = i.nodes.get(&c) {
+                let _ = n.tx.try_send(msg(Down::Hold(pb::HoldRequest { step, keep })));
+            }
+        }
+        if !keep {
+            i.holders.remove(&step);
+        }
+    }
+
+    /// Asks the nodes holding `step` (all `world_size` ranks of it) to measure `c`.
+    ///
+    /// # Errors
+    /// [`NotHeld`] when some rank is held by no connected node.
+    pub fn request_trial(
+        &self,
+        step: u64,
+        world_size: u32,
+        c: Candidate,
+    ) -> Result<(u64, oneshot::Receiver<TrialReply>), NotHeld> {
+        let mut i = self.inner();
+        let ranks = i.holders.get(&step).cloned().unwrap_or_default();
+        if ranks.len() < world_size as usize {
+            return Err(NotHeld::Ranks {
+                step,
+                held: ranks.len(),
+                world_size,
+            });
+        }
+        let id = self.next_trial.fetch_add(1, Ordering::Relaxed) + 1;
+        let conns: BTreeSet<u64> = ranks.values().copied().collect();
+        let req = pb::TrialRequest {
+            trial_id: id,
+            step,
+            resolution: c.r,
+            gamma: c.gamma,
+        };
+        for conn in &conns {
+            if let Some(n) = i.nodes.get(conn) {
+                let _ = n.tx.try_send(msg(Down::Trial(req.clone())));
+            }
+        }
+        let (reply, rx) = oneshot::channel();
+        i.pending.insert(
+            id,
+            Pending {
+                expected: ranks.len(),
+                conns,
+                results: Vec::new(),
+                reply,
+            },
+        );
+        Ok((id, rx))
+    }
+
+    /// A rank's result from `conn`; the trial completes when every rank has answered, or
+    /// fails at the first error.
+    ///
+    /// # Errors
+    /// A message for the node when the trial is unknown (finished, abandoned or never asked).
+    pub fn trial_result(&self, conn: u64, r: pb::TrialResult) -> Result<(), String> {
+        let mut i = self.inner();
+        let Some(p) = i.pending.get_mut(&r.trial_id) else {
+            return Err(format!(
+                "trial {} is unknown (finished, abandoned after a timeout, or never asked)",
+                r.trial_id
+            ));
+        };
+        if !p.conns.contains(&conn) {
+            return Err(format!("trial {} was not asked of this node", r.trial_id));
+        }
+        let id = r.trial_id;
+        if !r.error.is_empty() {
+            let e = format!("step {} rank {}: {}", r.step, r.rank, r.error);
+            if let Some(p) = i.pending.remove(&id) {
+                let _ = p.reply.send(Err(e));
+            }
+            return Ok(());
+        }
+        p.results.push(r);
+        if p.results.len() >= p.expected {
+            if let Some(p) = i.pending.remove(&id) {
+                let _ = p.reply.send(Ok(p.results));
+            }
+        }
+        Ok(())
+    }
+
+    /// Gives up on a trial (timeout); a late result is then refused as unknown.
+    pub fn abandon(&self, id: u64) {
+        if self.inner().pending.remove(&id).is_some() {
+            info!(trial = id, "abandoned a trial");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(id: u64, rank: u32, error: &str) -> pb::TrialResult {
+        pb::TrialResult {
+            trial_id: id,
+            rank,
+            error: error.into(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_trial_needs_every_rank_and_fails_with_its_node() {
+        let hub = Hub::default();
+        let (tx, mut rx) = mpsc::channel(16);
+        let (tx2, _rx2) = mpsc::channel(16);
+        let a = hub.connect("a", tx);
+        let b = hub.connect("b", tx2);
+        let c = Candidate { r: 64, gamma: 0.01 };
+        hub.held(a, 5, 0);
+        assert_eq!(
+            hub.request_trial(5, 2, c).unwrap_err(),
+            NotHeld::Ranks {
+                step: 5,
+                held: 1,
+                world_size: 2
+            }
+        );
+        hub.held(b, 5, 1);
+        let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
+        assert!(matches!(
+            rx.try_recv().unwrap().unwrap().msg,
+            Some(Down::Trial(pb::TrialRequest { step: 5, .. }))
+        ));
+        assert!(hub.trial_result(a, result(999, 0, "")).is_err());
+        hub.trial_result(a, result(id, 0, "")).unwrap();
+        assert!(done.try_recv().is_err(), "one rank is missing");
+        hub.trial_result(b, result(id, 1, "")).unwrap();
+        assert_eq!(done.try_recv().unwrap().unwrap().len(), 2);
+        // A node that goes away fails the trial at once, and its holds are forgotten.
+        let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
+        assert_eq!(hub.disconnect(b).as_deref(), Some("b"));
+        assert!(done.try_recv().unwrap().unwrap_err().contains("disconnected"));
+        assert!(hub.trial_result(a, result(id, 0, "")).is_err());
+        assert!(hub.request_trial(5, 2, c).is_err());
+        // An error from a rank fails the trial; an abandoned trial refuses late results.
+        let (id, mut done) = hub.request_trial(5, 1, c).unwrap();
+        hub.trial_result(a, result(id, 0, "step 5 is not held")).unwrap();
+        assert!(done.try_recv().unwrap().unwrap_err().contains("not held"));
+        let (id, _done) = hub.request_trial(5, 1, c).unwrap();
+        hub.abandon(id);
+        assert!(hub.trial_result(a, result(id, 0, "")).is_err());
+        assert_eq!(hub.nodes(), 1);
+    }
+}

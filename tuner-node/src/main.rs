@@ -1,0 +1,74 @@
+//! `tuner-node`: the daemon. Reads a TOML config (see `deploy/tuner-node.toml`), applies flag
+//! overrides, serves until SIGINT/SIGTERM.
+
+use anyhow::Result;
+use clap::Parser;
+use insitu_proto::daemon::{run_main, shutdown_signal};
+use insitu_tuner_node::{start, Config};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "tuner-node",
+    version,
+    about = "Tunes the VDI parameters (r, gamma) of running generator-nodes"
+)]
+struct Args {
+    /// TOML config file (every key is documented in deploy/tuner-node.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
+    #[arg(long)]
+    listen: Option<SocketAddr>,
+    /// Directory of the persisted state.
+    #[arg(long)]
+    state_dir: Option<PathBuf>,
+    /// The viz-node whose quality reports are watched, host:port.
+    #[arg(long)]
+    viz: Option<String>,
+    /// Utility: size:BYTES, time:SECS, size:BYTES,time:SECS or quality:DB.
+    #[arg(long)]
+    utility: Option<String>,
+    /// File holding the bearer token (else INSITU_TOKEN).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+}
+
+fn config(a: Args) -> Result<Config> {
+    let mut c = match &a.config {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    if let Some(v) = a.listen {
+        c.listen = v;
+    }
+    if let Some(v) = a.state_dir {
+        c.state_dir = v;
+    }
+    if a.viz.is_some() {
+        c.viz = a.viz;
+    }
+    if let Some(v) = a.utility {
+        c.utility = v;
+    }
+    if a.token_file.is_some() {
+        c.token_file = a.token_file;
+    }
+    c.resolve()?;
+    Ok(c)
+}
+
+#[tokio::main]
+async fn main() -> std::process::ExitCode {
+    run_main(async {
+        let node = start(config(Args::parse())?).await?;
+        // Scripts and tests read the actual address from this line.
+        println!("listening on {}", node.local_addr());
+        shutdown_signal().await;
+        eprintln!("tuner-node: shutting down");
+        node.shutdown().await;
+        anyhow::Ok(())
+    })
+    .await
+}

@@ -1,0 +1,142 @@
+//! A running tuner-node: the gRPC server, the engine task and the watcher of the viz-node's
+//! quality reports.
+
+use crate::config::Config;
+use crate::engine::{Engine, Event};
+use crate::service::TunerService;
+use crate::state::State;
+use anyhow::Context;
+use insitu_proto::auth::{check_bind, AttachToken, RequireToken, Token};
+use insitu_proto::pb::tuner_server::TunerServer;
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{pb, transport};
+use insitu_tuner::live::Tracker;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tokio_stream::wrappers::TcpListenerStream;
+use tracing::{info, warn};
+
+/// A started tuner.
+pub struct RunningTuner {
+    addr: SocketAddr,
+    engine: Arc<Engine>,
+    stop: oneshot::Sender<()>,
+    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// Loads (or starts) the state, binds, and serves.
+///
+/// # Errors
+/// A bad config or token, a non-loopback address without a token, an unreadable state file,
+/// or a bind failure.
+pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
+    let resolved = cfg.resolve()?;
+    let token = Token::load(cfg.token_file.as_deref())?;
+    check_bind(cfg.listen, token.as_ref())?;
+    let state = match State::load(&cfg.state_dir)? {
+        Some(s) => {
+            info!(
+                dir = %cfg.state_dir.display(),
+                characteristic = ?s.tracker.step_indices(),
+                trials = s.trials.len(),
+                pm_version = s.current().map_or(0, |d| d.pm_version),
+                "resuming from the persisted state"
+            );
+            s
+        }
+        None => {
+            let s = State::new(Tracker::new(
+                cfg.characteristic.threshold,
+                cfg.characteristic.max,
+            ));
+            s.save(&cfg.state_dir)
+                .with_context(|| format!("state directory {}", cfg.state_dir.display()))?;
+            s
+        }
+    };
+    let listener = tokio::net::TcpListener::bind(cfg.listen)
+        .await
+        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
+    let addr = listener.local_addr()?;
+    let viz = cfg.viz.clone();
+    let (engine, events) = Engine::new(cfg, resolved, state);
+    let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
+    if let Some(viz) = viz {
+        tasks.push(tokio::spawn(watch(viz, token.clone(), engine.clone())));
+    }
+    let svc = tonic::service::interceptor::InterceptedService::new(
+        TunerServer::new(TunerService(engine.clone())),
+        RequireToken::new(token),
+    );
+    let (stop, stopped) = oneshot::channel::<()>();
+    let server = tokio::spawn(
+        transport::server()
+            .add_service(svc)
+            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
+                let _ = stopped.await;
+            }),
+    );
+    info!(%addr, utility = %engine.utility(), "tuner-node listening");
+    Ok(RunningTuner {
+        addr,
+        engine,
+        stop,
+        server,
+        tasks,
+    })
+}
+
+/// Subscribes to the viz-node's quality reports (reconnecting with back-off) and hands them
+/// to the engine.
+async fn watch(viz: String, token: Option<Token>, engine: Arc<Engine>) {
+    let uri = transport::uri(&viz);
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        let r: Result<(), String> = async {
+            let channel = transport::connect(&uri).await.map_err(|e| e.to_string())?;
+            let mut client = VizClient::with_interceptor(channel, AttachToken::new(token.as_ref()));
+            let mut stream = client
+                .subscribe(pb::SubscribeRequest {})
+                .await
+                .map_err(|e| e.message().to_owned())?
+                .into_inner();
+            info!(%uri, "watching the viz-node's quality reports");
+            backoff = Duration::from_millis(100);
+            while let Some(r) = stream.message().await.map_err(|e| e.message().to_owned())? {
+                engine.event(Event::Report(r));
+            }
+            Err("the viz-node ended the report stream".into())
+        }
+        .await;
+        if let Err(e) = r {
+            warn!(%uri, error = %e, "viz-node reports unavailable; retrying");
+        }
+        tokio::time::sleep(backoff).await;
+        backoff = (backoff * 2).min(Duration::from_secs(5));
+    }
+}
+
+impl RunningTuner {
+    /// The address served.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The engine (status, decisions).
+    pub fn engine(&self) -> &Arc<Engine> {
+        &self.engine
+    }
+
+    /// Stops serving; the state is already on disk.
+    pub async fn shutdown(self) {
+        let _ = self.stop.send(());
+        for t in &self.tasks {
+            t.abort();
+        }
+        let _ = self.server.await;
+    }
+}

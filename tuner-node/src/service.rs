@@ -1,0 +1,183 @@
+//! The `Tuner` gRPC service: the generator-nodes' `Attach` streams, status and decisions.
+
+use crate::engine::{Engine, Event};
+use insitu_proto::pb;
+use insitu_proto::pb::node_message::Msg as Up;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_proto::pb::tuner_server::Tuner;
+use insitu_tuner::series::BINS;
+use std::pin::Pin;
+use std::sync::Arc;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::{BroadcastStream, ReceiverStream};
+use tokio_stream::{Stream, StreamExt};
+use tonic::{Request, Response, Status, Streaming};
+use tracing::warn;
+
+/// Decisions and refusals waiting for a node that reads slowly.
+const NODE_BACKLOG: usize = 1024;
+
+/// The gRPC service.
+pub struct TunerService(pub Arc<Engine>);
+
+/// Checks a summary: 64 bins, a finite range with lo < hi, 1 ≤ world_size, rank < world_size.
+///
+/// # Errors
+/// A message naming the field and the step.
+pub fn check_summary(s: &pb::StepSummary) -> Result<(), String> {
+    let what = format!("summary of step {} rank {}", s.step, s.rank);
+    if s.histogram.len() != BINS {
+        return Err(format!(
+            "{what}: the histogram has {} bins, not {BINS}",
+            s.histogram.len()
+        ));
+    }
+    if !(s.range_lo.is_finite() && s.range_hi.is_finite() && s.range_lo < s.range_hi) {
+        return Err(format!(
+            "{what}: histogram range [{}, {}] must be finite with lo < hi",
+            s.range_lo, s.range_hi
+        ));
+    }
+    if s.world_size == 0 || s.rank >= s.world_size {
+        return Err(format!(
+            "{what}: need 0 ≤ rank < world_size (world_size {})",
+            s.world_size
+        ));
+    }
+    Ok(())
+}
+
+type Boxed<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Tuner for TunerService {
+    type AttachStream = Boxed<pb::TunerMessage>;
+    type WatchDecisionsStream = Boxed<pb::PmDecision>;
+
+    async fn attach(
+        &self,
+        request: Request<Streaming<pb::NodeMessage>>,
+    ) -> Result<Response<Self::AttachStream>, Status> {
+        let mut inbound = request.into_inner();
+        let hello = match inbound.message().await?.and_then(|m| m.msg) {
+            Some(Up::Hello(h)) => h,
+            _ => {
+                return Err(Status::failed_precondition(
+                    "the first message of an Attach stream must be a NodeHello",
+                ))
+            }
+        };
+        let (tx, rx) = mpsc::channel(NODE_BACKLOG);
+        let e = self.0.clone();
+        let conn = e.hub.connect(&hello.node_id, tx.clone());
+        e.event(Event::Hello(conn, hello));
+        tokio::spawn(async move {
+            let refuse = |message: String| {
+                warn!(%message, "refused a message from a node");
+                let _ = tx.try_send(Ok(pb::TunerMessage {
+                    msg: Some(Down::Error(pb::TunerError { message })),
+                }));
+            };
+            while let Ok(Some(m)) = inbound.message().await {
+                match m.msg {
+                    Some(Up::Summary(s)) => match check_summary(&s) {
+                        Ok(()) => e.event(Event::Summary(conn, s)),
+                        Err(problem) => refuse(problem),
+                    },
+                    Some(Up::Trial(r)) => {
+                        if let Err(problem) = e.hub.trial_result(conn, r) {
+                            refuse(problem);
+                        }
+                    }
+                    Some(Up::Ack(a)) if !a.error.is_empty() => {
+                        warn!(pm_version = a.pm_version, error = %a.error, "a node refused a decision");
+                    }
+                    Some(Up::Ack(_)) => {}
+                    Some(Up::Hello(_)) => refuse("a second NodeHello on one stream".into()),
+                    None => refuse("an empty NodeMessage".into()),
+                }
+            }
+            e.event(Event::Gone(conn));
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_status(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::TunerStatus>, Status> {
+        Ok(Response::new(self.0.status()))
+    }
+
+    async fn get_decision(
+        &self,
+        request: Request<pb::DecisionRequest>,
+    ) -> Result<Response<pb::PmDecision>, Status> {
+        let v = request.into_inner().pm_version;
+        self.0.decision(v).map(Response::new).ok_or_else(|| {
+            let latest = self.0.current().map_or(0, |d| d.pm_version);
+            Status::not_found(format!(
+                "no decision with version {v} (versions issued: {})",
+                if latest == 0 {
+                    "none yet".to_owned()
+                } else {
+                    format!("1..={latest}")
+                }
+            ))
+        })
+    }
+
+    async fn watch_decisions(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<Self::WatchDecisionsStream>, Status> {
+        let rx = self.0.subscribe();
+        let first = tokio_stream::iter(self.0.current().map(Ok));
+        let rest = BroadcastStream::new(rx).filter_map(|r| r.ok().map(Ok));
+        Ok(Response::new(Box::pin(first.chain(rest))))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn summaries_are_checked_field_by_field() {
+        let good = pb::StepSummary {
+            step: 3,
+            world_size: 1,
+            histogram: vec![1; BINS],
+            range_lo: 0.0,
+            range_hi: 1.0,
+            ..Default::default()
+        };
+        assert!(check_summary(&good).is_ok());
+        let e = check_summary(&pb::StepSummary {
+            histogram: vec![1; 63],
+            ..good.clone()
+        })
+        .unwrap_err();
+        assert!(e.contains("63 bins") && e.contains("step 3"), "{e}");
+        for bad in [
+            pb::StepSummary {
+                range_hi: 0.0,
+                ..good.clone()
+            },
+            pb::StepSummary {
+                range_lo: f64::NAN,
+                ..good.clone()
+            },
+            pb::StepSummary {
+                world_size: 0,
+                ..good.clone()
+            },
+            pb::StepSummary {
+                rank: 1,
+                ..good.clone()
+            },
+        ] {
+            assert!(check_summary(&bad).is_err(), "{bad:?}");
+        }
+    }
+}

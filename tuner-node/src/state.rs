@@ -1,0 +1,227 @@
+//! What the tuner persists (`tuner-state.json` in its state directory): the characteristic
+//! steps with their histograms, every trial's measurement, and every decision with its version.
+//! Written atomically (a temporary file in the same directory, fsync'd, renamed over the old
+//! one, directory fsync'd) after each change, so a crash leaves the previous or the new state,
+//! never half of one. A restarted tuner resumes from it: finished trials are not run again and
+//! versions continue.
+
+use insitu_tuner::live::Tracker;
+use insitu_tuner::{Candidate, Measurement};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// The state file's name.
+pub const STATE_FILE: &str = "tuner-state.json";
+const FORMAT: u32 = 1;
+
+/// Errors reading or writing the state.
+#[derive(Debug, thiserror::Error)]
+pub enum StateError {
+    /// Reading or writing failed.
+    #[error("tuner state {path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not a state of this format.
+    #[error("tuner state {path} is not valid (move it away to start afresh): {problem}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// One trial: a candidate measured on a characteristic step (combined over its ranks).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Trial {
+    /// Step index.
+    pub step: u64,
+    /// σ, q, τ of the candidate on the step.
+    pub measurement: Measurement,
+    /// Ranks it was measured on.
+    pub ranks: u32,
+    /// Wall clock on the nodes (the slowest rank), seconds.
+    pub trial_secs: f64,
+    /// The tuner process that ran it (its start time, ms since the epoch).
+    pub run_by: u64,
+}
+
+/// A decision, as pushed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Decision {
+    /// Version (≥ 1).
+    pub pm_version: u64,
+    /// The P_M.
+    pub candidate: Candidate,
+    /// The P_M it replaced (`None` for the first).
+    pub old: Option<Candidate>,
+    /// The steps it was tuned on.
+    pub characteristic_steps: Vec<u64>,
+    /// The worst case over those steps.
+    pub predicted: Measurement,
+    /// Why it was made.
+    pub reason: String,
+    /// The step that triggered it.
+    pub trigger_step: u64,
+    /// Trials run for it.
+    pub trials: u64,
+    /// Their seconds on the nodes.
+    pub trial_secs: f64,
+    /// The utility.
+    pub utility: String,
+}
+
+/// Everything persisted.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct State {
+    /// File format.
+    pub format: u32,
+    /// Characteristic steps.
+    pub tracker: Tracker,
+    /// Ranks per characteristic step.
+    pub world_sizes: BTreeMap<u64, u32>,
+    /// Every trial.
+    pub trials: Vec<Trial>,
+    /// Every decision, oldest first.
+    pub decisions: Vec<Decision>,
+    /// The highest version any node has reported (a node may be ahead of a lost state).
+    pub highest_seen: u64,
+}
+
+impl State {
+    /// An empty state.
+    pub fn new(tracker: Tracker) -> Self {
+        Self {
+            format: FORMAT,
+            tracker,
+            world_sizes: BTreeMap::new(),
+            trials: Vec::new(),
+            decisions: Vec::new(),
+            highest_seen: 0,
+        }
+    }
+
+    /// The decision in force.
+    pub fn current(&self) -> Option<&Decision> {
+        self.decisions.last()
+    }
+
+    /// The version for the next decision.
+    pub fn next_version(&self) -> u64 {
+        self.current()
+            .map_or(0, |d| d.pm_version)
+            .max(self.highest_seen)
+            + 1
+    }
+
+    /// A finished trial of `c` on `step`.
+    pub fn trial(&self, step: u64, c: Candidate) -> Option<&Trial> {
+        self.trials.iter().find(|t| {
+            t.step == step
+                && t.measurement.r == c.r
+                && t.measurement.gamma.to_bits() == c.gamma.to_bits()
+        })
+    }
+
+    /// Loads `dir/tuner-state.json`; `None` when there is none.
+    ///
+    /// # Errors
+    /// [`StateError`] when it cannot be read or parsed (it is left alone).
+    pub fn load(dir: &Path) -> Result<Option<Self>, StateError> {
+        let path = dir.join(STATE_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => return Err(StateError::Io { path, source }),
+        };
+        let state: Self = serde_json::from_str(&text).map_err(|e| StateError::Invalid {
+            path: path.clone(),
+            problem: e.to_string(),
+        })?;
+        if state.format != FORMAT {
+            return Err(StateError::Invalid {
+                path,
+                problem: format!("format {} (this tuner reads {FORMAT})", state.format),
+            });
+        }
+        Ok(Some(state))
+    }
+
+    /// Writes `dir/tuner-state.json` atomically.
+    ///
+    /// # Errors
+    /// [`StateError::Io`]; the previous file is then untouched.
+    pub fn save(&self, dir: &Path) -> Result<(), StateError> {
+        let io = |path: &Path| {
+            let path = path.to_owned();
+            move |source| StateError::Io { path, source }
+        };
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        let bytes = serde_json::to_vec(self).map_err(|e| StateError::Invalid {
+            path: dir.join(STATE_FILE),
+            problem: e.to_string(),
+        })?;
+        let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(io(dir))?;
+        tmp.write_all(&bytes).map_err(io(tmp.path()))?;
+        tmp.as_file().sync_all().map_err(io(tmp.path()))?;
+        let path = dir.join(STATE_FILE);
+        tmp.persist(&path).map_err(|e| StateError::Io {
+            path: path.clone(),
+            source: e.error,
+        })?;
+        std::fs::File::open(dir)
+            .and_then(|d| d.sync_all())
+            .map_err(io(dir))?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insitu_core::metrics::Db;
+
+    #[test]
+    fn state_round_trips_and_a_bad_file_is_refused_not_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(State::load(dir.path()).unwrap().is_none());
+        let mut s = State::new(Tracker::new(0.1, 4));
+        let m = Measurement {
+            r: 64,
+            gamma: 0.01,
+            sigma_bytes: 10,
+            supersegments: 1,
+            tau_secs: 0.1,
+            tau_compress_secs: 0.0,
+            tau_render_secs: 0.0,
+            q_db: Db(f64::INFINITY),
+            view_q_db: vec![Db(40.0)],
+            ssim: None,
+        };
+        s.trials.push(Trial {
+            step: 3,
+            measurement: m.clone(),
+            ranks: 1,
+            trial_secs: 0.2,
+            run_by: 1,
+        });
+        s.highest_seen = 4;
+        assert_eq!(s.next_version(), 5);
+        s.save(dir.path()).unwrap();
+        let back = State::load(dir.path()).unwrap().unwrap();
+        assert_eq!(back, s);
+        assert!(back.trial(3, m.candidate()).is_some());
+        assert!(back.trial(4, m.candidate()).is_none());
+        // Only the state file is left behind (no temporaries).
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        std::fs::write(dir.path().join(STATE_FILE), b"{\"format\": 1, \"trials\": [").unwrap();
+        let e = State::load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains(STATE_FILE) && e.contains("not valid"), "{e}");
+    }
+}
