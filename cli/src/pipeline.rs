@@ -1,6 +1,8 @@
-//! What `insitu demo` and `insitu replay` share: a generator-node and a viz-node started in
-//! this process on 127.0.0.1 with ephemeral ports (the same libraries the daemons run), a
-//! printer of the viz-node's quality reports (one line per stored VDI), and the summary.
+//! What `insitu demo` and `insitu replay` share: a generator-node, a viz-node and (unless
+//! `--no-tune`) a tuner started in this process on 127.0.0.1 with ephemeral ports (the same
+//! libraries the daemons run), a printer of the viz-node's quality reports (one line per stored
+//! VDI) and of the tuner's decisions (one line per change of P_M), and the summary. With
+//! `--json` every line is a JSON object instead.
 
 use anyhow::{Context, Result};
 use insitu_generator_node::{self as gen, Policy};
@@ -29,9 +31,78 @@ pub struct PipelineArgs {
     /// Input queue length, steps.
     #[arg(long, default_value_t = 2)]
     pub queue_steps: usize,
-    /// Recording directory of the viz-node (default: a new insitu-recording-<time> here).
+    /// Recording directory of the viz-node (default: a new insitu-recording-<time> here). The
+    /// tuner's state goes to its `tuner-state/`.
     #[arg(long)]
     pub recording: Option<PathBuf>,
+    /// The tuner's utility: size:BYTES (Eq. 1), time:SECS (Eq. 2), size:BYTES,time:SECS, or
+    /// quality:DB. Default: the command's (see its help).
+    #[arg(long)]
+    pub utility: Option<String>,
+    /// Keep P_M fixed: start no tuner.
+    #[arg(long)]
+    pub no_tune: bool,
+    /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A P_M change as text.
+pub fn decision_line(d: &pb::PmDecision) -> String {
+    let old = if d.old_resolution == 0 {
+        "the configured P_M".to_owned()
+    } else {
+        format!("r {} γ {:.4}", d.old_resolution, d.old_gamma)
+    };
+    format!(
+        "P_M v{} from step {}: {old} → r {} γ {:.4} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
+        d.pm_version,
+        d.trigger_step,
+        d.resolution,
+        d.gamma,
+        d.reason,
+        d.characteristic_steps,
+        d.predicted_sigma_bytes as f64 / 1e3,
+        crate::cmd::q_text(d.predicted_q_db),
+        d.predicted_tau_secs,
+        d.trials,
+        d.trial_secs
+    )
+}
+
+/// A P_M change as the JSON event of `--json`.
+pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
+    serde_json::json!({
+        "event": "pm_change",
+        "step": d.trigger_step,
+        "pm_version": d.pm_version,
+        "old": {"r": d.old_resolution, "gamma": d.old_gamma},
+        "new": {"r": d.resolution, "gamma": d.gamma},
+        "characteristic_steps": d.characteristic_steps,
+        "predicted": {
+            "sigma_bytes": d.predicted_sigma_bytes,
+            "q_db": crate::cmd::q_json(d.predicted_q_db),
+            "tau_s": d.predicted_tau_secs,
+        },
+        "trials": d.trials,
+        "trial_secs": d.trial_secs,
+        "reason": d.reason,
+        "utility": d.utility,
+    })
+}
+
+/// A stored VDI as the JSON line of `--json`.
+pub fn report_json(r: &pb::QualityReport) -> serde_json::Value {
+    serde_json::json!({
+        "step": r.step,
+        "rank": r.rank,
+        "r": r.resolution,
+        "gamma": r.gamma,
+        "pm_version": r.pm_version,
+        "sigma_bytes": r.sigma_bytes,
+        "tau_s": r.tau_secs,
+        "q_db": r.q_db.map(crate::cmd::q_json),
+    })
 }
 
 /// A step's line, from a quality report and the generator's queue state.
@@ -44,9 +115,10 @@ pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
         format!("  queue {depth}  drops {drops}")
     });
     format!(
-        "step {:>6}  rank {}  r {:>4}  γ {:.4}  σ {:>9.1} kB  τ {:.3} s  q {q}{queue}",
+        "step {:>6}  rank {}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB  τ {:.3} s  q {q}{queue}",
         r.step,
         r.rank,
+        r.pm_version,
         r.resolution,
         r.gamma,
         r.sigma_bytes as f64 / 1e3,
@@ -54,58 +126,89 @@ pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
     )
 }
 
-/// The task printing reports, and the reports it has seen (for the summary).
+/// What the printer has seen (for the summary).
+#[derive(Default)]
+struct Seen {
+    reports: Vec<pb::QualityReport>,
+    decisions: Vec<pb::PmDecision>,
+}
+
+/// The task printing reports and decisions, and what it has seen.
 pub struct Printer {
     task: JoinHandle<()>,
-    reports: Arc<Mutex<Vec<pb::QualityReport>>>,
+    seen: Arc<Mutex<Seen>>,
 }
 
 impl Printer {
-    fn reports(&self) -> Vec<pb::QualityReport> {
-        self.reports
+    fn reports(&self) -> usize {
+        self.seen
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .clone()
+            .reports
+            .len()
     }
 
     /// Waits (up to a minute) until `n` reports have arrived (scoring may lag storing), then
     /// stops printing.
-    async fn finish(self, n: u64) -> Vec<pb::QualityReport> {
+    async fn finish(self, n: u64) -> Seen {
         let deadline = Instant::now() + Duration::from_secs(60);
-        while Instant::now() < deadline && (self.reports().len() as u64) < n {
+        while Instant::now() < deadline && (self.reports() as u64) < n {
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
         self.task.abort();
-        self.reports()
+        let _ = self.task.await;
+        std::mem::take(&mut *self.seen.lock().unwrap_or_else(|e| e.into_inner()))
     }
 }
 
-/// Subscribes to the viz-node's reports and prints a line per report.
+/// Subscribes to the viz-node's reports (and the tuner's decisions, when there is a tuner) and
+/// prints a line per report and per P_M change (JSON objects with `json`).
 ///
 /// # Errors
 /// When the viz-node cannot be reached.
 pub async fn print_reports(
     viz: SocketAddr,
     generator: Option<Arc<gen::service::Shared>>,
+    tuner: Option<&insitu_tuner_node::RunningTuner>,
+    json: bool,
 ) -> Result<Printer> {
     let channel = transport::connect(&transport::uri(&viz.to_string())).await?;
     let mut stream = VizClient::new(channel)
         .subscribe(pb::SubscribeRequest {})
         .await?
         .into_inner();
-    let reports = Arc::new(Mutex::new(Vec::new()));
-    let c = reports.clone();
+    let mut decisions = tuner.map(|t| t.engine().subscribe());
+    let seen = Arc::new(Mutex::new(Seen::default()));
+    let c = seen.clone();
     let task = tokio::spawn(async move {
-        while let Some(Ok(r)) = stream.next().await {
-            let queue = generator.as_ref().map(|g| {
-                let s = g.status();
-                (s.queue_depth, s.dropped_queue + s.dropped_outbox)
-            });
-            println!("{}", report_line(&r, queue));
-            c.lock().unwrap_or_else(|e| e.into_inner()).push(r);
+        loop {
+            tokio::select! {
+                r = stream.next() => {
+                    let Some(Ok(r)) = r else { break };
+                    if json {
+                        println!("{}", report_json(&r));
+                    } else {
+                        let queue = generator.as_ref().map(|g| {
+                            let s = g.status();
+                            (s.queue_depth, s.dropped_queue + s.dropped_outbox)
+                        });
+                        println!("{}", report_line(&r, queue));
+                    }
+                    c.lock().unwrap_or_else(|e| e.into_inner()).reports.push(r);
+                }
+                d = async { match decisions.as_mut() { Some(rx) => rx.recv().await.ok(), None => std::future::pending().await } } => {
+                    let Some(d) = d else { decisions = None; continue };
+                    if json {
+                        println!("{}", decision_json(&d));
+                    } else {
+                        println!("{}", decision_line(&d));
+                    }
+                    c.lock().unwrap_or_else(|e| e.into_inner()).decisions.push(d);
+                }
+            }
         }
     });
-    Ok(Printer { task, reports })
+    Ok(Printer { task, seen })
 }
 
 /// The two nodes, in process.
@@ -114,6 +217,10 @@ pub struct LocalNodes {
     pub generator: gen::RunningNode,
     /// The viz-node.
     pub viz: insitu_viz_node::RunningViz,
+    /// The tuner (none with `--no-tune`).
+    pub tuner: Option<insitu_tuner_node::RunningTuner>,
+    /// Print JSON lines.
+    pub json: bool,
     /// Where the viz-node records.
     pub recording: PathBuf,
 }
@@ -127,11 +234,17 @@ pub fn default_recording() -> PathBuf {
 }
 
 impl LocalNodes {
-    /// Starts a viz-node recording into `a.recording` and a generator-node shipping to it.
+    /// Starts a viz-node recording into `a.recording`, a tuner watching it (unless
+    /// `--no-tune`; utility `--utility`, else `default_utility`) and a generator-node shipping
+    /// to the viz-node and dialling the tuner.
     ///
     /// # Errors
     /// Bad settings, or a node failing to start.
-    pub async fn start(a: &PipelineArgs, tweak: impl FnOnce(&mut gen::Config)) -> Result<Self> {
+    pub async fn start(
+        a: &PipelineArgs,
+        default_utility: &str,
+        tweak: impl FnOnce(&mut gen::Config),
+    ) -> Result<Self> {
         let recording = a.recording.clone().unwrap_or_else(default_recording);
         let viz = insitu_viz_node::start(insitu_viz_node::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
@@ -141,9 +254,33 @@ impl LocalNodes {
         })
         .await
         .context("starting the viz-node")?;
+        let tuner = if a.no_tune {
+            None
+        } else {
+            let utility = a.utility.clone().unwrap_or_else(|| default_utility.to_owned());
+            let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
+                insitu_tuner_node::config::Strategy::Adaptive
+            } else {
+                insitu_tuner_node::config::Strategy::Grid
+            };
+            let cfg = insitu_tuner_node::Config {
+                listen: SocketAddr::from(([127, 0, 0, 1], 0)),
+                state_dir: recording.join("tuner-state"),
+                viz: Some(viz.local_addr().to_string()),
+                utility,
+                strategy,
+                ..Default::default()
+            };
+            Some(
+                insitu_tuner_node::start(cfg)
+                    .await
+                    .context("starting the tuner")?,
+            )
+        };
         let mut cfg = gen::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             viz: Some(viz.local_addr().to_string()),
+            tuner: tuner.as_ref().map(|t| t.local_addr().to_string()),
             ..Default::default()
         };
         cfg.backend = a.backend.backend;
@@ -159,6 +296,8 @@ impl LocalNodes {
         Ok(Self {
             generator,
             viz,
+            tuner,
+            json: a.json,
             recording,
         })
     }
@@ -168,7 +307,21 @@ impl LocalNodes {
         self.generator.local_addr().to_string()
     }
 
-    /// Prints reports until one per stored VDI has arrived, shuts both nodes down, and prints
+    /// Subscribes the printer to the viz-node (and the tuner).
+    ///
+    /// # Errors
+    /// When the viz-node cannot be reached.
+    pub async fn printer(&self) -> Result<Printer> {
+        print_reports(
+            self.viz.local_addr(),
+            Some(self.generator.shared().clone()),
+            self.tuner.as_ref(),
+            self.json,
+        )
+        .await
+    }
+
+    /// Prints reports until one per stored VDI has arrived, shuts the nodes down, and prints
     /// the summary.
     pub async fn finish(
         self,
@@ -177,17 +330,97 @@ impl LocalNodes {
         pushed: u64,
         started: Instant,
     ) {
-        let reports = printer.finish(status.steps_shipped).await;
+        let seen = printer.finish(status.steps_shipped).await;
+        let tuner = self.tuner.as_ref().map(|t| t.engine().status());
         let summary = self.generator.shutdown().await;
+        if let Some(t) = self.tuner {
+            t.shutdown().await;
+        }
         self.viz.shutdown().await;
-        print_summary(
+        let run = Run {
             pushed,
-            started.elapsed().as_secs_f64(),
+            elapsed_secs: started.elapsed().as_secs_f64(),
             status,
-            &reports,
-            &self.recording,
+            seen: &seen,
+            tuner: tuner.as_ref(),
+            recording: &self.recording,
+        };
+        if self.json {
+            println!("{}", serde_json::json!({ "summary": run.json(&summary.to_string()) }));
+        } else {
+            run.print();
+            println!("  generator: {summary}");
+        }
+    }
+}
+
+/// What the summary is made of.
+struct Run<'a> {
+    pushed: u64,
+    elapsed_secs: f64,
+    status: &'a pb::GeneratorStatus,
+    seen: &'a Seen,
+    tuner: Option<&'a pb::TunerStatus>,
+    recording: &'a Path,
+}
+
+impl Run<'_> {
+    fn json(&self, generator: &str) -> serde_json::Value {
+        let reports = &self.seen.reports;
+        let n = reports.len().max(1) as f64;
+        let q: Vec<f64> = reports.iter().filter_map(|r| r.q_db).collect();
+        let s = self.status;
+        serde_json::json!({
+            "pushed": self.pushed,
+            "received": s.steps_received,
+            "generated": s.steps_generated,
+            "stored": s.steps_shipped,
+            "dropped_queue": s.dropped_queue,
+            "dropped_outbox": s.dropped_outbox,
+            "failed": s.failed,
+            "vdis": reports.len(),
+            "mean_sigma_bytes": reports.iter().map(|r| r.sigma_bytes as f64).sum::<f64>() / n,
+            "mean_tau_s": reports.iter().map(|r| r.tau_secs).sum::<f64>() / n,
+            "q_db_min": q.iter().copied().reduce(f64::min).map(crate::cmd::q_json),
+            "q_db_max": q.iter().copied().reduce(f64::max).map(crate::cmd::q_json),
+            "pm_changes": self.seen.decisions.len(),
+            "final_pm_version": s.pm_version,
+            "tuner": self.tuner.map(|t| serde_json::json!({
+                "utility": t.utility,
+                "characteristic_steps": t.characteristic_steps,
+                "trials_run": t.trials_run,
+                "trials_reused": t.trials_reused,
+                "trials_failed": t.trials_failed,
+                "trial_secs": t.trial_secs,
+                "retunes": t.retunes,
+                "decisions": t.decisions,
+            })),
+            "wall_s": self.elapsed_secs,
+            "recording": self.recording.display().to_string(),
+            "generator": generator,
+        })
+    }
+
+    fn print(&self) {
+        print_summary(
+            self.pushed,
+            self.elapsed_secs,
+            self.status,
+            &self.seen.reports,
+            self.recording,
         );
-        println!("  generator: {summary}");
+        if let Some(t) = self.tuner {
+            println!(
+                "  tuner ({}): {} P_M change(s), characteristic steps {:?}, {} trials ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
+                t.utility,
+                self.seen.decisions.len(),
+                t.characteristic_steps,
+                t.trials_run,
+                t.trial_secs,
+                t.trials_reused,
+                t.trials_failed
+            );
+        }
     }
 }
 

@@ -26,18 +26,21 @@ pub struct HeldStep {
     pub codec: Codec,
     /// Test views, degrees.
     pub view_angles_deg: Vec<f32>,
-    /// Side of the reference frames, pixels.
-    pub reference_side: u32,
-    /// Reference frames, rendered on the first trial.
-    pub references: Option<Arc<Vec<Image>>>,
+    /// Side of the reference frames, pixels; 0: the candidate's `r` (as production with
+    /// `reference_size = 0`), so trial and production q compare at the same image size.
+    pub reference_size: u32,
+    /// Reference frames by side, rendered on the first trial that needs them.
+    pub references: BTreeMap<u32, Arc<Vec<Image>>>,
 }
 
 impl HeldStep {
     fn bytes(&self) -> u64 {
-        let refs = self
+        let refs: u64 = self
             .references
-            .as_ref()
-            .map_or(0, |r| r.iter().map(|i| u64::from(i.width()) * u64::from(i.height()) * 12).sum());
+            .values()
+            .flat_map(|r| r.iter())
+            .map(|i| u64::from(i.width()) * u64::from(i.height()) * 12)
+            .sum();
         self.volume.data().len() as u64 * 4 + refs
     }
 }
@@ -118,10 +121,10 @@ impl Holds {
             .collect()
     }
 
-    /// Keeps the reference frames rendered for `index`.
-    pub fn set_references(&self, index: Key, refs: Arc<Vec<Image>>) {
+    /// Keeps the reference frames of side `side` rendered for `index`.
+    pub fn set_references(&self, index: Key, side: u32, refs: Arc<Vec<Image>>) {
         if let Some(s) = self.slots().get_mut(&index) {
-            s.step.references = Some(refs);
+            s.step.references.insert(side, refs);
         }
     }
 
@@ -155,8 +158,8 @@ mod tests {
             raycast: RaycastParams::default(),
             codec: Codec::Zstd,
             view_angles_deg: vec![0.0],
-            reference_side: 8,
-            references: None,
+            reference_size: 8,
+            references: BTreeMap::new(),
         }
     }
 

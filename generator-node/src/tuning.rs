@@ -122,16 +122,21 @@ fn run_trial(shared: &Shared, tuning: &Tuning, rank: u32, h: HeldStep, req: &pb:
     let result = (|| -> Result<(), String> {
         let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
         let scene = shared.backend.prepare(&raycaster).map_err(|e| e.to_string())?;
-        let refs = match &h.references {
+        let side = if h.reference_size == 0 {
+            req.resolution
+        } else {
+            h.reference_size
+        };
+        let refs = match h.references.get(&side) {
             Some(r) => r.clone(),
             None => {
                 let t = Instant::now();
                 let r = Arc::new(
-                    render_references(&scene, &h.camera, &h.view_angles_deg, h.reference_side)
+                    render_references(&scene, &h.camera, &h.view_angles_deg, side)
                         .map_err(|e| e.to_string())?,
                 );
                 out.reference_secs = t.elapsed().as_secs_f64();
-                tuning.holds.set_references((req.step, rank), r.clone());
+                tuning.holds.set_references((req.step, rank), side, r.clone());
                 r
             }
         };

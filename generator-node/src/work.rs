@@ -186,8 +186,8 @@ pub fn for_tuner(
         raycast: gen.raycast,
         codec: gen.codec,
         view_angles_deg: gen.view_angles_deg.clone(),
-        reference_side: gen.reference_side(),
-        references: None,
+        reference_size: gen.reference_size,
+        references: Default::default(),
     };
     (summary, held)
 }

@@ -1,13 +1,19 @@
 //! `insitu demo`: the project's main job on an embedded default. The built-in Gray–Scott
 //! simulation pushes every k-th step through the simulation client to a generator-node, which
-//! ships compressed VDIs (and, on sampled steps, reference frames) to a viz-node; both run in
-//! this process on 127.0.0.1 with ephemeral ports. One line per stored VDI, then a summary.
+//! ships compressed VDIs (and, on sampled steps, reference frames) to a viz-node, while a tuner
+//! re-optimises P_M live over the characteristic steps (unless `--no-tune`); all run in this
+//! process on 127.0.0.1 with ephemeral ports. One line per stored VDI and per P_M change, then
+//! a summary.
 
-use crate::pipeline::{print_reports, LocalNodes, PipelineArgs};
+use crate::pipeline::{LocalNodes, PipelineArgs};
 use anyhow::{bail, Result};
 use insitu_client::{SimClient, Step};
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use std::time::{Duration, Instant};
+
+/// The demo's budget: the Gray–Scott VDIs at the default P_M (r = 256, γ = 0.013) grow from
+/// 0.4 MB to over 6 MB as the pattern fills the box, so 1 MB makes the tuner work.
+pub const DEFAULT_UTILITY: &str = "size:1MB";
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -42,13 +48,20 @@ async fn demo(a: Args) -> Result<()> {
     let started = Instant::now();
     let mut sim = GrayScott::new(a.size, GrayScottParams::default())?;
     let reference_every = a.every * a.sample_every;
-    let nodes = LocalNodes::start(&a.pipeline, |c| {
+    let nodes = LocalNodes::start(&a.pipeline, DEFAULT_UTILITY, |c| {
         c.generation.reference_every = reference_every;
         // Small frames keep the demo quick; the VDI itself is r × r.
         c.generation.reference_size = a.pipeline.pm.r.min(256);
     })
     .await?;
-    println!(
+    let say = |line: String| {
+        if a.pipeline.json {
+            eprintln!("{line}");
+        } else {
+            println!("{line}");
+        }
+    };
+    say(format!(
         "demo: Gray–Scott {n}³, push every {} steps after {} warm-up steps, {} pushes; generator-node {}, viz-node {}",
         a.every,
         a.warmup,
@@ -56,16 +69,16 @@ async fn demo(a: Args) -> Result<()> {
         nodes.generator.local_addr(),
         nodes.viz.local_addr(),
         n = a.size,
-    );
-    println!(
-        "generating on {}",
-        nodes.generator.shared().backend.describe()
-    );
-    let printer = print_reports(
-        nodes.viz.local_addr(),
-        Some(nodes.generator.shared().clone()),
-    )
-    .await?;
+    ));
+    say(format!(
+        "generating on {}{}",
+        nodes.generator.shared().backend.describe(),
+        nodes.tuner.as_ref().map_or_else(
+            || "; P_M fixed (--no-tune)".to_owned(),
+            |t| format!("; tuner {} optimising {}", t.local_addr(), t.engine().utility())
+        )
+    ));
+    let printer = nodes.printer().await?;
     let mut client = SimClient::connect(&nodes.generator_addr(), None).await?;
     let dims = [a.size as u32; 3];
     let mut sim_secs = 0.0;
@@ -90,7 +103,9 @@ async fn demo(a: Args) -> Result<()> {
         client.push_step(step).await?;
     }
     let status = client.close(Duration::from_secs(600)).await?;
-    println!("simulation compute time {sim_secs:.1} s (excluding pushes)");
+    say(format!(
+        "simulation compute time {sim_secs:.1} s (excluding pushes)"
+    ));
     nodes.finish(printer, &status, a.pushes, started).await;
     Ok(())
 }

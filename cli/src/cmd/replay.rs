@@ -3,7 +3,7 @@
 //! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
 //! with it, it pushes to a running generator-node and sets its config first.
 
-use crate::pipeline::{print_reports, LocalNodes, PipelineArgs};
+use crate::pipeline::{LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
 use insitu_core::volume::RawFormat;
@@ -32,6 +32,10 @@ pub struct Args {
     /// Ship reference frames (and so report q) on every m-th step (0 = never).
     #[arg(long, default_value_t = 1)]
     sample_every: u64,
+    /// Pace the pushes like a simulation's step time: at most one step (all its ranks) every
+    /// SECS seconds. Default: as fast as the pipeline takes them.
+    #[arg(long)]
+    step_interval: Option<f64>,
     /// Push to this running generator-node (host:port) instead of starting local nodes.
     #[arg(long)]
     generator: Option<String>,
@@ -42,7 +46,16 @@ pub struct Args {
     pipeline: PipelineArgs,
 }
 
+/// The default budget of a replay's tuner (`--utility` to choose another).
+pub const DEFAULT_UTILITY: &str = "size:1MB";
+
 pub fn run(a: Args) -> Result<()> {
+    if a
+        .step_interval
+        .is_some_and(|s| !(s.is_finite() && (0.0..=86_400.0).contains(&s)))
+    {
+        bail!("--step-interval must be seconds in [0, 86400]");
+    }
     let format = RawFormat::from_file_name(&a.series)?;
     if a.ranks == 0 || a.ranks as usize >= format.dims[2] {
         bail!(
@@ -113,7 +126,7 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     };
     let local = match &a.generator {
         Some(_) => None,
-        None => Some(LocalNodes::start(&a.pipeline, |_| {}).await?),
+        None => Some(LocalNodes::start(&a.pipeline, DEFAULT_UTILITY, |_| {}).await?),
     };
     let token = Token::load(a.token_file.as_deref())?;
     let addr = match (&a.generator, &local) {
@@ -124,21 +137,37 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     let mut client = SimClient::connect(&addr, token.as_ref()).await?;
     client.set_config(config).await?;
     let printer = match &local {
-        Some(n) => {
-            Some(print_reports(n.viz.local_addr(), Some(n.generator.shared().clone())).await?)
-        }
+        Some(n) => Some(n.printer().await?),
         None => None,
     };
     let bricks = z_bricks(format.dims[2], a.ranks as usize);
-    println!(
-        "replay: {} ({} steps, {:?}), {} rank(s), pushing to {addr}",
+    let line = format!(
+        "replay: {} ({} steps, {:?}), {} rank(s), pushing to {addr}{}",
         a.series.display(),
         format.steps,
         format.dims,
-        a.ranks
+        a.ranks,
+        local
+            .as_ref()
+            .and_then(|n| n.tuner.as_ref())
+            .map_or_else(String::new, |t| format!(
+                "; tuner {} optimising {}",
+                t.local_addr(),
+                t.engine().utility()
+            ))
     );
+    if a.pipeline.json {
+        eprintln!("{line}");
+    } else {
+        println!("{line}");
+    }
     let mut pushed = 0;
+    let mut next = Instant::now();
     for t in 0..a.steps.unwrap_or(format.steps).min(format.steps) {
+        if let Some(secs) = a.step_interval {
+            tokio::time::sleep_until(next.into()).await;
+            next += Duration::from_secs_f64(secs);
+        }
         let v = if t == 0 { first.clone() } else { load(t)? };
         for (rank, &z) in bricks.iter().enumerate() {
             let reply = client
