@@ -257,7 +257,10 @@ impl LocalNodes {
         let tuner = if a.no_tune {
             None
         } else {
-            let utility = a.utility.clone().unwrap_or_else(|| default_utility.to_owned());
+            let utility = a
+                .utility
+                .clone()
+                .unwrap_or_else(|| default_utility.to_owned());
             let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
                 insitu_tuner_node::config::Strategy::Adaptive
             } else {
@@ -346,7 +349,10 @@ impl LocalNodes {
             recording: &self.recording,
         };
         if self.json {
-            println!("{}", serde_json::json!({ "summary": run.json(&summary.to_string()) }));
+            println!(
+                "{}",
+                serde_json::json!({ "summary": run.json(&summary.to_string()) })
+            );
         } else {
             run.print();
             println!("  generator: {summary}");

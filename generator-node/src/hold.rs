@@ -170,10 +170,16 @@ mod tests {
         assert!(h.offer((1, 0), step(10)) && h.offer((2, 0), step(10))); // 40 B each
         assert!(h.answer(1, true));
         assert!(!h.answer(9, true), "not held");
-        assert!(h.offer((3, 0), step(5)) && h.offer((3, 1), step(5)), "step 2 (pending) makes room");
+        assert!(
+            h.offer((3, 0), step(5)) && h.offer((3, 1), step(5)),
+            "step 2 (pending) makes room"
+        );
         assert_eq!((held(1), held(2), held(3)), (1, 0, 2));
         assert!(h.answer(3, true), "claims both ranks");
-        assert!(!h.offer((4, 0), step(10)), "only claimed steps left: refused");
+        assert!(
+            !h.offer((4, 0), step(10)),
+            "only claimed steps left: refused"
+        );
         assert_eq!(held(4), 0);
         assert!(!h.answer(1, false) && held(1) == 0);
         assert!(h.offer((4, 0), step(10)));

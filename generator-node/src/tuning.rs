@@ -109,7 +109,13 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
 /// Measures one candidate on one held rank of a step (Alg. 1, lines 11–18, with the same
 /// scoring code as the viz-node: [`insitu_core::evaluate::score_views`]). The step's
 /// reference frames are rendered on its first trial and kept.
-fn run_trial(shared: &Shared, tuning: &Tuning, rank: u32, h: HeldStep, req: &pb::TrialRequest) -> pb::TrialResult {
+fn run_trial(
+    shared: &Shared,
+    tuning: &Tuning,
+    rank: u32,
+    h: HeldStep,
+    req: &pb::TrialRequest,
+) -> pb::TrialResult {
     let t = Instant::now();
     let mut out = pb::TrialResult {
         trial_id: req.trial_id,
@@ -121,7 +127,10 @@ fn run_trial(shared: &Shared, tuning: &Tuning, rank: u32, h: HeldStep, req: &pb:
     };
     let result = (|| -> Result<(), String> {
         let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
-        let scene = shared.backend.prepare(&raycaster).map_err(|e| e.to_string())?;
+        let scene = shared
+            .backend
+            .prepare(&raycaster)
+            .map_err(|e| e.to_string())?;
         let side = if h.reference_size == 0 {
             req.resolution
         } else {
@@ -136,7 +145,9 @@ fn run_trial(shared: &Shared, tuning: &Tuning, rank: u32, h: HeldStep, req: &pb:
                         .map_err(|e| e.to_string())?,
                 );
                 out.reference_secs = t.elapsed().as_secs_f64();
-                tuning.holds.set_references((req.step, rank), side, r.clone());
+                tuning
+                    .holds
+                    .set_references((req.step, rank), side, r.clone());
                 r
             }
         };
@@ -192,7 +203,10 @@ async fn trials(
                     step: req.step,
                     resolution: req.resolution,
                     gamma: req.gamma,
-                    error: format!("step {} is not held by this node (released or never held)", req.step),
+                    error: format!(
+                        "step {} is not held by this node (released or never held)",
+                        req.step
+                    ),
                     ..Default::default()
                 },
             ));
@@ -253,7 +267,14 @@ impl Link {
         loop {
             let epoch = tuning.epoch.fetch_add(1, Ordering::Relaxed) + 1;
             let r = self
-                .session(&shared, &tuning, &mut summaries, &trial_tx, &mut result_rx, epoch)
+                .session(
+                    &shared,
+                    &tuning,
+                    &mut summaries,
+                    &trial_tx,
+                    &mut result_rx,
+                    epoch,
+                )
                 .await;
             let was = tuning.connected.swap(false, Ordering::Relaxed);
             shared.stats.update(|c| c.tuner_connected = false);
@@ -282,7 +303,8 @@ impl Link {
         let channel = transport::connect(&self.uri)
             .await
             .map_err(|e| format!("tuner {}: {e}", self.uri))?;
-        let mut client = TunerClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+        let mut client =
+            TunerClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
         let (out, out_rx) = mpsc::channel::<pb::NodeMessage>(256);
         let g = shared.generation();
         let hello = pb::NodeHello {

@@ -1,5 +1,5 @@
 //! Harness for the end-to-end tests: builds and starts the real daemon binaries
-//! (`generator-node`, `viz-node`, and the `insitu` CLI) on 127.0.0.1 with ephemeral ports,
+//! (`generator-node`, `viz-node`, `tuner-node` and the `insitu` CLI) on 127.0.0.1 with ephemeral ports,
 //! reads the address each prints, stops them with SIGTERM, and finds the shared data.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -37,6 +37,8 @@ pub fn ensure_built() {
             "insitu-viz-node",
             "-p",
             "insitu-cli",
+            "-p",
+            "insitu-tuner-node",
         ]);
         if release {
             cmd.arg("--release");

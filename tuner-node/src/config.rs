@@ -114,6 +114,11 @@ pub struct Config {
     /// A production step whose q is more than this many dB below the decision's prediction
     /// becomes characteristic (re-tuning).
     pub q_margin_db: f64,
+    /// Share of σ_target and τ_target kept free when choosing, in [0, 0.5): the search plans
+    /// for `(1 − headroom) × target`, so alike steps that drift a little do not break the
+    /// budget at once (the optimum of ν_size sits right at the budget). Production steps are
+    /// checked against the full target.
+    pub headroom: f64,
 }
 
 impl Default for Config {
@@ -129,6 +134,7 @@ impl Default for Config {
             characteristic: CharacteristicConfig::default(),
             trials: TrialConfig::default(),
             q_margin_db: 3.0,
+            headroom: 0.05,
         }
     }
 }
@@ -142,9 +148,11 @@ fn invalid(key: &'static str, problem: impl Into<String>) -> ConfigError {
 
 /// The settings, validated and parsed.
 pub struct Resolved {
-    /// ν.
+    /// ν as configured (what is reported).
     pub utility: Box<dyn Utility>,
-    /// For the adaptive strategy.
+    /// ν with the headroom taken off the budgets (what the search optimises).
+    pub plan: Box<dyn Utility>,
+    /// For the adaptive strategy (with the headroom).
     pub target: Option<Target>,
     /// Candidates.
     pub grid: ParamGrid,
@@ -171,11 +179,33 @@ impl Config {
     /// strategy with a time budget, an empty or malformed grid, a threshold outside [0, 1],
     /// `max` 0, a non-positive timeout or share.
     pub fn resolve(&self) -> Result<Resolved, ConfigError> {
-        let utility = parse_utility(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
+        let utility =
+            parse_utility(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
+        if !(0.0..0.5).contains(&self.headroom) {
+            return Err(invalid("headroom", "must be in [0, 0.5)"));
+        }
+        let keep = 1.0 - self.headroom;
+        let plan_spec = self
+            .utility
+            .split(',')
+            .map(|part| match part.split_once(':') {
+                Some(("size", v)) => insitu_tuner::utility::parse_bytes(v).map_or_else(
+                    || part.to_owned(),
+                    |b| format!("size:{}", (b as f64 * keep).max(1.0) as u64),
+                ),
+                Some(("time", v)) => v
+                    .trim()
+                    .parse::<f64>()
+                    .map_or_else(|_| part.to_owned(), |t| format!("time:{}", t * keep)),
+                _ => part.to_owned(),
+            })
+            .collect::<Vec<_>>()
+            .join(",");
+        let plan = parse_utility(&plan_spec).map_err(|e| invalid("utility", e.to_string()))?;
         let target = match self.strategy {
-            Strategy::Adaptive => Some(
-                Target::for_spec(&self.utility).map_err(|e| invalid("strategy", e.to_string()))?,
-            ),
+            Strategy::Adaptive => {
+                Some(Target::for_spec(&plan_spec).map_err(|e| invalid("strategy", e.to_string()))?)
+            }
             Strategy::Grid => None,
         };
         let grid = ParamGrid::parse(&self.grid.r, &self.grid.gamma)
@@ -217,6 +247,7 @@ impl Config {
         }
         Ok(Resolved {
             utility,
+            plan,
             target,
             grid,
             budgets,
@@ -252,5 +283,12 @@ mod tests {
         assert!(bad("[trials]\nshare = 0").contains("trials.share"));
         assert!(bad("[trials]\ntimeout_secs = -1").contains("trials.timeout_secs"));
         assert!(bad("colour = 3").contains("colour"));
+        assert!(bad("headroom = 0.5").contains("headroom"));
+        let r = toml::from_str::<Config>("utility = \"size:1MB,time:2\"\nstrategy = \"grid\"")
+            .unwrap()
+            .resolve()
+            .unwrap();
+        assert_eq!(r.budgets, (Some(1_000_000), Some(2.0)));
+        assert_eq!(r.plan.describe(), "max q with σ < 950.0 kB and τ < 1.9 s");
     }
 }

@@ -77,6 +77,8 @@ pub struct Engine {
     started: Instant,
     process: u64,
     lost: Mutex<Vec<u64>>,
+    /// The P_M the nodes last reported in their hello (what the first decision replaces).
+    reported: Mutex<Option<Candidate>>,
     events: mpsc::UnboundedSender<Event>,
 }
 
@@ -138,6 +140,7 @@ impl Engine {
                 started: Instant::now(),
                 process,
                 lost: Mutex::new(Vec::new()),
+                reported: Mutex::new(None),
                 events,
             }),
             rx,
@@ -219,6 +222,10 @@ impl Engine {
         for s in &h.held {
             self.hub.held(conn, s.step, s.rank);
         }
+        *self.reported.lock().unwrap_or_else(|e| e.into_inner()) = Some(Candidate {
+            r: h.resolution,
+            gamma: h.gamma,
+        });
         let current = {
             let mut s = self.state();
             if h.pm_version > s.highest_seen {
@@ -267,8 +274,6 @@ struct Loop {
     recent: VecDeque<(u64, [f64; BINS])>,
     newest: u64,
     dirty: Option<Trigger>,
-    /// The version a budget break already forced a step for (one per version).
-    forced_for: Option<u64>,
 }
 
 impl Loop {
@@ -308,7 +313,10 @@ impl Loop {
             .collect();
         for k in stale {
             if self.pending.remove(&k).is_some() {
-                warn!(step = k, "not every rank of the step was summarised; it is left out");
+                warn!(
+                    step = k,
+                    "not every rank of the step was summarised; it is left out"
+                );
             }
             self.awaiting.remove(&k);
             e.hub.hold(k, false);
@@ -327,14 +335,25 @@ impl Loop {
         None
     }
 
-    fn current_version(&self) -> Option<u64> {
-        self.engine.state().current().map(|d| d.pm_version)
+    /// The version in force, when a production step made with it that breaks the budget
+    /// should start a re-tuning: none is pending or running (the decision was tuned on the
+    /// characteristic steps as they are), and no step was forced for this version yet.
+    fn unforced_version(&self) -> Option<u64> {
+        if self.dirty.is_some() || self.engine.counters().tuning {
+            return None;
+        }
+        let s = self.engine.state();
+        s.current()
+            .filter(|d| d.characteristic_steps == s.tracker.step_indices())
+            .map(|d| d.pm_version)
+            .filter(|&v| s.forced_for != Some(v))
     }
 
     fn force(&mut self, step: u64, h: &[f64; BINS], world_size: u32, why: String) {
         let e = self.engine.clone();
         let evicted = {
             let mut s = e.state();
+            s.forced_for = s.current().map(|d| d.pm_version);
             let ev = s.tracker.force(step, h);
             s.world_sizes.insert(step, world_size);
             if let Some((gone, _)) = ev {
@@ -343,10 +362,13 @@ impl Loop {
             e.save(&s);
             ev
         };
-        self.forced_for = self.current_version();
         e.hub.hold(step, true);
         if let Some((gone, d)) = evicted {
-            info!(evicted = gone, nearest = d, "evicted the most redundant characteristic step");
+            info!(
+                evicted = gone,
+                nearest = d,
+                "evicted the most redundant characteristic step"
+            );
             e.hub.hold(gone, false);
         }
         let reason = format!("production step {step} broke the budget ({why})");
@@ -361,8 +383,7 @@ impl Loop {
         if self.recent.len() > STALE_STEPS as usize {
             self.recent.pop_front();
         }
-        let current = self.current_version();
-        if current.is_some() && current == Some(p.pm_version) && self.forced_for != current {
+        if self.unforced_version() == Some(p.pm_version) {
             if let Some(why) = self.over_budget(&p) {
                 self.force(step, &h, p.world_size, why);
                 return;
@@ -431,9 +452,9 @@ impl Loop {
         };
         let q = psnr_from_mse(a.mses.iter().sum::<f64>() / a.mses.len() as f64);
         let e = self.engine.clone();
-        let predicted = e.state().current().map(|d| (d.pm_version, d.predicted.q()));
-        if let Some((v, pq)) = predicted {
-            if v == a.pm_version && self.forced_for != Some(v) && q < pq - e.cfg.q_margin_db {
+        let predicted = e.state().current().map(|d| d.predicted.q());
+        if let (Some(v), Some(pq)) = (self.unforced_version(), predicted) {
+            if v == a.pm_version && q < pq - e.cfg.q_margin_db {
                 let h = self.recent.iter().find(|(s, _)| *s == r.step).map(|x| x.1);
                 if let Some(h) = h {
                     let why = format!(
@@ -499,7 +520,9 @@ impl Oracle for StepOracle {
         let (id, rx) = loop {
             match e.hub.request_trial(self.step, self.world_size, c) {
                 Ok(x) => break x,
-                Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
+                Err(_) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(100))
+                }
                 Err(err) => return Err(self.fail(true, err.to_string())),
             }
         };
@@ -509,7 +532,10 @@ impl Oracle for StepOracle {
         let results = match reply {
             Err(_) => {
                 e.hub.abandon(id);
-                return Err(self.fail(false, format!("{what} timed out after {} s", timeout.as_secs_f64())));
+                return Err(self.fail(
+                    false,
+                    format!("{what} timed out after {} s", timeout.as_secs_f64()),
+                ));
             }
             Ok(Err(_)) => return Err(self.fail(true, format!("{what}: abandoned"))),
             Ok(Ok(Err(problem))) => {
@@ -537,7 +563,16 @@ impl Oracle for StepOracle {
             k.trials_run += 1;
             k.trial_secs += secs;
         }
-        info!(step = self.step, r = c.r, gamma = c.gamma, sigma = m.sigma_bytes, q_db = m.q(), tau = m.tau_secs, secs, "trial");
+        info!(
+            step = self.step,
+            r = c.r,
+            gamma = c.gamma,
+            sigma = m.sigma_bytes,
+            q_db = m.q(),
+            tau = m.tau_secs,
+            secs,
+            "trial"
+        );
         self.generations += 1;
         self.generation_secs += m.tau_secs;
         Ok(m)
@@ -576,7 +611,7 @@ fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger)
     let r = &engine.resolved;
     let outcome = match r.target {
         Some(t) => adaptive_search(&mut oracle, &r.grid, t),
-        None => grid_search(&mut oracle, &r.grid, r.utility.as_ref()),
+        None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
     };
     let trial_secs = engine.counters().trial_secs - secs0;
     let outcome = match outcome {
@@ -591,7 +626,10 @@ fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger)
         return;
     };
     let mut s = engine.state();
-    let old = s.current().map(|d| d.candidate);
+    let old = s
+        .current()
+        .map(|d| d.candidate)
+        .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     if old == Some(best.candidate()) {
         info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
         return;
@@ -637,7 +675,6 @@ impl Engine {
             recent: VecDeque::new(),
             newest: 0,
             dirty: resume,
-            forced_for: None,
         };
         let mut tuning: Option<tokio::task::JoinHandle<()>> = None;
         loop {
@@ -651,7 +688,9 @@ impl Engine {
                         c.tuning = true;
                     }
                     info!(reason = %trigger.reason, "tuning");
-                    tuning = Some(tokio::task::spawn_blocking(move || tune(&e, handle, &trigger)));
+                    tuning = Some(tokio::task::spawn_blocking(move || {
+                        tune(&e, handle, &trigger)
+                    }));
                 }
             }
             tokio::select! {

@@ -148,7 +148,8 @@ impl Hub {
             .unwrap_or_default();
         for c in conns {
             if let Some(n) = i.nodes.get(&c) {
-                let _ = n.tx.try_send(msg(Down::Hold(pb::HoldRequest { step, keep })));
+                let _ =
+                    n.tx.try_send(msg(Down::Hold(pb::HoldRequest { step, keep })));
             }
         }
         if !keep {
@@ -286,12 +287,17 @@ mod tests {
         // A node that goes away fails the trial at once, and its holds are forgotten.
         let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
         assert_eq!(hub.disconnect(b).as_deref(), Some("b"));
-        assert!(done.try_recv().unwrap().unwrap_err().contains("disconnected"));
+        assert!(done
+            .try_recv()
+            .unwrap()
+            .unwrap_err()
+            .contains("disconnected"));
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
         assert!(hub.request_trial(5, 2, c).is_err());
         // An error from a rank fails the trial; an abandoned trial refuses late results.
         let (id, mut done) = hub.request_trial(5, 1, c).unwrap();
-        hub.trial_result(a, result(id, 0, "step 5 is not held")).unwrap();
+        hub.trial_result(a, result(id, 0, "step 5 is not held"))
+            .unwrap();
         assert!(done.try_recv().unwrap().unwrap_err().contains("not held"));
         let (id, _done) = hub.request_trial(5, 1, c).unwrap();
         hub.abandon(id);

@@ -59,7 +59,7 @@ pub struct Decision {
     pub pm_version: u64,
     /// The P_M.
     pub candidate: Candidate,
-    /// The P_M it replaced (`None` for the first).
+    /// The P_M it replaced (for the first: the one the nodes reported, if any).
     pub old: Option<Candidate>,
     /// The steps it was tuned on.
     pub characteristic_steps: Vec<u64>,
@@ -92,6 +92,10 @@ pub struct State {
     pub decisions: Vec<Decision>,
     /// The highest version any node has reported (a node may be ahead of a lost state).
     pub highest_seen: u64,
+    /// The decision version for which a production step already broke the budget and was
+    /// made characteristic (one per version, so a re-tuning in progress is not repeated).
+    #[serde(default)]
+    pub forced_for: Option<u64>,
 }
 
 impl State {
@@ -104,6 +108,7 @@ impl State {
             trials: Vec::new(),
             decisions: Vec::new(),
             highest_seen: 0,
+            forced_for: None,
         }
     }
 
@@ -220,7 +225,11 @@ mod tests {
         assert!(back.trial(4, m.candidate()).is_none());
         // Only the state file is left behind (no temporaries).
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
-        std::fs::write(dir.path().join(STATE_FILE), b"{\"format\": 1, \"trials\": [").unwrap();
+        std::fs::write(
+            dir.path().join(STATE_FILE),
+            b"{\"format\": 1, \"trials\": [",
+        )
+        .unwrap();
         let e = State::load(dir.path()).unwrap_err().to_string();
         assert!(e.contains(STATE_FILE) && e.contains("not valid"), "{e}");
     }

@@ -329,7 +329,11 @@ mod tests {
             verdicts.push(verdict);
         }
         assert_eq!(t.steps.len(), picked.len(), "{picked:?}");
-        assert_eq!(t.step_indices(), vec![0, 5, 10], "the return to regime 0 is alike");
+        assert_eq!(
+            t.step_indices(),
+            vec![0, 5, 10],
+            "the return to regime 0 is alike"
+        );
         assert!(matches!(verdicts[0], Verdict::New { distance: None, .. }));
         assert!(matches!(verdicts[15], Verdict::Alike { nearest: 0, .. }));
     }
@@ -343,10 +347,19 @@ mod tests {
             h
         };
         let mut t = Tracker::new(0.05, 3);
-        assert!(matches!(t.observe(0, &one_hot(0, 1.0)), Verdict::New { .. }));
-        assert!(matches!(t.observe(1, &one_hot(10, 1.0)), Verdict::New { .. }));
+        assert!(matches!(
+            t.observe(0, &one_hot(0, 1.0)),
+            Verdict::New { .. }
+        ));
+        assert!(matches!(
+            t.observe(1, &one_hot(10, 1.0)),
+            Verdict::New { .. }
+        ));
         // Step 2 is 0.3 from step 1: characteristic, and steps 1 and 2 are the closest pair.
-        assert!(matches!(t.observe(2, &one_hot(10, 0.7)), Verdict::New { .. }));
+        assert!(matches!(
+            t.observe(2, &one_hot(10, 0.7)),
+            Verdict::New { .. }
+        ));
         match t.observe(3, &one_hot(30, 1.0)) {
             Verdict::New {
                 evicted: Some((1, d)),
@@ -355,13 +368,21 @@ mod tests {
             v => panic!("{v:?}"),
         }
         assert_eq!(t.step_indices(), vec![0, 2, 3]);
-        assert_eq!(t.force(3, &one_hot(30, 1.0)), None, "already characteristic");
+        assert_eq!(
+            t.force(3, &one_hot(30, 1.0)),
+            None,
+            "already characteristic"
+        );
         assert!(t.remove(2) && !t.remove(2));
     }
 
     #[test]
     fn binning_clamps_and_skips_nan() {
-        let (c, nan) = histogram(&[-5.0, 0.0, 0.5, 1.0, 9.0, f32::NAN, f32::INFINITY], 0.0, 1.0);
+        let (c, nan) = histogram(
+            &[-5.0, 0.0, 0.5, 1.0, 9.0, f32::NAN, f32::INFINITY],
+            0.0,
+            1.0,
+        );
         assert_eq!(nan, 1);
         assert_eq!((c[0], c[32], c[63]), (2, 1, 3));
         assert_eq!(c.iter().sum::<u64>(), 6);
@@ -441,7 +462,10 @@ mod tests {
             tau_compress_secs: 0.0,
             tau_render_secs: 0.0,
             q_db: Db(insitu_core::metrics::pooled_psnr(
-                &views.iter().map(|q| 10f64.powf(-q / 10.0)).collect::<Vec<_>>(),
+                &views
+                    .iter()
+                    .map(|q| 10f64.powf(-q / 10.0))
+                    .collect::<Vec<_>>(),
             )),
             view_q_db: views.iter().map(|&q| Db(q)).collect(),
             ssim: Some(0.9),

@@ -75,7 +75,11 @@ async fn demo(a: Args) -> Result<()> {
         nodes.generator.shared().backend.describe(),
         nodes.tuner.as_ref().map_or_else(
             || "; P_M fixed (--no-tune)".to_owned(),
-            |t| format!("; tuner {} optimising {}", t.local_addr(), t.engine().utility())
+            |t| format!(
+                "; tuner {} optimising {}",
+                t.local_addr(),
+                t.engine().utility()
+            )
         )
     ));
     let printer = nodes.printer().await?;

@@ -50,8 +50,7 @@ pub struct Args {
 pub const DEFAULT_UTILITY: &str = "size:1MB";
 
 pub fn run(a: Args) -> Result<()> {
-    if a
-        .step_interval
+    if a.step_interval
         .is_some_and(|s| !(s.is_finite() && (0.0..=86_400.0).contains(&s)))
     {
         bail!("--step-interval must be seconds in [0, 86400]");

@@ -296,7 +296,11 @@ pub const HISTOGRAM_BINS: usize = 64;
 pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64) {
     let mut counts = [0u64; HISTOGRAM_BINS];
     let mut nan = 0;
-    let scale = if hi > lo { HISTOGRAM_BINS as f64 / (hi - lo) } else { 0.0 };
+    let scale = if hi > lo {
+        HISTOGRAM_BINS as f64 / (hi - lo)
+    } else {
+        0.0
+    };
     for &v in data {
         if v.is_nan() {
             nan += 1;
@@ -304,12 +308,15 @@ pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64)
         }
         let x = (f64::from(v) - lo) * scale;
         // `as` saturates: −∞ → 0, +∞ → usize::MAX.
-        let b = if x <= 0.0 { 0 } else { (x as usize).min(HISTOGRAM_BINS - 1) };
+        let b = if x <= 0.0 {
+            0
+        } else {
+            (x as usize).min(HISTOGRAM_BINS - 1)
+        };
         counts[b] += 1;
     }
     (counts, nan)
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -9,3 +9,4 @@ mod gpu;
 mod outage;
 mod policies;
 mod replay;
+mod tuner;

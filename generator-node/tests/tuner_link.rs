@@ -1,0 +1,246 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+//! The generator-node's side of the tuner stream, against a scripted tuner on loopback: the
+//! node dials out and says hello, summarises every step (64 bins over the TF's domain), runs a
+//! trial on a claimed step with the viz-node's scoring, refuses politely a trial on a step it
+//! does not hold and a decision that is not newer than its own, and applies a good decision
+//! from the next step, stamping its version.
+
+use insitu_generator_node::{start, Config};
+use insitu_proto::pb::node_message::Msg as Up;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_proto::pb::tuner_server::{Tuner, TunerServer};
+use insitu_proto::{pb, transport};
+use std::pin::Pin;
+use std::sync::Mutex;
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::{ReceiverStream, TcpListenerStream};
+use tokio_stream::{Stream, StreamExt};
+use tonic::{Request, Response, Status, Streaming};
+
+type Out = Result<pb::TunerMessage, Status>;
+
+/// A tuner that hands the test the node's messages and sends what the test scripts.
+struct Scripted {
+    up: mpsc::UnboundedSender<pb::NodeMessage>,
+    down: Mutex<Option<mpsc::Receiver<Out>>>,
+}
+
+#[tonic::async_trait]
+impl Tuner for Scripted {
+    type AttachStream = Pin<Box<dyn Stream<Item = Out> + Send>>;
+    type WatchDecisionsStream = Pin<Box<dyn Stream<Item = Result<pb::PmDecision, Status>> + Send>>;
+
+    async fn attach(
+        &self,
+        request: Request<Streaming<pb::NodeMessage>>,
+    ) -> Result<Response<Self::AttachStream>, Status> {
+        let mut inbound = request.into_inner();
+        let up = self.up.clone();
+        tokio::spawn(async move {
+            while let Some(Ok(m)) = inbound.next().await {
+                let _ = up.send(m);
+            }
+        });
+        let rx = self.down.lock().unwrap().take().expect("one stream");
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_status(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::TunerStatus>, Status> {
+        Err(Status::unimplemented("scripted"))
+    }
+
+    async fn get_decision(
+        &self,
+        _: Request<pb::DecisionRequest>,
+    ) -> Result<Response<pb::PmDecision>, Status> {
+        Err(Status::unimplemented("scripted"))
+    }
+
+    async fn watch_decisions(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<Self::WatchDecisionsStream>, Status> {
+        Err(Status::unimplemented("scripted"))
+    }
+}
+
+fn field(n: usize, t: u64) -> Vec<f32> {
+    (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = ((i % n) as f32, ((i / n) % n) as f32, (i / (n * n)) as f32);
+            let c = 6.0 + t as f32;
+            (-((x - c).powi(2) + (y - 8.0).powi(2) + (z - 8.0).powi(2)) / 10.0).exp()
+        })
+        .collect()
+}
+
+async fn next(up: &mut mpsc::UnboundedReceiver<pb::NodeMessage>) -> Up {
+    tokio::time::timeout(Duration::from_secs(60), up.recv())
+        .await
+        .expect("the node answered in time")
+        .and_then(|m| m.msg)
+        .expect("a message")
+}
+
+fn send(tx: &mpsc::Sender<Out>, m: Down) {
+    tx.try_send(Ok(pb::TunerMessage { msg: Some(m) })).unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_node_summarises_runs_trials_and_applies_decisions() {
+    let (up_tx, mut up) = mpsc::unbounded_channel();
+    let (down, down_rx) = mpsc::channel(16);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let tuner_addr = listener.local_addr().unwrap();
+    tokio::spawn(
+        transport::server()
+            .add_service(TunerServer::new(Scripted {
+                up: up_tx,
+                down: Mutex::new(Some(down_rx)),
+            }))
+            .serve_with_incoming(TcpListenerStream::new(listener)),
+    );
+    let mut cfg = Config {
+        listen: "127.0.0.1:0".parse().unwrap(),
+        tuner: Some(tuner_addr.to_string()),
+        backend: insitu_core::BackendChoice::Cpu,
+        max_backoff_secs: 0.2,
+        ..Default::default()
+    };
+    cfg.generation.resolution = 32;
+    cfg.generation.reference_every = 0;
+    cfg.generation.reference_size = 24;
+    cfg.generation.view_angles_deg = vec![0.0, 20.0];
+    cfg.generation.codec = "zstd".into();
+    let node = start(cfg).await.unwrap();
+    let Up::Hello(hello) = next(&mut up).await else {
+        panic!("the first message must be a hello")
+    };
+    assert_eq!((hello.pm_version, hello.resolution), (0, 32));
+    assert!(hello.held.is_empty());
+    assert!(tokio::time::timeout(Duration::from_secs(10), async {
+        while !node.shared().status().tuner_connected {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .is_ok());
+
+    let mut client = insitu_client::SimClient::connect(&node.local_addr().to_string(), None)
+        .await
+        .unwrap();
+    let push = |t: u64| insitu_client::Step::whole_f32(t, t as f64, [16; 3], &field(16, t));
+    client.push_step(push(0)).await.unwrap();
+    let Up::Summary(s) = next(&mut up).await else {
+        panic!("expected a summary")
+    };
+    assert_eq!(
+        (s.step, s.rank, s.world_size, s.voxels),
+        (0, 0, 1, 16 * 16 * 16)
+    );
+    assert_eq!(s.histogram.len(), 64);
+    assert_eq!(s.histogram.iter().sum::<u64>() + s.nan_count, s.voxels);
+    // No TF configured: the default over the first step's range is the histogram's range.
+    assert_eq!((s.range_lo, s.range_hi), (s.min, s.max));
+    assert!(s.held && s.sigma_bytes > 0 && s.resolution == 32);
+
+    // A trial on the claimed step: σ, τ and q against references at the configured side.
+    send(
+        &down,
+        Down::Hold(pb::HoldRequest {
+            step: 0,
+            keep: true,
+        }),
+    );
+    let trial = |id, step, r| {
+        Down::Trial(pb::TrialRequest {
+            trial_id: id,
+            step,
+            resolution: r,
+            gamma: 0.01,
+        })
+    };
+    send(&down, trial(1, 0, 24));
+    let Up::Trial(r) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(r.error.is_empty(), "{}", r.error);
+    assert_eq!((r.trial_id, r.step, r.rank, r.resolution), (1, 0, 0, 24));
+    assert_eq!((r.view_mse.len(), r.view_q_db.len()), (2, 2));
+    assert!(r.sigma_bytes > 0 && r.tau_secs > 0.0 && r.reference_secs > 0.0);
+    // At r = reference side and the generation view, the VDI reproduces the DVR (DESIGN.md).
+    assert!(r.view_q_db[0] > 60.0, "{:?}", r.view_q_db);
+    send(&down, trial(2, 0, 24));
+    let Up::Trial(again) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert_eq!(
+        again.reference_secs, 0.0,
+        "references are rendered once per step"
+    );
+    assert_eq!(again.view_mse, r.view_mse, "trials are deterministic");
+
+    // A step the node does not hold: refused with a reason, the stream stays up.
+    send(&down, trial(3, 7, 24));
+    let Up::Trial(refused) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(
+        refused.error.contains("step 7 is not held"),
+        "{}",
+        refused.error
+    );
+    send(
+        &down,
+        Down::Hold(pb::HoldRequest {
+            step: 0,
+            keep: false,
+        }),
+    );
+    send(&down, trial(4, 0, 24));
+    let Up::Trial(released) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(released.error.contains("not held"), "{}", released.error);
+
+    // A decision: applied from the next step and stamped; an older one is refused.
+    let decision = |v, r| {
+        Down::Decision(pb::PmDecision {
+            pm_version: v,
+            resolution: r,
+            gamma: 0.02,
+            ..Default::default()
+        })
+    };
+    send(&down, decision(3, 20));
+    let Up::Ack(ack) = next(&mut up).await else {
+        panic!("expected an ack")
+    };
+    assert_eq!((ack.pm_version, ack.error.as_str()), (3, ""));
+    send(&down, decision(2, 40));
+    let Up::Ack(ack) = next(&mut up).await else {
+        panic!("expected an ack")
+    };
+    assert!(ack.error.contains("not newer"), "{}", ack.error);
+    send(&down, decision(4, 0));
+    let Up::Ack(ack) = next(&mut up).await else {
+        panic!("expected an ack")
+    };
+    assert!(!ack.error.is_empty(), "r = 0 is refused");
+    let st = node.shared().status();
+    assert_eq!((st.pm_version, st.resolution, st.gamma), (3, 20, 0.02));
+    client.push_step(push(1)).await.unwrap();
+    let Up::Summary(s) = next(&mut up).await else {
+        panic!("expected a summary")
+    };
+    assert_eq!(
+        (s.step, s.pm_version, s.resolution, s.gamma),
+        (1, 3, 20, 0.02)
+    );
+    node.shutdown().await;
+}

@@ -1,0 +1,581 @@
+//! The tuner service with every daemon a real process on 127.0.0.1 (issue 13, "What must
+//! hold"): a tuned ocean replay, a change of character, a tuner restart, a generator-node killed
+//! during trials, and bad input.
+
+use crate::common::{flush, free_port, generator, index, small_config, status, viz};
+use insitu_client::{SimClient, Step};
+use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
+use insitu_proto::pb::node_message::Msg as Up;
+use insitu_proto::pb::tuner_client::TunerClient;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_proto::{pb, transport};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
+
+/// Trials may use 5 % of the wall clock and nothing more: a tuning then takes seconds, long
+/// enough to kill something in the middle of it.
+const PACED: &str = "share = 0.05\nburst_secs = 0.0";
+
+/// A tuner-node with a small grid (fast trials) and no trial share limit in a short test.
+fn tuner(state: &Path, listen: &str, viz: &str, utility: &str, logs: &Path) -> Daemon {
+    tuner_paced(
+        state,
+        listen,
+        viz,
+        utility,
+        "share = 1.0\nburst_secs = 600.0",
+        logs,
+    )
+}
+
+/// As [`tuner`] with the trial budget `trials` (TOML keys of `[trials]`): a small share makes
+/// a tuning last long enough to interrupt it.
+fn tuner_paced(
+    state: &Path,
+    listen: &str,
+    viz: &str,
+    utility: &str,
+    trials: &str,
+    logs: &Path,
+) -> Daemon {
+    let cfg = logs.join(format!("tuner-{}.toml", free_port()));
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"listen = "{listen}"
+state_dir = "{}"
+viz = "{viz}"
+utility = "{utility}"
+[grid]
+r = "64:256:64"
+gamma = "0.001:0.26:0.016"
+[characteristic]
+threshold = 0.15
+max = 4
+[trials]
+timeout_secs = 60.0
+hold_wait_secs = 2.0
+{trials}
+"#,
+            state.display()
+        ),
+    )
+    .unwrap();
+    Daemon::start(
+        "tuner-node",
+        &["--config", cfg.to_str().unwrap()],
+        &[],
+        logs,
+    )
+}
+
+/// A generator-node shipping to `viz` and dialling `tuner`.
+fn tuned_generator(viz: &str, tuner: &str, logs: &Path) -> Daemon {
+    let toml = small_config(viz, "block", 16).replace(
+        "max_backoff_secs = 0.2",
+        &format!("max_backoff_secs = 0.2\ntuner = \"{tuner}\""),
+    );
+    generator(&toml, logs, &[])
+}
+
+async fn client(addr: &str) -> TunerClient<tonic::transport::Channel> {
+    TunerClient::new(transport::connect(&transport::uri(addr)).await.unwrap())
+}
+
+fn tuner_status(addr: &str) -> pb::TunerStatus {
+    rt().block_on(async {
+        client(addr)
+            .await
+            .get_status(pb::StatusRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+    })
+}
+
+fn decision(addr: &str, version: u64) -> Result<pb::PmDecision, tonic::Status> {
+    rt().block_on(async {
+        client(addr)
+            .await
+            .get_decision(pb::DecisionRequest {
+                pm_version: version,
+            })
+            .await
+            .map(tonic::Response::into_inner)
+    })
+}
+
+/// The persisted state.
+fn state(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join("tuner-state.json")).unwrap()).unwrap()
+}
+
+/// (step, r, γ bits) of every persisted trial.
+fn trials(dir: &Path) -> Vec<(u64, u64, u64)> {
+    state(dir)["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let m = &t["measurement"];
+            (
+                t["step"].as_u64().unwrap(),
+                m["r"].as_u64().unwrap(),
+                (m["gamma"].as_f64().unwrap() as f32).to_bits().into(),
+            )
+        })
+        .collect()
+}
+
+/// `insitu replay` of `series` pushing to `generator`, started in the background.
+fn replay(series: &Path, generator: &str, extra: &[&str]) -> Child {
+    Command::new(bin("insitu"))
+        .args(["replay", "--series", series.to_str().unwrap()])
+        .args(["--generator", generator, "--r", "128", "--codec", "zstd"])
+        .args(extra)
+        .env_remove("INSITU_TOKEN")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn finish(child: Child) -> String {
+    let out = child.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "replay failed: {}\n{text}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
+/// A 32³ series of `steps` steps whose character changes at `switch`: a small Gaussian blob
+/// drifting (most voxels near 0), then slowly drifting waves (values spread over [0, 1]);
+/// alike steps are within 0.1 (histogram distance) of their regime's first step, the regimes 0.85 apart.
+fn two_regime_series(dir: &Path, steps: usize, switch: usize) -> PathBuf {
+    let n = 32usize;
+    let path = dir.join(format!("regimes_{n}x{n}x{n}x{steps}_float32.raw"));
+    let mut bytes = Vec::with_capacity(n * n * n * steps * 4);
+    for t in 0..steps {
+        for i in 0..n * n * n {
+            let (x, y, z) = ((i % n) as f32, ((i / n) % n) as f32, (i / (n * n)) as f32);
+            let v = if t < switch {
+                let c = 12.0 + t as f32 * 0.5;
+                let d2 = (x - c).powi(2) + (y - 16.0).powi(2) + (z - 16.0).powi(2);
+                (-d2 / 40.0).exp()
+            } else {
+                0.5 + 0.25 * ((0.3 * x + 0.01 * t as f32).sin() + (0.2 * y + 0.3 * z).sin())
+            };
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+#[test]
+fn a_tuned_ocean_replay_meets_the_size_budget() {
+    let Some(data) = data_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let t = tuner(&st, "127.0.0.1:0", &v.addr, "size:60kB", tmp.path());
+    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
+    let run = replay(
+        &data.join(OCEAN),
+        &g.addr,
+        &["--sample-every", "2", "--step-interval", "1.5"],
+    );
+    finish(run);
+    let s = tuner_status(&t.addr);
+    assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
+    let d = decision(&t.addr, 1).unwrap();
+    assert!(d.characteristic_steps.contains(&0), "{d:?}");
+    assert!(d.predicted_sigma_bytes < 60_000, "{d:?}");
+    // The decision meets σ_target on every step it was tuned on (trials, persisted).
+    let state = state(&st);
+    for step in &d.characteristic_steps {
+        let trial = state["trials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| {
+                x["step"].as_u64() == Some(*step)
+                    && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
+                    && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
+            })
+            .unwrap_or_else(|| panic!("no trial of the decision on step {step}"));
+        assert!(trial["measurement"]["sigma_bytes"].as_u64().unwrap() < 60_000);
+    }
+    // The log names the characteristic steps.
+    let log = std::fs::read_to_string(&t.log).unwrap();
+    assert!(
+        log.contains("step 0 is the first characteristic step"),
+        "{log}"
+    );
+    // Production steps made with the tuned P_M: stamped with its version, and within budget.
+    let entries = index(&rec);
+    assert_eq!(entries.len(), 12);
+    let tuned: Vec<_> = entries.iter().filter(|e| e.pm_version >= 1).collect();
+    assert!(
+        tuned.len() >= 3,
+        "only {} steps after the push",
+        tuned.len()
+    );
+    for e in &tuned {
+        assert_eq!((e.resolution, e.gamma), (d.resolution, d.gamma));
+        assert!(
+            e.sigma_bytes < 60_000,
+            "step {} σ {}",
+            e.step,
+            e.sigma_bytes
+        );
+    }
+    let before: Vec<_> = entries.iter().filter(|e| e.pm_version == 0).collect();
+    eprintln!(
+        "ocean, size:60kB: decision r {} γ {} on steps {:?} (predicted σ {} B, q {:.2} dB), {} trials {:.1} s; \
+         before: {} steps, σ {}–{} B; after: {} steps, σ {}–{} B, all < 60 kB",
+        d.resolution,
+        d.gamma,
+        d.characteristic_steps,
+        d.predicted_sigma_bytes,
+        d.predicted_q_db,
+        d.trials,
+        d.trial_secs,
+        before.len(),
+        before.iter().map(|e| e.sigma_bytes).min().unwrap_or(0),
+        before.iter().map(|e| e.sigma_bytes).max().unwrap_or(0),
+        tuned.len(),
+        tuned.iter().map(|e| e.sigma_bytes).min().unwrap_or(0),
+        tuned.iter().map(|e| e.sigma_bytes).max().unwrap_or(0),
+    );
+    assert_eq!(status(&g.addr).pm_version, s.pm_version);
+    g.terminate();
+    t.terminate();
+    v.terminate();
+}
+
+#[test]
+fn a_change_of_character_retunes_once_and_alike_steps_never() {
+    let tmp = tempfile::tempdir().unwrap();
+    let series = two_regime_series(tmp.path(), 12, 6);
+    let out = Command::new(bin("insitu"))
+        .args(["replay", "--series", series.to_str().unwrap()])
+        .args(["--r", "128", "--codec", "zstd", "--sample-every", "3"])
+        .args(["--utility", "size:40kB", "--step-interval", "1.2", "--json"])
+        .arg("--recording")
+        .arg(tmp.path().join("rec"))
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{}\n{text}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l:?}: {e}")))
+        .collect();
+    let vdis: Vec<_> = lines.iter().filter(|l| l.get("rank").is_some()).collect();
+    assert_eq!(vdis.len(), 12, "{text}");
+    for v in &vdis {
+        for k in [
+            "step",
+            "r",
+            "gamma",
+            "pm_version",
+            "sigma_bytes",
+            "tau_s",
+            "q_db",
+        ] {
+            assert!(v.get(k).is_some(), "{k} missing in {v}");
+        }
+    }
+    let changes: Vec<_> = lines.iter().filter(|l| l["event"] == "pm_change").collect();
+    assert!(!changes.is_empty(), "{text}");
+    let summary = &lines.last().unwrap()["summary"];
+    let t = &summary["tuner"];
+    // Exactly the two regimes are characteristic, and only they started a tuning.
+    assert_eq!(
+        t["characteristic_steps"],
+        serde_json::json!([0, 6]),
+        "{text}"
+    );
+    assert_eq!(t["retunes"], 2, "{text}");
+    for c in &changes {
+        let steps = c["characteristic_steps"].as_array().unwrap();
+        assert!(
+            !steps.is_empty() && c["trials"].as_u64().unwrap() > 0,
+            "{c}"
+        );
+        assert!(
+            c["predicted"]["sigma_bytes"].as_u64().unwrap() < 40_000,
+            "{c}"
+        );
+    }
+    eprintln!(
+        "{} P_M change(s): {changes:?}; summary {summary}",
+        changes.len()
+    );
+}
+
+/// Pushes `steps` of `series` (32³) as two z-bricks, rank 0 to `a` and rank 1 to `b`, one
+/// step every `interval` seconds; stops at the first failure of `b` (when it was killed).
+fn push_two_ranks(series: &Path, steps: std::ops::Range<usize>, a: &str, b: &str, interval: f64) {
+    let format = insitu_core::volume::RawFormat::from_file_name(series).unwrap();
+    rt().block_on(async {
+        let mut ca = SimClient::connect(a, None).await.unwrap();
+        let mut cb = SimClient::connect(b, None).await.ok();
+        for t in steps {
+            let v = format.load(series, t, glam::Vec3::ONE).unwrap();
+            let plane = 32 * 32;
+            for (rank, (z0, z1)) in [(0u32, (0usize, 16usize)), (1, (16, 31))] {
+                let data = &v.data()[z0 * plane..(z1 + 1) * plane];
+                let step = Step {
+                    step: t as u64,
+                    sim_time: t as f64,
+                    dtype: insitu_client::ScalarType::F32,
+                    global_dims: [32, 32, 32],
+                    brick_offset: [0, 0, z0 as u32],
+                    brick_dims: [32, 32, (z1 - z0 + 1) as u32],
+                    rank,
+                    world_size: 2,
+                    spacing: [1.0; 3],
+                    data: insitu_client::f32_bytes(data),
+                };
+                if rank == 0 {
+                    ca.push_step(step).await.unwrap();
+                } else if let Some(c) = cb.as_mut() {
+                    if c.push_step(step).await.is_err() {
+                        cb = None;
+                    }
+                }
+            }
+            tokio::time::sleep(std::time::Duration::from_secs_f64(interval)).await;
+        }
+    });
+}
+
+#[test]
+fn a_restarted_tuner_resumes_without_repeating_trials() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
+    let series = two_regime_series(tmp.path(), 12, 6);
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let listen = format!("127.0.0.1:{}", free_port());
+    let slow = |listen: &str| tuner_paced(&st, listen, &v.addr, "size:40kB", PACED, tmp.path());
+    let t = slow(&listen);
+    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
+    let run = replay(
+        &series,
+        &g.addr,
+        &["--sample-every", "3", "--step-interval", "1.5"],
+    );
+    // Wait for the first decision, then for the tuning of the second regime to be under way.
+    assert!(wait_until(60.0, || tuner_status(&t.addr).pm_version >= 1));
+    let first = tuner_status(&t.addr);
+    assert!(
+        wait_until(60.0, || {
+            let s = tuner_status(&t.addr);
+            s.tuning && s.trials_run > first.trials_run
+        }),
+        "no second tuning: {:?}",
+        tuner_status(&t.addr)
+    );
+    let before = trials(&st);
+    t.kill();
+    // While the tuner is away the generator keeps its P_M and keeps producing.
+    let received = status(&g.addr).steps_received;
+    assert!(wait_until(20.0, || status(&g.addr).steps_received > received));
+    assert_eq!(status(&g.addr).pm_version, first.pm_version);
+    assert!(!status(&g.addr).tuner_connected);
+    let t = slow(&listen);
+    finish(run);
+    assert!(wait_until(60.0, || {
+        let s = tuner_status(&t.addr);
+        !s.tuning && s.retunes >= 1
+    }));
+    let s = tuner_status(&t.addr);
+    let after = trials(&st);
+    let unique: BTreeSet<_> = after.iter().collect();
+    assert_eq!(unique.len(), after.len(), "a finished trial ran twice");
+    assert!(after.len() >= before.len() && after[..before.len()] == before[..]);
+    assert!(
+        s.trials_reused > 0,
+        "the resumed search did not use the persisted trials: {s:?}"
+    );
+    assert_eq!(
+        s.characteristic_steps,
+        vec![0, 6],
+        "{}",
+        std::fs::read_to_string(&t.log).unwrap_or_default()
+    );
+    eprintln!(
+        "restart: {} trials before the kill, {} after; the new process ran {} and reused {}",
+        before.len(),
+        after.len(),
+        s.trials_run,
+        s.trials_reused
+    );
+    flush(&g.addr);
+    g.terminate();
+    t.terminate();
+    v.terminate();
+}
+
+#[test]
+fn a_generator_killed_during_trials_leaves_the_decision_in_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
+    let series = two_regime_series(tmp.path(), 12, 6);
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let t = tuner_paced(&st, "127.0.0.1:0", &v.addr, "size:100kB", PACED, tmp.path());
+    let a = tuned_generator(&v.addr, &t.addr, tmp.path());
+    let b = tuned_generator(&v.addr, &t.addr, tmp.path());
+    assert!(wait_until(20.0, || tuner_status(&t.addr).nodes_connected == 2));
+    let (a_addr, b_addr) = (a.addr.clone(), b.addr.clone());
+    let s2 = series.clone();
+    let pusher = std::thread::spawn(move || push_two_ranks(&s2, 0..12, &a_addr, &b_addr, 1.5));
+    assert!(wait_until(60.0, || tuner_status(&t.addr).pm_version >= 1));
+    let first = tuner_status(&t.addr);
+    assert!(
+        wait_until(60.0, || {
+            let s = tuner_status(&t.addr);
+            s.tuning && s.trials_run > first.trials_run
+        }),
+        "no second tuning: {:?}\n{}",
+        tuner_status(&t.addr),
+        std::fs::read_to_string(&t.log).unwrap_or_default()
+    );
+    b.kill();
+    // The trial in flight fails at once (its node is gone), the tuning ends, the decision
+    // in force stays, and the tuner goes on with the other node.
+    assert!(wait_until(60.0, || {
+        let s = tuner_status(&t.addr);
+        !s.tuning && s.trials_failed >= 1
+    }));
+    pusher.join().unwrap();
+    let s = tuner_status(&t.addr);
+    assert_eq!(s.pm_version, first.pm_version, "{s:?}");
+    assert_eq!(s.nodes_connected, 1);
+    assert!(!s.characteristic_steps.contains(&6), "{s:?}");
+    let ga = status(&a.addr);
+    assert_eq!(ga.pm_version, first.pm_version);
+    assert!(ga.tuner_connected);
+    let log = std::fs::read_to_string(&t.log).unwrap();
+    assert!(
+        log.contains("disconnected during trial") || log.contains("1 of 2 ranks are held"),
+        "{log}"
+    );
+    a.terminate();
+    t.terminate();
+    v.terminate();
+}
+
+#[test]
+fn bad_input_is_refused_clearly_and_nothing_is_persisted() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A bad utility or grid: the daemon does not start and names the key.
+    for (flag, problem) in [
+        (vec!["--utility", "size:0"], "utility"),
+        (vec!["--utility", "size:-2MB"], "utility"),
+        (vec!["--utility", "time:0.5"], "strategy"),
+    ] {
+        let out = Command::new(bin("tuner-node"))
+            .args(["--listen", "127.0.0.1:0", "--state-dir"])
+            .arg(tmp.path().join("never"))
+            .args(&flag)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(problem),
+            "{flag:?}: {err}"
+        );
+    }
+    let cfg = tmp.path().join("empty-grid.toml");
+    std::fs::write(&cfg, "[grid]\nr = \"\"\n").unwrap();
+    let out = Command::new(bin("tuner-node"))
+        .args(["--config", cfg.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("grid"), "{err}");
+    assert!(!tmp.path().join("never").exists());
+
+    // A node that sends a summary with 63 bins gets an error naming it; nothing is persisted.
+    let st = tmp.path().join("state");
+    let t = Daemon::start(
+        "tuner-node",
+        &[
+            "--listen",
+            "127.0.0.1:0",
+            "--state-dir",
+            st.to_str().unwrap(),
+        ],
+        &[],
+        tmp.path(),
+    );
+    let before = std::fs::read(st.join("tuner-state.json")).unwrap();
+    let reply = rt().block_on(async {
+        let (tx, rx) = tokio::sync::mpsc::channel(8);
+        let up = |m: Up| pb::NodeMessage { msg: Some(m) };
+        tx.send(up(Up::Hello(pb::NodeHello {
+            node_id: "fake".into(),
+            ..Default::default()
+        })))
+        .await
+        .unwrap();
+        tx.send(up(Up::Summary(pb::StepSummary {
+            step: 4,
+            world_size: 1,
+            histogram: vec![1; 63],
+            range_lo: 0.0,
+            range_hi: 1.0,
+            ..Default::default()
+        })))
+        .await
+        .unwrap();
+        let mut c = client(&t.addr).await;
+        let mut down = c
+            .attach(tokio_stream::wrappers::ReceiverStream::new(rx))
+            .await
+            .unwrap()
+            .into_inner();
+        let m = down.message().await.unwrap().unwrap();
+        drop(tx);
+        m
+    });
+    match reply.msg {
+        Some(Down::Error(e)) => assert!(e.message.contains("63 bins"), "{}", e.message),
+        other => panic!("{other:?}"),
+    }
+    // A stream that does not start with a hello is refused.
+    let e = rt().block_on(async {
+        let first = pb::NodeMessage {
+            msg: Some(Up::Ack(pb::DecisionAck::default())),
+        };
+        client(&t.addr)
+            .await
+            .attach(tokio_stream::iter(vec![first]))
+            .await
+            .unwrap_err()
+    });
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+    // A decision that was never issued.
+    let e = decision(&t.addr, 7).unwrap_err();
+    assert_eq!(e.code(), tonic::Code::NotFound);
+    assert!(e.message().contains("version 7"), "{}", e.message());
+    let s = tuner_status(&t.addr);
+    assert_eq!((s.summaries, s.pm_version), (0, 0));
+    assert!(s.characteristic_steps.is_empty());
+    assert_eq!(std::fs::read(st.join("tuner-state.json")).unwrap(), before);
+    t.terminate();
+}
