@@ -218,7 +218,7 @@ async fn trials(
                 tokio::time::sleep(Duration::from_millis(10)).await;
             }
             let _lane = shared.lane.lock().await;
-            let (s, t, r) = (shared.clone(), tuning.clone(), req.clone());
+            let (s, t, r) = (shared.clone(), tuning.clone(), req);
             let result = tokio::task::spawn_blocking(move || run_trial(&s, &t, rank, held, &r))
                 .await
                 .unwrap_or_else(|e| pb::TrialResult {

@@ -48,7 +48,7 @@ pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
     })
 }
 
-/// Logs to stderr at `RUST_LOG` or `info`.
+/// Logs to stderr at `RUST_LOG` or `info` (coloured only on a terminal).
 pub fn init_tracing() {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -56,6 +56,8 @@ pub fn init_tracing() {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        // Colours only on a terminal: logs redirected to files stay plain text.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
 }
 

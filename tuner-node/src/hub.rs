@@ -186,7 +186,7 @@ impl Hub {
         };
         for conn in &conns {
             if let Some(n) = i.nodes.get(conn) {
-                let _ = n.tx.try_send(msg(Down::Trial(req.clone())));
+                let _ = n.tx.try_send(msg(Down::Trial(req)));
             }
         }
         let (reply, rx) = oneshot::channel();
