@@ -1,21 +1,23 @@
 #!/usr/bin/env bash
-# Starts a viz-node and a generator-node on 127.0.0.1 (ephemeral ports) from this checkout's
-# release binaries — the same binaries the end-to-end tests start — and keeps them running until
-# Ctrl-C, then stops both gracefully (the generator drains and prints what it dropped).
+# Starts a viz-node, a tuner-node and a generator-node on 127.0.0.1 (ephemeral ports) from this
+# checkout's release binaries — the same binaries the end-to-end tests start — and keeps them
+# running until Ctrl-C, then stops them gracefully (the generator drains and prints what it
+# dropped). The tuner optimises TUNER_UTILITY (default size:1MB) and keeps its state in
+# RECORDING_DIR/tuner-state; NO_TUNE=1 starts no tuner (P_M stays as configured).
 #
 #   deploy/local.sh [RECORDING_DIR] [-- extra generator-node flags]
 #
 # Then push data, e.g.:
 #   target/release/insitu replay --series ../shared/data/ocean_temp_ts_180x90x19x12_float32.raw \
 #       --generator <generator address printed below>
-# Configs: deploy/generator-node.toml and deploy/viz-node.toml document every key; set
-# GENERATOR_CONFIG / VIZ_CONFIG to use your own.
+# Configs: deploy/generator-node.toml, deploy/viz-node.toml and deploy/tuner-node.toml document
+# every key; set GENERATOR_CONFIG / VIZ_CONFIG / TUNER_CONFIG to use your own.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rec=${1:-recording}
 shift $(( $# > 0 ? 1 : 0 ))
 [[ ${1:-} == "--" ]] && shift
-cargo build --release --quiet --bins -p insitu-generator-node -p insitu-viz-node -p insitu-cli
+cargo build --release --quiet --bins -p insitu-generator-node -p insitu-viz-node -p insitu-tuner-node -p insitu-cli
 bin=target/release
 logs=$(mktemp -d)
 
@@ -31,13 +33,24 @@ wait_addr() { # file → prints the address once the daemon has printed it
   >"$logs/viz.out" 2>"$logs/viz.log" &
 viz_pid=$!
 viz=$(wait_addr "$logs/viz.out")
-"$bin/generator-node" ${GENERATOR_CONFIG:+--config "$GENERATOR_CONFIG"} --listen 127.0.0.1:0 --viz "$viz" "$@" \
+tuner_flag=()
+tuner_pid=
+if [[ ${NO_TUNE:-0} != 1 ]]; then
+  "$bin/tuner-node" ${TUNER_CONFIG:+--config "$TUNER_CONFIG"} --listen 127.0.0.1:0 --viz "$viz" \
+    --state-dir "$rec/tuner-state" --utility "${TUNER_UTILITY:-size:1MB}" \
+    >"$logs/tuner.out" 2>"$logs/tuner.log" &
+  tuner_pid=$!
+  tuner=$(wait_addr "$logs/tuner.out")
+  tuner_flag=(--tuner "$tuner")
+fi
+"$bin/generator-node" ${GENERATOR_CONFIG:+--config "$GENERATOR_CONFIG"} --listen 127.0.0.1:0 --viz "$viz" "${tuner_flag[@]}" "$@" \
   >"$logs/gen.out" 2>"$logs/gen.log" &
 gen_pid=$!
 gen=$(wait_addr "$logs/gen.out")
 
 stop() {
   kill -TERM "$gen_pid" 2>/dev/null || true; wait "$gen_pid" 2>/dev/null || true
+  if [[ -n $tuner_pid ]]; then kill -TERM "$tuner_pid" 2>/dev/null || true; wait "$tuner_pid" 2>/dev/null || true; fi
   kill -TERM "$viz_pid" 2>/dev/null || true; wait "$viz_pid" 2>/dev/null || true
   grep '^summary' "$logs/gen.out" || true
   echo "recording: $rec   logs: $logs"
@@ -45,6 +58,7 @@ stop() {
 trap stop EXIT
 trap 'exit 130' INT TERM
 echo "viz-node       $viz   (recording: $rec)"
+[[ -n $tuner_pid ]] && echo "tuner-node     $tuner   (${TUNER_UTILITY:-size:1MB}; log: $logs/tuner.log)"
 echo "generator-node $gen"
 echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops both)"
 wait "$gen_pid"

@@ -24,6 +24,9 @@ struct Args {
     /// The viz-node, host:port.
     #[arg(long)]
     viz: Option<String>,
+    /// The tuner service, host:port (the node dials out to it).
+    #[arg(long)]
+    tuner: Option<String>,
     /// File holding the bearer token (else INSITU_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
@@ -67,6 +70,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if a.token_file.is_some() {
         c.token_file = a.token_file;
+    }
+    if a.tuner.is_some() {
+        c.tuner = a.tuner;
     }
     if let Some(v) = a.policy {
         c.queue.policy = v;

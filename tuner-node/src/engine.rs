@@ -727,3 +727,142 @@ impl Engine {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insitu_tuner::live::Tracker;
+
+    fn summary(step: u64, bin: usize, sigma: u64, version: u64) -> pb::StepSummary {
+        let mut histogram = vec![0; BINS];
+        histogram[bin] = 100;
+        pb::StepSummary {
+            step,
+            world_size: 1,
+            histogram,
+            range_lo: 0.0,
+            range_hi: 1.0,
+            sampled: true,
+            pm_version: version,
+            sigma_bytes: sigma,
+            ..Default::default()
+        }
+    }
+
+    /// An engine whose decision v1 (r 64, γ 0.01, predicted q 40 dB) was tuned on step 0.
+    fn tuned(dir: &std::path::Path) -> Loop {
+        let cfg = Config {
+            state_dir: dir.to_owned(),
+            viz: Some("127.0.0.1:1".into()),
+            utility: "size:1000".into(),
+            ..Default::default()
+        };
+        let resolved = cfg.resolve().unwrap();
+        let mut state = State::new(Tracker::new(0.15, 4));
+        let mut h = [0.0; BINS];
+        h[3] = 1.0;
+        assert!(matches!(state.tracker.observe(0, &h), Verdict::New { .. }));
+        let c = Candidate { r: 64, gamma: 0.01 };
+        let predicted = Measurement {
+            r: 64,
+            gamma: 0.01,
+            sigma_bytes: 900,
+            supersegments: 0,
+            tau_secs: 0.0,
+            tau_compress_secs: 0.0,
+            tau_render_secs: 0.0,
+            q_db: Db(40.0),
+            view_q_db: vec![],
+            ssim: None,
+        };
+        state.decisions.push(Decision {
+            pm_version: 1,
+            candidate: c,
+            old: None,
+            characteristic_steps: vec![0],
+            predicted,
+            reason: "test".into(),
+            trigger_step: 0,
+            trials: 0,
+            trial_secs: 0.0,
+            utility: "size".into(),
+        });
+        let (engine, _rx) = Engine::new(cfg, resolved, state);
+        Loop {
+            engine,
+            pending: BTreeMap::new(),
+            awaiting: BTreeMap::new(),
+            recent: VecDeque::new(),
+            newest: 0,
+            dirty: None,
+        }
+    }
+
+    fn report(step: u64, q: f64) -> pb::QualityReport {
+        pb::QualityReport {
+            step,
+            world_size: 1,
+            pm_version: 1,
+            q_db: Some(q),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_production_step_far_below_the_predicted_q_becomes_characteristic() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        // Alike and within budget: waits for its q, which is close to the prediction.
+        l.summary(1, summary(1, 3, 500, 1));
+        assert!(l.dirty.is_none() && l.awaiting.contains_key(&1));
+        l.report(&report(1, 38.5));
+        assert!(l.dirty.is_none() && l.awaiting.is_empty());
+        // 4 dB below (margin 3): characteristic, with the reason.
+        l.summary(2, summary(2, 3, 500, 1));
+        l.report(&report(2, 36.0));
+        let d = l.dirty.clone().unwrap();
+        assert_eq!(d.step, 2);
+        assert!(
+            d.reason.contains("below the predicted 40.00 dB"),
+            "{}",
+            d.reason
+        );
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+        // Persisted, with the version it was forced for.
+        let s = State::load(dir.path()).unwrap().unwrap();
+        assert_eq!(
+            (s.tracker.step_indices(), s.forced_for),
+            (vec![0, 2], Some(1))
+        );
+    }
+
+    #[test]
+    fn one_budget_break_per_version_and_none_while_tuning_is_pending() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        // σ 1 000 B ≥ σ_target 1 000 B: breaks the budget (strict, Eq. 1).
+        l.summary(1, summary(1, 3, 1000, 1));
+        assert!(l
+            .dirty
+            .as_ref()
+            .unwrap()
+            .reason
+            .contains("broke the budget"));
+        l.dirty = None;
+        // The same version breaking it again does not force another step.
+        l.summary(2, summary(2, 3, 5000, 1));
+        assert!(l.dirty.is_none());
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 1]);
+        // Steps made with an older version are not held against the budget.
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        l.summary(1, summary(1, 3, 5000, 0));
+        assert!(l.dirty.is_none());
+        // Nor while a tuning is pending: a new characteristic step is waiting for one.
+        l.summary(2, summary(2, 40, 500, 1));
+        let r = &l.dirty.as_ref().unwrap().reason;
+        assert!(r.contains("became characteristic"), "{r}");
+        l.summary(3, summary(3, 3, 5000, 1));
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+    }
+}

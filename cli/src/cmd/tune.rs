@@ -44,7 +44,8 @@ pub struct Args {
 }
 
 fn target(spec: &str) -> Result<Target> {
-    Ok(Target::for_spec(spec)?)
+    Target::for_spec(spec)
+        .map_err(|e| anyhow::anyhow!("--strategy adaptive: {e} (--strategy grid)"))
 }
 
 fn row_json(m: &Measurement) -> serde_json::Value {

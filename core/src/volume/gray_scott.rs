@@ -131,6 +131,17 @@ impl GrayScott {
         Ok(sim)
     }
 
+    /// Changes the model constants from the next step on (a simulation switching regime, e.g.
+    /// other feed and kill rates); the state is kept.
+    pub fn set_params(&mut self, params: GrayScottParams) {
+        self.params = params;
+    }
+
+    /// The model constants.
+    pub fn params(&self) -> GrayScottParams {
+        self.params
+    }
+
     /// Steps taken so far.
     pub fn step_index(&self) -> u64 {
         self.step
