@@ -22,9 +22,9 @@ pub struct PipelineArgs {
     pub pm: crate::cmd::PmArgs,
     #[command(flatten)]
     pub backend: crate::cmd::BackendArgs,
-    /// Codec: bzip2 (the paper's sigma), zstd or none.
-    #[arg(long, default_value = "bzip2")]
-    pub codec: String,
+    /// Codec: bzip2 (the paper's sigma), zstd or none. Default: the command's (see its help).
+    #[arg(long)]
+    pub codec: Option<String>,
     /// Input queue policy of the generator-node: block, drop-oldest or latest-only.
     #[arg(long, default_value = "block")]
     pub policy: Policy,
@@ -45,6 +45,24 @@ pub struct PipelineArgs {
     /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
     #[arg(long)]
     pub json: bool,
+}
+
+/// What a command chooses when its flags do not.
+#[derive(Clone, Copy, Debug)]
+pub struct Defaults {
+    /// The tuner's utility.
+    pub utility: &'static str,
+    /// The codec.
+    pub codec: &'static str,
+}
+
+impl PipelineArgs {
+    /// `--codec`, else the command's default.
+    pub fn codec(&self, defaults: Defaults) -> String {
+        self.codec
+            .clone()
+            .unwrap_or_else(|| defaults.codec.to_owned())
+    }
 }
 
 /// A P_M change as text.
@@ -235,14 +253,14 @@ pub fn default_recording() -> PathBuf {
 
 impl LocalNodes {
     /// Starts a viz-node recording into `a.recording`, a tuner watching it (unless
-    /// `--no-tune`; utility `--utility`, else `default_utility`) and a generator-node shipping
+    /// `--no-tune`; utility `--utility`, else the command's default) and a generator-node shipping
     /// to the viz-node and dialling the tuner.
     ///
     /// # Errors
     /// Bad settings, or a node failing to start.
     pub async fn start(
         a: &PipelineArgs,
-        default_utility: &str,
+        defaults: Defaults,
         tweak: impl FnOnce(&mut gen::Config),
     ) -> Result<Self> {
         let recording = a.recording.clone().unwrap_or_else(default_recording);
@@ -260,7 +278,7 @@ impl LocalNodes {
             let utility = a
                 .utility
                 .clone()
-                .unwrap_or_else(|| default_utility.to_owned());
+                .unwrap_or_else(|| defaults.utility.to_owned());
             let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
                 insitu_tuner_node::config::Strategy::Adaptive
             } else {
@@ -291,7 +309,7 @@ impl LocalNodes {
         cfg.queue.max_items = a.queue_steps;
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
-        cfg.generation.codec = a.codec.clone();
+        cfg.generation.codec = a.codec(defaults);
         tweak(&mut cfg);
         let generator = gen::start(cfg)
             .await

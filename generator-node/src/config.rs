@@ -133,6 +133,9 @@ pub struct Config {
     /// Most bytes of step fields held for the tuner's trials (field as f32 plus its reference
     /// frames); a step that does not fit is not held, and the tuner is told so.
     pub hold_bytes: u64,
+    /// Trials run when no production step waits; when production alone keeps the node busy,
+    /// one trial may run after every this many production steps (0: only when idle).
+    pub trial_interleave: u64,
     /// Scene and `P_M`.
     pub generation: GenerationConfig,
 }
@@ -159,6 +162,7 @@ impl Default for Config {
             backend: BackendChoice::Auto,
             tuner: None,
             hold_bytes: 1 << 30,
+            trial_interleave: 1,
             generation: GenerationConfig::default(),
         }
     }

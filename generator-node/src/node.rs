@@ -70,7 +70,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let addr = listener.local_addr()?;
     let (tuning, summaries) = match &cfg.tuner {
         Some(_) => {
-            let (t, rx) = crate::tuning::Tuning::new(cfg.hold_bytes);
+            let (t, rx) = crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave);
             (Some(Arc::new(t)), Some(rx))
         }
         None => (None, None),

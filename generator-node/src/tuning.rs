@@ -3,10 +3,12 @@
 //! back-off. Up the stream go a summary per production step and the results of trials; down it
 //! come claims on held fields, trial requests and P_M decisions.
 //!
-//! Trials run at lower priority than production: a trial starts only when no production step
-//! waits in the queue, and production and trials take turns on one compute lane, so a step
-//! that arrives during a trial waits for that one trial at most. Production VDIs keep the P_M
-//! in force until a decision arrives; it applies from the next step.
+//! Trials run at lower priority than production: production and trials take turns on one
+//! compute lane, and a trial starts only when no production step waits in the queue, or, when
+//! production alone keeps the node busy (exactly when a cheaper P_M is most needed), after
+//! `trial_interleave` production steps since the last trial. So a step waits for one trial at
+//! most, and under load trials take at most one turn in `trial_interleave + 1`. Production
+//! VDIs keep the P_M in force until a decision arrives; it applies from the next step.
 
 use crate::hold::{HeldStep, Holds};
 use crate::service::Shared;
@@ -38,11 +40,15 @@ pub struct Tuning {
     epoch: AtomicU64,
     /// Trials run (for status and tests).
     pub trials_run: AtomicU64,
+    /// Production steps since the last trial.
+    since_trial: AtomicU64,
+    /// Under load, one trial per this many production steps (0: only when idle).
+    interleave: u64,
 }
 
 impl Tuning {
     /// The state and the receiving end of the summaries (for [`Link::run`]).
-    pub fn new(hold_bytes: u64) -> (Self, mpsc::Receiver<pb::StepSummary>) {
+    pub fn new(hold_bytes: u64, interleave: u64) -> (Self, mpsc::Receiver<pb::StepSummary>) {
         let (summaries, rx) = mpsc::channel(SUMMARY_BACKLOG);
         (
             Self {
@@ -51,6 +57,8 @@ impl Tuning {
                 connected: AtomicBool::new(false),
                 epoch: AtomicU64::new(0),
                 trials_run: AtomicU64::new(0),
+                since_trial: AtomicU64::new(0),
+                interleave,
             },
             rx,
         )
@@ -64,6 +72,7 @@ impl Tuning {
     /// After a production step: holds its field (when connected and there is room) and sends
     /// its summary.
     pub fn after_step(&self, mut summary: pb::StepSummary, held: HeldStep) {
+        self.since_trial.fetch_add(1, Ordering::Relaxed);
         if !self.connected() {
             return;
         }
@@ -213,11 +222,16 @@ async fn trials(
             continue;
         }
         for (rank, held) in ranks {
-            // Production first: wait while steps are queued, then take the lane.
-            while !shared.queue.is_empty() {
+            // Production first: wait while steps are queued (unless production has had its
+            // `interleave` turns), then take the lane.
+            let turn = |t: &Tuning| {
+                t.interleave > 0 && t.since_trial.load(Ordering::Relaxed) >= t.interleave
+            };
+            while !shared.queue.is_empty() && !turn(&tuning) {
                 tokio::time::sleep(Duration::from_millis(10)).await;
             }
             let _lane = shared.lane.lock().await;
+            tuning.since_trial.store(0, Ordering::Relaxed);
             let (s, t, r) = (shared.clone(), tuning.clone(), req);
             let result = tokio::task::spawn_blocking(move || run_trial(&s, &t, rank, held, &r))
                 .await

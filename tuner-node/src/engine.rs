@@ -22,9 +22,10 @@ use insitu_tuner::series::BINS;
 use insitu_tuner::study::{Oracle, StudyError};
 use insitu_tuner::{Candidate, Measurement};
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, oneshot};
 use tracing::{info, warn};
 
 /// Steps kept waiting for their last rank or their q before they are given up.
@@ -79,6 +80,8 @@ pub struct Engine {
     lost: Mutex<Vec<u64>>,
     /// The P_M the nodes last reported in their hello (what the first decision replaces).
     reported: Mutex<Option<Candidate>>,
+    /// Set on shutdown: a tuning in progress gives up at its next trial.
+    pub stopping: AtomicBool,
     events: mpsc::UnboundedSender<Event>,
 }
 
@@ -141,6 +144,7 @@ impl Engine {
                 process,
                 lost: Mutex::new(Vec::new()),
                 reported: Mutex::new(None),
+                stopping: AtomicBool::new(false),
                 events,
             }),
             rx,
@@ -336,24 +340,24 @@ impl Loop {
     }
 
     /// The version in force, when a production step made with it that breaks the budget
-    /// should start a re-tuning: none is pending or running (the decision was tuned on the
-    /// characteristic steps as they are), and no step was forced for this version yet.
+    /// should start a re-tuning: none is pending or running, and the decision was found best
+    /// on the characteristic steps as they are (after a forced step, the re-tuning that takes
+    /// it into account must finish first; after a failed one, only a new characteristic step
+    /// starts another).
     fn unforced_version(&self) -> Option<u64> {
         if self.dirty.is_some() || self.engine.counters().tuning {
             return None;
         }
         let s = self.engine.state();
         s.current()
-            .filter(|d| d.characteristic_steps == s.tracker.step_indices())
+            .filter(|_| s.validated == s.tracker.step_indices())
             .map(|d| d.pm_version)
-            .filter(|&v| s.forced_for != Some(v))
     }
 
     fn force(&mut self, step: u64, h: &[f64; BINS], world_size: u32, why: String) {
         let e = self.engine.clone();
         let evicted = {
             let mut s = e.state();
-            s.forced_for = s.current().map(|d| d.pm_version);
             let ev = s.tracker.force(step, h);
             s.world_sizes.insert(step, world_size);
             if let Some((gone, _)) = ev {
@@ -473,7 +477,6 @@ impl Loop {
 /// The measurements of one characteristic step, through the nodes that hold it.
 struct StepOracle {
     engine: Arc<Engine>,
-    handle: tokio::runtime::Handle,
     step: u64,
     world_size: u32,
     generations: u64,
@@ -484,7 +487,7 @@ impl StepOracle {
     /// Waits until the trials may spend more (the share of the wall clock, after the burst).
     fn pace(&self) {
         let t = &self.engine.cfg.trials;
-        loop {
+        while !self.engine.stopping.load(Ordering::Relaxed) {
             let spent = self.engine.counters().trial_secs;
             let allowed = t.burst_secs + t.share * self.engine.started.elapsed().as_secs_f64();
             if spent <= allowed {
@@ -527,22 +530,37 @@ impl Oracle for StepOracle {
             }
         };
         let timeout = Duration::from_secs_f64(e.cfg.trials.timeout_secs);
-        let reply = self.handle.block_on(tokio::time::timeout(timeout, rx));
         let what = format!("trial r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
-        let results = match reply {
-            Err(_) => {
+        // Polled (a trial takes milliseconds at least), so a runtime shutting down cannot
+        // strand this thread in a timer.
+        let mut rx = rx;
+        let started = Instant::now();
+        let results = loop {
+            match rx.try_recv() {
+                Ok(Ok(r)) => break r,
+                Ok(Err(problem)) => {
+                    let lost = problem.contains("not held") || problem.contains("disconnected");
+                    return Err(self.fail(lost, format!("{what}: {problem}")));
+                }
+                Err(oneshot::error::TryRecvError::Closed) => {
+                    return Err(self.fail(true, format!("{what}: abandoned")))
+                }
+                Err(oneshot::error::TryRecvError::Empty) => {}
+            }
+            if e.stopping.load(Ordering::Relaxed) {
+                e.hub.abandon(id);
+                return Err(StudyError::Invalid(format!(
+                    "{what}: the tuner is stopping"
+                )));
+            }
+            if started.elapsed() > timeout {
                 e.hub.abandon(id);
                 return Err(self.fail(
                     false,
                     format!("{what} timed out after {} s", timeout.as_secs_f64()),
                 ));
             }
-            Ok(Err(_)) => return Err(self.fail(true, format!("{what}: abandoned"))),
-            Ok(Ok(Err(problem))) => {
-                let lost = problem.contains("not held") || problem.contains("disconnected");
-                return Err(self.fail(lost, format!("{what}: {problem}")));
-            }
-            Ok(Ok(Ok(r))) => r,
+            std::thread::sleep(Duration::from_millis(5));
         };
         let ms: Vec<Measurement> = results.iter().map(measurement).collect();
         let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
@@ -588,7 +606,7 @@ impl Oracle for StepOracle {
 }
 
 /// Runs one tuning over the characteristic steps (blocking: trials wait on the nodes).
-fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger) {
+fn tune(engine: &Arc<Engine>, trigger: &Trigger) {
     let (steps, world_sizes) = {
         let s = engine.state();
         (s.tracker.step_indices(), s.world_sizes.clone())
@@ -599,7 +617,6 @@ fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger)
         .map(|&step| {
             Box::new(StepOracle {
                 engine: engine.clone(),
-                handle: handle.clone(),
                 step,
                 world_size: world_sizes.get(&step).copied().unwrap_or(1),
                 generations: 0,
@@ -630,8 +647,10 @@ fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger)
         .current()
         .map(|d| d.candidate)
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
-    if old == Some(best.candidate()) {
+    if old == Some(best.candidate()) && s.current().is_some() {
         info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
+        s.validated = steps;
+        engine.save(&s);
         return;
     }
     let d = Decision {
@@ -647,6 +666,7 @@ fn tune(engine: &Arc<Engine>, handle: tokio::runtime::Handle, trigger: &Trigger)
         utility: engine.utility(),
     };
     s.decisions.push(d.clone());
+    s.validated = d.characteristic_steps.clone();
     engine.save(&s);
     drop(s);
     engine.counters().decisions += 1;
@@ -662,8 +682,7 @@ impl Engine {
         let resume = {
             let s = self.state();
             let steps = s.tracker.step_indices();
-            let tuned = s.current().map(|d| d.characteristic_steps.clone());
-            (!steps.is_empty() && tuned.as_ref() != Some(&steps)).then(|| Trigger {
+            (!steps.is_empty() && s.validated != steps).then(|| Trigger {
                 step: steps.last().copied().unwrap_or(0),
                 reason: "resuming the tuning of a restarted tuner".into(),
             })
@@ -681,16 +700,13 @@ impl Engine {
             if tuning.is_none() {
                 if let Some(trigger) = l.dirty.take() {
                     let e = self.clone();
-                    let handle = tokio::runtime::Handle::current();
                     {
                         let mut c = self.counters();
                         c.retunes += 1;
                         c.tuning = true;
                     }
                     info!(reason = %trigger.reason, "tuning");
-                    tuning = Some(tokio::task::spawn_blocking(move || {
-                        tune(&e, handle, &trigger)
-                    }));
+                    tuning = Some(tokio::task::spawn_blocking(move || tune(&e, &trigger)));
                 }
             }
             tokio::select! {
@@ -701,7 +717,7 @@ impl Engine {
                     Some(Event::Report(r)) => l.report(&r),
                     Some(Event::Gone(conn)) => {
                         if let Some(id) = self.hub.disconnect(conn) {
-                            warn!(node = %id, "node detached; its trials fail, its held fields are gone");
+                            info!(node = %id, "node detached; its trials in flight fail, its held fields are gone");
                         }
                     }
                 },
@@ -787,6 +803,7 @@ mod tests {
             trial_secs: 0.0,
             utility: "size".into(),
         });
+        state.validated = vec![0];
         let (engine, _rx) = Engine::new(cfg, resolved, state);
         Loop {
             engine,
@@ -828,16 +845,16 @@ mod tests {
             d.reason
         );
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
-        // Persisted, with the version it was forced for.
+        // Persisted; the decision in force is no longer validated on the set.
         let s = State::load(dir.path()).unwrap().unwrap();
         assert_eq!(
-            (s.tracker.step_indices(), s.forced_for),
-            (vec![0, 2], Some(1))
+            (s.tracker.step_indices(), s.validated),
+            (vec![0, 2], vec![0])
         );
     }
 
     #[test]
-    fn one_budget_break_per_version_and_none_while_tuning_is_pending() {
+    fn a_budget_break_retunes_once_and_none_while_a_tuning_is_due() {
         let dir = tempfile::tempdir().unwrap();
         let mut l = tuned(dir.path());
         // σ 1 000 B ≥ σ_target 1 000 B: breaks the budget (strict, Eq. 1).
@@ -849,7 +866,7 @@ mod tests {
             .reason
             .contains("broke the budget"));
         l.dirty = None;
-        // The same version breaking it again does not force another step.
+        // Breaking it again before the re-tuning has taken step 1 into account forces nothing.
         l.summary(2, summary(2, 3, 5000, 1));
         assert!(l.dirty.is_none());
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 1]);

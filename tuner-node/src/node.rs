@@ -133,6 +133,9 @@ impl RunningTuner {
 
     /// Stops serving; the state is already on disk.
     pub async fn shutdown(self) {
+        self.engine
+            .stopping
+            .store(true, std::sync::atomic::Ordering::Relaxed);
         let _ = self.stop.send(());
         for t in &self.tasks {
             t.abort();

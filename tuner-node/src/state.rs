@@ -92,10 +92,11 @@ pub struct State {
     pub decisions: Vec<Decision>,
     /// The highest version any node has reported (a node may be ahead of a lost state).
     pub highest_seen: u64,
-    /// The decision version for which a production step already broke the budget and was
-    /// made characteristic (one per version, so a re-tuning in progress is not repeated).
+    /// The characteristic steps the decision in force was last found best on (by the tuning
+    /// that made it, or a later one that kept it). While they are the tracker's steps, the
+    /// production steps are watched against the budget; when they differ, a tuning is due.
     #[serde(default)]
-    pub forced_for: Option<u64>,
+    pub validated: Vec<u64>,
 }
 
 impl State {
@@ -108,7 +109,7 @@ impl State {
             trials: Vec::new(),
             decisions: Vec::new(),
             highest_seen: 0,
-            forced_for: None,
+            validated: Vec::new(),
         }
     }
 

@@ -3,10 +3,12 @@
 //!
 //! The adaptive search exploits the monotonicity the paper observes (Sec. 6.1): σ falls and q
 //! falls as γ grows, and σ rises with r. For a size budget, the best γ at a given r is the
-//! smallest one whose σ is under the budget — a bisection over the γ axis (≈ log₂ of its
-//! length measurements). The best r is then found by probing about five resolutions spread
-//! over the r axis and climbing to better neighbours; resolutions above the first one where
-//! even the largest γ misses the budget are skipped. For a quality target it is the mirror
+//! smallest one whose σ is under the budget — one measurement at the smallest γ the
+//! neighbouring resolutions allow (when it is under the budget it is the answer), else a
+//! bisection over the γ axis (≈ log₂ of its length measurements). The best r is then found
+//! by probing about five resolutions spread over the r axis and climbing to better
+//! neighbours; resolutions above the first one where even the largest γ misses the budget are
+//! skipped. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
 
 use crate::grid::{Candidate, ParamGrid};
@@ -184,6 +186,14 @@ impl Adaptive<'_> {
         } else {
             (n - 1 - bhi, n - 1 - blo)
         };
+        // The bracket's best end first: when it is feasible it is the answer (one measurement
+        // instead of a bisection; common when the budget is loose for this r).
+        let at_lo = self.measure(ri, gamma_index(lo))?;
+        if self.feasible(&at_lo) {
+            let v = self.utility.value(&at_lo);
+            self.per_r.insert(ri, Some((at_lo.clone(), v)));
+            return Ok(Some((at_lo, v)));
+        }
         let at_hi = self.measure(ri, gamma_index(hi))?;
         let mut feasible = self.feasible(&at_hi);
         if !feasible && hi < n - 1 {

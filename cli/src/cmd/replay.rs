@@ -3,7 +3,7 @@
 //! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
 //! with it, it pushes to a running generator-node and sets its config first.
 
-use crate::pipeline::{LocalNodes, PipelineArgs};
+use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
 use insitu_core::volume::RawFormat;
@@ -46,8 +46,12 @@ pub struct Args {
     pipeline: PipelineArgs,
 }
 
-/// The default budget of a replay's tuner (`--utility` to choose another).
-pub const DEFAULT_UTILITY: &str = "size:1MB";
+/// A replay's defaults: the paper's σ (bzip2), and a tuner budget of 1 MB per step
+/// (`--codec`, `--utility` to choose others).
+pub const DEFAULTS: Defaults = Defaults {
+    utility: "size:1MB",
+    codec: "bzip2",
+};
 
 pub fn run(a: Args) -> Result<()> {
     if a.step_interval
@@ -115,7 +119,7 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     let config = pb::GenerationConfig {
         resolution: a.pipeline.pm.r,
         gamma: a.pipeline.pm.gamma,
-        codec: codec_to_pb(a.pipeline.codec.parse()?) as i32,
+        codec: codec_to_pb(a.pipeline.codec(DEFAULTS).parse()?) as i32,
         tf_json: Some(serde_json::to_string(&tf)?),
         tf_name: Some(tf_name),
         reference_every: Some(
@@ -125,7 +129,7 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     };
     let local = match &a.generator {
         Some(_) => None,
-        None => Some(LocalNodes::start(&a.pipeline, DEFAULT_UTILITY, |_| {}).await?),
+        None => Some(LocalNodes::start(&a.pipeline, DEFAULTS, |_| {}).await?),
     };
     let token = Token::load(a.token_file.as_deref())?;
     let addr = match (&a.generator, &local) {
