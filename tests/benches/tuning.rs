@@ -23,6 +23,10 @@ use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{pb, transport};
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+/// Stored VDIs by step, and latencies of the steps without references.
+type Seen = (BTreeMap<u64, pb::QualityReport>, Vec<f64>);
 use std::time::{Duration, Instant};
 use tokio_stream::StreamExt;
 
@@ -122,20 +126,19 @@ fn run(source: &Source, utility: Option<&str>, tmp: &Path, sample_every: u32) ->
             .await
             .unwrap()
             .into_inner();
-        let pushed: std::sync::Arc<std::sync::Mutex<BTreeMap<u64, Instant>>> = Default::default();
-        let p = pushed.clone();
+        let pushed: Arc<Mutex<BTreeMap<u64, Instant>>> = Default::default();
+        let seen: Arc<Mutex<Seen>> = Default::default();
+        let (p, c) = (pushed.clone(), seen.clone());
         let collector = tokio::spawn(async move {
-            let mut out = BTreeMap::new();
-            let mut lat = Vec::new();
             while let Some(Ok(r)) = reports.next().await {
+                let mut seen = c.lock().unwrap();
                 if r.q_db.is_none() {
                     if let Some(t) = p.lock().unwrap().get(&r.step) {
-                        lat.push(t.elapsed().as_secs_f64());
+                        seen.1.push(t.elapsed().as_secs_f64());
                     }
                 }
-                out.insert(r.step, r);
+                seen.0.insert(r.step, r);
             }
-            (out, lat)
         });
         let mut c = SimClient::connect(&g.addr, None).await.unwrap();
         let mut switch_step = None;
@@ -189,15 +192,23 @@ fn run(source: &Source, utility: Option<&str>, tmp: &Path, sample_every: u32) ->
         c.flush(Duration::from_secs(600)).await.unwrap();
         tokio::time::sleep(Duration::from_secs(3)).await; // the last scores
         collector.abort();
-        let (stored, lat) = collector.await.unwrap_or_default();
+        let (stored, lat) = std::mem::take(&mut *seen.lock().unwrap());
         (stored, lat, switch_step)
     });
     let wall = t0.elapsed().as_secs_f64();
-    let mut cpu = cpu_secs(std::process::id()) - self_cpu0;
-    cpu += cpu_secs(g.child.id()) + cpu_secs(v.child.id());
+    let (sim, gen, viz) = (
+        cpu_secs(std::process::id()) - self_cpu0,
+        cpu_secs(g.child.id()),
+        cpu_secs(v.child.id()),
+    );
+    let mut cpu = sim + gen + viz;
     let (decisions, status) = match &tuner {
         Some(t) => {
-            cpu += cpu_secs(t.child.id());
+            let tc = cpu_secs(t.child.id());
+            println!(
+                "  CPU s: simulation/pushing {sim:.1}, generator-node {gen:.1}, viz-node {viz:.1}, tuner-node {tc:.1}"
+            );
+            cpu += tc;
             rt().block_on(async {
                 let mut c =
                     TunerClient::new(transport::connect(&transport::uri(&t.addr)).await.unwrap());
@@ -215,7 +226,12 @@ fn run(source: &Source, utility: Option<&str>, tmp: &Path, sample_every: u32) ->
                 (d, Some(s))
             })
         }
-        None => (Vec::new(), None),
+        None => {
+            println!(
+                "  CPU s: simulation/pushing {sim:.1}, generator-node {gen:.1}, viz-node {viz:.1} (no tuner)"
+            );
+            (Vec::new(), None)
+        }
     };
     g.terminate();
     if let Some(t) = tuner {
@@ -328,6 +344,8 @@ fn main() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
+    // Build the daemons before anything is timed.
+    insitu_e2e::ensure_built();
     if let Some(data) = data_dir() {
         let ocean = Source::Ocean(data.join("ocean_temp_ts_180x90x19x12_float32.raw"));
         let without = run(&ocean, None, tmp.path(), 2);

@@ -606,7 +606,9 @@ impl Oracle for StepOracle {
 }
 
 /// Runs one tuning over the characteristic steps (blocking: trials wait on the nodes).
-fn tune(engine: &Arc<Engine>, trigger: &Trigger) {
+/// Returns whether the search finished (a decision, P_M unchanged, or none feasible); `false`
+/// when a trial failed it.
+fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     let (steps, world_sizes) = {
         let s = engine.state();
         (s.tracker.step_indices(), s.world_sizes.clone())
@@ -635,12 +637,12 @@ fn tune(engine: &Arc<Engine>, trigger: &Trigger) {
         Ok(o) => o,
         Err(e) => {
             warn!(error = %e, "tuning failed; the decision in force stays");
-            return;
+            return false;
         }
     };
     let Some(best) = outcome.best else {
         warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
-        return;
+        return true;
     };
     let mut s = engine.state();
     let old = s
@@ -651,7 +653,7 @@ fn tune(engine: &Arc<Engine>, trigger: &Trigger) {
         info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
         s.validated = steps;
         engine.save(&s);
-        return;
+        return true;
     }
     let d = Decision {
         pm_version: s.next_version(),
@@ -674,6 +676,7 @@ fn tune(engine: &Arc<Engine>, trigger: &Trigger) {
     info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
     engine.hub.broadcast(&Down::Decision(m.clone()));
     let _ = engine.decisions.send(m);
+    true
 }
 
 impl Engine {
@@ -695,8 +698,14 @@ impl Engine {
             newest: 0,
             dirty: resume,
         };
-        let mut tuning: Option<tokio::task::JoinHandle<()>> = None;
+        let mut tuning: Option<tokio::task::JoinHandle<bool>> = None;
+        // A tuning that failed without losing a step (a trial timed out) is tried again after
+        // the trial timeout, unless something else starts one first.
+        let mut retry: Option<(tokio::time::Instant, Trigger)> = None;
         loop {
+            if l.dirty.is_some() {
+                retry = None;
+            }
             if tuning.is_none() {
                 if let Some(trigger) = l.dirty.take() {
                     let e = self.clone();
@@ -706,7 +715,9 @@ impl Engine {
                         c.tuning = true;
                     }
                     info!(reason = %trigger.reason, "tuning");
+                    let again = trigger.clone();
                     tuning = Some(tokio::task::spawn_blocking(move || tune(&e, &trigger)));
+                    retry = Some((tokio::time::Instant::now(), again));
                 }
             }
             tokio::select! {
@@ -721,9 +732,17 @@ impl Engine {
                         }
                     }
                 },
-                _ = async { if let Some(t) = tuning.as_mut() { let _ = t.await; } }, if tuning.is_some() => {
+                () = async { if let Some((at, _)) = &retry { tokio::time::sleep_until(*at).await } }, if tuning.is_none() && retry.is_some() => {
+                    if let Some((_, trigger)) = retry.take() {
+                        info!("trying the failed tuning again");
+                        l.dirty = Some(trigger);
+                    }
+                }
+                done = async { match tuning.as_mut() { Some(t) => t.await.unwrap_or(false), None => true } }, if tuning.is_some() => {
                     tuning = None;
                     self.counters().tuning = false;
+                    let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
+                    retry = (!done).then(|| retry.take()).flatten().map(|(_, t)| (tokio::time::Instant::now() + wait, t));
                     let lost: Vec<u64> = std::mem::take(&mut *self.lost.lock().unwrap_or_else(|e| e.into_inner()));
                     if !lost.is_empty() {
                         let mut s = self.state();
