@@ -177,7 +177,12 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
                 .push_step(brick_step(&v, t as u64, z, rank as u32, a.ranks))
                 .await?;
             pushed += 1;
-            if local.is_none() {
+            if local.is_none() && a.pipeline.json {
+                println!(
+                    "{}",
+                    serde_json::json!({"pushed": {"step": t, "rank": rank, "queue": reply.queue_depth, "dropped_by_push": reply.dropped_by_push}})
+                );
+            } else if local.is_none() {
                 println!(
                     "pushed step {t} rank {rank}: queue {}, dropped by this push {}",
                     reply.queue_depth, reply.dropped_by_push
@@ -188,15 +193,29 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
     let status = client.close(Duration::from_secs(600)).await?;
     match (local, printer) {
         (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
+        _ if a.pipeline.json => println!(
+            "{}",
+            serde_json::json!({"summary": {
+                "pushed": pushed,
+                "received": status.steps_received,
+                "generated": status.steps_generated,
+                "stored": status.steps_shipped,
+                "dropped_queue": status.dropped_queue,
+                "dropped_outbox": status.dropped_outbox,
+                "failed": status.failed,
+                "final_pm_version": status.pm_version,
+            }})
+        ),
         _ => println!(
-            "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}",
+            "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}; P_M version {}",
             status.steps_received,
             status.steps_generated,
             status.steps_shipped,
             status.dropped_queue + status.dropped_outbox,
             status.dropped_queue,
             status.dropped_outbox,
-            status.failed
+            status.failed,
+            status.pm_version
         ),
     }
     Ok(())
