@@ -51,6 +51,9 @@ struct Args {
     /// Ship reference frames every k-th step (0 = never).
     #[arg(long)]
     reference_every: Option<u64>,
+    /// Side of the reference frames, pixels (0 = the VDI resolution).
+    #[arg(long)]
+    reference_size: Option<u32>,
     /// Where VDIs and references are made: cpu, gpu or auto (a hardware GPU if found, else
     /// the CPU).
     #[arg(long)]
@@ -98,6 +101,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.reference_every {
         g.reference_every = v;
+    }
+    if let Some(v) = a.reference_size {
+        g.reference_size = v;
     }
     c.generation()?;
     Ok(c)

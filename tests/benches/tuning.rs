@@ -119,7 +119,9 @@ fn run(
         "cpu",
     ];
     let every = sample_every.to_string();
-    args.extend(["--reference-every", &every]);
+    // Fixed-size reference frames (as the demo): trials then render one set per step, not one
+    // per candidate resolution.
+    args.extend(["--reference-every", &every, "--reference-size", "256"]);
     if let Some(t) = &tuner {
         args.extend(["--tuner", &t.addr]);
     }
