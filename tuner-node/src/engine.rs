@@ -4,28 +4,24 @@
 //! nodes coming and going). A step is classified when the summaries of all its ranks are in
 //! (their 64-bin counts add up to the step's histogram). A new characteristic step, or a
 //! production step that broke the budget, marks the set *dirty*; when no tuning runs, a
-//! dirty set starts one on the blocking pool: a search ([`insitu_tuner::search`]) over
-//! [`WorstCase`] of one [`StepOracle`] per characteristic step, i.e. the conservative choice
-//! (meets the budget on every step, best worst-case ν). Trials already measured (in this
-//! process or, persisted, in an earlier one) are answered from the state; only new ones go to
-//! the nodes. The result is pushed with the next version when it differs from the P_M in force.
+//! dirty set starts one on the blocking pool (the `tune` module): the conservative choice over
+//! the characteristic steps, from trials on the nodes or, when measured before, from the state.
+//! A tuning that failed without losing a step is tried again after the trial timeout.
 
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
-use crate::state::{Decision, State, Trial};
-use insitu_core::metrics::{pooled_psnr, psnr_from_mse, Db};
+use crate::state::{Decision, State};
+use insitu_core::metrics::psnr_from_mse;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
-use insitu_tuner::live::{combine_ranks, normalise, Verdict, WorstCase};
-use insitu_tuner::search::{adaptive_search, grid_search};
+use insitu_tuner::live::{normalise, Verdict};
 use insitu_tuner::series::BINS;
-use insitu_tuner::study::{Oracle, StudyError};
-use insitu_tuner::{Candidate, Measurement};
+use insitu_tuner::Candidate;
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc};
 use tracing::{info, warn};
 
 /// Steps kept waiting for their last rank or their q before they are given up.
@@ -67,19 +63,19 @@ pub struct Counters {
 
 /// The engine's shared part (the service, the search and the engine task use it).
 pub struct Engine {
-    cfg: Config,
-    resolved: Resolved,
+    pub(crate) cfg: Config,
+    pub(crate) resolved: Resolved,
     /// Persisted state.
     pub state: Mutex<State>,
     /// Connected nodes.
     pub hub: Arc<Hub>,
-    counters: Mutex<Counters>,
-    decisions: broadcast::Sender<pb::PmDecision>,
-    started: Instant,
-    process: u64,
-    lost: Mutex<Vec<u64>>,
+    pub(crate) counters: Mutex<Counters>,
+    pub(crate) decisions: broadcast::Sender<pb::PmDecision>,
+    pub(crate) started: Instant,
+    pub(crate) process: u64,
+    pub(crate) lost: Mutex<Vec<u64>>,
     /// The P_M the nodes last reported in their hello (what the first decision replaces).
-    reported: Mutex<Option<Candidate>>,
+    pub(crate) reported: Mutex<Option<Candidate>>,
     /// Set on shutdown: a tuning in progress gives up at its next trial.
     pub stopping: AtomicBool,
     events: mpsc::UnboundedSender<Event>,
@@ -102,22 +98,6 @@ pub fn decision_pb(d: &Decision) -> pb::PmDecision {
         old_gamma: d.old.map_or(0.0, |c| c.gamma),
         trigger_step: d.trigger_step,
         utility: d.utility.clone(),
-    }
-}
-
-/// A trial result as a measurement (q pooled over its views, as the viz-node pools).
-fn measurement(r: &pb::TrialResult) -> Measurement {
-    Measurement {
-        r: r.resolution,
-        gamma: r.gamma,
-        sigma_bytes: r.sigma_bytes,
-        supersegments: r.supersegments,
-        tau_secs: r.tau_secs,
-        tau_compress_secs: r.tau_compress_secs,
-        tau_render_secs: r.tau_render_secs,
-        q_db: Db(pooled_psnr(&r.view_mse)),
-        view_q_db: r.view_q_db.iter().map(|&q| Db(q)).collect(),
-        ssim: r.ssim,
     }
 }
 
@@ -156,11 +136,11 @@ impl Engine {
         let _ = self.events.send(e);
     }
 
-    fn state(&self) -> std::sync::MutexGuard<'_, State> {
+    pub(crate) fn state(&self) -> std::sync::MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn counters(&self) -> std::sync::MutexGuard<'_, Counters> {
+    pub(crate) fn counters(&self) -> std::sync::MutexGuard<'_, Counters> {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
     }
 
@@ -179,7 +159,7 @@ impl Engine {
         self.resolved.utility.describe()
     }
 
-    fn save(&self, s: &State) {
+    pub(crate) fn save(&self, s: &State) {
         if let Err(e) = s.save(&self.cfg.state_dir) {
             warn!(error = %e, "could not persist the tuner state");
         }
@@ -265,9 +245,9 @@ struct AwaitingQ {
 
 /// Why the characteristic set changed.
 #[derive(Clone, Debug)]
-struct Trigger {
-    step: u64,
-    reason: String,
+pub(crate) struct Trigger {
+    pub(crate) step: u64,
+    pub(crate) reason: String,
 }
 
 /// The engine task's own state.
@@ -474,211 +454,6 @@ impl Loop {
     }
 }
 
-/// The measurements of one characteristic step, through the nodes that hold it.
-struct StepOracle {
-    engine: Arc<Engine>,
-    step: u64,
-    world_size: u32,
-    generations: u64,
-    generation_secs: f64,
-}
-
-impl StepOracle {
-    /// Waits until the trials may spend more (the share of the wall clock, after the burst).
-    fn pace(&self) {
-        let t = &self.engine.cfg.trials;
-        while !self.engine.stopping.load(Ordering::Relaxed) {
-            let spent = self.engine.counters().trial_secs;
-            let allowed = t.burst_secs + t.share * self.engine.started.elapsed().as_secs_f64();
-            if spent <= allowed {
-                return;
-            }
-            let wait = ((spent - allowed) / t.share).clamp(0.05, 1.0);
-            std::thread::sleep(Duration::from_secs_f64(wait));
-        }
-    }
-
-    fn fail(&self, step_lost: bool, problem: String) -> StudyError {
-        self.engine.counters().trials_failed += 1;
-        if step_lost {
-            self.engine
-                .lost
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .push(self.step);
-        }
-        StudyError::Invalid(problem)
-    }
-}
-
-impl Oracle for StepOracle {
-    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
-        let e = self.engine.clone();
-        if let Some(t) = e.state().trial(self.step, c) {
-            e.counters().trials_reused += 1;
-            return Ok(t.measurement.clone());
-        }
-        self.pace();
-        let deadline = Instant::now() + Duration::from_secs_f64(e.cfg.trials.hold_wait_secs);
-        let (id, rx) = loop {
-            match e.hub.request_trial(self.step, self.world_size, c) {
-                Ok(x) => break x,
-                Err(_) if Instant::now() < deadline => {
-                    std::thread::sleep(Duration::from_millis(100))
-                }
-                Err(err) => return Err(self.fail(true, err.to_string())),
-            }
-        };
-        let timeout = Duration::from_secs_f64(e.cfg.trials.timeout_secs);
-        let what = format!("trial r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
-        // Polled (a trial takes milliseconds at least), so a runtime shutting down cannot
-        // strand this thread in a timer.
-        let mut rx = rx;
-        let started = Instant::now();
-        let results = loop {
-            match rx.try_recv() {
-                Ok(Ok(r)) => break r,
-                Ok(Err(problem)) => {
-                    let lost = problem.contains("not held") || problem.contains("disconnected");
-                    return Err(self.fail(lost, format!("{what}: {problem}")));
-                }
-                Err(oneshot::error::TryRecvError::Closed) => {
-                    return Err(self.fail(true, format!("{what}: abandoned")))
-                }
-                Err(oneshot::error::TryRecvError::Empty) => {}
-            }
-            if e.stopping.load(Ordering::Relaxed) {
-                e.hub.abandon(id);
-                return Err(StudyError::Invalid(format!(
-                    "{what}: the tuner is stopping"
-                )));
-            }
-            if started.elapsed() > timeout {
-                e.hub.abandon(id);
-                return Err(self.fail(
-                    false,
-                    format!("{what} timed out after {} s", timeout.as_secs_f64()),
-                ));
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        };
-        let ms: Vec<Measurement> = results.iter().map(measurement).collect();
-        let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
-        let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
-        {
-            let mut s = e.state();
-            s.trials.push(Trial {
-                step: self.step,
-                measurement: m.clone(),
-                ranks: results.len() as u32,
-                trial_secs: secs,
-                run_by: e.process,
-            });
-            e.save(&s);
-        }
-        {
-            let mut k = e.counters();
-            k.trials_run += 1;
-            k.trial_secs += secs;
-        }
-        info!(
-            step = self.step,
-            r = c.r,
-            gamma = c.gamma,
-            sigma = m.sigma_bytes,
-            q_db = m.q(),
-            tau = m.tau_secs,
-            secs,
-            "trial"
-        );
-        self.generations += 1;
-        self.generation_secs += m.tau_secs;
-        Ok(m)
-    }
-
-    fn generations(&self) -> u64 {
-        self.generations
-    }
-
-    fn generation_secs(&self) -> f64 {
-        self.generation_secs
-    }
-}
-
-/// Runs one tuning over the characteristic steps (blocking: trials wait on the nodes).
-/// Returns whether the search finished (a decision, P_M unchanged, or none feasible); `false`
-/// when a trial failed it.
-fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
-    let (steps, world_sizes) = {
-        let s = engine.state();
-        (s.tracker.step_indices(), s.world_sizes.clone())
-    };
-    let secs0 = engine.counters().trial_secs;
-    let oracles: Vec<Box<dyn Oracle>> = steps
-        .iter()
-        .map(|&step| {
-            Box::new(StepOracle {
-                engine: engine.clone(),
-                step,
-                world_size: world_sizes.get(&step).copied().unwrap_or(1),
-                generations: 0,
-                generation_secs: 0.0,
-            }) as Box<dyn Oracle>
-        })
-        .collect();
-    let mut oracle = WorstCase::new(oracles);
-    let r = &engine.resolved;
-    let outcome = match r.target {
-        Some(t) => adaptive_search(&mut oracle, &r.grid, t),
-        None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
-    };
-    let trial_secs = engine.counters().trial_secs - secs0;
-    let outcome = match outcome {
-        Ok(o) => o,
-        Err(e) => {
-            warn!(error = %e, "tuning failed; the decision in force stays");
-            return false;
-        }
-    };
-    let Some(best) = outcome.best else {
-        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
-        return true;
-    };
-    let mut s = engine.state();
-    let old = s
-        .current()
-        .map(|d| d.candidate)
-        .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
-    if old == Some(best.candidate()) && s.current().is_some() {
-        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
-        s.validated = steps;
-        engine.save(&s);
-        return true;
-    }
-    let d = Decision {
-        pm_version: s.next_version(),
-        candidate: best.candidate(),
-        old,
-        characteristic_steps: steps,
-        predicted: best,
-        reason: trigger.reason.clone(),
-        trigger_step: trigger.step,
-        trials: outcome.generations,
-        trial_secs,
-        utility: engine.utility(),
-    };
-    s.decisions.push(d.clone());
-    s.validated = d.characteristic_steps.clone();
-    engine.save(&s);
-    drop(s);
-    engine.counters().decisions += 1;
-    let m = decision_pb(&d);
-    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
-    engine.hub.broadcast(&Down::Decision(m.clone()));
-    let _ = engine.decisions.send(m);
-    true
-}
-
 impl Engine {
     /// The engine task: takes events in order and tunes when the characteristic set changed.
     pub async fn run(self: Arc<Self>, mut events: mpsc::UnboundedReceiver<Event>) {
@@ -716,7 +491,9 @@ impl Engine {
                     }
                     info!(reason = %trigger.reason, "tuning");
                     let again = trigger.clone();
-                    tuning = Some(tokio::task::spawn_blocking(move || tune(&e, &trigger)));
+                    tuning = Some(tokio::task::spawn_blocking(move || {
+                        crate::tune::tune(&e, &trigger)
+                    }));
                     retry = Some((tokio::time::Instant::now(), again));
                 }
             }
@@ -766,7 +543,9 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use insitu_core::metrics::Db;
     use insitu_tuner::live::Tracker;
+    use insitu_tuner::Measurement;
 
     fn summary(step: u64, bin: usize, sigma: u64, version: u64) -> pb::StepSummary {
         let mut histogram = vec![0; BINS];

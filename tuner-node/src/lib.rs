@@ -7,7 +7,8 @@
 //! priority than production), searches for the conservative choice over all characteristic
 //! steps, and pushes it with an increasing version. It watches the viz-node's quality reports
 //! and re-tunes when a production step breaks the budget. Everything it learns is persisted
-//! atomically ([`state`]), so a restarted tuner repeats no finished trial. [`config`] is the
+//! atomically ([`state`]), so a restarted tuner repeats no finished trial. One tuning is the
+//! `tune` module. [`config`] is the
 //! TOML file; [`node`] wires it together.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
@@ -18,6 +19,7 @@ pub mod hub;
 pub mod node;
 pub mod service;
 pub mod state;
+mod tune;
 
 pub use config::Config;
 pub use node::{start, RunningTuner};

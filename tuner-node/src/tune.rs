@@ -1,0 +1,242 @@
+//! One tuning (blocking, on the tokio blocking pool): a search ([`insitu_tuner::search`]) over
+//! [`WorstCase`] of one [`StepOracle`] per characteristic step, which is the conservative
+//! choice; a `StepOracle` answers a candidate from the persisted trials when it was measured
+//! before, else asks the nodes holding the step for a trial (paced by the trial budget, given
+//! up on timeout), combines the ranks' results and persists them. The winner is pushed as the
+//! next decision when it differs from the P_M in force.
+
+use crate::engine::{decision_pb, Engine, Trigger};
+use crate::state::{Decision, Trial};
+use insitu_core::metrics::{pooled_psnr, Db};
+use insitu_proto::pb;
+use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_tuner::live::{combine_ranks, WorstCase};
+use insitu_tuner::search::{adaptive_search, grid_search};
+use insitu_tuner::study::{Oracle, StudyError};
+use insitu_tuner::{Candidate, Measurement};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::oneshot;
+use tracing::{info, warn};
+
+/// A trial result as a measurement (q pooled over its views, as the viz-node pools).
+fn measurement(r: &pb::TrialResult) -> Measurement {
+    Measurement {
+        r: r.resolution,
+        gamma: r.gamma,
+        sigma_bytes: r.sigma_bytes,
+        supersegments: r.supersegments,
+        tau_secs: r.tau_secs,
+        tau_compress_secs: r.tau_compress_secs,
+        tau_render_secs: r.tau_render_secs,
+        q_db: Db(pooled_psnr(&r.view_mse)),
+        view_q_db: r.view_q_db.iter().map(|&q| Db(q)).collect(),
+        ssim: r.ssim,
+    }
+}
+
+/// The measurements of one characteristic step, through the nodes that hold it.
+struct StepOracle {
+    engine: Arc<Engine>,
+    step: u64,
+    world_size: u32,
+    generations: u64,
+    generation_secs: f64,
+}
+
+impl StepOracle {
+    /// Waits until the trials may spend more (the share of the wall clock, after the burst).
+    fn pace(&self) {
+        let t = &self.engine.cfg.trials;
+        while !self.engine.stopping.load(Ordering::Relaxed) {
+            let spent = self.engine.counters().trial_secs;
+            let allowed = t.burst_secs + t.share * self.engine.started.elapsed().as_secs_f64();
+            if spent <= allowed {
+                return;
+            }
+            let wait = ((spent - allowed) / t.share).clamp(0.05, 1.0);
+            std::thread::sleep(Duration::from_secs_f64(wait));
+        }
+    }
+
+    fn fail(&self, step_lost: bool, problem: String) -> StudyError {
+        self.engine.counters().trials_failed += 1;
+        if step_lost {
+            self.engine
+                .lost
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(self.step);
+        }
+        StudyError::Invalid(problem)
+    }
+}
+
+impl Oracle for StepOracle {
+    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
+        let e = self.engine.clone();
+        if let Some(t) = e.state().trial(self.step, c) {
+            e.counters().trials_reused += 1;
+            return Ok(t.measurement.clone());
+        }
+        self.pace();
+        let deadline = Instant::now() + Duration::from_secs_f64(e.cfg.trials.hold_wait_secs);
+        let (id, rx) = loop {
+            match e.hub.request_trial(self.step, self.world_size, c) {
+                Ok(x) => break x,
+                Err(_) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(100))
+                }
+                Err(err) => return Err(self.fail(true, err.to_string())),
+            }
+        };
+        let timeout = Duration::from_secs_f64(e.cfg.trials.timeout_secs);
+        let what = format!("trial r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
+        // Polled (a trial takes milliseconds at least), so a runtime shutting down cannot
+        // strand this thread in a timer.
+        let mut rx = rx;
+        let started = Instant::now();
+        let results = loop {
+            match rx.try_recv() {
+                Ok(Ok(r)) => break r,
+                Ok(Err(problem)) => {
+                    let lost = problem.contains("not held") || problem.contains("disconnected");
+                    return Err(self.fail(lost, format!("{what}: {problem}")));
+                }
+                Err(oneshot::error::TryRecvError::Closed) => {
+                    return Err(self.fail(true, format!("{what}: abandoned")))
+                }
+                Err(oneshot::error::TryRecvError::Empty) => {}
+            }
+            if e.stopping.load(Ordering::Relaxed) {
+                e.hub.abandon(id);
+                return Err(StudyError::Invalid(format!(
+                    "{what}: the tuner is stopping"
+                )));
+            }
+            if started.elapsed() > timeout {
+                e.hub.abandon(id);
+                return Err(self.fail(
+                    false,
+                    format!("{what} timed out after {} s", timeout.as_secs_f64()),
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        let ms: Vec<Measurement> = results.iter().map(measurement).collect();
+        let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
+        let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
+        {
+            let mut s = e.state();
+            s.trials.push(Trial {
+                step: self.step,
+                measurement: m.clone(),
+                ranks: results.len() as u32,
+                trial_secs: secs,
+                run_by: e.process,
+            });
+            e.save(&s);
+        }
+        {
+            let mut k = e.counters();
+            k.trials_run += 1;
+            k.trial_secs += secs;
+        }
+        info!(
+            step = self.step,
+            r = c.r,
+            gamma = c.gamma,
+            sigma = m.sigma_bytes,
+            q_db = m.q(),
+            tau = m.tau_secs,
+            secs,
+            "trial"
+        );
+        self.generations += 1;
+        self.generation_secs += m.tau_secs;
+        Ok(m)
+    }
+
+    fn generations(&self) -> u64 {
+        self.generations
+    }
+
+    fn generation_secs(&self) -> f64 {
+        self.generation_secs
+    }
+}
+
+/// Runs one tuning over the characteristic steps (blocking: trials wait on the nodes).
+/// Returns whether the search finished (a decision, P_M unchanged, or none feasible); `false`
+/// when a trial failed it.
+pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
+    let (steps, world_sizes) = {
+        let s = engine.state();
+        (s.tracker.step_indices(), s.world_sizes.clone())
+    };
+    let secs0 = engine.counters().trial_secs;
+    let oracles: Vec<Box<dyn Oracle>> = steps
+        .iter()
+        .map(|&step| {
+            Box::new(StepOracle {
+                engine: engine.clone(),
+                step,
+                world_size: world_sizes.get(&step).copied().unwrap_or(1),
+                generations: 0,
+                generation_secs: 0.0,
+            }) as Box<dyn Oracle>
+        })
+        .collect();
+    let mut oracle = WorstCase::new(oracles);
+    let r = &engine.resolved;
+    let outcome = match r.target {
+        Some(t) => adaptive_search(&mut oracle, &r.grid, t),
+        None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
+    };
+    let trial_secs = engine.counters().trial_secs - secs0;
+    let outcome = match outcome {
+        Ok(o) => o,
+        Err(e) => {
+            warn!(error = %e, "tuning failed; the decision in force stays");
+            return false;
+        }
+    };
+    let Some(best) = outcome.best else {
+        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
+        return true;
+    };
+    let mut s = engine.state();
+    let old = s
+        .current()
+        .map(|d| d.candidate)
+        .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
+    if old == Some(best.candidate()) && s.current().is_some() {
+        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
+        s.validated = steps;
+        engine.save(&s);
+        return true;
+    }
+    let d = Decision {
+        pm_version: s.next_version(),
+        candidate: best.candidate(),
+        old,
+        characteristic_steps: steps,
+        predicted: best,
+        reason: trigger.reason.clone(),
+        trigger_step: trigger.step,
+        trials: outcome.generations,
+        trial_secs,
+        utility: engine.utility(),
+    };
+    s.decisions.push(d.clone());
+    s.validated = d.characteristic_steps.clone();
+    engine.save(&s);
+    drop(s);
+    engine.counters().decisions += 1;
+    let m = decision_pb(&d);
+    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
+    engine.hub.broadcast(&Down::Decision(m.clone()));
+    let _ = engine.decisions.send(m);
+    true
+}
