@@ -314,6 +314,17 @@ impl LocalNodes {
         let generator = gen::start(cfg)
             .await
             .context("starting the generator-node")?;
+        if tuner.is_some() {
+            // Steps made before the stream to the tuner is up are not summarised: wait for it,
+            // so the first step counts.
+            let stats = generator.shared().stats.clone();
+            tokio::time::timeout(
+                Duration::from_secs(10),
+                stats.wait_for(|c| c.tuner_connected),
+            )
+            .await
+            .context("the generator-node did not reach the tuner within 10 s")?;
+        }
         Ok(Self {
             generator,
             viz,

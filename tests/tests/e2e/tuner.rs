@@ -71,13 +71,19 @@ hold_wait_secs = 2.0
     )
 }
 
-/// A generator-node shipping to `viz` and dialling `tuner`.
+/// A generator-node shipping to `viz` and dialling `tuner`, once its stream to the tuner is up
+/// (steps made before that are not summarised: there is no one to send them to).
 fn tuned_generator(viz: &str, tuner: &str, logs: &Path) -> Daemon {
     let toml = small_config(viz, "block", 16).replace(
         "max_backoff_secs = 0.2",
         &format!("max_backoff_secs = 0.2\ntuner = \"{tuner}\""),
     );
-    generator(&toml, logs, &[])
+    let g = generator(&toml, logs, &[]);
+    assert!(
+        wait_until(30.0, || status(&g.addr).tuner_connected),
+        "the generator-node did not reach the tuner"
+    );
+    g
 }
 
 async fn client(addr: &str) -> TunerClient<tonic::transport::Channel> {
