@@ -36,9 +36,12 @@ enum Command {
     /// Generate, compress and render a VDI at the test views; score it against direct renders.
     Evaluate(cmd::evaluate::Args),
     /// The in situ pipeline on the built-in Gray–Scott simulation: client → generator-node →
-    /// viz-node on 127.0.0.1, one line per step (sigma, tau, q), then a summary.
+    /// viz-node on 127.0.0.1 with a tuner re-optimising (r, gamma) live, one line per step
+    /// (P_M version, sigma, tau, q) and per P_M change, then a summary. Defaults: --utility
+    /// size:1MB, --codec zstd.
     Demo(cmd::demo::Args),
-    /// Feed a recorded time series (4-D raw file) through the pipeline, as a simulation would.
+    /// Feed a recorded time series (4-D raw file) through the pipeline, as a simulation would,
+    /// with a tuner unless --no-tune or --generator. Defaults: --utility size:1MB, --codec bzip2.
     Replay(cmd::replay::Args),
     /// Parameter study over a grid of (r, gamma): sigma, q, tau per candidate, cached; CSV + JSON.
     Study(cmd::study::Args),
