@@ -399,51 +399,114 @@ struct Run<'a> {
     recording: &'a Path,
 }
 
+/// The generator-node's counts at the end of a run, for the JSON summaries.
+pub fn counts_json(
+    pushed: u64,
+    s: &pb::GeneratorStatus,
+) -> serde_json::Map<String, serde_json::Value> {
+    let v = serde_json::json!({
+        "pushed": pushed,
+        "received": s.steps_received,
+        "generated": s.steps_generated,
+        "stored": s.steps_shipped,
+        "dropped_queue": s.dropped_queue,
+        "dropped_outbox": s.dropped_outbox,
+        "failed": s.failed,
+        "final_pm_version": s.pm_version,
+    });
+    v.as_object().cloned().unwrap_or_default()
+}
+
+/// Means and ranges over the stored VDIs' reports.
+struct Totals {
+    mean_sigma_bytes: f64,
+    mean_tau_secs: f64,
+    /// Sampled steps and their lowest and highest q.
+    q: Option<(usize, f64, f64)>,
+}
+
+impl Totals {
+    fn of(reports: &[pb::QualityReport]) -> Self {
+        let n = reports.len().max(1) as f64;
+        let q: Vec<f64> = reports.iter().filter_map(|r| r.q_db).collect();
+        Self {
+            mean_sigma_bytes: reports.iter().map(|r| r.sigma_bytes as f64).sum::<f64>() / n,
+            mean_tau_secs: reports.iter().map(|r| r.tau_secs).sum::<f64>() / n,
+            q: (!q.is_empty()).then(|| {
+                (
+                    q.len(),
+                    q.iter().copied().fold(f64::INFINITY, f64::min),
+                    q.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                )
+            }),
+        }
+    }
+}
+
 impl Run<'_> {
     fn json(&self, generator: &str) -> serde_json::Value {
         let reports = &self.seen.reports;
-        let n = reports.len().max(1) as f64;
-        let q: Vec<f64> = reports.iter().filter_map(|r| r.q_db).collect();
-        let s = self.status;
-        serde_json::json!({
-            "pushed": self.pushed,
-            "received": s.steps_received,
-            "generated": s.steps_generated,
-            "stored": s.steps_shipped,
-            "dropped_queue": s.dropped_queue,
-            "dropped_outbox": s.dropped_outbox,
-            "failed": s.failed,
-            "vdis": reports.len(),
-            "mean_sigma_bytes": reports.iter().map(|r| r.sigma_bytes as f64).sum::<f64>() / n,
-            "mean_tau_s": reports.iter().map(|r| r.tau_secs).sum::<f64>() / n,
-            "q_db_min": q.iter().copied().reduce(f64::min).map(crate::cmd::q_json),
-            "q_db_max": q.iter().copied().reduce(f64::max).map(crate::cmd::q_json),
-            "pm_changes": self.seen.decisions.len(),
-            "final_pm_version": s.pm_version,
-            "tuner": self.tuner.map(|t| serde_json::json!({
-                "utility": t.utility,
-                "characteristic_steps": t.characteristic_steps,
-                "trials_run": t.trials_run,
-                "trials_reused": t.trials_reused,
-                "trials_failed": t.trials_failed,
-                "trial_secs": t.trial_secs,
-                "retunes": t.retunes,
-                "decisions": t.decisions,
-            })),
-            "wall_s": self.elapsed_secs,
-            "recording": self.recording.display().to_string(),
-            "generator": generator,
-        })
+        let t = Totals::of(reports);
+        let mut out = counts_json(self.pushed, self.status);
+        out.extend(
+            serde_json::json!({
+                "vdis": reports.len(),
+                "mean_sigma_bytes": t.mean_sigma_bytes,
+                "mean_tau_s": t.mean_tau_secs,
+                "q_db_min": t.q.map(|q| crate::cmd::q_json(q.1)),
+                "q_db_max": t.q.map(|q| crate::cmd::q_json(q.2)),
+                "pm_changes": self.seen.decisions.len(),
+                "tuner": self.tuner.map(|t| serde_json::json!({
+                    "utility": t.utility,
+                    "characteristic_steps": t.characteristic_steps,
+                    "trials_run": t.trials_run,
+                    "trials_reused": t.trials_reused,
+                    "trials_failed": t.trials_failed,
+                    "trial_secs": t.trial_secs,
+                    "retunes": t.retunes,
+                    "decisions": t.decisions,
+                })),
+                "wall_s": self.elapsed_secs,
+                "recording": self.recording.display().to_string(),
+                "generator": generator,
+            })
+            .as_object()
+            .cloned()
+            .unwrap_or_default(),
+        );
+        serde_json::Value::Object(out)
     }
 
     fn print(&self) {
-        print_summary(
+        let (s, reports) = (self.status, &self.seen.reports);
+        let t = Totals::of(reports);
+        println!("summary:");
+        println!(
+            "  steps pushed {}, received {}, generated {}, stored {}, dropped {} (queue {}, outbox {}), failed {}",
             self.pushed,
-            self.elapsed_secs,
-            self.status,
-            &self.seen.reports,
-            self.recording,
+            s.steps_received,
+            s.steps_generated,
+            s.steps_shipped,
+            s.dropped_queue + s.dropped_outbox,
+            s.dropped_queue,
+            s.dropped_outbox,
+            s.failed
         );
+        println!(
+            "  mean σ {:.1} kB, mean τ {:.3} s over {} VDIs",
+            t.mean_sigma_bytes / 1e3,
+            t.mean_tau_secs,
+            reports.len()
+        );
+        if let Some((n, lo, hi)) = t.q {
+            println!(
+                "  q on {n} sampled steps: {} – {} dB",
+                crate::cmd::q_text(lo),
+                crate::cmd::q_text(hi)
+            );
+        }
+        println!("  wall clock {:.1} s", self.elapsed_secs);
+        println!("  recording: {}", self.recording.display());
         if let Some(t) = self.tuner {
             println!(
                 "  tuner ({}): {} P_M change(s), characteristic steps {:?}, {} trials ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
@@ -457,47 +520,4 @@ impl Run<'_> {
             );
         }
     }
-}
-
-/// Prints the closing summary of a run.
-fn print_summary(
-    pushed: u64,
-    elapsed_secs: f64,
-    final_status: &pb::GeneratorStatus,
-    reports: &[pb::QualityReport],
-    recording: &Path,
-) {
-    let n = reports.len().max(1) as f64;
-    let sigma = reports.iter().map(|r| r.sigma_bytes as f64).sum::<f64>() / n;
-    let tau = reports.iter().map(|r| r.tau_secs).sum::<f64>() / n;
-    let sampled: Vec<f64> = reports.iter().filter_map(|r| r.q_db).collect();
-    println!("summary:");
-    println!(
-        "  steps pushed {pushed}, received {}, generated {}, stored {}, dropped {} (queue {}, outbox {}), failed {}",
-        final_status.steps_received,
-        final_status.steps_generated,
-        final_status.steps_shipped,
-        final_status.dropped_queue + final_status.dropped_outbox,
-        final_status.dropped_queue,
-        final_status.dropped_outbox,
-        final_status.failed
-    );
-    println!(
-        "  mean σ {:.1} kB, mean τ {:.3} s over {} VDIs",
-        sigma / 1e3,
-        tau,
-        reports.len()
-    );
-    if !sampled.is_empty() {
-        let lo = sampled.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = sampled.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        println!(
-            "  q on {} sampled steps: {} – {} dB",
-            sampled.len(),
-            crate::cmd::q_text(lo),
-            crate::cmd::q_text(hi)
-        );
-    }
-    println!("  wall clock {elapsed_secs:.1} s");
-    println!("  recording: {}", recording.display());
 }

@@ -103,6 +103,15 @@ pub fn psnr(test: &Image, reference: &Image) -> Result<f64, MetricError> {
     mse(test, reference).map(psnr_from_mse)
 }
 
+/// The MSE a PSNR stands for (the inverse of [`psnr_from_mse`]): `10^(−q/10)`, 0 for `+∞`.
+pub fn mse_from_psnr(q_db: f64) -> f64 {
+    if q_db == f64::INFINITY {
+        0.0
+    } else {
+        10f64.powf(-q_db / 10.0)
+    }
+}
+
 /// PSNR of the mean of per-view MSEs (pooled q over the test views); `+∞` for no views.
 pub fn pooled_psnr(mses: &[f64]) -> f64 {
     if mses.is_empty() {
@@ -240,6 +249,9 @@ mod tests {
     fn pooled_is_psnr_of_mean_mse() {
         let q = pooled_psnr(&[1e-4, 1e-2]);
         assert!((q - psnr_from_mse(0.00505)).abs() < 1e-12);
+        for mse in [0.0, 1e-9, 0.00505, 1.0] {
+            assert!((mse_from_psnr(psnr_from_mse(mse)) - mse).abs() <= 1e-15 + mse * 1e-12);
+        }
         // Black vs white: MSE 1, PSNR 0.
         let mut white = Image::new(4, 4);
         white.pixels_mut().iter_mut().for_each(|p| *p = [1.0; 3]);

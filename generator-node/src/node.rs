@@ -68,9 +68,11 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
     let addr = listener.local_addr()?;
+    let stats = Arc::new(Stats::default());
     let (tuning, summaries) = match &cfg.tuner {
         Some(_) => {
-            let (t, rx) = crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave);
+            let (t, rx) =
+                crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave, stats.clone());
             (Some(Arc::new(t)), Some(rx))
         }
         None => (None, None),
@@ -78,7 +80,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let shared = Arc::new(Shared {
         queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
         generation: RwLock::new(generation),
-        stats: Arc::new(Stats::default()),
+        stats,
         max_step_bytes: cfg.max_step_bytes,
         shipping: cfg.viz.is_some(),
         outbox: Arc::new(BoundedQueue::new(
@@ -158,9 +160,11 @@ async fn worker(shared: Arc<Shared>) {
             let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
             let (product, vdi) =
                 work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
+            // Only while the tuner listens: otherwise nobody would read the summary.
             let for_tuner = s
                 .tuning
-                .is_some()
+                .as_ref()
+                .is_some_and(|t| t.connected())
                 .then(|| work::for_tuner(&raw, volume, &gen, &tf, &product));
             Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
         })
@@ -170,8 +174,8 @@ async fn worker(shared: Arc<Shared>) {
         match result {
             Ok(Ok((product, tf, vdi, for_tuner))) => {
                 spare = Some(vdi);
-                if let (Some(t), Some((summary, held))) = (&shared.tuning, for_tuner) {
-                    t.after_step(summary, held);
+                if let Some(t) = &shared.tuning {
+                    t.after_step(for_tuner);
                 }
                 {
                     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());

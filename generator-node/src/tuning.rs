@@ -12,6 +12,7 @@
 
 use crate::hold::{HeldStep, Holds};
 use crate::service::Shared;
+use crate::stats::Stats;
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::{Raycaster, VdiParams};
 use insitu_proto::auth::{AttachToken, Token};
@@ -19,7 +20,7 @@ use insitu_proto::pb::node_message::Msg as Up;
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_proto::{pb, transport};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -35,11 +36,10 @@ pub struct Tuning {
     /// Fields held for trials.
     pub holds: Holds,
     summaries: mpsc::Sender<pb::StepSummary>,
-    connected: AtomicBool,
+    /// The node's counters; `tuner_connected` says whether the stream is up.
+    stats: Arc<Stats>,
     /// Connection number; trial results of an older connection are discarded.
     epoch: AtomicU64,
-    /// Trials run (for status and tests).
-    pub trials_run: AtomicU64,
     /// Production steps since the last trial.
     since_trial: AtomicU64,
     /// Under load, one trial per this many production steps (0: only when idle).
@@ -48,15 +48,18 @@ pub struct Tuning {
 
 impl Tuning {
     /// The state and the receiving end of the summaries (for [`Link::run`]).
-    pub fn new(hold_bytes: u64, interleave: u64) -> (Self, mpsc::Receiver<pb::StepSummary>) {
+    pub fn new(
+        hold_bytes: u64,
+        interleave: u64,
+        stats: Arc<Stats>,
+    ) -> (Self, mpsc::Receiver<pb::StepSummary>) {
         let (summaries, rx) = mpsc::channel(SUMMARY_BACKLOG);
         (
             Self {
                 holds: Holds::new(hold_bytes),
                 summaries,
-                connected: AtomicBool::new(false),
+                stats,
                 epoch: AtomicU64::new(0),
-                trials_run: AtomicU64::new(0),
                 since_trial: AtomicU64::new(0),
                 interleave,
             },
@@ -66,16 +69,20 @@ impl Tuning {
 
     /// Whether the stream to the tuner is up.
     pub fn connected(&self) -> bool {
-        self.connected.load(Ordering::Relaxed)
+        self.stats.get().tuner_connected
     }
 
-    /// After a production step: holds its field (when connected and there is room) and sends
-    /// its summary.
-    pub fn after_step(&self, mut summary: pb::StepSummary, held: HeldStep) {
+    fn set_connected(&self, up: bool) {
+        self.stats.update(|c| c.tuner_connected = up);
+    }
+
+    /// After every production step, with its summary and field when the tuner listens (see
+    /// [`crate::work::for_tuner`]): holds the field (when there is room) and sends the summary.
+    pub fn after_step(&self, for_tuner: Option<(pb::StepSummary, HeldStep)>) {
         self.since_trial.fetch_add(1, Ordering::Relaxed);
-        if !self.connected() {
+        let Some((mut summary, held)) = for_tuner else {
             return;
-        }
+        };
         summary.held = self.holds.offer((summary.step, summary.rank), held);
         if let Err(e) = self.summaries.try_send(summary) {
             warn!(error = %e, "step summary not sent to the tuner (backlog full)");
@@ -216,6 +223,7 @@ async fn trials(
                         "step {} is not held by this node (released or never held)",
                         req.step
                     ),
+                    not_held: true,
                     ..Default::default()
                 },
             ));
@@ -242,7 +250,6 @@ async fn trials(
                     error: format!("trial task failed: {e}"),
                     ..Default::default()
                 });
-            tuning.trials_run.fetch_add(1, Ordering::Relaxed);
             let _ = results.send((epoch, result));
         }
     }
@@ -290,8 +297,8 @@ impl Link {
                     epoch,
                 )
                 .await;
-            let was = tuning.connected.swap(false, Ordering::Relaxed);
-            shared.stats.update(|c| c.tuner_connected = false);
+            let was = tuning.connected();
+            tuning.set_connected(false);
             match r {
                 Ok(()) => return, // the node is shutting down
                 Err(e) if was => {
@@ -342,8 +349,7 @@ impl Link {
             .await
             .map_err(|e| format!("tuner {}: {}", self.uri, e.message()))?
             .into_inner();
-        tuning.connected.store(true, Ordering::Relaxed);
-        shared.stats.update(|c| c.tuner_connected = true);
+        tuning.set_connected(true);
         info!(uri = %self.uri, "connected to the tuner");
         let closed = |_| "tuner stream closed".to_owned();
         loop {

@@ -154,20 +154,20 @@ pub fn for_tuner(
     product: &Product,
 ) -> (pb::StepSummary, crate::hold::HeldStep) {
     let [lo, hi] = tf.0.domain;
-    let (counts, nan_count) = insitu_core::volume::histogram(volume.data(), lo, hi);
-    let (min, max) = volume
-        .finite_range()
+    let h = insitu_core::volume::histogram(volume.data(), lo, hi);
+    let (min, max) = h
+        .finite_range
         .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));
     let summary = pb::StepSummary {
         step: raw.step,
         rank: raw.rank,
         world_size: raw.world_size,
-        histogram: counts.to_vec(),
+        histogram: h.counts.to_vec(),
         range_lo: lo,
         range_hi: hi,
         min,
         max,
-        nan_count,
+        nan_count: h.nan,
         voxels: volume.data().len() as u64,
         held: false,
         pm_version: gen.pm_version,

@@ -190,6 +190,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     let Up::Trial(refused) = next(&mut up).await else {
         panic!("expected a trial result")
     };
+    assert!(refused.not_held);
     assert!(
         refused.error.contains("step 7 is not held"),
         "{}",

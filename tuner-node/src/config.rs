@@ -4,7 +4,7 @@
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
 use insitu_tuner::search::Target;
-use insitu_tuner::utility::{parse_utility, Utility};
+use insitu_tuner::utility::{Utility, UtilitySpec};
 use insitu_tuner::ParamGrid;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
@@ -179,33 +179,17 @@ impl Config {
     /// strategy with a time budget, an empty or malformed grid, a threshold outside [0, 1],
     /// `max` 0, a non-positive timeout or share.
     pub fn resolve(&self) -> Result<Resolved, ConfigError> {
-        let utility =
-            parse_utility(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
+        let spec =
+            UtilitySpec::parse(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
         if !(0.0..0.5).contains(&self.headroom) {
             return Err(invalid("headroom", "must be in [0, 0.5)"));
         }
-        let keep = 1.0 - self.headroom;
-        let plan_spec = self
-            .utility
-            .split(',')
-            .map(|part| match part.split_once(':') {
-                Some(("size", v)) => insitu_tuner::utility::parse_bytes(v).map_or_else(
-                    || part.to_owned(),
-                    |b| format!("size:{}", (b as f64 * keep).max(1.0) as u64),
-                ),
-                Some(("time", v)) => v
-                    .trim()
-                    .parse::<f64>()
-                    .map_or_else(|_| part.to_owned(), |t| format!("time:{}", t * keep)),
-                _ => part.to_owned(),
-            })
-            .collect::<Vec<_>>()
-            .join(",");
-        let plan = parse_utility(&plan_spec).map_err(|e| invalid("utility", e.to_string()))?;
+        let plan = spec.scaled(1.0 - self.headroom);
         let target = match self.strategy {
-            Strategy::Adaptive => {
-                Some(Target::for_spec(&plan_spec).map_err(|e| invalid("strategy", e.to_string()))?)
-            }
+            Strategy::Adaptive => Some(
+                Target::for_utility(plan)
+                    .map_err(|e| invalid("strategy", format!("{:?}: {e}", self.utility)))?,
+            ),
             Strategy::Grid => None,
         };
         let grid = ParamGrid::parse(&self.grid.r, &self.grid.gamma)
@@ -237,20 +221,12 @@ impl Config {
         if !(self.q_margin_db.is_finite() && self.q_margin_db >= 0.0) {
             return Err(invalid("q_margin_db", "must be finite and ≥ 0"));
         }
-        let mut budgets = (None, None);
-        for part in self.utility.split(',') {
-            match part.split_once(':') {
-                Some(("size", v)) => budgets.0 = insitu_tuner::utility::parse_bytes(v),
-                Some(("time", v)) => budgets.1 = v.trim().parse().ok(),
-                _ => {}
-            }
-        }
         Ok(Resolved {
-            utility,
-            plan,
+            utility: spec.utility(),
+            plan: plan.utility(),
             target,
             grid,
-            budgets,
+            budgets: spec.budgets(),
         })
     }
 }

@@ -11,7 +11,7 @@
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
 use crate::state::{Decision, State};
-use insitu_core::metrics::psnr_from_mse;
+use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_tuner::live::{normalise, Verdict};
@@ -142,11 +142,6 @@ impl Engine {
 
     pub(crate) fn counters(&self) -> std::sync::MutexGuard<'_, Counters> {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// A snapshot of the counters.
-    pub fn counters_now(&self) -> Counters {
-        self.counters().clone()
     }
 
     /// Every new decision.
@@ -338,11 +333,7 @@ impl Loop {
         let e = self.engine.clone();
         let evicted = {
             let mut s = e.state();
-            let ev = s.tracker.force(step, h);
-            s.world_sizes.insert(step, world_size);
-            if let Some((gone, _)) = ev {
-                s.world_sizes.remove(&gone);
-            }
+            let ev = s.force(step, h, world_size);
             e.save(&s);
             ev
         };
@@ -375,12 +366,8 @@ impl Loop {
         }
         let verdict = {
             let mut s = e.state();
-            let v = s.tracker.observe(step, &h);
-            if let Verdict::New { evicted, .. } = &v {
-                s.world_sizes.insert(step, p.world_size);
-                if let Some((gone, _)) = evicted {
-                    s.world_sizes.remove(gone);
-                }
+            let v = s.observe(step, &h, p.world_size);
+            if matches!(v, Verdict::New { .. }) {
                 e.save(&s);
             }
             v
@@ -423,11 +410,7 @@ impl Loop {
         let Some(a) = self.awaiting.get_mut(&r.step) else {
             return;
         };
-        a.mses.push(if q.is_infinite() {
-            0.0
-        } else {
-            10f64.powf(-q / 10.0)
-        });
+        a.mses.push(mse_from_psnr(q));
         if a.mses.len() < r.world_size.max(a.world_size) as usize {
             return;
         }
@@ -473,7 +456,8 @@ impl Engine {
             newest: 0,
             dirty: resume,
         };
-        let mut tuning: Option<tokio::task::JoinHandle<bool>> = None;
+        // The running tuning gives back its trigger and whether it finished.
+        let mut tuning: Option<tokio::task::JoinHandle<(bool, Trigger)>> = None;
         // A tuning that failed without losing a step (a trial timed out) is tried again after
         // the trial timeout, unless something else starts one first.
         let mut retry: Option<(tokio::time::Instant, Trigger)> = None;
@@ -490,11 +474,9 @@ impl Engine {
                         c.tuning = true;
                     }
                     info!(reason = %trigger.reason, "tuning");
-                    let again = trigger.clone();
                     tuning = Some(tokio::task::spawn_blocking(move || {
-                        crate::tune::tune(&e, &trigger)
+                        (crate::tune::tune(&e, &trigger), trigger)
                     }));
-                    retry = Some((tokio::time::Instant::now(), again));
                 }
             }
             tokio::select! {
@@ -515,17 +497,18 @@ impl Engine {
                         l.dirty = Some(trigger);
                     }
                 }
-                done = async { match tuning.as_mut() { Some(t) => t.await.unwrap_or(false), None => true } }, if tuning.is_some() => {
+                done = async { match tuning.as_mut() { Some(t) => t.await.ok(), None => None } }, if tuning.is_some() => {
                     tuning = None;
                     self.counters().tuning = false;
-                    let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
-                    retry = (!done).then(|| retry.take()).flatten().map(|(_, t)| (tokio::time::Instant::now() + wait, t));
+                    if let Some((false, trigger)) = done {
+                        let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
+                        retry = Some((tokio::time::Instant::now() + wait, trigger));
+                    }
                     let lost: Vec<u64> = std::mem::take(&mut *self.lost.lock().unwrap_or_else(|e| e.into_inner()));
                     if !lost.is_empty() {
                         let mut s = self.state();
                         for step in &lost {
-                            if s.tracker.remove(*step) {
-                                s.world_sizes.remove(step);
+                            if s.forget(*step) {
                                 warn!(step, "no node holds this characteristic step any more: it leaves the set");
                             }
                         }

@@ -15,8 +15,18 @@ use tracing::info;
 /// The sending half of a node's stream.
 pub type NodeTx = mpsc::Sender<Result<pb::TunerMessage, Status>>;
 
+/// Why a trial failed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrialFailure {
+    /// What happened, naming the node or the step and rank.
+    pub message: String,
+    /// Whether the step's field is gone from a node that held it (the node disconnected or no
+    /// longer holds it), rather than the trial failing there.
+    pub step_lost: bool,
+}
+
 /// What a finished trial sends back: every rank's result, or why it failed.
-pub type TrialReply = Result<Vec<pb::TrialResult>, String>;
+pub type TrialReply = Result<Vec<pb::TrialResult>, TrialFailure>;
 
 /// Why a trial could not be started.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -101,10 +111,10 @@ impl Hub {
             .collect();
         for id in failed {
             if let Some(p) = i.pending.remove(&id) {
-                let _ = p.reply.send(Err(format!(
-                    "node {} disconnected during trial {id}",
-                    node.id
-                )));
+                let _ = p.reply.send(Err(TrialFailure {
+                    message: format!("node {} disconnected during trial {id}", node.id),
+                    step_lost: true,
+                }));
             }
         }
         Some(node.id)
@@ -220,9 +230,17 @@ impl Hub {
         }
         let id = r.trial_id;
         if !r.error.is_empty() {
-            let e = format!("step {} rank {}: {}", r.step, r.rank, r.error);
+            let failure = TrialFailure {
+                message: format!("step {} rank {}: {}", r.step, r.rank, r.error),
+                step_lost: r.not_held,
+            };
+            if r.not_held {
+                if let Some(ranks) = i.holders.get_mut(&r.step) {
+                    ranks.retain(|_, c| *c != conn);
+                }
+            }
             if let Some(p) = i.pending.remove(&id) {
-                let _ = p.reply.send(Err(e));
+                let _ = p.reply.send(Err(failure));
             }
             return Ok(());
         }
@@ -250,8 +268,10 @@ mod tests {
     fn result(id: u64, rank: u32, error: &str) -> pb::TrialResult {
         pb::TrialResult {
             trial_id: id,
+            step: 5,
             rank,
             error: error.into(),
+            not_held: error.contains("not held"),
             ..Default::default()
         }
     }
@@ -287,18 +307,21 @@ mod tests {
         // A node that goes away fails the trial at once, and its holds are forgotten.
         let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
         assert_eq!(hub.disconnect(b).as_deref(), Some("b"));
-        assert!(done
-            .try_recv()
-            .unwrap()
-            .unwrap_err()
-            .contains("disconnected"));
+        let failure = done.try_recv().unwrap().unwrap_err();
+        assert!(failure.step_lost && failure.message.contains("disconnected"));
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
         assert!(hub.request_trial(5, 2, c).is_err());
         // An error from a rank fails the trial; an abandoned trial refuses late results.
         let (id, mut done) = hub.request_trial(5, 1, c).unwrap();
         hub.trial_result(a, result(id, 0, "step 5 is not held"))
             .unwrap();
-        assert!(done.try_recv().unwrap().unwrap_err().contains("not held"));
+        let failure = done.try_recv().unwrap().unwrap_err();
+        assert!(failure.step_lost && failure.message.contains("not held"));
+        assert!(
+            hub.request_trial(5, 1, c).is_err(),
+            "the refusing node no longer holds it"
+        );
+        hub.held(a, 5, 0);
         let (id, _done) = hub.request_trial(5, 1, c).unwrap();
         hub.abandon(id);
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());

@@ -5,7 +5,8 @@
 //! never half of one. A restarted tuner resumes from it: finished trials are not run again and
 //! versions continue.
 
-use insitu_tuner::live::Tracker;
+use insitu_tuner::live::{Tracker, Verdict};
+use insitu_tuner::series::BINS;
 use insitu_tuner::{Candidate, Measurement};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -124,6 +125,37 @@ impl State {
             .map_or(0, |d| d.pm_version)
             .max(self.highest_seen)
             + 1
+    }
+
+    /// Classifies `step` (with `world_size` ranks) by its histogram (see [`Tracker::observe`]);
+    /// the ranks of the characteristic steps are kept beside them.
+    pub fn observe(&mut self, step: u64, h: &[f64; BINS], world_size: u32) -> Verdict {
+        let v = self.tracker.observe(step, h);
+        if let Verdict::New { evicted, .. } = &v {
+            self.characteristic_added(step, world_size, *evicted);
+        }
+        v
+    }
+
+    /// Makes `step` characteristic whatever its histogram (see [`Tracker::force`]); returns
+    /// the step evicted, if any.
+    pub fn force(&mut self, step: u64, h: &[f64; BINS], world_size: u32) -> Option<(u64, f64)> {
+        let evicted = self.tracker.force(step, h);
+        self.characteristic_added(step, world_size, evicted);
+        evicted
+    }
+
+    /// Forgets characteristic step `step`; whether it was one.
+    pub fn forget(&mut self, step: u64) -> bool {
+        self.world_sizes.remove(&step);
+        self.tracker.remove(step)
+    }
+
+    fn characteristic_added(&mut self, step: u64, world_size: u32, evicted: Option<(u64, f64)>) {
+        self.world_sizes.insert(step, world_size);
+        if let Some((gone, _)) = evicted {
+            self.world_sizes.remove(&gone);
+        }
     }
 
     /// A finished trial of `c` on `step`.

@@ -100,9 +100,10 @@ impl Oracle for StepOracle {
         let results = loop {
             match rx.try_recv() {
                 Ok(Ok(r)) => break r,
-                Ok(Err(problem)) => {
-                    let lost = problem.contains("not held") || problem.contains("disconnected");
-                    return Err(self.fail(lost, format!("{what}: {problem}")));
+                Ok(Err(failure)) => {
+                    return Err(
+                        self.fail(failure.step_lost, format!("{what}: {}", failure.message))
+                    );
                 }
                 Err(oneshot::error::TryRecvError::Closed) => {
                     return Err(self.fail(true, format!("{what}: abandoned")))

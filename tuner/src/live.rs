@@ -19,7 +19,7 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use crate::series::{distance, BINS};
 use crate::study::{Oracle, StudyError};
-use insitu_core::metrics::{psnr_from_mse, Db};
+use insitu_core::metrics::{mse_from_psnr, psnr_from_mse, Db};
 pub use insitu_core::volume::histogram;
 use serde::{Deserialize, Serialize};
 
@@ -224,13 +224,7 @@ pub fn combine_ranks(ranks: &[Measurement]) -> Result<Measurement, LiveError> {
     if ranks.len() == 1 {
         return Ok(first.clone());
     }
-    let mse = |q: &Db| {
-        if q.0.is_infinite() {
-            0.0
-        } else {
-            10f64.powf(-q.0 / 10.0)
-        }
-    };
+    let mse = |q: &Db| mse_from_psnr(q.0);
     let views = ranks.iter().map(|m| m.view_q_db.len()).min().unwrap_or(0);
     let view_mse: Vec<f64> = (0..views)
         .map(|v| ranks.iter().map(|m| mse(&m.view_q_db[v])).sum::<f64>() / ranks.len() as f64)
@@ -319,9 +313,9 @@ mod tests {
         let mut t = Tracker::new(0.1, 8);
         let mut verdicts = Vec::new();
         for (i, v) in s.iter().enumerate() {
-            let (counts, nan) = histogram(v, 0.0, 10.2);
-            assert_eq!(nan, 0);
-            let h = normalise(&counts).unwrap();
+            let binned = histogram(v, 0.0, 10.2);
+            assert_eq!(binned.nan, 0);
+            let h = normalise(&binned.counts).unwrap();
             let verdict = t.observe(i as u64, &h);
             if let Verdict::Alike { distance, .. } = verdict {
                 assert!(distance <= 0.1);
@@ -378,12 +372,19 @@ mod tests {
 
     #[test]
     fn binning_clamps_and_skips_nan() {
-        let (c, nan) = histogram(
+        let h = histogram(
             &[-5.0, 0.0, 0.5, 1.0, 9.0, f32::NAN, f32::INFINITY],
             0.0,
             1.0,
         );
-        assert_eq!(nan, 1);
+        let c = h.counts;
+        assert_eq!(h.nan, 1);
+        assert_eq!(
+            h.finite_range,
+            Some((-5.0, 9.0)),
+            "the same pass finds the finite range"
+        );
+        assert_eq!(histogram(&[f32::NAN], 0.0, 1.0).finite_range, None);
         assert_eq!((c[0], c[32], c[63]), (2, 1, 3));
         assert_eq!(c.iter().sum::<u64>(), 6);
         assert_eq!(normalise(&[1; 63]), Err(LiveError::Bins(63)));
@@ -462,10 +463,7 @@ mod tests {
             tau_compress_secs: 0.0,
             tau_render_secs: 0.0,
             q_db: Db(insitu_core::metrics::pooled_psnr(
-                &views
-                    .iter()
-                    .map(|q| 10f64.powf(-q / 10.0))
-                    .collect::<Vec<_>>(),
+                &views.iter().map(|&q| mse_from_psnr(q)).collect::<Vec<_>>(),
             )),
             view_q_db: views.iter().map(|&q| Db(q)).collect(),
             ssim: Some(0.9),

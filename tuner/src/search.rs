@@ -14,9 +14,7 @@
 use crate::grid::{Candidate, ParamGrid};
 use crate::measure::Measurement;
 use crate::study::{Oracle, StudyError};
-use crate::utility::{
-    best, parse_bytes, parse_utility, QualityTarget, SizeBudget, Utility, UtilityError,
-};
+use crate::utility::{best, QualityTarget, SizeBudget, Utility, UtilityError, UtilitySpec};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -94,18 +92,24 @@ impl Target {
     /// [`UtilityError`] for a bad spec, or one the adaptive search cannot bisect (time budgets,
     /// both budgets): those need the grid search.
     pub fn for_spec(spec: &str) -> Result<Self, UtilityError> {
-        let u = parse_utility(spec)?;
-        let (kind, value) = spec.split_once(':').unwrap_or((spec, ""));
-        match kind.trim() {
-            "size" if !spec.contains(',') => Ok(Self::Size(parse_bytes(value).unwrap_or(u64::MAX))),
-            "quality" => Ok(Self::Quality(value.trim().parse().unwrap_or(f64::NAN))),
-            _ => Err(UtilityError {
-                spec: spec.to_owned(),
-                problem: format!(
-                    "the adaptive search supports size:BYTES and quality:DB, not {}; use the grid strategy",
-                    u.describe()
-                ),
-            }),
+        Self::for_utility(UtilitySpec::parse(spec)?).map_err(|problem| UtilityError {
+            spec: spec.to_owned(),
+            problem,
+        })
+    }
+
+    /// The target for a parsed utility.
+    ///
+    /// # Errors
+    /// A message for the utilities the adaptive search cannot bisect (time budgets, both).
+    pub fn for_utility(u: UtilitySpec) -> Result<Self, String> {
+        match u {
+            UtilitySpec::Size(s) => Ok(Self::Size(s)),
+            UtilitySpec::Quality(q) => Ok(Self::Quality(q)),
+            other => Err(format!(
+                "the adaptive search supports size:BYTES and quality:DB, not {}; use the grid strategy",
+                other.utility().describe()
+            )),
         }
     }
 

@@ -143,61 +143,116 @@ pub fn bytes_text(b: u64) -> String {
 /// # Errors
 /// [`UtilityError`] naming the spec: unknown kind, unparsable or non-positive budget.
 pub fn parse_utility(spec: &str) -> Result<Box<dyn Utility>, UtilityError> {
-    let err = |problem: &str| UtilityError {
-        spec: spec.to_owned(),
-        problem: problem.to_owned(),
-    };
-    let (mut size, mut time, mut quality) = (None, None, None);
-    for part in spec.split(',') {
-        let (kind, value) = part
-            .split_once(':')
-            .ok_or_else(|| err("expected KIND:VALUE with KIND size, time or quality"))?;
-        match kind.trim() {
-            "size" => {
-                let b = parse_bytes(value)
-                    .ok_or_else(|| err("size must be bytes such as 2MB, 800kB or 123456"))?;
-                if b == 0 {
-                    return Err(err("a size budget must be > 0"));
-                }
-                size = Some(b);
-            }
-            "time" => {
-                let t: f64 = value
-                    .trim()
-                    .parse()
-                    .map_err(|_| err("time must be seconds"))?;
-                if !(t.is_finite() && t > 0.0) {
-                    return Err(err("a time budget must be finite and > 0"));
-                }
-                time = Some(t);
-            }
-            "quality" => {
-                let q: f64 = value
-                    .trim()
-                    .parse()
-                    .map_err(|_| err("quality must be dB"))?;
-                if !q.is_finite() {
-                    return Err(err("a quality target must be finite"));
-                }
-                quality = Some(q);
-            }
-            other => {
-                return Err(err(&format!(
-                    "unknown kind {other:?}; use size, time or quality"
-                )))
-            }
+    UtilitySpec::parse(spec).map(|u| u.utility())
+}
+
+/// A built-in utility, parsed: its budgets or target as numbers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum UtilitySpec {
+    /// ν_size (Eq. 1) with σ_target, bytes.
+    Size(u64),
+    /// ν_time (Eq. 2) with τ_target, seconds.
+    Time(f64),
+    /// Both budgets.
+    SizeAndTime(u64, f64),
+    /// The dual with q_target, dB.
+    Quality(f64),
+}
+
+impl UtilitySpec {
+    /// The utility function.
+    pub fn utility(self) -> Box<dyn Utility> {
+        match self {
+            Self::Size(s) => Box::new(SizeBudget { sigma_target: s }),
+            Self::Time(t) => Box::new(TimeBudget { tau_target: t }),
+            Self::SizeAndTime(s, t) => Box::new(SizeAndTime {
+                sigma_target: s,
+                tau_target: t,
+            }),
+            Self::Quality(q) => Box::new(QualityTarget { q_target: q }),
         }
     }
-    Ok(match (size, time, quality) {
-        (Some(s), None, None) => Box::new(SizeBudget { sigma_target: s }),
-        (None, Some(t), None) => Box::new(TimeBudget { tau_target: t }),
-        (Some(s), Some(t), None) => Box::new(SizeAndTime {
-            sigma_target: s,
-            tau_target: t,
-        }),
-        (None, None, Some(q)) => Box::new(QualityTarget { q_target: q }),
-        _ => return Err(err("quality cannot be combined with budgets")),
-    })
+
+    /// σ_target (bytes) and τ_target (seconds), where the utility has them.
+    pub fn budgets(self) -> (Option<u64>, Option<f64>) {
+        match self {
+            Self::Size(s) => (Some(s), None),
+            Self::Time(t) => (None, Some(t)),
+            Self::SizeAndTime(s, t) => (Some(s), Some(t)),
+            Self::Quality(_) => (None, None),
+        }
+    }
+
+    /// The same with the budgets scaled by `keep` (e.g. 0.95 keeps 5 % headroom; a size stays
+    /// ≥ 1 byte); a quality target is unchanged.
+    pub fn scaled(self, keep: f64) -> Self {
+        let size = |s: u64| ((s as f64 * keep).round() as u64).max(1);
+        match self {
+            Self::Size(s) => Self::Size(size(s)),
+            Self::Time(t) => Self::Time(t * keep),
+            Self::SizeAndTime(s, t) => Self::SizeAndTime(size(s), t * keep),
+            Self::Quality(q) => Self::Quality(q),
+        }
+    }
+
+    /// Parses a spec (see [`parse_utility`]).
+    ///
+    /// # Errors
+    /// [`UtilityError`] naming the spec.
+    pub fn parse(spec: &str) -> Result<Self, UtilityError> {
+        let err = |problem: &str| UtilityError {
+            spec: spec.to_owned(),
+            problem: problem.to_owned(),
+        };
+        let (mut size, mut time, mut quality) = (None, None, None);
+        for part in spec.split(',') {
+            let (kind, value) = part
+                .split_once(':')
+                .ok_or_else(|| err("expected KIND:VALUE with KIND size, time or quality"))?;
+            match kind.trim() {
+                "size" => {
+                    let b = parse_bytes(value)
+                        .ok_or_else(|| err("size must be bytes such as 2MB, 800kB or 123456"))?;
+                    if b == 0 {
+                        return Err(err("a size budget must be > 0"));
+                    }
+                    size = Some(b);
+                }
+                "time" => {
+                    let t: f64 = value
+                        .trim()
+                        .parse()
+                        .map_err(|_| err("time must be seconds"))?;
+                    if !(t.is_finite() && t > 0.0) {
+                        return Err(err("a time budget must be finite and > 0"));
+                    }
+                    time = Some(t);
+                }
+                "quality" => {
+                    let q: f64 = value
+                        .trim()
+                        .parse()
+                        .map_err(|_| err("quality must be dB"))?;
+                    if !q.is_finite() {
+                        return Err(err("a quality target must be finite"));
+                    }
+                    quality = Some(q);
+                }
+                other => {
+                    return Err(err(&format!(
+                        "unknown kind {other:?}; use size, time or quality"
+                    )))
+                }
+            }
+        }
+        Ok(match (size, time, quality) {
+            (Some(s), None, None) => Self::Size(s),
+            (None, Some(t), None) => Self::Time(t),
+            (Some(s), Some(t), None) => Self::SizeAndTime(s, t),
+            (None, None, Some(q)) => Self::Quality(q),
+            _ => return Err(err("quality cannot be combined with budgets")),
+        })
+    }
 }
 
 /// The row minimising ν, or `None` when every row is infeasible (Alg. 1, lines 19–25).

@@ -195,16 +195,7 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
         (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
         _ if a.pipeline.json => println!(
             "{}",
-            serde_json::json!({"summary": {
-                "pushed": pushed,
-                "received": status.steps_received,
-                "generated": status.steps_generated,
-                "stored": status.steps_shipped,
-                "dropped_queue": status.dropped_queue,
-                "dropped_outbox": status.dropped_outbox,
-                "failed": status.failed,
-                "final_pm_version": status.pm_version,
-            }})
+            serde_json::json!({ "summary": crate::pipeline::counts_json(pushed, &status) })
         ),
         _ => println!(
             "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}; P_M version {}",

@@ -289,13 +289,25 @@ impl Fnv1a {
 /// Bins of the summaries a generator-node sends its tuner (and of `insitu series`).
 pub const HISTOGRAM_BINS: usize = 64;
 
-/// Counts of the finite values of `data` in [`HISTOGRAM_BINS`] equal-width bins over `[lo, hi]` (values
-/// outside count in the edge bins, NaN is left out), with the NaN count. The range is fixed for
-/// a run (the generator-node uses the transfer function's domain), so histograms of different
-/// steps and ranks compare and add up.
-pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64) {
+/// A field's histogram over a fixed range, with what the same pass finds besides.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Histogram {
+    /// Counts of the values that are not NaN in [`HISTOGRAM_BINS`] equal-width bins; values
+    /// outside the range (±∞ too) count in the edge bins.
+    pub counts: [u64; HISTOGRAM_BINS],
+    /// NaN values.
+    pub nan: u64,
+    /// Smallest and largest finite value (`None` when there is none).
+    pub finite_range: Option<(f32, f32)>,
+}
+
+/// The [`Histogram`] of `data` over `[lo, hi]`, in one pass. The range is fixed for a run (the
+/// generator-node uses the transfer function's domain), so histograms of different steps and
+/// ranks compare and add up.
+pub fn histogram(data: &[f32], lo: f64, hi: f64) -> Histogram {
     let mut counts = [0u64; HISTOGRAM_BINS];
     let mut nan = 0;
+    let (mut min, mut max) = (f32::INFINITY, f32::NEG_INFINITY);
     let scale = if hi > lo {
         HISTOGRAM_BINS as f64 / (hi - lo)
     } else {
@@ -306,6 +318,10 @@ pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64)
             nan += 1;
             continue;
         }
+        if v.is_finite() {
+            min = min.min(v);
+            max = max.max(v);
+        }
         let x = (f64::from(v) - lo) * scale;
         // `as` saturates: −∞ → 0, +∞ → usize::MAX.
         let b = if x <= 0.0 {
@@ -315,7 +331,11 @@ pub fn histogram(data: &[f32], lo: f64, hi: f64) -> ([u64; HISTOGRAM_BINS], u64)
         };
         counts[b] += 1;
     }
-    (counts, nan)
+    Histogram {
+        counts,
+        nan,
+        finite_range: (min <= max).then_some((min, max)),
+    }
 }
 
 #[cfg(test)]
