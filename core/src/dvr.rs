@@ -16,36 +16,61 @@ pub(crate) const TILE: u32 = 16;
 /// Renders `camera`'s view at `width × height`; background black.
 pub fn render(raycaster: &Raycaster, camera: &Camera, width: u32, height: u32) -> Image {
     let frame = camera.frame(width, height);
-    let termination = raycaster.params().termination;
-    render_tiles(&frame, |i, j| {
-        let ray = frame.pixel_ray(i, j);
-        let mut color = [0.0f32; 3];
-        let mut transmittance = 1.0f32;
-        raycaster.march(&ray, |s: &Sample| {
-            let w = transmittance * s.alpha;
-            for (c, s) in color.iter_mut().zip(s.rgb) {
-                *c += w * s;
-            }
-            transmittance *= 1.0 - s.alpha;
-            if 1.0 - transmittance >= termination {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        });
-        color.map(|c| c.clamp(0.0, 1.0))
-    })
+    let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j).0);
+    Image::from_pixels(width, height, pixels).unwrap_or_else(|| Image::new(width, height))
 }
 
-/// Evaluates `shade(i, j)` for every pixel of `frame`, tiles in parallel.
-pub(crate) fn render_tiles(
+/// [`render`] with each pixel's accumulated opacity `A = 1 − T` beside it (`width · height`
+/// values in [0, 1], row-major from the top): what front-to-back compositing of several
+/// bricks' frames needs ([`crate::compose::compose_frames`]).
+pub fn render_with_opacity(
+    raycaster: &Raycaster,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> (Image, Vec<f32>) {
+    let frame = camera.frame(width, height);
+    let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j));
+    let (rgb, opacity): (Vec<[f32; 3]>, Vec<f32>) = pixels.into_iter().unzip();
+    let image = Image::from_pixels(width, height, rgb).unwrap_or_else(|| Image::new(width, height));
+    (image, opacity)
+}
+
+/// Colour and opacity of pixel `(i, j)`: front-to-back compositing up to early termination.
+#[inline]
+fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3], f32) {
+    let termination = raycaster.params().termination;
+    let ray = frame.pixel_ray(i, j);
+    let mut color = [0.0f32; 3];
+    let mut transmittance = 1.0f32;
+    raycaster.march(&ray, |s: &Sample| {
+        let w = transmittance * s.alpha;
+        for (c, s) in color.iter_mut().zip(s.rgb) {
+            *c += w * s;
+        }
+        transmittance *= 1.0 - s.alpha;
+        if 1.0 - transmittance >= termination {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    (
+        color.map(|c| c.clamp(0.0, 1.0)),
+        (1.0 - transmittance).clamp(0.0, 1.0),
+    )
+}
+
+/// Evaluates `shade(i, j)` for every pixel of `frame`, tiles in parallel, and returns the
+/// pixels row-major from the top.
+pub(crate) fn tiles<P: Copy + Default + Send>(
     frame: &ViewFrame,
-    shade: impl Fn(u32, u32) -> [f32; 3] + Sync,
-) -> Image {
+    shade: impl Fn(u32, u32) -> P + Sync,
+) -> Vec<P> {
     let (w, h) = (frame.width, frame.height);
     let tiles_x = w.div_ceil(TILE);
     let tiles = tiles_x * h.div_ceil(TILE);
-    let results: Vec<(u32, u32, Vec<[f32; 3]>)> = (0..tiles)
+    let results: Vec<(u32, u32, Vec<P>)> = (0..tiles)
         .into_par_iter()
         .map(|t| {
             let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
@@ -59,8 +84,7 @@ pub(crate) fn render_tiles(
             (x0, y0, px)
         })
         .collect();
-    let mut image = Image::new(w, h);
-    let pixels = image.pixels_mut();
+    let mut pixels = vec![P::default(); w as usize * h as usize];
     for (x0, y0, px) in results {
         let tw = ((x0 + TILE).min(w) - x0) as usize;
         for (row, chunk) in px.chunks(tw).enumerate() {
@@ -68,5 +92,15 @@ pub(crate) fn render_tiles(
             pixels[dst..dst + tw].copy_from_slice(chunk);
         }
     }
-    image
+    pixels
+}
+
+/// [`tiles`] of RGB pixels as an [`Image`].
+pub(crate) fn render_tiles(
+    frame: &ViewFrame,
+    shade: impl Fn(u32, u32) -> [f32; 3] + Sync,
+) -> Image {
+    let pixels = tiles(frame, shade);
+    Image::from_pixels(frame.width, frame.height, pixels)
+        .unwrap_or_else(|| Image::new(frame.width, frame.height))
 }

@@ -30,6 +30,7 @@
 
 pub mod backend;
 pub mod camera;
+pub mod compose;
 pub mod dvr;
 pub mod evaluate;
 pub(crate) mod fastmath;

@@ -5,6 +5,7 @@
 //! one rank's brick of a larger grid), so the world-space box is `origin + [0, (n − 1)·s]` per
 //! axis. NaN marks missing data and is transparent everywhere.
 
+pub mod bricks;
 mod gray_scott;
 mod raw;
 

@@ -5,6 +5,7 @@
 mod analytic;
 mod codec_props;
 mod common;
+mod compose;
 #[cfg(feature = "gpu")]
 mod gpu;
 mod hard_cases;

@@ -1,0 +1,327 @@
+//! Domain decomposition: a grid of `global` voxels cut into bricks, one per rank, and the
+//! checks a step's bricks must pass before their pictures are composed (DESIGN.md, "Ranks").
+//!
+//! Convention: neighbouring bricks **share their boundary plane of voxels** (a brick owning
+//! voxels `o ..= o + n − 1` on an axis is followed by one starting at `o + n − 1`). A brick's
+//! world box runs from its first to its last voxel centre, so with shared planes the bricks'
+//! boxes tile the global box exactly; without them, the cell between two bricks would belong
+//! to neither and show as a seam. A simulation with halo cells sends its owned voxels plus
+//! the first halo plane on the upper side of each axis that has a neighbour.
+
+use super::{Volume, VolumeError};
+use glam::Vec3;
+
+/// One rank's part of the grid, voxels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Brick {
+    /// First voxel in the whole grid.
+    pub offset: [usize; 3],
+    /// Size in voxels, each ≥ 1.
+    pub dims: [usize; 3],
+}
+
+impl Brick {
+    /// The brick's cells (between voxel centres) as half-open index ranges per axis:
+    /// `[o, o + n − 1)`. Bricks that share only a boundary plane have disjoint cells.
+    fn cells(&self) -> [(usize, usize); 3] {
+        std::array::from_fn(|a| (self.offset[a], self.offset[a] + self.dims[a] - 1))
+    }
+}
+
+/// A near-cubic split of `ranks` into `[sx, sy, sz]` with `sx·sy·sz = ranks`, like
+/// `MPI_Dims_create` but weighted by the grid: each prime factor of `ranks`, largest first,
+/// goes to the axis with the most cells per brick. Returns `None` when some axis would get
+/// more bricks than it has cells (`dims − 1`).
+pub fn split_ranks(ranks: usize, global: [usize; 3]) -> Option<[usize; 3]> {
+    if ranks == 0 {
+        return None;
+    }
+    let mut factors = Vec::new();
+    let (mut n, mut p) = (ranks, 2);
+    while n > 1 {
+        if p * p > n {
+            factors.push(n);
+            break;
+        }
+        while n % p == 0 {
+            factors.push(p);
+            n /= p;
+        }
+        p += 1;
+    }
+    factors.sort_unstable_by(|a, b| b.cmp(a));
+    let mut split = [1usize; 3];
+    for f in factors {
+        let axis = (0..3).max_by(|&a, &b| {
+            let ca = global[a].saturating_sub(1) as f64 / split[a] as f64;
+            let cb = global[b].saturating_sub(1) as f64 / split[b] as f64;
+            ca.total_cmp(&cb).then(b.cmp(&a))
+        })?;
+        split[axis] *= f;
+    }
+    (0..3)
+        .all(|a| split[a] <= global[a].saturating_sub(1).max(1))
+        .then_some(split)
+}
+
+/// The bricks of `global` cut `split` times per axis, sharing boundary planes, as even as
+/// integer planes allow; rank `k` is brick `(kx, ky, kz)` with `k = kx + sx·(ky + sy·kz)`.
+/// Returns `None` when an axis is cut more often than it has cells.
+pub fn grid_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>> {
+    if (0..3).any(|a| split[a] == 0 || (split[a] > 1 && split[a] > global[a] - 1)) {
+        return None;
+    }
+    let edges = |a: usize, k: usize| {
+        if split[a] == 1 {
+            (0, global[a] - 1)
+        } else {
+            (
+                k * (global[a] - 1) / split[a],
+                (k + 1) * (global[a] - 1) / split[a],
+            )
+        }
+    };
+    let mut out = Vec::with_capacity(split.iter().product());
+    for kz in 0..split[2] {
+        for ky in 0..split[1] {
+            for kx in 0..split[0] {
+                let r = [edges(0, kx), edges(1, ky), edges(2, kz)];
+                out.push(Brick {
+                    offset: r.map(|(a, _)| a),
+                    dims: r.map(|(a, b)| b - a + 1),
+                });
+            }
+        }
+    }
+    Some(out)
+}
+
+/// What is wrong with a step's bricks.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DecompositionError {
+    /// A brick reaches outside the grid or has a zero size.
+    #[error(
+        "rank {rank}: brick at {offset:?} of {dims:?} voxels is not inside the grid of {global:?}"
+    )]
+    Outside {
+        /// The rank.
+        rank: u32,
+        /// Its offset.
+        offset: [usize; 3],
+        /// Its size.
+        dims: [usize; 3],
+        /// The grid.
+        global: [usize; 3],
+    },
+    /// Two bricks share more than a boundary plane.
+    #[error("ranks {a} and {b}: bricks overlap (neighbours may share only their boundary plane)")]
+    Overlap {
+        /// One rank.
+        a: u32,
+        /// The other.
+        b: u32,
+    },
+    /// The bricks leave part of the grid uncovered.
+    #[error("the bricks of ranks {ranks:?} cover {covered} of the grid's {total} cells")]
+    Gap {
+        /// The ranks present.
+        ranks: Vec<u32>,
+        /// Cells covered.
+        covered: u128,
+        /// Cells of the grid.
+        total: u128,
+    },
+}
+
+/// Checks that `bricks` (rank, brick) lie inside `global`, that their cells are disjoint
+/// (neighbours share only a boundary plane) and, when `complete`, that they cover every
+/// cell. A grid with a single voxel on some axis has no cells there; that axis is checked
+/// on voxels instead.
+///
+/// # Errors
+/// [`DecompositionError`] naming the ranks.
+pub fn check(
+    global: [usize; 3],
+    bricks: &[(u32, Brick)],
+    complete: bool,
+) -> Result<(), DecompositionError> {
+    for &(rank, b) in bricks {
+        if (0..3).any(|a| b.dims[a] == 0 || b.offset[a] + b.dims[a] > global[a]) {
+            return Err(DecompositionError::Outside {
+                rank,
+                offset: b.offset,
+                dims: b.dims,
+                global,
+            });
+        }
+    }
+    // Per axis: cells `[o, o + n − 1)`, or voxels `[o, o + n)` on a flat axis.
+    let range = |b: &Brick, a: usize| {
+        let (lo, hi) = b.cells()[a];
+        if global[a] == 1 {
+            (lo, hi + 1)
+        } else {
+            (lo, hi)
+        }
+    };
+    let measure = |b: &Brick| -> u128 {
+        (0..3)
+            .map(|a| {
+                let (lo, hi) = range(b, a);
+                (hi - lo) as u128
+            })
+            .product()
+    };
+    for (i, (ra, a)) in bricks.iter().enumerate() {
+        for (rb, b) in &bricks[i + 1..] {
+            let overlaps = (0..3).all(|k| {
+                let (a0, a1) = range(a, k);
+                let (b0, b1) = range(b, k);
+                a0.max(b0) < a1.min(b1)
+            });
+            if overlaps || (a == b && measure(a) == 0) {
+                return Err(DecompositionError::Overlap { a: *ra, b: *rb });
+            }
+        }
+    }
+    if complete {
+        let total: u128 = (0..3)
+            .map(|a| global[a].saturating_sub(1).max(usize::from(global[a] == 1)) as u128)
+            .product();
+        let covered: u128 = bricks.iter().map(|(_, b)| measure(b)).sum();
+        if covered != total {
+            return Err(DecompositionError::Gap {
+                ranks: bricks.iter().map(|(r, _)| *r).collect(),
+                covered,
+                total,
+            });
+        }
+    }
+    Ok(())
+}
+
+impl Volume {
+    /// The brick `b` of this volume as a volume of its own, placed at its world position
+    /// (origin + offset · spacing).
+    ///
+    /// # Errors
+    /// [`VolumeError::Invalid`] when the brick is empty or reaches outside the volume.
+    pub fn brick(&self, b: &Brick) -> Result<Volume, VolumeError> {
+        let [nx, ny, _] = self.dims;
+        if (0..3).any(|a| b.dims[a] == 0 || b.offset[a] + b.dims[a] > self.dims[a]) {
+            return Err(VolumeError::Invalid(format!(
+                "brick at {:?} of {:?} voxels is not inside {:?}",
+                b.offset, b.dims, self.dims
+            )));
+        }
+        let mut data = Vec::with_capacity(b.dims.iter().product());
+        for z in b.offset[2]..b.offset[2] + b.dims[2] {
+            for y in b.offset[1]..b.offset[1] + b.dims[1] {
+                let row = (z * ny + y) * nx;
+                data.extend_from_slice(
+                    &self.data[row + b.offset[0]..row + b.offset[0] + b.dims[0]],
+                );
+            }
+        }
+        let offset = Vec3::new(b.offset[0] as f32, b.offset[1] as f32, b.offset[2] as f32);
+        Volume::new(b.dims, self.spacing, data)?.with_origin(self.origin + offset * self.spacing)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_bricks_tile_the_grid_and_pass_the_checks() {
+        for (global, ranks) in [
+            ([19, 17, 23], 1),
+            ([19, 17, 23], 4),
+            ([64, 64, 64], 8),
+            ([64, 64, 64], 12),
+            ([33, 9, 5], 6),
+            ([256, 256, 256], 64),
+        ] {
+            let split = split_ranks(ranks, global).unwrap();
+            assert_eq!(split.iter().product::<usize>(), ranks, "{global:?} {ranks}");
+            let bricks = grid_bricks(global, split).unwrap();
+            assert_eq!(bricks.len(), ranks);
+            let ranked: Vec<(u32, Brick)> = bricks
+                .iter()
+                .enumerate()
+                .map(|(k, b)| (k as u32, *b))
+                .collect();
+            check(global, &ranked, true).unwrap();
+            // Dropping one brick leaves a gap; complete = false accepts the rest.
+            if ranks > 1 {
+                assert!(matches!(
+                    check(global, &ranked[1..], true),
+                    Err(DecompositionError::Gap { .. })
+                ));
+                check(global, &ranked[1..], false).unwrap();
+            }
+        }
+        assert_eq!(split_ranks(4, [256, 256, 3]), Some([2, 2, 1]));
+        assert_eq!(split_ranks(5, [4, 4, 4]), None, "5 bricks on 3 cells");
+    }
+
+    #[test]
+    fn overlapping_outside_and_gapped_bricks_are_named() {
+        let g = [10, 10, 10];
+        let a = Brick {
+            offset: [0, 0, 0],
+            dims: [10, 10, 6],
+        };
+        let b = Brick {
+            offset: [0, 0, 4],
+            dims: [10, 10, 6],
+        };
+        assert_eq!(
+            check(g, &[(0, a), (1, b)], true),
+            Err(DecompositionError::Overlap { a: 0, b: 1 })
+        );
+        let c = Brick {
+            offset: [0, 0, 6],
+            dims: [10, 10, 5],
+        };
+        assert!(matches!(
+            check(g, &[(0, a), (1, c)], true),
+            Err(DecompositionError::Outside { rank: 1, .. })
+        ));
+        let d = Brick {
+            offset: [0, 0, 6],
+            dims: [10, 10, 4],
+        };
+        // Sharing the plane z = 5 is the convention, not an overlap.
+        let e = Brick {
+            offset: [0, 0, 5],
+            dims: [10, 10, 5],
+        };
+        check(g, &[(0, a), (1, e)], true).unwrap();
+        // Disjoint voxels leave the cells between z = 5 and z = 6 uncovered.
+        assert!(matches!(
+            check(g, &[(0, a), (1, d)], true),
+            Err(DecompositionError::Gap { .. })
+        ));
+    }
+
+    #[test]
+    fn a_brick_is_the_same_voxels_at_its_world_position() {
+        let v = Volume::from_fn([5, 4, 3], |x, y, z| (x + 10 * y + 100 * z) as f32).unwrap();
+        let b = v
+            .brick(&Brick {
+                offset: [1, 2, 1],
+                dims: [3, 2, 2],
+            })
+            .unwrap();
+        assert_eq!(b.origin(), Vec3::new(1.0, 2.0, 1.0));
+        assert_eq!(b.data()[0], 121.0);
+        assert_eq!(*b.data().last().unwrap(), 233.0);
+        assert!(v
+            .brick(&Brick {
+                offset: [3, 0, 0],
+                dims: [3, 1, 1]
+            })
+            .is_err());
+    }
+}
