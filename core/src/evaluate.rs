@@ -94,6 +94,22 @@ pub fn render_references(
         .collect()
 }
 
+/// [`render_references`] with each frame's accumulated opacity (see
+/// [`crate::dvr::render_with_opacity`]): the frames of one rank's brick, to be composited
+/// with the other ranks' ([`crate::compose::compose_frames`]). Rendered on the CPU whatever
+/// the scene's backend (the GPU kernels write colour only).
+pub fn render_references_with_opacity(
+    scene: &Scene,
+    camera: &Camera,
+    angles: &[f32],
+    size: u32,
+) -> Vec<(Image, Vec<f32>)> {
+    angles
+        .iter()
+        .map(|&a| crate::dvr::render_with_opacity(scene.raycaster(), &camera.orbit_y(a), size, size))
+        .collect()
+}
+
 /// Renders `vdi` at each test view (`camera` orbited by each angle, at its reference's size)
 /// and scores it against `references` (Alg. 1, lines 13–17). Returns the per-view scores,
 /// the renders, and the total render time in seconds (kernel time on a GPU with timestamps).

@@ -57,6 +57,7 @@ pub struct RunningNode {
 /// A bad config or token, a non-loopback address without a token, or a bind failure.
 pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let generation = cfg.generation()?;
+    let tf_configured = generation.tf.is_some();
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
     let choice = cfg.backend;
@@ -91,6 +92,14 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         backend,
         lane: tokio::sync::Mutex::new(()),
         tuning: tuning.clone(),
+        scene: match (&cfg.viz, tf_configured) {
+            (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
+                viz,
+                token.clone(),
+                Duration::from_secs_f64(cfg.max_backoff_secs),
+            ))),
+            _ => None,
+        },
     });
     let (stop_server, stopped) = oneshot::channel::<()>();
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
@@ -149,8 +158,14 @@ async fn worker(shared: Arc<Shared>) {
     // The last step's VDI (already compressed into its product): the next one reuses its memory.
     let mut spare = None;
     while let Some(raw) = shared.queue.pop().await {
-        let (step, rank) = (raw.step, raw.rank);
+        let (step, rank, raw_world_size) = (raw.step, raw.rank, raw.world_size);
         let mut gen = shared.generation();
+        if gen.tf.is_none() {
+            if let Some(scene) = &shared.scene {
+                // The first step of a run with no TF configured: wait for the world's.
+                gen.tf = scene.wait().await;
+            }
+        }
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
         let s = shared.clone();
         let reused = spare.take();
@@ -180,7 +195,11 @@ async fn worker(shared: Arc<Shared>) {
                 {
                     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
                     if g.tf.is_none() {
-                        info!(tf = %tf.1, "no transfer function configured: using a default over the first step's range");
+                        if shared.scene.is_none() && raw_world_size > 1 {
+                            warn!(tf = %tf.1, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
+                        } else {
+                            info!(tf = %tf.1, "using the transfer function for the rest of the run");
+                        }
                         g.tf = Some(tf);
                     }
                 }

@@ -38,6 +38,9 @@ pub struct Shared {
     pub lane: tokio::sync::Mutex<()>,
     /// The link to the tuner, when one is configured.
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
+    /// Where the world's default transfer function is agreed (the viz-node), when one is
+    /// configured and the config names no transfer function.
+    pub scene: Option<Arc<crate::scene::SceneLink>>,
 }
 
 impl Shared {
@@ -153,6 +156,11 @@ impl Generator for GeneratorService {
         .await?;
         let mut raw = geometry.ok_or_else(|| Status::internal("header not checked"))?;
         raw.bytes = bytes;
+        if let Some(scene) = &s.scene {
+            if s.generation().tf.is_none() {
+                scene.propose(&raw);
+            }
+        }
         let (step, rank, n) = (raw.step, raw.rank, raw.bytes.len() as u64);
         let span = info_span!("receive", step, rank, bytes = n);
         let dropped = s

@@ -6,7 +6,7 @@ use crate::config::Generation;
 use crate::ingest::RawStep;
 use bytes::Bytes;
 use insitu_core::backend::{BackendError, TimeSource};
-use insitu_core::evaluate::render_references;
+use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, Volume};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
@@ -95,10 +95,26 @@ pub fn run(
     let tau_compress_secs = t.elapsed().as_secs_f64();
     let references = if with_references {
         let size = gen.reference_side();
-        let frames = info_span!("references", views = gen.view_angles_deg.len(), size)
-            .in_scope(|| render_references(&scene, &camera, &gen.view_angles_deg, size))?;
-        // `views × h × w × 3` little-endian f32 (see `ReferenceHeader`).
-        let bytes: Vec<u8> = frames.iter().flat_map(Image::to_f32_le).collect();
+        // One rank of several: each pixel carries its opacity too, so that the viz-node can
+        // composite the ranks' frames into the whole domain's (`ReferenceHeader.opacity`).
+        let opacity = raw.world_size > 1;
+        let span = info_span!("references", views = gen.view_angles_deg.len(), size, opacity);
+        // `views × h × w × (3 | 4)` little-endian f32 (see `ReferenceHeader`).
+        let bytes: Vec<u8> = span.in_scope(|| {
+            if opacity {
+                Ok::<_, WorkError>(
+                    render_references_with_opacity(&scene, &camera, &gen.view_angles_deg, size)
+                        .iter()
+                        .flat_map(|(image, alpha)| rgba_f32_le(image, alpha))
+                        .collect(),
+                )
+            } else {
+                Ok(render_references(&scene, &camera, &gen.view_angles_deg, size)?
+                    .iter()
+                    .flat_map(Image::to_f32_le)
+                    .collect())
+            }
+        })?;
         Some((
             pb::ReferenceHeader {
                 step: raw.step,
@@ -108,6 +124,7 @@ pub fn run(
                 camera: Some(camera_to_pb(&camera)),
                 view_angles_deg: gen.view_angles_deg.clone(),
                 total_bytes: bytes.len() as u64,
+                opacity,
             },
             Bytes::from(bytes),
         ))
@@ -136,11 +153,33 @@ pub fn run(
             .into(),
             backend: backend.describe(),
             pm_version: gen.pm_version,
+            global_dims: Some(dims_to_pb(raw.global_dims)),
+            brick_offset: Some(dims_to_pb(raw.brick_offset)),
+            brick_dims: Some(dims_to_pb(raw.brick_dims)),
+            with_references: references.is_some(),
         },
         vdi: Bytes::from(file),
         references,
     };
     Ok((product, generated.value))
+}
+
+fn dims_to_pb(d: [usize; 3]) -> pb::Dims3 {
+    pb::Dims3 {
+        x: d[0] as u32,
+        y: d[1] as u32,
+        z: d[2] as u32,
+    }
+}
+
+/// RGB and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel).
+fn rgba_f32_le<'a>(image: &'a Image, alpha: &'a [f32]) -> impl Iterator<Item = u8> + 'a {
+    image
+        .pixels()
+        .iter()
+        .zip(alpha)
+        .flat_map(|(c, a)| [c[0], c[1], c[2], *a])
+        .flat_map(f32::to_le_bytes)
 }
 
 /// The tuner's view of a finished production step: its summary (64-bin histogram over the

@@ -411,7 +411,9 @@ impl Loop {
             return;
         };
         a.mses.push(mse_from_psnr(q));
-        if a.mses.len() < r.world_size.max(a.world_size) as usize {
+        // A composed report is the whole step's q (the viz-node composes steps of several
+        // ranks); otherwise the ranks' MSEs are pooled once all are in.
+        if !r.composed && a.mses.len() < r.world_size.max(a.world_size) as usize {
             return;
         }
         let Some(a) = self.awaiting.remove(&r.step) else {

@@ -28,6 +28,9 @@ pub struct Config {
     pub report_buffer: usize,
     /// Where VDIs are rendered: `cpu`, `gpu` or `auto` (a hardware GPU if found, else CPU).
     pub backend: BackendChoice,
+    /// Seconds a step of several ranks waits for its last rank after its first arrived; then
+    /// it is composed without the missing ranks and marked partial.
+    pub compose_timeout_secs: f64,
 }
 
 impl Default for Config {
@@ -41,6 +44,7 @@ impl Default for Config {
             termination: insitu_core::raycast::DEFAULT_TERMINATION,
             report_buffer: 1024,
             backend: BackendChoice::Auto,
+            compose_timeout_secs: 60.0,
         }
     }
 }
@@ -65,6 +69,14 @@ impl Config {
             return Err(ConfigError::Invalid {
                 key: "termination",
                 problem: format!("{} is outside (0, 1]", self.termination),
+            });
+        }
+        if !(self.compose_timeout_secs.is_finite()
+            && (0.0..=86_400.0).contains(&self.compose_timeout_secs))
+        {
+            return Err(ConfigError::Invalid {
+                key: "compose_timeout_secs",
+                problem: format!("{} is not seconds in [0, 86400]", self.compose_timeout_secs),
             });
         }
         if self.report_buffer == 0 || self.max_vdi_bytes == 0 || self.max_reference_bytes == 0 {

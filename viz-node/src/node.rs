@@ -1,6 +1,7 @@
 //! A running viz-node: the gRPC server and the scoring task.
 
 use crate::config::Config;
+use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
 use crate::store::Recording;
 use anyhow::Context;
@@ -10,7 +11,9 @@ use insitu_proto::pb::viz_server::VizServer;
 use insitu_proto::transport;
 use std::net::SocketAddr;
 use std::sync::atomic::AtomicU64;
-use std::sync::Arc;
+use std::collections::HashSet;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tokio_stream::wrappers::TcpListenerStream;
@@ -35,6 +38,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
     let recording = Recording::open(&cfg.recording_dir)?;
+    let scene = SceneAgreement::open(&cfg.recording_dir)?;
     let choice = cfg.backend;
     let backend = tokio::task::spawn_blocking(move || Backend::select(choice))
         .await?
@@ -49,6 +53,12 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         recording,
         reports: broadcast::channel(cfg.report_buffer).0,
         to_score,
+        scene,
+        compose_timeout: Duration::from_secs_f64(cfg.compose_timeout_secs),
+        timers: Mutex::new(HashSet::new()),
+        steps_composed: AtomicU64::new(0),
+        steps_partial: AtomicU64::new(0),
+        compose_errors: AtomicU64::new(0),
         max_vdi_bytes: cfg.max_vdi_bytes,
         max_reference_bytes: cfg.max_reference_bytes,
         termination: cfg.termination,

@@ -1,7 +1,9 @@
 //! The `Viz` gRPC service: store VDIs and reference frames, score and report, render.
 
 use crate::score::score;
-use crate::store::{Entry, Recording, References};
+use crate::scene::SceneAgreement;
+use crate::store::{Entry, Placement, Recording, References, StepEntry};
+use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::vdi::codec::{self, DecodeLimits};
 use insitu_core::{Backend, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb};
@@ -9,7 +11,9 @@ use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::{chunk, pb};
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::collections::HashSet;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::{Stream, StreamExt};
@@ -27,8 +31,20 @@ pub struct Shared {
     pub recording: Recording,
     /// Quality reports to subscribers.
     pub reports: broadcast::Sender<pb::QualityReport>,
-    /// Steps to score.
-    pub to_score: mpsc::UnboundedSender<(u64, u32)>,
+    /// Steps to score or compose.
+    pub to_score: mpsc::UnboundedSender<Job>,
+    /// The run's agreed scene.
+    pub scene: SceneAgreement,
+    /// How long a multi-rank step waits for its last rank before it is composed without it.
+    pub compose_timeout: Duration,
+    /// Multi-rank steps whose timeout is armed.
+    pub timers: Mutex<HashSet<u64>>,
+    /// Steps composed with every rank.
+    pub steps_composed: AtomicU64,
+    /// Steps composed without some ranks.
+    pub steps_partial: AtomicU64,
+    /// Steps that could not be composed.
+    pub compose_errors: AtomicU64,
     /// Largest VDI file, bytes.
     pub max_vdi_bytes: u64,
     /// Largest set of reference frames, bytes.
@@ -45,6 +61,44 @@ pub struct Shared {
     pub reports_sent: AtomicU64,
     /// Streams rejected.
     pub rejected: AtomicU64,
+}
+
+/// Work for the scoring task, in arrival order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Job {
+    /// Score one rank of a single-rank step.
+    Score(u64, u32),
+    /// Compose a multi-rank step: when complete, or (`partial_ok`) after its timeout.
+    Compose {
+        /// The step.
+        step: u64,
+        /// Compose with the ranks present even if some are missing.
+        partial_ok: bool,
+    },
+}
+
+/// The report for a composed step (rank 0, `composed`).
+pub fn step_report(s: &StepEntry) -> pb::QualityReport {
+    let q = s.quality.as_ref();
+    pb::QualityReport {
+        step: s.step,
+        rank: 0,
+        resolution: s.resolution,
+        gamma: s.gamma,
+        codec: s.codec.parse().map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
+        sigma_bytes: s.sigma_bytes,
+        tau_secs: s.tau_secs,
+        supersegments: s.supersegments,
+        q_db: q.map(|q| q.q_db.0),
+        view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
+        ssim: q.and_then(|q| q.ssim),
+        path: s.vdi.clone().unwrap_or_default(),
+        pm_version: s.pm_version,
+        world_size: s.world_size,
+        composed: true,
+        missing_ranks: s.missing.clone(),
+        error: s.error.clone().unwrap_or_default(),
+    }
 }
 
 /// The report for an entry.
@@ -65,29 +119,137 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         path: e.vdi.clone().unwrap_or_default(),
         pm_version: e.pm_version,
         world_size: e.world_size,
+        composed: false,
+        missing_ranks: vec![],
+        error: String::new(),
     }
 }
 
 impl Shared {
-    fn publish(&self, e: &Entry) {
+    fn publish(&self, r: pb::QualityReport) {
         self.reports_sent.fetch_add(1, Ordering::Relaxed);
         // No subscribers is fine: the index has it all.
-        let _ = self.reports.send(report(e));
+        let _ = self.reports.send(r);
     }
 
-    fn after_store(&self, e: &Entry) {
-        if e.vdi.is_some() && e.references.is_some() {
-            // The scoring task lives as long as the node.
-            let _ = self.to_score.send((e.step, e.rank));
-        } else if e.vdi.is_some() {
-            self.publish(e);
+    /// What a stored VDI or set of frames sets off: scoring of a single-rank step; for a
+    /// rank of several, the per-rank report (once its VDI is in) and the step's composition
+    /// (now when every rank is ready, else after the timeout).
+    fn after_store(self: &Arc<Self>, e: &Entry, was_vdi: bool) {
+        if e.world_size <= 1 {
+            if e.vdi.is_some() && e.references.is_some() {
+                // The scoring task lives as long as the node.
+                let _ = self.to_score.send(Job::Score(e.step, e.rank));
+            } else if e.vdi.is_some() {
+                self.publish(report(e));
+            }
+            return;
         }
+        if was_vdi {
+            self.publish(report(e));
+        }
+        let step = e.step;
+        let ranks = self.recording.ranks_of(step);
+        if crate::compose::missing(&ranks, e.world_size).is_empty() {
+            let _ = self.to_score.send(Job::Compose {
+                step,
+                partial_ok: false,
+            });
+        } else if self
+            .timers
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(step)
+        {
+            let (tx, wait) = (self.to_score.clone(), self.compose_timeout);
+            tokio::spawn(async move {
+                tokio::time::sleep(wait).await;
+                let _ = tx.send(Job::Compose {
+                    step,
+                    partial_ok: true,
+                });
+            });
+        }
+    }
+
+    /// Composes `step` (see [`crate::compose::compose_step`]), records the result or the
+    /// error in the step's entry, and publishes it. A step composed complete is not composed
+    /// again.
+    fn compose(&self, step: u64, partial_ok: bool) {
+        if partial_ok {
+            self.timers
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .remove(&step);
+        }
+        // Composed complete already (two last ranks arriving together, or the timeout
+        // firing after the step completed).
+        let done = self
+            .recording
+            .step(step)
+            .is_some_and(|s| s.missing.is_empty() && s.error.is_none());
+        if done {
+            return;
+        }
+        let result = crate::compose::compose_step(
+            &self.recording,
+            &self.backend,
+            self.termination,
+            step,
+            partial_ok,
+        );
+        let entry = match result {
+            Ok(None) => return,
+            Ok(Some(s)) => {
+                let counter = if s.missing.is_empty() {
+                    &self.steps_composed
+                } else {
+                    warn!(step, missing = ?s.missing, "composed a partial step: ranks missing after the timeout");
+                    &self.steps_partial
+                };
+                counter.fetch_add(1, Ordering::Relaxed);
+                let q = s.quality.as_ref().map_or(f64::NAN, |q| q.q_db.0);
+                info!(step, ranks = s.ranks.len(), q_db = q, "composed");
+                s
+            }
+            Err(err) => {
+                self.compose_errors.fetch_add(1, Ordering::Relaxed);
+                warn!(step, error = %err, "could not compose the step");
+                let ranks = self.recording.ranks_of(step);
+                let world_size = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+                StepEntry {
+                    step,
+                    world_size,
+                    ranks: ranks.iter().map(|e| e.rank).collect(),
+                    missing: crate::compose::missing(&ranks, world_size),
+                    vdi: None,
+                    references: None,
+                    sigma_bytes: ranks.iter().map(|e| e.sigma_bytes).sum(),
+                    tau_secs: ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
+                    supersegments: 0,
+                    resolution: ranks.first().map_or(0, |e| e.resolution),
+                    gamma: ranks.first().map_or(0.0, |e| e.gamma),
+                    pm_version: ranks.first().map_or(0, |e| e.pm_version),
+                    codec: ranks.first().map_or_else(String::new, |e| e.codec.clone()),
+                    quality: None,
+                    error: Some(err.to_string()),
+                }
+            }
+        };
+        if let Err(err) = self.recording.set_step(entry.clone()) {
+            warn!(step, error = %err, "could not record the composed step");
+        }
+        self.publish(step_report(&entry));
     }
 
     fn load_vdi(&self, e: &Entry) -> Result<Vdi, Status> {
         let name = e.vdi.as_ref().ok_or_else(|| {
             Status::not_found(format!("step {} rank {} has no VDI yet", e.step, e.rank))
         })?;
+        self.load_file(name)
+    }
+
+    fn load_file(&self, name: &str) -> Result<Vdi, Status> {
         let path = self.recording.dir().join(name);
         let bytes = std::fs::read(&path)
             .map_err(|err| Status::internal(format!("{}: {err}", path.display())))?;
@@ -117,15 +279,26 @@ impl Shared {
             .recording
             .set_quality(step, rank, q)
             .map_err(|err| Status::internal(err.to_string()))?;
-        self.publish(&e);
+        self.publish(report(&e));
         Ok(e)
     }
 }
 
-/// Scores queued steps one at a time on the blocking pool.
-pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<(u64, u32)>) {
-    while let Some((step, rank)) = rx.recv().await {
+/// Scores and composes queued steps one at a time on the blocking pool.
+pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Job>) {
+    while let Some(job) = rx.recv().await {
         let s = shared.clone();
+        let (step, rank) = match job {
+            Job::Score(step, rank) => (step, rank),
+            Job::Compose { step, partial_ok } => {
+                if let Err(err) =
+                    tokio::task::spawn_blocking(move || s.compose(step, partial_ok)).await
+                {
+                    warn!(step, error = %err, "composing task panicked");
+                }
+                continue;
+            }
+        };
         match tokio::task::spawn_blocking(move || s.score_stored(step, rank)).await {
             Ok(Ok(e)) => {
                 let q = e.quality.map(|q| q.q_db.0).unwrap_or(f64::NAN);
@@ -160,9 +333,17 @@ impl VizService {
             Ok(())
         })
         .await?;
+        if h.world_size == 0 || h.rank >= h.world_size {
+            return Err(Status::invalid_argument(format!(
+                "VDI of step {} rank {}: world size {} (need 0 ≤ rank < world_size)",
+                h.step, h.rank, h.world_size
+            )));
+        }
+        let placement = placement(&h)?;
         let s = self.0.clone();
         let entry = tokio::task::spawn_blocking(move || {
             let what = format!("VDI of step {} rank {}", h.step, h.rank);
+            check_against_stored(&s.recording, &h, placement)?;
             let vdi = codec::decode(&bytes, &DecodeLimits::default())
                 .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
             let p = vdi.meta().params;
@@ -191,6 +372,8 @@ impl VizService {
                 tf_hash: vdi.meta().tf_hash,
                 quality: None,
                 pm_version: h.pm_version,
+                placement,
+                with_references: h.with_references,
             };
             s.recording
                 .store_vdi(meta, &bytes)
@@ -199,7 +382,7 @@ impl VizService {
         .await
         .map_err(join_error)??;
         self.0.vdis_stored.fetch_add(1, Ordering::Relaxed);
-        self.0.after_store(&entry);
+        self.0.after_store(&entry, true);
         Ok(entry)
     }
 
@@ -227,10 +410,12 @@ impl VizService {
                         "{views} view angles: need 1..={MAX_VIEWS} finite angles"
                     )));
                 }
-                let expected = views as u64 * u64::from(h.width) * u64::from(h.height) * 12;
+                let channels = if h.opacity { 4 } else { 3 };
+                let expected =
+                    views as u64 * u64::from(h.width) * u64::from(h.height) * 4 * channels;
                 if h.total_bytes != expected {
                     return Err(Status::invalid_argument(format!(
-                        "total_bytes {} does not match {views} views of {}×{} RGB f32 ({expected})",
+                        "total_bytes {} does not match {views} views of {}×{}×{channels} f32 ({expected})",
                         h.total_bytes, h.width, h.height
                     )));
                 }
@@ -250,7 +435,13 @@ impl VizService {
         )?;
         let s = self.0.clone();
         let entry = tokio::task::spawn_blocking(move || {
-            let refs = References::from_bytes(camera, h.view_angles_deg, h.width, h.height, &bytes)
+            let refs = References::from_bytes(
+                camera,
+                h.view_angles_deg,
+                (h.width, h.height),
+                h.opacity,
+                &bytes,
+            )
                 .map_err(|e| {
                     Status::invalid_argument(format!(
                         "references of step {} rank {}: {e}",
@@ -264,9 +455,66 @@ impl VizService {
         .await
         .map_err(join_error)??;
         self.0.references_stored.fetch_add(1, Ordering::Relaxed);
-        self.0.after_store(&entry);
+        self.0.after_store(&entry, false);
         Ok(entry)
     }
+}
+
+/// The brick placement a VDI header states, when it states one.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` when only part of it is set or it does not fit the grid.
+fn placement(h: &pb::VdiHeader) -> Result<Option<Placement>, Status> {
+    let d = |v: &Option<pb::Dims3>| v.as_ref().map(|d| [d.x, d.y, d.z].map(|x| x as usize));
+    match (d(&h.global_dims), d(&h.brick_offset), d(&h.brick_dims)) {
+        (None, None, None) => Ok(None),
+        (Some(global_dims), Some(offset), Some(dims)) => {
+            let p = Placement {
+                global_dims,
+                brick: Brick { offset, dims },
+            };
+            bricks::check(global_dims, &[(h.rank, p.brick)], false).map_err(|e| {
+                Status::invalid_argument(format!("VDI of step {}: {e}", h.step))
+            })?;
+            Ok(Some(p))
+        }
+        _ => Err(Status::invalid_argument(format!(
+            "VDI of step {} rank {}: global_dims, brick_offset and brick_dims must be set together",
+            h.step, h.rank
+        ))),
+    }
+}
+
+/// Refuses a rank whose world size or brick contradicts the ranks of its step already stored
+/// (a second world size, overlapping bricks, another grid), naming the step and ranks.
+///
+/// # Errors
+/// `INVALID_ARGUMENT`.
+fn check_against_stored(
+    rec: &crate::store::Recording,
+    h: &pb::VdiHeader,
+    placement: Option<Placement>,
+) -> Result<(), Status> {
+    let others: Vec<Entry> = rec
+        .ranks_of(h.step)
+        .into_iter()
+        .filter(|e| e.rank != h.rank)
+        .collect();
+    if let Some(o) = others.iter().find(|o| o.world_size != h.world_size) {
+        return Err(Status::invalid_argument(format!(
+            "step {}: rank {} says world size {}, but rank {} said {}",
+            h.step, h.rank, h.world_size, o.rank, o.world_size
+        )));
+    }
+    let Some(p) = placement else { return Ok(()) };
+    let this = Entry {
+        placement: Some(p),
+        ..Entry::empty(h.step, h.rank)
+    };
+    let mut all: Vec<&Entry> = others.iter().filter(|o| o.placement.is_some()).collect();
+    all.push(&this);
+    crate::compose::check_bricks(h.step, &all, false)
+        .map_err(|e| Status::invalid_argument(e.to_string()))
 }
 
 type ReportStream = Pin<Box<dyn Stream<Item = Result<pb::QualityReport, Status>> + Send>>;
@@ -320,6 +568,33 @@ impl Viz for VizService {
             reports: s.reports_sent.load(Ordering::Relaxed),
             rejected: s.rejected.load(Ordering::Relaxed),
             recording_dir: s.recording.dir().display().to_string(),
+            steps_composed: s.steps_composed.load(Ordering::Relaxed),
+            steps_partial: s.steps_partial.load(Ordering::Relaxed),
+            compose_errors: s.compose_errors.load(Ordering::Relaxed),
+        }))
+    }
+
+    async fn agree_scene(
+        &self,
+        request: Request<pb::SceneProposal>,
+    ) -> Result<Response<pb::SceneAgreement>, Status> {
+        let p = request.into_inner();
+        let wait = if p.wait_secs > 0.0 && p.wait_secs.is_finite() {
+            p.wait_secs.min(crate::scene::MAX_WAIT_SECS)
+        } else {
+            60.0
+        };
+        let a = self
+            .0
+            .scene
+            .propose(&p, Duration::from_secs_f64(wait))
+            .await?;
+        let tf_json = serde_json::to_string(&a.tf)
+            .map_err(|e| Status::internal(format!("scene: {e}")))?;
+        Ok(Response::new(pb::SceneAgreement {
+            tf_json,
+            tf_name: a.tf_name,
+            world_size: a.world_size,
         }))
     }
 
@@ -338,13 +613,20 @@ impl Viz for VizService {
         let camera = r.camera.as_ref().map(camera_from_pb).transpose()?;
         let s = self.0.clone();
         let png = tokio::task::spawn_blocking(move || {
-            let e = s.recording.entry(r.step, r.rank).ok_or_else(|| {
-                Status::not_found(format!(
-                    "step {} rank {} is not in the recording",
-                    r.step, r.rank
-                ))
-            })?;
-            let vdi = s.load_vdi(&e)?;
+            let vdi = if r.composed {
+                let name = s.recording.step(r.step).and_then(|c| c.vdi).ok_or_else(|| {
+                    Status::not_found(format!("step {} has no composed VDI", r.step))
+                })?;
+                s.load_file(&name)?
+            } else {
+                let e = s.recording.entry(r.step, r.rank).ok_or_else(|| {
+                    Status::not_found(format!(
+                        "step {} rank {} is not in the recording",
+                        r.step, r.rank
+                    ))
+                })?;
+                s.load_vdi(&e)?
+            };
             let cam = camera.unwrap_or(vdi.meta().camera);
             let image = s
                 .backend

@@ -5,6 +5,7 @@
 //! file under a final name (and the index never names a file that is not complete).
 
 pub use insitu_core::metrics::Db;
+use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Image};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -97,10 +98,61 @@ pub struct Entry {
     /// The tuner's P_M version the VDI was made with (0: not from a tuner).
     #[serde(default)]
     pub pm_version: u64,
+    /// Where the rank's brick lies in the whole grid (none from nodes that do not say).
+    #[serde(default)]
+    pub placement: Option<Placement>,
+    /// Whether reference frames of this step and rank were announced with the VDI.
+    #[serde(default)]
+    pub with_references: bool,
+}
+
+/// A rank's brick in the whole grid, voxels (DESIGN.md, "Ranks").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Placement {
+    /// The whole grid.
+    pub global_dims: [usize; 3],
+    /// The brick.
+    pub brick: Brick,
+}
+
+/// One step of a world of ranks, composed from its ranks' VDIs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepEntry {
+    /// Step index.
+    pub step: u64,
+    /// Ranks of the world.
+    pub world_size: u32,
+    /// Ranks in the composition.
+    pub ranks: Vec<u32>,
+    /// Ranks missing (a partial step, composed after the timeout).
+    pub missing: Vec<u32>,
+    /// The composed VDI, relative to the recording directory.
+    pub vdi: Option<String>,
+    /// The composed reference frames.
+    pub references: Option<String>,
+    /// σ, bytes: the sum of the ranks' files.
+    pub sigma_bytes: u64,
+    /// τ, seconds: the slowest rank's.
+    pub tau_secs: f64,
+    /// Supersegments over all ranks.
+    pub supersegments: u64,
+    /// `r`, `γ` and the P_M version of the ranks.
+    pub resolution: u32,
+    /// `γ`.
+    pub gamma: f32,
+    /// P_M version.
+    pub pm_version: u64,
+    /// Codec name of the ranks' files (the composed file uses it too).
+    pub codec: String,
+    /// q of the composed VDI against the composed references.
+    pub quality: Option<Quality>,
+    /// Why it could not be composed.
+    pub error: Option<String>,
 }
 
 impl Entry {
-    fn empty(step: u64, rank: u32) -> Self {
+    /// An entry of `step` and `rank` with nothing stored yet.
+    pub fn empty(step: u64, rank: u32) -> Self {
         Self {
             step,
             rank,
@@ -119,6 +171,8 @@ impl Entry {
             tf_hash: 0,
             quality: None,
             pm_version: 0,
+            placement: None,
+            with_references: false,
         }
     }
 }
@@ -128,12 +182,15 @@ impl Entry {
 struct IndexRef<'a> {
     version: u32,
     entries: Vec<&'a Entry>,
+    steps: Vec<&'a StepEntry>,
 }
 
 #[derive(Deserialize)]
 struct IndexFile {
     version: u32,
     entries: Vec<Entry>,
+    #[serde(default)]
+    steps: Vec<StepEntry>,
 }
 
 /// Reference frames of one step and rank: the generation camera, the views, the images.
@@ -145,6 +202,9 @@ pub struct References {
     pub view_angles_deg: Vec<f32>,
     /// One image per view.
     pub frames: Vec<Image>,
+    /// Accumulated opacity per pixel and view (ranks of a world of several send it, so that
+    /// their frames can be composited).
+    pub opacity: Option<Vec<Vec<f32>>>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -156,42 +216,63 @@ struct RefsHeader {
     width: u32,
     height: u32,
     view_angles_deg: Vec<f32>,
+    #[serde(default)]
+    opacity: bool,
 }
 
 impl References {
-    /// Builds from the wire layout: `views × h × w × 3` little-endian f32.
+    /// Builds from the wire layout: `views × h × w × 3` little-endian f32, or `× 4` (RGB and
+    /// opacity) when `opacity`.
     ///
     /// # Errors
     /// A message naming the mismatch (length, non-finite or out-of-range values).
     pub fn from_bytes(
         camera: Camera,
         view_angles_deg: Vec<f32>,
-        width: u32,
-        height: u32,
+        (width, height): (u32, u32),
+        opacity: bool,
         bytes: &[u8],
     ) -> Result<Self, String> {
         let per = width as usize * height as usize;
-        let expected = per * 12 * view_angles_deg.len();
+        let channels = if opacity { 4 } else { 3 };
+        let expected = per * 4 * channels * view_angles_deg.len();
         if width == 0 || height == 0 || view_angles_deg.is_empty() || bytes.len() != expected {
             return Err(format!(
-                "{} bytes for {} views of {width}×{height} (need {expected}, width, height and views ≥ 1)",
+                "{} bytes for {} views of {width}×{height}×{channels} f32 (need {expected}, width, height and views ≥ 1)",
                 bytes.len(),
                 view_angles_deg.len()
             ));
         }
-        let frames = bytes
-            .chunks_exact(per * 12)
-            .map(|f| Image::from_f32_le(width, height, f))
-            .collect::<Option<Vec<_>>>()
-            .ok_or("reference pixels must be finite and in [0, 1]")?;
+        let bad = || "reference pixels must be finite and in [0, 1]".to_owned();
+        let mut frames = Vec::with_capacity(view_angles_deg.len());
+        let mut planes = Vec::new();
+        for f in bytes.chunks_exact(per * 4 * channels) {
+            let values: Vec<f32> = f
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
+                return Err(bad());
+            }
+            let rgb = values
+                .chunks_exact(channels)
+                .map(|p| [p[0], p[1], p[2]])
+                .collect();
+            frames.push(Image::from_pixels(width, height, rgb).ok_or_else(bad)?);
+            if opacity {
+                planes.push(values.chunks_exact(4).map(|p| p[3]).collect());
+            }
+        }
         Ok(Self {
             camera,
             view_angles_deg,
             frames,
+            opacity: opacity.then_some(planes),
         })
     }
 
-    fn to_file_bytes(&self) -> Vec<u8> {
+    /// The `.refs` file layout: magic, JSON header length and header, then the frames.
+    pub fn to_file_bytes(&self) -> Vec<u8> {
         let (w, h) = self
             .frames
             .first()
@@ -204,6 +285,7 @@ impl References {
             width: w,
             height: h,
             view_angles_deg: self.view_angles_deg.clone(),
+            opacity: self.opacity.is_some(),
         };
         // Serialising a plain struct of numbers cannot fail.
         let json = serde_json::to_vec(&header).unwrap_or_default();
@@ -212,8 +294,21 @@ impl References {
         out.extend_from_slice(REFS_MAGIC);
         out.extend_from_slice(&(json.len() as u64).to_le_bytes());
         out.extend_from_slice(&json);
-        for f in &self.frames {
-            out.extend_from_slice(&f.to_f32_le());
+        match &self.opacity {
+            None => {
+                for f in &self.frames {
+                    out.extend_from_slice(&f.to_f32_le());
+                }
+            }
+            Some(planes) => {
+                for (f, a) in self.frames.iter().zip(planes) {
+                    for (c, a) in f.pixels().iter().zip(a) {
+                        for v in [c[0], c[1], c[2], *a] {
+                            out.extend_from_slice(&v.to_le_bytes());
+                        }
+                    }
+                }
+            }
         }
         out
     }
@@ -247,8 +342,8 @@ impl References {
         Self::from_bytes(
             camera,
             h.view_angles_deg,
-            h.width,
-            h.height,
+            (h.width, h.height),
+            h.opacity,
             &bytes[16 + n..],
         )
         .map_err(corrupt)
@@ -258,7 +353,13 @@ impl References {
 /// The recording directory and its index.
 pub struct Recording {
     dir: PathBuf,
-    entries: Mutex<BTreeMap<(u64, u32), Entry>>,
+    index: Mutex<Index>,
+}
+
+#[derive(Default)]
+struct Index {
+    entries: BTreeMap<(u64, u32), Entry>,
+    steps: BTreeMap<u64, StepEntry>,
 }
 
 /// Writes `bytes` to `dir/name` atomically (temp file in `dir`, fsync, rename).
@@ -285,6 +386,16 @@ pub fn vdi_name(step: u64, rank: u32) -> String {
     format!("step_{step:08}_rank_{rank:04}.vdi")
 }
 
+/// The file name of a step's composed VDI.
+pub fn composed_vdi_name(step: u64) -> String {
+    format!("step_{step:08}_composed.vdi")
+}
+
+/// The file name of a step's composed reference frames.
+pub fn composed_refs_name(step: u64) -> String {
+    format!("step_{step:08}_composed.refs")
+}
+
 /// The file name of a step's reference frames.
 pub fn refs_name(step: u64, rank: u32) -> String {
     format!("step_{step:08}_rank_{rank:04}.refs")
@@ -299,7 +410,7 @@ impl Recording {
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let index = dir.join(INDEX);
-        let mut entries = BTreeMap::new();
+        let mut all = Index::default();
         if index.exists() {
             let text = std::fs::read(&index).map_err(io(&index))?;
             let file: IndexFile =
@@ -317,12 +428,15 @@ impl Recording {
                 });
             }
             for e in file.entries {
-                entries.insert((e.step, e.rank), e);
+                all.entries.insert((e.step, e.rank), e);
+            }
+            for s in file.steps {
+                all.steps.insert(s.step, s);
             }
         }
         Ok(Self {
             dir: dir.to_owned(),
-            entries: Mutex::new(entries),
+            index: Mutex::new(all),
         })
     }
 
@@ -331,37 +445,78 @@ impl Recording {
         &self.dir
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<(u64, u32), Entry>> {
-        self.entries.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> std::sync::MutexGuard<'_, Index> {
+        self.index.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Applies `f` to the entry of `key` and rewrites the index; on failure the in-memory
-    /// index is left as it was.
-    fn update(&self, key: (u64, u32), f: impl FnOnce(&mut Entry)) -> Result<Entry, StoreError> {
-        let mut entries = self.lock();
-        let mut next = entries
-            .get(&key)
-            .cloned()
-            .unwrap_or_else(|| Entry::empty(key.0, key.1));
-        f(&mut next);
-        let previous = entries.insert(key, next.clone());
-        let written = serde_json::to_vec_pretty(&IndexRef {
+    fn write_index(&self, index: &Index) -> Result<(), StoreError> {
+        serde_json::to_vec_pretty(&IndexRef {
             version: INDEX_VERSION,
-            entries: entries.values().collect(),
+            entries: index.entries.values().collect(),
+            steps: index.steps.values().collect(),
         })
         .map_err(|e| StoreError::Corrupt {
             path: self.dir.join(INDEX),
             problem: e.to_string(),
         })
-        .and_then(|json| write_atomic(&self.dir, INDEX, &json));
-        if let Err(e) = written {
+        .and_then(|json| write_atomic(&self.dir, INDEX, &json))
+    }
+
+    /// Applies `f` to the entry of `key` and rewrites the index; on failure the in-memory
+    /// index is left as it was.
+    fn update(&self, key: (u64, u32), f: impl FnOnce(&mut Entry)) -> Result<Entry, StoreError> {
+        let mut index = self.lock();
+        let mut next = index
+            .entries
+            .get(&key)
+            .cloned()
+            .unwrap_or_else(|| Entry::empty(key.0, key.1));
+        f(&mut next);
+        let previous = index.entries.insert(key, next.clone());
+        if let Err(e) = self.write_index(&index) {
             match previous {
-                Some(p) => entries.insert(key, p),
-                None => entries.remove(&key),
+                Some(p) => index.entries.insert(key, p),
+                None => index.entries.remove(&key),
             };
             return Err(e);
         }
         Ok(next)
+    }
+
+    /// Records a composed step (replacing an earlier composition of it).
+    ///
+    /// # Errors
+    /// [`StoreError`]; the in-memory index is left as it was.
+    pub fn set_step(&self, step: StepEntry) -> Result<(), StoreError> {
+        let mut index = self.lock();
+        let previous = index.steps.insert(step.step, step.clone());
+        if let Err(e) = self.write_index(&index) {
+            match previous {
+                Some(p) => index.steps.insert(step.step, p),
+                None => index.steps.remove(&step.step),
+            };
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    /// A composed step.
+    pub fn step(&self, step: u64) -> Option<StepEntry> {
+        self.lock().steps.get(&step).cloned()
+    }
+
+    /// All composed steps, in order.
+    pub fn steps(&self) -> Vec<StepEntry> {
+        self.lock().steps.values().cloned().collect()
+    }
+
+    /// The entries of every rank of `step` stored so far, by rank.
+    pub fn ranks_of(&self, step: u64) -> Vec<Entry> {
+        self.lock()
+            .entries
+            .range((step, 0)..=(step, u32::MAX))
+            .map(|(_, e)| e.clone())
+            .collect()
     }
 
     /// Records a VDI file (already validated by the caller) and its metadata; the file is on
@@ -411,12 +566,12 @@ impl Recording {
 
     /// One entry.
     pub fn entry(&self, step: u64, rank: u32) -> Option<Entry> {
-        self.lock().get(&(step, rank)).cloned()
+        self.lock().entries.get(&(step, rank)).cloned()
     }
 
     /// All entries, by step then rank.
     pub fn entries(&self) -> Vec<Entry> {
-        self.lock().values().cloned().collect()
+        self.lock().entries.values().cloned().collect()
     }
 }
 
@@ -445,6 +600,7 @@ mod tests {
             }),
             view_angles_deg: vec![0.0, 30.0],
             frames: vec![Image::new(2, 3), Image::new(2, 3)],
+            opacity: Some(vec![vec![0.5; 6], vec![1.0; 6]]),
         };
         rec.store_references(3, 0, &refs).unwrap();
         rec.set_quality(
@@ -494,12 +650,14 @@ mod tests {
             up: glam::Vec3::Y,
             fov_y_deg: 30.0,
         };
-        assert!(References::from_bytes(cam, vec![0.0], 2, 2, &[0u8; 47]).is_err());
+        assert!(References::from_bytes(cam, vec![0.0], (2, 2), false, &[0u8; 47]).is_err());
+        assert!(References::from_bytes(cam, vec![0.0], (2, 2), true, &[0u8; 48]).is_err());
+        assert!(References::from_bytes(cam, vec![0.0], (2, 2), true, &[0u8; 64]).is_ok());
         let nan: Vec<u8> = std::iter::repeat_n(f32::NAN.to_le_bytes(), 12)
             .flatten()
             .collect();
-        assert!(References::from_bytes(cam, vec![0.0], 2, 2, &nan).is_err());
-        assert!(References::from_bytes(cam, vec![], 2, 2, &[]).is_err());
+        assert!(References::from_bytes(cam, vec![0.0], (2, 2), false, &nan).is_err());
+        assert!(References::from_bytes(cam, vec![], (2, 2), false, &[]).is_err());
     }
 
     fn glam_vec(v: f32) -> glam::Vec3 {

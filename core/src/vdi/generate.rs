@@ -60,6 +60,15 @@ pub fn generate_into(
         return Err(VdiParamError::Camera(*camera));
     }
     let r = params.resolution;
+    if raycaster.macro_grid().visibility().iter().all(|v| !v) {
+        // Nothing visible under the TF (e.g. a rank's brick away from the feature): the empty
+        // VDI, for one look at the macro cells instead of r² rays.
+        vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
+        vdi.offsets.clear();
+        vdi.offsets.resize((r as usize).pow(2) + 1, 0);
+        vdi.supersegments.clear();
+        return Ok(());
+    }
     let rows = march_rows(raycaster, camera, params);
     // More than u32::MAX supersegments would not fit the offsets.
     if rows.iter().map(|(_, s)| s.len()).sum::<usize>() > u32::MAX as usize {

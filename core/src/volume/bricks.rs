@@ -12,7 +12,7 @@ use super::{Volume, VolumeError};
 use glam::Vec3;
 
 /// One rank's part of the grid, voxels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub struct Brick {
     /// First voxel in the whole grid.
     pub offset: [usize; 3],

@@ -1,0 +1,132 @@
+//! One scene per world, the generator-node's side (DESIGN.md, "Ranks"): with no transfer
+//! function configured, each rank's first step reports its brick's value range to the
+//! viz-node (`AgreeScene`) as soon as it is received, before it is queued, and the worker
+//! waits for the world's answer before it generates. Reporting at receipt, not in the worker,
+//! matters when several ranks share a node: the worker holds one rank's step while the
+//! others are still in the queue, and they must have reported for the answer to come.
+
+use crate::ingest::RawStep;
+use insitu_core::TransferFunction;
+use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{pb, transport};
+use std::collections::HashSet;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::watch;
+use tracing::{info, warn};
+
+/// The agreed transfer function and its name.
+pub type Agreed = (TransferFunction, String);
+
+/// The link to the viz-node's scene agreement.
+pub struct SceneLink {
+    uri: String,
+    token: Option<Token>,
+    max_backoff: Duration,
+    proposed: Mutex<HashSet<u32>>,
+    agreed: watch::Sender<Option<Agreed>>,
+}
+
+impl SceneLink {
+    /// A link to the viz-node at `addr`.
+    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration) -> Self {
+        Self {
+            uri: transport::uri(addr),
+            token,
+            max_backoff,
+            proposed: Mutex::new(HashSet::new()),
+            agreed: watch::channel(None).0,
+        }
+    }
+
+    /// Whether the scene is agreed.
+    pub fn is_agreed(&self) -> bool {
+        self.agreed.borrow().is_some()
+    }
+
+    /// Reports `raw`'s range in the background, once per rank, until the viz-node answers
+    /// (retrying with back-off while it is away or other ranks are missing).
+    pub fn propose(self: &Arc<Self>, raw: &RawStep) {
+        if self.is_agreed()
+            || !self
+                .proposed
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .insert(raw.rank)
+        {
+            return;
+        }
+        let (dtype, bytes) = (raw.dtype, raw.bytes.clone());
+        let mut p = pb::SceneProposal {
+            step: raw.step,
+            rank: raw.rank,
+            world_size: raw.world_size,
+            min: f64::NAN,
+            max: f64::NAN,
+            wait_secs: 60.0,
+        };
+        let link = self.clone();
+        tokio::spawn(async move {
+            let range = tokio::task::spawn_blocking(move || {
+                dtype
+                    .decode(&bytes)
+                    .into_iter()
+                    .filter(|v| v.is_finite())
+                    .fold(None, |r: Option<(f32, f32)>, v| {
+                        Some(r.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
+                    })
+            })
+            .await
+            .ok()
+            .flatten();
+            if let Some((lo, hi)) = range {
+                (p.min, p.max) = (f64::from(lo), f64::from(hi));
+            }
+            link.agree(p).await;
+        });
+    }
+
+    async fn agree(&self, p: pb::SceneProposal) {
+        let mut backoff = Duration::from_millis(100);
+        loop {
+            if self.is_agreed() {
+                return;
+            }
+            match self.call(p.clone()).await {
+                Ok(a) => {
+                    match TransferFunction::from_json(&a.tf_json, &a.tf_name) {
+                        Ok(tf) => {
+                            info!(tf = %a.tf_name, ranks = a.world_size, "the world agreed on a transfer function");
+                            self.agreed.send_replace(Some((tf, a.tf_name)));
+                        }
+                        Err(e) => warn!(error = %e, "the viz-node's transfer function is invalid"),
+                    }
+                    return;
+                }
+                Err(e) => warn!(
+                    rank = p.rank,
+                    code = ?e.code(),
+                    error = %e.message(),
+                    "no scene agreed yet; retrying"
+                ),
+            }
+            tokio::time::sleep(backoff).await;
+            backoff = (backoff * 2).min(self.max_backoff);
+        }
+    }
+
+    async fn call(&self, p: pb::SceneProposal) -> Result<pb::SceneAgreement, tonic::Status> {
+        let channel = transport::connect(&self.uri)
+            .await
+            .map_err(|e| tonic::Status::unavailable(format!("viz-node {}: {e}", self.uri)))?;
+        let mut client = VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+        Ok(client.agree_scene(p).await?.into_inner())
+    }
+
+    /// Waits for the agreed transfer function.
+    pub async fn wait(&self) -> Option<Agreed> {
+        let mut rx = self.agreed.subscribe();
+        rx.wait_for(Option::is_some).await.ok().and_then(|a| a.clone())
+    }
+}

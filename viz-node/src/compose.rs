@@ -1,0 +1,277 @@
+//! One picture per step of a world of ranks (DESIGN.md, "Ranks"; issue: many ranks, one
+//! picture): once every rank's VDI (and, on sampled steps, its reference frames) is stored,
+//! or `compose_timeout_secs` after the step's first rank arrived, the ranks' VDIs are merged
+//! into one ([`insitu_core::compose::compose_vdis`]), their frames composited front to back
+//! ([`insitu_core::compose::compose_frames`]), and the composed VDI scored against the
+//! composed frames: that is the step's q.
+
+use crate::score::score;
+use crate::store::{
+    composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References,
+    StepEntry, StoreError,
+};
+use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
+use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
+use insitu_core::volume::bricks::{self, DecompositionError};
+use insitu_core::{Backend, Vdi};
+
+/// Why a step could not be composed; each names the step and the ranks.
+#[derive(Debug, thiserror::Error)]
+pub enum StepError {
+    /// Bricks outside the grid, overlapping, or leaving gaps.
+    #[error("step {step}: {source}")]
+    Bricks {
+        /// The step.
+        step: u64,
+        /// What is wrong.
+        source: DecompositionError,
+    },
+    /// The ranks' VDIs were not made the same way.
+    #[error("step {step}: rank {rank} differs from rank {first} in {what}")]
+    Scene {
+        /// The step.
+        step: u64,
+        /// The first rank.
+        first: u32,
+        /// The rank that differs.
+        rank: u32,
+        /// What differs.
+        what: String,
+    },
+    /// Something about one rank's files or metadata.
+    #[error("step {step} rank {rank}: {problem}")]
+    Rank {
+        /// The step.
+        step: u64,
+        /// The rank.
+        rank: u32,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The recording failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+/// Whether `e` has everything its step's composition waits for.
+pub fn ready(e: &Entry) -> bool {
+    e.vdi.is_some() && (!e.with_references || e.references.is_some())
+}
+
+/// The ranks of `world_size` not ready among `entries`.
+pub fn missing(entries: &[Entry], world_size: u32) -> Vec<u32> {
+    (0..world_size)
+        .filter(|r| !entries.iter().any(|e| e.rank == *r && ready(e)))
+        .collect()
+}
+
+/// Checks the placement of `entries` (one step's ranks) against each other: the same grid,
+/// bricks inside it with disjoint interiors and, when `complete`, covering it.
+///
+/// # Errors
+/// [`StepError::Rank`] for a rank without a placement or on another grid,
+/// [`StepError::Bricks`] otherwise.
+pub fn check_bricks(step: u64, entries: &[&Entry], complete: bool) -> Result<(), StepError> {
+    let mut global = None;
+    let mut placed = Vec::with_capacity(entries.len());
+    for e in entries {
+        let p = e.placement.ok_or_else(|| StepError::Rank {
+            step,
+            rank: e.rank,
+            problem: "its VDI does not say where its brick lies (a node older than composition)"
+                .into(),
+        })?;
+        match global {
+            None => global = Some(p.global_dims),
+            Some(g) if g != p.global_dims => {
+                return Err(StepError::Rank {
+                    step,
+                    rank: e.rank,
+                    problem: format!(
+                        "grid {:?} differs from the other ranks' {g:?}",
+                        p.global_dims
+                    ),
+                })
+            }
+            Some(_) => {}
+        }
+        placed.push((e.rank, p.brick));
+    }
+    match global {
+        Some(g) => bricks::check(g, &placed, complete).map_err(|source| StepError::Bricks {
+            step,
+            source,
+        }),
+        None => Ok(()),
+    }
+}
+
+fn load_vdi(rec: &Recording, e: &Entry) -> Result<Vdi, StepError> {
+    let rank_err = |problem: String| StepError::Rank {
+        step: e.step,
+        rank: e.rank,
+        problem,
+    };
+    let name = e.vdi.as_ref().ok_or_else(|| rank_err("no VDI".into()))?;
+    let path = rec.dir().join(name);
+    let bytes = std::fs::read(&path).map_err(|err| rank_err(format!("{}: {err}", path.display())))?;
+    codec::decode(&bytes, &DecodeLimits::default())
+        .map_err(|err| rank_err(format!("{}: {err}", path.display())))
+}
+
+/// Composes the ready ranks of `step` (all of `world_size`, or those present when
+/// `partial_ok`), stores the composed VDI and, when every rank sent frames with opacity, the
+/// composed frames and q. Returns `None` when the step is not ready and `partial_ok` is false,
+/// or when nothing of it is ready.
+///
+/// # Errors
+/// [`StepError`] naming the step and ranks; the caller records it in the step's entry.
+pub fn compose_step(
+    rec: &Recording,
+    backend: &Backend,
+    termination: f32,
+    step: u64,
+    partial_ok: bool,
+) -> Result<Option<StepEntry>, StepError> {
+    let entries = rec.ranks_of(step);
+    let Some(world_size) = entries.iter().map(|e| e.world_size).max() else {
+        return Ok(None);
+    };
+    let missing = missing(&entries, world_size);
+    let ready: Vec<&Entry> = entries.iter().filter(|e| ready(e)).collect();
+    if ready.is_empty() || (!missing.is_empty() && !partial_ok) {
+        return Ok(None);
+    }
+    check_bricks(step, &ready, missing.is_empty())?;
+    let vdis = ready
+        .iter()
+        .map(|e| load_vdi(rec, e))
+        .collect::<Result<Vec<_>, _>>()?;
+    let composed = compose_vdis(&vdis.iter().collect::<Vec<_>>()).map_err(|e| match e {
+        ComposeError::Mismatch { part, what } => StepError::Scene {
+            step,
+            first: ready[0].rank,
+            rank: ready[part].rank,
+            what: what.into(),
+        },
+        other => StepError::Rank {
+            step,
+            rank: ready[0].rank,
+            problem: other.to_string(),
+        },
+    })?;
+    let codec: Codec = ready[0].codec.parse().unwrap_or(Codec::Zstd);
+    let file = codec::encode(&composed, codec).map_err(|e| StepError::Rank {
+        step,
+        rank: ready[0].rank,
+        problem: format!("encoding the composed VDI: {e}"),
+    })?;
+    let vdi_name = composed_vdi_name(step);
+    write_atomic(rec.dir(), &vdi_name, &file)?;
+    let with_frames = ready.iter().all(|e| e.with_references);
+    let (references, quality) = if with_frames {
+        let refs = compose_references(rec, &ready, &vdis)?;
+        let name = composed_refs_name(step);
+        write_atomic(rec.dir(), &name, &refs.to_file_bytes())?;
+        let q = score(backend, &composed, &refs, termination).map_err(|e| StepError::Rank {
+            step,
+            rank: ready[0].rank,
+            problem: format!("scoring the composed VDI: {e}"),
+        })?;
+        (Some(name), Some(q))
+    } else {
+        (None, None)
+    };
+    let first = ready[0];
+    Ok(Some(StepEntry {
+        step,
+        world_size,
+        ranks: ready.iter().map(|e| e.rank).collect(),
+        missing,
+        vdi: Some(vdi_name),
+        references,
+        sigma_bytes: ready.iter().map(|e| e.sigma_bytes).sum(),
+        tau_secs: ready.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
+        supersegments: composed.supersegments().len() as u64,
+        resolution: first.resolution,
+        gamma: first.gamma,
+        pm_version: first.pm_version,
+        codec: first.codec.clone(),
+        quality,
+        error: None,
+    }))
+}
+
+/// The whole domain's reference frames from the ranks' (RGB + opacity), each view
+/// composited front to back by ray entry into the ranks' boxes (taken from their VDIs).
+fn compose_references(
+    rec: &Recording,
+    ready: &[&Entry],
+    vdis: &[Vdi],
+) -> Result<References, StepError> {
+    let mut all = Vec::with_capacity(ready.len());
+    for e in ready {
+        let rank_err = |problem: String| StepError::Rank {
+            step: e.step,
+            rank: e.rank,
+            problem,
+        };
+        let name = e
+            .references
+            .as_ref()
+            .ok_or_else(|| rank_err("no reference frames".into()))?;
+        let refs = References::read(&rec.dir().join(name))?;
+        if refs.opacity.is_none() {
+            return Err(rank_err(
+                "reference frames without opacity cannot be composited (a node older than composition)"
+                    .into(),
+            ));
+        }
+        all.push(refs);
+    }
+    let first = &all[0];
+    for (e, r) in ready.iter().zip(&all).skip(1) {
+        let same = r.camera == first.camera
+            && r.view_angles_deg == first.view_angles_deg
+            && r.frames.first().map(|f| (f.width(), f.height()))
+                == first.frames.first().map(|f| (f.width(), f.height()));
+        if !same {
+            return Err(StepError::Scene {
+                step: e.step,
+                first: ready[0].rank,
+                rank: e.rank,
+                what: "reference views (camera, angles or frame size)".into(),
+            });
+        }
+    }
+    let mut frames = Vec::with_capacity(first.frames.len());
+    let mut planes = Vec::with_capacity(first.frames.len());
+    for (view, &angle) in first.view_angles_deg.iter().enumerate() {
+        let bricks: Vec<BrickFrame> = all
+            .iter()
+            .zip(vdis)
+            .filter_map(|(r, v)| {
+                Some(BrickFrame {
+                    image: r.frames.get(view)?,
+                    opacity: r.opacity.as_ref()?.get(view)?,
+                    world_box: v.meta().volume_box,
+                })
+            })
+            .collect();
+        let (image, opacity) = compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(
+            |e| StepError::Rank {
+                step: ready[0].step,
+                rank: ready[0].rank,
+                problem: format!("compositing reference frames: {e}"),
+            },
+        )?;
+        frames.push(image);
+        planes.push(opacity);
+    }
+    Ok(References {
+        camera: first.camera,
+        view_angles_deg: first.view_angles_deg.clone(),
+        frames,
+        opacity: Some(planes),
+    })
+}
