@@ -120,6 +120,10 @@ pub fn report_json(r: &pb::QualityReport) -> serde_json::Value {
         "sigma_bytes": r.sigma_bytes,
         "tau_s": r.tau_secs,
         "q_db": r.q_db.map(crate::cmd::q_json),
+        "world_size": r.world_size,
+        "composed": r.composed,
+        "missing_ranks": r.missing_ranks,
+        "error": (!r.error.is_empty()).then_some(&r.error),
     })
 }
 
@@ -132,10 +136,23 @@ pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
     let queue = queue.map_or_else(String::new, |(depth, drops)| {
         format!("  queue {depth}  drops {drops}")
     });
+    let who = if !r.composed {
+        format!("rank {}", r.rank)
+    } else if !r.error.is_empty() {
+        return format!("step {:>6}  not composed: {}", r.step, r.error);
+    } else if r.missing_ranks.is_empty() {
+        format!("all {} ranks", r.world_size)
+    } else {
+        format!(
+            "{} of {} ranks (partial: {:?} missing)",
+            r.world_size as usize - r.missing_ranks.len(),
+            r.world_size,
+            r.missing_ranks
+        )
+    };
     format!(
-        "step {:>6}  rank {}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB  τ {:.3} s  q {q}{queue}",
+        "step {:>6}  {who}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB  τ {:.3} s  q {q}{queue}",
         r.step,
-        r.rank,
         r.pm_version,
         r.resolution,
         r.gamma,
@@ -158,19 +175,24 @@ pub struct Printer {
 }
 
 impl Printer {
-    fn reports(&self) -> usize {
-        self.seen
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .reports
-            .len()
+    /// Whether every one of `n` stored VDIs has been reported and, for steps of several
+    /// ranks, the step's composition too.
+    fn all_in(&self, n: u64) -> bool {
+        let seen = self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        let (composed, ranks): (Vec<_>, Vec<_>) = seen.reports.iter().partition(|r| r.composed);
+        let multi: std::collections::BTreeSet<u64> = ranks
+            .iter()
+            .filter(|r| r.world_size > 1)
+            .map(|r| r.step)
+            .collect();
+        ranks.len() as u64 >= n && composed.len() >= multi.len()
     }
 
-    /// Waits (up to a minute) until `n` reports have arrived (scoring may lag storing), then
-    /// stops printing.
+    /// Waits (up to a minute) until every stored VDI has been reported (scoring may lag
+    /// storing) and multi-rank steps composed, then stops printing.
     async fn finish(self, n: u64) -> Seen {
         let deadline = Instant::now() + Duration::from_secs(60);
-        while Instant::now() < deadline && (self.reports() as u64) < n {
+        while Instant::now() < deadline && !self.all_in(n) {
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
         self.task.abort();
@@ -426,9 +448,11 @@ struct Totals {
 }
 
 impl Totals {
-    fn of(reports: &[pb::QualityReport]) -> Self {
+    fn of(all: &[pb::QualityReport]) -> Self {
+        // σ and τ per stored VDI; q where it was scored (composed steps carry it for ranks).
+        let reports: Vec<&pb::QualityReport> = all.iter().filter(|r| !r.composed).collect();
         let n = reports.len().max(1) as f64;
-        let q: Vec<f64> = reports.iter().filter_map(|r| r.q_db).collect();
+        let q: Vec<f64> = all.iter().filter_map(|r| r.q_db).collect();
         Self {
             mean_sigma_bytes: reports.iter().map(|r| r.sigma_bytes as f64).sum::<f64>() / n,
             mean_tau_secs: reports.iter().map(|r| r.tau_secs).sum::<f64>() / n,
@@ -447,10 +471,12 @@ impl Run<'_> {
     fn json(&self, generator: &str) -> serde_json::Value {
         let reports = &self.seen.reports;
         let t = Totals::of(reports);
+        let composed = reports.iter().filter(|r| r.composed).count();
         let mut out = counts_json(self.pushed, self.status);
         out.extend(
             serde_json::json!({
-                "vdis": reports.len(),
+                "vdis": reports.len() - composed,
+                "composed_steps": composed,
                 "mean_sigma_bytes": t.mean_sigma_bytes,
                 "mean_tau_s": t.mean_tau_secs,
                 "q_db_min": t.q.map(|q| crate::cmd::q_json(q.1)),
@@ -492,11 +518,17 @@ impl Run<'_> {
             s.dropped_outbox,
             s.failed
         );
+        let composed = reports.iter().filter(|r| r.composed).count();
         println!(
-            "  mean σ {:.1} kB, mean τ {:.3} s over {} VDIs",
+            "  mean σ {:.1} kB, mean τ {:.3} s over {} VDIs{}",
             t.mean_sigma_bytes / 1e3,
             t.mean_tau_secs,
-            reports.len()
+            reports.len() - composed,
+            if composed > 0 {
+                format!(" ({composed} steps composed over ranks)")
+            } else {
+                String::new()
+            }
         );
         if let Some((n, lo, hi)) = t.q {
             println!(

@@ -1,11 +1,12 @@
 //! `insitu replay`: feeds a recorded time series (a 4-D raw file) through the simulation
-//! client, as a simulation would, optionally split into z-bricks over several ranks. Without
+//! client, as a simulation would, optionally split into a grid of bricks over several ranks. Without
 //! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
 //! with it, it pushes to a running generator-node and sets its config first.
 
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
+use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::RawFormat;
 use insitu_core::{TransferFunction, Volume};
 use insitu_proto::auth::Token;
@@ -22,10 +23,14 @@ pub struct Args {
     /// Transfer function JSON. Default: a ramp over the first step's range (all ranks share it).
     #[arg(long)]
     tf: Option<PathBuf>,
-    /// Split each step into this many z-bricks, one rank each (bricks share their boundary
-    /// plane so that the ranks' boxes abut).
+    /// Split each step into this many bricks, one rank each, cut in x, y and z as evenly as
+    /// the grid allows (like MPI_Dims_create); bricks share their boundary planes so that the
+    /// ranks' boxes abut.
     #[arg(long, default_value_t = 1)]
     ranks: u32,
+    /// Cut the grid SXxSYxSZ times instead (e.g. 2x2x1); --ranks must then be SX·SY·SZ or 1.
+    #[arg(long, value_parser = parse_split)]
+    split: Option<[usize; 3]>,
     /// Replay only the first N steps (default: all).
     #[arg(long)]
     steps: Option<usize>,
@@ -60,45 +65,67 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--step-interval must be seconds in [0, 86400]");
     }
     let format = RawFormat::from_file_name(&a.series)?;
-    if a.ranks == 0 || a.ranks as usize >= format.dims[2] {
-        bail!(
-            "--ranks {}: need 1 ≤ ranks < {} (the z size of {})",
-            a.ranks,
-            format.dims[2],
-            a.series.display()
-        );
+    let bricks = bricks_for(&a, format.dims)?;
+    tokio::runtime::Runtime::new()?.block_on(replay(a, format, bricks))
+}
+
+fn parse_split(s: &str) -> Result<[usize; 3], String> {
+    let v: Vec<usize> = s
+        .split('x')
+        .map(|p| p.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("{s:?}: {e} (want SXxSYxSZ, e.g. 2x2x1)"))?;
+    match v[..] {
+        [x, y, z] if x * y * z >= 1 => Ok([x, y, z]),
+        _ => Err(format!("{s:?}: want three factors ≥ 1, e.g. 2x2x1")),
     }
-    tokio::runtime::Runtime::new()?.block_on(replay(a, format))
 }
 
-/// Splits `z ∈ [0, nz − 1]` into `ranks` bricks `[z0, z1]` (inclusive) that share boundary
-/// planes, as even as integer planes allow.
-pub fn z_bricks(nz: usize, ranks: usize) -> Vec<(usize, usize)> {
-    (0..ranks)
-        .map(|k| (k * (nz - 1) / ranks, (k + 1) * (nz - 1) / ranks))
-        .collect()
+/// The bricks of `--ranks` / `--split` on a grid of `dims`.
+fn bricks_for(a: &Args, dims: [usize; 3]) -> Result<Vec<Brick>> {
+    let split = match a.split {
+        Some(s) if a.ranks == 1 || a.ranks as usize == s.iter().product::<usize>() => s,
+        Some(s) => bail!(
+            "--split {}x{}x{} makes {} ranks, not --ranks {}",
+            s[0],
+            s[1],
+            s[2],
+            s.iter().product::<usize>(),
+            a.ranks
+        ),
+        None => split_ranks(a.ranks as usize, dims).with_context(|| {
+            format!(
+                "--ranks {}: the grid {dims:?} cannot be cut into that many bricks of at least one cell",
+                a.ranks
+            )
+        })?,
+    };
+    grid_bricks(dims, split).with_context(|| {
+        format!(
+            "--split {}x{}x{}: the grid {dims:?} has fewer cells than that on some axis",
+            split[0], split[1], split[2]
+        )
+    })
 }
 
-fn brick_step(v: &Volume, step: u64, z: (usize, usize), rank: u32, world_size: u32) -> Step {
-    let [nx, ny, nz] = v.dims();
-    let plane = nx * ny;
-    let data = &v.data()[z.0 * plane..(z.1 + 1) * plane];
-    let dims = [nx as u32, ny as u32, nz as u32];
-    Step {
+fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> Result<Step> {
+    let u = |d: [usize; 3]| d.map(|x| x as u32);
+    let brick = v.brick(b)?;
+    Ok(Step {
         step,
         sim_time: step as f64,
         dtype: ScalarType::F32,
-        global_dims: dims,
-        brick_offset: [0, 0, z.0 as u32],
-        brick_dims: [nx as u32, ny as u32, (z.1 - z.0 + 1) as u32],
+        global_dims: u(v.dims()),
+        brick_offset: u(b.offset),
+        brick_dims: u(b.dims),
         rank,
         world_size,
         spacing: v.spacing().to_array(),
-        data: f32_bytes(data),
-    }
+        data: f32_bytes(brick.data()),
+    })
 }
 
-async fn replay(a: Args, format: RawFormat) -> Result<()> {
+async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
     let started = Instant::now();
     let load = |t: usize| format.load(&a.series, t, glam::Vec3::ONE);
     let first = load(0)?;
@@ -143,13 +170,13 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
         Some(n) => Some(n.printer().await?),
         None => None,
     };
-    let bricks = z_bricks(format.dims[2], a.ranks as usize);
+    let world_size = bricks.len() as u32;
     let line = format!(
         "replay: {} ({} steps, {:?}), {} rank(s), pushing to {addr}{}",
         a.series.display(),
         format.steps,
         format.dims,
-        a.ranks,
+        world_size,
         local
             .as_ref()
             .and_then(|n| n.tuner.as_ref())
@@ -172,9 +199,9 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
             next += Duration::from_secs_f64(secs);
         }
         let v = if t == 0 { first.clone() } else { load(t)? };
-        for (rank, &z) in bricks.iter().enumerate() {
+        for (rank, b) in bricks.iter().enumerate() {
             let reply = client
-                .push_step(brick_step(&v, t as u64, z, rank as u32, a.ranks))
+                .push_step(brick_step(&v, t as u64, b, rank as u32, world_size)?)
                 .await?;
             pushed += 1;
             if local.is_none() && a.pipeline.json {
@@ -214,16 +241,13 @@ async fn replay(a: Args, format: RawFormat) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::z_bricks;
+    use super::parse_split;
 
     #[test]
-    fn bricks_cover_the_grid_and_share_boundaries() {
-        for (nz, ranks) in [(19, 1), (19, 2), (19, 4), (5, 4), (256, 3)] {
-            let b = z_bricks(nz, ranks);
-            assert_eq!(b.first().map(|f| f.0), Some(0));
-            assert_eq!(b.last().map(|l| l.1), Some(nz - 1));
-            assert!(b.windows(2).all(|w| w[0].1 == w[1].0));
-            assert!(b.iter().all(|&(z0, z1)| z1 > z0), "{b:?}");
-        }
+    fn splits_parse_and_bad_ones_say_why() {
+        assert_eq!(parse_split("2x2x1"), Ok([2, 2, 1]));
+        assert!(parse_split("2x2").unwrap_err().contains("three factors"));
+        assert!(parse_split("0x1x1").is_err());
+        assert!(parse_split("axbxc").unwrap_err().contains("SXxSYxSZ"));
     }
 }
