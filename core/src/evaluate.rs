@@ -106,7 +106,9 @@ pub fn render_references_with_opacity(
 ) -> Vec<(Image, Vec<f32>)> {
     angles
         .iter()
-        .map(|&a| crate::dvr::render_with_opacity(scene.raycaster(), &camera.orbit_y(a), size, size))
+        .map(|&a| {
+            crate::dvr::render_with_opacity(scene.raycaster(), &camera.orbit_y(a), size, size)
+        })
         .collect()
 }
 

@@ -74,7 +74,9 @@ pub struct GenerationConfig {
     pub termination: f32,
     /// `bzip2` (σ as in the paper), `zstd` or `none`.
     pub codec: String,
-    /// Transfer function file (DESIGN.md format); unset: a default over the first step's range.
+    /// Transfer function file (DESIGN.md format); unset: the default over the global range of
+    /// the first step, agreed with every rank through the viz-node (`AgreeScene`; without a
+    /// viz-node, over this node's first brick).
     pub tf: Option<PathBuf>,
     /// Generation camera; unset: the default camera for the global box.
     pub camera: Option<CameraConfig>,

@@ -93,7 +93,7 @@ impl SceneLink {
             if self.is_agreed() {
                 return;
             }
-            match self.call(p.clone()).await {
+            match self.call(p).await {
                 Ok(a) => {
                     match TransferFunction::from_json(&a.tf_json, &a.tf_name) {
                         Ok(tf) => {
@@ -120,13 +120,17 @@ impl SceneLink {
         let channel = transport::connect(&self.uri)
             .await
             .map_err(|e| tonic::Status::unavailable(format!("viz-node {}: {e}", self.uri)))?;
-        let mut client = VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+        let mut client =
+            VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
         Ok(client.agree_scene(p).await?.into_inner())
     }
 
     /// Waits for the agreed transfer function.
     pub async fn wait(&self) -> Option<Agreed> {
         let mut rx = self.agreed.subscribe();
-        rx.wait_for(Option::is_some).await.ok().and_then(|a| a.clone())
+        rx.wait_for(Option::is_some)
+            .await
+            .ok()
+            .and_then(|a| a.clone())
     }
 }

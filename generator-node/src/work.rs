@@ -98,7 +98,12 @@ pub fn run(
         // One rank of several: each pixel carries its opacity too, so that the viz-node can
         // composite the ranks' frames into the whole domain's (`ReferenceHeader.opacity`).
         let opacity = raw.world_size > 1;
-        let span = info_span!("references", views = gen.view_angles_deg.len(), size, opacity);
+        let span = info_span!(
+            "references",
+            views = gen.view_angles_deg.len(),
+            size,
+            opacity
+        );
         // `views × h × w × (3 | 4)` little-endian f32 (see `ReferenceHeader`).
         let bytes: Vec<u8> = span.in_scope(|| {
             if opacity {
@@ -109,10 +114,12 @@ pub fn run(
                         .collect(),
                 )
             } else {
-                Ok(render_references(&scene, &camera, &gen.view_angles_deg, size)?
-                    .iter()
-                    .flat_map(Image::to_f32_le)
-                    .collect())
+                Ok(
+                    render_references(&scene, &camera, &gen.view_angles_deg, size)?
+                        .iter()
+                        .flat_map(Image::to_f32_le)
+                        .collect(),
+                )
             }
         })?;
         Some((

@@ -7,8 +7,8 @@
 
 use crate::score::score;
 use crate::store::{
-    composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References,
-    StepEntry, StoreError,
+    composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References, StepEntry,
+    StoreError,
 };
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
 use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
@@ -98,10 +98,9 @@ pub fn check_bricks(step: u64, entries: &[&Entry], complete: bool) -> Result<(),
         placed.push((e.rank, p.brick));
     }
     match global {
-        Some(g) => bricks::check(g, &placed, complete).map_err(|source| StepError::Bricks {
-            step,
-            source,
-        }),
+        Some(g) => {
+            bricks::check(g, &placed, complete).map_err(|source| StepError::Bricks { step, source })
+        }
         None => Ok(()),
     }
 }
@@ -114,7 +113,8 @@ fn load_vdi(rec: &Recording, e: &Entry) -> Result<Vdi, StepError> {
     };
     let name = e.vdi.as_ref().ok_or_else(|| rank_err("no VDI".into()))?;
     let path = rec.dir().join(name);
-    let bytes = std::fs::read(&path).map_err(|err| rank_err(format!("{}: {err}", path.display())))?;
+    let bytes =
+        std::fs::read(&path).map_err(|err| rank_err(format!("{}: {err}", path.display())))?;
     codec::decode(&bytes, &DecodeLimits::default())
         .map_err(|err| rank_err(format!("{}: {err}", path.display())))
 }
@@ -258,13 +258,12 @@ fn compose_references(
                 })
             })
             .collect();
-        let (image, opacity) = compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(
-            |e| StepError::Rank {
+        let (image, opacity) =
+            compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(|e| StepError::Rank {
                 step: ready[0].step,
                 rank: ready[0].rank,
                 problem: format!("compositing reference frames: {e}"),
-            },
-        )?;
+            })?;
         frames.push(image);
         planes.push(opacity);
     }

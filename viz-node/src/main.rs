@@ -29,6 +29,10 @@ struct Args {
     /// Where VDIs are rendered: cpu, gpu or auto (a hardware GPU if found, else the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
+    /// Seconds a step of several ranks waits for its last rank before it is composed without
+    /// it (marked partial).
+    #[arg(long)]
+    compose_timeout_secs: Option<f64>,
 }
 
 #[tokio::main]
@@ -51,6 +55,10 @@ async fn main() -> std::process::ExitCode {
         if let Some(v) = a.backend {
             cfg.backend = v;
         }
+        if let Some(v) = a.compose_timeout_secs {
+            cfg.compose_timeout_secs = v;
+        }
+        cfg.validate()?;
         let node = start(cfg).await?;
         println!("listening on {}", node.local_addr());
         shutdown_signal().await;

@@ -60,16 +60,17 @@ impl SceneAgreement {
     /// silently: the run's colours depend on it).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         let path = dir.join(SCENE);
-        let agreed = match std::fs::read(&path) {
-            Ok(bytes) => Some(serde_json::from_slice::<Agreed>(&bytes).map_err(|e| {
-                StoreError::Corrupt {
-                    path: path.clone(),
-                    problem: format!("{e}; move it away to agree a new scene"),
-                }
-            })?),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-            Err(source) => return Err(StoreError::Io { path, source }),
-        };
+        let agreed =
+            match std::fs::read(&path) {
+                Ok(bytes) => Some(serde_json::from_slice::<Agreed>(&bytes).map_err(|e| {
+                    StoreError::Corrupt {
+                        path: path.clone(),
+                        problem: format!("{e}; move it away to agree a new scene"),
+                    }
+                })?),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+                Err(source) => return Err(StoreError::Io { path, source }),
+            };
         Ok(Self {
             path,
             proposals: Mutex::new(Proposals::default()),
@@ -120,8 +121,16 @@ impl SceneAgreement {
             s.ranges.insert(p.rank, (p.min, p.max));
             (s.ranges.len() == p.world_size as usize).then(|| {
                 let finite = |v: f64| v.is_finite().then_some(v);
-                let lo = s.ranges.values().filter_map(|r| finite(r.0)).reduce(f64::min);
-                let hi = s.ranges.values().filter_map(|r| finite(r.1)).reduce(f64::max);
+                let lo = s
+                    .ranges
+                    .values()
+                    .filter_map(|r| finite(r.0))
+                    .reduce(f64::min);
+                let hi = s
+                    .ranges
+                    .values()
+                    .filter_map(|r| finite(r.1))
+                    .reduce(f64::max);
                 (lo, hi, s.step)
             })
         };
@@ -185,23 +194,38 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let s = std::sync::Arc::new(SceneAgreement::open(dir.path()).unwrap());
         let short = Duration::from_millis(50);
-        let e = s.propose(&proposal(0, 2, 0.0, 0.0), short).await.unwrap_err();
+        let e = s
+            .propose(&proposal(0, 2, 0.0, 0.0), short)
+            .await
+            .unwrap_err();
         assert_eq!(e.code(), tonic::Code::DeadlineExceeded);
         assert!(e.message().contains("[1]"), "{}", e.message());
-        let bad = s.propose(&proposal(1, 3, 0.0, 1.0), short).await.unwrap_err();
+        let bad = s
+            .propose(&proposal(1, 3, 0.0, 1.0), short)
+            .await
+            .unwrap_err();
         assert_eq!(bad.code(), tonic::Code::InvalidArgument);
-        let bad = s.propose(&proposal(2, 2, 0.0, 1.0), short).await.unwrap_err();
+        let bad = s
+            .propose(&proposal(2, 2, 0.0, 1.0), short)
+            .await
+            .unwrap_err();
         assert_eq!(bad.code(), tonic::Code::InvalidArgument);
         // A waiter is answered when the last rank reports.
         let waiter = {
             let s = s.clone();
-            tokio::spawn(async move { s.propose(&proposal(0, 2, 0.0, 0.0), Duration::from_secs(5)).await })
+            tokio::spawn(async move {
+                s.propose(&proposal(0, 2, 0.0, 0.0), Duration::from_secs(5))
+                    .await
+            })
         };
         let a = s.propose(&proposal(1, 2, 3.0, 250.0), short).await.unwrap();
         assert_eq!(a.tf_name, "default[0, 250]");
         assert_eq!(waiter.await.unwrap().unwrap(), a);
         // Fixed: another range changes nothing, and a reopened recording keeps it.
-        assert_eq!(s.propose(&proposal(0, 2, -9.0, 9.0), short).await.unwrap(), a);
+        assert_eq!(
+            s.propose(&proposal(0, 2, -9.0, 9.0), short).await.unwrap(),
+            a
+        );
         let reopened = SceneAgreement::open(dir.path()).unwrap();
         assert_eq!(reopened.agreed(), Some(a));
     }

@@ -1,17 +1,17 @@
 //! The `Viz` gRPC service: store VDIs and reference frames, score and report, render.
 
-use crate::score::score;
 use crate::scene::SceneAgreement;
+use crate::score::score;
 use crate::store::{Entry, Placement, Recording, References, StepEntry};
-use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::vdi::codec::{self, DecodeLimits};
+use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb};
 use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::{chunk, pb};
+use std::collections::HashSet;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
@@ -442,12 +442,12 @@ impl VizService {
                 h.opacity,
                 &bytes,
             )
-                .map_err(|e| {
-                    Status::invalid_argument(format!(
-                        "references of step {} rank {}: {e}",
-                        h.step, h.rank
-                    ))
-                })?;
+            .map_err(|e| {
+                Status::invalid_argument(format!(
+                    "references of step {} rank {}: {e}",
+                    h.step, h.rank
+                ))
+            })?;
             s.recording
                 .store_references(h.step, h.rank, &refs)
                 .map_err(|e| Status::internal(e.to_string()))
@@ -473,9 +473,8 @@ fn placement(h: &pb::VdiHeader) -> Result<Option<Placement>, Status> {
                 global_dims,
                 brick: Brick { offset, dims },
             };
-            bricks::check(global_dims, &[(h.rank, p.brick)], false).map_err(|e| {
-                Status::invalid_argument(format!("VDI of step {}: {e}", h.step))
-            })?;
+            bricks::check(global_dims, &[(h.rank, p.brick)], false)
+                .map_err(|e| Status::invalid_argument(format!("VDI of step {}: {e}", h.step)))?;
             Ok(Some(p))
         }
         _ => Err(Status::invalid_argument(format!(
@@ -589,8 +588,8 @@ impl Viz for VizService {
             .scene
             .propose(&p, Duration::from_secs_f64(wait))
             .await?;
-        let tf_json = serde_json::to_string(&a.tf)
-            .map_err(|e| Status::internal(format!("scene: {e}")))?;
+        let tf_json =
+            serde_json::to_string(&a.tf).map_err(|e| Status::internal(format!("scene: {e}")))?;
         Ok(Response::new(pb::SceneAgreement {
             tf_json,
             tf_name: a.tf_name,
@@ -614,9 +613,13 @@ impl Viz for VizService {
         let s = self.0.clone();
         let png = tokio::task::spawn_blocking(move || {
             let vdi = if r.composed {
-                let name = s.recording.step(r.step).and_then(|c| c.vdi).ok_or_else(|| {
-                    Status::not_found(format!("step {} has no composed VDI", r.step))
-                })?;
+                let name = s
+                    .recording
+                    .step(r.step)
+                    .and_then(|c| c.vdi)
+                    .ok_or_else(|| {
+                        Status::not_found(format!("step {} has no composed VDI", r.step))
+                    })?;
                 s.load_file(&name)?
             } else {
                 let e = s.recording.entry(r.step, r.rank).ok_or_else(|| {

@@ -246,8 +246,8 @@ mod tests {
     #[test]
     fn splits_parse_and_bad_ones_say_why() {
         assert_eq!(parse_split("2x2x1"), Ok([2, 2, 1]));
-        assert!(parse_split("2x2").unwrap_err().contains("three factors"));
+        assert!(parse_split("2x2").is_err_and(|e| e.contains("three factors")));
         assert!(parse_split("0x1x1").is_err());
-        assert!(parse_split("axbxc").unwrap_err().contains("SXxSYxSZ"));
+        assert!(parse_split("axbxc").is_err_and(|e| e.contains("SXxSYxSZ")));
     }
 }

@@ -8,5 +8,6 @@ mod common;
 mod gpu;
 mod outage;
 mod policies;
+mod ranks;
 mod replay;
 mod tuner;

@@ -93,6 +93,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
             camera: Some(camera_to_pb(&camera)),
             width: 40,
             height: 24,
+            composed: false,
         };
         let mut c = VizClient::new(channel);
         let missing = c
@@ -127,7 +128,7 @@ fn bricks_over_two_and_four_ranks_are_stored_and_render() {
         let entries = index(&rec);
         assert_eq!(entries.len(), 3 * ranks as usize);
         for step in 0..3u64 {
-            let mut boxes: Vec<(f32, f32)> = (0..ranks)
+            let boxes: Vec<insitu_core::volume::Aabb> = (0..ranks)
                 .map(|rank| {
                     let e = entries
                         .iter()
@@ -135,17 +136,22 @@ fn bricks_over_two_and_four_ranks_are_stored_and_render() {
                         .unwrap();
                     assert_eq!(e.world_size, ranks);
                     let vdi = load_vdi(&rec, e);
-                    let b = vdi.meta().volume_box;
                     let image = render::render(&vdi, &vdi.meta().camera, 64, 64, 0.99);
                     assert!(image.is_valid());
-                    (b.min.z, b.max.z)
+                    vdi.meta().volume_box
                 })
                 .collect();
-            boxes.sort_by(|a, b| a.0.total_cmp(&b.0));
-            // The ranks' boxes tile z ∈ [0, 18] and abut.
-            assert_eq!(boxes.first().unwrap().0, 0.0);
-            assert_eq!(boxes.last().unwrap().1, 18.0);
-            assert!(boxes.windows(2).all(|w| w[0].1 == w[1].0), "{boxes:?}");
+            // The ranks' boxes tile the grid's box [0, 179] × [0, 89] × [0, 18]: their union
+            // is it and their volumes add up to its volume (so they do not overlap).
+            let union = insitu_core::compose::union_box(boxes.iter().copied()).unwrap();
+            assert_eq!(union.min, glam::Vec3::ZERO);
+            assert_eq!(union.max, glam::Vec3::new(179.0, 89.0, 18.0));
+            let volume = |b: &insitu_core::volume::Aabb| (b.max - b.min).element_product();
+            let sum: f32 = boxes.iter().map(volume).sum();
+            assert!(
+                (sum - volume(&union)).abs() < 1e-3 * volume(&union),
+                "{boxes:?}"
+            );
         }
         v.terminate();
     }

@@ -1,0 +1,347 @@
+//! Many ranks, one picture: composed equals whole on the ocean series, one TF for a world
+//! whose bricks have different ranges (kept across a generator-node restart), a missing rank
+//! leaves a partial step, and bad decompositions are refused naming the step and ranks.
+
+use crate::common::{generator, index, load_vdi, small_config, viz};
+use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
+use insitu_core::metrics::psnr;
+use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
+use insitu_core::vdi::{generate::generate, render, VdiParams};
+use insitu_core::volume::bricks::Brick;
+use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
+use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{chunk, pb, transport};
+use insitu_viz_node::store::StepEntry;
+use std::path::Path;
+use std::process::Command;
+
+const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
+
+/// The recording's composed steps.
+fn steps(dir: &Path) -> Vec<StepEntry> {
+    let text = std::fs::read_to_string(dir.join("index.json")).unwrap_or_default();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    serde_json::from_value(v["steps"].clone()).unwrap_or_default()
+}
+
+fn decode_file(path: &Path) -> Vdi {
+    decode(&std::fs::read(path).unwrap(), &DecodeLimits::default()).unwrap()
+}
+
+/// Replays 3 ocean steps at r = 128 with `split` into a fresh recording; returns it.
+fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
+    let rec = tmp.join(format!("rec-{split}"));
+    let v = viz(&rec, "127.0.0.1:0", tmp);
+    let g = generator(&small_config(&v.addr, "block", 16), tmp, &[]);
+    let series = data_dir().unwrap().join(OCEAN);
+    let out = Command::new(bin("insitu"))
+        .args(["replay", "--series", series.to_str().unwrap()])
+        .args(["--generator", &g.addr, "--split", split])
+        .args(["--r", "128", "--gamma", "0.01", "--codec", "zstd"])
+        .args(["--steps", "3", "--sample-every", "1"])
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "replay --split {split}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    g.terminate();
+    let multi = split != "1x1x1";
+    let done = wait_until(60.0, || {
+        if multi {
+            let s = steps(&rec);
+            s.len() == 3 && s.iter().all(|s| s.quality.is_some())
+        } else {
+            index(&rec).iter().filter(|e| e.quality.is_some()).count() == 3
+        }
+    });
+    assert!(
+        done,
+        "--split {split}: steps were not all composed and scored"
+    );
+    v.terminate();
+    rec
+}
+
+#[test]
+fn composed_ocean_steps_render_and_score_like_the_whole_domain() {
+    if data_dir().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let whole = replay_split("1x1x1", tmp.path());
+    let whole_entries = index(&whole);
+    for split in ["2x2x1", "4x1x1", "1x1x3"] {
+        let rec = replay_split(split, tmp.path());
+        for s in steps(&rec) {
+            assert!(s.missing.is_empty() && s.error.is_none(), "{s:?}");
+            let composed = decode_file(&rec.join(s.vdi.as_ref().unwrap()));
+            let e = whole_entries.iter().find(|e| e.step == s.step).unwrap();
+            let one = load_vdi(&whole, e);
+            assert_eq!(composed.meta().volume_box, one.meta().volume_box);
+            let cam = one.meta().camera;
+            for (angle, size, floor) in [(0.0, 128, 55.0), (30.0, 96, 40.0), (60.0, 96, 40.0)] {
+                let view = cam.orbit_y(angle);
+                let a = render::render(&composed, &view, size, size, 0.99);
+                let b = render::render(&one, &view, size, size, 0.99);
+                let q = psnr(&a, &b).unwrap();
+                assert!(q >= floor, "{split} step {} at {angle}°: {q:.1} dB", s.step);
+            }
+            let q_multi = s.quality.as_ref().unwrap().q_db.0;
+            let q_one = e.quality.as_ref().unwrap().q_db.0;
+            assert!(
+                (q_multi - q_one).abs() < 1.0,
+                "{split} step {}: composed q {q_multi:.2} vs single-rank {q_one:.2}",
+                s.step
+            );
+        }
+    }
+}
+
+/// A step of `world_size` ranks over z-slabs of a 16×16×(9·world − …) grid: rank `k` owns
+/// z ∈ [8k, 8k + 8], all values `value(k)`.
+fn slab(step: u64, rank: u32, world_size: u32, value: f32) -> Step {
+    let nz = 8 * world_size + 1;
+    Step {
+        step,
+        sim_time: step as f64,
+        dtype: ScalarType::F32,
+        global_dims: [16, 16, nz],
+        brick_offset: [0, 0, 8 * rank],
+        brick_dims: [16, 16, 9],
+        rank,
+        world_size,
+        spacing: [1.0; 3],
+        data: f32_bytes(&vec![value; 16 * 16 * 9]),
+    }
+}
+
+fn push(addr: &str, steps: Vec<Step>) {
+    rt().block_on(async {
+        let mut c = SimClient::connect(addr, None).await.unwrap();
+        for s in steps {
+            c.push_step(s).await.unwrap();
+        }
+    });
+}
+
+#[test]
+fn ranks_with_different_ranges_share_one_tf_across_a_restart() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let cfg = small_config(&v.addr, "block", 16);
+    let g0 = generator(&cfg, tmp.path(), &[]);
+    let g1 = generator(&cfg, tmp.path(), &[]);
+    // Rank 0 is all zeros, rank 1 all 1000: each alone would choose its own default.
+    push(&g0.addr, vec![slab(0, 0, 2, 0.0)]);
+    push(&g1.addr, vec![slab(0, 1, 2, 1000.0)]);
+    assert!(
+        wait_until(30.0, || index(&rec).len() == 2),
+        "{:?}",
+        index(&rec)
+    );
+    let first = index(&rec);
+    assert_eq!(first[0].tf_hash, first[1].tf_hash, "{first:?}");
+    assert_eq!(first[0].tf_name, "default[0, 1000]");
+    // Rank 0's brick is transparent under that TF: an empty VDI.
+    assert_eq!(first[0].supersegments, 0);
+    assert!(first[1].supersegments > 0);
+    // Rank 1's node dies and comes back; its next brick has another range, the TF stays.
+    g1.kill();
+    let g1 = generator(&cfg, tmp.path(), &[]);
+    push(&g1.addr, vec![slab(1, 1, 2, 5000.0)]);
+    push(&g0.addr, vec![slab(1, 0, 2, 3.0)]);
+    assert!(wait_until(30.0, || index(&rec).len() == 4));
+    assert!(
+        index(&rec).iter().all(|e| e.tf_hash == first[0].tf_hash),
+        "{:?}",
+        index(&rec)
+    );
+    assert!(wait_until(30.0, || steps(&rec).len() == 2));
+    assert!(steps(&rec)
+        .iter()
+        .all(|s| s.missing.is_empty() && s.error.is_none()));
+    g0.terminate();
+    g1.terminate();
+    v.terminate();
+}
+
+#[test]
+fn a_missing_rank_leaves_partial_steps_that_say_which() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = Daemon::start(
+        "viz-node",
+        &[
+            "--listen",
+            "127.0.0.1:0",
+            "--recording-dir",
+            rec.to_str().unwrap(),
+            "--compose-timeout-secs",
+            "2",
+        ],
+        &[],
+        tmp.path(),
+    );
+    let cfg =
+        small_config(&v.addr, "block", 16).replace("[generation]", "[generation]\ntf = \"\"\n");
+    // A TF for the world so that no agreement waits for the missing rank.
+    let tf_path = tmp.path().join("tf.json");
+    std::fs::write(
+        &tf_path,
+        serde_json::to_string(&TransferFunction::default_for_range(0.0, 10.0)).unwrap(),
+    )
+    .unwrap();
+    let cfg = cfg.replace(
+        "tf = \"\"",
+        &format!("tf = {:?}", tf_path.to_str().unwrap()),
+    );
+    let g = generator(&cfg, tmp.path(), &[]);
+    // Rank 2 of 3 never reports (its process was killed before the step).
+    push(
+        &g.addr,
+        vec![
+            slab(0, 0, 3, 4.0),
+            slab(0, 1, 3, 6.0),
+            slab(1, 0, 3, 4.0),
+            slab(1, 1, 3, 6.0),
+        ],
+    );
+    let partial = wait_until(30.0, || {
+        let s = steps(&rec);
+        s.len() == 2 && s.iter().all(|s| s.missing == [2])
+    });
+    assert!(partial, "{:?}", steps(&rec));
+    for s in steps(&rec) {
+        assert_eq!(s.ranks, [0, 1]);
+        // The partial step is still a picture: rendered over the wire.
+        let png = rt().block_on(async {
+            let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+            VizClient::new(channel)
+                .render(pb::RenderRequest {
+                    step: s.step,
+                    composed: true,
+                    width: 32,
+                    height: 32,
+                    ..Default::default()
+                })
+                .await
+                .unwrap()
+                .into_inner()
+                .png
+        });
+        assert_eq!(&png[..4], b"\x89PNG");
+    }
+    let status = rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        VizClient::new(channel)
+            .get_status(pb::StatusRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+    });
+    assert_eq!((status.steps_partial, status.steps_composed), (2, 0));
+    g.terminate();
+    v.terminate();
+}
+
+/// The VDI of a constant brick `b` of a grid `global`, as a generator-node would ship it.
+fn vdi_chunks(
+    step: u64,
+    rank: u32,
+    world_size: u32,
+    global: [usize; 3],
+    b: Brick,
+) -> Vec<pb::VdiChunk> {
+    let whole = Volume::new(global, glam::Vec3::ONE, vec![5.0; global.iter().product()]).unwrap();
+    let brick = whole.brick(&b).unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 10.0);
+    let rc = Raycaster::new(&brick, &tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&whole.world_box());
+    let params = VdiParams {
+        resolution: 16,
+        gamma: 0.01,
+    };
+    let vdi = generate(&rc, &cam, params, tf.identity_hash(), "t").unwrap();
+    let file = encode(&vdi, Codec::Zstd).unwrap();
+    let d = |v: [usize; 3]| pb::Dims3 {
+        x: v[0] as u32,
+        y: v[1] as u32,
+        z: v[2] as u32,
+    };
+    let header = pb::VdiHeader {
+        step,
+        rank,
+        world_size,
+        resolution: 16,
+        gamma: 0.01,
+        codec: pb::Codec::Zstd as i32,
+        total_bytes: file.len() as u64,
+        global_dims: Some(d(global)),
+        brick_offset: Some(d(b.offset)),
+        brick_dims: Some(d(b.dims)),
+        ..Default::default()
+    };
+    chunk::split::<pb::VdiChunk>(header, bytes::Bytes::from(file))
+}
+
+#[test]
+fn bad_decompositions_are_refused_naming_the_step_and_ranks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = [16, 16, 17];
+    let slab = |z0: usize, nz: usize| Brick {
+        offset: [0, 0, z0],
+        dims: [16, 16, nz],
+    };
+    rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        let mut c = VizClient::new(channel);
+        let ship = |chunks: Vec<pb::VdiChunk>| {
+            let mut c = c.clone();
+            async move { c.ship_vdi(tokio_stream::iter(chunks)).await }
+        };
+        // A rank outside the world.
+        let e = ship(vdi_chunks(0, 2, 2, g, slab(0, 9))).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        assert!(e.message().contains("step 0 rank 2"), "{}", e.message());
+        // Two world sizes for one step.
+        ship(vdi_chunks(1, 0, 2, g, slab(0, 9))).await.unwrap();
+        let e = ship(vdi_chunks(1, 1, 3, g, slab(8, 9))).await.unwrap_err();
+        assert!(
+            e.message().contains("step 1")
+                && e.message().contains("world size 3")
+                && e.message().contains("rank 0 said 2"),
+            "{}",
+            e.message()
+        );
+        // Overlapping bricks.
+        ship(vdi_chunks(2, 0, 2, g, slab(0, 9))).await.unwrap();
+        let e = ship(vdi_chunks(2, 1, 2, g, slab(4, 13))).await.unwrap_err();
+        assert!(
+            e.message().contains("step 2")
+                && e.message().contains("ranks 0 and 1")
+                && e.message().contains("overlap"),
+            "{}",
+            e.message()
+        );
+        // Bricks that leave a gap: stored, but the step is not composed, and says why.
+        ship(vdi_chunks(3, 0, 2, g, slab(0, 8))).await.unwrap();
+        ship(vdi_chunks(3, 1, 2, g, slab(8, 9))).await.unwrap();
+        let _ = c.get_status(pb::StatusRequest {}).await.unwrap();
+    });
+    assert!(wait_until(30.0, || steps(&rec).iter().any(|s| s.step == 3)));
+    let s3 = steps(&rec).into_iter().find(|s| s.step == 3).unwrap();
+    let err = s3.error.unwrap_or_default();
+    assert!(
+        err.contains("step 3") && err.contains("[0, 1]") && err.contains("cover"),
+        "{err}"
+    );
+    assert!(s3.vdi.is_none());
+    v.terminate();
+}
