@@ -21,7 +21,6 @@
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
-use bytes::Bytes;
 use insitu_proto::auth::{AttachToken, Token};
 use insitu_proto::pb::generator_client::GeneratorClient;
 use insitu_proto::{chunk, pb, transport};
@@ -29,8 +28,10 @@ use std::time::Duration;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
 
+pub use bytes::Bytes;
 pub use insitu_proto::auth::Token as BearerToken;
 pub use insitu_proto::pb::{ConfigReply, GenerationConfig, GeneratorStatus, PushReply, ScalarType};
+pub use tonic::Code;
 
 /// Errors of the client.
 #[derive(Debug, thiserror::Error)]

@@ -182,3 +182,38 @@ pub fn wait_until(secs: f64, mut pred: impl FnMut() -> bool) -> bool {
     }
     pred()
 }
+
+/// The C client library (`libinsitu.a`, built with this test's profile) and its header
+/// directory, for compiling C programs against it.
+pub fn c_client() -> (PathBuf, PathBuf) {
+    static BUILT: OnceLock<()> = OnceLock::new();
+    BUILT.get_or_init(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args(["build", "--lib", "-p", "insitu-client-c"]);
+        if bin_dir().file_name().is_some_and(|n| n == "release") {
+            cmd.arg("--release");
+        }
+        let status = cmd.status().expect("running cargo build for the C client");
+        assert!(status.success(), "building the C client failed");
+    });
+    let include = Path::new(env!("CARGO_MANIFEST_DIR")).join("../client-c/include");
+    (bin_dir().join("libinsitu.a"), include)
+}
+
+/// The path of `tool` on `PATH`; panics naming the package to install when it is missing,
+/// unless `INSITU_SKIP_MPI=1` (then `None`, and the test says it skipped).
+pub fn mpi_tool(tool: &str) -> Option<PathBuf> {
+    let found = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join(tool))
+            .find(|p| p.is_file())
+    });
+    if found.is_none() && std::env::var("INSITU_SKIP_MPI").is_ok_and(|v| v == "1") {
+        eprintln!("SKIPPED: {tool} not found (INSITU_SKIP_MPI=1)");
+        return None;
+    }
+    Some(found.unwrap_or_else(|| {
+        panic!("{tool} not found: install Open MPI (apt-get install openmpi-bin libopenmpi-dev), or set INSITU_SKIP_MPI=1 to skip")
+    }))
+}

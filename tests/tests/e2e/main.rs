@@ -6,6 +6,7 @@
 mod bad_input;
 mod common;
 mod gpu;
+mod mpi;
 mod outage;
 mod policies;
 mod ranks;
