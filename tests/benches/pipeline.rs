@@ -1,7 +1,8 @@
 //! Pipeline benchmarks (issue 5, "Speed"), with the daemons as real processes on loopback:
 //!
 //! 1. ingest: field data pushed through the client (a push returns once the step is queued),
-//!    GB/s, for 64 MiB steps;
+//!    GB/s, for 64 MiB steps, with the Rust client and with the C client
+//!    (`client-c/bench/push_throughput.c`, compiled with `cc` against `libinsitu.a`);
 //! 2. the simulation's time per step with a generator-node attached versus without
 //!    (Gray–Scott 128³, pushing every 10th step);
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
@@ -25,10 +26,10 @@ fn generator(tmp: &std::path::Path, args: &[&str]) -> Daemon {
     Daemon::start("generator-node", &all, &[], tmp)
 }
 
-fn ingest(tmp: &std::path::Path) {
-    // r = 1 and no references: the node's work per step is converting the bytes, so the
-    // push rate is the transport's. latest-only keeps memory bounded.
-    let g = generator(
+/// A generator-node that takes pushes as fast as the transport brings them: r = 1 and no
+/// references, so its work per step is converting the bytes; latest-only keeps memory bounded.
+fn ingest_node(tmp: &std::path::Path) -> Daemon {
+    generator(
         tmp,
         &[
             "--resolution",
@@ -40,7 +41,11 @@ fn ingest(tmp: &std::path::Path) {
             "--queue-steps",
             "1",
         ],
-    );
+    )
+}
+
+fn ingest(tmp: &std::path::Path) {
+    let g = ingest_node(tmp);
     let n = 256u32;
     let field: Vec<f32> = (0..n * n * n).map(|i| (i % 977) as f32).collect();
     let step = Step::whole_f32(0, 0.0, [n; 3], &field);
@@ -62,6 +67,36 @@ fn ingest(tmp: &std::path::Path) {
         bytes / (1 << 20) as f64,
         pushes as f64 * bytes / secs / 1e9
     );
+    g.terminate();
+}
+
+fn ingest_c(tmp: &std::path::Path) {
+    let (lib, include) = insitu_e2e::c_client();
+    let exe = tmp.join("push_throughput");
+    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../client-c/bench/push_throughput.c");
+    let built = std::process::Command::new("cc")
+        .args(["-O2", "-o"])
+        .arg(&exe)
+        .arg(&source)
+        .arg("-I")
+        .arg(&include)
+        .arg(&lib)
+        .args(["-lpthread", "-ldl", "-lm"])
+        .status()
+        .unwrap();
+    assert!(built.success(), "cc push_throughput.c failed");
+    let g = ingest_node(tmp);
+    let out = std::process::Command::new(&exe)
+        .args([&g.addr, "256", "16"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    print!("{}", String::from_utf8_lossy(&out.stdout));
     g.terminate();
 }
 
@@ -175,6 +210,7 @@ fn main() {
     }
     let tmp = tempfile::tempdir().unwrap();
     ingest(tmp.path());
+    ingest_c(tmp.path());
     simulation_overhead(tmp.path());
     latency(tmp.path());
 }

@@ -29,7 +29,8 @@ pub struct Config {
     /// Where VDIs are rendered: `cpu`, `gpu` or `auto` (a hardware GPU if found, else CPU).
     pub backend: BackendChoice,
     /// Seconds a step of several ranks waits for its last rank after its first arrived; then
-    /// it is composed without the missing ranks and marked partial.
+    /// it is composed without the missing ranks and marked partial. Also how long the world's
+    /// default TF waits for a rank's range before it is fixed without it.
     pub compose_timeout_secs: f64,
 }
 

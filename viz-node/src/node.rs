@@ -38,7 +38,10 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
     let recording = Recording::open(&cfg.recording_dir)?;
-    let scene = SceneAgreement::open(&cfg.recording_dir)?;
+    let scene = SceneAgreement::open(
+        &cfg.recording_dir,
+        Duration::from_secs_f64(cfg.compose_timeout_secs),
+    )?;
     let choice = cfg.backend;
     let backend = tokio::task::spawn_blocking(move || Backend::select(choice))
         .await?

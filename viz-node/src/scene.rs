@@ -5,7 +5,9 @@
 //! when every rank `0..world_size` has reported, the TF is the default over
 //! `[min of the minima, max of the maxima]`, written atomically to `scene.json` in the
 //! recording, and every later call (a restarted node's too) is answered with it, whatever
-//! range it reports. The viz-node is the meeting point because every generator-node already
+//! range it reports. A rank that never reports (it died before its first push) does not stall
+//! the others for ever: `timeout` after the first report, the scene is fixed over the ranks
+//! that did report, and `scene.json` lists them. The viz-node is the meeting point because every generator-node already
 //! reaches it and it owns the recording that must stay consistent; without a viz-node a
 //! generator-node falls back to its own brick's range (and says so).
 
@@ -15,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use tonic::Status;
 
@@ -33,6 +35,10 @@ pub struct Agreed {
     pub world_size: u32,
     /// The step whose ranges were pooled.
     pub step: u64,
+    /// The ranks whose ranges were pooled (all of the world unless some never reported within
+    /// the timeout).
+    #[serde(default)]
+    pub ranks: Vec<u32>,
 }
 
 #[derive(Default)]
@@ -40,11 +46,42 @@ struct Proposals {
     world_size: Option<u32>,
     step: u64,
     ranges: BTreeMap<u32, (f64, f64)>,
+    first_at: Option<Instant>,
+}
+
+impl Proposals {
+    /// The scene over the ranks reported so far.
+    fn agree(&self, world_size: u32) -> Agreed {
+        let finite = |v: f64| v.is_finite().then_some(v);
+        let lo = self
+            .ranges
+            .values()
+            .filter_map(|r| finite(r.0))
+            .reduce(f64::min);
+        let hi = self
+            .ranges
+            .values()
+            .filter_map(|r| finite(r.1))
+            .reduce(f64::max);
+        // All-NaN data: the default over [0, 1], as one node alone would choose.
+        let (lo, hi) = match (lo, hi) {
+            (Some(lo), Some(hi)) => (lo as f32, hi as f32),
+            _ => (0.0, 1.0),
+        };
+        Agreed {
+            tf: TransferFunction::default_for_range(lo, hi),
+            tf_name: format!("default[{lo}, {hi}]"),
+            world_size,
+            step: self.step,
+            ranks: self.ranges.keys().copied().collect(),
+        }
+    }
 }
 
 /// The agreement, shared by every `AgreeScene` call.
 pub struct SceneAgreement {
     path: PathBuf,
+    timeout: Duration,
     proposals: Mutex<Proposals>,
     agreed: watch::Sender<Option<Agreed>>,
 }
@@ -53,12 +90,13 @@ pub struct SceneAgreement {
 pub const MAX_WAIT_SECS: f64 = 3600.0;
 
 impl SceneAgreement {
-    /// Opens the agreement of the recording in `dir` (reading `scene.json` when present).
+    /// Opens the agreement of the recording in `dir` (reading `scene.json` when present);
+    /// `timeout` after the first rank's report, the scene is fixed over the ranks reported.
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] when `scene.json` exists but cannot be read (never replaced
     /// silently: the run's colours depend on it).
-    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+    pub fn open(dir: &Path, timeout: Duration) -> Result<Self, StoreError> {
         let path = dir.join(SCENE);
         let agreed =
             match std::fs::read(&path) {
@@ -73,9 +111,33 @@ impl SceneAgreement {
             };
         Ok(Self {
             path,
+            timeout,
             proposals: Mutex::new(Proposals::default()),
             agreed: watch::channel(agreed).0,
         })
+    }
+
+    /// Records `agreed` in `scene.json` and answers every waiter (the first to fix it wins).
+    fn fix(&self, agreed: Agreed) -> Result<(), Status> {
+        // One writer at a time: a complete agreement and a timed-out one may race.
+        let _writer = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
+        if self.agreed().is_some() {
+            return Ok(());
+        }
+        let json = serde_json::to_vec_pretty(&agreed)
+            .map_err(|e| Status::internal(format!("scene: {e}")))?;
+        let dir = self.path.parent().unwrap_or(Path::new("."));
+        write_atomic(dir, SCENE, &json).map_err(|e| Status::internal(e.to_string()))?;
+        tracing::info!(tf = %agreed.tf_name, ranks = ?agreed.ranks, "scene agreed for the run");
+        self.agreed.send_if_modified(|a| {
+            if a.is_none() {
+                *a = Some(agreed);
+                true
+            } else {
+                false
+            }
+        });
+        Ok(())
     }
 
     /// The agreed scene, if any.
@@ -83,12 +145,13 @@ impl SceneAgreement {
         self.agreed.borrow().clone()
     }
 
-    /// Records rank `rank`'s range and waits (at most `wait`) until the scene is agreed.
+    /// Records rank `rank`'s range and waits (at most `wait`) until the scene is agreed: by
+    /// the last rank's report, or by the agreement's timeout over the ranks reported.
     ///
     /// # Errors
     /// `INVALID_ARGUMENT` for a rank outside the world or a second world size;
-    /// `DEADLINE_EXCEEDED` naming the ranks still missing; `INTERNAL` when `scene.json`
-    /// cannot be written.
+    /// `DEADLINE_EXCEEDED` naming the ranks still missing after `wait`; `INTERNAL` when
+    /// `scene.json` cannot be written.
     pub async fn propose(
         &self,
         p: &insitu_proto::pb::SceneProposal,
@@ -103,7 +166,7 @@ impl SceneAgreement {
                 p.step, p.rank, p.world_size
             )));
         }
-        let complete = {
+        let (complete, deadline) = {
             let mut s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
             match s.world_size {
                 Some(w) if w != p.world_size => {
@@ -119,45 +182,40 @@ impl SceneAgreement {
             }
             s.step = s.step.max(p.step);
             s.ranges.insert(p.rank, (p.min, p.max));
-            (s.ranges.len() == p.world_size as usize).then(|| {
-                let finite = |v: f64| v.is_finite().then_some(v);
-                let lo = s
-                    .ranges
-                    .values()
-                    .filter_map(|r| finite(r.0))
-                    .reduce(f64::min);
-                let hi = s
-                    .ranges
-                    .values()
-                    .filter_map(|r| finite(r.1))
-                    .reduce(f64::max);
-                (lo, hi, s.step)
-            })
+            let first = *s.first_at.get_or_insert_with(Instant::now);
+            (
+                (s.ranges.len() == p.world_size as usize).then(|| s.agree(p.world_size)),
+                first + self.timeout,
+            )
         };
-        if let Some((lo, hi, step)) = complete {
-            // All-NaN data: the default over [0, 1], as one node alone would choose.
-            let (lo, hi) = match (lo, hi) {
-                (Some(lo), Some(hi)) => (lo as f32, hi as f32),
-                _ => (0.0, 1.0),
-            };
-            let agreed = Agreed {
-                tf: TransferFunction::default_for_range(lo, hi),
-                tf_name: format!("default[{lo}, {hi}]"),
-                world_size: p.world_size,
-                step,
-            };
-            let json = serde_json::to_vec_pretty(&agreed)
-                .map_err(|e| Status::internal(format!("scene: {e}")))?;
-            let dir = self.path.parent().unwrap_or(Path::new("."));
-            write_atomic(dir, SCENE, &json).map_err(|e| Status::internal(e.to_string()))?;
-            tracing::info!(tf = %agreed.tf_name, ranks = p.world_size, "scene agreed for the run");
-            self.agreed.send_replace(Some(agreed));
+        if let Some(agreed) = complete {
+            self.fix(agreed)?;
         }
         let mut rx = self.agreed.subscribe();
-        let waited = tokio::time::timeout(wait, rx.wait_for(Option::is_some)).await;
+        let now = Instant::now();
+        let until_timeout = deadline.saturating_duration_since(now);
+        let waited =
+            tokio::time::timeout(wait.min(until_timeout), rx.wait_for(Option::is_some)).await;
         match waited {
             Ok(Ok(a)) => a.clone().ok_or_else(|| Status::internal("scene lost")),
             Ok(Err(_)) => Err(Status::unavailable("the viz-node is shutting down")),
+            Err(_) if Instant::now() >= deadline => {
+                // The world waited long enough for its missing ranks.
+                let agreed = {
+                    let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
+                    s.agree(p.world_size)
+                };
+                if self.agreed().is_none() {
+                    tracing::warn!(
+                        ranks = ?agreed.ranks,
+                        world_size = p.world_size,
+                        timeout_secs = self.timeout.as_secs_f64(),
+                        "not every rank reported its range in time: the scene is fixed over those that did"
+                    );
+                    self.fix(agreed)?;
+                }
+                self.agreed().ok_or_else(|| Status::internal("scene lost"))
+            }
             Err(_) => {
                 let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
                 let missing: Vec<u32> = (0..p.world_size)
@@ -192,7 +250,8 @@ mod tests {
     #[tokio::test]
     async fn the_global_range_is_agreed_once_and_survives_a_reopen() {
         let dir = tempfile::tempdir().unwrap();
-        let s = std::sync::Arc::new(SceneAgreement::open(dir.path()).unwrap());
+        let s =
+            std::sync::Arc::new(SceneAgreement::open(dir.path(), Duration::from_secs(60)).unwrap());
         let short = Duration::from_millis(50);
         let e = s
             .propose(&proposal(0, 2, 0.0, 0.0), short)
@@ -226,7 +285,27 @@ mod tests {
             s.propose(&proposal(0, 2, -9.0, 9.0), short).await.unwrap(),
             a
         );
-        let reopened = SceneAgreement::open(dir.path()).unwrap();
+        let reopened = SceneAgreement::open(dir.path(), Duration::from_secs(60)).unwrap();
         assert_eq!(reopened.agreed(), Some(a));
+    }
+
+    #[tokio::test]
+    async fn a_rank_that_never_reports_does_not_stall_the_world() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = SceneAgreement::open(dir.path(), Duration::from_millis(100)).unwrap();
+        let a = s
+            .propose(&proposal(0, 3, 1.0, 7.0), Duration::from_secs(10))
+            .await
+            .unwrap();
+        assert_eq!(
+            (a.tf_name.as_str(), a.ranks.as_slice()),
+            ("default[1, 7]", &[0][..])
+        );
+        // The late rank gets the same scene.
+        let late = s
+            .propose(&proposal(2, 3, 0.0, 99.0), Duration::from_secs(10))
+            .await
+            .unwrap();
+        assert_eq!(late, a);
     }
 }

@@ -106,7 +106,7 @@ pub struct Entry {
     pub with_references: bool,
 }
 
-/// A rank's brick in the whole grid, voxels (DESIGN.md, "Ranks").
+/// A rank's brick in the whole grid, voxels (DESIGN.md, "A world of ranks").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Placement {
     /// The whole grid.

@@ -88,10 +88,18 @@ fn composed_ocean_steps_render_and_score_like_the_whole_domain() {
                 let a = render::render(&composed, &view, size, size, 0.99);
                 let b = render::render(&one, &view, size, size, 0.99);
                 let q = psnr(&a, &b).unwrap();
+                eprintln!(
+                    "{split} step {} at {angle}° ({size}²): composed vs whole {q:.1} dB",
+                    s.step
+                );
                 assert!(q >= floor, "{split} step {} at {angle}°: {q:.1} dB", s.step);
             }
             let q_multi = s.quality.as_ref().unwrap().q_db.0;
             let q_one = e.quality.as_ref().unwrap().q_db.0;
+            eprintln!(
+                "{split} step {}: q composed {q_multi:.2} dB, single rank {q_one:.2} dB",
+                s.step
+            );
             assert!(
                 (q_multi - q_one).abs() < 1.0,
                 "{split} step {}: composed q {q_multi:.2} vs single-rank {q_one:.2}",
@@ -187,19 +195,9 @@ fn a_missing_rank_leaves_partial_steps_that_say_which() {
         &[],
         tmp.path(),
     );
-    let cfg =
-        small_config(&v.addr, "block", 16).replace("[generation]", "[generation]\ntf = \"\"\n");
-    // A TF for the world so that no agreement waits for the missing rank.
-    let tf_path = tmp.path().join("tf.json");
-    std::fs::write(
-        &tf_path,
-        serde_json::to_string(&TransferFunction::default_for_range(0.0, 10.0)).unwrap(),
-    )
-    .unwrap();
-    let cfg = cfg.replace(
-        "tf = \"\"",
-        &format!("tf = {:?}", tf_path.to_str().unwrap()),
-    );
+    // No TF configured: the world's default waits for rank 2's range as long as a step waits
+    // for its VDI (2 s here), then is fixed over ranks 0 and 1.
+    let cfg = small_config(&v.addr, "block", 16);
     let g = generator(&cfg, tmp.path(), &[]);
     // Rank 2 of 3 never reports (its process was killed before the step).
     push(
@@ -216,6 +214,12 @@ fn a_missing_rank_leaves_partial_steps_that_say_which() {
         s.len() == 2 && s.iter().all(|s| s.missing == [2])
     });
     assert!(partial, "{:?}", steps(&rec));
+    let scene: insitu_viz_node::scene::Agreed =
+        serde_json::from_slice(&std::fs::read(rec.join("scene.json")).unwrap()).unwrap();
+    assert_eq!(
+        (scene.ranks.as_slice(), scene.tf_name.as_str()),
+        (&[0, 1][..], "default[4, 6]")
+    );
     for s in steps(&rec) {
         assert_eq!(s.ranks, [0, 1]);
         // The partial step is still a picture: rendered over the wire.
