@@ -79,10 +79,12 @@ pub fn union_box(boxes: impl IntoIterator<Item = Aabb>) -> Option<Aabb> {
 
 /// Composes the sub-VDIs of one step (one per rank, any order) into the VDI of the union of
 /// their boxes: per pixel, the ranks' lists ordered by their first supersegment's depth and
-/// concatenated (see the module docs for touching supersegments). Ranks with empty VDIs cost
-/// one comparison per pixel. The result's metadata is part 0's with the union box.
+/// concatenated (see the module docs for touching supersegments). The result's metadata is
+/// part 0's with the union box.
 ///
-/// Time `O(r² · parts + supersegments)`, rows in parallel.
+/// Time `O(r · parts + r · Σ_rows (parts with content in the row) + supersegments)`, rows in
+/// parallel: a rank whose VDI is empty (a transparent brick) costs `r` comparisons, and a rank
+/// costs per-pixel work only in the rows its brick covers with content.
 ///
 /// # Errors
 /// [`ComposeError::Empty`] for no parts; [`ComposeError::Mismatch`] when a part differs from
@@ -100,13 +102,26 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
         return Err(ComposeError::TooLarge(total));
     }
     let r = first.resolution() as usize;
-    let pixels = r * r;
-    let mut offsets = Vec::with_capacity(pixels + 1);
+    // The parts with anything in row j: a rank's brick covers a part of the image, and an
+    // empty brick none, so the per-pixel work follows the content, not the number of ranks.
+    let row_parts: Vec<Vec<&Vdi>> = (0..r)
+        .map(|j| {
+            parts
+                .iter()
+                .copied()
+                .filter(|v| v.offsets()[(j + 1) * r] > v.offsets()[j * r])
+                .collect()
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(r * r + 1);
     offsets.push(0u32);
     let mut sum = 0u32;
-    for p in 0..pixels {
-        sum += parts.iter().map(|v| v.count(p)).sum::<u32>();
-        offsets.push(sum);
+    for (j, active) in row_parts.iter().enumerate() {
+        for i in 0..r {
+            let p = i + r * j;
+            sum += active.iter().map(|v| v.count(p)).sum::<u32>();
+            offsets.push(sum);
+        }
     }
     let mut flat = vec![Supersegment::default(); total as usize];
     // Split the flat array into one slice per row, then fill rows in parallel.
@@ -119,12 +134,17 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
         rest = tail;
     }
     rows.into_par_iter()
+        .filter(|(_, row)| !row.is_empty())
         .for_each_init(Vec::new, |order, (j, row)| {
+            let active = &row_parts[j];
             let mut at = 0;
             for i in 0..r {
                 let p = i + r * j;
+                if offsets[p] == offsets[p + 1] {
+                    continue;
+                }
                 order.clear();
-                order.extend(parts.iter().filter_map(|v| {
+                order.extend(active.iter().filter_map(|v| {
                     let (a, b) = (v.offsets()[p] as usize, v.offsets()[p + 1] as usize);
                     (a < b).then(|| &v.supersegments()[a..b])
                 }));
