@@ -97,14 +97,7 @@ fn main() {
             (image, opacity, brick.world_box())
         })
         .collect();
-    let bf: Vec<BrickFrame> = frames
-        .iter()
-        .map(|(image, opacity, world_box)| BrickFrame {
-            image,
-            opacity,
-            world_box: *world_box,
-        })
-        .collect();
+    let bf: Vec<BrickFrame> = frames.iter().map(BrickFrame::from).collect();
     let times: Vec<f64> = (0..rounds)
         .map(|_| {
             let t = Instant::now();

@@ -184,6 +184,18 @@ pub struct BrickFrame<'a> {
     pub world_box: Aabb,
 }
 
+impl<'a> From<&'a (Image, Vec<f32>, Aabb)> for BrickFrame<'a> {
+    /// A brick's frame from its rendering with opacity ([`crate::dvr::render_with_opacity`])
+    /// and its world box.
+    fn from((image, opacity, world_box): &'a (Image, Vec<f32>, Aabb)) -> Self {
+        Self {
+            image,
+            opacity,
+            world_box: *world_box,
+        }
+    }
+}
+
 /// Composites the frames of a step's bricks, all rendered from `camera` at the same size,
 /// into the frame of the whole domain and its opacity: per pixel, front to back in the order
 /// in which the pixel's ray enters the bricks' boxes (exact for disjoint convex boxes; see

@@ -71,21 +71,13 @@ fn ingest(tmp: &std::path::Path) {
 }
 
 fn ingest_c(tmp: &std::path::Path) {
-    let (lib, include) = insitu_e2e::c_client();
     let exe = tmp.join("push_throughput");
-    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../client-c/bench/push_throughput.c");
-    let built = std::process::Command::new("cc")
-        .args(["-O2", "-o"])
-        .arg(&exe)
-        .arg(&source)
-        .arg("-I")
-        .arg(&include)
-        .arg(&lib)
-        .args(["-lpthread", "-ldl", "-lm"])
-        .status()
-        .unwrap();
-    assert!(built.success(), "cc push_throughput.c failed");
+    insitu_e2e::build_c(
+        std::path::Path::new("cc"),
+        "client-c/bench/push_throughput.c",
+        &exe,
+        &[],
+    );
     let g = ingest_node(tmp);
     let out = std::process::Command::new(&exe)
         .args([&g.addr, "256", "16"])

@@ -201,6 +201,35 @@ pub fn c_client() -> (PathBuf, PathBuf) {
     (bin_dir().join("libinsitu.a"), include)
 }
 
+/// Compiles the C program `source` (relative to the repository root) with `compiler` (`cc`,
+/// `mpicc`) against the C client into `exe`, with `-O2` and `flags`; panics with the
+/// compiler's messages when it fails.
+pub fn build_c(compiler: &Path, source: &str, exe: &Path, flags: &[&str]) {
+    let (lib, include) = c_client();
+    let source = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(source);
+    let out = Command::new(compiler)
+        .arg("-O2")
+        .args(flags)
+        .arg("-o")
+        .arg(exe)
+        .arg(&source)
+        .arg("-I")
+        .arg(&include)
+        .arg(&lib)
+        .args(["-lpthread", "-ldl", "-lm"])
+        .output()
+        .unwrap_or_else(|e| panic!("running {}: {e}", compiler.display()));
+    assert!(
+        out.status.success(),
+        "{} {}: {}",
+        compiler.display(),
+        source.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// The path of `tool` on `PATH`; panics naming the package to install when it is missing,
 /// unless `INSITU_SKIP_MPI=1` (then `None`, and the test says it skipped).
 pub fn mpi_tool(tool: &str) -> Option<PathBuf> {

@@ -95,14 +95,7 @@ fn composed_brick_frames_match_the_whole_frame_from_every_side() {
                 (i, o, b.world_box())
             })
             .collect();
-        let bf: Vec<BrickFrame> = frames
-            .iter()
-            .map(|(image, opacity, world_box)| BrickFrame {
-                image,
-                opacity,
-                world_box: *world_box,
-            })
-            .collect();
+        let bf: Vec<BrickFrame> = frames.iter().map(BrickFrame::from).collect();
         let (got, got_opacity) = compose_frames(&cam, &bf).unwrap();
         let q = psnr(&got, &want).unwrap();
         assert!(q >= 45.0, "at {angle}°: {q:.1} dB");

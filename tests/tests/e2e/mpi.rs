@@ -9,7 +9,7 @@ use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use insitu_core::{Camera, RaycastParams, Raycaster};
-use insitu_e2e::{c_client, mpi_tool, wait_until};
+use insitu_e2e::{build_c, mpi_tool, wait_until};
 use insitu_viz_node::scene::Agreed;
 use insitu_viz_node::store::StepEntry;
 use std::process::Command;
@@ -25,24 +25,12 @@ fn four_mpi_ranks_make_one_picture_per_step_like_one_process() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let (lib, include) = c_client();
     let exe = tmp.path().join("gray_scott_mpi");
-    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../examples/mpi-gray-scott/gray_scott_mpi.c");
-    let out = Command::new(mpicc)
-        .args(["-O2", "-ffp-contract=off", "-Wall", "-Werror", "-o"])
-        .arg(&exe)
-        .arg(&source)
-        .arg("-I")
-        .arg(&include)
-        .arg(&lib)
-        .args(["-lpthread", "-ldl", "-lm"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "mpicc: {}",
-        String::from_utf8_lossy(&out.stderr)
+    build_c(
+        &mpicc,
+        "examples/mpi-gray-scott/gray_scott_mpi.c",
+        &exe,
+        &["-ffp-contract=off", "-Wall", "-Werror"],
     );
 
     let rec = tmp.path().join("rec");
