@@ -216,8 +216,21 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     assert_eq!(with_q, 2, "{out}");
     assert!(out.contains("stored 4, dropped 0"), "{out}");
     assert!(out.contains("recording: rec"), "{out}");
-    let index = std::fs::read_to_string(dir.path().join("rec/index.json")).unwrap();
-    assert_eq!(index.matches("\"vdi\": \"step_").count(), 4, "{index}");
+    // The index, exported: four stored VDIs, two with q.
+    let o = insitu(
+        &["export", "--recording", "rec", "--format", "csv"],
+        dir.path(),
+    );
+    let csv = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        csv.lines().filter(|l| l.contains(".vdi")).count(),
+        4,
+        "{csv}"
+    );
+    let o = insitu(&["export", "--recording", "rec"], dir.path());
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(json["entries"].as_array().map(Vec::len), Some(4), "{json}");
 }
 
 #[test]

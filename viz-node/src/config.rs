@@ -28,6 +28,13 @@ pub struct Config {
     pub report_buffer: usize,
     /// Where VDIs are rendered: `cpu`, `gpu` or `auto` (a hardware GPU if found, else CPU).
     pub backend: BackendChoice,
+    /// Scoring and composing jobs waiting at most; when full, storing waits (back-pressure to
+    /// the generator-nodes' shippers) instead of growing memory.
+    pub score_queue: usize,
+    /// `Render` calls served at once; more are refused with `RESOURCE_EXHAUSTED`.
+    pub render_concurrency: usize,
+    /// Largest image of one `Render` call, pixels (width × height).
+    pub max_render_pixels: u64,
     /// Seconds a step of several ranks waits for its last rank after its first arrived; then
     /// it is composed without the missing ranks and marked partial. Also how long the world's
     /// default TF waits for a rank's range before it is fixed without it.
@@ -46,6 +53,9 @@ impl Default for Config {
             report_buffer: 1024,
             backend: BackendChoice::Auto,
             compose_timeout_secs: 60.0,
+            score_queue: 256,
+            render_concurrency: 2,
+            max_render_pixels: 4096 * 4096,
         }
     }
 }
@@ -80,9 +90,15 @@ impl Config {
                 problem: format!("{} is not seconds in [0, 86400]", self.compose_timeout_secs),
             });
         }
-        if self.report_buffer == 0 || self.max_vdi_bytes == 0 || self.max_reference_bytes == 0 {
+        if self.report_buffer == 0
+            || self.max_vdi_bytes == 0
+            || self.max_reference_bytes == 0
+            || self.score_queue == 0
+            || self.render_concurrency == 0
+            || self.max_render_pixels == 0
+        {
             return Err(ConfigError::Invalid {
-                key: "report_buffer/max_vdi_bytes/max_reference_bytes",
+                key: "report_buffer/max_vdi_bytes/max_reference_bytes/score_queue/render_concurrency/max_render_pixels",
                 problem: "must be ≥ 1".into(),
             });
         }

@@ -9,6 +9,7 @@
 
 pub mod compose;
 pub mod config;
+pub mod index;
 pub mod node;
 pub mod scene;
 pub mod score;

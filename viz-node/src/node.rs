@@ -51,11 +51,14 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
     let addr = listener.local_addr()?;
-    let (to_score, score_rx) = mpsc::unbounded_channel();
+    let recovery = recording.recover()?;
+    let (to_score, score_rx) = mpsc::channel(cfg.score_queue);
     let shared = Arc::new(Shared {
         recording,
         reports: broadcast::channel(cfg.report_buffer).0,
         to_score,
+        renders: Arc::new(tokio::sync::Semaphore::new(cfg.render_concurrency)),
+        max_render_pixels: cfg.max_render_pixels,
         scene,
         compose_timeout: Duration::from_secs_f64(cfg.compose_timeout_secs),
         timers: Mutex::new(HashSet::new()),
@@ -72,6 +75,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         rejected: AtomicU64::new(0),
     });
     tokio::spawn(scorer(shared.clone(), score_rx));
+    resume(&shared, recovery);
     let svc = VizServer::new(VizService(shared.clone()))
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
@@ -91,6 +95,43 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         stop,
         server,
     })
+}
+
+/// Logs what the recording's recovery found and queues the work a crash interrupted: scoring
+/// of steps stored without q, composition of multi-rank steps not composed (now when complete,
+/// else after the timeout).
+fn resume(shared: &Arc<Shared>, r: crate::store::Recovery) {
+    if !r.temp_removed.is_empty() {
+        info!(files = ?r.temp_removed, "removed temporary files left by an interrupted write");
+    }
+    if !r.files_without_rows.is_empty() {
+        tracing::warn!(files = ?r.files_without_rows, "payload files that no index row names (kept; stored before a crash, not acknowledged)");
+    }
+    if !r.rows_without_files.is_empty() {
+        tracing::warn!(files = ?r.rows_without_files, "index rows whose files are missing (kept; restore the files or they will not render)");
+    }
+    if r.unscored.is_empty() && r.uncomposed.is_empty() {
+        return;
+    }
+    info!(
+        unscored = r.unscored.len(),
+        uncomposed = r.uncomposed.len(),
+        "resuming scoring and composing interrupted by a stop"
+    );
+    let tx = shared.to_score.clone();
+    tokio::spawn(async move {
+        for (step, rank) in r.unscored {
+            let _ = tx.send(crate::service::Job::Score(step, rank)).await;
+        }
+        for step in r.uncomposed {
+            let _ = tx
+                .send(crate::service::Job::Compose {
+                    step,
+                    partial_ok: true,
+                })
+                .await;
+        }
+    });
 }
 
 impl RunningViz {

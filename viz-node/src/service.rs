@@ -2,7 +2,7 @@
 
 use crate::scene::SceneAgreement;
 use crate::score::score;
-use crate::store::{Entry, Placement, Recording, References, StepEntry};
+use crate::store::{Entry, Placement, Recording, References, StepEntry, StoreError};
 use insitu_core::vdi::codec::{self, DecodeLimits};
 use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
@@ -31,8 +31,12 @@ pub struct Shared {
     pub recording: Recording,
     /// Quality reports to subscribers.
     pub reports: broadcast::Sender<pb::QualityReport>,
-    /// Steps to score or compose.
-    pub to_score: mpsc::UnboundedSender<Job>,
+    /// Steps to score or compose (bounded: `score_queue` jobs; storing waits when full).
+    pub to_score: mpsc::Sender<Job>,
+    /// Renders at once (`Render` beyond it: `RESOURCE_EXHAUSTED`).
+    pub renders: Arc<tokio::sync::Semaphore>,
+    /// Largest image of one `Render`, pixels.
+    pub max_render_pixels: u64,
     /// The run's agreed scene.
     pub scene: SceneAgreement,
     /// How long a multi-rank step waits for its last rank before it is composed without it.
@@ -135,11 +139,12 @@ impl Shared {
     /// What a stored VDI or set of frames sets off: scoring of a single-rank step; for a
     /// rank of several, the per-rank report (once its VDI is in) and the step's composition
     /// (now when every rank is ready, else after the timeout).
-    fn after_store(self: &Arc<Self>, e: &Entry, was_vdi: bool) {
+    async fn after_store(self: &Arc<Self>, e: &Entry, was_vdi: bool) {
         if e.world_size <= 1 {
             if e.vdi.is_some() && e.references.is_some() {
-                // The scoring task lives as long as the node.
-                let _ = self.to_score.send(Job::Score(e.step, e.rank));
+                // The scoring task lives as long as the node. A full queue holds this call
+                // (and so the shipper's next item) until the scorer catches up.
+                let _ = self.to_score.send(Job::Score(e.step, e.rank)).await;
             } else if e.vdi.is_some() {
                 self.publish(report(e));
             }
@@ -151,10 +156,13 @@ impl Shared {
         let step = e.step;
         let ranks = self.recording.ranks_of(step);
         if crate::compose::missing(&ranks, e.world_size).is_empty() {
-            let _ = self.to_score.send(Job::Compose {
-                step,
-                partial_ok: false,
-            });
+            let _ = self
+                .to_score
+                .send(Job::Compose {
+                    step,
+                    partial_ok: false,
+                })
+                .await;
         } else if self
             .timers
             .lock()
@@ -164,10 +172,12 @@ impl Shared {
             let (tx, wait) = (self.to_score.clone(), self.compose_timeout);
             tokio::spawn(async move {
                 tokio::time::sleep(wait).await;
-                let _ = tx.send(Job::Compose {
-                    step,
-                    partial_ok: true,
-                });
+                let _ = tx
+                    .send(Job::Compose {
+                        step,
+                        partial_ok: true,
+                    })
+                    .await;
             });
         }
     }
@@ -285,7 +295,7 @@ impl Shared {
 }
 
 /// Scores and composes queued steps one at a time on the blocking pool.
-pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Job>) {
+pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::Receiver<Job>) {
     while let Some(job) = rx.recv().await {
         let s = shared.clone();
         let (step, rank) = match job {
@@ -312,6 +322,18 @@ pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Job>) {
 
 /// The gRPC service.
 pub struct VizService(pub Arc<Shared>);
+
+/// `ALREADY_EXISTS` for a (step, rank) stored with other content; `RESOURCE_EXHAUSTED` when
+/// the disk is full; `INTERNAL` for other storage failures. Each names the file or the item.
+fn store_status(e: StoreError) -> Status {
+    match &e {
+        StoreError::AlreadyExists { .. } => Status::already_exists(e.to_string()),
+        StoreError::Io { source, .. } if source.kind() == std::io::ErrorKind::StorageFull => {
+            Status::resource_exhausted(e.to_string())
+        }
+        _ => Status::internal(e.to_string()),
+    }
+}
 
 fn join_error(e: tokio::task::JoinError) -> Status {
     Status::internal(format!("storage task failed: {e}"))
@@ -375,14 +397,15 @@ impl VizService {
                 placement,
                 with_references: h.with_references,
             };
-            s.recording
-                .store_vdi(meta, &bytes)
-                .map_err(|e| Status::internal(e.to_string()))
+            s.recording.store_vdi(meta, &bytes).map_err(store_status)
         })
         .await
         .map_err(join_error)??;
-        self.0.vdis_stored.fetch_add(1, Ordering::Relaxed);
-        self.0.after_store(&entry, true);
+        let (entry, new) = entry;
+        if new {
+            self.0.vdis_stored.fetch_add(1, Ordering::Relaxed);
+            self.0.after_store(&entry, true).await;
+        }
         Ok(entry)
     }
 
@@ -450,12 +473,15 @@ impl VizService {
             })?;
             s.recording
                 .store_references(h.step, h.rank, &refs)
-                .map_err(|e| Status::internal(e.to_string()))
+                .map_err(store_status)
         })
         .await
         .map_err(join_error)??;
-        self.0.references_stored.fetch_add(1, Ordering::Relaxed);
-        self.0.after_store(&entry, false);
+        let (entry, new) = entry;
+        if new {
+            self.0.references_stored.fetch_add(1, Ordering::Relaxed);
+            self.0.after_store(&entry, false).await;
+        }
         Ok(entry)
     }
 }
@@ -609,9 +635,24 @@ impl Viz for VizService {
                 r.width, r.height
             )));
         }
+        let pixels = u64::from(r.width) * u64::from(r.height);
+        if pixels > self.0.max_render_pixels {
+            return Err(Status::resource_exhausted(format!(
+                "image of {}×{} = {pixels} pixels exceeds max_render_pixels {}",
+                r.width, r.height, self.0.max_render_pixels
+            )));
+        }
+        // At most `render_concurrency` renders at once; more are refused, not queued, so a
+        // burst of large requests cannot hold memory for all of them.
+        let permit = self.0.renders.clone().try_acquire_owned().map_err(|_| {
+            Status::resource_exhausted(
+                "every render slot is busy (render_concurrency); try again shortly",
+            )
+        })?;
         let camera = r.camera.as_ref().map(camera_from_pb).transpose()?;
         let s = self.0.clone();
         let png = tokio::task::spawn_blocking(move || {
+            let _permit = permit;
             let vdi = if r.composed {
                 let name = s
                     .recording

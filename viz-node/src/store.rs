@@ -1,9 +1,12 @@
 //! The recording directory: one file per VDI (`step_SSSSSSSS_rank_RRRR.vdi`, the core codec
-//! format as shipped), one per set of reference frames (`….refs`), and `index.json` listing
-//! every step and rank with σ, τ, `P_M` and, once scored, q. Every file is written to a
-//! temporary name in the same directory, synced, and renamed, so a crash never leaves a half
-//! file under a final name (and the index never names a file that is not complete).
+//! format as shipped), one per set of reference frames (`….refs`), composed steps'
+//! `step_SSSSSSSS_composed.*`, and the index ([`crate::index`], `index.sqlite`) with a row per
+//! step and rank (σ, τ, `P_M`, and once scored q) and per composed step. Every file is written
+//! to a temporary name in the same directory, synced, and renamed before its row is committed,
+//! so a crash never leaves a half file under a final name and the index never names a file
+//! that is not complete; [`Recording::recover`] tidies what a crash leaves on the next start.
 
+use crate::index::{IndexDb, INDEX_DB};
 pub use insitu_core::metrics::Db;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Image};
@@ -13,10 +16,11 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-/// The index file's name.
-pub const INDEX: &str = "index.json";
-/// The index file's format version.
-pub const INDEX_VERSION: u32 = 1;
+/// The JSON index of recordings made before the SQLite index: imported once, then renamed
+/// `index.json.imported`.
+pub const LEGACY_INDEX: &str = "index.json";
+/// The legacy JSON index's format version.
+pub const LEGACY_INDEX_VERSION: u32 = 1;
 const REFS_MAGIC: &[u8; 8] = b"INSREF1\n";
 
 /// Errors of the recording; each names the file.
@@ -37,6 +41,16 @@ pub enum StoreError {
         path: PathBuf,
         /// What is wrong.
         problem: String,
+    },
+    /// The same step and rank was stored before with different bytes.
+    #[error("step {step} rank {rank}: {what} already stored with different content")]
+    AlreadyExists {
+        /// The step.
+        step: u64,
+        /// The rank.
+        rank: u32,
+        /// `VDI` or `reference frames`.
+        what: &'static str,
     },
 }
 
@@ -177,14 +191,7 @@ impl Entry {
     }
 }
 
-/// The index as written: entries borrowed, by step then rank.
-#[derive(Serialize)]
-struct IndexRef<'a> {
-    version: u32,
-    entries: Vec<&'a Entry>,
-    steps: Vec<&'a StepEntry>,
-}
-
+/// The legacy JSON index.
 #[derive(Deserialize)]
 struct IndexFile {
     version: u32,
@@ -350,16 +357,38 @@ impl References {
     }
 }
 
-/// The recording directory and its index.
+/// The recording directory and its index (rows cached in memory, each change committed to
+/// the database before the cache takes it).
 pub struct Recording {
     dir: PathBuf,
     index: Mutex<Index>,
 }
 
-#[derive(Default)]
 struct Index {
+    db: IndexDb,
     entries: BTreeMap<(u64, u32), Entry>,
     steps: BTreeMap<u64, StepEntry>,
+}
+
+/// What [`Recording::recover`] found on start (after a crash: temporary files, payloads whose
+/// row was never committed, rows whose file was removed, steps stored but not scored or
+/// composed).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Recovery {
+    /// Temporary files removed.
+    pub temp_removed: Vec<String>,
+    /// Payload files no row names (kept, reported).
+    pub files_without_rows: Vec<String>,
+    /// Rows naming files that are missing (kept, reported).
+    pub rows_without_files: Vec<String>,
+    /// Single-rank (step, rank) with a VDI and references but no q: to score.
+    pub unscored: Vec<(u64, u32)>,
+    /// Multi-rank steps with ranks stored but no composition: to compose.
+    pub uncomposed: Vec<u64>,
+}
+
+fn is_payload(name: &str) -> bool {
+    name.starts_with("step_") && (name.ends_with(".vdi") || name.ends_with(".refs"))
 }
 
 /// Writes `bytes` to `dir/name` atomically (temp file in `dir`, fsync, rename).
@@ -402,42 +431,133 @@ pub fn refs_name(step: u64, rank: u32) -> String {
 }
 
 impl Recording {
-    /// Opens (creating) `dir`, continuing an existing index.
+    /// Opens (creating) `dir`, continuing an existing index; a legacy `index.json` is
+    /// imported once (and renamed `index.json.imported`).
     ///
     /// # Errors
-    /// [`StoreError`] when the directory cannot be created or the index is corrupt (it is
-    /// never silently replaced).
+    /// [`StoreError`] when the directory cannot be created, the index is corrupt (it is never
+    /// silently replaced), or the directory holds payload files but no index (it is never
+    /// silently orphaned by a new recording beside them).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
-        let index = dir.join(INDEX);
-        let mut all = Index::default();
-        if index.exists() {
-            let text = std::fs::read(&index).map_err(io(&index))?;
+        let fresh = !dir.join(INDEX_DB).exists();
+        let legacy = dir.join(LEGACY_INDEX);
+        let imported = if fresh && legacy.exists() {
+            let text = std::fs::read(&legacy).map_err(io(&legacy))?;
             let file: IndexFile =
                 serde_json::from_slice(&text).map_err(|e| StoreError::Corrupt {
-                    path: index.clone(),
+                    path: legacy.clone(),
                     problem: format!("{e}; move it away to start a new recording here"),
                 })?;
-            if file.version != INDEX_VERSION {
+            if file.version != LEGACY_INDEX_VERSION {
                 return Err(StoreError::Corrupt {
-                    path: index,
+                    path: legacy,
                     problem: format!(
-                        "index version {} is not {INDEX_VERSION}; move it away to start a new recording here",
+                        "index version {} is not {LEGACY_INDEX_VERSION}; move it away to start a new recording here",
                         file.version
                     ),
                 });
             }
-            for e in file.entries {
-                all.entries.insert((e.step, e.rank), e);
-            }
-            for s in file.steps {
-                all.steps.insert(s.step, s);
+            Some(file)
+        } else {
+            None
+        };
+        if fresh && imported.is_none() {
+            let payloads = std::fs::read_dir(dir)
+                .map_err(io(dir))?
+                .filter_map(Result::ok)
+                .filter(|d| is_payload(&d.file_name().to_string_lossy()))
+                .count();
+            if payloads > 0 {
+                return Err(StoreError::Corrupt {
+                    path: dir.join(INDEX_DB),
+                    problem: format!(
+                        "missing, but the directory holds {payloads} VDI or reference files: restore the index, or record into another directory (a new index here would orphan them)"
+                    ),
+                });
             }
         }
+        let db = IndexDb::open(dir, true)?;
+        if let Some(file) = imported {
+            for e in &file.entries {
+                db.put_entry(e)?;
+            }
+            for st in &file.steps {
+                db.put_step(st)?;
+            }
+            let done = dir.join(format!("{LEGACY_INDEX}.imported"));
+            std::fs::rename(&legacy, &done).map_err(io(&legacy))?;
+            tracing::info!(
+                entries = file.entries.len(),
+                "imported the legacy index.json"
+            );
+        }
+        let entries = db
+            .entries()?
+            .into_iter()
+            .map(|e| ((e.step, e.rank), e))
+            .collect();
+        let steps = db.steps()?.into_iter().map(|st| (st.step, st)).collect();
         Ok(Self {
             dir: dir.to_owned(),
-            index: Mutex::new(all),
+            index: Mutex::new(Index { db, entries, steps }),
         })
+    }
+
+    /// Tidies what a crash left and says what is left to do: removes temporary files, lists
+    /// payload files no row names and rows whose files are missing (both kept: a person
+    /// decides), and the steps stored but not yet scored or composed.
+    ///
+    /// # Errors
+    /// [`StoreError::Io`] when the directory cannot be read.
+    pub fn recover(&self) -> Result<Recovery, StoreError> {
+        let mut r = Recovery::default();
+        let index = self.lock();
+        let mut named = std::collections::HashSet::new();
+        for e in index.entries.values() {
+            named.extend(e.vdi.iter().chain(&e.references).cloned());
+            if e.world_size <= 1 && e.vdi.is_some() && e.references.is_some() && e.quality.is_none()
+            {
+                r.unscored.push((e.step, e.rank));
+            }
+            if e.world_size > 1
+                && !index.steps.contains_key(&e.step)
+                && r.uncomposed.last() != Some(&e.step)
+            {
+                r.uncomposed.push(e.step);
+            }
+        }
+        for st in index.steps.values() {
+            named.extend(st.vdi.iter().chain(&st.references).cloned());
+        }
+        for name in &named {
+            if !self.dir.join(name).exists() {
+                r.rows_without_files.push(name.clone());
+            }
+        }
+        for d in std::fs::read_dir(&self.dir).map_err(io(&self.dir))? {
+            let Ok(d) = d else { continue };
+            let name = d.file_name().to_string_lossy().into_owned();
+            if name.starts_with(".tmp-") {
+                if std::fs::remove_file(d.path()).is_ok() {
+                    r.temp_removed.push(name);
+                }
+            } else if is_payload(&name) && !named.contains(&name) {
+                r.files_without_rows.push(name);
+            }
+        }
+        r.temp_removed.sort();
+        r.files_without_rows.sort();
+        r.rows_without_files.sort();
+        Ok(r)
+    }
+
+    /// The index as JSON (see [`IndexDb::export_json`]).
+    ///
+    /// # Errors
+    /// As [`IndexDb::export_json`].
+    pub fn export_json(&self) -> Result<serde_json::Value, StoreError> {
+        self.lock().db.export_json()
     }
 
     /// The directory.
@@ -449,21 +569,8 @@ impl Recording {
         self.index.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn write_index(&self, index: &Index) -> Result<(), StoreError> {
-        serde_json::to_vec_pretty(&IndexRef {
-            version: INDEX_VERSION,
-            entries: index.entries.values().collect(),
-            steps: index.steps.values().collect(),
-        })
-        .map_err(|e| StoreError::Corrupt {
-            path: self.dir.join(INDEX),
-            problem: e.to_string(),
-        })
-        .and_then(|json| write_atomic(&self.dir, INDEX, &json))
-    }
-
-    /// Applies `f` to the entry of `key` and rewrites the index; on failure the in-memory
-    /// index is left as it was.
+    /// Applies `f` to the entry of `key` and commits its row (one transaction); the cache
+    /// takes the change only once it is committed.
     fn update(&self, key: (u64, u32), f: impl FnOnce(&mut Entry)) -> Result<Entry, StoreError> {
         let mut index = self.lock();
         let mut next = index
@@ -472,32 +579,41 @@ impl Recording {
             .cloned()
             .unwrap_or_else(|| Entry::empty(key.0, key.1));
         f(&mut next);
-        let previous = index.entries.insert(key, next.clone());
-        if let Err(e) = self.write_index(&index) {
-            match previous {
-                Some(p) => index.entries.insert(key, p),
-                None => index.entries.remove(&key),
-            };
-            return Err(e);
-        }
+        index.db.put_entry(&next)?;
+        index.entries.insert(key, next.clone());
         Ok(next)
     }
 
     /// Records a composed step (replacing an earlier composition of it).
     ///
     /// # Errors
-    /// [`StoreError`]; the in-memory index is left as it was.
+    /// [`StoreError`]; the cache is left as it was.
     pub fn set_step(&self, step: StepEntry) -> Result<(), StoreError> {
         let mut index = self.lock();
-        let previous = index.steps.insert(step.step, step.clone());
-        if let Err(e) = self.write_index(&index) {
-            match previous {
-                Some(p) => index.steps.insert(step.step, p),
-                None => index.steps.remove(&step.step),
-            };
-            return Err(e);
-        }
+        index.db.put_step(&step)?;
+        index.steps.insert(step.step, step);
         Ok(())
+    }
+
+    /// Whether `name` (a payload of `step`/`rank`) already holds exactly `bytes`: a retry
+    /// after a lost acknowledgement. `Err(AlreadyExists)` when it holds something else.
+    fn duplicate(
+        &self,
+        existing: Option<&String>,
+        (step, rank, what): (u64, u32, &'static str),
+        bytes: &[u8],
+    ) -> Result<bool, StoreError> {
+        let Some(name) = existing else {
+            return Ok(false);
+        };
+        let path = self.dir.join(name);
+        match std::fs::read(&path) {
+            Ok(old) if old == bytes => Ok(true),
+            Ok(_) => Err(StoreError::AlreadyExists { step, rank, what }),
+            // The row names a file that is gone: store it again.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+            Err(source) => Err(StoreError::Io { path, source }),
+        }
     }
 
     /// A composed step.
@@ -520,11 +636,18 @@ impl Recording {
     }
 
     /// Records a VDI file (already validated by the caller) and its metadata; the file is on
-    /// disk before the index names it.
+    /// disk before the index names it. Returns the entry and whether it is new: the same
+    /// (step, rank) with identical bytes is an idempotent success (`false`).
     ///
     /// # Errors
-    /// [`StoreError`].
-    pub fn store_vdi(&self, meta: Entry, file: &[u8]) -> Result<Entry, StoreError> {
+    /// [`StoreError::AlreadyExists`] when the same (step, rank) holds a different VDI;
+    /// [`StoreError`] for I/O and the index.
+    pub fn store_vdi(&self, meta: Entry, file: &[u8]) -> Result<(Entry, bool), StoreError> {
+        let existing = self.entry(meta.step, meta.rank);
+        let key = (meta.step, meta.rank, "VDI");
+        if self.duplicate(existing.as_ref().and_then(|e| e.vdi.as_ref()), key, file)? {
+            return Ok((existing.unwrap_or(meta), false));
+        }
         let name = vdi_name(meta.step, meta.rank);
         write_atomic(&self.dir, &name, file)?;
         self.update((meta.step, meta.rank), |e| {
@@ -536,24 +659,38 @@ impl Recording {
                 ..meta
             };
         })
+        .map(|e| (e, true))
     }
 
-    /// Records reference frames.
+    /// Records reference frames; returns the entry and whether they are new (identical
+    /// frames stored again are an idempotent success).
     ///
     /// # Errors
-    /// [`StoreError`].
+    /// [`StoreError::AlreadyExists`] when different frames are stored for the same step and
+    /// rank; [`StoreError`] for I/O and the index.
     pub fn store_references(
         &self,
         step: u64,
         rank: u32,
         refs: &References,
-    ) -> Result<Entry, StoreError> {
+    ) -> Result<(Entry, bool), StoreError> {
+        let bytes = refs.to_file_bytes();
+        let existing = self.entry(step, rank);
+        let key = (step, rank, "reference frames");
+        if self.duplicate(
+            existing.as_ref().and_then(|e| e.references.as_ref()),
+            key,
+            &bytes,
+        )? {
+            return Ok((existing.unwrap_or_else(|| Entry::empty(step, rank)), false));
+        }
         let name = refs_name(step, rank);
-        write_atomic(&self.dir, &name, &refs.to_file_bytes())?;
+        write_atomic(&self.dir, &name, &bytes)?;
         self.update((step, rank), |e| {
             e.references = Some(name);
             e.quality = None;
         })
+        .map(|e| (e, true))
     }
 
     /// Records the quality of a step's VDI.
@@ -593,6 +730,16 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let rec = Recording::open(dir.path()).unwrap();
         rec.store_vdi(entry(3), b"vdi bytes").unwrap();
+        // A retry with the same bytes is fine; other bytes for the same (step, rank) are not.
+        assert!(!rec.store_vdi(entry(3), b"vdi bytes").unwrap().1);
+        assert!(matches!(
+            rec.store_vdi(entry(3), b"other bytes"),
+            Err(StoreError::AlreadyExists {
+                step: 3,
+                rank: 0,
+                ..
+            })
+        ));
         let refs = References {
             camera: Camera::default_for_box(&insitu_core::volume::Aabb {
                 min: glam_vec(0.0),
@@ -636,10 +783,60 @@ mod tests {
     #[test]
     fn a_corrupt_index_is_refused_not_replaced() {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join(INDEX), b"{ half").unwrap();
+        std::fs::write(dir.path().join(LEGACY_INDEX), b"{ half").unwrap();
         let e = Recording::open(dir.path()).err().unwrap().to_string();
         assert!(e.contains("index.json"), "{e}");
-        assert_eq!(std::fs::read(dir.path().join(INDEX)).unwrap(), b"{ half");
+        assert_eq!(
+            std::fs::read(dir.path().join(LEGACY_INDEX)).unwrap(),
+            b"{ half"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join(INDEX_DB),
+            b"not a database at all, not even close",
+        )
+        .unwrap();
+        let e = Recording::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("index.sqlite"), "{e}");
+    }
+
+    #[test]
+    fn payloads_without_an_index_are_not_orphaned_and_a_crash_is_tidied() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(vdi_name(1, 0)), b"x").unwrap();
+        let e = Recording::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("1 VDI or reference files"), "{e}");
+
+        let dir = tempfile::tempdir().unwrap();
+        let rec = Recording::open(dir.path()).unwrap();
+        rec.store_vdi(entry(1), b"one").unwrap();
+        rec.store_vdi(entry(2), b"two").unwrap();
+        std::fs::write(dir.path().join(".tmp-abc"), b"half").unwrap();
+        std::fs::write(dir.path().join(vdi_name(9, 0)), b"no row").unwrap();
+        std::fs::remove_file(dir.path().join(vdi_name(2, 0))).unwrap();
+        drop(rec);
+        let rec = Recording::open(dir.path()).unwrap();
+        let r = rec.recover().unwrap();
+        assert_eq!(r.temp_removed, [".tmp-abc"]);
+        assert_eq!(r.files_without_rows, [vdi_name(9, 0)]);
+        assert_eq!(r.rows_without_files, [vdi_name(2, 0)]);
+        assert!(!dir.path().join(".tmp-abc").exists());
+    }
+
+    #[test]
+    fn a_legacy_json_index_is_imported_once() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(vdi_name(4, 0)), b"v").unwrap();
+        let e = Entry {
+            vdi: Some(vdi_name(4, 0)),
+            ..entry(4)
+        };
+        let json = serde_json::json!({"version": 1, "entries": [e]});
+        std::fs::write(dir.path().join(LEGACY_INDEX), json.to_string()).unwrap();
+        let rec = Recording::open(dir.path()).unwrap();
+        assert_eq!(rec.entry(4, 0), Some(e));
+        assert!(dir.path().join("index.json.imported").exists());
+        assert!(!dir.path().join(LEGACY_INDEX).exists());
     }
 
     #[test]

@@ -3,6 +3,7 @@
 pub mod accuracy;
 pub mod demo;
 pub mod evaluate;
+pub mod export;
 pub mod generate;
 pub mod render;
 pub mod replay;

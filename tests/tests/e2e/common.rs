@@ -6,7 +6,7 @@ use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::render;
 use insitu_core::Vdi;
 use insitu_e2e::{rt, Daemon};
-use insitu_viz_node::store::{Entry, References, INDEX};
+use insitu_viz_node::store::{Entry, References, StepEntry};
 use std::net::TcpListener;
 use std::path::Path;
 
@@ -53,12 +53,14 @@ pub fn generator(toml: &str, logs: &Path, envs: &[(&str, &str)]) -> Daemon {
     )
 }
 
-/// The recording's index entries.
+/// The recording's index entries (none before the viz-node made the index).
 pub fn index(dir: &Path) -> Vec<Entry> {
-    let text =
-        std::fs::read_to_string(dir.join(INDEX)).unwrap_or_else(|_| "{\"entries\": []}".into());
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    serde_json::from_value(v["entries"].clone()).unwrap()
+    insitu_viz_node::index::read(dir).map_or_else(|_| Vec::new(), |(e, _)| e)
+}
+
+/// The recording's composed steps.
+pub fn steps(dir: &Path) -> Vec<StepEntry> {
+    insitu_viz_node::index::read(dir).map_or_else(|_| Vec::new(), |(_, s)| s)
 }
 
 /// Decodes a stored VDI.

@@ -3,7 +3,7 @@
 //! rank) arrives, every step composes and is scored, and the composed picture matches the
 //! same simulation run in one process (the Rust model, cell for cell the same arithmetic).
 
-use crate::common::{generator, index, viz};
+use crate::common::{generator, index, steps, viz};
 use insitu_core::metrics::psnr;
 use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
@@ -11,7 +11,6 @@ use insitu_core::volume::{GrayScott, GrayScottParams};
 use insitu_core::{Camera, RaycastParams, Raycaster};
 use insitu_e2e::{build_c, mpi_tool, wait_until};
 use insitu_viz_node::scene::Agreed;
-use insitu_viz_node::store::StepEntry;
 use std::process::Command;
 
 const N: usize = 48;
@@ -63,16 +62,15 @@ reference_every = 1
     );
     assert!(stdout.contains("4 ranks"), "{stdout}");
 
-    let steps = || -> Vec<StepEntry> {
-        let text = std::fs::read_to_string(rec.join("index.json")).unwrap_or_default();
-        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
-        serde_json::from_value(v["steps"].clone()).unwrap_or_default()
-    };
     let all = wait_until(60.0, || {
-        let s = steps();
+        let s = steps(&rec);
         s.len() == 3 && s.iter().all(|s| s.quality.is_some())
     });
-    assert!(all, "not every step was composed and scored: {:?}", steps());
+    assert!(
+        all,
+        "not every step was composed and scored: {:?}",
+        steps(&rec)
+    );
     // Every (step, rank) arrived.
     let entries = index(&rec);
     for step in (EVERY..=STEPS).step_by(EVERY as usize) {
@@ -98,7 +96,7 @@ reference_every = 1
         gamma: 0.01,
     };
     let one = generate(&rc, &camera, params, agreed.tf.identity_hash(), "one").unwrap();
-    let last = steps().into_iter().find(|s| s.step == STEPS).unwrap();
+    let last = steps(&rec).into_iter().find(|s| s.step == STEPS).unwrap();
     assert!(last.missing.is_empty() && last.error.is_none(), "{last:?}");
     let bytes = std::fs::read(rec.join(last.vdi.as_ref().unwrap())).unwrap();
     let composed = decode(&bytes, &DecodeLimits::default()).unwrap();

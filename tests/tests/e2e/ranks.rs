@@ -2,7 +2,7 @@
 //! whose bricks have different ranges (kept across a generator-node restart), a missing rank
 //! leaves a partial step, and bad decompositions are refused naming the step and ranks.
 
-use crate::common::{generator, index, load_vdi, small_config, viz};
+use crate::common::{generator, index, load_vdi, small_config, steps, viz};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
 use insitu_core::metrics::psnr;
 use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
@@ -12,18 +12,10 @@ use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volum
 use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{chunk, pb, transport};
-use insitu_viz_node::store::StepEntry;
 use std::path::Path;
 use std::process::Command;
 
 const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
-
-/// The recording's composed steps.
-fn steps(dir: &Path) -> Vec<StepEntry> {
-    let text = std::fs::read_to_string(dir.join("index.json")).unwrap_or_default();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
-    serde_json::from_value(v["steps"].clone()).unwrap_or_default()
-}
 
 fn decode_file(path: &Path) -> Vdi {
     decode(&std::fs::read(path).unwrap(), &DecodeLimits::default()).unwrap()

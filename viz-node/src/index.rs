@@ -1,0 +1,264 @@
+//! The recording's index: an SQLite database (`index.sqlite`, WAL mode, bundled SQLite) with
+//! one row per stored (step, rank) and one per composed step. Each stored item is one
+//! transaction, so a store costs the same at step 10 as at step 100 000 (the JSON index it
+//! replaces was rewritten whole on every store), and a crash leaves the index as of the last
+//! committed item. The payloads (VDIs, reference frames) stay files, written atomically before
+//! their row names them.
+//!
+//! Columns beside the JSON of each row (step, rank, world size, P_M version, σ, τ, q) are what
+//! the viewer's queries read (series of σ, τ, q; P_M versions); the JSON keeps everything else.
+//! [`IndexDb::export_json`] and [`IndexDb::export_csv`] write it out for people who want a file.
+
+use crate::store::{Entry, StepEntry, StoreError};
+use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
+use std::path::{Path, PathBuf};
+
+/// The index file's name in the recording directory.
+pub const INDEX_DB: &str = "index.sqlite";
+/// The schema version kept in `meta`.
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// The open index.
+pub struct IndexDb {
+    path: PathBuf,
+    conn: Connection,
+}
+
+fn db_err(path: &Path) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+    move |e| StoreError::Corrupt {
+        path: path.to_owned(),
+        problem: format!("SQLite: {e}"),
+    }
+}
+
+fn json_err(path: &Path) -> impl Fn(serde_json::Error) -> StoreError + '_ {
+    move |e| StoreError::Corrupt {
+        path: path.to_owned(),
+        problem: format!("a row's JSON: {e}"),
+    }
+}
+
+/// Step indices are stored as SQLite's signed 64-bit integers.
+fn step_key(step: u64) -> i64 {
+    step as i64
+}
+
+impl IndexDb {
+    /// Opens (creating when `create`) the index of `dir`.
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] when the file is not an index of this version.
+    pub fn open(dir: &Path, create: bool) -> Result<Self, StoreError> {
+        let path = dir.join(INDEX_DB);
+        let err = db_err(&path);
+        let flags = if create {
+            OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_CREATE
+        } else {
+            OpenFlags::SQLITE_OPEN_READ_ONLY
+        };
+        let conn = Connection::open_with_flags(&path, flags).map_err(&err)?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))
+            .map_err(&err)?;
+        if create {
+            // WAL: readers (the export, tests, a viewer) never block the writer; FULL: a
+            // committed row survives power loss, like the fsync'd payload files it names.
+            conn.pragma_update(None, "journal_mode", "WAL")
+                .map_err(&err)?;
+            conn.pragma_update(None, "synchronous", "FULL")
+                .map_err(&err)?;
+            conn.execute_batch(
+                "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+                 CREATE TABLE IF NOT EXISTS entries (
+                     step INTEGER NOT NULL, rank INTEGER NOT NULL, world_size INTEGER NOT NULL,
+                     pm_version INTEGER NOT NULL, sigma_bytes INTEGER NOT NULL,
+                     tau_secs REAL NOT NULL, q_db REAL, vdi TEXT, refs TEXT,
+                     entry TEXT NOT NULL, PRIMARY KEY (step, rank));
+                 CREATE TABLE IF NOT EXISTS steps (
+                     step INTEGER PRIMARY KEY, world_size INTEGER NOT NULL,
+                     pm_version INTEGER NOT NULL, sigma_bytes INTEGER NOT NULL,
+                     tau_secs REAL NOT NULL, q_db REAL, partial INTEGER NOT NULL, error TEXT,
+                     entry TEXT NOT NULL);",
+            )
+            .map_err(&err)?;
+            conn.execute(
+                "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema', ?1)",
+                params![SCHEMA_VERSION.to_string()],
+            )
+            .map_err(&err)?;
+        }
+        let version: Option<String> = conn
+            .query_row("SELECT value FROM meta WHERE key = 'schema'", [], |r| {
+                r.get(0)
+            })
+            .optional()
+            .map_err(&err)?;
+        if version.as_deref() != Some(&SCHEMA_VERSION.to_string()) {
+            return Err(StoreError::Corrupt {
+                path: path.clone(),
+                problem: format!(
+                    "index schema {version:?} is not {SCHEMA_VERSION}; move it away to start a new recording here"
+                ),
+            });
+        }
+        Ok(Self {
+            path: path.clone(),
+            conn,
+        })
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Inserts or replaces the row of `e` (one transaction).
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] naming the database when SQLite fails (disk full, I/O).
+    pub fn put_entry(&self, e: &Entry) -> Result<(), StoreError> {
+        let json = serde_json::to_string(e).map_err(json_err(&self.path))?;
+        self.conn
+            .execute(
+                "INSERT OR REPLACE INTO entries
+                 (step, rank, world_size, pm_version, sigma_bytes, tau_secs, q_db, vdi, refs, entry)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                params![
+                    step_key(e.step),
+                    e.rank,
+                    e.world_size,
+                    e.pm_version as i64,
+                    e.sigma_bytes as i64,
+                    e.tau_secs,
+                    e.quality.as_ref().map(|q| q.q_db.0),
+                    e.vdi,
+                    e.references,
+                    json
+                ],
+            )
+            .map_err(db_err(&self.path))?;
+        Ok(())
+    }
+
+    /// Inserts or replaces the row of a composed step (one transaction).
+    ///
+    /// # Errors
+    /// As [`Self::put_entry`].
+    pub fn put_step(&self, s: &StepEntry) -> Result<(), StoreError> {
+        let json = serde_json::to_string(s).map_err(json_err(&self.path))?;
+        self.conn
+            .execute(
+                "INSERT OR REPLACE INTO steps
+                 (step, world_size, pm_version, sigma_bytes, tau_secs, q_db, partial, error, entry)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                params![
+                    step_key(s.step),
+                    s.world_size,
+                    s.pm_version as i64,
+                    s.sigma_bytes as i64,
+                    s.tau_secs,
+                    s.quality.as_ref().map(|q| q.q_db.0),
+                    !s.missing.is_empty(),
+                    s.error,
+                    json
+                ],
+            )
+            .map_err(db_err(&self.path))?;
+        Ok(())
+    }
+
+    /// Every (step, rank) row, by step then rank.
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] for an unreadable row.
+    pub fn entries(&self) -> Result<Vec<Entry>, StoreError> {
+        self.rows("SELECT entry FROM entries ORDER BY step, rank")
+    }
+
+    /// Every composed step, in order.
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] for an unreadable row.
+    pub fn steps(&self) -> Result<Vec<StepEntry>, StoreError> {
+        self.rows("SELECT entry FROM steps ORDER BY step")
+    }
+
+    fn rows<T: serde::de::DeserializeOwned>(&self, sql: &str) -> Result<Vec<T>, StoreError> {
+        let err = db_err(&self.path);
+        let mut stmt = self.conn.prepare(sql).map_err(&err)?;
+        let texts = stmt
+            .query_map([], |r| r.get::<_, String>(0))
+            .map_err(&err)?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(&err)?;
+        texts
+            .iter()
+            .map(|t| serde_json::from_str(t).map_err(json_err(&self.path)))
+            .collect()
+    }
+
+    /// The index as one JSON document: `{"entries": [...], "steps": [...]}` (the rows' JSON).
+    ///
+    /// # Errors
+    /// As [`Self::entries`].
+    pub fn export_json(&self) -> Result<serde_json::Value, StoreError> {
+        Ok(serde_json::json!({
+            "schema": SCHEMA_VERSION,
+            "entries": self.entries()?,
+            "steps": self.steps()?,
+        }))
+    }
+
+    /// The index as CSV, one line per (step, rank) and one per composed step (`rank` empty):
+    /// `step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi`.
+    ///
+    /// # Errors
+    /// As [`Self::entries`].
+    pub fn export_csv(&self) -> Result<String, StoreError> {
+        let mut out = String::from(
+            "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi\n",
+        );
+        let q = |q: Option<f64>| q.map_or_else(String::new, |q| q.to_string());
+        for e in self.entries()? {
+            out.push_str(&format!(
+                "{},{},{},{},{},{},{},{},{},,{}\n",
+                e.step,
+                e.rank,
+                e.world_size,
+                e.pm_version,
+                e.resolution,
+                e.gamma,
+                e.sigma_bytes,
+                e.tau_secs,
+                q(e.quality.as_ref().map(|q| q.q_db.0)),
+                e.vdi.unwrap_or_default()
+            ));
+        }
+        for s in self.steps()? {
+            let missing: Vec<String> = s.missing.iter().map(u32::to_string).collect();
+            out.push_str(&format!(
+                "{},,{},{},{},{},{},{},{},{},{}\n",
+                s.step,
+                s.world_size,
+                s.pm_version,
+                s.resolution,
+                s.gamma,
+                s.sigma_bytes,
+                s.tau_secs,
+                q(s.quality.as_ref().map(|q| q.q_db.0)),
+                missing.join(" "),
+                s.vdi.unwrap_or_default()
+            ));
+        }
+        Ok(out)
+    }
+}
+
+/// Reads the index of the recording in `dir` without creating or changing anything (another
+/// process may be writing it: WAL readers see the last committed rows).
+///
+/// # Errors
+/// [`StoreError::Corrupt`] when there is no index or it cannot be read.
+pub fn read(dir: &Path) -> Result<(Vec<Entry>, Vec<StepEntry>), StoreError> {
+    let db = IndexDb::open(dir, false)?;
+    Ok((db.entries()?, db.steps()?))
+}
