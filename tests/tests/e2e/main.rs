@@ -5,6 +5,7 @@
 
 mod bad_input;
 mod common;
+mod faults;
 mod gpu;
 mod mpi;
 mod outage;

@@ -1,0 +1,151 @@
+//! Faults of the recording, with the viz-node as a real process: a retried VDI is stored once
+//! and a different one for the same (step, rank) refused; a viz-node killed between storing
+//! and scoring scores on restart and removes what the crash left; renders beyond the caps are
+//! refused, not allowed to take the node's memory.
+
+use crate::common::{index, load_vdi, local_q, viz};
+use insitu_core::evaluate::render_references;
+use insitu_core::vdi::codec::{encode, Codec};
+use insitu_core::vdi::{generate::generate, VdiParams};
+use insitu_core::{Backend, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+use insitu_e2e::{rt, wait_until};
+use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::{chunk, pb, transport};
+use insitu_viz_node::store::{Entry, Recording, References};
+use tonic::Code;
+
+/// A small VDI file of a blob, with its reference frames at 0° and 40°.
+fn vdi_and_refs(gamma: f32) -> (Vec<u8>, References) {
+    let v = Volume::from_fn([16, 16, 16], |x, y, z| {
+        let d2 = (x as f32 - 8.0).powi(2) + (y as f32 - 7.0).powi(2) + (z as f32 - 8.0).powi(2);
+        (-d2 / 18.0).exp()
+    })
+    .unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 1.0);
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+    let camera = Camera::default_for_box(&v.world_box());
+    let params = VdiParams {
+        resolution: 24,
+        gamma,
+    };
+    let vdi = generate(&rc, &camera, params, tf.identity_hash(), "blob").unwrap();
+    let backend = Backend::Cpu;
+    let scene = backend.prepare(&rc).unwrap();
+    let angles = vec![0.0, 40.0];
+    let frames = render_references(&scene, &camera, &angles, 24).unwrap();
+    let refs = References {
+        camera,
+        view_angles_deg: angles,
+        frames,
+        opacity: None,
+    };
+    (encode(&vdi, Codec::Zstd).unwrap(), refs)
+}
+
+fn header(step: u64, file: &[u8], gamma: f32) -> pb::VdiHeader {
+    pb::VdiHeader {
+        step,
+        world_size: 1,
+        resolution: 24,
+        gamma,
+        codec: pb::Codec::Zstd as i32,
+        total_bytes: file.len() as u64,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn a_retried_vdi_is_stored_once_and_a_different_one_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let (file, _) = vdi_and_refs(0.01);
+    let (other, _) = vdi_and_refs(0.2);
+    rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        let mut c = VizClient::new(channel);
+        let ship = |h: pb::VdiHeader, f: &[u8]| {
+            tokio_stream::iter(chunk::split::<pb::VdiChunk>(
+                h,
+                bytes::Bytes::from(f.to_vec()),
+            ))
+        };
+        // A retry after a lost acknowledgement: the same bytes again are a success.
+        let first = c
+            .ship_vdi(ship(header(5, &file, 0.01), &file))
+            .await
+            .unwrap();
+        let again = c
+            .ship_vdi(ship(header(5, &file, 0.01), &file))
+            .await
+            .unwrap();
+        assert_eq!(first.into_inner().path, again.into_inner().path);
+        // Other content for the same step and rank would silently replace it: refused.
+        let e = c
+            .ship_vdi(ship(header(5, &other, 0.2), &other))
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::AlreadyExists);
+        assert!(e.message().contains("step 5 rank 0"), "{}", e.message());
+        let s = c
+            .get_status(pb::StatusRequest {})
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(s.vdis_stored, 1);
+        // Renders beyond the caps are refused before any memory is taken.
+        let e = c
+            .render(pb::RenderRequest {
+                step: 5,
+                width: 8192,
+                height: 8192,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::ResourceExhausted);
+        assert!(e.message().contains("max_render_pixels"), "{}", e.message());
+    });
+    let e = index(&rec);
+    assert_eq!(e.len(), 1);
+    assert_eq!(load_vdi(&rec, &e[0]).meta().params.gamma, 0.01);
+    v.terminate();
+}
+
+#[test]
+fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    // What a viz-node killed with SIGKILL between storing a step and scoring it leaves: the
+    // VDI and its references committed, no q, and a temporary file of a write in progress.
+    {
+        let r = Recording::open(&rec).unwrap();
+        let (file, refs) = vdi_and_refs(0.01);
+        let meta = Entry {
+            world_size: 1,
+            resolution: 24,
+            gamma: 0.01,
+            codec: "zstd".into(),
+            sigma_bytes: file.len() as u64,
+            ..Entry::empty(8, 0)
+        };
+        r.store_vdi(meta, &file).unwrap();
+        r.store_references(8, 0, &refs).unwrap();
+    }
+    std::fs::write(rec.join(".tmp-interrupted"), b"half a file").unwrap();
+    assert!(index(&rec)[0].quality.is_none());
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let scored = wait_until(30.0, || {
+        index(&rec).first().is_some_and(|e| e.quality.is_some())
+    });
+    assert!(scored, "the stored step was not scored after the restart");
+    assert!(!rec.join(".tmp-interrupted").exists());
+    let e = index(&rec).remove(0);
+    let local = local_q(&rec, &e);
+    assert!((e.quality.as_ref().unwrap().q_db.0 - local).abs() < 1e-9);
+    // Killed again: the committed rows survive as they are.
+    v.kill();
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    assert_eq!(index(&rec), vec![e]);
+    v.terminate();
+}
