@@ -81,7 +81,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let shared = Arc::new(Shared {
         queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
         generation: RwLock::new(generation),
-        stats,
+        stats: stats.clone(),
         max_step_bytes: cfg.max_step_bytes,
         shipping: cfg.viz.is_some(),
         outbox: Arc::new(BoundedQueue::new(
@@ -92,11 +92,13 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         backend,
         lane: tokio::sync::Mutex::new(()),
         tuning: tuning.clone(),
+        ship_failed_reported: Default::default(),
         scene: match (&cfg.viz, tf_configured) {
             (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
                 viz,
                 token.clone(),
                 Duration::from_secs_f64(cfg.max_backoff_secs),
+                stats.clone(),
             ))),
             _ => None,
         },

@@ -25,18 +25,27 @@ pub struct SceneLink {
     token: Option<Token>,
     max_backoff: Duration,
     proposed: Mutex<HashSet<u32>>,
-    agreed: watch::Sender<Option<Agreed>>,
+    /// `Some(Ok)`: agreed; `Some(Err)`: the viz-node refused for a reason retrying cannot fix
+    /// (a wrong token, a second world size), and this node uses its own brick's range.
+    agreed: watch::Sender<Option<Result<Agreed, String>>>,
+    stats: Arc<crate::stats::Stats>,
 }
 
 impl SceneLink {
-    /// A link to the viz-node at `addr`.
-    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration) -> Self {
+    /// A link to the viz-node at `addr`; why it fails goes to `stats` (`GetStatus`, `Flush`).
+    pub fn new(
+        addr: &str,
+        token: Option<Token>,
+        max_backoff: Duration,
+        stats: Arc<crate::stats::Stats>,
+    ) -> Self {
         Self {
             uri: transport::uri(addr),
             token,
             max_backoff,
             proposed: Mutex::new(HashSet::new()),
             agreed: watch::channel(None).0,
+            stats,
         }
     }
 
@@ -95,21 +104,43 @@ impl SceneLink {
             }
             match self.call(p).await {
                 Ok(a) => {
-                    match TransferFunction::from_json(&a.tf_json, &a.tf_name) {
-                        Ok(tf) => {
+                    let result = TransferFunction::from_json(&a.tf_json, &a.tf_name)
+                        .map(|tf| (tf, a.tf_name.clone()))
+                        .map_err(|e| format!("the viz-node's transfer function is invalid: {e}"));
+                    match &result {
+                        Ok(_) => {
                             info!(tf = %a.tf_name, ranks = a.world_size, "the world agreed on a transfer function");
-                            self.agreed.send_replace(Some((tf, a.tf_name)));
                         }
-                        Err(e) => warn!(error = %e, "the viz-node's transfer function is invalid"),
+                        Err(e) => warn!(error = %e, "using this node's own default"),
                     }
+                    self.agreed.send_replace(Some(result));
                     return;
                 }
-                Err(e) => warn!(
-                    rank = p.rank,
-                    code = ?e.code(),
-                    error = %e.message(),
-                    "no scene agreed yet; retrying"
-                ),
+                Err(e) if !crate::ship::is_transient(e.code()) => {
+                    let why = format!(
+                        "agreeing the scene with the viz-node {}: {:?}: {}",
+                        self.uri,
+                        e.code(),
+                        e.message()
+                    );
+                    tracing::error!(error = %why, "refused: this node uses a default over its own brick's range");
+                    self.stats.set_ship_error(why.clone());
+                    self.agreed.send_replace(Some(Err(why)));
+                    return;
+                }
+                Err(e) => {
+                    warn!(
+                        rank = p.rank,
+                        code = ?e.code(),
+                        error = %e.message(),
+                        "no scene agreed yet; retrying"
+                    );
+                    self.stats.set_ship_error(format!(
+                        "waiting for the world's transfer function: {:?}: {}",
+                        e.code(),
+                        e.message()
+                    ));
+                }
             }
             tokio::time::sleep(backoff).await;
             backoff = (backoff * 2).min(self.max_backoff);
@@ -125,12 +156,14 @@ impl SceneLink {
         Ok(client.agree_scene(p).await?.into_inner())
     }
 
-    /// Waits for the agreed transfer function.
+    /// Waits for the agreed transfer function; `None` when the viz-node refused to agree (the
+    /// node then uses its own default, as without a viz-node).
     pub async fn wait(&self) -> Option<Agreed> {
         let mut rx = self.agreed.subscribe();
         rx.wait_for(Option::is_some)
             .await
             .ok()
             .and_then(|a| a.clone())
+            .and_then(Result::ok)
     }
 }

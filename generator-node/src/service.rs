@@ -38,6 +38,8 @@ pub struct Shared {
     pub lane: tokio::sync::Mutex<()>,
     /// The link to the tuner, when one is configured.
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
+    /// `ship_failed` as of the last `Flush`: a flush reports the refusals since the previous.
+    pub ship_failed_reported: std::sync::atomic::AtomicU64,
     /// Where the world's default transfer function is agreed (the viz-node), when one is
     /// configured and the config names no transfer function.
     pub scene: Option<Arc<crate::scene::SceneLink>>,
@@ -73,6 +75,8 @@ impl Shared {
             viz_connected: c.viz_connected,
             pm_version: g.pm_version,
             tuner_connected: c.tuner_connected,
+            ship_failed: c.ship_failed,
+            ship_error: self.stats.ship_error(),
         }
     }
 }
@@ -228,10 +232,25 @@ impl Generator for GeneratorService {
         )
         .await
         .map_err(|_| {
+            let why = s.stats.ship_error();
             Status::deadline_exceeded(format!(
-                "flush: not all of {target} steps were shipped within {timeout} s (is the viz-node reachable?)"
+                "flush: not all of {target} steps were shipped within {timeout} s ({})",
+                if why.is_empty() { "is the viz-node reachable?".to_owned() } else { why }
             ))
         })?;
+        // Refusals since the previous flush make this one fail, naming the last cause: the
+        // steps were received, but the viz-node did not store their VDIs.
+        let failed = s.stats.get().ship_failed;
+        let before = s
+            .ship_failed_reported
+            .swap(failed, std::sync::atomic::Ordering::Relaxed);
+        if failed > before {
+            return Err(Status::failed_precondition(format!(
+                "flush: the viz-node refused {} VDI(s) since the last flush; last: {}",
+                failed - before,
+                s.stats.ship_error()
+            )));
+        }
         Ok(Response::new(s.status()))
     }
 }

@@ -110,6 +110,7 @@ impl Shipper {
                         info!(uri = %self.uri, "connected to the viz-node");
                     }
                     stats.update(|c| c.viz_connected = true);
+                    stats.set_ship_error("");
                     return Ok(());
                 }
                 Err(e) if !is_transient(e.code()) => return Err(e),
@@ -118,6 +119,12 @@ impl Shipper {
                         warn!(error = %e.message(), "viz-node unreachable; retrying with back-off");
                     }
                     stats.update(|c| c.viz_connected = false);
+                    stats.set_ship_error(format!(
+                        "viz-node {} unreachable: {:?}: {}",
+                        self.uri,
+                        e.code(),
+                        e.message()
+                    ));
                     self.client = None;
                     tokio::time::sleep(backoff).await;
                     backoff = (backoff * 2).min(self.max_backoff);
@@ -134,7 +141,17 @@ impl Shipper {
                 Ok(()) => stats.update(|c| c.shipped += 1),
                 Err(e) => {
                     warn!(step = p.vdi_header.step, rank = p.vdi_header.rank, code = ?e.code(), error = %e.message(), "the viz-node refused a VDI; it is counted as failed");
-                    stats.update(|c| c.failed += 1);
+                    stats.set_ship_error(format!(
+                        "the viz-node refused step {} rank {}: {:?}: {}",
+                        p.vdi_header.step,
+                        p.vdi_header.rank,
+                        e.code(),
+                        e.message()
+                    ));
+                    stats.update(|c| {
+                        c.failed += 1;
+                        c.ship_failed += 1;
+                    });
                 }
             }
         }

@@ -19,6 +19,8 @@ pub struct Counters {
     pub dropped_outbox: u64,
     /// Steps whose generation or shipping failed for good (logged).
     pub failed: u64,
+    /// Of those, VDIs the viz-node refused (authentication, validation, a full disk).
+    pub ship_failed: u64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.
@@ -37,17 +39,27 @@ impl Counters {
     }
 }
 
-/// Shared counters.
+/// Shared counters, and the last reason VDIs did not reach the viz-node.
 #[derive(Debug)]
-pub struct Stats(watch::Sender<Counters>);
+pub struct Stats(watch::Sender<Counters>, std::sync::Mutex<String>);
 
 impl Default for Stats {
     fn default() -> Self {
-        Self(watch::Sender::new(Counters::default()))
+        Self(watch::Sender::new(Counters::default()), Default::default())
     }
 }
 
 impl Stats {
+    /// Records why shipping is failing (empty: it works again).
+    pub fn set_ship_error(&self, e: impl Into<String>) {
+        *self.1.lock().unwrap_or_else(|p| p.into_inner()) = e.into();
+    }
+
+    /// The last reason shipping failed, empty once a VDI was stored after it.
+    pub fn ship_error(&self) -> String {
+        self.1.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
     /// Applies `f` and wakes waiters.
     pub fn update(&self, f: impl FnOnce(&mut Counters)) {
         self.0.send_modify(f);

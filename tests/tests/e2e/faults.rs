@@ -149,3 +149,45 @@ fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
     assert_eq!(index(&rec), vec![e]);
     v.terminate();
 }
+
+#[test]
+fn a_viz_node_that_refuses_the_token_makes_flush_fail_and_says_why() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let token = tmp.path().join("token");
+    std::fs::write(&token, "s3cret-token").unwrap();
+    let v = insitu_e2e::start_viz(
+        &rec,
+        "127.0.0.1:0",
+        &["--token-file", token.to_str().unwrap()],
+        tmp.path(),
+    );
+    // The generator-node has no token: every VDI it ships is refused.
+    let g = crate::common::generator(
+        &crate::common::small_config(&v.addr, "block", 16),
+        tmp.path(),
+        &[],
+    );
+    crate::common::push_steps(&g.addr, 0..3);
+    let e = rt().block_on(async {
+        insitu_client::SimClient::connect(&g.addr, None)
+            .await
+            .unwrap()
+            .flush(std::time::Duration::from_secs(60))
+            .await
+            .unwrap_err()
+    });
+    let text = e.to_string();
+    assert!(
+        text.contains("refused 3 VDI(s)") && text.contains("Unauthenticated"),
+        "{text}"
+    );
+    let s = crate::common::status(&g.addr);
+    assert_eq!((s.ship_failed, s.steps_shipped), (3, 0));
+    assert!(s.ship_error.contains("Unauthenticated"), "{}", s.ship_error);
+    // The next flush has nothing new to report.
+    crate::common::flush(&g.addr);
+    assert!(index(&rec).is_empty());
+    g.terminate();
+    v.terminate();
+}
