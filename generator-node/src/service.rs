@@ -235,7 +235,11 @@ impl Generator for GeneratorService {
             let why = s.stats.ship_error();
             Status::deadline_exceeded(format!(
                 "flush: not all of {target} steps were shipped within {timeout} s ({})",
-                if why.is_empty() { "is the viz-node reachable?".to_owned() } else { why }
+                if why.is_empty() {
+                    "is the viz-node reachable?".to_owned()
+                } else {
+                    why
+                }
             ))
         })?;
         // Refusals since the previous flush make this one fail, naming the last cause: the
