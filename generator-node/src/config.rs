@@ -140,6 +140,30 @@ pub struct Config {
     pub trial_interleave: u64,
     /// Scene and `P_M`.
     pub generation: GenerationConfig,
+    /// The durable spool; unset: acknowledged steps live in memory only.
+    pub spool: Option<SpoolConfig>,
+}
+
+/// `[spool]`: acknowledged steps on local disk until delivered (see `spool.rs`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SpoolConfig {
+    /// Directory (created if missing; one per node).
+    pub dir: PathBuf,
+    /// fsync each step before acknowledging it (survives power loss, not only kill -9).
+    #[serde(default = "default_durable")]
+    pub durable: bool,
+    /// Most bytes of steps held; a push waits while it is full.
+    #[serde(default = "default_spool_bytes")]
+    pub max_bytes: u64,
+}
+
+fn default_durable() -> bool {
+    true
+}
+
+fn default_spool_bytes() -> u64 {
+    8 << 30
 }
 
 impl Default for Config {
@@ -166,6 +190,7 @@ impl Default for Config {
             hold_bytes: 1 << 30,
             trial_interleave: 1,
             generation: GenerationConfig::default(),
+            spool: None,
         }
     }
 }

@@ -34,6 +34,8 @@ pub struct RawStep {
     pub spacing: Vec3,
     /// The field, little-endian, x fastest.
     pub bytes: Vec<u8>,
+    /// Its file in the spool, when the node has one (removed once the step is settled).
+    pub spool: Option<String>,
 }
 
 fn dims(d: Option<&pb::Dims3>, name: &str, min: u32) -> Result<[usize; 3], Status> {
@@ -102,6 +104,7 @@ pub fn check_header(h: &pb::StepHeader) -> Result<RawStep, Status> {
         brick_dims,
         spacing,
         bytes: Vec::new(),
+        spool: None,
     })
 }
 

@@ -56,7 +56,23 @@ pub struct RunningNode {
 /// # Errors
 /// A bad config or token, a non-loopback address without a token, or a bind failure.
 pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
-    let generation = cfg.generation()?;
+    let mut generation = cfg.generation()?;
+    let (spool, recovered) = match &cfg.spool {
+        Some(sc) => {
+            let (spool, steps) = crate::spool::Spool::open(&sc.dir, sc.durable, sc.max_bytes)
+                .with_context(|| format!("spool {}", sc.dir.display()))?;
+            // The scene of the interrupted run, so that its steps and the next ones match.
+            if let Some((version, run)) = spool.load_run() {
+                generation = crate::service::apply_config(&generation, &run).map_err(|e| {
+                    anyhow::anyhow!("spool {}: run.pb: {}", sc.dir.display(), e.message())
+                })?;
+                generation.pm_version = version;
+                info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
+            }
+            (Some(Arc::new(spool)), steps)
+        }
+        None => (None, Vec::new()),
+    };
     let tf_configured = generation.tf.is_some();
     let token = Token::load(cfg.token_file.as_deref())?;
     check_bind(cfg.listen, token.as_ref())?;
@@ -93,6 +109,8 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         lane: tokio::sync::Mutex::new(()),
         tuning: tuning.clone(),
         ship_failed_reported: Default::default(),
+        spool,
+        epoch: new_epoch(),
         scene: match (&cfg.viz, tf_configured) {
             (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
                 viz,
@@ -116,6 +134,27 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
                 let _ = stopped.await;
             }),
     );
+    if !recovered.is_empty() {
+        warn!(
+            steps = recovered.len(),
+            "steps acknowledged by an earlier run were not delivered: generating them again"
+        );
+        let n = recovered.len() as u64;
+        shared.stats.update(|c| {
+            c.received += n;
+            c.recovered += n;
+        });
+        for raw in recovered {
+            let bytes = raw.bytes.len() as u64;
+            if let Ok(dropped) = shared.queue.push(raw, bytes).await {
+                for d in dropped {
+                    shared.unspool(d.spool.map(|n| (n, d.bytes.len() as u64)).as_ref());
+                    shared.stats.update(|c| c.dropped_queue += 1);
+                }
+            }
+        }
+    }
+    shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
     let shipper = cfg.viz.as_deref().map(|viz| {
         let s = Shipper::new(
@@ -123,10 +162,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
             token.clone(),
             Duration::from_secs_f64(cfg.max_backoff_secs),
         );
-        tokio::spawn(
-            s.run(shared.outbox.clone(), shared.stats.clone())
-                .instrument(info_span!("shipper")),
-        )
+        tokio::spawn(s.run(shared.clone()).instrument(info_span!("shipper")))
     });
     let tuner = match (cfg.tuner.as_deref(), tuning, summaries) {
         (Some(uri), Some(t), Some(rx)) => {
@@ -156,11 +192,21 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     })
 }
 
+/// A run's identity: the start time in nanoseconds mixed with the process id (distinct across
+/// restarts of one node, which is what a client compares).
+fn new_epoch() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    nanos ^ (u64::from(std::process::id()) << 48)
+}
+
 async fn worker(shared: Arc<Shared>) {
     // The last step's VDI (already compressed into its product): the next one reuses its memory.
     let mut spare = None;
     while let Some(raw) = shared.queue.pop().await {
         let (step, rank, raw_world_size) = (raw.step, raw.rank, raw.world_size);
+        let spooled = raw.spool.clone().map(|n| (n, raw.bytes.len() as u64));
         let mut gen = shared.generation();
         if gen.tf.is_none() {
             if let Some(scene) = &shared.scene {
@@ -194,9 +240,10 @@ async fn worker(shared: Arc<Shared>) {
                 if let Some(t) = &shared.tuning {
                     t.after_step(for_tuner);
                 }
-                {
+                let first_tf = {
                     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
-                    if g.tf.is_none() {
+                    let first = g.tf.is_none();
+                    if first {
                         if shared.scene.is_none() && raw_world_size > 1 {
                             warn!(tf = %tf.1, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
                         } else {
@@ -204,9 +251,14 @@ async fn worker(shared: Arc<Shared>) {
                         }
                         g.tf = Some(tf);
                     }
+                    first
+                };
+                if first_tf {
+                    shared.save_run();
                 }
                 shared.stats.update(|c| c.generated += 1);
                 if !shared.shipping {
+                    shared.unspool(spooled.as_ref());
                     continue;
                 }
                 let n = product.bytes();
@@ -218,6 +270,7 @@ async fn worker(shared: Arc<Shared>) {
                                 rank = d.vdi_header.rank,
                                 "dropped an unshipped VDI (outbox full)"
                             );
+                            shared.unspool(d.spool.as_ref());
                         }
                         shared
                             .stats
@@ -229,10 +282,12 @@ async fn worker(shared: Arc<Shared>) {
             }
             Ok(Err(e)) => {
                 error!(step, rank, error = %e, "generation failed");
+                shared.unspool(spooled.as_ref());
                 shared.stats.update(|c| c.failed += 1);
             }
             Err(e) => {
                 error!(step, rank, error = %e, "generation task panicked");
+                shared.unspool(spooled.as_ref());
                 shared.stats.update(|c| c.failed += 1);
             }
         }

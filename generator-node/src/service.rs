@@ -40,6 +40,10 @@ pub struct Shared {
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
     /// `ship_failed` as of the last `Flush`: a flush reports the refusals since the previous.
     pub ship_failed_reported: std::sync::atomic::AtomicU64,
+    /// The durable spool, when configured.
+    pub spool: Option<Arc<crate::spool::Spool>>,
+    /// This run's identity (`PushReply.epoch`).
+    pub epoch: u64,
     /// Where the world's default transfer function is agreed (the viz-node), when one is
     /// configured and the config names no transfer function.
     pub scene: Option<Arc<crate::scene::SceneLink>>,
@@ -77,12 +81,53 @@ impl Shared {
             tuner_connected: c.tuner_connected,
             ship_failed: c.ship_failed,
             ship_error: self.stats.ship_error(),
+            epoch: self.epoch,
+            recovered: c.recovered,
+            spooled_bytes: self.spool.as_ref().map_or(0, |s| s.used()),
+        }
+    }
+
+    /// Removes a settled step's file from the spool (no-op without one).
+    pub fn unspool(&self, spool: Option<&(String, u64)>) {
+        if let (Some(sp), Some((name, bytes))) = (&self.spool, spool) {
+            sp.remove(name, *bytes);
+        }
+    }
+
+    /// Records the current generation settings in the spool (no-op without one), so that a
+    /// restarted node continues the same scene.
+    pub fn save_run(&self) {
+        if let Some(sp) = &self.spool {
+            let g = self.generation();
+            if let Err(e) = sp.save_run(g.pm_version, &to_pb(&g)) {
+                tracing::warn!(error = %e, "could not record the run configuration");
+            }
         }
     }
 }
 
 /// The gRPC service.
 pub struct GeneratorService(pub Arc<Shared>);
+
+/// The settings as a `GenerationConfig` (what [`apply_config`] reads back).
+pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
+    pb::GenerationConfig {
+        resolution: g.params.resolution,
+        gamma: g.params.gamma,
+        step: Some(g.raycast.step),
+        termination: Some(g.raycast.termination),
+        codec: insitu_proto::convert::codec_to_pb(g.codec) as i32,
+        tf_json: g
+            .tf
+            .as_ref()
+            .and_then(|(tf, _)| serde_json::to_string(tf).ok()),
+        tf_name: g.tf.as_ref().map(|(_, n)| n.clone()),
+        camera: g.camera.as_ref().map(insitu_proto::convert::camera_to_pb),
+        view_angles_deg: g.view_angles_deg.clone(),
+        reference_every: u32::try_from(g.reference_every).ok(),
+        reference_size: Some(g.reference_size),
+    }
+}
 
 /// Applies a pushed config to `g`; nothing changes unless all of it is valid.
 ///
@@ -160,6 +205,16 @@ impl Generator for GeneratorService {
         .await?;
         let mut raw = geometry.ok_or_else(|| Status::internal("header not checked"))?;
         raw.bytes = bytes;
+        if let Some(spool) = &s.spool {
+            // On disk (fsync'd when durable) before the acknowledgement.
+            let name = spool.put(&raw).await.map_err(|e| match e {
+                crate::spool::SpoolError::TooLarge { .. } => {
+                    Status::resource_exhausted(e.to_string())
+                }
+                crate::spool::SpoolError::Io { .. } => Status::unavailable(e.to_string()),
+            })?;
+            raw.spool = Some(name);
+        }
         if let Some(scene) = &s.scene {
             if s.generation().tf.is_none() {
                 scene.propose(&raw);
@@ -175,6 +230,7 @@ impl Generator for GeneratorService {
             .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
         for d in &dropped {
             info!(step = d.step, rank = d.rank, policy = %s.queue.policy(), "dropped a queued step");
+            s.unspool(d.spool.clone().map(|n| (n, d.bytes.len() as u64)).as_ref());
         }
         let received = {
             let mut received = 0;
@@ -189,6 +245,7 @@ impl Generator for GeneratorService {
             queue_depth: s.queue.len() as u32,
             dropped_by_push: dropped.len() as u64,
             steps_received: received,
+            epoch: s.epoch,
         }))
     }
 
@@ -197,13 +254,17 @@ impl Generator for GeneratorService {
         request: Request<pb::GenerationConfig>,
     ) -> Result<Response<pb::ConfigReply>, Status> {
         let c = request.into_inner();
-        let mut g = self.0.generation.write().unwrap_or_else(|e| e.into_inner());
-        *g = apply_config(&g, &c)?;
-        info!(r = g.params.resolution, gamma = g.params.gamma, codec = %g.codec, "new generation config");
-        Ok(Response::new(pb::ConfigReply {
-            resolution: g.params.resolution,
-            gamma: g.params.gamma,
-        }))
+        let reply = {
+            let mut g = self.0.generation.write().unwrap_or_else(|e| e.into_inner());
+            *g = apply_config(&g, &c)?;
+            info!(r = g.params.resolution, gamma = g.params.gamma, codec = %g.codec, "new generation config");
+            pb::ConfigReply {
+                resolution: g.params.resolution,
+                gamma: g.params.gamma,
+            }
+        };
+        self.0.save_run();
+        Ok(Response::new(reply))
     }
 
     async fn get_status(

@@ -2,7 +2,6 @@
 //! back-off while it is away; an item leaves the outbox for good only when the viz-node has
 //! acknowledged it (stored it), or when it fails with an error that retrying cannot fix.
 
-use crate::queue::BoundedQueue;
 use crate::stats::Stats;
 use crate::work::Product;
 use insitu_proto::auth::{AttachToken, Token};
@@ -133,11 +132,14 @@ impl Shipper {
         }
     }
 
-    /// Ships items until the outbox is closed and empty.
-    pub async fn run(mut self, outbox: Arc<BoundedQueue<Product>>, stats: Arc<Stats>) {
-        while let Some(p) = outbox.pop().await {
+    /// Ships items until the outbox is closed and empty; a settled item leaves the spool.
+    pub async fn run(mut self, shared: Arc<crate::service::Shared>) {
+        let stats = shared.stats.clone();
+        while let Some(p) = shared.outbox.pop().await {
             let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);
-            match self.ship(&p, &stats).instrument(span).await {
+            let result = self.ship(&p, &stats).instrument(span).await;
+            shared.unspool(p.spool.as_ref());
+            match result {
                 Ok(()) => stats.update(|c| c.shipped += 1),
                 Err(e) => {
                     warn!(step = p.vdi_header.step, rank = p.vdi_header.rank, code = ?e.code(), error = %e.message(), "the viz-node refused a VDI; it is counted as failed");

@@ -21,6 +21,8 @@ pub struct Counters {
     pub failed: u64,
     /// Of those, VDIs the viz-node refused (authentication, validation, a full disk).
     pub ship_failed: u64,
+    /// Steps found in the spool at start (acknowledged by an earlier run), queued again.
+    pub recovered: u64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.

@@ -119,6 +119,8 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
     );
     g.params = params;
     g.pm_version = d.pm_version;
+    drop(g);
+    shared.save_run();
     Ok(())
 }
 

@@ -24,6 +24,8 @@ pub struct Product {
     pub vdi: Bytes,
     /// Reference frames, on sampled steps.
     pub references: Option<(pb::ReferenceHeader, Bytes)>,
+    /// The step's file in the spool and its field bytes, removed once the VDI is settled.
+    pub spool: Option<(String, u64)>,
 }
 
 impl Product {
@@ -167,6 +169,7 @@ pub fn run(
         },
         vdi: Bytes::from(file),
         references,
+        spool: raw.spool.clone().map(|n| (n, raw.bytes.len() as u64)),
     };
     Ok((product, generated.value))
 }
