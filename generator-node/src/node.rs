@@ -134,28 +134,9 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
                 let _ = stopped.await;
             }),
     );
-    if !recovered.is_empty() {
-        warn!(
-            steps = recovered.len(),
-            "steps acknowledged by an earlier run were not delivered: generating them again"
-        );
-        let n = recovered.len() as u64;
-        shared.stats.update(|c| {
-            c.received += n;
-            c.recovered += n;
-        });
-        for raw in recovered {
-            let bytes = raw.bytes.len() as u64;
-            if let Ok(dropped) = shared.queue.push(raw, bytes).await {
-                for d in dropped {
-                    shared.unspool(d.spool.map(|n| (n, d.bytes.len() as u64)).as_ref());
-                    shared.stats.update(|c| c.dropped_queue += 1);
-                }
-            }
-        }
-    }
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
+    requeue(&shared, recovered);
     let shipper = cfg.viz.as_deref().map(|viz| {
         let s = Shipper::new(
             viz,
@@ -190,6 +171,35 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
+}
+
+/// Queues the steps an earlier run acknowledged and did not deliver, in the background (the
+/// queue is bounded, so this waits for the worker like any push), ahead of new pushes.
+fn requeue(shared: &Arc<Shared>, recovered: Vec<crate::ingest::RawStep>) {
+    if recovered.is_empty() {
+        return;
+    }
+    warn!(
+        steps = recovered.len(),
+        "steps acknowledged by an earlier run were not delivered: generating them again"
+    );
+    let n = recovered.len() as u64;
+    shared.stats.update(|c| {
+        c.received += n;
+        c.recovered += n;
+    });
+    let shared = shared.clone();
+    tokio::spawn(async move {
+        for raw in recovered {
+            let bytes = raw.bytes.len() as u64;
+            if let Ok(dropped) = shared.queue.push(raw, bytes).await {
+                for d in dropped {
+                    shared.unspool(d.spool.map(|n| (n, d.bytes.len() as u64)).as_ref());
+                    shared.stats.update(|c| c.dropped_queue += 1);
+                }
+            }
+        }
+    });
 }
 
 /// A run's identity: the start time in nanoseconds mixed with the process id (distinct across
@@ -305,32 +315,46 @@ impl RunningNode {
         &self.shared
     }
 
-    /// Stops taking steps, generates what is queued, ships for up to the drain timeout, and
-    /// counts whatever is left as dropped.
+    /// Stops taking steps, generates what is queued and ships it for up to the drain timeout,
+    /// and counts whatever is left as dropped (a spool keeps it for the next run).
     pub async fn shutdown(self) -> Summary {
         self.shared.queue.close();
         let _ = self.stop_server.send(());
         if let Err(e) = self.server.await {
             warn!(error = %e, "server task ended abnormally");
         }
-        let _ = self.worker.await;
+        // One deadline for generating what is queued and shipping it: with the viz-node away
+        // the worker would wait for room in a full outbox (or for the world's TF) for ever.
+        let deadline = tokio::time::Instant::now() + self.drain_timeout;
+        let mut worker = self.worker;
+        let worker_done = tokio::time::timeout_at(deadline, &mut worker).await.is_ok();
+        if !worker_done {
+            worker.abort();
+            let _ = worker.await;
+        }
         if let Some(t) = self.tuner {
             t.abort();
         }
         self.shared.outbox.close();
-        let mut lost = 0;
+        let mut shipper_done = true;
         if let Some(mut shipper) = self.shipper {
-            if tokio::time::timeout(self.drain_timeout, &mut shipper)
+            if tokio::time::timeout_at(deadline, &mut shipper)
                 .await
                 .is_err()
             {
                 shipper.abort();
                 let _ = shipper.await;
-                let c = self.shared.stats.get();
-                lost = c.received.saturating_sub(c.settled(true));
-                self.shared.stats.update(|c| c.dropped_outbox += lost);
-                warn!(lost, "drain timeout: VDIs left unshipped");
+                shipper_done = false;
             }
+        }
+        let mut lost = 0;
+        if !(worker_done && shipper_done) {
+            // Steps still queued, in generation or in the outbox: counted, and (with a spool)
+            // kept on disk for the next run.
+            let c = self.shared.stats.get();
+            lost = c.received.saturating_sub(c.settled(self.shared.shipping));
+            self.shared.stats.update(|c| c.dropped_outbox += lost);
+            warn!(lost, "drain timeout: steps left undelivered");
         }
         Summary {
             counters: self.shared.stats.get(),
