@@ -18,7 +18,6 @@
 use crate::ingest::{check_header, RawStep};
 use insitu_proto::pb;
 use prost::Message;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -66,28 +65,11 @@ pub struct Spool {
     seq: AtomicU64,
 }
 
-/// Writes `bytes` to `dir/name` via a temporary file; with `durable`, fsyncs the file and the
-/// directory before returning.
+/// Writes `bytes` to `dir/name` atomically ([`insitu_proto::daemon::write_atomic`]); with
+/// `durable`, fsync'd (file and directory) before returning.
 fn write_file(dir: &Path, name: &str, bytes: &[u8], durable: bool) -> Result<(), SpoolError> {
     let path = dir.join(name);
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".tmp-")
-        .tempfile_in(dir)
-        .map_err(io(&path))?;
-    tmp.write_all(bytes).map_err(io(&path))?;
-    if durable {
-        tmp.as_file().sync_all().map_err(io(&path))?;
-    }
-    tmp.persist(&path).map_err(|e| SpoolError::Io {
-        path: path.clone(),
-        source: e.error,
-    })?;
-    if durable {
-        std::fs::File::open(dir)
-            .and_then(|d| d.sync_all())
-            .map_err(io(dir))?;
-    }
-    Ok(())
+    insitu_proto::daemon::write_atomic(dir, name, bytes, durable).map_err(io(&path))
 }
 
 fn header_of(raw: &RawStep) -> pb::StepHeader {

@@ -12,7 +12,6 @@ use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Image};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -391,23 +390,14 @@ fn is_payload(name: &str) -> bool {
     name.starts_with("step_") && (name.ends_with(".vdi") || name.ends_with(".refs"))
 }
 
-/// Writes `bytes` to `dir/name` atomically (temp file in `dir`, fsync, rename).
+/// Writes `bytes` to `dir/name` atomically and durably
+/// ([`insitu_proto::daemon::write_atomic`]: temporary file, fsync, rename, directory fsync).
 ///
 /// # Errors
-/// [`StoreError::Io`].
+/// [`StoreError::Io`] naming the file.
 pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
     let path = dir.join(name);
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".tmp-")
-        .tempfile_in(dir)
-        .map_err(io(&path))?;
-    tmp.write_all(bytes).map_err(io(&path))?;
-    tmp.as_file().sync_all().map_err(io(&path))?;
-    tmp.persist(&path).map_err(|e| StoreError::Io {
-        path: path.clone(),
-        source: e.error,
-    })?;
-    Ok(())
+    insitu_proto::daemon::write_atomic(dir, name, bytes, true).map_err(io(&path))
 }
 
 /// The file name of a step's VDI.
