@@ -109,6 +109,12 @@ pub fn check_header(h: &pb::StepHeader) -> Result<RawStep, Status> {
 }
 
 impl RawStep {
+    /// Its spool file and the field bytes it holds there (what [`crate::service::Shared::unspool`]
+    /// releases once the step is settled).
+    pub fn spooled(&self) -> Option<(String, u64)> {
+        self.spool.clone().map(|n| (n, self.bytes.len() as u64))
+    }
+
     /// The brick as a volume placed at its world origin.
     ///
     /// # Errors

@@ -194,7 +194,7 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<crate::ingest::RawStep>) {
             let bytes = raw.bytes.len() as u64;
             if let Ok(dropped) = shared.queue.push(raw, bytes).await {
                 for d in dropped {
-                    shared.unspool(d.spool.map(|n| (n, d.bytes.len() as u64)).as_ref());
+                    shared.unspool(d.spooled().as_ref());
                     shared.stats.update(|c| c.dropped_queue += 1);
                 }
             }
@@ -216,7 +216,7 @@ async fn worker(shared: Arc<Shared>) {
     let mut spare = None;
     while let Some(raw) = shared.queue.pop().await {
         let (step, rank, raw_world_size) = (raw.step, raw.rank, raw.world_size);
-        let spooled = raw.spool.clone().map(|n| (n, raw.bytes.len() as u64));
+        let spooled = raw.spooled();
         let mut gen = shared.generation();
         if gen.tf.is_none() {
             if let Some(scene) = &shared.scene {

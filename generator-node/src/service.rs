@@ -216,7 +216,14 @@ impl Generator for GeneratorService {
             raw.spool = Some(name);
         }
         if let Some(scene) = &s.scene {
-            if s.generation().tf.is_none() {
+            // A read of one field, not a copy of the settings, on every push.
+            let no_tf = s
+                .generation
+                .read()
+                .unwrap_or_else(|e| e.into_inner())
+                .tf
+                .is_none();
+            if no_tf {
                 scene.propose(&raw);
             }
         }
@@ -230,7 +237,7 @@ impl Generator for GeneratorService {
             .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
         for d in &dropped {
             info!(step = d.step, rank = d.rank, policy = %s.queue.policy(), "dropped a queued step");
-            s.unspool(d.spool.clone().map(|n| (n, d.bytes.len() as u64)).as_ref());
+            s.unspool(d.spooled().as_ref());
         }
         let received = {
             let mut received = 0;

@@ -169,7 +169,7 @@ pub fn run(
         },
         vdi: Bytes::from(file),
         references,
-        spool: raw.spool.clone().map(|n| (n, raw.bytes.len() as u64)),
+        spool: raw.spooled(),
     };
     Ok((product, generated.value))
 }

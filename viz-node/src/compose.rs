@@ -182,24 +182,36 @@ pub fn compose_step(
     } else {
         (None, None)
     };
-    let first = ready[0];
     Ok(Some(StepEntry {
-        step,
-        world_size,
-        ranks: ready.iter().map(|e| e.rank).collect(),
-        missing,
         vdi: Some(vdi_name),
         references,
-        sigma_bytes: ready.iter().map(|e| e.sigma_bytes).sum(),
-        tau_secs: ready.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
         supersegments: composed.supersegments().len() as u64,
-        resolution: first.resolution,
-        gamma: first.gamma,
-        pm_version: first.pm_version,
-        codec: first.codec.clone(),
         quality,
-        error: None,
+        ..step_entry(step, world_size, &ready, missing)
     }))
+}
+
+/// A step's entry from its ranks: σ summed, τ of the slowest, `P_M` and codec of the first;
+/// nothing composed yet (no files, no q, no error).
+pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32>) -> StepEntry {
+    let first = ranks.first();
+    StepEntry {
+        step,
+        world_size,
+        ranks: ranks.iter().map(|e| e.rank).collect(),
+        missing,
+        vdi: None,
+        references: None,
+        sigma_bytes: ranks.iter().map(|e| e.sigma_bytes).sum(),
+        tau_secs: ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
+        supersegments: 0,
+        resolution: first.map_or(0, |e| e.resolution),
+        gamma: first.map_or(0.0, |e| e.gamma),
+        pm_version: first.map_or(0, |e| e.pm_version),
+        codec: first.map_or_else(String::new, |e| e.codec.clone()),
+        quality: None,
+        error: None,
+    }
 }
 
 /// The whole domain's reference frames from the ranks' (RGB + opacity), each view

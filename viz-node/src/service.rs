@@ -227,22 +227,15 @@ impl Shared {
                 warn!(step, error = %err, "could not compose the step");
                 let ranks = self.recording.ranks_of(step);
                 let world_size = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+                let missing = crate::compose::missing(&ranks, world_size);
                 StepEntry {
-                    step,
-                    world_size,
-                    ranks: ranks.iter().map(|e| e.rank).collect(),
-                    missing: crate::compose::missing(&ranks, world_size),
-                    vdi: None,
-                    references: None,
-                    sigma_bytes: ranks.iter().map(|e| e.sigma_bytes).sum(),
-                    tau_secs: ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
-                    supersegments: 0,
-                    resolution: ranks.first().map_or(0, |e| e.resolution),
-                    gamma: ranks.first().map_or(0.0, |e| e.gamma),
-                    pm_version: ranks.first().map_or(0, |e| e.pm_version),
-                    codec: ranks.first().map_or_else(String::new, |e| e.codec.clone()),
-                    quality: None,
                     error: Some(err.to_string()),
+                    ..crate::compose::step_entry(
+                        step,
+                        world_size,
+                        &ranks.iter().collect::<Vec<_>>(),
+                        missing,
+                    )
                 }
             }
         };
