@@ -130,6 +130,26 @@ const char *insitu_last_error(void);
 InsituStatus insitu_connect(const char *addr, const char *token, InsituClient **out);
 
 /**
+ * As [`insitu_connect`], over TLS when `ca_file` is given: the node's certificate must be
+ * signed by the CA in `ca_file` (PEM) and name the host in `addr`. `cert_file` and `key_file`
+ * (PEM, both or neither) are this client's certificate for a node that requires mutual TLS.
+ * With `ca_file` null the link is clear text, and a token is refused for a host that is not
+ * loopback (`INSITU_STATUS_INVALID_ARGUMENT`).
+ *
+ * Returns as [`insitu_connect`]; unreadable or non-PEM files and a failed handshake name the
+ * file or the cause in [`insitu_last_error`].
+ *
+ * # Safety
+ * Every string is null or NUL-terminated; `out` is null or valid for a write.
+ */
+InsituStatus insitu_connect_tls(const char *addr,
+                                const char *token,
+                                const char *ca_file,
+                                const char *cert_file,
+                                const char *key_file,
+                                InsituClient **out);
+
+/**
  * Pushes one rank's brick of one time step and returns once the generator-node has queued it
  * (the field may be reused then). `data` holds `brick_dims[0]·brick_dims[1]·brick_dims[2]`
  * values of `dtype` (an [`InsituDtype`]), x fastest. `global_dims`, `brick_offset` and

@@ -32,11 +32,12 @@
 //! upper side of every axis that has a neighbour.
 
 use insitu_client::{
-    BearerToken, Bytes, ClientError, GeneratorStatus, ScalarType, SimClient, Step,
+    BearerToken, Bytes, ClientError, GeneratorStatus, Peer, ScalarType, SimClient, Step, TlsFiles,
 };
 use std::cell::RefCell;
 use std::ffi::{c_char, c_void, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::ptr;
 use std::sync::Mutex;
 use std::time::Duration;
 
@@ -115,7 +116,10 @@ fn fail(status: InsituStatus, message: impl Into<String>) -> InsituStatus {
 
 fn from_client_error(e: &ClientError) -> InsituStatus {
     let status = match e {
-        ClientError::Address { .. } | ClientError::InvalidStep(_) => InsituStatus::InvalidArgument,
+        ClientError::Address { .. }
+        | ClientError::InvalidStep(_)
+        | ClientError::Security(_)
+        | ClientError::Tls(_) => InsituStatus::InvalidArgument,
         ClientError::Unreachable { .. } => InsituStatus::Unreachable,
         ClientError::Refused { code, .. } => match code {
             insitu_client::Code::Unavailable => InsituStatus::Unreachable,
@@ -199,6 +203,30 @@ pub unsafe extern "C" fn insitu_connect(
     token: *const c_char,
     out: *mut *mut InsituClient,
 ) -> InsituStatus {
+    // SAFETY: forwarded from this function's contract; the TLS paths are null.
+    unsafe { insitu_connect_tls(addr, token, ptr::null(), ptr::null(), ptr::null(), out) }
+}
+
+/// As [`insitu_connect`], over TLS when `ca_file` is given: the node's certificate must be
+/// signed by the CA in `ca_file` (PEM) and name the host in `addr`. `cert_file` and `key_file`
+/// (PEM, both or neither) are this client's certificate for a node that requires mutual TLS.
+/// With `ca_file` null the link is clear text, and a token is refused for a host that is not
+/// loopback (`INSITU_STATUS_INVALID_ARGUMENT`).
+///
+/// Returns as [`insitu_connect`]; unreadable or non-PEM files and a failed handshake name the
+/// file or the cause in [`insitu_last_error`].
+///
+/// # Safety
+/// Every string is null or NUL-terminated; `out` is null or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn insitu_connect_tls(
+    addr: *const c_char,
+    token: *const c_char,
+    ca_file: *const c_char,
+    cert_file: *const c_char,
+    key_file: *const c_char,
+    out: *mut *mut InsituClient,
+) -> InsituStatus {
     guarded(|| {
         if out.is_null() {
             return fail(InsituStatus::InvalidArgument, "out is null");
@@ -219,6 +247,26 @@ pub unsafe extern "C" fn insitu_connect(
             Ok(t) => t,
             Err(e) => return fail(InsituStatus::InvalidArgument, e.to_string()),
         };
+        let mut files = TlsFiles::default();
+        for (slot, p, name) in [
+            (&mut files.ca_file, ca_file, "ca_file"),
+            (&mut files.cert_file, cert_file, "cert_file"),
+            (&mut files.key_file, key_file, "key_file"),
+        ] {
+            // SAFETY: forwarded from this function's contract.
+            match unsafe { str_arg(p, name) } {
+                Ok(v) => *slot = v.map(std::path::PathBuf::from),
+                Err(s) => return s,
+            }
+        }
+        let peer = match files
+            .client()
+            .map_err(ClientError::from)
+            .and_then(|tls| Ok(Peer::new(addr, token, tls, false)?))
+        {
+            Ok(p) => p,
+            Err(e) => return from_client_error(&e),
+        };
         let rt = match tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
@@ -226,7 +274,7 @@ pub unsafe extern "C" fn insitu_connect(
             Ok(rt) => rt,
             Err(e) => return fail(InsituStatus::Internal, format!("runtime: {e}")),
         };
-        match rt.block_on(SimClient::connect(addr, token.as_ref())) {
+        match rt.block_on(SimClient::connect_with(peer)) {
             Ok(client) => {
                 let c = Box::new(InsituClient {
                     rt,

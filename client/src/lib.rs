@@ -31,6 +31,8 @@ use tonic::transport::Channel;
 pub use bytes::Bytes;
 pub use insitu_proto::auth::Token as BearerToken;
 pub use insitu_proto::pb::{ConfigReply, GenerationConfig, GeneratorStatus, PushReply, ScalarType};
+pub use insitu_proto::peer::Peer;
+pub use insitu_proto::tls::TlsFiles;
 pub use tonic::Code;
 
 /// Errors of the client.
@@ -44,14 +46,22 @@ pub enum ClientError {
         /// Why.
         source: tonic::transport::Error,
     },
-    /// Nothing answers at the address.
-    #[error("generator-node at {addr} is unreachable: {source}")]
+    /// Nothing answers at the address, or the TLS handshake failed (the cause is in the
+    /// message: e.g. a certificate not signed by the CA).
+    #[error("generator-node at {addr} is unreachable: {cause}")]
     Unreachable {
         /// As given.
         addr: String,
-        /// Why.
-        source: tonic::transport::Error,
+        /// Why, with every cause in the chain.
+        cause: String,
     },
+    /// The token would travel in clear text off loopback, or TLS is asked for without a CA,
+    /// or the TLS files are unusable.
+    #[error(transparent)]
+    Security(#[from] insitu_proto::auth::AuthError),
+    /// TLS files.
+    #[error(transparent)]
+    Tls(#[from] insitu_proto::tls::TlsError),
     /// The node answered with an error (bad step, shutting down, wrong token, …).
     #[error("generator-node refused the call: {code:?}: {message}")]
     Refused {
@@ -176,25 +186,37 @@ pub struct SimClient {
 }
 
 impl SimClient {
-    /// Connects to the node at `addr` (`host:port` or a URI), sending `token` with every call.
+    /// Connects to the node at `addr` (`host:port` or `http://host:port`) in clear text,
+    /// sending `token` with every call.
     ///
     /// # Errors
-    /// [`ClientError::Address`] or [`ClientError::Unreachable`].
+    /// [`ClientError::Address`], [`ClientError::Unreachable`], or [`ClientError::Security`]
+    /// when a token would go in clear text to a host that is not loopback (use
+    /// [`SimClient::connect_with`] and TLS).
     pub async fn connect(addr: &str, token: Option<&Token>) -> Result<Self, ClientError> {
-        let uri = transport::uri(addr);
-        let endpoint = transport::endpoint(&uri).map_err(|source| ClientError::Address {
-            addr: addr.to_owned(),
+        Self::connect_with(Peer::new(addr, token.cloned(), None, false)?).await
+    }
+
+    /// Connects to `peer`: its address, token and TLS settings (e.g.
+    /// `Peer::new(addr, token, TlsFiles { ca_file, .. }.client()?, false)`).
+    ///
+    /// # Errors
+    /// [`ClientError::Address`] or [`ClientError::Unreachable`] (a failed TLS handshake
+    /// included, with its cause).
+    pub async fn connect_with(peer: Peer) -> Result<Self, ClientError> {
+        let endpoint = peer.endpoint().map_err(|source| ClientError::Address {
+            addr: peer.uri().to_owned(),
             source,
         })?;
         let channel = endpoint
             .connect()
             .await
-            .map_err(|source| ClientError::Unreachable {
-                addr: addr.to_owned(),
-                source,
+            .map_err(|e| ClientError::Unreachable {
+                addr: peer.uri().to_owned(),
+                cause: insitu_proto::peer::error_chain(&e),
             })?;
         Ok(Self {
-            inner: GeneratorClient::with_interceptor(channel, AttachToken::new(token))
+            inner: GeneratorClient::with_interceptor(channel, peer.auth())
                 .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
                 .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
         })

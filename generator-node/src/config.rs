@@ -8,6 +8,7 @@ use insitu_core::BackendChoice;
 use insitu_core::{Camera, TransferFunction, VdiParams};
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -109,9 +110,17 @@ impl Default for GenerationConfig {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// Address to serve on (port 0: an ephemeral port). Anything but loopback needs a token.
+    /// Address to serve on (port 0: an ephemeral port). Anything but loopback needs a token
+    /// and TLS unless `insecure`.
     pub listen: SocketAddr,
-    /// The viz-node, `host:port`; unset: VDIs are generated, counted and discarded.
+    /// Allow a non-loopback `listen` without a token or TLS, and the token sent in clear text
+    /// to non-loopback peers (logged as a warning at start).
+    pub insecure: bool,
+    /// `[tls]`: certificate, key (served on `listen`), CA (peers are dialled over TLS), mutual
+    /// TLS.
+    pub tls: TlsFiles,
+    /// The viz-node, `host:port` (`https://` with `tls.ca_file`); unset: VDIs are generated,
+    /// counted and discarded.
     pub viz: Option<String>,
     /// File holding the bearer token (else the `INSITU_TOKEN` environment variable, if set);
     /// used both to check callers and to call the viz-node.
@@ -170,6 +179,8 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
+            insecure: false,
+            tls: TlsFiles::default(),
             viz: None,
             token_file: None,
             max_step_bytes: 4 << 30,

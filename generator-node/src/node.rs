@@ -8,8 +8,8 @@ use crate::ship::Shipper;
 use crate::stats::{Counters, Stats};
 use crate::work;
 use anyhow::Context;
-use insitu_proto::auth::{check_bind, RequireToken, Token};
 use insitu_proto::pb::generator_server::GeneratorServer;
+use insitu_proto::security::Security;
 use insitu_proto::transport;
 use std::net::SocketAddr;
 use std::sync::{Arc, RwLock};
@@ -74,8 +74,20 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         None => (None, Vec::new()),
     };
     let tf_configured = generation.tf.is_some();
-    let token = Token::load(cfg.token_file.as_deref())?;
-    check_bind(cfg.listen, token.as_ref())?;
+    let security = Security::load(
+        cfg.listen,
+        cfg.token_file.as_deref(),
+        &cfg.tls,
+        cfg.insecure,
+    )?;
+    let viz = match &cfg.viz {
+        Some(v) => Some(security.peer(v).with_context(|| format!("viz = {v:?}"))?),
+        None => None,
+    };
+    let tuner_peer = match &cfg.tuner {
+        Some(t) => Some(security.peer(t).with_context(|| format!("tuner = {t:?}"))?),
+        None => None,
+    };
     let choice = cfg.backend;
     let backend = tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
         .await?
@@ -111,10 +123,9 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         ship_failed_reported: Default::default(),
         spool,
         epoch: new_epoch(),
-        scene: match (&cfg.viz, tf_configured) {
+        scene: match (&viz, tf_configured) {
             (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
-                viz,
-                token.clone(),
+                viz.clone(),
                 Duration::from_secs_f64(cfg.max_backoff_secs),
                 stats.clone(),
             ))),
@@ -125,10 +136,10 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
-    let svc =
-        tonic::service::interceptor::InterceptedService::new(svc, RequireToken::new(token.clone()));
+    let svc = tonic::service::interceptor::InterceptedService::new(svc, security.require_token());
     let server = tokio::spawn(
-        transport::server()
+        security
+            .server()?
             .add_service(svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
@@ -137,19 +148,14 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
     requeue(&shared, recovered);
-    let shipper = cfg.viz.as_deref().map(|viz| {
-        let s = Shipper::new(
-            viz,
-            token.clone(),
-            Duration::from_secs_f64(cfg.max_backoff_secs),
-        );
+    let shipper = viz.map(|viz| {
+        let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
         tokio::spawn(s.run(shared.clone()).instrument(info_span!("shipper")))
     });
-    let tuner = match (cfg.tuner.as_deref(), tuning, summaries) {
-        (Some(uri), Some(t), Some(rx)) => {
+    let tuner = match (tuner_peer, tuning, summaries) {
+        (Some(peer), Some(t), Some(rx)) => {
             let link = crate::tuning::Link::new(
-                uri,
-                token.clone(),
+                peer,
                 Duration::from_secs_f64(cfg.max_backoff_secs),
                 format!("{addr}/{}", std::process::id()),
             );
@@ -160,7 +166,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         }
         _ => None,
     };
-    info!(%addr, viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
+    info!(%addr, tls = security.serves_tls(), viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
     Ok(RunningNode {
         addr,
         shared,

@@ -7,9 +7,9 @@
 
 use crate::ingest::RawStep;
 use insitu_core::TransferFunction;
-use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb;
 use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::{pb, transport};
+use insitu_proto::peer::Peer;
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -21,8 +21,7 @@ pub type Agreed = (TransferFunction, String);
 
 /// The link to the viz-node's scene agreement.
 pub struct SceneLink {
-    uri: String,
-    token: Option<Token>,
+    peer: Peer,
     max_backoff: Duration,
     proposed: Mutex<HashSet<u32>>,
     /// `Some(Ok)`: agreed; `Some(Err)`: the viz-node refused for a reason retrying cannot fix
@@ -33,15 +32,9 @@ pub struct SceneLink {
 
 impl SceneLink {
     /// A link to the viz-node at `addr`; why it fails goes to `stats` (`GetStatus`, `Flush`).
-    pub fn new(
-        addr: &str,
-        token: Option<Token>,
-        max_backoff: Duration,
-        stats: Arc<crate::stats::Stats>,
-    ) -> Self {
+    pub fn new(peer: Peer, max_backoff: Duration, stats: Arc<crate::stats::Stats>) -> Self {
         Self {
-            uri: transport::uri(addr),
-            token,
+            peer,
             max_backoff,
             proposed: Mutex::new(HashSet::new()),
             agreed: watch::channel(None).0,
@@ -119,7 +112,7 @@ impl SceneLink {
                 Err(e) if !crate::ship::is_transient(e.code()) => {
                     let why = format!(
                         "agreeing the scene with the viz-node {}: {:?}: {}",
-                        self.uri,
+                        self.peer.uri(),
                         e.code(),
                         e.message()
                     );
@@ -148,11 +141,14 @@ impl SceneLink {
     }
 
     async fn call(&self, p: pb::SceneProposal) -> Result<pb::SceneAgreement, tonic::Status> {
-        let channel = transport::connect(&self.uri)
-            .await
-            .map_err(|e| tonic::Status::unavailable(format!("viz-node {}: {e}", self.uri)))?;
-        let mut client =
-            VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+        let channel = self.peer.connect().await.map_err(|e| {
+            tonic::Status::unavailable(format!(
+                "viz-node {}: {}",
+                self.peer.uri(),
+                insitu_proto::peer::error_chain(&e)
+            ))
+        })?;
+        let mut client = VizClient::with_interceptor(channel, self.peer.auth());
         Ok(client.agree_scene(p).await?.into_inner())
     }
 

@@ -4,8 +4,9 @@
 
 use crate::stats::Stats;
 use crate::work::Product;
-use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::auth::AttachToken;
 use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::peer::{error_chain, Peer};
 use insitu_proto::{chunk, pb, transport};
 use std::sync::Arc;
 use std::time::Duration;
@@ -30,18 +31,16 @@ pub fn is_transient(code: Code) -> bool {
 
 /// Ships the outbox to one viz-node.
 pub struct Shipper {
-    uri: String,
-    token: Option<Token>,
+    peer: Peer,
     max_backoff: Duration,
     client: Option<Client>,
 }
 
 impl Shipper {
-    /// A shipper for the viz-node at `addr` (`host:port` or a URI).
-    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration) -> Self {
+    /// A shipper for the viz-node `peer`.
+    pub fn new(peer: Peer, max_backoff: Duration) -> Self {
         Self {
-            uri: transport::uri(addr),
-            token,
+            peer,
             max_backoff,
             client: None,
         }
@@ -49,11 +48,11 @@ impl Shipper {
 
     async fn client(&mut self) -> Result<&mut Client, Status> {
         if self.client.is_none() {
-            let channel = transport::connect(&self.uri)
-                .await
-                .map_err(|e| Status::unavailable(format!("viz-node {}: {e}", self.uri)))?;
+            let channel = self.peer.connect().await.map_err(|e| {
+                Status::unavailable(format!("viz-node {}: {}", self.peer.uri(), error_chain(&e)))
+            })?;
             self.client = Some(
-                VizClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()))
+                VizClient::with_interceptor(channel, self.peer.auth())
                     .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
                     .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
             );
@@ -106,7 +105,7 @@ impl Shipper {
             match self.try_once(p, &mut references_done).await {
                 Ok(()) => {
                     if !stats.get().viz_connected {
-                        info!(uri = %self.uri, "connected to the viz-node");
+                        info!(uri = %self.peer.uri(), "connected to the viz-node");
                     }
                     stats.update(|c| c.viz_connected = true);
                     stats.set_ship_error("");
@@ -120,7 +119,7 @@ impl Shipper {
                     stats.update(|c| c.viz_connected = false);
                     stats.set_ship_error(format!(
                         "viz-node {} unreachable: {:?}: {}",
-                        self.uri,
+                        self.peer.uri(),
                         e.code(),
                         e.message()
                     ));

@@ -15,11 +15,11 @@ use crate::service::Shared;
 use crate::stats::Stats;
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::{Raycaster, VdiParams};
-use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::pb::tuner_message::Msg as Down;
-use insitu_proto::{pb, transport};
+use insitu_proto::peer::{error_chain, Peer};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -259,18 +259,16 @@ async fn trials(
 
 /// The dialling side of the stream.
 pub struct Link {
-    uri: String,
-    token: Option<Token>,
+    peer: Peer,
     max_backoff: Duration,
     node_id: String,
 }
 
 impl Link {
-    /// A link to the tuner at `addr` (`host:port` or a URI).
-    pub fn new(addr: &str, token: Option<Token>, max_backoff: Duration, node_id: String) -> Self {
+    /// A link to the tuner `peer`.
+    pub fn new(peer: Peer, max_backoff: Duration, node_id: String) -> Self {
         Self {
-            uri: transport::uri(addr),
-            token,
+            peer,
             max_backoff,
             node_id,
         }
@@ -304,10 +302,10 @@ impl Link {
             match r {
                 Ok(()) => return, // the node is shutting down
                 Err(e) if was => {
-                    warn!(uri = %self.uri, error = %e, "tuner stream lost; keeping the current P_M and reconnecting");
+                    warn!(uri = %self.peer.uri(), error = %e, "tuner stream lost; keeping the current P_M and reconnecting");
                     backoff = Duration::from_millis(100);
                 }
-                Err(e) => tracing::debug!(uri = %self.uri, error = %e, "tuner unreachable"),
+                Err(e) => tracing::debug!(uri = %self.peer.uri(), error = %e, "tuner unreachable"),
             }
             tokio::time::sleep(backoff).await;
             backoff = (backoff * 2).min(self.max_backoff);
@@ -323,11 +321,12 @@ impl Link {
         result_rx: &mut mpsc::UnboundedReceiver<(u64, pb::TrialResult)>,
         epoch: u64,
     ) -> Result<(), String> {
-        let channel = transport::connect(&self.uri)
+        let channel = self
+            .peer
+            .connect()
             .await
-            .map_err(|e| format!("tuner {}: {e}", self.uri))?;
-        let mut client =
-            TunerClient::with_interceptor(channel, AttachToken::new(self.token.as_ref()));
+            .map_err(|e| format!("tuner {}: {}", self.peer.uri(), error_chain(&e)))?;
+        let mut client = TunerClient::with_interceptor(channel, self.peer.auth());
         let (out, out_rx) = mpsc::channel::<pb::NodeMessage>(256);
         let g = shared.generation();
         let hello = pb::NodeHello {
@@ -349,10 +348,10 @@ impl Link {
         let mut incoming = client
             .attach(ReceiverStream::new(out_rx))
             .await
-            .map_err(|e| format!("tuner {}: {}", self.uri, e.message()))?
+            .map_err(|e| format!("tuner {}: {}", self.peer.uri(), e.message()))?
             .into_inner();
         tuning.set_connected(true);
-        info!(uri = %self.uri, "connected to the tuner");
+        info!(uri = %self.peer.uri(), "connected to the tuner");
         let closed = |_| "tuner stream closed".to_owned();
         loop {
             tokio::select! {

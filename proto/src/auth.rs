@@ -2,7 +2,9 @@
 //!
 //! A daemon started with a token rejects every call whose `authorization` metadata is not
 //! `Bearer <token>` with `UNAUTHENTICATED`. Listening on anything but loopback without a token
-//! is refused by [`check_bind`].
+//! and TLS is refused by [`check_bind`] unless the config says `insecure = true`; dialling a
+//! peer off loopback with a token but without TLS is refused by [`crate::peer::Peer::new`] on the
+//! same terms.
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -28,9 +30,20 @@ pub enum AuthError {
     /// The token is empty or not printable ASCII.
     #[error("token from {0} is empty or contains characters other than printable ASCII")]
     Malformed(String),
-    /// A non-loopback address without a token.
-    #[error("refusing to listen on {0} without a token: set {TOKEN_ENV} or a token file (only loopback addresses may run without one)")]
-    TokenRequired(SocketAddr),
+    /// A non-loopback address without a token or without TLS.
+    #[error("refusing to listen on {addr} without {missing}: off loopback every call needs a token ({TOKEN_ENV} or a token file) and TLS (tls.cert_file and tls.key_file); set insecure = true only on a network you trust")]
+    Unprotected {
+        /// The address.
+        addr: SocketAddr,
+        /// `a token`, `TLS` or `a token and TLS`.
+        missing: &'static str,
+    },
+    /// A token would cross a non-loopback link in clear text.
+    #[error("refusing to send the token in clear text to {0}: configure TLS (tls.ca_file, or an https:// address with a CA) or set insecure = true")]
+    TokenInClear(String),
+    /// An `https://` address without a CA to verify it against.
+    #[error("{0} asks for TLS but no CA is configured (tls.ca_file)")]
+    HttpsWithoutCa(String),
 }
 
 /// A shared secret, printable ASCII, never logged.
@@ -79,15 +92,33 @@ impl Token {
     }
 }
 
-/// Refuses a non-loopback `addr` without a token.
+/// Refuses a non-loopback `addr` without a token and TLS, unless `insecure` (then logs a
+/// warning saying what is missing).
 ///
 /// # Errors
-/// [`AuthError::TokenRequired`].
-pub fn check_bind(addr: SocketAddr, token: Option<&Token>) -> Result<(), AuthError> {
-    if addr.ip().is_loopback() || token.is_some() {
+/// [`AuthError::Unprotected`] naming what is missing.
+pub fn check_bind(
+    addr: SocketAddr,
+    token: Option<&Token>,
+    tls: bool,
+    insecure: bool,
+) -> Result<(), AuthError> {
+    let missing = match (token.is_some(), tls) {
+        _ if addr.ip().is_loopback() => return Ok(()),
+        (true, true) => return Ok(()),
+        (false, false) => "a token and TLS",
+        (false, true) => "a token",
+        (true, false) => "TLS",
+    };
+    if insecure {
+        tracing::warn!(
+            %addr,
+            missing,
+            "INSECURE: listening off loopback without {missing} because insecure = true; anyone who can reach {addr} can read or inject time steps"
+        );
         Ok(())
     } else {
-        Err(AuthError::TokenRequired(addr))
+        Err(AuthError::Unprotected { addr, missing })
     }
 }
 
@@ -182,11 +213,22 @@ mod tests {
     }
 
     #[test]
-    fn non_loopback_needs_a_token() {
+    fn non_loopback_needs_a_token_and_tls() {
         let t = Token::new("x", "t").unwrap();
-        assert!(check_bind("127.0.0.1:1".parse().unwrap(), None).is_ok());
-        assert!(check_bind("[::1]:1".parse().unwrap(), None).is_ok());
-        assert!(check_bind("0.0.0.0:1".parse().unwrap(), None).is_err());
-        assert!(check_bind("0.0.0.0:1".parse().unwrap(), Some(&t)).is_ok());
+        let any: SocketAddr = "0.0.0.0:1".parse().unwrap();
+        assert!(check_bind("127.0.0.1:1".parse().unwrap(), None, false, false).is_ok());
+        assert!(check_bind("[::1]:1".parse().unwrap(), None, false, false).is_ok());
+        for (token, tls, missing) in [
+            (None, false, "a token and TLS"),
+            (None, true, "a token"),
+            (Some(&t), false, "TLS"),
+        ] {
+            match check_bind(any, token, tls, false) {
+                Err(AuthError::Unprotected { missing: m, .. }) => assert_eq!(m, missing),
+                other => panic!("{other:?}"),
+            }
+            assert!(check_bind(any, token, tls, true).is_ok(), "insecure = true");
+        }
+        assert!(check_bind(any, Some(&t), true, false).is_ok());
     }
 }

@@ -5,6 +5,9 @@
 //! - [`chunk`]: large payloads travel as one header message plus data chunks; sending and
 //!   receiving such streams with every limit checked before allocating.
 //! - [`auth`]: bearer tokens (required off loopback) for servers and clients.
+//! - [`tls`]: TLS settings (certificates, CA, mutual TLS) from PEM files.
+//! - [`peer`]: a peer to dial: address, token and TLS together.
+//! - [`security`]: a daemon's token, TLS and `insecure` keys, for its server and its peers.
 //! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
 //! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
 //! - `daemon` (feature `daemon`): logging, signals and TOML loading shared by the daemons.
@@ -17,6 +20,9 @@ pub mod chunk;
 pub mod convert;
 #[cfg(feature = "daemon")]
 pub mod daemon;
+pub mod peer;
+pub mod security;
+pub mod tls;
 pub mod transport;
 
 /// Generated code for package `insitu.v1`.

@@ -3,6 +3,7 @@
 
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::tls::TlsFiles;
 use insitu_tuner::search::Target;
 use insitu_tuner::utility::{Utility, UtilitySpec};
 use insitu_tuner::ParamGrid;
@@ -90,8 +91,15 @@ impl Default for TrialConfig {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token.
+    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token and TLS
+    /// unless `insecure`.
     pub listen: SocketAddr,
+    /// Allow a non-loopback `listen` without a token or TLS, and the token sent in clear text
+    /// to a non-loopback viz-node (logged as a warning at start).
+    pub insecure: bool,
+    /// `[tls]`: certificate, key (served on `listen`), CA (the viz-node is dialled over TLS),
+    /// mutual TLS.
+    pub tls: TlsFiles,
     /// File holding the bearer token (else `INSITU_TOKEN`); checked on every call and sent
     /// to the viz-node.
     pub token_file: Option<PathBuf>,
@@ -125,6 +133,8 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             listen: SocketAddr::from(([127, 0, 0, 1], 50053)),
+            insecure: false,
+            tls: TlsFiles::default(),
             token_file: None,
             state_dir: PathBuf::from("tuner-state"),
             viz: None,

@@ -6,10 +6,11 @@ use crate::engine::{Engine, Event};
 use crate::service::TunerService;
 use crate::state::State;
 use anyhow::Context;
-use insitu_proto::auth::{check_bind, AttachToken, RequireToken, Token};
+use insitu_proto::pb;
 use insitu_proto::pb::tuner_server::TunerServer;
 use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::{pb, transport};
+use insitu_proto::peer::{error_chain, Peer};
+use insitu_proto::security::Security;
 use insitu_tuner::live::Tracker;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -35,8 +36,16 @@ pub struct RunningTuner {
 /// or a bind failure.
 pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
     let resolved = cfg.resolve()?;
-    let token = Token::load(cfg.token_file.as_deref())?;
-    check_bind(cfg.listen, token.as_ref())?;
+    let security = Security::load(
+        cfg.listen,
+        cfg.token_file.as_deref(),
+        &cfg.tls,
+        cfg.insecure,
+    )?;
+    let viz = match &cfg.viz {
+        Some(v) => Some(security.peer(v).with_context(|| format!("viz = {v:?}"))?),
+        None => None,
+    };
     let state = match State::load(&cfg.state_dir)? {
         Some(s) => {
             info!(
@@ -62,19 +71,19 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
         .await
         .with_context(|| format!("cannot listen on {}", cfg.listen))?;
     let addr = listener.local_addr()?;
-    let viz = cfg.viz.clone();
     let (engine, events) = Engine::new(cfg, resolved, state);
     let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
     if let Some(viz) = viz {
-        tasks.push(tokio::spawn(watch(viz, token.clone(), engine.clone())));
+        tasks.push(tokio::spawn(watch(viz, engine.clone())));
     }
     let svc = tonic::service::interceptor::InterceptedService::new(
         TunerServer::new(TunerService(engine.clone())),
-        RequireToken::new(token),
+        security.require_token(),
     );
     let (stop, stopped) = oneshot::channel::<()>();
     let server = tokio::spawn(
-        transport::server()
+        security
+            .server()?
             .add_service(svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
@@ -92,13 +101,13 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
 
 /// Subscribes to the viz-node's quality reports (reconnecting with back-off) and hands them
 /// to the engine.
-async fn watch(viz: String, token: Option<Token>, engine: Arc<Engine>) {
-    let uri = transport::uri(&viz);
+async fn watch(viz: Peer, engine: Arc<Engine>) {
+    let uri = viz.uri().to_owned();
     let mut backoff = Duration::from_millis(100);
     loop {
         let r: Result<(), String> = async {
-            let channel = transport::connect(&uri).await.map_err(|e| e.to_string())?;
-            let mut client = VizClient::with_interceptor(channel, AttachToken::new(token.as_ref()));
+            let channel = viz.connect().await.map_err(|e| error_chain(&e))?;
+            let mut client = VizClient::with_interceptor(channel, viz.auth());
             let mut stream = client
                 .subscribe(pb::SubscribeRequest {})
                 .await

@@ -4,6 +4,7 @@
 use insitu_core::BackendChoice;
 use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -12,8 +13,13 @@ use std::path::{Path, PathBuf};
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token.
+    /// Address to serve on (port 0: ephemeral). Anything but loopback needs a token and TLS
+    /// unless `insecure`.
     pub listen: SocketAddr,
+    /// Allow a non-loopback `listen` without a token or TLS (logged as a warning at start).
+    pub insecure: bool,
+    /// `[tls]`: certificate, key, CA, mutual TLS.
+    pub tls: TlsFiles,
     /// Where VDIs, reference frames and the index are recorded (created if missing).
     pub recording_dir: PathBuf,
     /// File holding the bearer token (else `INSITU_TOKEN`, if set).
@@ -45,6 +51,8 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             listen: SocketAddr::from(([127, 0, 0, 1], 50052)),
+            insecure: false,
+            tls: TlsFiles::default(),
             recording_dir: PathBuf::from("recording"),
             token_file: None,
             max_vdi_bytes: 2 << 30,

@@ -6,8 +6,8 @@ use crate::service::{scorer, Shared, VizService};
 use crate::store::Recording;
 use anyhow::Context;
 use insitu_core::Backend;
-use insitu_proto::auth::{check_bind, RequireToken, Token};
 use insitu_proto::pb::viz_server::VizServer;
+use insitu_proto::security::Security;
 use insitu_proto::transport;
 use std::collections::HashSet;
 use std::net::SocketAddr;
@@ -35,8 +35,12 @@ pub struct RunningViz {
 /// failure.
 pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     cfg.validate()?;
-    let token = Token::load(cfg.token_file.as_deref())?;
-    check_bind(cfg.listen, token.as_ref())?;
+    let security = Security::load(
+        cfg.listen,
+        cfg.token_file.as_deref(),
+        &cfg.tls,
+        cfg.insecure,
+    )?;
     let recording = Recording::open(&cfg.recording_dir)?;
     let scene = SceneAgreement::open(
         &cfg.recording_dir,
@@ -79,16 +83,17 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     let svc = VizServer::new(VizService(shared.clone()))
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
-    let svc = InterceptedService::new(svc, RequireToken::new(token));
+    let svc = InterceptedService::new(svc, security.require_token());
     let (stop, stopped) = oneshot::channel::<()>();
     let server = tokio::spawn(
-        transport::server()
+        security
+            .server()?
             .add_service(svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
             }),
     );
-    info!(%addr, recording = %cfg.recording_dir.display(), "viz-node listening");
+    info!(%addr, tls = security.serves_tls(), recording = %cfg.recording_dir.display(), "viz-node listening");
     Ok(RunningViz {
         addr,
         shared,

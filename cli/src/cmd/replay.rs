@@ -5,7 +5,7 @@
 
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
-use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
+use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step, TlsFiles};
 use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::RawFormat;
 use insitu_core::{TransferFunction, Volume};
@@ -47,6 +47,15 @@ pub struct Args {
     /// Bearer token file for --generator (else INSITU_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
+    /// CA certificate (PEM) for --generator: connect over TLS and verify the node against it.
+    #[arg(long, requires = "generator")]
+    tls_ca: Option<PathBuf>,
+    /// Client certificate (PEM) for a --generator that requires mutual TLS (with --tls-key).
+    #[arg(long, requires_all = ["tls_key", "tls_ca"])]
+    tls_cert: Option<PathBuf>,
+    /// The client certificate's private key (PEM).
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
     #[command(flatten)]
     pipeline: PipelineArgs,
 }
@@ -164,7 +173,14 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
         (None, Some(n)) => n.generator_addr(),
         (None, None) => bail!("no generator-node"),
     };
-    let mut client = SimClient::connect(&addr, token.as_ref()).await?;
+    let tls = TlsFiles {
+        ca_file: a.tls_ca.clone(),
+        cert_file: a.tls_cert.clone(),
+        key_file: a.tls_key.clone(),
+        client_auth: false,
+    };
+    let mut client =
+        SimClient::connect_with(Peer::new(&addr, token, tls.client()?, false)?).await?;
     client.set_config(config).await?;
     let printer = match &local {
         Some(n) => Some(n.printer().await?),

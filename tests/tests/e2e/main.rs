@@ -12,4 +12,5 @@ mod outage;
 mod policies;
 mod ranks;
 mod replay;
+mod tls;
 mod tuner;

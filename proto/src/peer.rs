@@ -1,0 +1,150 @@
+//! A peer this process dials (a generator-node, viz-node or tuner): its address, the bearer
+//! token sent with every call, and TLS.
+
+use crate::auth::{AttachToken, AuthError, Token};
+use crate::transport;
+use std::net::IpAddr;
+use tonic::transport::{Channel, ClientTlsConfig, Endpoint};
+
+/// Where and how to call a peer. Cheap to clone.
+#[derive(Clone, Debug)]
+pub struct Peer {
+    uri: String,
+    token: Option<Token>,
+    tls: Option<ClientTlsConfig>,
+}
+
+impl Peer {
+    /// A peer at `addr` (`host:port`, `http://host:port` or `https://host:port`).
+    ///
+    /// With `tls`, the link is TLS (`https://`) whatever scheme `addr` names, and the peer's
+    /// certificate must name the host dialled. Without it, the link is clear text.
+    ///
+    /// # Errors
+    /// [`AuthError::HttpsWithoutCa`] for an `https://` address without `tls`;
+    /// [`AuthError::TokenInClear`] when `token` would travel in clear text to a host that is
+    /// not loopback, unless `insecure`.
+    pub fn new(
+        addr: &str,
+        token: Option<Token>,
+        tls: Option<ClientTlsConfig>,
+        insecure: bool,
+    ) -> Result<Self, AuthError> {
+        let rest = addr.split_once("://").map_or(addr, |(_, r)| r);
+        let uri = match &tls {
+            Some(_) => format!("https://{rest}"),
+            None if addr.starts_with("https://") => {
+                return Err(AuthError::HttpsWithoutCa(addr.to_owned()))
+            }
+            None => transport::uri(addr),
+        };
+        if tls.is_none() && token.is_some() && !insecure && !is_loopback_host(rest) {
+            return Err(AuthError::TokenInClear(addr.to_owned()));
+        }
+        Ok(Self { uri, token, tls })
+    }
+
+    /// The URI dialled (`http://…` or `https://…`).
+    pub fn uri(&self) -> &str {
+        &self.uri
+    }
+
+    /// Whether the link is TLS.
+    pub fn is_tls(&self) -> bool {
+        self.tls.is_some()
+    }
+
+    /// The endpoint, with the transport's windows and TLS applied; not yet connected.
+    ///
+    /// # Errors
+    /// When the URI is invalid or the TLS settings cannot be applied.
+    pub fn endpoint(&self) -> Result<Endpoint, tonic::transport::Error> {
+        let e = transport::endpoint(&self.uri)?;
+        match &self.tls {
+            Some(tls) => e.tls_config(tls.clone()),
+            None => Ok(e),
+        }
+    }
+
+    /// Connects now (the TLS handshake included).
+    ///
+    /// # Errors
+    /// As [`Peer::endpoint`], or when nothing answers, or the handshake fails (e.g. the
+    /// certificate is not signed by the CA or does not name the host).
+    pub async fn connect(&self) -> Result<Channel, tonic::transport::Error> {
+        self.endpoint()?.connect().await
+    }
+
+    /// The interceptor that attaches the token to every call.
+    pub fn auth(&self) -> AttachToken {
+        AttachToken::new(self.token.as_ref())
+    }
+}
+
+/// `e` and its sources, joined by `: ` (tonic's transport errors say only "transport error"
+/// at the top; the cause, e.g. a refused certificate, is further down).
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut next = e.source();
+    while let Some(cause) = next {
+        s.push_str(": ");
+        s.push_str(&cause.to_string());
+        next = cause.source();
+    }
+    s
+}
+
+/// Whether `authority` (`host:port`, possibly with a path) names a loopback host.
+fn is_loopback_host(authority: &str) -> bool {
+    let hostport = authority.split('/').next().unwrap_or("");
+    let host = if let Some(v6) = hostport.strip_prefix('[') {
+        v6.split(']').next().unwrap_or("")
+    } else {
+        hostport.rsplit_once(':').map_or(hostport, |(h, _)| h)
+    };
+    host.eq_ignore_ascii_case("localhost")
+        || host.parse::<IpAddr>().is_ok_and(|ip| ip.is_loopback())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tokens_never_travel_in_clear_off_loopback() {
+        let t = Token::new("s", "t").unwrap();
+        for local in [
+            "127.0.0.1:1",
+            "http://127.0.0.1:1",
+            "[::1]:1",
+            "localhost:9",
+        ] {
+            let p = Peer::new(local, Some(t.clone()), None, false).unwrap();
+            assert!(p.uri().starts_with("http://") && !p.is_tls(), "{local}");
+        }
+        for remote in ["10.0.0.7:1", "http://node12:50052", "[2001:db8::1]:5"] {
+            assert!(
+                matches!(
+                    Peer::new(remote, Some(t.clone()), None, false),
+                    Err(AuthError::TokenInClear(_))
+                ),
+                "{remote}"
+            );
+            assert!(
+                Peer::new(remote, Some(t.clone()), None, true).is_ok(),
+                "insecure"
+            );
+            assert!(
+                Peer::new(remote, None, None, false).is_ok(),
+                "no secret to leak"
+            );
+        }
+        let tls = ClientTlsConfig::new();
+        let p = Peer::new("http://node12:50052", Some(t), Some(tls), false).unwrap();
+        assert_eq!(p.uri(), "https://node12:50052");
+        assert!(matches!(
+            Peer::new("https://node12:1", None, None, false),
+            Err(AuthError::HttpsWithoutCa(_))
+        ));
+    }
+}

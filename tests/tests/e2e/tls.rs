@@ -1,0 +1,227 @@
+//! TLS (issue 15, "TLS"): the daemons off loopback with a token and TLS, mutual TLS on every
+//! link (simulation → generator-node → viz-node), certificates from a throw-away CA made here
+//! with rcgen; and what is refused: clear text to a TLS node, a server certificate from
+//! another CA, a client without a certificate or with one from another CA, a wrong token, and
+//! an off-loopback bind without TLS unless `insecure = true`.
+
+use crate::common::{field, index};
+use insitu_client::{BearerToken, Peer, SimClient, Step, TlsFiles};
+use insitu_e2e::{rt, Daemon};
+use rcgen::{
+    BasicConstraints, CertificateParams, CertifiedIssuer, DnType, IsCa, KeyPair, KeyUsagePurpose,
+};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// A CA and PEM files of certificates it signed.
+struct Ca {
+    issuer: CertifiedIssuer<'static, KeyPair>,
+    pem: PathBuf,
+}
+
+impl Ca {
+    fn new(dir: &Path, name: &str) -> Self {
+        let mut p = CertificateParams::new(Vec::<String>::new()).unwrap();
+        p.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        p.distinguished_name.push(DnType::CommonName, name);
+        p.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
+        let issuer = CertifiedIssuer::self_signed(p, KeyPair::generate().unwrap()).unwrap();
+        let pem = dir.join(format!("{name}.pem"));
+        std::fs::write(&pem, issuer.pem()).unwrap();
+        Self { issuer, pem }
+    }
+
+    /// A leaf for `names` (host names or IP addresses): (certificate, key) files.
+    fn leaf(&self, dir: &Path, name: &str, names: &[&str]) -> (PathBuf, PathBuf) {
+        let key = KeyPair::generate().unwrap();
+        let names: Vec<String> = names.iter().map(|s| (*s).to_owned()).collect();
+        let mut p = CertificateParams::new(names).unwrap();
+        p.distinguished_name.push(DnType::CommonName, name);
+        let cert = p.signed_by(&key, &self.issuer).unwrap();
+        let (c, k) = (
+            dir.join(format!("{name}.crt")),
+            dir.join(format!("{name}.key")),
+        );
+        std::fs::write(&c, cert.pem()).unwrap();
+        std::fs::write(&k, key.serialize_pem()).unwrap();
+        (c, k)
+    }
+}
+
+fn path(p: &Path) -> String {
+    p.to_string_lossy().replace('\\', "/")
+}
+
+/// `0.0.0.0:PORT` as printed → `127.0.0.1:PORT`, the name in the certificates.
+fn loopback(addr: &str) -> String {
+    addr.replace("0.0.0.0", "127.0.0.1")
+}
+
+fn start(name: &str, toml: &str, dir: &Path) -> Daemon {
+    let cfg = dir.join(format!("{name}.toml"));
+    std::fs::write(&cfg, toml).unwrap();
+    Daemon::start(name, &["--config", cfg.to_str().unwrap()], &[], dir)
+}
+
+fn client_tls(ca: &Path, id: Option<&(PathBuf, PathBuf)>) -> TlsFiles {
+    TlsFiles {
+        ca_file: Some(ca.to_owned()),
+        cert_file: id.map(|i| i.0.clone()),
+        key_file: id.map(|i| i.1.clone()),
+        client_auth: false,
+    }
+}
+
+/// Connects and asks for the status: the first call is where a refused client certificate
+/// shows (TLS 1.3 checks it after the client's handshake completes).
+fn status_with(peer: Peer) -> Result<insitu_client::GeneratorStatus, String> {
+    rt().block_on(async {
+        let mut c = SimClient::connect_with(peer)
+            .await
+            .map_err(|e| e.to_string())?;
+        c.status().await.map_err(|e| e.to_string())
+    })
+}
+
+#[test]
+fn every_link_is_mutual_tls_off_loopback_and_what_lacks_a_part_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let ca = Ca::new(d, "ca");
+    let rogue = Ca::new(d, "rogue-ca");
+    let node = ca.leaf(d, "node", &["127.0.0.1", "localhost"]);
+    let sim = ca.leaf(d, "sim", &["simulation"]);
+    let rogue_sim = rogue.leaf(d, "rogue-sim", &["simulation"]);
+    let token_file = d.join("token");
+    std::fs::write(&token_file, "tls-test-token").unwrap();
+    let token = BearerToken::new("tls-test-token", "test").unwrap();
+    let tls_table = format!(
+        "[tls]\ncert_file = \"{}\"\nkey_file = \"{}\"\nca_file = \"{}\"\nclient_auth = true\n",
+        path(&node.0),
+        path(&node.1),
+        path(&ca.pem)
+    );
+
+    let viz = start(
+        "viz-node",
+        &format!(
+            "listen = \"0.0.0.0:0\"\nrecording_dir = \"{}\"\ntoken_file = \"{}\"\nbackend = \"cpu\"\n{tls_table}",
+            path(&d.join("rec")),
+            path(&token_file)
+        ),
+        d,
+    );
+    // The generator-node dials the viz-node over TLS (ca_file) with its own certificate.
+    let gen = start(
+        "generator-node",
+        &format!(
+            r#"listen = "0.0.0.0:0"
+viz = "{}"
+token_file = "{}"
+backend = "cpu"
+max_backoff_secs = 0.2
+[generation]
+resolution = 32
+reference_every = 2
+{tls_table}"#,
+            loopback(&viz.addr),
+            path(&token_file)
+        ),
+        d,
+    );
+    let g = loopback(&gen.addr);
+
+    // The simulation, with its certificate: steps reach the recording, scored.
+    rt().block_on(async {
+        let tls = client_tls(&ca.pem, Some(&sim)).client().unwrap();
+        let peer = Peer::new(&g, Some(token.clone()), tls, false).unwrap();
+        assert!(peer.uri().starts_with("https://"));
+        let mut c = SimClient::connect_with(peer).await.unwrap();
+        for s in 0..4 {
+            c.push_step(Step::whole_f32(s, s as f64, [16; 3], &field(16, s)))
+                .await
+                .unwrap();
+        }
+        let st = c.flush(Duration::from_secs(120)).await.unwrap();
+        assert_eq!((st.steps_shipped, st.failed), (4, 0));
+    });
+    let rec = d.join("rec");
+    let ok = insitu_e2e::wait_until(60.0, || {
+        let e = index(&rec);
+        e.len() == 4 && e.iter().filter(|e| e.quality.is_some()).count() == 2
+    });
+    assert!(ok, "stored over TLS and scored: {:?}", index(&rec));
+
+    let with = |tls: TlsFiles, token: Option<BearerToken>| {
+        status_with(Peer::new(&g, token, tls.client().unwrap(), false).unwrap())
+    };
+    // Clear text to a TLS node.
+    let e = status_with(Peer::new(&g, Some(token.clone()), None, false).unwrap()).unwrap_err();
+    assert!(!e.is_empty());
+    // The node's certificate is not from the CA the client trusts.
+    let e = with(client_tls(&rogue.pem, Some(&sim)), Some(token.clone())).unwrap_err();
+    assert!(e.to_lowercase().contains("certificate"), "{e}");
+    // Mutual TLS: no client certificate, or one from another CA.
+    assert!(with(client_tls(&ca.pem, None), Some(token.clone())).is_err());
+    assert!(with(client_tls(&ca.pem, Some(&rogue_sim)), Some(token.clone())).is_err());
+    // TLS is not a substitute for the token.
+    let e = with(
+        client_tls(&ca.pem, Some(&sim)),
+        Some(BearerToken::new("wrong", "t").unwrap()),
+    )
+    .unwrap_err();
+    assert!(e.contains("Unauthenticated"), "{e}");
+    // …nor the other way round, and the right pair still works.
+    assert!(with(client_tls(&ca.pem, Some(&sim)), None).is_err());
+    let st = with(client_tls(&ca.pem, Some(&sim)), Some(token.clone())).unwrap();
+    assert_eq!(st.steps_shipped, 4);
+    // A token never goes in clear text to a host that is not loopback.
+    let e = Peer::new("10.255.255.1:1", Some(token), None, false).unwrap_err();
+    assert!(e.to_string().contains("clear text"), "{e}");
+
+    gen.terminate();
+    viz.terminate();
+}
+
+#[test]
+fn off_loopback_without_tls_needs_insecure_and_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let token_file = d.join("token");
+    std::fs::write(&token_file, "t0ken").unwrap();
+    let cfg = |extra: &str| {
+        let p = d.join(format!("viz-{}.toml", extra.len()));
+        std::fs::write(
+            &p,
+            format!(
+                "listen = \"0.0.0.0:0\"\nrecording_dir = \"{}\"\ntoken_file = \"{}\"\n{extra}",
+                path(&d.join("rec")),
+                path(&token_file)
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let out = std::process::Command::new(insitu_e2e::bin("viz-node"))
+        .arg("--config")
+        .arg(cfg(""))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("without TLS") && err.contains("insecure"),
+        "{err}"
+    );
+
+    let v = insitu_e2e::Daemon::start(
+        "viz-node",
+        &["--config", cfg("insecure = true\n").to_str().unwrap()],
+        &[],
+        d,
+    );
+    let log = v.log.clone();
+    v.terminate();
+    let log = std::fs::read_to_string(log).unwrap();
+    assert!(log.contains("INSECURE") && log.contains("TLS"), "{log}");
+}
