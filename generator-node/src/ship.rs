@@ -17,7 +17,9 @@ use tracing::{info, info_span, warn, Instrument};
 
 type Client = VizClient<InterceptedService<Channel, AttachToken>>;
 
-/// Whether an error may go away by trying again (the peer is away or restarting).
+/// Whether an error may go away by trying again: the peer is away or restarting, or its disk
+/// is full (`RESOURCE_EXHAUSTED`, which the viz-node returns only for that on these calls:
+/// the item waits in the outbox until there is room, like a step while the viz-node is away).
 pub fn is_transient(code: Code) -> bool {
     matches!(
         code,
@@ -26,6 +28,7 @@ pub fn is_transient(code: Code) -> bool {
             | Code::Cancelled
             | Code::DeadlineExceeded
             | Code::Aborted
+            | Code::ResourceExhausted
     )
 }
 
@@ -113,12 +116,17 @@ impl Shipper {
                 }
                 Err(e) if !is_transient(e.code()) => return Err(e),
                 Err(e) => {
+                    let why = if e.code() == Code::ResourceExhausted {
+                        "cannot store (out of space)"
+                    } else {
+                        "unreachable"
+                    };
                     if stats.get().viz_connected {
-                        warn!(error = %e.message(), "viz-node unreachable; retrying with back-off");
+                        warn!(error = %e.message(), "viz-node {why}; retrying with back-off");
                     }
                     stats.update(|c| c.viz_connected = false);
                     stats.set_ship_error(format!(
-                        "viz-node {} unreachable: {:?}: {}",
+                        "viz-node {} {why}: {:?}: {}",
                         self.peer.uri(),
                         e.code(),
                         e.message()

@@ -24,10 +24,19 @@ pub struct IndexDb {
     conn: Connection,
 }
 
+/// SQLite's errors as [`StoreError`]: a full disk is an I/O error of kind `StorageFull` (so it
+/// reaches callers as `RESOURCE_EXHAUSTED`, like a payload that did not fit), the rest
+/// [`StoreError::Corrupt`].
 fn db_err(path: &Path) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
-    move |e| StoreError::Corrupt {
-        path: path.to_owned(),
-        problem: format!("SQLite: {e}"),
+    move |e| match e.sqlite_error_code() {
+        Some(rusqlite::ErrorCode::DiskFull) => StoreError::Io {
+            path: path.to_owned(),
+            source: std::io::Error::new(std::io::ErrorKind::StorageFull, format!("SQLite: {e}")),
+        },
+        _ => StoreError::Corrupt {
+            path: path.to_owned(),
+            problem: format!("SQLite: {e}"),
+        },
     }
 }
 

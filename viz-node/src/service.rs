@@ -278,10 +278,22 @@ impl Shared {
             .map_err(|err| Status::data_loss(err.to_string()))?;
         let q = score(&self.backend, &vdi, &refs, self.termination)
             .map_err(|err| Status::invalid_argument(err.to_string()))?;
-        let e = self
-            .recording
-            .set_quality(step, rank, q)
-            .map_err(|err| Status::internal(err.to_string()))?;
+        // A full disk delays q, it does not lose it: the write is retried (the scorer waits,
+        // and with it the bounded queue of jobs behind it) until there is room again.
+        let mut wait = std::time::Duration::from_millis(200);
+        let e = loop {
+            match self.recording.set_quality(step, rank, q.clone()) {
+                Ok(e) => break e,
+                Err(StoreError::Io { source, .. })
+                    if source.kind() == std::io::ErrorKind::StorageFull =>
+                {
+                    warn!(step, rank, "disk full: q not recorded yet; retrying");
+                    std::thread::sleep(wait);
+                    wait = (wait * 2).min(std::time::Duration::from_secs(5));
+                }
+                Err(err) => return Err(Status::internal(err.to_string())),
+            }
+        };
         self.publish(report(&e));
         Ok(e)
     }

@@ -574,6 +574,24 @@ impl Recording {
         Ok(next)
     }
 
+    /// [`Recording::update`] for a payload `name` just written: when the row cannot be
+    /// committed (e.g. the disk filled up), the file is removed again, so that a refused item
+    /// leaves nothing behind and its retry starts clean.
+    fn update_or_unlink(
+        &self,
+        name: &str,
+        key: (u64, u32),
+        f: impl FnOnce(&mut Entry),
+    ) -> Result<(Entry, bool), StoreError> {
+        match self.update(key, f) {
+            Ok(e) => Ok((e, true)),
+            Err(err) => {
+                let _ = std::fs::remove_file(self.dir.join(name));
+                Err(err)
+            }
+        }
+    }
+
     /// Records a composed step (replacing an earlier composition of it).
     ///
     /// # Errors
@@ -640,16 +658,15 @@ impl Recording {
         }
         let name = vdi_name(meta.step, meta.rank);
         write_atomic(&self.dir, &name, file)?;
-        self.update((meta.step, meta.rank), |e| {
+        self.update_or_unlink(&name, (meta.step, meta.rank), |e| {
             let references = e.references.take();
             *e = Entry {
-                vdi: Some(name),
+                vdi: Some(name.clone()),
                 references,
                 quality: None,
                 ..meta
             };
         })
-        .map(|e| (e, true))
     }
 
     /// Records reference frames; returns the entry and whether they are new (identical
@@ -676,11 +693,10 @@ impl Recording {
         }
         let name = refs_name(step, rank);
         write_atomic(&self.dir, &name, &bytes)?;
-        self.update((step, rank), |e| {
-            e.references = Some(name);
+        self.update_or_unlink(&name, (step, rank), |e| {
+            e.references = Some(name.clone());
             e.quality = None;
         })
-        .map(|e| (e, true))
     }
 
     /// Records the quality of a step's VDI.

@@ -415,3 +415,106 @@ fn timeout_reader_keeps_spooled_steps_for_the_next_run() {
     g.terminate();
     v.terminate();
 }
+
+/// A tmpfs of `mib` MiB mounted at `dir` (needs root, as in CI), unmounted on drop; `None`,
+/// said on stderr, where mounting is not permitted.
+struct Tmpfs(std::path::PathBuf);
+
+impl Tmpfs {
+    fn mount(dir: &std::path::Path, mib: u32) -> Option<Self> {
+        std::fs::create_dir_all(dir).unwrap();
+        let ok = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={mib}m"), "tmpfs"])
+            .arg(dir)
+            .status()
+            .is_ok_and(|s| s.success());
+        ok.then(|| Self(dir.to_owned()))
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg("-l")
+            .arg(&self.0)
+            .status();
+    }
+}
+
+/// Fills the file system of `dir` with `path` until a write fails with "no space".
+fn fill(path: &std::path::Path) {
+    use std::io::Write;
+    let mut f = std::fs::File::create(path).unwrap();
+    let block = vec![0x5au8; 4096];
+    loop {
+        match f.write_all(&block).and_then(|()| f.sync_all()) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::StorageFull => return,
+            Err(e) => panic!("filling {}: {e}", path.display()),
+        }
+    }
+}
+
+/// FullDisk: the recording on a 16 MiB tmpfs made here, filled to the last byte while steps
+/// arrive. The viz-node refuses each item with `RESOURCE_EXHAUSTED` and leaves no file behind;
+/// the generator-node keeps the VDIs (retrying with back-off), says why in `GetStatus` and in
+/// a `Flush` that times out; once space is freed every acknowledged step is stored exactly
+/// once and scored.
+#[test]
+fn full_disk_delays_delivery_and_loses_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let disk = tmp.path().join("disk");
+    let Some(_mount) = Tmpfs::mount(&disk, 16) else {
+        eprintln!("SKIPPED full_disk_delays_delivery_and_loses_nothing: cannot mount a tmpfs here (needs root; CI runs as root)");
+        return;
+    };
+    let rec = disk.join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = crate::common::generator(&sampled_config(&v.addr, "block"), tmp.path(), &[]);
+    crate::common::push_steps(&g.addr, 0..2);
+    crate::common::flush(&g.addr);
+    fill(&disk.join("filler"));
+    let replies = crate::common::push_steps(&g.addr, 2..8);
+    assert_eq!(replies.len(), 6, "every push acknowledged");
+    let refused = wait_until(30.0, || {
+        crate::common::status(&g.addr)
+            .ship_error
+            .contains("ResourceExhausted")
+    });
+    assert!(refused, "{:?}", crate::common::status(&g.addr));
+    let e = rt()
+        .block_on(async {
+            insitu_client::SimClient::connect(&g.addr, None)
+                .await
+                .unwrap()
+                .flush(std::time::Duration::from_secs(2))
+                .await
+        })
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("out of space") && e.contains("No space left"),
+        "{e}"
+    );
+    let names = |d: &std::path::Path| -> Vec<String> {
+        std::fs::read_dir(d)
+            .unwrap()
+            .map(|d| d.unwrap().file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    assert!(!names(&rec).iter().any(|n| n.starts_with(".tmp-")));
+    assert!(index(&rec).iter().all(|e| e.step < 2));
+
+    std::fs::remove_file(disk.join("filler")).unwrap();
+    let s = crate::common::flush(&g.addr);
+    assert_eq!((s.steps_shipped, s.failed), (8, 0));
+    assert_recording(&rec, &(0..8).collect::<Vec<_>>(), 4);
+    eprintln!(
+        "FullDisk: acknowledged 8, stored 8 (6 after space was freed), lost 0, duplicated 0; peak RSS generator {:.0} MiB, viz {:.0} MiB",
+        g.peak_rss_mib(),
+        v.peak_rss_mib()
+    );
+    assert!(g.peak_rss_mib() < RSS_BOUND_MIB && v.peak_rss_mib() < RSS_BOUND_MIB);
+    g.terminate();
+    v.terminate();
+}
