@@ -61,37 +61,37 @@ fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3],
     )
 }
 
-/// Evaluates `shade(i, j)` for every pixel of `frame`, tiles in parallel, and returns the
-/// pixels row-major from the top.
+/// Evaluates `shade(i, j)` for every pixel of `frame` and returns the pixels row-major from
+/// the top. Parallel over bands of `TILE` rows, each walked in `TILE × TILE` tiles (neighbouring
+/// rays, neighbouring voxels), written straight into the one output buffer: no per-tile
+/// allocation, so a large image costs one buffer, which goes back to the system when dropped
+/// (per-tile vectors spread over the worker threads' heaps used to stay resident after large
+/// renders, issue 15).
 pub(crate) fn tiles<P: Copy + Default + Send>(
     frame: &ViewFrame,
     shade: impl Fn(u32, u32) -> P + Sync,
 ) -> Vec<P> {
     let (w, h) = (frame.width, frame.height);
-    let tiles_x = w.div_ceil(TILE);
-    let tiles = tiles_x * h.div_ceil(TILE);
-    let results: Vec<(u32, u32, Vec<P>)> = (0..tiles)
-        .into_par_iter()
-        .map(|t| {
-            let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
-            let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
-            let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
-            for j in y0..y1 {
-                for i in x0..x1 {
-                    px.push(shade(i, j));
+    let mut pixels = vec![P::default(); w as usize * h as usize];
+    if w == 0 {
+        return pixels;
+    }
+    pixels
+        .par_chunks_mut(w as usize * TILE as usize)
+        .enumerate()
+        .for_each(|(band, rows)| {
+            let y0 = band as u32 * TILE;
+            let y1 = (y0 + TILE).min(h);
+            for x0 in (0..w).step_by(TILE as usize) {
+                let x1 = (x0 + TILE).min(w);
+                for j in y0..y1 {
+                    let row = &mut rows[((j - y0) * w) as usize..][..w as usize];
+                    for i in x0..x1 {
+                        row[i as usize] = shade(i, j);
+                    }
                 }
             }
-            (x0, y0, px)
-        })
-        .collect();
-    let mut pixels = vec![P::default(); w as usize * h as usize];
-    for (x0, y0, px) in results {
-        let tw = ((x0 + TILE).min(w) - x0) as usize;
-        for (row, chunk) in px.chunks(tw).enumerate() {
-            let dst = x0 as usize + w as usize * (y0 as usize + row);
-            pixels[dst..dst + tw].copy_from_slice(chunk);
-        }
-    }
+        });
     pixels
 }
 

@@ -127,13 +127,22 @@ impl Daemon {
         assert!(ok, "kill -{signal} failed");
     }
 
-    /// The process's peak resident memory so far (`VmHWM`), MiB.
+    /// The process's peak resident memory so far (`VmHWM`), MiB (0 once it has exited).
     pub fn peak_rss_mib(&self) -> f64 {
+        self.proc_status_mib("VmHWM:")
+    }
+
+    /// The process's resident memory now (`VmRSS`), MiB (0 once it has exited).
+    pub fn rss_mib(&self) -> f64 {
+        self.proc_status_mib("VmRSS:")
+    }
+
+    fn proc_status_mib(&self, field: &str) -> f64 {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id()))
             .unwrap_or_default();
         status
             .lines()
-            .find_map(|l| l.strip_prefix("VmHWM:"))
+            .find_map(|l| l.strip_prefix(field))
             .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
             .map_or(0.0, |kb| kb / 1024.0)
     }

@@ -105,6 +105,26 @@ fn a_retried_vdi_is_stored_once_and_a_different_one_is_refused() {
             .unwrap_err();
         assert_eq!(e.code(), Code::ResourceExhausted);
         assert!(e.message().contains("max_render_pixels"), "{}", e.message());
+        // The largest allowed render (4096², 200 MB of f32 pixels) gives its memory back.
+        let before = v.rss_mib();
+        let png = c
+            .render(pb::RenderRequest {
+                step: 5,
+                width: 4096,
+                height: 4096,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(!png.png.is_empty());
+        let after = v.rss_mib();
+        eprintln!(
+            "render 4096²: viz-node RSS {before:.0} MiB before, peak {:.0} MiB, {after:.0} MiB after",
+            v.peak_rss_mib()
+        );
+        assert!(v.peak_rss_mib() > before + 150.0, "the render did take memory");
+        assert!(after < before + 48.0, "{before:.0} → {after:.0} MiB");
     });
     let e = index(&rec);
     assert_eq!(e.len(), 1);
