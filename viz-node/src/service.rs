@@ -340,6 +340,17 @@ fn store_status(e: StoreError) -> Status {
     }
 }
 
+/// A payload over `max_vdi_bytes`/`max_reference_bytes` as OUT_OF_RANGE, so that
+/// RESOURCE_EXHAUSTED from `ShipVdi`/`ShipReferences` means only "the disk is full": a
+/// condition the generator-node waits out, where an oversize item would never fit.
+fn over_limit(s: Status) -> Status {
+    if s.code() == tonic::Code::ResourceExhausted {
+        Status::out_of_range(s.message())
+    } else {
+        s
+    }
+}
+
 fn join_error(e: tokio::task::JoinError) -> Status {
     Status::internal(format!("storage task failed: {e}"))
 }
@@ -359,7 +370,8 @@ impl VizService {
                 .ok_or_else(|| Status::invalid_argument("codec is unspecified"))?;
             Ok(())
         })
-        .await?;
+        .await
+        .map_err(over_limit)?;
         if h.world_size == 0 || h.rank >= h.world_size {
             return Err(Status::invalid_argument(format!(
                 "VDI of step {} rank {}: world size {} (need 0 ≤ rank < world_size)",
@@ -455,7 +467,8 @@ impl VizService {
                 Ok(())
             },
         )
-        .await?;
+        .await
+        .map_err(over_limit)?;
         let camera = camera_from_pb(
             h.camera
                 .as_ref()
