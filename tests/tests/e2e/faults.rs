@@ -163,10 +163,15 @@ fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
     let e = index(&rec).remove(0);
     let local = local_q(&rec, &e);
     assert!((e.quality.as_ref().unwrap().q_db.0 - local).abs() < 1e-9);
+    let peak = v.peak_rss_mib();
     // Killed again: the committed rows survive as they are.
     v.kill();
     let v = viz(&rec, "127.0.0.1:0", tmp.path());
     assert_eq!(index(&rec), vec![e]);
+    eprintln!(
+        "KillReader: acknowledged 1 (stored, unscored at the kill), stored 1, scored after restart, lost 0, duplicated 0, temporary file removed; peak RSS viz {peak:.0} MiB"
+    );
+    assert!(peak < RSS_BOUND_MIB);
     v.terminate();
 }
 
@@ -256,6 +261,7 @@ fn a_killed_generator_with_a_spool_loses_nothing_it_acknowledged() {
             }
             (epoch, 5u64)
         });
+        let peak_before = g.peak_rss_mib();
         g.kill();
         let v = viz(&rec, &viz_addr, tmp.path());
         let g = crate::common::generator(&cfg, tmp.path(), &[]);
@@ -283,6 +289,17 @@ fn a_killed_generator_with_a_spool_loses_nothing_it_acknowledged() {
         } else {
             assert_eq!((s.recovered, stored.len()), (0, 0));
         }
+        eprintln!(
+            "KillWriter ({}): acknowledged {acknowledged}, stored {}, lost {}{}, duplicated 0; peak RSS generator {:.0} MiB before the kill, {:.0} MiB after restart, viz {:.0} MiB",
+            if spooled { "spool" } else { "no spool" },
+            stored.len(),
+            acknowledged - stored.len() as u64,
+            if spooled { "" } else { " (the new epoch tells the client)" },
+            peak_before,
+            g.peak_rss_mib(),
+            v.peak_rss_mib()
+        );
+        assert!(peak_before.max(g.peak_rss_mib()) < RSS_BOUND_MIB);
         g.terminate();
         v.terminate();
     }
