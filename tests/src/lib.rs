@@ -20,28 +20,39 @@ pub fn bin_dir() -> PathBuf {
         .to_owned()
 }
 
-/// Builds the daemon and CLI binaries once per test process (a no-op when they are fresh),
-/// with the same profile as this test.
+/// Builds the daemon and CLI binaries and the C client library once per test process (a no-op
+/// when they are fresh), with the same profile as this test.
+///
+/// In the dev profile this is `cargo test --workspace --no-run`: the very feature resolution of
+/// `cargo test --workspace` (CI's command), so right after it nothing is rebuilt. A narrower
+/// `cargo build -p …` resolves dependency features differently (dev-dependencies take part in
+/// one and not the other) and used to rebuild minutes of dependencies in CI. Benchmarks
+/// (release) build just the binaries and the library.
 pub fn ensure_built() {
     static BUILT: OnceLock<()> = OnceLock::new();
     BUILT.get_or_init(|| {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let release = bin_dir().file_name().is_some_and(|n| n == "release");
         let mut cmd = Command::new(cargo);
-        cmd.args([
-            "build",
-            "--bins",
-            "-p",
-            "insitu-generator-node",
-            "-p",
-            "insitu-viz-node",
-            "-p",
-            "insitu-cli",
-            "-p",
-            "insitu-tuner-node",
-        ]);
         if release {
-            cmd.arg("--release");
+            cmd.args([
+                "build",
+                "--release",
+                "--bins",
+                "--lib",
+                "-p",
+                "insitu-generator-node",
+                "-p",
+                "insitu-viz-node",
+                "-p",
+                "insitu-cli",
+                "-p",
+                "insitu-tuner-node",
+                "-p",
+                "insitu-client-c",
+            ]);
+        } else {
+            cmd.args(["test", "--workspace", "--no-run"]);
         }
         let status = cmd
             .status()
@@ -215,19 +226,11 @@ pub fn wait_until(secs: f64, mut pred: impl FnMut() -> bool) -> bool {
 /// The C client library (`libinsitu.a`, built with this test's profile) and its header
 /// directory, for compiling C programs against it.
 pub fn c_client() -> (PathBuf, PathBuf) {
-    static BUILT: OnceLock<()> = OnceLock::new();
-    BUILT.get_or_init(|| {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut cmd = Command::new(cargo);
-        cmd.args(["build", "--lib", "-p", "insitu-client-c"]);
-        if bin_dir().file_name().is_some_and(|n| n == "release") {
-            cmd.arg("--release");
-        }
-        let status = cmd.status().expect("running cargo build for the C client");
-        assert!(status.success(), "building the C client failed");
-    });
+    ensure_built();
     let include = Path::new(env!("CARGO_MANIFEST_DIR")).join("../client-c/include");
-    (bin_dir().join("libinsitu.a"), include)
+    // `deps/`: where both `cargo test --no-run` and `cargo build` put it (only the latter
+    // also copies it up a level).
+    (bin_dir().join("deps").join("libinsitu.a"), include)
 }
 
 /// Compiles the C program `source` (relative to the repository root) with `compiler` (`cc`,
