@@ -1,0 +1,172 @@
+"""Render one volume with VTK's CPU ray caster and with `insitu render`, interleaved; print
+both times, their ratio and the PSNR between the images (issue 17, "A benchmark against VTK").
+
+Run through bench/vtk_compare.sh, which makes the venv. The conventions match DESIGN.md
+("Conventions every part shares"), which chose VTK's where there was a choice:
+
+- volume: image data with origin 0 and spacing 1, so voxel centres sit at integer coordinates
+  and the box is [0, n - 1] per axis; trilinear samples (linear interpolation);
+- TF: the same JSON, points at domain[0] + x * (domain[1] - domain[0]); colour and opacity
+  piecewise linear; opacity per unit length with VTK's scalar opacity unit distance = 1 voxel,
+  so both correct a step of 0.5 voxel to alpha = 1 - (1 - a)^0.5; no shading;
+- camera: perspective, 30 degrees vertical field of view, up +y, looking along -z at the box
+  centre from R / sin(15 degrees), R the half diagonal, orbited about +y by --angle;
+- sampling: VTK's sample distance 0.5 (automatic adjustment off), image sample distance 1;
+  ours --step 0.5 (the default); both stop a ray at opacity 0.99 (ours by default, VTK's
+  fixed-point mapper at its built-in 0.99..1 cut-off);
+- background black; images compared as 8-bit RGB, row 0 at the top.
+"""
+
+import argparse
+import json
+import math
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import vtk
+from PIL import Image
+from vtk.util import numpy_support
+
+DTYPES = {"uint8": np.uint8, "uint16": np.uint16, "int16": np.int16, "float32": np.float32,
+          "float64": np.float64}
+
+
+def load_raw(path):
+    m = re.search(r"_(\d+)x(\d+)x(\d+)(?:x\d+)?_([a-z0-9]+)\.raw$", os.path.basename(path))
+    if not m:
+        sys.exit(f"{path}: expected <name>_<X>x<Y>x<Z>_<type>.raw")
+    nx, ny, nz, t = int(m[1]), int(m[2]), int(m[3]), m[4]
+    if t not in DTYPES:
+        sys.exit(f"{path}: unsupported type {t}")
+    data = np.fromfile(path, dtype=DTYPES[t], count=nx * ny * nz)
+    return data, (nx, ny, nz)
+
+
+def vtk_volume(data, dims, tf, step):
+    image = vtk.vtkImageData()
+    image.SetDimensions(*dims)
+    image.SetOrigin(0, 0, 0)
+    image.SetSpacing(1, 1, 1)
+    arr = numpy_support.numpy_to_vtk(data, deep=True)
+    image.GetPointData().SetScalars(arr)
+
+    lo, hi = tf["domain"]
+    color = vtk.vtkColorTransferFunction()
+    opacity = vtk.vtkPiecewiseFunction()
+    for x, r, g, b, a in tf["points"]:
+        v = lo + x * (hi - lo)
+        color.AddRGBPoint(v, r, g, b)
+        opacity.AddPoint(v, a)
+    prop = vtk.vtkVolumeProperty()
+    prop.SetColor(color)
+    prop.SetScalarOpacity(opacity)
+    prop.SetScalarOpacityUnitDistance(1.0)
+    prop.SetInterpolationTypeToLinear()
+    prop.ShadeOff()
+
+    mapper = vtk.vtkFixedPointVolumeRayCastMapper()
+    mapper.SetInputData(image)
+    mapper.SetAutoAdjustSampleDistances(0)
+    mapper.SetSampleDistance(step)
+    mapper.SetImageSampleDistance(1.0)
+    volume = vtk.vtkVolume()
+    volume.SetMapper(mapper)
+    volume.SetProperty(prop)
+    return volume
+
+
+def vtk_scene(volume, dims, size, angle):
+    ren = vtk.vtkRenderer()
+    ren.SetBackground(0, 0, 0)
+    ren.AddVolume(volume)
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.SetSize(size, size)
+    win.AddRenderer(ren)
+    centre = [(n - 1) / 2.0 for n in dims]
+    half_diagonal = 0.5 * math.sqrt(sum((n - 1) ** 2 for n in dims))
+    dist = half_diagonal / math.sin(math.radians(15.0))
+    cam = ren.GetActiveCamera()
+    cam.SetFocalPoint(*centre)
+    cam.SetPosition(centre[0], centre[1], centre[2] + dist)
+    cam.SetViewUp(0, 1, 0)
+    cam.SetViewAngle(30.0)
+    cam.Azimuth(angle)
+    ren.ResetCameraClippingRange()
+    return ren, win
+
+
+def vtk_image(win):
+    grab = vtk.vtkWindowToImageFilter()
+    grab.SetInput(win)
+    grab.SetInputBufferTypeToRGB()
+    grab.ReadFrontBufferOff()
+    grab.Update()
+    out = grab.GetOutput()
+    w, h, _ = out.GetDimensions()
+    rgb = numpy_support.vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, 3)
+    return np.flipud(rgb)  # VTK's row 0 is the bottom
+
+
+def insitu_render(exe, volume, tf, angle, size, step, out):
+    cmd = [exe, "render", "--volume", volume, "--tf", tf, "--angle", str(angle), "--size",
+           str(size), "--step", str(step), "--backend", "cpu", "--out", out]
+    p = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    m = re.search(r" in ([0-9.]+) s", p.stdout + p.stderr)
+    if not m:
+        sys.exit(f"could not read the render time from: {p.stdout}{p.stderr}")
+    return float(m[1])
+
+
+def psnr(a, b):
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return math.inf if mse == 0 else 10 * math.log10(255.0 ** 2 / mse)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--volume", required=True)
+    ap.add_argument("--tf", required=True)
+    ap.add_argument("--angle", type=float, default=30.0)
+    ap.add_argument("--size", type=int, default=768)
+    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--insitu", default="target/release/insitu")
+    a = ap.parse_args()
+
+    tf = json.load(open(a.tf))
+    data, dims = load_raw(a.volume)
+    volume = vtk_volume(data, dims, tf, a.step)
+    ren, win = vtk_scene(volume, dims, a.size, a.angle)
+    win.Render()  # warm-up: builds the mapper's tables
+    ours_png = os.path.join(tempfile.mkdtemp(), "insitu.png")
+    insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png)
+
+    t_vtk, t_ours = [], []
+    for _ in range(a.runs):  # interleaved, so both see the same machine state
+        ren.GetActiveCamera().Modified()
+        t0 = time.perf_counter()
+        win.Render()
+        t_vtk.append(time.perf_counter() - t0)
+        t_ours.append(insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step,
+                                    ours_png))
+    theirs = vtk_image(win)
+    ours = np.asarray(Image.open(ours_png).convert("RGB"))
+    mv, mo = statistics.median(t_vtk), statistics.median(t_ours)
+    print(f"{os.path.basename(a.volume)}, {a.size}², {a.angle:g}°, step {a.step:g}, "
+          f"{a.runs} interleaved runs, medians (render only):")
+    print(f"  VTK {vtk.vtkVersion.GetVTKVersion()} vtkFixedPointVolumeRayCastMapper: {mv:.3f} s"
+          f"  (runs {', '.join(f'{t:.3f}' for t in t_vtk)})")
+    print(f"  insitu render --backend cpu:          {mo:.3f} s"
+          f"  (runs {', '.join(f'{t:.3f}' for t in t_ours)})")
+    print(f"  ratio VTK / insitu: {mv / mo:.2f}×;  PSNR between the images: {psnr(theirs, ours):.1f} dB")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# VTK's CPU ray caster against `insitu render`, same volume, TF, camera and step, interleaved
+# (issue 17). Makes a venv with PyPI's vtk in bench/.venv on first use (needs network once),
+# builds the release CLI, and prints both times, their ratio and the PSNR between the images.
+#
+#   bench/vtk_compare.sh                       # the teapot at 30°, 768², 5 runs
+#   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv=bench/.venv
+if [ ! -x "$venv/bin/python" ]; then
+  python3 -m venv "$venv"
+  "$venv/bin/pip" install --quiet vtk numpy pillow
+fi
+cargo build --release --quiet -p insitu-cli
+data=${INSITU_DATA_DIR:-../shared/data}
+tfs=${INSITU_TF_DIR:-../shared/tf}
+args=("$@")
+if [ ${#args[@]} -eq 0 ]; then
+  args=(--volume "$data/teapot_256x256x178_uint8.raw" --tf "$tfs/teapot.json" --angle 30)
+fi
+# Offscreen: VTK looks for an X display first and falls back without one (a warning only).
+exec "$venv/bin/python" bench/vtk_compare.py --insitu target/release/insitu "${args[@]}"
