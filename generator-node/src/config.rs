@@ -138,6 +138,9 @@ pub struct Config {
     /// Where VDIs and reference frames are made: `cpu`, `gpu` or `auto` (a hardware GPU if
     /// found, else the CPU).
     pub backend: BackendChoice,
+    /// CPU threads for generation, reference frames and trials (0: one per core). Fewer
+    /// leave cores to the simulation on the same node.
+    pub threads: usize,
     /// The tuner service, `host:port`; unset: `P_M` stays as configured (or as pushed with
     /// SetConfig). The node dials out to it and reconnects with back-off.
     pub tuner: Option<String>,
@@ -197,6 +200,7 @@ impl Default for Config {
             drain_timeout_secs: 30.0,
             max_backoff_secs: 5.0,
             backend: BackendChoice::Auto,
+            threads: 0,
             tuner: None,
             hold_bytes: 1 << 30,
             trial_interleave: 1,

@@ -123,6 +123,16 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         ship_failed_reported: Default::default(),
         spool,
         epoch: new_epoch(),
+        pool: match cfg.threads {
+            0 => None,
+            n => Some(Arc::new(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .thread_name(|i| format!("generate-{i}"))
+                    .build()
+                    .with_context(|| format!("threads = {n}: cannot start the worker threads"))?,
+            )),
+        },
         scene: match (&viz, tf_configured) {
             (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
                 viz.clone(),
@@ -235,17 +245,19 @@ async fn worker(shared: Arc<Shared>) {
         let reused = spare.take();
         let lane = shared.lane.lock().await;
         let result = tokio::task::spawn_blocking(move || {
-            let volume = raw.volume()?;
-            let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
-            let (product, vdi) =
-                work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
-            // Only while the tuner listens: otherwise nobody would read the summary.
-            let for_tuner = s
-                .tuning
-                .as_ref()
-                .is_some_and(|t| t.connected())
-                .then(|| work::for_tuner(&raw, volume, &gen, &tf, &product));
-            Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
+            s.compute(|| {
+                let volume = raw.volume()?;
+                let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
+                let (product, vdi) =
+                    work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
+                // Only while the tuner listens: otherwise nobody would read the summary.
+                let for_tuner = s
+                    .tuning
+                    .as_ref()
+                    .is_some_and(|t| t.connected())
+                    .then(|| work::for_tuner(&raw, volume, &gen, &tf, &product));
+                Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
+            })
         })
         .instrument(info_span!("step", step, rank))
         .await;

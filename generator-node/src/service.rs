@@ -47,9 +47,17 @@ pub struct Shared {
     /// Where the world's default transfer function is agreed (the viz-node), when one is
     /// configured and the config names no transfer function.
     pub scene: Option<Arc<crate::scene::SceneLink>>,
+    /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
+    pub pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl Shared {
+    /// Runs CPU work (generation, reference frames, trials) on the node's worker threads
+    /// ([`crate::work::on_pool`]).
+    pub fn compute<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        crate::work::on_pool(self.pool.as_deref(), f)
+    }
+
     /// A snapshot of the current settings.
     pub fn generation(&self) -> Generation {
         self.generation

@@ -243,15 +243,17 @@ async fn trials(
             let _lane = shared.lane.lock().await;
             tuning.since_trial.store(0, Ordering::Relaxed);
             let (s, t, r) = (shared.clone(), tuning.clone(), req);
-            let result = tokio::task::spawn_blocking(move || run_trial(&s, &t, rank, held, &r))
-                .await
-                .unwrap_or_else(|e| pb::TrialResult {
-                    trial_id: req.trial_id,
-                    step: req.step,
-                    rank,
-                    error: format!("trial task failed: {e}"),
-                    ..Default::default()
-                });
+            let result = tokio::task::spawn_blocking(move || {
+                s.compute(|| run_trial(&s, &t, rank, held, &r))
+            })
+            .await
+            .unwrap_or_else(|e| pb::TrialResult {
+                trial_id: req.trial_id,
+                step: req.step,
+                rank,
+                error: format!("trial task failed: {e}"),
+                ..Default::default()
+            });
             let _ = results.send((epoch, result));
         }
     }
