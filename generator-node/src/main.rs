@@ -58,6 +58,9 @@ struct Args {
     /// the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
+    /// CPU threads for generation, references and trials (0: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 fn config(a: Args) -> Result<Config> {
@@ -82,6 +85,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.backend {
         c.backend = v;
+    }
+    if let Some(v) = a.threads {
+        c.threads = v;
     }
     if let Some(v) = a.queue_steps {
         c.queue.max_items = v;

@@ -123,25 +123,29 @@ fn simulation_overhead(tmp: &std::path::Path) {
         })
     };
     let without = run(None);
-    let g = generator(
-        tmp,
-        &[
-            "--resolution",
-            "256",
-            "--reference-every",
-            "0",
-            "--codec",
-            "zstd",
-        ],
-    );
-    let with = run(Some(&g.addr));
-    g.terminate();
-    println!(
-        "simulation step, Gray–Scott {n}³, push every {every}th: {:.2} ms without, {:.2} ms with a generator-node (r = 256, zstd) = {:.3}×",
-        without * 1e3,
-        with * 1e3,
-        with / without
-    );
+    for threads in ["0", "1"] {
+        let g = generator(
+            tmp,
+            &[
+                "--resolution",
+                "256",
+                "--reference-every",
+                "0",
+                "--codec",
+                "zstd",
+                "--threads",
+                threads,
+            ],
+        );
+        let with = run(Some(&g.addr));
+        g.terminate();
+        println!(
+            "simulation step, Gray–Scott {n}³, push every {every}th: {:.2} ms without, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}) = {:.3}×",
+            without * 1e3,
+            with * 1e3,
+            with / without
+        );
+    }
 }
 
 fn latency(tmp: &std::path::Path) {
