@@ -80,14 +80,8 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         &cfg.tls,
         cfg.insecure,
     )?;
-    let viz = match &cfg.viz {
-        Some(v) => Some(security.peer(v).with_context(|| format!("viz = {v:?}"))?),
-        None => None,
-    };
-    let tuner_peer = match &cfg.tuner {
-        Some(t) => Some(security.peer(t).with_context(|| format!("tuner = {t:?}"))?),
-        None => None,
-    };
+    let viz = security.peer_for("viz", cfg.viz.as_deref())?;
+    let tuner_peer = security.peer_for("tuner", cfg.tuner.as_deref())?;
     let choice = cfg.backend;
     let backend = tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
         .await?

@@ -18,6 +18,16 @@ pub enum SecurityError {
     /// TLS files.
     #[error(transparent)]
     Tls(#[from] TlsError),
+    /// A peer address in the config that cannot be dialled as configured.
+    #[error("{key} = {addr:?}: {source}")]
+    Peer {
+        /// The config key.
+        key: &'static str,
+        /// Its value.
+        addr: String,
+        /// Why.
+        source: AuthError,
+    },
     /// rustls refused the certificate or key.
     #[error("TLS certificate or key rejected: {0}")]
     Rejected(tonic::transport::Error),
@@ -82,6 +92,25 @@ impl Security {
     /// The interceptor checking callers' tokens.
     pub fn require_token(&self) -> RequireToken {
         RequireToken::new(self.token.clone())
+    }
+
+    /// [`Security::peer`] for the config key `key` when it is set.
+    ///
+    /// # Errors
+    /// [`SecurityError::Peer`] naming the key and its value.
+    pub fn peer_for(
+        &self,
+        key: &'static str,
+        addr: Option<&str>,
+    ) -> Result<Option<Peer>, SecurityError> {
+        addr.map(|a| {
+            self.peer(a).map_err(|source| SecurityError::Peer {
+                key,
+                addr: a.to_owned(),
+                source,
+            })
+        })
+        .transpose()
     }
 
     /// A peer at `addr`, dialled with this daemon's token, over TLS when `tls.ca_file` is set.

@@ -74,24 +74,17 @@ struct Nodes {
 }
 
 impl Nodes {
+    fn start(&self, name: &str, cfg: &Path) -> Option<Daemon> {
+        let c = cfg.to_str().unwrap();
+        Some(Daemon::start(name, &["--config", c], &[], &self.logs))
+    }
+
     fn start_viz(&mut self) {
-        let c = self.viz_cfg.to_str().unwrap().to_owned();
-        self.viz = Some(Daemon::start(
-            "viz-node",
-            &["--config", &c],
-            &[],
-            &self.logs,
-        ));
+        self.viz = self.start("viz-node", &self.viz_cfg);
     }
 
     fn start_gen(&mut self) {
-        let c = self.gen_cfg.to_str().unwrap().to_owned();
-        self.gen = Some(Daemon::start(
-            "generator-node",
-            &["--config", &c],
-            &[],
-            &self.logs,
-        ));
+        self.gen = self.start("generator-node", &self.gen_cfg);
     }
 }
 

@@ -42,10 +42,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
         &cfg.tls,
         cfg.insecure,
     )?;
-    let viz = match &cfg.viz {
-        Some(v) => Some(security.peer(v).with_context(|| format!("viz = {v:?}"))?),
-        None => None,
-    };
+    let viz = security.peer_for("viz", cfg.viz.as_deref())?;
     let state = match State::load(&cfg.state_dir)? {
         Some(s) => {
             info!(
