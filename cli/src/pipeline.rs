@@ -486,6 +486,7 @@ impl Run<'_> {
                     "utility": t.utility,
                     "characteristic_steps": t.characteristic_steps,
                     "trials_run": t.trials_run,
+                    "size_probes": t.size_probes,
                     "trials_reused": t.trials_reused,
                     "trials_failed": t.trials_failed,
                     "trial_secs": t.trial_secs,
@@ -541,11 +542,12 @@ impl Run<'_> {
         println!("  recording: {}", self.recording.display());
         if let Some(t) = self.tuner {
             println!(
-                "  tuner ({}): {} P_M change(s), characteristic steps {:?}, {} trials ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
+                "  tuner ({}): {} P_M change(s), characteristic steps {:?}, {} trials of which {} size probes ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
                 t.utility,
                 self.seen.decisions.len(),
                 t.characteristic_steps,
                 t.trials_run,
+                t.size_probes,
                 t.trial_secs,
                 t.trials_reused,
                 t.trials_failed

@@ -75,6 +75,25 @@ impl Camera {
         }
     }
 
+    /// This camera orbited about its target: by `angle_deg` around +y (as [`Self::orbit_y`])
+    /// and by `elevation_deg` up (positive: looking down from above) about the view's
+    /// right axis, with the eye–target distance scaled by `zoom` (> 1 moves away). The up
+    /// vector follows the elevation, so views over the pole stay valid. `orbit(a, 0, 1)` is
+    /// `orbit_y(a)`. Angles are degrees; a non-finite input gives an invalid camera (see
+    /// [`Self::is_valid`]).
+    pub fn orbit(&self, angle_deg: f32, elevation_deg: f32, zoom: f32) -> Self {
+        let offset = self.eye - self.target;
+        let right = offset.cross(self.up).normalize_or_zero();
+        let tilt = Quat::from_axis_angle(right, elevation_deg.to_radians());
+        let spin = Quat::from_rotation_y(angle_deg.to_radians());
+        let q = spin * tilt;
+        Self {
+            eye: self.target + q * offset * zoom,
+            up: q * self.up,
+            ..*self
+        }
+    }
+
     /// Whether the camera is usable: finite, eye ≠ target, up not parallel to the view
     /// direction, field of view in (0, 180).
     pub fn is_valid(&self) -> bool {
@@ -155,6 +174,29 @@ mod tests {
             min: Vec3::ZERO,
             max: Vec3::new(10.0, 20.0, 30.0),
         }
+    }
+
+    #[test]
+    fn orbit_tilts_up_keeps_or_scales_the_distance_and_stays_valid_over_the_pole() {
+        let c = Camera::default_for_box(&unit_box());
+        let d = (c.eye - c.target).length();
+        for a in [-170.0, -30.0, 0.0, 45.0, 180.0] {
+            let (o, y) = (c.orbit(a, 0.0, 1.0), c.orbit_y(a));
+            assert!((o.eye - y.eye).length() < 1e-3 * d && (o.up - y.up).length() < 1e-5);
+        }
+        let up30 = c.orbit(0.0, 30.0, 1.0);
+        assert!(((up30.eye - c.target).length() - d).abs() < 1e-3 * d);
+        assert!(
+            ((up30.eye.y - c.target.y) - d * 0.5).abs() < 1e-3 * d,
+            "{up30:?}"
+        );
+        for (e, z) in [(90.0, 2.0), (-90.0, 0.5), (135.0, 1.0)] {
+            let o = c.orbit(20.0, e, z);
+            assert!(o.is_valid(), "{e}° {z}×: {o:?}");
+            assert!(((o.eye - o.target).length() - d * z).abs() < 1e-3 * d);
+            assert!((o.target - o.eye).normalize().dot(o.up).abs() < 1e-5);
+        }
+        assert!(!c.orbit(f32::NAN, 0.0, 1.0).is_valid());
     }
 
     #[test]

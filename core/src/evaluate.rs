@@ -159,6 +159,60 @@ pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
         .then(|| ssims.iter().sum::<f64>() / ssims.len() as f64)
 }
 
+/// What generating and encoding `P_M` costs, without scoring it: the cheap half of a
+/// measurement, enough to decide whether a candidate meets a size budget (the adaptive
+/// search's probes: `Oracle::measure_size` in `insitu-tuner`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sizing {
+    /// σ: bytes of the compressed VDI file.
+    pub sigma_bytes: u64,
+    /// Supersegments in the VDI.
+    pub supersegments: u64,
+    /// τ: seconds of VDI generation, from `tau_source`.
+    pub tau_secs: f64,
+    /// Where τ comes from.
+    pub tau_source: TimeSource,
+    /// Wall-clock seconds of compression.
+    pub tau_compress_secs: f64,
+}
+
+fn encode_generated(
+    scene: &Scene,
+    camera: &Camera,
+    params: VdiParams,
+    codec_kind: Codec,
+    tf_hash: u64,
+    tf_name: &str,
+) -> Result<(Vec<u8>, Sizing), EvalError> {
+    let generated = scene.generate(camera, params, tf_hash, tf_name)?;
+    let t = Instant::now();
+    let bytes = codec::encode(&generated.value, codec_kind)?;
+    let size = Sizing {
+        sigma_bytes: bytes.len() as u64,
+        supersegments: generated.value.supersegments().len() as u64,
+        tau_secs: generated.seconds,
+        tau_source: generated.source,
+        tau_compress_secs: t.elapsed().as_secs_f64(),
+    };
+    Ok((bytes, size))
+}
+
+/// Generates and encodes `params` (σ, τ) without decoding, rendering or scoring it: the same
+/// σ and τ as [`evaluate`] at a fraction of its cost.
+///
+/// # Errors
+/// [`EvalError`] for bad parameters, a codec failure or a GPU failure.
+pub fn size_of(
+    scene: &Scene,
+    camera: &Camera,
+    params: VdiParams,
+    codec_kind: Codec,
+    tf_hash: u64,
+    tf_name: &str,
+) -> Result<Sizing, EvalError> {
+    encode_generated(scene, camera, params, codec_kind, tf_hash, tf_name).map(|(_, s)| s)
+}
+
 /// Measures `params`: generate, encode, decode, render at each angle and compare with
 /// `references` (one per angle, from [`render_references`]), generation and rendering on the
 /// scene's backend. The VDI is rendered from the decoded file, so what is scored is what a
@@ -184,11 +238,7 @@ pub fn evaluate(
             views: angles.len(),
         });
     }
-    let generated = scene.generate(camera, params, tf_hash, tf_name)?;
-    let (vdi, tau_secs, tau_source) = (generated.value, generated.seconds, generated.source);
-    let t = Instant::now();
-    let bytes = codec::encode(&vdi, codec_kind)?;
-    let tau_compress_secs = t.elapsed().as_secs_f64();
+    let (bytes, size) = encode_generated(scene, camera, params, codec_kind, tf_hash, tf_name)?;
     let t = Instant::now();
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
     let tau_decode_secs = t.elapsed().as_secs_f64();
@@ -205,11 +255,11 @@ pub fn evaluate(
         Evaluation {
             params,
             codec: codec_kind,
-            sigma_bytes: bytes.len() as u64,
-            supersegments: vdi.supersegments().len() as u64,
-            tau_secs,
-            tau_source,
-            tau_compress_secs,
+            sigma_bytes: size.sigma_bytes,
+            supersegments: size.supersegments,
+            tau_secs: size.tau_secs,
+            tau_source: size.tau_source,
+            tau_compress_secs: size.tau_compress_secs,
             tau_decode_secs,
             tau_render_secs,
             q_db: metrics::pooled_psnr(&mses),

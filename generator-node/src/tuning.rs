@@ -13,7 +13,7 @@
 use crate::hold::{HeldStep, Holds};
 use crate::service::Shared;
 use crate::stats::Stats;
-use insitu_core::evaluate::{evaluate, render_references};
+use insitu_core::evaluate::{evaluate, render_references, size_of};
 use insitu_core::{Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
@@ -126,7 +126,8 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
 
 /// Measures one candidate on one held rank of a step (Alg. 1, lines 11–18, with the same
 /// scoring code as the viz-node: [`insitu_core::evaluate::score_views`]). The step's
-/// reference frames are rendered on its first trial and kept.
+/// reference frames are rendered on its first trial and kept. A size probe
+/// (`size_only`) generates and compresses only.
 fn run_trial(
     shared: &Shared,
     tuning: &Tuning,
@@ -149,6 +150,26 @@ fn run_trial(
             .backend
             .prepare(&raycaster)
             .map_err(|e| e.to_string())?;
+        let params = VdiParams {
+            resolution: req.resolution,
+            gamma: req.gamma,
+        };
+        if req.size_only {
+            let size = size_of(
+                &scene,
+                &h.camera,
+                params,
+                h.codec,
+                h.tf.0.identity_hash(),
+                &h.tf.1,
+            )
+            .map_err(|e| e.to_string())?;
+            out.sigma_bytes = size.sigma_bytes;
+            out.supersegments = size.supersegments;
+            out.tau_secs = size.tau_secs;
+            out.tau_compress_secs = size.tau_compress_secs;
+            return Ok(());
+        }
         let side = if h.reference_size == 0 {
             req.resolution
         } else {
@@ -168,10 +189,6 @@ fn run_trial(
                     .set_references((req.step, rank), side, r.clone());
                 r
             }
-        };
-        let params = VdiParams {
-            resolution: req.resolution,
-            gamma: req.gamma,
         };
         let (e, _) = evaluate(
             &scene,

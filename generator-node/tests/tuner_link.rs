@@ -163,6 +163,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
             step,
             resolution: r,
             gamma: 0.01,
+            size_only: false,
         })
     };
     send(&down, trial(1, 0, 24));
@@ -184,6 +185,26 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         "references are rendered once per step"
     );
     assert_eq!(again.view_mse, r.view_mse, "trials are deterministic");
+    // A size probe: the same σ and supersegments, no views and no scoring.
+    send(
+        &down,
+        Down::Trial(pb::TrialRequest {
+            trial_id: 5,
+            step: 0,
+            resolution: 24,
+            gamma: 0.01,
+            size_only: true,
+        }),
+    );
+    let Up::Trial(probe) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(probe.error.is_empty(), "{}", probe.error);
+    assert_eq!(
+        (probe.sigma_bytes, probe.supersegments),
+        (r.sigma_bytes, r.supersegments)
+    );
+    assert!(probe.view_mse.is_empty() && probe.ssim.is_none() && probe.tau_secs > 0.0);
 
     // A step the node does not hold: refused with a reason, the stream stays up.
     send(&down, trial(3, 7, 24));

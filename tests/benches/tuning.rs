@@ -282,8 +282,9 @@ fn report(name: &str, with: &Outcome, without: &Outcome) {
         100.0 * (with.cpu - without.cpu) / with.cpu
     );
     println!(
-        "trials: {} run ({:.1} s node wall clock = {:.1} % of the {:.1} s run; at most {:.1} % of the run's CPU time with both cores busy during trials), {} answered from earlier trials, {} tunings, {} decisions",
+        "trials: {} run, {} of them size probes ({:.1} s node wall clock = {:.1} % of the {:.1} s run; at most {:.1} % of the run's CPU time with both cores busy during trials), {} answered from earlier trials, {} tunings, {} decisions",
         s.trials_run,
+        s.size_probes,
         s.trial_secs,
         100.0 * s.trial_secs / with.wall,
         with.wall,

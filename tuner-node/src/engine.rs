@@ -47,6 +47,8 @@ pub struct Counters {
     pub summaries: u64,
     /// Trials run by this process.
     pub trials_run: u64,
+    /// Of `trials_run`, size probes (σ only: no rendering or scoring).
+    pub size_probes: u64,
     /// Trials answered from the state.
     pub trials_reused: u64,
     /// Trials that failed, timed out or lost their node.
@@ -180,6 +182,7 @@ impl Engine {
             decisions: c.decisions,
             utility: self.utility(),
             tuning: c.tuning,
+            size_probes: c.size_probes,
         }
     }
 

@@ -176,6 +176,7 @@ impl Hub {
         step: u64,
         world_size: u32,
         c: Candidate,
+        size_only: bool,
     ) -> Result<(u64, oneshot::Receiver<TrialReply>), NotHeld> {
         let mut i = self.inner();
         let ranks = i.holders.get(&step).cloned().unwrap_or_default();
@@ -193,6 +194,7 @@ impl Hub {
             step,
             resolution: c.r,
             gamma: c.gamma,
+            size_only,
         };
         for conn in &conns {
             if let Some(n) = i.nodes.get(conn) {
@@ -286,7 +288,7 @@ mod tests {
         let c = Candidate { r: 64, gamma: 0.01 };
         hub.held(a, 5, 0);
         assert_eq!(
-            hub.request_trial(5, 2, c).unwrap_err(),
+            hub.request_trial(5, 2, c, false).unwrap_err(),
             NotHeld::Ranks {
                 step: 5,
                 held: 1,
@@ -294,10 +296,14 @@ mod tests {
             }
         );
         hub.held(b, 5, 1);
-        let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
+        let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
         assert!(matches!(
             rx.try_recv().unwrap().unwrap().msg,
-            Some(Down::Trial(pb::TrialRequest { step: 5, .. }))
+            Some(Down::Trial(pb::TrialRequest {
+                step: 5,
+                size_only: false,
+                ..
+            }))
         ));
         assert!(hub.trial_result(a, result(999, 0, "")).is_err());
         hub.trial_result(a, result(id, 0, "")).unwrap();
@@ -305,24 +311,24 @@ mod tests {
         hub.trial_result(b, result(id, 1, "")).unwrap();
         assert_eq!(done.try_recv().unwrap().unwrap().len(), 2);
         // A node that goes away fails the trial at once, and its holds are forgotten.
-        let (id, mut done) = hub.request_trial(5, 2, c).unwrap();
+        let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
         assert_eq!(hub.disconnect(b).as_deref(), Some("b"));
         let failure = done.try_recv().unwrap().unwrap_err();
         assert!(failure.step_lost && failure.message.contains("disconnected"));
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
-        assert!(hub.request_trial(5, 2, c).is_err());
+        assert!(hub.request_trial(5, 2, c, false).is_err());
         // An error from a rank fails the trial; an abandoned trial refuses late results.
-        let (id, mut done) = hub.request_trial(5, 1, c).unwrap();
+        let (id, mut done) = hub.request_trial(5, 1, c, false).unwrap();
         hub.trial_result(a, result(id, 0, "step 5 is not held"))
             .unwrap();
         let failure = done.try_recv().unwrap().unwrap_err();
         assert!(failure.step_lost && failure.message.contains("not held"));
         assert!(
-            hub.request_trial(5, 1, c).is_err(),
+            hub.request_trial(5, 1, c, false).is_err(),
             "the refusing node no longer holds it"
         );
         hub.held(a, 5, 0);
-        let (id, _done) = hub.request_trial(5, 1, c).unwrap();
+        let (id, _done) = hub.request_trial(5, 1, c, false).unwrap();
         hub.abandon(id);
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
         assert_eq!(hub.nodes(), 1);

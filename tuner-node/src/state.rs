@@ -53,6 +53,23 @@ pub struct Trial {
     pub run_by: u64,
 }
 
+/// A size probe: σ (and τ) of a candidate on a characteristic step, without its q.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SizeProbe {
+    /// Step index.
+    pub step: u64,
+    /// The candidate.
+    pub candidate: Candidate,
+    /// σ summed over the step's ranks, bytes.
+    pub sigma_bytes: u64,
+    /// τ of the slowest rank, seconds.
+    pub tau_secs: f64,
+    /// Wall clock on the nodes (the slowest rank), seconds.
+    pub trial_secs: f64,
+    /// The tuner process that ran it.
+    pub run_by: u64,
+}
+
 /// A decision, as pushed.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Decision {
@@ -89,6 +106,9 @@ pub struct State {
     pub world_sizes: BTreeMap<u64, u32>,
     /// Every trial.
     pub trials: Vec<Trial>,
+    /// Every size probe.
+    #[serde(default)]
+    pub size_probes: Vec<SizeProbe>,
     /// Every decision, oldest first.
     pub decisions: Vec<Decision>,
     /// The highest version any node has reported (a node may be ahead of a lost state).
@@ -108,6 +128,7 @@ impl State {
             tracker,
             world_sizes: BTreeMap::new(),
             trials: Vec::new(),
+            size_probes: Vec::new(),
             decisions: Vec::new(),
             highest_seen: 0,
             validated: Vec::new(),
@@ -165,6 +186,16 @@ impl State {
                 && t.measurement.r == c.r
                 && t.measurement.gamma.to_bits() == c.gamma.to_bits()
         })
+    }
+
+    /// σ of `c` on `step` from a size probe or a trial, if either was run.
+    pub fn sigma(&self, step: u64, c: Candidate) -> Option<u64> {
+        let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
+        self.size_probes
+            .iter()
+            .find(|p| p.step == step && same(p.candidate))
+            .map(|p| p.sigma_bytes)
+            .or_else(|| self.trial(step, c).map(|t| t.measurement.sigma_bytes))
     }
 
     /// Loads `dir/tuner-state.json`; `None` when there is none.

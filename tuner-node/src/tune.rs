@@ -6,7 +6,7 @@
 //! next decision when it differs from the P_M in force.
 
 use crate::engine::{decision_pb, Engine, Trigger};
-use crate::state::{Decision, Trial};
+use crate::state::{Decision, SizeProbe, Trial};
 use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
@@ -73,17 +73,18 @@ impl StepOracle {
     }
 }
 
-impl Oracle for StepOracle {
-    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
+impl StepOracle {
+    /// Asks the nodes holding the step for a trial of `c` (paced by the trial budget) and
+    /// waits for every rank's result; counts it and its node seconds.
+    fn run(&mut self, c: Candidate, size_only: bool) -> Result<Vec<pb::TrialResult>, StudyError> {
         let e = self.engine.clone();
-        if let Some(t) = e.state().trial(self.step, c) {
-            e.counters().trials_reused += 1;
-            return Ok(t.measurement.clone());
-        }
         self.pace();
         let deadline = Instant::now() + Duration::from_secs_f64(e.cfg.trials.hold_wait_secs);
         let (id, rx) = loop {
-            match e.hub.request_trial(self.step, self.world_size, c) {
+            match e
+                .hub
+                .request_trial(self.step, self.world_size, c, size_only)
+            {
                 Ok(x) => break x,
                 Err(_) if Instant::now() < deadline => {
                     std::thread::sleep(Duration::from_millis(100))
@@ -92,7 +93,8 @@ impl Oracle for StepOracle {
             }
         };
         let timeout = Duration::from_secs_f64(e.cfg.trials.timeout_secs);
-        let what = format!("trial r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
+        let kind = if size_only { "size probe" } else { "trial" };
+        let what = format!("{kind} r = {}, γ = {} on step {}", c.r, c.gamma, self.step);
         // Polled (a trial takes milliseconds at least), so a runtime shutting down cannot
         // strand this thread in a timer.
         let mut rx = rx;
@@ -125,6 +127,27 @@ impl Oracle for StepOracle {
             }
             std::thread::sleep(Duration::from_millis(5));
         };
+        let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
+        {
+            let mut k = e.counters();
+            k.trials_run += 1;
+            k.size_probes += u64::from(size_only);
+            k.trial_secs += secs;
+        }
+        self.generations += 1;
+        self.generation_secs += results.iter().map(|r| r.tau_secs).fold(0.0, f64::max);
+        Ok(results)
+    }
+}
+
+impl Oracle for StepOracle {
+    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
+        let e = self.engine.clone();
+        if let Some(t) = e.state().trial(self.step, c) {
+            e.counters().trials_reused += 1;
+            return Ok(t.measurement.clone());
+        }
+        let results = self.run(c, false)?;
         let ms: Vec<Measurement> = results.iter().map(measurement).collect();
         let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
         let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
@@ -139,11 +162,6 @@ impl Oracle for StepOracle {
             });
             e.save(&s);
         }
-        {
-            let mut k = e.counters();
-            k.trials_run += 1;
-            k.trial_secs += secs;
-        }
         info!(
             step = self.step,
             r = c.r,
@@ -154,9 +172,39 @@ impl Oracle for StepOracle {
             secs,
             "trial"
         );
-        self.generations += 1;
-        self.generation_secs += m.tau_secs;
         Ok(m)
+    }
+
+    /// σ summed over the step's ranks, from a size probe on the nodes (generation and
+    /// compression only) unless a probe or trial of `c` was run before.
+    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
+        let e = self.engine.clone();
+        if let Some(sigma) = e.state().sigma(self.step, c) {
+            e.counters().trials_reused += 1;
+            return Ok(sigma);
+        }
+        let results = self.run(c, true)?;
+        let p = SizeProbe {
+            step: self.step,
+            candidate: c,
+            sigma_bytes: results.iter().map(|r| r.sigma_bytes).sum(),
+            tau_secs: results.iter().map(|r| r.tau_secs).fold(0.0, f64::max),
+            trial_secs: results.iter().map(|r| r.trial_secs).fold(0.0, f64::max),
+            run_by: e.process,
+        };
+        info!(
+            step = self.step,
+            r = c.r,
+            gamma = c.gamma,
+            sigma = p.sigma_bytes,
+            tau = p.tau_secs,
+            secs = p.trial_secs,
+            "size probe"
+        );
+        let mut s = e.state();
+        s.size_probes.push(p.clone());
+        e.save(&s);
+        Ok(p.sigma_bytes)
     }
 
     fn generations(&self) -> u64 {

@@ -273,6 +273,15 @@ impl Oracle for WorstCase<'_> {
         worst_case(&ms).map_err(|e| StudyError::Invalid(e.to_string()))
     }
 
+    /// The largest σ over the steps (as [`worst_case`] takes it).
+    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
+        let mut worst = 0;
+        for o in &mut self.steps {
+            worst = worst.max(o.measure_size(c)?);
+        }
+        Ok(worst)
+    }
+
     fn generations(&self) -> u64 {
         self.steps.iter().map(|o| o.generations()).sum()
     }

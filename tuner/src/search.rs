@@ -10,6 +10,10 @@
 //! neighbours; resolutions above the first one where even the largest γ misses the budget are
 //! skipped. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
+//!
+//! Under a size budget the probes ask the oracle for σ alone ([`Oracle::measure_size`]: a
+//! generation and an encoding, no rendering or scoring); only each resolution's answer is
+//! measured fully.
 
 use crate::grid::{Candidate, ParamGrid};
 use crate::measure::Measurement;
@@ -141,6 +145,22 @@ impl Adaptive<'_> {
         self.utility.value(m) < f64::INFINITY
     }
 
+    /// Whether candidate (`ri`, `gi`) meets the target. Under a size budget σ alone decides,
+    /// so the probe costs a generation and an encoding but no rendering or scoring
+    /// ([`Oracle::measure_size`]); a quality target needs the full measurement.
+    fn probe(&mut self, ri: usize, gi: usize) -> Result<bool, StudyError> {
+        match self.target {
+            Target::Size(sigma_target) => Ok(self.oracle.measure_size(Candidate {
+                r: self.grid.rs[ri],
+                gamma: self.grid.gammas[gi],
+            })? < sigma_target),
+            Target::Quality(_) => {
+                let m = self.measure(ri, gi)?;
+                Ok(self.feasible(&m))
+            }
+        }
+    }
+
     /// Bounds on the γ index of resolution `ri`'s answer from the nearest resolutions already
     /// answered below and above it (the whole axis when there are none or they disagree).
     fn bracket(&self, ri: usize) -> (usize, usize) {
@@ -192,37 +212,33 @@ impl Adaptive<'_> {
         };
         // The bracket's best end first: when it is feasible it is the answer (one measurement
         // instead of a bisection; common when the budget is loose for this r).
-        let at_lo = self.measure(ri, gamma_index(lo))?;
-        if self.feasible(&at_lo) {
-            let v = self.utility.value(&at_lo);
-            self.per_r.insert(ri, Some((at_lo.clone(), v)));
-            return Ok(Some((at_lo, v)));
-        }
-        let at_hi = self.measure(ri, gamma_index(hi))?;
-        let mut feasible = self.feasible(&at_hi);
-        if !feasible && hi < n - 1 {
-            (lo, hi) = (hi + 1, n - 1);
-            let last = self.measure(ri, gamma_index(hi))?;
-            feasible = self.feasible(&last);
-        }
-        let found = if feasible {
-            while lo < hi {
-                let mid = (lo + hi) / 2;
-                let m = self.measure(ri, gamma_index(mid))?;
-                if self.feasible(&m) {
-                    hi = mid;
-                } else {
-                    lo = mid + 1;
+        let mut feasible = self.probe(ri, gamma_index(lo))?;
+        if !feasible {
+            feasible = self.probe(ri, gamma_index(hi))?;
+            if !feasible && hi < n - 1 {
+                (lo, hi) = (hi + 1, n - 1);
+                feasible = self.probe(ri, gamma_index(hi))?;
+            }
+            if feasible {
+                while lo < hi {
+                    let mid = (lo + hi) / 2;
+                    if self.probe(ri, gamma_index(mid))? {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
                 }
             }
-            Some(self.measure(ri, gamma_index(lo))?)
+        }
+        // The answer is measured fully (a quality target's probe already was: the oracle
+        // answers it again from its cache or trials).
+        let found = if feasible {
+            let m = self.measure(ri, gamma_index(lo))?;
+            let v = self.utility.value(&m);
+            (v < f64::INFINITY).then_some((m, v))
         } else {
             None
         };
-        let found = found.map(|m| {
-            let v = self.utility.value(&m);
-            (m, v)
-        });
         self.per_r.insert(ri, found.clone());
         Ok(found)
     }

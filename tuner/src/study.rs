@@ -37,6 +37,16 @@ pub trait Oracle {
     /// # Errors
     /// [`StudyError`].
     fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError>;
+    /// σ of `c` alone, bytes: all a size budget needs to tell a feasible candidate from
+    /// another (the adaptive search's probes). Oracles that can generate and encode without
+    /// rendering and scoring override it ([`insitu_core::evaluate::size_of`]); the default
+    /// measures `c` fully.
+    ///
+    /// # Errors
+    /// [`StudyError`].
+    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
+        self.measure(c).map(|m| m.sigma_bytes)
+    }
     /// Candidates generated so far (cache hits excluded).
     fn generations(&self) -> u64;
     /// Sum of τ over those generations, seconds.

@@ -6,8 +6,10 @@ use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::RawFormat;
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Target};
+use insitu_tuner::study::StudyError;
 use insitu_tuner::utility::{best, QualityTarget, SizeBudget};
-use insitu_tuner::{Measurement, Oracle, ParamGrid, Study, StudyScene, TableOracle};
+use insitu_tuner::{Candidate, Measurement, Oracle, ParamGrid, Study, StudyScene, TableOracle};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 fn shared(sub: &str) -> Option<PathBuf> {
@@ -157,6 +159,43 @@ fn check_ladder(rows: &[Measurement]) {
     );
 }
 
+/// A table oracle that records which candidates were measured fully and which only sized.
+struct Counting<'t> {
+    table: TableOracle<'t>,
+    full: BTreeSet<(u32, u32)>,
+    sized: BTreeSet<(u32, u32)>,
+}
+
+impl<'t> Counting<'t> {
+    fn new(rows: &'t [Measurement]) -> Self {
+        Self {
+            table: TableOracle::new(rows),
+            full: BTreeSet::new(),
+            sized: BTreeSet::new(),
+        }
+    }
+}
+
+impl Oracle for Counting<'_> {
+    fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError> {
+        self.full.insert((c.r, c.gamma.to_bits()));
+        self.table.measure(c)
+    }
+
+    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
+        self.sized.insert((c.r, c.gamma.to_bits()));
+        self.table.measure(c).map(|m| m.sigma_bytes)
+    }
+
+    fn generations(&self) -> u64 {
+        self.table.generations()
+    }
+
+    fn generation_secs(&self) -> f64 {
+        self.table.generation_secs()
+    }
+}
+
 fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
     for target in size_ladder(rows) {
         let mut full = TableOracle::new(rows);
@@ -168,8 +207,17 @@ fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
             },
         )
         .unwrap();
-        let mut table = TableOracle::new(rows);
+        let mut table = Counting::new(rows);
         let a = adaptive_search(&mut table, grid, Target::Size(target)).unwrap();
+        // Under a size budget the probes need σ alone: a full measurement (rendering and
+        // scoring) is paid at most once per resolution, and only for a probed candidate.
+        let probed_rs: BTreeSet<u32> = table.sized.iter().map(|k| k.0).collect();
+        assert!(
+            table.full.len() <= probed_rs.len() && table.full.is_subset(&table.sized),
+            "σ_target {target}: {} full measurements for {} resolutions probed",
+            table.full.len(),
+            probed_rs.len()
+        );
         let (gq, aq) = (g.best.as_ref().unwrap().q(), a.best.as_ref().unwrap().q());
         assert!(a.best.as_ref().unwrap().sigma_bytes < target);
         assert!(
