@@ -87,6 +87,11 @@ impl Token {
         }
     }
 
+    /// Whether `given` is this token (compared in constant time).
+    pub fn matches(&self, given: &str) -> bool {
+        constant_time_eq(given.as_bytes(), self.0.as_bytes())
+    }
+
     fn header(&self) -> String {
         format!("Bearer {}", self.0)
     }

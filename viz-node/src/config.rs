@@ -41,6 +41,10 @@ pub struct Config {
     pub render_concurrency: usize,
     /// Largest image of one `Render` call, pixels (width × height).
     pub max_render_pixels: u64,
+    /// Address of the web viewer and its JSON API (port 0: ephemeral); unset: no HTTP.
+    /// Off loopback it needs a token, and since it serves plain HTTP also `insecure` (reach
+    /// it through an SSH tunnel or a TLS proxy instead).
+    pub http_listen: Option<SocketAddr>,
     /// Seconds a step of several ranks waits for its last rank after its first arrived; then
     /// it is composed without the missing ranks and marked partial. Also how long the world's
     /// default TF waits for a rank's range before it is fixed without it.
@@ -64,6 +68,7 @@ impl Default for Config {
             score_queue: 256,
             render_concurrency: 2,
             max_render_pixels: 4096 * 4096,
+            http_listen: None,
         }
     }
 }

@@ -9,12 +9,14 @@
 
 pub mod compose;
 pub mod config;
+pub mod http;
 pub mod index;
 pub mod node;
 pub mod scene;
 pub mod score;
 pub mod service;
 pub mod store;
+pub mod view;
 
 pub use config::Config;
 pub use node::{start, RunningViz};

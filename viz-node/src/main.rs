@@ -29,6 +29,9 @@ struct Args {
     /// Where VDIs are rendered: cpu, gpu or auto (a hardware GPU if found, else the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
+    /// Address of the web viewer (port 0: ephemeral; the URL is printed).
+    #[arg(long)]
+    http: Option<SocketAddr>,
     /// Seconds a step of several ranks waits for its last rank before it is composed without
     /// it (marked partial).
     #[arg(long)]
@@ -58,9 +61,15 @@ async fn main() -> std::process::ExitCode {
         if let Some(v) = a.compose_timeout_secs {
             cfg.compose_timeout_secs = v;
         }
+        if a.http.is_some() {
+            cfg.http_listen = a.http;
+        }
         cfg.validate()?;
         let node = start(cfg).await?;
         println!("listening on {}", node.local_addr());
+        if let Some(h) = node.http_addr() {
+            println!("web viewer on http://{h}/");
+        }
         shutdown_signal().await;
         node.shutdown().await;
         anyhow::Ok(())

@@ -1,11 +1,13 @@
 //! A running viz-node: the gRPC server and the scoring task.
 
 use crate::config::Config;
+use crate::http::Http;
 use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
 use crate::store::Recording;
 use anyhow::Context;
 use insitu_core::Backend;
+use insitu_proto::auth::check_bind;
 use insitu_proto::pb::viz_server::VizServer;
 use insitu_proto::security::Security;
 use insitu_proto::transport;
@@ -23,9 +25,12 @@ use tracing::info;
 /// A started viz-node.
 pub struct RunningViz {
     addr: SocketAddr,
+    http_addr: Option<SocketAddr>,
     shared: Arc<Shared>,
     stop: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
+    http_stop: Option<oneshot::Sender<()>>,
+    http_server: Option<JoinHandle<std::io::Result<()>>>,
 }
 
 /// Opens the recording, binds, and serves.
@@ -94,12 +99,53 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
             }),
     );
     info!(%addr, tls = security.serves_tls(), recording = %cfg.recording_dir.display(), "viz-node listening");
+    let (http_addr, http_stop, http_server) = match cfg.http_listen {
+        Some(at) => {
+            let (a, s, h) = start_http(at, &cfg, &security, shared.clone()).await?;
+            (Some(a), Some(s), Some(h))
+        }
+        None => (None, None, None),
+    };
     Ok(RunningViz {
         addr,
+        http_addr,
         shared,
         stop,
         server,
+        http_stop,
+        http_server,
     })
+}
+
+/// Binds and serves the web viewer ([`crate::http`]).
+async fn start_http(
+    at: SocketAddr,
+    cfg: &Config,
+    security: &Security,
+    shared: Arc<Shared>,
+) -> anyhow::Result<(
+    SocketAddr,
+    oneshot::Sender<()>,
+    JoinHandle<std::io::Result<()>>,
+)> {
+    // Plain HTTP: off loopback it takes a token and `insecure`.
+    check_bind(at, security.token(), false, cfg.insecure)
+        .with_context(|| format!("http_listen {at}"))?;
+    let listener = tokio::net::TcpListener::bind(at)
+        .await
+        .with_context(|| format!("cannot listen on {at} (http_listen)"))?;
+    let addr = listener.local_addr()?;
+    let http = Arc::new(Http::new(
+        shared,
+        security.token().cloned(),
+        cfg.render_concurrency,
+    ));
+    let (stop, stopped) = oneshot::channel::<()>();
+    let server = tokio::spawn(crate::http::serve(listener, http, async {
+        let _ = stopped.await;
+    }));
+    info!(%addr, "web viewer on http://{addr}/");
+    Ok((addr, stop, server))
 }
 
 /// Logs what the recording's recovery found and queues the work a crash interrupted: scoring
@@ -145,6 +191,11 @@ impl RunningViz {
         self.addr
     }
 
+    /// The web viewer's address, when `http_listen` is set.
+    pub fn http_addr(&self) -> Option<SocketAddr> {
+        self.http_addr
+    }
+
     /// Shared state (recording, counters).
     pub fn shared(&self) -> &Arc<Shared> {
         &self.shared
@@ -152,7 +203,14 @@ impl RunningViz {
 
     /// Stops serving after in-flight calls finish.
     pub async fn shutdown(self) {
+        if let Some(s) = self.http_stop {
+            let _ = s.send(());
+        }
         let _ = self.stop.send(());
         let _ = self.server.await;
+        if let Some(h) = self.http_server {
+            // Open sockets keep a graceful shutdown waiting; the page reconnects to a new node.
+            h.abort();
+        }
     }
 }

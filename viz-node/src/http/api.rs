@@ -1,0 +1,320 @@
+//! The JSON API (README, "Web viewer"): what is stored, the series over time, and still
+//! frames of any stored step from any camera. Errors are `{"error": message}` with 400
+//! (bad parameter), 401 (token), 404 (no such step, rank or view), 413 (image too large) or
+//! 500 (a stored file cannot be read).
+
+use super::{error, Http};
+use crate::store::{Entry, Quality, StepEntry};
+use crate::view::{self, Format, View, ViewError};
+use axum::extract::{Query, State};
+use axum::http::{header, HeaderName, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Deserialize;
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+/// One stored step as the API shows it: its ranks and, for a world of ranks, the composed
+/// step (σ summed, τ of the slowest rank, q of the composition).
+pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Value {
+    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+    let quality = |q: &Option<Quality>| {
+        q.as_ref()
+            .map(|q| json!({"q_db": q.q_db, "view_q_db": q.view_q_db, "ssim": q.ssim}))
+    };
+    let rank_json: Vec<Value> = ranks
+        .iter()
+        .map(|e| {
+            json!({
+                "rank": e.rank,
+                "r": e.resolution,
+                "gamma": e.gamma,
+                "pm_version": e.pm_version,
+                "sigma_bytes": e.sigma_bytes,
+                "tau_s": e.tau_secs,
+                "supersegments": e.supersegments,
+                "sampled": e.with_references || e.references.is_some(),
+                "quality": quality(&e.quality),
+            })
+        })
+        .collect();
+    let first = ranks.first();
+    let (sigma, tau, q) = match (composed, world) {
+        (Some(c), w) if w > 1 => (c.sigma_bytes, c.tau_secs, quality(&c.quality)),
+        _ => (
+            ranks.iter().map(|e| e.sigma_bytes).sum(),
+            ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
+            first.and_then(|e| quality(&e.quality)),
+        ),
+    };
+    let complete = ranks.len() as u32 >= world;
+    json!({
+        "step": step,
+        "sim_time": first.map(|e| e.sim_time),
+        "world_size": world,
+        "ranks": rank_json,
+        "complete": complete,
+        "partial": composed.is_some_and(|c| !c.missing.is_empty()),
+        "composed": composed.is_some_and(|c| c.vdi.is_some()),
+        "r": first.map(|e| e.resolution),
+        "gamma": first.map(|e| e.gamma),
+        "pm_version": first.map(|e| e.pm_version),
+        "sigma_bytes": sigma,
+        "tau_s": tau,
+        "quality": q,
+        "sampled": ranks.iter().any(|e| e.with_references || e.references.is_some()),
+    })
+}
+
+/// Every stored step, oldest first, grouped with its composition.
+fn all_steps(http: &Http) -> Vec<Value> {
+    let mut by_step: BTreeMap<u64, Vec<Entry>> = BTreeMap::new();
+    for e in http.shared.recording.entries() {
+        by_step.entry(e.step).or_default().push(e);
+    }
+    let composed: BTreeMap<u64, StepEntry> = http
+        .shared
+        .recording
+        .steps()
+        .into_iter()
+        .map(|s| (s.step, s))
+        .collect();
+    by_step
+        .iter()
+        .map(|(&step, ranks)| step_json(step, ranks, composed.get(&step)))
+        .collect()
+}
+
+/// `GET /api/steps`: `{"steps": [...], "latest": step or null}`.
+pub async fn steps(State(http): State<Arc<Http>>) -> Json<Value> {
+    let steps = all_steps(&http);
+    let latest = steps.last().map(|s| s["step"].clone());
+    Json(json!({ "steps": steps, "latest": latest }))
+}
+
+/// `GET /api/series`: per stored step σ, τ, q (null when not sampled) and the P_M version,
+/// plus the steps where the P_M version changed.
+pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
+    let steps = all_steps(&http);
+    let col = |k: &str| -> Vec<Value> { steps.iter().map(|s| s[k].clone()).collect() };
+    let q: Vec<Value> = steps.iter().map(|s| s["quality"]["q_db"].clone()).collect();
+    let mut changes = Vec::new();
+    let mut last: Option<&Value> = None;
+    for s in &steps {
+        let v = &s["pm_version"];
+        if last.is_some_and(|l| l != v) {
+            changes.push(
+                json!({"step": s["step"], "pm_version": v, "r": s["r"], "gamma": s["gamma"]}),
+            );
+        }
+        last = Some(v);
+    }
+    Json(json!({
+        "step": col("step"),
+        "sigma_bytes": col("sigma_bytes"),
+        "tau_s": col("tau_s"),
+        "q_db": q,
+        "pm_version": col("pm_version"),
+        "pm_changes": changes,
+    }))
+}
+
+/// The query of a still frame.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderQuery {
+    step: Option<u64>,
+    rank: Option<u32>,
+    #[serde(default)]
+    angle: f32,
+    #[serde(default)]
+    elevation: f32,
+    zoom: Option<f32>,
+    /// `N` or `WxH`.
+    size: Option<String>,
+    format: Option<Format>,
+    quality: Option<u8>,
+    #[allow(dead_code)] // read by the token check
+    token: Option<String>,
+}
+
+/// Parses `N` or `WxH`.
+fn parse_size(s: &str) -> Result<(u32, u32), ViewError> {
+    let bad = || ViewError::BadRequest(format!("size {s:?} must be N or WxH pixels"));
+    let (w, h) = s.split_once('x').unwrap_or((s, s));
+    Ok((w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?))
+}
+
+/// The step asked for, or the latest stored one.
+fn step_or_latest(http: &Http, step: Option<u64>) -> Result<u64, ViewError> {
+    step.or_else(|| http.shared.recording.entries().last().map(|e| e.step))
+        .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))
+}
+
+/// Renders one frame of `step` (`rank`, or composed) at `view`, counted; on the blocking
+/// pool under the HTTP render semaphore. Returns the image and its render seconds.
+///
+/// # Errors
+/// [`ViewError`] for a bad view, a missing step, or a failed render.
+pub async fn render_frame(
+    http: &Arc<Http>,
+    step: u64,
+    rank: Option<u32>,
+    v: View,
+) -> Result<(insitu_core::Image, f64), ViewError> {
+    v.check(http.shared.max_render_pixels)?;
+    let rec = &http.shared.recording;
+    let name = view::vdi_file(step, rank, &rec.ranks_of(step), rec.step(step).as_ref())?;
+    let permit = http
+        .renders
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| ViewError::Failed("the server is stopping".into()))?;
+    let h = http.clone();
+    let out = tokio::task::spawn_blocking(move || {
+        let _permit = permit;
+        let vdi = h.vdi(&name)?;
+        view::render(&h.shared.backend, &vdi, &v, h.shared.termination)
+    })
+    .await
+    .map_err(|e| ViewError::Failed(format!("render task: {e}")))??;
+    http.rendered.fetch_add(1, Ordering::Relaxed);
+    Ok(out)
+}
+
+/// `GET /api/render?step=&rank=&angle=&elevation=&zoom=&size=&format=png|jpeg&quality=`: a
+/// still frame (default: the latest step, composed over its ranks, 512², PNG). The header
+/// `x-render-ms` gives the render time.
+pub async fn render(
+    State(http): State<Arc<Http>>,
+    q: Result<Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+) -> Response {
+    let q = match q {
+        Ok(Query(q)) => q,
+        Err(e) => return error(StatusCode::BAD_REQUEST, e.body_text()),
+    };
+    let run = async {
+        let (width, height) = parse_size(q.size.as_deref().unwrap_or("512"))?;
+        let v = View {
+            angle_deg: q.angle,
+            elevation_deg: q.elevation,
+            zoom: q.zoom.unwrap_or(1.0),
+            width,
+            height,
+        };
+        let step = step_or_latest(&http, q.step)?;
+        let (image, secs) = render_frame(&http, step, q.rank, v).await?;
+        let format = q.format.unwrap_or(Format::Png);
+        let bytes = view::encode(&image, format, q.quality.unwrap_or(90))?;
+        Ok::<_, ViewError>((step, format, secs, bytes))
+    };
+    match run.await {
+        Ok((step, format, secs, bytes)) => (
+            [
+                (header::CONTENT_TYPE, format.mime().to_owned()),
+                (
+                    HeaderName::from_static("x-render-ms"),
+                    format!("{:.1}", secs * 1e3),
+                ),
+                (HeaderName::from_static("x-step"), step.to_string()),
+            ],
+            bytes,
+        )
+            .into_response(),
+        Err(e) => e.into_response(),
+    }
+}
+
+/// The query of a stored reference frame.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceQuery {
+    step: u64,
+    rank: Option<u32>,
+    view: usize,
+    #[allow(dead_code)] // read by the token check
+    token: Option<String>,
+}
+
+/// `GET /api/reference?step=&rank=&view=K`: the stored reference frame (direct ray-casting) of
+/// test view `K` as PNG (a world of ranks: the composed frames unless `rank`); the header
+/// `x-angle` gives the view's orbit angle, so the VDI can be rendered beside it.
+pub async fn reference(
+    State(http): State<Arc<Http>>,
+    q: Result<Query<ReferenceQuery>, axum::extract::rejection::QueryRejection>,
+) -> Response {
+    let q = match q {
+        Ok(Query(q)) => q,
+        Err(e) => return error(StatusCode::BAD_REQUEST, e.body_text()),
+    };
+    let rec = &http.shared.recording;
+    let ranks = rec.ranks_of(q.step);
+    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+    let name = match q.rank {
+        None if world > 1 => rec.step(q.step).and_then(|s| s.references),
+        r => ranks
+            .iter()
+            .find(|e| e.rank == r.unwrap_or(0))
+            .and_then(|e| e.references.clone()),
+    };
+    let Some(name) = name else {
+        return ViewError::NotFound(format!(
+            "step {} has no stored reference frames (not a sampled step, or not in the recording)",
+            q.step
+        ))
+        .into_response();
+    };
+    let path = rec.dir().join(&name);
+    let out = tokio::task::spawn_blocking(move || {
+        let refs =
+            crate::store::References::read(&path).map_err(|e| ViewError::Failed(e.to_string()))?;
+        let frame = refs.frames.get(q.view).ok_or_else(|| {
+            ViewError::NotFound(format!(
+                "view {} is not among the {} test views",
+                q.view,
+                refs.frames.len()
+            ))
+        })?;
+        let png = view::encode(frame, Format::Png, 0)?;
+        let angle = refs
+            .view_angles_deg
+            .get(q.view)
+            .copied()
+            .unwrap_or(f32::NAN);
+        Ok::<_, ViewError>((angle, png))
+    })
+    .await;
+    match out {
+        Ok(Ok((angle, png))) => (
+            [
+                (header::CONTENT_TYPE, "image/png".to_owned()),
+                (HeaderName::from_static("x-angle"), angle.to_string()),
+            ],
+            png,
+        )
+            .into_response(),
+        Ok(Err(e)) => e.into_response(),
+        Err(e) => ViewError::Failed(format!("reference task: {e}")).into_response(),
+    }
+}
+
+/// `GET /api/stats`: frames rendered, camera requests superseded before rendering, requests
+/// refused, sockets open, VDIs stored.
+pub async fn stats(State(http): State<Arc<Http>>) -> Json<Value> {
+    Json(super::stats(&http))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_as_n_or_w_by_h() {
+        assert_eq!(parse_size("256").unwrap(), (256, 256));
+        assert_eq!(parse_size("320x200").unwrap(), (320, 200));
+        assert!(parse_size("0x").is_err() && parse_size("-1").is_err() && parse_size("").is_err());
+    }
+}

@@ -1,0 +1,193 @@
+//! The web viewer (issue 16): HTTP on the viz-node's tokio runtime, beside the gRPC server.
+//!
+//! - `GET /` and its assets: the page, embedded in the binary (nothing fetched at run time).
+//! - `GET /api/steps`, `GET /api/series`, `GET /api/render`, `GET /api/reference`,
+//!   `GET /api/stats`: the JSON API the page and scripts share ([`api`]; README, "Web viewer").
+//! - `GET /api/live`: a WebSocket of camera requests in and frames out ([`live`]); the server
+//!   renders only each client's latest request.
+//!
+//! The gRPC side's rules hold: loopback by default; with a token configured every request
+//! needs it (`Authorization: Bearer <token>`, or `?token=<token>` where a browser cannot set
+//! headers: the page itself and its socket). Rendering runs on the blocking pool under its
+//! own semaphore, so it never holds up storing or scoring.
+
+pub mod api;
+pub mod live;
+
+use crate::service::Shared;
+use crate::view::ViewError;
+use axum::extract::{Request, State};
+use axum::http::{header, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use insitu_core::Vdi;
+use insitu_proto::auth::Token;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use tokio::sync::Semaphore;
+
+/// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times).
+const CACHED_VDIS: usize = 4;
+
+/// What the HTTP side shares.
+pub struct Http {
+    /// The viz-node's state (recording, backend, reports).
+    pub shared: Arc<Shared>,
+    token: Option<Token>,
+    /// Renders at once over all HTTP clients.
+    renders: Arc<Semaphore>,
+    cache: Mutex<Vec<(String, Arc<Vdi>)>>,
+    /// Frames rendered (still renders and socket frames).
+    pub rendered: AtomicU64,
+    /// Socket camera requests replaced by a newer one before they were rendered.
+    pub superseded: AtomicU64,
+    /// Socket requests refused (malformed JSON, bad values).
+    pub refused: AtomicU64,
+    /// Sockets open now.
+    pub clients: AtomicU64,
+}
+
+impl Http {
+    /// Over `shared`, requiring `token` when one is configured; `render_concurrency` renders
+    /// at once.
+    pub fn new(shared: Arc<Shared>, token: Option<Token>, render_concurrency: usize) -> Self {
+        Self {
+            shared,
+            token,
+            renders: Arc::new(Semaphore::new(render_concurrency.max(1))),
+            cache: Mutex::new(Vec::new()),
+            rendered: AtomicU64::new(0),
+            superseded: AtomicU64::new(0),
+            refused: AtomicU64::new(0),
+            clients: AtomicU64::new(0),
+        }
+    }
+
+    /// The decoded VDI file `name` of the recording, from the cache or the disk.
+    ///
+    /// # Errors
+    /// [`ViewError::Failed`] when it cannot be read or decoded.
+    pub fn vdi(&self, name: &str) -> Result<Arc<Vdi>, ViewError> {
+        let lock = || self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, v)) = lock().iter().find(|(n, _)| n == name) {
+            return Ok(v.clone());
+        }
+        let v = Arc::new(crate::view::load_vdi(self.shared.recording.dir(), name)?);
+        let mut c = lock();
+        c.retain(|(n, _)| n != name);
+        c.push((name.to_owned(), v.clone()));
+        if c.len() > CACHED_VDIS {
+            c.remove(0);
+        }
+        Ok(v)
+    }
+}
+
+/// The router: page, API and socket, behind the token check.
+pub fn router(http: Arc<Http>) -> Router {
+    Router::new()
+        .route("/", get(page))
+        .route("/app.js", get(script))
+        .route("/style.css", get(style))
+        .route("/api/steps", get(api::steps))
+        .route("/api/series", get(api::series))
+        .route("/api/render", get(api::render))
+        .route("/api/reference", get(api::reference))
+        .route("/api/stats", get(api::stats))
+        .route("/api/live", get(live::upgrade))
+        .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
+        .layer(axum::middleware::from_fn_with_state(
+            http.clone(),
+            require_token,
+        ))
+        .with_state(http)
+}
+
+/// Serves `router` on `listener` until `stop` resolves.
+///
+/// # Errors
+/// An I/O error of the server.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    http: Arc<Http>,
+    stop: impl std::future::Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    axum::serve(listener, router(http))
+        .with_graceful_shutdown(stop)
+        .await
+}
+
+/// A JSON error `{"error": message}` with `status`.
+pub fn error(status: StatusCode, message: String) -> Response {
+    (status, Json(serde_json::json!({ "error": message }))).into_response()
+}
+
+impl IntoResponse for ViewError {
+    fn into_response(self) -> Response {
+        let status = match &self {
+            ViewError::NotFound(_) => StatusCode::NOT_FOUND,
+            ViewError::BadRequest(_) => StatusCode::BAD_REQUEST,
+            ViewError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            ViewError::Failed(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        error(status, self.to_string())
+    }
+}
+
+async fn require_token(State(http): State<Arc<Http>>, req: Request, next: Next) -> Response {
+    let Some(token) = &http.token else {
+        return next.run(req).await;
+    };
+    let bearer = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "));
+    let query = req.uri().query().and_then(|q| {
+        form_urlencoded::parse(q.as_bytes()).find_map(|(k, v)| (k == "token").then_some(v))
+    });
+    let ok = bearer.is_some_and(|t| token.matches(t)) || query.is_some_and(|t| token.matches(&t));
+    if ok {
+        next.run(req).await
+    } else {
+        error(
+            StatusCode::UNAUTHORIZED,
+            "missing or wrong token: send `Authorization: Bearer <token>` or add `?token=<token>` to the URL".into(),
+        )
+    }
+}
+
+async fn page() -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/html; charset=utf-8")],
+        include_str!("assets/index.html"),
+    )
+}
+
+async fn script() -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+        include_str!("assets/app.js"),
+    )
+}
+
+async fn style() -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/css; charset=utf-8")],
+        include_str!("assets/style.css"),
+    )
+}
+
+/// The counters of `GET /api/stats`.
+pub fn stats(http: &Http) -> serde_json::Value {
+    let n = |a: &AtomicU64| a.load(Ordering::Relaxed);
+    serde_json::json!({
+        "rendered": n(&http.rendered),
+        "superseded": n(&http.superseded),
+        "refused": n(&http.refused),
+        "clients": n(&http.clients),
+        "vdis_stored": n(&http.shared.vdis_stored),
+    })
+}

@@ -1,0 +1,346 @@
+//! Any stored step from any camera (issue 16; paper Sec. 3.1: a VDI is explored later from
+//! other viewpoints): which VDI shows a step (one rank's, or for a world of ranks the step's
+//! composed VDI), the camera of a view (an orbit about the generation camera's target), the
+//! checks on a request, and the encoding of the frame. Shared by the web viewer
+//! ([`crate::http`]), the `Render` call and `insitu view --recording`.
+
+use crate::store::{Entry, StepEntry};
+use insitu_core::vdi::codec::{self, DecodeLimits};
+use insitu_core::vdi::Vdi;
+use insitu_core::{Backend, Camera, Image};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Instant;
+
+/// Largest side of a rendered image, pixels.
+pub const MAX_SIDE: u32 = 8192;
+/// Zoom range (eye–target distance over the generation camera's).
+pub const ZOOM_RANGE: (f32, f32) = (0.05, 20.0);
+
+/// Why a view cannot be served. The HTTP layer maps the kinds to 404, 400, 413 and 500.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ViewError {
+    /// The step, rank or file is not in the recording (yet).
+    #[error("{0}")]
+    NotFound(String),
+    /// A parameter is out of range or not a number.
+    #[error("{0}")]
+    BadRequest(String),
+    /// The image is larger than the server allows.
+    #[error("{0}")]
+    TooLarge(String),
+    /// A stored file cannot be read or decoded, or rendering failed.
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// A camera about a stored VDI and an image size: the generation camera orbited by
+/// `angle_deg` about +y and `elevation_deg` up, its distance scaled by `zoom`
+/// ([`Camera::orbit`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct View {
+    /// Degrees about +y (any finite value).
+    pub angle_deg: f32,
+    /// Degrees up, in [−89, 89].
+    pub elevation_deg: f32,
+    /// Distance over the generation camera's, in [`ZOOM_RANGE`].
+    pub zoom: f32,
+    /// Image width, pixels, 1..=[`MAX_SIDE`].
+    pub width: u32,
+    /// Image height, pixels, 1..=[`MAX_SIDE`].
+    pub height: u32,
+}
+
+impl Default for View {
+    fn default() -> Self {
+        Self {
+            angle_deg: 0.0,
+            elevation_deg: 0.0,
+            zoom: 1.0,
+            width: 512,
+            height: 512,
+        }
+    }
+}
+
+impl View {
+    /// Checks every field; `max_pixels` bounds `width × height`.
+    ///
+    /// # Errors
+    /// [`ViewError::BadRequest`] naming the field, [`ViewError::TooLarge`] over `max_pixels`.
+    pub fn check(&self, max_pixels: u64) -> Result<(), ViewError> {
+        let bad = |what: String| Err(ViewError::BadRequest(what));
+        if !self.angle_deg.is_finite() {
+            return bad(format!(
+                "angle {} is not a finite number of degrees",
+                self.angle_deg
+            ));
+        }
+        if !(self.elevation_deg.is_finite() && self.elevation_deg.abs() <= 89.0) {
+            return bad(format!(
+                "elevation {} must be degrees in [-89, 89]",
+                self.elevation_deg
+            ));
+        }
+        if !(self.zoom >= ZOOM_RANGE.0 && self.zoom <= ZOOM_RANGE.1) {
+            return bad(format!(
+                "zoom {} must be in [{}, {}]",
+                self.zoom, ZOOM_RANGE.0, ZOOM_RANGE.1
+            ));
+        }
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if !(1..=MAX_SIDE).contains(&v) {
+                return bad(format!("{name} {v} must be in 1..={MAX_SIDE} pixels"));
+            }
+        }
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        if pixels > max_pixels {
+            return Err(ViewError::TooLarge(format!(
+                "image of {}×{} = {pixels} pixels exceeds the server's limit of {max_pixels}",
+                self.width, self.height
+            )));
+        }
+        Ok(())
+    }
+
+    /// The camera of this view about `generation` (the VDI's own camera).
+    pub fn camera(&self, generation: &Camera) -> Camera {
+        generation.orbit(self.angle_deg, self.elevation_deg, self.zoom)
+    }
+}
+
+/// The VDI file (relative to the recording) that shows `step`: rank `rank`'s when one is
+/// asked for; else, for a single rank, its VDI, and for a world of ranks the step's composed
+/// VDI (all ranks in one picture). `ranks` are the step's stored ranks, `composed` its
+/// composed entry if any.
+///
+/// # Errors
+/// [`ViewError::NotFound`] saying what is missing (the step, the rank, or the composition).
+pub fn vdi_file(
+    step: u64,
+    rank: Option<u32>,
+    ranks: &[Entry],
+    composed: Option<&StepEntry>,
+) -> Result<String, ViewError> {
+    let missing = |what: String| ViewError::NotFound(what);
+    if ranks.is_empty() && composed.is_none() {
+        return Err(missing(format!("step {step} is not in the recording")));
+    }
+    let stored: Vec<u32> = ranks.iter().map(|e| e.rank).collect();
+    let of_rank = |r: u32| {
+        let e = ranks.iter().find(|e| e.rank == r).ok_or_else(|| {
+            missing(format!(
+                "step {step} has no rank {r} (stored ranks: {stored:?})"
+            ))
+        })?;
+        e.vdi
+            .clone()
+            .ok_or_else(|| missing(format!("step {step} rank {r} has no VDI yet")))
+    };
+    if let Some(r) = rank {
+        return of_rank(r);
+    }
+    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+    if world <= 1 {
+        return of_rank(stored.first().copied().unwrap_or(0));
+    }
+    composed.and_then(|c| c.vdi.clone()).ok_or_else(|| {
+        missing(format!(
+            "step {step} of {world} ranks is not composed yet (stored ranks: {stored:?}); ask for one rank"
+        ))
+    })
+}
+
+/// Reads and decodes the VDI file `name` of the recording in `dir`.
+///
+/// # Errors
+/// [`ViewError::Failed`] naming the file.
+pub fn load_vdi(dir: &Path, name: &str) -> Result<Vdi, ViewError> {
+    let path = dir.join(name);
+    let bytes = std::fs::read(&path)
+        .map_err(|e| ViewError::Failed(format!("cannot read {}: {e}", path.display())))?;
+    codec::decode(&bytes, &DecodeLimits::default())
+        .map_err(|e| ViewError::Failed(format!("{} is not a usable VDI: {e}", path.display())))
+}
+
+/// Renders `vdi` at `view` on `backend` with early termination `termination`; returns the
+/// image and the render's seconds (wall clock, or GPU time on the GPU backend).
+///
+/// # Errors
+/// [`ViewError::BadRequest`] for a bad view, [`ViewError::Failed`] when rendering fails.
+pub fn render(
+    backend: &Backend,
+    vdi: &Vdi,
+    view: &View,
+    termination: f32,
+) -> Result<(Image, f64), ViewError> {
+    view.check(u64::MAX)?;
+    let camera = view.camera(&vdi.meta().camera);
+    let t = Instant::now();
+    let out = backend
+        .prepare_vdi(vdi)
+        .and_then(|v| v.render(&camera, view.width, view.height, termination))
+        .map_err(|e| ViewError::Failed(format!("rendering: {e}")))?;
+    // Wall clock whatever the backend: what a viewer waits for.
+    let secs = t.elapsed().as_secs_f64();
+    Ok((out.value, secs))
+}
+
+/// An image encoding for frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Lossless 8-bit RGB PNG.
+    Png,
+    /// Baseline JPEG at a quality in 1..=100.
+    Jpeg,
+}
+
+impl Format {
+    /// The MIME type.
+    pub fn mime(self) -> &'static str {
+        match self {
+            Self::Png => "image/png",
+            Self::Jpeg => "image/jpeg",
+        }
+    }
+}
+
+/// Encodes `image` as `format` (`quality` for JPEG, 1..=100).
+///
+/// # Errors
+/// [`ViewError::BadRequest`] for a quality outside 1..=100, [`ViewError::Failed`] when the
+/// encoder fails.
+pub fn encode(image: &Image, format: Format, quality: u8) -> Result<Vec<u8>, ViewError> {
+    let (w, h) = (image.width(), image.height());
+    let rgb = image::RgbImage::from_raw(w, h, image.to_rgb8())
+        .ok_or_else(|| ViewError::Failed("image size mismatch".into()))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    match format {
+        Format::Png => rgb
+            .write_to(&mut out, image::ImageFormat::Png)
+            .map_err(|e| ViewError::Failed(format!("PNG encoding: {e}")))?,
+        Format::Jpeg => {
+            if !(1..=100).contains(&quality) {
+                return Err(ViewError::BadRequest(format!(
+                    "JPEG quality {quality} must be in 1..=100"
+                )));
+            }
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality)
+                .encode_image(&rgb)
+                .map_err(|e| ViewError::Failed(format!("JPEG encoding: {e}")))?
+        }
+    }
+    Ok(out.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(step: u64, rank: u32, world: u32, vdi: Option<&str>) -> Entry {
+        Entry {
+            world_size: world,
+            vdi: vdi.map(str::to_owned),
+            ..Entry::empty(step, rank)
+        }
+    }
+
+    #[test]
+    fn a_view_is_checked_field_by_field() {
+        let ok = View::default();
+        assert_eq!(ok.check(1 << 20), Ok(()));
+        let bad = |v: View| match v.check(1 << 20) {
+            Err(ViewError::BadRequest(m)) => m,
+            other => panic!("{other:?}"),
+        };
+        assert!(bad(View {
+            angle_deg: f32::NAN,
+            ..ok
+        })
+        .contains("angle"));
+        assert!(bad(View {
+            elevation_deg: 90.5,
+            ..ok
+        })
+        .contains("elevation"));
+        assert!(bad(View { zoom: 0.0, ..ok }).contains("zoom"));
+        assert!(bad(View {
+            zoom: f32::INFINITY,
+            ..ok
+        })
+        .contains("zoom"));
+        assert!(bad(View { width: 0, ..ok }).contains("width"));
+        assert!(bad(View {
+            height: MAX_SIDE + 1,
+            ..ok
+        })
+        .contains("height"));
+        assert!(matches!(
+            View {
+                width: 2048,
+                height: 2048,
+                ..ok
+            }
+            .check(1 << 20),
+            Err(ViewError::TooLarge(_))
+        ));
+        // Zoom 1, no elevation: the generation camera orbited about +y, as the test views.
+        let c = Camera::default_for_box(&insitu_core::volume::Aabb {
+            min: glam::Vec3::ZERO,
+            max: glam::Vec3::ONE,
+        });
+        let v = View {
+            angle_deg: 30.0,
+            ..ok
+        };
+        assert!((v.camera(&c).eye - c.orbit_y(30.0).eye).length() < 1e-5);
+    }
+
+    #[test]
+    fn the_file_of_a_step_is_its_rank_or_its_composition() {
+        let single = [entry(3, 0, 1, Some("s3r0.vdi"))];
+        assert_eq!(vdi_file(3, None, &single, None).unwrap(), "s3r0.vdi");
+        assert_eq!(vdi_file(3, Some(0), &single, None).unwrap(), "s3r0.vdi");
+        let e = vdi_file(3, Some(2), &single, None).unwrap_err();
+        assert!(e.to_string().contains("no rank 2"), "{e}");
+        let e = vdi_file(9, None, &[], None).unwrap_err();
+        assert!(
+            e.to_string().contains("step 9 is not in the recording"),
+            "{e}"
+        );
+        let world = [entry(4, 0, 2, Some("r0.vdi")), entry(4, 1, 2, None)];
+        let e = vdi_file(4, None, &world, None).unwrap_err();
+        assert!(e.to_string().contains("not composed yet"), "{e}");
+        let e = vdi_file(4, Some(1), &world, None).unwrap_err();
+        assert!(e.to_string().contains("rank 1 has no VDI"), "{e}");
+        let composed = StepEntry {
+            vdi: Some("c4.vdi".into()),
+            ..crate::compose::step_entry(4, 2, &[], vec![])
+        };
+        assert_eq!(
+            vdi_file(4, None, &world, Some(&composed)).unwrap(),
+            "c4.vdi"
+        );
+        assert_eq!(
+            vdi_file(4, Some(0), &world, Some(&composed)).unwrap(),
+            "r0.vdi"
+        );
+    }
+
+    #[test]
+    fn frames_encode_as_png_and_jpeg_and_a_bad_quality_is_refused() {
+        let img = Image::from_pixels(8, 4, vec![[0.25, 0.5, 1.0]; 32]).unwrap();
+        let png = encode(&img, Format::Png, 0).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+        let jpeg = encode(&img, Format::Jpeg, 55).unwrap();
+        assert_eq!(&jpeg[..2], &[0xFF, 0xD8]);
+        let back = image::load_from_memory(&jpeg).unwrap().to_rgb8();
+        assert_eq!(back.dimensions(), (8, 4));
+        assert!(matches!(
+            encode(&img, Format::Jpeg, 0),
+            Err(ViewError::BadRequest(_))
+        ));
+    }
+}
