@@ -45,6 +45,15 @@ pub struct PipelineArgs {
     /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
     #[arg(long)]
     pub json: bool,
+    /// Address of the viz-node's web viewer (port 0: ephemeral); its URL is printed at start.
+    #[arg(long, default_value = "127.0.0.1:0")]
+    pub http: SocketAddr,
+    /// Start no web viewer.
+    #[arg(long)]
+    pub no_http: bool,
+    /// After the run, keep the viz-node and its web viewer serving the recording until Ctrl-C.
+    #[arg(long)]
+    pub keep_serving: bool,
 }
 
 /// What a command chooses when its flags do not.
@@ -263,6 +272,8 @@ pub struct LocalNodes {
     pub json: bool,
     /// Where the viz-node records.
     pub recording: PathBuf,
+    /// Serve the recording after the run until Ctrl-C.
+    pub keep_serving: bool,
 }
 
 /// A fresh recording directory name.
@@ -290,10 +301,19 @@ impl LocalNodes {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             recording_dir: recording.clone(),
             backend: a.backend.backend,
+            http_listen: (!a.no_http).then_some(a.http),
             ..Default::default()
         })
         .await
         .context("starting the viz-node")?;
+        if let Some(h) = viz.http_addr() {
+            let line = format!("web viewer: http://{h}/");
+            if a.json {
+                eprintln!("{line}");
+            } else {
+                println!("{line}");
+            }
+        }
         let tuner = if a.no_tune {
             None
         } else {
@@ -353,6 +373,7 @@ impl LocalNodes {
             tuner,
             json: a.json,
             recording,
+            keep_serving: a.keep_serving,
         })
     }
 
@@ -389,6 +410,11 @@ impl LocalNodes {
         let summary = self.generator.shutdown().await;
         if let Some(t) = self.tuner {
             t.shutdown().await;
+        }
+        let viewer = self.viz.http_addr().map(|h| format!("http://{h}/"));
+        if let (true, Some(url)) = (self.keep_serving, &viewer) {
+            eprintln!("serving the recording at {url} until Ctrl-C");
+            insitu_proto::daemon::shutdown_signal().await;
         }
         self.viz.shutdown().await;
         let run = Run {

@@ -252,7 +252,16 @@ fn run(
     };
     g.terminate();
     if let Some(t) = tuner {
+        let log = t.log.clone();
         t.terminate();
+        // Why tunings ended without a decision (failed trials, nothing feasible).
+        for line in std::fs::read_to_string(log)
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| l.contains("WARN") || l.contains("re-tuned") || l.contains("evict"))
+        {
+            println!("  tuner: {line}");
+        }
     }
     v.terminate();
     Outcome {
@@ -282,9 +291,10 @@ fn report(name: &str, with: &Outcome, without: &Outcome) {
         100.0 * (with.cpu - without.cpu) / with.cpu
     );
     println!(
-        "trials: {} run, {} of them size probes ({:.1} s node wall clock = {:.1} % of the {:.1} s run; at most {:.1} % of the run's CPU time with both cores busy during trials), {} answered from earlier trials, {} tunings, {} decisions",
+        "trials: {} run, {} of them size probes, {} failed ({:.1} s node wall clock = {:.1} % of the {:.1} s run; at most {:.1} % of the run's CPU time with both cores busy during trials), {} answered from earlier trials, {} tunings, {} decisions",
         s.trials_run,
         s.size_probes,
+        s.trials_failed,
         s.trial_secs,
         100.0 * s.trial_secs / with.wall,
         with.wall,

@@ -134,6 +134,16 @@ impl Daemon {
         }
     }
 
+    /// The next line it prints after `listening on` (e.g. the web viewer's URL), trimmed;
+    /// empty at the end of its output.
+    pub fn read_line(&mut self) -> String {
+        let mut line = String::new();
+        if let Some(s) = self.stdout.as_mut() {
+            let _ = s.read_line(&mut line);
+        }
+        line.trim().to_owned()
+    }
+
     /// Sends SIGTERM, waits, and returns the rest of its stdout (e.g. the summary).
     pub fn terminate(mut self) -> String {
         let _ = Command::new("kill")

@@ -1,18 +1,40 @@
-//! `insitu view`: render a VDI file from a camera to a PNG.
+//! `insitu view`: render a VDI file, or a stored step of a recording (composed over its
+//! ranks, or one rank), from any camera to a PNG.
 
 use crate::output::write_png;
 use anyhow::{Context, Result};
 use insitu_core::vdi::codec::{decode, DecodeLimits};
+use insitu_viz_node::view::{self, View};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// VDI file written by `insitu generate`.
+    #[arg(
+        long,
+        required_unless_present = "recording",
+        conflicts_with = "recording"
+    )]
+    vdi: Option<PathBuf>,
+    /// A viz-node's recording directory (with --step): renders a stored step, composed over
+    /// its ranks unless --rank. Works while a viz-node is writing it.
+    #[arg(long, requires = "step")]
+    recording: Option<PathBuf>,
+    /// The stored step to render (with --recording).
     #[arg(long)]
-    vdi: PathBuf,
+    step: Option<u64>,
+    /// One rank of the step (with --recording); default: the step composed over its ranks.
+    #[arg(long, requires = "recording")]
+    rank: Option<u32>,
     /// Orbit angle about +y relative to the generation camera, degrees.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     angle: f32,
+    /// Orbit elevation (positive: from above), degrees in [-89, 89].
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    elevation: f32,
+    /// Eye distance over the generation camera's (> 1 moves away).
+    #[arg(long, default_value_t = 1.0)]
+    zoom: f32,
     /// Image size `N` or `WxH`.
     #[arg(long, default_value = "768")]
     size: String,
@@ -27,31 +49,54 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (w, h) = super::parse_size(&a.size)?;
-    let bytes =
-        std::fs::read(&a.vdi).with_context(|| format!("cannot read {}", a.vdi.display()))?;
-    let vdi = decode(&bytes, &DecodeLimits::default())
-        .with_context(|| format!("{} is not a usable VDI", a.vdi.display()))?;
+    let (width, height) = super::parse_size(&a.size)?;
+    let (vdi, what) = match (&a.vdi, &a.recording, a.step) {
+        (Some(path), _, _) => {
+            let bytes =
+                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let vdi = decode(&bytes, &DecodeLimits::default())
+                .with_context(|| format!("{} is not a usable VDI", path.display()))?;
+            (vdi, path.display().to_string())
+        }
+        (None, Some(dir), Some(step)) => {
+            let (entries, steps) = insitu_viz_node::index::read(dir)
+                .with_context(|| format!("{} is not a readable recording", dir.display()))?;
+            let ranks: Vec<_> = entries.into_iter().filter(|e| e.step == step).collect();
+            let composed = steps.into_iter().find(|s| s.step == step);
+            let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
+            let what = match a.rank {
+                Some(r) => format!("step {step} rank {r} of {}", dir.display()),
+                None => format!("step {step} of {}", dir.display()),
+            };
+            (view::load_vdi(dir, &name)?, what)
+        }
+        _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --step N"),
+    };
     let termination = a.termination.unwrap_or(vdi.meta().termination);
     if !(termination > 0.0 && termination <= 1.0) {
         anyhow::bail!("--termination {termination} must be in (0, 1]");
     }
-    let camera = vdi.meta().camera.orbit_y(a.angle);
+    let v = View {
+        angle_deg: a.angle,
+        elevation_deg: a.elevation,
+        zoom: a.zoom,
+        width,
+        height,
+    };
+    v.check(u64::MAX)?;
     let backend = a.backend.open()?;
-    let image = backend
-        .prepare_vdi(&vdi)?
-        .render(&camera, w, h, termination)?;
-    write_png(&a.out, &image.value)?;
+    let (image, secs) = view::render(&backend, &vdi, &v, termination)?;
+    write_png(&a.out, &image)?;
     println!(
-        "rendered VDI {} (r={}, {} supersegments) at {}° {}x{} in {:.3} s ({}) -> {}",
-        a.vdi.display(),
+        "rendered {what} (r={}, {} supersegments) at {}°, elevation {}°, zoom {} {}x{} in {:.3} s -> {}",
         vdi.resolution(),
         vdi.supersegments().len(),
         a.angle,
-        w,
-        h,
-        image.seconds,
-        image.source,
+        a.elevation,
+        a.zoom,
+        width,
+        height,
+        secs,
         a.out.display()
     );
     Ok(())

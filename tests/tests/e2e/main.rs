@@ -14,3 +14,4 @@ mod ranks;
 mod replay;
 mod tls;
 mod tuner;
+mod viewer;

@@ -16,6 +16,13 @@ use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
+/// An `f32` as the JSON number it reads as (0.013, not 0.013000000268220901).
+fn short(v: f32) -> Value {
+    v.to_string()
+        .parse::<f64>()
+        .map_or(Value::Null, Value::from)
+}
+
 /// One stored step as the API shows it: its ranks and, for a world of ranks, the composed
 /// step (σ summed, τ of the slowest rank, q of the composition).
 pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Value {
@@ -30,7 +37,7 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
             json!({
                 "rank": e.rank,
                 "r": e.resolution,
-                "gamma": e.gamma,
+                "gamma": short(e.gamma),
                 "pm_version": e.pm_version,
                 "sigma_bytes": e.sigma_bytes,
                 "tau_s": e.tau_secs,
@@ -59,7 +66,7 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
         "partial": composed.is_some_and(|c| !c.missing.is_empty()),
         "composed": composed.is_some_and(|c| c.vdi.is_some()),
         "r": first.map(|e| e.resolution),
-        "gamma": first.map(|e| e.gamma),
+        "gamma": first.map(|e| short(e.gamma)),
         "pm_version": first.map(|e| e.pm_version),
         "sigma_bytes": sigma,
         "tau_s": tau,

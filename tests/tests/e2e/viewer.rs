@@ -1,0 +1,469 @@
+//! The web viewer in a real browser (issue 16, "What must hold"): Debian's Chromium, headless,
+//! driven over WebDriver by chromedriver, against a viz-node process serving a recording that
+//! a replay made, while more steps arrive. Screenshots go to `target/test-artifacts/`.
+
+use crate::common::{free_port, generator, small_config};
+use crate::replay::replay;
+use base64::Engine as _;
+use fantoccini::actions::{InputSource, MouseActions, PointerAction, MOUSE_BUTTON_LEFT};
+use fantoccini::key::Key;
+use fantoccini::{Client, ClientBuilder, Locator};
+use insitu_client::{SimClient, Step};
+use insitu_core::metrics::{mse, psnr_from_mse};
+use insitu_core::volume::RawFormat;
+use insitu_core::Image;
+use insitu_e2e::{data_dir, rt, Daemon};
+use serde_json::{json, Value};
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
+
+/// Where screenshots are kept after the test.
+fn artefacts() -> PathBuf {
+    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/test-artifacts");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// chromedriver on a free port; killed on drop.
+struct Driver(Child, u16);
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start_driver() -> Driver {
+    assert!(
+        Path::new(CHROMIUM).exists() && Path::new(CHROMEDRIVER).exists(),
+        "the browser test needs Debian's chromium and chromium-driver ({CHROMIUM}, {CHROMEDRIVER}); .ci/run installs them"
+    );
+    let port = free_port();
+    let child = Command::new(CHROMEDRIVER)
+        .arg(format!("--port={port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starting chromedriver");
+    let up = insitu_e2e::wait_until(20.0, || {
+        std::net::TcpStream::connect(("127.0.0.1", port)).is_ok()
+    });
+    assert!(up, "chromedriver did not listen on {port}");
+    Driver(child, port)
+}
+
+async fn browser(driver: &Driver, profile: &Path) -> Client {
+    let caps = json!({
+        "goog:chromeOptions": {
+            "binary": CHROMIUM,
+            "args": [
+                "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                "--disable-component-update", "--disable-sync", "--no-first-run",
+                "--window-size=1280,900",
+                format!("--user-data-dir={}", profile.display()),
+            ]
+        }
+    });
+    let serde_json::Value::Object(caps) = caps else {
+        unreachable!()
+    };
+    ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&format!("http://127.0.0.1:{}", driver.1))
+        .await
+        .expect("connecting to chromedriver")
+}
+
+/// Runs `script` (which calls `done(value)`) in the page and returns the value.
+async fn js(c: &Client, script: &str) -> Value {
+    let body = format!("const done = arguments[arguments.length - 1]; (async () => {{ {script} }})().catch(e => done({{error: String(e)}}));");
+    c.execute_async(&body, vec![]).await.expect("script")
+}
+
+/// Polls `attr` of `#frame` until `pred` holds, within `secs`.
+async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Value {
+    let t = Instant::now();
+    loop {
+        let v = c
+            .execute(
+                "return Object.assign({}, document.getElementById('frame').dataset);",
+                vec![],
+            )
+            .await
+            .unwrap();
+        if pred(&v) {
+            return v;
+        }
+        assert!(
+            t.elapsed().as_secs_f64() < secs,
+            "the page did not show the expected frame within {secs} s; last: {v}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// The image bytes behind `#frame`, or those of `url` fetched by the page, decoded.
+async fn image_of(c: &Client, what: &str) -> Image {
+    let src = if what == "frame" {
+        "document.getElementById('frame').src".to_owned()
+    } else {
+        format!("{what:?}")
+    };
+    let v = js(
+        c,
+        &format!(
+            "const r = await fetch({src}); if (!r.ok) {{ done({{error: await r.text()}}); return; }}
+             const b = new Uint8Array(await r.arrayBuffer()); let s = '';
+             for (let i = 0; i < b.length; i++) s += String.fromCharCode(b[i]);
+             done({{b64: btoa(s)}});"
+        ),
+    )
+    .await;
+    let b64 = v["b64"]
+        .as_str()
+        .unwrap_or_else(|| panic!("fetching {what}: {v}"));
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode(b64)
+        .unwrap();
+    let rgb = image::load_from_memory(&bytes).unwrap().to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let px = rgb
+        .pixels()
+        .map(|p| p.0.map(|v| f32::from(v) / 255.0))
+        .collect();
+    Image::from_pixels(w, h, px).unwrap()
+}
+
+fn not_blank(img: &Image) -> bool {
+    let lit = img
+        .pixels()
+        .iter()
+        .filter(|p| p.iter().any(|&v| v > 0.02))
+        .count();
+    lit > img.pixels().len() / 100
+}
+
+/// Pushes ocean step `t` as step index `step` straight to the generator-node.
+async fn push_ocean(generator: &str, step: u64, t: usize) {
+    let path = data_dir()
+        .unwrap()
+        .join("ocean_temp_ts_180x90x19x12_float32.raw");
+    let format = RawFormat::from_file_name(&path).unwrap();
+    let vol = format.load(&path, t, glam::Vec3::ONE).unwrap();
+    let d = vol.dims().map(|x| x as u32);
+    let mut c = SimClient::connect(generator, None).await.unwrap();
+    c.push_step(Step::whole_f32(step, step as f64, d, vol.data()))
+        .await
+        .unwrap();
+}
+
+fn viz_with_http(rec: &Path, logs: &Path, extra: &[&str]) -> (Daemon, String) {
+    let mut args = vec!["--http", "127.0.0.1:0", "--backend", "cpu"];
+    args.extend_from_slice(extra);
+    let mut v = insitu_e2e::start_viz(rec, "127.0.0.1:0", &args, logs);
+    let line = v.read_line();
+    let url = line
+        .strip_prefix("web viewer on ")
+        .unwrap_or_else(|| panic!("no viewer URL: {line:?}"))
+        .to_owned();
+    (v, url)
+}
+
+#[test]
+fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
+    if data_dir().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let (v, url) = viz_with_http(&rec, tmp.path(), &[]);
+    let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
+    replay(&g, 1, 6, 2);
+    let driver = start_driver();
+    let shots = artefacts();
+    rt().block_on(async {
+        let c = browser(&driver, &tmp.path().join("profile")).await;
+        c.goto(&url).await.unwrap();
+        // A first still frame of the latest step, not blank.
+        let first = wait_frame(&c, 20.0, |d| d["kind"] == "still").await;
+        assert_eq!(first["step"], "5", "follows the latest step: {first}");
+        let img0 = image_of(&c, "frame").await;
+        assert!(not_blank(&img0), "the first frame is blank");
+        std::fs::write(shots.join("viewer-first.png"), c.screenshot().await.unwrap()).unwrap();
+
+        // The charts hold one point per stored step.
+        for id in ["chart-sigma", "chart-tau"] {
+            let e = c.find(Locator::Id(id)).await.unwrap();
+            assert_eq!(e.attr("data-points").await.unwrap().as_deref(), Some("6"), "{id}");
+        }
+        let q_points = c
+            .find(Locator::Id("chart-q"))
+            .await
+            .unwrap()
+            .attr("data-points")
+            .await
+            .unwrap();
+        assert_eq!(q_points.as_deref(), Some("3"), "q on the sampled steps 0, 2, 4");
+
+        // Drag to orbit: the frame changes, and its still matches the API's render of that
+        // camera.
+        let frame = c.find(Locator::Id("frame")).await.unwrap();
+        let mouse = MouseActions::new("mouse".into())
+            .then(PointerAction::MoveToElement {
+                element: frame.clone(),
+                duration: None,
+                x: 0.0,
+                y: 0.0,
+            })
+            .then(PointerAction::Down {
+                button: MOUSE_BUTTON_LEFT,
+            })
+            .then(PointerAction::MoveBy {
+                duration: Some(Duration::from_millis(300)),
+                x: -120.0,
+                y: 40.0,
+            })
+            .then(PointerAction::Up {
+                button: MOUSE_BUTTON_LEFT,
+            });
+        c.perform_actions(mouse).await.unwrap();
+        let after = wait_frame(&c, 20.0, |d| {
+            d["kind"] == "still" && d["angle"] != "0" && d["elevation"] != "0"
+        })
+        .await;
+        let shown = image_of(&c, "frame").await;
+        assert!(mse(&shown, &img0).unwrap() > 0.0, "the frame did not change");
+        let api = image_of(
+            &c,
+            &format!(
+                "/api/render?step={}&angle={}&elevation={}&zoom={}&size={}&format=png",
+                after["step"].as_str().unwrap(),
+                after["angle"].as_str().unwrap(),
+                after["elevation"].as_str().unwrap(),
+                after["zoom"].as_str().unwrap(),
+                after["width"].as_str().unwrap()
+            ),
+        )
+        .await;
+        let q = psnr_from_mse(mse(&shown, &api).unwrap());
+        assert!(q >= 40.0, "page vs API still: {q} dB");
+        std::fs::write(shots.join("viewer-orbit.png"), c.screenshot().await.unwrap()).unwrap();
+
+        // The time slider: two steps back with the keyboard shows step 3.
+        let slider = c.find(Locator::Id("slider")).await.unwrap();
+        slider.send_keys(&format!("{}{}", Key::Left, Key::Left)).await.unwrap();
+        wait_frame(&c, 20.0, |d| d["step"] == "3" && d["kind"] == "still").await;
+
+        // Follow latest: new steps appear without a reload.
+        c.find(Locator::Id("follow")).await.unwrap().click().await.unwrap();
+        push_ocean(&g.addr, 40, 7).await;
+        wait_frame(&c, 30.0, |d| d["step"] == "40").await;
+        let points = async {
+            c.find(Locator::Id("chart-sigma"))
+                .await
+                .unwrap()
+                .attr("data-points")
+                .await
+                .unwrap()
+        };
+        let t = Instant::now();
+        let mut p = points.await;
+        while p.as_deref() != Some("7") && t.elapsed() < Duration::from_secs(10) {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            p = c
+                .find(Locator::Id("chart-sigma"))
+                .await
+                .unwrap()
+                .attr("data-points")
+                .await
+                .unwrap();
+        }
+        assert_eq!(p.as_deref(), Some("7"), "the chart grew by the new step");
+        std::fs::write(shots.join("viewer-live.png"), c.screenshot().await.unwrap()).unwrap();
+
+        // 50 quick camera changes on one socket: the latest is rendered, the rest superseded.
+        let burst = js(
+            &c,
+            "const before = await (await fetch('/api/stats')).json();
+             const ws = new WebSocket(location.href.replace(/^http/, 'ws').replace(/\\/?(\\?.*)?$/, '/api/live'));
+             ws.binaryType = 'arraybuffer';
+             const frames = [];
+             let errors = [];
+             ws.onmessage = (m) => { if (typeof m.data === 'string') { const j = JSON.parse(m.data);
+               if (j.frame !== undefined) frames.push(j.frame); if (j.error) errors.push(j.error); } };
+             await new Promise(r => ws.onopen = r);
+             ws.send('{not json');
+             for (let i = 1; i <= 50; i++) ws.send(JSON.stringify({id: i, step: null, rank: null,
+               angle: i * 3, elevation: 10, zoom: 1, width: 256, height: 256, format: 'jpeg'}));
+             const t0 = Date.now();
+             while (!frames.includes(50) && Date.now() - t0 < 20000) await new Promise(r => setTimeout(r, 50));
+             // Bad requests one at a time (a newer request would supersede a waiting one).
+             for (const bad of [{id: 51, step: 999999, width: 8, height: 8, format: 'png'},
+                                {id: 52, step: null, width: 0, height: 8, format: 'png'}]) {
+               const n = errors.length;
+               ws.send(JSON.stringify(bad));
+               while (errors.length === n && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 20));
+             }
+             ws.send(JSON.stringify({id: 53, step: null, width: 64, height: 64, format: 'png'}));
+             while (!frames.includes(53) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
+             const after = await (await fetch('/api/stats')).json();
+             ws.close();
+             done({frames, errors, before, after});",
+        )
+        .await;
+        let frames = burst["frames"].as_array().unwrap();
+        let rendered = burst["after"]["rendered"].as_u64().unwrap()
+            - burst["before"]["rendered"].as_u64().unwrap();
+        let superseded = burst["after"]["superseded"].as_u64().unwrap()
+            - burst["before"]["superseded"].as_u64().unwrap();
+        eprintln!("50 camera changes: {rendered} renders, {superseded} superseded, frames {frames:?}");
+        assert!(frames.contains(&json!(50)) && frames.contains(&json!(53)), "{burst}");
+        // Other sockets (the page's own) may render meanwhile; the burst's 50 requests must
+        // not have queued 50 renders.
+        assert!(rendered <= 12 && superseded >= 40, "{burst}");
+        let errors: Vec<&str> = burst["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(Value::as_str)
+            .collect();
+        assert!(errors.iter().any(|e| e.contains("malformed")), "{errors:?}");
+        assert!(errors.iter().any(|e| e.contains("step 999999")), "{errors:?}");
+        assert!(errors.iter().any(|e| e.contains("width 0")), "{errors:?}");
+        c.close().await.unwrap();
+    });
+    g.terminate();
+}
+
+/// One HTTP/1.1 request on loopback; returns the status code and the body.
+fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    let mut req = format!("GET {target} HTTP/1.1\r\nHost: {addr}\r\n");
+    if !headers.iter().any(|h| h.starts_with("Connection:")) {
+        req.push_str("Connection: close\r\n");
+    }
+    for h in headers {
+        req.push_str(h);
+        req.push_str("\r\n");
+    }
+    req.push_str("\r\n");
+    s.write_all(req.as_bytes()).unwrap();
+    // To the end of the response (its content-length; an upgraded socket stays open, so
+    // there it is the head alone).
+    let mut out = Vec::new();
+    let mut buf = [0u8; 8192];
+    while let Ok(n @ 1..) = s.read(&mut buf) {
+        out.extend_from_slice(&buf[..n]);
+        let text = String::from_utf8_lossy(&out);
+        if let Some((head, body)) = text.split_once("\r\n\r\n") {
+            let length = head.lines().find_map(|l| {
+                l.to_ascii_lowercase()
+                    .strip_prefix("content-length:")
+                    .and_then(|v| v.trim().parse::<usize>().ok())
+            });
+            if head.starts_with("HTTP/1.1 101") || length.is_some_and(|n| body.len() >= n) {
+                break;
+            }
+        }
+    }
+    let text = String::from_utf8_lossy(&out).into_owned();
+    let code = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = text.split_once("\r\n\r\n").map_or("", |x| x.1).to_owned();
+    (code, body)
+}
+
+#[test]
+fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let token_file = tmp.path().join("token");
+    std::fs::write(&token_file, "s3cret-token\n").unwrap();
+    // Off loopback plain HTTP needs a token and insecure: without insecure it is refused.
+    let cfg = tmp.path().join("viz.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "listen = \"127.0.0.1:0\"\nhttp_listen = \"0.0.0.0:0\"\nrecording_dir = {:?}\ntoken_file = {:?}\n",
+            rec.display().to_string(),
+            token_file.display().to_string()
+        ),
+    )
+    .unwrap();
+    let out = Command::new(insitu_e2e::bin("viz-node"))
+        .args(["--config", cfg.to_str().unwrap()])
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("http_listen"),
+        "{err}"
+    );
+    let mut toml = std::fs::read_to_string(&cfg).unwrap();
+    toml.push_str("insecure = true\n");
+    std::fs::write(&cfg, toml).unwrap();
+    let mut v = Daemon::start(
+        "viz-node",
+        &["--config", cfg.to_str().unwrap()],
+        &[],
+        tmp.path(),
+    );
+    let line = v.read_line();
+    let port = line.rsplit(':').next().unwrap().trim_end_matches('/');
+    let addr = format!("127.0.0.1:{port}");
+    let ws = [
+        "Upgrade: websocket",
+        "Connection: Upgrade",
+        "Sec-WebSocket-Version: 13",
+        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+    ];
+    for target in ["/", "/api/steps", "/api/live"] {
+        let (code, body) = http(&addr, target, &ws);
+        assert_eq!(code, 401, "{target} without a token: {body}");
+        assert!(body.contains("token"), "{body}");
+        let (code, _) = http(&addr, &format!("{target}?token=wrong"), &ws);
+        assert_eq!(code, 401, "{target} with a wrong token");
+    }
+    let (code, body) = http(&addr, "/?token=s3cret-token", &[]);
+    assert!(code == 200 && body.contains("app.js"), "{code} {body}");
+    let (code, _) = http(&addr, "/api/live?token=s3cret-token", &ws);
+    assert_eq!(code, 101, "the socket upgrades with the token");
+    let bearer = "Authorization: Bearer s3cret-token";
+    let (code, body) = http(&addr, "/api/steps", &[bearer]);
+    assert!(
+        code == 200 && body.contains("\"steps\":[]"),
+        "{code} {body}"
+    );
+    // Bad requests: clear JSON errors with the right status, and the node keeps serving.
+    for (target, status, says) in [
+        ("/api/render", 404, "no step yet"),
+        ("/api/render?step=3", 404, "step 3 is not in the recording"),
+        ("/api/render?step=0&size=0", 400, "width 0"),
+        ("/api/render?step=0&angle=NaN", 400, "angle"),
+        ("/api/render?step=0&size=9000", 400, "width 9000"),
+        ("/api/render?step=0&format=gif", 400, "format"),
+        ("/api/render?bogus=1", 400, "bogus"),
+        ("/api/reference?step=1", 400, "view"),
+        ("/nope", 404, "no such page"),
+    ] {
+        let (code, body) = http(&addr, target, &[bearer]);
+        assert_eq!(code, status, "{target}: {body}");
+        assert!(
+            body.contains("\"error\"") && body.contains(says),
+            "{target}: {body}"
+        );
+    }
+    let (code, _) = http(&addr, "/api/stats", &[bearer]);
+    assert_eq!(code, 200);
+}
