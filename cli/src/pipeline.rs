@@ -7,6 +7,7 @@
 use anyhow::{Context, Result};
 use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
+use insitu_proto::peer::Peer;
 use insitu_proto::{pb, transport};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -340,6 +341,9 @@ impl LocalNodes {
                     .context("starting the tuner")?,
             )
         };
+        if let (Some(t), Some(h)) = (&tuner, viz.http()) {
+            h.watch_tuner(Peer::new(&t.local_addr().to_string(), None, None, false)?);
+        }
         let mut cfg = gen::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             viz: Some(viz.local_addr().to_string()),

@@ -16,6 +16,7 @@ use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_tuner::live::{normalise, Verdict};
 use insitu_tuner::series::BINS;
+use insitu_tuner::utility::UtilitySpec;
 use insitu_tuner::Candidate;
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::AtomicBool;
@@ -183,6 +184,12 @@ impl Engine {
             utility: self.utility(),
             tuning: c.tuning,
             size_probes: c.size_probes,
+            sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
+            tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
+            q_target_db: match UtilitySpec::parse(&self.cfg.utility) {
+                Ok(UtilitySpec::Quality(q)) => q,
+                _ => 0.0,
+            },
         }
     }
 

@@ -45,6 +45,9 @@ pub struct Config {
     /// Off loopback it needs a token, and since it serves plain HTTP also `insecure` (reach
     /// it through an SSH tunnel or a TLS proxy instead).
     pub http_listen: Option<SocketAddr>,
+    /// The tuner-node, `host:port`, whose budget the viewer's charts draw (dialled with the
+    /// token and `[tls]` as any peer); unset: no budget lines.
+    pub tuner: Option<String>,
     /// Seconds a step of several ranks waits for its last rank after its first arrived; then
     /// it is composed without the missing ranks and marked partial. Also how long the world's
     /// default TF waits for a rank's range before it is fixed without it.
@@ -69,6 +72,7 @@ impl Default for Config {
             render_concurrency: 2,
             max_render_pixels: 4096 * 4096,
             http_listen: None,
+            tuner: None,
         }
     }
 }

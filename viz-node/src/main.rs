@@ -32,6 +32,9 @@ struct Args {
     /// Address of the web viewer (port 0: ephemeral; the URL is printed).
     #[arg(long)]
     http: Option<SocketAddr>,
+    /// The tuner-node whose budget the viewer's charts draw, host:port.
+    #[arg(long)]
+    tuner: Option<String>,
     /// Seconds a step of several ranks waits for its last rank before it is composed without
     /// it (marked partial).
     #[arg(long)]
@@ -63,6 +66,9 @@ async fn main() -> std::process::ExitCode {
         }
         if a.http.is_some() {
             cfg.http_listen = a.http;
+        }
+        if a.tuner.is_some() {
+            cfg.tuner = a.tuner;
         }
         cfg.validate()?;
         let node = start(cfg).await?;

@@ -25,13 +25,19 @@ use tracing::info;
 /// A started viz-node.
 pub struct RunningViz {
     addr: SocketAddr,
-    http_addr: Option<SocketAddr>,
     shared: Arc<Shared>,
     stop: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
-    http_stop: Option<oneshot::Sender<()>>,
-    http_server: Option<JoinHandle<std::io::Result<()>>>,
+    http: Option<HttpParts>,
 }
+
+/// The web viewer's address, state, stop signal and server task.
+type HttpParts = (
+    SocketAddr,
+    Arc<Http>,
+    oneshot::Sender<()>,
+    JoinHandle<std::io::Result<()>>,
+);
 
 /// Opens the recording, binds, and serves.
 ///
@@ -99,21 +105,16 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
             }),
     );
     info!(%addr, tls = security.serves_tls(), recording = %cfg.recording_dir.display(), "viz-node listening");
-    let (http_addr, http_stop, http_server) = match cfg.http_listen {
-        Some(at) => {
-            let (a, s, h) = start_http(at, &cfg, &security, shared.clone()).await?;
-            (Some(a), Some(s), Some(h))
-        }
-        None => (None, None, None),
+    let http = match cfg.http_listen {
+        Some(at) => Some(start_http(at, &cfg, &security, shared.clone()).await?),
+        None => None,
     };
     Ok(RunningViz {
         addr,
-        http_addr,
         shared,
         stop,
         server,
-        http_stop,
-        http_server,
+        http,
     })
 }
 
@@ -123,11 +124,7 @@ async fn start_http(
     cfg: &Config,
     security: &Security,
     shared: Arc<Shared>,
-) -> anyhow::Result<(
-    SocketAddr,
-    oneshot::Sender<()>,
-    JoinHandle<std::io::Result<()>>,
-)> {
+) -> anyhow::Result<HttpParts> {
     // Plain HTTP: off loopback it takes a token and `insecure`.
     check_bind(at, security.token(), false, cfg.insecure)
         .with_context(|| format!("http_listen {at}"))?;
@@ -140,12 +137,15 @@ async fn start_http(
         security.token().cloned(),
         cfg.render_concurrency,
     ));
+    if let Some(peer) = security.peer_for("tuner", cfg.tuner.as_deref())? {
+        http.watch_tuner(peer);
+    }
     let (stop, stopped) = oneshot::channel::<()>();
-    let server = tokio::spawn(crate::http::serve(listener, http, async {
+    let server = tokio::spawn(crate::http::serve(listener, http.clone(), async {
         let _ = stopped.await;
     }));
     info!(%addr, "web viewer on http://{addr}/");
-    Ok((addr, stop, server))
+    Ok((addr, http, stop, server))
 }
 
 /// Logs what the recording's recovery found and queues the work a crash interrupted: scoring
@@ -193,7 +193,12 @@ impl RunningViz {
 
     /// The web viewer's address, when `http_listen` is set.
     pub fn http_addr(&self) -> Option<SocketAddr> {
-        self.http_addr
+        self.http.as_ref().map(|h| h.0)
+    }
+
+    /// The web viewer's state (none without `http_listen`).
+    pub fn http(&self) -> Option<&Arc<Http>> {
+        self.http.as_ref().map(|h| &h.1)
     }
 
     /// Shared state (recording, counters).
@@ -203,14 +208,15 @@ impl RunningViz {
 
     /// Stops serving after in-flight calls finish.
     pub async fn shutdown(self) {
-        if let Some(s) = self.http_stop {
-            let _ = s.send(());
-        }
+        let http = self.http.map(|(_, _, stop, server)| {
+            let _ = stop.send(());
+            server
+        });
         let _ = self.stop.send(());
         let _ = self.server.await;
-        if let Some(h) = self.http_server {
+        if let Some(server) = http {
             // Open sockets keep a graceful shutdown waiting; the page reconnects to a new node.
-            h.abort();
+            server.abort();
         }
     }
 }

@@ -125,6 +125,7 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
         "q_db": q,
         "pm_version": col("pm_version"),
         "pm_changes": changes,
+        "budget": http.budget().await,
     }))
 }
 

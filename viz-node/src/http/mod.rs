@@ -24,12 +24,18 @@ use axum::routing::get;
 use axum::{Json, Router};
 use insitu_core::Vdi;
 use insitu_proto::auth::Token;
+use insitu_proto::pb;
+use insitu_proto::pb::tuner_client::TunerClient;
+use insitu_proto::peer::Peer;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 use tokio::sync::Semaphore;
 
 /// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times).
 const CACHED_VDIS: usize = 4;
+/// How long the tuner's budget is reused before it is asked again.
+pub const BUDGET_REFRESH: Duration = Duration::from_secs(5);
 
 /// What the HTTP side shares.
 pub struct Http {
@@ -47,6 +53,10 @@ pub struct Http {
     pub refused: AtomicU64,
     /// Sockets open now.
     pub clients: AtomicU64,
+    /// The tuner whose budget the charts draw.
+    tuner: Mutex<Option<Peer>>,
+    /// Its budget as last read, and when.
+    budget: tokio::sync::Mutex<Option<(Instant, serde_json::Value)>>,
 }
 
 impl Http {
@@ -62,7 +72,52 @@ impl Http {
             superseded: AtomicU64::new(0),
             refused: AtomicU64::new(0),
             clients: AtomicU64::new(0),
+            tuner: Mutex::new(None),
+            budget: tokio::sync::Mutex::new(None),
         }
+    }
+
+    /// Draws the budget of the tuner at `peer` in the charts.
+    pub fn watch_tuner(&self, peer: Peer) {
+        *self.tuner.lock().unwrap_or_else(|e| e.into_inner()) = Some(peer);
+    }
+
+    /// The tuner's budget `{"sigma_bytes", "tau_s", "q_db", "utility"}` (null where the
+    /// utility has none), read at most every [`BUDGET_REFRESH`] with a 1 s limit (the viewer
+    /// never waits long on it); while the tuner cannot be reached, the last one read; null
+    /// without a tuner.
+    pub async fn budget(&self) -> serde_json::Value {
+        let Some(peer) = self.tuner.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
+            return serde_json::Value::Null;
+        };
+        let mut cached = self.budget.lock().await;
+        if let Some((at, v)) = cached.as_ref() {
+            if at.elapsed() < BUDGET_REFRESH {
+                return v.clone();
+            }
+        }
+        let ask = async {
+            let channel = peer.connect().await.ok()?;
+            let mut c = TunerClient::with_interceptor(channel, peer.auth());
+            c.get_status(pb::StatusRequest {}).await.ok()
+        };
+        let v = match tokio::time::timeout(Duration::from_secs(1), ask).await {
+            Ok(Some(s)) => {
+                let s = s.into_inner();
+                let some = |x: f64| (x > 0.0).then_some(x);
+                serde_json::json!({
+                    "sigma_bytes": (s.sigma_target_bytes > 0).then_some(s.sigma_target_bytes),
+                    "tau_s": some(s.tau_target_secs),
+                    "q_db": some(s.q_target_db),
+                    "utility": s.utility,
+                })
+            }
+            // Unreachable: the last budget read, if any (a budget changes only with the
+            // tuner's configuration).
+            _ => cached.take().map_or(serde_json::Value::Null, |(_, v)| v),
+        };
+        *cached = Some((Instant::now(), v.clone()));
+        v
     }
 
     /// The decoded VDI file `name` of the recording, from the cache or the disk.
