@@ -77,6 +77,19 @@ pub struct Evaluation {
     pub views: Vec<ViewScore>,
 }
 
+impl Evaluation {
+    /// Its generation and encoding half.
+    pub fn sizing(&self) -> Sizing {
+        Sizing {
+            sigma_bytes: self.sigma_bytes,
+            supersegments: self.supersegments,
+            tau_secs: self.tau_secs,
+            tau_source: self.tau_source,
+            tau_compress_secs: self.tau_compress_secs,
+        }
+    }
+}
+
 /// Renders the reference (direct ray-casting) image at each view angle, `size × size`, on
 /// the scene's backend.
 ///
@@ -161,7 +174,7 @@ pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
 
 /// What generating and encoding `P_M` costs, without scoring it: the cheap half of a
 /// measurement, enough to decide whether a candidate meets a size budget (the adaptive
-/// search's probes: `Oracle::measure_size` in `insitu-tuner`).
+/// search's probes: `Oracle::measure_size` in `insitu-tuner`; [`generate_encoded`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sizing {
     /// σ: bytes of the compressed VDI file.
@@ -176,7 +189,12 @@ pub struct Sizing {
     pub tau_compress_secs: f64,
 }
 
-fn encode_generated(
+/// Generates and encodes `params` without decoding, rendering or scoring: the file and its
+/// σ and τ (the same as [`evaluate`]'s, at a fraction of its cost).
+///
+/// # Errors
+/// [`EvalError`] for bad parameters, a codec failure or a GPU failure.
+pub fn generate_encoded(
     scene: &Scene,
     camera: &Camera,
     params: VdiParams,
@@ -195,22 +213,6 @@ fn encode_generated(
         tau_compress_secs: t.elapsed().as_secs_f64(),
     };
     Ok((bytes, size))
-}
-
-/// Generates and encodes `params` (σ, τ) without decoding, rendering or scoring it: the same
-/// σ and τ as [`evaluate`] at a fraction of its cost.
-///
-/// # Errors
-/// [`EvalError`] for bad parameters, a codec failure or a GPU failure.
-pub fn size_of(
-    scene: &Scene,
-    camera: &Camera,
-    params: VdiParams,
-    codec_kind: Codec,
-    tf_hash: u64,
-    tf_name: &str,
-) -> Result<Sizing, EvalError> {
-    encode_generated(scene, camera, params, codec_kind, tf_hash, tf_name).map(|(_, s)| s)
 }
 
 /// Measures `params`: generate, encode, decode, render at each angle and compare with
@@ -238,7 +240,7 @@ pub fn evaluate(
             views: angles.len(),
         });
     }
-    let (bytes, size) = encode_generated(scene, camera, params, codec_kind, tf_hash, tf_name)?;
+    let (bytes, size) = generate_encoded(scene, camera, params, codec_kind, tf_hash, tf_name)?;
     let t = Instant::now();
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
     let tau_decode_secs = t.elapsed().as_secs_f64();

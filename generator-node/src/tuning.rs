@@ -13,7 +13,7 @@
 use crate::hold::{HeldStep, Holds};
 use crate::service::Shared;
 use crate::stats::Stats;
-use insitu_core::evaluate::{evaluate, render_references, size_of};
+use insitu_core::evaluate::{evaluate, generate_encoded, render_references};
 use insitu_core::{Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
@@ -154,61 +154,45 @@ fn run_trial(
             resolution: req.resolution,
             gamma: req.gamma,
         };
-        if req.size_only {
-            let size = size_of(
-                &scene,
-                &h.camera,
-                params,
-                h.codec,
-                h.tf.0.identity_hash(),
-                &h.tf.1,
-            )
-            .map_err(|e| e.to_string())?;
-            out.sigma_bytes = size.sigma_bytes;
-            out.supersegments = size.supersegments;
-            out.tau_secs = size.tau_secs;
-            out.tau_compress_secs = size.tau_compress_secs;
-            return Ok(());
-        }
-        let side = if h.reference_size == 0 {
-            req.resolution
+        let (hash, name) = (h.tf.0.identity_hash(), &h.tf.1);
+        let size = if req.size_only {
+            generate_encoded(&scene, &h.camera, params, h.codec, hash, name)
+                .map_err(|e| e.to_string())?
+                .1
         } else {
-            h.reference_size
+            let side = if h.reference_size == 0 {
+                req.resolution
+            } else {
+                h.reference_size
+            };
+            let refs = match h.references.get(&side) {
+                Some(r) => r.clone(),
+                None => {
+                    let t = Instant::now();
+                    let r = Arc::new(
+                        render_references(&scene, &h.camera, &h.view_angles_deg, side)
+                            .map_err(|e| e.to_string())?,
+                    );
+                    out.reference_secs = t.elapsed().as_secs_f64();
+                    tuning
+                        .holds
+                        .set_references((req.step, rank), side, r.clone());
+                    r
+                }
+            };
+            let (views, refs) = (&h.view_angles_deg, &refs);
+            let (e, _) = evaluate(&scene, &h.camera, params, h.codec, views, refs, hash, name)
+                .map_err(|e| e.to_string())?;
+            out.tau_render_secs = e.tau_render_secs;
+            out.view_mse = e.views.iter().map(|v| v.mse).collect();
+            out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
+            out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
+            e.sizing()
         };
-        let refs = match h.references.get(&side) {
-            Some(r) => r.clone(),
-            None => {
-                let t = Instant::now();
-                let r = Arc::new(
-                    render_references(&scene, &h.camera, &h.view_angles_deg, side)
-                        .map_err(|e| e.to_string())?,
-                );
-                out.reference_secs = t.elapsed().as_secs_f64();
-                tuning
-                    .holds
-                    .set_references((req.step, rank), side, r.clone());
-                r
-            }
-        };
-        let (e, _) = evaluate(
-            &scene,
-            &h.camera,
-            params,
-            h.codec,
-            &h.view_angles_deg,
-            &refs,
-            h.tf.0.identity_hash(),
-            &h.tf.1,
-        )
-        .map_err(|e| e.to_string())?;
-        out.sigma_bytes = e.sigma_bytes;
-        out.supersegments = e.supersegments;
-        out.tau_secs = e.tau_secs;
-        out.tau_compress_secs = e.tau_compress_secs;
-        out.tau_render_secs = e.tau_render_secs;
-        out.view_mse = e.views.iter().map(|v| v.mse).collect();
-        out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
-        out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
+        out.sigma_bytes = size.sigma_bytes;
+        out.supersegments = size.supersegments;
+        out.tau_secs = size.tau_secs;
+        out.tau_compress_secs = size.tau_compress_secs;
         Ok(())
     })();
     if let Err(e) = result {

@@ -7,17 +7,9 @@ use insitu_core::vdi::render;
 use insitu_core::Vdi;
 use insitu_e2e::{rt, Daemon};
 use insitu_viz_node::store::{Entry, References, StepEntry};
-use std::net::TcpListener;
 use std::path::Path;
 
-/// A loopback port nobody listens on right now (for a viz-node that starts later).
-pub fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+pub use insitu_e2e::free_port;
 
 /// Starts a viz-node recording into `dir` on `listen`.
 pub fn viz(dir: &Path, listen: &str, logs: &Path) -> Daemon {

@@ -2,89 +2,23 @@
 //! driven over WebDriver by chromedriver, against a viz-node process serving a recording that
 //! a replay made, while more steps arrive. Screenshots go to `target/test-artifacts/`.
 
-use crate::common::{free_port, generator, small_config};
+use crate::common::{generator, small_config};
 use crate::replay::replay;
 use base64::Engine as _;
 use fantoccini::actions::{InputSource, MouseActions, PointerAction, MOUSE_BUTTON_LEFT};
 use fantoccini::key::Key;
-use fantoccini::{Client, ClientBuilder, Locator};
+use fantoccini::{Client, Locator};
 use insitu_client::{SimClient, Step};
 use insitu_core::metrics::{mse, psnr_from_mse};
 use insitu_core::volume::RawFormat;
 use insitu_core::Image;
+use insitu_e2e::browser::{artefacts, browser, js, start_driver};
 use insitu_e2e::{data_dir, rt, Daemon};
 use serde_json::{json, Value};
 use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
-
-const CHROMIUM: &str = "/usr/bin/chromium";
-const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
-
-/// Where screenshots are kept after the test.
-fn artefacts() -> PathBuf {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/test-artifacts");
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// chromedriver on a free port; killed on drop.
-struct Driver(Child, u16);
-
-impl Drop for Driver {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn start_driver() -> Driver {
-    assert!(
-        Path::new(CHROMIUM).exists() && Path::new(CHROMEDRIVER).exists(),
-        "the browser test needs Debian's chromium and chromium-driver ({CHROMIUM}, {CHROMEDRIVER}); .ci/run installs them"
-    );
-    let port = free_port();
-    let child = Command::new(CHROMEDRIVER)
-        .arg(format!("--port={port}"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("starting chromedriver");
-    let up = insitu_e2e::wait_until(20.0, || {
-        std::net::TcpStream::connect(("127.0.0.1", port)).is_ok()
-    });
-    assert!(up, "chromedriver did not listen on {port}");
-    Driver(child, port)
-}
-
-async fn browser(driver: &Driver, profile: &Path) -> Client {
-    let caps = json!({
-        "goog:chromeOptions": {
-            "binary": CHROMIUM,
-            "args": [
-                "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run",
-                "--window-size=1280,900",
-                format!("--user-data-dir={}", profile.display()),
-            ]
-        }
-    });
-    let serde_json::Value::Object(caps) = caps else {
-        unreachable!()
-    };
-    ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-        .capabilities(caps)
-        .connect(&format!("http://127.0.0.1:{}", driver.1))
-        .await
-        .expect("connecting to chromedriver")
-}
-
-/// Runs `script` (which calls `done(value)`) in the page and returns the value.
-async fn js(c: &Client, script: &str) -> Value {
-    let body = format!("const done = arguments[arguments.length - 1]; (async () => {{ {script} }})().catch(e => done({{error: String(e)}}));");
-    c.execute_async(&body, vec![]).await.expect("script")
-}
 
 /// Polls `attr` of `#frame` until `pred` holds, within `secs`.
 async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Value {
