@@ -412,15 +412,6 @@ impl LocalNodes {
         let seen = printer.finish(status.steps_shipped).await;
         let tuner = self.tuner.as_ref().map(|t| t.engine().status());
         let summary = self.generator.shutdown().await;
-        if let Some(t) = self.tuner {
-            t.shutdown().await;
-        }
-        let viewer = self.viz.http_addr().map(|h| format!("http://{h}/"));
-        if let (true, Some(url)) = (self.keep_serving, &viewer) {
-            eprintln!("serving the recording at {url} until Ctrl-C");
-            insitu_proto::daemon::shutdown_signal().await;
-        }
-        self.viz.shutdown().await;
         let run = Run {
             pushed,
             elapsed_secs: started.elapsed().as_secs_f64(),
@@ -438,6 +429,15 @@ impl LocalNodes {
             run.print();
             println!("  generator: {summary}");
         }
+        // The viewer keeps the tuner's budget while it serves.
+        if let (true, Some(h)) = (self.keep_serving, self.viz.http_addr()) {
+            eprintln!("serving the recording at http://{h}/ until Ctrl-C");
+            insitu_proto::daemon::shutdown_signal().await;
+        }
+        if let Some(t) = self.tuner {
+            t.shutdown().await;
+        }
+        self.viz.shutdown().await;
     }
 }
 
