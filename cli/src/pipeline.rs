@@ -307,8 +307,8 @@ impl LocalNodes {
         })
         .await
         .context("starting the viz-node")?;
-        if let Some(h) = viz.http_addr() {
-            let line = format!("web viewer: http://{h}/");
+        if let Some(url) = viz.viewer_url() {
+            let line = format!("web viewer: {url}");
             if a.json {
                 eprintln!("{line}");
             } else {
@@ -430,8 +430,8 @@ impl LocalNodes {
             println!("  generator: {summary}");
         }
         // The viewer keeps the tuner's budget while it serves.
-        if let (true, Some(h)) = (self.keep_serving, self.viz.http_addr()) {
-            eprintln!("serving the recording at http://{h}/ until Ctrl-C");
+        if let (true, Some(url)) = (self.keep_serving, self.viz.viewer_url()) {
+            eprintln!("serving the recording at {url} until Ctrl-C");
             insitu_proto::daemon::shutdown_signal().await;
         }
         if let Some(t) = self.tuner {

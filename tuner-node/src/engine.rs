@@ -263,9 +263,33 @@ struct Loop {
     recent: VecDeque<(u64, [f64; BINS])>,
     newest: u64,
     dirty: Option<Trigger>,
+    /// Evicted characteristic steps whose fields a running tuning may still ask trials of:
+    /// released when it ends (unless characteristic again by then).
+    deferred: Vec<u64>,
 }
 
 impl Loop {
+    /// Lets the nodes drop an evicted step's field, after the running tuning if there is one
+    /// (it searches over the steps it started with; dropping one under it would fail it, and
+    /// a field that drifts faster than a tuning takes would never be tuned for).
+    fn release_evicted(&mut self, step: u64) {
+        if self.engine.counters().tuning {
+            self.deferred.push(step);
+        } else {
+            self.engine.hub.hold(step, false);
+        }
+    }
+
+    /// After a tuning: releases the fields [`Self::release_evicted`] kept for it.
+    fn tuning_ended(&mut self) {
+        let keep = self.engine.state().tracker.step_indices();
+        for step in std::mem::take(&mut self.deferred) {
+            if !keep.contains(&step) {
+                self.engine.hub.hold(step, false);
+            }
+        }
+    }
+
     fn summary(&mut self, conn: u64, s: pb::StepSummary) {
         let e = self.engine.clone();
         e.counters().summaries += 1;
@@ -354,7 +378,7 @@ impl Loop {
                 nearest = d,
                 "evicted the most redundant characteristic step"
             );
-            e.hub.hold(gone, false);
+            self.release_evicted(gone);
         }
         let reason = format!("production step {step} broke the budget ({why})");
         info!(step, %reason, "step becomes characteristic");
@@ -387,7 +411,7 @@ impl Loop {
                 e.hub.hold(step, true);
                 if let Some((gone, d)) = evicted {
                     info!(evicted = gone, nearest = d, max = e.cfg.characteristic.max, "evicted the most redundant characteristic step (its nearest other one is closest)");
-                    e.hub.hold(gone, false);
+                    self.release_evicted(gone);
                 }
                 let reason = match distance {
                     None => format!("step {step} is the first characteristic step"),
@@ -467,6 +491,7 @@ impl Engine {
             recent: VecDeque::new(),
             newest: 0,
             dirty: resume,
+            deferred: Vec::new(),
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<tokio::task::JoinHandle<(bool, Trigger)>> = None;
@@ -512,6 +537,7 @@ impl Engine {
                 done = async { match tuning.as_mut() { Some(t) => t.await.ok(), None => None } }, if tuning.is_some() => {
                     tuning = None;
                     self.counters().tuning = false;
+                    l.tuning_ended();
                     if let Some((false, trigger)) = done {
                         let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
                         retry = Some((tokio::time::Instant::now() + wait, trigger));
@@ -605,6 +631,7 @@ mod tests {
             recent: VecDeque::new(),
             newest: 0,
             dirty: None,
+            deferred: Vec::new(),
         }
     }
 
@@ -644,6 +671,43 @@ mod tests {
             (s.tracker.step_indices(), s.validated),
             (vec![0, 2], vec![0])
         );
+    }
+
+    #[test]
+    fn a_step_evicted_during_a_tuning_is_released_after_it() {
+        use insitu_proto::pb::tuner_message::Msg as Down;
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+        let conn = l.engine.hub.connect("n", tx);
+        l.engine.hub.held(conn, 5, 0);
+        let released =
+            |rx: &mut tokio::sync::mpsc::Receiver<Result<pb::TunerMessage, tonic::Status>>| {
+                std::iter::from_fn(|| rx.try_recv().ok())
+                    .filter_map(Result::ok)
+                    .filter(|m| {
+                        matches!(
+                            m.msg,
+                            Some(Down::Hold(pb::HoldRequest {
+                                step: 5,
+                                keep: false
+                            }))
+                        )
+                    })
+                    .count()
+            };
+        l.engine.counters().tuning = true;
+        l.release_evicted(5);
+        assert_eq!(
+            released(&mut rx),
+            0,
+            "kept while the tuning may ask trials of it"
+        );
+        l.engine.counters().tuning = false;
+        l.tuning_ended();
+        assert_eq!(released(&mut rx), 1, "released once it ended");
+        l.release_evicted(5);
+        assert_eq!(released(&mut rx), 1, "no tuning: released at once");
     }
 
     #[test]

@@ -73,8 +73,8 @@ async fn main() -> std::process::ExitCode {
         cfg.validate()?;
         let node = start(cfg).await?;
         println!("listening on {}", node.local_addr());
-        if let Some(h) = node.http_addr() {
-            println!("web viewer on http://{h}/");
+        if let Some(url) = node.viewer_url() {
+            println!("web viewer on {url}");
         }
         shutdown_signal().await;
         node.shutdown().await;

@@ -31,13 +31,14 @@ pub struct RunningViz {
     http: Option<HttpParts>,
 }
 
-/// The web viewer's address, state, stop signal and server task.
-type HttpParts = (
-    SocketAddr,
-    Arc<Http>,
-    oneshot::Sender<()>,
-    JoinHandle<std::io::Result<()>>,
-);
+/// The web viewer: its address and URL, state, stop signal and server task.
+struct HttpParts {
+    addr: SocketAddr,
+    url: String,
+    http: Arc<Http>,
+    stop: oneshot::Sender<()>,
+    server: JoinHandle<std::io::Result<()>>,
+}
 
 /// Opens the recording, binds, and serves.
 ///
@@ -125,8 +126,12 @@ async fn start_http(
     security: &Security,
     shared: Arc<Shared>,
 ) -> anyhow::Result<HttpParts> {
-    // Plain HTTP: off loopback it takes a token and `insecure`.
-    check_bind(at, security.token(), false, cfg.insecure)
+    // HTTPS with the gRPC side's certificate when it has one; off loopback as for gRPC.
+    let tls = match cfg.tls.serves() {
+        true => Some(crate::http::tls::server_config(&cfg.tls)?),
+        false => None,
+    };
+    check_bind(at, security.token(), tls.is_some(), cfg.insecure)
         .with_context(|| format!("http_listen {at}"))?;
     let listener = tokio::net::TcpListener::bind(at)
         .await
@@ -141,11 +146,19 @@ async fn start_http(
         http.watch_tuner(peer);
     }
     let (stop, stopped) = oneshot::channel::<()>();
-    let server = tokio::spawn(crate::http::serve(listener, http.clone(), async {
+    let scheme = if tls.is_some() { "https" } else { "http" };
+    let server = tokio::spawn(crate::http::serve(listener, tls, http.clone(), async {
         let _ = stopped.await;
     }));
-    info!(%addr, "web viewer on http://{addr}/");
-    Ok((addr, http, stop, server))
+    let url = format!("{scheme}://{addr}/");
+    info!(%addr, "web viewer on {url}");
+    Ok(HttpParts {
+        addr,
+        url,
+        http,
+        stop,
+        server,
+    })
 }
 
 /// Logs what the recording's recovery found and queues the work a crash interrupted: scoring
@@ -193,12 +206,17 @@ impl RunningViz {
 
     /// The web viewer's address, when `http_listen` is set.
     pub fn http_addr(&self) -> Option<SocketAddr> {
-        self.http.as_ref().map(|h| h.0)
+        self.http.as_ref().map(|h| h.addr)
+    }
+
+    /// The web viewer's URL (`https://` when it serves TLS).
+    pub fn viewer_url(&self) -> Option<&str> {
+        self.http.as_ref().map(|h| h.url.as_str())
     }
 
     /// The web viewer's state (none without `http_listen`).
     pub fn http(&self) -> Option<&Arc<Http>> {
-        self.http.as_ref().map(|h| &h.1)
+        self.http.as_ref().map(|h| &h.http)
     }
 
     /// Shared state (recording, counters).
@@ -208,9 +226,9 @@ impl RunningViz {
 
     /// Stops serving after in-flight calls finish.
     pub async fn shutdown(self) {
-        let http = self.http.map(|(_, _, stop, server)| {
-            let _ = stop.send(());
-            server
+        let http = self.http.map(|h| {
+            let _ = h.stop.send(());
+            h.server
         });
         let _ = self.stop.send(());
         let _ = self.server.await;

@@ -6,13 +6,15 @@
 //! - `GET /api/live`: a WebSocket of camera requests in and frames out ([`live`]); the server
 //!   renders only each client's latest request.
 //!
-//! The gRPC side's rules hold: loopback by default; with a token configured every request
-//! needs it (`Authorization: Bearer <token>`, or `?token=<token>` where a browser cannot set
-//! headers: the page itself and its socket). Rendering runs on the blocking pool under its
+//! The gRPC side's rules hold: loopback by default; off loopback a token and TLS (the
+//! viz-node's `[tls]` certificate: HTTPS, [`tls`]) unless `insecure`; with a token configured
+//! every request needs it (`Authorization: Bearer <token>`, or `?token=<token>` where a
+//! browser cannot set headers: the page itself and its socket). Rendering runs on the blocking pool under its
 //! own semaphore, so it never holds up storing or scoring.
 
 pub mod api;
 pub mod live;
+pub mod tls;
 
 use crate::service::Shared;
 use crate::view::ViewError;
@@ -160,18 +162,28 @@ pub fn router(http: Arc<Http>) -> Router {
         .with_state(http)
 }
 
-/// Serves `router` on `listener` until `stop` resolves.
+/// Serves the viewer on `listener` until `stop` resolves: HTTPS with `tls`, else HTTP.
 ///
 /// # Errors
 /// An I/O error of the server.
 pub async fn serve(
     listener: tokio::net::TcpListener,
+    tls: Option<rustls::ServerConfig>,
     http: Arc<Http>,
     stop: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    axum::serve(listener, router(http))
-        .with_graceful_shutdown(stop)
-        .await
+    match tls {
+        Some(cfg) => {
+            axum::serve(tls::TlsListener::new(listener, cfg)?, router(http))
+                .with_graceful_shutdown(stop)
+                .await
+        }
+        None => {
+            axum::serve(listener, router(http))
+                .with_graceful_shutdown(stop)
+                .await
+        }
+    }
 }
 
 /// A JSON error `{"error": message}` with `status`.
