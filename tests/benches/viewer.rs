@@ -125,7 +125,7 @@ fn main() {
                              zoom: 1, width: {side}, height: {side}, format: '{format}', quality: 55}}));
                            const h = await done_;
                            if (h.error) {{ done({{error: h.error}}); return; }}
-                           if (i > 0) rows.push([performance.now() - t, h.render_ms, h.bytes]);
+                           if (i > 0) rows.push([performance.now() - t, h.render_ms, h.bytes, h.encode_ms]);
                          }}
                          ws.close();
                          done(rows);"
@@ -136,13 +136,14 @@ fn main() {
                 let col = |k: usize| -> Vec<f64> {
                     rows.iter().map(|r| r[k].as_f64().unwrap()).collect()
                 };
-                let (mut lat, mut render, bytes) = (col(0), col(1), col(2));
+                let (mut lat, mut render, mut bytes, mut encode) = (col(0), col(1), col(2), col(3));
                 println!(
-                    "teapot r = {r:3}, {kind:11} {side}² {format:4}: camera change → frame in the page median {:6.1} ms, p95 {:6.1} ms; server render median {:6.1} ms; frame {:.1} KiB (median)",
+                    "teapot r = {r:3}, {kind:11} {side}² {format:4}: camera change → frame in the page median {:6.1} ms, p95 {:6.1} ms; server render median {:6.1} ms, encode {:5.1} ms; frame {:.1} KiB (median)",
                     percentile(&mut lat, 0.5),
                     percentile(&mut lat, 0.95),
                     percentile(&mut render, 0.5),
-                    percentile(&mut bytes.clone(), 0.5) / 1024.0
+                    percentile(&mut encode, 0.5),
+                    percentile(&mut bytes, 0.5) / 1024.0
                 );
             }
         }

@@ -81,7 +81,7 @@ impl Default for TrialConfig {
         Self {
             timeout_secs: 120.0,
             share: 0.1,
-            burst_secs: 60.0,
+            burst_secs: 15.0,
             hold_wait_secs: 10.0,
         }
     }

@@ -225,3 +225,91 @@ fn off_loopback_without_tls_needs_insecure_and_says_so() {
     let log = std::fs::read_to_string(log).unwrap();
     assert!(log.contains("INSECURE") && log.contains("TLS"), "{log}");
 }
+
+/// One HTTPS GET, verifying the server against `ca`; the status code and the body.
+fn https_get(addr: &str, ca: &Path, target: &str, headers: &[&str]) -> (u16, String) {
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::{CertificateDer, ServerName};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    rt().block_on(async {
+        let mut roots = rustls::RootCertStore::empty();
+        for c in CertificateDer::pem_file_iter(ca).unwrap() {
+            roots.add(c.unwrap()).unwrap();
+        }
+        let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+        let cfg = rustls::ClientConfig::builder_with_provider(provider)
+            .with_safe_default_protocol_versions()
+            .unwrap()
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+        let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(cfg));
+        let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let name = ServerName::try_from("127.0.0.1").unwrap();
+        let mut tls = connector.connect(name, tcp).await.unwrap();
+        let mut req = format!("GET {target} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
+        for h in headers {
+            req.push_str(h);
+            req.push_str("\r\n");
+        }
+        req.push_str("\r\n");
+        tls.write_all(req.as_bytes()).await.unwrap();
+        let mut out = Vec::new();
+        let _ = tls.read_to_end(&mut out).await;
+        let text = String::from_utf8_lossy(&out).into_owned();
+        let code = text
+            .split_whitespace()
+            .nth(1)
+            .and_then(|c| c.parse().ok())
+            .unwrap_or(0);
+        (
+            code,
+            text.split_once("\r\n\r\n").map_or("", |x| x.1).to_owned(),
+        )
+    })
+}
+
+#[test]
+fn the_web_viewer_serves_https_with_the_node_certificate_and_still_needs_the_token() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let ca = Ca::new(d, "ca");
+    let (cert, key) = ca.leaf(d, "viz", &["127.0.0.1"]);
+    let token_file = d.join("token");
+    std::fs::write(&token_file, "t0ken").unwrap();
+    let mut v = start(
+        "viz-node",
+        &format!(
+            "listen = \"0.0.0.0:0\"\nhttp_listen = \"0.0.0.0:0\"\nrecording_dir = \"{}\"\ntoken_file = \"{}\"\n[tls]\ncert_file = \"{}\"\nkey_file = \"{}\"\n",
+            path(&d.join("rec")),
+            path(&token_file),
+            path(&cert),
+            path(&key)
+        ),
+        d,
+    );
+    let line = v.read_line();
+    let url = line
+        .strip_prefix("web viewer on https://")
+        .unwrap_or_else(|| panic!("{line}"));
+    let addr = loopback(url.trim_end_matches('/'));
+    let (code, body) = https_get(
+        &addr,
+        &ca.pem,
+        "/api/steps",
+        &["Authorization: Bearer t0ken"],
+    );
+    assert!(code == 200 && body.contains("\"steps\""), "{code} {body}");
+    let (code, body) = https_get(&addr, &ca.pem, "/?token=t0ken", &[]);
+    assert!(code == 200 && body.contains("app.js"), "{code}");
+    let (code, _) = https_get(&addr, &ca.pem, "/api/steps", &[]);
+    assert_eq!(code, 401, "TLS does not replace the token");
+    // Clear text to the HTTPS port gets no HTTP answer.
+    let mut s = std::net::TcpStream::connect(&addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    use std::io::{Read, Write};
+    s.write_all(b"GET /api/steps HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .unwrap();
+    let mut out = Vec::new();
+    let _ = s.read_to_end(&mut out);
+    assert!(!out.starts_with(b"HTTP/1.1 200"), "clear text was served");
+}
