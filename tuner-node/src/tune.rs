@@ -224,6 +224,11 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         let s = engine.state();
         (s.tracker.step_indices(), s.world_sizes.clone())
     };
+    if steps.is_empty() {
+        // Every characteristic step left with its node: nothing to tune on until a new one.
+        info!(reason = %trigger.reason, "no characteristic step left; the decision in force stays");
+        return true;
+    }
     let secs0 = engine.counters().trial_secs;
     let oracles: Vec<Box<dyn Oracle>> = steps
         .iter()
