@@ -112,17 +112,26 @@ pub struct Step {
 impl Step {
     /// A whole single-rank `f32` field (x fastest), unit spacing.
     pub fn whole_f32(step: u64, sim_time: f64, dims: [u32; 3], field: &[f32]) -> Self {
+        Self::whole(step, sim_time, ScalarType::F32, dims, f32_bytes(field))
+    }
+
+    /// A whole single-rank `u8` field (x fastest), unit spacing.
+    pub fn whole_u8(step: u64, sim_time: f64, dims: [u32; 3], field: impl Into<Bytes>) -> Self {
+        Self::whole(step, sim_time, ScalarType::U8, dims, field.into())
+    }
+
+    fn whole(step: u64, sim_time: f64, dtype: ScalarType, dims: [u32; 3], data: Bytes) -> Self {
         Self {
             step,
             sim_time,
-            dtype: ScalarType::F32,
+            dtype,
             global_dims: dims,
             brick_offset: [0; 3],
             brick_dims: dims,
             rank: 0,
             world_size: 1,
             spacing: [1.0; 3],
-            data: f32_bytes(field),
+            data,
         }
     }
 

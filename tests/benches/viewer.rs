@@ -74,20 +74,9 @@ fn main() {
             })
             .await
             .unwrap();
-            c.push_step(Step {
-                step,
-                sim_time: step as f64,
-                dtype: pb::ScalarType::U8,
-                global_dims: dims,
-                brick_offset: [0; 3],
-                brick_dims: dims,
-                rank: 0,
-                world_size: 1,
-                spacing: [1.0; 3],
-                data: bytes.clone().into(),
-            })
-            .await
-            .unwrap();
+            c.push_step(Step::whole_u8(step, step as f64, dims, bytes.clone()))
+                .await
+                .unwrap();
         }
         c.flush(Duration::from_secs(300)).await.unwrap();
     });

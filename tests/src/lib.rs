@@ -21,6 +21,18 @@ pub fn free_port() -> u16 {
         .port()
 }
 
+/// The status code and body of an HTTP/1.1 response (code 0 when it is not one).
+pub fn parse_http_response(bytes: &[u8]) -> (u16, String) {
+    let text = String::from_utf8_lossy(bytes);
+    let code = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = text.split_once("\r\n\r\n").map_or("", |x| x.1).to_owned();
+    (code, body)
+}
+
 /// The directory the workspace's binaries are built into (next to this test's `deps/`).
 pub fn bin_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");

@@ -706,6 +706,7 @@ mod tests {
         l.engine.counters().tuning = false;
         l.tuning_ended();
         assert_eq!(released(&mut rx), 1, "released once it ended");
+        l.engine.hub.held(conn, 5, 0);
         l.release_evicted(5);
         assert_eq!(released(&mut rx), 1, "no tuning: released at once");
     }

@@ -255,16 +255,7 @@ fn https_get(addr: &str, ca: &Path, target: &str, headers: &[&str]) -> (u16, Str
         tls.write_all(req.as_bytes()).await.unwrap();
         let mut out = Vec::new();
         let _ = tls.read_to_end(&mut out).await;
-        let text = String::from_utf8_lossy(&out).into_owned();
-        let code = text
-            .split_whitespace()
-            .nth(1)
-            .and_then(|c| c.parse().ok())
-            .unwrap_or(0);
-        (
-            code,
-            text.split_once("\r\n\r\n").map_or("", |x| x.1).to_owned(),
-        )
+        insitu_e2e::parse_http_response(&out)
     })
 }
 

@@ -307,14 +307,7 @@ fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
             }
         }
     }
-    let text = String::from_utf8_lossy(&out).into_owned();
-    let code = text
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    let body = text.split_once("\r\n\r\n").map_or("", |x| x.1).to_owned();
-    (code, body)
+    insitu_e2e::parse_http_response(&out)
 }
 
 #[test]
