@@ -23,6 +23,7 @@ use axum::http::{header, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
+use axum::serve::ListenerExt;
 use axum::{Json, Router};
 use insitu_core::Vdi;
 use insitu_proto::auth::Token;
@@ -179,6 +180,11 @@ pub async fn serve(
                 .await
         }
         None => {
+            // Frames are a small header then the image: without TCP_NODELAY the image's last
+            // segment waits for the header's delayed ACK (40 ms on Linux).
+            let listener = listener.tap_io(|tcp| {
+                let _ = tcp.set_nodelay(true);
+            });
             axum::serve(listener, router(http))
                 .with_graceful_shutdown(stop)
                 .await
