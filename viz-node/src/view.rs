@@ -6,7 +6,6 @@
 
 use crate::store::{Entry, StepEntry};
 use insitu_core::vdi::codec::{self, DecodeLimits};
-use insitu_core::vdi::render::{WalkTables, Walker};
 use insitu_core::vdi::Vdi;
 use insitu_core::{Backend, Camera, Image};
 use serde::{Deserialize, Serialize};
@@ -166,38 +165,26 @@ pub fn load_vdi(dir: &Path, name: &str) -> Result<Vdi, ViewError> {
 }
 
 /// Renders `vdi` at `view` on `backend` with early termination `termination`; returns the
-/// image and the render's seconds (wall clock whatever the backend: what a viewer waits for).
-/// On the CPU, `tables` built before for this VDI ([`WalkTables`]) save rebuilding them per
-/// frame (tens of ms for a large VDI); tables of another VDI are ignored.
+/// image and the render's seconds (wall clock, or GPU time on the GPU backend).
 ///
 /// # Errors
 /// [`ViewError::BadRequest`] for a bad view, [`ViewError::Failed`] when rendering fails.
 pub fn render(
     backend: &Backend,
     vdi: &Vdi,
-    tables: Option<&WalkTables>,
     view: &View,
     termination: f32,
 ) -> Result<(Image, f64), ViewError> {
     view.check(u64::MAX)?;
     let camera = view.camera(&vdi.meta().camera);
     let t = Instant::now();
-    let walker = match backend {
-        Backend::Cpu => tables.and_then(|tab| Walker::with_tables(vdi, tab)),
-        #[allow(unreachable_patterns)] // the GPU variant exists with the `gpu` feature
-        _ => None,
-    };
-    let image = match walker {
-        Some(w) => w.render(&camera, view.width, view.height, termination),
-        None => {
-            backend
-                .prepare_vdi(vdi)
-                .and_then(|v| v.render(&camera, view.width, view.height, termination))
-                .map_err(|e| ViewError::Failed(format!("rendering: {e}")))?
-                .value
-        }
-    };
-    Ok((image, t.elapsed().as_secs_f64()))
+    let out = backend
+        .prepare_vdi(vdi)
+        .and_then(|v| v.render(&camera, view.width, view.height, termination))
+        .map_err(|e| ViewError::Failed(format!("rendering: {e}")))?;
+    // Wall clock whatever the backend: what a viewer waits for.
+    let secs = t.elapsed().as_secs_f64();
+    Ok((out.value, secs))
 }
 
 /// An image encoding for frames.

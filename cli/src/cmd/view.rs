@@ -85,7 +85,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     v.check(u64::MAX)?;
     let backend = a.backend.open()?;
-    let (image, secs) = view::render(&backend, &vdi, None, &v, termination)?;
+    let (image, secs) = view::render(&backend, &vdi, &v, termination)?;
     write_png(&a.out, &image)?;
     println!(
         "rendered {what} (r={}, {} supersegments) at {}°, elevation {}°, zoom {} {}x{} in {:.3} s -> {}",

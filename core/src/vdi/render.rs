@@ -50,10 +50,10 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     ranges
 }
 
-/// The per-VDI constants of the walk (tile depth ranges, packed search keys), built once per
-/// VDI and reusable by any number of [`Walker`]s of it, e.g. a viewer's frames.
-#[derive(Clone, Debug)]
-pub struct WalkTables {
+/// A VDI prepared for rendering from many cameras: the per-VDI constants of the walk (tile
+/// depth ranges, packed search keys), built once.
+pub struct Walker<'a> {
+    vdi: &'a Vdi,
     gen: ViewFrame,
     r: i64,
     /// Tiles per row of the generation image.
@@ -64,40 +64,6 @@ pub struct WalkTables {
     /// 24-byte supersegments would take four) and `log2(1 − â)` (so `α' = 1 − 2^(ℓ·log2(1 − â))`
     /// costs one `exp2`, not a `powf`). 8 bytes per supersegment on top of its 24.
     keys: Vec<[f32; 2]>,
-}
-
-impl WalkTables {
-    /// Builds them for `vdi`: one pass over its pixels and supersegments (8 bytes of keys per
-    /// supersegment, 8 per tile).
-    pub fn new(vdi: &Vdi) -> Self {
-        let r = vdi.resolution();
-        let ri = i64::from(r);
-        Self {
-            gen: vdi.meta().camera.frame(r, r),
-            r: ri,
-            tiles_x: (ri + SKIP_TILE - 1) / SKIP_TILE,
-            tile_depth: tile_depth_ranges(vdi),
-            keys: vdi
-                .supersegments()
-                .iter()
-                .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
-                .collect(),
-        }
-    }
-
-    /// Whether these are `vdi`'s (same resolution, camera and number of supersegments).
-    pub fn fits(&self, vdi: &Vdi) -> bool {
-        let r = vdi.resolution();
-        self.r == i64::from(r)
-            && self.keys.len() == vdi.supersegments().len()
-            && self.gen.eye == vdi.meta().camera.frame(r, r).eye
-    }
-}
-
-/// A VDI prepared for rendering from many cameras: the VDI and its [`WalkTables`].
-pub struct Walker<'a> {
-    vdi: &'a Vdi,
-    t: std::borrow::Cow<'a, WalkTables>,
 }
 
 /// A linear function `f0 + f1·t` of the ray parameter.
@@ -115,20 +81,25 @@ impl Lin {
 }
 
 impl<'a> Walker<'a> {
-    /// Prepares `vdi` ([`WalkTables::new`]).
+    /// Prepares `vdi`: one pass over its pixels and supersegments (8 bytes of keys per
+    /// supersegment, 8 per tile).
     pub fn new(vdi: &'a Vdi) -> Self {
+        let r = vdi.resolution();
+        let ri = i64::from(r);
+        let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
+        let tile_depth = tile_depth_ranges(vdi);
         Self {
             vdi,
-            t: std::borrow::Cow::Owned(WalkTables::new(vdi)),
+            gen: vdi.meta().camera.frame(r, r),
+            r: ri,
+            tiles_x,
+            tile_depth,
+            keys: vdi
+                .supersegments()
+                .iter()
+                .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
+                .collect(),
         }
-    }
-
-    /// Prepares `vdi` with tables built before; `None` when they are another VDI's.
-    pub fn with_tables(vdi: &'a Vdi, tables: &'a WalkTables) -> Option<Self> {
-        tables.fits(vdi).then_some(Self {
-            vdi,
-            t: std::borrow::Cow::Borrowed(tables),
-        })
     }
 
     /// Renders the VDI seen by `camera` at `width × height`, stopping rays at accumulated
@@ -152,8 +123,7 @@ impl<'a> Walker<'a> {
     }
 
     fn walk(&self, ray: &Ray, acc: &mut Accum) {
-        let tab = &*self.t;
-        let g = &tab.gen;
+        let g = &self.gen;
         let (mut t0, mut t1) = self
             .vdi
             .meta()
@@ -206,7 +176,7 @@ impl<'a> Walker<'a> {
         if t1.is_nan() || t0.is_nan() || t1 <= t0 {
             return;
         }
-        let r = tab.r as f32;
+        let r = self.r as f32;
         // Pixel coordinates: px = (x/(z·tx) + 1)·r/2, py = (1 − y/(z·ty))·r/2.
         let px = |t: f32| (x.at(t) / (z.at(t) * tx) + 1.0) * 0.5 * r;
         let py = |t: f32| (1.0 - y.at(t) / (z.at(t) * ty)) * 0.5 * r;
@@ -230,7 +200,7 @@ impl<'a> Walker<'a> {
             } else {
                 p.floor() as i64
             };
-            c.clamp(0, tab.r - 1)
+            c.clamp(0, self.r - 1)
         };
         let mut ix = start_cell(px0, step_x);
         let mut iy = start_cell(py0, step_y);
@@ -263,7 +233,7 @@ impl<'a> Walker<'a> {
         let mut t = t0;
         // The tile whose pixels are being walked (its depth range meets the ray's).
         let mut walking = -1i64;
-        for _ in 0..(2 * tab.r + 4) {
+        for _ in 0..(2 * self.r + 4) {
             // The projective line can meet a boundary behind the clipped segment (through
             // z < 0): such solutions before t0 are no crossing. A real crossing lies in
             // [t0, t1]; one a rounding error behind t counts as immediate. NaN never wins.
@@ -274,7 +244,7 @@ impl<'a> Walker<'a> {
                     tc.max(t)
                 }
             };
-            let tile = ix / SKIP_TILE + tab.tiles_x * (iy / SKIP_TILE);
+            let tile = ix / SKIP_TILE + self.tiles_x * (iy / SKIP_TILE);
             if tile != walking {
                 // Entering a tile: where does the ray leave it, and does its depth over the
                 // tile meet the tile's supersegments?
@@ -292,7 +262,7 @@ impl<'a> Walker<'a> {
                     guard(cross_y(far(step_y, y0t)))
                 };
                 let t_next = ex.min(ey).min(t1);
-                let [z_min, z_max] = tab.tile_depth[tile as usize];
+                let [z_min, z_max] = self.tile_depth[tile as usize];
                 let (za, zb) = (z.at(t), z.at(t_next));
                 let margin = 1e-5 * za.abs().max(zb.abs());
                 if !(za.min(zb) > z_max + margin || za.max(zb) < z_min - margin) {
@@ -313,7 +283,7 @@ impl<'a> Walker<'a> {
                         iy = if step_y > 0 { y0t + SKIP_TILE } else { y0t - 1 };
                         ix = inside(px(t_next), step_x, x0t);
                     }
-                    if !(0..tab.r).contains(&ix) || !(0..tab.r).contains(&iy) {
+                    if !(0..self.r).contains(&ix) || !(0..self.r).contains(&iy) {
                         return;
                     }
                     t = t_next;
@@ -324,13 +294,13 @@ impl<'a> Walker<'a> {
             let (tnx, tny) = (guard(raw_x), guard(raw_y));
             let t_next = tnx.min(tny).min(t1);
             if t_next > t {
-                let p = (ix + tab.r * iy) as usize;
+                let p = (ix + self.r * iy) as usize;
                 let offsets = self.vdi.offsets();
                 let range = offsets[p] as usize..offsets[p + 1] as usize;
                 if !range.is_empty()
                     && composite_span(
                         &self.vdi.supersegments()[range.clone()],
-                        &tab.keys[range],
+                        &self.keys[range],
                         z,
                         t,
                         t_next,
@@ -350,7 +320,7 @@ impl<'a> Walker<'a> {
                 iy += step_y;
                 raw_y = next_y(iy);
             }
-            if !(0..tab.r).contains(&ix) || !(0..tab.r).contains(&iy) {
+            if !(0..self.r).contains(&ix) || !(0..self.r).contains(&iy) {
                 return;
             }
             t = t_next;
@@ -469,17 +439,7 @@ mod tests {
         .unwrap();
         let skipping = Walker::new(&vdi);
         let mut walking_all = Walker::new(&vdi);
-        walking_all.t.to_mut().tile_depth.fill([-f32::MAX, f32::MAX]);
-        // Tables built once serve any number of walkers of their VDI, and only of it.
-        let tables = WalkTables::new(&vdi);
-        let reused = Walker::with_tables(&vdi, &tables).unwrap();
-        assert_eq!(
-            reused.render(&cam.orbit_y(20.0), 40, 30, 0.99).pixels(),
-            skipping.render(&cam.orbit_y(20.0), 40, 30, 0.99).pixels()
-        );
-        let mut other = WalkTables::new(&vdi);
-        other.keys.pop();
-        assert!(Walker::with_tables(&vdi, &other).is_none());
+        walking_all.tile_depth.fill([-f32::MAX, f32::MAX]);
         let inside = Camera {
             eye: Vec3::new(24.0, 20.0, 22.0),
             ..cam.orbit_y(35.0)

@@ -184,14 +184,8 @@ pub async fn render_frame(
     let h = http.clone();
     let out = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        let (vdi, tables) = h.vdi(&name)?;
-        view::render(
-            &h.shared.backend,
-            &vdi,
-            tables.as_deref(),
-            &v,
-            h.shared.termination,
-        )
+        let vdi = h.vdi(&name)?;
+        view::render(&h.shared.backend, &vdi, &v, h.shared.termination)
     })
     .await
     .map_err(|e| ViewError::Failed(format!("render task: {e}")))??;

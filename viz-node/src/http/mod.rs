@@ -25,7 +25,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::serve::ListenerExt;
 use axum::{Json, Router};
-use insitu_core::vdi::render::WalkTables;
 use insitu_core::Vdi;
 use insitu_proto::auth::Token;
 use insitu_proto::pb;
@@ -35,9 +34,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::Semaphore;
-
-/// A decoded VDI and, on the CPU backend, its walk tables.
-pub type Prepared = (Arc<Vdi>, Option<Arc<WalkTables>>);
 
 /// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times).
 const CACHED_VDIS: usize = 4;
@@ -51,7 +47,7 @@ pub struct Http {
     token: Option<Token>,
     /// Renders at once over all HTTP clients.
     renders: Arc<Semaphore>,
-    cache: Mutex<Vec<(String, Prepared)>>,
+    cache: Mutex<Vec<(String, Arc<Vdi>)>>,
     /// Frames rendered (still renders and socket frames).
     pub rendered: AtomicU64,
     /// Socket camera requests replaced by a newer one before they were rendered.
@@ -127,20 +123,16 @@ impl Http {
         v
     }
 
-    /// The decoded VDI file `name` of the recording with its walk tables (CPU backend), from
-    /// the cache or the disk.
+    /// The decoded VDI file `name` of the recording, from the cache or the disk.
     ///
     /// # Errors
     /// [`ViewError::Failed`] when it cannot be read or decoded.
-    pub fn vdi(&self, name: &str) -> Result<Prepared, ViewError> {
+    pub fn vdi(&self, name: &str) -> Result<Arc<Vdi>, ViewError> {
         let lock = || self.cache.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, v)) = lock().iter().find(|(n, _)| n == name) {
             return Ok(v.clone());
         }
-        let vdi = crate::view::load_vdi(self.shared.recording.dir(), name)?;
-        let tables = matches!(self.shared.backend, insitu_core::Backend::Cpu)
-            .then(|| Arc::new(WalkTables::new(&vdi)));
-        let v = (Arc::new(vdi), tables);
+        let v = Arc::new(crate::view::load_vdi(self.shared.recording.dir(), name)?);
         let mut c = lock();
         c.retain(|(n, _)| n != name);
         c.push((name.to_owned(), v.clone()));
