@@ -75,8 +75,13 @@ impl StepOracle {
 
 impl StepOracle {
     /// Asks the nodes holding the step for a trial of `c` (paced by the trial budget) and
-    /// waits for every rank's result; counts it and its node seconds.
-    fn run(&mut self, c: Candidate, size_only: bool) -> Result<Vec<pb::TrialResult>, StudyError> {
+    /// waits for every rank's result; counts it and returns the results with their node
+    /// seconds (the slowest rank's).
+    fn run(
+        &mut self,
+        c: Candidate,
+        size_only: bool,
+    ) -> Result<(Vec<pb::TrialResult>, f64), StudyError> {
         let e = self.engine.clone();
         self.pace();
         let deadline = Instant::now() + Duration::from_secs_f64(e.cfg.trials.hold_wait_secs);
@@ -136,7 +141,7 @@ impl StepOracle {
         }
         self.generations += 1;
         self.generation_secs += results.iter().map(|r| r.tau_secs).fold(0.0, f64::max);
-        Ok(results)
+        Ok((results, secs))
     }
 }
 
@@ -147,10 +152,9 @@ impl Oracle for StepOracle {
             e.counters().trials_reused += 1;
             return Ok(t.measurement.clone());
         }
-        let results = self.run(c, false)?;
+        let (results, secs) = self.run(c, false)?;
         let ms: Vec<Measurement> = results.iter().map(measurement).collect();
         let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
-        let secs = results.iter().map(|r| r.trial_secs).fold(0.0, f64::max);
         {
             let mut s = e.state();
             s.trials.push(Trial {
@@ -183,13 +187,13 @@ impl Oracle for StepOracle {
             e.counters().trials_reused += 1;
             return Ok(sigma);
         }
-        let results = self.run(c, true)?;
+        let (results, secs) = self.run(c, true)?;
         let p = SizeProbe {
             step: self.step,
             candidate: c,
             sigma_bytes: results.iter().map(|r| r.sigma_bytes).sum(),
             tau_secs: results.iter().map(|r| r.tau_secs).fold(0.0, f64::max),
-            trial_secs: results.iter().map(|r| r.trial_secs).fold(0.0, f64::max),
+            trial_secs: secs,
             run_by: e.process,
         };
         info!(

@@ -134,11 +134,15 @@ struct Adaptive<'o> {
 }
 
 impl Adaptive<'_> {
-    fn measure(&mut self, ri: usize, gi: usize) -> Result<Measurement, StudyError> {
-        self.oracle.measure(Candidate {
+    fn candidate(&self, ri: usize, gi: usize) -> Candidate {
+        Candidate {
             r: self.grid.rs[ri],
             gamma: self.grid.gammas[gi],
-        })
+        }
+    }
+
+    fn measure(&mut self, ri: usize, gi: usize) -> Result<Measurement, StudyError> {
+        self.oracle.measure(self.candidate(ri, gi))
     }
 
     fn feasible(&self, m: &Measurement) -> bool {
@@ -150,10 +154,9 @@ impl Adaptive<'_> {
     /// ([`Oracle::measure_size`]); a quality target needs the full measurement.
     fn probe(&mut self, ri: usize, gi: usize) -> Result<bool, StudyError> {
         match self.target {
-            Target::Size(sigma_target) => Ok(self.oracle.measure_size(Candidate {
-                r: self.grid.rs[ri],
-                gamma: self.grid.gammas[gi],
-            })? < sigma_target),
+            Target::Size(sigma_target) => {
+                Ok(self.oracle.measure_size(self.candidate(ri, gi))? < sigma_target)
+            }
             Target::Quality(_) => {
                 let m = self.measure(ri, gi)?;
                 Ok(self.feasible(&m))

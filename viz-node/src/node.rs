@@ -127,10 +127,11 @@ async fn start_http(
     shared: Arc<Shared>,
 ) -> anyhow::Result<HttpParts> {
     // HTTPS with the gRPC side's certificate when it has one; off loopback as for gRPC.
-    let tls = match cfg.tls.serves() {
-        true => Some(crate::http::tls::server_config(&cfg.tls)?),
-        false => None,
-    };
+    let tls = cfg
+        .tls
+        .serves()
+        .then(|| crate::http::tls::server_config(&cfg.tls))
+        .transpose()?;
     check_bind(at, security.token(), tls.is_some(), cfg.insecure)
         .with_context(|| format!("http_listen {at}"))?;
     let listener = tokio::net::TcpListener::bind(at)

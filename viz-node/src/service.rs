@@ -696,12 +696,8 @@ impl Viz for VizService {
                 .and_then(|v| v.render(&cam, r.width, r.height, s.termination))
                 .map_err(|e| Status::internal(format!("rendering: {e}")))?
                 .value;
-            let rgb = image::RgbImage::from_raw(r.width, r.height, image.to_rgb8())
-                .ok_or_else(|| Status::internal("image size mismatch"))?;
-            let mut png = std::io::Cursor::new(Vec::new());
-            rgb.write_to(&mut png, image::ImageFormat::Png)
-                .map_err(|e| Status::internal(format!("PNG encoding: {e}")))?;
-            Ok::<_, Status>(png.into_inner())
+            crate::view::encode(&image, crate::view::Format::Png, 0)
+                .map_err(|e| Status::internal(e.to_string()))
         })
         .await
         .map_err(join_error)??;

@@ -712,6 +712,15 @@ impl Recording {
         self.lock().entries.get(&(step, rank)).cloned()
     }
 
+    /// The newest stored step, without copying the index.
+    pub fn latest_step(&self) -> Option<u64> {
+        self.lock()
+            .entries
+            .keys()
+            .next_back()
+            .map(|&(step, _)| step)
+    }
+
     /// All entries, by step then rank.
     pub fn entries(&self) -> Vec<Entry> {
         self.lock().entries.values().cloned().collect()

@@ -141,7 +141,7 @@ pub fn vdi_file(
     if let Some(r) = rank {
         return of_rank(r);
     }
-    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+    let world = world_size(ranks);
     if world <= 1 {
         return of_rank(stored.first().copied().unwrap_or(0));
     }
@@ -150,6 +150,11 @@ pub fn vdi_file(
             "step {step} of {world} ranks is not composed yet (stored ranks: {stored:?}); ask for one rank"
         ))
     })
+}
+
+/// Ranks of the world `ranks` (a step's stored entries) belong to; 1 when none is stored.
+pub fn world_size(ranks: &[Entry]) -> u32 {
+    ranks.iter().map(|e| e.world_size).max().unwrap_or(1)
 }
 
 /// Reads and decodes the VDI file `name` of the recording in `dir`.

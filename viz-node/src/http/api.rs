@@ -3,11 +3,12 @@
 //! (bad parameter), 401 (token), 404 (no such step, rank or view), 413 (image too large) or
 //! 500 (a stored file cannot be read).
 
-use super::{error, Http};
+use super::Http;
 use crate::store::{Entry, Quality, StepEntry};
 use crate::view::{self, Format, View, ViewError};
+use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
-use axum::http::{header, HeaderName, StatusCode};
+use axum::http::{header, HeaderName};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Deserialize;
@@ -15,6 +16,7 @@ use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
+use std::time::Instant;
 
 /// An `f32` as the JSON number it reads as (0.013, not 0.013000000268220901).
 fn short(v: f32) -> Value {
@@ -26,7 +28,7 @@ fn short(v: f32) -> Value {
 /// One stored step as the API shows it: its ranks and, for a world of ranks, the composed
 /// step (σ summed, τ of the slowest rank, q of the composition).
 pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Value {
-    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
+    let world = view::world_size(ranks);
     let quality = |q: &Option<Quality>| {
         q.as_ref()
             .map(|q| json!({"q_db": q.q_db, "view_q_db": q.view_q_db, "ssim": q.ssim}))
@@ -155,25 +157,36 @@ fn parse_size(s: &str) -> Result<(u32, u32), ViewError> {
     Ok((w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?))
 }
 
-/// The step asked for, or the latest stored one.
-fn step_or_latest(http: &Http, step: Option<u64>) -> Result<u64, ViewError> {
-    step.or_else(|| http.shared.recording.entries().last().map(|e| e.step))
-        .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))
+/// A rendered and encoded frame.
+pub struct Frame {
+    /// The step shown (the latest when none was asked for).
+    pub step: u64,
+    /// The encoded image.
+    pub bytes: Vec<u8>,
+    /// Seconds to render it.
+    pub render_secs: f64,
+    /// Seconds to encode it.
+    pub encode_secs: f64,
 }
 
-/// Renders one frame of `step` (`rank`, or composed) at `view`, counted; on the blocking
-/// pool under the HTTP render semaphore. Returns the image and its render seconds.
+/// Renders `step` (none: the latest stored; `rank`, or composed) at `view` and encodes it as
+/// `format`, counted; both on the blocking pool under the HTTP render semaphore.
 ///
 /// # Errors
-/// [`ViewError`] for a bad view, a missing step, or a failed render.
+/// [`ViewError`] for a bad view, a missing step, or a failed render or encoding.
 pub async fn render_frame(
     http: &Arc<Http>,
-    step: u64,
+    step: Option<u64>,
     rank: Option<u32>,
     v: View,
-) -> Result<(insitu_core::Image, f64), ViewError> {
+    format: Format,
+    quality: u8,
+) -> Result<Frame, ViewError> {
     v.check(http.shared.max_render_pixels)?;
     let rec = &http.shared.recording;
+    let step = step
+        .or_else(|| rec.latest_step())
+        .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))?;
     let name = view::vdi_file(step, rank, &rec.ranks_of(step), rec.step(step).as_ref())?;
     let permit = http
         .renders
@@ -182,15 +195,29 @@ pub async fn render_frame(
         .await
         .map_err(|_| ViewError::Failed("the server is stopping".into()))?;
     let h = http.clone();
-    let out = tokio::task::spawn_blocking(move || {
+    let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         let vdi = h.vdi(&name)?;
-        view::render(&h.shared.backend, &vdi, &v, h.shared.termination)
+        let (image, render_secs) = view::render(&h.shared.backend, &vdi, &v, h.shared.termination)?;
+        let t = Instant::now();
+        let bytes = view::encode(&image, format, quality)?;
+        Ok::<_, ViewError>(Frame {
+            step,
+            bytes,
+            render_secs,
+            encode_secs: t.elapsed().as_secs_f64(),
+        })
     })
     .await
     .map_err(|e| ViewError::Failed(format!("render task: {e}")))??;
     http.rendered.fetch_add(1, Ordering::Relaxed);
-    Ok(out)
+    Ok(frame)
+}
+
+/// The query string as `T`, or a bad request naming what is wrong.
+fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, ViewError> {
+    q.map(|Query(q)| q)
+        .map_err(|e| ViewError::BadRequest(e.body_text()))
 }
 
 /// `GET /api/render?step=&rank=&angle=&elevation=&zoom=&size=&format=png|jpeg&quality=`: a
@@ -198,11 +225,11 @@ pub async fn render_frame(
 /// `x-render-ms` gives the render time.
 pub async fn render(
     State(http): State<Arc<Http>>,
-    q: Result<Query<RenderQuery>, axum::extract::rejection::QueryRejection>,
+    q: Result<Query<RenderQuery>, QueryRejection>,
 ) -> Response {
-    let q = match q {
-        Ok(Query(q)) => q,
-        Err(e) => return error(StatusCode::BAD_REQUEST, e.body_text()),
+    let q = match query(q) {
+        Ok(q) => q,
+        Err(bad) => return bad.into_response(),
     };
     let run = async {
         let (width, height) = parse_size(q.size.as_deref().unwrap_or("512"))?;
@@ -213,23 +240,21 @@ pub async fn render(
             width,
             height,
         };
-        let step = step_or_latest(&http, q.step)?;
-        let (image, secs) = render_frame(&http, step, q.rank, v).await?;
         let format = q.format.unwrap_or(Format::Png);
-        let bytes = view::encode(&image, format, q.quality.unwrap_or(90))?;
-        Ok::<_, ViewError>((step, format, secs, bytes))
+        let frame = render_frame(&http, q.step, q.rank, v, format, q.quality.unwrap_or(90)).await?;
+        Ok::<_, ViewError>((format, frame))
     };
     match run.await {
-        Ok((step, format, secs, bytes)) => (
+        Ok((format, f)) => (
             [
                 (header::CONTENT_TYPE, format.mime().to_owned()),
                 (
                     HeaderName::from_static("x-render-ms"),
-                    format!("{:.1}", secs * 1e3),
+                    format!("{:.1}", f.render_secs * 1e3),
                 ),
-                (HeaderName::from_static("x-step"), step.to_string()),
+                (HeaderName::from_static("x-step"), f.step.to_string()),
             ],
-            bytes,
+            f.bytes,
         )
             .into_response(),
         Err(e) => e.into_response(),
@@ -252,17 +277,16 @@ pub struct ReferenceQuery {
 /// `x-angle` gives the view's orbit angle, so the VDI can be rendered beside it.
 pub async fn reference(
     State(http): State<Arc<Http>>,
-    q: Result<Query<ReferenceQuery>, axum::extract::rejection::QueryRejection>,
+    q: Result<Query<ReferenceQuery>, QueryRejection>,
 ) -> Response {
-    let q = match q {
-        Ok(Query(q)) => q,
-        Err(e) => return error(StatusCode::BAD_REQUEST, e.body_text()),
+    let q = match query(q) {
+        Ok(q) => q,
+        Err(bad) => return bad.into_response(),
     };
     let rec = &http.shared.recording;
     let ranks = rec.ranks_of(q.step);
-    let world = ranks.iter().map(|e| e.world_size).max().unwrap_or(1);
     let name = match q.rank {
-        None if world > 1 => rec.step(q.step).and_then(|s| s.references),
+        None if view::world_size(&ranks) > 1 => rec.step(q.step).and_then(|s| s.references),
         r => ranks
             .iter()
             .find(|e| e.rank == r.unwrap_or(0))

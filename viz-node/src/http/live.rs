@@ -12,8 +12,9 @@
 //! replaces any request still waiting, which is counted as superseded and never rendered.
 //! So a burst of camera changes costs one render in flight and one after it, not a queue.
 
+use super::api::render_frame;
 use super::Http;
-use crate::view::{self, Format, View, ViewError};
+use crate::view::{Format, View, ViewError};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
 use axum::response::Response;
@@ -23,7 +24,6 @@ use serde_json::json;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::sync::Mutex;
-use std::time::Instant;
 use tokio::sync::{mpsc, Notify};
 
 /// Largest camera request, bytes.
@@ -220,35 +220,20 @@ async fn frame(
         width: req.width,
         height: req.height,
     };
-    let step = match req.step {
-        Some(s) => s,
-        None => http
-            .shared
-            .recording
-            .entries()
-            .last()
-            .map(|e| e.step)
-            .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))?,
-    };
-    let (image, secs) = super::api::render_frame(http, step, req.rank, v).await?;
-    let t = Instant::now();
-    let (format, quality) = (req.format, req.quality);
-    let bytes = tokio::task::spawn_blocking(move || view::encode(&image, format, quality))
-        .await
-        .map_err(|e| ViewError::Failed(format!("encode task: {e}")))??;
+    let f = render_frame(http, req.step, req.rank, v, req.format, req.quality).await?;
     let header = json!({
         "frame": req.id,
-        "step": step,
+        "step": f.step,
         "rank": req.rank,
         "format": req.format,
         "width": req.width,
         "height": req.height,
-        "bytes": bytes.len(),
-        "render_ms": secs * 1e3,
-        "encode_ms": t.elapsed().as_secs_f64() * 1e3,
+        "bytes": f.bytes.len(),
+        "render_ms": f.render_secs * 1e3,
+        "encode_ms": f.encode_secs * 1e3,
         "superseded": http.superseded.load(Ordering::Relaxed),
     });
-    Ok((header, bytes))
+    Ok((header, f.bytes))
 }
 
 #[cfg(test)]
