@@ -4,6 +4,11 @@
 //! `[c·B, c·B + B − 1]`; trilinear interpolation there reads voxels `c·B ..= c·B + B`, so the
 //! cell's range is taken over those `B + 1` voxels (NaN ignored). A cell is visible when the
 //! transfer function gives any value in its range non-zero opacity ([`Lut::any_visible`]).
+//!
+//! Each invisible cell also knows its chessboard (L∞) distance, in cells, to the nearest
+//! visible one, so a ray can leap the whole empty cube of cells around it at once (a
+//! "proximity cloud", Cohen & Sheffer 1994): on the teapot most rays cross only empty space,
+//! and leaping cube by cube instead of cell by cell takes far fewer steps.
 
 use crate::tf::Lut;
 use crate::volume::Volume;
@@ -17,6 +22,9 @@ pub const MACRO_CELL: usize = 8;
 pub struct MacroGrid {
     cells: [usize; 3],
     visible: Vec<bool>,
+    /// Per cell: 0 when visible, else the L∞ distance in cells to the nearest visible cell
+    /// (capped at [`u8::MAX`]); the cells within `distance − 1` of it are all invisible.
+    distance: Vec<u8>,
 }
 
 impl MacroGrid {
@@ -26,7 +34,7 @@ impl MacroGrid {
         let cells = dims.map(|n| n.saturating_sub(2) / MACRO_CELL + 1);
         let data = volume.data();
         let [nx, ny, _] = dims;
-        let visible = (0..cells[0] * cells[1] * cells[2])
+        let visible: Vec<bool> = (0..cells[0] * cells[1] * cells[2])
             .into_par_iter()
             .map(|c| {
                 let idx = [
@@ -53,7 +61,12 @@ impl MacroGrid {
                 lut.any_visible(lo, hi)
             })
             .collect();
-        Self { cells, visible }
+        let distance = chessboard_distance(cells, &visible);
+        Self {
+            cells,
+            visible,
+            distance,
+        }
     }
 
     #[inline(always)]
@@ -86,12 +99,25 @@ impl MacroGrid {
     /// box of the cell that owns `(ix, iy, iz)`.
     #[inline]
     pub fn cell_exit(&self, ix: usize, iy: usize, iz: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {
-        let lo = Vec3::new(
-            (ix / MACRO_CELL * MACRO_CELL) as f32,
-            (iy / MACRO_CELL * MACRO_CELL) as f32,
-            (iz / MACRO_CELL * MACRO_CELL) as f32,
-        );
-        let hi = lo + Vec3::splat(MACRO_CELL as f32);
+        self.box_exit([ix, iy, iz], 0, o_v, inv_d_v)
+    }
+
+    /// For an invisible cell owning `(ix, iy, iz)`: where the ray leaves the cube of cells
+    /// around it that are all invisible (the cell itself and its neighbours up to L∞
+    /// distance `d − 1`, `d` its distance to the nearest visible cell). For a visible cell,
+    /// its own exit.
+    #[inline]
+    pub fn empty_exit(&self, ix: usize, iy: usize, iz: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {
+        let d = self.distance[self.cell_index(ix, iy, iz)];
+        self.box_exit([ix, iy, iz], usize::from(d.saturating_sub(1)), o_v, inv_d_v)
+    }
+
+    /// Exit of the box of cells within L∞ distance `grow` of the cell owning `voxel`.
+    #[inline(always)]
+    fn box_exit(&self, voxel: [usize; 3], grow: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {
+        let cell = voxel.map(|v| v / MACRO_CELL);
+        let lo = Vec3::from(cell.map(|c| (c.saturating_sub(grow) * MACRO_CELL) as f32));
+        let hi = Vec3::from(cell.map(|c| ((c + grow + 1) * MACRO_CELL) as f32));
         let mut t = f32::INFINITY;
         for a in 0..3 {
             let exit = if inv_d_v[a] >= 0.0 {
@@ -102,5 +128,86 @@ impl MacroGrid {
             t = t.min(exit);
         }
         t
+    }
+}
+
+/// L∞ (chessboard) distance from each cell to the nearest visible cell, in cells, capped at
+/// 255; 0 for visible cells. Exact with two raster passes over the 26-neighbourhood (forward
+/// over the 13 neighbours already visited, then backward over the other 13). A grid without
+/// visible cells gets 255 everywhere.
+fn chessboard_distance(cells: [usize; 3], visible: &[bool]) -> Vec<u8> {
+    let [cx, cy, cz] = cells.map(|c| c as isize);
+    let mut d: Vec<u8> = visible
+        .iter()
+        .map(|&v| if v { 0 } else { u8::MAX })
+        .collect();
+    let at = |x: isize, y: isize, z: isize| (x + cx * (y + cy * z)) as usize;
+    // The 13 neighbours that precede a cell in raster order (z, then y, then x slowest last).
+    let before: Vec<[isize; 3]> = (-1..=1)
+        .flat_map(|z| (-1..=1).flat_map(move |y| (-1..=1).map(move |x| [x, y, z])))
+        .filter(|&[x, y, z]| (z, y, x) < (0, 0, 0))
+        .collect();
+    let pass = |d: &mut Vec<u8>, sign: isize| {
+        let order: Box<dyn Iterator<Item = isize>> = if sign > 0 {
+            Box::new(0..cx * cy * cz)
+        } else {
+            Box::new((0..cx * cy * cz).rev())
+        };
+        for c in order {
+            let (x, y, z) = (c % cx, (c / cx) % cy, c / (cx * cy));
+            let mut best = d[c as usize];
+            for &[ox, oy, oz] in &before {
+                let (nx, ny, nz) = (x + sign * ox, y + sign * oy, z + sign * oz);
+                if (0..cx).contains(&nx) && (0..cy).contains(&ny) && (0..cz).contains(&nz) {
+                    best = best.min(d[at(nx, ny, nz)].saturating_add(1));
+                }
+            }
+            d[c as usize] = best;
+        }
+    };
+    pass(&mut d, 1);
+    pass(&mut d, -1);
+    d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute force: the smallest L∞ distance to any visible cell.
+    fn brute(cells: [usize; 3], visible: &[bool]) -> Vec<u8> {
+        let idx = |c: usize| {
+            [
+                c % cells[0],
+                (c / cells[0]) % cells[1],
+                c / (cells[0] * cells[1]),
+            ]
+        };
+        (0..visible.len())
+            .map(|c| {
+                let a = idx(c);
+                (0..visible.len())
+                    .filter(|&o| visible[o])
+                    .map(|o| {
+                        let b = idx(o);
+                        (0..3).map(|k| a[k].abs_diff(b[k])).max().unwrap_or(0)
+                    })
+                    .min()
+                    .map_or(u8::MAX, |m| m.min(255) as u8)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn chessboard_distance_matches_brute_force() {
+        let cells = [9, 7, 5];
+        let n = cells.iter().product::<usize>();
+        for seed in 0..6u64 {
+            // A few scattered visible cells (and none at all for seed 0).
+            let visible: Vec<bool> = (0..n as u64)
+                .map(|c| seed > 0 && (c * 2654435761 + seed * 97) % (13 + seed * 7) == 0)
+                .collect();
+            assert_eq!(chessboard_distance(cells, &visible), brute(cells, &visible));
+        }
     }
 }

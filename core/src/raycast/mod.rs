@@ -106,6 +106,17 @@ pub struct Sample {
     pub alpha: f32,
 }
 
+/// One ray's stepping: steps `k = 0 … n_samples − 1` start at `t_in + k·step`; voxel-space
+/// position `o_v + t·d_v`.
+struct Marching {
+    t_in: f32,
+    t_far: f32,
+    step: f32,
+    n_samples: u32,
+    o_v: Vec3,
+    d_v: Vec3,
+}
+
 /// A volume prepared for ray-casting with one transfer function and parameters: the
 /// classification table and the macro-cell grid are built once here.
 pub struct Raycaster<'a> {
@@ -204,78 +215,137 @@ impl<'a> Raycaster<'a> {
         let o_v = (ray.origin - self.bounds.min) * self.inv_spacing;
         let d_v = ray.dir * self.inv_spacing;
         let inv_d_v = d_v.recip();
-        let data = self.volume.data();
-        let [nx, ny, _] = self.volume.dims();
-        let [sx, sy, sz] = self.strides;
-        let skip = self.params.empty_space_skipping;
+        let m = Marching {
+            t_in,
+            t_far,
+            step,
+            n_samples,
+            o_v,
+            d_v,
+        };
+        // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder. Walked a
+        // macro cell at a time: an invisible cell is jumped over; in a visible one, the steps
+        // whose midpoints lie before the cell's exit are sampled without further checks
+        // (one that strays into an invisible neighbour is transparent there anyway).
         let mut k = 0u32;
         while k < n_samples {
-            // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder.
-            let t0 = t_in + k as f32 * step;
-            let len = if k < n_full { step } else { rem };
-            let p = (o_v + (t0 + 0.5 * len) * d_v).clamp(Vec3::ZERO, self.max_voxel);
-            let ix = (p.x as usize).min(nx.saturating_sub(2));
-            let iy = (p.y as usize).min(ny.saturating_sub(2));
-            let iz = (p.z as usize).min(self.volume.dims()[2].saturating_sub(2));
-            if skip && !self.grid.visible(ix, iy, iz) {
-                let t_exit = self.grid.cell_exit(ix, iy, iz, o_v, inv_d_v);
-                // Resume at the first sample whose midpoint is not clearly inside the cell:
-                // the margin (an eighth of a step, and 1e-5 of the distance, far above the
-                // rounding of t and of the sample positions) keeps rounding from ever skipping
-                // a sample outside it; a sample inside the margin is skipped on the next pass.
-                let margin = 0.125 * step + 1e-5 * t_exit.abs();
-                let k_first = fastmath::ceil((t_exit - margin - t_in) / step - 0.5);
-                k = (k + 1).max(k_first.clamp(0.0, n_samples as f32) as u32);
-                continue;
-            }
-            let (fx, fy, fz) = (p.x - ix as f32, p.y - iy as f32, p.z - iz as f32);
-            let i = ix + nx * (iy + ny * iz);
-            let v = trilinear(data, i, [sx, sy, sz], fx, fy, fz);
-            k += 1;
-            if v.is_nan() {
-                continue;
-            }
-            let e = self.lut.entry(self.lut.index(v));
-            if e.kappa <= 0.0 {
-                continue;
-            }
-            let alpha = if len == step {
-                e.alpha_step
-            } else {
-                -(-e.kappa * len).exp_m1()
-            };
-            if alpha <= 0.0 {
-                continue;
-            }
-            let rgb = if SHADE {
-                match self.params.shading {
-                    Some(s) => s.shade(e.rgb, self.gradient(p), ray.dir, self.inv_spacing),
-                    None => e.rgb,
+            let k_end = if self.params.empty_space_skipping {
+                let len = if k < n_full { step } else { rem };
+                let (_, [ix, iy, iz]) = self.locate(&m, k, len);
+                if !self.grid.visible(ix, iy, iz) {
+                    // Leap the empty cube of cells around this one, resuming at the first
+                    // sample whose midpoint is not clearly inside it: the margin (an eighth of a step, and 1e-5 of the distance, far
+                    // above the rounding of t and of the sample positions) keeps rounding from
+                    // ever skipping a sample outside it; a sample inside the margin is
+                    // skipped on the next pass.
+                    let t_exit = self.grid.empty_exit(ix, iy, iz, o_v, inv_d_v);
+                    let margin = 0.125 * step + 1e-5 * t_exit.abs();
+                    let k_first = fastmath::ceil((t_exit - margin - t_in) / step - 0.5);
+                    k = (k + 1).max(k_first.clamp(0.0, n_samples as f32) as u32);
+                    continue;
                 }
+                let t_exit = self.grid.cell_exit(ix, iy, iz, o_v, inv_d_v);
+                let k_last = fastmath::ceil((t_exit - t_in) / step - 0.5);
+                (k + 1).max(k_last.clamp(0.0, n_samples as f32) as u32)
             } else {
-                e.rgb
+                n_samples
             };
-            // The interval ends where the next one starts (`k` already counts this step), or at
-            // the box exit; computed only here, for visible samples.
-            let t_end = if k < n_samples {
-                t_in + k as f32 * step
-            } else {
-                t_far
-            };
-            let sample = Sample {
-                index: k - 1,
-                t_start: t0,
-                t_end,
-                len,
-                rgb,
-                alpha_unit: e.alpha_unit,
-                kappa: e.kappa,
-                alpha,
-            };
-            if visit(&sample).is_break() {
-                return;
+            while k < k_end.min(n_full) {
+                if self.sample_step::<SHADE>(&m, ray, k, step, true, visit) {
+                    return;
+                }
+                k += 1;
+            }
+            if k < k_end {
+                // The remainder step (k = n_full).
+                if self.sample_step::<SHADE>(&m, ray, k, rem, rem == step, visit) {
+                    return;
+                }
+                k += 1;
             }
         }
+    }
+
+    /// Voxel-space midpoint of step `k` (length `len`) and its lower voxel: the same
+    /// arithmetic wherever a step is located, so skipping never changes a sample's value.
+    #[inline(always)]
+    fn locate(&self, m: &Marching, k: u32, len: f32) -> (Vec3, [usize; 3]) {
+        let t0 = m.t_in + k as f32 * m.step;
+        let p = (m.o_v + (t0 + 0.5 * len) * m.d_v).clamp(Vec3::ZERO, self.max_voxel);
+        let [nx, ny, nz] = self.volume.dims();
+        (
+            p,
+            [
+                (p.x as usize).min(nx.saturating_sub(2)),
+                (p.y as usize).min(ny.saturating_sub(2)),
+                (p.z as usize).min(nz.saturating_sub(2)),
+            ],
+        )
+    }
+
+    /// Samples, classifies and visits step `k` of length `len` (`full`: a whole `Δ`, whose
+    /// corrected opacity is tabulated); returns true when the visitor stops the ray.
+    #[inline(always)]
+    fn sample_step<const SHADE: bool>(
+        &self,
+        m: &Marching,
+        ray: &Ray,
+        k: u32,
+        len: f32,
+        full: bool,
+        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+    ) -> bool {
+        let (p, [ix, iy, iz]) = self.locate(m, k, len);
+        let [nx, ny, _] = self.volume.dims();
+        let (fx, fy, fz) = (p.x - ix as f32, p.y - iy as f32, p.z - iz as f32);
+        let v = trilinear(
+            self.volume.data(),
+            ix + nx * (iy + ny * iz),
+            self.strides,
+            fx,
+            fy,
+            fz,
+        );
+        if v.is_nan() {
+            return false;
+        }
+        let e = self.lut.entry(self.lut.index(v));
+        if e.kappa <= 0.0 {
+            return false;
+        }
+        let alpha = if full {
+            e.alpha_step
+        } else {
+            -(-e.kappa * len).exp_m1()
+        };
+        if alpha <= 0.0 {
+            return false;
+        }
+        let rgb = if SHADE {
+            match self.params.shading {
+                Some(s) => s.shade(e.rgb, self.gradient(p), ray.dir, self.inv_spacing),
+                None => e.rgb,
+            }
+        } else {
+            e.rgb
+        };
+        // The interval ends where the next one starts, or at the box exit.
+        let t_end = if k + 1 < m.n_samples {
+            m.t_in + (k + 1) as f32 * m.step
+        } else {
+            m.t_far
+        };
+        visit(&Sample {
+            index: k,
+            t_start: m.t_in + k as f32 * m.step,
+            t_end,
+            len,
+            rgb,
+            alpha_unit: e.alpha_unit,
+            kappa: e.kappa,
+            alpha,
+        })
+        .is_break()
     }
 
     /// Trilinear value at voxel-space position `p` (clamped to the grid).
