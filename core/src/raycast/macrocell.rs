@@ -19,6 +19,7 @@ use rayon::prelude::*;
 pub const MACRO_CELL: usize = 8;
 
 /// Per-cell visibility for one transfer function.
+#[derive(Clone)]
 pub struct MacroGrid {
     cells: [usize; 3],
     visible: Vec<bool>,

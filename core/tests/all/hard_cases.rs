@@ -36,6 +36,7 @@ fn exercise(
     let cam = camera.unwrap_or_else(|| Camera::default_for_box(&volume.world_box()));
     let vdi = generate(&rc, &cam, vp, tf.identity_hash(), what).unwrap();
     assert_vdi_finite(&vdi, what);
+    crate::common::assert_simd_matches_scalar(&rc, &cam, Some(vp), what);
     let bytes = encode(&vdi, Codec::Zstd).unwrap();
     let back = decode(&bytes, &DecodeLimits::default()).unwrap();
     assert_eq!(back, vdi, "{what}: codec round trip");

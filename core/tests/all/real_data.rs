@@ -118,3 +118,29 @@ fn ocean_time_steps_load_and_differ() {
     let (lo, hi) = a.finite_range().unwrap();
     assert!(lo >= -3.5 && hi <= 35.0, "range {lo}..{hi}");
 }
+
+#[test]
+fn simd_and_scalar_paths_agree_bit_for_bit() {
+    for (name, volume, tf) in scenes() {
+        for params in [
+            RaycastParams::default(),
+            RaycastParams {
+                step: 0.37,
+                termination: 1.0,
+                ..Default::default()
+            },
+        ] {
+            let rc = Raycaster::new(&volume, &tf, params).unwrap();
+            let cam = Camera::default_for_box(&volume.world_box());
+            crate::common::assert_simd_matches_scalar(
+                &rc,
+                &cam,
+                Some(VdiParams {
+                    resolution: 96,
+                    gamma: 0.013,
+                }),
+                name,
+            );
+        }
+    }
+}

@@ -1,0 +1,162 @@
+//! Eight steps of one ray sampled at once with AVX2 (chosen at run time; the scalar path in
+//! [`super`] stays the reference and the fallback).
+//!
+//! A visible macro cell's steps are independent until compositing, so their positions,
+//! lower voxels, fractions, eight corner gathers and trilinear blends are computed eight
+//! lanes wide; classification and the visitor then run per lane, in order. Every lane does
+//! the scalar path's arithmetic in the scalar path's order (multiplications and additions,
+//! never fused; truncation for the lower voxel), so the values are **bit-identical** to
+//! [`super::trilinear`] at [`super::Raycaster::locate`]'s positions — the tests pin that.
+
+// The intrinsics are `unsafe`; this module is the workspace's one exception to
+// `unsafe_code = "deny"`, and exposes only safe functions: the AVX2 kernel runs only behind
+// an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
+#![allow(unsafe_code)]
+
+use crate::tf::LUT_SIZE;
+use glam::Vec3;
+
+/// Proof that this CPU runs AVX2: made only by [`Avx2::detect`].
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Avx2(());
+
+impl Avx2 {
+    /// The token, where the CPU has AVX2 (checked at run time).
+    pub(super) fn detect() -> Option<Self> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Some(Self(()));
+        }
+        None
+    }
+}
+
+/// What the kernel needs of a ray and a volume.
+pub(super) struct Lanes<'a> {
+    pub data: &'a [f32],
+    pub dims: [usize; 3],
+    pub strides: [usize; 3],
+    pub max_voxel: Vec3,
+    pub o_v: Vec3,
+    pub d_v: Vec3,
+    pub t_in: f32,
+    pub step: f32,
+    /// The classification's index map ([`crate::tf::Lut::mapping`]) and each entry's
+    /// extinction `κ`, [`crate::tf::LUT_SIZE`] of them.
+    pub lut_lo: f32,
+    pub lut_scale: f32,
+    pub kappa: &'a [f32],
+}
+
+/// Eight steps sampled and classified: their table indices, and a bit per lane
+/// (lane `l` is bit `l`) that is set where the step is visible (not NaN, `κ > 0`).
+pub(super) struct Classified {
+    pub index: [i32; 8],
+    pub visible: u32,
+}
+
+impl Lanes<'_> {
+    /// Trilinear values at the midpoints of the full steps `k … k + 7` (positions clamped to
+    /// the grid, so lanes past the ray's end read valid voxels and are simply not used);
+    /// `None` for a volume the kernel cannot index (over `i32::MAX` voxels, or data that does
+    /// not match the dimensions), which the scalar path then samples.
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    pub(super) fn classify8(&self, _: Avx2, k: u32) -> Option<Classified> {
+        let n = self.dims.iter().product::<usize>();
+        if n != self.data.len()
+            || n > i32::MAX as usize
+            || self.dims.contains(&0)
+            || self.kappa.len() != LUT_SIZE
+        {
+            return None;
+        }
+        // SAFETY: the token proves AVX2; the check above keeps every gather in bounds (see
+        // `gather8`).
+        Some(unsafe { self.gather8(k) })
+    }
+
+    /// [`Lanes::classify8`] after its checks.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2, and `data.len() = nx·ny·nz ≤ i32::MAX`.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn gather8(&self, k: u32) -> Classified {
+        use std::arch::x86_64::*;
+        let [nx, ny, nz] = self.dims;
+        let [sx, sy, sz] = self.strides.map(|s| s as i32);
+        let kf = _mm256_cvtepi32_ps(_mm256_add_epi32(
+            _mm256_set1_epi32(k as i32),
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        ));
+        // t0 = t_in + k·Δ; midpoint t0 + 0.5·Δ (as the scalar path: 0.5·len with len = Δ).
+        let t0 = _mm256_add_ps(
+            _mm256_set1_ps(self.t_in),
+            _mm256_mul_ps(kf, _mm256_set1_ps(self.step)),
+        );
+        let tm = _mm256_add_ps(t0, _mm256_set1_ps(0.5 * self.step));
+        let axis = |o: f32, d: f32, hi: f32, n: usize| {
+            let p = _mm256_add_ps(_mm256_set1_ps(o), _mm256_mul_ps(tm, _mm256_set1_ps(d)));
+            let p = _mm256_min_ps(_mm256_max_ps(p, _mm256_setzero_ps()), _mm256_set1_ps(hi));
+            let i = _mm256_min_epi32(
+                _mm256_cvttps_epi32(p),
+                _mm256_set1_epi32(n.saturating_sub(2) as i32),
+            );
+            (i, _mm256_sub_ps(p, _mm256_cvtepi32_ps(i)))
+        };
+        let (ix, fx) = axis(self.o_v.x, self.d_v.x, self.max_voxel.x, nx);
+        let (iy, fy) = axis(self.o_v.y, self.d_v.y, self.max_voxel.y, ny);
+        let (iz, fz) = axis(self.o_v.z, self.d_v.z, self.max_voxel.z, nz);
+        let base = _mm256_add_epi32(
+            ix,
+            _mm256_mullo_epi32(
+                _mm256_set1_epi32(nx as i32),
+                _mm256_add_epi32(iy, _mm256_mullo_epi32(_mm256_set1_epi32(ny as i32), iz)),
+            ),
+        );
+        let ptr = self.data.as_ptr();
+        // In bounds: the lower voxel is at most (n − 2) per axis where the stride is not 0,
+        // so `base + sx + sy + sz` is a voxel of the grid.
+        let at =
+            |o: i32| _mm256_i32gather_ps::<4>(ptr, _mm256_add_epi32(base, _mm256_set1_epi32(o)));
+        let lerp = |a: __m256, b: __m256, f: __m256| {
+            _mm256_add_ps(a, _mm256_mul_ps(f, _mm256_sub_ps(b, a)))
+        };
+        let c000 = at(0);
+        let c00 = lerp(c000, at(sx), fx);
+        let c10 = lerp(at(sy), at(sy + sx), fx);
+        let c01 = lerp(at(sz), at(sz + sx), fx);
+        let c11 = lerp(at(sz + sy), at(sz + sy + sx), fx);
+        let c0 = lerp(c00, c10, fy);
+        let c1 = lerp(c01, c11, fy);
+        let v = lerp(c0, c1, fz);
+        // Table index as `Lut::index`: ((v − lo)·scale) clamped to the table, + 0.5, truncated.
+        // NaN lanes (unordered with themselves) are masked out of the gather and invisible.
+        let x = _mm256_mul_ps(
+            _mm256_sub_ps(v, _mm256_set1_ps(self.lut_lo)),
+            _mm256_set1_ps(self.lut_scale),
+        );
+        let x = _mm256_min_ps(
+            _mm256_max_ps(x, _mm256_setzero_ps()),
+            _mm256_set1_ps((LUT_SIZE - 1) as f32),
+        );
+        let number = _mm256_cmp_ps::<_CMP_ORD_Q>(v, v);
+        let index = _mm256_and_si256(
+            _mm256_cvttps_epi32(_mm256_add_ps(x, _mm256_set1_ps(0.5))),
+            _mm256_castps_si256(number),
+        );
+        let kappa =
+            _mm256_mask_i32gather_ps::<4>(_mm256_setzero_ps(), self.kappa.as_ptr(), index, number);
+        let visible = _mm256_and_ps(
+            number,
+            _mm256_cmp_ps::<_CMP_GT_OQ>(kappa, _mm256_setzero_ps()),
+        );
+        let mut out = Classified {
+            index: [0; 8],
+            visible: _mm256_movemask_ps(visible) as u32,
+        };
+        _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index);
+        out
+    }
+}
