@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use insitu_core::raycast::{DEFAULT_STEP, DEFAULT_TERMINATION};
+use insitu_core::raycast::{DEFAULT_GENERATION_TERMINATION, DEFAULT_STEP, DEFAULT_TERMINATION};
 use insitu_core::volume::{GrayScott, RawFormat, ScalarType};
 use insitu_core::{Camera, RaycastParams, Shading, TransferFunction, Volume};
 use std::path::PathBuf;
@@ -35,9 +35,14 @@ pub struct SceneArgs {
     /// Ray-casting step, world units (voxels at spacing 1).
     #[arg(long, default_value_t = DEFAULT_STEP)]
     pub step: f32,
-    /// Early ray termination threshold on accumulated opacity, in (0, 1].
+    /// Early ray termination threshold on accumulated opacity, in (0, 1], of direct renderings
+    /// and of VDI rendering.
     #[arg(long, default_value_t = DEFAULT_TERMINATION)]
     pub termination: f32,
+    /// Early termination of VDI generation rays: a threshold in (0, 1], or `off` (rays run to
+    /// the box exit, so the VDI keeps what lies behind dense structures).
+    #[arg(long, default_value_t = GenerationTermination(DEFAULT_GENERATION_TERMINATION), value_parser = parse_generation_termination)]
+    pub generation_termination: GenerationTermination,
     /// Turn on Blinn–Phong gradient shading (off: emission–absorption only).
     #[arg(long)]
     pub shading: bool,
@@ -83,6 +88,7 @@ impl SceneArgs {
         let params = RaycastParams {
             step: self.step,
             termination: self.termination,
+            generation_termination: self.generation_termination.0,
             shading: self.shading.then(Shading::default),
             empty_space_skipping: !self.no_skipping,
         };
@@ -150,5 +156,29 @@ fn parse_spacing(s: &str) -> Result<glam::Vec3> {
         [x, y, z] => Ok(glam::Vec3::new(*x, *y, *z)),
         [s] => Ok(glam::Vec3::splat(*s)),
         _ => bail!("--spacing {s:?} is not sx,sy,sz"),
+    }
+}
+
+/// `--generation-termination`: a threshold, or `None` for off.
+#[derive(Clone, Copy, Debug)]
+pub struct GenerationTermination(pub Option<f32>);
+
+impl std::fmt::Display for GenerationTermination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(a) => write!(f, "{a}"),
+            None => f.write_str("off"),
+        }
+    }
+}
+
+/// Parses `off` or a threshold in (0, 1].
+pub fn parse_generation_termination(s: &str) -> Result<GenerationTermination, String> {
+    if s.eq_ignore_ascii_case("off") {
+        return Ok(GenerationTermination(None));
+    }
+    match s.parse::<f32>() {
+        Ok(a) if a > 0.0 && a <= 1.0 => Ok(GenerationTermination(Some(a))),
+        _ => Err(format!("{s:?} is neither `off` nor a threshold in (0, 1]")),
     }
 }

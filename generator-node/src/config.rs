@@ -2,7 +2,9 @@
 //! `deploy/generator-node.toml`), overridden by command-line flags.
 
 use crate::queue::Policy;
-use insitu_core::raycast::{RaycastParams, DEFAULT_STEP, DEFAULT_TERMINATION};
+use insitu_core::raycast::{
+    RaycastParams, DEFAULT_GENERATION_TERMINATION, DEFAULT_STEP, DEFAULT_TERMINATION,
+};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::BackendChoice;
 use insitu_core::{Camera, TransferFunction, VdiParams};
@@ -71,8 +73,11 @@ pub struct GenerationConfig {
     pub gamma: f32,
     /// Ray-casting step, world units.
     pub step: f32,
-    /// Early-termination opacity.
+    /// Early-termination opacity of the reference frames (DVR).
     pub termination: f32,
+    /// Early-termination opacity of VDI generation rays; unset: off, rays run to the box exit
+    /// and the VDI keeps what lies behind dense structures (`RaycastParams`).
+    pub generation_termination: Option<f32>,
     /// `bzip2` (σ as in the paper), `zstd` or `none`.
     pub codec: String,
     /// Transfer function file (DESIGN.md format); unset: the default over the global range of
@@ -96,6 +101,7 @@ impl Default for GenerationConfig {
             gamma: 0.013,
             step: DEFAULT_STEP,
             termination: DEFAULT_TERMINATION,
+            generation_termination: DEFAULT_GENERATION_TERMINATION,
             codec: "bzip2".into(),
             tf: None,
             camera: None,
@@ -289,11 +295,15 @@ impl Config {
         let raycast = RaycastParams {
             step: g.step,
             termination: g.termination,
+            generation_termination: g.generation_termination,
             ..Default::default()
         };
-        raycast
-            .validate()
-            .map_err(|e| invalid("generation.step/termination", e.to_string()))?;
+        raycast.validate().map_err(|e| {
+            invalid(
+                "generation.step/termination/generation_termination",
+                e.to_string(),
+            )
+        })?;
         let codec: Codec = g
             .codec
             .parse()

@@ -6,8 +6,9 @@
 //!   rendering time per view.
 //! - Empty-space skipping and shading: τ of the direct rendering with each on and off (skipping
 //!   must not change the image: its q against the rendering without it is reported).
-//! - r, γ: the VDI (generated, compressed, decoded, rendered at the test views) against the
-//!   direct rendering at the base setting, as in the paper; τ is generation time.
+//! - r, γ and generation's early termination (0.99, 0.999, 0.9999, off): the VDI (generated,
+//!   compressed, decoded, rendered at the test views) against the direct rendering at the base
+//!   setting, as in the paper; τ is generation time.
 //! - Codec: σ and compression time (lossless: q does not change).
 //!
 //! Supersegments are stored as f32: there is no storage-precision knob yet.
@@ -237,6 +238,31 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
         .map(|gamma| (format!("{gamma}"), Candidate { gamma, ..pm }))
         .collect();
     rows.extend(vdi_rows(&mut study, "VDI threshold γ", &gammas)?);
+    // Generation's own early termination: the VDI at the base P_M with each threshold, scored
+    // against the same direct renderings (their termination stays the base one).
+    for generation_termination in [Some(0.99f32), Some(0.999), Some(0.9999), None] {
+        let params = RaycastParams {
+            generation_termination,
+            ..s.base
+        };
+        let rc = Raycaster::new(s.volume, s.tf, params)?;
+        let scene = StudyScene::new(
+            s.backend.prepare(&rc)?,
+            s.volume.content_hash(),
+            s.tf,
+            s.tf_name,
+            s.camera,
+            s.views,
+            (s.size, s.size),
+            s.codec,
+        )?;
+        let value = generation_termination.map_or("off".into(), |a| format!("{a}"));
+        rows.extend(vdi_rows(
+            &mut Study::new(scene, None),
+            "generation early termination",
+            &[(value, pm)],
+        )?);
+    }
     // The codec is lossless: one VDI at the base P_M, encoded by each codec.
     let params = VdiParams {
         resolution: pm.r,

@@ -200,9 +200,15 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let s = rc.shading.unwrap_or_default();
         let cells = self.raycaster.macro_grid().cells();
         let (gamma, budget) = extra;
+        // Generation (a VDI budget) stops rays at its own threshold, the DVR at the render one.
+        let termination = if budget > 0 {
+            rc.generation_stop()
+        } else {
+            rc.termination
+        };
         Uniform::default()
             .frame(&f, rc.step)
-            .vec4([b.min.x, b.min.y, b.min.z, rc.termination])
+            .vec4([b.min.x, b.min.y, b.min.z, termination])
             .vec4([b.max.x, b.max.y, b.max.z, gamma])
             .vec4([inv.x, inv.y, inv.z, lo])
             .vec4([

@@ -92,7 +92,7 @@ fn march_rows(
 ) -> Vec<(Vec<u32>, Vec<Supersegment>)> {
     let r = params.resolution;
     let frame = camera.frame(r, r);
-    let termination = raycaster.params().termination;
+    let termination = raycaster.params().generation_stop();
     let gamma_sq = params.gamma * params.gamma;
     // Each row's list is reserved at the size of the row before it on the same worker (and a
     // quarter more): neighbouring rows see similar content, so lists rarely grow by copying.
@@ -295,8 +295,8 @@ fn ratio(unit: f32, total: f32) -> f32 {
 /// the ray and however small the step.
 const CHUNK: usize = 1024;
 
-/// Marches `ray` up to early ray termination (the accumulated opacity reaching `termination`,
-/// as in the DVR) and appends its supersegments to `out`; `samples` is scratch.
+/// Marches `ray` up to the generation's early termination (the accumulated opacity reaching
+/// `termination`; never when it is above 1) and appends its supersegments to `out`; `samples` is scratch.
 ///
 /// The marcher's closure only buffers samples; [`Builder::merge`] merges them in a separate
 /// loop at the ray's end (and [`Builder::flush`] whenever [`CHUNK`] are buffered). That keeps

@@ -1,0 +1,144 @@
+//! How DVR, VDI generation, peak memory and VDI size grow with the volume (issue 17, "Scale"):
+//! the teapot (`../shared/data`, `teapot.json`) resampled trilinearly to N³ for N = 128, 256,
+//! 512 and 1024, rendered and generated at 768² / r = 768 from 30°, step 0.5 voxel of the
+//! resampled grid, γ = 0.013, CPU backend.
+//!
+//! Each size runs in a child process of this binary, so its peak resident memory (`VmHWM`) is
+//! its own: the table gives that peak, the field's size (f32, how the core holds every
+//! volume) and the VDI's in-memory size, and the ratio peak / (field + VDI) whose target is
+//! ≤ 1.3. Times are medians of 3 runs after a warm-up. Run:
+//! `cargo bench -p insitu-core --bench scale` (`INSITU_SCALE_SIZES=128,256` for fewer sizes;
+//! 1024³ needs about 5 GiB).
+
+#![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
+
+use insitu_core::vdi::generate::generate;
+use insitu_core::vdi::VdiParams;
+use insitu_core::{dvr, Camera, RaycastParams, Raycaster, Volume};
+use rayon::prelude::*;
+use std::time::Instant;
+
+mod common;
+
+const SIZE: u32 = 768;
+const ROUNDS: usize = 3;
+
+/// A status line of `/proc/self/status`, kB.
+fn status_kb(key: &str) -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with(key))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// `src` resampled trilinearly to `n³` voxels, written straight into the new field.
+fn resample(src: &Volume, n: usize) -> Volume {
+    let probe = Raycaster::new(
+        src,
+        &insitu_core::TransferFunction::default_for_range(0.0, 1.0),
+        RaycastParams::default(),
+    )
+    .expect("valid");
+    let d = src.dims();
+    let scale = d.map(|m| (m - 1) as f32 / (n - 1) as f32);
+    let mut data = vec![0.0f32; n * n * n];
+    data.par_chunks_mut(n * n)
+        .enumerate()
+        .for_each(|(z, plane)| {
+            for (i, v) in plane.iter_mut().enumerate() {
+                let (x, y) = (i % n, i / n);
+                *v = probe.sample(glam::Vec3::new(
+                    x as f32 * scale[0],
+                    y as f32 * scale[1],
+                    z as f32 * scale[2],
+                ));
+            }
+        });
+    Volume::new([n; 3], glam::Vec3::ONE, data).expect("valid field")
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// One size, in this (child) process: prints one table row.
+fn run(n: usize) {
+    let (teapot, tf) = common::teapot().expect("the teapot scene");
+    let base_kb = status_kb("VmRSS:");
+    let volume = resample(&teapot, n);
+    drop(teapot);
+    let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).expect("valid");
+    let cam = Camera::default_for_box(&volume.world_box()).orbit_y(30.0);
+    let vp = VdiParams {
+        resolution: SIZE,
+        gamma: 0.013,
+    };
+    let time = |f: &mut dyn FnMut()| {
+        f();
+        median(
+            (0..ROUNDS)
+                .map(|_| {
+                    let t = Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64()
+                })
+                .collect(),
+        )
+    };
+    let dvr_s = time(&mut || {
+        std::hint::black_box(dvr::render(&rc, &cam, SIZE, SIZE));
+    });
+    let mut vdi_bytes = 0u64;
+    let gen_s = time(&mut || {
+        let vdi = generate(&rc, &cam, vp, 0, "scale").expect("generates");
+        vdi_bytes = (vdi.supersegments().len() * 24 + vdi.offsets().len() * 4) as u64;
+    });
+    let peak_kb = status_kb("VmHWM:").saturating_sub(base_kb);
+    let field = (n * n * n * 4) as u64;
+    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    println!(
+        "{n:>5}³  {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>9.1}  {:>9.1}  {:>5.2}",
+        mib(field),
+        gen_s / dvr_s,
+        mib(vdi_bytes),
+        mib(peak_kb * 1024),
+        (peak_kb * 1024) as f64 / (field + vdi_bytes) as f64,
+    );
+}
+
+fn main() {
+    if let Ok(n) = std::env::var("INSITU_SCALE_CHILD") {
+        run(n.parse().expect("a size"));
+        return;
+    }
+    if let Err(e) = common::teapot() {
+        eprintln!("scale bench skipped: {e}");
+        return;
+    }
+    let sizes = std::env::var("INSITU_SCALE_SIZES").unwrap_or_else(|_| "128,256,512,1024".into());
+    println!(
+        "teapot resampled to N³ (f32), 768², 30°, step 0.5, r = 768, γ = 0.013, CPU ({} threads); medians of {ROUNDS}",
+        rayon::current_num_threads()
+    );
+    println!(
+        "    N   field MiB     DVR s     gen s  gen/DVR    VDI MiB   peak MiB  peak/(field+VDI)"
+    );
+    let exe = std::env::current_exe().expect("own path");
+    for n in sizes
+        .split(',')
+        .filter_map(|s| s.trim().parse::<usize>().ok())
+    {
+        let status = std::process::Command::new(&exe)
+            .env("INSITU_SCALE_CHILD", n.to_string())
+            .status()
+            .expect("runs itself");
+        if !status.success() {
+            println!("{n:>5}³  failed: {status}");
+        }
+    }
+}
