@@ -1,14 +1,14 @@
 //! How DVR, VDI generation, peak memory and VDI size grow with the volume (issue 17, "Scale"):
 //! the teapot (`../shared/data`, `teapot.json`) resampled trilinearly to N³ for N = 128, 256,
-//! 512 and 1024, rendered and generated at 768² / r = 768 from 30°, step 0.5 voxel of the
-//! resampled grid, γ = 0.013, CPU backend.
+//! 512 and 1024, as u8 (rounded) and as f32, rendered and generated at 768² / r = 768 from
+//! 30°, step 0.5 voxel of the resampled grid, γ = 0.013, CPU backend.
 //!
-//! Each size runs in a child process of this binary, so its peak resident memory (`VmHWM`) is
-//! its own: the table gives that peak, the field's size (f32, how the core holds every
-//! volume) and the VDI's in-memory size, and the ratio peak / (field + VDI) whose target is
-//! ≤ 1.3. Times are medians of 3 runs after a warm-up. Run:
-//! `cargo bench -p insitu-core --bench scale` (`INSITU_SCALE_SIZES=128,256` for fewer sizes;
-//! 1024³ needs about 5 GiB).
+//! Each case runs in a child process of this binary, so its peak resident memory (`VmHWM`,
+//! less the process's footprint before the field) is its own: the table gives that peak, the
+//! field's size in its own type, the VDI's in-memory size, and the ratio
+//! peak / (field + VDI) whose target is ≤ 1.3. Times are medians of 3 runs after a warm-up.
+//! Run: `cargo bench -p insitu-core --bench scale` (`INSITU_SCALE_SIZES=128,256` for fewer
+//! sizes; 1024³ f32 needs about 5 GiB).
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 
@@ -35,8 +35,9 @@ fn status_kb(key: &str) -> u64 {
         .unwrap_or(0)
 }
 
-/// `src` resampled trilinearly to `n³` voxels, written straight into the new field.
-fn resample(src: &Volume, n: usize) -> Volume {
+/// `src` resampled trilinearly to `n³` voxels, written straight into the new field in type
+/// `T` (`convert` from the f32 value).
+fn resample<T: Copy + Default + Send>(src: &Volume, n: usize, convert: fn(f32) -> T) -> Vec<T> {
     let probe = Raycaster::new(
         src,
         &insitu_core::TransferFunction::default_for_range(0.0, 1.0),
@@ -45,20 +46,22 @@ fn resample(src: &Volume, n: usize) -> Volume {
     .expect("valid");
     let d = src.dims();
     let scale = d.map(|m| (m - 1) as f32 / (n - 1) as f32);
-    let mut data = vec![0.0f32; n * n * n];
+    // Room for the byte storage's padding: no reallocation (and copy) when it is added.
+    let mut data = Vec::with_capacity(n * n * n + 4);
+    data.resize(n * n * n, T::default());
     data.par_chunks_mut(n * n)
         .enumerate()
         .for_each(|(z, plane)| {
             for (i, v) in plane.iter_mut().enumerate() {
                 let (x, y) = (i % n, i / n);
-                *v = probe.sample(glam::Vec3::new(
+                *v = convert(probe.sample(glam::Vec3::new(
                     x as f32 * scale[0],
                     y as f32 * scale[1],
                     z as f32 * scale[2],
-                ));
+                )));
             }
         });
-    Volume::new([n; 3], glam::Vec3::ONE, data).expect("valid field")
+    data
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -66,11 +69,20 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// One size, in this (child) process: prints one table row.
-fn run(n: usize) {
+/// One size and type, in this (child) process: prints one table row.
+fn run(n: usize, bytes: bool) {
     let (teapot, tf) = common::teapot().expect("the teapot scene");
     let base_kb = status_kb("VmRSS:");
-    let volume = resample(&teapot, n);
+    let volume = if bytes {
+        Volume::from_u8(
+            [n; 3],
+            glam::Vec3::ONE,
+            resample(&teapot, n, |v| v.round() as u8),
+        )
+    } else {
+        Volume::new([n; 3], glam::Vec3::ONE, resample(&teapot, n, |v| v))
+    }
+    .expect("valid field");
     drop(teapot);
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).expect("valid");
     let cam = Camera::default_for_box(&volume.world_box()).orbit_y(30.0);
@@ -99,10 +111,11 @@ fn run(n: usize) {
         vdi_bytes = (vdi.supersegments().len() * 24 + vdi.offsets().len() * 4) as u64;
     });
     let peak_kb = status_kb("VmHWM:").saturating_sub(base_kb);
-    let field = (n * n * n * 4) as u64;
+    let field = volume.storage_bytes() as u64;
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     println!(
-        "{n:>5}³  {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>9.1}  {:>9.1}  {:>5.2}",
+        "{n:>5}³ {:>4} {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>9.1}  {:>9.1}  {:>5.2}",
+        if bytes { "u8" } else { "f32" },
         mib(field),
         gen_s / dvr_s,
         mib(vdi_bytes),
@@ -112,8 +125,9 @@ fn run(n: usize) {
 }
 
 fn main() {
-    if let Ok(n) = std::env::var("INSITU_SCALE_CHILD") {
-        run(n.parse().expect("a size"));
+    if let Ok(case) = std::env::var("INSITU_SCALE_CHILD") {
+        let (n, ty) = case.split_once(':').expect("N:type");
+        run(n.parse().expect("a size"), ty == "u8");
         return;
     }
     if let Err(e) = common::teapot() {
@@ -122,7 +136,7 @@ fn main() {
     }
     let sizes = std::env::var("INSITU_SCALE_SIZES").unwrap_or_else(|_| "128,256,512,1024".into());
     println!(
-        "teapot resampled to N³ (f32), 768², 30°, step 0.5, r = 768, γ = 0.013, CPU ({} threads); medians of {ROUNDS}",
+        "teapot resampled to N³, 768², 30°, step 0.5, r = 768, γ = 0.013, CPU ({} threads); medians of {ROUNDS}",
         rayon::current_num_threads()
     );
     println!(

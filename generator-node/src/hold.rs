@@ -41,7 +41,7 @@ impl HeldStep {
             .flat_map(|r| r.iter())
             .map(|i| u64::from(i.width()) * u64::from(i.height()) * 12)
             .sum();
-        self.volume.data().len() as u64 * 4 + refs
+        self.volume.storage_bytes() as u64 + refs
     }
 }
 

@@ -203,7 +203,7 @@ pub fn for_tuner(
     product: &Product,
 ) -> (pb::StepSummary, crate::hold::HeldStep) {
     let [lo, hi] = tf.0.domain;
-    let h = insitu_core::volume::histogram(volume.data(), lo, hi);
+    let h = insitu_core::volume::histogram(&volume.data(), lo, hi);
     let (min, max) = h
         .finite_range
         .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));

@@ -165,7 +165,7 @@ fn run(
                     let vol = format.load(path, t, glam::Vec3::ONE).unwrap();
                     let d = vol.dims().map(|x| x as u32);
                     pushed.lock().unwrap().insert(t as u64, Instant::now());
-                    c.push_step(Step::whole_f32(t as u64, t as f64, d, vol.data()))
+                    c.push_step(Step::whole_f32(t as u64, t as f64, d, &vol.data()))
                         .await
                         .unwrap();
                 }

@@ -130,7 +130,7 @@ fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> R
         rank,
         world_size,
         spacing: v.spacing().to_array(),
-        data: f32_bytes(brick.data()),
+        data: f32_bytes(&brick.data()),
     })
 }
 

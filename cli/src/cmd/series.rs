@@ -72,7 +72,8 @@ pub fn run(a: Args) -> Result<()> {
     let utility = parse_utility(&a.utility)?;
     let base = a.study.prepare()?;
     let scenes = load_steps(&a)?;
-    let fields: Vec<&[f32]> = scenes.iter().map(|s| s.volume.data()).collect();
+    let values: Vec<_> = scenes.iter().map(|s| s.volume.data()).collect();
+    let fields: Vec<&[f32]> = values.iter().map(|v| v.as_ref()).collect();
     let hists = histograms(&fields);
     let chosen = characteristic_steps(&hists, a.threshold, a.max_steps);
     let mut per_step = Vec::with_capacity(chosen.len());

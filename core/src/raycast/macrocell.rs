@@ -11,7 +11,7 @@
 //! and leaping cube by cube instead of cell by cell takes far fewer steps.
 
 use crate::tf::Lut;
-use crate::volume::Volume;
+use crate::volume::{Volume, Voxel, VoxelSlice};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -33,35 +33,11 @@ impl MacroGrid {
     pub fn new(volume: &Volume, lut: &Lut) -> Self {
         let dims = volume.dims();
         let cells = dims.map(|n| n.saturating_sub(2) / MACRO_CELL + 1);
-        let data = volume.data();
-        let [nx, ny, _] = dims;
-        let visible: Vec<bool> = (0..cells[0] * cells[1] * cells[2])
-            .into_par_iter()
-            .map(|c| {
-                let idx = [
-                    c % cells[0],
-                    (c / cells[0]) % cells[1],
-                    c / (cells[0] * cells[1]),
-                ];
-                let range = |a: usize| {
-                    let lo = idx[a] * MACRO_CELL;
-                    lo..=(lo + MACRO_CELL).min(dims[a] - 1)
-                };
-                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                for z in range(2) {
-                    for y in range(1) {
-                        let row = nx * (y + ny * z);
-                        for &v in &data[row + *range(0).start()..=row + *range(0).end()] {
-                            if !v.is_nan() {
-                                lo = lo.min(v);
-                                hi = hi.max(v);
-                            }
-                        }
-                    }
-                }
-                lut.any_visible(lo, hi)
-            })
-            .collect();
+        let visible: Vec<bool> = match volume.voxels() {
+            VoxelSlice::U8(d) => visibility(d, dims, cells, lut),
+            VoxelSlice::U16(d) => visibility(d, dims, cells, lut),
+            VoxelSlice::F32(d) => visibility(d, dims, cells, lut),
+        };
         let distance = chessboard_distance(cells, &visible);
         Self {
             cells,
@@ -130,6 +106,40 @@ impl MacroGrid {
         }
         t
     }
+}
+
+/// Whether each cell can contribute: the value range over its `B + 1` voxels per axis (NaN
+/// ignored) meets the transfer function's visible values.
+fn visibility<T: Voxel>(data: &[T], dims: [usize; 3], cells: [usize; 3], lut: &Lut) -> Vec<bool> {
+    let [nx, ny, _] = dims;
+    (0..cells[0] * cells[1] * cells[2])
+        .into_par_iter()
+        .map(|c| {
+            let idx = [
+                c % cells[0],
+                (c / cells[0]) % cells[1],
+                c / (cells[0] * cells[1]),
+            ];
+            let range = |a: usize| {
+                let lo = idx[a] * MACRO_CELL;
+                lo..=(lo + MACRO_CELL).min(dims[a] - 1)
+            };
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for z in range(2) {
+                for y in range(1) {
+                    let row = nx * (y + ny * z);
+                    for v in &data[row + *range(0).start()..=row + *range(0).end()] {
+                        let v = v.value();
+                        if !v.is_nan() {
+                            lo = lo.min(v);
+                            hi = hi.max(v);
+                        }
+                    }
+                }
+            }
+            lut.any_visible(lo, hi)
+        })
+        .collect()
 }
 
 /// L∞ (chessboard) distance from each cell to the nearest visible cell, in cells, capped at

@@ -14,6 +14,7 @@
 #![allow(unsafe_code)]
 
 use crate::tf::LUT_SIZE;
+use crate::volume::Voxel;
 use glam::Vec3;
 
 /// Proof that this CPU runs AVX2: made only by [`Avx2::detect`].
@@ -31,9 +32,23 @@ impl Avx2 {
     }
 }
 
+/// The stored types the kernel gathers, by size: u8 and u16 as 32-bit loads at the voxel's
+/// address, masked (reading up to [`Gather::OVERREAD`] elements past it, which the storage's
+/// padding covers), f32 directly.
+pub(super) trait Gather: Voxel {
+    /// Elements a 4-byte load at the last voxel reads past it.
+    const OVERREAD: usize = 4 / std::mem::size_of::<Self>() - 1;
+}
+impl Gather for u8 {}
+impl Gather for u16 {}
+impl Gather for f32 {}
+
 /// What the kernel needs of a ray and a volume.
-pub(super) struct Lanes<'a> {
-    pub data: &'a [f32],
+pub(super) struct Lanes<'a, T> {
+    /// The voxels and the storage's padding after them.
+    pub data: &'a [T],
+    /// Voxels (without the padding): `nx·ny·nz`.
+    pub voxels: usize,
     pub dims: [usize; 3],
     pub strides: [usize; 3],
     pub max_voxel: Vec3,
@@ -55,7 +70,7 @@ pub(super) struct Classified {
     pub visible: u32,
 }
 
-impl Lanes<'_> {
+impl<T: Gather> Lanes<'_, T> {
     /// Trilinear values at the midpoints of the full steps `k … k + 7` (positions clamped to
     /// the grid, so lanes past the ray's end read valid voxels and are simply not used);
     /// `None` for a volume the kernel cannot index (over `i32::MAX` voxels, or data that does
@@ -64,8 +79,9 @@ impl Lanes<'_> {
     #[inline]
     pub(super) fn classify8(&self, _: Avx2, k: u32) -> Option<Classified> {
         let n = self.dims.iter().product::<usize>();
-        if n != self.data.len()
-            || n > i32::MAX as usize
+        if n != self.voxels
+            || self.data.len() < n + T::OVERREAD
+            || self.data.len() > i32::MAX as usize
             || self.dims.contains(&0)
             || self.kappa.len() != LUT_SIZE
         {
@@ -79,7 +95,7 @@ impl Lanes<'_> {
     /// [`Lanes::classify8`] after its checks.
     ///
     /// # Safety
-    /// The CPU must have AVX2, and `data.len() = nx·ny·nz ≤ i32::MAX`.
+    /// The CPU must have AVX2, `nx·ny·nz + OVERREAD ≤ data.len() ≤ i32::MAX`.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn gather8(&self, k: u32) -> Classified {
@@ -117,9 +133,22 @@ impl Lanes<'_> {
         );
         let ptr = self.data.as_ptr();
         // In bounds: the lower voxel is at most (n − 2) per axis where the stride is not 0,
-        // so `base + sx + sy + sz` is a voxel of the grid.
-        let at =
-            |o: i32| _mm256_i32gather_ps::<4>(ptr, _mm256_add_epi32(base, _mm256_set1_epi32(o)));
+        // so `base + sx + sy + sz` is a voxel of the grid, and a 4-byte load there ends
+        // within the padding. Integer voxels are masked to their width and converted exactly.
+        let at = |o: i32| {
+            let index = _mm256_add_epi32(base, _mm256_set1_epi32(o));
+            match std::mem::size_of::<T>() {
+                1 => _mm256_cvtepi32_ps(_mm256_and_si256(
+                    _mm256_i32gather_epi32::<1>(ptr.cast(), index),
+                    _mm256_set1_epi32(0xff),
+                )),
+                2 => _mm256_cvtepi32_ps(_mm256_and_si256(
+                    _mm256_i32gather_epi32::<2>(ptr.cast(), index),
+                    _mm256_set1_epi32(0xffff),
+                )),
+                _ => _mm256_i32gather_ps::<4>(ptr.cast(), index),
+            }
+        };
         let lerp = |a: __m256, b: __m256, f: __m256| {
             _mm256_add_ps(a, _mm256_mul_ps(f, _mm256_sub_ps(b, a)))
         };

@@ -8,7 +8,7 @@
 //! to neither and show as a seam. A simulation with halo cells sends its owned voxels plus
 //! the first halo plane on the upper side of each axis that has a neighbour.
 
-use super::{Volume, VolumeError};
+use super::{Volume, VolumeError, VoxelSlice};
 use glam::Vec3;
 
 /// One rank's part of the grid, voxels.
@@ -214,17 +214,24 @@ impl Volume {
                 b.offset, b.dims, self.dims
             )));
         }
-        let mut data = Vec::with_capacity(b.dims.iter().product());
-        for z in b.offset[2]..b.offset[2] + b.dims[2] {
-            for y in b.offset[1]..b.offset[1] + b.dims[1] {
-                let row = (z * ny + y) * nx;
-                data.extend_from_slice(
-                    &self.data[row + b.offset[0]..row + b.offset[0] + b.dims[0]],
-                );
+        // The brick's rows, in the volume's own type.
+        fn rows<T: Copy>(d: &[T], b: &Brick, nx: usize, ny: usize) -> Vec<T> {
+            let mut data = Vec::with_capacity(b.dims.iter().product());
+            for z in b.offset[2]..b.offset[2] + b.dims[2] {
+                for y in b.offset[1]..b.offset[1] + b.dims[1] {
+                    let row = (z * ny + y) * nx;
+                    data.extend_from_slice(&d[row + b.offset[0]..row + b.offset[0] + b.dims[0]]);
+                }
             }
+            data
         }
         let offset = Vec3::new(b.offset[0] as f32, b.offset[1] as f32, b.offset[2] as f32);
-        Volume::new(b.dims, self.spacing, data)?.with_origin(self.origin + offset * self.spacing)
+        let brick = match self.voxels() {
+            VoxelSlice::U8(d) => Volume::from_u8(b.dims, self.spacing, rows(d, b, nx, ny)),
+            VoxelSlice::U16(d) => Volume::from_u16(b.dims, self.spacing, rows(d, b, nx, ny)),
+            VoxelSlice::F32(d) => Volume::new(b.dims, self.spacing, rows(d, b, nx, ny)),
+        }?;
+        brick.with_origin(self.origin + offset * self.spacing)
     }
 }
 

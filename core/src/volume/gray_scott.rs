@@ -215,7 +215,7 @@ impl GrayScott {
             dims: [1, 1, 1],
             spacing: Vec3::ONE,
             origin: Vec3::ZERO,
-            data: vec![0.0],
+            data: super::Storage::F32(vec![0.0]),
         })
     }
 }

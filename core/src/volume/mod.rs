@@ -1,6 +1,7 @@
 //! Scalar volumes on a regular grid (DESIGN.md, "Volume").
 //!
-//! A [`Volume`] holds `nx × ny × nz` samples, x fastest, as `f32`, with a voxel spacing.
+//! A [`Volume`] holds `nx × ny × nz` samples, x fastest, in their own type (u8, u16 or f32:
+//! [`VoxelSlice`]), with a voxel spacing.
 //! Voxel centres sit at integer multiples of the spacing from an origin (0 unless the volume is
 //! one rank's brick of a larger grid), so the world-space box is `origin + [0, (n − 1)·s]` per
 //! axis. NaN marks missing data and is transparent everywhere.
@@ -8,9 +9,12 @@
 pub mod bricks;
 mod gray_scott;
 mod raw;
+mod voxels;
 
 pub use gray_scott::{GrayScott, GrayScottParams};
 pub use raw::{RawFormat, ScalarType};
+pub(crate) use voxels::Storage;
+pub use voxels::{Voxel, VoxelSlice};
 
 use glam::Vec3;
 use std::path::PathBuf;
@@ -76,7 +80,7 @@ pub struct Volume {
     dims: [usize; 3],
     spacing: Vec3,
     origin: Vec3,
-    data: Vec<f32>,
+    data: Storage,
 }
 
 impl Volume {
@@ -86,6 +90,26 @@ impl Volume {
     /// [`VolumeError::Invalid`] when a dimension is 0, the length does not match, or a
     /// spacing component is not finite and positive.
     pub fn new(dims: [usize; 3], spacing: Vec3, data: Vec<f32>) -> Result<Self, VolumeError> {
+        Self::with_storage(dims, spacing, Storage::F32(data))
+    }
+
+    /// [`Volume::new`] for bytes, kept one byte per voxel.
+    ///
+    /// # Errors
+    /// As [`Volume::new`].
+    pub fn from_u8(dims: [usize; 3], spacing: Vec3, data: Vec<u8>) -> Result<Self, VolumeError> {
+        Self::with_storage(dims, spacing, Storage::from_u8(data))
+    }
+
+    /// [`Volume::new`] for 16-bit unsigned values, kept two bytes per voxel.
+    ///
+    /// # Errors
+    /// As [`Volume::new`].
+    pub fn from_u16(dims: [usize; 3], spacing: Vec3, data: Vec<u16>) -> Result<Self, VolumeError> {
+        Self::with_storage(dims, spacing, Storage::from_u16(data))
+    }
+
+    fn with_storage(dims: [usize; 3], spacing: Vec3, data: Storage) -> Result<Self, VolumeError> {
         if dims.contains(&0) {
             return Err(VolumeError::Invalid(format!(
                 "dimensions {dims:?} contain a zero"
@@ -163,9 +187,26 @@ impl Volume {
         self.spacing
     }
 
-    /// The samples, x fastest, length `nx·ny·nz`.
-    pub fn data(&self) -> &[f32] {
+    /// The samples as f32, x fastest, length `nx·ny·nz`: borrowed for f32 storage, a
+    /// converted copy otherwise (the marcher reads [`Volume::voxels`] instead).
+    pub fn data(&self) -> std::borrow::Cow<'_, [f32]> {
+        self.data.slice().to_f32()
+    }
+
+    /// The samples in their own type, x fastest, length `nx·ny·nz`.
+    pub fn voxels(&self) -> VoxelSlice<'_> {
+        self.data.slice()
+    }
+
+    /// The storage, padding included (the AVX2 gathers read past the last voxel).
+    pub(crate) fn storage(&self) -> &Storage {
         &self.data
+    }
+
+    /// Bytes the samples take in memory (their own type; padding aside).
+    pub fn storage_bytes(&self) -> usize {
+        let v = self.voxels();
+        v.len() * v.bytes_per_voxel()
     }
 
     /// The world-space box `origin + [0, (n − 1)·s]`.
@@ -184,13 +225,19 @@ impl Volume {
 
     /// Minimum and maximum over the non-NaN samples, or `None` if all are NaN.
     pub fn finite_range(&self) -> Option<(f32, f32)> {
-        let (lo, hi) = self
-            .data
-            .iter()
-            .filter(|v| !v.is_nan())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
-                (lo.min(v), hi.max(v))
-            });
+        fn range<T: Voxel>(d: &[T]) -> (f32, f32) {
+            d.iter()
+                .map(|v| v.value())
+                .filter(|v| !v.is_nan())
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
+                    (lo.min(v), hi.max(v))
+                })
+        }
+        let (lo, hi) = match self.voxels() {
+            VoxelSlice::U8(d) => range(d),
+            VoxelSlice::U16(d) => range(d),
+            VoxelSlice::F32(d) => range(d),
+        };
         (lo <= hi).then_some((lo, hi))
     }
 
@@ -208,8 +255,17 @@ impl Volume {
         {
             h.write(&s.to_le_bytes());
         }
-        for v in &self.data {
-            h.write(&v.to_bits().to_le_bytes());
+        // The values' f32 bits whatever the storage: a volume's identity does not depend on
+        // how it is held.
+        fn values<T: Voxel>(h: &mut Fnv1a, d: &[T]) {
+            for v in d {
+                h.write(&v.value().to_bits().to_le_bytes());
+            }
+        }
+        match self.voxels() {
+            VoxelSlice::U8(d) => values(&mut h, d),
+            VoxelSlice::U16(d) => values(&mut h, d),
+            VoxelSlice::F32(d) => values(&mut h, d),
         }
         h.finish()
     }

@@ -147,7 +147,7 @@ impl RawFormat {
     /// Reads time step `t` of the file at `path` as a volume with `spacing`.
     ///
     /// Only that step's bytes are read. Integer types are converted exactly; f64 is rounded
-    /// to f32.
+    /// (u8 and u16 kept in their own type, the others as f32).
     ///
     /// # Errors
     /// [`VolumeError::Io`] when the file cannot be read, [`VolumeError::SizeMismatch`] when
@@ -194,9 +194,23 @@ impl RawFormat {
         let len = usize::try_from(step_bytes).map_err(|_| {
             VolumeError::Invalid(format!("{step_bytes} bytes do not fit in memory"))
         })?;
-        let mut bytes = vec![0u8; len];
+        // Room for the byte storage's padding, so a byte volume is read in place.
+        let mut bytes = Vec::with_capacity(len + 4);
+        bytes.resize(len, 0u8);
         file.read_exact(&mut bytes).map_err(io)?;
-        Volume::new(self.dims, spacing, self.scalar.decode(&bytes))
+        match self.scalar {
+            // Kept in their own type (exact as f32 values).
+            ScalarType::U8 => Volume::from_u8(self.dims, spacing, bytes),
+            ScalarType::U16 => Volume::from_u16(
+                self.dims,
+                spacing,
+                bytes
+                    .chunks_exact(2)
+                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                    .collect(),
+            ),
+            _ => Volume::new(self.dims, spacing, self.scalar.decode(&bytes)),
+        }
     }
 }
 
@@ -231,7 +245,7 @@ mod tests {
         std::fs::write(&path, bytes).unwrap();
         let f = RawFormat::from_file_name(&path).unwrap();
         let v1 = f.load(&path, 1, Vec3::ONE).unwrap();
-        assert_eq!(v1.data(), &[300.0, -32768.0]);
+        assert_eq!(*v1.data(), [300.0, -32768.0]);
         assert!(matches!(
             f.load(&path, 2, Vec3::ONE),
             Err(VolumeError::TimeStepOutOfRange { .. })
@@ -254,7 +268,7 @@ mod tests {
             .unwrap()
             .load(&f64_path, 0, Vec3::ONE)
             .unwrap();
-        assert_eq!(v.data(), &[f32::INFINITY, -0.5]);
+        assert_eq!(*v.data(), [f32::INFINITY, -0.5]);
         assert!(matches!(
             f.load(&dir.join("missing_2x1x1_uint8.raw"), 0, Vec3::ONE),
             Err(VolumeError::Io { .. })

@@ -4,7 +4,7 @@ use crate::common::{assert_valid, shared_scenes as scenes, shared_volume, tf_dir
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 
 use crate::common::TEAPOT;
 
@@ -142,5 +142,55 @@ fn simd_and_scalar_paths_agree_bit_for_bit() {
                 name,
             );
         }
+    }
+}
+
+/// Volumes are held in their own type (u8, u16) and marched there; the results equal those of
+/// the same values held as f32, bit for bit, on both the SIMD and the scalar path.
+#[test]
+fn native_types_march_like_f32() {
+    use insitu_core::volume::VoxelSlice;
+    let mut seen = 0;
+    for (name, volume, tf) in scenes() {
+        let as_f32 = Volume::new(volume.dims(), volume.spacing(), volume.data().into_owned())
+            .unwrap()
+            .with_origin(volume.origin())
+            .unwrap();
+        match volume.voxels() {
+            VoxelSlice::U8(_) => assert_eq!(volume.storage_bytes(), as_f32.storage_bytes() / 4),
+            VoxelSlice::U16(_) => assert_eq!(volume.storage_bytes(), as_f32.storage_bytes() / 2),
+            VoxelSlice::F32(_) => continue,
+        }
+        seen += 1;
+        assert_eq!(volume.content_hash(), as_f32.content_hash(), "{name}");
+        let cam = Camera::default_for_box(&volume.world_box());
+        let vp = VdiParams {
+            resolution: 96,
+            gamma: 0.013,
+        };
+        let native = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let float = Raycaster::new(&as_f32, &tf, RaycastParams::default()).unwrap();
+        for (a, b) in [
+            (native.clone(), float.clone()),
+            (native.without_simd(), float.without_simd()),
+        ] {
+            for angle in [0.0, 30.0, 200.0] {
+                let view = cam.orbit_y(angle);
+                assert!(
+                    dvr::render(&a, &view, 64, 64) == dvr::render(&b, &view, 64, 64),
+                    "{name} at {angle}°: native and f32 DVR differ"
+                );
+            }
+            assert!(
+                generate(&a, &cam, vp, 0, name).unwrap()
+                    == generate(&b, &cam, vp, 0, name).unwrap(),
+                "{name}: native and f32 VDIs differ"
+            );
+        }
+    }
+    if seen == 0 {
+        eprintln!(
+            "native_types_march_like_f32: no u8/u16 shared volume found (see the data README)"
+        );
     }
 }

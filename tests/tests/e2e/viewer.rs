@@ -92,7 +92,7 @@ async fn push_ocean(generator: &str, step: u64, t: usize) {
     let vol = format.load(&path, t, glam::Vec3::ONE).unwrap();
     let d = vol.dims().map(|x| x as u32);
     let mut c = SimClient::connect(generator, None).await.unwrap();
-    c.push_step(Step::whole_f32(step, step as f64, d, vol.data()))
+    c.push_step(Step::whole_f32(step, step as f64, d, &vol.data()))
         .await
         .unwrap();
 }
