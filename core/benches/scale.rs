@@ -140,19 +140,21 @@ fn main() {
         rayon::current_num_threads()
     );
     println!(
-        "    N   field MiB     DVR s     gen s  gen/DVR    VDI MiB   peak MiB  peak/(field+VDI)"
+        "    N  type field MiB    DVR s     gen s  gen/DVR    VDI MiB   peak MiB  peak/(field+VDI)"
     );
     let exe = std::env::current_exe().expect("own path");
     for n in sizes
         .split(',')
         .filter_map(|s| s.trim().parse::<usize>().ok())
     {
-        let status = std::process::Command::new(&exe)
-            .env("INSITU_SCALE_CHILD", n.to_string())
-            .status()
-            .expect("runs itself");
-        if !status.success() {
-            println!("{n:>5}³  failed: {status}");
+        for ty in ["u8", "f32"] {
+            let status = std::process::Command::new(&exe)
+                .env("INSITU_SCALE_CHILD", format!("{n}:{ty}"))
+                .status()
+                .expect("runs itself");
+            if !status.success() {
+                println!("{n:>5}³ {ty:>4} failed: {status}");
+            }
         }
     }
 }

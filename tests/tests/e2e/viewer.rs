@@ -42,10 +42,11 @@ async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Val
     }
 }
 
-/// The image bytes behind `#frame`, or those of `url` fetched by the page, decoded.
+/// The image bytes behind `#frame` or `#reference`, or those of `url` fetched by the page,
+/// decoded.
 async fn image_of(c: &Client, what: &str) -> Image {
-    let src = if what == "frame" {
-        "document.getElementById('frame').src".to_owned()
+    let src = if what == "frame" || what == "reference" {
+        format!("document.getElementById('{what}').src")
     } else {
         format!("{what:?}")
     };
@@ -194,6 +195,44 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
         slider.send_keys(&format!("{}{}", Key::Left, Key::Left)).await.unwrap();
         wait_frame(&c, 20.0, |d| d["step"] == "3" && d["kind"] == "still").await;
 
+        // VDI vs reference on a sampled step (references on 0, 2, 4): the stored reference
+        // appears beside the frame, byte for byte the API's, and the VDI is shown from the
+        // reference's camera.
+        slider.send_keys(&Key::Right.to_string()).await.unwrap();
+        wait_frame(&c, 20.0, |d| d["step"] == "4" && d["kind"] == "still").await;
+        c.find(Locator::Id("compare")).await.unwrap().click().await.unwrap();
+        let t = Instant::now();
+        while js(
+            &c,
+            "const r = document.getElementById('reference');
+             done(!r.hidden && r.complete && r.naturalWidth > 0 && r.src.startsWith('blob:'));",
+        )
+        .await
+            != json!(true)
+        {
+            assert!(t.elapsed() < Duration::from_secs(20), "no reference frame shown");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let shown_ref = image_of(&c, "reference").await;
+        let api_ref = image_of(&c, "/api/reference?step=4&view=0").await;
+        assert!(shown_ref == api_ref, "the page's reference is not the API's");
+        assert!(not_blank(&shown_ref), "the reference frame is blank");
+        let ref_angle = js(
+            &c,
+            "const r = await fetch('/api/reference?step=4&view=0'); done(r.headers.get('x-angle'));",
+        )
+        .await;
+        let ref_angle: f64 = ref_angle.as_str().unwrap().parse().unwrap();
+        wait_frame(&c, 20.0, |d| {
+            d["kind"] == "still"
+                && d["step"] == "4"
+                && d["angle"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(ref_angle)
+                && d["elevation"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(0.0)
+        })
+        .await;
+        std::fs::write(shots.join("viewer-compare.png"), c.screenshot().await.unwrap()).unwrap();
+        c.find(Locator::Id("compare")).await.unwrap().click().await.unwrap();
+
         // Follow latest: new steps appear without a reload.
         c.find(Locator::Id("follow")).await.unwrap().click().await.unwrap();
         push_ocean(&g.addr, 40, 7).await;
@@ -220,6 +259,23 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
         }
         assert_eq!(p.as_deref(), Some("7"), "the chart grew by the new step");
         std::fs::write(shots.join("viewer-live.png"), c.screenshot().await.unwrap()).unwrap();
+
+        // The connection drops (as a network would drop it) while the simulation pushes a
+        // step: the push is not held up, and the page reconnects and shows that step.
+        let connections = || js(&c, "done(document.body.dataset.connections || '0');");
+        assert_eq!(connections().await, json!("1"));
+        js(&c, "window.insituViewer.dropConnection(); done(true);").await;
+        let pushed = Instant::now();
+        push_ocean(&g.addr, 41, 8).await;
+        let push_secs = pushed.elapsed().as_secs_f64();
+        let t = Instant::now();
+        while connections().await != json!("2") {
+            assert!(t.elapsed() < Duration::from_secs(20), "the page did not reconnect");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        wait_frame(&c, 30.0, |d| d["step"] == "41" && d["kind"] == "still").await;
+        eprintln!("push while the page was away: {push_secs:.3} s");
+        assert!(push_secs < 5.0, "the push waited {push_secs} s for the viewer");
 
         // 50 quick camera changes on one socket: the latest is rendered, the rest superseded.
         let burst = js(

@@ -61,6 +61,8 @@ function connect() {
   socket.binaryType = "blob";
   socket.onopen = () => {
     retryMs = 500;
+    // How many times the page has (re)connected: visible to scripts and tests.
+    document.body.dataset.connections = String(Number(document.body.dataset.connections || 0) + 1);
     $("conn").textContent = "live";
     $("conn").className = "pill up";
     request(false);
@@ -309,3 +311,7 @@ function wire() {
 wire();
 connect();
 refresh();
+
+// For scripts driving the page (and the browser test): drop the live socket as a network
+// failure would; the page reconnects on its own and asks for the current camera again.
+window.insituViewer = { dropConnection: () => socket && socket.close() };
