@@ -148,6 +148,21 @@ fn vdi_rows(
         .collect()
 }
 
+/// A study of the sweep's scene as `rc` ray-casts it (uncached: each row is measured afresh).
+fn study_of<'a>(s: &Sweep<'a>, rc: &'a Raycaster<'a>) -> Result<Study<'a>, AccuracyError> {
+    let scene = StudyScene::new(
+        s.backend.prepare(rc)?,
+        s.volume.content_hash(),
+        s.tf,
+        s.tf_name,
+        s.camera,
+        s.views,
+        (s.size, s.size),
+        s.codec,
+    )?;
+    Ok(Study::new(scene, None))
+}
+
 /// Runs the sweep (see the module docs).
 ///
 /// # Errors
@@ -215,17 +230,7 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
         )?);
     }
     let rc = Raycaster::new(s.volume, s.tf, s.base)?;
-    let scene = StudyScene::new(
-        s.backend.prepare(&rc)?,
-        s.volume.content_hash(),
-        s.tf,
-        s.tf_name,
-        s.camera,
-        s.views,
-        (s.size, s.size),
-        s.codec,
-    )?;
-    let mut study = Study::new(scene, None);
+    let mut study = study_of(s, &rc)?;
     let pm = s.base_pm;
     let rs: Vec<(String, Candidate)> = [pm.r / 2, pm.r, pm.r * 2]
         .into_iter()
@@ -246,19 +251,9 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
             ..s.base
         };
         let rc = Raycaster::new(s.volume, s.tf, params)?;
-        let scene = StudyScene::new(
-            s.backend.prepare(&rc)?,
-            s.volume.content_hash(),
-            s.tf,
-            s.tf_name,
-            s.camera,
-            s.views,
-            (s.size, s.size),
-            s.codec,
-        )?;
         let value = generation_termination.map_or("off".into(), |a| format!("{a}"));
         rows.extend(vdi_rows(
-            &mut Study::new(scene, None),
+            &mut study_of(s, &rc)?,
             "generation early termination",
             &[(value, pm)],
         )?);
