@@ -331,6 +331,64 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
     g.terminate();
 }
 
+/// A recording of two ranks: the page shows the step composed over both by default and one
+/// rank when it is selected, each matching the API's still of the same camera and rank.
+#[test]
+fn the_rank_selection_shows_one_brick_or_the_composed_step() {
+    if data_dir().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let (v, url) = viz_with_http(&rec, tmp.path(), &[]);
+    let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
+    replay(&g, 2, 2, 0);
+    let driver = start_driver();
+    let shots = artefacts();
+    rt().block_on(async {
+        let c = browser(&driver, &tmp.path().join("profile")).await;
+        c.goto(&url).await.unwrap();
+        let still_of = |rank: &'static str| {
+            move |d: &Value| d["kind"] == "still" && d["step"] == "1" && d["rank"] == rank
+        };
+        let api_of = |d: &Value, rank: Option<u32>| {
+            format!(
+                "/api/render?step=1&angle={}&elevation={}&zoom={}&size={}&format=png{}",
+                d["angle"].as_str().unwrap(),
+                d["elevation"].as_str().unwrap(),
+                d["zoom"].as_str().unwrap(),
+                d["width"].as_str().unwrap(),
+                rank.map_or(String::new(), |r| format!("&rank={r}"))
+            )
+        };
+        let all = wait_frame(&c, 20.0, still_of("all")).await;
+        let composed = image_of(&c, "frame").await;
+        let q = psnr_from_mse(mse(&composed, &image_of(&c, &api_of(&all, None)).await).unwrap());
+        assert!(q >= 40.0, "composed: page vs API {q} dB");
+        c.find(Locator::Id("rank"))
+            .await
+            .unwrap()
+            .select_by_value("1")
+            .await
+            .unwrap();
+        let one = wait_frame(&c, 20.0, still_of("1")).await;
+        let brick = image_of(&c, "frame").await;
+        let q = psnr_from_mse(mse(&brick, &image_of(&c, &api_of(&one, Some(1))).await).unwrap());
+        assert!(q >= 40.0, "rank 1: page vs API {q} dB");
+        assert!(not_blank(&brick), "rank 1's frame is blank");
+        if brick.width() == composed.width() {
+            let apart = psnr_from_mse(mse(&brick, &composed).unwrap());
+            assert!(
+                apart < 30.0,
+                "rank 1 alone looks like the composed step ({apart} dB)"
+            );
+        }
+        std::fs::write(shots.join("viewer-rank.png"), c.screenshot().await.unwrap()).unwrap();
+        c.close().await.unwrap();
+    });
+    g.terminate();
+}
+
 /// One HTTP/1.1 request on loopback; returns the status code and the body.
 fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
     let mut s = std::net::TcpStream::connect(addr).unwrap();

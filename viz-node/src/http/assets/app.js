@@ -95,6 +95,7 @@ function connect() {
     Object.assign(img.dataset, {
       frame: String(h.frame),
       step: String(h.step),
+      rank: h.rank === null || h.rank === undefined ? "all" : String(h.rank),
       kind: h.format === "png" ? "still" : "interactive",
       angle: String(view.angle),
       elevation: String(view.elevation),
