@@ -33,11 +33,26 @@ function selectedRank() {
   return v === "" ? null : Number(v);
 }
 
-// Asks for a frame: interactive (¼ area JPEG) or still (full PNG).
+// While dragging, frames aim at this render time: their side is the largest, up to ¼ of the
+// still's area, that the last interactive frame's cost per pixel predicts within it (VTK's
+// "desired update rate" idea: resolution traded for latency, never the other way).
+const INTERACTIVE_BUDGET_MS = 35;
+const MIN_INTERACTIVE_SIDE = 96;
+let msPerPixel = null; // render time per pixel of the last interactive frame
+
+function interactiveSide(full) {
+  const quarter = Math.round(full / 2);
+  if (msPerPixel === null || msPerPixel <= 0) return quarter;
+  const fit = Math.floor(Math.sqrt(INTERACTIVE_BUDGET_MS / msPerPixel));
+  return Math.max(Math.min(MIN_INTERACTIVE_SIDE, quarter), Math.min(quarter, fit));
+}
+
+// Asks for a frame: interactive (JPEG, at most ¼ area, see `interactiveSide`) or still
+// (full PNG).
 function request(interactive) {
   if (!socket || socket.readyState !== WebSocket.OPEN) return;
   const full = side();
-  const px = interactive ? Math.round(full / 2) : full;
+  const px = interactive ? interactiveSide(full) : full;
   socket.send(JSON.stringify({
     id: nextId++,
     step: selectedStep(),
@@ -88,6 +103,7 @@ function connect() {
     const h = pendingHeader;
     pendingHeader = null;
     if (!h) return;
+    if (h.format === "jpeg") msPerPixel = h.render_ms / (h.width * h.height);
     const img = $("frame");
     const old = img.src;
     img.src = URL.createObjectURL(ev.data);
