@@ -15,6 +15,7 @@ use crate::camera::{Camera, Ray, ViewFrame};
 use crate::dvr::render_tiles;
 use crate::image::Image;
 use glam::Vec3;
+use rayon::prelude::*;
 
 /// Renders `vdi` seen by `camera` at `width × height`, stopping each ray once its accumulated
 /// opacity reaches `termination` (in (0, 1]); background black. For several views of one VDI,
@@ -37,16 +38,22 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     let tile = SKIP_TILE as usize;
     let tiles_x = r.div_ceil(tile);
     let mut ranges = vec![[f32::MAX, -f32::MAX]; tiles_x * tiles_x];
-    for j in 0..r {
-        for i in 0..r {
-            let list = vdi.pixel(i as u32, j as u32);
-            if let (Some(first), Some(last)) = (list.first(), list.last()) {
-                let range = &mut ranges[i / tile + tiles_x * (j / tile)];
-                range[0] = range[0].min(first.z_start);
-                range[1] = range[1].max(last.z_end);
+    // A row of tiles per task (built for every frame the viewer renders).
+    ranges
+        .par_chunks_mut(tiles_x.max(1))
+        .enumerate()
+        .for_each(|(ty, row)| {
+            for j in ty * tile..((ty + 1) * tile).min(r) {
+                for i in 0..r {
+                    let list = vdi.pixel(i as u32, j as u32);
+                    if let (Some(first), Some(last)) = (list.first(), list.last()) {
+                        let range = &mut row[i / tile];
+                        range[0] = range[0].min(first.z_start);
+                        range[1] = range[1].max(last.z_end);
+                    }
+                }
             }
-        }
-    }
+        });
     ranges
 }
 
@@ -96,7 +103,7 @@ impl<'a> Walker<'a> {
             tile_depth,
             keys: vdi
                 .supersegments()
-                .iter()
+                .par_iter()
                 .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
                 .collect(),
         }
