@@ -110,21 +110,50 @@ fn viz_with_http(rec: &Path, logs: &Path, extra: &[&str]) -> (Daemon, String) {
     (v, url)
 }
 
+/// A viz-node serving the viewer on a recording replayed from the ocean series through a
+/// generator-node (still attached, for later pushes), and chromedriver.
+struct Recorded {
+    url: String,
+    driver: insitu_e2e::browser::Driver,
+    generator: Daemon,
+    _viz: Daemon,
+    /// Last, so it is removed after the daemons are gone (fields drop in order).
+    tmp: tempfile::TempDir,
+}
+
+impl Recorded {
+    /// `None` (and a message from `data_dir`) without the shared data.
+    fn replay(ranks: u32, steps: usize, sample_every: u32) -> Option<Self> {
+        data_dir()?;
+        let tmp = tempfile::tempdir().unwrap();
+        let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
+        let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
+        replay(&g, ranks, steps, sample_every);
+        Some(Self {
+            driver: start_driver(),
+            url,
+            generator: g,
+            _viz: v,
+            tmp,
+        })
+    }
+
+    /// A fresh browser on the viewer's page.
+    async fn open(&self) -> Client {
+        let c = browser(&self.driver, &self.tmp.path().join("profile")).await;
+        c.goto(&self.url).await.unwrap();
+        c
+    }
+}
+
 #[test]
 fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
-    if data_dir().is_none() {
+    let Some(r) = Recorded::replay(1, 6, 2) else {
         return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let rec = tmp.path().join("rec");
-    let (v, url) = viz_with_http(&rec, tmp.path(), &[]);
-    let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
-    replay(&g, 1, 6, 2);
-    let driver = start_driver();
-    let shots = artefacts();
+    };
+    let (g, shots) = (&r.generator, artefacts());
     rt().block_on(async {
-        let c = browser(&driver, &tmp.path().join("profile")).await;
-        c.goto(&url).await.unwrap();
+        let c = r.open().await;
         // A first still frame of the latest step, not blank.
         let first = wait_frame(&c, 20.0, |d| d["kind"] == "still").await;
         assert_eq!(first["step"], "5", "follows the latest step: {first}");
@@ -328,26 +357,19 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
         assert!(errors.iter().any(|e| e.contains("width 0")), "{errors:?}");
         c.close().await.unwrap();
     });
-    g.terminate();
+    r.generator.terminate();
 }
 
 /// A recording of two ranks: the page shows the step composed over both by default and one
 /// rank when it is selected, each matching the API's still of the same camera and rank.
 #[test]
 fn the_rank_selection_shows_one_brick_or_the_composed_step() {
-    if data_dir().is_none() {
+    let Some(r) = Recorded::replay(2, 2, 0) else {
         return;
-    }
-    let tmp = tempfile::tempdir().unwrap();
-    let rec = tmp.path().join("rec");
-    let (v, url) = viz_with_http(&rec, tmp.path(), &[]);
-    let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
-    replay(&g, 2, 2, 0);
-    let driver = start_driver();
+    };
     let shots = artefacts();
     rt().block_on(async {
-        let c = browser(&driver, &tmp.path().join("profile")).await;
-        c.goto(&url).await.unwrap();
+        let c = r.open().await;
         let still_of = |rank: &'static str| {
             move |d: &Value| d["kind"] == "still" && d["step"] == "1" && d["rank"] == rank
         };
@@ -386,7 +408,7 @@ fn the_rank_selection_shows_one_brick_or_the_composed_step() {
         std::fs::write(shots.join("viewer-rank.png"), c.screenshot().await.unwrap()).unwrap();
         c.close().await.unwrap();
     });
-    g.terminate();
+    r.generator.terminate();
 }
 
 /// One HTTP/1.1 request on loopback; returns the status code and the body.
