@@ -282,6 +282,11 @@ impl<'a> Raycaster<'a> {
             o_v,
             d_v,
         };
+        // The AVX2 kernel for this ray, checked once.
+        #[cfg(target_arch = "x86_64")]
+        let lanes = self
+            .simd
+            .and_then(|avx2| simd::Lanes::new(avx2, self, data, &m));
         // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder. Walked a
         // macro cell at a time: an invisible cell is jumped over; in a visible one, the steps
         // whose midpoints lie before the cell's exit are sampled without further checks
@@ -311,28 +316,12 @@ impl<'a> Raycaster<'a> {
             };
             let full_end = k_end.min(n_full);
             #[cfg(target_arch = "x86_64")]
-            if let Some(avx2) = self
-                .simd
+            if let Some(lanes) = lanes
+                .as_ref()
                 .filter(|_| full_end - k.min(full_end) >= SIMD_MIN_RUN)
             {
-                let lanes = simd::Lanes {
-                    data,
-                    voxels: self.volume.voxels().len(),
-                    dims: self.volume.dims(),
-                    strides: self.strides,
-                    max_voxel: self.max_voxel,
-                    o_v,
-                    d_v,
-                    t_in,
-                    step,
-                    lut_lo: self.lut.mapping().0,
-                    lut_scale: self.lut.mapping().1,
-                    kappa: &self.lut_kappa,
-                };
                 while k < full_end {
-                    let Some(c) = lanes.classify8(avx2, k) else {
-                        break;
-                    };
+                    let c = lanes.classify8(k);
                     let n = (full_end - k).min(8);
                     // Visible lanes only, in order: the transparent ones cost nothing more.
                     let mut visible = c.visible & ((1u32 << n) - 1);
@@ -395,7 +384,14 @@ impl<'a> Raycaster<'a> {
         visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
     ) -> bool {
         let v = self.step_value(data, m, k, len);
-        self.classify_step::<SHADE>(m, ray, k, len, full, v, visit)
+        if v.is_nan() {
+            return false;
+        }
+        let e = self.lut.entry(self.lut.index(v));
+        if e.kappa <= 0.0 {
+            return false;
+        }
+        self.visit_entry::<SHADE>(m, ray, k, len, full, e, visit)
     }
 
     /// The trilinear value at step `k`'s midpoint (the scalar path).
@@ -405,30 +401,6 @@ impl<'a> Raycaster<'a> {
         let [nx, ny, _] = self.volume.dims();
         let (fx, fy, fz) = (p.x - ix as f32, p.y - iy as f32, p.z - iz as f32);
         trilinear(data, ix + nx * (iy + ny * iz), self.strides, fx, fy, fz)
-    }
-
-    /// Classifies step `k` whose value is `v` and hands it to `visit` unless transparent;
-    /// returns true when the visitor stops the ray.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn classify_step<const SHADE: bool>(
-        &self,
-        m: &Marching,
-        ray: &Ray,
-        k: u32,
-        len: f32,
-        full: bool,
-        v: f32,
-        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
-    ) -> bool {
-        if v.is_nan() {
-            return false;
-        }
-        let e = self.lut.entry(self.lut.index(v));
-        if e.kappa <= 0.0 {
-            return false;
-        }
-        self.visit_entry::<SHADE>(m, ray, k, len, full, e, visit)
     }
 
     /// Hands step `k`, classified as `e` (visible: `κ > 0`), to `visit`; returns true when the

@@ -13,6 +13,7 @@
 // an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
 #![allow(unsafe_code)]
 
+use super::{Marching, Raycaster};
 use crate::tf::LUT_SIZE;
 use crate::volume::Voxel;
 use glam::Vec3;
@@ -43,24 +44,25 @@ impl Gather for u8 {}
 impl Gather for u16 {}
 impl Gather for f32 {}
 
-/// What the kernel needs of a ray and a volume.
+/// What the kernel needs of one ray through one volume, checked once when made
+/// ([`Lanes::new`]): the fields are private so that no unchecked one exists.
 pub(super) struct Lanes<'a, T> {
+    /// Proof of AVX2, held so that no `Lanes` exists without it.
+    _avx2: Avx2,
     /// The voxels and the storage's padding after them.
-    pub data: &'a [T],
-    /// Voxels (without the padding): `nx·ny·nz`.
-    pub voxels: usize,
-    pub dims: [usize; 3],
-    pub strides: [usize; 3],
-    pub max_voxel: Vec3,
-    pub o_v: Vec3,
-    pub d_v: Vec3,
-    pub t_in: f32,
-    pub step: f32,
+    data: &'a [T],
+    dims: [usize; 3],
+    strides: [usize; 3],
+    max_voxel: Vec3,
+    o_v: Vec3,
+    d_v: Vec3,
+    t_in: f32,
+    step: f32,
     /// The classification's index map ([`crate::tf::Lut::mapping`]) and each entry's
     /// extinction `κ`, [`crate::tf::LUT_SIZE`] of them.
-    pub lut_lo: f32,
-    pub lut_scale: f32,
-    pub kappa: &'a [f32],
+    lut_lo: f32,
+    lut_scale: f32,
+    kappa: &'a [f32],
 }
 
 /// Eight steps sampled and classified: their table indices, and a bit per lane
@@ -70,32 +72,56 @@ pub(super) struct Classified {
     pub visible: u32,
 }
 
-impl<T: Gather> Lanes<'_, T> {
-    /// Trilinear values at the midpoints of the full steps `k … k + 7` (positions clamped to
-    /// the grid, so lanes past the ray's end read valid voxels and are simply not used);
-    /// `None` for a volume the kernel cannot index (over `i32::MAX` voxels, or data that does
-    /// not match the dimensions), which the scalar path then samples.
-    #[cfg(target_arch = "x86_64")]
-    #[inline]
-    pub(super) fn classify8(&self, _: Avx2, k: u32) -> Option<Classified> {
-        let n = self.dims.iter().product::<usize>();
-        if n != self.voxels
-            || self.data.len() < n + T::OVERREAD
-            || self.data.len() > i32::MAX as usize
-            || self.dims.contains(&0)
-            || self.kappa.len() != LUT_SIZE
-        {
-            return None;
-        }
-        // SAFETY: the token proves AVX2; the check above keeps every gather in bounds (see
-        // `gather8`).
-        Some(unsafe { self.gather8(k) })
+impl<'a, T: Gather> Lanes<'a, T> {
+    /// The kernel for ray `m` of `rc` over `data` (the volume's storage, padding included);
+    /// `None` for a volume the kernel cannot index (over `i32::MAX` voxels, or storage that
+    /// does not match the dimensions), which the scalar path then samples.
+    pub(super) fn new(
+        avx2: Avx2,
+        rc: &'a Raycaster<'a>,
+        data: &'a [T],
+        m: &Marching,
+    ) -> Option<Self> {
+        let dims = rc.volume.dims();
+        let n = dims.iter().product::<usize>();
+        let (lut_lo, lut_scale) = rc.lut.mapping();
+        let fits = n == rc.volume.voxels().len()
+            && data.len() >= n + T::OVERREAD
+            && data.len() <= i32::MAX as usize
+            && !dims.contains(&0)
+            && rc.lut_kappa.len() == LUT_SIZE;
+        fits.then_some(Self {
+            _avx2: avx2,
+            data,
+            dims,
+            strides: rc.strides,
+            max_voxel: rc.max_voxel,
+            o_v: m.o_v,
+            d_v: m.d_v,
+            t_in: m.t_in,
+            step: m.step,
+            lut_lo,
+            lut_scale,
+            kappa: &rc.lut_kappa,
+        })
     }
 
-    /// [`Lanes::classify8`] after its checks.
+    /// The full steps `k … k + 7` sampled (trilinear at their midpoints, positions clamped to
+    /// the grid, so lanes past the ray's end read valid voxels and are simply not used) and
+    /// classified.
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    pub(super) fn classify8(&self, k: u32) -> Classified {
+        // SAFETY: the token proves AVX2; `new`'s checks keep every gather in bounds (see
+        // `gather8`).
+        unsafe { self.gather8(k) }
+    }
+
+    /// [`Lanes::classify8`].
     ///
     /// # Safety
-    /// The CPU must have AVX2, `nx·ny·nz + OVERREAD ≤ data.len() ≤ i32::MAX`.
+    /// The CPU must have AVX2, `nx·ny·nz + OVERREAD ≤ data.len() ≤ i32::MAX` (both made sure
+    /// by [`Lanes::new`]).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn gather8(&self, k: u32) -> Classified {

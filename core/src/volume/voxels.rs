@@ -90,16 +90,6 @@ impl<'a> VoxelSlice<'a> {
         }
     }
 
-    /// Voxel `i` as f32.
-    #[inline]
-    pub fn get(&self, i: usize) -> f32 {
-        match self {
-            Self::U8(d) => f32::from(d[i]),
-            Self::U16(d) => f32::from(d[i]),
-            Self::F32(d) => d[i],
-        }
-    }
-
     /// The values as f32: borrowed for f32 storage, converted otherwise.
     pub fn to_f32(&self) -> Cow<'a, [f32]> {
         match *self {
