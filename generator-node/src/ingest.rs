@@ -1,8 +1,9 @@
-//! Receiving a time step: the header is validated before any payload is read, the payload is
-//! kept as received (a copy of the step, DESIGN.md) and converted to a volume on the worker.
+//! Receiving a time step: the header is validated before any payload is read, and the
+//! payload is converted into the volume's own storage chunk by chunk as it arrives
+//! ([`FieldAssembler`]: one pass, no copy of the received bytes kept, DESIGN.md).
 
 use glam::Vec3;
-use insitu_core::volume::ScalarType;
+use insitu_core::volume::{Aabb, FieldAssembler, ScalarType};
 use insitu_core::Volume;
 use insitu_proto::convert::dtype_from_pb;
 use insitu_proto::pb;
@@ -11,9 +12,9 @@ use tonic::Status;
 /// Largest grid side accepted, voxels.
 pub const MAX_DIM: u32 = 65536;
 
-/// One rank's brick of one time step, as received.
-#[derive(Debug)]
-pub struct RawStep {
+/// What a step's header says: which step and rank, and the brick's place in the grid.
+#[derive(Clone, Copy, Debug)]
+pub struct StepInfo {
     /// Step index.
     pub step: u64,
     /// Simulation time.
@@ -22,7 +23,7 @@ pub struct RawStep {
     pub rank: u32,
     /// Number of ranks.
     pub world_size: u32,
-    /// Scalar type of `bytes`.
+    /// Scalar type on the wire.
     pub dtype: ScalarType,
     /// The whole grid, voxels.
     pub global_dims: [usize; 3],
@@ -32,8 +33,15 @@ pub struct RawStep {
     pub brick_dims: [usize; 3],
     /// Voxel spacing, world units.
     pub spacing: Vec3,
-    /// The field, little-endian, x fastest.
-    pub bytes: Vec<u8>,
+}
+
+/// One rank's brick of one time step, as received.
+#[derive(Debug)]
+pub struct RawStep {
+    /// Its header.
+    pub info: StepInfo,
+    /// The brick, placed at its world origin, in its own type (u8, u16; others as f32).
+    pub field: Volume,
     /// Its file in the spool, when the node has one (removed once the step is settled).
     pub spool: Option<String>,
 }
@@ -54,7 +62,7 @@ fn dims(d: Option<&pb::Dims3>, name: &str, min: u32) -> Result<[usize; 3], Statu
 ///
 /// # Errors
 /// `INVALID_ARGUMENT` naming the field.
-pub fn check_header(h: &pb::StepHeader) -> Result<RawStep, Status> {
+pub fn check_header(h: &pb::StepHeader) -> Result<StepInfo, Status> {
     let dtype = dtype_from_pb(h.dtype)?;
     let global_dims = dims(h.global_dims.as_ref(), "global_dims", 1)?;
     let brick_offset = dims(h.brick_offset.as_ref(), "brick_offset", 0)?;
@@ -93,7 +101,7 @@ pub fn check_header(h: &pb::StepHeader) -> Result<RawStep, Status> {
     if !h.sim_time.is_finite() {
         return Err(Status::invalid_argument("sim_time must be finite"));
     }
-    Ok(RawStep {
+    Ok(StepInfo {
         step: h.step,
         sim_time: h.sim_time,
         rank: h.rank,
@@ -103,45 +111,55 @@ pub fn check_header(h: &pb::StepHeader) -> Result<RawStep, Status> {
         brick_offset,
         brick_dims,
         spacing,
-        bytes: Vec::new(),
-        spool: None,
     })
 }
 
-impl RawStep {
-    /// Its spool file and the field bytes it holds there (what [`crate::service::Shared::unspool`]
-    /// releases once the step is settled).
-    pub fn spooled(&self) -> Option<(String, u64)> {
-        self.spool.clone().map(|n| (n, self.bytes.len() as u64))
+impl StepInfo {
+    /// An empty brick to push the payload into, in `spare`'s memory when given
+    /// ([`FieldAssembler::reusing`]).
+    pub fn assembler(&self, spare: Option<Volume>) -> FieldAssembler {
+        FieldAssembler::reusing(self.dtype, self.brick_dims.iter().product(), spare)
     }
 
-    /// The brick as a volume placed at its world origin.
+    /// The step with the brick `field` assembled, placed at its world origin.
     ///
     /// # Errors
-    /// When the bytes do not match the dims (cannot happen after [`check_header`] and a
-    /// complete stream, but the check is cheap).
-    pub fn volume(&self) -> Result<Volume, insitu_core::volume::VolumeError> {
-        let origin = Vec3::new(
-            self.brick_offset[0] as f32,
-            self.brick_offset[1] as f32,
-            self.brick_offset[2] as f32,
-        ) * self.spacing;
-        Volume::new(
-            self.brick_dims,
-            self.spacing,
-            self.dtype.decode(&self.bytes),
-        )?
-        .with_origin(origin)
+    /// `INVALID_ARGUMENT` when the payload does not match the header's brick (cannot happen
+    /// after [`check_header`] and a complete stream, but the check is cheap).
+    pub fn with_field(self, field: FieldAssembler) -> Result<RawStep, Status> {
+        let origin = Vec3::from(self.brick_offset.map(|o| o as f32)) * self.spacing;
+        let field = field
+            .finish(self.brick_dims, self.spacing)
+            .and_then(|v| v.with_origin(origin))
+            .map_err(|e| Status::invalid_argument(format!("step {}: {e}", self.step)))?;
+        Ok(RawStep {
+            info: self,
+            field,
+            spool: None,
+        })
     }
 
     /// The world box of the whole grid, `[0, (n − 1)·s]` (what the default camera frames, so
     /// that all ranks share one camera).
-    pub fn global_box(&self) -> insitu_core::volume::Aabb {
+    pub fn global_box(&self) -> Aabb {
         let [nx, ny, nz] = self.global_dims;
-        insitu_core::volume::Aabb {
+        Aabb {
             min: Vec3::ZERO,
             max: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32) * self.spacing,
         }
+    }
+}
+
+impl RawStep {
+    /// Bytes the field holds in memory (what the queue and the spool count).
+    pub fn bytes(&self) -> u64 {
+        self.field.storage_bytes() as u64
+    }
+
+    /// Its spool file and the bytes counted for it there (what
+    /// [`crate::service::Shared::unspool`] releases once the step is settled).
+    pub fn spooled(&self) -> Option<(String, u64)> {
+        self.spool.clone().map(|n| (n, self.bytes()))
     }
 }
 
@@ -167,13 +185,20 @@ mod tests {
 
     #[test]
     fn a_good_header_gives_the_brick_at_its_origin() {
-        let mut s = check_header(&header()).unwrap();
-        s.bytes = (0..240u32).flat_map(|i| (i as f32).to_le_bytes()).collect();
-        let v = s.volume().unwrap();
+        let info = check_header(&header()).unwrap();
+        let mut field = info.assembler(None);
+        let bytes: Vec<u8> = (0..240u32).flat_map(|i| (i as f32).to_le_bytes()).collect();
+        // Chunks that split samples, as a client with its own chunk size may send.
+        for c in bytes.chunks(7) {
+            field.push(c);
+        }
+        let s = info.with_field(field).unwrap();
+        let v = &s.field;
         assert_eq!(v.dims(), [8, 6, 5]);
         assert_eq!(v.world_box().min, Vec3::new(0.0, 0.0, 5.0));
         assert_eq!(v.data()[239], 239.0);
-        assert_eq!(s.global_box().max, Vec3::new(7.0, 5.0, 9.0));
+        assert_eq!(s.info.global_box().max, Vec3::new(7.0, 5.0, 9.0));
+        assert_eq!(s.bytes(), 960);
     }
 
     #[test]

@@ -12,7 +12,7 @@ use insitu_proto::pb::generator_server::GeneratorServer;
 use insitu_proto::security::Security;
 use insitu_proto::transport;
 use std::net::SocketAddr;
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -117,6 +117,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         ship_failed_reported: Default::default(),
         spool,
         epoch: new_epoch(),
+        spare_field: Mutex::new(None),
         pool: match cfg.threads {
             0 => None,
             n => Some(Arc::new(
@@ -201,7 +202,7 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<crate::ingest::RawStep>) {
     let shared = shared.clone();
     tokio::spawn(async move {
         for raw in recovered {
-            let bytes = raw.bytes.len() as u64;
+            let bytes = raw.bytes();
             if let Ok(dropped) = shared.queue.push(raw, bytes).await {
                 for d in dropped {
                     shared.unspool(d.spooled().as_ref());
@@ -225,7 +226,7 @@ async fn worker(shared: Arc<Shared>) {
     // The last step's VDI (already compressed into its product): the next one reuses its memory.
     let mut spare = None;
     while let Some(raw) = shared.queue.pop().await {
-        let (step, rank, raw_world_size) = (raw.step, raw.rank, raw.world_size);
+        let (step, rank, raw_world_size) = (raw.info.step, raw.info.rank, raw.info.world_size);
         let spooled = raw.spooled();
         let mut gen = shared.generation();
         if gen.tf.is_none() {
@@ -240,16 +241,19 @@ async fn worker(shared: Arc<Shared>) {
         let lane = shared.lane.lock().await;
         let result = tokio::task::spawn_blocking(move || {
             s.compute(|| {
-                let volume = raw.volume()?;
-                let tf = gen.tf.take().unwrap_or_else(|| work::default_tf(&volume));
-                let (product, vdi) =
-                    work::run(&s.backend, &raw, &volume, &gen, &tf, with_refs, reused)?;
-                // Only while the tuner listens: otherwise nobody would read the summary.
-                let for_tuner = s
-                    .tuning
-                    .as_ref()
-                    .is_some_and(|t| t.connected())
-                    .then(|| work::for_tuner(&raw, volume, &gen, &tf, &product));
+                let tf = gen
+                    .tf
+                    .take()
+                    .unwrap_or_else(|| work::default_tf(&raw.field));
+                let (product, vdi) = work::run(&s.backend, &raw, &gen, &tf, with_refs, reused)?;
+                // Only while the tuner listens: otherwise nobody would read the summary, and
+                // the field's memory receives the next step.
+                let for_tuner = if s.tuning.as_ref().is_some_and(|t| t.connected()) {
+                    Some(work::for_tuner(raw, &gen, &tf, &product))
+                } else {
+                    *s.spare_field.lock().unwrap_or_else(|e| e.into_inner()) = Some(raw.field);
+                    None
+                };
                 Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
             })
         })

@@ -55,15 +55,15 @@ impl SceneLink {
                 .proposed
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
-                .insert(raw.rank)
+                .insert(raw.info.rank)
         {
             return;
         }
-        let (dtype, bytes) = (raw.dtype, raw.bytes.clone());
+        let field = raw.field.clone();
         let mut p = pb::SceneProposal {
-            step: raw.step,
-            rank: raw.rank,
-            world_size: raw.world_size,
+            step: raw.info.step,
+            rank: raw.info.rank,
+            world_size: raw.info.world_size,
             min: f64::NAN,
             max: f64::NAN,
             wait_secs: 60.0,
@@ -71,13 +71,12 @@ impl SceneLink {
         let link = self.clone();
         tokio::spawn(async move {
             let range = tokio::task::spawn_blocking(move || {
-                dtype
-                    .decode(&bytes)
-                    .into_iter()
-                    .filter(|v| v.is_finite())
-                    .fold(None, |r: Option<(f32, f32)>, v| {
+                field.data().iter().filter(|v| v.is_finite()).fold(
+                    None,
+                    |r: Option<(f32, f32)>, &v| {
                         Some(r.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
-                    })
+                    },
+                )
             })
             .await
             .ok()

@@ -10,7 +10,7 @@ use insitu_core::{TransferFunction, VdiParams};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb};
 use insitu_proto::pb::generator_server::Generator;
 use insitu_proto::{chunk, pb};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 use tonic::{Request, Response, Status, Streaming};
 use tracing::{info, info_span, Instrument};
@@ -49,6 +49,9 @@ pub struct Shared {
     pub scene: Option<Arc<crate::scene::SceneLink>>,
     /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
     pub pool: Option<Arc<rayon::ThreadPool>>,
+    /// The last generated step's field, when nothing else holds it: the next push is received
+    /// into its memory (at most one field beyond what the queue counts).
+    pub spare_field: Mutex<Option<insitu_core::Volume>>,
 }
 
 impl Shared {
@@ -205,14 +208,23 @@ impl Generator for GeneratorService {
     ) -> Result<Response<pb::PushReply>, Status> {
         let s = &self.0;
         let mut stream = request.into_inner();
-        let mut geometry = None;
-        let (_, bytes) = chunk::receive(&mut stream, s.max_step_bytes, |h: &pb::StepHeader| {
-            geometry = Some(check_header(h)?);
-            Ok(())
-        })
+        // Each chunk is converted into the brick's storage as it arrives (no copy of the bytes).
+        let (_, (info, field)) = chunk::receive_into(
+            &mut stream,
+            s.max_step_bytes,
+            |h: &pb::StepHeader| {
+                let info = check_header(h)?;
+                let spare = s
+                    .spare_field
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .take();
+                Ok((info, info.assembler(spare)))
+            },
+            |(_, field), bytes| field.push(bytes),
+        )
         .await?;
-        let mut raw = geometry.ok_or_else(|| Status::internal("header not checked"))?;
-        raw.bytes = bytes;
+        let mut raw = info.with_field(field)?;
         if let Some(spool) = &s.spool {
             // On disk (fsync'd when durable) before the acknowledgement.
             let name = spool.put(&raw).await.map_err(|e| match e {
@@ -235,7 +247,7 @@ impl Generator for GeneratorService {
                 scene.propose(&raw);
             }
         }
-        let (step, rank, n) = (raw.step, raw.rank, raw.bytes.len() as u64);
+        let (step, rank, n) = (raw.info.step, raw.info.rank, raw.bytes());
         let span = info_span!("receive", step, rank, bytes = n);
         let dropped = s
             .queue
@@ -244,7 +256,7 @@ impl Generator for GeneratorService {
             .await
             .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
         for d in &dropped {
-            info!(step = d.step, rank = d.rank, policy = %s.queue.policy(), "dropped a queued step");
+            info!(step = d.info.step, rank = d.info.rank, policy = %s.queue.policy(), "dropped a queued step");
             s.unspool(d.spooled().as_ref());
         }
         let received = {

@@ -79,19 +79,20 @@ fn header_of(raw: &RawStep) -> pb::StepHeader {
         z: v[2] as u32,
     };
     pb::StepHeader {
-        step: raw.step,
-        sim_time: raw.sim_time,
-        dtype: insitu_proto::convert::dtype_to_pb(raw.dtype) as i32,
-        global_dims: Some(d(raw.global_dims)),
-        brick_offset: Some(d(raw.brick_offset)),
-        brick_dims: Some(d(raw.brick_dims)),
-        rank: raw.rank,
-        world_size: raw.world_size,
-        total_bytes: raw.bytes.len() as u64,
+        step: raw.info.step,
+        sim_time: raw.info.sim_time,
+        // The field as held (u8, u16 or f32), which is what the data bytes below are.
+        dtype: insitu_proto::convert::dtype_to_pb(raw.field.voxels().scalar_type()) as i32,
+        global_dims: Some(d(raw.info.global_dims)),
+        brick_offset: Some(d(raw.info.brick_offset)),
+        brick_dims: Some(d(raw.info.brick_dims)),
+        rank: raw.info.rank,
+        world_size: raw.info.world_size,
+        total_bytes: raw.bytes(),
         spacing: Some(pb::Vec3 {
-            x: raw.spacing.x,
-            y: raw.spacing.y,
-            z: raw.spacing.z,
+            x: raw.info.spacing.x,
+            y: raw.info.spacing.y,
+            z: raw.info.spacing.z,
         }),
     }
 }
@@ -134,7 +135,7 @@ impl Spool {
             };
             match Self::read(&path) {
                 Ok(mut raw) => {
-                    used += raw.bytes.len() as u64;
+                    used += raw.bytes();
                     last_seq = last_seq.max(seq);
                     raw.spool = Some(name);
                     steps.push(raw);
@@ -170,7 +171,7 @@ impl Spool {
             .get(16..16usize.saturating_add(n))
             .ok_or("header runs past the end")?;
         let h = pb::StepHeader::decode(header).map_err(|e| e.to_string())?;
-        let mut raw = check_header(&h).map_err(|s| s.message().to_owned())?;
+        let info = check_header(&h).map_err(|s| s.message().to_owned())?;
         let data = &bytes[16 + n..];
         if data.len() as u64 != h.total_bytes {
             return Err(format!(
@@ -179,8 +180,9 @@ impl Spool {
                 h.total_bytes
             ));
         }
-        raw.bytes = data.to_vec();
-        Ok(raw)
+        let mut field = info.assembler(None);
+        field.push(data);
+        info.with_field(field).map_err(|s| s.message().to_owned())
     }
 
     /// Writes `raw` to the spool (waiting while the spool is full) and returns its file name.
@@ -188,7 +190,7 @@ impl Spool {
     /// # Errors
     /// [`SpoolError::TooLarge`] for a step larger than the spool; [`SpoolError::Io`].
     pub async fn put(&self, raw: &RawStep) -> Result<String, SpoolError> {
-        let n = raw.bytes.len() as u64;
+        let n = raw.bytes();
         if n > self.max_bytes {
             return Err(SpoolError::TooLarge {
                 bytes: n,
@@ -207,13 +209,14 @@ impl Spool {
             notified.await;
         }
         let seq = self.seq.fetch_add(1, Ordering::Relaxed);
-        let name = format!("step_{seq:016}_s{}_r{}.step", raw.step, raw.rank);
+        let name = format!("step_{seq:016}_s{}_r{}.step", raw.info.step, raw.info.rank);
         let header = header_of(raw).encode_to_vec();
-        let mut file = Vec::with_capacity(16 + header.len() + raw.bytes.len());
+        let data = raw.field.voxels().to_le_bytes();
+        let mut file = Vec::with_capacity(16 + header.len() + data.len());
         file.extend_from_slice(MAGIC);
         file.extend_from_slice(&(header.len() as u64).to_le_bytes());
         file.extend_from_slice(&header);
-        file.extend_from_slice(&raw.bytes);
+        file.extend_from_slice(&data);
         let (dir, durable, file_name) = (self.dir.clone(), self.durable, name.clone());
         let written =
             tokio::task::spawn_blocking(move || write_file(&dir, &file_name, &file, durable))
@@ -299,9 +302,10 @@ mod tests {
             total_bytes: 4 * n as u64,
             spacing: None,
         };
-        let mut r = check_header(&h).unwrap();
-        r.bytes = (0..4 * n).map(|i| i as u8).collect();
-        r
+        let info = check_header(&h).unwrap();
+        let mut field = info.assembler(None);
+        field.push(&(0..4 * n).map(|i| i as u8).collect::<Vec<_>>());
+        info.with_field(field).unwrap()
     }
 
     #[tokio::test]
@@ -321,9 +325,9 @@ mod tests {
         std::fs::write(dir.path().join(".tmp-x"), b"half").unwrap();
         drop(spool);
         let (spool, back) = Spool::open(dir.path(), true, 100).unwrap();
-        let steps: Vec<u64> = back.iter().map(|r| r.step).collect();
+        let steps: Vec<u64> = back.iter().map(|r| r.info.step).collect();
         assert_eq!(steps, [8, 9]);
-        assert_eq!(back[0].bytes, raw(8, 10).bytes);
+        assert_eq!(back[0].field, raw(8, 10).field);
         assert_eq!(back[0].spool.as_deref(), Some(b.as_str()));
         assert_eq!(back[1].spool.as_deref(), Some(c.as_str()));
         assert!(!dir.path().join(".tmp-x").exists());

@@ -1,4 +1,4 @@
-//! The CPU-bound part of a step (run on the blocking pool): volume from bytes, VDI generation
+//! The CPU-bound part of a step (run on the blocking pool): VDI generation
 //! `R(S_A, P_A, P_M)` (Sec. 3.2), compression (σ), and on sampled steps the reference frames
 //! of the test views from the original data (Alg. 1, line 9).
 
@@ -38,9 +38,6 @@ impl Product {
 /// Why a step could not be turned into a VDI.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkError {
-    /// The volume could not be built.
-    #[error(transparent)]
-    Volume(#[from] insitu_core::volume::VolumeError),
     /// Ray-casting parameters were rejected.
     #[error(transparent)]
     Raycast(#[from] insitu_core::raycast::RaycastError),
@@ -63,7 +60,7 @@ pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
 }
 
 /// Generates, compresses and (if `with_references`) renders the references for one step on
-/// `backend`; `volume` is [`RawStep::volume`] of `raw`. Returns the product and the VDI,
+/// `backend`. Returns the product and the VDI,
 /// whose memory the next step reuses when handed back as `spare` (a VDI of tens of MB in
 /// fresh memory costs a page fault per 4 KiB).
 ///
@@ -72,17 +69,16 @@ pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
 pub fn run(
     backend: &Backend,
     raw: &RawStep,
-    volume: &Volume,
     gen: &Generation,
     tf: &(TransferFunction, String),
     with_references: bool,
     spare: Option<Vdi>,
 ) -> Result<(Product, Vdi), WorkError> {
-    let raycaster = Raycaster::new(volume, &tf.0, gen.raycast)?;
+    let raycaster = Raycaster::new(&raw.field, &tf.0, gen.raycast)?;
     let scene = backend.prepare(&raycaster)?;
     let camera = gen
         .camera
-        .unwrap_or_else(|| Camera::default_for_box(&raw.global_box()));
+        .unwrap_or_else(|| Camera::default_for_box(&raw.info.global_box()));
     let tf_hash = tf.0.identity_hash();
     let generated = info_span!(
         "generate",
@@ -99,7 +95,7 @@ pub fn run(
         let size = gen.reference_side();
         // One rank of several: each pixel carries its opacity too, so that the viz-node can
         // composite the ranks' frames into the whole domain's (`ReferenceHeader.opacity`).
-        let opacity = raw.world_size > 1;
+        let opacity = raw.info.world_size > 1;
         let span = info_span!(
             "references",
             views = gen.view_angles_deg.len(),
@@ -126,8 +122,8 @@ pub fn run(
         })?;
         Some((
             pb::ReferenceHeader {
-                step: raw.step,
-                rank: raw.rank,
+                step: raw.info.step,
+                rank: raw.info.rank,
                 width: size,
                 height: size,
                 camera: Some(camera_to_pb(&camera)),
@@ -142,10 +138,10 @@ pub fn run(
     };
     let product = Product {
         vdi_header: pb::VdiHeader {
-            step: raw.step,
-            sim_time: raw.sim_time,
-            rank: raw.rank,
-            world_size: raw.world_size,
+            step: raw.info.step,
+            sim_time: raw.info.sim_time,
+            rank: raw.info.rank,
+            world_size: raw.info.world_size,
             resolution: gen.params.resolution,
             gamma: gen.params.gamma,
             codec: codec_to_pb(gen.codec) as i32,
@@ -162,9 +158,9 @@ pub fn run(
             .into(),
             backend: backend.describe(),
             pm_version: gen.pm_version,
-            global_dims: Some(dims_to_pb(raw.global_dims)),
-            brick_offset: Some(dims_to_pb(raw.brick_offset)),
-            brick_dims: Some(dims_to_pb(raw.brick_dims)),
+            global_dims: Some(dims_to_pb(raw.info.global_dims)),
+            brick_offset: Some(dims_to_pb(raw.info.brick_offset)),
+            brick_dims: Some(dims_to_pb(raw.info.brick_dims)),
             with_references: references.is_some(),
         },
         vdi: Bytes::from(file),
@@ -196,28 +192,28 @@ fn rgba_f32_le<'a>(image: &'a Image, alpha: &'a [f32]) -> impl Iterator<Item = u
 /// transfer function's domain, min/max, NaN count, and the production σ, τ, P_M) and the field
 /// with its scene, to hold for trials.
 pub fn for_tuner(
-    raw: &RawStep,
-    volume: Volume,
+    raw: RawStep,
     gen: &Generation,
     tf: &(TransferFunction, String),
     product: &Product,
 ) -> (pb::StepSummary, crate::hold::HeldStep) {
     let [lo, hi] = tf.0.domain;
+    let volume = raw.field;
     let h = insitu_core::volume::histogram(&volume.data(), lo, hi);
     let (min, max) = h
         .finite_range
         .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));
     let summary = pb::StepSummary {
-        step: raw.step,
-        rank: raw.rank,
-        world_size: raw.world_size,
+        step: raw.info.step,
+        rank: raw.info.rank,
+        world_size: raw.info.world_size,
         histogram: h.counts.to_vec(),
         range_lo: lo,
         range_hi: hi,
         min,
         max,
         nan_count: h.nan,
-        voxels: volume.data().len() as u64,
+        voxels: volume.voxels().len() as u64,
         held: false,
         pm_version: gen.pm_version,
         resolution: gen.params.resolution,
@@ -229,7 +225,7 @@ pub fn for_tuner(
     let held = crate::hold::HeldStep {
         camera: gen
             .camera
-            .unwrap_or_else(|| Camera::default_for_box(&raw.global_box())),
+            .unwrap_or_else(|| Camera::default_for_box(&raw.info.global_box())),
         volume: Arc::new(volume),
         tf: Arc::new(tf.clone()),
         raycast: gen.raycast,

@@ -160,6 +160,38 @@ where
     M: Chunked,
     S: Stream<Item = Result<M, Status>> + Unpin,
 {
+    receive_into(
+        stream,
+        limit,
+        |h: &M::Header| {
+            check(h)?;
+            // `declared ≤ limit`, and the limit is a memory budget the node chose.
+            Ok(Vec::with_capacity(
+                usize::try_from(M::declared_bytes(h)).unwrap_or(0),
+            ))
+        },
+        |payload: &mut Vec<u8>, b: &[u8]| payload.extend_from_slice(b),
+    )
+    .await
+}
+
+/// [`receive`] into a sink of the caller's making: `begin` validates the header and returns
+/// the sink (sized for the declared bytes, which are at most `limit`), `put` hands it each
+/// chunk's bytes as they arrive, so a receiver can convert the payload on the way in instead
+/// of keeping a copy of the bytes.
+///
+/// # Errors
+/// As [`receive`]; `begin`'s status.
+pub async fn receive_into<M, S, K>(
+    stream: &mut S,
+    limit: u64,
+    begin: impl FnOnce(&M::Header) -> Result<K, Status>,
+    mut put: impl FnMut(&mut K, &[u8]),
+) -> Result<(M::Header, K), Status>
+where
+    M: Chunked,
+    S: Stream<Item = Result<M, Status>> + Unpin,
+{
     let header = match stream.next().await.transpose()?.map(M::into_part) {
         None => return Err(ChunkError::Empty.into()),
         Some(None) => return Err(ChunkError::EmptyMessage.into()),
@@ -175,13 +207,11 @@ where
         }
         .into());
     }
-    check(&header)?;
-    // `declared ≤ limit`, and the limit is a memory budget the node chose.
-    let mut payload = Vec::with_capacity(usize::try_from(declared).unwrap_or(0));
+    let mut sink = begin(&header)?;
+    let mut received = 0u64;
     loop {
-        let received = payload.len() as u64;
         match stream.next().await.transpose()?.map(M::into_part) {
-            None if received == declared => return Ok((header, payload)),
+            None if received == declared => return Ok((header, sink)),
             None => {
                 return Err(ChunkError::Truncated {
                     what: M::WHAT,
@@ -200,7 +230,8 @@ where
                     }
                     .into());
                 }
-                payload.extend_from_slice(&b);
+                received += b.len() as u64;
+                put(&mut sink, &b);
             }
         }
     }

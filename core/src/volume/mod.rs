@@ -6,11 +6,13 @@
 //! one rank's brick of a larger grid), so the world-space box is `origin + [0, (n − 1)·s]` per
 //! axis. NaN marks missing data and is transparent everywhere.
 
+mod assemble;
 pub mod bricks;
 mod gray_scott;
 mod raw;
 mod voxels;
 
+pub use assemble::FieldAssembler;
 pub use gray_scott::{GrayScott, GrayScottParams};
 pub use raw::{RawFormat, ScalarType};
 pub(crate) use voxels::Storage;
@@ -196,6 +198,11 @@ impl Volume {
     /// The samples in their own type, x fastest, length `nx·ny·nz`.
     pub fn voxels(&self) -> VoxelSlice<'_> {
         self.data.slice()
+    }
+
+    /// The storage, given up (for reuse of its memory).
+    pub(crate) fn into_storage(self) -> Storage {
+        self.data
     }
 
     /// The storage, padding included (the AVX2 gathers read past the last voxel).

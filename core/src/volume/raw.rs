@@ -198,19 +198,8 @@ impl RawFormat {
         let mut bytes = Vec::with_capacity(len + 4);
         bytes.resize(len, 0u8);
         file.read_exact(&mut bytes).map_err(io)?;
-        match self.scalar {
-            // Kept in their own type (exact as f32 values).
-            ScalarType::U8 => Volume::from_u8(self.dims, spacing, bytes),
-            ScalarType::U16 => Volume::from_u16(
-                self.dims,
-                spacing,
-                bytes
-                    .chunks_exact(2)
-                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                    .collect(),
-            ),
-            _ => Volume::new(self.dims, spacing, self.scalar.decode(&bytes)),
-        }
+        // u8 and u16 kept in their own type (exact as f32 values), the others as f32.
+        Volume::from_le_bytes(self.dims, spacing, self.scalar, bytes)
     }
 }
 

@@ -90,6 +90,31 @@ impl<'a> VoxelSlice<'a> {
         }
     }
 
+    /// The stored type.
+    pub fn scalar_type(&self) -> super::ScalarType {
+        match self {
+            Self::U8(_) => super::ScalarType::U8,
+            Self::U16(_) => super::ScalarType::U16,
+            Self::F32(_) => super::ScalarType::F32,
+        }
+    }
+
+    /// The samples as little-endian bytes of [`VoxelSlice::scalar_type`] (what
+    /// [`super::Volume::from_le_bytes`] reads back): borrowed on little-endian machines.
+    pub fn to_le_bytes(&self) -> Cow<'a, [u8]> {
+        match *self {
+            Self::U8(d) => Cow::Borrowed(d),
+            #[cfg(target_endian = "little")]
+            Self::U16(d) => Cow::Borrowed(bytemuck::cast_slice(d)),
+            #[cfg(target_endian = "little")]
+            Self::F32(d) => Cow::Borrowed(bytemuck::cast_slice(d)),
+            #[cfg(target_endian = "big")]
+            Self::U16(d) => Cow::Owned(d.iter().flat_map(|v| v.to_le_bytes()).collect()),
+            #[cfg(target_endian = "big")]
+            Self::F32(d) => Cow::Owned(d.iter().flat_map(|v| v.to_le_bytes()).collect()),
+        }
+    }
+
     /// The values as f32: borrowed for f32 storage, converted otherwise.
     pub fn to_f32(&self) -> Cow<'a, [f32]> {
         match *self {
