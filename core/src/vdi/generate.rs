@@ -34,6 +34,7 @@ pub fn generate(
         meta: meta_for(raycaster, camera, params, tf_hash, tf_name),
         offsets: Vec::new(),
         supersegments: Vec::new(),
+        derived: Default::default(),
     };
     generate_into(raycaster, camera, params, tf_hash, tf_name, &mut vdi)?;
     Ok(vdi)
@@ -60,6 +61,7 @@ pub fn generate_into(
         return Err(VdiParamError::Camera(*camera));
     }
     let r = params.resolution;
+    vdi.lists_changed();
     if raycaster.macro_grid().visibility().iter().all(|v| !v) {
         // Nothing visible under the TF (e.g. a rank's brick away from the feature): the empty
         // VDI, for one look at the macro cells instead of r² rays.
@@ -132,7 +134,7 @@ fn march_rows(
 /// touched); each row is copied into it and freed by a parallel task, so the page faults of a
 /// large VDI and the rows' deallocation are spread over the threads instead of following the
 /// parallel pass as serial work.
-fn flatten_into(
+pub(super) fn flatten_into(
     rows: Vec<(Vec<u32>, Vec<Supersegment>)>,
     offsets: &mut Vec<u32>,
     supersegments: &mut Vec<Supersegment>,

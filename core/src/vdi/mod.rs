@@ -10,10 +10,12 @@
 
 pub mod codec;
 pub mod generate;
+pub mod lod;
 pub mod render;
 
 use crate::camera::Camera;
 use crate::volume::Aabb;
+use std::sync::OnceLock;
 
 /// One supersegment: a frustum of a pixel's pyramid with constant colour and opacity.
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -99,6 +101,31 @@ pub struct Vdi {
     meta: VdiMeta,
     offsets: Vec<u32>,
     supersegments: Vec<Supersegment>,
+    derived: Derived,
+}
+
+/// What rendering derives from a VDI, built on first use and kept with it (a viewer renders
+/// one VDI from many cameras): the walk's tables and the next coarser level. Not part of the
+/// VDI's value (equality ignores it); cleared whenever the lists change.
+#[derive(Clone, Default)]
+struct Derived {
+    walk: OnceLock<render::WalkTables>,
+    half: OnceLock<Option<Box<Vdi>>>,
+}
+
+impl PartialEq for Derived {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for Derived {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Derived")
+            .field("walk", &self.walk.get().is_some())
+            .field("half", &self.half.get().is_some())
+            .finish()
+    }
 }
 
 impl Vdi {
@@ -121,6 +148,7 @@ impl Vdi {
             meta,
             offsets,
             supersegments,
+            derived: Derived::default(),
         })
     }
 
@@ -159,5 +187,39 @@ impl Vdi {
     /// Bytes held in memory by the lists (what the renderer reads).
     pub fn memory_bytes(&self) -> usize {
         self.offsets.len() * 4 + self.supersegments.len() * std::mem::size_of::<Supersegment>()
+    }
+
+    /// The walk's tables ([`render::Walker`]), built on first use.
+    pub(crate) fn walk_tables(&self) -> &render::WalkTables {
+        self.derived
+            .walk
+            .get_or_init(|| render::WalkTables::new(self))
+    }
+
+    /// The VDI at `r / 2` ([`lod::halve`]), built on first use and kept; `None` for odd `r`.
+    pub fn half(&self) -> Option<&Vdi> {
+        self.derived
+            .half
+            .get_or_init(|| lod::halve(self).map(Box::new))
+            .as_deref()
+    }
+
+    /// The coarsest level (this VDI or one made by halving it, [`Vdi::half`]) whose
+    /// resolution is still at least `side` pixels: what a frame `side` pixels across can show.
+    /// Levels are built on first use (the teapot at r = 768: about 30 ms for r = 384) and kept.
+    pub fn level_for(&self, side: u32) -> &Vdi {
+        let mut v = self;
+        while v.resolution() / 2 >= side.max(1) {
+            match v.half() {
+                Some(h) => v = h,
+                None => break,
+            }
+        }
+        v
+    }
+
+    /// Forgets what was derived from the lists (after they change).
+    fn lists_changed(&mut self) {
+        self.derived = Derived::default();
     }
 }

@@ -57,20 +57,43 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     ranges
 }
 
-/// A VDI prepared for rendering from many cameras: the per-VDI constants of the walk (tile
-/// depth ranges, packed search keys), built once.
-pub struct Walker<'a> {
-    vdi: &'a Vdi,
-    gen: ViewFrame,
-    r: i64,
+/// The per-VDI constants of the walk: tile depth ranges and packed search keys (8 bytes per
+/// supersegment, 8 per tile), built once per VDI and kept with it ([`Vdi`]'s derived data).
+#[derive(Clone)]
+pub(crate) struct WalkTables {
     /// Tiles per row of the generation image.
     tiles_x: i64,
     /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
     tile_depth: Vec<[f32; 2]>,
     /// Per supersegment, packed: `z_end` (the depth searches touch two cache lines where the
     /// 24-byte supersegments would take four) and `log2(1 − â)` (so `α' = 1 − 2^(ℓ·log2(1 − â))`
-    /// costs one `exp2`, not a `powf`). 8 bytes per supersegment on top of its 24.
+    /// costs one `exp2`, not a `powf`).
     keys: Vec<[f32; 2]>,
+}
+
+impl WalkTables {
+    /// One pass over `vdi`'s pixels and supersegments.
+    pub(crate) fn new(vdi: &Vdi) -> Self {
+        let ri = i64::from(vdi.resolution());
+        Self {
+            tiles_x: (ri + SKIP_TILE - 1) / SKIP_TILE,
+            tile_depth: tile_depth_ranges(vdi),
+            keys: vdi
+                .supersegments()
+                .par_iter()
+                .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
+                .collect(),
+        }
+    }
+}
+
+/// A VDI prepared for rendering from many cameras: its generation frame and its walk tables
+/// (built on the VDI's first render and kept with it).
+pub struct Walker<'a> {
+    vdi: &'a Vdi,
+    gen: ViewFrame,
+    r: i64,
+    tables: &'a WalkTables,
 }
 
 /// A linear function `f0 + f1·t` of the ray parameter.
@@ -88,24 +111,14 @@ impl Lin {
 }
 
 impl<'a> Walker<'a> {
-    /// Prepares `vdi`: one pass over its pixels and supersegments (8 bytes of keys per
-    /// supersegment, 8 per tile).
+    /// Prepares `vdi` (its tables: one pass over its pixels and supersegments the first time).
     pub fn new(vdi: &'a Vdi) -> Self {
         let r = vdi.resolution();
-        let ri = i64::from(r);
-        let tiles_x = (ri + SKIP_TILE - 1) / SKIP_TILE;
-        let tile_depth = tile_depth_ranges(vdi);
         Self {
             vdi,
             gen: vdi.meta().camera.frame(r, r),
-            r: ri,
-            tiles_x,
-            tile_depth,
-            keys: vdi
-                .supersegments()
-                .par_iter()
-                .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
-                .collect(),
+            r: i64::from(r),
+            tables: vdi.walk_tables(),
         }
     }
 
@@ -251,7 +264,7 @@ impl<'a> Walker<'a> {
                     tc.max(t)
                 }
             };
-            let tile = ix / SKIP_TILE + self.tiles_x * (iy / SKIP_TILE);
+            let tile = ix / SKIP_TILE + self.tables.tiles_x * (iy / SKIP_TILE);
             if tile != walking {
                 // Entering a tile: where does the ray leave it, and does its depth over the
                 // tile meet the tile's supersegments?
@@ -269,7 +282,7 @@ impl<'a> Walker<'a> {
                     guard(cross_y(far(step_y, y0t)))
                 };
                 let t_next = ex.min(ey).min(t1);
-                let [z_min, z_max] = self.tile_depth[tile as usize];
+                let [z_min, z_max] = self.tables.tile_depth[tile as usize];
                 let (za, zb) = (z.at(t), z.at(t_next));
                 let margin = 1e-5 * za.abs().max(zb.abs());
                 if !(za.min(zb) > z_max + margin || za.max(zb) < z_min - margin) {
@@ -307,7 +320,7 @@ impl<'a> Walker<'a> {
                 if !range.is_empty()
                     && composite_span(
                         &self.vdi.supersegments()[range.clone()],
-                        &self.keys[range],
+                        &self.tables.keys[range],
                         z,
                         t,
                         t_next,
@@ -445,8 +458,12 @@ mod tests {
         )
         .unwrap();
         let skipping = Walker::new(&vdi);
-        let mut walking_all = Walker::new(&vdi);
-        walking_all.tile_depth.fill([-f32::MAX, f32::MAX]);
+        let mut all = vdi.walk_tables().clone();
+        all.tile_depth.fill([-f32::MAX, f32::MAX]);
+        let walking_all = Walker {
+            tables: &all,
+            ..Walker::new(&vdi)
+        };
         let inside = Camera {
             eye: Vec3::new(24.0, 20.0, 22.0),
             ..cam.orbit_y(35.0)

@@ -194,3 +194,59 @@ fn native_types_march_like_f32() {
         );
     }
 }
+
+/// A halved VDI (the viewer's level for frames half the size, `vdi::lod`) on every shared
+/// volume: valid lists, no more supersegments than the full VDI, and frames at the level's
+/// own resolution close to the full VDI's, from the generation view, from 30° and from behind.
+#[test]
+fn lod_levels_stay_close_to_the_full_vdi() {
+    for (name, volume, tf) in scenes() {
+        let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let cam = Camera::default_for_box(&volume.world_box());
+        let params = VdiParams {
+            resolution: 256,
+            gamma: 0.013,
+        };
+        let full = generate(&rc, &cam, params, tf.identity_hash(), name).unwrap();
+        let half = full.half().unwrap();
+        assert_eq!(half.resolution(), 128);
+        assert_eq!(full.level_for(128).resolution(), 128);
+        assert_eq!(full.level_for(129).resolution(), 256);
+        assert!(half.supersegments().len() <= full.supersegments().len());
+        for j in 0..128 {
+            for i in 0..128 {
+                let l = half.pixel(i, j);
+                for s in l {
+                    assert!(s.z_start < s.z_end, "{name}: {s:?}");
+                    assert!((0.0..=1.0).contains(&s.alpha), "{name}: {s:?}");
+                    assert!(
+                        s.color.iter().all(|c| (0.0..=1.0).contains(c)),
+                        "{name}: {s:?}"
+                    );
+                }
+                assert!(l.windows(2).all(|w| w[0].z_end <= w[1].z_start), "{name}");
+            }
+        }
+        // Against the direct rendering: at the level's own resolution a frame point-samples
+        // the full VDI (one ray per 2 × 2 of its pixels) where the level averages them, so the
+        // fair question is how much of the full VDI's q the level keeps.
+        for angle in [0.0, 30.0, 180.0] {
+            let view = cam.orbit_y(angle);
+            let reference = dvr::render(&rc, &view, 128, 128);
+            let q = |v: &insitu_core::vdi::Vdi| {
+                let image = render::render(v, &view, 128, 128, 0.99);
+                assert_valid(&image, name);
+                metrics::psnr_from_mse(metrics::mse(&image, &reference).unwrap())
+            };
+            let (q_full, q_half) = (q(&full), q(half));
+            eprintln!("{name} at {angle}°: q full {q_full:.2} dB, level {q_half:.2} dB");
+            // Measured: the level loses at most 6.2 dB (hydrogen from behind, 56.9 → 50.7) and
+            // gains up to 22 dB at the generation view, where it averages what the full VDI
+            // point-samples.
+            assert!(
+                q_half >= (q_full - 7.0).min(45.0) && q_half >= 30.0,
+                "{name} at {angle}°: level {q_half:.2} dB, full {q_full:.2} dB"
+            );
+        }
+    }
+}

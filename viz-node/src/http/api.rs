@@ -167,6 +167,8 @@ pub struct Frame {
     pub render_secs: f64,
     /// Seconds to encode it.
     pub encode_secs: f64,
+    /// Resolution of the VDI level it was rendered from.
+    pub vdi_resolution: u32,
 }
 
 /// Renders `step` (none: the latest stored; `rank`, or composed) at `view` and encodes it as
@@ -181,6 +183,7 @@ pub async fn render_frame(
     v: View,
     format: Format,
     quality: u8,
+    lod: bool,
 ) -> Result<Frame, ViewError> {
     v.check(http.shared.max_render_pixels)?;
     let rec = &http.shared.recording;
@@ -198,7 +201,13 @@ pub async fn render_frame(
     let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         let vdi = h.vdi(&name)?;
-        let (image, render_secs) = view::render(&h.shared.backend, &vdi, &v, h.shared.termination)?;
+        let level = if lod {
+            vdi.level_for(v.width.max(v.height))
+        } else {
+            &vdi
+        };
+        let (image, render_secs) =
+            view::render(&h.shared.backend, level, &v, h.shared.termination)?;
         let t = Instant::now();
         let bytes = view::encode(&image, format, quality)?;
         Ok::<_, ViewError>(Frame {
@@ -206,6 +215,7 @@ pub async fn render_frame(
             bytes,
             render_secs,
             encode_secs: t.elapsed().as_secs_f64(),
+            vdi_resolution: level.resolution(),
         })
     })
     .await
@@ -241,7 +251,16 @@ pub async fn render(
             height,
         };
         let format = q.format.unwrap_or(Format::Png);
-        let frame = render_frame(&http, q.step, q.rank, v, format, q.quality.unwrap_or(90)).await?;
+        let frame = render_frame(
+            &http,
+            q.step,
+            q.rank,
+            v,
+            format,
+            q.quality.unwrap_or(90),
+            false,
+        )
+        .await?;
         Ok::<_, ViewError>((format, frame))
     };
     match run.await {

@@ -2,8 +2,9 @@
 //!
 //! In: camera requests as JSON text, `{"id", "step" (null: the latest), "rank" (null:
 //! composed), "angle", "elevation", "zoom", "width", "height", "format": "jpeg"|"png",
-//! "quality"}`. Out: for each frame a JSON text `{"frame": id, "step", "rank", "format",
-//! "width", "height", "bytes", "render_ms", "encode_ms", "superseded"}` followed by the image
+//! "quality", "lod"}`. Out: for each frame a JSON text `{"frame": id, "step", "rank", "format",
+//! "width", "height", "bytes", "render_ms", "encode_ms", "vdi_resolution", "superseded"}`
+//! followed by the image
 //! as one binary message; `{"event": "stored", "step", "rank"}` whenever the viz-node stores
 //! a VDI (so a page following the latest step needs no reload); `{"error": message, "id"}`
 //! for a request that cannot be served (the socket stays open).
@@ -58,6 +59,11 @@ pub struct FrameRequest {
     /// JPEG quality, 1..=100 (default 55).
     #[serde(default = "jpeg_quality")]
     pub quality: u8,
+    /// Render from the coarsest level of the VDI that still has the frame's resolution
+    /// ([`insitu_core::vdi::Vdi::level_for`]): what the page asks for while the camera moves
+    /// (default false: the full VDI).
+    #[serde(default)]
+    pub lod: bool,
 }
 
 fn one() -> f32 {
@@ -220,7 +226,16 @@ async fn frame(
         width: req.width,
         height: req.height,
     };
-    let f = render_frame(http, req.step, req.rank, v, req.format, req.quality).await?;
+    let f = render_frame(
+        http,
+        req.step,
+        req.rank,
+        v,
+        req.format,
+        req.quality,
+        req.lod,
+    )
+    .await?;
     let header = json!({
         "frame": req.id,
         "step": f.step,
@@ -231,6 +246,7 @@ async fn frame(
         "bytes": f.bytes.len(),
         "render_ms": f.render_secs * 1e3,
         "encode_ms": f.encode_secs * 1e3,
+        "vdi_resolution": f.vdi_resolution,
         "superseded": http.superseded.load(Ordering::Relaxed),
     });
     Ok((header, f.bytes))
@@ -263,8 +279,8 @@ mod tests {
     fn requests_parse_or_say_what_is_wrong() {
         let r = parse(r#"{"id":3,"step":null,"rank":null,"angle":10,"elevation":-5,"width":64,"height":48,"format":"jpeg"}"#).unwrap();
         assert_eq!(
-            (r.id, r.zoom, r.quality, r.format),
-            (3, 1.0, 55, Format::Jpeg)
+            (r.id, r.zoom, r.quality, r.format, r.lod),
+            (3, 1.0, 55, Format::Jpeg, false)
         );
         assert!(parse("{").unwrap_err().contains("malformed"));
         assert!(parse(r#"{"width":1,"height":1,"format":"gif"}"#)

@@ -47,8 +47,8 @@ function interactiveSide(full) {
   return Math.max(Math.min(MIN_INTERACTIVE_SIDE, quarter), Math.min(quarter, fit));
 }
 
-// Asks for a frame: interactive (JPEG, at most ¼ area, see `interactiveSide`) or still
-// (full PNG).
+// Asks for a frame: interactive (JPEG, at most ¼ area, see `interactiveSide`, from the VDI
+// level that matches its size) or still (full PNG from the full VDI).
 function request(interactive) {
   if (!socket || socket.readyState !== WebSocket.OPEN) return;
   const full = side();
@@ -64,6 +64,7 @@ function request(interactive) {
     height: px,
     format: interactive ? "jpeg" : "png",
     quality: 55,
+    lod: interactive,
   }));
   clearTimeout(stillTimer);
   if (interactive) stillTimer = setTimeout(() => request(false), STILL_DELAY_MS);
@@ -117,9 +118,11 @@ function connect() {
       elevation: String(view.elevation),
       zoom: String(view.zoom),
       width: String(h.width),
+      vdiResolution: String(h.vdi_resolution),
     });
     $("frame-info").textContent =
-      `step ${h.step} · ${h.format} ${h.width}² · ${(h.bytes / 1024).toFixed(1)} KiB · ` +
+      `step ${h.step} · ${h.format} ${h.width}² from r = ${h.vdi_resolution} · ` +
+      `${(h.bytes / 1024).toFixed(1)} KiB · ` +
       `render ${h.render_ms.toFixed(1)} ms · encode ${h.encode_ms.toFixed(1)} ms`;
     if (shownStep !== h.step) {
       shownStep = h.step;
