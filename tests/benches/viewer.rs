@@ -95,12 +95,15 @@ fn main() {
         for (step, r) in [(0, 256), (1, 768)] {
             // The page's interactive frames are at most ¼ area (384²) and smaller where the
             // last one's cost per pixel predicts more than 35 ms: 256² and 192² show that trade.
+            // Like the page, interactive frames ask for the VDI level that matches their size
+            // (built by the first request, which is not counted), stills for the full VDI.
             for (kind, side, format) in [
                 ("interactive", 384, "jpeg"),
                 ("interactive", 256, "jpeg"),
                 ("interactive", 192, "jpeg"),
                 ("still", 768, "png"),
             ] {
+                let lod = kind == "interactive";
                 let out = js(
                     &c,
                     &format!(
@@ -119,10 +122,10 @@ fn main() {
                            const t = performance.now();
                            const done_ = new Promise(r => resolve = r);
                            ws.send(JSON.stringify({{id: i, step: {step}, rank: null, angle: 5 + i * 7, elevation: (i % 9) * 5 - 20,
-                             zoom: 1, width: {side}, height: {side}, format: '{format}', quality: 55}}));
+                             zoom: 1, width: {side}, height: {side}, format: '{format}', quality: 55, lod: {lod}}}));
                            const h = await done_;
                            if (h.error) {{ done({{error: h.error}}); return; }}
-                           if (i > 0) rows.push([performance.now() - t, h.render_ms, h.bytes, h.encode_ms]);
+                           if (i > 0) rows.push([performance.now() - t, h.render_ms, h.bytes, h.encode_ms, h.vdi_resolution]);
                          }}
                          ws.close();
                          done(rows);"
@@ -134,8 +137,9 @@ fn main() {
                     rows.iter().map(|r| r[k].as_f64().unwrap()).collect()
                 };
                 let (mut lat, mut render, mut bytes, mut encode) = (col(0), col(1), col(2), col(3));
+                let level = col(4)[0];
                 println!(
-                    "teapot r = {r:3}, {kind:11} {side}² {format:4}: camera change → frame in the page median {:6.1} ms, p95 {:6.1} ms; server render median {:6.1} ms, encode {:5.1} ms; frame {:.1} KiB (median)",
+                    "teapot r = {r:3} (level {level:3}), {kind:11} {side}² {format:4}: camera change → frame in the page median {:6.1} ms, p95 {:6.1} ms; server render median {:6.1} ms, encode {:5.1} ms; frame {:.1} KiB (median)",
                     percentile(&mut lat, 0.5),
                     percentile(&mut lat, 0.95),
                     percentile(&mut render, 0.5),
