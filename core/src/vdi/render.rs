@@ -13,6 +13,7 @@
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
 use crate::dvr::render_tiles;
+use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -66,8 +67,9 @@ pub(crate) struct WalkTables {
     /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
     tile_depth: Vec<[f32; 2]>,
     /// Per supersegment, packed: `z_end` (the depth searches touch two cache lines where the
-    /// 24-byte supersegments would take four) and `log2(1 − â)` (so `α' = 1 − 2^(ℓ·log2(1 − â))`
-    /// costs one `exp2`, not a `powf`).
+    /// 24-byte supersegments would take four) and the extinction `κ = −ln(1 − â)` per unit
+    /// length (so `α' = 1 − e^(−ℓ·κ)` costs one call-free [`one_minus_exp_neg`], not a `powf`;
+    /// `â = 1` gives `κ = ∞` and `α' = 1`).
     keys: Vec<[f32; 2]>,
 }
 
@@ -81,7 +83,7 @@ impl WalkTables {
             keys: vdi
                 .supersegments()
                 .par_iter()
-                .map(|s| [s.z_end, (1.0 - s.alpha).log2()])
+                .map(|s| [s.z_end, -(-s.alpha).ln_1p()])
                 .collect(),
         }
     }
@@ -216,9 +218,9 @@ impl<'a> Walker<'a> {
         let (step_x, step_y) = (direction(px1 - px0), direction(py1 - py0));
         let start_cell = |p: f32, step: i64| -> i64 {
             let c = if step < 0 {
-                p.ceil() as i64 - 1
+                fastmath::ceil(p) as i64 - 1
             } else {
-                p.floor() as i64
+                -fastmath::ceil(-p) as i64
             };
             c.clamp(0, self.r - 1)
         };
@@ -357,13 +359,13 @@ struct Accum {
 }
 
 impl Accum {
-    /// Adds a frustum with `log2(1 − â)` = `l2` passed over world length `len`; returns true
-    /// when the ray is done.
+    /// Adds a frustum of extinction `kappa` = `−ln(1 − â)` passed over world length `len`;
+    /// returns true when the ray is done.
     #[inline]
-    fn add(&mut self, s: &Supersegment, l2: f32, len: f32) -> bool {
+    fn add(&mut self, s: &Supersegment, kappa: f32, len: f32) -> bool {
         if len > 0.0 && s.alpha > 0.0 {
-            // â = 1 gives l2 = −∞ and α' = 1.
-            let alpha = 1.0 - (len * l2).exp2();
+            // â = 1 gives κ = ∞ and α' = 1.
+            let alpha = one_minus_exp_neg(len * kappa);
             let w = self.transmittance * alpha;
             for k in 0..3 {
                 self.color[k] += w * s.color[k];
@@ -375,7 +377,7 @@ impl Accum {
 }
 
 /// Composites the supersegments of one pixel list met by the ray over `[ta, tb]`, where the
-/// generation depth is `z(t)`; `keys` holds the list's `[z_end, log2(1 − â)]`. Returns true when the ray
+/// generation depth is `z(t)`; `keys` holds the list's `[z_end, −ln(1 − â)]`. Returns true when the ray
 /// is done.
 #[inline]
 fn composite_span(
