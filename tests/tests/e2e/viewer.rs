@@ -312,10 +312,11 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
             "const before = await (await fetch('/api/stats')).json();
              const ws = new WebSocket(location.href.replace(/^http/, 'ws').replace(/\\/?(\\?.*)?$/, '/api/live'));
              ws.binaryType = 'arraybuffer';
-             const frames = [];
+             const frames = [], levels = {};
              let errors = [];
              ws.onmessage = (m) => { if (typeof m.data === 'string') { const j = JSON.parse(m.data);
-               if (j.frame !== undefined) frames.push(j.frame); if (j.error) errors.push(j.error); } };
+               if (j.frame !== undefined) { frames.push(j.frame); levels[j.frame] = j.vdi_resolution; }
+               if (j.error) errors.push(j.error); } };
              await new Promise(r => ws.onopen = r);
              ws.send('{not json');
              for (let i = 1; i <= 50; i++) ws.send(JSON.stringify({id: i, step: null, rank: null,
@@ -331,9 +332,14 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
              }
              ws.send(JSON.stringify({id: 53, step: null, width: 64, height: 64, format: 'png'}));
              while (!frames.includes(53) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
+             // An 8² frame asked with and without the matching level of detail.
+             for (const [id, lod] of [[54, true], [55, false]]) {
+               ws.send(JSON.stringify({id, step: null, width: 8, height: 8, format: 'png', lod}));
+               while (!frames.includes(id) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
+             }
              const after = await (await fetch('/api/stats')).json();
              ws.close();
-             done({frames, errors, before, after});",
+             done({frames, errors, levels, before, after});",
         )
         .await;
         let frames = burst["frames"].as_array().unwrap();
@@ -343,6 +349,12 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
             - burst["before"]["superseded"].as_u64().unwrap();
         eprintln!("50 camera changes: {rendered} renders, {superseded} superseded, frames {frames:?}");
         assert!(frames.contains(&json!(50)) && frames.contains(&json!(53)), "{burst}");
+        // An 8² frame with `lod` walks the VDI halved down to r = 8, without it the VDI itself
+        // (what the 64² still was rendered from).
+        let full = burst["levels"]["53"].as_u64().unwrap();
+        assert!(full >= 16, "{burst}");
+        assert_eq!(burst["levels"]["54"], json!(8), "{burst}");
+        assert_eq!(burst["levels"]["55"], json!(full), "{burst}");
         // Other sockets (the page's own) may render meanwhile; the burst's 50 requests must
         // not have queued 50 renders.
         assert!(rendered <= 12 && superseded >= 40, "{burst}");
