@@ -35,7 +35,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::Semaphore;
 
-/// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times).
+/// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times). Each keeps
+/// what rendering derived from it: the walk's tables (8 bytes per supersegment) and the levels
+/// dragging asked for (the teapot at r = 768: 38 MB of lists, 13 MB of tables, 10 MB for the
+/// r = 384 level).
 const CACHED_VDIS: usize = 4;
 /// How long the tuner's budget is reused before it is asked again.
 pub const BUDGET_REFRESH: Duration = Duration::from_secs(5);
