@@ -337,9 +337,13 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
                ws.send(JSON.stringify({id, step: null, width: 8, height: 8, format: 'png', lod}));
                while (!frames.includes(id) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
              }
+             // The same through the still-image API.
+             const rest = [];
+             for (const lod of [true, false])
+               rest.push((await fetch(`/api/render?size=8&lod=${lod}`)).headers.get('x-vdi-resolution'));
              const after = await (await fetch('/api/stats')).json();
              ws.close();
-             done({frames, errors, levels, before, after});",
+             done({frames, errors, levels, rest, before, after});",
         )
         .await;
         let frames = burst["frames"].as_array().unwrap();
@@ -355,6 +359,7 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
         assert!(full >= 16, "{burst}");
         assert_eq!(burst["levels"]["54"], json!(8), "{burst}");
         assert_eq!(burst["levels"]["55"], json!(full), "{burst}");
+        assert_eq!(burst["rest"], json!(["8", full.to_string()]), "{burst}");
         // Other sockets (the page's own) may render meanwhile; the burst's 50 requests must
         // not have queued 50 renders.
         assert!(rendered <= 12 && superseded >= 40, "{burst}");

@@ -146,6 +146,9 @@ pub struct RenderQuery {
     size: Option<String>,
     format: Option<Format>,
     quality: Option<u8>,
+    /// From the VDI's level matching the size (default false: the full VDI).
+    #[serde(default)]
+    lod: bool,
     #[allow(dead_code)] // read by the token check
     token: Option<String>,
 }
@@ -258,7 +261,7 @@ pub async fn render(
             v,
             format,
             q.quality.unwrap_or(90),
-            false,
+            q.lod,
         )
         .await?;
         Ok::<_, ViewError>((format, frame))
@@ -272,6 +275,10 @@ pub async fn render(
                     format!("{:.1}", f.render_secs * 1e3),
                 ),
                 (HeaderName::from_static("x-step"), f.step.to_string()),
+                (
+                    HeaderName::from_static("x-vdi-resolution"),
+                    f.vdi_resolution.to_string(),
+                ),
             ],
             f.bytes,
         )
