@@ -47,7 +47,8 @@ pub fn generate(
 /// 37 MB: about 9 000, a few percent of the generation time); reused memory costs none.
 ///
 /// # Errors
-/// As [`generate`]; `vdi` is unchanged then.
+/// As [`generate`]. `vdi` is unchanged after a parameter or camera error, and left an empty VDI
+/// after the overflow error (more than `u32::MAX` supersegments).
 pub fn generate_into(
     raycaster: &Raycaster,
     camera: &Camera,
@@ -71,13 +72,34 @@ pub fn generate_into(
         vdi.supersegments.clear();
         return Ok(());
     }
-    let rows = march_rows(raycaster, camera, params);
-    // More than u32::MAX supersegments would not fit the offsets.
-    if rows.iter().map(|(_, s)| s.len()).sum::<usize>() > u32::MAX as usize {
-        return Err(VdiParamError::Resolution(r));
-    }
     vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
-    flatten_into(rows, &mut vdi.offsets, &mut vdi.supersegments);
+    vdi.offsets.clear();
+    vdi.offsets.reserve((r as usize).pow(2) + 1);
+    vdi.offsets.push(0);
+    vdi.supersegments.clear();
+    let band = r.div_ceil(BANDS);
+    // Band k + 1 is marched while band k is appended (a serial copy that would otherwise
+    // leave a thread idle).
+    let mut pending: Vec<(Vec<u32>, Vec<Supersegment>)> = Vec::new();
+    let mut total = 0usize;
+    for start in (0..r).step_by(band as usize) {
+        let (offsets, supersegments) = (&mut vdi.offsets, &mut vdi.supersegments);
+        let done = std::mem::take(&mut pending);
+        let (rows, ()) = rayon::join(
+            || march_rows(raycaster, camera, params, start..(start + band).min(r)),
+            || append_rows(done, offsets, supersegments),
+        );
+        total += rows.iter().map(|(_, s)| s.len()).sum::<usize>();
+        // More than u32::MAX supersegments would not fit the offsets.
+        if total > u32::MAX as usize {
+            vdi.offsets.clear();
+            vdi.offsets.resize((r as usize).pow(2) + 1, 0);
+            vdi.supersegments.clear();
+            return Err(VdiParamError::Resolution(r));
+        }
+        pending = rows;
+    }
+    append_rows(pending, &mut vdi.offsets, &mut vdi.supersegments);
     debug_assert_eq!(vdi.offsets.len(), (r as usize).pow(2) + 1);
     debug_assert_eq!(
         vdi.offsets.last().map(|&n| n as usize),
@@ -86,11 +108,18 @@ pub fn generate_into(
     Ok(())
 }
 
-/// Each row's `(counts, supersegments)`, rows in parallel.
+/// Bands of rows generated one after another: only two bands' per-row lists (the one being
+/// marched, the one being appended) exist beside the flat array, so generation's memory peaks
+/// at about the VDI and a quarter, not twice the VDI (issue 17, "Scale": on small fields the
+/// VDI dominates the peak).
+const BANDS: u32 = 8;
+
+/// Each of `rows`' `(counts, supersegments)`, rows in parallel.
 fn march_rows(
     raycaster: &Raycaster,
     camera: &Camera,
     params: VdiParams,
+    rows: std::ops::Range<u32>,
 ) -> Vec<(Vec<u32>, Vec<Supersegment>)> {
     let r = params.resolution;
     let frame = camera.frame(r, r);
@@ -98,8 +127,7 @@ fn march_rows(
     let gamma_sq = params.gamma * params.gamma;
     // Each row's list is reserved at the size of the row before it on the same worker (and a
     // quarter more): neighbouring rows see similar content, so lists rarely grow by copying.
-    (0..r)
-        .into_par_iter()
+    rows.into_par_iter()
         .map_init(
             || (0usize, Vec::new()),
             |(previous, samples), j| {
@@ -127,46 +155,23 @@ fn march_rows(
         .collect()
 }
 
-/// Joins per-row `(counts, supersegments)` into prefix offsets and one flat array, reusing
-/// the allocations of `offsets` and `supersegments`.
-///
-/// An array too small is replaced by one allocated zeroed (`calloc`: fresh pages, not yet
-/// touched); each row is copied into it and freed by a parallel task, so the page faults of a
-/// large VDI and the rows' deallocation are spread over the threads instead of following the
-/// parallel pass as serial work.
-pub(super) fn flatten_into(
+/// Appends per-row `(counts, supersegments)` to prefix offsets (which end with the count so
+/// far) and the flat array, freeing each row's list once copied (the next band's lists reuse
+/// that memory).
+pub(super) fn append_rows(
     rows: Vec<(Vec<u32>, Vec<Supersegment>)>,
     offsets: &mut Vec<u32>,
     supersegments: &mut Vec<Supersegment>,
 ) {
-    let pixels: usize = rows.iter().map(|(c, _)| c.len()).sum();
-    offsets.clear();
-    offsets.reserve(pixels + 1);
-    offsets.push(0u32);
-    let mut acc = 0u32;
-    for (counts, _) in &rows {
-        for &c in counts {
+    let mut acc = offsets.last().copied().unwrap_or(0);
+    supersegments.reserve(rows.iter().map(|(_, s)| s.len()).sum());
+    for (counts, segs) in rows {
+        for c in counts {
             acc = acc.saturating_add(c);
             offsets.push(acc);
         }
+        supersegments.extend_from_slice(&segs);
     }
-    let total: usize = rows.iter().map(|(_, s)| s.len()).sum();
-    if supersegments.capacity() < total {
-        *supersegments = bytemuck::allocation::zeroed_vec(total);
-    } else {
-        // Only what lies beyond the old length is written before the copy.
-        supersegments.resize(total, bytemuck::Zeroable::zeroed());
-    }
-    let mut rest = supersegments.as_mut_slice();
-    let mut parts = Vec::with_capacity(rows.len());
-    for (_, segs) in rows {
-        let (part, tail) = std::mem::take(&mut rest).split_at_mut(segs.len());
-        parts.push((part, segs));
-        rest = tail;
-    }
-    parts
-        .into_par_iter()
-        .for_each(|(dst, src)| dst.copy_from_slice(&src));
 }
 
 /// The metadata of a VDI generated from `raycaster`'s scene (shared with the GPU path).

@@ -18,7 +18,7 @@
 //! What it costs in accuracy is measured, not assumed: `real_data::lod_*` and the README's
 //! viewer table give the PSNR of a level against the full VDI at the same frame.
 
-use super::generate::flatten_into;
+use super::generate::append_rows;
 use super::{Supersegment, Vdi, VdiMeta, VdiParams};
 use rayon::prelude::*;
 
@@ -53,9 +53,10 @@ pub fn halve(vdi: &Vdi) -> Option<Vdi> {
             (counts, segs)
         })
         .collect();
-    let mut offsets = Vec::new();
+    let mut offsets = Vec::with_capacity((half as usize).pow(2) + 1);
+    offsets.push(0);
     let mut supersegments = Vec::new();
-    flatten_into(rows, &mut offsets, &mut supersegments);
+    append_rows(rows, &mut offsets, &mut supersegments);
     let meta = VdiMeta {
         params: VdiParams {
             resolution: half,
