@@ -67,9 +67,7 @@ pub fn generate_into(
         // Nothing visible under the TF (e.g. a rank's brick away from the feature): the empty
         // VDI, for one look at the macro cells instead of r² rays.
         vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
-        vdi.offsets.clear();
-        vdi.offsets.resize((r as usize).pow(2) + 1, 0);
-        vdi.supersegments.clear();
+        vdi.empty_lists();
         return Ok(());
     }
     vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
@@ -92,9 +90,7 @@ pub fn generate_into(
         total += rows.iter().map(|(_, s)| s.len()).sum::<usize>();
         // More than u32::MAX supersegments would not fit the offsets.
         if total > u32::MAX as usize {
-            vdi.offsets.clear();
-            vdi.offsets.resize((r as usize).pow(2) + 1, 0);
-            vdi.supersegments.clear();
+            vdi.empty_lists();
             return Err(VdiParamError::Resolution(r));
         }
         pending = rows;

@@ -218,6 +218,15 @@ impl Vdi {
         v
     }
 
+    /// Every pixel's list emptied (memory kept), at the metadata's resolution.
+    fn empty_lists(&mut self) {
+        self.offsets.clear();
+        self.offsets
+            .resize((self.resolution() as usize).pow(2) + 1, 0);
+        self.supersegments.clear();
+        self.lists_changed();
+    }
+
     /// Forgets what was derived from the lists (after they change).
     fn lists_changed(&mut self) {
         self.derived = Derived::default();
