@@ -169,6 +169,16 @@ pub fn load_vdi(dir: &Path, name: &str) -> Result<Vdi, ViewError> {
         .map_err(|e| ViewError::Failed(format!("{} is not a usable VDI: {e}", path.display())))
 }
 
+/// What a frame of `view` is rendered from: with `lod`, the coarsest level of `vdi` still as
+/// wide as the frame ([`Vdi::level_for`]; built on first use and kept with `vdi`), else `vdi`.
+pub fn level<'a>(vdi: &'a Vdi, view: &View, lod: bool) -> &'a Vdi {
+    if lod {
+        vdi.level_for(view.width.max(view.height))
+    } else {
+        vdi
+    }
+}
+
 /// Renders `vdi` at `view` on `backend` with early termination `termination`; returns the
 /// image and the render's seconds (wall clock, or GPU time on the GPU backend).
 ///

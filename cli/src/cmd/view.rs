@@ -95,11 +95,7 @@ pub fn run(a: Args) -> Result<()> {
     v.check(u64::MAX)?;
     let backend = a.backend.open()?;
     let t = std::time::Instant::now();
-    let level = if a.lod {
-        vdi.level_for(width.max(height))
-    } else {
-        &vdi
-    };
+    let level = view::level(&vdi, &v, a.lod);
     let level_secs = t.elapsed().as_secs_f64();
     let (image, secs) = view::render(&backend, level, &v, termination)?;
     let mut again = Vec::new();

@@ -20,11 +20,12 @@
 
 use super::generate::append_rows;
 use super::{Supersegment, Vdi, VdiMeta, VdiParams};
+use crate::fastmath::one_minus_exp_neg;
 use rayon::prelude::*;
 
-/// Largest opacity per unit length taken into an average: `â = 1` (opaque) would make the
-/// extinction infinite and the whole footprint opaque; this caps σ at about 13.8.
-const MAX_ALPHA: f32 = 1.0 - 1e-6;
+/// Largest extinction per unit length taken into an average, `−ln(10⁻⁶)`: `â = 1` (opaque)
+/// would make it infinite and the whole footprint opaque.
+const MAX_SIGMA: f32 = 13.815_51;
 
 /// The VDI at half the resolution (`r / 2`, same camera and metadata otherwise), or `None`
 /// when `r` is odd (the coarse pixels would not cover whole 2 × 2 blocks).
@@ -79,7 +80,7 @@ struct Interval {
 impl Interval {
     /// Premultiplied colour per unit length `â·ĉ` (what γ bounds).
     fn premultiplied(&self) -> [f32; 3] {
-        let a = -(-self.sigma).exp_m1();
+        let a = one_minus_exp_neg(self.sigma);
         self.color.map(|c| a * c)
     }
 
@@ -88,7 +89,7 @@ impl Interval {
             z_start: self.z0,
             z_end: self.z1,
             color: self.color.map(|c| c.clamp(0.0, 1.0)),
-            alpha: (-(-self.sigma).exp_m1()).clamp(0.0, 1.0),
+            alpha: one_minus_exp_neg(self.sigma).clamp(0.0, 1.0),
         }
     }
 }
@@ -127,7 +128,7 @@ fn average(
                 *c += 1;
             }
             if let Some(s) = l.get(*c).filter(|s| s.z_start <= z0) {
-                let si = -(-s.alpha.min(MAX_ALPHA)).ln_1p();
+                let si = s.extinction().min(MAX_SIGMA);
                 sigma += si;
                 for (w, c) in weighted.iter_mut().zip(s.color) {
                     *w += si * c;

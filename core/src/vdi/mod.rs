@@ -32,6 +32,15 @@ pub struct Supersegment {
     pub alpha: f32,
 }
 
+impl Supersegment {
+    /// Extinction per unit length `κ = −ln(1 − â)` (`∞` for `â = 1`): what the walk's
+    /// `α' = 1 − e^(−ℓ·κ)` takes, and what a coarser level averages ([`lod`]).
+    #[inline]
+    pub fn extinction(&self) -> f32 {
+        -(-self.alpha).ln_1p()
+    }
+}
+
 /// Generation parameters `P_M = (r, γ)` (Sec. 5.2).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VdiParams {

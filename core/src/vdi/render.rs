@@ -39,7 +39,7 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     let tile = SKIP_TILE as usize;
     let tiles_x = r.div_ceil(tile);
     let mut ranges = vec![[f32::MAX, -f32::MAX]; tiles_x * tiles_x];
-    // A row of tiles per task (built for every frame the viewer renders).
+    // A row of tiles per task.
     ranges
         .par_chunks_mut(tiles_x.max(1))
         .enumerate()
@@ -83,7 +83,7 @@ impl WalkTables {
             keys: vdi
                 .supersegments()
                 .par_iter()
-                .map(|s| [s.z_end, -(-s.alpha).ln_1p()])
+                .map(|s| [s.z_end, s.extinction()])
                 .collect(),
         }
     }

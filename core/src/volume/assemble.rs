@@ -89,12 +89,7 @@ impl FieldAssembler {
                     .chunks_exact(2)
                     .map(|c| u16::from_le_bytes([c[0], c[1]])),
             ),
-            (Storage::F32(v), ScalarType::F32) => v.extend(
-                bytes
-                    .chunks_exact(4)
-                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
-            ),
-            (Storage::F32(v), scalar) => v.extend(scalar.decode(bytes)),
+            (Storage::F32(v), scalar) => scalar.decode_into(bytes, v),
         }
     }
 

@@ -46,28 +46,35 @@ impl ScalarType {
     /// Converts little-endian samples of this type to `f32`; a trailing partial sample is
     /// ignored (callers check `bytes.len()` against the dims first).
     pub fn decode(self, bytes: &[u8]) -> Vec<f32> {
+        let mut out = Vec::with_capacity(bytes.len() / self.size_bytes());
+        self.decode_into(bytes, &mut out);
+        out
+    }
+
+    /// [`ScalarType::decode`] appending to `out`.
+    pub fn decode_into(self, bytes: &[u8], out: &mut Vec<f32>) {
         match self {
-            Self::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
-            Self::U16 => bytes
-                .chunks_exact(2)
-                .map(|c| f32::from(u16::from_le_bytes([c[0], c[1]])))
-                .collect(),
-            Self::I16 => bytes
-                .chunks_exact(2)
-                .map(|c| f32::from(i16::from_le_bytes([c[0], c[1]])))
-                .collect(),
-            Self::F32 => bytes
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect(),
-            Self::F64 => bytes
-                .chunks_exact(8)
-                .map(|c| {
-                    let mut b = [0u8; 8];
-                    b.copy_from_slice(c);
-                    f64::from_le_bytes(b) as f32
-                })
-                .collect(),
+            Self::U8 => out.extend(bytes.iter().map(|&b| f32::from(b))),
+            Self::U16 => out.extend(
+                bytes
+                    .chunks_exact(2)
+                    .map(|c| f32::from(u16::from_le_bytes([c[0], c[1]]))),
+            ),
+            Self::I16 => out.extend(
+                bytes
+                    .chunks_exact(2)
+                    .map(|c| f32::from(i16::from_le_bytes([c[0], c[1]]))),
+            ),
+            Self::F32 => out.extend(
+                bytes
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            ),
+            Self::F64 => out.extend(bytes.chunks_exact(8).map(|c| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(c);
+                f64::from_le_bytes(b) as f32
+            })),
         }
     }
 }

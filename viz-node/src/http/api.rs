@@ -204,11 +204,7 @@ pub async fn render_frame(
     let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         let vdi = h.vdi(&name)?;
-        let level = if lod {
-            vdi.level_for(v.width.max(v.height))
-        } else {
-            &vdi
-        };
+        let level = view::level(&vdi, &v, lod);
         let (image, render_secs) =
             view::render(&h.shared.backend, level, &v, h.shared.termination)?;
         let t = Instant::now();
