@@ -243,13 +243,29 @@ impl<'a> Raycaster<'a> {
         // The storage with its padding (the AVX2 gathers read a few bytes past the last
         // voxel of integer types).
         match (self.volume.storage(), self.params.shading.is_some()) {
-            (Storage::U8(d), false) => self.march_impl::<u8, false>(d, ray, &mut visit),
-            (Storage::U8(d), true) => self.march_impl::<u8, true>(d, ray, &mut visit),
-            (Storage::U16(d), false) => self.march_impl::<u16, false>(d, ray, &mut visit),
-            (Storage::U16(d), true) => self.march_impl::<u16, true>(d, ray, &mut visit),
-            (Storage::F32(d), false) => self.march_impl::<f32, false>(d, ray, &mut visit),
-            (Storage::F32(d), true) => self.march_impl::<f32, true>(d, ray, &mut visit),
+            (Storage::U8(d), false) => self.march_typed::<u8, false>(d, ray, &mut visit),
+            (Storage::U8(d), true) => self.march_typed::<u8, true>(d, ray, &mut visit),
+            (Storage::U16(d), false) => self.march_typed::<u16, false>(d, ray, &mut visit),
+            (Storage::U16(d), true) => self.march_typed::<u16, true>(d, ray, &mut visit),
+            (Storage::F32(d), false) => self.march_typed::<f32, false>(d, ray, &mut visit),
+            (Storage::F32(d), true) => self.march_typed::<f32, true>(d, ray, &mut visit),
         }
+    }
+
+    /// The whole march compiled for AVX2 where the CPU has it (the kernel then inlines into
+    /// the loop), else the portable scalar path.
+    #[inline(always)]
+    fn march_typed<T: simd::Gather, const SHADE: bool>(
+        &self,
+        data: &[T],
+        ray: &Ray,
+        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = self.simd {
+            return simd::march::<T, SHADE>(avx2, self, data, ray, visit);
+        }
+        self.march_impl::<T, SHADE>(data, ray, visit, None);
     }
 
     #[inline(always)]
@@ -258,6 +274,7 @@ impl<'a> Raycaster<'a> {
         data: &[T],
         ray: &Ray,
         visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+        simd: Option<simd::Avx2>,
     ) {
         let inv_dir = ray.dir.recip();
         let (t_near, t_far) = self.bounds.intersect(ray.origin, inv_dir);
@@ -284,9 +301,7 @@ impl<'a> Raycaster<'a> {
         };
         // The AVX2 kernel for this ray, checked once.
         #[cfg(target_arch = "x86_64")]
-        let lanes = self
-            .simd
-            .and_then(|avx2| simd::Lanes::new(avx2, self, data, &m));
+        let lanes = simd.and_then(|avx2| simd::Lanes::new(avx2, self, data, &m));
         // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder. Walked a
         // macro cell at a time: an invisible cell is jumped over; in a visible one, the steps
         // whose midpoints lie before the cell's exit are sampled without further checks

@@ -2,7 +2,8 @@
 //! [`super`] stays the reference and the fallback).
 //!
 //! A visible macro cell's steps are independent until compositing, so their positions,
-//! lower voxels, fractions, eight corner gathers and trilinear blends are computed eight
+//! lower voxels, fractions, corner gathers (four for u8 and u16: one 4-byte load holds a corner and
+//! its x neighbour) and trilinear blends are computed eight
 //! lanes wide; classification and the visitor then run per lane, in order. Every lane does
 //! the scalar path's arithmetic in the scalar path's order (multiplications and additions,
 //! never fused; truncation for the lower voxel), so the values are **bit-identical** to
@@ -13,10 +14,12 @@
 // an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
 #![allow(unsafe_code)]
 
-use super::{Marching, Raycaster};
+use super::{Marching, Raycaster, Sample};
+use crate::camera::Ray;
 use crate::tf::LUT_SIZE;
 use crate::volume::Voxel;
 use glam::Vec3;
+use std::ops::ControlFlow;
 
 /// Proof that this CPU runs AVX2: made only by [`Avx2::detect`].
 #[derive(Clone, Copy, Debug)]
@@ -31,6 +34,37 @@ impl Avx2 {
         }
         None
     }
+}
+
+/// [`Raycaster::march`]'s loop compiled with AVX2 enabled, so that [`Lanes::classify8`]
+/// inlines into it and its constants stay in registers across a ray's batches.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(super) fn march<T: Gather, const SHADE: bool>(
+    avx2: Avx2,
+    rc: &Raycaster,
+    data: &[T],
+    ray: &Ray,
+    visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+) {
+    // SAFETY: the token proves that this CPU has AVX2.
+    unsafe { march_avx2::<T, SHADE>(avx2, rc, data, ray, visit) }
+}
+
+/// [`march`].
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn march_avx2<T: Gather, const SHADE: bool>(
+    avx2: Avx2,
+    rc: &Raycaster,
+    data: &[T],
+    ray: &Ray,
+    visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+) {
+    rc.march_impl::<T, SHADE>(data, ray, visit, Some(avx2));
 }
 
 /// The stored types the kernel gathers, by size: u8 and u16 as 32-bit loads at the voxel's
@@ -178,11 +212,34 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let lerp = |a: __m256, b: __m256, f: __m256| {
             _mm256_add_ps(a, _mm256_mul_ps(f, _mm256_sub_ps(b, a)))
         };
-        let c000 = at(0);
-        let c00 = lerp(c000, at(sx), fx);
-        let c10 = lerp(at(sy), at(sy + sx), fx);
-        let c01 = lerp(at(sz), at(sz + sx), fx);
-        let c11 = lerp(at(sz + sy), at(sz + sy + sx), fx);
+        // Integer voxels along x (stride 1) come in pairs: one 4-byte load at a corner holds
+        // its x neighbour too (byte or half-word 1), so four gathers fetch all eight corners.
+        let (c00, c10, c01, c11) = if std::mem::size_of::<T>() < 4 && sx == 1 {
+            let bits = 8 * std::mem::size_of::<T>() as i32;
+            let mask = _mm256_set1_epi32((1 << bits) - 1);
+            let pair = |o: i32| {
+                let index = _mm256_add_epi32(base, _mm256_set1_epi32(o));
+                let g = if bits == 8 {
+                    _mm256_i32gather_epi32::<1>(ptr.cast(), index)
+                } else {
+                    _mm256_i32gather_epi32::<2>(ptr.cast(), index)
+                };
+                let lo = _mm256_cvtepi32_ps(_mm256_and_si256(g, mask));
+                let hi = _mm256_cvtepi32_ps(_mm256_and_si256(
+                    _mm256_srlv_epi32(g, _mm256_set1_epi32(bits)),
+                    mask,
+                ));
+                lerp(lo, hi, fx)
+            };
+            (pair(0), pair(sy), pair(sz), pair(sz + sy))
+        } else {
+            (
+                lerp(at(0), at(sx), fx),
+                lerp(at(sy), at(sy + sx), fx),
+                lerp(at(sz), at(sz + sx), fx),
+                lerp(at(sz + sy), at(sz + sy + sx), fx),
+            )
+        };
         let c0 = lerp(c00, c10, fy);
         let c1 = lerp(c01, c11, fy);
         let v = lerp(c0, c1, fz);
