@@ -2,11 +2,11 @@
 //! [`super`] stays the reference and the fallback).
 //!
 //! A visible macro cell's steps are independent until compositing, so their positions,
-//! lower voxels, fractions, corner gathers (four for u8 and u16: one 4-byte load holds a corner and
-//! its x neighbour) and trilinear blends are computed eight
-//! lanes wide; classification and the visitor then run per lane, in order. Every lane does
-//! the scalar path's arithmetic in the scalar path's order (multiplications and additions,
-//! never fused; truncation for the lower voxel), so the values are **bit-identical** to
+//! lower voxels, fractions, corner gathers (four for u8 and u16: one 4-byte load holds a
+//! corner and its x neighbour) and trilinear blends are computed eight lanes wide;
+//! classification and the visitor then run per lane, in order. Every lane does the scalar
+//! path's arithmetic in the scalar path's order (multiplications and additions, never fused;
+//! truncation for the lower voxel), so the values are **bit-identical** to
 //! [`super::trilinear`] at [`super::Raycaster::locate`]'s positions — the tests pin that.
 
 // The intrinsics are `unsafe`; this module is the workspace's one exception to
