@@ -32,6 +32,10 @@ pub const DEFAULT_STEP: f32 = 0.5;
 /// Shortest run of steps in a visible macro cell worth sampling eight lanes at a time.
 #[cfg(target_arch = "x86_64")]
 const SIMD_MIN_RUN: u32 = 3;
+/// Most steps of a visible run classified before the first of them is visited (a multiple of
+/// eight, below 64).
+#[cfg(target_arch = "x86_64")]
+const SIMD_CHUNK: usize = 32;
 /// Default early-ray-termination threshold on accumulated opacity.
 pub const DEFAULT_TERMINATION: f32 = 0.99;
 /// Default early termination of VDI generation rays: off (chosen from the `accuracy` rows in
@@ -160,8 +164,8 @@ pub struct Raycaster<'a> {
     inv_spacing: Vec3,
     max_voxel: Vec3,
     strides: [usize; 3],
-    /// Each table entry's `κ`, for the SIMD path's visibility test.
-    lut_kappa: Vec<f32>,
+    /// The SIMD path's visibility map ([`simd::visible_groups`]).
+    visible_groups: [u32; 8],
     /// Sample visible cells eight steps at a time ([`simd`]) with this CPU's AVX2.
     simd: Option<simd::Avx2>,
 }
@@ -178,7 +182,7 @@ impl<'a> Raycaster<'a> {
     ) -> Result<Self, RaycastError> {
         params.validate()?;
         let lut = Lut::new(tf, params.step);
-        let lut_kappa = lut.entries().iter().map(|e| e.kappa).collect();
+        let visible_groups = simd::visible_groups(&lut);
         let grid = MacroGrid::new(volume, &lut);
         let [nx, ny, nz] = volume.dims();
         Ok(Self {
@@ -189,7 +193,7 @@ impl<'a> Raycaster<'a> {
             bounds: volume.world_box(),
             inv_spacing: volume.spacing().recip(),
             max_voxel: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32),
-            lut_kappa,
+            visible_groups,
             simd: simd::Avx2::detect(),
             strides: [
                 usize::from(nx > 1),
@@ -291,6 +295,9 @@ impl<'a> Raycaster<'a> {
         let o_v = (ray.origin - self.bounds.min) * self.inv_spacing;
         let d_v = ray.dir * self.inv_spacing;
         let inv_d_v = d_v.recip();
+        // Step counts from distances (a multiplication, not a division, per cell): an ulp
+        // either way only moves a step to the next pass of the loop, never past a sample.
+        let inv_step = step.recip();
         let m = Marching {
             t_in,
             t_far,
@@ -319,12 +326,12 @@ impl<'a> Raycaster<'a> {
                     // skipped on the next pass.
                     let t_exit = self.grid.empty_exit(ix, iy, iz, o_v, inv_d_v);
                     let margin = 0.125 * step + 1e-5 * t_exit.abs();
-                    let k_first = fastmath::ceil((t_exit - margin - t_in) / step - 0.5);
+                    let k_first = fastmath::ceil((t_exit - margin - t_in) * inv_step - 0.5);
                     k = (k + 1).max(k_first.clamp(0.0, n_samples as f32) as u32);
                     continue;
                 }
                 let t_exit = self.grid.cell_exit(ix, iy, iz, o_v, inv_d_v);
-                let k_last = fastmath::ceil((t_exit - t_in) / step - 0.5);
+                let k_last = fastmath::ceil((t_exit - t_in) * inv_step - 0.5);
                 (k + 1).max(k_last.clamp(0.0, n_samples as f32) as u32)
             } else {
                 n_samples
@@ -335,15 +342,17 @@ impl<'a> Raycaster<'a> {
                 .as_ref()
                 .filter(|_| full_end - k.min(full_end) >= SIMD_MIN_RUN)
             {
+                // Up to `SIMD_CHUNK` steps classified before any is visited: the batches'
+                // gathers do not wait on one another or on the visitor.
+                let mut index = [0i32; SIMD_CHUNK];
                 while k < full_end {
-                    let c = lanes.classify8(k);
-                    let n = (full_end - k).min(8);
+                    let n = (full_end - k).min(SIMD_CHUNK as u32);
+                    let mut visible = lanes.classify(k, n, &mut index);
                     // Visible lanes only, in order: the transparent ones cost nothing more.
-                    let mut visible = c.visible & ((1u32 << n) - 1);
                     while visible != 0 {
                         let lane = visible.trailing_zeros();
                         visible &= visible - 1;
-                        let e = self.lut.entry(c.index[lane as usize] as usize);
+                        let e = self.lut.entry(index[lane as usize] as usize);
                         if self.visit_entry::<SHADE>(&m, ray, k + lane, step, true, e, visit) {
                             return;
                         }

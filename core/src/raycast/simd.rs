@@ -16,7 +16,7 @@
 
 use super::{Marching, Raycaster, Sample};
 use crate::camera::Ray;
-use crate::tf::LUT_SIZE;
+use crate::tf::{Lut, LUT_SIZE};
 use crate::volume::Voxel;
 use glam::Vec3;
 use std::ops::ControlFlow;
@@ -36,8 +36,8 @@ impl Avx2 {
     }
 }
 
-/// [`Raycaster::march`]'s loop compiled with AVX2 enabled, so that [`Lanes::classify8`]
-/// inlines into it and its constants stay in registers across a ray's batches.
+/// [`Raycaster::march`]'s loop compiled with AVX2 enabled, so that the scalar steps and the
+/// bookkeeping around [`Lanes::classify`] use the same instruction set.
 #[cfg(target_arch = "x86_64")]
 #[inline]
 pub(super) fn march<T: Gather, const SHADE: bool>(
@@ -67,6 +67,23 @@ unsafe fn march_avx2<T: Gather, const SHADE: bool>(
     rc.march_impl::<T, SHADE>(data, ray, visit, Some(avx2));
 }
 
+/// Table entries per bit of the visibility map (`LUT_SIZE / 256`), and its log2.
+const GROUP: usize = LUT_SIZE / 256;
+const GROUP_SHIFT: i32 = GROUP.trailing_zeros() as i32;
+const _: () = assert!(GROUP.is_power_of_two() && GROUP * 256 == LUT_SIZE);
+
+/// The kernel's visibility map of `lut`: bit `g` (of 256; word `g / 32`, bit `g mod 32`) is
+/// set where any of the entries `g·GROUP … g·GROUP + GROUP − 1` has `κ > 0`.
+pub(super) fn visible_groups(lut: &Lut) -> [u32; 8] {
+    let mut groups = [0u32; 8];
+    for (i, e) in lut.entries().iter().enumerate().take(LUT_SIZE) {
+        if e.kappa > 0.0 {
+            groups[i / GROUP / 32] |= 1 << (i / GROUP % 32);
+        }
+    }
+    groups
+}
+
 /// The stored types the kernel gathers, by size: u8 and u16 as 32-bit loads at the voxel's
 /// address, masked (reading up to [`Gather::OVERREAD`] elements past it, which the storage's
 /// padding covers), f32 directly.
@@ -92,18 +109,11 @@ pub(super) struct Lanes<'a, T> {
     d_v: Vec3,
     t_in: f32,
     step: f32,
-    /// The classification's index map ([`crate::tf::Lut::mapping`]) and each entry's
-    /// extinction `κ`, [`crate::tf::LUT_SIZE`] of them.
+    /// The classification's index map ([`crate::tf::Lut::mapping`]) and which groups of
+    /// [`GROUP`] entries hold a visible one (`Raycaster::visible_groups`).
     lut_lo: f32,
     lut_scale: f32,
-    kappa: &'a [f32],
-}
-
-/// Eight steps sampled and classified: their table indices, and a bit per lane
-/// (lane `l` is bit `l`) that is set where the step is visible (not NaN, `κ > 0`).
-pub(super) struct Classified {
-    pub index: [i32; 8],
-    pub visible: u32,
+    visible_groups: [u32; 8],
 }
 
 impl<'a, T: Gather> Lanes<'a, T> {
@@ -123,7 +133,7 @@ impl<'a, T: Gather> Lanes<'a, T> {
             && data.len() >= n + T::OVERREAD
             && data.len() <= i32::MAX as usize
             && !dims.contains(&0)
-            && rc.lut_kappa.len() == LUT_SIZE;
+            && rc.lut.entries().len() == LUT_SIZE;
         fits.then_some(Self {
             _avx2: avx2,
             data,
@@ -136,29 +146,53 @@ impl<'a, T: Gather> Lanes<'a, T> {
             step: m.step,
             lut_lo,
             lut_scale,
-            kappa: &rc.lut_kappa,
+            visible_groups: rc.visible_groups,
         })
     }
 
-    /// The full steps `k … k + 7` sampled (trilinear at their midpoints, positions clamped to
-    /// the grid, so lanes past the ray's end read valid voxels and are simply not used) and
-    /// classified.
+    /// The full steps `k … k + n − 1` (`n ≤ 64`) sampled (trilinear at their midpoints,
+    /// positions clamped to the grid, so lanes past the ray's end read valid voxels and are
+    /// simply not used) and classified, eight at a time: step `k + l`'s table index goes to
+    /// `index[l]`, and bit `l` of the returned mask is set where it is visible (not NaN,
+    /// `κ > 0`); bits from `n` on are clear.
     #[cfg(target_arch = "x86_64")]
     #[inline]
-    pub(super) fn classify8(&self, k: u32) -> Classified {
+    pub(super) fn classify<const N: usize>(&self, k: u32, n: u32, index: &mut [i32; N]) -> u64 {
         // SAFETY: the token proves AVX2; `new`'s checks keep every gather in bounds (see
         // `gather8`).
-        unsafe { self.gather8(k) }
+        unsafe { self.classify_avx2(k, n, index) }
     }
 
-    /// [`Lanes::classify8`].
+    /// [`Lanes::classify`].
+    ///
+    /// # Safety
+    /// As [`Lanes::gather8`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn classify_avx2<const N: usize>(&self, k: u32, n: u32, index: &mut [i32; N]) -> u64 {
+        let (batches, _) = index.as_chunks_mut::<8>();
+        let n = n.min(batches.len() as u32 * 8).min(64);
+        let mut visible = 0u64;
+        for (b, index) in batches.iter_mut().enumerate().take(n.div_ceil(8) as usize) {
+            // SAFETY: as this function's.
+            let mask = unsafe { self.gather8(k + 8 * b as u32, index) };
+            visible |= u64::from(mask) << (8 * b);
+        }
+        if n < 64 {
+            visible &= (1u64 << n) - 1;
+        }
+        visible
+    }
+
+    /// Eight steps of [`Lanes::classify`].
     ///
     /// # Safety
     /// The CPU must have AVX2, `nx·ny·nz + OVERREAD ≤ data.len() ≤ i32::MAX` (both made sure
     /// by [`Lanes::new`]).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn gather8(&self, k: u32) -> Classified {
+    #[inline]
+    unsafe fn gather8(&self, k: u32, out: &mut [i32; 8]) -> u32 {
         use std::arch::x86_64::*;
         let [nx, ny, nz] = self.dims;
         let [sx, sy, sz] = self.strides.map(|s| s as i32);
@@ -258,17 +292,23 @@ impl<'a, T: Gather> Lanes<'a, T> {
             _mm256_cvttps_epi32(_mm256_add_ps(x, _mm256_set1_ps(0.5))),
             _mm256_castps_si256(number),
         );
-        let kappa =
-            _mm256_mask_i32gather_ps::<4>(_mm256_setzero_ps(), self.kappa.as_ptr(), index, number);
+        // Visibility from the 256-bit group map, in registers: word `index / (32·GROUP)`,
+        // bit `index / GROUP mod 32`. Conservative (a group is visible when any entry in it
+        // is); the visitor drops the rare lane whose own entry is transparent (`α = 0`).
+        let group = _mm256_srli_epi32::<GROUP_SHIFT>(index);
+        let word = _mm256_permutevar8x32_epi32(
+            _mm256_loadu_si256(self.visible_groups.as_ptr().cast()),
+            _mm256_srli_epi32::<5>(group),
+        );
+        let bit = _mm256_and_si256(
+            _mm256_srlv_epi32(word, _mm256_and_si256(group, _mm256_set1_epi32(31))),
+            _mm256_set1_epi32(1),
+        );
         let visible = _mm256_and_ps(
             number,
-            _mm256_cmp_ps::<_CMP_GT_OQ>(kappa, _mm256_setzero_ps()),
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(bit, _mm256_set1_epi32(1))),
         );
-        let mut out = Classified {
-            index: [0; 8],
-            visible: _mm256_movemask_ps(visible) as u32,
-        };
-        _mm256_storeu_si256(out.index.as_mut_ptr().cast(), index);
-        out
+        _mm256_storeu_si256(out.as_mut_ptr().cast(), index);
+        _mm256_movemask_ps(visible) as u32
     }
 }
