@@ -89,6 +89,57 @@ impl MacroGrid {
         self.box_exit([ix, iy, iz], usize::from(d.saturating_sub(1)), o_v, inv_d_v)
     }
 
+    /// For a visible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
+    /// `inv_d_v = 1/d_v`) leaves the run of visible cells that it crosses from there on,
+    /// walked cell by cell (3-D DDA over the macro cells) until a cell is invisible or the
+    /// grid ends. Sampling every step up to here never skips a visible one, whatever the
+    /// rounding of the walk: it only decides how many steps go to the kernel in one run.
+    #[inline]
+    pub fn visible_run_exit(
+        &self,
+        ix: usize,
+        iy: usize,
+        iz: usize,
+        o_v: Vec3,
+        inv_d_v: Vec3,
+    ) -> f32 {
+        let mut cell = [ix, iy, iz].map(|v| v / MACRO_CELL);
+        let mut t = f32::NEG_INFINITY;
+        loop {
+            // The axis whose cell face the ray meets first (zero directions give ±∞ or NaN,
+            // never the minimum).
+            let (mut axis, mut exit) = (0, f32::INFINITY);
+            for a in 0..3 {
+                let face = if inv_d_v[a] >= 0.0 {
+                    cell[a] + 1
+                } else {
+                    cell[a]
+                };
+                let e = ((face * MACRO_CELL) as f32 - o_v[a]) * inv_d_v[a];
+                if e < exit {
+                    (axis, exit) = (a, e);
+                }
+            }
+            if exit == f32::INFINITY {
+                return exit;
+            }
+            t = t.max(exit);
+            let next = if inv_d_v[axis] >= 0.0 {
+                cell[axis] + 1
+            } else {
+                cell[axis].wrapping_sub(1)
+            };
+            if next >= self.cells[axis] {
+                return t;
+            }
+            cell[axis] = next;
+            let [cx, cy, cz] = cell;
+            if !self.visible[cx + self.cells[0] * (cy + self.cells[1] * cz)] {
+                return t;
+            }
+        }
+    }
+
     /// Exit of the box of cells within L∞ distance `grow` of the cell owning `voxel`.
     #[inline(always)]
     fn box_exit(&self, voxel: [usize; 3], grow: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {

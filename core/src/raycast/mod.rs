@@ -330,7 +330,7 @@ impl<'a> Raycaster<'a> {
                     k = (k + 1).max(k_first.clamp(0.0, n_samples as f32) as u32);
                     continue;
                 }
-                let t_exit = self.grid.cell_exit(ix, iy, iz, o_v, inv_d_v);
+                let t_exit = self.grid.visible_run_exit(ix, iy, iz, o_v, inv_d_v);
                 let k_last = fastmath::ceil((t_exit - t_in) * inv_step - 0.5);
                 (k + 1).max(k_last.clamp(0.0, n_samples as f32) as u32)
             } else {
