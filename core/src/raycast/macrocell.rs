@@ -89,6 +89,71 @@ impl MacroGrid {
         self.box_exit([ix, iy, iz], usize::from(d.saturating_sub(1)), o_v, inv_d_v)
     }
 
+    /// For an invisible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
+    /// `inv_d_v = 1/d_v`) leaves the invisible cells it crosses from there on. A cell next to
+    /// a visible one (distance 1) is walked cell by cell (3-D DDA); one further away is left
+    /// through the empty cube around it ([`MacroGrid::empty_exit`]), which ends the walk. The
+    /// walk also ends, at the current cell's exit, where the ray's next cell is not clear
+    /// from the face it leaves through (two faces met within `tolerance(t)` of each other,
+    /// far above the rounding of `t`): every point of the ray before the returned exit lies
+    /// in an invisible cell, up to that rounding, which the caller's margin covers.
+    #[inline]
+    pub fn empty_run_exit(
+        &self,
+        ix: usize,
+        iy: usize,
+        iz: usize,
+        o_v: Vec3,
+        inv_d_v: Vec3,
+        tolerance: impl Fn(f32) -> f32,
+    ) -> f32 {
+        let mut cell = [ix, iy, iz].map(|v| v / MACRO_CELL);
+        loop {
+            let [cx, cy, cz] = cell;
+            let d = self.distance[cx + self.cells[0] * (cy + self.cells[1] * cz)];
+            if d != 1 {
+                return self.box_exit(
+                    cell.map(|c| c * MACRO_CELL),
+                    usize::from(d.saturating_sub(1)),
+                    o_v,
+                    inv_d_v,
+                );
+            }
+            // The face met first, and the next one (zero directions give ±∞ or NaN, never
+            // either).
+            let (mut axis, mut exit, mut second) = (0, f32::INFINITY, f32::INFINITY);
+            for a in 0..3 {
+                let face = if inv_d_v[a] >= 0.0 {
+                    cell[a] + 1
+                } else {
+                    cell[a]
+                };
+                let e = ((face * MACRO_CELL) as f32 - o_v[a]) * inv_d_v[a];
+                if e < exit {
+                    (axis, exit, second) = (a, e, exit);
+                } else if e < second {
+                    second = e;
+                }
+            }
+            if exit == f32::INFINITY || second - exit <= tolerance(exit) {
+                return exit;
+            }
+            let next = if inv_d_v[axis] >= 0.0 {
+                cell[axis] + 1
+            } else {
+                cell[axis].wrapping_sub(1)
+            };
+            if next >= self.cells[axis] {
+                return exit;
+            }
+            cell[axis] = next;
+            let [cx, cy, cz] = cell;
+            if self.visible[cx + self.cells[0] * (cy + self.cells[1] * cz)] {
+                return exit;
+            }
+        }
+    }
+
     /// For a visible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
     /// `inv_d_v = 1/d_v`) leaves the run of visible cells that it crosses from there on,
     /// walked cell by cell (3-D DDA over the macro cells) until a cell is invisible or the
