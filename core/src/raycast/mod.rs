@@ -7,11 +7,13 @@
 //! optionally shaded, and handed to a visitor with its opacity corrected for its length:
 //! `α = 1 − (1 − a)^len`. Transparent samples (NaN data, zero opacity) are not handed over.
 //! Empty-space skipping jumps over macro cells whose value range maps to zero opacity; it
-//! never changes which non-transparent samples are visited: invisible macro cells are leapt
-//! over a whole empty cube at a time ([`MacroGrid::empty_exit`]), and a visible cell's steps
-//! are sampled without further checks — eight at a time with AVX2 where the CPU has it
-//! (`simd`, bit-identical to the scalar path, which stays the reference and the fallback;
-//! [`Raycaster::without_simd`]).
+//! never changes which non-transparent samples are visited: an invisible macro cell far from
+//! visible ones is leapt over with the whole empty cube around it, one next to a visible cell
+//! is walked cell by cell by 3-D DDA with the invisible cells after it
+//! ([`MacroGrid::empty_run_exit`]); the steps of a run of visible cells (found by the same
+//! DDA, [`MacroGrid::visible_run_exit`]) are sampled without further checks — eight at a time
+//! with AVX2 where the CPU has it (`simd`, bit-identical to the scalar path, which stays the
+//! reference and the fallback; [`Raycaster::without_simd`]).
 
 mod macrocell;
 mod shading;
@@ -347,7 +349,7 @@ impl<'a> Raycaster<'a> {
             {
                 // Up to `SIMD_CHUNK` steps classified before any is visited: the batches'
                 // gathers do not wait on one another or on the visitor.
-                let mut index = [0i32; SIMD_CHUNK];
+                let mut index = [[0i32; 8]; SIMD_CHUNK / 8];
                 while k < full_end {
                     let n = (full_end - k).min(SIMD_CHUNK as u32);
                     let mut visible = lanes.classify(k, n, &mut index);
@@ -355,7 +357,7 @@ impl<'a> Raycaster<'a> {
                     while visible != 0 {
                         let lane = visible.trailing_zeros();
                         visible &= visible - 1;
-                        let e = self.lut.entry(index[lane as usize] as usize);
+                        let e = self.lut.entry(index.as_flattened()[lane as usize] as usize);
                         if self.visit_entry::<SHADE>(&m, ray, k + lane, step, true, e, visit) {
                             return;
                         }

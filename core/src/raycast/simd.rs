@@ -153,11 +153,17 @@ impl<'a, T: Gather> Lanes<'a, T> {
     /// The full steps `k … k + n − 1` (`n ≤ 64`) sampled (trilinear at their midpoints,
     /// positions clamped to the grid, so lanes past the ray's end read valid voxels and are
     /// simply not used) and classified, eight at a time: step `k + l`'s table index goes to
-    /// `index[l]`, and bit `l` of the returned mask is set where it is visible (not NaN,
-    /// `κ > 0`); bits from `n` on are clear.
+    /// `index[l / 8][l % 8]`, and bit `l` of the returned mask is set where it may be visible
+    /// (not NaN, and in a group of table entries with one `κ > 0`: see [`visible_groups`]);
+    /// bits from `n` on are clear.
     #[cfg(target_arch = "x86_64")]
     #[inline]
-    pub(super) fn classify<const N: usize>(&self, k: u32, n: u32, index: &mut [i32; N]) -> u64 {
+    pub(super) fn classify<const B: usize>(
+        &self,
+        k: u32,
+        n: u32,
+        index: &mut [[i32; 8]; B],
+    ) -> u64 {
         // SAFETY: the token proves AVX2; `new`'s checks keep every gather in bounds (see
         // `gather8`).
         unsafe { self.classify_avx2(k, n, index) }
@@ -169,11 +175,15 @@ impl<'a, T: Gather> Lanes<'a, T> {
     /// As [`Lanes::gather8`].
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn classify_avx2<const N: usize>(&self, k: u32, n: u32, index: &mut [i32; N]) -> u64 {
-        let (batches, _) = index.as_chunks_mut::<8>();
-        let n = n.min(batches.len() as u32 * 8).min(64);
+    unsafe fn classify_avx2<const B: usize>(
+        &self,
+        k: u32,
+        n: u32,
+        index: &mut [[i32; 8]; B],
+    ) -> u64 {
+        let n = n.min(B as u32 * 8).min(64);
         let mut visible = 0u64;
-        for (b, index) in batches.iter_mut().enumerate().take(n.div_ceil(8) as usize) {
+        for (b, index) in index.iter_mut().enumerate().take(n.div_ceil(8) as usize) {
             // SAFETY: as this function's.
             let mask = unsafe { self.gather8(k + 8 * b as u32, index) };
             visible |= u64::from(mask) << (8 * b);
