@@ -258,8 +258,8 @@ impl<'a> Raycaster<'a> {
         }
     }
 
-    /// The whole march compiled for AVX2 where the CPU has it (the kernel then inlines into
-    /// the loop), else the portable scalar path.
+    /// The whole march compiled for AVX2 where the CPU has it (the loop's bookkeeping in AVX2
+    /// encoding, the kernel called once per visible run), else the portable scalar path.
     #[inline(always)]
     fn march_typed<T: simd::Gather, const SHADE: bool>(
         &self,
@@ -312,20 +312,21 @@ impl<'a> Raycaster<'a> {
         #[cfg(target_arch = "x86_64")]
         let lanes = simd.and_then(|avx2| simd::Lanes::new(avx2, self, data, &m));
         // Steps 0 … n_full − 1 are full; the last one (k = n_full) is the remainder. Walked a
-        // macro cell at a time: an invisible cell is jumped over; in a visible one, the steps
-        // whose midpoints lie before the cell's exit are sampled without further checks
-        // (one that strays into an invisible neighbour is transparent there anyway).
+        // run of macro cells at a time: invisible cells are jumped over; in a run of visible
+        // ones, the steps whose midpoints lie before the run's exit are sampled without
+        // further checks (one that strays into an invisible neighbour is transparent there
+        // anyway).
         let mut k = 0u32;
         while k < n_samples {
             let k_end = if self.params.empty_space_skipping {
                 let len = if k < n_full { step } else { rem };
                 let (_, [ix, iy, iz]) = self.locate(&m, k, len);
                 if !self.grid.visible(ix, iy, iz) {
-                    // Leap the empty cube of cells around this one, resuming at the first
-                    // sample whose midpoint is not clearly inside it: the margin (an eighth of a step, and 1e-5 of the distance, far
-                    // above the rounding of t and of the sample positions) keeps rounding from
-                    // ever skipping a sample outside it; a sample inside the margin is
-                    // skipped on the next pass.
+                    // Leap the invisible cells ahead, resuming at the first sample whose
+                    // midpoint is not clearly inside them: the margin (an eighth of a step,
+                    // and 1e-5 of the distance, far above the rounding of t and of the sample
+                    // positions) keeps rounding from ever skipping a sample outside them; a
+                    // sample inside the margin is skipped on the next pass.
                     let tolerance = |t: f32| 0.125 * step + 1e-5 * t.abs();
                     let t_exit = self
                         .grid
@@ -682,6 +683,31 @@ mod tests {
                 assert!(samples > 0, "{dims:?}: the rays must see the volume");
             }
         }
+    }
+
+    /// The SIMD path's visibility map: a group's bit is set exactly when one of its table
+    /// entries has `κ > 0` (so no visible sample is dropped, and a lane let through by a
+    /// group is the rare transparent neighbour of a visible entry).
+    #[test]
+    fn visible_groups_mark_exactly_the_groups_with_a_visible_entry() {
+        let tf = TransferFunction::from_json(
+            r#"{"domain": [0, 1], "points": [[0,0,0,0,0],[0.3,0,0,0,0],[0.31,1,0,0,0.5],[0.6,1,0,0,0.5],[0.61,0,0,0,0],[0.9,0,0,0,0],[1,1,1,1,1]]}"#,
+            "t",
+        )
+        .unwrap();
+        let lut = Lut::new(&tf, 0.5);
+        let groups = simd::visible_groups(&lut);
+        let group = crate::tf::LUT_SIZE / 256;
+        let mut set = 0;
+        for g in 0..256 {
+            let bit = groups[g / 32] >> (g % 32) & 1 == 1;
+            let any = lut.entries()[g * group..(g + 1) * group]
+                .iter()
+                .any(|e| e.kappa > 0.0);
+            assert_eq!(bit, any, "group {g}");
+            set += usize::from(bit);
+        }
+        assert!(set > 0 && set < 256, "{set} groups visible");
     }
 
     #[test]
