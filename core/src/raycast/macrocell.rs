@@ -74,12 +74,12 @@ impl MacroGrid {
 
     /// For an invisible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
     /// `inv_d_v = 1/d_v`) leaves the invisible cells it crosses from there on. A cell next to
-    /// a visible one (distance 1) is walked cell by cell (3-D DDA); one at distance `d > 1` is
-    /// left through the cube of cells within `d − 1` of it, all invisible, which ends the walk. The
-    /// walk also ends, at the current cell's exit, where the ray's next cell is not clear
-    /// from the face it leaves through (two faces met within `tolerance(t)` of each other,
-    /// far above the rounding of `t`): every point of the ray before the returned exit lies
-    /// in an invisible cell, up to that rounding, which the caller's margin covers.
+    /// a visible one (distance 1) is walked cell by cell (3-D DDA); one at distance `d > 1`
+    /// is left through the cube of cells within `d − 1` of it, all invisible, which ends the
+    /// walk. The walk also ends, at the current cell's exit, where the ray's next cell is not
+    /// clear from the face it leaves through (two faces met within `tolerance(t)` of each
+    /// other, far above the rounding of `t`): every point of the ray before the returned exit
+    /// lies in an invisible cell, up to that rounding, which the caller's margin covers.
     #[inline]
     pub fn empty_run_exit(
         &self,
