@@ -46,15 +46,10 @@ impl MacroGrid {
         }
     }
 
-    #[inline(always)]
-    fn cell_index(&self, ix: usize, iy: usize, iz: usize) -> usize {
-        ix / MACRO_CELL + self.cells[0] * (iy / MACRO_CELL + self.cells[1] * (iz / MACRO_CELL))
-    }
-
     /// Whether the cell that owns lower voxel index `(ix, iy, iz)` can contribute.
     #[inline(always)]
     pub fn visible(&self, ix: usize, iy: usize, iz: usize) -> bool {
-        self.visible[self.cell_index(ix, iy, iz)]
+        self.visible[self.flat(cell_of([ix, iy, iz]))]
     }
 
     /// Cells per axis.
@@ -72,7 +67,7 @@ impl MacroGrid {
         self.visible.iter().filter(|&&v| v).count() as f32 / self.visible.len().max(1) as f32
     }
 
-    /// For an invisible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
+    /// For an invisible cell owning lower voxel index `voxel`: where the ray `o_v + t·d_v` (voxel space,
     /// `inv_d_v = 1/d_v`) leaves the invisible cells it crosses from there on. A cell next to
     /// a visible one (distance 1) is walked cell by cell (3-D DDA); one at distance `d > 1`
     /// is left through the cube of cells within `d − 1` of it, all invisible, which ends the
@@ -83,23 +78,16 @@ impl MacroGrid {
     #[inline]
     pub fn empty_run_exit(
         &self,
-        ix: usize,
-        iy: usize,
-        iz: usize,
+        voxel: [usize; 3],
         o_v: Vec3,
         inv_d_v: Vec3,
         tolerance: impl Fn(f32) -> f32,
     ) -> f32 {
-        let mut cell = [ix, iy, iz].map(|v| v / MACRO_CELL);
+        let mut cell = cell_of(voxel);
         loop {
             let d = self.distance[self.flat(cell)];
             if d != 1 {
-                return self.box_exit(
-                    cell.map(|c| c * MACRO_CELL),
-                    usize::from(d.saturating_sub(1)),
-                    o_v,
-                    inv_d_v,
-                );
+                return box_exit(cell, usize::from(d.saturating_sub(1)), o_v, inv_d_v);
             }
             let (axis, exit, second) = Self::exit_faces(cell, o_v, inv_d_v);
             if exit == f32::INFINITY || second - exit <= tolerance(exit) {
@@ -112,13 +100,14 @@ impl MacroGrid {
         }
     }
 
-    /// For a visible cell owning `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
+    /// For a visible cell owning lower voxel index `(ix, iy, iz)`: where the ray `o_v + t·d_v` (voxel space,
     /// `inv_d_v = 1/d_v`) leaves the run of visible cells that it crosses from there on,
     /// walked cell by cell (3-D DDA over the macro cells) until a cell is invisible or the
     /// grid ends. Sampling every step up to here never skips a visible one, whatever the
     /// rounding of the walk: it only decides how many steps go to the kernel in one run.
     ///
-    /// Kept out of the march loop: inlined there, the loop ran about 3 % slower.
+    /// Kept out of the march loop: inlined there, the loop ran about 3 % slower (and so did
+    /// passing the voxel as an array, which goes through memory to an out-of-line call).
     #[inline(never)]
     pub fn visible_run_exit(
         &self,
@@ -128,7 +117,7 @@ impl MacroGrid {
         o_v: Vec3,
         inv_d_v: Vec3,
     ) -> f32 {
-        let mut cell = [ix, iy, iz].map(|v| v / MACRO_CELL);
+        let mut cell = cell_of([ix, iy, iz]);
         let mut t = f32::NEG_INFINITY;
         loop {
             let (axis, exit, _) = Self::exit_faces(cell, o_v, inv_d_v);
@@ -185,24 +174,30 @@ impl MacroGrid {
     fn flat(&self, [cx, cy, cz]: [usize; 3]) -> usize {
         cx + self.cells[0] * (cy + self.cells[1] * cz)
     }
+}
 
-    /// Exit of the box of cells within L∞ distance `grow` of the cell owning `voxel`.
-    #[inline(always)]
-    fn box_exit(&self, voxel: [usize; 3], grow: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {
-        let cell = voxel.map(|v| v / MACRO_CELL);
-        let lo = Vec3::from(cell.map(|c| (c.saturating_sub(grow) * MACRO_CELL) as f32));
-        let hi = Vec3::from(cell.map(|c| ((c + grow + 1) * MACRO_CELL) as f32));
-        let mut t = f32::INFINITY;
-        for a in 0..3 {
-            let exit = if inv_d_v[a] >= 0.0 {
-                (hi[a] - o_v[a]) * inv_d_v[a]
-            } else {
-                (lo[a] - o_v[a]) * inv_d_v[a]
-            };
-            t = t.min(exit);
-        }
-        t
+/// The macro cell that owns lower voxel index `voxel`.
+#[inline(always)]
+fn cell_of(voxel: [usize; 3]) -> [usize; 3] {
+    voxel.map(|v| v / MACRO_CELL)
+}
+
+/// Where the ray `o_v + t·d_v` (voxel space, `inv_d_v = 1/d_v`) leaves the box of cells
+/// within L∞ distance `grow` of `cell`.
+#[inline(always)]
+fn box_exit(cell: [usize; 3], grow: usize, o_v: Vec3, inv_d_v: Vec3) -> f32 {
+    let lo = Vec3::from(cell.map(|c| (c.saturating_sub(grow) * MACRO_CELL) as f32));
+    let hi = Vec3::from(cell.map(|c| ((c + grow + 1) * MACRO_CELL) as f32));
+    let mut t = f32::INFINITY;
+    for a in 0..3 {
+        let exit = if inv_d_v[a] >= 0.0 {
+            (hi[a] - o_v[a]) * inv_d_v[a]
+        } else {
+            (lo[a] - o_v[a]) * inv_d_v[a]
+        };
+        t = t.min(exit);
     }
+    t
 }
 
 /// Whether each cell can contribute: the value range over its `B + 1` voxels per axis (NaN

@@ -330,7 +330,7 @@ impl<'a> Raycaster<'a> {
                     let tolerance = |t: f32| 0.125 * step + 1e-5 * t.abs();
                     let t_exit = self
                         .grid
-                        .empty_run_exit(ix, iy, iz, o_v, inv_d_v, tolerance);
+                        .empty_run_exit([ix, iy, iz], o_v, inv_d_v, tolerance);
                     let margin = tolerance(t_exit);
                     let k_first = fastmath::ceil((t_exit - margin - t_in) * inv_step - 0.5);
                     k = (k + 1).max(k_first.clamp(0.0, n_samples as f32) as u32);
