@@ -295,6 +295,7 @@ impl<'a> Walker<'a> {
         // Inverse depth is affine in u (perspective-correct interpolation), which gives the
         // depth at each crossing for the occupancy test; the exact ray parameter `t` of a
         // crossing (its own division) is solved only where a list is composited.
+        let (za0, zb1) = (z.at(t0), z.at(t1));
         let axis = |p0: f32, p1: f32| -> Axis {
             // A projection shorter than this (pixels) is a point: the ray passes through the
             // generation eye, as every ray of the generation view does.
@@ -312,12 +313,16 @@ impl<'a> Walker<'a> {
             } else {
                 -fastmath::ceil(-p0) as i64
             };
+            let inv_d = if step == 0 { 0.0 } else { 1.0 / d };
             Axis {
                 p0,
-                inv_d: if step == 0 { 0.0 } else { 1.0 / d },
+                inv_d,
                 step,
                 ahead: i64::from(step > 0),
                 cell: cell.clamp(0, self.r - 1),
+                // The pixel coordinates' rounding (a few ulp of r; 1e-5·(r + 1) taken) over
+                // the axis' extent, times the depth range.
+                depth_error: (1e-5 * (r + 1.0) * inv_d.abs()).min(1.0) * (zb1 - za0).abs(),
             }
         };
         let (mut ax, mut ay) = (axis(px0, px1), axis(py0, py1));
@@ -337,18 +342,22 @@ impl<'a> Walker<'a> {
         };
         // Inverse depth along the segment, and a margin covering the rounding of depths
         // so computed against those of `t` (the occupancy test must not skip a list the
-        // exact span meets).
-        let (za0, zb1) = (z.at(t0), z.at(t1));
+        // exact span meets): relative rounding, plus, at each crossing, how far the
+        // rounding of the pixel coordinates moves it ([`Axis::depth_error`]).
         let (w0, dw) = (1.0 / za0, 1.0 / zb1 - 1.0 / za0);
         let depth_at = |u: f32| if u >= 1.0 { zb1 } else { 1.0 / (w0 + dw * u) };
-        let margin = 1e-4 * za0.abs().max(zb1.abs());
+        let rounding = 1e-4 * za0.abs().max(zb1.abs());
         let bins = self.tables.bins;
-        let occupied = |mask: u64, za: f32, zb: f32| {
+        let occupied = |mask: u64, za: f32, zb: f32, error: f32| {
+            let margin = rounding + error;
             mask & bins.mask(za.min(zb) - margin, za.max(zb) + margin) != 0
         };
         let mut u = 0.0f32;
         let mut z_u = za0;
+        let mut t_done = t0;
         let mut enter = Crossing::Start;
+        // The depth error of the crossing entered by.
+        let mut enter_error = 0.0f32;
         let (mut ux, mut uy) = (ax.next(), ay.next());
         // The tile whose pixels are being walked (its depths meet the ray's).
         let mut walking = -1i64;
@@ -362,9 +371,20 @@ impl<'a> Walker<'a> {
                 let (ex, ey) = (ax.tile_exit(x0t), ay.tile_exit(y0t));
                 let u_exit = ex.min(ey).min(1.0).max(u);
                 let z_exit = depth_at(u_exit);
+                let exit_error = if ex <= ey {
+                    ax.depth_error
+                } else {
+                    ay.depth_error
+                };
+                let margin = rounding + enter_error + exit_error;
                 let [z_min, z_max] = self.tables.tile_depth[tile as usize];
                 if !(z_u.min(z_exit) > z_max + margin || z_u.max(z_exit) < z_min - margin)
-                    && occupied(self.tables.tile_bins[tile as usize], z_u, z_exit)
+                    && occupied(
+                        self.tables.tile_bins[tile as usize],
+                        z_u,
+                        z_exit,
+                        enter_error + exit_error,
+                    )
                 {
                     walking = tile;
                 } else {
@@ -378,11 +398,13 @@ impl<'a> Walker<'a> {
                         ax.cell = b - 1 + ax.ahead;
                         ay.cell = ay.cell_at(u_exit, py1 - py0, y0t);
                         enter = Crossing::X(b);
+                        enter_error = ax.depth_error;
                     } else {
                         let b = if ay.step > 0 { y0t + SKIP_TILE } else { y0t };
                         ay.cell = b - 1 + ay.ahead;
                         ax.cell = ax.cell_at(u_exit, px1 - px0, x0t);
                         enter = Crossing::Y(b);
+                        enter_error = ay.depth_error;
                     }
                     if !(0..self.r).contains(&ax.cell) || !(0..self.r).contains(&ay.cell) {
                         return;
@@ -396,7 +418,17 @@ impl<'a> Walker<'a> {
             let u_next = ux.min(uy).min(1.0).max(u);
             let z_next = depth_at(u_next);
             let p = (ix + self.r * iy) as usize;
-            if occupied(self.tables.pixel_bins[p], z_u, z_next) {
+            let exit_error = if ux <= uy {
+                ax.depth_error
+            } else {
+                ay.depth_error
+            };
+            if occupied(
+                self.tables.pixel_bins[p],
+                z_u,
+                z_next,
+                enter_error + exit_error,
+            ) {
                 let exit = if u_next >= 1.0 {
                     t1
                 } else if ux <= uy {
@@ -404,8 +436,11 @@ impl<'a> Walker<'a> {
                 } else {
                     cross_y(iy + ay.ahead)
                 };
-                let ta = t_of(enter);
+                // Never before what was composited: where two crossings are nearly
+                // simultaneous their order in u and in t can differ by rounding.
+                let ta = t_of(enter).max(t_done);
                 let tb = exit.max(ta);
+                t_done = tb;
                 let offsets = self.vdi.offsets();
                 let range = offsets[p] as usize..offsets[p + 1] as usize;
                 if tb > ta
@@ -426,10 +461,12 @@ impl<'a> Walker<'a> {
             }
             if ux <= uy {
                 enter = Crossing::X(ix + ax.ahead);
+                enter_error = ax.depth_error;
                 ax.cell += ax.step;
                 ux = ax.next();
             } else {
                 enter = Crossing::Y(iy + ay.ahead);
+                enter_error = ay.depth_error;
                 ay.cell += ay.step;
                 uy = ay.next();
             }
@@ -464,6 +501,10 @@ struct Axis {
     ahead: i64,
     /// The current pixel along this axis.
     cell: i64,
+    /// How far, in generation depth, a crossing of this axis found in u may be from the
+    /// exact one: the rounding of the pixel coordinates over the axis' extent, which a
+    /// nearly degenerate projection (a fraction of a pixel) makes large.
+    depth_error: f32,
 }
 
 impl Axis {
@@ -629,6 +670,10 @@ mod tests {
         let mut seen = 0;
         for view in [
             cam,
+            // Nearly the generation view: projections of a fraction of a pixel, crossings
+            // whose u the pixel coordinates' rounding moves most.
+            cam.orbit_y(0.02),
+            cam.orbit_y(1.0),
             cam.orbit_y(30.0),
             cam.orbit_y(90.0),
             cam.orbit_y(180.0),
