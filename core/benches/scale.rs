@@ -4,7 +4,8 @@
 //! 30°, step 0.5 voxel of the resampled grid, γ = 0.013, CPU backend.
 //!
 //! Each case runs in a child process of this binary, so its peak resident memory (`VmHWM`,
-//! less the process's footprint before the field) is its own: the table gives that peak, the
+//! reset once the field is built and the teapot it was resampled from is dropped, less the
+//! process's footprint without the field) is its own: the table gives that peak, the
 //! field's size in its own type, the VDI's in-memory size, and the ratio
 //! peak / (field + VDI) whose target is ≤ 1.3. Times are medians of 3 runs after a warm-up.
 //! Run: `cargo bench -p insitu-core --bench scale` (`INSITU_SCALE_SIZES=128,256` for fewer
@@ -72,7 +73,6 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// One size and type, in this (child) process: prints one table row.
 fn run(n: usize, bytes: bool) {
     let (teapot, tf) = common::teapot().expect("the teapot scene");
-    let base_kb = status_kb("VmRSS:");
     let volume = if bytes {
         Volume::from_u8(
             [n; 3],
@@ -84,6 +84,11 @@ fn run(n: usize, bytes: bool) {
     }
     .expect("valid field");
     drop(teapot);
+    // The baseline is the process without the field and without the teapot it was resampled
+    // from; the peak is counted from here on (writing 5 to `clear_refs` resets `VmHWM`).
+    let field = volume.storage_bytes() as u64;
+    let base_kb = status_kb("VmRSS:").saturating_sub(field / 1024);
+    std::fs::write("/proc/self/clear_refs", "5").expect("VmHWM reset (Linux ≥ 4.0)");
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).expect("valid");
     let cam = Camera::default_for_box(&volume.world_box()).orbit_y(30.0);
     let vp = VdiParams {
@@ -111,7 +116,6 @@ fn run(n: usize, bytes: bool) {
         vdi_bytes = (vdi.supersegments().len() * 24 + vdi.offsets().len() * 4) as u64;
     });
     let peak_kb = status_kb("VmHWM:").saturating_sub(base_kb);
-    let field = volume.storage_bytes() as u64;
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     println!(
         "{n:>5}³ {:>4} {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>9.1}  {:>9.1}  {:>5.2}",
