@@ -3,11 +3,13 @@
 //!
 //! A ray of the new camera is clipped to the volume box and to the generation camera's
 //! frustum. Its projection into the generation image is a line segment, walked pixel by pixel
-//! with a 2D DDA (Amanatides–Woo, with crossing parameters solved on the projective line), so
-//! pixels come in ray order. In each pixel the ray spans a depth interval; the supersegments
-//! of that pixel's depth-sorted list that overlap it are found by binary search and
-//! composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
-//! the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
+//! with a 2D DDA (Amanatides–Woo) in the segment's own parameter `u`, so pixels come in ray
+//! order and a step costs no division; inverse depth is affine in `u` (perspective-correct
+//! interpolation), so each pixel's depth span is known without solving for the ray. Tiles and
+//! pixels whose depth-occupancy masks miss that span are passed untouched; where a pixel's
+//! list is searched, the exact ray parameters of its crossings are solved on the projective
+//! line, the supersegments overlapping the span found by binary search and composited front
+//! to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
 //! generation view direction (constant depth) take the one supersegment that contains them.
 
 use super::{Supersegment, Vdi};
