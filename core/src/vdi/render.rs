@@ -119,6 +119,12 @@ pub(crate) struct WalkTables {
     tiles_x: i64,
     /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
     tile_depth: Vec<[f32; 2]>,
+    /// Per tile, the chessboard distance in tiles to the nearest tile with a supersegment
+    /// (0 for such a tile, at most 255): an empty tile at distance `d` is the centre of a
+    /// square of `2d − 1` empty tiles a side, which the walk leaves in one jump (the 2-D
+    /// analogue of the marcher's empty-cube leaps). On the teapot at r = 768 from 30°,
+    /// 2.8 M of the 3.9 M tiles skipped per frame were empty.
+    tile_reach: Vec<u8>,
     /// How depths map to the bits of the masks.
     bins: DepthBins,
     /// Per tile, the depth bins its supersegments touch.
@@ -165,6 +171,7 @@ impl WalkTables {
         }
         Self {
             tiles_x: (ri + SKIP_TILE - 1) / SKIP_TILE,
+            tile_reach: empty_reach(&tile_depth, tiles_x),
             tile_depth,
             bins,
             tile_bins,
@@ -176,6 +183,42 @@ impl WalkTables {
                 .collect(),
         }
     }
+}
+
+/// Chessboard distance of each of the `side × side` tiles (row-major) to the nearest one
+/// with a supersegment (`depth[0] ≤ depth[1]`), capped at 255; two passes of the 3 × 3
+/// chamfer, exact for this metric.
+fn empty_reach(depth: &[[f32; 2]], side: usize) -> Vec<u8> {
+    let mut d: Vec<u8> = depth
+        .iter()
+        .map(|r| if r[0] <= r[1] { 0 } else { u8::MAX })
+        .collect();
+    let at = |i: usize, j: usize| i + side * j;
+    for j in 0..side {
+        for i in 0..side {
+            let mut m = d[at(i, j)];
+            for (di, dj) in [(-1, -1), (0, -1), (1, -1), (-1, 0)] {
+                let (a, b) = (i as i64 + di, j as i64 + dj);
+                if (0..side as i64).contains(&a) && (0..side as i64).contains(&b) {
+                    m = m.min(d[at(a as usize, b as usize)].saturating_add(1));
+                }
+            }
+            d[at(i, j)] = m;
+        }
+    }
+    for j in (0..side).rev() {
+        for i in (0..side).rev() {
+            let mut m = d[at(i, j)];
+            for (di, dj) in [(1, 1), (0, 1), (-1, 1), (1, 0)] {
+                let (a, b) = (i as i64 + di, j as i64 + dj);
+                if (0..side as i64).contains(&a) && (0..side as i64).contains(&b) {
+                    m = m.min(d[at(a as usize, b as usize)].saturating_add(1));
+                }
+            }
+            d[at(i, j)] = m;
+        }
+    }
+    d
 }
 
 /// A VDI prepared for rendering from many cameras: its generation frame and its walk tables
@@ -368,9 +411,16 @@ impl<'a> Walker<'a> {
             let tile = ix / SKIP_TILE + self.tables.tiles_x * (iy / SKIP_TILE);
             if tile != walking {
                 // Entering a tile: where does the ray leave it, and does its depth over the
-                // tile meet the tile's supersegments?
+                // tile meet the tile's supersegments? An empty tile stands for the square of
+                // empty tiles around it ([`WalkTables::tile_reach`]), left in one jump.
                 let (x0t, y0t) = (ix / SKIP_TILE * SKIP_TILE, iy / SKIP_TILE * SKIP_TILE);
-                let (ex, ey) = (ax.tile_exit(x0t), ay.tile_exit(y0t));
+                let beyond =
+                    (i64::from(self.tables.tile_reach[tile as usize]) - 1).max(0) * SKIP_TILE;
+                let (xs, ys) = (
+                    [x0t - beyond, x0t + SKIP_TILE + beyond],
+                    [y0t - beyond, y0t + SKIP_TILE + beyond],
+                );
+                let (ex, ey) = (ax.exit(xs), ay.exit(ys));
                 let u_exit = ex.min(ey).min(1.0).max(u);
                 let z_exit = depth_at(u_exit);
                 let exit_error = if ex <= ey {
@@ -390,21 +440,22 @@ impl<'a> Walker<'a> {
                 {
                     walking = tile;
                 } else {
-                    // Nothing to meet here: jump to the next tile, entering it at the pixel
-                    // that holds the ray there.
+                    // Nothing to meet here: jump to the next tile (past the empty square),
+                    // entering it at the pixel that holds the ray there. A jump that lands
+                    // outside the image ends the ray: it has left the image, for good.
                     if u_exit >= 1.0 {
                         return;
                     }
                     if ex <= ey {
-                        let b = if ax.step > 0 { x0t + SKIP_TILE } else { x0t };
+                        let b = if ax.step > 0 { xs[1] } else { xs[0] };
                         ax.cell = b - 1 + ax.ahead;
-                        ay.cell = ay.cell_at(u_exit, py1 - py0, y0t);
+                        ay.cell = ay.cell_at(u_exit, py1 - py0, ys);
                         enter = Crossing::X(b);
                         enter_error = ax.depth_error;
                     } else {
-                        let b = if ay.step > 0 { y0t + SKIP_TILE } else { y0t };
+                        let b = if ay.step > 0 { ys[1] } else { ys[0] };
                         ay.cell = b - 1 + ay.ahead;
-                        ax.cell = ax.cell_at(u_exit, px1 - px0, x0t);
+                        ax.cell = ax.cell_at(u_exit, px1 - px0, xs);
                         enter = Crossing::Y(b);
                         enter_error = ay.depth_error;
                     }
@@ -526,23 +577,23 @@ impl Axis {
         self.at(self.cell + self.ahead)
     }
 
-    /// `u` where the segment leaves the tile starting at `lo`.
+    /// `u` where the segment leaves the pixel range `[lo, hi)`.
     #[inline]
-    fn tile_exit(&self, lo: i64) -> f32 {
-        self.at(if self.step > 0 { lo + SKIP_TILE } else { lo })
+    fn exit(&self, [lo, hi]: [i64; 2]) -> f32 {
+        self.at(if self.step > 0 { hi } else { lo })
     }
 
-    /// The pixel holding the segment at `u` (`d = p1 − p0`), kept inside the tile starting
-    /// at `lo` (which the caller knows it is in, up to rounding).
+    /// The pixel holding the segment at `u` (`d = p1 − p0`), kept inside the pixel range
+    /// `[lo, hi)` (which the caller knows it is in, up to rounding).
     #[inline]
-    fn cell_at(&self, u: f32, d: f32, lo: i64) -> i64 {
+    fn cell_at(&self, u: f32, d: f32, [lo, hi]: [i64; 2]) -> i64 {
         let p = self.p0 + d * u;
         let c = if self.step < 0 {
             fastmath::ceil(p) as i64 - 1
         } else {
             -fastmath::ceil(-p) as i64
         };
-        c.clamp(lo, lo + SKIP_TILE - 1)
+        c.clamp(lo, hi - 1)
     }
 }
 
@@ -626,8 +677,40 @@ mod tests {
     use crate::vdi::{generate::generate, VdiParams};
     use crate::volume::Volume;
 
-    /// Skipping tiles by depth range and tiles or pixels by depth occupancy is an
-    /// optimisation: it must not change the image.
+    /// The two chamfer passes give the exact chessboard distance (brute force over a
+    /// scattered pattern, and an all-empty grid capped at 255).
+    #[test]
+    fn empty_reach_is_the_chessboard_distance() {
+        let side = 23;
+        let full = |i: usize, j: usize| (i * 7 + j * 13) % 41 == 0 || (i, j) == (22, 0);
+        let depth: Vec<[f32; 2]> = (0..side * side)
+            .map(|p| {
+                if full(p % side, p / side) {
+                    [1.0, 2.0]
+                } else {
+                    [f32::MAX, -f32::MAX]
+                }
+            })
+            .collect();
+        let reach = empty_reach(&depth, side);
+        for (p, &got) in reach.iter().enumerate() {
+            let (i, j) = ((p % side) as i64, (p / side) as i64);
+            let brute = (0..side * side)
+                .filter(|&q| full(q % side, q / side))
+                .map(|q| {
+                    let (a, b) = ((q % side) as i64, (q / side) as i64);
+                    (a - i).abs().max((b - j).abs())
+                })
+                .min()
+                .unwrap_or(255);
+            assert_eq!(i64::from(got), brute.min(255), "tile ({i}, {j})");
+        }
+        let empty = vec![[f32::MAX, -f32::MAX]; 9];
+        assert_eq!(empty_reach(&empty, 3), vec![255; 9]);
+    }
+
+    /// Skipping tiles by depth range, squares of empty tiles, and tiles or pixels by depth
+    /// occupancy is an optimisation: it must not change the image.
     #[test]
     fn skipping_leaves_the_image_unchanged() {
         // Two blobs at different depths with empty space around and between them.
@@ -660,6 +743,7 @@ mod tests {
         let mut all = vdi.walk_tables().clone();
         all.tile_depth.fill([-f32::MAX, f32::MAX]);
         all.tile_bins.fill(u64::MAX);
+        all.tile_reach.fill(0);
         all.pixel_bins.fill(u64::MAX);
         let walking_all = Walker {
             tables: &all,
