@@ -242,8 +242,8 @@ fn visibility<T: Voxel>(data: &[T], dims: [usize; 3], cells: [usize; 3], lut: &L
 /// L∞ (chessboard) distance from each cell to the nearest visible cell, in cells, capped at
 /// 255; 0 for visible cells. Exact with two raster passes over the 26-neighbourhood (forward
 /// over the 13 neighbours already visited, then backward over the other 13). A grid without
-/// visible cells gets 255 everywhere.
-fn chessboard_distance(cells: [usize; 3], visible: &[bool]) -> Vec<u8> {
+/// visible cells gets 255 everywhere. A 2-D grid is `[nx, ny, 1]` (the VDI walk's tiles).
+pub(crate) fn chessboard_distance(cells: [usize; 3], visible: &[bool]) -> Vec<u8> {
     let [cx, cy, cz] = cells.map(|c| c as isize);
     let mut d: Vec<u8> = visible
         .iter()
@@ -377,14 +377,20 @@ mod tests {
 
     #[test]
     fn chessboard_distance_matches_brute_force() {
-        let cells = [9, 7, 5];
-        let n = cells.iter().product::<usize>();
-        for seed in 0..6u64 {
-            // A few scattered visible cells (and none at all for seed 0).
-            let visible: Vec<bool> = (0..n as u64)
-                .map(|c| seed > 0 && (c * 2654435761 + seed * 97) % (13 + seed * 7) == 0)
-                .collect();
-            assert_eq!(chessboard_distance(cells, &visible), brute(cells, &visible));
+        // A 3-D grid of macro cells and a flat one (the VDI walk's tiles).
+        for cells in [[9, 7, 5], [23, 23, 1]] {
+            let n = cells.iter().product::<usize>();
+            for seed in 0..6u64 {
+                // A few scattered visible cells (and none at all for seed 0).
+                let visible: Vec<bool> = (0..n as u64)
+                    .map(|c| seed > 0 && (c * 2654435761 + seed * 97) % (13 + seed * 7) == 0)
+                    .collect();
+                assert_eq!(
+                    chessboard_distance(cells, &visible),
+                    brute(cells, &visible),
+                    "{cells:?}, seed {seed}"
+                );
+            }
         }
     }
 }

@@ -19,6 +19,7 @@ mod macrocell;
 mod shading;
 mod simd;
 
+pub(crate) use macrocell::chessboard_distance;
 pub use macrocell::MacroGrid;
 pub use shading::Shading;
 

@@ -5,11 +5,13 @@
 //! frustum. Its projection into the generation image is a line segment, walked pixel by pixel
 //! with a 2D DDA (Amanatides–Woo) in the segment's own parameter `u`, so pixels come in ray
 //! order and a step costs no division; inverse depth is affine in `u` (perspective-correct
-//! interpolation), so each pixel's depth span is known without solving for the ray. Tiles and
-//! pixels whose depth-occupancy masks miss that span are passed untouched; where a pixel's
-//! list is searched, the exact ray parameters of its crossings are solved on the projective
-//! line, the supersegments overlapping the span found by binary search and composited front
-//! to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
+//! interpolation), so each pixel's depth span is known without solving for the ray. 8×8 tiles
+//! whose depth range that span misses are leapt (an empty one with the square of empty tiles
+//! around it), and pixels whose 64-bin depth-occupancy mask misses it are passed untouched.
+//! Where a pixel's list is searched, the exact ray parameters of its crossings are solved on
+//! the projective line, the supersegments overlapping the span found by binary search and
+//! composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
+//! the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
 //! generation view direction (constant depth) take the one supersegment that contains them.
 
 use super::{Supersegment, Vdi};
@@ -17,6 +19,7 @@ use crate::camera::{Camera, Ray, ViewFrame};
 use crate::dvr::render_tiles;
 use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
+use crate::raycast::chessboard_distance;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -110,9 +113,9 @@ impl DepthBins {
     }
 }
 
-/// The per-VDI constants of the walk: tile depth ranges, depth occupancy masks per tile and
-/// per pixel, and packed search keys (8 bytes per supersegment), built once per VDI and kept
-/// with it ([`Vdi`]'s derived data).
+/// The per-VDI constants of the walk: tile depth ranges and empty-tile distances, depth
+/// occupancy masks per pixel, and packed search keys (8 bytes per supersegment), built once
+/// per VDI and kept with it ([`Vdi`]'s derived data).
 #[derive(Clone)]
 pub(crate) struct WalkTables {
     /// Tiles per row of the generation image.
@@ -127,8 +130,6 @@ pub(crate) struct WalkTables {
     tile_reach: Vec<u8>,
     /// How depths map to the bits of the masks.
     bins: DepthBins,
-    /// Per tile, the depth bins its supersegments touch.
-    tile_bins: Vec<u64>,
     /// Per pixel (`i + r·j`), the depth bins its supersegments touch: a pixel whose mask
     /// misses the ray's depth span there is passed without searching its list.
     pixel_bins: Vec<u64>,
@@ -142,7 +143,6 @@ pub(crate) struct WalkTables {
 impl WalkTables {
     /// Two passes over `vdi`'s pixels and supersegments.
     pub(crate) fn new(vdi: &Vdi) -> Self {
-        let ri = i64::from(vdi.resolution());
         let r = vdi.resolution() as usize;
         let tile_depth = tile_depth_ranges(vdi);
         let (z_min, z_max) = tile_depth
@@ -164,17 +164,12 @@ impl WalkTables {
                 }
             });
         let tiles_x = r.div_ceil(SKIP_TILE as usize);
-        let mut tile_bins = vec![0u64; tiles_x * tiles_x];
-        for (p, m) in pixel_bins.iter().enumerate() {
-            let (i, j) = (p % r, p / r);
-            tile_bins[i / SKIP_TILE as usize + tiles_x * (j / SKIP_TILE as usize)] |= m;
-        }
+        let occupied: Vec<bool> = tile_depth.iter().map(|d| d[0] <= d[1]).collect();
         Self {
-            tiles_x: (ri + SKIP_TILE - 1) / SKIP_TILE,
-            tile_reach: empty_reach(&tile_depth, tiles_x),
+            tiles_x: tiles_x as i64,
+            tile_reach: chessboard_distance([tiles_x, tiles_x, 1], &occupied),
             tile_depth,
             bins,
-            tile_bins,
             pixel_bins,
             keys: vdi
                 .supersegments()
@@ -183,42 +178,6 @@ impl WalkTables {
                 .collect(),
         }
     }
-}
-
-/// Chessboard distance of each of the `side × side` tiles (row-major) to the nearest one
-/// with a supersegment (`depth[0] ≤ depth[1]`), capped at 255; two passes of the 3 × 3
-/// chamfer, exact for this metric.
-fn empty_reach(depth: &[[f32; 2]], side: usize) -> Vec<u8> {
-    let mut d: Vec<u8> = depth
-        .iter()
-        .map(|r| if r[0] <= r[1] { 0 } else { u8::MAX })
-        .collect();
-    let at = |i: usize, j: usize| i + side * j;
-    for j in 0..side {
-        for i in 0..side {
-            let mut m = d[at(i, j)];
-            for (di, dj) in [(-1, -1), (0, -1), (1, -1), (-1, 0)] {
-                let (a, b) = (i as i64 + di, j as i64 + dj);
-                if (0..side as i64).contains(&a) && (0..side as i64).contains(&b) {
-                    m = m.min(d[at(a as usize, b as usize)].saturating_add(1));
-                }
-            }
-            d[at(i, j)] = m;
-        }
-    }
-    for j in (0..side).rev() {
-        for i in (0..side).rev() {
-            let mut m = d[at(i, j)];
-            for (di, dj) in [(1, 1), (0, 1), (-1, 1), (1, 0)] {
-                let (a, b) = (i as i64 + di, j as i64 + dj);
-                if (0..side as i64).contains(&a) && (0..side as i64).contains(&b) {
-                    m = m.min(d[at(a as usize, b as usize)].saturating_add(1));
-                }
-            }
-            d[at(i, j)] = m;
-        }
-    }
-    d
 }
 
 /// A VDI prepared for rendering from many cameras: its generation frame and its walk tables
@@ -430,14 +389,7 @@ impl<'a> Walker<'a> {
                 };
                 let margin = rounding + enter_error + exit_error;
                 let [z_min, z_max] = self.tables.tile_depth[tile as usize];
-                if !(z_u.min(z_exit) > z_max + margin || z_u.max(z_exit) < z_min - margin)
-                    && occupied(
-                        self.tables.tile_bins[tile as usize],
-                        z_u,
-                        z_exit,
-                        enter_error + exit_error,
-                    )
-                {
+                if !(z_u.min(z_exit) > z_max + margin || z_u.max(z_exit) < z_min - margin) {
                     walking = tile;
                 } else {
                     // Nothing to meet here: jump to the next tile (past the empty square),
@@ -677,40 +629,8 @@ mod tests {
     use crate::vdi::{generate::generate, VdiParams};
     use crate::volume::Volume;
 
-    /// The two chamfer passes give the exact chessboard distance (brute force over a
-    /// scattered pattern, and an all-empty grid capped at 255).
-    #[test]
-    fn empty_reach_is_the_chessboard_distance() {
-        let side = 23;
-        let full = |i: usize, j: usize| (i * 7 + j * 13) % 41 == 0 || (i, j) == (22, 0);
-        let depth: Vec<[f32; 2]> = (0..side * side)
-            .map(|p| {
-                if full(p % side, p / side) {
-                    [1.0, 2.0]
-                } else {
-                    [f32::MAX, -f32::MAX]
-                }
-            })
-            .collect();
-        let reach = empty_reach(&depth, side);
-        for (p, &got) in reach.iter().enumerate() {
-            let (i, j) = ((p % side) as i64, (p / side) as i64);
-            let brute = (0..side * side)
-                .filter(|&q| full(q % side, q / side))
-                .map(|q| {
-                    let (a, b) = ((q % side) as i64, (q / side) as i64);
-                    (a - i).abs().max((b - j).abs())
-                })
-                .min()
-                .unwrap_or(255);
-            assert_eq!(i64::from(got), brute.min(255), "tile ({i}, {j})");
-        }
-        let empty = vec![[f32::MAX, -f32::MAX]; 9];
-        assert_eq!(empty_reach(&empty, 3), vec![255; 9]);
-    }
-
-    /// Skipping tiles by depth range, squares of empty tiles, and tiles or pixels by depth
-    /// occupancy is an optimisation: it must not change the image.
+    /// Skipping tiles by depth range, squares of empty tiles, and pixels by depth occupancy
+    /// is an optimisation: it must not change the image.
     #[test]
     fn skipping_leaves_the_image_unchanged() {
         // Two blobs at different depths with empty space around and between them.
@@ -742,7 +662,6 @@ mod tests {
         let skipping = Walker::new(&vdi);
         let mut all = vdi.walk_tables().clone();
         all.tile_depth.fill([-f32::MAX, f32::MAX]);
-        all.tile_bins.fill(u64::MAX);
         all.tile_reach.fill(0);
         all.pixel_bins.fill(u64::MAX);
         let walking_all = Walker {
