@@ -28,12 +28,13 @@ pub fn one_minus_exp_neg(x: f32) -> f32 {
     let n_bits = shifted.to_bits().wrapping_sub(ROUND.to_bits());
     let scale = f32::from_bits(n_bits.wrapping_add(127) << 23);
     let f2 = f * f;
+    const C: [f32; 6] = EXP2_TAYLOR;
     let q = (C[0] + f * C[1]) + f2 * (C[2] + f * C[3]) + (f2 * f2) * (C[4] + f * C[5]);
     (1.0 - scale) - scale * (f * q)
 }
 
 /// `ln2^k / k!` for `k = 1…6`: the Taylor coefficients of `2^f − 1`.
-const C: [f32; 6] = [
+pub(crate) const EXP2_TAYLOR: [f32; 6] = [
     std::f32::consts::LN_2,
     0.240_226_5,
     0.055_504_11,
@@ -57,7 +58,7 @@ pub fn ceil(v: f32) -> f32 {
 
 /// `1.5 · 2^23`: adding and subtracting it rounds an `f32` of magnitude < 2^22 to the nearest
 /// integer.
-const ROUND: f32 = 12_582_912.0;
+pub(crate) const ROUND: f32 = 12_582_912.0;
 
 #[cfg(test)]
 mod tests {

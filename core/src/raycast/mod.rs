@@ -22,6 +22,7 @@ mod simd;
 pub(crate) use macrocell::chessboard_distance;
 pub use macrocell::MacroGrid;
 pub use shading::Shading;
+pub(crate) use simd::Avx2;
 
 use crate::camera::Ray;
 use crate::fastmath;
@@ -217,6 +218,12 @@ impl<'a> Raycaster<'a> {
     /// time).
     pub fn uses_simd(&self) -> bool {
         self.simd.is_some()
+    }
+
+    /// The AVX2 token where this ray-caster uses AVX2 (for the work that follows its samples,
+    /// such as VDI generation's merge), `None` on the scalar path.
+    pub(crate) fn avx2(&self) -> Option<Avx2> {
+        self.simd
     }
 
     /// The parameters this ray-caster was built with.

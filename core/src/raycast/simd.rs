@@ -23,7 +23,7 @@ use std::ops::ControlFlow;
 
 /// Proof that this CPU runs AVX2: made only by [`Avx2::detect`].
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Avx2(());
+pub(crate) struct Avx2(());
 
 impl Avx2 {
     /// The token, where the CPU has AVX2 (checked at run time).
