@@ -102,7 +102,7 @@ impl Lanes {
     pub(super) fn new(avx2: Option<Avx2>) -> Option<Self> {
         Some(Self {
             avx2: avx2?,
-            positions: vec![Position::default(); CHUNK],
+            positions: Vec::new(),
             out: Default::default(),
         })
     }
@@ -143,8 +143,13 @@ impl Lanes {
                 #[inline(always)]
                 |s: &Sample| {
                     if count == positions.len() {
-                        flush(*avx2, l, &mut lanes, positions, gamma_sq, &z_per_t, out);
-                        count = 0;
+                        // The buffer grows to the longest ray's samples, up to `CHUNK`.
+                        if count < CHUNK {
+                            grow(positions);
+                        } else {
+                            flush(*avx2, l, &mut lanes, positions, gamma_sq, &z_per_t, out);
+                            count = 0;
+                        }
                     }
                     if let Some(at) = positions.get_mut(count) {
                         at.set(l, s);
@@ -169,6 +174,14 @@ impl Lanes {
             counts.push(out.len() as u32);
         }
     }
+}
+
+/// Doubles the sample buffer (up to [`CHUNK`] positions). Cold and not inlined, as [`flush`].
+#[cold]
+#[inline(never)]
+fn grow(positions: &mut Vec<Position>) {
+    let len = (2 * positions.len()).clamp(64, CHUNK);
+    positions.resize(len, Position::default());
 }
 
 /// Merges lane `l`'s samples of a full buffer on their own. Cold and not inlined, so that the
