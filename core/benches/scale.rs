@@ -8,8 +8,10 @@
 //! process's footprint without the field) is its own. Generation runs first: the table gives
 //! its peak, the field's size in its own type, the VDI's in-memory size and the ratio
 //! peak / (field + VDI) whose target is ≤ 1.3, then the process's peak once the DVR has run
-//! too (its 768² image, 7 MiB, which the allocator may keep after it is freed). Times are
-//! medians of 3 runs after a warm-up.
+//! too (its 768² image, 7 MiB, which the allocator may keep after it is freed). `@0.99/DVR`
+//! is generation stopping its rays at opacity 0.99, as the DVR does, over the DVR: what the
+//! default (rays to the box exit, no holes behind dense structures) costs. Times are medians
+//! of 3 runs after a warm-up.
 //! Run: `cargo bench -p insitu-core --bench scale` (`INSITU_SCALE_SIZES=128,256` for fewer
 //! sizes; 1024³ f32 needs about 5 GiB).
 
@@ -119,12 +121,22 @@ fn run(n: usize, bytes: bool) {
         std::hint::black_box(dvr::render(&rc, &cam, SIZE, SIZE));
     });
     let with_dvr = status_kb("VmHWM:").saturating_sub(base_kb) * 1024;
+    // What the default's rays to the box exit cost: generation stopping where the DVR stops.
+    let stopping = RaycastParams {
+        generation_termination: Some(RaycastParams::default().termination),
+        ..RaycastParams::default()
+    };
+    let rc_stopping = Raycaster::new(&volume, &tf, stopping).expect("valid");
+    let stopping_s = time(&mut || {
+        std::hint::black_box(generate(&rc_stopping, &cam, vp, 0, "scale").expect("generates"));
+    });
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     println!(
-        "{n:>5}³ {:>4} {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>9.1}  {:>9.1}  {:>5.2}  {:>9.1}",
+        "{n:>5}³ {:>4} {:>9.1}  {dvr_s:>8.3}  {gen_s:>8.3}  {:>6.2}  {:>7.2}  {:>9.1}  {:>9.1}  {:>5.2}  {:>9.1}",
         if bytes { "u8" } else { "f32" },
         mib(field),
         gen_s / dvr_s,
+        stopping_s / dvr_s,
         mib(vdi_bytes),
         mib(peak),
         peak as f64 / (field + vdi_bytes) as f64,
@@ -148,7 +160,7 @@ fn main() {
         rayon::current_num_threads()
     );
     println!(
-        "    N  type field MiB    DVR s     gen s  gen/DVR    VDI MiB   peak MiB  peak/(field+VDI)  +DVR MiB"
+        "    N  type field MiB    DVR s     gen s  gen/DVR  @0.99/DVR  VDI MiB   peak MiB  peak/(field+VDI)  +DVR MiB"
     );
     let exe = std::env::current_exe().expect("own path");
     for n in sizes
