@@ -283,15 +283,24 @@ unsafe fn merge_avx2(
                 _mm256_add_epi32(last, _mm256_set1_epi32(1)),
             ));
             let near = _mm256_cmp_ps::<_CMP_LT_OQ>(distance_sq(unit_over_total, &color, &ac), g2);
-            let first_ok =
-                _mm256_cmp_ps::<_CMP_NGE_UQ>(distance_sq(unit_over_total, &color, &[zero; 3]), g2);
-            let x = _mm256_and_ps(
-                _mm256_and_ps(live, gap),
-                _mm256_div_ps(depth, _mm256_sub_ps(load(&s.t_start), t_start)),
-            );
-            let stretched = _mm256_mul_ps(one_minus_exp_neg(x), recip_floored(total));
-            let stretched_ok = _mm256_cmp_ps::<_CMP_LT_OQ>(distance_sq(stretched, &color, &ac), g2);
-            let ok = _mm256_blendv_ps(near, _mm256_and_ps(first_ok, stretched_ok), gap);
+            let gaps = _mm256_and_ps(live, gap);
+            // After a run of transparent samples (in 4 % of the steps on the teapot).
+            let ok = if _mm256_movemask_ps(gaps) == 0 {
+                near
+            } else {
+                let first_ok = _mm256_cmp_ps::<_CMP_NGE_UQ>(
+                    distance_sq(unit_over_total, &color, &[zero; 3]),
+                    g2,
+                );
+                let x = _mm256_and_ps(
+                    gaps,
+                    _mm256_div_ps(depth, _mm256_sub_ps(load(&s.t_start), t_start)),
+                );
+                let stretched = _mm256_mul_ps(one_minus_exp_neg(x), recip_floored(total));
+                let stretched_ok =
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(distance_sq(stretched, &color, &ac), g2);
+                _mm256_blendv_ps(near, _mm256_and_ps(first_ok, stretched_ok), gaps)
+            };
             let accept = _mm256_and_ps(live, ok);
             let close = _mm256_movemask_ps(_mm256_andnot_ps(ok, live)) as u32;
             if close != 0 {
