@@ -7,7 +7,8 @@
 //!    (Gray–Scott 128³, pushing every 10th step);
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
-//! `cargo bench -p insitu-e2e --bench pipeline`. Numbers depend on the cores the simulation and
+//! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
+//! `PART`: `ingest_rust`, `ingest_c`, `simulation_overhead`, `latency`). Numbers depend on the cores the simulation and
 //! the generator-node share: on a 2-core machine they compete.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -204,9 +205,22 @@ fn main() {
     if !std::env::args().any(|a| a == "--bench") {
         return;
     }
+    // `cargo bench -p insitu-e2e --bench pipeline -- ingest` runs the parts whose name holds
+    // "ingest" only.
+    let filter = std::env::args()
+        .skip(1)
+        .find(|a| !a.starts_with("--"))
+        .unwrap_or_default();
     let tmp = tempfile::tempdir().unwrap();
-    ingest(tmp.path());
-    ingest_c(tmp.path());
-    simulation_overhead(tmp.path());
-    latency(tmp.path());
+    let parts: [(&str, fn(&std::path::Path)); 4] = [
+        ("ingest_rust", ingest),
+        ("ingest_c", ingest_c),
+        ("simulation_overhead", simulation_overhead),
+        ("latency", latency),
+    ];
+    for (name, part) in parts {
+        if name.contains(&filter) {
+            part(tmp.path());
+        }
+    }
 }
