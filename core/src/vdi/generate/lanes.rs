@@ -427,8 +427,8 @@ mod tests {
 
     /// The lanes' VDI equals the scalar merge's bit for bit: rays longer than the buffer
     /// (merged in several parts), runs of transparent samples inside supersegments, NaN
-    /// data, early termination, rows whose last group has fewer than eight rays, views
-    /// from behind.
+    /// data, opacity 1, early termination, rows whose last group has fewer than eight rays,
+    /// views from behind.
     #[test]
     fn lanes_merge_like_the_scalar_merge() {
         let tf = TransferFunction::from_json(
@@ -450,18 +450,27 @@ mod tests {
             }
         })
         .unwrap();
-        let mut compared = 0;
-        for (volume, step, termination) in [
-            (&long, 0.1, None),
-            (&blobs, 0.5, None),
-            (&blobs, 0.3, Some(0.9)),
+        // Opacity 1 above 0.7 (`κ = ∞`), a huge dynamic range below it.
+        let opaque = TransferFunction::from_json(
+            r#"{"domain": [0, 1], "points": [[0, 1, 1, 1, 1e-7], [0.3, 0, 0, 0, 0],
+                [0.5, 0, 1, 0, 0.001], [0.69, 1, 0, 0, 0.5], [0.7, 1, 1, 0, 1], [1, 1, 1, 1, 1]]}"#,
+            "opaque",
+        )
+        .unwrap();
+        let (mut compared, mut opaque_seen) = (0, false);
+        for (volume, tf, step, termination) in [
+            (&long, &tf, 0.1, None),
+            (&blobs, &tf, 0.5, None),
+            (&blobs, &tf, 0.3, Some(0.9)),
+            (&blobs, &opaque, 0.5, None),
+            (&long, &opaque, 0.7, Some(1.0)),
         ] {
             let params = RaycastParams {
                 step,
                 generation_termination: termination,
                 ..Default::default()
             };
-            let rc = Raycaster::new(volume, &tf, params).unwrap();
+            let rc = Raycaster::new(volume, tf, params).unwrap();
             let scalar = rc.clone().without_simd();
             let cam = Camera::default_for_box(&volume.world_box());
             for (angle, resolution, gamma) in
@@ -473,9 +482,14 @@ mod tests {
                 let reference = generate(&scalar, &camera, p, 0, "").unwrap();
                 assert_eq!(lanes, reference, "{angle}°, r = {resolution}, step {step}");
                 compared += reference.supersegments().len();
+                opaque_seen |= reference.supersegments().iter().any(|s| s.alpha == 1.0);
             }
         }
         assert!(compared > 5_000, "{compared} supersegments compared");
+        assert!(
+            opaque_seen,
+            "the opaque cases must close opaque supersegments"
+        );
         if !Raycaster::new(&blobs, &tf, RaycastParams::default())
             .unwrap()
             .uses_simd()
