@@ -7,7 +7,9 @@
 //! length with the new sample's (`a`, `c` its per-unit-length opacity and colour). Then the
 //! supersegment is closed and the sample opens a new one. Transparent samples never open one;
 //! a run of them inside an open supersegment is tested once (the first one has the largest
-//! `d`, since `â` only falls as the run lengthens) and trailing ones are cut off.
+//! `d`, since `â` only falls as the run lengthens) and trailing ones are cut off. Where the
+//! CPU has AVX2, eight neighbouring rays are merged at once (`generate/lanes.rs`), bit-identical to this
+//! scalar merge, which stays the reference and the fallback.
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::{Camera, Ray};
@@ -80,9 +82,10 @@ pub fn generate_into(
     vdi.supersegments.clear();
     // Room for the whole flat array up front (a generous guess; pages not written cost no
     // memory): grown by doubling instead, each growth would copy it and, for a while, hold
-    // both copies.
-    vdi.supersegments
-        .reserve(estimate_supersegments(raycaster, camera, params));
+    // both copies. A reservation the allocator refuses (an estimate beyond what fits) is
+    // left to growth.
+    let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
+    let _ = vdi.supersegments.try_reserve(estimate);
     let band = r.div_ceil(BANDS);
     // Band k + 1 is marched while band k is appended (a serial copy that would otherwise
     // leave a thread idle).

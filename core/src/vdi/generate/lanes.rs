@@ -220,6 +220,9 @@ fn merge(
     unsafe {
         merge_avx2(lanes, positions, n, gamma_sq, z_per_t, out)
     }
+    // No token exists elsewhere ([`Avx2::detect`]), so no `Lanes` either.
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (lanes, positions, n, gamma_sq, z_per_t, out);
 }
 
 /// [`merge`].
