@@ -12,7 +12,7 @@
 //! scalar merge, which stays the reference and the fallback.
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
-use crate::camera::{Camera, Ray};
+use crate::camera::{Camera, Ray, ViewFrame};
 use crate::fastmath::one_minus_exp_neg;
 use crate::raycast::{Raycaster, Sample};
 use glam::Vec3A;
@@ -146,17 +146,9 @@ fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiPar
                 segs.clear();
                 let j = row * stride + stride / 2;
                 for column in 0..ESTIMATE_SIDE {
-                    let ray = frame.pixel_ray(column * stride + stride / 2, j);
-                    let z_per_t = ray.dir.dot(frame.forward);
-                    generate_ray(
-                        raycaster,
-                        &ray,
-                        termination,
-                        gamma_sq,
-                        z_per_t,
-                        samples,
-                        segs,
-                    );
+                    let i = column * stride + stride / 2;
+                    let (stop, g2) = (termination, gamma_sq);
+                    generate_pixel(raycaster, &frame, (i, j), stop, g2, samples, segs);
                 }
                 segs.len()
             },
@@ -201,18 +193,9 @@ fn march_rows(
                     }
                 } else {
                     for i in 0..r {
-                        let ray = frame.pixel_ray(i, j);
                         let before = segs.len();
-                        let z_per_t = ray.dir.dot(frame.forward);
-                        generate_ray(
-                            raycaster,
-                            &ray,
-                            termination,
-                            gamma_sq,
-                            z_per_t,
-                            samples,
-                            &mut segs,
-                        );
+                        let (stop, g2) = (termination, gamma_sq);
+                        generate_pixel(raycaster, &frame, (i, j), stop, g2, samples, &mut segs);
                         counts.push((segs.len() - before) as u32);
                     }
                 }
@@ -407,6 +390,30 @@ fn generate_ray(
     });
     builder.merge(samples, out);
     builder.finish(out);
+}
+
+/// [`generate_ray`] for pixel `(i, j)` of the generation `frame`.
+#[inline]
+fn generate_pixel(
+    raycaster: &Raycaster,
+    frame: &ViewFrame,
+    (i, j): (u32, u32),
+    termination: f32,
+    gamma_sq: f32,
+    samples: &mut Vec<Sample>,
+    out: &mut Vec<Supersegment>,
+) {
+    let ray = frame.pixel_ray(i, j);
+    let z_per_t = ray.dir.dot(frame.forward);
+    generate_ray(
+        raycaster,
+        &ray,
+        termination,
+        gamma_sq,
+        z_per_t,
+        samples,
+        out,
+    );
 }
 
 /// Merges a ray's samples, chunk after chunk, into supersegments.
