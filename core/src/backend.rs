@@ -133,9 +133,9 @@ impl Backend {
     /// command line to print).
     ///
     /// # Errors
-    /// [`BackendError::NotBuilt`] for `gpu` without the feature; [`BackendError::Gpu`] for
-    /// `gpu` when no adapter is found or the device fails to open. `auto` never fails: it
-    /// falls back to the CPU and the line says why.
+    /// [`BackendError::NotBuilt`] for `gpu` without the feature; `BackendError::Gpu` (feature
+    /// `gpu`) for `gpu` when no adapter is found or the device fails to open. `auto` never
+    /// fails: it falls back to the CPU and the line says why.
     pub fn select_explained(choice: BackendChoice) -> Result<(Self, String), BackendError> {
         match choice {
             BackendChoice::Cpu => Ok((Self::Cpu, format!("backend: {}", Self::Cpu.describe()))),
@@ -183,7 +183,8 @@ impl Backend {
     /// macro-cell grid once for many cameras).
     ///
     /// # Errors
-    /// [`BackendError::Gpu`] when the scene exceeds a device limit or the device fails.
+    /// `BackendError::Gpu` (feature `gpu`) when the scene exceeds a device limit or the device
+    /// fails.
     pub fn prepare<'a>(&'a self, raycaster: &'a Raycaster<'a>) -> Result<Scene<'a>, BackendError> {
         match self {
             Self::Cpu => Ok(Scene::Cpu(raycaster)),
@@ -197,8 +198,8 @@ impl Backend {
     /// Prepares `vdi` for rendering from many cameras (on the GPU: uploads its lists).
     ///
     /// # Errors
-    /// [`BackendError::Gpu`] when the VDI exceeds the storage-binding limit or the device
-    /// fails.
+    /// `BackendError::Gpu` (feature `gpu`) when the VDI exceeds the storage-binding limit or
+    /// the device fails.
     pub fn prepare_vdi<'a>(&'a self, vdi: &'a Vdi) -> Result<SceneVdi<'a>, BackendError> {
         match self {
             Self::Cpu => Ok(SceneVdi::Cpu(render::Walker::new(vdi))),
@@ -280,7 +281,8 @@ impl Scene<'_> {
     /// Reference DVR of `camera`'s view at `width × height` ([`crate::dvr::render`]).
     ///
     /// # Errors
-    /// [`BackendError::Gpu`] on the GPU path (limits, device failures); never on the CPU.
+    /// `BackendError::Gpu` (feature `gpu`) on the GPU path (limits, device failures); never on
+    /// the CPU.
     pub fn dvr(
         &self,
         camera: &Camera,
@@ -298,8 +300,8 @@ impl Scene<'_> {
     /// VDI generation `R` ([`crate::vdi::generate::generate`]).
     ///
     /// # Errors
-    /// [`BackendError::Params`] for bad `params` or camera; [`BackendError::Gpu`] on the GPU
-    /// path.
+    /// [`BackendError::Params`] for bad `params` or camera; `BackendError::Gpu` (feature `gpu`)
+    /// on the GPU path.
     pub fn generate(
         &self,
         camera: &Camera,
@@ -358,7 +360,7 @@ impl SceneVdi<'_> {
     /// VDI rendering `I` from `camera` at `width × height` ([`crate::vdi::render::render`]).
     ///
     /// # Errors
-    /// [`BackendError::Gpu`] on the GPU path; never on the CPU.
+    /// `BackendError::Gpu` (feature `gpu`) on the GPU path; never on the CPU.
     pub fn render(
         &self,
         camera: &Camera,
