@@ -200,6 +200,9 @@ fn latency(tmp: &std::path::Path) {
     v.terminate();
 }
 
+/// One part of the benchmark, run in a temporary directory.
+type Part = fn(&std::path::Path);
+
 fn main() {
     // `cargo bench` passes --bench; `cargo test --benches` passes nothing: run only for bench.
     if !std::env::args().any(|a| a == "--bench") {
@@ -212,7 +215,7 @@ fn main() {
         .find(|a| !a.starts_with("--"))
         .unwrap_or_default();
     let tmp = tempfile::tempdir().unwrap();
-    let parts: [(&str, fn(&std::path::Path)); 4] = [
+    let parts: [(&str, Part); 4] = [
         ("ingest_rust", ingest),
         ("ingest_c", ingest_c),
         ("simulation_overhead", simulation_overhead),
