@@ -8,8 +8,8 @@
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
-//! `PART`: `ingest_rust`, `ingest_c`, `simulation_overhead`, `latency`). Numbers depend on the cores the simulation and
-//! the generator-node share: on a 2-core machine they compete.
+//! `PART`: `ingest_rust`, `ingest_c`, `simulation_overhead`, `latency`). Numbers depend on
+//! the cores the simulation and the generator-node share: on a 2-core machine they compete.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

@@ -8,8 +8,8 @@
 //! supersegment is closed and the sample opens a new one. Transparent samples never open one;
 //! a run of them inside an open supersegment is tested once (the first one has the largest
 //! `d`, since `â` only falls as the run lengthens) and trailing ones are cut off. Where the
-//! CPU has AVX2, eight neighbouring rays are merged at once (`generate/lanes.rs`), bit-identical to this
-//! scalar merge, which stays the reference and the fallback.
+//! CPU has AVX2, eight neighbouring rays are merged at once (`generate/lanes.rs`),
+//! bit-identical to this scalar merge, which stays the reference and the fallback.
 
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::{Camera, Ray, ViewFrame};
@@ -136,8 +136,7 @@ fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiPar
         return 0;
     }
     let frame = camera.frame(r, r);
-    let termination = raycaster.params().generation_stop();
-    let gamma_sq = params.gamma * params.gamma;
+    let limits = Limits::new(raycaster, params);
     let sampled: usize = (0..ESTIMATE_SIDE)
         .into_par_iter()
         .map_init(
@@ -146,9 +145,8 @@ fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiPar
                 segs.clear();
                 let j = row * stride + stride / 2;
                 for column in 0..ESTIMATE_SIDE {
-                    let i = column * stride + stride / 2;
-                    let (stop, g2) = (termination, gamma_sq);
-                    generate_pixel(raycaster, &frame, (i, j), stop, g2, samples, segs);
+                    let (ray, z_per_t) = generation_ray(&frame, column * stride + stride / 2, j);
+                    generate_ray(raycaster, &ray, z_per_t, limits, samples, segs);
                 }
                 segs.len()
             },
@@ -167,8 +165,7 @@ fn march_rows(
 ) -> Vec<(Vec<u32>, Vec<Supersegment>)> {
     let r = params.resolution;
     let frame = camera.frame(r, r);
-    let termination = raycaster.params().generation_stop();
-    let gamma_sq = params.gamma * params.gamma;
+    let limits = Limits::new(raycaster, params);
     // Each row's list is reserved at the size of the row before it on the same worker (and a
     // quarter more): neighbouring rows see similar content, so lists rarely grow by copying.
     // Eight rays at a time where the CPU has AVX2 ([`lanes`]), else one by one.
@@ -181,21 +178,14 @@ fn march_rows(
                 if let Some(lanes) = lanes {
                     for i0 in (0..r).step_by(LANES) {
                         let width = ((r - i0) as usize).min(LANES);
-                        lanes.generate(
-                            raycaster,
-                            &frame,
-                            (i0, j, width),
-                            termination,
-                            gamma_sq,
-                            &mut segs,
-                            &mut counts,
-                        );
+                        let group = (i0, j, width);
+                        lanes.generate(raycaster, &frame, group, limits, &mut segs, &mut counts);
                     }
                 } else {
                     for i in 0..r {
                         let before = segs.len();
-                        let (stop, g2) = (termination, gamma_sq);
-                        generate_pixel(raycaster, &frame, (i, j), stop, g2, samples, &mut segs);
+                        let (ray, z_per_t) = generation_ray(&frame, i, j);
+                        generate_ray(raycaster, &ray, z_per_t, limits, samples, &mut segs);
                         counts.push((segs.len() - before) as u32);
                     }
                 }
@@ -353,8 +343,9 @@ fn ratio(unit: f32, total: f32) -> f32 {
 /// the ray and however small the step.
 const CHUNK: usize = 1024;
 
-/// Marches `ray` up to the generation's early termination (the accumulated opacity reaching
-/// `termination`; never when it is above 1) and appends its supersegments to `out`; `samples` is scratch.
+/// Marches `ray` (eye-space depth `z_per_t` per unit `t`) up to the generation's early
+/// termination ([`Limits::stop`]) and appends its supersegments to `out`; `samples` is
+/// scratch.
 ///
 /// The marcher's closure only buffers samples; [`Builder::merge`] merges them in a separate
 /// loop at the ray's end (and [`Builder::flush`] whenever [`CHUNK`] are buffered). That keeps
@@ -363,16 +354,15 @@ const CHUNK: usize = 1024;
 fn generate_ray(
     raycaster: &Raycaster,
     ray: &Ray,
-    termination: f32,
-    gamma_sq: f32,
     z_per_t: f32,
+    limits: Limits,
     samples: &mut Vec<Sample>,
     out: &mut Vec<Supersegment>,
 ) {
     samples.clear();
     let mut builder = Builder {
         open: None,
-        gamma_sq,
+        gamma_sq: limits.gamma_sq,
         z_per_t,
     };
     let mut transmittance = 1.0f32;
@@ -381,39 +371,50 @@ fn generate_ray(
             builder.flush(samples, out);
         }
         samples.push(*s);
-        transmittance *= 1.0 - s.alpha;
-        if 1.0 - transmittance >= termination {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
+        limits.stop(&mut transmittance, s.alpha)
     });
     builder.merge(samples, out);
     builder.finish(out);
 }
 
-/// [`generate_ray`] for pixel `(i, j)` of the generation `frame`.
+/// The ray through pixel `(i, j)` of the generation `frame` and its view-axis component (the
+/// eye-space depth per unit `t` that scales its supersegments' depths).
 #[inline]
-fn generate_pixel(
-    raycaster: &Raycaster,
-    frame: &ViewFrame,
-    (i, j): (u32, u32),
-    termination: f32,
-    gamma_sq: f32,
-    samples: &mut Vec<Sample>,
-    out: &mut Vec<Supersegment>,
-) {
+fn generation_ray(frame: &ViewFrame, i: u32, j: u32) -> (Ray, f32) {
     let ray = frame.pixel_ray(i, j);
     let z_per_t = ray.dir.dot(frame.forward);
-    generate_ray(
-        raycaster,
-        &ray,
-        termination,
-        gamma_sq,
-        z_per_t,
-        samples,
-        out,
-    );
+    (ray, z_per_t)
+}
+
+/// What ends a generation ray and what closes a supersegment, the same for every ray of a
+/// VDI.
+#[derive(Clone, Copy)]
+struct Limits {
+    /// Early termination: the accumulated opacity at which a ray stops (above 1: never).
+    termination: f32,
+    /// The interrupt threshold squared, `γ²`.
+    gamma_sq: f32,
+}
+
+impl Limits {
+    fn new(raycaster: &Raycaster, params: VdiParams) -> Self {
+        Self {
+            termination: raycaster.params().generation_stop(),
+            gamma_sq: params.gamma * params.gamma,
+        }
+    }
+
+    /// Takes a sample of opacity `alpha` into the ray's `transmittance`; `Break` once the
+    /// accumulated opacity reaches the termination threshold.
+    #[inline(always)]
+    fn stop(self, transmittance: &mut f32, alpha: f32) -> ControlFlow<()> {
+        *transmittance *= 1.0 - alpha;
+        if 1.0 - *transmittance >= self.termination {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    }
 }
 
 /// Merges a ray's samples, chunk after chunk, into supersegments.
@@ -512,15 +513,11 @@ mod tests {
         builder.merge(&whole, &mut reference);
         builder.finish(&mut reference);
         let mut chunked = Vec::new();
-        generate_ray(
-            &rc,
-            &ray,
-            1.0,
+        let limits = Limits {
+            termination: 1.0,
             gamma_sq,
-            z_per_t,
-            &mut Vec::new(),
-            &mut chunked,
-        );
+        };
+        generate_ray(&rc, &ray, z_per_t, limits, &mut Vec::new(), &mut chunked);
         assert!(reference.len() > 20, "{} supersegments", reference.len());
         assert_eq!(chunked, reference);
     }

@@ -18,11 +18,10 @@
 // detection), on arrays of exactly eight lanes.
 #![allow(unsafe_code)]
 
-use super::{Open, CHUNK};
+use super::{generation_ray, Limits, Open, CHUNK};
 use crate::camera::ViewFrame;
 use crate::raycast::{Avx2, Raycaster, Sample};
 use crate::vdi::Supersegment;
-use std::ops::ControlFlow;
 
 /// Rays merged together.
 pub(super) const LANES: usize = 8;
@@ -110,17 +109,16 @@ impl Lanes {
     /// The supersegments of pixels `i0 … i0 + width − 1` (`width ≤ LANES`) of row `j`: each
     /// pixel's list appended to `segs` and its length to `counts`, exactly as
     /// [`super::generate_ray`] per pixel would.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn generate(
         &mut self,
         raycaster: &Raycaster,
         frame: &ViewFrame,
         (i0, j, width): (u32, u32, usize),
-        termination: f32,
-        gamma_sq: f32,
+        limits: Limits,
         segs: &mut Vec<Supersegment>,
         counts: &mut Vec<u32>,
     ) {
+        let gamma_sq = limits.gamma_sq;
         let mut lanes = OpenLanes::default();
         let mut n = [0usize; LANES];
         let mut z_per_t = [0.0f32; LANES];
@@ -132,8 +130,8 @@ impl Lanes {
         let width = width.min(LANES);
         for l in 0..width {
             out[l].clear();
-            let ray = frame.pixel_ray(i0 + l as u32, j);
-            z_per_t[l] = ray.dir.dot(frame.forward);
+            let (ray, z) = generation_ray(frame, i0 + l as u32, j);
+            z_per_t[l] = z;
             let mut transmittance = 1.0f32;
             let mut count = 0usize;
             // Inlined into the marcher's loop (a call there would spill its registers around
@@ -155,12 +153,7 @@ impl Lanes {
                         at.set(l, s);
                         count += 1;
                     }
-                    transmittance *= 1.0 - s.alpha;
-                    if 1.0 - transmittance >= termination {
-                        ControlFlow::Break(())
-                    } else {
-                        ControlFlow::Continue(())
-                    }
+                    limits.stop(&mut transmittance, s.alpha)
                 },
             );
             n[l] = count;
