@@ -6,7 +6,9 @@ Run through bench/vtk_compare.sh, which makes the venv. The conventions match DE
 
 - volume: image data with origin 0 and spacing 1, so voxel centres sit at integer coordinates
   and the box is [0, n - 1] per axis; trilinear samples (linear interpolation);
-- TF: the same JSON, points at domain[0] + x * (domain[1] - domain[0]); colour and opacity
+- TF: the same JSON (without --tf: a ramp over the data's finite range, the points of
+  insitu's default ramp, `TransferFunction::default_for_range`, written to a file that both
+  renderers read), points at domain[0] + x * (domain[1] - domain[0]); colour and opacity
   piecewise linear; opacity per unit length with VTK's scalar opacity unit distance = 1 voxel,
   so both correct a step of 0.5 voxel to alpha = 1 - (1 - a)^0.5; no shading;
 - camera: perspective, 30 degrees vertical field of view, up +y, looking along -z at the box
@@ -46,6 +48,18 @@ def load_raw(path):
         sys.exit(f"{path}: unsupported type {t}")
     data = np.fromfile(path, dtype=DTYPES[t], count=nx * ny * nz)
     return data, (nx, ny, nz)
+
+
+def default_ramp(data):
+    """insitu's default TF (core/src/tf.rs, `default_for_range`) over the finite data range."""
+    finite = data[np.isfinite(data)] if data.dtype.kind == "f" else data
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    if not lo < hi:
+        hi = lo + 1.0
+    return {"domain": [lo, hi],
+            "points": [[0.0, 0.0, 0.0, 0.0, 0.0], [0.1, 0.2, 0.3, 0.9, 0.0],
+                       [0.3, 0.2, 0.6, 1.0, 0.02], [0.6, 0.9, 0.9, 0.3, 0.08],
+                       [1.0, 1.0, 0.3, 0.1, 0.3]]}
 
 
 def vtk_volume(data, dims, tf, step):
@@ -132,7 +146,7 @@ def psnr(a, b):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--volume", required=True)
-    ap.add_argument("--tf", required=True)
+    ap.add_argument("--tf", help="TF JSON (default: a ramp over the data range)")
     ap.add_argument("--angle", type=float, default=30.0)
     ap.add_argument("--size", type=int, default=768)
     ap.add_argument("--step", type=float, default=0.5)
@@ -140,8 +154,12 @@ def main():
     ap.add_argument("--insitu", default="target/release/insitu")
     a = ap.parse_args()
 
-    tf = json.load(open(a.tf))
     data, dims = load_raw(a.volume)
+    if a.tf is None:
+        a.tf = os.path.join(tempfile.mkdtemp(), "ramp.json")
+        with open(a.tf, "w") as f:
+            json.dump(default_ramp(data), f)
+    tf = json.load(open(a.tf))
     volume = vtk_volume(data, dims, tf, a.step)
     ren, win = vtk_scene(volume, dims, a.size, a.angle)
     win.Render()  # warm-up: builds the mapper's tables

@@ -36,6 +36,7 @@ impl MacroGrid {
         let visible: Vec<bool> = match volume.voxels() {
             VoxelSlice::U8(d) => visibility(d, dims, cells, lut),
             VoxelSlice::U16(d) => visibility(d, dims, cells, lut),
+            VoxelSlice::I16(d) => visibility(d, dims, cells, lut),
             VoxelSlice::F32(d) => visibility(d, dims, cells, lut),
         };
         let distance = chessboard_distance(cells, &visible);

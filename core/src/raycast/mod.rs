@@ -261,6 +261,8 @@ impl<'a> Raycaster<'a> {
             (Storage::U8(d), true) => self.march_typed::<u8, true>(d, ray, &mut visit),
             (Storage::U16(d), false) => self.march_typed::<u16, false>(d, ray, &mut visit),
             (Storage::U16(d), true) => self.march_typed::<u16, true>(d, ray, &mut visit),
+            (Storage::I16(d), false) => self.march_typed::<i16, false>(d, ray, &mut visit),
+            (Storage::I16(d), true) => self.march_typed::<i16, true>(d, ray, &mut visit),
             (Storage::F32(d), false) => self.march_typed::<f32, false>(d, ray, &mut visit),
             (Storage::F32(d), true) => self.march_typed::<f32, true>(d, ray, &mut visit),
         }
@@ -508,6 +510,7 @@ impl<'a> Raycaster<'a> {
         match self.volume.voxels() {
             VoxelSlice::U8(d) => trilinear(d, i, self.strides, f[0], f[1], f[2]),
             VoxelSlice::U16(d) => trilinear(d, i, self.strides, f[0], f[1], f[2]),
+            VoxelSlice::I16(d) => trilinear(d, i, self.strides, f[0], f[1], f[2]),
             VoxelSlice::F32(d) => trilinear(d, i, self.strides, f[0], f[1], f[2]),
         }
     }
@@ -630,9 +633,10 @@ mod tests {
             .is_err());
     }
 
-    /// u8 and u16 storage (padded for the AVX2 gathers) marches exactly like the same values
-    /// as f32, on the SIMD and the scalar path, down to volumes two voxels a side
-    /// (where the last voxel's gather reads into the padding).
+    /// u8, u16 and i16 storage (padded for the AVX2 gathers) marches exactly like the same
+    /// values as f32, on the SIMD and the scalar path, down to volumes two voxels a side
+    /// (where the last voxel's gather reads into the padding); i16 over its whole range, so
+    /// a sign-extension slip (or a mask instead of it) shows.
     #[test]
     fn integer_storage_samples_like_f32() {
         for dims in [[2, 2, 2], [2, 5, 3], [17, 13, 11], [40, 3, 2]] {
@@ -640,7 +644,25 @@ mod tests {
             let value = |i: usize| ((i * 2654435761) % 65521) as u16;
             let u16s: Vec<u16> = (0..n).map(value).collect();
             let u8s: Vec<u8> = (0..n).map(|i| (value(i) % 256) as u8).collect();
+            // About half the voxels negative, and both ends of the type.
+            let i16s: Vec<i16> = (0..n)
+                .map(|i| match i {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    _ => (i32::from(value(i)) - 32768) as i16,
+                })
+                .collect();
             let pairs = [
+                (
+                    Volume::from_i16(dims, Vec3::ONE, i16s.clone()).unwrap(),
+                    Volume::new(
+                        dims,
+                        Vec3::ONE,
+                        i16s.iter().map(|&v| f32::from(v)).collect(),
+                    )
+                    .unwrap(),
+                    (-32768.0, 32767.0),
+                ),
                 (
                     Volume::from_u16(dims, Vec3::ONE, u16s.clone()).unwrap(),
                     Volume::new(
@@ -649,19 +671,19 @@ mod tests {
                         u16s.iter().map(|&v| f32::from(v)).collect(),
                     )
                     .unwrap(),
-                    65535.0,
+                    (0.0, 65535.0),
                 ),
                 (
                     Volume::from_u8(dims, Vec3::ONE, u8s.clone()).unwrap(),
                     Volume::new(dims, Vec3::ONE, u8s.iter().map(|&v| f32::from(v)).collect())
                         .unwrap(),
-                    255.0,
+                    (0.0, 255.0),
                 ),
             ];
-            for (native, float, hi) in &pairs {
+            for (native, float, (lo, hi)) in &pairs {
                 assert_eq!(native.content_hash(), float.content_hash());
                 assert_eq!(native.finite_range(), float.finite_range());
-                let tf = TransferFunction::default_for_range(0.0, *hi);
+                let tf = TransferFunction::default_for_range(*lo, *hi);
                 let a = Raycaster::new(native, &tf, RaycastParams::default()).unwrap();
                 let b = Raycaster::new(float, &tf, RaycastParams::default()).unwrap();
                 let cam = Camera::default_for_box(&native.world_box());

@@ -84,15 +84,20 @@ pub(super) fn visible_groups(lut: &Lut) -> [u32; 8] {
     groups
 }
 
-/// The stored types the kernel gathers, by size: u8 and u16 as 32-bit loads at the voxel's
-/// address, masked (reading up to [`Gather::OVERREAD`] elements past it, which the storage's
-/// padding covers), f32 directly.
+/// The stored types the kernel gathers, by size: u8, u16 and i16 as 32-bit loads at the
+/// voxel's address, masked or sign-extended (reading up to [`Gather::OVERREAD`] elements past
+/// it, which the storage's padding covers), f32 directly.
 pub(super) trait Gather: Voxel {
     /// Elements a 4-byte load at the last voxel reads past it.
     const OVERREAD: usize = 4 / std::mem::size_of::<Self>() - 1;
+    /// Whether the integer type is signed (sign-extended, not masked).
+    const SIGNED: bool = false;
 }
 impl Gather for u8 {}
 impl Gather for u16 {}
+impl Gather for i16 {
+    const SIGNED: bool = true;
+}
 impl Gather for f32 {}
 
 /// What the kernel needs of one ray through one volume, checked once when made
@@ -238,7 +243,15 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let ptr = self.data.as_ptr();
         // In bounds: the lower voxel is at most (n − 2) per axis where the stride is not 0,
         // so `base + sx + sy + sz` is a voxel of the grid, and a 4-byte load there ends
-        // within the padding. Integer voxels are masked to their width and converted exactly.
+        // within the padding. Integer voxels are masked (unsigned) or sign-extended (i16) to
+        // their width and converted exactly.
+        let low16 = |g: __m256i| {
+            if T::SIGNED {
+                _mm256_srai_epi32::<16>(_mm256_slli_epi32::<16>(g))
+            } else {
+                _mm256_and_si256(g, _mm256_set1_epi32(0xffff))
+            }
+        };
         let at = |o: i32| {
             let index = _mm256_add_epi32(base, _mm256_set1_epi32(o));
             match std::mem::size_of::<T>() {
@@ -246,10 +259,7 @@ impl<'a, T: Gather> Lanes<'a, T> {
                     _mm256_i32gather_epi32::<1>(ptr.cast(), index),
                     _mm256_set1_epi32(0xff),
                 )),
-                2 => _mm256_cvtepi32_ps(_mm256_and_si256(
-                    _mm256_i32gather_epi32::<2>(ptr.cast(), index),
-                    _mm256_set1_epi32(0xffff),
-                )),
+                2 => _mm256_cvtepi32_ps(low16(_mm256_i32gather_epi32::<2>(ptr.cast(), index))),
                 _ => _mm256_i32gather_ps::<4>(ptr.cast(), index),
             }
         };
@@ -263,16 +273,20 @@ impl<'a, T: Gather> Lanes<'a, T> {
             let mask = _mm256_set1_epi32((1 << bits) - 1);
             let pair = |o: i32| {
                 let index = _mm256_add_epi32(base, _mm256_set1_epi32(o));
-                let g = if bits == 8 {
-                    _mm256_i32gather_epi32::<1>(ptr.cast(), index)
+                let (lo, hi) = if bits == 8 {
+                    let g = _mm256_i32gather_epi32::<1>(ptr.cast(), index);
+                    let hi = _mm256_and_si256(_mm256_srli_epi32::<8>(g), mask);
+                    (_mm256_and_si256(g, mask), hi)
                 } else {
-                    _mm256_i32gather_epi32::<2>(ptr.cast(), index)
+                    let g = _mm256_i32gather_epi32::<2>(ptr.cast(), index);
+                    let hi = if T::SIGNED {
+                        _mm256_srai_epi32::<16>(g)
+                    } else {
+                        _mm256_srli_epi32::<16>(g)
+                    };
+                    (low16(g), hi)
                 };
-                let lo = _mm256_cvtepi32_ps(_mm256_and_si256(g, mask));
-                let hi = _mm256_cvtepi32_ps(_mm256_and_si256(
-                    _mm256_srlv_epi32(g, _mm256_set1_epi32(bits)),
-                    mask,
-                ));
+                let (lo, hi) = (_mm256_cvtepi32_ps(lo), _mm256_cvtepi32_ps(hi));
                 lerp(lo, hi, fx)
             };
             (pair(0), pair(sy), pair(sz), pair(sz + sy))

@@ -8,7 +8,7 @@ use glam::Vec3;
 
 /// Converts little-endian samples of one [`ScalarType`] into a volume's storage piece by
 /// piece. Pieces may split a sample anywhere: the bytes of a partial sample wait for the next
-/// piece. u8 and u16 stay in their type; i16, f32 and f64 become f32 (as
+/// piece. u8, u16, i16 and f32 stay in their type; f64 becomes f32 (as
 /// [`ScalarType::decode`]).
 #[derive(Debug)]
 pub struct FieldAssembler {
@@ -40,6 +40,8 @@ impl FieldAssembler {
             (ScalarType::U8, _) => Storage::U8(Vec::with_capacity(voxels + PAD)),
             (ScalarType::U16, Some(Storage::U16(v))) => Storage::U16(emptied(v, voxels + PAD / 2)),
             (ScalarType::U16, _) => Storage::U16(Vec::with_capacity(voxels + PAD / 2)),
+            (ScalarType::I16, Some(Storage::I16(v))) => Storage::I16(emptied(v, voxels + PAD / 2)),
+            (ScalarType::I16, _) => Storage::I16(Vec::with_capacity(voxels + PAD / 2)),
             (_, Some(Storage::F32(v))) => Storage::F32(emptied(v, voxels)),
             (_, _) => Storage::F32(Vec::with_capacity(voxels)),
         };
@@ -89,6 +91,11 @@ impl FieldAssembler {
                     .chunks_exact(2)
                     .map(|c| u16::from_le_bytes([c[0], c[1]])),
             ),
+            (Storage::I16(v), _) => v.extend(
+                bytes
+                    .chunks_exact(2)
+                    .map(|c| i16::from_le_bytes([c[0], c[1]])),
+            ),
             (Storage::F32(v), scalar) => scalar.decode_into(bytes, v),
         }
     }
@@ -115,6 +122,7 @@ impl FieldAssembler {
         let samples = match self.samples {
             Storage::U8(v) => Storage::from_u8(v),
             Storage::U16(v) => Storage::from_u16(v),
+            Storage::I16(v) => Storage::from_i16(v),
             f32s => f32s,
         };
         Volume::with_storage(dims, spacing, samples)

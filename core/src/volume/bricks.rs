@@ -229,6 +229,7 @@ impl Volume {
         let brick = match self.voxels() {
             VoxelSlice::U8(d) => Volume::from_u8(b.dims, self.spacing, rows(d, b, nx, ny)),
             VoxelSlice::U16(d) => Volume::from_u16(b.dims, self.spacing, rows(d, b, nx, ny)),
+            VoxelSlice::I16(d) => Volume::from_i16(b.dims, self.spacing, rows(d, b, nx, ny)),
             VoxelSlice::F32(d) => Volume::new(b.dims, self.spacing, rows(d, b, nx, ny)),
         }?;
         brick.with_origin(self.origin + offset * self.spacing)

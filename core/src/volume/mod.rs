@@ -111,6 +111,14 @@ impl Volume {
         Self::with_storage(dims, spacing, Storage::from_u16(data))
     }
 
+    /// [`Volume::new`] for 16-bit signed values, kept two bytes per voxel.
+    ///
+    /// # Errors
+    /// As [`Volume::new`].
+    pub fn from_i16(dims: [usize; 3], spacing: Vec3, data: Vec<i16>) -> Result<Self, VolumeError> {
+        Self::with_storage(dims, spacing, Storage::from_i16(data))
+    }
+
     fn with_storage(dims: [usize; 3], spacing: Vec3, data: Storage) -> Result<Self, VolumeError> {
         if dims.contains(&0) {
             return Err(VolumeError::Invalid(format!(
@@ -243,6 +251,7 @@ impl Volume {
         let (lo, hi) = match self.voxels() {
             VoxelSlice::U8(d) => range(d),
             VoxelSlice::U16(d) => range(d),
+            VoxelSlice::I16(d) => range(d),
             VoxelSlice::F32(d) => range(d),
         };
         (lo <= hi).then_some((lo, hi))
@@ -272,6 +281,7 @@ impl Volume {
         match self.voxels() {
             VoxelSlice::U8(d) => values(&mut h, d),
             VoxelSlice::U16(d) => values(&mut h, d),
+            VoxelSlice::I16(d) => values(&mut h, d),
             VoxelSlice::F32(d) => values(&mut h, d),
         }
         h.finish()

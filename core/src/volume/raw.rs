@@ -205,7 +205,7 @@ impl RawFormat {
         let mut bytes = Vec::with_capacity(len + 4);
         bytes.resize(len, 0u8);
         file.read_exact(&mut bytes).map_err(io)?;
-        // u8 and u16 kept in their own type (exact as f32 values), the others as f32.
+        // u8, u16 and i16 kept in their own type (exact as f32 values), the others as f32.
         Volume::from_le_bytes(self.dims, spacing, self.scalar, bytes)
     }
 }

@@ -1,7 +1,7 @@
 //! Voxel storage in the data's own type (issue 17): a byte volume stays one byte per voxel
 //! instead of four, so the field costs what it costs the simulation or the file, and the
 //! marcher reads a quarter of the memory. Values are the stored numbers as `f32` (exact for
-//! u8 and u16); types f32 cannot hold exactly (i16 negatives aside, f64) are stored as f32.
+//! u8, u16 and i16); f64, which f32 cannot hold exactly, is stored as f32.
 
 use std::borrow::Cow;
 
@@ -16,6 +16,8 @@ pub(crate) enum Storage {
     U8(Vec<u8>),
     /// 16-bit unsigned, with [`PAD`] / 2 zero values after the last voxel.
     U16(Vec<u16>),
+    /// 16-bit signed, with [`PAD`] / 2 zero values after the last voxel.
+    I16(Vec<i16>),
     /// Single precision (NaN marks missing data).
     F32(Vec<f32>),
 }
@@ -27,6 +29,8 @@ pub enum VoxelSlice<'a> {
     U8(&'a [u8]),
     /// 16-bit unsigned.
     U16(&'a [u16]),
+    /// 16-bit signed.
+    I16(&'a [i16]),
     /// Single precision.
     F32(&'a [f32]),
 }
@@ -46,11 +50,19 @@ impl Storage {
         Self::U16(data)
     }
 
+    /// 16-bit signed values, padded.
+    pub(crate) fn from_i16(mut data: Vec<i16>) -> Self {
+        data.reserve_exact(PAD / 2);
+        data.extend_from_slice(&[0; PAD / 2]);
+        Self::I16(data)
+    }
+
     /// Number of voxels.
     pub(crate) fn len(&self) -> usize {
         match self {
             Self::U8(d) => d.len() - PAD,
             Self::U16(d) => d.len() - PAD / 2,
+            Self::I16(d) => d.len() - PAD / 2,
             Self::F32(d) => d.len(),
         }
     }
@@ -61,6 +73,7 @@ impl Storage {
         match self {
             Self::U8(d) => VoxelSlice::U8(&d[..n]),
             Self::U16(d) => VoxelSlice::U16(&d[..n]),
+            Self::I16(d) => VoxelSlice::I16(&d[..n]),
             Self::F32(d) => VoxelSlice::F32(d),
         }
     }
@@ -72,6 +85,7 @@ impl<'a> VoxelSlice<'a> {
         match self {
             Self::U8(d) => d.len(),
             Self::U16(d) => d.len(),
+            Self::I16(d) => d.len(),
             Self::F32(d) => d.len(),
         }
     }
@@ -85,7 +99,7 @@ impl<'a> VoxelSlice<'a> {
     pub fn bytes_per_voxel(&self) -> usize {
         match self {
             Self::U8(_) => 1,
-            Self::U16(_) => 2,
+            Self::U16(_) | Self::I16(_) => 2,
             Self::F32(_) => 4,
         }
     }
@@ -95,6 +109,7 @@ impl<'a> VoxelSlice<'a> {
         match self {
             Self::U8(_) => super::ScalarType::U8,
             Self::U16(_) => super::ScalarType::U16,
+            Self::I16(_) => super::ScalarType::I16,
             Self::F32(_) => super::ScalarType::F32,
         }
     }
@@ -107,9 +122,13 @@ impl<'a> VoxelSlice<'a> {
             #[cfg(target_endian = "little")]
             Self::U16(d) => Cow::Borrowed(bytemuck::cast_slice(d)),
             #[cfg(target_endian = "little")]
+            Self::I16(d) => Cow::Borrowed(bytemuck::cast_slice(d)),
+            #[cfg(target_endian = "little")]
             Self::F32(d) => Cow::Borrowed(bytemuck::cast_slice(d)),
             #[cfg(target_endian = "big")]
             Self::U16(d) => Cow::Owned(d.iter().flat_map(|v| v.to_le_bytes()).collect()),
+            #[cfg(target_endian = "big")]
+            Self::I16(d) => Cow::Owned(d.iter().flat_map(|v| v.to_le_bytes()).collect()),
             #[cfg(target_endian = "big")]
             Self::F32(d) => Cow::Owned(d.iter().flat_map(|v| v.to_le_bytes()).collect()),
         }
@@ -120,6 +139,7 @@ impl<'a> VoxelSlice<'a> {
         match *self {
             Self::U8(d) => Cow::Owned(d.iter().map(|&v| f32::from(v)).collect()),
             Self::U16(d) => Cow::Owned(d.iter().map(|&v| f32::from(v)).collect()),
+            Self::I16(d) => Cow::Owned(d.iter().map(|&v| f32::from(v)).collect()),
             Self::F32(d) => Cow::Borrowed(d),
         }
     }
@@ -127,7 +147,7 @@ impl<'a> VoxelSlice<'a> {
 
 /// A stored voxel type the marcher samples directly.
 pub trait Voxel: Copy + Send + Sync + 'static {
-    /// The value as f32 (exact for u8, u16).
+    /// The value as f32 (exact for u8, u16, i16).
     fn value(self) -> f32;
 }
 
@@ -139,6 +159,13 @@ impl Voxel for u8 {
 }
 
 impl Voxel for u16 {
+    #[inline(always)]
+    fn value(self) -> f32 {
+        f32::from(self)
+    }
+}
+
+impl Voxel for i16 {
     #[inline(always)]
     fn value(self) -> f32 {
         f32::from(self)

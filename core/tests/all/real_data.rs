@@ -145,7 +145,7 @@ fn simd_and_scalar_paths_agree_bit_for_bit() {
     }
 }
 
-/// Volumes are held in their own type (u8, u16) and marched there; the results equal those of
+/// Volumes are held in their own type (u8, u16, i16) and marched there; the results equal those of
 /// the same values held as f32, bit for bit, on both the SIMD and the scalar path.
 #[test]
 fn native_types_march_like_f32() {
@@ -158,7 +158,9 @@ fn native_types_march_like_f32() {
             .unwrap();
         match volume.voxels() {
             VoxelSlice::U8(_) => assert_eq!(volume.storage_bytes(), as_f32.storage_bytes() / 4),
-            VoxelSlice::U16(_) => assert_eq!(volume.storage_bytes(), as_f32.storage_bytes() / 2),
+            VoxelSlice::U16(_) | VoxelSlice::I16(_) => {
+                assert_eq!(volume.storage_bytes(), as_f32.storage_bytes() / 2)
+            }
             VoxelSlice::F32(_) => continue,
         }
         seen += 1;
