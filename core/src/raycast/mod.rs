@@ -13,14 +13,17 @@
 //! ([`MacroGrid::empty_run_exit`]); the steps of a run of visible cells (found by the same
 //! DDA, [`MacroGrid::visible_run_exit`]) are sampled without further checks — eight at a time
 //! with AVX2 where the CPU has it (`simd`, bit-identical to the scalar path, which stays the
-//! reference and the fallback; [`Raycaster::without_simd`]).
+//! reference and the fallback; [`Raycaster::without_simd`]), which passes over batches of
+//! eight steps whose 2³-voxel blocks are all invisible (`occupancy`) without gathering them.
 
 mod macrocell;
+mod occupancy;
 mod shading;
 mod simd;
 
 pub(crate) use macrocell::chessboard_distance;
 pub use macrocell::MacroGrid;
+use occupancy::Occupancy;
 pub use shading::Shading;
 pub(crate) use simd::Avx2;
 
@@ -170,6 +173,9 @@ pub struct Raycaster<'a> {
     strides: [usize; 3],
     /// The SIMD path's visibility map ([`simd::visible_groups`]).
     visible_groups: [u32; 8],
+    /// The SIMD path's blocks of 2³ voxels that can contribute ([`occupancy`]); built only
+    /// with the SIMD path and empty-space skipping.
+    occupancy: Option<Occupancy>,
     /// Sample visible cells eight steps at a time ([`simd`]) with this CPU's AVX2.
     simd: Option<simd::Avx2>,
 }
@@ -189,7 +195,11 @@ impl<'a> Raycaster<'a> {
         let visible_groups = simd::visible_groups(&lut);
         let grid = MacroGrid::new(volume, &lut);
         let [nx, ny, nz] = volume.dims();
+        let simd = simd::Avx2::detect();
+        let occupancy = (simd.is_some() && params.empty_space_skipping)
+            .then(|| Occupancy::new(volume, &lut, &grid));
         Ok(Self {
+            occupancy,
             volume,
             lut,
             grid,
@@ -198,7 +208,7 @@ impl<'a> Raycaster<'a> {
             inv_spacing: volume.spacing().recip(),
             max_voxel: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32),
             visible_groups,
-            simd: simd::Avx2::detect(),
+            simd,
             strides: [
                 usize::from(nx > 1),
                 nx * usize::from(ny > 1),
@@ -211,6 +221,7 @@ impl<'a> Raycaster<'a> {
     /// tested against; also for measuring what the SIMD path buys).
     pub fn without_simd(mut self) -> Self {
         self.simd = None;
+        self.occupancy = None;
         self
     }
 

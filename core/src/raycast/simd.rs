@@ -4,7 +4,9 @@
 //! A visible macro cell's steps are independent until compositing, so their positions,
 //! lower voxels, fractions, corner gathers (four for u8 and u16: one 4-byte load holds a
 //! corner and its x neighbour) and trilinear blends are computed eight lanes wide;
-//! classification and the visitor then run per lane, in order. Every lane does the scalar
+//! classification and the visitor then run per lane, in order. Before the corner gathers, one
+//! gather of [`super::occupancy`]'s bits tells whether any lane's 2³-voxel block can be
+//! visible; a batch with none returns at once (no value of it could have been visible). Every lane does the scalar
 //! path's arithmetic in the scalar path's order (multiplications and additions, never fused;
 //! truncation for the lower voxel), so the values are **bit-identical** to
 //! [`super::trilinear`] at [`super::Raycaster::locate`]'s positions — the tests pin that.
@@ -14,6 +16,8 @@
 // an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
 #![allow(unsafe_code)]
 
+use super::macrocell::MACRO_CELL;
+use super::occupancy::BLOCK;
 use super::{Marching, Raycaster, Sample};
 use crate::camera::Ray;
 use crate::tf::{Lut, LUT_SIZE};
@@ -119,6 +123,9 @@ pub(super) struct Lanes<'a, T> {
     lut_lo: f32,
     lut_scale: f32,
     visible_groups: [u32; 8],
+    /// Macro cells per axis and the block bits of [`super::occupancy::Occupancy`] (two words
+    /// per cell, checked to match); `None` without them (every batch is gathered).
+    occupancy: Option<([i32; 3], &'a [u32])>,
 }
 
 impl<'a, T: Gather> Lanes<'a, T> {
@@ -139,7 +146,14 @@ impl<'a, T: Gather> Lanes<'a, T> {
             && data.len() <= i32::MAX as usize
             && !dims.contains(&0)
             && rc.lut.entries().len() == LUT_SIZE;
+        let occupancy = rc.occupancy.as_ref().and_then(|o| {
+            let cells = rc.grid.cells();
+            let n = cells.iter().product::<usize>();
+            (o.words.len() == 2 * n && n <= i32::MAX as usize / 2)
+                .then_some((cells.map(|c| c as i32), o.words.as_slice()))
+        });
         fits.then_some(Self {
+            occupancy,
             _avx2: avx2,
             data,
             dims,
@@ -233,6 +247,46 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let (ix, fx) = axis(self.o_v.x, self.d_v.x, self.max_voxel.x, nx);
         let (iy, fy) = axis(self.o_v.y, self.d_v.y, self.max_voxel.y, ny);
         let (iz, fz) = axis(self.o_v.z, self.d_v.z, self.max_voxel.z, nz);
+        if let Some(([cx, cy, _], words)) = self.occupancy {
+            // The lanes' blocks: cell `c` from the lower voxel / 8, block `b` within it from
+            // (voxel / 2) mod 4 per axis; bit `b mod 32` of word `2c + b / 32`. In bounds: the
+            // lower voxel is at most n − 2 per axis, so its cell is one of the grid's, whose
+            // words `new` checked are all there.
+            let cell = |i: __m256i| _mm256_srli_epi32::<{ MACRO_CELL.trailing_zeros() as i32 }>(i);
+            let block = |i: __m256i| {
+                _mm256_and_si256(
+                    _mm256_srli_epi32::<{ BLOCK.trailing_zeros() as i32 }>(i),
+                    _mm256_set1_epi32((MACRO_CELL / BLOCK - 1) as i32),
+                )
+            };
+            let c = _mm256_add_epi32(
+                cell(ix),
+                _mm256_mullo_epi32(
+                    _mm256_set1_epi32(cx),
+                    _mm256_add_epi32(
+                        cell(iy),
+                        _mm256_mullo_epi32(_mm256_set1_epi32(cy), cell(iz)),
+                    ),
+                ),
+            );
+            // b = bx + 4·by + 16·bz.
+            let b = _mm256_or_si256(
+                block(ix),
+                _mm256_or_si256(
+                    _mm256_slli_epi32::<2>(block(iy)),
+                    _mm256_slli_epi32::<4>(block(iz)),
+                ),
+            );
+            let word = _mm256_i32gather_epi32::<4>(
+                words.as_ptr().cast(),
+                _mm256_add_epi32(_mm256_slli_epi32::<1>(c), _mm256_srli_epi32::<5>(b)),
+            );
+            let bit = _mm256_srlv_epi32(word, _mm256_and_si256(b, _mm256_set1_epi32(31)));
+            if _mm256_testz_si256(bit, _mm256_set1_epi32(1)) != 0 {
+                // Every lane in an empty block: transparent, nothing to gather.
+                return 0;
+            }
+        }
         let base = _mm256_add_epi32(
             ix,
             _mm256_mullo_epi32(
