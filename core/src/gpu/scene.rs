@@ -198,7 +198,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let d = volume.dims();
         let (lo, scale) = self.raycaster.lut().mapping();
         let s = rc.shading.unwrap_or_default();
-        let cells = self.raycaster.macro_grid().cells();
+        let grid = self.raycaster.macro_grid();
+        let cells = grid.cells();
         let (gamma, budget) = extra;
         // Generation (a VDI budget) stops rays at its own threshold, the DVR at the render one.
         let termination = if budget > 0 {
@@ -224,7 +225,12 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 d[2] as u32,
                 u32::from(rc.empty_space_skipping),
             ])
-            .uvec4([cells[0] as u32, cells[1] as u32, cells[2] as u32, 0])
+            .uvec4([
+                cells[0] as u32,
+                cells[1] as u32,
+                cells[2] as u32,
+                grid.cell_size() as u32,
+            ])
             .uvec4([width, height, row0, budget])
     }
 

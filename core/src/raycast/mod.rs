@@ -197,7 +197,8 @@ impl<'a> Raycaster<'a> {
         let [nx, ny, nz] = volume.dims();
         let simd = simd::Avx2::detect();
         let occupancy = (simd.is_some() && params.empty_space_skipping)
-            .then(|| Occupancy::new(volume, &lut, &grid));
+            .then(|| Occupancy::new(volume, &lut, &grid))
+            .flatten();
         Ok(Self {
             occupancy,
             volume,

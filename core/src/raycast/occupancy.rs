@@ -11,39 +11,60 @@
 //! batch is one whose lanes the classification would have found transparent: images and
 //! VDIs do not change.
 //!
-//! Layout: 64 bits per macro cell (its 4 × 4 × 4 blocks, x fastest) as two `u32` words, so the
-//! bits cost `1/64` of a byte per voxel (46 KiB for the teapot) and only visible macro cells
-//! are classified again (those are where the kernel runs; an invisible cell's blocks are all
-//! invisible, since a block's voxels are some of its cell's).
+//! Layout: per macro cell of side `S` (8 or 16, [`MacroGrid::cell_size`]), its `(S/2)³`
+//! blocks x fastest as `(S/2)³/32` words (2 or 16), so the bits cost `1/64` of a byte per
+//! voxel (the teapot's take 92 KiB) and only visible macro cells are classified again (those
+//! are where the kernel runs; an invisible cell's blocks are all invisible, since a block's
+//! voxels are some of its cell's).
 
-use super::macrocell::{MacroGrid, MACRO_CELL};
+use super::macrocell::{cells_of, MacroGrid};
 use crate::tf::Lut;
 use crate::volume::{Volume, Voxel, VoxelSlice};
 use rayon::prelude::*;
 
 /// Side of a block, in voxels.
 pub(crate) const BLOCK: usize = 2;
-/// Blocks per macro cell and axis.
-const PER_AXIS: usize = MACRO_CELL / BLOCK;
-const _: () =
-    assert!(MACRO_CELL.is_power_of_two() && BLOCK.is_power_of_two() && PER_AXIS.pow(3) == 64);
+/// Most blocks per macro cell and axis (for the largest cell, 16).
+const MAX_PER_AXIS: usize = 8;
+/// Most voxels per axis a macro cell's blocks read (`S + 1`).
+const MAX_SPAN: usize = MAX_PER_AXIS * BLOCK + 1;
 
-/// Two words per macro cell (flat index as [`MacroGrid`]'s): block `(bx, by, bz)` of the cell
-/// (each `0..4`, `b = bx + 4·by + 16·bz`) is bit `b mod 32` of word `2·cell + b / 32`.
+/// The block bits of the visible macro cells (flat index as [`MacroGrid`]'s): block
+/// `(bx, by, bz)` of a cell (each below `S/2`, `b = bx + (S/2)·(by + (S/2)·bz)`) is bit
+/// `b mod 32` of word `words_per_cell · cell + b / 32`.
 #[derive(Clone, Debug)]
 pub(crate) struct Occupancy {
+    /// The macro cells' side `S`, voxels.
+    pub(crate) cell_size: usize,
+    /// `(S/2)³ / 32`.
+    pub(crate) words_per_cell: usize,
+    /// The volume's dimensions and the macro cells per axis (`cells_of(dims, S)`).
+    pub(crate) dims: [usize; 3],
+    pub(crate) cells: [usize; 3],
     pub(crate) words: Vec<u32>,
 }
 
 impl Occupancy {
-    /// The blocks of `volume`'s visible macro cells in `grid`, classified by `lut`.
-    pub(crate) fn new(volume: &Volume, lut: &Lut, grid: &MacroGrid) -> Self {
-        let cells = grid.cells();
-        let visible = grid.visibility();
+    /// The blocks of `volume`'s visible macro cells in `grid`, classified by `lut`; `None` for
+    /// a cell size other than 8 or 16, a grid that is not `volume`'s, or more words than an
+    /// `i32` indexes (the kernel's gather).
+    pub(crate) fn new(volume: &Volume, lut: &Lut, grid: &MacroGrid) -> Option<Self> {
+        let cell_size = grid.cell_size();
+        let per_axis = cell_size / BLOCK;
+        let words_per_cell = per_axis.pow(3) / 32;
         let dims = volume.dims();
-        let mut words = vec![0u32; 2 * visible.len()];
+        let cells = cells_of(dims, cell_size);
+        let visible = grid.visibility();
+        let fits = (cell_size == 8 || cell_size == 16)
+            && grid.cells() == cells
+            && visible.len() == cells.iter().product::<usize>()
+            && words_per_cell * visible.len() <= i32::MAX as usize;
+        if !fits {
+            return None;
+        }
+        let mut words = vec![0u32; words_per_cell * visible.len()];
         words
-            .par_chunks_mut(2)
+            .par_chunks_mut(words_per_cell)
             .zip(visible.par_iter())
             .enumerate()
             .filter(|(_, (_, &v))| v)
@@ -53,89 +74,99 @@ impl Occupancy {
                     c / cells[0] % cells[1],
                     c / (cells[0] * cells[1]),
                 ];
-                let bits = match volume.voxels() {
-                    VoxelSlice::U8(d) => cell_bits(d, dims, cell, lut),
-                    VoxelSlice::U16(d) => cell_bits(d, dims, cell, lut),
-                    VoxelSlice::I16(d) => cell_bits(d, dims, cell, lut),
-                    VoxelSlice::F32(d) => cell_bits(d, dims, cell, lut),
-                };
-                w[0] = bits as u32;
-                w[1] = (bits >> 32) as u32;
+                let origin = cell.map(|c| c * cell_size);
+                match volume.voxels() {
+                    VoxelSlice::U8(d) => cell_bits(d, dims, origin, per_axis, lut, w),
+                    VoxelSlice::U16(d) => cell_bits(d, dims, origin, per_axis, lut, w),
+                    VoxelSlice::I16(d) => cell_bits(d, dims, origin, per_axis, lut, w),
+                    VoxelSlice::F32(d) => cell_bits(d, dims, origin, per_axis, lut, w),
+                }
             });
-        Self { words }
+        Some(Self {
+            cell_size,
+            words_per_cell,
+            dims,
+            cells,
+            words,
+        })
     }
 
     /// Whether the block holding lower voxel `(ix, iy, iz)` can contribute.
     #[cfg(test)]
     pub(crate) fn visible(&self, grid: &MacroGrid, voxel: [usize; 3]) -> bool {
-        let cells = grid.cells();
-        let [cx, cy, cz] = voxel.map(|v| v / MACRO_CELL);
-        let [bx, by, bz] = voxel.map(|v| v % MACRO_CELL / BLOCK);
+        let (cells, per_axis) = (grid.cells(), self.cell_size / BLOCK);
+        let [cx, cy, cz] = voxel.map(|v| v / self.cell_size);
+        let [bx, by, bz] = voxel.map(|v| v % self.cell_size / BLOCK);
         let (c, b) = (
             cx + cells[0] * (cy + cells[1] * cz),
-            bx + PER_AXIS * (by + PER_AXIS * bz),
+            bx + per_axis * (by + per_axis * bz),
         );
-        self.words[2 * c + b / 32] >> (b % 32) & 1 == 1
+        self.words[self.words_per_cell * c + b / 32] >> (b % 32) & 1 == 1
     }
 }
 
-/// Voxels per axis a macro cell's blocks read: `MACRO_CELL + 1`.
-const SPAN: usize = MACRO_CELL + 1;
-
-/// The 64 block bits of macro cell `cell`: per block, the value range over its voxels
+/// Writes into `words` the block bits of the macro cell whose first voxel is `origin`, with
+/// `per_axis` blocks a side: per block, the value range over its voxels
 /// `[o, min(o + BLOCK, n − 1)]` per axis (NaN ignored) against `lut`; blocks past the last
-/// lower voxel (`n − 2`) hold no sample and stay clear. The cell's `9³` voxels (indices
-/// clamped to the grid, which repeats the last voxel only where a block's range ends there)
-/// are reduced to block ranges one axis at a time.
-fn cell_bits<T: Voxel>(data: &[T], dims: [usize; 3], cell: [usize; 3], lut: &Lut) -> u64 {
+/// lower voxel (`n − 2`) hold no sample and stay clear. The cell's voxels (indices clamped to
+/// the grid, which repeats the last voxel only where a block's range ends there) are reduced
+/// to block ranges one axis at a time.
+fn cell_bits<T: Voxel>(
+    data: &[T],
+    dims: [usize; 3],
+    origin: [usize; 3],
+    per_axis: usize,
+    lut: &Lut,
+    words: &mut [u32],
+) {
     let [nx, ny, nz] = dims;
-    let at = |a: usize, i: usize| (cell[a] * MACRO_CELL + i).min(dims[a] - 1);
+    let span = per_axis * BLOCK + 1;
+    let at = |a: usize, i: usize| (origin[a] + i).min(dims[a] - 1);
     // NaN compares false both ways: ignored.
     let fold =
         |(lo, hi): (f32, f32), v: f32| (if v < lo { v } else { lo }, if v > hi { v } else { hi });
     const EMPTY: (f32, f32) = (f32::INFINITY, f32::NEG_INFINITY);
     let merge = |a: (f32, f32), b: (f32, f32)| fold(fold(a, b.0), b.1);
+    let blocks = |b: usize| BLOCK * b..=BLOCK * b + BLOCK;
     // x: per voxel row (y, z), the range of each block's three x.
-    let mut rx = [[[EMPTY; PER_AXIS]; SPAN]; SPAN];
-    for (z, plane) in rx.iter_mut().enumerate() {
-        for (y, out) in plane.iter_mut().enumerate() {
+    let mut rx = [[[EMPTY; MAX_PER_AXIS]; MAX_SPAN]; MAX_SPAN];
+    for (z, plane) in rx.iter_mut().enumerate().take(span) {
+        for (y, out) in plane.iter_mut().enumerate().take(span) {
             let row = &data[nx * (at(1, y) + ny * at(2, z))..][..nx];
-            let v: [f32; SPAN] = std::array::from_fn(|x| row[at(0, x)].value());
-            for (b, o) in out.iter_mut().enumerate() {
-                *o = v[BLOCK * b..=BLOCK * b + BLOCK]
-                    .iter()
-                    .fold(EMPTY, |r, &v| fold(r, v));
+            let mut v = [0.0f32; MAX_SPAN];
+            for (x, v) in v.iter_mut().enumerate().take(span) {
+                *v = row[at(0, x)].value();
+            }
+            for (b, o) in out.iter_mut().enumerate().take(per_axis) {
+                *o = v[blocks(b)].iter().fold(EMPTY, |r, &v| fold(r, v));
             }
         }
     }
     // y, then z.
-    let mut ry = [[[EMPTY; PER_AXIS]; PER_AXIS]; SPAN];
-    for (z, out) in ry.iter_mut().enumerate() {
-        for (by, o) in out.iter_mut().enumerate() {
-            for (bx, o) in o.iter_mut().enumerate() {
-                *o = (BLOCK * by..=BLOCK * by + BLOCK).fold(EMPTY, |r, y| merge(r, rx[z][y][bx]));
+    let mut ry = [[[EMPTY; MAX_PER_AXIS]; MAX_PER_AXIS]; MAX_SPAN];
+    for (z, out) in ry.iter_mut().enumerate().take(span) {
+        for (by, o) in out.iter_mut().enumerate().take(per_axis) {
+            for (bx, o) in o.iter_mut().enumerate().take(per_axis) {
+                *o = blocks(by).fold(EMPTY, |r, y| merge(r, rx[z][y][bx]));
             }
         }
     }
     let last_lower = [nx, ny, nz].map(|n| n.saturating_sub(2));
-    let mut bits = 0u64;
-    for b in 0..PER_AXIS.pow(3) {
+    for b in 0..per_axis.pow(3) {
         let [bx, by, bz] = [
-            b % PER_AXIS,
-            b / PER_AXIS % PER_AXIS,
-            b / (PER_AXIS * PER_AXIS),
+            b % per_axis,
+            b / per_axis % per_axis,
+            b / (per_axis * per_axis),
         ];
         let holds_samples = [bx, by, bz]
             .iter()
             .enumerate()
-            .all(|(a, &o)| cell[a] * MACRO_CELL + BLOCK * o <= last_lower[a]);
-        let (lo, hi) =
-            (BLOCK * bz..=BLOCK * bz + BLOCK).fold(EMPTY, |r, z| merge(r, ry[z][by][bx]));
+            .all(|(a, &o)| origin[a] + BLOCK * o <= last_lower[a]);
+        let (lo, hi) = blocks(bz).fold(EMPTY, |r, z| merge(r, ry[z][by][bx]));
         if holds_samples && lut.any_visible(lo, hi) {
-            bits |= 1 << b;
+            words[b / 32] |= 1 << (b % 32);
         }
     }
-    bits
 }
 
 #[cfg(test)]
@@ -159,7 +190,16 @@ mod tests {
         .unwrap();
         let lut = Lut::new(&tf, 0.5);
         let mut cleared = 0;
-        for dims in [[2, 2, 2], [9, 5, 17], [21, 19, 13], [33, 8, 10]] {
+        for (dims, size) in [
+            [2, 2, 2],
+            [9, 5, 17],
+            [21, 19, 13],
+            [33, 8, 10],
+            [40, 18, 35],
+        ]
+        .into_iter()
+        .flat_map(|d| [(d, 8), (d, 16)])
+        {
             let v = Volume::from_fn(dims, |x, y, z| {
                 if (x * 7 + y * 3 + z) % 41 == 5 {
                     f32::NAN
@@ -169,8 +209,8 @@ mod tests {
                 }
             })
             .unwrap();
-            let grid = MacroGrid::new(&v, &lut);
-            let occ = Occupancy::new(&v, &lut, &grid);
+            let grid = MacroGrid::with_cell_size(&v, &lut, size);
+            let occ = Occupancy::new(&v, &lut, &grid).unwrap();
             let rc =
                 crate::raycast::Raycaster::new(&v, &tf, crate::raycast::RaycastParams::default())
                     .unwrap();
@@ -186,7 +226,10 @@ mod tests {
                             !value.is_nan() && lut.classify(value).kappa > 0.0
                         });
                         if visible {
-                            assert!(occ.visible(&grid, voxel), "{dims:?}: voxel {voxel:?}");
+                            assert!(
+                                occ.visible(&grid, voxel),
+                                "{dims:?}, cells of {size}: voxel {voxel:?}"
+                            );
                         }
                         let cell_visible = grid.visible(x, y, z);
                         cleared += usize::from(cell_visible && !occ.visible(&grid, voxel));

@@ -16,7 +16,6 @@
 // an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
 #![allow(unsafe_code)]
 
-use super::macrocell::MACRO_CELL;
 use super::occupancy::BLOCK;
 use super::{Marching, Raycaster, Sample};
 use crate::camera::Ray;
@@ -104,6 +103,16 @@ impl Gather for i16 {
 }
 impl Gather for f32 {}
 
+/// The kernel's view of [`super::occupancy::Occupancy`]: macro cells per axis, the shifts
+/// that locate a lower voxel's cell, block and word, and the bits.
+struct Blocks<'a> {
+    cells: [i32; 3],
+    cell_shift: i32,
+    per_axis_shift: i32,
+    words_shift: i32,
+    words: &'a [u32],
+}
+
 /// What the kernel needs of one ray through one volume, checked once when made
 /// ([`Lanes::new`]): the fields are private so that no unchecked one exists.
 pub(super) struct Lanes<'a, T> {
@@ -123,9 +132,9 @@ pub(super) struct Lanes<'a, T> {
     lut_lo: f32,
     lut_scale: f32,
     visible_groups: [u32; 8],
-    /// Macro cells per axis and the block bits of [`super::occupancy::Occupancy`] (two words
-    /// per cell, checked to match); `None` without them (every batch is gathered).
-    occupancy: Option<([i32; 3], &'a [u32])>,
+    /// The block bits of [`super::occupancy::Occupancy`], checked to match the grid; `None`
+    /// without them (every batch is gathered).
+    occupancy: Option<Blocks<'a>>,
 }
 
 impl<'a, T: Gather> Lanes<'a, T> {
@@ -146,11 +155,18 @@ impl<'a, T: Gather> Lanes<'a, T> {
             && data.len() <= i32::MAX as usize
             && !dims.contains(&0)
             && rc.lut.entries().len() == LUT_SIZE;
+        // `Occupancy::new` made sure of the layout (cells of the volume's grid, sizes powers
+        // of two, `i32` indices); the words are all there for these dimensions.
         let occupancy = rc.occupancy.as_ref().and_then(|o| {
-            let cells = rc.grid.cells();
-            let n = cells.iter().product::<usize>();
-            (o.words.len() == 2 * n && n <= i32::MAX as usize / 2)
-                .then_some((cells.map(|c| c as i32), o.words.as_slice()))
+            let fits = o.dims == dims
+                && o.words.len() == o.words_per_cell * o.cells.iter().product::<usize>();
+            fits.then(|| Blocks {
+                cells: o.cells.map(|c| c as i32),
+                cell_shift: o.cell_size.trailing_zeros() as i32,
+                per_axis_shift: (o.cell_size / BLOCK).trailing_zeros() as i32,
+                words_shift: o.words_per_cell.trailing_zeros() as i32,
+                words: &o.words,
+            })
         });
         fits.then_some(Self {
             occupancy,
@@ -247,18 +263,20 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let (ix, fx) = axis(self.o_v.x, self.d_v.x, self.max_voxel.x, nx);
         let (iy, fy) = axis(self.o_v.y, self.d_v.y, self.max_voxel.y, ny);
         let (iz, fz) = axis(self.o_v.z, self.d_v.z, self.max_voxel.z, nz);
-        if let Some(([cx, cy, _], words)) = self.occupancy {
-            // The lanes' blocks: cell `c` from the lower voxel / 8, block `b` within it from
-            // (voxel / 2) mod 4 per axis; bit `b mod 32` of word `2c + b / 32`. In bounds: the
-            // lower voxel is at most n − 2 per axis, so its cell is one of the grid's, whose
-            // words `new` checked are all there.
-            let cell = |i: __m256i| _mm256_srli_epi32::<{ MACRO_CELL.trailing_zeros() as i32 }>(i);
+        if let Some(o) = &self.occupancy {
+            // The lanes' blocks: cell `c` from the lower voxel / S, block `b` within it from
+            // (voxel / 2) mod (S/2) per axis; bit `b mod 32` of word `c·words + b / 32`. In
+            // bounds: the lower voxel is at most n − 2 per axis, so its cell is one of the
+            // grid's, whose words `new` checked are all there.
+            let count = |n: i32| _mm_cvtsi32_si128(n);
+            let cell = |i: __m256i| _mm256_srl_epi32(i, count(o.cell_shift));
             let block = |i: __m256i| {
                 _mm256_and_si256(
                     _mm256_srli_epi32::<{ BLOCK.trailing_zeros() as i32 }>(i),
-                    _mm256_set1_epi32((MACRO_CELL / BLOCK - 1) as i32),
+                    _mm256_set1_epi32((1 << o.per_axis_shift) - 1),
                 )
             };
+            let [cx, cy, _] = o.cells;
             let c = _mm256_add_epi32(
                 cell(ix),
                 _mm256_mullo_epi32(
@@ -269,17 +287,20 @@ impl<'a, T: Gather> Lanes<'a, T> {
                     ),
                 ),
             );
-            // b = bx + 4·by + 16·bz.
+            // b = bx + (S/2)·(by + (S/2)·bz).
             let b = _mm256_or_si256(
                 block(ix),
                 _mm256_or_si256(
-                    _mm256_slli_epi32::<2>(block(iy)),
-                    _mm256_slli_epi32::<4>(block(iz)),
+                    _mm256_sll_epi32(block(iy), count(o.per_axis_shift)),
+                    _mm256_sll_epi32(block(iz), count(2 * o.per_axis_shift)),
                 ),
             );
             let word = _mm256_i32gather_epi32::<4>(
-                words.as_ptr().cast(),
-                _mm256_add_epi32(_mm256_slli_epi32::<1>(c), _mm256_srli_epi32::<5>(b)),
+                o.words.as_ptr().cast(),
+                _mm256_add_epi32(
+                    _mm256_sll_epi32(c, count(o.words_shift)),
+                    _mm256_srli_epi32::<5>(b),
+                ),
             );
             let bit = _mm256_srlv_epi32(word, _mm256_and_si256(b, _mm256_set1_epi32(31)));
             if _mm256_testz_si256(bit, _mm256_set1_epi32(1)) != 0 {

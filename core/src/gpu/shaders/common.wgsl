@@ -15,7 +15,7 @@ struct Params {
     max_voxel: vec4<f32>,    // xyz dims − 1, w lut scale (entries per data unit)
     shading: vec4<f32>,      // ambient, diffuse, specular, shininess
     dims: vec4<u32>,         // nx, ny, nz, empty-space skipping on (1) / off (0)
-    cells: vec4<u32>,        // macro cells per axis, w unused
+    cells: vec4<u32>,        // macro cells per axis, w their side in voxels
     image: vec4<u32>,        // width, height, first row of this band, per-ray budget
 };
 
@@ -99,14 +99,14 @@ fn sample_value(q: vec3<f32>) -> f32 {
 }
 
 fn macro_index(c: vec3<u32>) -> u32 {
-    let m = c / 8u;
+    let m = c / P.cells.w;
     return m.x + P.cells.x * (m.y + P.cells.y * m.z);
 }
 
 // Ray parameter where o_v + t·d_v leaves the macro cell owning lower corner c.
 fn cell_exit(c: vec3<u32>, o_v: vec3<f32>, d_v: vec3<f32>) -> f32 {
-    let lo = vec3<f32>((c / 8u) * 8u);
-    let hi = lo + vec3<f32>(8.0);
+    let lo = vec3<f32>((c / P.cells.w) * P.cells.w);
+    let hi = lo + vec3<f32>(f32(P.cells.w));
     var t = BIG;
     for (var a = 0; a < 3; a++) {
         if (d_v[a] > 0.0) {
