@@ -788,12 +788,20 @@ mod tests {
             f32::from(u8::from((x * 73 + y * 151 + z * 283) % 331 == 0))
         })
         .unwrap();
+        // Blocks of 20³ on a grid large enough for 16³ macro cells (`cell_size_for`), whose
+        // occupancy bits are sixteen words a cell.
+        let large = Volume::from_fn([130, 128, 129], |x, y, z| {
+            ((x / 20 + y / 20 + z / 20) % 2) as f32
+        })
+        .unwrap();
         let tf = TransferFunction::from_json(
             r#"{"domain": [0, 1], "points": [[0,0,0,0,0],[0.001,1,0,0,0.2],[1,1,1,1,0.3]]}"#,
             "t",
         )
         .unwrap();
         for (v, step, angle, zoom_out) in [
+            (&large, 0.5, 33.0, 1.0),
+            (&large, 0.7, 200.0, 1.0),
             (&blocks, 0.5, 33.0, 1.0),
             (&blocks, 0.1, 147.0, 1.0),
             (&blocks, 1.3, 250.0, 1.0),
@@ -809,6 +817,8 @@ mod tests {
                 ..Default::default()
             };
             let with = Raycaster::new(v, &tf, params).unwrap();
+            let cells = if std::ptr::eq(v, &large) { 16 } else { 8 };
+            assert_eq!(with.macro_grid().cell_size(), cells);
             let without = Raycaster::new(
                 v,
                 &tf,

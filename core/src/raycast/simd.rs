@@ -2,14 +2,15 @@
 //! [`super`] stays the reference and the fallback).
 //!
 //! A visible macro cell's steps are independent until compositing, so their positions,
-//! lower voxels, fractions, corner gathers (four for u8 and u16: one 4-byte load holds a
+//! lower voxels, fractions, corner gathers (four for u8, u16 and i16: one 4-byte load holds a
 //! corner and its x neighbour) and trilinear blends are computed eight lanes wide;
-//! classification and the visitor then run per lane, in order. Before the corner gathers, one
-//! gather of [`super::occupancy`]'s bits tells whether any lane's 2³-voxel block can be
-//! visible; a batch with none returns at once (no value of it could have been visible). Every lane does the scalar
+//! classification and the visitor then run per lane, in order. Every lane does the scalar
 //! path's arithmetic in the scalar path's order (multiplications and additions, never fused;
 //! truncation for the lower voxel), so the values are **bit-identical** to
 //! [`super::trilinear`] at [`super::Raycaster::locate`]'s positions — the tests pin that.
+//! Before the corner gathers, one gather of [`super::occupancy`]'s bits tells whether any
+//! lane's 2³-voxel block can be visible; a batch with none returns at once (none of its values
+//! could have been visible, so the visits are the same).
 
 // The intrinsics are `unsafe`; this module is the workspace's one exception to
 // `unsafe_code = "deny"`, and exposes only safe functions: the AVX2 kernel runs only behind
