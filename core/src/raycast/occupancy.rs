@@ -31,22 +31,32 @@ const MAX_SPAN: usize = MAX_PER_AXIS * BLOCK + 1;
 
 /// The block bits of the visible macro cells (flat index as [`MacroGrid`]'s): block
 /// `(bx, by, bz)` of a cell (each below `S/2`, `b = bx + (S/2)·(by + (S/2)·bz)`) is bit
-/// `b mod 32` of word `words_per_cell · cell + b / 32`.
+/// `b mod 32` of word `words_per_cell · cell + b / 32`. Private fields: the layout is made
+/// once, by [`Occupancy::new`], and the kernel's gathers rely on it.
 #[derive(Clone, Debug)]
 pub(crate) struct Occupancy {
-    /// The macro cells' side `S`, voxels.
-    pub(crate) cell_size: usize,
-    /// `(S/2)³ / 32`.
-    pub(crate) words_per_cell: usize,
-    /// The volume's dimensions and the macro cells per axis (`cells_of(dims, S)`).
-    pub(crate) dims: [usize; 3],
-    pub(crate) cells: [usize; 3],
-    pub(crate) words: Vec<u32>,
+    /// The volume's dimensions the bits were built for.
+    dims: [usize; 3],
+    layout: Layout,
+    words: Vec<u32>,
+}
+
+/// How the kernel finds a lower voxel's bit, as shifts: cell `v >> cell_shift` per axis (of
+/// `cells` per axis), block `(v / BLOCK) mod 2^per_axis_shift` within it, word
+/// `cell << words_shift` plus the block's `/ 32`. Every cell of `cells` has its words, and
+/// the largest word index fits an `i32` (the gather's index).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Layout {
+    pub(crate) cells: [i32; 3],
+    pub(crate) cell_shift: i32,
+    pub(crate) per_axis_shift: i32,
+    pub(crate) words_shift: i32,
 }
 
 impl Occupancy {
     /// The blocks of `volume`'s visible macro cells in `grid`, classified by `lut`; `None` for
-    /// a cell size other than 8 or 16, a grid that is not `volume`'s, or more words than an
+    /// a cell side that is not a power of two with 4 to [`MAX_PER_AXIS`] blocks a side (at
+    /// least one whole word a cell), a grid that is not `volume`'s, or more words than an
     /// `i32` indexes (the kernel's gather).
     pub(crate) fn new(volume: &Volume, lut: &Lut, grid: &MacroGrid) -> Option<Self> {
         let cell_size = grid.cell_size();
@@ -55,7 +65,8 @@ impl Occupancy {
         let dims = volume.dims();
         let cells = cells_of(dims, cell_size);
         let visible = grid.visibility();
-        let fits = (cell_size == 8 || cell_size == 16)
+        let fits = cell_size.is_power_of_two()
+            && (4..=MAX_PER_AXIS).contains(&per_axis)
             && grid.cells() == cells
             && visible.len() == cells.iter().product::<usize>()
             && words_per_cell * visible.len() <= i32::MAX as usize;
@@ -63,46 +74,69 @@ impl Occupancy {
             return None;
         }
         let mut words = vec![0u32; words_per_cell * visible.len()];
-        words
-            .par_chunks_mut(words_per_cell)
-            .zip(visible.par_iter())
-            .enumerate()
-            .filter(|(_, (_, &v))| v)
-            .for_each(|(c, (w, _))| {
-                let cell = [
-                    c % cells[0],
-                    c / cells[0] % cells[1],
-                    c / (cells[0] * cells[1]),
-                ];
-                let origin = cell.map(|c| c * cell_size);
-                match volume.voxels() {
-                    VoxelSlice::U8(d) => cell_bits(d, dims, origin, per_axis, lut, w),
-                    VoxelSlice::U16(d) => cell_bits(d, dims, origin, per_axis, lut, w),
-                    VoxelSlice::I16(d) => cell_bits(d, dims, origin, per_axis, lut, w),
-                    VoxelSlice::F32(d) => cell_bits(d, dims, origin, per_axis, lut, w),
-                }
-            });
+        let grid_of = (cells, cell_size, per_axis);
+        match volume.voxels() {
+            VoxelSlice::U8(d) => fill(d, dims, grid_of, visible, lut, &mut words),
+            VoxelSlice::U16(d) => fill(d, dims, grid_of, visible, lut, &mut words),
+            VoxelSlice::I16(d) => fill(d, dims, grid_of, visible, lut, &mut words),
+            VoxelSlice::F32(d) => fill(d, dims, grid_of, visible, lut, &mut words),
+        }
         Some(Self {
-            cell_size,
-            words_per_cell,
             dims,
-            cells,
+            layout: Layout {
+                cells: cells.map(|c| c as i32),
+                cell_shift: cell_size.trailing_zeros() as i32,
+                per_axis_shift: per_axis.trailing_zeros() as i32,
+                words_shift: words_per_cell.trailing_zeros() as i32,
+            },
             words,
         })
     }
 
-    /// Whether the block holding lower voxel `(ix, iy, iz)` can contribute.
-    #[cfg(test)]
-    pub(crate) fn visible(&self, grid: &MacroGrid, voxel: [usize; 3]) -> bool {
-        let (cells, per_axis) = (grid.cells(), self.cell_size / BLOCK);
-        let [cx, cy, cz] = voxel.map(|v| v / self.cell_size);
-        let [bx, by, bz] = voxel.map(|v| v % self.cell_size / BLOCK);
-        let (c, b) = (
-            cx + cells[0] * (cy + cells[1] * cz),
-            bx + per_axis * (by + per_axis * bz),
-        );
-        self.words[self.words_per_cell * c + b / 32] >> (b % 32) & 1 == 1
+    /// The kernel's view for a volume of `dims`: the layout and the bits, or `None` when the
+    /// bits were built for other dimensions.
+    pub(crate) fn for_dims(&self, dims: [usize; 3]) -> Option<(Layout, &[u32])> {
+        (self.dims == dims).then_some((self.layout, self.words.as_slice()))
     }
+
+    /// Whether the block holding lower voxel `voxel` can contribute (the kernel's lookup, in
+    /// scalar code).
+    #[cfg(test)]
+    pub(crate) fn visible(&self, voxel: [usize; 3]) -> bool {
+        let l = self.layout;
+        let [cx, cy, cz] = voxel.map(|v| v >> l.cell_shift);
+        let [bx, by, bz] = voxel.map(|v| (v / BLOCK) & ((1 << l.per_axis_shift) - 1));
+        let [nx, ny, _] = l.cells.map(|c| c as usize);
+        let c = cx + nx * (cy + ny * cz);
+        let b = bx | by << l.per_axis_shift | bz << (2 * l.per_axis_shift);
+        self.words[(c << l.words_shift) + b / 32] >> (b % 32) & 1 == 1
+    }
+}
+
+/// The bits of every visible cell (`visible`, flat, `cells` per axis) of side `size`, with
+/// `per_axis` blocks a side (`per_axis³ / 32` words a cell, `Occupancy::new` checked at least
+/// one), into `words`: a task per cell.
+fn fill<T: Voxel>(
+    data: &[T],
+    dims: [usize; 3],
+    (cells, size, per_axis): ([usize; 3], usize, usize),
+    visible: &[bool],
+    lut: &Lut,
+    words: &mut [u32],
+) {
+    words
+        .par_chunks_mut(per_axis.pow(3) / 32)
+        .zip(visible.par_iter())
+        .enumerate()
+        .filter(|(_, (_, &v))| v)
+        .for_each(|(c, (w, _))| {
+            let cell = [
+                c % cells[0],
+                c / cells[0] % cells[1],
+                c / (cells[0] * cells[1]),
+            ];
+            cell_bits(data, dims, cell.map(|c| c * size), per_axis, lut, w);
+        });
 }
 
 /// Writes into `words` the block bits of the macro cell whose first voxel is `origin`, with
@@ -227,12 +261,12 @@ mod tests {
                         });
                         if visible {
                             assert!(
-                                occ.visible(&grid, voxel),
+                                occ.visible(voxel),
                                 "{dims:?}, cells of {size}: voxel {voxel:?}"
                             );
                         }
                         let cell_visible = grid.visible(x, y, z);
-                        cleared += usize::from(cell_visible && !occ.visible(&grid, voxel));
+                        cleared += usize::from(cell_visible && !occ.visible(voxel));
                     }
                 }
             }

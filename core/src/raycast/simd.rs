@@ -17,7 +17,7 @@
 // an [`Avx2`] token (proof of detection) and only on inputs whose gathers it has checked.
 #![allow(unsafe_code)]
 
-use super::occupancy::BLOCK;
+use super::occupancy::{Layout, BLOCK};
 use super::{Marching, Raycaster, Sample};
 use crate::camera::Ray;
 use crate::tf::{Lut, LUT_SIZE};
@@ -104,16 +104,6 @@ impl Gather for i16 {
 }
 impl Gather for f32 {}
 
-/// The kernel's view of [`super::occupancy::Occupancy`]: macro cells per axis, the shifts
-/// that locate a lower voxel's cell, block and word, and the bits.
-struct Blocks<'a> {
-    cells: [i32; 3],
-    cell_shift: i32,
-    per_axis_shift: i32,
-    words_shift: i32,
-    words: &'a [u32],
-}
-
 /// What the kernel needs of one ray through one volume, checked once when made
 /// ([`Lanes::new`]): the fields are private so that no unchecked one exists.
 pub(super) struct Lanes<'a, T> {
@@ -133,9 +123,9 @@ pub(super) struct Lanes<'a, T> {
     lut_lo: f32,
     lut_scale: f32,
     visible_groups: [u32; 8],
-    /// The block bits of [`super::occupancy::Occupancy`], checked to match the grid; `None`
-    /// without them (every batch is gathered).
-    occupancy: Option<Blocks<'a>>,
+    /// The layout and bits of [`super::occupancy::Occupancy`], made for these dimensions;
+    /// `None` without them (every batch is gathered).
+    occupancy: Option<(Layout, &'a [u32])>,
 }
 
 impl<'a, T: Gather> Lanes<'a, T> {
@@ -156,19 +146,9 @@ impl<'a, T: Gather> Lanes<'a, T> {
             && data.len() <= i32::MAX as usize
             && !dims.contains(&0)
             && rc.lut.entries().len() == LUT_SIZE;
-        // `Occupancy::new` made sure of the layout (cells of the volume's grid, sizes powers
-        // of two, `i32` indices); the words are all there for these dimensions.
-        let occupancy = rc.occupancy.as_ref().and_then(|o| {
-            let fits = o.dims == dims
-                && o.words.len() == o.words_per_cell * o.cells.iter().product::<usize>();
-            fits.then(|| Blocks {
-                cells: o.cells.map(|c| c as i32),
-                cell_shift: o.cell_size.trailing_zeros() as i32,
-                per_axis_shift: (o.cell_size / BLOCK).trailing_zeros() as i32,
-                words_shift: o.words_per_cell.trailing_zeros() as i32,
-                words: &o.words,
-            })
-        });
+        // `Occupancy::new` made the layout (cells of the volume's grid, shifts, `i32` word
+        // indices) and the words for every cell of these dimensions.
+        let occupancy = rc.occupancy.as_ref().and_then(|o| o.for_dims(dims));
         fits.then_some(Self {
             occupancy,
             _avx2: avx2,
@@ -264,7 +244,7 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let (ix, fx) = axis(self.o_v.x, self.d_v.x, self.max_voxel.x, nx);
         let (iy, fy) = axis(self.o_v.y, self.d_v.y, self.max_voxel.y, ny);
         let (iz, fz) = axis(self.o_v.z, self.d_v.z, self.max_voxel.z, nz);
-        if let Some(o) = &self.occupancy {
+        if let Some((o, words)) = self.occupancy {
             // The lanes' blocks: cell `c` from the lower voxel / S, block `b` within it from
             // (voxel / 2) mod (S/2) per axis; bit `b mod 32` of word `c·words + b / 32`. In
             // bounds: the lower voxel is at most n − 2 per axis, so its cell is one of the
@@ -297,7 +277,7 @@ impl<'a, T: Gather> Lanes<'a, T> {
                 ),
             );
             let word = _mm256_i32gather_epi32::<4>(
-                o.words.as_ptr().cast(),
+                words.as_ptr().cast(),
                 _mm256_add_epi32(
                     _mm256_sll_epi32(c, count(o.words_shift)),
                     _mm256_srli_epi32::<5>(b),
