@@ -575,6 +575,10 @@ impl Accum {
     }
 }
 
+/// Longest list searched by a scan rather than by bisection (the lists the teapot's
+/// r = 768 VDI composites hold 19 supersegments on average; 16 was slower, 64 the same).
+const LINEAR_SEARCH_MAX: usize = 32;
+
 /// Composites the supersegments of one pixel list met by the ray over `[ta, tb]`, where the
 /// generation depth is `z(t)`; `keys` holds the list's `[z_end, −ln(1 − â)]`. Returns true when the ray
 /// is done.
@@ -589,8 +593,14 @@ fn composite_span(
 ) -> bool {
     let span = tb - ta;
     let (za, zb) = (z.at(ta), z.at(tb));
-    // The first supersegment ending after za; lists are sorted and disjoint.
-    let first = keys.partition_point(|k| k[0] <= za);
+    // The first supersegment ending after za; lists are sorted and disjoint. Short lists
+    // are scanned: independent loads in order, where a binary search's loads each wait on
+    // the one before (12 % of the teapot r = 768 frame from 30°).
+    let first = if keys.len() <= LINEAR_SEARCH_MAX {
+        keys.iter().position(|k| k[0] > za).unwrap_or(keys.len())
+    } else {
+        keys.partition_point(|k| k[0] <= za)
+    };
     if z.f1 > 0.0 {
         for (s, k) in list[first..].iter().zip(&keys[first..]) {
             if s.z_start >= zb {
