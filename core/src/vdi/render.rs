@@ -66,49 +66,63 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
 /// Depth bins of the occupancy masks ([`DepthBins`]): one bit each in a `u64`.
 const DEPTH_BINS: u32 = 64;
 
-/// The generation depth range cut into [`DEPTH_BINS`] equal bins, so that a set of depth
-/// intervals can be summarised as a 64-bit occupancy mask (a froxel grid's column: the 3-D
-/// analogue of the tiles' depth range, which cannot see the gaps between structures).
+/// Nearest depth the walk considers (the generation frustum's near plane, eye-space units):
+/// depths below it are taken as it when inverted.
+const NEAR_DEPTH: f32 = 1e-6;
+
+/// Inverse depth `w = 1 / z` (`z` raised to [`NEAR_DEPTH`] first, NaN included): along a ray's
+/// projection into the generation image `w` is affine in the segment parameter `u`
+/// (perspective-correct interpolation), so the walk tracks it with a multiply-add per pixel.
+#[inline]
+fn inverse_depth(z: f32) -> f32 {
+    1.0 / z.max(NEAR_DEPTH)
+}
+
+/// The generation range of inverse depth cut into [`DEPTH_BINS`] equal bins, so that a set
+/// of depth intervals can be summarised as a 64-bit occupancy mask (a froxel grid's column,
+/// its slices uniform in `1/z` as a perspective depth buffer's are: the 3-D analogue of the
+/// tiles' depth range, which cannot see the gaps between structures).
 ///
-/// Exact for skipping: a depth `z` falls in bin `⌊(z − z₀)·n⌋` (clamped), an increasing
-/// function of `z` in `f32` too, so two intervals that share a depth share a bin, and an
-/// interval whose mask misses a list's mask meets none of its supersegments.
+/// Exact for skipping: an inverse depth `w` falls in bin `⌊(w − w₀)·n⌋` (clamped), and both
+/// that and [`inverse_depth`] are monotonic in `f32` too, so two depth intervals that share a
+/// depth share a bin, and an interval whose mask misses a list's mask meets none of its
+/// supersegments.
 #[derive(Clone, Copy)]
 struct DepthBins {
-    /// Depth where bin 0 starts.
-    z0: f32,
-    /// Bins per unit depth.
+    /// Inverse depth where bin 0 starts.
+    w0: f32,
+    /// Bins per unit of inverse depth.
     per_unit: f32,
 }
 
 impl DepthBins {
-    /// Bins spanning `[z_min, z_max]`; any range for an empty VDI.
-    fn new(z_min: f32, z_max: f32) -> Self {
-        let extent = z_max - z_min;
+    /// Bins spanning the inverse depths `[w_min, w_max]`; any range for an empty VDI.
+    fn new(w_min: f32, w_max: f32) -> Self {
+        let extent = w_max - w_min;
         if extent.is_finite() && extent > 0.0 {
             Self {
-                z0: z_min,
+                w0: w_min,
                 per_unit: DEPTH_BINS as f32 / extent,
             }
         } else {
             Self {
-                z0: if z_min.is_finite() { z_min } else { 0.0 },
+                w0: if w_min.is_finite() { w_min } else { 0.0 },
                 per_unit: 1.0,
             }
         }
     }
 
-    /// The bin holding depth `z`, clamped to the bins (NaN goes to bin 0).
+    /// The bin holding inverse depth `w`, clamped to the bins (NaN goes to bin 0).
     #[inline]
-    fn bin(self, z: f32) -> u32 {
+    fn bin(self, w: f32) -> u32 {
         // `as` saturates: negative and NaN give 0.
-        (((z - self.z0) * self.per_unit) as u32).min(DEPTH_BINS - 1)
+        (((w - self.w0) * self.per_unit) as u32).min(DEPTH_BINS - 1)
     }
 
-    /// The bits of the bins that `[za, zb]` (either order) touches.
+    /// The bits of the bins that the inverse depths `[wa, wb]` (either order) touch.
     #[inline]
-    fn mask(self, za: f32, zb: f32) -> u64 {
-        let (lo, hi) = (self.bin(za.min(zb)), self.bin(za.max(zb)));
+    fn mask(self, wa: f32, wb: f32) -> u64 {
+        let (lo, hi) = (self.bin(wa.min(wb)), self.bin(wa.max(wb)));
         (u64::MAX >> (DEPTH_BINS - 1 - hi)) & (u64::MAX << lo)
     }
 }
@@ -120,8 +134,9 @@ impl DepthBins {
 pub(crate) struct WalkTables {
     /// Tiles per row of the generation image.
     tiles_x: i64,
-    /// Depth range of each `SKIP_TILE²` tile's supersegments ([`tile_depth_ranges`]).
-    tile_depth: Vec<[f32; 2]>,
+    /// Inverse-depth range `[1/z_max, 1/z_min]` of each `SKIP_TILE²` tile's supersegments
+    /// ([`tile_depth_ranges`] inverted; `[f32::MAX, −f32::MAX]` for an empty tile).
+    tile_w: Vec<[f32; 2]>,
     /// Per tile, the chessboard distance in tiles to the nearest tile with a supersegment
     /// (0 for such a tile, at most 255): an empty tile at distance `d` is the centre of a
     /// square of `2d − 1` empty tiles a side, which the walk leaves in one jump (the 2-D
@@ -145,12 +160,20 @@ impl WalkTables {
     pub(crate) fn new(vdi: &Vdi) -> Self {
         let r = vdi.resolution() as usize;
         let tile_depth = tile_depth_ranges(vdi);
-        let (z_min, z_max) = tile_depth
+        let tile_w: Vec<[f32; 2]> = tile_depth
             .iter()
-            .fold((f32::MAX, -f32::MAX), |(lo, hi), d| {
-                (lo.min(d[0]), hi.max(d[1]))
-            });
-        let bins = DepthBins::new(z_min, z_max);
+            .map(|&[z_min, z_max]| {
+                if z_min <= z_max {
+                    [inverse_depth(z_max), inverse_depth(z_min)]
+                } else {
+                    [f32::MAX, -f32::MAX]
+                }
+            })
+            .collect();
+        let (w_min, w_max) = tile_w.iter().fold((f32::MAX, -f32::MAX), |(lo, hi), w| {
+            (lo.min(w[0]), hi.max(w[1]))
+        });
+        let bins = DepthBins::new(w_min, w_max);
         let mut pixel_bins = vec![0u64; r * r];
         pixel_bins
             .par_chunks_mut(r.max(1))
@@ -160,7 +183,9 @@ impl WalkTables {
                     *m = vdi
                         .pixel(i as u32, j as u32)
                         .iter()
-                        .fold(0, |m, s| m | bins.mask(s.z_start, s.z_end));
+                        .fold(0, |m, s| {
+                            m | bins.mask(inverse_depth(s.z_start), inverse_depth(s.z_end))
+                        });
                 }
             });
         let tiles_x = r.div_ceil(SKIP_TILE as usize);
@@ -168,7 +193,7 @@ impl WalkTables {
         Self {
             tiles_x: tiles_x as i64,
             tile_reach: chessboard_distance([tiles_x, tiles_x, 1], &occupied),
-            tile_depth,
+            tile_w,
             bins,
             pixel_bins,
             keys: vdi
@@ -273,7 +298,7 @@ impl<'a> Walker<'a> {
                 f1: ty * z.f1 + y.f1,
             },
             Lin {
-                f0: z.f0 - 1e-6,
+                f0: z.f0 - NEAR_DEPTH,
                 f1: z.f1,
             },
         ];
@@ -299,7 +324,9 @@ impl<'a> Walker<'a> {
         // Inverse depth is affine in u (perspective-correct interpolation), which gives the
         // depth at each crossing for the occupancy test; the exact ray parameter `t` of a
         // crossing (its own division) is solved only where a list is composited.
-        let (za0, zb1) = (z.at(t0), z.at(t1));
+        // Inverse depth along the segment: affine in u.
+        let (w0, w1) = (1.0 / z.at(t0), 1.0 / z.at(t1));
+        let dw = w1 - w0;
         let axis = |p0: f32, p1: f32| -> Axis {
             // A projection shorter than this (pixels) is a point: the ray passes through the
             // generation eye, as every ray of the generation view does.
@@ -326,7 +353,7 @@ impl<'a> Walker<'a> {
                 cell: cell.clamp(0, self.r - 1),
                 // The pixel coordinates' rounding (a few ulp of r; 1e-5·(r + 1) taken) over
                 // the axis' extent, times the depth range.
-                depth_error: (1e-5 * (r + 1.0) * inv_d.abs()).min(1.0) * (zb1 - za0).abs(),
+                depth_error: (1e-5 * (r + 1.0) * inv_d.abs()).min(1.0) * dw.abs(),
             }
         };
         let (mut ax, mut ay) = (axis(px0, px1), axis(py0, py1));
@@ -344,20 +371,19 @@ impl<'a> Walker<'a> {
             Crossing::X(b) => cross_x(b),
             Crossing::Y(b) => cross_y(b),
         };
-        // Inverse depth along the segment, and a margin covering the rounding of depths
-        // so computed against those of `t` (the occupancy test must not skip a list the
-        // exact span meets): relative rounding, plus, at each crossing, how far the
-        // rounding of the pixel coordinates moves it ([`Axis::depth_error`]).
-        let (w0, dw) = (1.0 / za0, 1.0 / zb1 - 1.0 / za0);
-        let depth_at = |u: f32| if u >= 1.0 { zb1 } else { 1.0 / (w0 + dw * u) };
-        let rounding = 1e-4 * za0.abs().max(zb1.abs());
+        // Inverse depth at u, and a margin covering the rounding of inverse depths so
+        // computed against those of `t` (the occupancy test must not skip a list the exact
+        // span meets): relative rounding, plus, at each crossing, how far the rounding of the
+        // pixel coordinates moves it ([`Axis::depth_error`]).
+        let w_at = |u: f32| if u >= 1.0 { w1 } else { w0 + dw * u };
+        let rounding = 1e-4 * w0.abs().max(w1.abs());
         let bins = self.tables.bins;
-        let occupied = |mask: u64, za: f32, zb: f32, error: f32| {
+        let occupied = |mask: u64, wa: f32, wb: f32, error: f32| {
             let margin = rounding + error;
-            mask & bins.mask(za.min(zb) - margin, za.max(zb) + margin) != 0
+            mask & bins.mask(wa.min(wb) - margin, wa.max(wb) + margin) != 0
         };
         let mut u = 0.0f32;
-        let mut z_u = za0;
+        let mut w_u = w0;
         let mut t_done = t0;
         let mut enter = Crossing::Start;
         // The depth error of the crossing entered by.
@@ -381,15 +407,15 @@ impl<'a> Walker<'a> {
                 );
                 let (ex, ey) = (ax.exit(xs), ay.exit(ys));
                 let u_exit = ex.min(ey).min(1.0).max(u);
-                let z_exit = depth_at(u_exit);
+                let w_exit = w_at(u_exit);
                 let exit_error = if ex <= ey {
                     ax.depth_error
                 } else {
                     ay.depth_error
                 };
                 let margin = rounding + enter_error + exit_error;
-                let [z_min, z_max] = self.tables.tile_depth[tile as usize];
-                if !(z_u.min(z_exit) > z_max + margin || z_u.max(z_exit) < z_min - margin) {
+                let [w_min, w_max] = self.tables.tile_w[tile as usize];
+                if !(w_u.min(w_exit) > w_max + margin || w_u.max(w_exit) < w_min - margin) {
                     walking = tile;
                 } else {
                     // Nothing to meet here: jump to the next tile (past the empty square),
@@ -415,13 +441,13 @@ impl<'a> Walker<'a> {
                         return;
                     }
                     u = u_exit;
-                    z_u = z_exit;
+                    w_u = w_exit;
                     (ux, uy) = (ax.next(), ay.next());
                     continue;
                 }
             }
             let u_next = ux.min(uy).min(1.0).max(u);
-            let z_next = depth_at(u_next);
+            let w_next = w_at(u_next);
             let p = (ix + self.r * iy) as usize;
             let exit_error = if ux <= uy {
                 ax.depth_error
@@ -430,8 +456,8 @@ impl<'a> Walker<'a> {
             };
             if occupied(
                 self.tables.pixel_bins[p],
-                z_u,
-                z_next,
+                w_u,
+                w_next,
                 enter_error + exit_error,
             ) {
                 let exit = if u_next >= 1.0 {
@@ -479,7 +505,7 @@ impl<'a> Walker<'a> {
                 return;
             }
             u = u_next;
-            z_u = z_next;
+            w_u = w_next;
         }
     }
 }
@@ -671,7 +697,7 @@ mod tests {
         .unwrap();
         let skipping = Walker::new(&vdi);
         let mut all = vdi.walk_tables().clone();
-        all.tile_depth.fill([-f32::MAX, f32::MAX]);
+        all.tile_w.fill([-f32::MAX, f32::MAX]);
         all.tile_reach.fill(0);
         all.pixel_bins.fill(u64::MAX);
         let walking_all = Walker {
