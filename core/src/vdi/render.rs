@@ -122,10 +122,30 @@ impl DepthBins {
     /// The bits of the bins that the inverse depths `[wa, wb]` (either order) touch.
     #[inline]
     fn mask(self, wa: f32, wb: f32) -> u64 {
-        let (lo, hi) = (self.bin(wa.min(wb)), self.bin(wa.max(wb)));
-        (u64::MAX >> (DEPTH_BINS - 1 - hi)) & (u64::MAX << lo)
+        bits(self.bin(wa.min(wb)), self.bin(wa.max(wb)))
+    }
+
+    /// The bins `w ± margin` spans: where a crossing found at inverse depth `w`, up to
+    /// `margin`, may lie.
+    #[inline]
+    fn around(self, w: f32, margin: f32) -> [u32; 2] {
+        [self.bin(w - margin), self.bin(w + margin)]
     }
 }
+
+/// The bits `lo ..= hi` (both below [`DEPTH_BINS`], `lo ≤ hi`; none when `lo > hi`).
+#[inline]
+fn bits(lo: u32, hi: u32) -> u64 {
+    (u64::MAX >> (DEPTH_BINS - 1 - hi)) & (u64::MAX << lo)
+}
+
+/// The bits of the bins between two crossings' [`DepthBins::around`]: those a pixel's depth
+/// span between them may touch.
+#[inline]
+fn between([lo_a, hi_a]: [u32; 2], [lo_b, hi_b]: [u32; 2]) -> u64 {
+    bits(lo_a.min(lo_b), hi_a.max(hi_b))
+}
+
 
 /// The per-VDI constants of the walk: tile depth ranges and empty-tile distances, depth
 /// occupancy masks per pixel, and packed search keys (8 bytes per supersegment), built once
@@ -378,16 +398,13 @@ impl<'a> Walker<'a> {
         let w_at = |u: f32| if u >= 1.0 { w1 } else { w0 + dw * u };
         let rounding = 1e-4 * w0.abs().max(w1.abs());
         let bins = self.tables.bins;
-        let occupied = |mask: u64, wa: f32, wb: f32, error: f32| {
-            let margin = rounding + error;
-            mask & bins.mask(wa.min(wb) - margin, wa.max(wb) + margin) != 0
-        };
         let mut u = 0.0f32;
         let mut w_u = w0;
         let mut t_done = t0;
         let mut enter = Crossing::Start;
-        // The depth error of the crossing entered by.
+        // The depth error of the crossing entered by, and the bins it may lie in.
         let mut enter_error = 0.0f32;
+        let mut enter_bins = bins.around(w0, rounding);
         let (mut ux, mut uy) = (ax.next(), ay.next());
         // The tile whose pixels are being walked (its depths meet the ray's).
         let mut walking = -1i64;
@@ -442,6 +459,7 @@ impl<'a> Walker<'a> {
                     }
                     u = u_exit;
                     w_u = w_exit;
+                    enter_bins = bins.around(w_u, rounding + enter_error);
                     (ux, uy) = (ax.next(), ay.next());
                     continue;
                 }
@@ -454,12 +472,10 @@ impl<'a> Walker<'a> {
             } else {
                 ay.depth_error
             };
-            if occupied(
-                self.tables.pixel_bins[p],
-                w_u,
-                w_next,
-                enter_error + exit_error,
-            ) {
+            // The pixel's depth span lies between its two crossings' bins: a list whose
+            // bins miss them is passed untouched.
+            let exit_bins = bins.around(w_next, rounding + exit_error);
+            if self.tables.pixel_bins[p] & between(enter_bins, exit_bins) != 0 {
                 let exit = if u_next >= 1.0 {
                     t1
                 } else if ux <= uy {
@@ -506,6 +522,7 @@ impl<'a> Walker<'a> {
             }
             u = u_next;
             w_u = w_next;
+            enter_bins = exit_bins;
         }
     }
 }
