@@ -6,9 +6,8 @@
 
 use crate::camera::{Camera, ViewFrame};
 use crate::image::Image;
-use crate::raycast::{Raycaster, Sample};
+use crate::raycast::Raycaster;
 use rayon::prelude::*;
-use std::ops::ControlFlow;
 
 /// Tile side in pixels for the parallel loop.
 pub(crate) const TILE: u32 = 16;
@@ -39,26 +38,7 @@ pub fn render_with_opacity(
 /// Colour and opacity of pixel `(i, j)`: front-to-back compositing up to early termination.
 #[inline]
 fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3], f32) {
-    let termination = raycaster.params().termination;
-    let ray = frame.pixel_ray(i, j);
-    let mut color = [0.0f32; 3];
-    let mut transmittance = 1.0f32;
-    raycaster.march(&ray, |s: &Sample| {
-        let w = transmittance * s.alpha;
-        for (c, s) in color.iter_mut().zip(s.rgb) {
-            *c += w * s;
-        }
-        transmittance *= 1.0 - s.alpha;
-        if 1.0 - transmittance >= termination {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    });
-    (
-        color.map(|c| c.clamp(0.0, 1.0)),
-        (1.0 - transmittance).clamp(0.0, 1.0),
-    )
+    raycaster.composite(&frame.pixel_ray(i, j))
 }
 
 /// Evaluates `shade(i, j)` for every pixel of `frame` and returns the pixels row-major from

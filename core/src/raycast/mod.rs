@@ -16,11 +16,13 @@
 //! reference and the fallback; [`Raycaster::without_simd`]), which passes over batches of
 //! eight steps whose 2³-voxel blocks are all invisible (`occupancy`) without gathering them.
 
+mod composite;
 mod macrocell;
 mod occupancy;
 mod shading;
 mod simd;
 
+pub use composite::FrontToBack;
 pub(crate) use macrocell::chessboard_distance;
 pub use macrocell::MacroGrid;
 use occupancy::Occupancy;
@@ -278,6 +280,40 @@ impl<'a> Raycaster<'a> {
             (Storage::F32(d), false) => self.march_typed::<f32, false>(d, ray, &mut visit),
             (Storage::F32(d), true) => self.march_typed::<f32, true>(d, ray, &mut visit),
         }
+    }
+
+    /// Front-to-back compositing of `ray`'s samples up to this ray-caster's termination
+    /// threshold (the reference DVR's pixel): its colour, clamped to [0, 1], and its
+    /// accumulated opacity. The same result as [`Raycaster::march`] with a
+    /// [`FrontToBack`] visitor, with the accumulator kept in the march's own function.
+    pub fn composite(&self, ray: &Ray) -> ([f32; 3], f32) {
+        let acc = match (self.volume.storage(), self.params.shading.is_some()) {
+            (Storage::U8(d), false) => self.composite_typed::<u8, false>(d, ray),
+            (Storage::U8(d), true) => self.composite_typed::<u8, true>(d, ray),
+            (Storage::U16(d), false) => self.composite_typed::<u16, false>(d, ray),
+            (Storage::U16(d), true) => self.composite_typed::<u16, true>(d, ray),
+            (Storage::I16(d), false) => self.composite_typed::<i16, false>(d, ray),
+            (Storage::I16(d), true) => self.composite_typed::<i16, true>(d, ray),
+            (Storage::F32(d), false) => self.composite_typed::<f32, false>(d, ray),
+            (Storage::F32(d), true) => self.composite_typed::<f32, true>(d, ray),
+        };
+        acc.finish()
+    }
+
+    /// [`Raycaster::composite`] for one storage type.
+    #[inline(always)]
+    fn composite_typed<T: simd::Gather, const SHADE: bool>(
+        &self,
+        data: &[T],
+        ray: &Ray,
+    ) -> FrontToBack {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx2) = self.simd {
+            return simd::composite::<T, SHADE>(avx2, self, data, ray);
+        }
+        let mut acc = FrontToBack::new(self.params.termination);
+        self.march_impl::<T, SHADE>(data, ray, &mut |s| acc.add(s), None);
+        acc
     }
 
     /// The whole march compiled for AVX2 where the CPU has it (the loop's bookkeeping in AVX2

@@ -18,7 +18,7 @@
 #![allow(unsafe_code)]
 
 use super::occupancy::{Layout, BLOCK};
-use super::{Marching, Raycaster, Sample};
+use super::{FrontToBack, Marching, Raycaster, Sample};
 use crate::camera::Ray;
 use crate::tf::{Lut, LUT_SIZE};
 use crate::volume::Voxel;
@@ -38,6 +38,37 @@ impl Avx2 {
         }
         None
     }
+}
+
+/// [`Raycaster::composite`] on the AVX2 path: the march and the accumulator in one function
+/// compiled for AVX2, so that the accumulator lives in registers.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(super) fn composite<T: Gather, const SHADE: bool>(
+    avx2: Avx2,
+    rc: &Raycaster,
+    data: &[T],
+    ray: &Ray,
+) -> FrontToBack {
+    // SAFETY: the token proves that this CPU has AVX2.
+    unsafe { composite_avx2::<T, SHADE>(avx2, rc, data, ray) }
+}
+
+/// [`composite`].
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn composite_avx2<T: Gather, const SHADE: bool>(
+    avx2: Avx2,
+    rc: &Raycaster,
+    data: &[T],
+    ray: &Ray,
+) -> FrontToBack {
+    let mut acc = FrontToBack::new(rc.params.termination);
+    rc.march_impl::<T, SHADE>(data, ray, &mut |s| acc.add(s), Some(avx2));
+    acc
 }
 
 /// [`Raycaster::march`]'s loop compiled with AVX2 enabled, so that the scalar steps and the
