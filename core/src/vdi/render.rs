@@ -146,7 +146,6 @@ fn between([lo_a, hi_a]: [u32; 2], [lo_b, hi_b]: [u32; 2]) -> u64 {
     bits(lo_a.min(lo_b), hi_a.max(hi_b))
 }
 
-
 /// The per-VDI constants of the walk: tile depth ranges and empty-tile distances, depth
 /// occupancy masks per pixel, and packed search keys (8 bytes per supersegment), built once
 /// per VDI and kept with it ([`Vdi`]'s derived data).
@@ -200,12 +199,9 @@ impl WalkTables {
             .enumerate()
             .for_each(|(j, row)| {
                 for (i, m) in row.iter_mut().enumerate() {
-                    *m = vdi
-                        .pixel(i as u32, j as u32)
-                        .iter()
-                        .fold(0, |m, s| {
-                            m | bins.mask(inverse_depth(s.z_start), inverse_depth(s.z_end))
-                        });
+                    *m = vdi.pixel(i as u32, j as u32).iter().fold(0, |m, s| {
+                        m | bins.mask(inverse_depth(s.z_start), inverse_depth(s.z_end))
+                    });
                 }
             });
         let tiles_x = r.div_ceil(SKIP_TILE as usize);
