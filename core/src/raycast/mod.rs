@@ -161,6 +161,24 @@ struct Marching {
     d_v: Vec3,
 }
 
+/// `rc.method::<T, SHADE>(storage, args…)` for the voxel type of `rc`'s storage (with its
+/// padding: the AVX2 gathers read a few bytes past the last voxel of integer types) and
+/// whether it shades: the one place the eight monomorphic paths are chosen.
+macro_rules! by_storage {
+    ($rc:ident, $method:ident($($arg:expr),*)) => {
+        match ($rc.volume.storage(), $rc.params.shading.is_some()) {
+            (Storage::U8(d), false) => $rc.$method::<u8, false>(d, $($arg),*),
+            (Storage::U8(d), true) => $rc.$method::<u8, true>(d, $($arg),*),
+            (Storage::U16(d), false) => $rc.$method::<u16, false>(d, $($arg),*),
+            (Storage::U16(d), true) => $rc.$method::<u16, true>(d, $($arg),*),
+            (Storage::I16(d), false) => $rc.$method::<i16, false>(d, $($arg),*),
+            (Storage::I16(d), true) => $rc.$method::<i16, true>(d, $($arg),*),
+            (Storage::F32(d), false) => $rc.$method::<f32, false>(d, $($arg),*),
+            (Storage::F32(d), true) => $rc.$method::<f32, true>(d, $($arg),*),
+        }
+    };
+}
+
 /// A volume prepared for ray-casting with one transfer function and parameters: the
 /// classification table and the macro-cell grid are built once here.
 #[derive(Clone)]
@@ -268,18 +286,7 @@ impl<'a> Raycaster<'a> {
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
     /// returns `Break` or the ray leaves the volume.
     pub fn march(&self, ray: &Ray, mut visit: impl FnMut(&Sample) -> ControlFlow<()>) {
-        // The storage with its padding (the AVX2 gathers read a few bytes past the last
-        // voxel of integer types).
-        match (self.volume.storage(), self.params.shading.is_some()) {
-            (Storage::U8(d), false) => self.march_typed::<u8, false>(d, ray, &mut visit),
-            (Storage::U8(d), true) => self.march_typed::<u8, true>(d, ray, &mut visit),
-            (Storage::U16(d), false) => self.march_typed::<u16, false>(d, ray, &mut visit),
-            (Storage::U16(d), true) => self.march_typed::<u16, true>(d, ray, &mut visit),
-            (Storage::I16(d), false) => self.march_typed::<i16, false>(d, ray, &mut visit),
-            (Storage::I16(d), true) => self.march_typed::<i16, true>(d, ray, &mut visit),
-            (Storage::F32(d), false) => self.march_typed::<f32, false>(d, ray, &mut visit),
-            (Storage::F32(d), true) => self.march_typed::<f32, true>(d, ray, &mut visit),
-        }
+        by_storage!(self, march_typed(ray, &mut visit))
     }
 
     /// Front-to-back compositing of `ray`'s samples up to this ray-caster's termination
@@ -287,16 +294,7 @@ impl<'a> Raycaster<'a> {
     /// accumulated opacity. The same result as [`Raycaster::march`] with a
     /// [`FrontToBack`] visitor, with the accumulator kept in the march's own function.
     pub fn composite(&self, ray: &Ray) -> ([f32; 3], f32) {
-        let acc = match (self.volume.storage(), self.params.shading.is_some()) {
-            (Storage::U8(d), false) => self.composite_typed::<u8, false>(d, ray),
-            (Storage::U8(d), true) => self.composite_typed::<u8, true>(d, ray),
-            (Storage::U16(d), false) => self.composite_typed::<u16, false>(d, ray),
-            (Storage::U16(d), true) => self.composite_typed::<u16, true>(d, ray),
-            (Storage::I16(d), false) => self.composite_typed::<i16, false>(d, ray),
-            (Storage::I16(d), true) => self.composite_typed::<i16, true>(d, ray),
-            (Storage::F32(d), false) => self.composite_typed::<f32, false>(d, ray),
-            (Storage::F32(d), true) => self.composite_typed::<f32, true>(d, ray),
-        };
+        let acc = by_storage!(self, composite_typed(ray));
         acc.finish()
     }
 
