@@ -6,7 +6,7 @@
 
 use crate::camera::{Camera, ViewFrame};
 use crate::image::Image;
-use crate::raycast::Raycaster;
+use crate::raycast::{FrontToBack, Raycaster};
 use rayon::prelude::*;
 
 /// Tile side in pixels for the parallel loop.
@@ -38,7 +38,10 @@ pub fn render_with_opacity(
 /// Colour and opacity of pixel `(i, j)`: front-to-back compositing up to early termination.
 #[inline]
 fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3], f32) {
-    raycaster.composite(&frame.pixel_ray(i, j))
+    let acc = FrontToBack::new(raycaster.params().termination);
+    raycaster
+        .march_fold(&frame.pixel_ray(i, j), acc, |acc, s| acc.add(s))
+        .finish()
 }
 
 /// Evaluates `shade(i, j)` for every pixel of `frame` and returns the pixels row-major from

@@ -2,10 +2,9 @@
 //! volume rendering"): `C += T·α·c`, `T *= 1 − α`, stopping once the accumulated opacity
 //! `1 − T` reaches the termination threshold. The reference DVR's per-ray work.
 //!
-//! [`super::Raycaster::composite`] runs it inside the marcher's own function (on the AVX2
-//! path, inside the function compiled for AVX2), so that the colour and transmittance stay
-//! in registers across the samples instead of going through memory behind the visitor's
-//! references at every sample.
+//! The DVR hands it to [`super::Raycaster::march_fold`] as the march's state, so that the
+//! colour and transmittance stay in registers across the samples instead of going through
+//! memory behind the visitor's references at every sample.
 
 use super::Sample;
 use std::ops::ControlFlow;
@@ -95,11 +94,12 @@ mod tests {
         assert_eq!(acc.finish(), ([0.2, 0.4, 0.6], 1.0));
     }
 
-    /// [`Raycaster::composite`] (the accumulator inside the march's function) gives, bit for
-    /// bit, what [`Raycaster::march`] with a [`FrontToBack`] visitor gives, on the AVX2 and the
-    /// scalar path, for byte and float volumes, rays that terminate early and rays that miss.
+    /// [`Raycaster::march_fold`] with the accumulator as its state (the DVR's way) gives, bit
+    /// for bit, what [`Raycaster::march`] with a visitor holding a reference to it gives, on
+    /// the AVX2 and the scalar path, for byte and float volumes, rays that terminate early and
+    /// rays that miss.
     #[test]
-    fn composite_is_march_with_the_accumulator() {
+    fn folding_the_accumulator_is_marching_with_it() {
         let f = |x: usize, y: usize, z: usize| ((x * 7 + y * 13 + z * 29) % 23) as f32;
         let float = Volume::from_fn([24, 20, 28], f).unwrap();
         let bytes = Volume::from_u8(
@@ -121,7 +121,9 @@ mod tests {
                         let ray = frame.pixel_ray(i, j);
                         let mut acc = FrontToBack::new(rc.params().termination);
                         rc.march(&ray, |s| acc.add(s));
-                        let (a, b) = (rc.composite(&ray), acc.finish());
+                        let folded = FrontToBack::new(rc.params().termination);
+                        let folded = rc.march_fold(&ray, folded, |acc, s| acc.add(s));
+                        let (a, b) = (folded.finish(), acc.finish());
                         assert_eq!(a.0.map(f32::to_bits), b.0.map(f32::to_bits), "({i}, {j})");
                         assert_eq!(a.1.to_bits(), b.1.to_bits(), "({i}, {j})");
                         compared += usize::from(b.1 > 0.0);

@@ -161,22 +161,32 @@ struct Marching {
     d_v: Vec3,
 }
 
-/// `rc.method::<T, SHADE>(storage, args…)` for the voxel type of `rc`'s storage (with its
-/// padding: the AVX2 gathers read a few bytes past the last voxel of integer types) and
-/// whether it shades: the one place the eight monomorphic paths are chosen.
-macro_rules! by_storage {
-    ($rc:ident, $method:ident($($arg:expr),*)) => {
-        match ($rc.volume.storage(), $rc.params.shading.is_some()) {
-            (Storage::U8(d), false) => $rc.$method::<u8, false>(d, $($arg),*),
-            (Storage::U8(d), true) => $rc.$method::<u8, true>(d, $($arg),*),
-            (Storage::U16(d), false) => $rc.$method::<u16, false>(d, $($arg),*),
-            (Storage::U16(d), true) => $rc.$method::<u16, true>(d, $($arg),*),
-            (Storage::I16(d), false) => $rc.$method::<i16, false>(d, $($arg),*),
-            (Storage::I16(d), true) => $rc.$method::<i16, true>(d, $($arg),*),
-            (Storage::F32(d), false) => $rc.$method::<f32, false>(d, $($arg),*),
-            (Storage::F32(d), true) => $rc.$method::<f32, true>(d, $($arg),*),
-        }
-    };
+/// What the marcher hands each non-transparent sample to: a closure
+/// `FnMut(&Sample) -> ControlFlow<()>`, or a state and a closure that takes it
+/// ([`Raycaster::march_fold`]). `Break` stops the ray.
+pub(crate) trait Visit {
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()>;
+}
+
+impl<F: FnMut(&Sample) -> ControlFlow<()>> Visit for F {
+    #[inline(always)]
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
+        self(s)
+    }
+}
+
+/// A fold's state with its visitor: when the marcher's function holds this by value, the
+/// state is one of its locals.
+struct Folded<S, F> {
+    state: S,
+    visit: F,
+}
+
+impl<S, F: FnMut(&mut S, &Sample) -> ControlFlow<()>> Visit for Folded<S, F> {
+    #[inline(always)]
+    fn visit(&mut self, s: &Sample) -> ControlFlow<()> {
+        (self.visit)(&mut self.state, s)
+    }
 }
 
 /// A volume prepared for ray-casting with one transfer function and parameters: the
@@ -285,49 +295,56 @@ impl<'a> Raycaster<'a> {
 
     /// Marches `ray` front to back, calling `visit` for each non-transparent sample until it
     /// returns `Break` or the ray leaves the volume.
-    pub fn march(&self, ray: &Ray, mut visit: impl FnMut(&Sample) -> ControlFlow<()>) {
-        by_storage!(self, march_typed(ray, &mut visit))
+    pub fn march(&self, ray: &Ray, visit: impl FnMut(&Sample) -> ControlFlow<()>) {
+        self.march_visit(ray, visit);
     }
 
-    /// Front-to-back compositing of `ray`'s samples up to this ray-caster's termination
-    /// threshold (the reference DVR's pixel): its colour, clamped to [0, 1], and its
-    /// accumulated opacity. The same result as [`Raycaster::march`] with a
-    /// [`FrontToBack`] visitor, with the accumulator kept in the march's own function.
-    pub fn composite(&self, ray: &Ray) -> ([f32; 3], f32) {
-        let acc = by_storage!(self, composite_typed(ray));
-        acc.finish()
-    }
-
-    /// [`Raycaster::composite`] for one storage type.
-    #[inline(always)]
-    fn composite_typed<T: simd::Gather, const SHADE: bool>(
+    /// [`Raycaster::march`] with the visitor's `state` handed to it at every sample and
+    /// returned at the end. The state is a local of the marcher's own function (the one
+    /// compiled for AVX2 where the CPU has it), so an accumulator such as [`FrontToBack`]
+    /// stays in registers instead of being loaded and stored through a reference at every
+    /// sample (the reference DVR 2–3 % faster).
+    pub fn march_fold<S>(
         &self,
-        data: &[T],
         ray: &Ray,
-    ) -> FrontToBack {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(avx2) = self.simd {
-            return simd::composite::<T, SHADE>(avx2, self, data, ray);
+        state: S,
+        visit: impl FnMut(&mut S, &Sample) -> ControlFlow<()>,
+    ) -> S {
+        self.march_visit(ray, Folded { state, visit }).state
+    }
+
+    /// The march for the voxel type of the storage (with its padding: the AVX2 gathers read a
+    /// few bytes past the last voxel of integer types) and for whether it shades: the one
+    /// place the eight monomorphic paths are chosen. `visit` comes back when the ray is done.
+    fn march_visit<V: Visit>(&self, ray: &Ray, visit: V) -> V {
+        match (self.volume.storage(), self.params.shading.is_some()) {
+            (Storage::U8(d), false) => self.march_typed::<u8, false, V>(d, ray, visit),
+            (Storage::U8(d), true) => self.march_typed::<u8, true, V>(d, ray, visit),
+            (Storage::U16(d), false) => self.march_typed::<u16, false, V>(d, ray, visit),
+            (Storage::U16(d), true) => self.march_typed::<u16, true, V>(d, ray, visit),
+            (Storage::I16(d), false) => self.march_typed::<i16, false, V>(d, ray, visit),
+            (Storage::I16(d), true) => self.march_typed::<i16, true, V>(d, ray, visit),
+            (Storage::F32(d), false) => self.march_typed::<f32, false, V>(d, ray, visit),
+            (Storage::F32(d), true) => self.march_typed::<f32, true, V>(d, ray, visit),
         }
-        let mut acc = FrontToBack::new(self.params.termination);
-        self.march_impl::<T, SHADE>(data, ray, &mut |s| acc.add(s), None);
-        acc
     }
 
     /// The whole march compiled for AVX2 where the CPU has it (the loop's bookkeeping in AVX2
-    /// encoding, the kernel called once per visible run), else the portable scalar path.
+    /// encoding, the kernel called once per visible run), else the portable scalar path. The
+    /// visitor goes in and comes back by value, so that it lives in that function.
     #[inline(always)]
-    fn march_typed<T: simd::Gather, const SHADE: bool>(
+    fn march_typed<T: simd::Gather, const SHADE: bool, V: Visit>(
         &self,
         data: &[T],
         ray: &Ray,
-        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
-    ) {
+        mut visit: V,
+    ) -> V {
         #[cfg(target_arch = "x86_64")]
         if let Some(avx2) = self.simd {
-            return simd::march::<T, SHADE>(avx2, self, data, ray, visit);
+            return simd::march::<T, SHADE, V>(avx2, self, data, ray, visit);
         }
-        self.march_impl::<T, SHADE>(data, ray, visit, None);
+        self.march_impl::<T, SHADE>(data, ray, &mut visit, None);
+        visit
     }
 
     #[inline(always)]
@@ -335,7 +352,7 @@ impl<'a> Raycaster<'a> {
         &self,
         data: &[T],
         ray: &Ray,
-        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+        visit: &mut impl Visit,
         simd: Option<simd::Avx2>,
     ) {
         let inv_dir = ray.dir.recip();
@@ -467,7 +484,7 @@ impl<'a> Raycaster<'a> {
         k: u32,
         len: f32,
         full: bool,
-        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+        visit: &mut impl Visit,
     ) -> bool {
         let v = self.step_value(data, m, k, len);
         if v.is_nan() {
@@ -501,7 +518,7 @@ impl<'a> Raycaster<'a> {
         len: f32,
         full: bool,
         e: &LutEntry,
-        visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
+        visit: &mut impl Visit,
     ) -> bool {
         let alpha = if full {
             e.alpha_step
@@ -528,17 +545,18 @@ impl<'a> Raycaster<'a> {
         } else {
             m.t_far
         };
-        visit(&Sample {
-            index: k,
-            t_start: m.t_in + k as f32 * m.step,
-            t_end,
-            len,
-            rgb,
-            alpha_unit: e.alpha_unit,
-            kappa: e.kappa,
-            alpha,
-        })
-        .is_break()
+        visit
+            .visit(&Sample {
+                index: k,
+                t_start: m.t_in + k as f32 * m.step,
+                t_end,
+                len,
+                rgb,
+                alpha_unit: e.alpha_unit,
+                kappa: e.kappa,
+                alpha,
+            })
+            .is_break()
     }
 
     /// Trilinear value at voxel-space position `p` (clamped to the grid).

@@ -18,12 +18,11 @@
 #![allow(unsafe_code)]
 
 use super::occupancy::{Layout, BLOCK};
-use super::{FrontToBack, Marching, Raycaster, Sample};
+use super::{Marching, Raycaster, Visit};
 use crate::camera::Ray;
 use crate::tf::{Lut, LUT_SIZE};
 use crate::volume::Voxel;
 use glam::Vec3;
-use std::ops::ControlFlow;
 
 /// Proof that this CPU runs AVX2: made only by [`Avx2::detect`].
 #[derive(Clone, Copy, Debug)]
@@ -40,50 +39,20 @@ impl Avx2 {
     }
 }
 
-/// [`Raycaster::composite`] on the AVX2 path: the march and the accumulator in one function
-/// compiled for AVX2, so that the accumulator lives in registers.
-#[cfg(target_arch = "x86_64")]
-#[inline]
-pub(super) fn composite<T: Gather, const SHADE: bool>(
-    avx2: Avx2,
-    rc: &Raycaster,
-    data: &[T],
-    ray: &Ray,
-) -> FrontToBack {
-    // SAFETY: the token proves that this CPU has AVX2.
-    unsafe { composite_avx2::<T, SHADE>(avx2, rc, data, ray) }
-}
-
-/// [`composite`].
-///
-/// # Safety
-/// The CPU must have AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn composite_avx2<T: Gather, const SHADE: bool>(
-    avx2: Avx2,
-    rc: &Raycaster,
-    data: &[T],
-    ray: &Ray,
-) -> FrontToBack {
-    let mut acc = FrontToBack::new(rc.params.termination);
-    rc.march_impl::<T, SHADE>(data, ray, &mut |s| acc.add(s), Some(avx2));
-    acc
-}
-
 /// [`Raycaster::march`]'s loop compiled with AVX2 enabled, so that the scalar steps and the
-/// bookkeeping around [`Lanes::classify`] use the same instruction set.
+/// bookkeeping around [`Lanes::classify`] use the same instruction set; the visitor (with a
+/// fold's state) is a local of that function, kept in registers where it fits.
 #[cfg(target_arch = "x86_64")]
 #[inline]
-pub(super) fn march<T: Gather, const SHADE: bool>(
+pub(super) fn march<T: Gather, const SHADE: bool, V: Visit>(
     avx2: Avx2,
     rc: &Raycaster,
     data: &[T],
     ray: &Ray,
-    visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
-) {
+    visit: V,
+) -> V {
     // SAFETY: the token proves that this CPU has AVX2.
-    unsafe { march_avx2::<T, SHADE>(avx2, rc, data, ray, visit) }
+    unsafe { march_avx2::<T, SHADE, V>(avx2, rc, data, ray, visit) }
 }
 
 /// [`march`].
@@ -92,14 +61,15 @@ pub(super) fn march<T: Gather, const SHADE: bool>(
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn march_avx2<T: Gather, const SHADE: bool>(
+unsafe fn march_avx2<T: Gather, const SHADE: bool, V: Visit>(
     avx2: Avx2,
     rc: &Raycaster,
     data: &[T],
     ray: &Ray,
-    visit: &mut impl FnMut(&Sample) -> ControlFlow<()>,
-) {
-    rc.march_impl::<T, SHADE>(data, ray, visit, Some(avx2));
+    mut visit: V,
+) -> V {
+    rc.march_impl::<T, SHADE>(data, ray, &mut visit, Some(avx2));
+    visit
 }
 
 /// Table entries per bit of the visibility map (`LUT_SIZE / 256`), and its log2.
