@@ -5,12 +5,13 @@
 //! frustum. Its projection into the generation image is a line segment, walked pixel by pixel
 //! with a 2D DDA (Amanatides–Woo) in the segment's own parameter `u`, so pixels come in ray
 //! order and a step costs no division; inverse depth is affine in `u` (perspective-correct
-//! interpolation), so each pixel's depth span is known without solving for the ray. 8×8 tiles
+//! interpolation), so each pixel's depth span is known without solving for the ray (the depth
+//! bins are uniform in inverse depth, so a crossing's bin is a multiply-add away). 8×8 tiles
 //! whose depth range that span misses are leapt (an empty one with the square of empty tiles
 //! around it), and pixels whose 64-bin depth-occupancy mask misses it are passed untouched.
 //! Where a pixel's list is searched, the exact ray parameters of its crossings are solved on
-//! the projective line, the supersegments overlapping the span found by binary search and
-//! composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
+//! the projective line, the supersegments overlapping the span found by a scan (short
+//! lists) or a binary search and composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
 //! the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
 //! generation view direction (constant depth) take the one supersegment that contains them.
 
