@@ -14,6 +14,7 @@ pub(crate) const TILE: u32 = 16;
 
 /// Renders `camera`'s view at `width × height`; background black.
 pub fn render(raycaster: &Raycaster, camera: &Camera, width: u32, height: u32) -> Image {
+    raycaster.prepare(width as usize * height as usize);
     let frame = camera.frame(width, height);
     let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j).0);
     Image::from_pixels(width, height, pixels).unwrap_or_else(|| Image::new(width, height))
@@ -28,6 +29,7 @@ pub fn render_with_opacity(
     width: u32,
     height: u32,
 ) -> (Image, Vec<f32>) {
+    raycaster.prepare(width as usize * height as usize);
     let frame = camera.frame(width, height);
     let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j));
     let (rgb, opacity): (Vec<[f32; 3]>, Vec<f32>) = pixels.into_iter().unzip();

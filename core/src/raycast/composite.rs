@@ -113,6 +113,7 @@ mod tests {
             // Opaque enough that some rays stop early.
             let tf = TransferFunction::constant(1.0, hi, [0.8, 0.6, 0.4, 0.3]);
             let rc = Raycaster::new(volume, &tf, RaycastParams::default()).unwrap();
+            rc.prepare(usize::MAX);
             let cam = Camera::default_for_box(&volume.world_box()).orbit(35.0, 20.0, 1.0);
             let frame = cam.frame(40, 40);
             for rc in [&rc, &rc.clone().without_simd()] {

@@ -149,7 +149,7 @@ impl<'a, T: Gather> Lanes<'a, T> {
             && rc.lut.entries().len() == LUT_SIZE;
         // `Occupancy::new` made the layout (cells of the volume's grid, shifts, `i32` word
         // indices) and the words for every cell of these dimensions.
-        let occupancy = rc.occupancy.as_ref().and_then(|o| o.for_dims(dims));
+        let occupancy = rc.occupancy().and_then(|o| o.for_dims(dims));
         fits.then_some(Self {
             occupancy,
             _avx2: avx2,

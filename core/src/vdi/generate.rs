@@ -84,6 +84,7 @@ pub fn generate_into(
     // memory): grown by doubling instead, each growth would copy it and, for a while, hold
     // both copies. A reservation the allocator refuses (an estimate beyond what fits) is
     // left to growth.
+    raycaster.prepare((r as usize).pow(2));
     let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
     let _ = vdi.supersegments.try_reserve(estimate);
     let band = r.div_ceil(BANDS);
