@@ -30,14 +30,21 @@ impl FrontToBack {
         }
     }
 
+    /// Adds colour `rgb` of opacity `alpha` behind what is there (no termination test: the
+    /// VDI walk, which composites supersegments, tests its own).
+    #[inline(always)]
+    pub fn blend(&mut self, alpha: f32, rgb: [f32; 3]) {
+        let w = self.transmittance * alpha;
+        for (c, s) in self.color.iter_mut().zip(rgb) {
+            *c += w * s;
+        }
+        self.transmittance *= 1.0 - alpha;
+    }
+
     /// Adds `s` behind what is there; `Break` once the ray is opaque enough to stop.
     #[inline(always)]
     pub fn add(&mut self, s: &Sample) -> ControlFlow<()> {
-        let w = self.transmittance * s.alpha;
-        for (c, s) in self.color.iter_mut().zip(s.rgb) {
-            *c += w * s;
-        }
-        self.transmittance *= 1.0 - s.alpha;
+        self.blend(s.alpha, s.rgb);
         if 1.0 - self.transmittance >= self.termination {
             ControlFlow::Break(())
         } else {

@@ -208,8 +208,6 @@ pub struct Raycaster<'a> {
     /// [`Raycaster::prepare`] for a render large enough to repay it, only with the SIMD path
     /// and empty-space skipping (`None` inside: none can be built for this volume).
     occupancy: OnceLock<Option<Occupancy>>,
-    /// Whether [`Raycaster::prepare`] may build the occupancy bits.
-    occupancy_wanted: bool,
     /// Sample visible cells eight steps at a time ([`simd`]) with this CPU's AVX2.
     simd: Option<simd::Avx2>,
 }
@@ -232,7 +230,6 @@ impl<'a> Raycaster<'a> {
         let simd = simd::Avx2::detect();
         Ok(Self {
             occupancy: OnceLock::new(),
-            occupancy_wanted: simd.is_some() && params.empty_space_skipping,
             volume,
             lut,
             grid,
@@ -254,7 +251,6 @@ impl<'a> Raycaster<'a> {
     /// tested against; also for measuring what the SIMD path buys).
     pub fn without_simd(mut self) -> Self {
         self.simd = None;
-        self.occupancy_wanted = false;
         self.occupancy = OnceLock::new();
         self
     }
@@ -272,7 +268,8 @@ impl<'a> Raycaster<'a> {
         let dims = self.volume.dims();
         let voxels = dims.iter().product::<usize>();
         let longest = dims.iter().copied().max().unwrap_or(0);
-        if self.occupancy_wanted && rays.saturating_mul(longest) >= voxels {
+        let wanted = self.simd.is_some() && self.params.empty_space_skipping;
+        if wanted && rays.saturating_mul(longest) >= voxels {
             self.occupancy
                 .get_or_init(|| Occupancy::new(self.volume, &self.lut, &self.grid));
         }

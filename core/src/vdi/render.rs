@@ -11,8 +11,8 @@
 //! around it), and pixels whose 64-bin depth-occupancy mask misses it are passed untouched.
 //! Where a pixel's list is searched, the exact ray parameters of its crossings are solved on
 //! the projective line, the supersegments overlapping the span found by a scan (short
-//! lists) or a binary search and composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ` the world length of the ray inside
-//! the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
+//! lists) or a binary search and composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ`
+//! the world length of the ray inside the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
 //! generation view direction (constant depth) take the one supersegment that contains them.
 
 use super::{Supersegment, Vdi};
@@ -20,7 +20,7 @@ use crate::camera::{Camera, Ray, ViewFrame};
 use crate::dvr::render_tiles;
 use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
-use crate::raycast::chessboard_distance;
+use crate::raycast::{chessboard_distance, FrontToBack};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -269,12 +269,11 @@ impl<'a> Walker<'a> {
     /// Composited colour along `ray`.
     fn integrate(&self, ray: &Ray, termination: f32) -> [f32; 3] {
         let mut acc = Accum {
-            color: [0.0; 3],
-            transmittance: 1.0,
+            ray: FrontToBack::new(termination),
             threshold: 1.0 - termination,
         };
         self.walk(ray, &mut acc);
-        acc.color.map(|c| c.clamp(0.0, 1.0))
+        acc.ray.finish().0
     }
 
     fn walk(&self, ray: &Ray, acc: &mut Accum) {
@@ -339,10 +338,9 @@ impl<'a> Walker<'a> {
         // The projection is walked as a straight segment `P(u) = P0 + u·(P1 − P0)`, u in
         // [0, 1], pixel boundaries met at `u = (b − p0)/(p1 − p0)`: no division per pixel.
         // Inverse depth is affine in u (perspective-correct interpolation), which gives the
-        // depth at each crossing for the occupancy test; the exact ray parameter `t` of a
-        // crossing (its own division) is solved only where a list is composited.
-        // Inverse depth along the segment: affine in u.
-        let (w0, w1) = (1.0 / z.at(t0), 1.0 / z.at(t1));
+        // depth bins at each crossing for the occupancy test; the exact ray parameter `t` of
+        // a crossing (its own division) is solved only where a list is composited.
+        let (w0, w1) = (inverse_depth(z.at(t0)), inverse_depth(z.at(t1)));
         let dw = w1 - w0;
         let axis = |p0: f32, p1: f32| -> Axis {
             // A projection shorter than this (pixels) is a point: the ray passes through the
@@ -589,10 +587,9 @@ impl Axis {
     }
 }
 
-/// Front-to-back accumulator of one ray.
+/// Front-to-back accumulator of one ray: the DVR's ([`FrontToBack`]), fed supersegments.
 struct Accum {
-    color: [f32; 3],
-    transmittance: f32,
+    ray: FrontToBack,
     /// Stop once transmittance falls to this.
     threshold: f32,
 }
@@ -604,14 +601,9 @@ impl Accum {
     fn add(&mut self, s: &Supersegment, kappa: f32, len: f32) -> bool {
         if len > 0.0 && s.alpha > 0.0 {
             // â = 1 gives κ = ∞ and α' = 1.
-            let alpha = one_minus_exp_neg(len * kappa);
-            let w = self.transmittance * alpha;
-            for k in 0..3 {
-                self.color[k] += w * s.color[k];
-            }
-            self.transmittance *= 1.0 - alpha;
+            self.ray.blend(one_minus_exp_neg(len * kappa), s.color);
         }
-        self.transmittance <= self.threshold
+        self.ray.transmittance <= self.threshold
     }
 }
 
