@@ -43,9 +43,13 @@ pub const DEFAULT_STEP: f32 = 0.5;
 #[cfg(target_arch = "x86_64")]
 const SIMD_MIN_RUN: u32 = 3;
 /// Most steps of a visible run classified before the first of them is visited (a multiple of
-/// eight, below 64).
+/// eight, at most 64: the bits of [`simd::Lanes::classify`]'s mask). 64 rather than 32: 2–4 %
+/// faster on the shared volumes (teapot, hydrogen, neghip and the stent from 10°, 768²), the
+/// longer batches of gathers outweighing the steps classified past a ray's termination.
 #[cfg(target_arch = "x86_64")]
-const SIMD_CHUNK: usize = 32;
+const SIMD_CHUNK: usize = 64;
+#[cfg(target_arch = "x86_64")]
+const _: () = assert!(SIMD_CHUNK % 8 == 0 && SIMD_CHUNK <= 64);
 /// Default early-ray-termination threshold on accumulated opacity.
 pub const DEFAULT_TERMINATION: f32 = 0.99;
 /// Default early termination of VDI generation rays: off (chosen from the `accuracy` rows in
