@@ -33,7 +33,9 @@ pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: 
 
 /// Side, in generation pixels, of the tiles the walk skips when they hold no supersegment
 /// (the 2D analogue of macro-cell empty-space skipping).
-pub const SKIP_TILE: i64 = 8;
+pub const SKIP_TILE: i64 = 1 << SKIP_SHIFT;
+/// `log2(SKIP_TILE)`.
+const SKIP_SHIFT: i64 = 3;
 
 /// Depth range `[z_min, z_max]` of the supersegments in each `SKIP_TILE × SKIP_TILE` tile of
 /// the generation image, row-major, `⌈r / SKIP_TILE⌉²` entries; `[f32::MAX, −f32::MAX]` for an
@@ -116,8 +118,12 @@ impl DepthBins {
     /// The bin holding inverse depth `w`, clamped to the bins (NaN goes to bin 0).
     #[inline]
     fn bin(self, w: f32) -> u32 {
-        // `as` saturates: negative and NaN give 0.
-        (((w - self.w0) * self.per_unit) as u32).min(DEPTH_BINS - 1)
+        // Clamped as a float first (`max` takes NaN to 0), so the conversion needs no
+        // saturation of its own.
+        let x = ((w - self.w0) * self.per_unit)
+            .max(0.0)
+            .min((DEPTH_BINS - 1) as f32);
+        x as u32
     }
 
     /// The bits of the bins that the inverse depths `[wa, wb]` (either order) touch.
@@ -405,12 +411,14 @@ impl<'a> Walker<'a> {
         let mut walking = -1i64;
         for _ in 0..(2 * self.r + 4) {
             let (ix, iy) = (ax.cell, ay.cell);
-            let tile = ix / SKIP_TILE + self.tables.tiles_x * (iy / SKIP_TILE);
+            // Cells are never negative here (the walk stops when one leaves the image), so
+            // a shift is the division.
+            let tile = (ix >> SKIP_SHIFT) + self.tables.tiles_x * (iy >> SKIP_SHIFT);
             if tile != walking {
                 // Entering a tile: where does the ray leave it, and does its depth over the
                 // tile meet the tile's supersegments? An empty tile stands for the square of
                 // empty tiles around it ([`WalkTables::tile_reach`]), left in one jump.
-                let (x0t, y0t) = (ix / SKIP_TILE * SKIP_TILE, iy / SKIP_TILE * SKIP_TILE);
+                let (x0t, y0t) = (ix & !(SKIP_TILE - 1), iy & !(SKIP_TILE - 1));
                 let beyond =
                     (i64::from(self.tables.tile_reach[tile as usize]) - 1).max(0) * SKIP_TILE;
                 let (xs, ys) = (
@@ -418,7 +426,7 @@ impl<'a> Walker<'a> {
                     [y0t - beyond, y0t + SKIP_TILE + beyond],
                 );
                 let (ex, ey) = (ax.exit(xs), ay.exit(ys));
-                let u_exit = ex.min(ey).min(1.0).max(u);
+                let u_exit = max(min(min(ex, ey), 1.0), u);
                 let w_exit = w_at(u_exit);
                 let exit_error = if ex <= ey {
                     ax.depth_error
@@ -459,7 +467,9 @@ impl<'a> Walker<'a> {
                     continue;
                 }
             }
-            let u_next = ux.min(uy).min(1.0).max(u);
+            // The crossings' u are never NaN (`Axis::at`: finite, or +∞ on an axis that does
+            // not step), so comparisons do for `f32::min`/`max`.
+            let u_next = max(min(min(ux, uy), 1.0), u);
             let w_next = w_at(u_next);
             let p = (ix + self.r * iy) as usize;
             let exit_error = if ux <= uy {
@@ -501,24 +511,49 @@ impl<'a> Walker<'a> {
             if u_next >= 1.0 {
                 return;
             }
+            // Only the axis stepped can have left the image.
             if ux <= uy {
                 enter = Crossing::X(ix + ax.ahead);
                 enter_error = ax.depth_error;
                 ax.cell += ax.step;
                 ux = ax.next();
+                if !(0..self.r).contains(&ax.cell) {
+                    return;
+                }
             } else {
                 enter = Crossing::Y(iy + ay.ahead);
                 enter_error = ay.depth_error;
                 ay.cell += ay.step;
                 uy = ay.next();
-            }
-            if !(0..self.r).contains(&ax.cell) || !(0..self.r).contains(&ay.cell) {
-                return;
+                if !(0..self.r).contains(&ay.cell) {
+                    return;
+                }
             }
             u = u_next;
             w_u = w_next;
             enter_bins = exit_bins;
         }
+    }
+}
+
+/// The smaller of `a` and `b`, for operands that are never NaN (one comparison, where
+/// `f32::min` also handles NaN).
+#[inline]
+fn min(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The larger of `a` and `b`, for operands that are never NaN.
+#[inline]
+fn max(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
     }
 }
 
