@@ -402,6 +402,10 @@ impl<'a> Walker<'a> {
         let mut u = 0.0f32;
         let mut w_u = w0;
         let mut t_done = t0;
+        // Whether the pixel being entered follows one composited up to the crossing between
+        // them: `t_done` is then at or past that crossing's `t`, so `t_of(enter).max(t_done)`
+        // is `t_done`, without the crossing's division.
+        let mut entered_solved = false;
         let mut enter = Crossing::Start;
         // The depth error of the crossing entered by, and the bins it may lie in.
         let mut enter_error = 0.0f32;
@@ -463,6 +467,7 @@ impl<'a> Walker<'a> {
                     u = u_exit;
                     w_u = w_exit;
                     enter_bins = bins.around(w_u, rounding + enter_error);
+                    entered_solved = false;
                     (ux, uy) = (ax.next(), ay.next());
                     continue;
                 }
@@ -490,9 +495,14 @@ impl<'a> Walker<'a> {
                 };
                 // Never before what was composited: where two crossings are nearly
                 // simultaneous their order in u and in t can differ by rounding.
-                let ta = t_of(enter).max(t_done);
+                let ta = if entered_solved {
+                    t_done
+                } else {
+                    t_of(enter).max(t_done)
+                };
                 let tb = exit.max(ta);
                 t_done = tb;
+                entered_solved = true;
                 let offsets = self.vdi.offsets();
                 let range = offsets[p] as usize..offsets[p + 1] as usize;
                 if tb > ta
@@ -507,6 +517,8 @@ impl<'a> Walker<'a> {
                 {
                     return;
                 }
+            } else {
+                entered_solved = false;
             }
             if u_next >= 1.0 {
                 return;
