@@ -430,7 +430,7 @@ impl<'a> Walker<'a> {
                     [y0t - beyond, y0t + SKIP_TILE + beyond],
                 );
                 let (ex, ey) = (ax.exit(xs), ay.exit(ys));
-                let u_exit = max(min(min(ex, ey), 1.0), u);
+                let u_exit = greater(lesser(lesser(ex, ey), 1.0), u);
                 let w_exit = w_at(u_exit);
                 let exit_error = if ex <= ey {
                     ax.depth_error
@@ -474,7 +474,7 @@ impl<'a> Walker<'a> {
             }
             // The crossings' u are never NaN (`Axis::at`: finite, or +∞ on an axis that does
             // not step), so comparisons do for `f32::min`/`max`.
-            let u_next = max(min(min(ux, uy), 1.0), u);
+            let u_next = greater(lesser(lesser(ux, uy), 1.0), u);
             let w_next = w_at(u_next);
             let p = (ix + self.r * iy) as usize;
             let exit_error = if ux <= uy {
@@ -551,7 +551,7 @@ impl<'a> Walker<'a> {
 /// The smaller of `a` and `b`, for operands that are never NaN (one comparison, where
 /// `f32::min` also handles NaN).
 #[inline]
-fn min(a: f32, b: f32) -> f32 {
+fn lesser(a: f32, b: f32) -> f32 {
     if a < b {
         a
     } else {
@@ -561,7 +561,7 @@ fn min(a: f32, b: f32) -> f32 {
 
 /// The larger of `a` and `b`, for operands that are never NaN.
 #[inline]
-fn max(a: f32, b: f32) -> f32 {
+fn greater(a: f32, b: f32) -> f32 {
     if a > b {
         a
     } else {
