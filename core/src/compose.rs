@@ -18,6 +18,7 @@
 
 use crate::camera::Camera;
 use crate::image::Image;
+use crate::raycast::FrontToBack;
 use crate::vdi::{Supersegment, Vdi, VdiMeta};
 use crate::volume::Aabb;
 use rayon::prelude::*;
@@ -241,19 +242,13 @@ pub fn compose_frames(
             }
         }
         order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let (mut color, mut transmittance) = ([0.0f32; 3], 1.0f32);
+        // Every frame is composed: no termination.
+        let mut acc = FrontToBack::new(1.0);
         for &(_, k) in &order {
             let f = &frames[k];
-            let c = f.image.pixels()[p];
-            for (acc, c) in color.iter_mut().zip(c) {
-                *acc += transmittance * c;
-            }
-            transmittance *= 1.0 - f.opacity[p];
+            acc.over(f.image.pixels()[p], f.opacity[p]);
         }
-        (
-            color.map(|c| c.clamp(0.0, 1.0)),
-            (1.0 - transmittance).clamp(0.0, 1.0),
-        )
+        acc.finish()
     });
     let (rgb, opacity): (Vec<[f32; 3]>, Vec<f32>) = pixels.into_iter().unzip();
     let image = Image::from_pixels(w, h, rgb).unwrap_or_else(|| Image::new(w, h));

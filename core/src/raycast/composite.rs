@@ -1,6 +1,8 @@
 //! Front-to-back compositing of one ray's samples, emission–absorption (DESIGN.md, "Direct
 //! volume rendering"): `C += T·α·c`, `T *= 1 − α`, stopping once the accumulated opacity
-//! `1 − T` reaches the termination threshold. The reference DVR's per-ray work.
+//! `1 − T` reaches the termination threshold. The reference DVR's per-ray work; the VDI walk
+//! blends supersegments with it, and the composition of ranks' frames layers premultiplied
+//! colours with [`FrontToBack::over`].
 //!
 //! The DVR hands it to [`super::Raycaster::march_fold`] as the march's state, so that the
 //! colour and transmittance stay in registers across the samples instead of going through
@@ -37,6 +39,16 @@ impl FrontToBack {
         let w = self.transmittance * alpha;
         for (c, s) in self.color.iter_mut().zip(rgb) {
             *c += w * s;
+        }
+        self.transmittance *= 1.0 - alpha;
+    }
+
+    /// Adds `premultiplied` colour (already weighted by its own opacity `alpha`) behind what
+    /// is there: the "over" of premultiplied layers, as the ranks' frames are composed.
+    #[inline(always)]
+    pub fn over(&mut self, premultiplied: [f32; 3], alpha: f32) {
+        for (c, s) in self.color.iter_mut().zip(premultiplied) {
+            *c += self.transmittance * s;
         }
         self.transmittance *= 1.0 - alpha;
     }
@@ -91,6 +103,15 @@ mod tests {
         assert!(acc.add(&sample(0.5, [0.0, 1.0, 1.0])).is_continue());
         let (c, a) = acc.finish();
         let expected = [0.25, 0.25 * 0.5 + 0.75 * 0.5, 0.75 * 0.5];
+        for k in 0..3 {
+            assert!((c[k] - expected[k]).abs() < 1e-6, "{c:?} vs {expected:?}");
+        }
+        assert!((a - (1.0 - 0.75 * 0.5)).abs() < 1e-6);
+        // The same two layers premultiplied, laid over each other.
+        let mut layers = FrontToBack::new(1.0);
+        layers.over([0.25, 0.125, 0.0], 0.25);
+        layers.over([0.0, 0.5, 0.5], 0.5);
+        let (c, a) = layers.finish();
         for k in 0..3 {
             assert!((c[k] - expected[k]).abs() < 1e-6, "{c:?} vs {expected:?}");
         }

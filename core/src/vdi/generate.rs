@@ -80,11 +80,12 @@ pub fn generate_into(
     vdi.offsets.reserve((r as usize).pow(2) + 1);
     vdi.offsets.push(0);
     vdi.supersegments.clear();
+    // The ray-caster's occupancy bits, where r² rays repay them (before the estimate's rays).
+    raycaster.prepare((r as usize).pow(2));
     // Room for the whole flat array up front (a generous guess; pages not written cost no
     // memory): grown by doubling instead, each growth would copy it and, for a while, hold
     // both copies. A reservation the allocator refuses (an estimate beyond what fits) is
     // left to growth.
-    raycaster.prepare((r as usize).pow(2));
     let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
     let _ = vdi.supersegments.try_reserve(estimate);
     let band = r.div_ceil(BANDS);

@@ -12,8 +12,9 @@
 //! Where a pixel's list is searched, the exact ray parameters of its crossings are solved on
 //! the projective line, the supersegments overlapping the span found by a scan (short
 //! lists) or a binary search and composited front to back with `α' = 1 − (1 − â)^ℓ`, `ℓ`
-//! the world length of the ray inside the frustum. Views from behind traverse the lists backwards; rays perpendicular to the
-//! generation view direction (constant depth) take the one supersegment that contains them.
+//! the world length of the ray inside the frustum. Views from behind traverse the lists
+//! backwards; rays perpendicular to the generation view direction (constant depth) take the
+//! one supersegment that contains them.
 
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
@@ -659,8 +660,8 @@ impl Accum {
 const LINEAR_SEARCH_MAX: usize = 32;
 
 /// Composites the supersegments of one pixel list met by the ray over `[ta, tb]`, where the
-/// generation depth is `z(t)`; `keys` holds the list's `[z_end, −ln(1 − â)]`. Returns true when the ray
-/// is done.
+/// generation depth is `z(t)`; `keys` holds the list's `[z_end, −ln(1 − â)]`. Returns true
+/// when the ray is done.
 #[inline]
 fn composite_span(
     list: &[Supersegment],
