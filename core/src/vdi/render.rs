@@ -283,7 +283,9 @@ impl<'a> Walker<'a> {
         acc.ray.finish().0
     }
 
-    fn walk(&self, ray: &Ray, acc: &mut Accum) {
+    /// The part of `ray` the walk covers: clipped to the volume box and to the generation
+    /// frustum and projected into the generation image; `None` where nothing is left.
+    fn segment(&self, ray: &Ray) -> Option<Segment> {
         let g = &self.gen;
         let (mut t0, mut t1) = self
             .vdi
@@ -331,11 +333,11 @@ impl<'a> Walker<'a> {
             } else if p.f1 < 0.0 {
                 t1 = t1.min(-p.f0 / p.f1);
             } else if p.f0 < 0.0 {
-                return;
+                return None;
             }
         }
         if t1.is_nan() || t0.is_nan() || t1 <= t0 {
-            return;
+            return None;
         }
         let r = self.r as f32;
         // Pixel coordinates: px = (x/(z·tx) + 1)·r/2, py = (1 − y/(z·ty))·r/2.
@@ -378,27 +380,56 @@ impl<'a> Walker<'a> {
                 depth_error: (1e-5 * (r + 1.0) * inv_d.abs()).min(1.0) * dw.abs(),
             }
         };
-        let (mut ax, mut ay) = (axis(px0, px1), axis(py0, py1));
-        // Ray parameter where px (or py) reaches pixel boundary `b`, within [t0, t1].
-        let cross_x = |b: i64| {
-            let s = (2.0 * b as f32 / r - 1.0) * tx;
-            ((s * z.f0 - x.f0) / (x.f1 - s * z.f1)).clamp(t0, t1)
-        };
-        let cross_y = |b: i64| {
-            let s = (1.0 - 2.0 * b as f32 / r) * ty;
-            ((s * z.f0 - y.f0) / (y.f1 - s * z.f1)).clamp(t0, t1)
-        };
+        Some(Segment {
+            x,
+            y,
+            z,
+            t0,
+            t1,
+            px0,
+            py0,
+            px1,
+            py1,
+            w0,
+            w1,
+            ax: axis(px0, px1),
+            ay: axis(py0, py1),
+            rounding: 1e-4 * w0.abs().max(w1.abs()),
+            r,
+            tx,
+            ty,
+        })
+    }
+
+    fn walk(&self, ray: &Ray, acc: &mut Accum) {
+        if let Some(seg) = self.segment(ray) {
+            self.walk_segment(&seg, acc);
+        }
+    }
+
+    /// Walks `seg` pixel by pixel (the 2-D DDA), compositing into `acc`.
+    fn walk_segment(&self, seg: &Segment, acc: &mut Accum) {
+        let Segment {
+            z,
+            t0,
+            t1,
+            px0,
+            py0,
+            px1,
+            py1,
+            w0,
+            rounding,
+            ..
+        } = *seg;
+        let (mut ax, mut ay) = (seg.ax, seg.ay);
+        let cross_x = |b: i64| seg.cross_x(b);
+        let cross_y = |b: i64| seg.cross_y(b);
         let t_of = |c: Crossing| match c {
             Crossing::Start => t0,
             Crossing::X(b) => cross_x(b),
             Crossing::Y(b) => cross_y(b),
         };
-        // Inverse depth at u, and a margin covering the rounding of inverse depths so
-        // computed against those of `t` (the occupancy test must not skip a list the exact
-        // span meets): relative rounding, plus, at each crossing, how far the rounding of the
-        // pixel coordinates moves it ([`Axis::depth_error`]).
-        let w_at = |u: f32| if u >= 1.0 { w1 } else { w0 + dw * u };
-        let rounding = 1e-4 * w0.abs().max(w1.abs());
+        let w_at = |u: f32| seg.w_at(u);
         let bins = self.tables.bins;
         let mut u = 0.0f32;
         let mut w_u = w0;
@@ -570,6 +601,65 @@ fn greater(a: f32, b: f32) -> f32 {
     }
 }
 
+/// A ray of the new camera as the walk sees it ([`Walker::segment`]): its generation
+/// eye-space coordinates, linear in the ray parameter `t`, over `[t0, t1]` (clipped to the
+/// volume box and the generation frustum), and its projection into the generation image,
+/// `P(u) = P0 + u·(P1 − P0)` for `u` in [0, 1], with the inverse depth at both ends.
+#[derive(Clone, Copy)]
+struct Segment {
+    x: Lin,
+    y: Lin,
+    z: Lin,
+    t0: f32,
+    t1: f32,
+    /// The projection's ends, generation pixels.
+    px0: f32,
+    py0: f32,
+    px1: f32,
+    py1: f32,
+    /// Inverse depth at `t0` and `t1`.
+    w0: f32,
+    w1: f32,
+    ax: Axis,
+    ay: Axis,
+    /// The relative rounding of inverse depths computed in `u` against those of `t` (the
+    /// occupancy test's margin, with the axes' [`Axis::depth_error`]).
+    rounding: f32,
+    /// The generation image's resolution and `tan` of its half field of view.
+    r: f32,
+    tx: f32,
+    ty: f32,
+}
+
+impl Segment {
+    /// Ray parameter where px reaches pixel boundary `b`, within `[t0, t1]`.
+    #[inline]
+    fn cross_x(&self, b: i64) -> f32 {
+        let s = (2.0 * b as f32 / self.r - 1.0) * self.tx;
+        ((s * self.z.f0 - self.x.f0) / (self.x.f1 - s * self.z.f1)).clamp(self.t0, self.t1)
+    }
+
+    /// Ray parameter where py reaches pixel boundary `b`, within `[t0, t1]`.
+    #[inline]
+    fn cross_y(&self, b: i64) -> f32 {
+        let s = (1.0 - 2.0 * b as f32 / self.r) * self.ty;
+        ((s * self.z.f0 - self.y.f0) / (self.y.f1 - s * self.z.f1)).clamp(self.t0, self.t1)
+    }
+
+    /// Inverse depth at `u` (perspective-correct: affine in `u`). With
+    /// [`Segment::rounding`] and the axes' [`Axis::depth_error`] as margins, the depth bins
+    /// of a crossing found in `u` cover those of its exact `t` (the occupancy test must not
+    /// skip a list the exact span meets).
+    #[inline]
+    fn w_at(&self, u: f32) -> f32 {
+        if u >= 1.0 {
+            self.w1
+        } else {
+            self.w0 + (self.w1 - self.w0) * u
+        }
+    }
+}
+
 /// Where a pixel of the walk was entered: the ray's start, or a pixel boundary (column `b`
 /// for `X`, row `b` for `Y`) whose ray parameter is solved only if the pixel is composited.
 #[derive(Clone, Copy)]
@@ -581,6 +671,7 @@ enum Crossing {
 
 /// One axis of the walk over the projected segment: pixel boundaries along it are met at
 /// `u = (b − p0) / (p1 − p0)`.
+#[derive(Clone, Copy)]
 struct Axis {
     /// Where the segment starts, pixels.
     p0: f32,
