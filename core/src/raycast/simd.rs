@@ -30,7 +30,7 @@ pub(crate) struct Avx2(());
 
 impl Avx2 {
     /// The token, where the CPU has AVX2 (checked at run time).
-    pub(super) fn detect() -> Option<Self> {
+    pub(crate) fn detect() -> Option<Self> {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             return Some(Self(()));

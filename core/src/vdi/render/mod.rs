@@ -16,12 +16,14 @@
 //! backwards; rays perpendicular to the generation view direction (constant depth) take the
 //! one supersegment that contains them.
 
+mod packet;
+
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
-use crate::dvr::render_tiles;
+use crate::dvr::{render_blocks, render_tiles};
 use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
-use crate::raycast::{chessboard_distance, FrontToBack};
+use crate::raycast::{chessboard_distance, Avx2, FrontToBack};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -236,6 +238,8 @@ pub struct Walker<'a> {
     gen: ViewFrame,
     r: i64,
     tables: &'a WalkTables,
+    /// Proof of AVX2, where the CPU has it: packets' lanes are then tested eight at once.
+    avx2: Option<Avx2>,
 }
 
 /// A linear function `f0 + f1·t` of the ray parameter.
@@ -261,6 +265,7 @@ impl<'a> Walker<'a> {
             gen: vdi.meta().camera.frame(r, r),
             r: i64::from(r),
             tables: vdi.walk_tables(),
+            avx2: Avx2::detect(),
         }
     }
 
@@ -268,17 +273,19 @@ impl<'a> Walker<'a> {
     /// opacity `termination` (in (0, 1]); background black.
     pub fn render(&self, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
         let frame = camera.frame(width, height);
-        render_tiles(&frame, |i, j| {
-            self.integrate(&frame.pixel_ray(i, j), termination)
+        if std::env::var("PACKET").is_ok_and(|v| v == "1") {
+            return render_tiles(&frame, |i, j| {
+                self.integrate(&frame.pixel_ray(i, j), termination)
+            });
+        }
+        render_blocks(&frame, (packet::PACKET_W, packet::PACKET_H), |i0, j0, out| {
+            self.integrate_packet(&frame, (i0, j0), termination, out)
         })
     }
 
     /// Composited colour along `ray`.
     fn integrate(&self, ray: &Ray, termination: f32) -> [f32; 3] {
-        let mut acc = Accum {
-            ray: FrontToBack::new(termination),
-            threshold: 1.0 - termination,
-        };
+        let mut acc = Accum::new(termination);
         self.walk(ray, &mut acc);
         acc.ray.finish().0
     }
@@ -727,6 +734,7 @@ impl Axis {
 }
 
 /// Front-to-back accumulator of one ray: the DVR's ([`FrontToBack`]), fed supersegments.
+#[derive(Clone, Copy)]
 struct Accum {
     ray: FrontToBack,
     /// Stop once transmittance falls to this.
@@ -734,6 +742,14 @@ struct Accum {
 }
 
 impl Accum {
+    /// An empty ray that stops at accumulated opacity `termination`.
+    fn new(termination: f32) -> Self {
+        Self {
+            ray: FrontToBack::new(termination),
+            threshold: 1.0 - termination,
+        }
+    }
+
     /// Adds a frustum of extinction `kappa` = `−ln(1 − â)` passed over world length `len`;
     /// returns true when the ray is done.
     #[inline]
