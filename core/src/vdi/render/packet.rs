@@ -34,8 +34,8 @@ type I = [i32; LANES];
 
 /// The lanes of a packet as arrays (structure of arrays) for the per-pixel tests; the
 /// exact spans use the segments themselves.
-struct Lanes {
-    segs: [Option<Segment>; LANES],
+struct Lanes<'a> {
+    segs: &'a [Option<Segment>; LANES],
     /// Lanes with a segment and not yet done: −1 (all bits set), else 0.
     live: I,
     /// Outer axis: where the projection starts, `1/(p1 − p0)`, 1 when stepping up.
@@ -185,7 +185,7 @@ impl Walker<'_> {
         let si = if si == 0 { 1 } else { si };
         let r = self.r;
         let mut l = Lanes {
-            segs: *segs,
+            segs,
             live: [0; LANES],
             o_p0: [0.0; LANES],
             o_inv: [0.0; LANES],
@@ -369,7 +369,7 @@ impl Walker<'_> {
 /// current row: bit `k` set where lane `k` crosses the pixel and the depth bins of its span
 /// there meet the occupancy (the single walk's test, [`super::between`]).
 #[inline(always)]
-fn pixel_tests(l: &Lanes, row: &Row, c: i32, kk: i32, occupied: u64, bins: DepthBins) -> u32 {
+fn pixel_tests(l: &Lanes<'_>, row: &Row, c: i32, kk: i32, occupied: u64, bins: DepthBins) -> u32 {
     let mut pass = 0;
     for k in 0..LANES {
         let entry = (c + 1 - l.i_ahead[k]) as f32;
@@ -405,7 +405,7 @@ fn pixel_tests(l: &Lanes, row: &Row, c: i32, kk: i32, occupied: u64, bins: Depth
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn pixel_tests_avx2(
-    l: &Lanes,
+    l: &Lanes<'_>,
     row: &Row,
     c: i32,
     kk: i32,
@@ -471,7 +471,7 @@ unsafe fn pixel_tests_avx2(
 /// first and last pixel any lane crosses there, and the inverse depths the lanes span there
 /// (with their margins).
 #[inline(always)]
-fn row_spans(l: &Lanes, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2], [f32; 2]) {
+fn row_spans(l: &Lanes<'_>, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2], [f32; 2]) {
     let o = so * ord;
     let mut row = Row {
         u_in: [0.0; LANES],
@@ -534,7 +534,7 @@ fn row_spans(l: &Lanes, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn row_spans_avx2(
-    l: &Lanes,
+    l: &Lanes<'_>,
     ord: i32,
     so: i32,
     si: i32,
