@@ -20,7 +20,7 @@ mod packet;
 
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
-use crate::dvr::{render_blocks, render_tiles};
+use crate::dvr::render_blocks;
 use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
 use crate::raycast::{chessboard_distance, Avx2, FrontToBack};
@@ -273,17 +273,16 @@ impl<'a> Walker<'a> {
     /// opacity `termination` (in (0, 1]); background black.
     pub fn render(&self, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
         let frame = camera.frame(width, height);
-        if std::env::var("PACKET").is_ok_and(|v| v == "1") {
-            return render_tiles(&frame, |i, j| {
-                self.integrate(&frame.pixel_ray(i, j), termination)
-            });
-        }
-        render_blocks(&frame, (packet::PACKET_W, packet::PACKET_H), |i0, j0, out| {
-            self.integrate_packet(&frame, (i0, j0), termination, out)
-        })
+        render_blocks(
+            &frame,
+            (packet::PACKET_W, packet::PACKET_H),
+            |i0, j0, out| self.integrate_packet(&frame, (i0, j0), termination, out),
+        )
     }
 
-    /// Composited colour along `ray`.
+    /// Composited colour along `ray`, walked on its own: the reference the packets are
+    /// tested against.
+    #[cfg(test)]
     fn integrate(&self, ray: &Ray, termination: f32) -> [f32; 3] {
         let mut acc = Accum::new(termination);
         self.walk(ray, &mut acc);
@@ -409,6 +408,7 @@ impl<'a> Walker<'a> {
         })
     }
 
+    #[cfg(test)]
     fn walk(&self, ray: &Ray, acc: &mut Accum) {
         if let Some(seg) = self.segment(ray) {
             self.walk_segment(&seg, acc);
@@ -827,11 +827,9 @@ mod tests {
     use crate::vdi::{generate::generate, VdiParams};
     use crate::volume::Volume;
 
-    /// Skipping tiles by depth range, squares of empty tiles, and pixels by depth occupancy
-    /// is an optimisation: it must not change the image.
-    #[test]
-    fn skipping_leaves_the_image_unchanged() {
-        // Two blobs at different depths with empty space around and between them.
+    /// A VDI of two blobs at different depths with empty space around and between them
+    /// (r = 96), and the camera it was generated from.
+    pub(super) fn blobs() -> (Vdi, Camera) {
         let v = Volume::from_fn([48, 40, 44], |x, y, z| {
             let blob = |c: [f32; 3], r: f32| {
                 let d = ((x as f32 - c[0]).powi(2)
@@ -857,6 +855,34 @@ mod tests {
             "t",
         )
         .unwrap();
+        (vdi, cam)
+    }
+
+    /// The views the walk's tests take of [`blobs`] (generated from `cam`).
+    pub(super) fn views(cam: Camera) -> [Camera; 8] {
+        [
+            cam,
+            // Nearly the generation view: projections of a fraction of a pixel, crossings
+            // whose u the pixel coordinates' rounding moves most.
+            cam.orbit_y(0.02),
+            cam.orbit_y(1.0),
+            cam.orbit_y(30.0),
+            cam.orbit(60.0, 30.0, 1.0),
+            cam.orbit_y(90.0),
+            cam.orbit_y(180.0),
+            // From inside the volume: rays fanning out in every direction.
+            Camera {
+                eye: Vec3::new(24.0, 20.0, 22.0),
+                ..cam.orbit_y(35.0)
+            },
+        ]
+    }
+
+    /// Skipping tiles by depth range, squares of empty tiles, and pixels by depth occupancy
+    /// is an optimisation: it must not change the image, walked ray by ray or in packets.
+    #[test]
+    fn skipping_leaves_the_image_unchanged() {
+        let (vdi, cam) = blobs();
         let skipping = Walker::new(&vdi);
         let mut all = vdi.walk_tables().clone();
         all.tile_w.fill([-f32::MAX, f32::MAX]);
@@ -866,23 +892,13 @@ mod tests {
             tables: &all,
             ..Walker::new(&vdi)
         };
-        let inside = Camera {
-            eye: Vec3::new(24.0, 20.0, 22.0),
-            ..cam.orbit_y(35.0)
-        };
         let mut seen = 0;
-        for view in [
-            cam,
-            // Nearly the generation view: projections of a fraction of a pixel, crossings
-            // whose u the pixel coordinates' rounding moves most.
-            cam.orbit_y(0.02),
-            cam.orbit_y(1.0),
-            cam.orbit_y(30.0),
-            cam.orbit_y(90.0),
-            cam.orbit_y(180.0),
-            inside,
-        ] {
+        for view in views(cam) {
             let f = view.frame(64, 64);
+            let (packed, packed_all) = (
+                skipping.render(&view, 64, 64, 0.99),
+                walking_all.render(&view, 64, 64, 0.99),
+            );
             for j in 0..64 {
                 for i in 0..64 {
                     let ray = f.pixel_ray(i, j);
@@ -890,10 +906,16 @@ mod tests {
                         skipping.integrate(&ray, 0.99),
                         walking_all.integrate(&ray, 0.99),
                     );
+                    let k = (i + 64 * j) as usize;
+                    let (c, d) = (packed.pixels()[k], packed_all.pixels()[k]);
                     for k in 0..3 {
                         assert!(
                             (a[k] - b[k]).abs() < 1e-6,
                             "pixel ({i}, {j}): {a:?} vs {b:?}"
+                        );
+                        assert!(
+                            (c[k] - d[k]).abs() < 1e-6,
+                            "packets, pixel ({i}, {j}): {c:?} vs {d:?}"
                         );
                     }
                     seen += usize::from(a != [0.0; 3]);
