@@ -333,17 +333,16 @@ impl<'a> Walker<'a> {
                 f1: z.f1,
             },
         ];
-        // Without branches (their directions vary from ray to ray): each plane's crossing
-        // raises t0 or lowers t1 by its sign; a plane the ray runs along excludes it when the
-        // ray is on the outer side.
-        let mut outside = false;
         for p in planes {
-            let t = -p.f0 / p.f1;
-            t0 = if p.f1 > 0.0 { t0.max(t) } else { t0 };
-            t1 = if p.f1 < 0.0 { t1.min(t) } else { t1 };
-            outside |= !(p.f1 > 0.0) & !(p.f1 < 0.0) & (p.f0 < 0.0);
+            if p.f1 > 0.0 {
+                t0 = t0.max(-p.f0 / p.f1);
+            } else if p.f1 < 0.0 {
+                t1 = t1.min(-p.f0 / p.f1);
+            } else if p.f0 < 0.0 {
+                return None;
+            }
         }
-        if outside || t1.is_nan() || t0.is_nan() || t1 <= t0 {
+        if t1.is_nan() || t0.is_nan() || t1 <= t0 {
             return None;
         }
         let r = self.r as f32;
