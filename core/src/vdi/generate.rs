@@ -16,6 +16,9 @@ use crate::camera::{Camera, Ray, ViewFrame};
 use crate::fastmath::one_minus_exp_neg;
 use crate::raycast::{Raycaster, Sample};
 use glam::Vec3A;
+/// Eight lanes of [`crate::fastmath::one_minus_exp_neg`] with AVX2 (shared with the VDI walk).
+#[cfg(target_arch = "x86_64")]
+pub(crate) use lanes::one_minus_exp_neg as one_minus_exp_neg_avx2;
 use lanes::{Lanes, LANES};
 use rayon::prelude::*;
 use std::ops::ControlFlow;

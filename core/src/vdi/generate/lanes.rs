@@ -379,7 +379,7 @@ unsafe fn merge_avx2(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn one_minus_exp_neg(x: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+pub(crate) unsafe fn one_minus_exp_neg(x: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
     use crate::fastmath::{EXP2_TAYLOR as C, ROUND};
     use std::arch::x86_64::*;
     let splat = _mm256_set1_ps;

@@ -18,12 +18,13 @@
 #![allow(unsafe_code)]
 
 use super::{
-    composite_span, greater, lesser, Accum, DepthBins, Segment, Walker, DEPTH_BINS, SKIP_SHIFT,
-    SKIP_TILE,
+    composite_span, greater, lesser, Accum, DepthBins, Lin, Segment, Supersegment, Walker,
+    DEPTH_BINS, LINEAR_SEARCH_MAX, SKIP_SHIFT, SKIP_TILE,
 };
 use crate::camera::ViewFrame;
 #[cfg(test)]
 use crate::image::Image;
+use crate::raycast::FrontToBack;
 
 /// Rays per packet.
 pub(super) const LANES: usize = PACKET_W as usize * PACKET_H as usize;
@@ -102,25 +103,25 @@ impl Walker<'_> {
                 }
             }
         }
-        let mut accs = [Accum::new(termination); LANES];
-        if segs.iter().any(Option::is_some) {
-            let walked = match self.avx2 {
-                // SAFETY: the token proves that this CPU has AVX2.
-                Some(_) => unsafe { self.walk_packet_avx2(&segs, &mut accs) },
-                None => self.walk_packet::<false>(&segs, &mut accs),
-            };
-            if !walked {
-                // Projections stepping both ways along an axis: no order of pixels suits
-                // all of them; each is walked on its own.
-                for (seg, acc) in segs.iter().zip(&mut accs) {
-                    if let Some(seg) = seg {
-                        self.walk_segment(seg, acc);
-                    }
+        out.fill([0.0; 3]);
+        if segs.iter().all(Option::is_none) {
+            return;
+        }
+        let walked = match self.avx2 {
+            // SAFETY: the token proves that this CPU has AVX2.
+            Some(_) => unsafe { self.walk_packet_avx2(&segs, termination, out) },
+            None => self.walk_packet::<false>(&segs, termination, out),
+        };
+        if !walked {
+            // Projections stepping both ways along an axis: no order of pixels suits all of
+            // them; each is walked on its own.
+            for (seg, o) in segs.iter().zip(out) {
+                if let Some(seg) = seg {
+                    let mut acc = Accum::new(termination);
+                    self.walk_segment(seg, &mut acc);
+                    *o = acc.ray.finish().0;
                 }
             }
-        }
-        for (o, acc) in out.iter_mut().zip(&accs) {
-            *o = acc.ray.finish().0;
         }
     }
 
@@ -133,27 +134,30 @@ impl Walker<'_> {
     unsafe fn walk_packet_avx2(
         &self,
         segs: &[Option<Segment>; LANES],
-        accs: &mut [Accum; LANES],
+        termination: f32,
+        out: &mut [[f32; 3]],
     ) -> bool {
-        self.walk_packet::<true>(segs, accs)
+        self.walk_packet::<true>(segs, termination, out)
     }
 
-    /// Walks `segs` together into `accs`; false, having done nothing, when they step in
-    /// opposite directions along an axis.
+    /// Walks `segs` together, each stopping at accumulated opacity `termination`, and writes
+    /// their colours to `out`; false, having done nothing, when they step in opposite
+    /// directions along an axis.
     #[inline(always)]
     fn walk_packet<const AVX2: bool>(
         &self,
         segs: &[Option<Segment>; LANES],
-        accs: &mut [Accum; LANES],
+        termination: f32,
+        out: &mut [[f32; 3]],
     ) -> bool {
         // Rows along the axis the projections cross least.
         let (dx, dy) = segs.iter().flatten().fold((0.0, 0.0), |(dx, dy), s| {
             (dx + (s.px1 - s.px0).abs(), dy + (s.py1 - s.py0).abs())
         });
         if dy > dx {
-            self.walk_rows::<true, AVX2>(segs, accs)
+            self.walk_rows::<true, AVX2>(segs, termination, out)
         } else {
-            self.walk_rows::<false, AVX2>(segs, accs)
+            self.walk_rows::<false, AVX2>(segs, termination, out)
         }
     }
 
@@ -162,7 +166,8 @@ impl Walker<'_> {
     fn walk_rows<const TRANSPOSE: bool, const AVX2: bool>(
         &self,
         segs: &[Option<Segment>; LANES],
-        accs: &mut [Accum; LANES],
+        termination: f32,
+        out: &mut [[f32; 3]],
     ) -> bool {
         let axes = |s: &Segment| {
             if TRANSPOSE {
@@ -255,6 +260,10 @@ impl Walker<'_> {
             l.margin[k] = s.rounding + s.ax.depth_error + s.ay.depth_error;
             solved[k].t_done = s.t0;
         }
+        let mut acc = Accums {
+            rgb: [[0.0; LANES]; 3],
+            transmittance: [1.0; LANES],
+        };
         let bins = self.tables.bins;
         let offsets = self.vdi.offsets();
         let (bin_w0, per_unit) = (bins.w0, bins.per_unit);
@@ -320,6 +329,13 @@ impl Walker<'_> {
                 } else {
                     pixel_tests(&l, &row, c, kk, occupied, bins)
                 };
+                let mut spans = Spans {
+                    ta: [0.0; LANES],
+                    tb: [0.0; LANES],
+                    z0: [0.0; LANES],
+                    z1: [0.0; LANES],
+                    lanes: 0,
+                };
                 for k in 0..LANES {
                     if pass & (1 << k) == 0 {
                         continue;
@@ -361,27 +377,245 @@ impl Walker<'_> {
                     let ta = ta.max(sv.t_done);
                     let tb = tb.max(ta);
                     sv.t_done = tb;
+                    if tb > ta {
+                        spans.ta[k] = ta;
+                        spans.tb[k] = tb;
+                        spans.z0[k] = seg.z.f0;
+                        spans.z1[k] = seg.z.f1;
+                        spans.lanes |= 1 << k;
+                    }
+                }
+                if spans.lanes != 0 {
                     let range = offsets[p] as usize..offsets[p + 1] as usize;
-                    if tb > ta
-                        && composite_span(
-                            &self.vdi.supersegments()[range.clone()],
-                            &self.tables.keys[range],
-                            seg.z,
-                            ta,
-                            tb,
-                            &mut accs[k],
-                        )
-                    {
-                        l.live[k] = 0;
-                        row.c_in[k] = i32::MAX;
-                        row.c_out[k] = i32::MIN;
+                    let (list, keys) = (
+                        &self.vdi.supersegments()[range.clone()],
+                        &self.tables.keys[range],
+                    );
+                    let done = if AVX2 {
+                        // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                        unsafe { composite_lanes_avx2(list, keys, &spans, &mut acc, termination) }
+                    } else {
+                        composite_lanes(list, keys, &spans, &mut acc, termination)
+                    };
+                    for k in 0..LANES {
+                        if done & (1 << k) != 0 {
+                            l.live[k] = 0;
+                            row.c_in[k] = i32::MAX;
+                            row.c_out[k] = i32::MIN;
+                        }
                     }
                 }
                 kk += 1;
             }
         }
+        for (k, o) in out.iter_mut().enumerate() {
+            let mut ray = FrontToBack::new(termination);
+            ray.color = [acc.rgb[0][k], acc.rgb[1][k], acc.rgb[2][k]];
+            ray.transmittance = acc.transmittance[k];
+            *o = ray.finish().0;
+        }
         true
     }
+}
+
+/// The packet's accumulators (structure of arrays): each lane's premultiplied colour and
+/// transmittance, as its [`FrontToBack`]'s.
+struct Accums {
+    rgb: [F; 3],
+    transmittance: F,
+}
+
+/// The spans the lanes composite at one pixel: ray parameters `[ta, tb]` and the depth
+/// `z(t) = z0 + z1·t`, for the lanes whose bits `lanes` holds.
+struct Spans {
+    ta: F,
+    tb: F,
+    z0: F,
+    z1: F,
+    lanes: u32,
+}
+
+/// Composites each lane of `spans` through the pixel list `list` (with its `keys`) as
+/// [`composite_span`] does; returns the bits of the lanes that reached `termination`.
+fn composite_lanes(
+    list: &[Supersegment],
+    keys: &[[f32; 2]],
+    spans: &Spans,
+    acc: &mut Accums,
+    termination: f32,
+) -> u32 {
+    let mut done = 0;
+    for k in 0..LANES {
+        if spans.lanes & (1 << k) == 0 {
+            continue;
+        }
+        let mut a = Accum::new(termination);
+        a.ray.color = [acc.rgb[0][k], acc.rgb[1][k], acc.rgb[2][k]];
+        a.ray.transmittance = acc.transmittance[k];
+        let z = Lin {
+            f0: spans.z0[k],
+            f1: spans.z1[k],
+        };
+        if composite_span(list, keys, z, spans.ta[k], spans.tb[k], &mut a) {
+            done |= 1 << k;
+        }
+        for (c, v) in acc.rgb.iter_mut().zip(a.ray.color) {
+            c[k] = v;
+        }
+        acc.transmittance[k] = a.ray.transmittance;
+    }
+    done
+}
+
+/// [`composite_lanes`] with AVX2: where every lane's depth runs the same way along its ray,
+/// the list is traversed once for all of them, each supersegment composited into the eight
+/// lanes at once (a lane outside it gets length 0, which composites nothing); else lane by
+/// lane. The same operations per lane in the same order, so the same result.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn composite_lanes_avx2(
+    list: &[Supersegment],
+    keys: &[[f32; 2]],
+    spans: &Spans,
+    acc: &mut Accums,
+    termination: f32,
+) -> u32 {
+    use crate::vdi::generate::one_minus_exp_neg_avx2;
+    use std::arch::x86_64::*;
+    let lanes = spans.lanes;
+    let (mut ahead, mut behind) = (0u32, 0u32);
+    for k in 0..LANES {
+        ahead |= u32::from(spans.z1[k] > 0.0) << k;
+        behind |= u32::from(spans.z1[k] < 0.0) << k;
+    }
+    let forward = ahead & lanes == lanes;
+    if !forward && behind & lanes != lanes {
+        return composite_lanes(list, keys, spans, acc, termination);
+    }
+    // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
+    let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
+    let (ta, tb, z0, z1) = (ld(&spans.ta), ld(&spans.tb), ld(&spans.z0), ld(&spans.z1));
+    let za = _mm256_add_ps(z0, _mm256_mul_ps(z1, ta));
+    let zb = _mm256_add_ps(z0, _mm256_mul_ps(z1, tb));
+    let span = _mm256_sub_ps(tb, ta);
+    let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    let mut live = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+        _mm256_and_si256(_mm256_set1_epi32(lanes as i32), lane_bits),
+        lane_bits,
+    ));
+    let (mut r, mut g, mut b) = (ld(&acc.rgb[0]), ld(&acc.rgb[1]), ld(&acc.rgb[2]));
+    let mut t = ld(&acc.transmittance);
+    let threshold = _mm256_set1_ps(Accum::new(termination).threshold);
+    let zero = _mm256_setzero_ps();
+    // The lanes' extreme depths: where the traversal starts and ends.
+    let (mut z_lo, mut z_hi) = (f32::MAX, -f32::MAX);
+    let (mut z_min_b, mut z_max_b) = (f32::MAX, -f32::MAX);
+    for k in 0..LANES {
+        if lanes & (1 << k) != 0 {
+            let (a, e) = (
+                spans.z0[k] + spans.z1[k] * spans.ta[k],
+                spans.z0[k] + spans.z1[k] * spans.tb[k],
+            );
+            z_lo = z_lo.min(a);
+            z_hi = z_hi.max(a);
+            z_min_b = z_min_b.min(e);
+            z_max_b = z_max_b.max(e);
+        }
+    }
+    // One supersegment into every live lane, with `len` its length on each lane's ray.
+    let mut add = |s: &Supersegment, kappa: f32, len: __m256| -> bool {
+        // `len.clamp(0, span)`.
+        let len = _mm256_blendv_ps(len, zero, _mm256_cmp_ps::<_CMP_LT_OQ>(len, zero));
+        let len = _mm256_blendv_ps(len, span, _mm256_cmp_ps::<_CMP_GT_OQ>(len, span));
+        let m = _mm256_and_ps(live, _mm256_cmp_ps::<_CMP_GT_OQ>(len, zero));
+        if s.alpha > 0.0 && _mm256_movemask_ps(m) != 0 {
+            let alpha = one_minus_exp_neg_avx2(_mm256_mul_ps(len, _mm256_set1_ps(kappa)));
+            let w = _mm256_mul_ps(t, alpha);
+            let c = s.color;
+            r = _mm256_blendv_ps(
+                r,
+                _mm256_add_ps(r, _mm256_mul_ps(w, _mm256_set1_ps(c[0]))),
+                m,
+            );
+            g = _mm256_blendv_ps(
+                g,
+                _mm256_add_ps(g, _mm256_mul_ps(w, _mm256_set1_ps(c[1]))),
+                m,
+            );
+            b = _mm256_blendv_ps(
+                b,
+                _mm256_add_ps(b, _mm256_mul_ps(w, _mm256_set1_ps(c[2]))),
+                m,
+            );
+            t = _mm256_blendv_ps(
+                t,
+                _mm256_mul_ps(t, _mm256_sub_ps(_mm256_set1_ps(1.0), alpha)),
+                m,
+            );
+            // Lanes done: opaque enough.
+            let done = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(t, threshold));
+            live = _mm256_andnot_ps(done, live);
+        }
+        _mm256_movemask_ps(live) == 0
+    };
+    let search = |z: f32| {
+        if keys.len() <= LINEAR_SEARCH_MAX {
+            keys.iter().position(|k| k[0] > z).unwrap_or(keys.len())
+        } else {
+            keys.partition_point(|k| k[0] <= z)
+        }
+    };
+    if forward {
+        // From the first supersegment ending after the nearest entry, up to the farthest exit.
+        let first = search(z_lo);
+        for (s, k) in list[first..].iter().zip(&keys[first..]) {
+            if s.z_start >= z_max_b {
+                break;
+            }
+            let len = _mm256_div_ps(
+                _mm256_sub_ps(
+                    _mm256_min_ps(_mm256_set1_ps(s.z_end), zb),
+                    _mm256_max_ps(_mm256_set1_ps(s.z_start), za),
+                ),
+                z1,
+            );
+            if add(s, k[1], len) {
+                break;
+            }
+        }
+    } else {
+        // From the last supersegment starting before the farthest entry, down to the
+        // nearest exit.
+        let first = search(z_hi);
+        let end = first + usize::from(list.get(first).is_some_and(|s| s.z_start < z_hi));
+        let neg_z1 = _mm256_xor_ps(z1, _mm256_set1_ps(-0.0));
+        for (s, k) in list[..end].iter().zip(&keys[..end]).rev() {
+            if s.z_end <= z_min_b {
+                break;
+            }
+            let len = _mm256_div_ps(
+                _mm256_sub_ps(
+                    _mm256_min_ps(_mm256_set1_ps(s.z_end), za),
+                    _mm256_max_ps(_mm256_set1_ps(s.z_start), zb),
+                ),
+                neg_z1,
+            );
+            if add(s, k[1], len) {
+                break;
+            }
+        }
+    }
+    // SAFETY: as the loads.
+    unsafe {
+        _mm256_storeu_ps(acc.rgb[0].as_mut_ptr(), r);
+        _mm256_storeu_ps(acc.rgb[1].as_mut_ptr(), g);
+        _mm256_storeu_ps(acc.rgb[2].as_mut_ptr(), b);
+        _mm256_storeu_ps(acc.transmittance.as_mut_ptr(), t);
+    }
+    lanes & !(_mm256_movemask_ps(live) as u32)
 }
 
 /// The lanes that test pixel `c` (walk-order index `kk`, occupancy mask `occupied`) of the
