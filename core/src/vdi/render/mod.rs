@@ -69,6 +69,11 @@ pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
     ranges
 }
 
+/// A projection shorter than this (generation pixels) along an axis does not step along it
+/// (a point where both are: the ray passes through the generation eye, as every ray of the
+/// generation view does).
+const DEGENERATE_PX: f32 = 1e-3;
+
 /// Depth bins of the occupancy masks ([`DepthBins`]): one bit each in a `u64`.
 const DEPTH_BINS: u32 = 64;
 
@@ -358,9 +363,6 @@ impl<'a> Walker<'a> {
         let (w0, w1) = (inverse_depth(z.at(t0)), inverse_depth(z.at(t1)));
         let dw = w1 - w0;
         let axis = |p0: f32, p1: f32| -> Axis {
-            // A projection shorter than this (pixels) is a point: the ray passes through the
-            // generation eye, as every ray of the generation view does.
-            const DEGENERATE_PX: f32 = 1e-3;
             let d = p1 - p0;
             let step = if d > DEGENERATE_PX {
                 1

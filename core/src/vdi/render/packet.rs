@@ -18,13 +18,14 @@
 #![allow(unsafe_code)]
 
 use super::{
-    composite_span, greater, lesser, Accum, DepthBins, Lin, Segment, Supersegment, Walker,
-    DEPTH_BINS, LINEAR_SEARCH_MAX, SKIP_SHIFT, SKIP_TILE,
+    composite_span, greater, lesser, Accum, Axis, DepthBins, Lin, Segment, Supersegment, Walker,
+    DEGENERATE_PX, DEPTH_BINS, LINEAR_SEARCH_MAX, NEAR_DEPTH, SKIP_SHIFT, SKIP_TILE,
 };
 use crate::camera::ViewFrame;
 #[cfg(test)]
 use crate::image::Image;
 use crate::raycast::FrontToBack;
+use glam::Vec3;
 
 /// Rays per packet.
 pub(super) const LANES: usize = PACKET_W as usize * PACKET_H as usize;
@@ -94,15 +95,11 @@ impl Walker<'_> {
         termination: f32,
         out: &mut [[f32; 3]],
     ) {
-        let mut segs = [None; LANES];
-        for b in 0..PACKET_H {
-            for a in 0..PACKET_W {
-                let (i, j) = (i0 + a, j0 + b);
-                if i < frame.width && j < frame.height {
-                    segs[(a + PACKET_W * b) as usize] = self.segment(&frame.pixel_ray(i, j));
-                }
-            }
-        }
+        let segs = match self.avx2 {
+            // SAFETY: the token proves that this CPU has AVX2.
+            Some(_) => unsafe { segments_avx2(self, frame, (i0, j0)) },
+            None => self.segments(frame, (i0, j0)),
+        };
         out.fill([0.0; 3]);
         if segs.iter().all(Option::is_none) {
             return;
@@ -123,6 +120,19 @@ impl Walker<'_> {
                 }
             }
         }
+    }
+
+    /// [`Walker::segment`] of the rays through the pixels of the packet at `(i0, j0)` of
+    /// `frame` (lane `a + PACKET_W·b` for pixel `(i0 + a, j0 + b)`; `None` outside the frame).
+    fn segments(&self, frame: &ViewFrame, (i0, j0): (u32, u32)) -> [Option<Segment>; LANES] {
+        let mut segs = [None; LANES];
+        for (k, seg) in segs.iter_mut().enumerate() {
+            let (i, j) = (i0 + k as u32 % PACKET_W, j0 + k as u32 / PACKET_W);
+            if i < frame.width && j < frame.height {
+                *seg = self.segment(&frame.pixel_ray(i, j));
+            }
+        }
+        segs
     }
 
     /// [`Self::walk_packet`] compiled for AVX2.
@@ -964,6 +974,51 @@ mod tests {
         assert!(seen > 400, "the blobs must be seen ({seen} pixels)");
     }
 
+    /// The AVX2 set-up gives [`Walker::segment`]'s segments bit for bit, on every packet of
+    /// every test view (frame sides not multiples of the packet's).
+    #[test]
+    fn avx2_segments_equal_scalar_segments() {
+        if Avx2::detect().is_none() {
+            eprintln!("this CPU has no AVX2: only the scalar set-up runs here");
+            return;
+        }
+        let (vdi, cam) = blobs();
+        let walker = Walker::new(&vdi);
+        let bits = |s: &Option<Segment>| -> Option<Vec<u64>> {
+            s.map(|s| {
+                let f = [
+                    s.x.f0, s.x.f1, s.y.f0, s.y.f1, s.z.f0, s.z.f1, s.t0, s.t1, s.px0, s.py0,
+                    s.px1, s.py1, s.w0, s.w1, s.rounding, s.r, s.tx, s.ty,
+                ];
+                let mut v: Vec<u64> = f.iter().map(|x| u64::from(x.to_bits())).collect();
+                for a in [s.ax, s.ay] {
+                    v.extend(
+                        [a.p0.to_bits(), a.inv_d.to_bits(), a.depth_error.to_bits()].map(u64::from),
+                    );
+                    v.extend([a.step, a.ahead, a.cell].map(|i| i as u64));
+                }
+                v
+            })
+        };
+        let (w, h) = (61, 37);
+        let mut some = 0;
+        for view in views(cam) {
+            let f = view.frame(w, h);
+            for j0 in (0..h).step_by(PACKET_H as usize) {
+                for i0 in (0..w).step_by(PACKET_W as usize) {
+                    // SAFETY: AVX2 was detected above.
+                    let simd = unsafe { segments_avx2(&walker, &f, (i0, j0)) };
+                    let scalar = walker.segments(&f, (i0, j0));
+                    for (a, b) in simd.iter().zip(&scalar) {
+                        assert_eq!(bits(a), bits(b), "packet ({i0}, {j0}) of {view:?}");
+                        some += usize::from(a.is_some());
+                    }
+                }
+            }
+        }
+        assert!(some > 5000, "{some} segments");
+    }
+
     /// The AVX2 row spans and lane tests give the portable ones' results: the images are
     /// bit-identical.
     #[test]
@@ -989,4 +1044,245 @@ mod tests {
             assert_eq!(bits(&a), bits(&b), "view {view:?}");
         }
     }
+}
+
+/// [`Walker::segment`] of the rays through the pixels of the packet at `(i0, j0)` of `frame`
+/// (lane `a + PACKET_W·b` for pixel `(i0 + a, j0 + b)`), eight at once with AVX2: the same
+/// operations in the same order, so the same segments, bit for bit. Lanes outside the
+/// frame are `None`.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn segments_avx2(
+    walker: &Walker<'_>,
+    frame: &ViewFrame,
+    (i0, j0): (u32, u32),
+) -> [Option<Segment>; LANES] {
+    use std::arch::x86_64::*;
+    const _: () = assert!(LANES == 8 && PACKET_W == 4);
+    let splat = _mm256_set1_ps;
+    let add = _mm256_add_ps;
+    let sub = _mm256_sub_ps;
+    let mul = _mm256_mul_ps;
+    let div = _mm256_div_ps;
+    // f32::max / f32::min for operands that are never NaN.
+    let max = |a, b| _mm256_max_ps(a, b);
+    let min = |a, b| _mm256_min_ps(a, b);
+    // `frame.pixel_ray`: through the pixel's centre, direction normalised.
+    let a = _mm256_setr_epi32(0, 1, 2, 3, 0, 1, 2, 3);
+    let b = _mm256_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1);
+    let px = add(
+        _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i0 as i32), a)),
+        splat(0.5),
+    );
+    let py = add(
+        _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(j0 as i32), b)),
+        splat(0.5),
+    );
+    let sx = mul(
+        sub(
+            div(mul(splat(2.0), px), splat(frame.width as f32)),
+            splat(1.0),
+        ),
+        splat(frame.tan_half_x),
+    );
+    let sy = mul(
+        sub(
+            splat(1.0),
+            div(mul(splat(2.0), py), splat(frame.height as f32)),
+        ),
+        splat(frame.tan_half_y),
+    );
+    let (f, rt, up) = (frame.forward, frame.right, frame.up);
+    let comp = |f: f32, r: f32, u: f32| add(add(splat(f), mul(sx, splat(r))), mul(sy, splat(u)));
+    let (dx, dy, dz) = (
+        comp(f.x, rt.x, up.x),
+        comp(f.y, rt.y, up.y),
+        comp(f.z, rt.z, up.z),
+    );
+    let len = _mm256_sqrt_ps(add(add(mul(dx, dx), mul(dy, dy)), mul(dz, dz)));
+    let len_recip = div(splat(1.0), len);
+    let (dx, dy, dz) = (mul(dx, len_recip), mul(dy, len_recip), mul(dz, len_recip));
+    // `Aabb::intersect` with the reciprocal direction.
+    let aabb = &walker.vdi.meta().volume_box;
+    let o = frame.eye;
+    let mut t_near = splat(f32::NEG_INFINITY);
+    let mut t_far = splat(f32::INFINITY);
+    let mut empty = _mm256_setzero_ps();
+    for (d, o, lo, hi) in [
+        (dx, o.x, aabb.min.x, aabb.max.x),
+        (dy, o.y, aabb.min.y, aabb.max.y),
+        (dz, o.z, aabb.min.z, aabb.max.z),
+    ] {
+        let inv = div(splat(1.0), d);
+        let parallel =
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(_mm256_andnot_ps(splat(-0.0), inv), splat(f32::INFINITY));
+        if o < lo || o > hi {
+            empty = _mm256_or_ps(empty, parallel);
+        }
+        let t0 = mul(sub(splat(lo), splat(o)), inv);
+        let t1 = mul(sub(splat(hi), splat(o)), inv);
+        t_near = _mm256_blendv_ps(max(t_near, min(t0, t1)), t_near, parallel);
+        t_far = _mm256_blendv_ps(min(t_far, max(t0, t1)), t_far, parallel);
+    }
+    // `Aabb::intersect` answers (1, 0) for a ray outside a slab it runs along.
+    let mut t0 = _mm256_blendv_ps(t_near, splat(1.0), empty);
+    let mut t1 = _mm256_blendv_ps(t_far, splat(0.0), empty);
+    t0 = max(t0, splat(0.0));
+    let g = &walker.gen;
+    let e0 = g.to_eye(o);
+    let dot = |v: Vec3| {
+        add(
+            add(mul(dx, splat(v.x)), mul(dy, splat(v.y))),
+            mul(dz, splat(v.z)),
+        )
+    };
+    let (x1, y1, z1) = (dot(g.right), dot(g.up), dot(g.forward));
+    let (x0, y0, z0) = (splat(e0.x), splat(e0.y), splat(e0.z));
+    let (tx, ty) = (splat(g.tan_half_x), splat(g.tan_half_y));
+    let planes = [
+        (sub(mul(tx, z0), x0), sub(mul(tx, z1), x1)),
+        (add(mul(tx, z0), x0), add(mul(tx, z1), x1)),
+        (sub(mul(ty, z0), y0), sub(mul(ty, z1), y1)),
+        (add(mul(ty, z0), y0), add(mul(ty, z1), y1)),
+        (sub(z0, splat(NEAR_DEPTH)), z1),
+    ];
+    let mut outside = _mm256_setzero_ps();
+    for (f0, f1) in planes {
+        let t = div(_mm256_xor_ps(f0, splat(-0.0)), f1);
+        let rising = _mm256_cmp_ps::<_CMP_GT_OQ>(f1, splat(0.0));
+        let falling = _mm256_cmp_ps::<_CMP_LT_OQ>(f1, splat(0.0));
+        t0 = _mm256_blendv_ps(t0, max(t0, t), rising);
+        t1 = _mm256_blendv_ps(t1, min(t1, t), falling);
+        let along = _mm256_andnot_ps(
+            _mm256_or_ps(rising, falling),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(f0, splat(0.0)),
+        );
+        outside = _mm256_or_ps(outside, along);
+    }
+    // `t1.is_nan() || t0.is_nan() || t1 <= t0`: not `t0 < t1` (NaN compares false).
+    let valid = _mm256_andnot_ps(outside, _mm256_cmp_ps::<_CMP_LT_OQ>(t0, t1));
+    let valid = _mm256_movemask_ps(valid) as u32;
+    let r = walker.r as f32;
+    let at = |f0, f1, t| add(f0, mul(f1, t));
+    let px = |t| {
+        mul(
+            mul(
+                add(div(at(x0, x1, t), mul(at(z0, z1, t), tx)), splat(1.0)),
+                splat(0.5),
+            ),
+            splat(r),
+        )
+    };
+    let py = |t| {
+        mul(
+            mul(
+                sub(splat(1.0), div(at(y0, y1, t), mul(at(z0, z1, t), ty))),
+                splat(0.5),
+            ),
+            splat(r),
+        )
+    };
+    let (px0, py0, px1, py1) = (px(t0), py(t0), px(t1), py(t1));
+    let inverse_depth = |z| div(splat(1.0), max(z, splat(NEAR_DEPTH)));
+    let (w0, w1) = (inverse_depth(at(z0, z1, t0)), inverse_depth(at(z0, z1, t1)));
+    let abs = |v| _mm256_andnot_ps(splat(-0.0), v);
+    let dw = abs(sub(w1, w0));
+    let rounding = mul(splat(1e-4), max(abs(w0), abs(w1)));
+    let store = |v: __m256| {
+        let mut a = [0.0f32; LANES];
+        // SAFETY: eight lanes into eight floats.
+        unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) };
+        a
+    };
+    // Per axis: u = (b − p0)/(p1 − p0), its step, first pixel and depth error.
+    let axis = |p0: __m256, p1: __m256| {
+        let d = sub(p1, p0);
+        let up = _mm256_cmp_ps::<_CMP_GT_OQ>(d, splat(DEGENERATE_PX));
+        let down = _mm256_cmp_ps::<_CMP_LT_OQ>(d, splat(-DEGENERATE_PX));
+        let steps = _mm256_or_ps(up, down);
+        let cell = _mm256_blendv_ps(
+            _mm256_xor_ps(_mm256_ceil_ps(_mm256_xor_ps(p0, splat(-0.0))), splat(-0.0)),
+            sub(_mm256_ceil_ps(p0), splat(1.0)),
+            down,
+        );
+        let inv_d = _mm256_and_ps(div(splat(1.0), d), steps);
+        let error = mul(
+            min(mul(splat(1e-5 * (r + 1.0)), abs(inv_d)), splat(1.0)),
+            dw,
+        );
+        (
+            store(p0),
+            store(inv_d),
+            _mm256_movemask_ps(up) as u32,
+            _mm256_movemask_ps(down) as u32,
+            store(cell),
+            store(error),
+        )
+    };
+    let (ax, ay) = (axis(px0, px1), axis(py0, py1));
+    let [x1, y1, z1, t0, t1, px0, py0, px1, py1, w0, w1, rounding] =
+        [x1, y1, z1, t0, t1, px0, py0, px1, py1, w0, w1, rounding].map(store);
+    let mut segs = [None; LANES];
+    for (k, seg) in segs.iter_mut().enumerate() {
+        let (i, j) = (i0 + k as u32 % PACKET_W, j0 + k as u32 / PACKET_W);
+        if valid & (1 << k) == 0 || i >= frame.width || j >= frame.height {
+            continue;
+        }
+        let lane_axis = |(p0, inv_d, up, down, cell, error): &(
+            [f32; LANES],
+            [f32; LANES],
+            u32,
+            u32,
+            [f32; LANES],
+            [f32; LANES],
+        )| {
+            let step = if up & (1 << k) != 0 {
+                1
+            } else if down & (1 << k) != 0 {
+                -1
+            } else {
+                0
+            };
+            Axis {
+                p0: p0[k],
+                inv_d: inv_d[k],
+                step,
+                ahead: i64::from(step > 0),
+                cell: (cell[k] as i64).clamp(0, walker.r - 1),
+                depth_error: error[k],
+            }
+        };
+        *seg = Some(Segment {
+            x: Lin {
+                f0: e0.x,
+                f1: x1[k],
+            },
+            y: Lin {
+                f0: e0.y,
+                f1: y1[k],
+            },
+            z: Lin {
+                f0: e0.z,
+                f1: z1[k],
+            },
+            t0: t0[k],
+            t1: t1[k],
+            px0: px0[k],
+            py0: py0[k],
+            px1: px1[k],
+            py1: py1[k],
+            w0: w0[k],
+            w1: w1[k],
+            ax: lane_axis(&ax),
+            ay: lane_axis(&ay),
+            rounding: rounding[k],
+            r,
+            tx: g.tan_half_x,
+            ty: g.tan_half_y,
+        });
+    }
+    segs
 }
