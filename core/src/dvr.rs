@@ -48,7 +48,7 @@ fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3],
 
 /// Evaluates `shade(i, j)` for every pixel of `frame` and returns the pixels row-major from
 /// the top, in [`blocks`]' order (its loops with one pixel a block: the DVR's per-pixel march
-/// is 10–15 % slower behind a block's buffer).
+/// was 10–15 % slower behind a block's buffer).
 pub(crate) fn tiles<P: Copy + Default + Send>(
     frame: &ViewFrame,
     shade: impl Fn(u32, u32) -> P + Sync,
@@ -77,20 +77,17 @@ pub(crate) fn tiles<P: Copy + Default + Send>(
     pixels
 }
 
-/// Evaluates the pixels of `frame` `bw × bh` at a time (`bw` and `bh` divide [`TILE`]):
-/// `shade(i0, j0, out)` fills `out` (`bw·bh` pixels, row-major) for pixels `i0..i0 + bw` ×
-/// `j0..j0 + bh`, those outside the frame ignored; returns the pixels row-major from the top.
-/// Parallel over bands of `TILE` rows, each walked in `TILE × TILE` tiles (neighbouring rays,
-/// neighbouring voxels), written straight into the one output buffer: no per-tile
-/// allocation, so a large image costs one buffer, which goes back to the system when dropped
-/// (per-tile vectors spread over the worker threads' heaps used to stay resident after large
-/// renders, issue 15).
+/// Evaluates the pixels of `frame` a block at a time: each `TILE × TILE` tile (corner
+/// `(x0, y0)`) in blocks of `shape(x0, y0) = (bw, bh)` pixels (`bw` and `bh` divide [`TILE`]),
+/// `shade(i0, j0, (bw, bh), out)` filling `out` (`bw·bh` pixels, row-major) for pixels
+/// `i0..i0 + bw` × `j0..j0 + bh`, those outside the frame ignored; returns the pixels
+/// row-major from the top. Parallel over bands of `TILE` rows, each written straight into the
+/// one output buffer, as [`tiles`].
 pub(crate) fn blocks<P: Copy + Default + Send>(
     frame: &ViewFrame,
-    (bw, bh): (u32, u32),
-    shade: impl Fn(u32, u32, &mut [P]) + Sync,
+    shape: impl Fn(u32, u32) -> (u32, u32) + Sync,
+    shade: impl Fn(u32, u32, (u32, u32), &mut [P]) + Sync,
 ) -> Vec<P> {
-    debug_assert!(bw > 0 && bh > 0 && TILE % bw == 0 && TILE % bh == 0);
     let (w, h) = (frame.width, frame.height);
     let mut pixels = vec![P::default(); w as usize * h as usize];
     if w == 0 {
@@ -102,12 +99,15 @@ pub(crate) fn blocks<P: Copy + Default + Send>(
         .for_each(|(band, rows)| {
             let y0 = band as u32 * TILE;
             let y1 = (y0 + TILE).min(h);
-            let mut block = vec![P::default(); (bw * bh) as usize];
+            let mut block = Vec::new();
             for x0 in (0..w).step_by(TILE as usize) {
                 let x1 = (x0 + TILE).min(w);
+                let (bw, bh) = shape(x0, y0);
+                debug_assert!(bw > 0 && bh > 0 && TILE % bw == 0 && TILE % bh == 0);
+                block.resize((bw * bh) as usize, P::default());
                 for by in (y0..y1).step_by(bh as usize) {
                     for bx in (x0..x1).step_by(bw as usize) {
-                        shade(bx, by, &mut block);
+                        shade(bx, by, (bw, bh), &mut block);
                         for b in 0..bh.min(y1 - by) {
                             let row = &mut rows[((by + b - y0) * w) as usize..][..w as usize];
                             for a in 0..bw.min(x1 - bx) {
@@ -124,10 +124,10 @@ pub(crate) fn blocks<P: Copy + Default + Send>(
 /// [`blocks`] of RGB pixels as an [`Image`].
 pub(crate) fn render_blocks(
     frame: &ViewFrame,
-    block: (u32, u32),
-    shade: impl Fn(u32, u32, &mut [[f32; 3]]) + Sync,
+    shape: impl Fn(u32, u32) -> (u32, u32) + Sync,
+    shade: impl Fn(u32, u32, (u32, u32), &mut [[f32; 3]]) + Sync,
 ) -> Image {
-    let pixels = blocks(frame, block, shade);
+    let pixels = blocks(frame, shape, shade);
     Image::from_pixels(frame.width, frame.height, pixels)
         .unwrap_or_else(|| Image::new(frame.width, frame.height))
 }

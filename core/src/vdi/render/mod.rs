@@ -278,10 +278,15 @@ impl<'a> Walker<'a> {
     /// opacity `termination` (in (0, 1]); background black.
     pub fn render(&self, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
         let frame = camera.frame(width, height);
+        // The generation eye seen from the new camera: where the epipolar lines meet.
+        let gen_eye = frame.to_eye(self.gen.eye);
         render_blocks(
             &frame,
-            (packet::PACKET_W, packet::PACKET_H),
-            |i0, j0, out| self.integrate_packet(&frame, (i0, j0), termination, out),
+            |x0, y0| packet::shape(&frame, gen_eye, x0, y0),
+            |i0, j0, (w, _), out| {
+                let block = packet::Block::new(i0, j0, w);
+                self.integrate_packet(&frame, block, termination, out)
+            },
         )
     }
 

@@ -1,7 +1,7 @@
 //! Packets of neighbouring rays walked together over the generation image.
 //!
-//! The rays of a [`PACKET_W`] × [`PACKET_H`] block of the new image project to nearly the same
-//! line in the generation image. Their pixels are visited once for all of them, in rows (along
+//! The rays of a block of eight pixels of the new image along its epipolar lines ([`shape`])
+//! project to nearly the same line in the generation image. Their pixels are visited once for all of them, in rows (along
 //! the axis the projections cross least) and, within a row, along the other axis, both in the
 //! direction every projection steps. Each projection is a monotone staircase, so each ray
 //! still meets its pixels in its own order and composites front to back. Per pixel, the
@@ -28,11 +28,68 @@ use crate::raycast::FrontToBack;
 use glam::Vec3;
 
 /// Rays per packet.
-pub(super) const LANES: usize = PACKET_W as usize * PACKET_H as usize;
-/// A packet's width in pixels of the new image.
-pub(super) const PACKET_W: u32 = 4;
-/// A packet's height in pixels of the new image.
-pub(super) const PACKET_H: u32 = 2;
+pub(super) const LANES: usize = 8;
+
+/// A packet's pixels in the new image: lane `k` is pixel `(i0 + k mod w, j0 + ⌊k / w⌋)`, the
+/// block `w = 2^shift` (1, 2, 4 or 8) pixels wide and `8 / w` tall.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Block {
+    i0: u32,
+    j0: u32,
+    shift: u32,
+}
+
+impl Block {
+    /// The block at `(i0, j0)`, `w` wide (a power of two dividing [`LANES`]).
+    pub(super) fn new(i0: u32, j0: u32, w: u32) -> Self {
+        debug_assert!(w.is_power_of_two() && LANES as u32 % w == 0);
+        Self {
+            i0,
+            j0,
+            shift: w.trailing_zeros(),
+        }
+    }
+
+    /// Lane `k`'s pixel.
+    #[inline]
+    fn pixel(self, k: usize) -> (u32, u32) {
+        let k = k as u32;
+        (
+            self.i0 + (k & ((1 << self.shift) - 1)),
+            self.j0 + (k >> self.shift),
+        )
+    }
+}
+
+/// The packet shape `(w, h)` for the 16-pixel tile at `(x0, y0)` of `frame`: the one that
+/// lies most nearly along the epipolar line there (through the tile's centre and the
+/// generation eye's image, `gen_eye` in `frame`'s eye space), 8×1, 4×2, 2×4 or 1×8. Rays
+/// through pixels on one epipolar line of the new image project onto one line of the
+/// generation image, so a packet along it shares nearly all of its generation pixels.
+pub(super) fn shape(frame: &ViewFrame, gen_eye: Vec3, x0: u32, y0: u32) -> (u32, u32) {
+    let half = crate::dvr::TILE as f32 / 2.0;
+    let sx = (2.0 * (x0 as f32 + half) / frame.width as f32 - 1.0) * frame.tan_half_x;
+    let sy = (1.0 - 2.0 * (y0 as f32 + half) / frame.height as f32) * frame.tan_half_y;
+    // The line from the pixel to the epipole `gen_eye.xy / gen_eye.z`, times `gen_eye.z`
+    // (whose sign does not matter; 0 where the lines are parallel), in pixels.
+    let dx = (sx * gen_eye.z - gen_eye.x) * frame.width as f32 / frame.tan_half_x;
+    let dy = (sy * gen_eye.z - gen_eye.y) * frame.height as f32 / frame.tan_half_y;
+    let (dx, dy) = (dx.abs(), dy.abs());
+    // tan 22.5° and tan 67.5°.
+    const FLAT: f32 = 0.414_213_57;
+    const STEEP: f32 = 2.414_213_6;
+    if !(dx > 0.0 || dy > 0.0) {
+        (4, 2)
+    } else if dy < FLAT * dx {
+        (8, 1)
+    } else if dy <= dx {
+        (4, 2)
+    } else if dy <= STEEP * dx {
+        (2, 4)
+    } else {
+        (1, 8)
+    }
+}
 
 type F = [f32; LANES];
 type I = [i32; LANES];
@@ -86,19 +143,19 @@ struct Solved {
 }
 
 impl Walker<'_> {
-    /// Composited colours of the rays of pixels `i0..i0 + PACKET_W` × `j0..j0 + PACKET_H`
-    /// of `frame` into `out` (row-major; pixels outside the frame are left black).
+    /// Composited colours of the rays of `block`'s pixels of `frame` into `out` (lane order,
+    /// which is the block's row-major order; pixels outside the frame are left black).
     pub(super) fn integrate_packet(
         &self,
         frame: &ViewFrame,
-        (i0, j0): (u32, u32),
+        block: Block,
         termination: f32,
         out: &mut [[f32; 3]],
     ) {
         let segs = match self.avx2 {
             // SAFETY: the token proves that this CPU has AVX2.
-            Some(_) => unsafe { segments_avx2(self, frame, (i0, j0)) },
-            None => self.segments(frame, (i0, j0)),
+            Some(_) => unsafe { segments_avx2(self, frame, block) },
+            None => self.segments(frame, block),
         };
         out.fill([0.0; 3]);
         if segs.iter().all(Option::is_none) {
@@ -122,12 +179,12 @@ impl Walker<'_> {
         }
     }
 
-    /// [`Walker::segment`] of the rays through the pixels of the packet at `(i0, j0)` of
-    /// `frame` (lane `a + PACKET_W·b` for pixel `(i0 + a, j0 + b)`; `None` outside the frame).
-    fn segments(&self, frame: &ViewFrame, (i0, j0): (u32, u32)) -> [Option<Segment>; LANES] {
+    /// [`Walker::segment`] of the rays through `block`'s pixels of `frame` (`None` outside
+    /// the frame).
+    fn segments(&self, frame: &ViewFrame, block: Block) -> [Option<Segment>; LANES] {
         let mut segs = [None; LANES];
         for (k, seg) in segs.iter_mut().enumerate() {
-            let (i, j) = (i0 + k as u32 % PACKET_W, j0 + k as u32 / PACKET_W);
+            let (i, j) = block.pixel(k);
             if i < frame.width && j < frame.height {
                 *seg = self.segment(&frame.pixel_ray(i, j));
             }
@@ -1004,11 +1061,12 @@ mod tests {
         let mut some = 0;
         for view in views(cam) {
             let f = view.frame(w, h);
-            for j0 in (0..h).step_by(PACKET_H as usize) {
-                for i0 in (0..w).step_by(PACKET_W as usize) {
+            for (j0, i0, bw) in (0..h).flat_map(|j| (0..w).map(move |i| (j, i, 1 << (i % 4)))) {
+                {
+                    let block = Block::new(i0, j0, bw);
                     // SAFETY: AVX2 was detected above.
-                    let simd = unsafe { segments_avx2(&walker, &f, (i0, j0)) };
-                    let scalar = walker.segments(&f, (i0, j0));
+                    let simd = unsafe { segments_avx2(&walker, &f, block) };
+                    let scalar = walker.segments(&f, block);
                     for (a, b) in simd.iter().zip(&scalar) {
                         assert_eq!(bits(a), bits(b), "packet ({i0}, {j0}) of {view:?}");
                         some += usize::from(a.is_some());
@@ -1046,10 +1104,9 @@ mod tests {
     }
 }
 
-/// [`Walker::segment`] of the rays through the pixels of the packet at `(i0, j0)` of `frame`
-/// (lane `a + PACKET_W·b` for pixel `(i0 + a, j0 + b)`), eight at once with AVX2: the same
-/// operations in the same order, so the same segments, bit for bit. Lanes outside the
-/// frame are `None`.
+/// [`Walker::segment`] of the rays through `block`'s pixels of `frame`, eight at once with
+/// AVX2: the same operations in the same order, so the same segments, bit for bit. Lanes
+/// outside the frame are `None`.
 ///
 /// # Safety
 /// The CPU must have AVX2.
@@ -1058,10 +1115,10 @@ mod tests {
 unsafe fn segments_avx2(
     walker: &Walker<'_>,
     frame: &ViewFrame,
-    (i0, j0): (u32, u32),
+    block: Block,
 ) -> [Option<Segment>; LANES] {
     use std::arch::x86_64::*;
-    const _: () = assert!(LANES == 8 && PACKET_W == 4);
+    const _: () = assert!(LANES == 8);
     let splat = _mm256_set1_ps;
     let add = _mm256_add_ps;
     let sub = _mm256_sub_ps;
@@ -1071,8 +1128,10 @@ unsafe fn segments_avx2(
     let max = |a, b| _mm256_max_ps(a, b);
     let min = |a, b| _mm256_min_ps(a, b);
     // `frame.pixel_ray`: through the pixel's centre, direction normalised.
-    let a = _mm256_setr_epi32(0, 1, 2, 3, 0, 1, 2, 3);
-    let b = _mm256_setr_epi32(0, 0, 0, 0, 1, 1, 1, 1);
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let a = _mm256_and_si256(lane, _mm256_set1_epi32((1 << block.shift) - 1));
+    let b = _mm256_srl_epi32(lane, _mm_cvtsi32_si128(block.shift as i32));
+    let (i0, j0) = (block.i0, block.j0);
     let px = add(
         _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i0 as i32), a)),
         splat(0.5),
@@ -1227,7 +1286,7 @@ unsafe fn segments_avx2(
         [x1, y1, z1, t0, t1, px0, py0, px1, py1, w0, w1, rounding].map(store);
     let mut segs = [None; LANES];
     for (k, seg) in segs.iter_mut().enumerate() {
-        let (i, j) = (i0 + k as u32 % PACKET_W, j0 + k as u32 / PACKET_W);
+        let (i, j) = block.pixel(k);
         if valid & (1 << k) == 0 || i >= frame.width || j >= frame.height {
             continue;
         }
