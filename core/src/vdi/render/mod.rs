@@ -649,15 +649,29 @@ impl Segment {
     /// Ray parameter where px reaches pixel boundary `b`, within `[t0, t1]`.
     #[inline]
     fn cross_x(&self, b: i64) -> f32 {
-        let s = (2.0 * b as f32 / self.r - 1.0) * self.tx;
-        ((s * self.z.f0 - self.x.f0) / (self.x.f1 - s * self.z.f1)).clamp(self.t0, self.t1)
+        cross(
+            true,
+            b as f32,
+            self.r,
+            self.tx,
+            self.x,
+            self.z,
+            [self.t0, self.t1],
+        )
     }
 
     /// Ray parameter where py reaches pixel boundary `b`, within `[t0, t1]`.
     #[inline]
     fn cross_y(&self, b: i64) -> f32 {
-        let s = (1.0 - 2.0 * b as f32 / self.r) * self.ty;
-        ((s * self.z.f0 - self.y.f0) / (self.y.f1 - s * self.z.f1)).clamp(self.t0, self.t1)
+        cross(
+            false,
+            b as f32,
+            self.r,
+            self.ty,
+            self.y,
+            self.z,
+            [self.t0, self.t1],
+        )
     }
 
     /// Inverse depth at `u` (perspective-correct: affine in `u`). With
@@ -672,6 +686,22 @@ impl Segment {
             self.w0 + (self.w1 - self.w0) * u
         }
     }
+}
+
+/// The ray parameter, within `[t0, t1]`, where a ray whose generation eye-space coordinate
+/// along an axis is `coord(t)` and whose depth is `z(t)` crosses pixel boundary `b` of that
+/// axis (x when `x_axis`, else y; `tan` of the half field of view along it, `r` pixels): the
+/// plane `coord = s·z` through the generation eye, `s = (2b/r − 1)·tan` for x and
+/// `(1 − 2b/r)·tan` for y (rows from the top).
+#[inline(always)]
+fn cross(x_axis: bool, b: f32, r: f32, tan: f32, coord: Lin, z: Lin, [t0, t1]: [f32; 2]) -> f32 {
+    let q = 2.0 * b / r;
+    let s = if x_axis {
+        (q - 1.0) * tan
+    } else {
+        (1.0 - q) * tan
+    };
+    ((s * z.f0 - coord.f0) / (coord.f1 - s * z.f1)).clamp(t0, t1)
 }
 
 /// Where a pixel of the walk was entered: the ray's start, or a pixel boundary (column `b`

@@ -96,8 +96,7 @@ type I = [i32; LANES];
 
 /// The lanes of a packet as arrays (structure of arrays) for the per-pixel tests; the
 /// exact spans use the segments themselves.
-struct Lanes<'a> {
-    segs: &'a [Option<Segment>; LANES],
+struct Lanes {
     /// Lanes with a segment and not yet done: −1 (all bits set), else 0.
     live: I,
     /// Outer axis: where the projection starts, `1/(p1 − p0)`, 1 when stepping up.
@@ -120,26 +119,34 @@ struct Lanes<'a> {
     w1: F,
     dw: F,
     margin: F,
+    /// The ray's generation eye-space coordinates along the outer and inner axes and its
+    /// depth, `f0 + f1·t` each, over `[t0, t1]`: what the exact crossings solve.
+    o0: F,
+    o1: F,
+    i0: F,
+    i1: F,
+    z0: F,
+    z1: F,
+    t0: F,
+    t1: F,
+    /// Whether the inner axis is x (else y); `tan` of the generation's half field of view
+    /// along the outer and inner axes; the generation resolution.
+    inner_x: bool,
+    o_tan: f32,
+    i_tan: f32,
+    r: f32,
 }
 
-/// Per lane, its `u` range in the current row and its first and last pixel there (in walk
-/// order; `first > last` for a lane not in the row).
+/// Per lane, its `u` range in the current row, its first and last pixel there (in walk
+/// order; `first > last` for a lane not in the row) and its exact span of the row.
 struct Row {
     u_in: F,
     u_out: F,
     c_in: I,
     c_out: I,
-}
-
-/// What a lane has solved: the row's exact boundary parameters (NaN until needed), the
-/// last inner boundary solved and its parameter, and how far it has composited.
-#[derive(Clone, Copy)]
-struct Solved {
-    t_in: f32,
-    t_out: f32,
-    boundary: i64,
-    t_boundary: f32,
-    t_done: f32,
+    /// The exact ray parameters where the lane enters and leaves the row.
+    t_in: F,
+    t_out: F,
 }
 
 impl Walker<'_> {
@@ -243,20 +250,6 @@ impl Walker<'_> {
                 (s.ay, s.ax, s.py1 - s.py0, s.px1 - s.px0)
             }
         };
-        let cross_o = |s: &Segment, b: i64| {
-            if TRANSPOSE {
-                s.cross_x(b)
-            } else {
-                s.cross_y(b)
-            }
-        };
-        let cross_i = |s: &Segment, b: i64| {
-            if TRANSPOSE {
-                s.cross_y(b)
-            } else {
-                s.cross_x(b)
-            }
-        };
         // The direction of rows, and of pixels in a row: the one every stepping projection
         // takes (+1 where none steps).
         let (mut so, mut si) = (0i64, 0i64);
@@ -276,7 +269,6 @@ impl Walker<'_> {
         let si = if si == 0 { 1 } else { si };
         let r = self.r;
         let mut l = Lanes {
-            segs,
             live: [0; LANES],
             o_p0: [0.0; LANES],
             o_inv: [0.0; LANES],
@@ -293,14 +285,29 @@ impl Walker<'_> {
             w1: [0.0; LANES],
             dw: [0.0; LANES],
             margin: [0.0; LANES],
+            o0: [0.0; LANES],
+            o1: [0.0; LANES],
+            i0: [0.0; LANES],
+            i1: [0.0; LANES],
+            z0: [0.0; LANES],
+            z1: [0.0; LANES],
+            t0: [0.0; LANES],
+            t1: [0.0; LANES],
+            inner_x: !TRANSPOSE,
+            o_tan: if TRANSPOSE {
+                self.gen.tan_half_x
+            } else {
+                self.gen.tan_half_y
+            },
+            i_tan: if TRANSPOSE {
+                self.gen.tan_half_y
+            } else {
+                self.gen.tan_half_x
+            },
+            r: r as f32,
         };
-        let mut solved = [Solved {
-            t_in: f32::NAN,
-            t_out: f32::NAN,
-            boundary: i64::MIN,
-            t_boundary: 0.0,
-            t_done: 0.0,
-        }; LANES];
+        // How far each lane has composited.
+        let mut t_done = [0.0f32; LANES];
         for (k, s) in segs.iter().enumerate() {
             let Some(s) = s else { continue };
             let (o, i, o_d, i_d) = axes(s);
@@ -325,7 +332,10 @@ impl Walker<'_> {
             l.w1[k] = s.w1;
             l.dw[k] = s.w1 - s.w0;
             l.margin[k] = s.rounding + s.ax.depth_error + s.ay.depth_error;
-            solved[k].t_done = s.t0;
+            let (outer, inner) = if TRANSPOSE { (s.x, s.y) } else { (s.y, s.x) };
+            (l.o0[k], l.o1[k], l.i0[k], l.i1[k]) = (outer.f0, outer.f1, inner.f0, inner.f1);
+            (l.z0[k], l.z1[k], l.t0[k], l.t1[k]) = (s.z.f0, s.z.f1, s.t0, s.t1);
+            t_done[k] = s.t0;
         }
         let mut acc = Accums {
             rgb: [[0.0; LANES]; 3],
@@ -354,9 +364,6 @@ impl Walker<'_> {
             };
             if k_first > k_last {
                 continue;
-            }
-            for s in &mut solved {
-                s.t_in = f32::NAN;
             }
             // The row's depth bins: a pixel whose occupancy misses them is passed at once.
             let row_bins = super::bits(bin(w_lo) as u32, bin(w_hi) as u32);
@@ -396,62 +403,16 @@ impl Walker<'_> {
                 } else {
                     pixel_tests(&l, &row, c, kk, occupied, bins)
                 };
-                let mut spans = Spans {
-                    ta: [0.0; LANES],
-                    tb: [0.0; LANES],
-                    z0: [0.0; LANES],
-                    z1: [0.0; LANES],
-                    lanes: 0,
-                };
-                for k in 0..LANES {
-                    if pass & (1 << k) == 0 {
-                        continue;
-                    }
-                    let Some(seg) = &l.segs[k] else { continue };
-                    let sv = &mut solved[k];
-                    // The exact span: the row's boundaries (solved once per row) and the
-                    // pixel's own.
-                    if sv.t_in.is_nan() {
-                        let o = i64::from(o);
-                        let ahead = i64::from(l.o_ahead[k]);
-                        sv.t_in = if ord == l.first[k] {
-                            seg.t0
-                        } else {
-                            cross_o(seg, o + 1 - ahead)
-                        };
-                        sv.t_out = if ord == l.last[k] {
-                            seg.t1
-                        } else {
-                            cross_o(seg, o + ahead)
-                        };
-                    }
-                    let ahead = i64::from(l.i_ahead[k]);
-                    let (entry, exit) = (i64::from(c) + 1 - ahead, i64::from(c) + ahead);
-                    let ta = if kk == row.c_in[k] {
-                        sv.t_in
-                    } else if sv.boundary == entry {
-                        sv.t_boundary.max(sv.t_in)
-                    } else {
-                        cross_i(seg, entry).max(sv.t_in)
-                    };
-                    let tb = if kk == row.c_out[k] {
-                        sv.t_out
-                    } else {
-                        let t = cross_i(seg, exit);
-                        (sv.boundary, sv.t_boundary) = (exit, t);
-                        t.min(sv.t_out)
-                    };
-                    let ta = ta.max(sv.t_done);
-                    let tb = tb.max(ta);
-                    sv.t_done = tb;
-                    if tb > ta {
-                        spans.ta[k] = ta;
-                        spans.tb[k] = tb;
-                        spans.z0[k] = seg.z.f0;
-                        spans.z1[k] = seg.z.f1;
-                        spans.lanes |= 1 << k;
-                    }
+                if pass == 0 {
+                    kk += 1;
+                    continue;
                 }
+                let spans = if AVX2 {
+                    // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                    unsafe { pixel_spans_avx2(&l, &row, c, kk, pass, &mut t_done) }
+                } else {
+                    pixel_spans(&l, &row, c, kk, pass, &mut t_done)
+                };
                 if spans.lanes != 0 {
                     let range = offsets[p] as usize..offsets[p + 1] as usize;
                     let (list, keys) = (
@@ -460,9 +421,11 @@ impl Walker<'_> {
                     );
                     let done = if AVX2 {
                         // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
-                        unsafe { composite_lanes_avx2(list, keys, &spans, &mut acc, termination) }
+                        unsafe {
+                            composite_lanes_avx2(list, keys, &l, &spans, &mut acc, termination)
+                        }
                     } else {
-                        composite_lanes(list, keys, &spans, &mut acc, termination)
+                        composite_lanes(list, keys, &l, &spans, &mut acc, termination)
                     };
                     for k in 0..LANES {
                         if done & (1 << k) != 0 {
@@ -492,13 +455,11 @@ struct Accums {
     transmittance: F,
 }
 
-/// The spans the lanes composite at one pixel: ray parameters `[ta, tb]` and the depth
-/// `z(t) = z0 + z1·t`, for the lanes whose bits `lanes` holds.
+/// The spans the lanes composite at one pixel: ray parameters `[ta, tb]`, for the lanes
+/// whose bits `lanes` holds.
 struct Spans {
     ta: F,
     tb: F,
-    z0: F,
-    z1: F,
     lanes: u32,
 }
 
@@ -507,6 +468,7 @@ struct Spans {
 fn composite_lanes(
     list: &[Supersegment],
     keys: &[[f32; 2]],
+    l: &Lanes,
     spans: &Spans,
     acc: &mut Accums,
     termination: f32,
@@ -520,8 +482,8 @@ fn composite_lanes(
         a.ray.color = [acc.rgb[0][k], acc.rgb[1][k], acc.rgb[2][k]];
         a.ray.transmittance = acc.transmittance[k];
         let z = Lin {
-            f0: spans.z0[k],
-            f1: spans.z1[k],
+            f0: l.z0[k],
+            f1: l.z1[k],
         };
         if composite_span(list, keys, z, spans.ta[k], spans.tb[k], &mut a) {
             done |= 1 << k;
@@ -546,6 +508,7 @@ fn composite_lanes(
 unsafe fn composite_lanes_avx2(
     list: &[Supersegment],
     keys: &[[f32; 2]],
+    l: &Lanes,
     spans: &Spans,
     acc: &mut Accums,
     termination: f32,
@@ -555,16 +518,16 @@ unsafe fn composite_lanes_avx2(
     let lanes = spans.lanes;
     let (mut ahead, mut behind) = (0u32, 0u32);
     for k in 0..LANES {
-        ahead |= u32::from(spans.z1[k] > 0.0) << k;
-        behind |= u32::from(spans.z1[k] < 0.0) << k;
+        ahead |= u32::from(l.z1[k] > 0.0) << k;
+        behind |= u32::from(l.z1[k] < 0.0) << k;
     }
     let forward = ahead & lanes == lanes;
     if !forward && behind & lanes != lanes {
-        return composite_lanes(list, keys, spans, acc, termination);
+        return composite_lanes(list, keys, l, spans, acc, termination);
     }
     // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
     let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-    let (ta, tb, z0, z1) = (ld(&spans.ta), ld(&spans.tb), ld(&spans.z0), ld(&spans.z1));
+    let (ta, tb, z0, z1) = (ld(&spans.ta), ld(&spans.tb), ld(&l.z0), ld(&l.z1));
     let za = _mm256_add_ps(z0, _mm256_mul_ps(z1, ta));
     let zb = _mm256_add_ps(z0, _mm256_mul_ps(z1, tb));
     let span = _mm256_sub_ps(tb, ta);
@@ -583,8 +546,8 @@ unsafe fn composite_lanes_avx2(
     for k in 0..LANES {
         if lanes & (1 << k) != 0 {
             let (a, e) = (
-                spans.z0[k] + spans.z1[k] * spans.ta[k],
-                spans.z0[k] + spans.z1[k] * spans.tb[k],
+                l.z0[k] + l.z1[k] * spans.ta[k],
+                l.z0[k] + l.z1[k] * spans.tb[k],
             );
             z_lo = z_lo.min(a);
             z_hi = z_hi.max(a);
@@ -689,7 +652,7 @@ unsafe fn composite_lanes_avx2(
 /// current row: bit `k` set where lane `k` crosses the pixel and the depth bins of its span
 /// there meet the occupancy (the single walk's test, [`super::between`]).
 #[inline(always)]
-fn pixel_tests(l: &Lanes<'_>, row: &Row, c: i32, kk: i32, occupied: u64, bins: DepthBins) -> u32 {
+fn pixel_tests(l: &Lanes, row: &Row, c: i32, kk: i32, occupied: u64, bins: DepthBins) -> u32 {
     let mut pass = 0;
     for k in 0..LANES {
         let entry = (c + 1 - l.i_ahead[k]) as f32;
@@ -729,7 +692,7 @@ fn pixel_tests(l: &Lanes<'_>, row: &Row, c: i32, kk: i32, occupied: u64, bins: D
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn pixel_tests_avx2(
-    l: &Lanes<'_>,
+    l: &Lanes,
     row: &Row,
     c: i32,
     kk: i32,
@@ -805,13 +768,15 @@ unsafe fn pixel_tests_avx2(
 /// first and last pixel any lane crosses there, and the inverse depths the lanes span there
 /// (with their margins).
 #[inline(always)]
-fn row_spans(l: &Lanes<'_>, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2], [f32; 2]) {
+fn row_spans(l: &Lanes, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2], [f32; 2]) {
     let o = so * ord;
     let mut row = Row {
         u_in: [0.0; LANES],
         u_out: [0.0; LANES],
         c_in: [i32::MAX; LANES],
         c_out: [i32::MIN; LANES],
+        t_in: [0.0; LANES],
+        t_out: [0.0; LANES],
     };
     let (mut k_first, mut k_last) = (i32::MAX, i32::MIN);
     let (mut w_lo, mut w_hi) = (f32::MAX, -f32::MAX);
@@ -855,6 +820,33 @@ fn row_spans(l: &Lanes<'_>, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i3
             let (wa, wb) = (w_at(u_in), w_at(u_out));
             w_lo = lesser(w_lo, lesser(wa, wb) - l.margin[k]);
             w_hi = greater(w_hi, greater(wa, wb) + l.margin[k]);
+            let cross_o = |b: i32| {
+                super::cross(
+                    !l.inner_x,
+                    b as f32,
+                    l.r,
+                    l.o_tan,
+                    Lin {
+                        f0: l.o0[k],
+                        f1: l.o1[k],
+                    },
+                    Lin {
+                        f0: l.z0[k],
+                        f1: l.z1[k],
+                    },
+                    [l.t0[k], l.t1[k]],
+                )
+            };
+            row.t_in[k] = if ord == l.first[k] {
+                l.t0[k]
+            } else {
+                cross_o(o + 1 - l.o_ahead[k])
+            };
+            row.t_out[k] = if ord == l.last[k] {
+                l.t1[k]
+            } else {
+                cross_o(o + l.o_ahead[k])
+            };
         }
     }
     (row, [k_first, k_last], [w_lo, w_hi])
@@ -868,7 +860,7 @@ fn row_spans(l: &Lanes<'_>, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i3
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn row_spans_avx2(
-    l: &Lanes<'_>,
+    l: &Lanes,
     ord: i32,
     so: i32,
     si: i32,
@@ -955,13 +947,39 @@ unsafe fn row_spans_avx2(
         _mm256_add_ps(greater(wa, wb), margin),
         here_ps,
     );
+    let (c0, c1, z0, z1, t0, t1) = (
+        ld(&l.o0),
+        ld(&l.o1),
+        ld(&l.z0),
+        ld(&l.z1),
+        ld(&l.t0),
+        ld(&l.t1),
+    );
+    let cross_o = |b| cross_avx2(!l.inner_x, b, l.r, l.o_tan, (c0, c1), (z0, z1), (t0, t1));
+    let t_in = _mm256_blendv_ps(
+        cross_o(_mm256_sub_epi32(
+            _mm256_add_epi32(o, _mm256_set1_epi32(1)),
+            ahead,
+        )),
+        t0,
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(ordv, first)),
+    );
+    let t_out = _mm256_blendv_ps(
+        cross_o(_mm256_add_epi32(o, ahead)),
+        t1,
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(ordv, last)),
+    );
     let mut row = Row {
         u_in: [0.0; LANES],
         u_out: [0.0; LANES],
         c_in: [0; LANES],
         c_out: [0; LANES],
+        t_in: [0.0; LANES],
+        t_out: [0.0; LANES],
     };
     unsafe {
+        _mm256_storeu_ps(row.t_in.as_mut_ptr(), t_in);
+        _mm256_storeu_ps(row.t_out.as_mut_ptr(), t_out);
         _mm256_storeu_ps(row.u_in.as_mut_ptr(), u_in);
         _mm256_storeu_ps(row.u_out.as_mut_ptr(), u_out);
         _mm256_storeu_si256(row.c_in.as_mut_ptr().cast(), c_in);
@@ -1344,4 +1362,164 @@ unsafe fn segments_avx2(
         });
     }
     segs
+}
+
+/// Each passing lane's exact span of pixel `c` (walk-order index `kk`) of the current row, as
+/// the single walk solves it: the later of the row's and the pixel's entries, the earlier of
+/// their exits, never before what the lane has composited (`t_done`, advanced here). `pass`
+/// holds the lanes' bits; the spans hold those of positive length.
+#[inline(always)]
+fn pixel_spans(l: &Lanes, row: &Row, c: i32, kk: i32, pass: u32, t_done: &mut F) -> Spans {
+    let mut spans = Spans {
+        ta: [0.0; LANES],
+        tb: [0.0; LANES],
+        lanes: 0,
+    };
+    for k in 0..LANES {
+        if pass & (1 << k) == 0 {
+            continue;
+        }
+        let cross_i = |b: i32| {
+            super::cross(
+                l.inner_x,
+                b as f32,
+                l.r,
+                l.i_tan,
+                Lin {
+                    f0: l.i0[k],
+                    f1: l.i1[k],
+                },
+                Lin {
+                    f0: l.z0[k],
+                    f1: l.z1[k],
+                },
+                [l.t0[k], l.t1[k]],
+            )
+        };
+        let ta = if kk == row.c_in[k] {
+            row.t_in[k]
+        } else {
+            cross_i(c + 1 - l.i_ahead[k]).max(row.t_in[k])
+        };
+        let tb = if kk == row.c_out[k] {
+            row.t_out[k]
+        } else {
+            cross_i(c + l.i_ahead[k]).min(row.t_out[k])
+        };
+        let ta = ta.max(t_done[k]);
+        let tb = tb.max(ta);
+        t_done[k] = tb;
+        if tb > ta {
+            spans.ta[k] = ta;
+            spans.tb[k] = tb;
+            spans.lanes |= 1 << k;
+        }
+    }
+    spans
+}
+
+/// [`pixel_spans`] with AVX2, eight lanes at once; the same operations (`f32::max` and
+/// `f32::min` with their NaN rule), the same result.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn pixel_spans_avx2(
+    l: &Lanes,
+    row: &Row,
+    c: i32,
+    kk: i32,
+    pass: u32,
+    t_done: &mut F,
+) -> Spans {
+    use std::arch::x86_64::*;
+    // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
+    let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
+    let ldi = |a: &I| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
+    // `f32::max(a, b)` / `f32::min(a, b)`: the other operand where one is NaN.
+    let max = |a, b| _mm256_blendv_ps(_mm256_max_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
+    let min = |a, b| _mm256_blendv_ps(_mm256_min_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
+    let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    let passing = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+        _mm256_and_si256(_mm256_set1_epi32(pass as i32), lane_bits),
+        lane_bits,
+    ));
+    let (c0, c1, z0, z1, t0, t1) = (
+        ld(&l.i0),
+        ld(&l.i1),
+        ld(&l.z0),
+        ld(&l.z1),
+        ld(&l.t0),
+        ld(&l.t1),
+    );
+    let cross_i = |b| cross_avx2(l.inner_x, b, l.r, l.i_tan, (c0, c1), (z0, z1), (t0, t1));
+    let cv = _mm256_set1_epi32(c);
+    let ahead = ldi(&l.i_ahead);
+    let entry = cross_i(_mm256_sub_epi32(
+        _mm256_add_epi32(cv, _mm256_set1_epi32(1)),
+        ahead,
+    ));
+    let exit = cross_i(_mm256_add_epi32(cv, ahead));
+    let kv = _mm256_set1_epi32(kk);
+    let (t_in, t_out) = (ld(&row.t_in), ld(&row.t_out));
+    let first = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, ldi(&row.c_in)));
+    let last = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, ldi(&row.c_out)));
+    let ta = _mm256_blendv_ps(max(entry, t_in), t_in, first);
+    let tb = _mm256_blendv_ps(min(exit, t_out), t_out, last);
+    let done = ld(t_done);
+    let ta = max(ta, done);
+    let tb = max(tb, ta);
+    let active = _mm256_and_ps(passing, _mm256_cmp_ps::<_CMP_GT_OQ>(tb, ta));
+    let mut spans = Spans {
+        ta: [0.0; LANES],
+        tb: [0.0; LANES],
+        lanes: _mm256_movemask_ps(active) as u32,
+    };
+    unsafe {
+        _mm256_storeu_ps(t_done.as_mut_ptr(), _mm256_blendv_ps(done, tb, passing));
+        _mm256_storeu_ps(spans.ta.as_mut_ptr(), ta);
+        _mm256_storeu_ps(spans.tb.as_mut_ptr(), tb);
+    }
+    spans
+}
+
+/// [`super::cross`] in eight lanes (boundaries `b`), step for step.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn cross_avx2(
+    x_axis: bool,
+    b: std::arch::x86_64::__m256i,
+    r: f32,
+    tan: f32,
+    (c0, c1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
+    (z0, z1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
+    (t0, t1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let q = _mm256_div_ps(
+        _mm256_mul_ps(_mm256_set1_ps(2.0), _mm256_cvtepi32_ps(b)),
+        _mm256_set1_ps(r),
+    );
+    let one = _mm256_set1_ps(1.0);
+    let s = _mm256_mul_ps(
+        if x_axis {
+            _mm256_sub_ps(q, one)
+        } else {
+            _mm256_sub_ps(one, q)
+        },
+        _mm256_set1_ps(tan),
+    );
+    let t = _mm256_div_ps(
+        _mm256_sub_ps(_mm256_mul_ps(s, z0), c0),
+        _mm256_sub_ps(c1, _mm256_mul_ps(s, z1)),
+    );
+    // `f32::clamp(t0, t1)`.
+    let t = _mm256_blendv_ps(t, t0, _mm256_cmp_ps::<_CMP_LT_OQ>(t, t0));
+    _mm256_blendv_ps(t, t1, _mm256_cmp_ps::<_CMP_GT_OQ>(t, t1))
 }
