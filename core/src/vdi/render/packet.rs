@@ -132,6 +132,9 @@ struct Lanes {
     /// Whether the inner axis is x (else y); `tan` of the generation's half field of view
     /// along the outer and inner axes; the generation resolution.
     inner_x: bool,
+    /// The lanes whose depth grows along the ray (`z1 > 0`), and those where it falls.
+    deeper: u32,
+    shallower: u32,
     o_tan: f32,
     i_tan: f32,
     r: f32,
@@ -294,6 +297,8 @@ impl Walker<'_> {
             t0: [0.0; LANES],
             t1: [0.0; LANES],
             inner_x: !TRANSPOSE,
+            deeper: 0,
+            shallower: 0,
             o_tan: if TRANSPOSE {
                 self.gen.tan_half_x
             } else {
@@ -336,6 +341,8 @@ impl Walker<'_> {
             (l.o0[k], l.o1[k], l.i0[k], l.i1[k]) = (outer.f0, outer.f1, inner.f0, inner.f1);
             (l.z0[k], l.z1[k], l.t0[k], l.t1[k]) = (s.z.f0, s.z.f1, s.t0, s.t1);
             t_done[k] = s.t0;
+            l.deeper |= u32::from(s.z.f1 > 0.0) << k;
+            l.shallower |= u32::from(s.z.f1 < 0.0) << k;
         }
         let mut acc = Accums {
             rgb: [[0.0; LANES]; 3],
@@ -516,13 +523,8 @@ unsafe fn composite_lanes_avx2(
     use crate::vdi::generate::one_minus_exp_neg_avx2;
     use std::arch::x86_64::*;
     let lanes = spans.lanes;
-    let (mut ahead, mut behind) = (0u32, 0u32);
-    for k in 0..LANES {
-        ahead |= u32::from(l.z1[k] > 0.0) << k;
-        behind |= u32::from(l.z1[k] < 0.0) << k;
-    }
-    let forward = ahead & lanes == lanes;
-    if !forward && behind & lanes != lanes {
+    let forward = l.deeper & lanes == lanes;
+    if !forward && l.shallower & lanes != lanes {
         return composite_lanes(list, keys, l, spans, acc, termination);
     }
     // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
@@ -541,20 +543,11 @@ unsafe fn composite_lanes_avx2(
     let threshold = _mm256_set1_ps(Accum::new(termination).threshold);
     let zero = _mm256_setzero_ps();
     // The lanes' extreme depths: where the traversal starts and ends.
-    let (mut z_lo, mut z_hi) = (f32::MAX, -f32::MAX);
-    let (mut z_min_b, mut z_max_b) = (f32::MAX, -f32::MAX);
-    for k in 0..LANES {
-        if lanes & (1 << k) != 0 {
-            let (a, e) = (
-                l.z0[k] + l.z1[k] * spans.ta[k],
-                l.z0[k] + l.z1[k] * spans.tb[k],
-            );
-            z_lo = z_lo.min(a);
-            z_hi = z_hi.max(a);
-            z_min_b = z_min_b.min(e);
-            z_max_b = z_max_b.max(e);
-        }
-    }
+    let (big, small) = (_mm256_set1_ps(f32::MAX), _mm256_set1_ps(-f32::MAX));
+    let z_lo = fold_ps(_mm256_blendv_ps(big, za, live), _mm256_min_ps);
+    let z_hi = fold_ps(_mm256_blendv_ps(small, za, live), _mm256_max_ps);
+    let z_min_b = fold_ps(_mm256_blendv_ps(big, zb, live), _mm256_min_ps);
+    let z_max_b = fold_ps(_mm256_blendv_ps(small, zb, live), _mm256_max_ps);
     // One supersegment into every live lane, with `len` its length on each lane's ray.
     let mut add = |s: &Supersegment, kappa: f32, len: __m256| -> bool {
         // `len.clamp(0, span)`.
@@ -985,27 +978,13 @@ unsafe fn row_spans_avx2(
         _mm256_storeu_si256(row.c_in.as_mut_ptr().cast(), c_in);
         _mm256_storeu_si256(row.c_out.as_mut_ptr().cast(), c_out);
     }
-    // Horizontal minima and maxima (exact, in any order).
-    let fold_ps = |v: __m256, f: fn(__m256, __m256) -> __m256| {
-        let v = f(v, _mm256_permute2f128_ps::<1>(v, v));
-        let v = f(v, _mm256_shuffle_ps::<0b01_00_11_10>(v, v));
-        _mm256_cvtss_f32(f(v, _mm256_shuffle_ps::<0b10_11_00_01>(v, v)))
-    };
-    let fold_epi32 = |v: __m256i, f: fn(__m256i, __m256i) -> __m256i| {
-        let v = f(v, _mm256_permute2x128_si256::<1>(v, v));
-        let v = f(v, _mm256_shuffle_epi32::<0b01_00_11_10>(v));
-        _mm256_cvtsi256_si32(f(v, _mm256_shuffle_epi32::<0b10_11_00_01>(v)))
-    };
     (
         row,
         [
-            fold_epi32(c_in, |a, b| _mm256_min_epi32(a, b)),
-            fold_epi32(c_out, |a, b| _mm256_max_epi32(a, b)),
+            fold_epi32(c_in, _mm256_min_epi32),
+            fold_epi32(c_out, _mm256_max_epi32),
         ],
-        [
-            fold_ps(lo, |a, b| _mm256_min_ps(a, b)),
-            fold_ps(hi, |a, b| _mm256_max_ps(a, b)),
-        ],
+        [fold_ps(lo, _mm256_min_ps), fold_ps(hi, _mm256_max_ps)],
     )
 }
 
@@ -1522,4 +1501,41 @@ unsafe fn cross_avx2(
     // `f32::clamp(t0, t1)`.
     let t = _mm256_blendv_ps(t, t0, _mm256_cmp_ps::<_CMP_LT_OQ>(t, t0));
     _mm256_blendv_ps(t, t1, _mm256_cmp_ps::<_CMP_GT_OQ>(t, t1))
+}
+
+/// `f` (a minimum or maximum: exact, in any order) over the eight lanes of `v`.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn fold_ps(
+    v: std::arch::x86_64::__m256,
+    f: unsafe fn(std::arch::x86_64::__m256, std::arch::x86_64::__m256) -> std::arch::x86_64::__m256,
+) -> f32 {
+    use std::arch::x86_64::*;
+    let v = f(v, _mm256_permute2f128_ps::<1>(v, v));
+    let v = f(v, _mm256_shuffle_ps::<0b01_00_11_10>(v, v));
+    _mm256_cvtss_f32(f(v, _mm256_shuffle_ps::<0b10_11_00_01>(v, v)))
+}
+
+/// [`fold_ps`] of eight integers.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn fold_epi32(
+    v: std::arch::x86_64::__m256i,
+    f: unsafe fn(
+        std::arch::x86_64::__m256i,
+        std::arch::x86_64::__m256i,
+    ) -> std::arch::x86_64::__m256i,
+) -> i32 {
+    use std::arch::x86_64::*;
+    let v = f(v, _mm256_permute2x128_si256::<1>(v, v));
+    let v = f(v, _mm256_shuffle_epi32::<0b01_00_11_10>(v));
+    _mm256_cvtsi256_si32(f(v, _mm256_shuffle_epi32::<0b10_11_00_01>(v)))
 }
