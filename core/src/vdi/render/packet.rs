@@ -1,25 +1,31 @@
-//! Packets of neighbouring rays walked together over the generation image.
+//! Packets of eight neighbouring rays walked together over the generation image.
 //!
-//! The rays of a block of eight pixels of the new image along its epipolar lines ([`shape`])
-//! project to nearly the same line in the generation image. Their pixels are visited once for all of them, in rows (along
+//! Rays through pixels on one epipolar line of the new image (the line through the pixel
+//! and the generation eye's image) lie in one plane with the generation eye, so they project
+//! onto one line of the generation image. A packet is a block of eight pixels laid along
+//! those lines ([`shape`]: 8×1, 4×2, 2×4 or 1×8 per 16-pixel tile), so its rays cross nearly
+//! the same generation pixels. Those pixels are visited once for all of them: in rows (along
 //! the axis the projections cross least) and, within a row, along the other axis, both in the
 //! direction every projection steps. Each projection is a monotone staircase, so each ray
-//! still meets its pixels in its own order and composites front to back. Per pixel, the
-//! lanes' spans, depth bins and occupancy tests are computed side by side (structure of
-//! arrays, which the compiler vectorises: AVX2 where the CPU has it, chosen at run time); only
-//! the lanes whose occupancy test passes solve their exact span and composite, as a single
-//! walk would ([`Walker::walk_segment`]), whose arithmetic they share. Images agree with the
-//! single walk's to rounding (the tests pin ≥ 100 dB and 1e-4 per channel): the spans are
-//! the same crossings, taken as a maximum of entries and a minimum of exits instead of in
-//! the order a DDA meets them.
+//! still meets its pixels in its own order and composites front to back. A packet whose
+//! projections step both ways along an axis (around the epipole) is walked ray by ray
+//! ([`Walker::walk_segment`]).
+//!
+//! A pixel's tile, occupancy and list are loaded once; the lanes' spans in the row, their
+//! depth bins and occupancy tests, their exact spans (the single walk's crossings, [`cross`])
+//! and their compositing (each supersegment into all lanes at once, one exponential for eight)
+//! run eight lanes wide with AVX2 where the CPU has it (chosen at run time; the set-up of the
+//! eight segments too). The portable path does the same per lane: both give the same image
+//! bit for bit, and the single walk's to rounding (spans taken as the maximum of the entries
+//! and the minimum of the exits instead of in the order a DDA meets them); the tests pin both.
 
 // Calling the kernel compiled for AVX2 is `unsafe` (a `#[target_feature]` function); it is
 // called only behind an [`Avx2`] token, proof of the CPU's support. Nothing else here is.
 #![allow(unsafe_code)]
 
 use super::{
-    composite_span, greater, lesser, Accum, Axis, DepthBins, Lin, Segment, Supersegment, Walker,
-    DEGENERATE_PX, DEPTH_BINS, LINEAR_SEARCH_MAX, NEAR_DEPTH, SKIP_SHIFT, SKIP_TILE,
+    composite_span, cross, greater, lesser, Accum, Axis, DepthBins, Lin, Segment, Supersegment,
+    Walker, DEGENERATE_PX, DEPTH_BINS, LINEAR_SEARCH_MAX, NEAR_DEPTH, SKIP_SHIFT, SKIP_TILE,
 };
 use crate::camera::ViewFrame;
 #[cfg(test)]
@@ -814,7 +820,7 @@ fn row_spans(l: &Lanes, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2
             w_lo = lesser(w_lo, lesser(wa, wb) - l.margin[k]);
             w_hi = greater(w_hi, greater(wa, wb) + l.margin[k]);
             let cross_o = |b: i32| {
-                super::cross(
+                cross(
                     !l.inner_x,
                     b as f32,
                     l.r,
@@ -1359,7 +1365,7 @@ fn pixel_spans(l: &Lanes, row: &Row, c: i32, kk: i32, pass: u32, t_done: &mut F)
             continue;
         }
         let cross_i = |b: i32| {
-            super::cross(
+            cross(
                 l.inner_x,
                 b as f32,
                 l.r,
