@@ -994,117 +994,15 @@ unsafe fn row_spans_avx2(
     )
 }
 
-#[cfg(test)]
-mod tests {
-    use super::super::tests::{blobs, views};
-    use super::*;
-    use crate::raycast::Avx2;
-
-    /// Packets give the single walk's image to rounding (the same crossings, taken as a
-    /// maximum of entries and a minimum of exits), on a frame whose sides are not multiples
-    /// of the packet's, from every test view (those from inside the volume include packets
-    /// whose rays step both ways, walked one by one).
-    #[test]
-    fn packets_match_the_single_walk() {
-        let (vdi, cam) = blobs();
-        let walker = Walker::new(&vdi);
-        let (w, h) = (61, 37);
-        let mut seen = 0;
-        for view in views(cam) {
-            let packed = walker.render(&view, w, h, 0.99);
-            let f = view.frame(w, h);
-            let mut single = Image::new(w, h);
-            for j in 0..h {
-                for i in 0..w {
-                    let c = walker.integrate(&f.pixel_ray(i, j), 0.99);
-                    single.pixels_mut()[(i + w * j) as usize] = c;
-                    let p = packed.pixels()[(i + w * j) as usize];
-                    for k in 0..3 {
-                        assert!(
-                            (c[k] - p[k]).abs() <= 1e-4,
-                            "pixel ({i}, {j}): single {c:?}, packet {p:?}"
-                        );
-                    }
-                    seen += usize::from(c != [0.0; 3]);
-                }
-            }
-            let q = crate::metrics::psnr(&packed, &single).unwrap_or(f64::INFINITY);
-            assert!(q >= 100.0, "PSNR {q} dB");
-        }
-        assert!(seen > 400, "the blobs must be seen ({seen} pixels)");
-    }
-
-    /// The AVX2 set-up gives [`Walker::segment`]'s segments bit for bit, on every packet of
-    /// every test view (frame sides not multiples of the packet's).
-    #[test]
-    fn avx2_segments_equal_scalar_segments() {
-        if Avx2::detect().is_none() {
-            eprintln!("this CPU has no AVX2: only the scalar set-up runs here");
-            return;
-        }
-        let (vdi, cam) = blobs();
-        let walker = Walker::new(&vdi);
-        let bits = |s: &Option<Segment>| -> Option<Vec<u64>> {
-            s.map(|s| {
-                let f = [
-                    s.x.f0, s.x.f1, s.y.f0, s.y.f1, s.z.f0, s.z.f1, s.t0, s.t1, s.px0, s.py0,
-                    s.px1, s.py1, s.w0, s.w1, s.rounding, s.r, s.tx, s.ty,
-                ];
-                let mut v: Vec<u64> = f.iter().map(|x| u64::from(x.to_bits())).collect();
-                for a in [s.ax, s.ay] {
-                    v.extend(
-                        [a.p0.to_bits(), a.inv_d.to_bits(), a.depth_error.to_bits()].map(u64::from),
-                    );
-                    v.extend([a.step, a.ahead, a.cell].map(|i| i as u64));
-                }
-                v
-            })
-        };
-        let (w, h) = (61, 37);
-        let mut some = 0;
-        for view in views(cam) {
-            let f = view.frame(w, h);
-            for (j0, i0, bw) in (0..h).flat_map(|j| (0..w).map(move |i| (j, i, 1 << (i % 4)))) {
-                {
-                    let block = Block::new(i0, j0, bw);
-                    // SAFETY: AVX2 was detected above.
-                    let simd = unsafe { segments_avx2(&walker, &f, block) };
-                    let scalar = walker.segments(&f, block);
-                    for (a, b) in simd.iter().zip(&scalar) {
-                        assert_eq!(bits(a), bits(b), "packet ({i0}, {j0}) of {view:?}");
-                        some += usize::from(a.is_some());
-                    }
-                }
-            }
-        }
-        assert!(some > 5000, "{some} segments");
-    }
-
-    /// The AVX2 row spans and lane tests give the portable ones' results: the images are
-    /// bit-identical.
-    #[test]
-    fn avx2_packets_equal_portable_packets() {
-        if Avx2::detect().is_none() {
-            eprintln!("this CPU has no AVX2: only the portable packets run here");
-            return;
-        }
-        let (vdi, cam) = blobs();
-        let simd = Walker::new(&vdi);
-        let portable = Walker {
-            avx2: None,
-            ..Walker::new(&vdi)
-        };
-        for view in views(cam) {
-            let (a, b) = (
-                simd.render(&view, 61, 37, 0.99),
-                portable.render(&view, 61, 37, 0.99),
-            );
-            let bits = |i: &Image| -> Vec<u32> {
-                i.pixels().iter().flatten().map(|v| v.to_bits()).collect()
-            };
-            assert_eq!(bits(&a), bits(&b), "view {view:?}");
-        }
-    }
+/// An [`Axis`] of each of eight segments: the lanes stepping up (`up`) and down (`down`) as
+/// bits, the first pixel as a float.
+struct AxisLanes {
+    p0: F,
+    inv_d: F,
+    up: u32,
+    down: u32,
+    cell: F,
+    depth_error: F,
 }
 
 /// [`Walker::segment`] of the rays through `block`'s pixels of `frame`, eight at once with
@@ -1275,14 +1173,14 @@ unsafe fn segments_avx2(
             min(mul(splat(1e-5 * (r + 1.0)), abs(inv_d)), splat(1.0)),
             dw,
         );
-        (
-            store(p0),
-            store(inv_d),
-            _mm256_movemask_ps(up) as u32,
-            _mm256_movemask_ps(down) as u32,
-            store(cell),
-            store(error),
-        )
+        AxisLanes {
+            p0: store(p0),
+            inv_d: store(inv_d),
+            up: _mm256_movemask_ps(up) as u32,
+            down: _mm256_movemask_ps(down) as u32,
+            cell: store(cell),
+            depth_error: store(error),
+        }
     };
     let (ax, ay) = (axis(px0, px1), axis(py0, py1));
     let [x1, y1, z1, t0, t1, px0, py0, px1, py1, w0, w1, rounding] =
@@ -1293,28 +1191,21 @@ unsafe fn segments_avx2(
         if valid & (1 << k) == 0 || i >= frame.width || j >= frame.height {
             continue;
         }
-        let lane_axis = |(p0, inv_d, up, down, cell, error): &(
-            [f32; LANES],
-            [f32; LANES],
-            u32,
-            u32,
-            [f32; LANES],
-            [f32; LANES],
-        )| {
-            let step = if up & (1 << k) != 0 {
+        let lane_axis = |a: &AxisLanes| {
+            let step = if a.up & (1 << k) != 0 {
                 1
-            } else if down & (1 << k) != 0 {
+            } else if a.down & (1 << k) != 0 {
                 -1
             } else {
                 0
             };
             Axis {
-                p0: p0[k],
-                inv_d: inv_d[k],
+                p0: a.p0[k],
+                inv_d: a.inv_d[k],
                 step,
                 ahead: i64::from(step > 0),
-                cell: (cell[k] as i64).clamp(0, walker.r - 1),
-                depth_error: error[k],
+                cell: (a.cell[k] as i64).clamp(0, walker.r - 1),
+                depth_error: a.depth_error[k],
             }
         };
         *seg = Some(Segment {
@@ -1360,7 +1251,7 @@ fn pixel_spans(l: &Lanes, row: &Row, c: i32, kk: i32, pass: u32, t_done: &mut F)
         tb: [0.0; LANES],
         lanes: 0,
     };
-    for k in 0..LANES {
+    for (k, done) in t_done.iter_mut().enumerate() {
         if pass & (1 << k) == 0 {
             continue;
         }
@@ -1391,9 +1282,9 @@ fn pixel_spans(l: &Lanes, row: &Row, c: i32, kk: i32, pass: u32, t_done: &mut F)
         } else {
             cross_i(c + l.i_ahead[k]).min(row.t_out[k])
         };
-        let ta = ta.max(t_done[k]);
+        let ta = ta.max(*done);
         let tb = tb.max(ta);
-        t_done[k] = tb;
+        *done = tb;
         if tb > ta {
             spans.ta[k] = ta;
             spans.tb[k] = tb;
@@ -1544,4 +1435,117 @@ unsafe fn fold_epi32(
     let v = f(v, _mm256_permute2x128_si256::<1>(v, v));
     let v = f(v, _mm256_shuffle_epi32::<0b01_00_11_10>(v));
     _mm256_cvtsi256_si32(f(v, _mm256_shuffle_epi32::<0b10_11_00_01>(v)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::{blobs, views};
+    use super::*;
+    use crate::raycast::Avx2;
+
+    /// Packets give the single walk's image to rounding (the same crossings, taken as a
+    /// maximum of entries and a minimum of exits), on a frame whose sides are not multiples
+    /// of the packet's, from every test view (those from inside the volume include packets
+    /// whose rays step both ways, walked one by one).
+    #[test]
+    fn packets_match_the_single_walk() {
+        let (vdi, cam) = blobs();
+        let walker = Walker::new(&vdi);
+        let (w, h) = (61, 37);
+        let mut seen = 0;
+        for view in views(cam) {
+            let packed = walker.render(&view, w, h, 0.99);
+            let f = view.frame(w, h);
+            let mut single = Image::new(w, h);
+            for j in 0..h {
+                for i in 0..w {
+                    let c = walker.integrate(&f.pixel_ray(i, j), 0.99);
+                    single.pixels_mut()[(i + w * j) as usize] = c;
+                    let p = packed.pixels()[(i + w * j) as usize];
+                    for k in 0..3 {
+                        assert!(
+                            (c[k] - p[k]).abs() <= 1e-4,
+                            "pixel ({i}, {j}): single {c:?}, packet {p:?}"
+                        );
+                    }
+                    seen += usize::from(c != [0.0; 3]);
+                }
+            }
+            let q = crate::metrics::psnr(&packed, &single).unwrap_or(f64::INFINITY);
+            assert!(q >= 100.0, "PSNR {q} dB");
+        }
+        assert!(seen > 400, "the blobs must be seen ({seen} pixels)");
+    }
+
+    /// The AVX2 set-up gives [`Walker::segment`]'s segments bit for bit, on every packet of
+    /// every test view (frame sides not multiples of the packet's).
+    #[test]
+    fn avx2_segments_equal_scalar_segments() {
+        if Avx2::detect().is_none() {
+            eprintln!("this CPU has no AVX2: only the scalar set-up runs here");
+            return;
+        }
+        let (vdi, cam) = blobs();
+        let walker = Walker::new(&vdi);
+        let bits = |s: &Option<Segment>| -> Option<Vec<u64>> {
+            s.map(|s| {
+                let f = [
+                    s.x.f0, s.x.f1, s.y.f0, s.y.f1, s.z.f0, s.z.f1, s.t0, s.t1, s.px0, s.py0,
+                    s.px1, s.py1, s.w0, s.w1, s.rounding, s.r, s.tx, s.ty,
+                ];
+                let mut v: Vec<u64> = f.iter().map(|x| u64::from(x.to_bits())).collect();
+                for a in [s.ax, s.ay] {
+                    v.extend(
+                        [a.p0.to_bits(), a.inv_d.to_bits(), a.depth_error.to_bits()].map(u64::from),
+                    );
+                    v.extend([a.step, a.ahead, a.cell].map(|i| i as u64));
+                }
+                v
+            })
+        };
+        let (w, h) = (61, 37);
+        let mut some = 0;
+        for view in views(cam) {
+            let f = view.frame(w, h);
+            for (j0, i0, bw) in (0..h).flat_map(|j| (0..w).map(move |i| (j, i, 1 << (i % 4)))) {
+                {
+                    let block = Block::new(i0, j0, bw);
+                    // SAFETY: AVX2 was detected above.
+                    let simd = unsafe { segments_avx2(&walker, &f, block) };
+                    let scalar = walker.segments(&f, block);
+                    for (a, b) in simd.iter().zip(&scalar) {
+                        assert_eq!(bits(a), bits(b), "packet ({i0}, {j0}) of {view:?}");
+                        some += usize::from(a.is_some());
+                    }
+                }
+            }
+        }
+        assert!(some > 5000, "{some} segments");
+    }
+
+    /// The AVX2 row spans and lane tests give the portable ones' results: the images are
+    /// bit-identical.
+    #[test]
+    fn avx2_packets_equal_portable_packets() {
+        if Avx2::detect().is_none() {
+            eprintln!("this CPU has no AVX2: only the portable packets run here");
+            return;
+        }
+        let (vdi, cam) = blobs();
+        let simd = Walker::new(&vdi);
+        let portable = Walker {
+            avx2: None,
+            ..Walker::new(&vdi)
+        };
+        for view in views(cam) {
+            let (a, b) = (
+                simd.render(&view, 61, 37, 0.99),
+                portable.render(&view, 61, 37, 0.99),
+            );
+            let bits = |i: &Image| -> Vec<u32> {
+                i.pixels().iter().flatten().map(|v| v.to_bits()).collect()
+            };
+            assert_eq!(bits(&a), bits(&b), "view {view:?}");
+        }
+    }
 }
