@@ -138,6 +138,23 @@ def insitu_render(exe, volume, tf, angle, size, step, out):
     return float(m[1])
 
 
+def insitu_generate(exe, volume, tf, r, gamma, out):
+    cmd = [exe, "generate", "--volume", volume, "--tf", tf, "--r", str(r), "--gamma", str(gamma),
+           "--backend", "cpu", "--out", out]
+    subprocess.run(cmd, capture_output=True, text=True, check=True)
+
+
+def insitu_view(exe, vdi, angle, size, out):
+    """The warm render's time: `--repeat 2` reports the second (walk tables built)."""
+    cmd = [exe, "view", "--vdi", vdi, "--angle", str(angle), "--size", str(size), "--repeat",
+           "2", "--backend", "cpu", "--out", out]
+    p = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    m = re.search(r"then ([0-9.]+) s", p.stdout + p.stderr)
+    if not m:
+        sys.exit(f"could not read the render time from: {p.stdout}{p.stderr}")
+    return float(m[1])
+
+
 def psnr(a, b):
     mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
     return math.inf if mse == 0 else 10 * math.log10(255.0 ** 2 / mse)
@@ -152,6 +169,10 @@ def main():
     ap.add_argument("--step", type=float, default=0.5)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--insitu", default="target/release/insitu")
+    ap.add_argument("--vdi", type=int, action="append", default=[], metavar="R",
+                    help="also render a VDI of resolution R (made at 0°, the default camera) "
+                         "from the same view in each round (repeatable)")
+    ap.add_argument("--gamma", type=float, default=0.013, help="the VDIs' interrupt threshold")
     a = ap.parse_args()
 
     data, dims = load_raw(a.volume)
@@ -166,14 +187,23 @@ def main():
     ours_png = os.path.join(tempfile.mkdtemp(), "insitu.png")
     insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png)
 
+    tmp = tempfile.mkdtemp()
+    vdis = []
+    for r in a.vdi:
+        path = os.path.join(tmp, f"r{r}.vdi")
+        insitu_generate(a.insitu, a.volume, a.tf, r, a.gamma, path)
+        vdis.append((r, path, os.path.join(tmp, f"r{r}.png"), []))
+
     t_vtk, t_ours = [], []
-    for _ in range(a.runs):  # interleaved, so both see the same machine state
+    for _ in range(a.runs):  # interleaved, so all see the same machine state
         ren.GetActiveCamera().Modified()
         t0 = time.perf_counter()
         win.Render()
         t_vtk.append(time.perf_counter() - t0)
         t_ours.append(insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step,
                                     ours_png))
+        for _, path, png, times in vdis:
+            times.append(insitu_view(a.insitu, path, a.angle, a.size, png))
     theirs = vtk_image(win)
     ours = np.asarray(Image.open(ours_png).convert("RGB"))
     mv, mo = statistics.median(t_vtk), statistics.median(t_ours)
@@ -184,6 +214,14 @@ def main():
     print(f"  insitu render --backend cpu:          {mo:.3f} s"
           f"  (runs {', '.join(f'{t:.3f}' for t in t_ours)})")
     print(f"  ratio VTK / insitu: {mv / mo:.2f}×;  PSNR between the images: {psnr(theirs, ours):.1f} dB")
+    print(f"  (minima: VTK {min(t_vtk):.3f} s, insitu {min(t_ours):.3f} s, "
+          f"ratio {min(t_vtk) / min(t_ours):.2f}×)")
+    for r, _, png, times in vdis:
+        m = statistics.median(times)
+        q = psnr(ours, np.asarray(Image.open(png).convert("RGB")))
+        print(f"  insitu view, VDI r = {r} (γ {a.gamma:g}, made at 0°): {m:.3f} s"
+              f"  (runs {', '.join(f'{t:.3f}' for t in times)}); VTK over it {mv / m:.2f}× "
+              f"(minima {min(t_vtk) / min(times):.2f}×); {q:.1f} dB against insitu's DVR")
 
 
 if __name__ == "__main__":

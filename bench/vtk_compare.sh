@@ -5,6 +5,7 @@
 #
 #   bench/vtk_compare.sh                       # the teapot at 30°, 768², 5 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
+#   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=bench/.venv
