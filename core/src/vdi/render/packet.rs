@@ -1444,35 +1444,49 @@ mod tests {
     use crate::raycast::Avx2;
 
     /// Packets give the single walk's image to rounding (the same crossings, taken as a
-    /// maximum of entries and a minimum of exits), on a frame whose sides are not multiples
-    /// of the packet's, from every test view (those from inside the volume include packets
-    /// whose rays step both ways, walked one by one).
+    /// maximum of entries and a minimum of exits), in every shape, from every test view (those
+    /// from inside the volume include packets whose rays step both ways, walked one by one),
+    /// on frames whose sides are not multiples of the packets' and on frames smaller than one;
+    /// and the shapes chosen along the epipolar lines ([`Walker::render`]) likewise.
     #[test]
     fn packets_match_the_single_walk() {
         let (vdi, cam) = blobs();
         let walker = Walker::new(&vdi);
-        let (w, h) = (61, 37);
         let mut seen = 0;
-        for view in views(cam) {
-            let packed = walker.render(&view, w, h, 0.99);
-            let f = view.frame(w, h);
-            let mut single = Image::new(w, h);
-            for j in 0..h {
-                for i in 0..w {
-                    let c = walker.integrate(&f.pixel_ray(i, j), 0.99);
-                    single.pixels_mut()[(i + w * j) as usize] = c;
-                    let p = packed.pixels()[(i + w * j) as usize];
-                    for k in 0..3 {
-                        assert!(
-                            (c[k] - p[k]).abs() <= 1e-4,
-                            "pixel ({i}, {j}): single {c:?}, packet {p:?}"
-                        );
+        for (w, h) in [(61, 37), (1, 1), (7, 3)] {
+            for view in views(cam) {
+                let f = view.frame(w, h);
+                let mut single = Image::new(w, h);
+                for j in 0..h {
+                    for i in 0..w {
+                        single.pixels_mut()[(i + w * j) as usize] =
+                            walker.integrate(&f.pixel_ray(i, j), 0.99);
                     }
-                    seen += usize::from(c != [0.0; 3]);
+                }
+                seen += single.pixels().iter().filter(|c| **c != [0.0; 3]).count();
+                let shaped = [(8, 1), (4, 2), (2, 4), (1, 8)].map(|shape| {
+                    crate::dvr::render_blocks(
+                        &f,
+                        |_, _| shape,
+                        |i0, j0, (bw, _), out| {
+                            walker.integrate_packet(&f, Block::new(i0, j0, bw), 0.99, out)
+                        },
+                    )
+                });
+                let chosen = walker.render(&view, w, h, 0.99);
+                for packed in shaped.iter().chain([&chosen]) {
+                    for (k, (c, p)) in single.pixels().iter().zip(packed.pixels()).enumerate() {
+                        for ch in 0..3 {
+                            assert!(
+                                (c[ch] - p[ch]).abs() <= 1e-4,
+                                "pixel {k} of {w}x{h} from {view:?}: single {c:?}, packet {p:?}"
+                            );
+                        }
+                    }
+                    let q = crate::metrics::psnr(packed, &single).unwrap_or(f64::INFINITY);
+                    assert!(q >= 100.0, "PSNR {q} dB");
                 }
             }
-            let q = crate::metrics::psnr(&packed, &single).unwrap_or(f64::INFINITY);
-            assert!(q >= 100.0, "PSNR {q} dB");
         }
         assert!(seen > 400, "the blobs must be seen ({seen} pixels)");
     }
