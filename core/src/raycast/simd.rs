@@ -347,6 +347,26 @@ impl<'a, T: Gather> Lanes<'a, T> {
                 lerp(lo, hi, fx)
             };
             (pair(0), pair(sy), pair(sz), pair(sz + sy))
+        } else if std::mem::size_of::<T>() == 4 && sx == 1 {
+            // f32 along x likewise: one 8-byte load per lane holds a corner and its x
+            // neighbour (two 4-lane gathers of 8 bytes: half the element loads of two 8-lane
+            // gathers of 4), deinterleaved into the two corners' lanes.
+            let pair = |o: i32| {
+                let index = _mm256_add_epi32(base, _mm256_set1_epi32(o));
+                let gather =
+                    |i: __m128i| _mm256_castsi256_ps(_mm256_i32gather_epi64::<4>(ptr.cast(), i));
+                let a = gather(_mm256_castsi256_si128(index));
+                let b = gather(_mm256_extracti128_si256::<1>(index));
+                // Lanes 0, 1, 4, 5 | 2, 3, 6, 7 of the corner (even words) and of its
+                // neighbour (odd words), then the middle quarters swapped into order.
+                let order = |v: __m256| {
+                    _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)))
+                };
+                let lo = order(_mm256_shuffle_ps::<0b10_00_10_00>(a, b));
+                let hi = order(_mm256_shuffle_ps::<0b11_01_11_01>(a, b));
+                lerp(lo, hi, fx)
+            };
+            (pair(0), pair(sy), pair(sz), pair(sz + sy))
         } else {
             (
                 lerp(at(0), at(sx), fx),
