@@ -441,8 +441,8 @@ impl<'a> Walker<'a> {
             ..
         } = *seg;
         let (mut ax, mut ay) = (seg.ax, seg.ay);
-        let cross_x = |b: i64| seg.cross_x(b);
-        let cross_y = |b: i64| seg.cross_y(b);
+        let cross_x = |b: i64| seg.cross(true, b);
+        let cross_y = |b: i64| seg.cross(false, b);
         let t_of = |c: Crossing| match c {
             Crossing::Start => t0,
             Crossing::X(b) => cross_x(b),
@@ -651,29 +651,21 @@ struct Segment {
 }
 
 impl Segment {
-    /// Ray parameter where px reaches pixel boundary `b`, within `[t0, t1]`.
+    /// Ray parameter, within `[t0, t1]`, where the projection reaches pixel boundary `b`
+    /// of x (`x_axis`) or y ([`cross`]).
     #[inline]
-    fn cross_x(&self, b: i64) -> f32 {
+    fn cross(&self, x_axis: bool, b: i64) -> f32 {
+        let (tan, coord) = if x_axis {
+            (self.tx, self.x)
+        } else {
+            (self.ty, self.y)
+        };
         cross(
-            true,
+            x_axis,
             b as f32,
             self.r,
-            self.tx,
-            self.x,
-            self.z,
-            [self.t0, self.t1],
-        )
-    }
-
-    /// Ray parameter where py reaches pixel boundary `b`, within `[t0, t1]`.
-    #[inline]
-    fn cross_y(&self, b: i64) -> f32 {
-        cross(
-            false,
-            b as f32,
-            self.r,
-            self.ty,
-            self.y,
+            tan,
+            coord,
             self.z,
             [self.t0, self.t1],
         )

@@ -527,25 +527,20 @@ unsafe fn composite_lanes_avx2(
     termination: f32,
 ) -> u32 {
     use crate::vdi::generate::one_minus_exp_neg_avx2;
+    use lanes8::*;
     use std::arch::x86_64::*;
     let lanes = spans.lanes;
     let forward = l.deeper & lanes == lanes;
     if !forward && l.shallower & lanes != lanes {
         return composite_lanes(list, keys, l, spans, acc, termination);
     }
-    // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
-    let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-    let (ta, tb, z0, z1) = (ld(&spans.ta), ld(&spans.tb), ld(&l.z0), ld(&l.z1));
+    let (ta, tb, z0, z1) = (load(&spans.ta), load(&spans.tb), load(&l.z0), load(&l.z1));
     let za = _mm256_add_ps(z0, _mm256_mul_ps(z1, ta));
     let zb = _mm256_add_ps(z0, _mm256_mul_ps(z1, tb));
     let span = _mm256_sub_ps(tb, ta);
-    let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-    let mut live = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
-        _mm256_and_si256(_mm256_set1_epi32(lanes as i32), lane_bits),
-        lane_bits,
-    ));
-    let (mut r, mut g, mut b) = (ld(&acc.rgb[0]), ld(&acc.rgb[1]), ld(&acc.rgb[2]));
-    let mut t = ld(&acc.transmittance);
+    let mut live = lanes_mask(lanes);
+    let (mut r, mut g, mut b) = (load(&acc.rgb[0]), load(&acc.rgb[1]), load(&acc.rgb[2]));
+    let mut t = load(&acc.transmittance);
     let threshold = _mm256_set1_ps(Accum::new(termination).threshold);
     let zero = _mm256_setzero_ps();
     // The lanes' extreme depths: where the traversal starts and ends.
@@ -698,25 +693,20 @@ unsafe fn pixel_tests_avx2(
     occupied: u64,
     bins: DepthBins,
 ) -> u32 {
+    use lanes8::*;
     use std::arch::x86_64::*;
     const _: () = assert!(LANES == 8);
-    // SAFETY (all loads): each array holds eight 4-byte lanes (`LANES == 8`), read unaligned.
-    let ld = |a: &[f32; LANES]| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-    let ldi = |a: &[i32; LANES]| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
     let c = _mm256_set1_epi32(c);
     let kk = _mm256_set1_epi32(kk);
-    let ahead = ldi(&l.i_ahead);
+    let ahead = load_i(&l.i_ahead);
     let entry = _mm256_cvtepi32_ps(_mm256_sub_epi32(
         _mm256_add_epi32(c, _mm256_set1_epi32(1)),
         ahead,
     ));
     let exit = _mm256_cvtepi32_ps(_mm256_add_epi32(c, ahead));
-    let (p0, inv) = (ld(&l.i_p0), ld(&l.i_inv));
-    let (u_in, u_out) = (ld(&row.u_in), ld(&row.u_out));
-    let (c_in, c_out) = (ldi(&row.c_in), ldi(&row.c_out));
-    // `greater(a, b)`: a where a > b, else b; `lesser` likewise.
-    let greater = |a, b| _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_GT_OQ>(a, b));
-    let lesser = |a, b| _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_LT_OQ>(a, b));
+    let (p0, inv) = (load(&l.i_p0), load(&l.i_inv));
+    let (u_in, u_out) = (load(&row.u_in), load(&row.u_out));
+    let (c_in, c_out) = (load_i(&row.c_in), load_i(&row.c_out));
     let u_a = greater(_mm256_mul_ps(_mm256_sub_ps(entry, p0), inv), u_in);
     let u_b = lesser(_mm256_mul_ps(_mm256_sub_ps(exit, p0), inv), u_out);
     let u_a = _mm256_blendv_ps(u_a, u_in, _mm256_castsi256_ps(_mm256_cmpeq_epi32(kk, c_in)));
@@ -725,14 +715,10 @@ unsafe fn pixel_tests_avx2(
         u_out,
         _mm256_castsi256_ps(_mm256_cmpeq_epi32(kk, c_out)),
     );
-    let (w0, w1, dw) = (ld(&l.w0), ld(&l.w1), ld(&l.dw));
-    let one = _mm256_set1_ps(1.0);
-    let w_at = |u| {
-        let w = _mm256_add_ps(w0, _mm256_mul_ps(dw, u));
-        _mm256_blendv_ps(w, w1, _mm256_cmp_ps::<_CMP_GE_OQ>(u, one))
-    };
+    let (w0, w1, dw) = (load(&l.w0), load(&l.w1), load(&l.dw));
+    let w_at = |u| w_at(w0, w1, dw, u);
     let (wa, wb) = (w_at(u_a), w_at(u_b));
-    let margin = ld(&l.margin);
+    let margin = load(&l.margin);
     let (b0, per_unit) = (_mm256_set1_ps(bins.w0), _mm256_set1_ps(bins.per_unit));
     let top = _mm256_set1_ps((DEPTH_BINS - 1) as f32);
     // `DepthBins::bin`: clamped as floats (NaN to 0), then truncated.
@@ -865,26 +851,22 @@ unsafe fn row_spans_avx2(
     si: i32,
     r_top: f32,
 ) -> (Row, [i32; 2], [f32; 2]) {
+    use lanes8::*;
     use std::arch::x86_64::*;
-    // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
-    let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-    let ldi = |a: &I| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
-    let greater = |a, b| _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_GT_OQ>(a, b));
-    let lesser = |a, b| _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_LT_OQ>(a, b));
     let (zero, one) = (_mm256_setzero_ps(), _mm256_set1_ps(1.0));
     let ordv = _mm256_set1_epi32(ord);
     let o = _mm256_set1_epi32(so * ord);
-    let ahead = ldi(&l.o_ahead);
+    let ahead = load_i(&l.o_ahead);
     let entry = _mm256_cvtepi32_ps(_mm256_sub_epi32(
         _mm256_add_epi32(o, _mm256_set1_epi32(1)),
         ahead,
     ));
     let exit = _mm256_cvtepi32_ps(_mm256_add_epi32(o, ahead));
-    let (p0, inv) = (ld(&l.o_p0), ld(&l.o_inv));
+    let (p0, inv) = (load(&l.o_p0), load(&l.o_inv));
     let unit = |u| lesser(greater(u, zero), one);
     let u_in = unit(_mm256_mul_ps(_mm256_sub_ps(entry, p0), inv));
     let u_out = unit(_mm256_mul_ps(_mm256_sub_ps(exit, p0), inv));
-    let (first, last) = (ldi(&l.first), ldi(&l.last));
+    let (first, last) = (load_i(&l.first), load_i(&l.last));
     let u_in = _mm256_blendv_ps(
         u_in,
         zero,
@@ -895,8 +877,11 @@ unsafe fn row_spans_avx2(
         one,
         _mm256_castsi256_ps(_mm256_cmpeq_epi32(ordv, last)),
     );
-    let (i_p0, i_d) = (ld(&l.i_p0), ld(&l.i_d));
-    let behind = _mm256_castsi256_ps(_mm256_cmpeq_epi32(ldi(&l.i_ahead), _mm256_setzero_si256()));
+    let (i_p0, i_d) = (load(&l.i_p0), load(&l.i_d));
+    let behind = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+        load_i(&l.i_ahead),
+        _mm256_setzero_si256(),
+    ));
     let top = _mm256_set1_ps(r_top);
     let cell = |u| {
         let p = _mm256_add_ps(i_p0, _mm256_mul_ps(i_d, u));
@@ -907,8 +892,8 @@ unsafe fn row_spans_avx2(
         );
         _mm256_cvttps_epi32(lesser(greater(c, zero), top))
     };
-    let steps = ldi(&l.i_steps);
-    let i_cell = ldi(&l.i_cell);
+    let steps = load_i(&l.i_steps);
+    let i_cell = load_i(&l.i_cell);
     let c_in = _mm256_blendv_epi8(i_cell, cell(u_in), steps);
     let c_out = _mm256_blendv_epi8(i_cell, cell(u_out), steps);
     // In the row: live, and first ≤ ord ≤ last.
@@ -916,7 +901,7 @@ unsafe fn row_spans_avx2(
         _mm256_cmpgt_epi32(first, ordv),
         _mm256_cmpgt_epi32(ordv, last),
     );
-    let here = _mm256_andnot_si256(outside, ldi(&l.live));
+    let here = _mm256_andnot_si256(outside, load_i(&l.live));
     let dir = _mm256_set1_epi32(si);
     let c_in = _mm256_blendv_epi8(
         _mm256_set1_epi32(i32::MAX),
@@ -928,13 +913,10 @@ unsafe fn row_spans_avx2(
         _mm256_sign_epi32(c_out, dir),
         here,
     );
-    let (w0, w1, dw) = (ld(&l.w0), ld(&l.w1), ld(&l.dw));
-    let w_at = |u| {
-        let w = _mm256_add_ps(w0, _mm256_mul_ps(dw, u));
-        _mm256_blendv_ps(w, w1, _mm256_cmp_ps::<_CMP_GE_OQ>(u, one))
-    };
+    let (w0, w1, dw) = (load(&l.w0), load(&l.w1), load(&l.dw));
+    let w_at = |u| w_at(w0, w1, dw, u);
     let (wa, wb) = (w_at(u_in), w_at(u_out));
-    let margin = ld(&l.margin);
+    let margin = load(&l.margin);
     let here_ps = _mm256_castsi256_ps(here);
     let lo = _mm256_blendv_ps(
         _mm256_set1_ps(f32::MAX),
@@ -947,12 +929,12 @@ unsafe fn row_spans_avx2(
         here_ps,
     );
     let (c0, c1, z0, z1, t0, t1) = (
-        ld(&l.o0),
-        ld(&l.o1),
-        ld(&l.z0),
-        ld(&l.z1),
-        ld(&l.t0),
-        ld(&l.t1),
+        load(&l.o0),
+        load(&l.o1),
+        load(&l.z0),
+        load(&l.z1),
+        load(&l.t0),
+        load(&l.t1),
     );
     let cross_o = |b| cross_avx2(!l.inner_x, b, l.r, l.o_tan, (c0, c1), (z0, z1), (t0, t1));
     let t_in = _mm256_blendv_ps(
@@ -1310,41 +1292,35 @@ unsafe fn pixel_spans_avx2(
     pass: u32,
     t_done: &mut F,
 ) -> Spans {
+    use lanes8::*;
     use std::arch::x86_64::*;
-    // SAFETY (all loads and stores): each array holds eight 4-byte lanes, unaligned.
-    let ld = |a: &F| unsafe { _mm256_loadu_ps(a.as_ptr()) };
-    let ldi = |a: &I| unsafe { _mm256_loadu_si256(a.as_ptr().cast()) };
     // `f32::max(a, b)` / `f32::min(a, b)`: the other operand where one is NaN.
     let max = |a, b| _mm256_blendv_ps(_mm256_max_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
     let min = |a, b| _mm256_blendv_ps(_mm256_min_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
-    let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-    let passing = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
-        _mm256_and_si256(_mm256_set1_epi32(pass as i32), lane_bits),
-        lane_bits,
-    ));
+    let passing = lanes_mask(pass);
     let (c0, c1, z0, z1, t0, t1) = (
-        ld(&l.i0),
-        ld(&l.i1),
-        ld(&l.z0),
-        ld(&l.z1),
-        ld(&l.t0),
-        ld(&l.t1),
+        load(&l.i0),
+        load(&l.i1),
+        load(&l.z0),
+        load(&l.z1),
+        load(&l.t0),
+        load(&l.t1),
     );
     let cross_i = |b| cross_avx2(l.inner_x, b, l.r, l.i_tan, (c0, c1), (z0, z1), (t0, t1));
     let cv = _mm256_set1_epi32(c);
-    let ahead = ldi(&l.i_ahead);
+    let ahead = load_i(&l.i_ahead);
     let entry = cross_i(_mm256_sub_epi32(
         _mm256_add_epi32(cv, _mm256_set1_epi32(1)),
         ahead,
     ));
     let exit = cross_i(_mm256_add_epi32(cv, ahead));
     let kv = _mm256_set1_epi32(kk);
-    let (t_in, t_out) = (ld(&row.t_in), ld(&row.t_out));
-    let first = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, ldi(&row.c_in)));
-    let last = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, ldi(&row.c_out)));
+    let (t_in, t_out) = (load(&row.t_in), load(&row.t_out));
+    let first = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, load_i(&row.c_in)));
+    let last = _mm256_castsi256_ps(_mm256_cmpeq_epi32(kv, load_i(&row.c_out)));
     let ta = _mm256_blendv_ps(max(entry, t_in), t_in, first);
     let tb = _mm256_blendv_ps(min(exit, t_out), t_out, last);
-    let done = ld(t_done);
+    let done = load(t_done);
     let ta = max(ta, done);
     let tb = max(tb, ta);
     let active = _mm256_and_ps(passing, _mm256_cmp_ps::<_CMP_GT_OQ>(tb, ta));
@@ -1437,6 +1413,60 @@ unsafe fn fold_epi32(
     _mm256_cvtsi256_si32(f(v, _mm256_shuffle_epi32::<0b10_11_00_01>(v)))
 }
 
+/// Eight-lane AVX2 helpers of the packet kernels. Each needs a CPU with AVX2 (`unsafe`).
+#[cfg(target_arch = "x86_64")]
+mod lanes8 {
+    use super::{F, I};
+    use std::arch::x86_64::*;
+
+    /// The eight lanes of `a` (unaligned load of eight 4-byte values).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn load(a: &F) -> __m256 {
+        _mm256_loadu_ps(a.as_ptr())
+    }
+
+    /// The eight lanes of `a`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn load_i(a: &I) -> __m256i {
+        _mm256_loadu_si256(a.as_ptr().cast())
+    }
+
+    /// All bits set in the lanes whose bit is set in `bits`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn lanes_mask(bits: u32) -> __m256 {
+        let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane_bits),
+            lane_bits,
+        ))
+    }
+
+    /// [`super::greater`] per lane: `a` where `a > b`, else `b`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn greater(a: __m256, b: __m256) -> __m256 {
+        _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_GT_OQ>(a, b))
+    }
+
+    /// [`super::lesser`] per lane: `a` where `a < b`, else `b`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn lesser(a: __m256, b: __m256) -> __m256 {
+        _mm256_blendv_ps(b, a, _mm256_cmp_ps::<_CMP_LT_OQ>(a, b))
+    }
+
+    /// [`super::Segment::w_at`] per lane: `w1` where `u ≥ 1`, else `w0 + dw·u`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn w_at(w0: __m256, w1: __m256, dw: __m256, u: __m256) -> __m256 {
+        let w = _mm256_add_ps(w0, _mm256_mul_ps(dw, u));
+        _mm256_blendv_ps(w, w1, _mm256_cmp_ps::<_CMP_GE_OQ>(u, _mm256_set1_ps(1.0)))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::tests::{blobs, views};
@@ -1491,12 +1521,21 @@ mod tests {
         assert!(seen > 400, "the blobs must be seen ({seen} pixels)");
     }
 
+    /// Whether this CPU has AVX2; says so when it does not (the AVX2 tests then have nothing
+    /// to compare: only the portable path runs here).
+    fn has_avx2() -> bool {
+        let has = Avx2::detect().is_some();
+        if !has {
+            eprintln!("this CPU has no AVX2: only the portable packets run here");
+        }
+        has
+    }
+
     /// The AVX2 set-up gives [`Walker::segment`]'s segments bit for bit, on every packet of
     /// every test view (frame sides not multiples of the packet's).
     #[test]
     fn avx2_segments_equal_scalar_segments() {
-        if Avx2::detect().is_none() {
-            eprintln!("this CPU has no AVX2: only the scalar set-up runs here");
+        if !has_avx2() {
             return;
         }
         let (vdi, cam) = blobs();
@@ -1541,8 +1580,7 @@ mod tests {
     /// bit-identical.
     #[test]
     fn avx2_packets_equal_portable_packets() {
-        if Avx2::detect().is_none() {
-            eprintln!("this CPU has no AVX2: only the portable packets run here");
+        if !has_avx2() {
             return;
         }
         let (vdi, cam) = blobs();
