@@ -814,15 +814,8 @@ fn composite_span(
 ) -> bool {
     let span = tb - ta;
     let (za, zb) = (z.at(ta), z.at(tb));
-    // The first supersegment ending after za; lists are sorted and disjoint. Short lists
-    // are scanned: independent loads in order, where a binary search's loads each wait on
-    // the one before (12 % of the teapot r = 768 frame from 30°).
-    let first = if keys.len() <= LINEAR_SEARCH_MAX {
-        keys.iter().position(|k| k[0] > za).unwrap_or(keys.len())
-    } else {
-        keys.partition_point(|k| k[0] <= za)
-    };
     if z.f1 > 0.0 {
+        let first = ending_after(keys, za);
         for (s, k) in list[first..].iter().zip(&keys[first..]) {
             if s.z_start >= zb {
                 break;
@@ -832,9 +825,10 @@ fn composite_span(
                 return true;
             }
         }
-    } else if z.f1 < 0.0 {
-        // Those starting before za: up to `first`, and `first` itself if it contains za.
-        let end = first + usize::from(list.get(first).is_some_and(|s| s.z_start < za));
+        return false;
+    }
+    if z.f1 < 0.0 {
+        let end = starting_before(list, za);
         for (s, k) in list[..end].iter().zip(&keys[..end]).rev() {
             if s.z_end <= zb {
                 break;
@@ -844,12 +838,43 @@ fn composite_span(
                 return true;
             }
         }
-    } else if let (Some(s), Some(k)) = (list.get(first), keys.get(first)) {
+        return false;
+    }
+    let first = ending_after(keys, za);
+    if let (Some(s), Some(k)) = (list.get(first), keys.get(first)) {
         if s.z_start <= za && acc.add(s, k[1], span) {
             return true;
         }
     }
     false
+}
+
+/// The first supersegment of a list (sorted and disjoint; `keys` its `[z_end, κ]`) that ends
+/// after depth `z`: where a ray going deeper from `z` starts. Short lists are scanned:
+/// independent loads in order, where a binary search's loads each wait on the one before
+/// (12 % of the teapot r = 768 frame from 30°).
+#[inline(always)]
+fn ending_after(keys: &[[f32; 2]], z: f32) -> usize {
+    if keys.len() <= LINEAR_SEARCH_MAX {
+        keys.iter().position(|k| k[0] > z).unwrap_or(keys.len())
+    } else {
+        keys.partition_point(|k| k[0] <= z)
+    }
+}
+
+/// How many supersegments of a sorted, disjoint list start before depth `z` (they are its
+/// first ones): where a ray going shallower from `z` starts, counting down. Short lists are
+/// scanned from their end, past those beyond `z` only, not through the ones the ray will
+/// composite (the view from behind: 7–9 % of a frame).
+#[inline(always)]
+fn starting_before(list: &[Supersegment], z: f32) -> usize {
+    if list.len() <= LINEAR_SEARCH_MAX {
+        list.iter()
+            .rposition(|s| s.z_start < z)
+            .map_or(0, |i| i + 1)
+    } else {
+        list.partition_point(|s| s.z_start < z)
+    }
 }
 
 #[cfg(test)]

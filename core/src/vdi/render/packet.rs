@@ -24,8 +24,9 @@
 #![allow(unsafe_code)]
 
 use super::{
-    composite_span, cross, greater, lesser, Accum, Axis, DepthBins, Lin, Segment, Supersegment,
-    Walker, DEGENERATE_PX, DEPTH_BINS, LINEAR_SEARCH_MAX, NEAR_DEPTH, SKIP_SHIFT, SKIP_TILE,
+    composite_span, cross, ending_after, greater, lesser, starting_before, Accum, Axis, DepthBins,
+    Lin, Segment, Supersegment, Walker, DEGENERATE_PX, DEPTH_BINS, NEAR_DEPTH, SKIP_SHIFT,
+    SKIP_TILE,
 };
 use crate::camera::ViewFrame;
 #[cfg(test)]
@@ -585,16 +586,9 @@ unsafe fn composite_lanes_avx2(
         }
         _mm256_movemask_ps(live) == 0
     };
-    let search = |z: f32| {
-        if keys.len() <= LINEAR_SEARCH_MAX {
-            keys.iter().position(|k| k[0] > z).unwrap_or(keys.len())
-        } else {
-            keys.partition_point(|k| k[0] <= z)
-        }
-    };
     if forward {
         // From the first supersegment ending after the nearest entry, up to the farthest exit.
-        let first = search(z_lo);
+        let first = ending_after(keys, z_lo);
         for (s, k) in list[first..].iter().zip(&keys[first..]) {
             if s.z_start >= z_max_b {
                 break;
@@ -613,8 +607,7 @@ unsafe fn composite_lanes_avx2(
     } else {
         // From the last supersegment starting before the farthest entry, down to the
         // nearest exit.
-        let first = search(z_hi);
-        let end = first + usize::from(list.get(first).is_some_and(|s| s.z_start < z_hi));
+        let end = starting_before(list, z_hi);
         let neg_z1 = _mm256_xor_ps(z1, _mm256_set1_ps(-0.0));
         for (s, k) in list[..end].iter().zip(&keys[..end]).rev() {
             if s.z_end <= z_min_b {
