@@ -101,8 +101,8 @@ pub(super) fn shape(frame: &ViewFrame, gen_eye: Vec3, x0: u32, y0: u32) -> (u32,
 type F = [f32; LANES];
 type I = [i32; LANES];
 
-/// The lanes of a packet as arrays (structure of arrays) for the per-pixel tests; the
-/// exact spans use the segments themselves.
+/// The lanes of a packet as arrays (structure of arrays): what the row spans, the occupancy
+/// tests, the exact spans and the compositing read, a lane's values at one index.
 struct Lanes {
     /// Lanes with a segment and not yet done: −1 (all bits set), else 0.
     live: I,
@@ -136,12 +136,12 @@ struct Lanes {
     z1: F,
     t0: F,
     t1: F,
-    /// Whether the inner axis is x (else y); `tan` of the generation's half field of view
-    /// along the outer and inner axes; the generation resolution.
-    inner_x: bool,
     /// The lanes whose depth grows along the ray (`z1 > 0`), and those where it falls.
     deeper: u32,
     shallower: u32,
+    /// Whether the inner axis is x (else y); `tan` of the generation's half field of view
+    /// along the outer and inner axes; the generation resolution.
+    inner_x: bool,
     o_tan: f32,
     i_tan: f32,
     r: f32,
