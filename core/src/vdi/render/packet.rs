@@ -147,6 +147,25 @@ struct Lanes {
     r: f32,
 }
 
+impl Lanes {
+    /// Where lane `k`'s ray crosses boundary `b` of the inner axis (`inner`) or the outer
+    /// one ([`cross`]).
+    #[inline(always)]
+    fn cross(&self, k: usize, inner: bool, b: i32) -> f32 {
+        let (x_axis, tan, f0, f1) = if inner {
+            (self.inner_x, self.i_tan, self.i0[k], self.i1[k])
+        } else {
+            (!self.inner_x, self.o_tan, self.o0[k], self.o1[k])
+        };
+        let z = Lin {
+            f0: self.z0[k],
+            f1: self.z1[k],
+        };
+        let limits = [self.t0[k], self.t1[k]];
+        cross(x_axis, b as f32, self.r, tan, Lin { f0, f1 }, z, limits)
+    }
+}
+
 /// Per lane, its `u` range in the current row, its first and last pixel there (in walk
 /// order; `first > last` for a lane not in the row) and its exact span of the row.
 struct Row {
@@ -798,32 +817,15 @@ fn row_spans(l: &Lanes, ord: i32, so: i32, si: i32, r_top: f32) -> (Row, [i32; 2
             let (wa, wb) = (w_at(u_in), w_at(u_out));
             w_lo = lesser(w_lo, lesser(wa, wb) - l.margin[k]);
             w_hi = greater(w_hi, greater(wa, wb) + l.margin[k]);
-            let cross_o = |b: i32| {
-                cross(
-                    !l.inner_x,
-                    b as f32,
-                    l.r,
-                    l.o_tan,
-                    Lin {
-                        f0: l.o0[k],
-                        f1: l.o1[k],
-                    },
-                    Lin {
-                        f0: l.z0[k],
-                        f1: l.z1[k],
-                    },
-                    [l.t0[k], l.t1[k]],
-                )
-            };
             row.t_in[k] = if ord == l.first[k] {
                 l.t0[k]
             } else {
-                cross_o(o + 1 - l.o_ahead[k])
+                l.cross(k, false, o + 1 - l.o_ahead[k])
             };
             row.t_out[k] = if ord == l.last[k] {
                 l.t1[k]
             } else {
-                cross_o(o + l.o_ahead[k])
+                l.cross(k, false, o + l.o_ahead[k])
             };
         }
     }
@@ -1230,32 +1232,15 @@ fn pixel_spans(l: &Lanes, row: &Row, c: i32, kk: i32, pass: u32, t_done: &mut F)
         if pass & (1 << k) == 0 {
             continue;
         }
-        let cross_i = |b: i32| {
-            cross(
-                l.inner_x,
-                b as f32,
-                l.r,
-                l.i_tan,
-                Lin {
-                    f0: l.i0[k],
-                    f1: l.i1[k],
-                },
-                Lin {
-                    f0: l.z0[k],
-                    f1: l.z1[k],
-                },
-                [l.t0[k], l.t1[k]],
-            )
-        };
         let ta = if kk == row.c_in[k] {
             row.t_in[k]
         } else {
-            cross_i(c + 1 - l.i_ahead[k]).max(row.t_in[k])
+            l.cross(k, true, c + 1 - l.i_ahead[k]).max(row.t_in[k])
         };
         let tb = if kk == row.c_out[k] {
             row.t_out[k]
         } else {
-            cross_i(c + l.i_ahead[k]).min(row.t_out[k])
+            l.cross(k, true, c + l.i_ahead[k]).min(row.t_out[k])
         };
         let ta = ta.max(*done);
         let tb = tb.max(ta);
