@@ -413,9 +413,6 @@ impl<'a> Walker<'a> {
             ax: axis(px0, px1),
             ay: axis(py0, py1),
             rounding: 1e-4 * w0.abs().max(w1.abs()),
-            r,
-            tx,
-            ty,
         })
     }
 
@@ -441,8 +438,8 @@ impl<'a> Walker<'a> {
             ..
         } = *seg;
         let (mut ax, mut ay) = (seg.ax, seg.ay);
-        let cross_x = |b: i64| seg.cross(true, b);
-        let cross_y = |b: i64| seg.cross(false, b);
+        let cross_x = |b: i64| self.cross(seg, true, b);
+        let cross_y = |b: i64| self.cross(seg, false, b);
         let t_of = |c: Crossing| match c {
             Crossing::Start => t0,
             Crossing::X(b) => cross_x(b),
@@ -599,6 +596,21 @@ impl<'a> Walker<'a> {
     }
 }
 
+impl Walker<'_> {
+    /// Ray parameter, within `[seg.t0, seg.t1]`, where `seg`'s projection reaches pixel
+    /// boundary `b` of x (`x_axis`) or y ([`cross`]).
+    #[inline]
+    fn cross(&self, seg: &Segment, x_axis: bool, b: i64) -> f32 {
+        let (tan, coord) = if x_axis {
+            (self.gen.tan_half_x, seg.x)
+        } else {
+            (self.gen.tan_half_y, seg.y)
+        };
+        let r = self.r as f32;
+        cross(x_axis, b as f32, r, tan, coord, seg.z, [seg.t0, seg.t1])
+    }
+}
+
 /// The smaller of `a` and `b`, for operands that are never NaN (one comparison, where
 /// `f32::min` also handles NaN).
 #[inline]
@@ -644,33 +656,9 @@ struct Segment {
     /// The relative rounding of inverse depths computed in `u` against those of `t` (the
     /// occupancy test's margin, with the axes' [`Axis::depth_error`]).
     rounding: f32,
-    /// The generation image's resolution and `tan` of its half field of view.
-    r: f32,
-    tx: f32,
-    ty: f32,
 }
 
 impl Segment {
-    /// Ray parameter, within `[t0, t1]`, where the projection reaches pixel boundary `b`
-    /// of x (`x_axis`) or y ([`cross`]).
-    #[inline]
-    fn cross(&self, x_axis: bool, b: i64) -> f32 {
-        let (tan, coord) = if x_axis {
-            (self.tx, self.x)
-        } else {
-            (self.ty, self.y)
-        };
-        cross(
-            x_axis,
-            b as f32,
-            self.r,
-            tan,
-            coord,
-            self.z,
-            [self.t0, self.t1],
-        )
-    }
-
     /// Inverse depth at `u` (perspective-correct: affine in `u`). With
     /// [`Segment::rounding`] and the axes' [`Axis::depth_error`] as margins, the depth bins
     /// of a crossing found in `u` cover those of its exact `t` (the occupancy test must not

@@ -644,13 +644,8 @@ unsafe fn composite_lanes_avx2(
             }
         }
     }
-    // SAFETY: as the loads.
-    unsafe {
-        _mm256_storeu_ps(acc.rgb[0].as_mut_ptr(), r);
-        _mm256_storeu_ps(acc.rgb[1].as_mut_ptr(), g);
-        _mm256_storeu_ps(acc.rgb[2].as_mut_ptr(), b);
-        _mm256_storeu_ps(acc.transmittance.as_mut_ptr(), t);
-    }
+    acc.rgb = [lanes_of(r), lanes_of(g), lanes_of(b)];
+    acc.transmittance = lanes_of(t);
     lanes & !(_mm256_movemask_ps(live) as u32)
 }
 
@@ -945,22 +940,14 @@ unsafe fn row_spans_avx2(
         t1,
         _mm256_castsi256_ps(_mm256_cmpeq_epi32(ordv, last)),
     );
-    let mut row = Row {
-        u_in: [0.0; LANES],
-        u_out: [0.0; LANES],
-        c_in: [0; LANES],
-        c_out: [0; LANES],
-        t_in: [0.0; LANES],
-        t_out: [0.0; LANES],
+    let row = Row {
+        u_in: lanes_of(u_in),
+        u_out: lanes_of(u_out),
+        c_in: lanes_of_i(c_in),
+        c_out: lanes_of_i(c_out),
+        t_in: lanes_of(t_in),
+        t_out: lanes_of(t_out),
     };
-    unsafe {
-        _mm256_storeu_ps(row.t_in.as_mut_ptr(), t_in);
-        _mm256_storeu_ps(row.t_out.as_mut_ptr(), t_out);
-        _mm256_storeu_ps(row.u_in.as_mut_ptr(), u_in);
-        _mm256_storeu_ps(row.u_out.as_mut_ptr(), u_out);
-        _mm256_storeu_si256(row.c_in.as_mut_ptr().cast(), c_in);
-        _mm256_storeu_si256(row.c_out.as_mut_ptr().cast(), c_out);
-    }
     (
         row,
         [
@@ -995,6 +982,7 @@ unsafe fn segments_avx2(
     frame: &ViewFrame,
     block: Block,
 ) -> [Option<Segment>; LANES] {
+    use lanes8::lanes_of;
     use std::arch::x86_64::*;
     const _: () = assert!(LANES == 8);
     let splat = _mm256_set1_ps;
@@ -1128,12 +1116,7 @@ unsafe fn segments_avx2(
     let abs = |v| _mm256_andnot_ps(splat(-0.0), v);
     let dw = abs(sub(w1, w0));
     let rounding = mul(splat(1e-4), max(abs(w0), abs(w1)));
-    let store = |v: __m256| {
-        let mut a = [0.0f32; LANES];
-        // SAFETY: eight lanes into eight floats.
-        unsafe { _mm256_storeu_ps(a.as_mut_ptr(), v) };
-        a
-    };
+    let store = |v: __m256| lanes_of(v);
     // Per axis: u = (b − p0)/(p1 − p0), its step, first pixel and depth error.
     let axis = |p0: __m256, p1: __m256| {
         let d = sub(p1, p0);
@@ -1209,9 +1192,6 @@ unsafe fn segments_avx2(
             ax: lane_axis(&ax),
             ay: lane_axis(&ay),
             rounding: rounding[k],
-            r,
-            tx: g.tan_half_x,
-            ty: g.tan_half_y,
         });
     }
     segs
@@ -1302,17 +1282,12 @@ unsafe fn pixel_spans_avx2(
     let ta = max(ta, done);
     let tb = max(tb, ta);
     let active = _mm256_and_ps(passing, _mm256_cmp_ps::<_CMP_GT_OQ>(tb, ta));
-    let mut spans = Spans {
-        ta: [0.0; LANES],
-        tb: [0.0; LANES],
+    *t_done = lanes_of(_mm256_blendv_ps(done, tb, passing));
+    Spans {
+        ta: lanes_of(ta),
+        tb: lanes_of(tb),
         lanes: _mm256_movemask_ps(active) as u32,
-    };
-    unsafe {
-        _mm256_storeu_ps(t_done.as_mut_ptr(), _mm256_blendv_ps(done, tb, passing));
-        _mm256_storeu_ps(spans.ta.as_mut_ptr(), ta);
-        _mm256_storeu_ps(spans.tb.as_mut_ptr(), tb);
     }
-    spans
 }
 
 /// [`super::cross`] in eight lanes (boundaries `b`), step for step.
@@ -1409,6 +1384,24 @@ mod lanes8 {
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn load_i(a: &I) -> __m256i {
         _mm256_loadu_si256(a.as_ptr().cast())
+    }
+
+    /// `v`'s eight lanes as an array (unaligned store of eight 4-byte values).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn lanes_of(v: __m256) -> F {
+        let mut a = [0.0; 8];
+        _mm256_storeu_ps(a.as_mut_ptr(), v);
+        a
+    }
+
+    /// `v`'s eight lanes as an array.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn lanes_of_i(v: __m256i) -> I {
+        let mut a = [0; 8];
+        _mm256_storeu_si256(a.as_mut_ptr().cast(), v);
+        a
     }
 
     /// All bits set in the lanes whose bit is set in `bits`.
@@ -1522,7 +1515,7 @@ mod tests {
             s.map(|s| {
                 let f = [
                     s.x.f0, s.x.f1, s.y.f0, s.y.f1, s.z.f0, s.z.f1, s.t0, s.t1, s.px0, s.py0,
-                    s.px1, s.py1, s.w0, s.w1, s.rounding, s.r, s.tx, s.ty,
+                    s.px1, s.py1, s.w0, s.w1, s.rounding,
                 ];
                 let mut v: Vec<u64> = f.iter().map(|x| u64::from(x.to_bits())).collect();
                 for a in [s.ax, s.ay] {
