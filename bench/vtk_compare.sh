@@ -4,6 +4,7 @@
 # builds the release CLI, and prints both times, their ratio and the PSNR between the images.
 #
 #   bench/vtk_compare.sh                       # the teapot at 30°, 768², 5 runs
+#   bench/vtk_compare.sh --runs 9              # the same, 9 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
 set -euo pipefail
@@ -17,8 +18,10 @@ cargo build --release --quiet -p insitu-cli
 data=${INSITU_DATA_DIR:-../shared/data}
 tfs=${INSITU_TF_DIR:-../shared/tf}
 args=("$@")
-if [ ${#args[@]} -eq 0 ]; then
-  args=(--volume "$data/teapot_256x256x178_uint8.raw" --tf "$tfs/teapot.json" --angle 30)
-fi
+# Without --volume, the teapot with its TF at 30° (the other options still apply).
+case " $* " in
+  *" --volume "*) ;;
+  *) args=(--volume "$data/teapot_256x256x178_uint8.raw" --tf "$tfs/teapot.json" --angle 30 "${args[@]}") ;;
+esac
 # Offscreen: VTK looks for an X display first and falls back without one (a warning only).
 exec "$venv/bin/python" bench/vtk_compare.py --insitu target/release/insitu "${args[@]}"

@@ -18,6 +18,12 @@ pub struct Args {
     /// Image size `N` or `WxH`.
     #[arg(long, default_value = "768")]
     size: String,
+    /// Render this many times and report the first (a cold render: the thread pool's start,
+    /// the ray-caster's occupancy bits) and the median of the others (a warm render, as a
+    /// renderer that stays up pays per frame; `bench/vtk_compare.sh` compares these with
+    /// VTK's warm renders).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    repeat: u32,
     /// Output PNG.
     #[arg(long, default_value = "render.png")]
     out: PathBuf,
@@ -29,10 +35,20 @@ pub fn run(a: Args) -> Result<()> {
     let backend = a.backend.open()?;
     let rc = Raycaster::new(&scene.volume, &scene.tf, scene.params)?;
     let camera = SceneArgs::camera(&scene).orbit_y(a.angle);
-    let image = backend.prepare(&rc)?.dvr(&camera, w, h)?;
+    let prepared = backend.prepare(&rc)?;
+    let image = prepared.dvr(&camera, w, h)?;
+    let mut again = Vec::new();
+    for _ in 1..a.repeat {
+        again.push(prepared.dvr(&camera, w, h)?.seconds);
+    }
+    again.sort_by(f64::total_cmp);
+    let repeated = again
+        .get(again.len() / 2)
+        .map(|m| format!(", then {m:.3} s (median of {})", again.len()))
+        .unwrap_or_default();
     write_png(&a.out, &image.value)?;
     println!(
-        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({}; {:.3} s wall) -> {}",
+        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({}; {:.3} s wall){repeated} -> {}",
         scene.volume_name,
         w,
         h,
