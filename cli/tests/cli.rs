@@ -182,6 +182,57 @@ fn bad_input_fails_cleanly() {
     );
 }
 
+/// `render --repeat N` renders N times, reports the cold render and the median of the warm
+/// ones, and writes the same image as a single render (the renders are deterministic).
+#[test]
+fn render_repeat_reports_the_warm_median_and_the_same_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let render = |repeat: &str, out: &str| {
+        insitu(
+            &[
+                "render",
+                "--volume",
+                "gray-scott:16:20",
+                "--size",
+                "24",
+                "--backend",
+                "cpu",
+                "--repeat",
+                repeat,
+                "--out",
+                out,
+            ],
+            d,
+        )
+    };
+    let once = render("1", "once.png");
+    assert!(once.status.success(), "{}", stderr(&once));
+    assert!(!String::from_utf8_lossy(&once.stdout).contains("then"));
+    let thrice = render("3", "thrice.png");
+    assert!(thrice.status.success(), "{}", stderr(&thrice));
+    let line = String::from_utf8_lossy(&thrice.stdout).into_owned();
+    assert!(line.contains("(median of 2)"), "{line}");
+    assert_eq!(
+        std::fs::read(d.join("once.png")).unwrap(),
+        std::fs::read(d.join("thrice.png")).unwrap()
+    );
+    assert_fails(
+        &[
+            "render",
+            "--volume",
+            "gray-scott:16:20",
+            "--repeat",
+            "0",
+            "--out",
+            "z.png",
+        ],
+        d,
+        "repeat",
+        "z.png",
+    );
+}
+
 #[test]
 fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let dir = tempfile::tempdir().unwrap();
