@@ -57,6 +57,16 @@ impl PmArgs {
     }
 }
 
+/// `--repeat`'s report of the renders after the first: `, then M s (median of N)` with `M`
+/// the median of `seconds`, or nothing when there were none.
+pub fn warm_median(mut seconds: Vec<f64>) -> String {
+    seconds.sort_by(f64::total_cmp);
+    seconds
+        .get(seconds.len() / 2)
+        .map(|m| format!(", then {m:.3} s (median of {})", seconds.len()))
+        .unwrap_or_default()
+}
+
 /// Parses `--size N` or `--size WxH`.
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     let parse = |p: &str| -> Result<u32> {

@@ -41,11 +41,7 @@ pub fn run(a: Args) -> Result<()> {
     for _ in 1..a.repeat {
         again.push(prepared.dvr(&camera, w, h)?.seconds);
     }
-    again.sort_by(f64::total_cmp);
-    let repeated = again
-        .get(again.len() / 2)
-        .map(|m| format!(", then {m:.3} s (median of {})", again.len()))
-        .unwrap_or_default();
+    let repeated = super::warm_median(again);
     write_png(&a.out, &image.value)?;
     println!(
         "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({}; {:.3} s wall){repeated} -> {}",

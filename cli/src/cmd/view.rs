@@ -102,7 +102,6 @@ pub fn run(a: Args) -> Result<()> {
     for _ in 1..a.repeat {
         again.push(view::render(&backend, level, &v, termination)?.1);
     }
-    again.sort_by(f64::total_cmp);
     write_png(&a.out, &image)?;
     let lod = if a.lod {
         format!(
@@ -114,10 +113,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         String::new()
     };
-    let repeated = again
-        .get(again.len() / 2)
-        .map(|m| format!(", then {m:.3} s (median of {})", again.len()))
-        .unwrap_or_default();
+    let repeated = super::warm_median(again);
     println!(
         "rendered {what} (r={}, {} supersegments){lod} at {}°, elevation {}°, zoom {} {}x{} in {:.3} s{repeated} -> {}",
         vdi.resolution(),
