@@ -918,15 +918,8 @@ unsafe fn row_spans_avx2(
         _mm256_add_ps(greater(wa, wb), margin),
         here_ps,
     );
-    let (c0, c1, z0, z1, t0, t1) = (
-        load(&l.o0),
-        load(&l.o1),
-        load(&l.z0),
-        load(&l.z1),
-        load(&l.t0),
-        load(&l.t1),
-    );
-    let cross_o = |b| cross_avx2(!l.inner_x, b, l.r, l.o_tan, (c0, c1), (z0, z1), (t0, t1));
+    let (t0, t1) = (load(&l.t0), load(&l.t1));
+    let cross_o = |b| cross_avx2(l, false, b);
     let t_in = _mm256_blendv_ps(
         cross_o(_mm256_sub_epi32(
             _mm256_add_epi32(o, _mm256_set1_epi32(1)),
@@ -1256,15 +1249,7 @@ unsafe fn pixel_spans_avx2(
     let max = |a, b| _mm256_blendv_ps(_mm256_max_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
     let min = |a, b| _mm256_blendv_ps(_mm256_min_ps(a, b), a, _mm256_cmp_ps::<_CMP_UNORD_Q>(b, b));
     let passing = lanes_mask(pass);
-    let (c0, c1, z0, z1, t0, t1) = (
-        load(&l.i0),
-        load(&l.i1),
-        load(&l.z0),
-        load(&l.z1),
-        load(&l.t0),
-        load(&l.t1),
-    );
-    let cross_i = |b| cross_avx2(l.inner_x, b, l.r, l.i_tan, (c0, c1), (z0, z1), (t0, t1));
+    let cross_i = |b| cross_avx2(l, true, b);
     let cv = _mm256_set1_epi32(c);
     let ahead = load_i(&l.i_ahead);
     let entry = cross_i(_mm256_sub_epi32(
@@ -1290,7 +1275,8 @@ unsafe fn pixel_spans_avx2(
     }
 }
 
-/// [`super::cross`] in eight lanes (boundaries `b`), step for step.
+/// [`Lanes::cross`] in eight lanes (boundaries `b`, of the inner axis where `inner`, else of
+/// the outer one): [`super::cross`] step for step.
 ///
 /// # Safety
 /// The CPU must have AVX2.
@@ -1298,15 +1284,18 @@ unsafe fn pixel_spans_avx2(
 #[inline]
 #[target_feature(enable = "avx2")]
 unsafe fn cross_avx2(
-    x_axis: bool,
+    l: &Lanes,
+    inner: bool,
     b: std::arch::x86_64::__m256i,
-    r: f32,
-    tan: f32,
-    (c0, c1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
-    (z0, z1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
-    (t0, t1): (std::arch::x86_64::__m256, std::arch::x86_64::__m256),
 ) -> std::arch::x86_64::__m256 {
+    use lanes8::load;
     use std::arch::x86_64::*;
+    let (x_axis, tan, c0, c1) = if inner {
+        (l.inner_x, l.i_tan, load(&l.i0), load(&l.i1))
+    } else {
+        (!l.inner_x, l.o_tan, load(&l.o0), load(&l.o1))
+    };
+    let (z0, z1, t0, t1, r) = (load(&l.z0), load(&l.z1), load(&l.t0), load(&l.t1), l.r);
     let q = _mm256_div_ps(
         _mm256_mul_ps(_mm256_set1_ps(2.0), _mm256_cvtepi32_ps(b)),
         _mm256_set1_ps(r),
