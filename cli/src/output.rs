@@ -3,23 +3,12 @@
 
 use anyhow::{Context, Result};
 use insitu_core::Image;
-use std::io::Write;
 use std::path::Path;
 
-/// Writes `bytes` to `path` atomically.
+/// Writes `bytes` to `path` atomically and durably ([`insitu_core::file::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir)
-        .with_context(|| format!("cannot create a file in {}", dir.display()))?;
-    tmp.write_all(bytes)
-        .and_then(|()| tmp.as_file().sync_all())
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    tmp.persist(path)
-        .with_context(|| format!("cannot move the output into place at {}", path.display()))?;
-    Ok(())
+    insitu_core::file::write_atomic(path, bytes, insitu_core::file::Durability::PowerLoss)
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Encodes `image` as an 8-bit RGB PNG and writes it atomically.

@@ -34,6 +34,7 @@ pub mod compose;
 pub mod dvr;
 pub mod evaluate;
 pub(crate) mod fastmath;
+pub mod file;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod image;

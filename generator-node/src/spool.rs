@@ -65,11 +65,17 @@ pub struct Spool {
     seq: AtomicU64,
 }
 
-/// Writes `bytes` to `dir/name` atomically ([`insitu_proto::daemon::write_atomic`]); with
+/// Writes `bytes` to `dir/name` atomically ([`insitu_core::file::write_atomic`]); with
 /// `durable`, fsync'd (file and directory) before returning.
 fn write_file(dir: &Path, name: &str, bytes: &[u8], durable: bool) -> Result<(), SpoolError> {
+    use insitu_core::file::{write_atomic, Durability};
     let path = dir.join(name);
-    insitu_proto::daemon::write_atomic(dir, name, bytes, durable).map_err(io(&path))
+    let durability = if durable {
+        Durability::PowerLoss
+    } else {
+        Durability::Crash
+    };
+    write_atomic(&path, bytes, durability).map_err(io(&path))
 }
 
 fn header_of(raw: &RawStep) -> pb::StepHeader {
@@ -121,7 +127,7 @@ impl Spool {
         let mut last_seq = 0;
         for name in names {
             let path = dir.join(&name);
-            if name.starts_with(".tmp-") {
+            if name.starts_with(insitu_core::file::TEMP_PREFIX) {
                 // A write the crash interrupted: never acknowledged.
                 let _ = std::fs::remove_file(&path);
                 continue;

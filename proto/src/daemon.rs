@@ -90,24 +90,3 @@ pub async fn run_main(
         }
     }
 }
-
-/// Writes `bytes` to `dir/name` through a temporary file in `dir` (named `.tmp-*`, which the
-/// daemons remove on start) renamed into place, so a crash never leaves a half file under the
-/// final name. With `durable`, the file is fsync'd before the rename and the directory after
-/// it, so the file also survives a power loss.
-///
-/// # Errors
-/// The I/O error of the step that failed.
-pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8], durable: bool) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut tmp = tempfile::Builder::new().prefix(".tmp-").tempfile_in(dir)?;
-    tmp.write_all(bytes)?;
-    if durable {
-        tmp.as_file().sync_all()?;
-    }
-    tmp.persist(dir.join(name)).map_err(|e| e.error)?;
-    if durable {
-        std::fs::File::open(dir)?.sync_all()?;
-    }
-    Ok(())
-}

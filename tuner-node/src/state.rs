@@ -10,7 +10,6 @@ use insitu_tuner::series::BINS;
 use insitu_tuner::{Candidate, Measurement};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// The state file's name.
@@ -236,18 +235,9 @@ impl State {
             path: dir.join(STATE_FILE),
             problem: e.to_string(),
         })?;
-        let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(io(dir))?;
-        tmp.write_all(&bytes).map_err(io(tmp.path()))?;
-        tmp.as_file().sync_all().map_err(io(tmp.path()))?;
         let path = dir.join(STATE_FILE);
-        tmp.persist(&path).map_err(|e| StateError::Io {
-            path: path.clone(),
-            source: e.error,
-        })?;
-        std::fs::File::open(dir)
-            .and_then(|d| d.sync_all())
-            .map_err(io(dir))?;
-        Ok(())
+        insitu_core::file::write_atomic(&path, &bytes, insitu_core::file::Durability::PowerLoss)
+            .map_err(io(&path))
     }
 }
 

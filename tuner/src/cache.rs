@@ -9,7 +9,6 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use tracing::warn;
 
@@ -144,9 +143,9 @@ impl Cache {
         let json = serde_json::to_vec_pretty(&file).map_err(|e| err(std::io::Error::other(e)))?;
         let dir = path.parent().unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).map_err(err)?;
-        let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(err)?;
-        tmp.write_all(&json).map_err(err)?;
-        tmp.persist(path).map_err(|e| err(e.error))?;
+        // A cache: losing it to a power cut costs a re-measurement, not worth an fsync.
+        insitu_core::file::write_atomic(path, &json, insitu_core::file::Durability::Crash)
+            .map_err(err)?;
         self.unsaved = 0;
         Ok(())
     }

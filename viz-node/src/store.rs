@@ -391,13 +391,14 @@ fn is_payload(name: &str) -> bool {
 }
 
 /// Writes `bytes` to `dir/name` atomically and durably
-/// ([`insitu_proto::daemon::write_atomic`]: temporary file, fsync, rename, directory fsync).
+/// ([`insitu_core::file::write_atomic`]: temporary file, fsync, rename, directory fsync).
 ///
 /// # Errors
 /// [`StoreError::Io`] naming the file.
 pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
     let path = dir.join(name);
-    insitu_proto::daemon::write_atomic(dir, name, bytes, true).map_err(io(&path))
+    insitu_core::file::write_atomic(&path, bytes, insitu_core::file::Durability::PowerLoss)
+        .map_err(io(&path))
 }
 
 /// The file name of a step's VDI.
@@ -528,7 +529,7 @@ impl Recording {
         for d in std::fs::read_dir(&self.dir).map_err(io(&self.dir))? {
             let Ok(d) = d else { continue };
             let name = d.file_name().to_string_lossy().into_owned();
-            if name.starts_with(".tmp-") {
+            if name.starts_with(insitu_core::file::TEMP_PREFIX) {
                 if std::fs::remove_file(d.path()).is_ok() {
                     r.temp_removed.push(name);
                 }
