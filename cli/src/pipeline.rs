@@ -5,6 +5,7 @@
 //! `--json` every line is a JSON object instead.
 
 use anyhow::{Context, Result};
+use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::Peer;
@@ -24,8 +25,8 @@ pub struct PipelineArgs {
     #[command(flatten)]
     pub backend: crate::cmd::BackendArgs,
     /// Codec: bzip2 (the paper's sigma), zstd or none. Default: the command's (see its help).
-    #[arg(long)]
-    pub codec: Option<String>,
+    #[arg(long, value_parser = crate::cmd::codec_arg)]
+    pub codec: Option<Codec>,
     /// Input queue policy of the generator-node: block, drop-oldest or latest-only.
     #[arg(long, default_value = "block")]
     pub policy: Policy,
@@ -63,15 +64,13 @@ pub struct Defaults {
     /// The tuner's utility.
     pub utility: &'static str,
     /// The codec.
-    pub codec: &'static str,
+    pub codec: Codec,
 }
 
 impl PipelineArgs {
     /// `--codec`, else the command's default.
-    pub fn codec(&self, defaults: Defaults) -> String {
-        self.codec
-            .clone()
-            .unwrap_or_else(|| defaults.codec.to_owned())
+    pub fn codec(&self, defaults: Defaults) -> Codec {
+        self.codec.unwrap_or(defaults.codec)
     }
 }
 
@@ -355,7 +354,7 @@ impl LocalNodes {
         cfg.queue.max_items = a.queue_steps;
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
-        cfg.generation.codec = a.codec(defaults);
+        cfg.generation.codec = a.codec(defaults).name().to_owned();
         tweak(&mut cfg);
         let generator = gen::start(cfg)
             .await

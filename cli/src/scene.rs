@@ -80,9 +80,9 @@ impl SceneArgs {
                 TransferFunction::load(path)?
             }
             None => {
-                tf_name = "default-ramp".to_owned();
-                let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
-                TransferFunction::default_for_range(lo, hi)
+                let (tf, name) = TransferFunction::default_for_volume(&volume);
+                tf_name = name;
+                tf
             }
         };
         let params = RaycastParams {

@@ -180,6 +180,35 @@ fn bad_input_fails_cleanly() {
         "gray-scott",
         "o.png",
     );
+    // A codec name is checked as the arguments are parsed (a usage error naming the value
+    // and the choices), in each command that takes one.
+    for command in [
+        "generate", "evaluate", "accuracy", "study", "demo", "replay",
+    ] {
+        let args = [command, "--codec", "lzma"];
+        let o = insitu(&args, d);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains("--codec") && err.contains("lzma") && err.contains("zstd"),
+            "{args:?}: {err}"
+        );
+    }
+    // An output into a folder that does not exist: the error names the file.
+    assert_fails(
+        &[
+            "generate",
+            "--volume",
+            "ok_4x4x4_uint8.raw",
+            "--r",
+            "8",
+            "--out",
+            "no-such-folder/o.vdi",
+        ],
+        d,
+        "no-such-folder/o.vdi",
+        "no-such-folder",
+    );
 }
 
 /// `render --repeat N` renders N times, reports the cold render and the median of the warm

@@ -137,6 +137,22 @@ impl TransferFunction {
         }
     }
 
+    /// [`Self::default_for_range`] with its name, `default[lo, hi]`: what every node, the CLI
+    /// and the recording call the default over that range (so agreeing nodes name it alike).
+    pub fn default_named(lo: f32, hi: f32) -> (Self, String) {
+        (
+            Self::default_for_range(lo, hi),
+            format!("default[{lo}, {hi}]"),
+        )
+    }
+
+    /// [`Self::default_named`] over `volume`'s finite values ([`Volume::finite_range`]; over
+    /// [0, 1] when it has none, e.g. all NaN).
+    pub fn default_for_volume(volume: &crate::volume::Volume) -> (Self, String) {
+        let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
+        Self::default_named(lo, hi)
+    }
+
     /// A transfer function with one constant RGBA over `[lo, hi]`.
     pub fn constant(lo: f64, hi: f64, rgba: [f64; 4]) -> Self {
         let [r, g, b, a] = rgba;

@@ -241,10 +241,9 @@ async fn worker(shared: Arc<Shared>) {
         let lane = shared.lane.lock().await;
         let result = tokio::task::spawn_blocking(move || {
             s.compute(|| {
-                let tf = gen
-                    .tf
-                    .take()
-                    .unwrap_or_else(|| work::default_tf(&raw.field));
+                let tf = gen.tf.take().unwrap_or_else(|| {
+                    insitu_core::TransferFunction::default_for_volume(&raw.field)
+                });
                 let (product, vdi) = work::run(&s.backend, &raw, &gen, &tf, with_refs, reused)?;
                 // Only while the tuner listens: otherwise nobody would read the summary, and
                 // the field's memory receives the next step.

@@ -8,7 +8,7 @@ use bytes::Bytes;
 use insitu_core::backend::{BackendError, TimeSource};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
-use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, Volume};
+use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
@@ -47,16 +47,6 @@ pub enum WorkError {
     /// The backend failed (bad `P_M` or camera on any backend; GPU limits or device).
     #[error(transparent)]
     Backend(#[from] BackendError),
-}
-
-/// The transfer function for `volume` when none is configured: the default over its range
-/// (all-NaN data: over [0, 1]).
-pub fn default_tf(volume: &Volume) -> (TransferFunction, String) {
-    let range = volume.finite_range().unwrap_or((0.0, 1.0));
-    (
-        TransferFunction::default_for_range(range.0, range.1),
-        format!("default[{}, {}]", range.0, range.1),
-    )
 }
 
 /// Generates, compresses and (if `with_references`) renders the references for one step on

@@ -68,9 +68,10 @@ impl Proposals {
             (Some(lo), Some(hi)) => (lo as f32, hi as f32),
             _ => (0.0, 1.0),
         };
+        let (tf, tf_name) = TransferFunction::default_named(lo, hi);
         Agreed {
-            tf: TransferFunction::default_for_range(lo, hi),
-            tf_name: format!("default[{lo}, {hi}]"),
+            tf,
+            tf_name,
             world_size,
             step: self.step,
             ranks: self.ranges.keys().copied().collect(),

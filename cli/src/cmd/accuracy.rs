@@ -5,6 +5,7 @@
 use super::q_text;
 use crate::scene::SceneArgs;
 use anyhow::Result;
+use insitu_core::vdi::codec::Codec;
 use insitu_tuner::accuracy::{sweep, Sweep};
 use insitu_tuner::utility::bytes_text;
 use insitu_tuner::Candidate;
@@ -24,8 +25,8 @@ pub struct Args {
     #[arg(long, default_value_t = 512)]
     size: u32,
     /// Base codec.
-    #[arg(long, default_value = "bzip2")]
-    codec: String,
+    #[arg(long, default_value = "bzip2", value_parser = super::codec_arg)]
+    codec: Codec,
     /// Chart of q against tau per knob.
     #[arg(long, default_value = "accuracy.png")]
     chart: std::path::PathBuf,
@@ -36,7 +37,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let views = super::parse_views(&a.views)?;
-    let codec = super::parse_codec(&a.codec)?;
+    let codec = a.codec;
     let (size, _) = super::parse_size(&a.size.to_string())?;
     let scene = a.scene.load()?;
     let backend = a.backend.open()?;

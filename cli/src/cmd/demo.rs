@@ -8,6 +8,7 @@
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Result};
 use insitu_client::{SimClient, Step};
+use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use std::time::{Duration, Instant};
 
@@ -19,7 +20,7 @@ use std::time::{Duration, Instant};
 /// waits for it).
 pub const DEFAULTS: Defaults = Defaults {
     utility: "size:1MB",
-    codec: "zstd",
+    codec: Codec::Zstd,
 };
 
 #[derive(clap::Args, Debug)]

@@ -7,6 +7,7 @@ use crate::progress::bar;
 use crate::scene::SceneArgs;
 use anyhow::{Context, Result};
 use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
+use insitu_core::vdi::codec::Codec;
 use insitu_core::{Image, Raycaster};
 use std::path::PathBuf;
 
@@ -29,8 +30,8 @@ pub struct Args {
     #[arg(long, default_value = "768")]
     size: String,
     /// Codec for sigma: bzip2 (the paper's), zstd or none.
-    #[arg(long, default_value = "bzip2")]
-    codec: String,
+    #[arg(long, default_value = "bzip2", value_parser = super::codec_arg)]
+    codec: Codec,
     /// PNG strip: VDI renders over reference renders.
     #[arg(long, default_value = "evaluate.png")]
     out: PathBuf,
@@ -41,7 +42,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let (w, h) = super::parse_size(&a.size)?;
-    let codec_kind = super::parse_codec(&a.codec)?;
+    let codec_kind = a.codec;
     let angles = if a.views.is_empty() {
         DEFAULT_VIEW_ANGLES.to_vec()
     } else {

@@ -3,7 +3,7 @@
 use crate::output::write_atomic;
 use crate::scene::SceneArgs;
 use anyhow::Result;
-use insitu_core::vdi::codec;
+use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::Raycaster;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -20,8 +20,8 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     angle: f32,
     /// Codec: bzip2 (the paper's sigma), zstd or none.
-    #[arg(long, default_value = "bzip2")]
-    codec: String,
+    #[arg(long, default_value = "bzip2", value_parser = super::codec_arg)]
+    codec: Codec,
     /// Output VDI file.
     #[arg(long, default_value = "out.vdi")]
     out: PathBuf,
@@ -31,7 +31,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let codec_kind = super::parse_codec(&a.codec)?;
+    let codec_kind = a.codec;
     let params = a.pm.params()?;
     let scene = a.scene.load()?;
     let backend = a.backend.open()?;

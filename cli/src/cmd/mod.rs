@@ -84,9 +84,10 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     }
 }
 
-/// Parses a codec name.
-pub fn parse_codec(s: &str) -> Result<Codec> {
-    Ok(s.parse::<Codec>()?)
+/// `--codec`'s value parser: a [`Codec`] by name (none, bzip2 or zstd), so a bad name is a
+/// usage error before anything is loaded.
+pub fn codec_arg(s: &str) -> Result<Codec, insitu_core::vdi::codec::CodecError> {
+    s.parse()
 }
 
 /// q as JSON: a number, or the string "inf" when the images are identical.

@@ -6,6 +6,7 @@
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step, TlsFiles};
+use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::RawFormat;
 use insitu_core::{TransferFunction, Volume};
@@ -64,7 +65,7 @@ pub struct Args {
 /// (`--codec`, `--utility` to choose others).
 pub const DEFAULTS: Defaults = Defaults {
     utility: "size:1MB",
-    codec: "bzip2",
+    codec: Codec::Bzip2,
 };
 
 pub fn run(a: Args) -> Result<()> {
@@ -144,18 +145,12 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
             p.file_name()
                 .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
         ),
-        None => {
-            let (lo, hi) = first.finite_range().unwrap_or((0.0, 1.0));
-            (
-                TransferFunction::default_for_range(lo, hi),
-                format!("default[{lo}, {hi}]"),
-            )
-        }
+        None => TransferFunction::default_for_volume(&first),
     };
     let config = pb::GenerationConfig {
         resolution: a.pipeline.pm.r,
         gamma: a.pipeline.pm.gamma,
-        codec: codec_to_pb(a.pipeline.codec(DEFAULTS).parse()?) as i32,
+        codec: codec_to_pb(a.pipeline.codec(DEFAULTS)) as i32,
         tf_json: Some(serde_json::to_string(&tf)?),
         tf_name: Some(tf_name),
         reference_every: Some(

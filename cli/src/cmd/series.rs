@@ -61,8 +61,7 @@ fn load_steps(a: &Args) -> Result<Vec<Scene>> {
             });
         let (lo, hi) = if lo <= hi { (lo, hi) } else { (0.0, 1.0) };
         for s in &mut scenes {
-            s.tf = TransferFunction::default_for_range(lo, hi);
-            s.tf_name = format!("default[{lo}, {hi}]");
+            (s.tf, s.tf_name) = TransferFunction::default_named(lo, hi);
         }
     }
     Ok(scenes)

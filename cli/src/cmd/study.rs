@@ -40,8 +40,8 @@ pub struct StudyArgs {
     #[arg(long, default_value = "768")]
     pub size: String,
     /// Codec for sigma: bzip2 (the paper's), zstd or none.
-    #[arg(long, default_value = "bzip2")]
-    pub codec: String,
+    #[arg(long, default_value = "bzip2", value_parser = super::codec_arg)]
+    pub codec: Codec,
     /// Cache directory (results are reused whenever nothing they depend on changed).
     #[arg(long, default_value = ".insitu-cache")]
     pub cache_dir: PathBuf,
@@ -78,13 +78,12 @@ impl StudyArgs {
             super::parse_views(&self.views)?
         };
         let size = super::parse_size(&self.size)?;
-        let codec = super::parse_codec(&self.codec)?;
         Ok(Prepared {
             scene: self.scene.load()?,
             grid,
             views,
             size,
-            codec,
+            codec: self.codec,
             backend: self.backend.open()?,
         })
     }
