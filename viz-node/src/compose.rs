@@ -5,15 +5,17 @@
 //! ([`insitu_core::compose::compose_frames`]), and the composed VDI scored against the
 //! composed frames: that is the step's q.
 
+use crate::decoded::Kept;
 use crate::score::score;
 use crate::store::{
     composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References, StepEntry,
     StoreError,
 };
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
-use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
+use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::volume::bricks::{self, DecompositionError};
 use insitu_core::{Backend, Vdi};
+use std::sync::Arc;
 
 /// Why a step could not be composed; each names the step and the ranks.
 #[derive(Debug, thiserror::Error)]
@@ -105,18 +107,16 @@ pub fn check_bricks(step: u64, entries: &[&Entry], complete: bool) -> Result<(),
     }
 }
 
-fn load_vdi(rec: &Recording, e: &Entry) -> Result<Vdi, StepError> {
+/// Rank `e`'s VDI: as kept on receipt, else read from the recording.
+fn load_vdi(rec: &Recording, kept: &Kept, e: &Entry) -> Result<Arc<Vdi>, StepError> {
     let rank_err = |problem: String| StepError::Rank {
         step: e.step,
         rank: e.rank,
         problem,
     };
     let name = e.vdi.as_ref().ok_or_else(|| rank_err("no VDI".into()))?;
-    let path = rec.dir().join(name);
-    let bytes =
-        std::fs::read(&path).map_err(|err| rank_err(format!("{}: {err}", path.display())))?;
-    codec::decode(&bytes, &DecodeLimits::default())
-        .map_err(|err| rank_err(format!("{}: {err}", path.display())))
+    kept.take_vdi(rec.dir(), name)
+        .map_err(|err| rank_err(err.to_string()))
 }
 
 /// Composes the ready ranks of `step` (all of `world_size`, or those present when
@@ -128,6 +128,7 @@ fn load_vdi(rec: &Recording, e: &Entry) -> Result<Vdi, StepError> {
 /// [`StepError`] naming the step and ranks; the caller records it in the step's entry.
 pub fn compose_step(
     rec: &Recording,
+    kept: &Kept,
     backend: &Backend,
     termination: f32,
     step: u64,
@@ -145,21 +146,22 @@ pub fn compose_step(
     check_bricks(step, &ready, missing.is_empty())?;
     let vdis = ready
         .iter()
-        .map(|e| load_vdi(rec, e))
+        .map(|e| load_vdi(rec, kept, e))
         .collect::<Result<Vec<_>, _>>()?;
-    let composed = compose_vdis(&vdis.iter().collect::<Vec<_>>()).map_err(|e| match e {
-        ComposeError::Mismatch { part, what } => StepError::Scene {
-            step,
-            first: ready[0].rank,
-            rank: ready[part].rank,
-            what: what.into(),
-        },
-        other => StepError::Rank {
-            step,
-            rank: ready[0].rank,
-            problem: other.to_string(),
-        },
-    })?;
+    let composed =
+        compose_vdis(&vdis.iter().map(|v| &**v).collect::<Vec<_>>()).map_err(|e| match e {
+            ComposeError::Mismatch { part, what } => StepError::Scene {
+                step,
+                first: ready[0].rank,
+                rank: ready[part].rank,
+                what: what.into(),
+            },
+            other => StepError::Rank {
+                step,
+                rank: ready[0].rank,
+                problem: other.to_string(),
+            },
+        })?;
     let codec: Codec = ready[0].codec.parse().unwrap_or(Codec::Zstd);
     let file = codec::encode(&composed, codec).map_err(|e| StepError::Rank {
         step,
@@ -170,7 +172,7 @@ pub fn compose_step(
     write_atomic(rec.dir(), &vdi_name, &file)?;
     let with_frames = ready.iter().all(|e| e.with_references);
     let (references, quality) = if with_frames {
-        let refs = compose_references(rec, &ready, &vdis)?;
+        let refs = compose_references(rec, kept, &ready, &vdis)?;
         let name = composed_refs_name(step);
         write_atomic(rec.dir(), &name, &refs.to_file_bytes())?;
         let q = score(backend, &composed, &refs, termination).map_err(|e| StepError::Rank {
@@ -218,8 +220,9 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
 /// composited front to back by ray entry into the ranks' boxes (taken from their VDIs).
 fn compose_references(
     rec: &Recording,
+    kept: &Kept,
     ready: &[&Entry],
-    vdis: &[Vdi],
+    vdis: &[Arc<Vdi>],
 ) -> Result<References, StepError> {
     let mut all = Vec::with_capacity(ready.len());
     for e in ready {
@@ -232,7 +235,7 @@ fn compose_references(
             .references
             .as_ref()
             .ok_or_else(|| rank_err("no reference frames".into()))?;
-        let refs = References::read(&rec.dir().join(name))?;
+        let refs = kept.take_references(rec.dir(), name)?;
         if refs.opacity.is_none() {
             return Err(rank_err(
                 "reference frames without opacity cannot be composited (a node older than composition)"

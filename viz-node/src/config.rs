@@ -37,6 +37,10 @@ pub struct Config {
     /// Scoring and composing jobs waiting at most; when full, storing waits (back-pressure to
     /// the generator-nodes' shippers) instead of growing memory.
     pub score_queue: usize,
+    /// Memory for ranks' VDIs (and, apart, their reference frames) decoded on receipt and
+    /// kept until the scorer or composer reads them, bytes per kind; beyond it the oldest are
+    /// dropped and read from disk again when needed (0: always read from disk).
+    pub keep_decoded_bytes: u64,
     /// `Render` calls served at once; more are refused with `RESOURCE_EXHAUSTED`.
     pub render_concurrency: usize,
     /// Largest image of one `Render` call, pixels (width × height).
@@ -69,6 +73,7 @@ impl Default for Config {
             backend: BackendChoice::Auto,
             compose_timeout_secs: 60.0,
             score_queue: 256,
+            keep_decoded_bytes: 512 << 20,
             render_concurrency: 2,
             max_render_pixels: 4096 * 4096,
             http_listen: None,

@@ -9,6 +9,7 @@
 
 pub mod compose;
 pub mod config;
+pub mod decoded;
 pub mod http;
 pub mod index;
 pub mod node;

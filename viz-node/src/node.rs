@@ -1,6 +1,7 @@
 //! A running viz-node: the gRPC server and the scoring task.
 
 use crate::config::Config;
+use crate::decoded::Kept;
 use crate::http::Http;
 use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
@@ -85,6 +86,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         max_reference_bytes: cfg.max_reference_bytes,
         termination: cfg.termination,
         backend,
+        kept: Kept::new(cfg.keep_decoded_bytes),
         vdis_stored: AtomicU64::new(0),
         references_stored: AtomicU64::new(0),
         reports_sent: AtomicU64::new(0),

@@ -1,5 +1,6 @@
 //! The `Viz` gRPC service: store VDIs and reference frames, score and report, render.
 
+use crate::decoded::{read_vdi, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
 use crate::store::{Entry, Placement, Recording, References, StepEntry, StoreError};
@@ -57,6 +58,8 @@ pub struct Shared {
     pub termination: f32,
     /// Where VDIs are rendered (scoring and `Render`).
     pub backend: Backend,
+    /// Ranks' VDIs and frames decoded on receipt, for the scorer and the composer.
+    pub kept: Kept,
     /// VDIs stored.
     pub vdis_stored: AtomicU64,
     /// Reference sets stored.
@@ -203,6 +206,7 @@ impl Shared {
         }
         let result = crate::compose::compose_step(
             &self.recording,
+            &self.kept,
             &self.backend,
             self.termination,
             step,
@@ -253,11 +257,7 @@ impl Shared {
     }
 
     fn load_file(&self, name: &str) -> Result<Vdi, Status> {
-        let path = self.recording.dir().join(name);
-        let bytes = std::fs::read(&path)
-            .map_err(|err| Status::internal(format!("{}: {err}", path.display())))?;
-        codec::decode(&bytes, &DecodeLimits::default())
-            .map_err(|err| Status::data_loss(format!("{}: {err}", path.display())))
+        read_vdi(self.recording.dir(), name).map_err(|err| Status::data_loss(err.to_string()))
     }
 
     /// Scores a stored step against its stored references, records and publishes q.
@@ -269,13 +269,18 @@ impl Shared {
             .recording
             .entry(step, rank)
             .ok_or_else(|| Status::not_found(format!("step {step} rank {rank}")))?;
-        let vdi = self.load_vdi(&e)?;
+        let dir = self.recording.dir();
+        let vdi_name = e.vdi.as_ref().ok_or_else(|| {
+            Status::not_found(format!("step {} rank {} has no VDI yet", e.step, e.rank))
+        })?;
+        let vdi = self.kept.take_vdi(dir, vdi_name);
+        let vdi = vdi.map_err(|err| Status::data_loss(err.to_string()))?;
         let refs_name = e
             .references
             .as_ref()
             .ok_or_else(|| Status::not_found("no references"))?;
-        let refs = References::read(&self.recording.dir().join(refs_name))
-            .map_err(|err| Status::data_loss(err.to_string()))?;
+        let refs = self.kept.take_references(dir, refs_name);
+        let refs = refs.map_err(|err| Status::data_loss(err.to_string()))?;
         let q = score(&self.backend, &vdi, &refs, self.termination)
             .map_err(|err| Status::invalid_argument(err.to_string()))?;
         // A full disk delays q, it does not lose it: the write is retried (the scorer waits,
@@ -414,7 +419,13 @@ impl VizService {
                 placement,
                 with_references: h.with_references,
             };
-            s.recording.store_vdi(meta, &bytes).map_err(store_status)
+            let stored = s.recording.store_vdi(meta, &bytes).map_err(store_status)?;
+            // Decoded once: kept for the scorer or the composer that reads it next.
+            let read_next = h.with_references || h.world_size > 1;
+            if let (true, true, Some(name)) = (stored.1, read_next, &stored.0.vdi) {
+                s.kept.keep_vdi(name, vdi);
+            }
+            Ok(stored)
         })
         .await
         .map_err(join_error)??;
@@ -489,9 +500,12 @@ impl VizService {
                     h.step, h.rank
                 ))
             })?;
-            s.recording
-                .store_references(h.step, h.rank, &refs)
-                .map_err(store_status)
+            let stored = s.recording.store_references(h.step, h.rank, &refs);
+            let stored = stored.map_err(store_status)?;
+            if let (true, Some(name)) = (stored.1, &stored.0.references) {
+                s.kept.keep_references(name, refs);
+            }
+            Ok::<_, Status>(stored)
         })
         .await
         .map_err(join_error)??;
@@ -605,6 +619,7 @@ impl Viz for VizService {
         _: Request<pb::StatusRequest>,
     ) -> Result<Response<pb::VizStatus>, Status> {
         let s = &self.0;
+        let (decoded_reused, decoded_again) = s.kept.counts();
         Ok(Response::new(pb::VizStatus {
             vdis_stored: s.vdis_stored.load(Ordering::Relaxed),
             references_stored: s.references_stored.load(Ordering::Relaxed),
@@ -614,6 +629,8 @@ impl Viz for VizService {
             steps_composed: s.steps_composed.load(Ordering::Relaxed),
             steps_partial: s.steps_partial.load(Ordering::Relaxed),
             compose_errors: s.compose_errors.load(Ordering::Relaxed),
+            decoded_reused,
+            decoded_again,
         }))
     }
 

@@ -277,6 +277,18 @@ impl References {
         })
     }
 
+    /// Memory held by the frames and opacity planes, bytes.
+    pub fn memory_bytes(&self) -> usize {
+        let frames: usize = self.frames.iter().map(|f| size_of_val(f.pixels())).sum();
+        let planes: usize = self
+            .opacity
+            .iter()
+            .flatten()
+            .map(|p| size_of_val(&p[..]))
+            .sum();
+        frames + planes
+    }
+
     /// The `.refs` file layout: magic, JSON header length and header, then the frames.
     pub fn to_file_bytes(&self) -> Vec<u8> {
         let (w, h) = self

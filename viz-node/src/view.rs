@@ -5,7 +5,6 @@
 //! ([`crate::http`]), the `Render` call and `insitu view --recording`.
 
 use crate::store::{Entry, StepEntry};
-use insitu_core::vdi::codec::{self, DecodeLimits};
 use insitu_core::vdi::Vdi;
 use insitu_core::{Backend, Camera, Image};
 use serde::{Deserialize, Serialize};
@@ -162,11 +161,7 @@ pub fn world_size(ranks: &[Entry]) -> u32 {
 /// # Errors
 /// [`ViewError::Failed`] naming the file.
 pub fn load_vdi(dir: &Path, name: &str) -> Result<Vdi, ViewError> {
-    let path = dir.join(name);
-    let bytes = std::fs::read(&path)
-        .map_err(|e| ViewError::Failed(format!("cannot read {}: {e}", path.display())))?;
-    codec::decode(&bytes, &DecodeLimits::default())
-        .map_err(|e| ViewError::Failed(format!("{} is not a usable VDI: {e}", path.display())))
+    crate::decoded::read_vdi(dir, name).map_err(|e| ViewError::Failed(e.to_string()))
 }
 
 /// What a frame of `view` is rendered from: with `lod`, the coarsest level of `vdi` still as

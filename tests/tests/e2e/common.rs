@@ -33,6 +33,20 @@ pub fn local_q(rec: &Path, e: &Entry) -> f64 {
     pooled_psnr(&mses)
 }
 
+/// The viz-node's counters.
+pub fn viz_status(addr: &str) -> insitu_proto::pb::VizStatus {
+    rt().block_on(async {
+        let channel = insitu_proto::transport::connect(&insitu_proto::transport::uri(addr))
+            .await
+            .unwrap();
+        insitu_proto::pb::viz_client::VizClient::new(channel)
+            .get_status(insitu_proto::pb::StatusRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+    })
+}
+
 /// Starts a generator-node from a TOML config written to `logs/name.toml`.
 pub fn generator(toml: &str, logs: &Path, envs: &[(&str, &str)]) -> Daemon {
     let path = logs.join(format!("generator-{}.toml", free_port()));

@@ -3,7 +3,7 @@
 //! and scoring scores on restart and removes what the crash left; renders beyond the caps are
 //! refused, not allowed to take the node's memory.
 
-use crate::common::{index, load_vdi, local_q, viz};
+use crate::common::{index, load_vdi, local_q, viz, viz_status};
 use insitu_core::evaluate::render_references;
 use insitu_core::vdi::codec::{encode, Codec};
 use insitu_core::vdi::{generate::generate, VdiParams};
@@ -163,6 +163,9 @@ fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
     let e = index(&rec).remove(0);
     let local = local_q(&rec, &e);
     assert!((e.quality.as_ref().unwrap().q_db.0 - local).abs() < 1e-9);
+    // Nothing was kept decoded across the kill: both files were read from the recording.
+    let status = viz_status(&v.addr);
+    assert_eq!((status.decoded_reused, status.decoded_again), (0, 2));
     let peak = v.peak_rss_mib();
     // Killed again: the committed rows survive as they are.
     v.kill();

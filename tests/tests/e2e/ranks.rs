@@ -2,7 +2,7 @@
 //! whose bricks have different ranges (kept across a generator-node restart), a missing rank
 //! leaves a partial step, and bad decompositions are refused naming the step and ranks.
 
-use crate::common::{generator, index, load_vdi, small_config, steps, viz};
+use crate::common::{generator, index, load_vdi, small_config, steps, viz, viz_status};
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
 use insitu_core::metrics::psnr;
 use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
@@ -53,6 +53,18 @@ fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
     assert!(
         done,
         "--split {split}: steps were not all composed and scored"
+    );
+    // Every rank's VDI and frames were decoded once, on receipt, and handed to the scorer
+    // or composer from memory.
+    let ranks: u64 = split
+        .split('x')
+        .map(|n| n.parse::<u64>().unwrap())
+        .product();
+    let status = viz_status(&v.addr);
+    assert_eq!(
+        (status.decoded_reused, status.decoded_again),
+        (3 * ranks * 2, 0),
+        "--split {split}"
     );
     v.terminate();
     rec

@@ -1,0 +1,297 @@
+//! Decoded once: the recording's files as the node reads them, and the VDIs and reference
+//! frames a stream has just delivered, kept decoded for the scorer and the composer.
+//!
+//! A VDI arrives compressed, is decoded to be checked, and is written to the recording as it
+//! came; the scorer (single rank) or the composer (several) needs it decoded again moments
+//! later. Decoding twice costs a whole decode per step: the teapot at r = 768 with bzip2
+//! (19.7 MB, 1.58 M supersegments) takes about 2.3 s to decode on this project's 2-core
+//! machine (`insitu view` of it: 2.5–2.7 s, of which 0.09 s render; of the zstd file 0.3 s). Reference frames are parsed on receipt and written out, and were
+//! parsed again from disk to score. [`Kept`] holds what was decoded on receipt until its one
+//! reader takes it, within a byte budget per kind (oldest dropped first); whatever is not
+//! there (dropped, or from before a restart) is read and decoded from the recording, so the
+//! budget trades memory for time and never changes a result.
+//!
+//! Only files written once under their name (a rank's VDI and frames; see
+//! [`crate::store::Recording::store_vdi`]) are kept; composed files, which a later complete
+//! composition replaces, are always read from disk.
+
+use crate::store::{References, StoreError};
+use insitu_core::vdi::codec::{self, CodecError, DecodeLimits};
+use insitu_core::Vdi;
+use std::collections::{HashMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// A recording's VDI file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    /// The file cannot be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not a VDI this node can decode.
+    #[error("{path} is not a usable VDI: {source}")]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: CodecError,
+    },
+}
+
+/// Reads and decodes the VDI file `name` of the recording in `dir`.
+///
+/// # Errors
+/// [`LoadError`] naming the file.
+pub fn read_vdi(dir: &Path, name: &str) -> Result<Vdi, LoadError> {
+    let path = dir.join(name);
+    let bytes = std::fs::read(&path).map_err(|source| LoadError::Read {
+        path: path.clone(),
+        source,
+    })?;
+    codec::decode(&bytes, &DecodeLimits::default())
+        .map_err(|source| LoadError::Decode { path, source })
+}
+
+/// Values decoded from files, by file name, taken once, within `budget_bytes`.
+pub struct Cache<T> {
+    budget_bytes: u64,
+    inner: Mutex<Inner<T>>,
+}
+
+struct Inner<T> {
+    held_bytes: u64,
+    /// The names of `values`, oldest first.
+    order: VecDeque<String>,
+    values: HashMap<String, (Arc<T>, u64)>,
+}
+
+impl<T> Cache<T> {
+    /// An empty cache holding at most `budget_bytes` (0: none).
+    pub fn new(budget_bytes: u64) -> Self {
+        Self {
+            budget_bytes,
+            inner: Mutex::new(Inner {
+                held_bytes: 0,
+                order: VecDeque::new(),
+                values: HashMap::new(),
+            }),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Inner<T>> {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Keeps `value` (`bytes` of memory) as the content of file `name`, dropping the oldest
+    /// values until it fits; a value larger than the whole budget is not kept.
+    pub fn put(&self, name: &str, value: Arc<T>, bytes: u64) {
+        if bytes > self.budget_bytes {
+            return;
+        }
+        let mut inner = self.lock();
+        if let Some((_, old)) = inner.values.remove(name) {
+            inner.held_bytes -= old;
+        }
+        while inner.held_bytes + bytes > self.budget_bytes {
+            let Some(oldest) = inner.order.pop_front() else {
+                break;
+            };
+            if let Some((_, b)) = inner.values.remove(&oldest) {
+                inner.held_bytes -= b;
+            }
+        }
+        inner.held_bytes += bytes;
+        inner.order.retain(|n| n != name);
+        inner.order.push_back(name.to_owned());
+        inner.values.insert(name.to_owned(), (value, bytes));
+    }
+
+    /// The value kept for `name`, removed from the cache.
+    pub fn take(&self, name: &str) -> Option<Arc<T>> {
+        let mut inner = self.lock();
+        let (value, bytes) = inner.values.remove(name)?;
+        inner.held_bytes -= bytes;
+        inner.order.retain(|n| n != name);
+        Some(value)
+    }
+
+    /// Bytes held now.
+    pub fn held_bytes(&self) -> u64 {
+        self.lock().held_bytes
+    }
+}
+
+/// The decoded VDIs and reference frames of ranks awaiting scoring or composition.
+pub struct Kept {
+    /// Decoded VDIs, by file name.
+    pub vdis: Cache<Vdi>,
+    /// Parsed reference frames, by file name.
+    pub references: Cache<References>,
+    /// Files taken as kept.
+    reused: AtomicU64,
+    /// Files read and decoded from disk again.
+    again: AtomicU64,
+}
+
+impl Kept {
+    /// Empty, each kind holding at most `budget_bytes` (0: nothing is kept, every read
+    /// decodes from disk).
+    pub fn new(budget_bytes: u64) -> Self {
+        Self {
+            vdis: Cache::new(budget_bytes),
+            references: Cache::new(budget_bytes),
+            reused: AtomicU64::new(0),
+            again: AtomicU64::new(0),
+        }
+    }
+
+    /// Files (VDIs and frame sets) taken as kept, and those read from disk again, so far.
+    pub fn counts(&self) -> (u64, u64) {
+        (
+            self.reused.load(Ordering::Relaxed),
+            self.again.load(Ordering::Relaxed),
+        )
+    }
+
+    fn count<T>(&self, kept: Option<Arc<T>>) -> Option<Arc<T>> {
+        let counter = if kept.is_some() {
+            &self.reused
+        } else {
+            &self.again
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+        kept
+    }
+
+    /// Keeps a rank's just-stored VDI file `name`, decoded.
+    pub fn keep_vdi(&self, name: &str, vdi: Vdi) {
+        let bytes = vdi.memory_bytes() as u64;
+        self.vdis.put(name, Arc::new(vdi), bytes);
+    }
+
+    /// Keeps a rank's just-stored reference frames file `name`, parsed.
+    pub fn keep_references(&self, name: &str, refs: References) {
+        let bytes = refs.memory_bytes() as u64;
+        self.references.put(name, Arc::new(refs), bytes);
+    }
+
+    /// The VDI file `name` of the recording in `dir`: as kept (and no longer kept), else
+    /// read and decoded.
+    ///
+    /// # Errors
+    /// [`LoadError`] naming the file.
+    pub fn take_vdi(&self, dir: &Path, name: &str) -> Result<Arc<Vdi>, LoadError> {
+        match self.count(self.vdis.take(name)) {
+            Some(vdi) => Ok(vdi),
+            None => read_vdi(dir, name).map(Arc::new),
+        }
+    }
+
+    /// The reference frames file `name` of the recording in `dir`: as kept (and no longer
+    /// kept), else read and parsed.
+    ///
+    /// # Errors
+    /// [`StoreError`] naming the file.
+    pub fn take_references(&self, dir: &Path, name: &str) -> Result<Arc<References>, StoreError> {
+        match self.count(self.references.take(name)) {
+            Some(refs) => Ok(refs),
+            None => References::read(&dir.join(name)).map(Arc::new),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_value_is_taken_once_and_the_oldest_leave_first() {
+        let cache = Cache::new(10);
+        cache.put("a", Arc::new(1), 4);
+        cache.put("b", Arc::new(2), 4);
+        assert_eq!(cache.held_bytes(), 8);
+        // "a" leaves to make room for "c".
+        cache.put("c", Arc::new(3), 4);
+        assert_eq!(cache.held_bytes(), 8);
+        assert_eq!(cache.take("a"), None);
+        assert_eq!(cache.take("b").as_deref(), Some(&2));
+        assert_eq!(cache.take("b"), None, "taken once");
+        assert_eq!(cache.held_bytes(), 4);
+        // A taken name does not count; putting a name again replaces its value.
+        cache.put("c", Arc::new(4), 6);
+        assert_eq!(cache.held_bytes(), 6);
+        assert_eq!(cache.take("c").as_deref(), Some(&4));
+        assert_eq!(cache.held_bytes(), 0);
+    }
+
+    #[test]
+    fn values_beyond_the_budget_are_not_kept() {
+        let cache = Cache::new(10);
+        cache.put("a", Arc::new(1), 3);
+        cache.put("big", Arc::new(2), 11);
+        assert_eq!(cache.take("big"), None);
+        assert_eq!(cache.take("a").as_deref(), Some(&1), "and displace nothing");
+        let none = Cache::new(0);
+        none.put("a", Arc::new(1), 1);
+        assert_eq!(none.take("a"), None);
+        assert_eq!(none.held_bytes(), 0);
+    }
+
+    #[test]
+    fn the_order_stays_bounded_when_values_are_taken() {
+        let cache = Cache::new(100);
+        cache.put("kept", Arc::new(-1), 1);
+        for k in 0..1000 {
+            let name = format!("v{k}");
+            cache.put(&name, Arc::new(k), 1);
+            assert_eq!(cache.take(&name).as_deref(), Some(&k));
+        }
+        assert_eq!(cache.lock().order, ["kept"]);
+        assert_eq!(cache.held_bytes(), 1);
+    }
+
+    #[test]
+    fn a_value_not_kept_is_read_from_the_recording() {
+        let dir = tempfile::tempdir().unwrap();
+        let kept = Kept::new(1 << 20);
+        let missing = kept.take_vdi(dir.path(), "no-such.vdi").unwrap_err();
+        assert!(matches!(missing, LoadError::Read { .. }), "{missing}");
+        assert!(missing.to_string().contains("no-such.vdi"), "{missing}");
+        std::fs::write(dir.path().join("bad.vdi"), b"not a VDI").unwrap();
+        let bad = kept.take_vdi(dir.path(), "bad.vdi").unwrap_err();
+        assert!(matches!(bad, LoadError::Decode { .. }), "{bad}");
+        assert!(bad.to_string().contains("bad.vdi"), "{bad}");
+        assert_eq!(kept.counts(), (0, 2));
+    }
+
+    #[test]
+    fn a_kept_vdi_is_taken_without_its_file_once() {
+        use insitu_core::raycast::{RaycastParams, Raycaster};
+        use insitu_core::vdi::{generate::generate, VdiParams};
+        use insitu_core::{Camera, TransferFunction, Volume};
+        let volume = Volume::from_fn([8, 8, 8], |x, y, z| ((x + y + z) % 5) as f32).unwrap();
+        let tf = TransferFunction::default_for_range(0.0, 4.0);
+        let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let camera = Camera::default_for_box(&volume.world_box());
+        let params = VdiParams {
+            resolution: 16,
+            gamma: 0.01,
+        };
+        let vdi = generate(&rc, &camera, params, 0, "").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let kept = Kept::new(1 << 20);
+        kept.keep_vdi("s0.vdi", vdi.clone());
+        assert_eq!(kept.vdis.held_bytes(), vdi.memory_bytes() as u64);
+        // No file: the kept VDI is the one returned, once; then the disk is asked.
+        assert_eq!(*kept.take_vdi(dir.path(), "s0.vdi").unwrap(), vdi);
+        assert!(kept.take_vdi(dir.path(), "s0.vdi").is_err());
+        assert_eq!(kept.counts(), (1, 1));
+        assert_eq!(kept.vdis.held_bytes(), 0);
+    }
+}
