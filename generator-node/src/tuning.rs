@@ -23,7 +23,7 @@ use insitu_proto::peer::{error_chain, Peer};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
+use tokio::sync::mpsc::{self, error::TrySendError};
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{info, warn};
 
@@ -206,8 +206,8 @@ fn run_trial(
 async fn trials(
     shared: Arc<Shared>,
     tuning: Arc<Tuning>,
-    mut requests: mpsc::UnboundedReceiver<(u64, pb::TrialRequest)>,
-    results: mpsc::UnboundedSender<(u64, pb::TrialResult)>,
+    mut requests: mpsc::Receiver<(u64, pb::TrialRequest)>,
+    results: mpsc::Sender<(u64, pb::TrialResult)>,
 ) {
     while let Some((epoch, req)) = requests.recv().await {
         if epoch != tuning.epoch.load(Ordering::Relaxed) {
@@ -215,21 +215,23 @@ async fn trials(
         }
         let ranks = tuning.holds.ranks(req.step);
         if ranks.is_empty() {
-            let _ = results.send((
-                epoch,
-                pb::TrialResult {
-                    trial_id: req.trial_id,
-                    step: req.step,
-                    resolution: req.resolution,
-                    gamma: req.gamma,
-                    error: format!(
-                        "step {} is not held by this node (released or never held)",
-                        req.step
-                    ),
-                    not_held: true,
-                    ..Default::default()
-                },
-            ));
+            let _ = results
+                .send((
+                    epoch,
+                    pb::TrialResult {
+                        trial_id: req.trial_id,
+                        step: req.step,
+                        resolution: req.resolution,
+                        gamma: req.gamma,
+                        error: format!(
+                            "step {} is not held by this node (released or never held)",
+                            req.step
+                        ),
+                        not_held: true,
+                        ..Default::default()
+                    },
+                ))
+                .await;
             continue;
         }
         for (rank, held) in ranks {
@@ -255,10 +257,14 @@ async fn trials(
                 error: format!("trial task failed: {e}"),
                 ..Default::default()
             });
-            let _ = results.send((epoch, result));
+            let _ = results.send((epoch, result)).await;
         }
     }
 }
+
+/// Trials waiting on a node at most (a tuner keeps a few in flight, paced by its trial
+/// budget); more are answered with an error at once.
+const TRIAL_BACKLOG: usize = 64;
 
 /// The dialling side of the stream.
 pub struct Link {
@@ -284,8 +290,8 @@ impl Link {
         tuning: Arc<Tuning>,
         mut summaries: mpsc::Receiver<pb::StepSummary>,
     ) {
-        let (trial_tx, trial_rx) = mpsc::unbounded_channel();
-        let (result_tx, mut result_rx) = mpsc::unbounded_channel();
+        let (trial_tx, trial_rx) = mpsc::channel(TRIAL_BACKLOG);
+        let (result_tx, mut result_rx) = mpsc::channel(TRIAL_BACKLOG);
         tokio::spawn(trials(shared.clone(), tuning.clone(), trial_rx, result_tx));
         let mut backoff = Duration::from_millis(100);
         loop {
@@ -320,8 +326,8 @@ impl Link {
         shared: &Arc<Shared>,
         tuning: &Arc<Tuning>,
         summaries: &mut mpsc::Receiver<pb::StepSummary>,
-        trial_tx: &mpsc::UnboundedSender<(u64, pb::TrialRequest)>,
-        result_rx: &mut mpsc::UnboundedReceiver<(u64, pb::TrialResult)>,
+        trial_tx: &mpsc::Sender<(u64, pb::TrialRequest)>,
+        result_rx: &mut mpsc::Receiver<(u64, pb::TrialResult)>,
         epoch: u64,
     ) -> Result<(), String> {
         let channel = self
@@ -374,7 +380,19 @@ impl Link {
                             tuning.holds.answer(h.step, h.keep);
                         }
                         Some(Down::Trial(t)) => {
-                            let _ = trial_tx.send((epoch, t));
+                            // More than TRIAL_BACKLOG asked at once: refused now (the tuner
+                            // fails that trial) instead of queued without bound.
+                            if let Err(TrySendError::Full((_, t))) = trial_tx.try_send((epoch, t)) {
+                                let busy = pb::TrialResult {
+                                    trial_id: t.trial_id,
+                                    step: t.step,
+                                    resolution: t.resolution,
+                                    gamma: t.gamma,
+                                    error: format!("{TRIAL_BACKLOG} trials already wait on this node"),
+                                    ..Default::default()
+                                };
+                                out.send(send(Up::Trial(busy))).await.map_err(closed)?;
+                            }
                         }
                         Some(Down::Decision(d)) => {
                             let error = apply_decision(shared, &d).err().unwrap_or_default();

@@ -23,7 +23,7 @@ type Out = Result<pb::TunerMessage, Status>;
 
 /// A tuner that hands the test the node's messages and sends what the test scripts.
 struct Scripted {
-    up: mpsc::UnboundedSender<pb::NodeMessage>,
+    up: mpsc::Sender<pb::NodeMessage>,
     down: Mutex<Option<mpsc::Receiver<Out>>>,
 }
 
@@ -40,7 +40,7 @@ impl Tuner for Scripted {
         let up = self.up.clone();
         tokio::spawn(async move {
             while let Some(Ok(m)) = inbound.next().await {
-                let _ = up.send(m);
+                let _ = up.send(m).await;
             }
         });
         let rx = self.down.lock().unwrap().take().expect("one stream");
@@ -79,7 +79,7 @@ fn field(n: usize, t: u64) -> Vec<f32> {
         .collect()
 }
 
-async fn next(up: &mut mpsc::UnboundedReceiver<pb::NodeMessage>) -> Up {
+async fn next(up: &mut mpsc::Receiver<pb::NodeMessage>) -> Up {
     tokio::time::timeout(Duration::from_secs(60), up.recv())
         .await
         .expect("the node answered in time")
@@ -93,8 +93,8 @@ fn send(tx: &mpsc::Sender<Out>, m: Down) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_node_summarises_runs_trials_and_applies_decisions() {
-    let (up_tx, mut up) = mpsc::unbounded_channel();
-    let (down, down_rx) = mpsc::channel(16);
+    let (up_tx, mut up) = mpsc::channel(1024);
+    let (down, down_rx) = mpsc::channel(256);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let tuner_addr = listener.local_addr().unwrap();
     tokio::spawn(
@@ -205,6 +205,40 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (r.sigma_bytes, r.supersegments)
     );
     assert!(probe.view_mse.is_empty() && probe.ssim.is_none() && probe.tau_secs > 0.0);
+
+    // A burst beyond the node's trial backlog: every trial gets exactly one answer, a result
+    // or a refusal that says the backlog is full (none is queued without bound or lost).
+    let burst = 200u64;
+    for id in 100..100 + burst {
+        send(
+            &down,
+            Down::Trial(pb::TrialRequest {
+                trial_id: id,
+                step: 0,
+                resolution: 16,
+                gamma: 0.01,
+                size_only: true,
+            }),
+        );
+    }
+    let mut answered = std::collections::BTreeSet::new();
+    let mut busy = 0;
+    while answered.len() < burst as usize {
+        let Up::Trial(t) = next(&mut up).await else {
+            panic!("expected a trial result")
+        };
+        assert!(
+            answered.insert(t.trial_id),
+            "trial {} answered twice",
+            t.trial_id
+        );
+        if !t.error.is_empty() {
+            assert!(t.error.contains("trials already wait"), "{}", t.error);
+            busy += 1;
+        }
+    }
+    assert_eq!(answered, (100..100 + burst).collect());
+    eprintln!("burst of {burst} trials: {busy} refused as over the backlog");
 
     // A step the node does not hold: refused with a reason, the stream stays up.
     send(&down, trial(3, 7, 24));

@@ -28,6 +28,10 @@ use tracing::{info, warn};
 /// Steps kept waiting for their last rank or their q before they are given up.
 const STALE_STEPS: u64 = 32;
 
+/// Events queued for the engine at most; beyond, the streams that bring them wait (gRPC flow
+/// control then holds the nodes and the viz-node back) instead of memory growing.
+pub const EVENT_BACKLOG: usize = 1024;
+
 /// What the engine is told.
 #[derive(Debug)]
 pub enum Event {
@@ -81,7 +85,7 @@ pub struct Engine {
     pub(crate) reported: Mutex<Option<Candidate>>,
     /// Set on shutdown: a tuning in progress gives up at its next trial.
     pub stopping: AtomicBool,
-    events: mpsc::UnboundedSender<Event>,
+    events: mpsc::Sender<Event>,
 }
 
 /// A decision as a wire message.
@@ -110,8 +114,8 @@ impl Engine {
         cfg: Config,
         resolved: Resolved,
         state: State,
-    ) -> (Arc<Self>, mpsc::UnboundedReceiver<Event>) {
-        let (events, rx) = mpsc::unbounded_channel();
+    ) -> (Arc<Self>, mpsc::Receiver<Event>) {
+        let (events, rx) = mpsc::channel(EVENT_BACKLOG);
         let process = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_millis() as u64);
@@ -134,9 +138,11 @@ impl Engine {
         )
     }
 
-    /// Sends an event to the engine task.
-    pub fn event(&self, e: Event) {
-        let _ = self.events.send(e);
+    /// Sends an event to the engine task, waiting while [`EVENT_BACKLOG`] are queued (the
+    /// engine loop itself never waits on a sender: it answers nodes with `try_send`, so the
+    /// wait cannot close a cycle).
+    pub async fn event(&self, e: Event) {
+        let _ = self.events.send(e).await;
     }
 
     pub(crate) fn state(&self) -> std::sync::MutexGuard<'_, State> {
@@ -475,7 +481,7 @@ impl Loop {
 
 impl Engine {
     /// The engine task: takes events in order and tunes when the characteristic set changed.
-    pub async fn run(self: Arc<Self>, mut events: mpsc::UnboundedReceiver<Event>) {
+    pub async fn run(self: Arc<Self>, mut events: mpsc::Receiver<Event>) {
         let resume = {
             let s = self.state();
             let steps = s.tracker.step_indices();

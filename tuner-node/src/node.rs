@@ -113,7 +113,7 @@ async fn watch(viz: Peer, engine: Arc<Engine>) {
             info!(%uri, "watching the viz-node's quality reports");
             backoff = Duration::from_millis(100);
             while let Some(r) = stream.message().await.map_err(|e| e.message().to_owned())? {
-                engine.event(Event::Report(r));
+                engine.event(Event::Report(r)).await;
             }
             Err("the viz-node ended the report stream".into())
         }

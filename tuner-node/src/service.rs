@@ -70,7 +70,7 @@ impl Tuner for TunerService {
         let (tx, rx) = mpsc::channel(NODE_BACKLOG);
         let e = self.0.clone();
         let conn = e.hub.connect(&hello.node_id, tx.clone());
-        e.event(Event::Hello(conn, hello));
+        e.event(Event::Hello(conn, hello)).await;
         tokio::spawn(async move {
             let refuse = |message: String| {
                 warn!(%message, "refused a message from a node");
@@ -81,7 +81,7 @@ impl Tuner for TunerService {
             while let Ok(Some(m)) = inbound.message().await {
                 match m.msg {
                     Some(Up::Summary(s)) => match check_summary(&s) {
-                        Ok(()) => e.event(Event::Summary(conn, s)),
+                        Ok(()) => e.event(Event::Summary(conn, s)).await,
                         Err(problem) => refuse(problem),
                     },
                     Some(Up::Trial(r)) => {
@@ -97,7 +97,7 @@ impl Tuner for TunerService {
                     None => refuse("an empty NodeMessage".into()),
                 }
             }
-            e.event(Event::Gone(conn));
+            e.event(Event::Gone(conn)).await;
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }

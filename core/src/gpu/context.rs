@@ -349,7 +349,8 @@ impl Gpu {
             self.queue.submit([encoder.finish()]);
             Ok(staging)
         })?;
-        let (tx, rx) = std::sync::mpsc::channel();
+        // One message: the mapping callback never waits on it.
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
         staging.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send(r);
         });
