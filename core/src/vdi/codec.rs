@@ -328,8 +328,32 @@ fn decompress(codec: Codec, body: &[u8], expected: u64) -> Result<Vec<u8>, Codec
     Ok(out)
 }
 
+/// The payload: metadata, then the supersegment count, the per-pixel counts and the six
+/// planes, each checked as it is read.
 fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
     let mut rd = Reader::new(p);
+    let meta = read_meta(&mut rd)?;
+    let n = rd.u64("supersegment count")?;
+    let pixels = u64::from(meta.params.resolution).pow(2);
+    // Lengths first: nothing is allocated for a count the bytes cannot hold.
+    let needed = (pixels * 4).saturating_add(n.saturating_mul(24));
+    if needed != rd.remaining() as u64 {
+        return Err(CodecError::Invalid(format!(
+            "{pixels} counts and {n} supersegments need {needed} bytes, payload has {} left",
+            rd.remaining()
+        )));
+    }
+    let n = n as usize;
+    let offsets = read_offsets(&mut rd, pixels as usize, n)?;
+    let segs = read_supersegments(&mut rd, n)?;
+    check_depth_order(&offsets, &segs)?;
+    Vdi::from_parts(meta, offsets, segs)
+        .ok_or_else(|| CodecError::Invalid("offsets do not match the lists".into()))
+}
+
+/// The metadata: `P_M`, the ray-casting step and termination, shading, camera, volume box,
+/// TF hash and name, each checked for range.
+fn read_meta(rd: &mut Reader<'_>) -> Result<VdiMeta, CodecError> {
     let resolution = rd.u32("r")?;
     if !(1..=MAX_RESOLUTION).contains(&resolution) {
         return Err(CodecError::Invalid(format!(
@@ -379,19 +403,22 @@ fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
     let tf_name = std::str::from_utf8(rd.take(name_len, "tf name")?)
         .map_err(|_| CodecError::Invalid("tf name is not UTF-8".into()))?
         .to_owned();
-    let n = rd.u64("supersegment count")?;
-    let pixels = resolution as u64 * resolution as u64;
-    // Lengths first: nothing is allocated for a count the bytes cannot hold.
-    let needed = (pixels * 4).saturating_add(n.saturating_mul(24));
-    if needed != rd.remaining() as u64 {
-        return Err(CodecError::Invalid(format!(
-            "{pixels} counts and {n} supersegments need {needed} bytes, payload has {} left",
-            rd.remaining()
-        )));
-    }
-    let n = n as usize;
-    let counts = rd.take(pixels as usize * 4, "counts")?;
-    let mut offsets = Vec::with_capacity(pixels as usize + 1);
+    Ok(VdiMeta {
+        camera,
+        params: VdiParams { resolution, gamma },
+        step,
+        termination,
+        shaded,
+        volume_box,
+        tf_hash,
+        tf_name,
+    })
+}
+
+/// The prefix offsets (`pixels + 1`, from 0) of the per-pixel counts, which must add up to `n`.
+fn read_offsets(rd: &mut Reader<'_>, pixels: usize, n: usize) -> Result<Vec<u32>, CodecError> {
+    let counts = rd.take(pixels * 4, "counts")?;
+    let mut offsets = Vec::with_capacity(pixels + 1);
     offsets.push(0u32);
     let mut total = 0u64;
     for c in counts.chunks_exact(4) {
@@ -408,6 +435,12 @@ fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
             "pixel counts add up to {total}, header says {n} supersegments"
         )));
     }
+    Ok(offsets)
+}
+
+/// `n` supersegments from the six planes (`z_start`, `z_end`, r, g, b, α): finite, depths
+/// `0 ≤ start ≤ end`, colour and opacity in [0, 1].
+fn read_supersegments(rd: &mut Reader<'_>, n: usize) -> Result<Vec<Supersegment>, CodecError> {
     let mut planes = [(); 6].map(|_| Vec::new());
     for (k, plane) in planes.iter_mut().enumerate() {
         *plane = rd
@@ -448,6 +481,11 @@ fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
         }
         segs.push(s);
     }
+    Ok(segs)
+}
+
+/// Each pixel's list (`offsets[p]..offsets[p + 1]` of `segs`) is depth-sorted without overlap.
+fn check_depth_order(offsets: &[u32], segs: &[Supersegment]) -> Result<(), CodecError> {
     for w in offsets.windows(2) {
         let list = &segs[w[0] as usize..w[1] as usize];
         if list.windows(2).any(|p| p[1].z_start < p[0].z_end) {
@@ -457,18 +495,7 @@ fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
             )));
         }
     }
-    let meta = VdiMeta {
-        camera,
-        params: VdiParams { resolution, gamma },
-        step,
-        termination,
-        shaded,
-        volume_box,
-        tf_hash,
-        tf_name,
-    };
-    Vdi::from_parts(meta, offsets, segs)
-        .ok_or_else(|| CodecError::Invalid("offsets do not match the lists".into()))
+    Ok(())
 }
 
 /// Bounds-checked little-endian reader.
