@@ -12,7 +12,7 @@ use tokio::sync::mpsc;
 use tokio_stream::wrappers::{BroadcastStream, ReceiverStream};
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
-use tracing::warn;
+use tracing::{warn, Instrument};
 
 /// Decisions and refusals waiting for a node that reads slowly.
 const NODE_BACKLOG: usize = 1024;
@@ -54,6 +54,11 @@ impl Tuner for TunerService {
     type AttachStream = Boxed<pb::TunerMessage>;
     type WatchDecisionsStream = Boxed<pb::PmDecision>;
 
+    #[tracing::instrument(
+        name = "attach",
+        skip_all,
+        fields(peer = ?request.remote_addr(), node = tracing::field::Empty)
+    )]
     async fn attach(
         &self,
         request: Request<Streaming<pb::NodeMessage>>,
@@ -67,6 +72,7 @@ impl Tuner for TunerService {
                 ))
             }
         };
+        tracing::Span::current().record("node", hello.node_id.as_str());
         let (tx, rx) = mpsc::channel(NODE_BACKLOG);
         let e = self.0.clone();
         let conn = e.hub.connect(&hello.node_id, tx.clone());
@@ -98,7 +104,9 @@ impl Tuner for TunerService {
                 }
             }
             e.event(Event::Gone(conn)).await;
-        });
+        }
+        // The stream's reader logs under the stream's span (peer and node id).
+        .in_current_span());
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 

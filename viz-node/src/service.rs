@@ -19,7 +19,8 @@ use tokio::sync::{broadcast, mpsc};
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
-use tracing::{info, warn};
+use tracing::field::Empty;
+use tracing::{info, warn, Span};
 
 /// Largest reference frame or rendered image side, pixels.
 pub const MAX_IMAGE_SIDE: u32 = 8192;
@@ -377,6 +378,9 @@ impl VizService {
         })
         .await
         .map_err(over_limit)?;
+        Span::current()
+            .record("step", h.step)
+            .record("rank", h.rank);
         if h.world_size == 0 || h.rank >= h.world_size {
             return Err(Status::invalid_argument(format!(
                 "VDI of step {} rank {}: world size {} (need 0 ≤ rank < world_size)",
@@ -480,6 +484,9 @@ impl VizService {
         )
         .await
         .map_err(over_limit)?;
+        Span::current()
+            .record("step", h.step)
+            .record("rank", h.rank);
         let camera = camera_from_pb(
             h.camera
                 .as_ref()
@@ -578,6 +585,11 @@ type ReportStream = Pin<Box<dyn Stream<Item = Result<pb::QualityReport, Status>>
 
 #[tonic::async_trait]
 impl Viz for VizService {
+    #[tracing::instrument(
+        name = "ship_vdi",
+        skip_all,
+        fields(peer = ?request.remote_addr(), step = Empty, rank = Empty)
+    )]
     async fn ship_vdi(
         &self,
         request: Request<Streaming<pb::VdiChunk>>,
@@ -588,6 +600,11 @@ impl Viz for VizService {
         }))
     }
 
+    #[tracing::instrument(
+        name = "ship_references",
+        skip_all,
+        fields(peer = ?request.remote_addr(), step = Empty, rank = Empty)
+    )]
     async fn ship_references(
         &self,
         request: Request<Streaming<pb::ReferenceChunk>>,
@@ -658,6 +675,7 @@ impl Viz for VizService {
         }))
     }
 
+    #[tracing::instrument(name = "render", skip_all, fields(peer = ?request.remote_addr()))]
     async fn render(
         &self,
         request: Request<pb::RenderRequest>,
