@@ -215,23 +215,15 @@ async fn trials(
         }
         let ranks = tuning.holds.ranks(req.step);
         if ranks.is_empty() {
-            let _ = results
-                .send((
-                    epoch,
-                    pb::TrialResult {
-                        trial_id: req.trial_id,
-                        step: req.step,
-                        resolution: req.resolution,
-                        gamma: req.gamma,
-                        error: format!(
-                            "step {} is not held by this node (released or never held)",
-                            req.step
-                        ),
-                        not_held: true,
-                        ..Default::default()
-                    },
-                ))
-                .await;
+            let error = format!(
+                "step {} is not held by this node (released or never held)",
+                req.step
+            );
+            let not_held = pb::TrialResult {
+                not_held: true,
+                ..refusal(&req, error)
+            };
+            let _ = results.send((epoch, not_held)).await;
             continue;
         }
         for (rank, held) in ranks {
@@ -259,6 +251,18 @@ async fn trials(
             });
             let _ = results.send((epoch, result)).await;
         }
+    }
+}
+
+/// The result of a trial `req` that is not run, saying why.
+fn refusal(req: &pb::TrialRequest, error: String) -> pb::TrialResult {
+    pb::TrialResult {
+        trial_id: req.trial_id,
+        step: req.step,
+        resolution: req.resolution,
+        gamma: req.gamma,
+        error,
+        ..Default::default()
     }
 }
 
@@ -383,14 +387,7 @@ impl Link {
                             // More than TRIAL_BACKLOG asked at once: refused now (the tuner
                             // fails that trial) instead of queued without bound.
                             if let Err(TrySendError::Full((_, t))) = trial_tx.try_send((epoch, t)) {
-                                let busy = pb::TrialResult {
-                                    trial_id: t.trial_id,
-                                    step: t.step,
-                                    resolution: t.resolution,
-                                    gamma: t.gamma,
-                                    error: format!("{TRIAL_BACKLOG} trials already wait on this node"),
-                                    ..Default::default()
-                                };
+                                let busy = refusal(&t, format!("{TRIAL_BACKLOG} trials already wait on this node"));
                                 out.send(send(Up::Trial(busy))).await.map_err(closed)?;
                             }
                         }

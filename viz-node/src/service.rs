@@ -251,10 +251,7 @@ impl Shared {
     }
 
     fn load_vdi(&self, e: &Entry) -> Result<Vdi, Status> {
-        let name = e.vdi.as_ref().ok_or_else(|| {
-            Status::not_found(format!("step {} rank {} has no VDI yet", e.step, e.rank))
-        })?;
-        self.load_file(name)
+        self.load_file(vdi_name(e)?)
     }
 
     fn load_file(&self, name: &str) -> Result<Vdi, Status> {
@@ -271,10 +268,7 @@ impl Shared {
             .entry(step, rank)
             .ok_or_else(|| Status::not_found(format!("step {step} rank {rank}")))?;
         let dir = self.recording.dir();
-        let vdi_name = e.vdi.as_ref().ok_or_else(|| {
-            Status::not_found(format!("step {} rank {} has no VDI yet", e.step, e.rank))
-        })?;
-        let vdi = self.kept.take_vdi(dir, vdi_name);
+        let vdi = self.kept.take_vdi(dir, vdi_name(&e)?);
         let vdi = vdi.map_err(|err| Status::data_loss(err.to_string()))?;
         let refs_name = e
             .references
@@ -303,6 +297,13 @@ impl Shared {
         self.publish(report(&e));
         Ok(e)
     }
+}
+
+/// The name of `e`'s VDI file; `NOT_FOUND` while it has none.
+fn vdi_name(e: &Entry) -> Result<&str, Status> {
+    e.vdi
+        .as_deref()
+        .ok_or_else(|| Status::not_found(format!("step {} rank {} has no VDI yet", e.step, e.rank)))
 }
 
 /// Scores and composes queued steps one at a time on the blocking pool.
