@@ -43,6 +43,8 @@ enum Command {
     /// Feed a recorded time series (4-D raw file) through the pipeline, as a simulation would,
     /// with a tuner unless --no-tune or --generator. Defaults: --utility size:1MB, --codec bzip2.
     Replay(cmd::replay::Args),
+    /// Whether a daemon serves (gRPC health check); --wait SECS waits for it. Exit 0: SERVING.
+    Health(cmd::health::Args),
     /// A recording's index (steps, ranks, σ, τ, q, P_M versions) as JSON or CSV.
     Export(cmd::export::Args),
     /// Parameter study over a grid of (r, gamma): sigma, q, tau per candidate, cached; CSV + JSON.
@@ -85,6 +87,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Export(a) => cmd::export::run(a),
+        Command::Health(a) => cmd::health::run(a),
         Command::Study(a) => cmd::study::run(a),
         Command::Tune(a) => cmd::tune::run(a),
         Command::Series(a) => cmd::series::run(a),

@@ -8,6 +8,7 @@ use crate::ship::Shipper;
 use crate::stats::{Counters, Stats};
 use crate::work;
 use anyhow::Context;
+use insitu_proto::health::Health;
 use insitu_proto::pb::generator_server::GeneratorServer;
 use insitu_proto::security::Security;
 use insitu_proto::transport;
@@ -43,6 +44,7 @@ impl std::fmt::Display for Summary {
 pub struct RunningNode {
     addr: SocketAddr,
     shared: Arc<Shared>,
+    health: Health,
     stop_server: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     worker: JoinHandle<()>,
@@ -142,10 +144,12 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
     let svc = tonic::service::interceptor::InterceptedService::new(svc, security.require_token());
+    let (health, health_svc) = Health::serving::<GeneratorServer<GeneratorService>>().await;
     let server = tokio::spawn(
         security
             .server()?
             .add_service(svc)
+            .add_service(health_svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
             }),
@@ -175,6 +179,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     Ok(RunningNode {
         addr,
         shared,
+        health,
         stop_server,
         server,
         worker,
@@ -333,6 +338,7 @@ impl RunningNode {
     /// Stops taking steps, generates what is queued and ships it for up to the drain timeout,
     /// and counts whatever is left as dropped (a spool keeps it for the next run).
     pub async fn shutdown(self) -> Summary {
+        self.health.draining().await;
         self.shared.queue.close();
         let _ = self.stop_server.send(());
         if let Err(e) = self.server.await {

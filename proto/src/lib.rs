@@ -11,6 +11,8 @@
 //! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
 //! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
 //! - `daemon` (feature `daemon`): logging, signals and TOML loading shared by the daemons.
+//! - `health` (feature `daemon`): the daemons' gRPC health service (`grpc.health.v1`) and a
+//!   probe that waits for it.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
@@ -20,6 +22,8 @@ pub mod chunk;
 pub mod convert;
 #[cfg(feature = "daemon")]
 pub mod daemon;
+#[cfg(feature = "daemon")]
+pub mod health;
 pub mod peer;
 pub mod security;
 pub mod tls;

@@ -6,6 +6,7 @@ use crate::engine::{Engine, Event};
 use crate::service::TunerService;
 use crate::state::State;
 use anyhow::Context;
+use insitu_proto::health::Health;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_server::TunerServer;
 use insitu_proto::pb::viz_client::VizClient;
@@ -24,6 +25,7 @@ use tracing::{info, warn};
 pub struct RunningTuner {
     addr: SocketAddr,
     engine: Arc<Engine>,
+    health: Health,
     stop: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     tasks: Vec<JoinHandle<()>>,
@@ -77,11 +79,13 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
         TunerServer::new(TunerService(engine.clone())),
         security.require_token(),
     );
+    let (health, health_svc) = Health::serving::<TunerServer<TunerService>>().await;
     let (stop, stopped) = oneshot::channel::<()>();
     let server = tokio::spawn(
         security
             .server()?
             .add_service(svc)
+            .add_service(health_svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
             }),
@@ -90,6 +94,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
     Ok(RunningTuner {
         addr,
         engine,
+        health,
         stop,
         server,
         tasks,
@@ -139,6 +144,7 @@ impl RunningTuner {
 
     /// Stops serving; the state is already on disk.
     pub async fn shutdown(self) {
+        self.health.draining().await;
         self.engine
             .stopping
             .store(true, std::sync::atomic::Ordering::Relaxed);

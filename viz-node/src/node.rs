@@ -9,6 +9,7 @@ use crate::store::Recording;
 use anyhow::Context;
 use insitu_core::Backend;
 use insitu_proto::auth::check_bind;
+use insitu_proto::health::Health;
 use insitu_proto::pb::viz_server::VizServer;
 use insitu_proto::security::Security;
 use insitu_proto::transport;
@@ -27,6 +28,7 @@ use tracing::info;
 pub struct RunningViz {
     addr: SocketAddr,
     shared: Arc<Shared>,
+    health: Health,
     stop: oneshot::Sender<()>,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     http: Option<HttpParts>,
@@ -98,11 +100,13 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
     let svc = InterceptedService::new(svc, security.require_token());
+    let (health, health_svc) = Health::serving::<VizServer<VizService>>().await;
     let (stop, stopped) = oneshot::channel::<()>();
     let server = tokio::spawn(
         security
             .server()?
             .add_service(svc)
+            .add_service(health_svc)
             .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
                 let _ = stopped.await;
             }),
@@ -115,6 +119,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     Ok(RunningViz {
         addr,
         shared,
+        health,
         stop,
         server,
         http,
@@ -229,6 +234,7 @@ impl RunningViz {
 
     /// Stops serving after in-flight calls finish.
     pub async fn shutdown(self) {
+        self.health.draining().await;
         let http = self.http.map(|h| {
             let _ = h.stop.send(());
             h.server

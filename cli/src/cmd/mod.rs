@@ -5,6 +5,7 @@ pub mod demo;
 pub mod evaluate;
 pub mod export;
 pub mod generate;
+pub mod health;
 pub mod render;
 pub mod replay;
 pub mod series;
@@ -31,6 +32,32 @@ impl BackendArgs {
             .with_context(|| format!("--backend {}", self.backend))?;
         eprintln!("{why}");
         Ok(backend)
+    }
+}
+
+/// Client TLS flags for dialling a daemon (`replay --generator`, `health`).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct ClientTlsArgs {
+    /// CA certificate (PEM): connect over TLS and verify the daemon against it.
+    #[arg(long)]
+    pub tls_ca: Option<std::path::PathBuf>,
+    /// Client certificate (PEM) for a daemon that requires mutual TLS (with --tls-key).
+    #[arg(long, requires_all = ["tls_key", "tls_ca"])]
+    pub tls_cert: Option<std::path::PathBuf>,
+    /// The client certificate's private key (PEM).
+    #[arg(long, requires = "tls_cert")]
+    pub tls_key: Option<std::path::PathBuf>,
+}
+
+impl ClientTlsArgs {
+    /// The files as the peers take them (no client authentication asked of others).
+    pub fn files(&self) -> insitu_proto::tls::TlsFiles {
+        insitu_proto::tls::TlsFiles {
+            ca_file: self.tls_ca.clone(),
+            cert_file: self.tls_cert.clone(),
+            key_file: self.tls_key.clone(),
+            client_auth: false,
+        }
     }
 }
 

@@ -5,7 +5,7 @@
 
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
-use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step, TlsFiles};
+use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::RawFormat;
@@ -48,15 +48,9 @@ pub struct Args {
     /// Bearer token file for --generator (else INSITU_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
-    /// CA certificate (PEM) for --generator: connect over TLS and verify the node against it.
-    #[arg(long, requires = "generator")]
-    tls_ca: Option<PathBuf>,
-    /// Client certificate (PEM) for a --generator that requires mutual TLS (with --tls-key).
-    #[arg(long, requires_all = ["tls_key", "tls_ca"])]
-    tls_cert: Option<PathBuf>,
-    /// The client certificate's private key (PEM).
-    #[arg(long, requires = "tls_cert")]
-    tls_key: Option<PathBuf>,
+    /// TLS for --generator.
+    #[command(flatten)]
+    tls: super::ClientTlsArgs,
     #[command(flatten)]
     pipeline: PipelineArgs,
 }
@@ -73,6 +67,9 @@ pub fn run(a: Args) -> Result<()> {
         .is_some_and(|s| !(s.is_finite() && (0.0..=86_400.0).contains(&s)))
     {
         bail!("--step-interval must be seconds in [0, 86400]");
+    }
+    if a.tls.tls_ca.is_some() && a.generator.is_none() {
+        bail!("--tls-ca is for --generator: local nodes started by replay speak clear text on loopback");
     }
     let format = RawFormat::from_file_name(&a.series)?;
     let bricks = bricks_for(&a, format.dims)?;
@@ -168,12 +165,7 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
         (None, Some(n)) => n.generator_addr(),
         (None, None) => bail!("no generator-node"),
     };
-    let tls = TlsFiles {
-        ca_file: a.tls_ca.clone(),
-        cert_file: a.tls_cert.clone(),
-        key_file: a.tls_key.clone(),
-        client_auth: false,
-    };
+    let tls = a.tls.files();
     let mut client =
         SimClient::connect_with(Peer::new(&addr, token, tls.client()?, false)?).await?;
     client.set_config(config).await?;

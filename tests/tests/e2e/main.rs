@@ -7,6 +7,7 @@ mod bad_input;
 mod common;
 mod faults;
 mod gpu;
+mod health;
 mod mpi;
 mod outage;
 mod policies;

@@ -175,6 +175,41 @@ reference_every = 2
     assert!(with(client_tls(&ca.pem, Some(&sim)), None).is_err());
     let st = with(client_tls(&ca.pem, Some(&sim)), Some(token.clone())).unwrap();
     assert_eq!(st.steps_shipped, 4);
+    // The health check over mutual TLS needs no token; without a client certificate, or in
+    // clear text, it gets no answer.
+    let health = |extra: &[&str]| {
+        std::process::Command::new(insitu_e2e::bin("insitu"))
+            .args(["health", &g])
+            .args(extra)
+            .env_remove("INSITU_TOKEN")
+            .output()
+            .unwrap()
+    };
+    let (ca_pem, sim_crt, sim_key) = (path(&ca.pem), path(&sim.0), path(&sim.1));
+    let out = health(&[
+        "--tls-ca",
+        &ca_pem,
+        "--tls-cert",
+        &sim_crt,
+        "--tls-key",
+        &sim_key,
+    ]);
+    assert!(
+        out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "SERVING",
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for extra in [
+        &["--wait", "1", "--tls-ca", ca_pem.as_str()][..],
+        &["--wait", "1"][..],
+    ] {
+        let out = health(extra);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("was not SERVING within 1 s"),
+            "{extra:?}: {err}"
+        );
+    }
     // A token never goes in clear text to a host that is not loopback.
     let e = Peer::new("10.255.255.1:1", Some(token), None, false).unwrap_err();
     assert!(e.to_string().contains("clear text"), "{e}");

@@ -20,7 +20,7 @@ const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
 const PACED: &str = "timeout_secs = 60.0\nshare = 0.1\nburst_secs = 0.0";
 
 /// A tuner-node with a small grid (fast trials) and no trial share limit in a short test.
-fn tuner(state: &Path, listen: &str, viz: &str, utility: &str, logs: &Path) -> Daemon {
+pub(crate) fn tuner(state: &Path, listen: &str, viz: &str, utility: &str, logs: &Path) -> Daemon {
     tuner_paced(
         state,
         listen,
