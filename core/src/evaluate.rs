@@ -57,16 +57,8 @@ pub struct Evaluation {
     pub params: VdiParams,
     /// Codec σ was measured with.
     pub codec: Codec,
-    /// σ: bytes of the compressed VDI file.
-    pub sigma_bytes: u64,
-    /// Supersegments in the VDI.
-    pub supersegments: u64,
-    /// τ: seconds of VDI generation, from `tau_source`.
-    pub tau_secs: f64,
-    /// Where τ comes from: wall clock (CPU) or GPU timestamps (kernel time, Sec. 5.3).
-    pub tau_source: TimeSource,
-    /// Wall-clock seconds of compression (reported apart from τ).
-    pub tau_compress_secs: f64,
+    /// σ and τ: what generating and encoding cost ([`generate_encoded`]).
+    pub sizing: Sizing,
     /// Wall-clock seconds to decode the file again.
     pub tau_decode_secs: f64,
     /// Mean seconds to render the VDI at one test view (same source as τ).
@@ -75,19 +67,6 @@ pub struct Evaluation {
     pub q_db: f64,
     /// Per-view scores.
     pub views: Vec<ViewScore>,
-}
-
-impl Evaluation {
-    /// Its generation and encoding half.
-    pub fn sizing(&self) -> Sizing {
-        Sizing {
-            sigma_bytes: self.sigma_bytes,
-            supersegments: self.supersegments,
-            tau_secs: self.tau_secs,
-            tau_source: self.tau_source,
-            tau_compress_secs: self.tau_compress_secs,
-        }
-    }
 }
 
 /// Renders the reference (direct ray-casting) image at each view angle, `size × size`, on
@@ -183,9 +162,9 @@ pub struct Sizing {
     pub supersegments: u64,
     /// τ: seconds of VDI generation, from `tau_source`.
     pub tau_secs: f64,
-    /// Where τ comes from.
+    /// Where τ comes from: wall clock (CPU) or GPU timestamps (kernel time, Sec. 5.3).
     pub tau_source: TimeSource,
-    /// Wall-clock seconds of compression.
+    /// Wall-clock seconds of compression (reported apart from τ).
     pub tau_compress_secs: f64,
 }
 
@@ -257,11 +236,7 @@ pub fn evaluate(
         Evaluation {
             params,
             codec: codec_kind,
-            sigma_bytes: size.sigma_bytes,
-            supersegments: size.supersegments,
-            tau_secs: size.tau_secs,
-            tau_source: size.tau_source,
-            tau_compress_secs: size.tau_compress_secs,
+            sizing: size,
             tau_decode_secs,
             tau_render_secs,
             q_db: metrics::pooled_psnr(&mses),

@@ -187,7 +187,7 @@ fn run_trial(
             out.view_mse = e.views.iter().map(|v| v.mse).collect();
             out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
             out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
-            e.sizing()
+            e.sizing
         };
         out.sigma_bytes = size.sigma_bytes;
         out.supersegments = size.supersegments;

@@ -94,10 +94,10 @@ pub fn run(a: Args) -> Result<()> {
                 "volume": scene.volume_name, "tf": scene.tf_name,
                 "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
                 "step": scene.params.step, "size": [w, h],
-                "sigma_bytes": eval.sigma_bytes, "supersegments": eval.supersegments,
-                "tau_s": eval.tau_secs, "tau_compress_s": eval.tau_compress_secs,
+                "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
+                "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
                 "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
-                "tau_reference_s": tau_reference, "tau_source": eval.tau_source,
+                "tau_reference_s": tau_reference, "tau_source": eval.sizing.tau_source,
                 "backend": backend.describe(),
                 "q_db": q_json(eval.q_db), "views": views, "strip": a.out,
             })
@@ -109,19 +109,19 @@ pub fn run(a: Args) -> Result<()> {
         );
         println!(
             "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
-            eval.sigma_bytes,
+            eval.sizing.sigma_bytes,
             codec_kind,
-            eval.supersegments,
-            eval.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
+            eval.sizing.supersegments,
+            eval.sizing.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
         );
         println!(
             "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",
-            eval.tau_secs, eval.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, tau_reference
+            eval.sizing.tau_secs, eval.sizing.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, tau_reference
         );
         println!(
             "backend {}: generation, render and DVR times from {}",
             backend.describe(),
-            eval.tau_source
+            eval.sizing.tau_source
         );
         println!(
             "q = {} dB (pooled over {} views)",

@@ -83,7 +83,7 @@ fn teapot_quality_falls_smoothly_off_view() {
             v.ssim
         );
     }
-    assert!(eval.sigma_bytes > 0 && eval.supersegments > 0);
+    assert!(eval.sizing.sigma_bytes > 0 && eval.sizing.supersegments > 0);
 }
 
 #[test]
