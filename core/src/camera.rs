@@ -146,6 +146,40 @@ impl ViewFrame {
         self.ray(i as f32 + 0.5, j as f32 + 0.5)
     }
 
+    /// The pixels whose centre rays ([`ViewFrame::pixel_ray`]) can meet `b`: the bounding
+    /// rectangle of its projected corners, a pixel wider on every side than rounding could
+    /// move a silhouette, as half-open ranges `(x0..x1, y0..y1)`; the whole image when a corner
+    /// is not clearly in front of the eye (the projection does not bound the rays there).
+    pub fn footprint(&self, b: &Aabb) -> (std::ops::Range<u32>, std::ops::Range<u32>) {
+        let whole = (0..self.width, 0..self.height);
+        let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+        for k in 0..8 {
+            let corner = Vec3::new(
+                if k & 1 == 0 { b.min.x } else { b.max.x },
+                if k & 2 == 0 { b.min.y } else { b.max.y },
+                if k & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            let e = self.to_eye(corner);
+            // In front by more than a thousandth of the corner's distance (NaN is not).
+            if e.z.partial_cmp(&(1e-3 * e.length())) != Some(std::cmp::Ordering::Greater) {
+                return whole;
+            }
+            let Some((x, y)) = self.project(corner) else {
+                return whole;
+            };
+            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+        }
+        if !(x0.is_finite() && x1.is_finite() && y0.is_finite() && y1.is_finite()) {
+            return whole;
+        }
+        let range = |lo: f32, hi: f32, n: u32| {
+            let lo = (lo.floor() - 1.0).clamp(0.0, n as f32) as u32;
+            let hi = (hi.ceil() + 1.0).clamp(0.0, n as f32) as u32;
+            lo..hi.max(lo)
+        };
+        (range(x0, x1, self.width), range(y0, y1, self.height))
+    }
+
     /// Eye-space coordinates `(x, y, z)` of a world point.
     #[inline]
     pub fn to_eye(&self, p: Vec3) -> Vec3 {
@@ -174,6 +208,60 @@ mod tests {
             min: Vec3::ZERO,
             max: Vec3::new(10.0, 20.0, 30.0),
         }
+    }
+
+    /// Every pixel whose centre ray meets the box lies in the footprint; boxes partly behind
+    /// the eye or around it give the whole image.
+    #[test]
+    fn the_footprint_holds_every_pixel_whose_ray_meets_the_box() {
+        let volume = unit_box();
+        let small = Aabb {
+            min: Vec3::new(7.0, 2.0, 20.0),
+            max: Vec3::new(9.5, 6.0, 23.0),
+        };
+        let c = Camera::default_for_box(&volume);
+        let (w, h) = (64, 40);
+        let mut smaller = 0;
+        for (b, camera) in [
+            (small, c),
+            (small, c.orbit_y(35.0)),
+            (small, c.orbit(200.0, 40.0, 1.0)),
+            (volume, c.orbit_y(90.0)),
+            (volume, c.orbit(10.0, -30.0, 0.3)),
+            (small, c.orbit(300.0, 10.0, 4.0)),
+        ] {
+            let f = camera.frame(w, h);
+            let (xs, ys) = f.footprint(&b);
+            let mut hits = 0;
+            for j in 0..h {
+                for i in 0..w {
+                    let ray = f.pixel_ray(i, j);
+                    let (near, far) = b.intersect(ray.origin, ray.dir.recip());
+                    if far > near.max(0.0) {
+                        hits += 1;
+                        assert!(
+                            xs.contains(&i) && ys.contains(&j),
+                            "{camera:?}: pixel ({i}, {j}) meets the box outside {xs:?} × {ys:?}"
+                        );
+                    }
+                }
+            }
+            assert!(hits > 0, "{camera:?}: the box is in view");
+            smaller += usize::from(xs.len() * ys.len() < (w * h) as usize);
+        }
+        assert!(
+            smaller >= 4,
+            "the footprints bound: {smaller} of 6 below the image"
+        );
+        // The eye inside the box, or a corner behind it: the whole image.
+        let mut inside = c;
+        inside.eye = small.center();
+        assert_eq!(inside.frame(w, h).footprint(&small), (0..w, 0..h));
+        let mut behind = c;
+        behind.eye = Vec3::new(small.min.x - 0.1, 4.0, 21.5);
+        behind.target = behind.eye + Vec3::Z;
+        behind.up = Vec3::Y;
+        assert_eq!(behind.frame(w, h).footprint(&small), (0..w, 0..h));
     }
 
     #[test]

@@ -16,7 +16,7 @@ pub(crate) const TILE: u32 = 16;
 pub fn render(raycaster: &Raycaster, camera: &Camera, width: u32, height: u32) -> Image {
     raycaster.prepare(width as usize * height as usize);
     let frame = camera.frame(width, height);
-    let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j).0);
+    let pixels = tiles(&frame, marched(raycaster, &frame, |m| m.0));
     Image::from_pixels(width, height, pixels).unwrap_or_else(|| Image::new(width, height))
 }
 
@@ -31,10 +31,31 @@ pub fn render_with_opacity(
 ) -> (Image, Vec<f32>) {
     raycaster.prepare(width as usize * height as usize);
     let frame = camera.frame(width, height);
-    let pixels = tiles(&frame, |i, j| march(raycaster, &frame, i, j));
+    let pixels = tiles(&frame, marched(raycaster, &frame, |m| m));
     let (rgb, opacity): (Vec<[f32; 3]>, Vec<f32>) = pixels.into_iter().unzip();
     let image = Image::from_pixels(width, height, rgb).unwrap_or_else(|| Image::new(width, height));
     (image, opacity)
+}
+
+/// `(i, j) → pick(colour, opacity)` of pixel `(i, j)`, marched only inside the footprint of
+/// what can be visible ([`Raycaster::visible_box`], [`ViewFrame::footprint`]): the rays
+/// outside it would composite nothing, so their pixels are `pick(([0; 3], 0))` at once.
+fn marched<'a, P>(
+    raycaster: &'a Raycaster,
+    frame: &'a ViewFrame,
+    pick: impl Fn(([f32; 3], f32)) -> P + Sync + 'a,
+) -> impl Fn(u32, u32) -> P + Sync + 'a {
+    let (xs, ys) = match raycaster.visible_box() {
+        Some(visible) => frame.footprint(&visible),
+        None => (0..0, 0..0),
+    };
+    move |i, j| {
+        if xs.contains(&i) && ys.contains(&j) {
+            pick(march(raycaster, frame, i, j))
+        } else {
+            pick(([0.0; 3], 0.0))
+        }
+    }
 }
 
 /// Colour and opacity of pixel `(i, j)`: front-to-back compositing up to early termination.

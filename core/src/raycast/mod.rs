@@ -251,6 +251,25 @@ impl<'a> Raycaster<'a> {
         })
     }
 
+    /// The world-space box outside which no sample can contribute (the visible macro cells'
+    /// voxels, one voxel wider on every side, within the volume's box), with empty-space
+    /// skipping on; the volume's box without it. `None` when nothing is visible. A ray that
+    /// misses it composites nothing, so a renderer may leave its pixel empty without marching.
+    pub fn visible_box(&self) -> Option<Aabb> {
+        if !self.params.empty_space_skipping {
+            return Some(self.bounds);
+        }
+        let (lo, hi) = self.grid.visible_voxel_box()?;
+        let spacing = self.volume.spacing();
+        let voxel = |v: [usize; 3], pad: f32| {
+            self.bounds.min + (Vec3::from(v.map(|x| x as f32)) + Vec3::splat(pad)) * spacing
+        };
+        Some(Aabb {
+            min: voxel(lo, -1.0).max(self.bounds.min),
+            max: voxel(hi, 1.0).min(self.bounds.max),
+        })
+    }
+
     /// The same ray-caster on the portable scalar path only (the reference the SIMD path is
     /// tested against; also for measuring what the SIMD path buys).
     pub fn without_simd(mut self) -> Self {
@@ -882,6 +901,37 @@ mod tests {
     }
 
     #[test]
+    fn the_visible_box_is_the_visible_cells_box() {
+        // Voxels above 0 only in x ∈ 30..=37, y ∈ 5..=9, z ∈ 20..=22: the visible macro cells
+        // of 8 (each reads the voxel after it too) own lower voxels x 24..40, y 0..16,
+        // z 16..24; one voxel more on every side, within the volume.
+        let v = Volume::from_fn([50, 44, 40], |x, y, z| {
+            f32::from(u8::from(
+                (30..=37).contains(&x) && (5..=9).contains(&y) && (20..=22).contains(&z),
+            ))
+        })
+        .unwrap();
+        let tf = TransferFunction::from_json(
+            r#"{"domain": [0, 1], "points": [[0,0,0,0,0],[0.001,1,0,0,0.2],[1,1,1,1,0.3]]}"#,
+            "t",
+        )
+        .unwrap();
+        let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+        let b = rc.visible_box().unwrap();
+        assert_eq!(b.min, Vec3::new(23.0, 0.0, 15.0));
+        assert_eq!(b.max, Vec3::new(41.0, 17.0, 25.0));
+        let off = RaycastParams {
+            empty_space_skipping: false,
+            ..Default::default()
+        };
+        let whole = Raycaster::new(&v, &tf, off).unwrap().visible_box().unwrap();
+        assert_eq!(whole, v.world_box(), "without skipping: the volume's box");
+        let none = TransferFunction::constant(0.0, 1.0, [1.0, 1.0, 1.0, 0.0]);
+        let rc = Raycaster::new(&v, &none, RaycastParams::default()).unwrap();
+        assert_eq!(rc.visible_box(), None, "nothing visible");
+    }
+
+    #[test]
     fn empty_space_skipping_visits_the_same_samples() {
         // Blocks of 12³ voxels, alternately 0 and 1, against macro cells of 8: cells wholly
         // inside zero blocks are invisible, and every value above 0 is visible, so a sample
@@ -906,11 +956,19 @@ mod tests {
             ((x / 20 + y / 20 + z / 20) % 2) as f32
         })
         .unwrap();
+        // One small ball off the centre: the visible box (and its footprint) is a small part of
+        // the volume's.
+        let ball = Volume::from_fn([50, 44, 40], |x, y, z| {
+            let d = Vec3::new(x as f32 - 34.0, y as f32 - 12.0, z as f32 - 25.0).length();
+            f32::from(u8::from(d < 5.0))
+        })
+        .unwrap();
         let tf = TransferFunction::from_json(
             r#"{"domain": [0, 1], "points": [[0,0,0,0,0],[0.001,1,0,0,0.2],[1,1,1,1,0.3]]}"#,
             "t",
         )
         .unwrap();
+        let mut outside = 0;
         for (v, step, angle, zoom_out) in [
             (&large, 0.5, 33.0, 1.0),
             (&large, 0.7, 200.0, 1.0),
@@ -923,6 +981,9 @@ mod tests {
             (&sparse, 0.25, 90.0, 1.0),
             (&sparse, 1.0, 225.0, 1.0),
             (&sparse, 0.5, 163.0, 50.0),
+            (&ball, 0.5, 20.0, 1.0),
+            (&ball, 0.3, 200.0, 1.0),
+            (&ball, 0.5, 290.0, 30.0),
         ] {
             let params = RaycastParams {
                 step,
@@ -947,6 +1008,9 @@ mod tests {
             cam.eye = cam.target + (cam.eye - cam.target) * zoom_out;
             cam.fov_y_deg /= zoom_out;
             let f = cam.frame(48, 48);
+            // Pixels outside the footprint of the visible box are left unmarched by the
+            // renderers: the marcher without skipping must find nothing along their rays.
+            let (xs, ys) = f.footprint(&with.visible_box().unwrap());
             let mut total = 0;
             for j in 0..48 {
                 for i in 0..48 {
@@ -962,6 +1026,12 @@ mod tests {
                         ControlFlow::Continue(())
                     });
                     assert_eq!(a, b, "step {step}, {angle}°, pixel ({i}, {j})");
+                    let inside = xs.contains(&i) && ys.contains(&j);
+                    assert!(
+                        inside || b.is_empty(),
+                        "step {step}, {angle}°: pixel ({i}, {j}) outside {xs:?} × {ys:?}"
+                    );
+                    outside += usize::from(!inside);
                     total += a.len();
                 }
             }
@@ -970,5 +1040,6 @@ mod tests {
                 "step {step}, {angle}°: the blob must be hit ({total} samples)"
             );
         }
+        assert!(outside > 5_000, "{outside} pixels outside the footprints");
     }
 }

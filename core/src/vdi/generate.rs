@@ -21,7 +21,7 @@ use glam::Vec3A;
 pub(crate) use lanes::one_minus_exp_neg as one_minus_exp_neg_avx2;
 use lanes::{Lanes, LANES};
 use rayon::prelude::*;
-use std::ops::ControlFlow;
+use std::ops::{ControlFlow, Range};
 
 mod lanes;
 
@@ -91,6 +91,11 @@ pub fn generate_into(
     // left to growth.
     let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
     let _ = vdi.supersegments.try_reserve(estimate);
+    // Rays outside the footprint of what can be visible get no supersegments, unmarched.
+    let footprint = match raycaster.visible_box() {
+        Some(visible) => camera.frame(r, r).footprint(&visible),
+        None => (0..0, 0..0),
+    };
     let band = r.div_ceil(BANDS);
     // Band k + 1 is marched while band k is appended (a serial copy that would otherwise
     // leave a thread idle).
@@ -100,7 +105,10 @@ pub fn generate_into(
         let (offsets, supersegments) = (&mut vdi.offsets, &mut vdi.supersegments);
         let done = std::mem::take(&mut pending);
         let (rows, ()) = rayon::join(
-            || march_rows(raycaster, camera, params, start..(start + band).min(r)),
+            || {
+                let rows = start..(start + band).min(r);
+                march_rows(raycaster, camera, params, &footprint, rows)
+            },
             || append_rows(done, offsets, supersegments),
         );
         total += rows.iter().map(|(_, s)| s.len()).sum::<usize>();
@@ -161,12 +169,14 @@ fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiPar
     (scaled * 1.25) as usize
 }
 
-/// Each of `rows`' `(counts, supersegments)`, rows in parallel.
+/// Each of `rows`' `(counts, supersegments)`, rows in parallel; only the pixels in
+/// `footprint` (columns, rows: [`ViewFrame::footprint`]) are marched, the others have none.
 fn march_rows(
     raycaster: &Raycaster,
     camera: &Camera,
     params: VdiParams,
-    rows: std::ops::Range<u32>,
+    (xs, ys): &(Range<u32>, Range<u32>),
+    rows: Range<u32>,
 ) -> Vec<(Vec<u32>, Vec<Supersegment>)> {
     let r = params.resolution;
     let frame = camera.frame(r, r);
@@ -179,15 +189,27 @@ fn march_rows(
             || (0usize, Lanes::new(raycaster.avx2()), Vec::new()),
             |(previous, lanes, samples), j| {
                 let mut counts = Vec::with_capacity(r as usize);
+                if !ys.contains(&j) {
+                    counts.resize(r as usize, 0);
+                    return (counts, Vec::new());
+                }
                 let mut segs = Vec::with_capacity(*previous + *previous / 4);
                 if let Some(lanes) = lanes {
                     for i0 in (0..r).step_by(LANES) {
                         let width = ((r - i0) as usize).min(LANES);
+                        if i0 + width as u32 <= xs.start || i0 >= xs.end {
+                            counts.resize(counts.len() + width, 0);
+                            continue;
+                        }
                         let group = (i0, j, width);
                         lanes.generate(raycaster, &frame, group, limits, &mut segs, &mut counts);
                     }
                 } else {
                     for i in 0..r {
+                        if !xs.contains(&i) {
+                            counts.push(0);
+                            continue;
+                        }
                         let before = segs.len();
                         let (ray, z_per_t) = generation_ray(&frame, i, j);
                         generate_ray(raycaster, &ray, z_per_t, limits, samples, &mut segs);
