@@ -203,6 +203,8 @@ pub struct Raycaster<'a> {
     grid: MacroGrid,
     params: RaycastParams,
     bounds: Aabb,
+    /// [`Raycaster::visible_box`] with empty-space skipping on.
+    visible: Option<Aabb>,
     inv_spacing: Vec3,
     max_voxel: Vec3,
     strides: [usize; 3],
@@ -232,13 +234,24 @@ impl<'a> Raycaster<'a> {
         let grid = MacroGrid::new(volume, &lut);
         let [nx, ny, nz] = volume.dims();
         let simd = simd::Avx2::detect();
+        let bounds = volume.world_box();
+        let visible = grid.visible_voxel_box().map(|(lo, hi)| {
+            let voxel = |v: [usize; 3], pad: f32| {
+                bounds.min + (Vec3::from(v.map(|x| x as f32)) + Vec3::splat(pad)) * volume.spacing()
+            };
+            Aabb {
+                min: voxel(lo, -1.0).max(bounds.min),
+                max: voxel(hi, 1.0).min(bounds.max),
+            }
+        });
         Ok(Self {
+            visible,
             occupancy: OnceLock::new(),
             volume,
             lut,
             grid,
             params,
-            bounds: volume.world_box(),
+            bounds,
             inv_spacing: volume.spacing().recip(),
             max_voxel: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32),
             visible_groups,
@@ -256,18 +269,11 @@ impl<'a> Raycaster<'a> {
     /// skipping on; the volume's box without it. `None` when nothing is visible. A ray that
     /// misses it composites nothing, so a renderer may leave its pixel empty without marching.
     pub fn visible_box(&self) -> Option<Aabb> {
-        if !self.params.empty_space_skipping {
-            return Some(self.bounds);
+        if self.params.empty_space_skipping {
+            self.visible
+        } else {
+            Some(self.bounds)
         }
-        let (lo, hi) = self.grid.visible_voxel_box()?;
-        let spacing = self.volume.spacing();
-        let voxel = |v: [usize; 3], pad: f32| {
-            self.bounds.min + (Vec3::from(v.map(|x| x as f32)) + Vec3::splat(pad)) * spacing
-        };
-        Some(Aabb {
-            min: voxel(lo, -1.0).max(self.bounds.min),
-            max: voxel(hi, 1.0).min(self.bounds.max),
-        })
     }
 
     /// The same ray-caster on the portable scalar path only (the reference the SIMD path is
