@@ -6,7 +6,7 @@
 
 use crate::camera::{Camera, ViewFrame};
 use crate::image::Image;
-use crate::raycast::{FrontToBack, Raycaster};
+use crate::raycast::{Coverage, FrontToBack, Raycaster};
 use rayon::prelude::*;
 
 /// Tile side in pixels for the parallel loop.
@@ -37,20 +37,17 @@ pub fn render_with_opacity(
     (image, opacity)
 }
 
-/// `(i, j) → pick(colour, opacity)` of pixel `(i, j)`, marched only inside the footprint of
-/// what can be visible ([`Raycaster::visible_box`], [`ViewFrame::footprint`]): the rays
-/// outside it would composite nothing, so their pixels are `pick(([0; 3], 0))` at once.
+/// `(i, j) → pick(colour, opacity)` of pixel `(i, j)`, marched only where the visible macro
+/// cells cover the view ([`Coverage`]): the other rays would composite nothing, so their
+/// pixels are `pick(([0; 3], 0))` at once.
 fn marched<'a, P>(
     raycaster: &'a Raycaster,
     frame: &'a ViewFrame,
     pick: impl Fn(([f32; 3], f32)) -> P + Sync + 'a,
 ) -> impl Fn(u32, u32) -> P + Sync + 'a {
-    let (xs, ys) = match raycaster.visible_box() {
-        Some(visible) => frame.footprint(&visible),
-        None => (0..0, 0..0),
-    };
+    let coverage = Coverage::new(raycaster, frame);
     move |i, j| {
-        if xs.contains(&i) && ys.contains(&j) {
+        if coverage.covers(i, j) {
             pick(march(raycaster, frame, i, j))
         } else {
             pick(([0.0; 3], 0.0))

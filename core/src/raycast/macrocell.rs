@@ -98,23 +98,6 @@ impl MacroGrid {
         &self.visible
     }
 
-    /// The voxel-space box that every sample which can contribute lies in: from the lowest
-    /// visible cell's first voxel to the voxel after the highest one's last lower voxel (its
-    /// interpolation reads it), per axis; `None` when no cell is visible.
-    pub fn visible_voxel_box(&self) -> Option<([usize; 3], [usize; 3])> {
-        let [cx, cy, _] = self.cells;
-        let mut lo = [usize::MAX; 3];
-        let mut hi = [0usize; 3];
-        for (i, _) in self.visible.iter().enumerate().filter(|(_, &v)| v) {
-            let c = [i % cx, i / cx % cy, i / (cx * cy)];
-            for a in 0..3 {
-                lo[a] = lo[a].min(c[a] * self.size);
-                hi[a] = hi[a].max((c[a] + 1) * self.size);
-            }
-        }
-        (lo[0] != usize::MAX).then_some((lo, hi))
-    }
-
     /// Fraction of cells that are visible (for reports).
     pub fn visible_fraction(&self) -> f32 {
         self.visible.iter().filter(|&&v| v).count() as f32 / self.visible.len().max(1) as f32

@@ -17,12 +17,14 @@
 //! eight steps whose 2³-voxel blocks are all invisible (`occupancy`) without gathering them.
 
 mod composite;
+mod coverage;
 mod macrocell;
 mod occupancy;
 mod shading;
 mod simd;
 
 pub use composite::FrontToBack;
+pub use coverage::Coverage;
 pub(crate) use macrocell::chessboard_distance;
 pub use macrocell::MacroGrid;
 use occupancy::Occupancy;
@@ -203,8 +205,6 @@ pub struct Raycaster<'a> {
     grid: MacroGrid,
     params: RaycastParams,
     bounds: Aabb,
-    /// [`Raycaster::visible_box`] with empty-space skipping on.
-    visible: Option<Aabb>,
     inv_spacing: Vec3,
     max_voxel: Vec3,
     strides: [usize; 3],
@@ -235,17 +235,7 @@ impl<'a> Raycaster<'a> {
         let [nx, ny, nz] = volume.dims();
         let simd = simd::Avx2::detect();
         let bounds = volume.world_box();
-        let visible = grid.visible_voxel_box().map(|(lo, hi)| {
-            let voxel = |v: [usize; 3], pad: f32| {
-                bounds.min + (Vec3::from(v.map(|x| x as f32)) + Vec3::splat(pad)) * volume.spacing()
-            };
-            Aabb {
-                min: voxel(lo, -1.0).max(bounds.min),
-                max: voxel(hi, 1.0).min(bounds.max),
-            }
-        });
         Ok(Self {
-            visible,
             occupancy: OnceLock::new(),
             volume,
             lut,
@@ -262,18 +252,6 @@ impl<'a> Raycaster<'a> {
                 nx * ny * usize::from(nz > 1),
             ],
         })
-    }
-
-    /// The world-space box outside which no sample can contribute (the visible macro cells'
-    /// voxels, one voxel wider on every side, within the volume's box), with empty-space
-    /// skipping on; the volume's box without it. `None` when nothing is visible. A ray that
-    /// misses it composites nothing, so a renderer may leave its pixel empty without marching.
-    pub fn visible_box(&self) -> Option<Aabb> {
-        if self.params.empty_space_skipping {
-            self.visible
-        } else {
-            Some(self.bounds)
-        }
     }
 
     /// The same ray-caster on the portable scalar path only (the reference the SIMD path is
@@ -907,37 +885,6 @@ mod tests {
     }
 
     #[test]
-    fn the_visible_box_is_the_visible_cells_box() {
-        // Voxels above 0 only in x ∈ 30..=37, y ∈ 5..=9, z ∈ 20..=22: the visible macro cells
-        // of 8 (each reads the voxel after it too) own lower voxels x 24..40, y 0..16,
-        // z 16..24; one voxel more on every side, within the volume.
-        let v = Volume::from_fn([50, 44, 40], |x, y, z| {
-            f32::from(u8::from(
-                (30..=37).contains(&x) && (5..=9).contains(&y) && (20..=22).contains(&z),
-            ))
-        })
-        .unwrap();
-        let tf = TransferFunction::from_json(
-            r#"{"domain": [0, 1], "points": [[0,0,0,0,0],[0.001,1,0,0,0.2],[1,1,1,1,0.3]]}"#,
-            "t",
-        )
-        .unwrap();
-        let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
-        let b = rc.visible_box().unwrap();
-        assert_eq!(b.min, Vec3::new(23.0, 0.0, 15.0));
-        assert_eq!(b.max, Vec3::new(41.0, 17.0, 25.0));
-        let off = RaycastParams {
-            empty_space_skipping: false,
-            ..Default::default()
-        };
-        let whole = Raycaster::new(&v, &tf, off).unwrap().visible_box().unwrap();
-        assert_eq!(whole, v.world_box(), "without skipping: the volume's box");
-        let none = TransferFunction::constant(0.0, 1.0, [1.0, 1.0, 1.0, 0.0]);
-        let rc = Raycaster::new(&v, &none, RaycastParams::default()).unwrap();
-        assert_eq!(rc.visible_box(), None, "nothing visible");
-    }
-
-    #[test]
     fn empty_space_skipping_visits_the_same_samples() {
         // Blocks of 12³ voxels, alternately 0 and 1, against macro cells of 8: cells wholly
         // inside zero blocks are invisible, and every value above 0 is visible, so a sample
@@ -962,8 +909,7 @@ mod tests {
             ((x / 20 + y / 20 + z / 20) % 2) as f32
         })
         .unwrap();
-        // One small ball off the centre: the visible box (and its footprint) is a small part of
-        // the volume's.
+        // One small ball off the centre: its cells cover a small part of the volume's view.
         let ball = Volume::from_fn([50, 44, 40], |x, y, z| {
             let d = Vec3::new(x as f32 - 34.0, y as f32 - 12.0, z as f32 - 25.0).length();
             f32::from(u8::from(d < 5.0))
@@ -1014,9 +960,11 @@ mod tests {
             cam.eye = cam.target + (cam.eye - cam.target) * zoom_out;
             cam.fov_y_deg /= zoom_out;
             let f = cam.frame(48, 48);
-            // Pixels outside the footprint of the visible box are left unmarched by the
-            // renderers: the marcher without skipping must find nothing along their rays.
-            let (xs, ys) = f.footprint(&with.visible_box().unwrap());
+            // Pixels the visible cells do not cover are left unmarched by the renderers: the
+            // marcher without skipping must find nothing along their rays.
+            let coverage = Coverage::new(&with, &f);
+            let everything = Coverage::new(&without, &f);
+            assert!((0..48).all(|j| (0..48).all(|i| everything.covers(i, j))));
             let mut total = 0;
             for j in 0..48 {
                 for i in 0..48 {
@@ -1032,10 +980,10 @@ mod tests {
                         ControlFlow::Continue(())
                     });
                     assert_eq!(a, b, "step {step}, {angle}°, pixel ({i}, {j})");
-                    let inside = xs.contains(&i) && ys.contains(&j);
+                    let inside = coverage.covers(i, j);
                     assert!(
                         inside || b.is_empty(),
-                        "step {step}, {angle}°: pixel ({i}, {j}) outside {xs:?} × {ys:?}"
+                        "step {step}, {angle}°: pixel ({i}, {j}) is not covered"
                     );
                     outside += usize::from(!inside);
                     total += a.len();
@@ -1046,6 +994,6 @@ mod tests {
                 "step {step}, {angle}°: the blob must be hit ({total} samples)"
             );
         }
-        assert!(outside > 5_000, "{outside} pixels outside the footprints");
+        assert!(outside > 5_000, "{outside} pixels not covered");
     }
 }

@@ -14,7 +14,7 @@
 use super::{Supersegment, Vdi, VdiMeta, VdiParamError, VdiParams};
 use crate::camera::{Camera, Ray, ViewFrame};
 use crate::fastmath::one_minus_exp_neg;
-use crate::raycast::{Raycaster, Sample};
+use crate::raycast::{Coverage, Raycaster, Sample};
 use glam::Vec3A;
 /// Eight lanes of [`crate::fastmath::one_minus_exp_neg`] with AVX2 (shared with the VDI walk).
 #[cfg(target_arch = "x86_64")]
@@ -91,11 +91,8 @@ pub fn generate_into(
     // left to growth.
     let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
     let _ = vdi.supersegments.try_reserve(estimate);
-    // Rays outside the footprint of what can be visible get no supersegments, unmarched.
-    let footprint = match raycaster.visible_box() {
-        Some(visible) => camera.frame(r, r).footprint(&visible),
-        None => (0..0, 0..0),
-    };
+    // Rays that no visible macro cell covers get no supersegments, unmarched.
+    let coverage = Coverage::new(raycaster, &camera.frame(r, r));
     let band = r.div_ceil(BANDS);
     // Band k + 1 is marched while band k is appended (a serial copy that would otherwise
     // leave a thread idle).
@@ -107,7 +104,7 @@ pub fn generate_into(
         let (rows, ()) = rayon::join(
             || {
                 let rows = start..(start + band).min(r);
-                march_rows(raycaster, camera, params, &footprint, rows)
+                march_rows(raycaster, camera, params, &coverage, rows)
             },
             || append_rows(done, offsets, supersegments),
         );
@@ -170,12 +167,12 @@ fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiPar
 }
 
 /// Each of `rows`' `(counts, supersegments)`, rows in parallel; only the pixels in
-/// `footprint` (columns, rows: [`ViewFrame::footprint`]) are marched, the others have none.
+/// `coverage` are marched, the others have none.
 fn march_rows(
     raycaster: &Raycaster,
     camera: &Camera,
     params: VdiParams,
-    (xs, ys): &(Range<u32>, Range<u32>),
+    coverage: &Coverage,
     rows: Range<u32>,
 ) -> Vec<(Vec<u32>, Vec<Supersegment>)> {
     let r = params.resolution;
@@ -189,7 +186,7 @@ fn march_rows(
             || (0usize, Lanes::new(raycaster.avx2()), Vec::new()),
             |(previous, lanes, samples), j| {
                 let mut counts = Vec::with_capacity(r as usize);
-                if !ys.contains(&j) {
+                if !coverage.covers_any(0, r, j) {
                     counts.resize(r as usize, 0);
                     return (counts, Vec::new());
                 }
@@ -197,7 +194,7 @@ fn march_rows(
                 if let Some(lanes) = lanes {
                     for i0 in (0..r).step_by(LANES) {
                         let width = ((r - i0) as usize).min(LANES);
-                        if i0 + width as u32 <= xs.start || i0 >= xs.end {
+                        if !coverage.covers_any(i0, i0 + width as u32, j) {
                             counts.resize(counts.len() + width, 0);
                             continue;
                         }
@@ -206,7 +203,7 @@ fn march_rows(
                     }
                 } else {
                     for i in 0..r {
-                        if !xs.contains(&i) {
+                        if !coverage.covers(i, j) {
                             counts.push(0);
                             continue;
                         }

@@ -86,8 +86,8 @@ fn teapot_quality_falls_smoothly_off_view() {
     assert!(eval.sizing.sigma_bytes > 0 && eval.sizing.supersegments > 0);
 }
 
-/// Empty-space skipping (macro cells, occupancy bits, and the pixels left unmarched outside
-/// the footprint of the visible cells) changes no image and no VDI on the shared volumes.
+/// Empty-space skipping (macro cells, occupancy bits, and the pixels of tiles that no visible
+/// cell covers left unmarched, `Coverage`) changes no image and no VDI on the shared volumes.
 #[test]
 fn empty_space_skipping_leaves_images_and_vdis_unchanged() {
     for (name, volume, tf) in scenes() {
