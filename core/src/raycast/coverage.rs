@@ -6,6 +6,9 @@
 //! composites nothing and its pixel can be left empty without marching it. Each visible cell's
 //! box, a voxel wider on every side, is projected ([`ViewFrame::footprint`]: the bounding
 //! rectangle of its corners, a pixel wider) and the [`TILE`]² tiles it touches are marked.
+//! Where the kernel's occupancy bits are built (`occupancy`: a bit per 2³ block of lower
+//! voxels), each octant of a visible cell projects only the box of its blocks with a bit set:
+//! a thin structure (the stent's wires) leaves most of its cells' rays unmarked.
 //! Rays through unmarked tiles are the ones the macro-cell leaps would have carried through
 //! empty space from the volume's entry to its exit. A cell with a corner not in front of the
 //! eye covers the whole image.
@@ -45,24 +48,36 @@ impl Coverage {
         let size = grid.cell_size() as f32;
         let bounds = raycaster.bounds();
         let spacing = raycaster.volume().spacing();
-        for (i, _) in grid.visibility().iter().enumerate().filter(|(_, &v)| v) {
-            let c = Vec3::new(
-                (i % cx) as f32,
-                (i / cx % cy) as f32,
-                (i / (cx * cy)) as f32,
-            );
-            let cell = Aabb {
-                min: (bounds.min + (c * size - Vec3::ONE) * spacing).max(bounds.min),
-                max: (bounds.min + ((c + Vec3::ONE) * size + Vec3::ONE) * spacing).min(bounds.max),
+        let dims = raycaster.volume().dims();
+        let mut cover = |lo: Vec3, hi: Vec3| {
+            // Lower voxels in [lo, hi): samples between lo and hi (interpolation reads the
+            // voxel after the lower one), a voxel more on each side against rounding.
+            let b = Aabb {
+                min: (bounds.min + (lo - Vec3::ONE) * spacing).max(bounds.min),
+                max: (bounds.min + (hi + Vec3::ONE) * spacing).min(bounds.max),
             };
-            let (xs, ys) = frame.footprint(&cell);
+            let (xs, ys) = frame.footprint(&b);
             if xs.is_empty() || ys.is_empty() {
-                continue;
+                return;
             }
             for ty in ys.start / TILE..=(ys.end - 1) / TILE {
                 let row = ty as usize * tiles_x as usize;
                 covered[row + (xs.start / TILE) as usize..=row + ((xs.end - 1) / TILE) as usize]
                     .fill(true);
+            }
+        };
+        let voxels = |a: [usize; 3]| Vec3::from(a.map(|x| x as f32));
+        for (i, _) in grid.visibility().iter().enumerate().filter(|(_, &v)| v) {
+            let origin = voxels([i % cx, i / cx % cy, i / (cx * cy)]) * size;
+            match raycaster.occupancy() {
+                // Where the kernel's block bits exist, the boxes of each octant's visible
+                // blocks: in a visible cell of thin structures most rays miss them.
+                Some(occupancy) => {
+                    for (lo, hi) in occupancy.octant_boxes(dims, i).into_iter().flatten() {
+                        cover(origin + voxels(lo), origin + voxels(hi));
+                    }
+                }
+                None => cover(origin, origin + Vec3::splat(size)),
             }
         }
         Self { tiles_x, covered }

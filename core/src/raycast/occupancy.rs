@@ -99,6 +99,47 @@ impl Occupancy {
         (self.dims == dims).then_some((self.layout, self.words.as_slice()))
     }
 
+    /// For macro cell `cell` (flat index), per octant (its halves per axis, octant `o` the
+    /// upper half of axis `a` where bit `a` of `o` is set): the box of lower voxels, relative
+    /// to the cell's first, that its blocks with a bit set span, as `(lo, hi)` with every such
+    /// lower voxel in `lo ≤ v < hi`; `None` for an octant without one (and for every octant of
+    /// a cell that has no words, or bits built for other dimensions than `dims`).
+    pub(crate) fn octant_boxes(
+        &self,
+        dims: [usize; 3],
+        cell: usize,
+    ) -> [Option<([usize; 3], [usize; 3])>; 8] {
+        let mut boxes = [None; 8];
+        let l = self.layout;
+        let per_axis = 1usize << l.per_axis_shift;
+        let per_word = 32;
+        let first = cell << l.words_shift;
+        let words = self.words.get(first..first + (1 << l.words_shift));
+        let Some(words) = words.filter(|_| self.dims == dims) else {
+            return boxes;
+        };
+        let mask = per_axis - 1;
+        for (w, &word) in words.iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let b = w * per_word + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let block = [
+                    b & mask,
+                    b >> l.per_axis_shift & mask,
+                    b >> (2 * l.per_axis_shift),
+                ];
+                let octant = (0..3).fold(0, |o, a| o | usize::from(block[a] >= per_axis / 2) << a);
+                let (lo, hi) = boxes[octant].get_or_insert(([usize::MAX; 3], [0; 3]));
+                for a in 0..3 {
+                    lo[a] = lo[a].min(block[a] * BLOCK);
+                    hi[a] = hi[a].max((block[a] + 1) * BLOCK);
+                }
+            }
+        }
+        boxes
+    }
+
     /// Whether the block holding lower voxel `voxel` can contribute (the kernel's lookup, in
     /// scalar code).
     #[cfg(test)]
@@ -267,6 +308,20 @@ mod tests {
                         }
                         let cell_visible = grid.visible(x, y, z);
                         cleared += usize::from(cell_visible && !occ.visible(voxel));
+                        if occ.visible(voxel) {
+                            // Its octant's box (what `Coverage` projects) holds it.
+                            let [cx, cy, _] = grid.cells();
+                            let c = voxel.map(|v| v / size);
+                            let rel = voxel.map(|v| v % size);
+                            let octant =
+                                (0..3).fold(0, |o, a| o | usize::from(rel[a] >= size / 2) << a);
+                            let boxes = occ.octant_boxes(dims, c[0] + cx * (c[1] + cy * c[2]));
+                            let (lo, hi) = boxes[octant].unwrap();
+                            assert!(
+                                (0..3).all(|a| lo[a] <= rel[a] && rel[a] < hi[a]),
+                                "{dims:?}, cells of {size}: voxel {voxel:?} outside {lo:?}..{hi:?}"
+                            );
+                        }
                     }
                 }
             }
