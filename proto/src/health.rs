@@ -181,6 +181,12 @@ mod tests {
         (health, peer, stop)
     }
 
+    /// A port that was free a moment ago.
+    fn free_port() -> u16 {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    }
+
     /// A stand-in for a daemon's service: only its name matters here.
     struct NamedOnly;
     impl NamedService for NamedOnly {
@@ -219,11 +225,8 @@ mod tests {
 
     #[tokio::test]
     async fn waiting_for_nothing_times_out_naming_the_address() {
-        // A port that was free a moment ago: nothing answers there.
-        let port = {
-            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-            l.local_addr().unwrap().port()
-        };
+        // Nothing answers there.
+        let port = free_port();
         let peer = Peer::new(&format!("127.0.0.1:{port}"), None, None, false).unwrap();
         let err = wait_serving(
             &peer,
@@ -241,10 +244,7 @@ mod tests {
 
     #[tokio::test]
     async fn waiting_for_a_daemon_that_comes_up_later_succeeds() {
-        let port = {
-            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-            l.local_addr().unwrap().port()
-        };
+        let port = free_port();
         let peer = Peer::new(&format!("127.0.0.1:{port}"), None, None, false).unwrap();
         let late = tokio::spawn(async move {
             tokio::time::sleep(Duration::from_millis(300)).await;
