@@ -165,8 +165,10 @@ mod tests {
     use tokio_stream::wrappers::TcpListenerStream;
     use tokio_stream::StreamExt;
 
-    async fn serve() -> (Health, Peer, tokio::sync::oneshot::Sender<()>) {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    /// Serves a health service on `listener` until the sender is dropped.
+    async fn serve(
+        listener: tokio::net::TcpListener,
+    ) -> (Health, Peer, tokio::sync::oneshot::Sender<()>) {
         let addr = listener.local_addr().unwrap();
         let (health, service) = Health::serving::<NamedOnly>().await;
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
@@ -195,7 +197,8 @@ mod tests {
 
     #[tokio::test]
     async fn serving_then_draining_ends_the_watchers() {
-        let (health, peer, stop) = serve().await;
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let (health, peer, stop) = serve(listener).await;
         assert_eq!(health.service(), "insitu.v1.Generator");
         for service in ["", "insitu.v1.Generator"] {
             assert_eq!(check(&peer, service).await.unwrap(), ServingStatus::Serving);
@@ -251,13 +254,7 @@ mod tests {
             let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
                 .await
                 .unwrap();
-            let (health, service) = Health::serving::<NamedOnly>().await;
-            tonic::transport::Server::builder()
-                .add_service(service)
-                .serve_with_incoming(TcpListenerStream::new(listener))
-                .await
-                .unwrap();
-            drop(health);
+            serve(listener).await
         });
         wait_serving(
             &peer,
@@ -267,6 +264,6 @@ mod tests {
         )
         .await
         .unwrap();
-        late.abort();
+        drop(late.await.unwrap());
     }
 }

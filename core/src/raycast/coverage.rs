@@ -44,11 +44,9 @@ impl Coverage {
         }
         let mut covered = vec![false; n];
         let grid = raycaster.macro_grid();
-        let [cx, cy, _] = grid.cells();
         let size = grid.cell_size() as f32;
         let bounds = raycaster.bounds();
         let spacing = raycaster.volume().spacing();
-        let dims = raycaster.volume().dims();
         let mut cover = |lo: Vec3, hi: Vec3| {
             // Lower voxels in [lo, hi): samples between lo and hi (interpolation reads the
             // voxel after the lower one), a voxel more on each side against rounding.
@@ -67,13 +65,13 @@ impl Coverage {
             }
         };
         let voxels = |a: [usize; 3]| Vec3::from(a.map(|x| x as f32));
-        for (i, _) in grid.visibility().iter().enumerate().filter(|(_, &v)| v) {
-            let origin = voxels([i % cx, i / cx % cy, i / (cx * cy)]) * size;
+        for (i, cell) in grid.visible_cells() {
+            let origin = voxels(cell) * size;
             match raycaster.occupancy() {
                 // Where the kernel's block bits exist, the boxes of each octant's visible
                 // blocks: in a visible cell of thin structures most rays miss them.
                 Some(occupancy) => {
-                    for (lo, hi) in occupancy.octant_boxes(dims, i).into_iter().flatten() {
+                    for (lo, hi) in occupancy.octant_boxes(i).into_iter().flatten() {
                         cover(origin + voxels(lo), origin + voxels(hi));
                     }
                 }

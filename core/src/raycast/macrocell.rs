@@ -98,6 +98,16 @@ impl MacroGrid {
         &self.visible
     }
 
+    /// The visible cells: flat index (as [`MacroGrid::visibility`]) and coordinates.
+    pub fn visible_cells(&self) -> impl Iterator<Item = (usize, [usize; 3])> + '_ {
+        let [cx, cy, _] = self.cells;
+        self.visible
+            .iter()
+            .enumerate()
+            .filter(|&(_, &v)| v)
+            .map(move |(i, _)| (i, [i % cx, i / cx % cy, i / (cx * cy)]))
+    }
+
     /// Fraction of cells that are visible (for reports).
     pub fn visible_fraction(&self) -> f32 {
         self.visible.iter().filter(|&&v| v).count() as f32 / self.visible.len().max(1) as f32

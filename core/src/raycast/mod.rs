@@ -234,14 +234,13 @@ impl<'a> Raycaster<'a> {
         let grid = MacroGrid::new(volume, &lut);
         let [nx, ny, nz] = volume.dims();
         let simd = simd::Avx2::detect();
-        let bounds = volume.world_box();
         Ok(Self {
             occupancy: OnceLock::new(),
             volume,
             lut,
             grid,
             params,
-            bounds,
+            bounds: volume.world_box(),
             inv_spacing: volume.spacing().recip(),
             max_voxel: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32),
             visible_groups,

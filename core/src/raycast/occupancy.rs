@@ -103,19 +103,14 @@ impl Occupancy {
     /// upper half of axis `a` where bit `a` of `o` is set): the box of lower voxels, relative
     /// to the cell's first, that its blocks with a bit set span, as `(lo, hi)` with every such
     /// lower voxel in `lo ≤ v < hi`; `None` for an octant without one (and for every octant of
-    /// a cell that has no words, or bits built for other dimensions than `dims`).
-    pub(crate) fn octant_boxes(
-        &self,
-        dims: [usize; 3],
-        cell: usize,
-    ) -> [Option<([usize; 3], [usize; 3])>; 8] {
+    /// a cell that has no words).
+    pub(crate) fn octant_boxes(&self, cell: usize) -> [Option<([usize; 3], [usize; 3])>; 8] {
         let mut boxes = [None; 8];
         let l = self.layout;
         let per_axis = 1usize << l.per_axis_shift;
         let per_word = 32;
         let first = cell << l.words_shift;
-        let words = self.words.get(first..first + (1 << l.words_shift));
-        let Some(words) = words.filter(|_| self.dims == dims) else {
+        let Some(words) = self.words.get(first..first + (1 << l.words_shift)) else {
             return boxes;
         };
         let mask = per_axis - 1;
@@ -315,7 +310,7 @@ mod tests {
                             let rel = voxel.map(|v| v % size);
                             let octant =
                                 (0..3).fold(0, |o, a| o | usize::from(rel[a] >= size / 2) << a);
-                            let boxes = occ.octant_boxes(dims, c[0] + cx * (c[1] + cy * c[2]));
+                            let boxes = occ.octant_boxes(c[0] + cx * (c[1] + cy * c[2]));
                             let (lo, hi) = boxes[octant].unwrap();
                             assert!(
                                 (0..3).all(|a| lo[a] <= rel[a] && rel[a] < hi[a]),

@@ -186,10 +186,6 @@ fn march_rows(
             || (0usize, Lanes::new(raycaster.avx2()), Vec::new()),
             |(previous, lanes, samples), j| {
                 let mut counts = Vec::with_capacity(r as usize);
-                if !coverage.covers_any(0, r, j) {
-                    counts.resize(r as usize, 0);
-                    return (counts, Vec::new());
-                }
                 let mut segs = Vec::with_capacity(*previous + *previous / 4);
                 if let Some(lanes) = lanes {
                     for i0 in (0..r).step_by(LANES) {
