@@ -264,7 +264,9 @@ impl Walker<'_> {
         }
     }
 
-    /// [`Self::walk_packet`] in rows along y (columns of x when `TRANSPOSE`).
+    /// [`Self::walk_packet`] in rows along y (columns of x when `TRANSPOSE`): the lanes set
+    /// up ([`Lanes::new`]), then each row's span of pixels walked ([`Self::walk_row`]) until
+    /// every lane is done or past its last row.
     #[inline(always)]
     fn walk_rows<const TRANSPOSE: bool, const AVX2: bool>(
         &self,
@@ -272,31 +274,180 @@ impl Walker<'_> {
         termination: f32,
         out: &mut [[f32; 3]],
     ) -> bool {
-        let axes = |s: &Segment| {
-            if TRANSPOSE {
-                (s.ax, s.ay, s.px1 - s.px0, s.py1 - s.py0)
-            } else {
-                (s.ay, s.ax, s.py1 - s.py0, s.px1 - s.px0)
-            }
+        let Some((so, si)) = directions::<TRANSPOSE>(segs) else {
+            return false;
         };
-        // The direction of rows, and of pixels in a row: the one every stepping projection
-        // takes (+1 where none steps).
-        let (mut so, mut si) = (0i64, 0i64);
-        for s in segs.iter().flatten() {
-            let (o, i, _, _) = axes(s);
-            for (dir, step) in [(&mut so, o.step), (&mut si, i.step)] {
-                if step != 0 {
-                    if *dir == 0 {
-                        *dir = step;
-                    } else if *dir != step {
-                        return false;
+        let tan = (self.gen.tan_half_x, self.gen.tan_half_y);
+        let mut l = Lanes::new::<TRANSPOSE>(segs, so, self.r, tan);
+        // How far each lane has composited.
+        let mut t_done = segs.map(|s| s.map_or(0.0, |s| s.t0));
+        let mut acc = Accums {
+            rgb: [[0.0; LANES]; 3],
+            transmittance: [1.0; LANES],
+        };
+        let r_top = (self.r - 1) as f32;
+        let start = *l.first.iter().min().unwrap_or(&0);
+        let end = *l.last.iter().max().unwrap_or(&-1);
+        for ord in start..=end {
+            if l.live.iter().all(|&x| x == 0) {
+                break;
+            }
+            let (mut row, ks, ws) = if AVX2 {
+                // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                unsafe { row_spans_avx2(&l, ord, so as i32, si as i32, r_top) }
+            } else {
+                row_spans(&l, ord, so as i32, si as i32, r_top)
+            };
+            let o = so as i32 * ord;
+            let lanes = (&mut l, &mut row, &mut acc, &mut t_done);
+            self.walk_row::<TRANSPOSE, AVX2>(lanes, (o, si as i32), (ks, ws), termination);
+        }
+        for (k, o) in out.iter_mut().enumerate() {
+            let mut ray = FrontToBack::new(termination);
+            ray.color = [acc.rgb[0][k], acc.rgb[1][k], acc.rgb[2][k]];
+            ray.transmittance = acc.transmittance[k];
+            *o = ray.finish().0;
+        }
+        true
+    }
+
+    /// The pixels `k_first … k_last` (in walk order, `c = si·k`) of row `o` (column when
+    /// `TRANSPOSE`), whose depths the lanes' spans there meet between inverse depths `w_lo`
+    /// and `w_hi`: an 8×8 tile whose depths miss those is passed in one jump, a pixel whose
+    /// depth-occupancy bins miss them at once; the others are tested per lane
+    /// ([`pixel_tests`]), their exact spans found ([`pixel_spans`]) and their lists
+    /// composited into the lanes ([`composite_lanes`]); lanes that reach `termination` are
+    /// done.
+    #[inline(always)]
+    fn walk_row<const TRANSPOSE: bool, const AVX2: bool>(
+        &self,
+        (l, row, acc, t_done): (&mut Lanes, &mut Row, &mut Accums, &mut F),
+        (o, si): (i32, i32),
+        ([k_first, k_last], [w_lo, w_hi]): ([i32; 2], [f32; 2]),
+        termination: f32,
+    ) {
+        if k_first > k_last {
+            return;
+        }
+        let bins = self.tables.bins;
+        let offsets = self.vdi.offsets();
+        let top = (DEPTH_BINS - 1) as f32;
+        let bin = |w: f32| lesser(greater((w - bins.w0) * bins.per_unit, 0.0), top) as i32;
+        // The row's depth bins: a pixel whose occupancy misses them is passed at once.
+        let row_bins = super::bits(bin(w_lo) as u32, bin(w_hi) as u32);
+        let r = self.r;
+        let mut walking = -1i64;
+        let mut kk = k_first;
+        while kk <= k_last {
+            let c = si * kk;
+            let (ix, iy) = if TRANSPOSE {
+                (i64::from(o), i64::from(c))
+            } else {
+                (i64::from(c), i64::from(o))
+            };
+            let tile = (ix >> SKIP_SHIFT) + self.tables.tiles_x * (iy >> SKIP_SHIFT);
+            if tile != walking {
+                let [t_lo, t_hi] = self.tables.tile_w[tile as usize];
+                if w_lo > t_hi || w_hi < t_lo {
+                    // Nothing of the tile's depths in the row's: on to the next tile.
+                    let tile_last = if si > 0 {
+                        c | (SKIP_TILE as i32 - 1)
+                    } else {
+                        c & !(SKIP_TILE as i32 - 1)
+                    };
+                    kk = si * tile_last + 1;
+                    continue;
+                }
+                walking = tile;
+            }
+            let p = (ix + r * iy) as usize;
+            let occupied = self.tables.pixel_bins[p];
+            if occupied & row_bins == 0 {
+                kk += 1;
+                continue;
+            }
+            let pass = if AVX2 {
+                // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                unsafe { pixel_tests_avx2(l, row, c, kk, occupied, bins) }
+            } else {
+                pixel_tests(l, row, c, kk, occupied, bins)
+            };
+            if pass == 0 {
+                kk += 1;
+                continue;
+            }
+            let spans = if AVX2 {
+                // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                unsafe { pixel_spans_avx2(l, row, c, kk, pass, t_done) }
+            } else {
+                pixel_spans(l, row, c, kk, pass, t_done)
+            };
+            if spans.lanes != 0 {
+                let range = offsets[p] as usize..offsets[p + 1] as usize;
+                let (list, keys) = (
+                    &self.vdi.supersegments()[range.clone()],
+                    &self.tables.keys[range],
+                );
+                let done = if AVX2 {
+                    // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
+                    unsafe { composite_lanes_avx2(list, keys, l, &spans, acc, termination) }
+                } else {
+                    composite_lanes(list, keys, l, &spans, acc, termination)
+                };
+                for k in 0..LANES {
+                    if done & (1 << k) != 0 {
+                        l.live[k] = 0;
+                        row.c_in[k] = i32::MAX;
+                        row.c_out[k] = i32::MIN;
                     }
                 }
             }
+            kk += 1;
         }
-        let so = if so == 0 { 1 } else { so };
-        let si = if si == 0 { 1 } else { si };
-        let r = self.r;
+    }
+}
+
+/// A segment's axes as (outer, inner) with the projection's extent along each: rows along y
+/// (the outer axis y), or along x when `TRANSPOSE`.
+#[inline(always)]
+fn axes<const TRANSPOSE: bool>(s: &Segment) -> (Axis, Axis, f32, f32) {
+    if TRANSPOSE {
+        (s.ax, s.ay, s.px1 - s.px0, s.py1 - s.py0)
+    } else {
+        (s.ay, s.ax, s.py1 - s.py0, s.px1 - s.px0)
+    }
+}
+
+/// The direction of rows, and of pixels in a row, that every stepping projection of `segs`
+/// takes (+1 where none steps); `None` when two step opposite ways along an axis.
+#[inline(always)]
+fn directions<const TRANSPOSE: bool>(segs: &[Option<Segment>; LANES]) -> Option<(i64, i64)> {
+    let (mut so, mut si) = (0i64, 0i64);
+    for s in segs.iter().flatten() {
+        let (o, i, _, _) = axes::<TRANSPOSE>(s);
+        for (dir, step) in [(&mut so, o.step), (&mut si, i.step)] {
+            if step != 0 {
+                if *dir == 0 {
+                    *dir = step;
+                } else if *dir != step {
+                    return None;
+                }
+            }
+        }
+    }
+    Some((if so == 0 { 1 } else { so }, if si == 0 { 1 } else { si }))
+}
+
+impl Lanes {
+    /// The lanes of `segs` walked in rows of direction `so` (along x when `TRANSPOSE`) at
+    /// generation resolution `r` with `tan` of the half field of view along x and y.
+    #[inline(always)]
+    fn new<const TRANSPOSE: bool>(
+        segs: &[Option<Segment>; LANES],
+        so: i64,
+        r: i64,
+        (tan_x, tan_y): (f32, f32),
+    ) -> Self {
         let mut l = Lanes {
             live: [0; LANES],
             o_p0: [0.0; LANES],
@@ -325,23 +476,13 @@ impl Walker<'_> {
             inner_x: !TRANSPOSE,
             deeper: 0,
             shallower: 0,
-            o_tan: if TRANSPOSE {
-                self.gen.tan_half_x
-            } else {
-                self.gen.tan_half_y
-            },
-            i_tan: if TRANSPOSE {
-                self.gen.tan_half_y
-            } else {
-                self.gen.tan_half_x
-            },
+            o_tan: if TRANSPOSE { tan_x } else { tan_y },
+            i_tan: if TRANSPOSE { tan_y } else { tan_x },
             r: r as f32,
         };
-        // How far each lane has composited.
-        let mut t_done = [0.0f32; LANES];
         for (k, s) in segs.iter().enumerate() {
             let Some(s) = s else { continue };
-            let (o, i, o_d, i_d) = axes(s);
+            let (o, i, o_d, i_d) = axes::<TRANSPOSE>(s);
             let last = if o.step == 0 {
                 o.cell
             } else {
@@ -366,118 +507,10 @@ impl Walker<'_> {
             let (outer, inner) = if TRANSPOSE { (s.x, s.y) } else { (s.y, s.x) };
             (l.o0[k], l.o1[k], l.i0[k], l.i1[k]) = (outer.f0, outer.f1, inner.f0, inner.f1);
             (l.z0[k], l.z1[k], l.t0[k], l.t1[k]) = (s.z.f0, s.z.f1, s.t0, s.t1);
-            t_done[k] = s.t0;
             l.deeper |= u32::from(s.z.f1 > 0.0) << k;
             l.shallower |= u32::from(s.z.f1 < 0.0) << k;
         }
-        let mut acc = Accums {
-            rgb: [[0.0; LANES]; 3],
-            transmittance: [1.0; LANES],
-        };
-        let bins = self.tables.bins;
-        let offsets = self.vdi.offsets();
-        let (bin_w0, per_unit) = (bins.w0, bins.per_unit);
-        let top = (DEPTH_BINS - 1) as f32;
-        let bin = |w: f32| lesser(greater((w - bin_w0) * per_unit, 0.0), top) as i32;
-        let r_top = (r - 1) as f32;
-        let start = *l.first.iter().min().unwrap_or(&0);
-        let end = *l.last.iter().max().unwrap_or(&-1);
-        let mut row;
-        for ord in start..=end {
-            if l.live.iter().all(|&x| x == 0) {
-                break;
-            }
-            let o = so as i32 * ord;
-            let (k_first, k_last, w_lo, w_hi);
-            (row, [k_first, k_last], [w_lo, w_hi]) = if AVX2 {
-                // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
-                unsafe { row_spans_avx2(&l, ord, so as i32, si as i32, r_top) }
-            } else {
-                row_spans(&l, ord, so as i32, si as i32, r_top)
-            };
-            if k_first > k_last {
-                continue;
-            }
-            // The row's depth bins: a pixel whose occupancy misses them is passed at once.
-            let row_bins = super::bits(bin(w_lo) as u32, bin(w_hi) as u32);
-            let mut walking = -1i64;
-            let mut kk = k_first;
-            while kk <= k_last {
-                let c = si as i32 * kk;
-                let (ix, iy) = if TRANSPOSE {
-                    (i64::from(o), i64::from(c))
-                } else {
-                    (i64::from(c), i64::from(o))
-                };
-                let tile = (ix >> SKIP_SHIFT) + self.tables.tiles_x * (iy >> SKIP_SHIFT);
-                if tile != walking {
-                    let [t_lo, t_hi] = self.tables.tile_w[tile as usize];
-                    if w_lo > t_hi || w_hi < t_lo {
-                        // Nothing of the tile's depths in the row's: on to the next tile.
-                        let tile_last = if si > 0 {
-                            c | (SKIP_TILE as i32 - 1)
-                        } else {
-                            c & !(SKIP_TILE as i32 - 1)
-                        };
-                        kk = si as i32 * tile_last + 1;
-                        continue;
-                    }
-                    walking = tile;
-                }
-                let p = (ix + r * iy) as usize;
-                let occupied = self.tables.pixel_bins[p];
-                if occupied & row_bins == 0 {
-                    kk += 1;
-                    continue;
-                }
-                let pass = if AVX2 {
-                    // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
-                    unsafe { pixel_tests_avx2(&l, &row, c, kk, occupied, bins) }
-                } else {
-                    pixel_tests(&l, &row, c, kk, occupied, bins)
-                };
-                if pass == 0 {
-                    kk += 1;
-                    continue;
-                }
-                let spans = if AVX2 {
-                    // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
-                    unsafe { pixel_spans_avx2(&l, &row, c, kk, pass, &mut t_done) }
-                } else {
-                    pixel_spans(&l, &row, c, kk, pass, &mut t_done)
-                };
-                if spans.lanes != 0 {
-                    let range = offsets[p] as usize..offsets[p + 1] as usize;
-                    let (list, keys) = (
-                        &self.vdi.supersegments()[range.clone()],
-                        &self.tables.keys[range],
-                    );
-                    let done = if AVX2 {
-                        // SAFETY: `AVX2` is set only by `walk_packet_avx2`, which needs AVX2.
-                        unsafe {
-                            composite_lanes_avx2(list, keys, &l, &spans, &mut acc, termination)
-                        }
-                    } else {
-                        composite_lanes(list, keys, &l, &spans, &mut acc, termination)
-                    };
-                    for k in 0..LANES {
-                        if done & (1 << k) != 0 {
-                            l.live[k] = 0;
-                            row.c_in[k] = i32::MAX;
-                            row.c_out[k] = i32::MIN;
-                        }
-                    }
-                }
-                kk += 1;
-            }
-        }
-        for (k, o) in out.iter_mut().enumerate() {
-            let mut ray = FrontToBack::new(termination);
-            ray.color = [acc.rgb[0][k], acc.rgb[1][k], acc.rgb[2][k]];
-            ray.transmittance = acc.transmittance[k];
-            *o = ray.finish().0;
-        }
-        true
+        l
     }
 }
 
