@@ -423,175 +423,225 @@ impl<'a> Walker<'a> {
         }
     }
 
-    /// Walks `seg` pixel by pixel (the 2-D DDA), compositing into `acc`.
+    /// Walks `seg` pixel by pixel (the 2-D DDA), compositing into `acc`: a tile whose depths
+    /// the ray's miss is left in one jump ([`Self::enter_tile`]), a pixel whose depth bins
+    /// miss the ray's is passed, the others are composited over the ray's exact span of them
+    /// ([`Self::walk_pixel`]), until the ray leaves the image or its end or `acc` is opaque.
     fn walk_segment(&self, seg: &Segment, acc: &mut Accum) {
-        let Segment {
-            z,
-            t0,
-            t1,
-            px0,
-            py0,
-            px1,
-            py1,
-            w0,
-            rounding,
-            ..
-        } = *seg;
-        let (mut ax, mut ay) = (seg.ax, seg.ay);
-        let cross_x = |b: i64| self.cross(seg, true, b);
-        let cross_y = |b: i64| self.cross(seg, false, b);
-        let t_of = |c: Crossing| match c {
-            Crossing::Start => t0,
-            Crossing::X(b) => cross_x(b),
-            Crossing::Y(b) => cross_y(b),
-        };
-        let w_at = |u: f32| seg.w_at(u);
-        let bins = self.tables.bins;
-        let mut u = 0.0f32;
-        let mut w_u = w0;
-        let mut t_done = t0;
-        // Whether the pixel being entered follows one composited up to the crossing between
-        // them: `t_done` is then at or past that crossing's `t`, so `t_of(enter).max(t_done)`
-        // is `t_done`, without the crossing's division.
-        let mut entered_solved = false;
-        let mut enter = Crossing::Start;
-        // The depth error of the crossing entered by, and the bins it may lie in.
-        let mut enter_error = 0.0f32;
-        let mut enter_bins = bins.around(w0, rounding);
-        let (mut ux, mut uy) = (ax.next(), ay.next());
-        // The tile whose pixels are being walked (its depths meet the ray's).
-        let mut walking = -1i64;
+        let mut walk = SegmentWalk::new(seg, self.tables.bins);
         for _ in 0..(2 * self.r + 4) {
-            let (ix, iy) = (ax.cell, ay.cell);
             // Cells are never negative here (the walk stops when one leaves the image), so
             // a shift is the division.
+            let (ix, iy) = (walk.ax.cell, walk.ay.cell);
             let tile = (ix >> SKIP_SHIFT) + self.tables.tiles_x * (iy >> SKIP_SHIFT);
-            if tile != walking {
-                // Entering a tile: where does the ray leave it, and does its depth over the
-                // tile meet the tile's supersegments? An empty tile stands for the square of
-                // empty tiles around it ([`WalkTables::tile_reach`]), left in one jump.
-                let (x0t, y0t) = (ix & !(SKIP_TILE - 1), iy & !(SKIP_TILE - 1));
-                let beyond =
-                    (i64::from(self.tables.tile_reach[tile as usize]) - 1).max(0) * SKIP_TILE;
-                let (xs, ys) = (
-                    [x0t - beyond, x0t + SKIP_TILE + beyond],
-                    [y0t - beyond, y0t + SKIP_TILE + beyond],
-                );
-                let (ex, ey) = (ax.exit(xs), ay.exit(ys));
-                let u_exit = greater(lesser(lesser(ex, ey), 1.0), u);
-                let w_exit = w_at(u_exit);
-                let exit_error = if ex <= ey {
-                    ax.depth_error
-                } else {
-                    ay.depth_error
-                };
-                let margin = rounding + enter_error + exit_error;
-                let [w_min, w_max] = self.tables.tile_w[tile as usize];
-                if !(w_u.min(w_exit) > w_max + margin || w_u.max(w_exit) < w_min - margin) {
-                    walking = tile;
-                } else {
-                    // Nothing to meet here: jump to the next tile (past the empty square),
-                    // entering it at the pixel that holds the ray there. A jump that lands
-                    // outside the image ends the ray: it has left the image, for good.
-                    if u_exit >= 1.0 {
-                        return;
-                    }
-                    if ex <= ey {
-                        let b = if ax.step > 0 { xs[1] } else { xs[0] };
-                        ax.cell = b - 1 + ax.ahead;
-                        ay.cell = ay.cell_at(u_exit, py1 - py0, ys);
-                        enter = Crossing::X(b);
-                        enter_error = ax.depth_error;
-                    } else {
-                        let b = if ay.step > 0 { ys[1] } else { ys[0] };
-                        ay.cell = b - 1 + ay.ahead;
-                        ax.cell = ax.cell_at(u_exit, px1 - px0, xs);
-                        enter = Crossing::Y(b);
-                        enter_error = ay.depth_error;
-                    }
-                    if !(0..self.r).contains(&ax.cell) || !(0..self.r).contains(&ay.cell) {
-                        return;
-                    }
-                    u = u_exit;
-                    w_u = w_exit;
-                    enter_bins = bins.around(w_u, rounding + enter_error);
-                    entered_solved = false;
-                    (ux, uy) = (ax.next(), ay.next());
-                    continue;
+            if tile != walk.walking {
+                match self.enter_tile(&mut walk, tile) {
+                    Some(true) => walk.walking = tile,
+                    Some(false) => continue,
+                    None => return,
                 }
             }
-            // The crossings' u are never NaN (`Axis::at`: finite, or +∞ on an axis that does
-            // not step), so comparisons do for `f32::min`/`max`.
-            let u_next = greater(lesser(lesser(ux, uy), 1.0), u);
-            let w_next = w_at(u_next);
-            let p = (ix + self.r * iy) as usize;
-            let exit_error = if ux <= uy {
-                ax.depth_error
-            } else {
-                ay.depth_error
-            };
-            // The pixel's depth span lies between its two crossings' bins: a list whose
-            // bins miss them is passed untouched.
-            let exit_bins = bins.around(w_next, rounding + exit_error);
-            if self.tables.pixel_bins[p] & between(enter_bins, exit_bins) != 0 {
-                let exit = if u_next >= 1.0 {
-                    t1
-                } else if ux <= uy {
-                    cross_x(ix + ax.ahead)
-                } else {
-                    cross_y(iy + ay.ahead)
-                };
-                // Never before what was composited: where two crossings are nearly
-                // simultaneous their order in u and in t can differ by rounding.
-                let ta = if entered_solved {
-                    t_done
-                } else {
-                    t_of(enter).max(t_done)
-                };
-                let tb = exit.max(ta);
-                t_done = tb;
-                entered_solved = true;
-                let offsets = self.vdi.offsets();
-                let range = offsets[p] as usize..offsets[p + 1] as usize;
-                if tb > ta
-                    && composite_span(
-                        &self.vdi.supersegments()[range.clone()],
-                        &self.tables.keys[range],
-                        z,
-                        ta,
-                        tb,
-                        acc,
-                    )
-                {
-                    return;
-                }
-            } else {
-                entered_solved = false;
-            }
-            if u_next >= 1.0 {
+            if !self.walk_pixel(&mut walk, acc) {
                 return;
             }
-            // Only the axis stepped can have left the image.
-            if ux <= uy {
-                enter = Crossing::X(ix + ax.ahead);
-                enter_error = ax.depth_error;
-                ax.cell += ax.step;
-                ux = ax.next();
-                if !(0..self.r).contains(&ax.cell) {
-                    return;
-                }
+        }
+    }
+
+    /// Entering tile `tile` (its flat index) at `walk`'s pixel: where does the ray leave it,
+    /// and does its depth over the tile meet the tile's supersegments? `Some(true)` where it
+    /// does (its pixels are walked); else the walk jumps past the tile and the square of empty
+    /// tiles around it ([`WalkTables::tile_reach`]) to the pixel that holds the ray there,
+    /// `Some(false)`, or `None` where that leaves the image or passes the ray's end.
+    #[inline]
+    fn enter_tile(&self, walk: &mut SegmentWalk, tile: i64) -> Option<bool> {
+        let seg = walk.seg;
+        let (ax, ay) = (&mut walk.ax, &mut walk.ay);
+        let (ix, iy) = (ax.cell, ay.cell);
+        let (x0t, y0t) = (ix & !(SKIP_TILE - 1), iy & !(SKIP_TILE - 1));
+        let beyond = (i64::from(self.tables.tile_reach[tile as usize]) - 1).max(0) * SKIP_TILE;
+        let (xs, ys) = (
+            [x0t - beyond, x0t + SKIP_TILE + beyond],
+            [y0t - beyond, y0t + SKIP_TILE + beyond],
+        );
+        let (ex, ey) = (ax.exit(xs), ay.exit(ys));
+        let u_exit = greater(lesser(lesser(ex, ey), 1.0), walk.u);
+        let w_exit = seg.w_at(u_exit);
+        let exit_error = if ex <= ey {
+            ax.depth_error
+        } else {
+            ay.depth_error
+        };
+        let margin = seg.rounding + walk.enter_error + exit_error;
+        let [w_min, w_max] = self.tables.tile_w[tile as usize];
+        if !(walk.w_u.min(w_exit) > w_max + margin || walk.w_u.max(w_exit) < w_min - margin) {
+            return Some(true);
+        }
+        // Nothing to meet here. A jump that lands outside the image ends the ray: it has
+        // left the image, for good.
+        if u_exit >= 1.0 {
+            return None;
+        }
+        if ex <= ey {
+            let b = if ax.step > 0 { xs[1] } else { xs[0] };
+            ax.cell = b - 1 + ax.ahead;
+            ay.cell = ay.cell_at(u_exit, seg.py1 - seg.py0, ys);
+            walk.enter = Crossing::X(b);
+            walk.enter_error = ax.depth_error;
+        } else {
+            let b = if ay.step > 0 { ys[1] } else { ys[0] };
+            ay.cell = b - 1 + ay.ahead;
+            ax.cell = ax.cell_at(u_exit, seg.px1 - seg.px0, xs);
+            walk.enter = Crossing::Y(b);
+            walk.enter_error = ay.depth_error;
+        }
+        if !(0..self.r).contains(&ax.cell) || !(0..self.r).contains(&ay.cell) {
+            return None;
+        }
+        walk.u = u_exit;
+        walk.w_u = w_exit;
+        walk.enter_bins = walk.bins.around(walk.w_u, seg.rounding + walk.enter_error);
+        walk.entered_solved = false;
+        (walk.ux, walk.uy) = (walk.ax.next(), walk.ay.next());
+        Some(false)
+    }
+
+    /// `walk`'s pixel: composited into `acc` over the ray's exact span of it where its
+    /// depth bins meet those between the ray's crossings, then the walk steps to the next
+    /// pixel. False when the ray is done (`acc` opaque, its end reached, the image left).
+    #[inline]
+    fn walk_pixel(&self, walk: &mut SegmentWalk, acc: &mut Accum) -> bool {
+        let seg = walk.seg;
+        let (ix, iy) = (walk.ax.cell, walk.ay.cell);
+        let (ux, uy) = (walk.ux, walk.uy);
+        // The crossings' u are never NaN (`Axis::at`: finite, or +∞ on an axis that does
+        // not step), so comparisons do for `f32::min`/`max`.
+        let u_next = greater(lesser(lesser(ux, uy), 1.0), walk.u);
+        let w_next = seg.w_at(u_next);
+        let p = (ix + self.r * iy) as usize;
+        let exit_error = if ux <= uy {
+            walk.ax.depth_error
+        } else {
+            walk.ay.depth_error
+        };
+        // The pixel's depth span lies between its two crossings' bins: a list whose bins
+        // miss them is passed untouched.
+        let exit_bins = walk.bins.around(w_next, seg.rounding + exit_error);
+        if self.tables.pixel_bins[p] & between(walk.enter_bins, exit_bins) != 0 {
+            let exit = if u_next >= 1.0 {
+                seg.t1
+            } else if ux <= uy {
+                self.cross(seg, true, ix + walk.ax.ahead)
             } else {
-                enter = Crossing::Y(iy + ay.ahead);
-                enter_error = ay.depth_error;
-                ay.cell += ay.step;
-                uy = ay.next();
-                if !(0..self.r).contains(&ay.cell) {
-                    return;
-                }
+                self.cross(seg, false, iy + walk.ay.ahead)
+            };
+            // Never before what was composited: where two crossings are nearly simultaneous
+            // their order in u and in t can differ by rounding. A pixel that follows one
+            // composited up to the crossing between them has `t_done` at or past that
+            // crossing's `t`, without the crossing's division.
+            let ta = if walk.entered_solved {
+                walk.t_done
+            } else {
+                let entry = match walk.enter {
+                    Crossing::Start => seg.t0,
+                    Crossing::X(b) => self.cross(seg, true, b),
+                    Crossing::Y(b) => self.cross(seg, false, b),
+                };
+                entry.max(walk.t_done)
+            };
+            let tb = exit.max(ta);
+            walk.t_done = tb;
+            walk.entered_solved = true;
+            let offsets = self.vdi.offsets();
+            let range = offsets[p] as usize..offsets[p + 1] as usize;
+            if tb > ta
+                && composite_span(
+                    &self.vdi.supersegments()[range.clone()],
+                    &self.tables.keys[range],
+                    seg.z,
+                    ta,
+                    tb,
+                    acc,
+                )
+            {
+                return false;
             }
-            u = u_next;
-            w_u = w_next;
-            enter_bins = exit_bins;
+        } else {
+            walk.entered_solved = false;
+        }
+        if u_next >= 1.0 {
+            return false;
+        }
+        // Only the axis stepped can have left the image.
+        walk.enter = if ux <= uy {
+            Crossing::X(ix + walk.ax.ahead)
+        } else {
+            Crossing::Y(iy + walk.ay.ahead)
+        };
+        let (axis, u_axis) = if ux <= uy {
+            (&mut walk.ax, &mut walk.ux)
+        } else {
+            (&mut walk.ay, &mut walk.uy)
+        };
+        walk.enter_error = axis.depth_error;
+        axis.cell += axis.step;
+        *u_axis = axis.next();
+        if !(0..self.r).contains(&axis.cell) {
+            return false;
+        }
+        walk.u = u_next;
+        walk.w_u = w_next;
+        walk.enter_bins = exit_bins;
+        true
+    }
+}
+
+/// Where a walk along one segment's projection is ([`Walker::walk_segment`]): its axes'
+/// pixels and next crossings, the `u` and inverse depth where it entered the current pixel,
+/// how it entered it, and how far it has composited.
+struct SegmentWalk<'s> {
+    seg: &'s Segment,
+    bins: DepthBins,
+    ax: Axis,
+    ay: Axis,
+    /// `u` of the next crossing along x and along y.
+    ux: f32,
+    uy: f32,
+    /// `u` and inverse depth where the current pixel was entered.
+    u: f32,
+    w_u: f32,
+    /// How far the ray has composited.
+    t_done: f32,
+    /// Whether the current pixel follows one composited up to the crossing between them
+    /// (`t_done` is then at or past that crossing's `t`).
+    entered_solved: bool,
+    /// The crossing the current pixel was entered by, its depth error and the bins it may
+    /// lie in.
+    enter: Crossing,
+    enter_error: f32,
+    enter_bins: [u32; 2],
+    /// The tile whose pixels are being walked (its depths meet the ray's); −1 before any.
+    walking: i64,
+}
+
+impl<'s> SegmentWalk<'s> {
+    /// At `seg`'s start, depth bins `bins`.
+    fn new(seg: &'s Segment, bins: DepthBins) -> Self {
+        let (ax, ay) = (seg.ax, seg.ay);
+        Self {
+            seg,
+            bins,
+            ax,
+            ay,
+            ux: ax.next(),
+            uy: ay.next(),
+            u: 0.0,
+            w_u: seg.w0,
+            t_done: seg.t0,
+            entered_solved: false,
+            enter: Crossing::Start,
+            enter_error: 0.0,
+            enter_bins: bins.around(seg.w0, seg.rounding),
+            walking: -1,
         }
     }
 }
