@@ -436,9 +436,9 @@ impl<'a> Walker<'a> {
             let tile = (ix >> SKIP_SHIFT) + self.tables.tiles_x * (iy >> SKIP_SHIFT);
             if tile != walk.walking {
                 match self.enter_tile(&mut walk, tile) {
-                    Some(true) => walk.walking = tile,
-                    Some(false) => continue,
-                    None => return,
+                    TileEntry::Walk => walk.walking = tile,
+                    TileEntry::Jumped => continue,
+                    TileEntry::Left => return,
                 }
             }
             if !self.walk_pixel(&mut walk, acc) {
@@ -448,12 +448,12 @@ impl<'a> Walker<'a> {
     }
 
     /// Entering tile `tile` (its flat index) at `walk`'s pixel: where does the ray leave it,
-    /// and does its depth over the tile meet the tile's supersegments? `Some(true)` where it
-    /// does (its pixels are walked); else the walk jumps past the tile and the square of empty
-    /// tiles around it ([`WalkTables::tile_reach`]) to the pixel that holds the ray there,
-    /// `Some(false)`, or `None` where that leaves the image or passes the ray's end.
+    /// and does its depth over the tile meet the tile's supersegments? Where it does, its
+    /// pixels are walked; else the walk jumps past the tile and the square of empty tiles
+    /// around it ([`WalkTables::tile_reach`]) to the pixel that holds the ray there, unless
+    /// that leaves the image or passes the ray's end.
     #[inline]
-    fn enter_tile(&self, walk: &mut SegmentWalk, tile: i64) -> Option<bool> {
+    fn enter_tile(&self, walk: &mut SegmentWalk, tile: i64) -> TileEntry {
         let seg = walk.seg;
         let (ax, ay) = (&mut walk.ax, &mut walk.ay);
         let (ix, iy) = (ax.cell, ay.cell);
@@ -474,12 +474,12 @@ impl<'a> Walker<'a> {
         let margin = seg.rounding + walk.enter_error + exit_error;
         let [w_min, w_max] = self.tables.tile_w[tile as usize];
         if !(walk.w_u.min(w_exit) > w_max + margin || walk.w_u.max(w_exit) < w_min - margin) {
-            return Some(true);
+            return TileEntry::Walk;
         }
         // Nothing to meet here. A jump that lands outside the image ends the ray: it has
         // left the image, for good.
         if u_exit >= 1.0 {
-            return None;
+            return TileEntry::Left;
         }
         if ex <= ey {
             let b = if ax.step > 0 { xs[1] } else { xs[0] };
@@ -495,14 +495,14 @@ impl<'a> Walker<'a> {
             walk.enter_error = ay.depth_error;
         }
         if !(0..self.r).contains(&ax.cell) || !(0..self.r).contains(&ay.cell) {
-            return None;
+            return TileEntry::Left;
         }
         walk.u = u_exit;
         walk.w_u = w_exit;
         walk.enter_bins = walk.bins.around(walk.w_u, seg.rounding + walk.enter_error);
         walk.entered_solved = false;
         (walk.ux, walk.uy) = (walk.ax.next(), walk.ay.next());
-        Some(false)
+        TileEntry::Jumped
     }
 
     /// `walk`'s pixel: composited into `acc` over the ray's exact span of it where its
@@ -593,6 +593,16 @@ impl<'a> Walker<'a> {
         walk.enter_bins = exit_bins;
         true
     }
+}
+
+/// What entering a tile does to a walk ([`Walker::enter_tile`]).
+enum TileEntry {
+    /// The ray's depths meet the tile's: its pixels are walked.
+    Walk,
+    /// They do not: the walk jumped to the pixel after the tile (and the empty ones around it).
+    Jumped,
+    /// The jump left the image or passed the ray's end: the walk is over.
+    Left,
 }
 
 /// Where a walk along one segment's projection is ([`Walker::walk_segment`]): its axes'
