@@ -553,7 +553,7 @@ impl Engine {
                         let mut s = self.state();
                         for step in &lost {
                             if s.forget(*step) {
-                                warn!(step, "no node holds this characteristic step any more: it leaves the set");
+                                info!(step, "no node holds this characteristic step any more: it leaves the set");
                             }
                         }
                         self.save(&s);

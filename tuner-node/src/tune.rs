@@ -256,7 +256,21 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     let outcome = match outcome {
         Ok(o) => o,
         Err(e) => {
-            warn!(error = %e, "tuning failed; the decision in force stays");
+            // A node that left (with a characteristic step) or the tuner stopping ends a
+            // search as a matter of course: the tuning runs again on the steps left (see
+            // `Engine::lost`); anything else is a failure worth a warning.
+            let lost = !engine
+                .lost
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .is_empty();
+            if engine.stopping.load(Ordering::Relaxed) {
+                info!(error = %e, "tuning stopped with the tuner; the decision in force stays");
+            } else if lost {
+                info!(error = %e, "tuning interrupted: a characteristic step left with its node; the decision in force stays");
+            } else {
+                warn!(error = %e, "tuning failed; the decision in force stays");
+            }
             return false;
         }
     };
