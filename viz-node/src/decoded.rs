@@ -4,8 +4,9 @@
 //! A VDI arrives compressed, is decoded to be checked, and is written to the recording as it
 //! came; the scorer (single rank) or the composer (several) needs it decoded again moments
 //! later. Decoding twice costs a whole decode per step: the teapot at r = 768 with bzip2
-//! (19.7 MB, 1.58 M supersegments) takes about 2.3 s to decode on this project's 2-core
-//! machine (`insitu view` of it: 2.5–2.7 s, of which 0.09 s render; of the zstd file 0.3 s).
+//! (18 MB, 1.58 M supersegments) takes about 1.0 s to decode on this project's 2-core
+//! machine, its parts in parallel (2.0–2.3 s as one stream, before format version 2; the
+//! zstd file 0.16 s).
 //! Reference frames are parsed on receipt and written out, and were parsed again from disk
 //! to score. [`Kept`] holds what was decoded on receipt until its one
 //! reader takes it, within a byte budget per kind (oldest dropped first); whatever is not

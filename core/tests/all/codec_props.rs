@@ -172,3 +172,159 @@ fn fix_checksum(bytes: &mut [u8]) {
     let crc = h.finalize().to_le_bytes();
     bytes[28..32].copy_from_slice(&crc);
 }
+
+/// A VDI whose payload spans three bzip2 parts: 16² pixels of 800 supersegments each
+/// (204 800, a payload of about 4.9 MB), depths and colours varying so that it compresses
+/// like a real one, not to nothing.
+fn large_vdi() -> Vdi {
+    let (r, per) = (16u32, 800u32);
+    let mut offsets = vec![0u32];
+    let mut segs = Vec::new();
+    for p in 0..r * r {
+        for k in 0..per {
+            let x = (p * per + k) as f32;
+            let z = 1.0 + k as f32 * 0.01 + (x * 0.37).sin().abs() * 0.004;
+            segs.push(Supersegment {
+                z_start: z,
+                z_end: z + 0.005,
+                color: [
+                    (x * 0.011).sin() * 0.5 + 0.5,
+                    (x * 0.007).cos() * 0.5 + 0.5,
+                    (x * 0.003).sin().abs(),
+                ],
+                alpha: ((x * 0.013).cos() * 0.5 + 0.5).min(1.0),
+            });
+        }
+        offsets.push(segs.len() as u32);
+    }
+    let meta = VdiMeta {
+        camera: Camera {
+            eye: Vec3::new(0.0, 0.0, 10.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_deg: 30.0,
+        },
+        params: VdiParams {
+            resolution: r,
+            gamma: 0.01,
+        },
+        step: 0.5,
+        termination: 0.99,
+        shaded: false,
+        volume_box: Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        },
+        tf_hash: 7,
+        tf_name: "parts".into(),
+    };
+    Vdi::from_parts(meta, offsets, segs).unwrap()
+}
+
+/// The body's part table: `(compressed, payload)` lengths per part.
+fn part_table(bytes: &[u8]) -> Vec<(u64, u64)> {
+    let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+    let count = u32::from_le_bytes(bytes[32..36].try_into().unwrap()) as usize;
+    (0..count)
+        .map(|i| (u64_at(36 + 16 * i), u64_at(44 + 16 * i)))
+        .collect()
+}
+
+#[test]
+fn large_payloads_are_compressed_in_parts_and_round_trip() {
+    let vdi = large_vdi();
+    for codec in Codec::ALL {
+        let bytes = encode(&vdi, codec).unwrap();
+        let payload = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
+        let table = part_table(&bytes);
+        let expected_parts = match codec {
+            Codec::Bzip2 => payload.div_ceil(insitu_core::vdi::codec::BZIP2_PART as u64),
+            _ => 1,
+        };
+        assert!(
+            payload > 2 * insitu_core::vdi::codec::BZIP2_PART as u64,
+            "{payload} bytes"
+        );
+        assert_eq!(table.len() as u64, expected_parts, "{codec}");
+        assert_eq!(table.iter().map(|p| p.1).sum::<u64>(), payload, "{codec}");
+        assert_eq!(
+            decode(&bytes, &DecodeLimits::default()).unwrap(),
+            vdi,
+            "{codec}"
+        );
+    }
+}
+
+#[test]
+fn version_1_files_are_still_read() {
+    // A version 1 file: the payload as one bzip2 stream, no part table. The payload is the
+    // body of the `none` encoding after its one-part table.
+    let vdi = large_vdi();
+    let plain = encode(&vdi, Codec::None).unwrap();
+    let payload = &plain[32 + 4 + 16..];
+    let mut body = Vec::new();
+    std::io::Read::read_to_end(
+        &mut bzip2::read::BzEncoder::new(payload, bzip2::Compression::best()),
+        &mut body,
+    )
+    .unwrap();
+    let mut v1 = plain[..32].to_vec();
+    v1[8..10].copy_from_slice(&1u16.to_le_bytes());
+    v1[10] = 1; // bzip2
+    v1[20..28].copy_from_slice(&(body.len() as u64).to_le_bytes());
+    v1.extend_from_slice(&body);
+    fix_checksum(&mut v1);
+    assert_eq!(decode(&v1, &DecodeLimits::default()).unwrap(), vdi);
+    // And a version from the future is refused by name.
+    let mut v9 = v1.clone();
+    v9[8..10].copy_from_slice(&9u16.to_le_bytes());
+    fix_checksum(&mut v9);
+    assert!(matches!(
+        decode(&v9, &DecodeLimits::default()),
+        Err(CodecError::UnsupportedVersion(9))
+    ));
+}
+
+/// An edit of a file's bytes.
+type Edit<'a> = dyn Fn(&mut Vec<u8>) + 'a;
+
+#[test]
+fn a_bad_part_table_is_refused() {
+    let bytes = encode(&large_vdi(), Codec::Bzip2).unwrap();
+    let table = part_table(&bytes);
+    let last = table.len() - 1;
+    assert!(table[0].1 > table[last].1, "the last part is the short one");
+    let forge = |edit: &Edit<'_>| {
+        let mut forged = bytes.clone();
+        edit(&mut forged);
+        fix_checksum(&mut forged);
+        decode(&forged, &DecodeLimits::default())
+    };
+    let put = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    let cases: [(&str, &Edit<'_>); 5] = [
+        ("no parts", &|b| {
+            b[32..36].copy_from_slice(&0u32.to_le_bytes())
+        }),
+        ("more parts than the body holds", &|b| {
+            b[32..36].copy_from_slice(&u32::MAX.to_le_bytes())
+        }),
+        ("compressed lengths that miss the body", &|b| {
+            put(b, 36, table[0].0 + 1)
+        }),
+        ("payload lengths that miss the header's", &|b| {
+            put(b, 44, table[0].1 - 1)
+        }),
+        // The sums hold, but the first part no longer decompresses to its stated length.
+        ("two parts' payload lengths swapped", &|b| {
+            put(b, 44, table[last].1);
+            put(b, 44 + 16 * last, table[0].1);
+        }),
+    ];
+    for (what, edit) in cases {
+        assert!(
+            matches!(forge(edit), Err(CodecError::Invalid(_))),
+            "{what}: {:?}",
+            forge(edit).map(|_| ())
+        );
+    }
+}
