@@ -106,32 +106,7 @@ proptest! {
 
 #[test]
 fn oversized_claims_are_refused_before_decompression() {
-    let vdi = Vdi::from_parts(
-        VdiMeta {
-            camera: Camera {
-                eye: Vec3::new(0.0, 0.0, 10.0),
-                target: Vec3::ZERO,
-                up: Vec3::Y,
-                fov_y_deg: 30.0,
-            },
-            params: VdiParams {
-                resolution: 2,
-                gamma: 0.01,
-            },
-            step: 0.5,
-            termination: 0.99,
-            shaded: false,
-            volume_box: Aabb {
-                min: Vec3::ZERO,
-                max: Vec3::ONE,
-            },
-            tf_hash: 1,
-            tf_name: "t".into(),
-        },
-        vec![0, 0, 0, 0, 0],
-        vec![],
-    )
-    .unwrap();
+    let vdi = Vdi::from_parts(meta(2, 1, "t"), vec![0, 0, 0, 0, 0], vec![]).unwrap();
     let bytes = encode(&vdi, Codec::Zstd).unwrap();
     let tiny = DecodeLimits {
         max_payload_bytes: 16,
@@ -197,7 +172,13 @@ fn large_vdi() -> Vdi {
         }
         offsets.push(segs.len() as u32);
     }
-    let meta = VdiMeta {
+    Vdi::from_parts(meta(r, 7, "parts"), offsets, segs).unwrap()
+}
+
+/// The metadata of a VDI of resolution `r` seen from +z over the unit box, with TF `hash`
+/// and `name`.
+fn meta(resolution: u32, tf_hash: u64, tf_name: &str) -> VdiMeta {
+    VdiMeta {
         camera: Camera {
             eye: Vec3::new(0.0, 0.0, 10.0),
             target: Vec3::ZERO,
@@ -205,7 +186,7 @@ fn large_vdi() -> Vdi {
             fov_y_deg: 30.0,
         },
         params: VdiParams {
-            resolution: r,
+            resolution,
             gamma: 0.01,
         },
         step: 0.5,
@@ -215,10 +196,9 @@ fn large_vdi() -> Vdi {
             min: Vec3::ZERO,
             max: Vec3::ONE,
         },
-        tf_hash: 7,
-        tf_name: "parts".into(),
-    };
-    Vdi::from_parts(meta, offsets, segs).unwrap()
+        tf_hash,
+        tf_name: tf_name.into(),
+    }
 }
 
 /// The body's part table: `(compressed, payload)` lengths per part.
