@@ -15,8 +15,8 @@
 //! The body (version 2): the part count `m` (u32 LE), then per part its compressed and its
 //! decompressed length (u64 LE each), then the parts' compressed bytes back to back. The parts
 //! are consecutive pieces of the payload, so they are compressed and decompressed in parallel
-//! (rayon): bzip2 in parts of [`BZIP2_PART`] bytes, zstd and `none` in one part. Version 1
-//! files (one stream of the whole payload, no table) are still read.
+//! (rayon): bzip2 in parts of [`BZIP2_PART`] bytes, zstd in parts of [`ZSTD_PART`], `none` in
+//! one part. Version 1 files (one stream of the whole payload, no table) are still read.
 //!
 //! The payload (all little-endian): `r` u32, γ f32, step f32, termination f32, shaded u8;
 //! camera eye, target, up (3 × f32 each), fov_y_deg f32; volume box min, max (3 × f32 each);
@@ -48,6 +48,10 @@ const FORMAT_VERSION_SINGLE: u16 = 1;
 /// block is seldom full); on two cores, encoding and decoding take 1.6× (r = 256) to 1.9×
 /// (r = 768) less time.
 pub const BZIP2_PART: usize = 1_800_000;
+/// Payload bytes per zstd part (level 3, whose window is a few MB): σ within 0.2 % of one
+/// frame's (teapot, r = 768: 22 267 140 against 22 231 607 bytes; 4 MB parts: 0.45 %), encoding
+/// 1.6× and decoding 1.4× faster on two cores; smaller payloads (r = 256) stay one part.
+pub const ZSTD_PART: usize = 8_000_000;
 const HEADER_LEN: usize = 32;
 const MAX_TF_NAME: usize = 1024;
 
@@ -191,7 +195,8 @@ pub fn encode(vdi: &Vdi, codec: Codec) -> Result<Vec<u8>, CodecError> {
     let payload = payload(vdi);
     let part = match codec {
         Codec::Bzip2 => BZIP2_PART,
-        Codec::None | Codec::Zstd => payload.len().max(1),
+        Codec::Zstd => ZSTD_PART,
+        Codec::None => payload.len().max(1),
     };
     let parts: Vec<Vec<u8>> = payload
         .par_chunks(part)

@@ -148,11 +148,10 @@ fn fix_checksum(bytes: &mut [u8]) {
     bytes[28..32].copy_from_slice(&crc);
 }
 
-/// A VDI whose payload spans three bzip2 parts: 16² pixels of 800 supersegments each
-/// (204 800, a payload of about 4.9 MB), depths and colours varying so that it compresses
-/// like a real one, not to nothing.
-fn large_vdi() -> Vdi {
-    let (r, per) = (16u32, 800u32);
+/// A VDI of 16² pixels of `per` supersegments each (a payload of about `6 kB × per`), depths
+/// and colours varying so that it compresses like a real one, not to nothing.
+fn large_vdi(per: u32) -> Vdi {
+    let r = 16u32;
     let mut offsets = vec![0u32];
     let mut segs = Vec::new();
     for p in 0..r * r {
@@ -212,14 +211,16 @@ fn part_table(bytes: &[u8]) -> Vec<(u64, u64)> {
 
 #[test]
 fn large_payloads_are_compressed_in_parts_and_round_trip() {
-    let vdi = large_vdi();
+    // Three bzip2 parts; one zstd part, then two.
+    let vdi = large_vdi(800);
     for codec in Codec::ALL {
         let bytes = encode(&vdi, codec).unwrap();
         let payload = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
         let table = part_table(&bytes);
         let expected_parts = match codec {
             Codec::Bzip2 => payload.div_ceil(insitu_core::vdi::codec::BZIP2_PART as u64),
-            _ => 1,
+            Codec::Zstd => payload.div_ceil(insitu_core::vdi::codec::ZSTD_PART as u64),
+            Codec::None => 1,
         };
         assert!(
             payload > 2 * insitu_core::vdi::codec::BZIP2_PART as u64,
@@ -233,13 +234,17 @@ fn large_payloads_are_compressed_in_parts_and_round_trip() {
             "{codec}"
         );
     }
+    let larger = large_vdi(1700);
+    let bytes = encode(&larger, Codec::Zstd).unwrap();
+    assert_eq!(part_table(&bytes).len(), 2);
+    assert_eq!(decode(&bytes, &DecodeLimits::default()).unwrap(), larger);
 }
 
 #[test]
 fn version_1_files_are_still_read() {
     // A version 1 file: the payload as one bzip2 stream, no part table. The payload is the
     // body of the `none` encoding after its one-part table.
-    let vdi = large_vdi();
+    let vdi = large_vdi(800);
     let plain = encode(&vdi, Codec::None).unwrap();
     let payload = &plain[32 + 4 + 16..];
     let mut body = Vec::new();
@@ -270,7 +275,7 @@ type Edit<'a> = dyn Fn(&mut Vec<u8>) + 'a;
 
 #[test]
 fn a_bad_part_table_is_refused() {
-    let bytes = encode(&large_vdi(), Codec::Bzip2).unwrap();
+    let bytes = encode(&large_vdi(800), Codec::Bzip2).unwrap();
     let table = part_table(&bytes);
     let last = table.len() - 1;
     assert!(table[0].1 > table[last].1, "the last part is the short one");
