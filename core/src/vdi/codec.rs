@@ -338,7 +338,7 @@ pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<Vdi, CodecError> {
         return Err(CodecError::Checksum { stored, computed });
     }
     let payload = if version == FORMAT_VERSION_SINGLE {
-        decompress(codec, body, payload_len)?
+        decompress(codec, body, payload_len, ("the body", "the header"))?
     } else {
         decompress_parts(codec, body, payload_len)?
     };
@@ -393,18 +393,22 @@ fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u
     jobs.into_par_iter()
         .enumerate()
         .try_for_each(|(i, (input, piece))| {
-            let part = decompress(codec, input, piece.len() as u64).map_err(|e| match e {
-                CodecError::Invalid(m) => CodecError::Invalid(format!("part {i} of {count}: {m}")),
-                other => other,
-            })?;
+            let what = format!("part {i} of {count}");
+            let part = decompress(codec, input, piece.len() as u64, (&what, "the part table"))?;
             piece.copy_from_slice(&part);
             Ok::<_, CodecError>(())
         })?;
     Ok(out)
 }
 
-/// Decompresses at most `expected + 1` bytes, growing the buffer only as data arrives.
-fn decompress(codec: Codec, body: &[u8], expected: u64) -> Result<Vec<u8>, CodecError> {
+/// Decompresses at most `expected + 1` bytes, growing the buffer only as data arrives; an
+/// error names `what` was decompressed and what `stated` the length.
+fn decompress(
+    codec: Codec,
+    body: &[u8],
+    expected: u64,
+    (what, stated): (&str, &str),
+) -> Result<Vec<u8>, CodecError> {
     let err = |source| CodecError::Decompress { codec, source };
     let mut out = Vec::with_capacity(expected.min(1 << 20) as usize);
     match codec {
@@ -425,7 +429,7 @@ fn decompress(codec: Codec, body: &[u8], expected: u64) -> Result<Vec<u8>, Codec
     }
     if out.len() as u64 != expected {
         return Err(CodecError::Invalid(format!(
-            "body decompresses to {}{} bytes, header says {expected}",
+            "{what} decompresses to {}{} bytes, {stated} says {expected}",
             out.len(),
             if out.len() as u64 > expected { "+" } else { "" }
         )));

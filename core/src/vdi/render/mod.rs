@@ -499,7 +499,10 @@ impl<'a> Walker<'a> {
         }
         walk.u = u_exit;
         walk.w_u = w_exit;
-        walk.enter_bins = walk.bins.around(walk.w_u, seg.rounding + walk.enter_error);
+        walk.enter_bins = self
+            .tables
+            .bins
+            .around(walk.w_u, seg.rounding + walk.enter_error);
         walk.entered_solved = false;
         (walk.ux, walk.uy) = (walk.ax.next(), walk.ay.next());
         TileEntry::Jumped
@@ -525,7 +528,7 @@ impl<'a> Walker<'a> {
         };
         // The pixel's depth span lies between its two crossings' bins: a list whose bins
         // miss them is passed untouched.
-        let exit_bins = walk.bins.around(w_next, seg.rounding + exit_error);
+        let exit_bins = self.tables.bins.around(w_next, seg.rounding + exit_error);
         if self.tables.pixel_bins[p] & between(walk.enter_bins, exit_bins) != 0 {
             let exit = if u_next >= 1.0 {
                 seg.t1
@@ -610,7 +613,6 @@ enum TileEntry {
 /// how it entered it, and how far it has composited.
 struct SegmentWalk<'s> {
     seg: &'s Segment,
-    bins: DepthBins,
     ax: Axis,
     ay: Axis,
     /// `u` of the next crossing along x and along y.
@@ -634,12 +636,11 @@ struct SegmentWalk<'s> {
 }
 
 impl<'s> SegmentWalk<'s> {
-    /// At `seg`'s start, depth bins `bins`.
+    /// At `seg`'s start, depth bins `bins` (the walker's).
     fn new(seg: &'s Segment, bins: DepthBins) -> Self {
         let (ax, ay) = (seg.ax, seg.ay);
         Self {
             seg,
-            bins,
             ax,
             ay,
             ux: ax.next(),
