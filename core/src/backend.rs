@@ -77,13 +77,31 @@ pub enum BackendError {
 }
 
 /// Where a reported time comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum TimeSource {
     /// Wall clock around the call (CPU path; GPU without timestamps: includes transfers).
+    #[default]
     WallClock,
     /// GPU timestamps around the kernels (no transfers).
     GpuTimestamps,
+}
+
+impl TimeSource {
+    /// The name in files and on the wire (`wall-clock`, `gpu-timestamps`: the serde names).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::WallClock => "wall-clock",
+            Self::GpuTimestamps => "gpu-timestamps",
+        }
+    }
+
+    /// The source named `name` ([`TimeSource::name`]), `None` for another name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::WallClock, Self::GpuTimestamps]
+            .into_iter()
+            .find(|s| s.name() == name)
+    }
 }
 
 impl fmt::Display for TimeSource {

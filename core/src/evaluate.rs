@@ -154,18 +154,70 @@ pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
 /// What generating and encoding `P_M` costs, without scoring it: the cheap half of a
 /// measurement, enough to decide whether a candidate meets a size budget (the adaptive
 /// search's probes: `Oracle::measure_size` in `insitu-tuner`; [`generate_encoded`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
+///
+/// The one σ/τ record of the workspace: the tuner's measurements and probes and the
+/// viz-node's index rows carry it (flattened in their JSON: the keys below). σ and τ are
+/// required; records written before the others were kept everywhere read them as 0 and
+/// `wall-clock`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sizing {
     /// σ: bytes of the compressed VDI file.
     pub sigma_bytes: u64,
     /// Supersegments in the VDI.
+    #[serde(default)]
     pub supersegments: u64,
     /// τ: seconds of VDI generation, from `tau_source`.
     pub tau_secs: f64,
     /// Where τ comes from: wall clock (CPU) or GPU timestamps (kernel time, Sec. 5.3).
+    #[serde(default)]
     pub tau_source: TimeSource,
     /// Wall-clock seconds of compression (reported apart from τ).
+    #[serde(default)]
     pub tau_compress_secs: f64,
+}
+
+impl Sizing {
+    /// One step of a world of ranks from its ranks' VDIs (DESIGN.md, "A world of ranks"):
+    /// σ and the supersegments summed (the step's VDIs together), τ and the compression time of
+    /// the slowest rank (the step is done when its last rank is), the first rank's τ source.
+    /// All zero for no ranks.
+    pub fn of_ranks<'a>(ranks: impl IntoIterator<Item = &'a Sizing>) -> Sizing {
+        let mut ranks = ranks.into_iter().peekable();
+        let tau_source = ranks.peek().map(|s| s.tau_source).unwrap_or_default();
+        ranks.fold(
+            Sizing {
+                tau_source,
+                ..Sizing::default()
+            },
+            |acc, s| Sizing {
+                sigma_bytes: acc.sigma_bytes.saturating_add(s.sigma_bytes),
+                supersegments: acc.supersegments.saturating_add(s.supersegments),
+                tau_secs: acc.tau_secs.max(s.tau_secs),
+                tau_source,
+                tau_compress_secs: acc.tau_compress_secs.max(s.tau_compress_secs),
+            },
+        )
+    }
+
+    /// The worst case of several (the same candidate on several steps): each field's largest,
+    /// the first one's τ source. All zero for none.
+    pub fn worst<'a>(all: impl IntoIterator<Item = &'a Sizing>) -> Sizing {
+        let mut all = all.into_iter().peekable();
+        let tau_source = all.peek().map(|s| s.tau_source).unwrap_or_default();
+        all.fold(
+            Sizing {
+                tau_source,
+                ..Sizing::default()
+            },
+            |acc, s| Sizing {
+                sigma_bytes: acc.sigma_bytes.max(s.sigma_bytes),
+                supersegments: acc.supersegments.max(s.supersegments),
+                tau_secs: acc.tau_secs.max(s.tau_secs),
+                tau_source,
+                tau_compress_secs: acc.tau_compress_secs.max(s.tau_compress_secs),
+            },
+        )
+    }
 }
 
 /// Generates and encodes `params` without decoding, rendering or scoring: the file and its
@@ -244,4 +296,56 @@ pub fn evaluate(
         },
         images,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sizing(sigma_bytes: u64, supersegments: u64, tau_secs: f64, compress: f64) -> Sizing {
+        Sizing {
+            sigma_bytes,
+            supersegments,
+            tau_secs,
+            tau_source: TimeSource::GpuTimestamps,
+            tau_compress_secs: compress,
+        }
+    }
+
+    #[test]
+    fn ranks_add_sizes_and_wait_for_the_slowest_the_worst_takes_each_largest() {
+        let a = sizing(100, 7, 0.5, 0.02);
+        let b = sizing(40, 3, 0.9, 0.01);
+        let world = Sizing::of_ranks([&a, &b]);
+        assert_eq!(world, sizing(140, 10, 0.9, 0.02));
+        assert_eq!(Sizing::worst([&a, &b]), sizing(100, 7, 0.9, 0.02));
+        assert_eq!(Sizing::of_ranks([&a]), a);
+        assert_eq!(Sizing::of_ranks(std::iter::empty()), Sizing::default());
+        assert_eq!(Sizing::worst(std::iter::empty()), Sizing::default());
+    }
+
+    #[test]
+    fn records_without_the_later_keys_still_read_and_sigma_tau_are_required() {
+        let old: Sizing = serde_json::from_str(r#"{"sigma_bytes": 12, "tau_secs": 0.25}"#).unwrap();
+        assert_eq!(
+            old,
+            Sizing {
+                sigma_bytes: 12,
+                tau_secs: 0.25,
+                ..Sizing::default()
+            }
+        );
+        assert_eq!(old.tau_source, TimeSource::WallClock);
+        let full = sizing(1, 2, 3.0, 4.0);
+        let json = serde_json::to_value(full).unwrap();
+        assert_eq!(json["tau_source"], "gpu-timestamps");
+        assert_eq!(serde_json::from_value::<Sizing>(json).unwrap(), full);
+        assert!(serde_json::from_str::<Sizing>(r#"{"tau_secs": 0.25}"#).is_err());
+        assert!(serde_json::from_str::<Sizing>(r#"{"sigma_bytes": 12}"#).is_err());
+        for source in [TimeSource::WallClock, TimeSource::GpuTimestamps] {
+            assert_eq!(TimeSource::from_name(source.name()), Some(source));
+            assert_eq!(serde_json::to_value(source).unwrap(), source.name());
+        }
+        assert_eq!(TimeSource::from_name("wall clock"), None);
+    }
 }

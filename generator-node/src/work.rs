@@ -5,7 +5,7 @@
 use crate::config::Generation;
 use crate::ingest::RawStep;
 use bytes::Bytes;
-use insitu_core::backend::{BackendError, TimeSource};
+use insitu_core::backend::BackendError;
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi};
@@ -141,11 +141,7 @@ pub fn run(
             tau_compress_secs,
             tf_hash,
             tf_name: tf.1.clone(),
-            tau_source: match generated.source {
-                TimeSource::WallClock => "wall-clock",
-                TimeSource::GpuTimestamps => "gpu-timestamps",
-            }
-            .into(),
+            tau_source: generated.source.name().into(),
             backend: backend.describe(),
             pm_version: gen.pm_version,
             global_dims: Some(dims_to_pb(raw.info.global_dims)),

@@ -95,9 +95,9 @@ pub fn decision_pb(d: &Decision) -> pb::PmDecision {
         resolution: d.candidate.r,
         gamma: d.candidate.gamma,
         characteristic_steps: d.characteristic_steps.clone(),
-        predicted_sigma_bytes: d.predicted.sigma_bytes,
+        predicted_sigma_bytes: d.predicted.sizing.sigma_bytes,
         predicted_q_db: d.predicted.q(),
-        predicted_tau_secs: d.predicted.tau_secs,
+        predicted_tau_secs: d.predicted.sizing.tau_secs,
         reason: d.reason.clone(),
         trials: d.trials,
         trial_secs: d.trial_secs,
@@ -570,6 +570,7 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use insitu_core::evaluate::Sizing;
     use insitu_core::metrics::Db;
     use insitu_tuner::live::Tracker;
     use insitu_tuner::Measurement;
@@ -607,10 +608,10 @@ mod tests {
         let predicted = Measurement {
             r: 64,
             gamma: 0.01,
-            sigma_bytes: 900,
-            supersegments: 0,
-            tau_secs: 0.0,
-            tau_compress_secs: 0.0,
+            sizing: Sizing {
+                sigma_bytes: 900,
+                ..Sizing::default()
+            },
             tau_render_secs: 0.0,
             q_db: Db(40.0),
             view_q_db: vec![],

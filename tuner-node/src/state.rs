@@ -5,6 +5,7 @@
 //! never half of one. A restarted tuner resumes from it: finished trials are not run again and
 //! versions continue.
 
+use insitu_core::evaluate::Sizing;
 use insitu_tuner::live::{Tracker, Verdict};
 use insitu_tuner::series::BINS;
 use insitu_tuner::{Candidate, Measurement};
@@ -59,10 +60,10 @@ pub struct SizeProbe {
     pub step: u64,
     /// The candidate.
     pub candidate: Candidate,
-    /// σ summed over the step's ranks, bytes.
-    pub sigma_bytes: u64,
-    /// τ of the slowest rank, seconds.
-    pub tau_secs: f64,
+    /// The step's ranks' [`Sizing::of_ranks`] (flattened: σ summed over them, τ of the
+    /// slowest).
+    #[serde(flatten)]
+    pub sizing: Sizing,
     /// Wall clock on the nodes (the slowest rank), seconds.
     pub trial_secs: f64,
     /// The tuner process that ran it.
@@ -193,8 +194,11 @@ impl State {
         self.size_probes
             .iter()
             .find(|p| p.step == step && same(p.candidate))
-            .map(|p| p.sigma_bytes)
-            .or_else(|| self.trial(step, c).map(|t| t.measurement.sigma_bytes))
+            .map(|p| p.sizing.sigma_bytes)
+            .or_else(|| {
+                self.trial(step, c)
+                    .map(|t| t.measurement.sizing.sigma_bytes)
+            })
     }
 
     /// Loads `dir/tuner-state.json`; `None` when there is none.
@@ -254,10 +258,12 @@ mod tests {
         let m = Measurement {
             r: 64,
             gamma: 0.01,
-            sigma_bytes: 10,
-            supersegments: 1,
-            tau_secs: 0.1,
-            tau_compress_secs: 0.0,
+            sizing: Sizing {
+                sigma_bytes: 10,
+                supersegments: 1,
+                tau_secs: 0.1,
+                ..Sizing::default()
+            },
             tau_render_secs: 0.0,
             q_db: Db(f64::INFINITY),
             view_q_db: vec![Db(40.0)],

@@ -7,6 +7,8 @@
 
 use crate::engine::{decision_pb, Engine, Trigger};
 use crate::state::{Decision, SizeProbe, Trial};
+use insitu_core::backend::TimeSource;
+use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
@@ -20,15 +22,23 @@ use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 use tracing::{info, warn};
 
+/// A trial result's σ and τ (trials report τ on the wall clock).
+fn sizing(r: &pb::TrialResult) -> Sizing {
+    Sizing {
+        sigma_bytes: r.sigma_bytes,
+        supersegments: r.supersegments,
+        tau_secs: r.tau_secs,
+        tau_source: TimeSource::WallClock,
+        tau_compress_secs: r.tau_compress_secs,
+    }
+}
+
 /// A trial result as a measurement (q pooled over its views, as the viz-node pools).
 fn measurement(r: &pb::TrialResult) -> Measurement {
     Measurement {
         r: r.resolution,
         gamma: r.gamma,
-        sigma_bytes: r.sigma_bytes,
-        supersegments: r.supersegments,
-        tau_secs: r.tau_secs,
-        tau_compress_secs: r.tau_compress_secs,
+        sizing: sizing(r),
         tau_render_secs: r.tau_render_secs,
         q_db: Db(pooled_psnr(&r.view_mse)),
         view_q_db: r.view_q_db.iter().map(|&q| Db(q)).collect(),
@@ -170,9 +180,9 @@ impl Oracle for StepOracle {
             step = self.step,
             r = c.r,
             gamma = c.gamma,
-            sigma = m.sigma_bytes,
+            sigma = m.sizing.sigma_bytes,
             q_db = m.q(),
-            tau = m.tau_secs,
+            tau = m.sizing.tau_secs,
             secs,
             "trial"
         );
@@ -191,8 +201,7 @@ impl Oracle for StepOracle {
         let p = SizeProbe {
             step: self.step,
             candidate: c,
-            sigma_bytes: results.iter().map(|r| r.sigma_bytes).sum(),
-            tau_secs: results.iter().map(|r| r.tau_secs).fold(0.0, f64::max),
+            sizing: Sizing::of_ranks(&results.iter().map(sizing).collect::<Vec<_>>()),
             trial_secs: secs,
             run_by: e.process,
         };
@@ -200,15 +209,15 @@ impl Oracle for StepOracle {
             step = self.step,
             r = c.r,
             gamma = c.gamma,
-            sigma = p.sigma_bytes,
-            tau = p.tau_secs,
+            sigma = p.sizing.sigma_bytes,
+            tau = p.sizing.tau_secs,
             secs = p.trial_secs,
             "size probe"
         );
         let mut s = e.state();
         s.size_probes.push(p.clone());
         e.save(&s);
-        Ok(p.sigma_bytes)
+        Ok(p.sizing.sigma_bytes)
     }
 
     fn generations(&self) -> u64 {
@@ -307,7 +316,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     drop(s);
     engine.counters().decisions += 1;
     let m = decision_pb(&d);
-    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
+    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
     engine.hub.broadcast(&Down::Decision(m.clone()));
     let _ = engine.decisions.send(m);
     true

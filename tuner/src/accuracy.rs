@@ -140,9 +140,9 @@ fn vdi_rows(
                 knob,
                 value: value.clone(),
                 q_db: Some(m.q()),
-                tau_secs: m.tau_secs,
+                tau_secs: m.sizing.tau_secs,
                 tau_of: "VDI generation",
-                sigma_bytes: Some(m.sigma_bytes),
+                sigma_bytes: Some(m.sizing.sigma_bytes),
             })
         })
         .collect()

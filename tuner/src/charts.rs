@@ -116,8 +116,13 @@ pub fn study_map(rows: &[Measurement], title: &str, path: &Path) -> Result<(), C
     let (qlo, qhi) = range(fin.iter().map(|m| m.q()));
     let (glo, ghi) = range(rows.iter().map(|m| f64::from(m.gamma)));
     let (rlo, rhi) = range(rows.iter().map(|m| f64::from(m.r)));
-    let (_, tmax) = range(rows.iter().map(|m| m.tau_secs));
-    let smax = rows.iter().map(|m| m.sigma_bytes).max().unwrap_or(1).max(1) as f64;
+    let (_, tmax) = range(rows.iter().map(|m| m.sizing.tau_secs));
+    let smax = rows
+        .iter()
+        .map(|m| m.sizing.sigma_bytes)
+        .max()
+        .unwrap_or(1)
+        .max(1) as f64;
     let (gpad, rpad) = ((ghi - glo) * 0.04, (rhi - rlo) * 0.05);
     draw(path, |root| {
         let mut chart = ChartBuilder::on(&root)
@@ -146,8 +151,9 @@ pub fn study_map(rows: &[Measurement], title: &str, path: &Path) -> Result<(), C
             .draw_series(rows.iter().map(|m| {
                 let t = ((m.q().min(qhi) - qlo) / (qhi - qlo)).clamp(0.0, 1.0);
                 let fill = ViridisRGB::get_color(t as f32);
-                let radius = (rmax_px * (m.sigma_bytes as f64 / smax).sqrt()).max(3.0) as i32;
-                let rim = (255.0 * (m.tau_secs / tmax.max(1e-12)).clamp(0.0, 1.0)) as u8;
+                let radius =
+                    (rmax_px * (m.sizing.sigma_bytes as f64 / smax).sqrt()).max(3.0) as i32;
+                let rim = (255.0 * (m.sizing.tau_secs / tmax.max(1e-12)).clamp(0.0, 1.0)) as u8;
                 let at = (f64::from(m.gamma), f64::from(m.r));
                 EmptyElement::at(at)
                     + Circle::new((0, 0), radius, fill.filled())
@@ -199,8 +205,10 @@ pub fn pareto(rows: &[Measurement], title: &str, path: &Path) -> Result<(), Char
     draw(path, |root| {
         let panels = root.split_evenly((1, 2));
         let axes: [(&str, Axis); 2] = [
-            ("σ (compressed VDI, MB)", |m| m.sigma_bytes as f64 / 1e6),
-            ("τ (generation, s)", |m| m.tau_secs),
+            ("σ (compressed VDI, MB)", |m| {
+                m.sizing.sigma_bytes as f64 / 1e6
+            }),
+            ("τ (generation, s)", |m| m.sizing.tau_secs),
         ];
         for (area, (label, x)) in panels.iter().zip(axes) {
             let (xlo, xhi) = range(fin.iter().map(|m| x(m)));

@@ -19,6 +19,7 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use crate::series::{distance, BINS};
 use crate::study::{Oracle, StudyError};
+use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse, Db};
 pub use insitu_core::volume::histogram;
 use serde::{Deserialize, Serialize};
@@ -197,10 +198,7 @@ pub fn worst_case(ms: &[Measurement]) -> Result<Measurement, LiveError> {
     Ok(Measurement {
         r: worst_q.r,
         gamma: worst_q.gamma,
-        sigma_bytes: ms.iter().map(|m| m.sigma_bytes).max().unwrap_or(0),
-        supersegments: ms.iter().map(|m| m.supersegments).max().unwrap_or(0),
-        tau_secs: max_f(|m| m.tau_secs),
-        tau_compress_secs: max_f(|m| m.tau_compress_secs),
+        sizing: Sizing::worst(ms.iter().map(|m| &m.sizing)),
         tau_render_secs: max_f(|m| m.tau_render_secs),
         q_db: worst_q.q_db,
         view_q_db: worst_q.view_q_db.clone(),
@@ -239,10 +237,7 @@ pub fn combine_ranks(ranks: &[Measurement]) -> Result<Measurement, LiveError> {
     Ok(Measurement {
         r: first.r,
         gamma: first.gamma,
-        sigma_bytes: ranks.iter().map(|m| m.sigma_bytes).sum(),
-        supersegments: ranks.iter().map(|m| m.supersegments).sum(),
-        tau_secs: max_f(|m| m.tau_secs),
-        tau_compress_secs: max_f(|m| m.tau_compress_secs),
+        sizing: Sizing::of_ranks(ranks.iter().map(|m| &m.sizing)),
         tau_render_secs: max_f(|m| m.tau_render_secs),
         q_db: Db(psnr_from_mse(pooled)),
         view_q_db: view_mse.into_iter().map(|m| Db(psnr_from_mse(m))).collect(),
@@ -409,11 +404,12 @@ mod tests {
             .map(|c| Measurement {
                 r: c.r,
                 gamma: c.gamma,
-                sigma_bytes: (scale * f64::from(c.r * c.r) / (1.0 + 40.0 * f64::from(c.gamma)))
-                    as u64,
-                supersegments: 0,
-                tau_secs: 0.01 * f64::from(c.r) / 100.0,
-                tau_compress_secs: 0.0,
+                sizing: Sizing {
+                    sigma_bytes: (scale * f64::from(c.r * c.r) / (1.0 + 40.0 * f64::from(c.gamma)))
+                        as u64,
+                    tau_secs: 0.01 * f64::from(c.r) / 100.0,
+                    ..Sizing::default()
+                },
                 tau_render_secs: 0.0,
                 q_db: Db(20.0 + f64::from(c.r) / 40.0 - 30.0 * f64::from(c.gamma) - step as f64),
                 view_q_db: vec![],
@@ -466,10 +462,12 @@ mod tests {
         Measurement {
             r: 64,
             gamma: 0.01,
-            sigma_bytes: sigma,
-            supersegments: 10,
-            tau_secs: tau,
-            tau_compress_secs: 0.0,
+            sizing: Sizing {
+                sigma_bytes: sigma,
+                supersegments: 10,
+                tau_secs: tau,
+                ..Sizing::default()
+            },
             tau_render_secs: 0.0,
             q_db: Db(insitu_core::metrics::pooled_psnr(
                 &views.iter().map(|&q| mse_from_psnr(q)).collect::<Vec<_>>(),
@@ -482,7 +480,14 @@ mod tests {
     #[test]
     fn ranks_sum_sigma_take_the_slowest_tau_and_pool_q() {
         let c = combine_ranks(&[m(100, 0.2, &[30.0, 40.0]), m(50, 0.5, &[30.0, 20.0])]).unwrap();
-        assert_eq!((c.sigma_bytes, c.supersegments, c.tau_secs), (150, 20, 0.5));
+        assert_eq!(
+            (
+                c.sizing.sigma_bytes,
+                c.sizing.supersegments,
+                c.sizing.tau_secs
+            ),
+            (150, 20, 0.5)
+        );
         // View 0: both 30 dB → 30 dB; view 1: mean of 1e-4 and 1e-2.
         assert!((c.view_q_db[0].0 - 30.0).abs() < 1e-9);
         assert!((c.view_q_db[1].0 - psnr_from_mse((1e-4 + 1e-2) / 2.0)).abs() < 1e-9);
@@ -490,6 +495,9 @@ mod tests {
         assert!((c.q() - psnr_from_mse(all)).abs() < 1e-9);
         assert_eq!(combine_ranks(&[]), Err(LiveError::Empty));
         let w = worst_case(&[m(100, 0.2, &[30.0]), m(50, 0.5, &[20.0])]).unwrap();
-        assert_eq!((w.sigma_bytes, w.tau_secs, w.q()), (100, 0.5, 20.0));
+        assert_eq!(
+            (w.sizing.sigma_bytes, w.sizing.tau_secs, w.q()),
+            (100, 0.5, 20.0)
+        );
     }
 }

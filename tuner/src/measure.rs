@@ -1,7 +1,7 @@
 //! One row of a study: the performance indicators (σ, q, τ) of one `P_M` (Sec. 5.3).
 
 use crate::grid::Candidate;
-use insitu_core::evaluate::{mean_ssim, Evaluation};
+use insitu_core::evaluate::{mean_ssim, Evaluation, Sizing};
 use insitu_core::metrics::Db;
 use serde::{Deserialize, Serialize};
 
@@ -12,14 +12,9 @@ pub struct Measurement {
     pub r: u32,
     /// `γ`.
     pub gamma: f32,
-    /// σ: compressed VDI bytes.
-    pub sigma_bytes: u64,
-    /// Supersegments in the VDI.
-    pub supersegments: u64,
-    /// τ: generation wall clock, seconds.
-    pub tau_secs: f64,
-    /// Compression wall clock, seconds.
-    pub tau_compress_secs: f64,
+    /// σ, τ and the supersegments (flattened: their keys sit beside `r` and `gamma`).
+    #[serde(flatten)]
+    pub sizing: Sizing,
     /// Mean render time of the VDI per test view, seconds.
     pub tau_render_secs: f64,
     /// q: pooled PSNR over the test views, dB (`"inf"` in JSON when identical).
@@ -49,14 +44,49 @@ impl Measurement {
         Self {
             r: e.params.resolution,
             gamma: e.params.gamma,
-            sigma_bytes: e.sizing.sigma_bytes,
-            supersegments: e.sizing.supersegments,
-            tau_secs: e.sizing.tau_secs,
-            tau_compress_secs: e.sizing.tau_compress_secs,
+            sizing: e.sizing,
             tau_render_secs: e.tau_render_secs,
             q_db: Db(e.q_db),
             view_q_db: e.views.iter().map(|v| Db(v.q_db)).collect(),
             ssim: mean_ssim(&e.views),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insitu_core::backend::TimeSource;
+
+    /// The σ/τ keys stay at the top level of a measurement's JSON (cache files written before
+    /// [`Sizing`] was shared still read, without a τ source: wall clock).
+    #[test]
+    fn sizing_keys_sit_beside_the_candidate_in_json() {
+        let old = r#"{"r": 128, "gamma": 0.01, "sigma_bytes": 5000, "supersegments": 77,
+            "tau_secs": 0.3, "tau_compress_secs": 0.02, "tau_render_secs": 0.1,
+            "q_db": 41.5, "view_q_db": [41.5], "ssim": null}"#;
+        let m: Measurement = serde_json::from_str(old).unwrap();
+        assert_eq!(
+            m.sizing,
+            Sizing {
+                sigma_bytes: 5000,
+                supersegments: 77,
+                tau_secs: 0.3,
+                tau_source: TimeSource::WallClock,
+                tau_compress_secs: 0.02,
+            }
+        );
+        let json = serde_json::to_value(&m).unwrap();
+        for key in [
+            "sigma_bytes",
+            "supersegments",
+            "tau_secs",
+            "tau_compress_secs",
+            "tau_source",
+        ] {
+            assert!(json.get(key).is_some(), "{key} missing from {json}");
+        }
+        assert!(json.get("sizing").is_none());
+        assert_eq!(serde_json::from_value::<Measurement>(json).unwrap(), m);
     }
 }

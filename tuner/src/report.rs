@@ -12,10 +12,10 @@ pub fn csv(rows: &[Measurement]) -> String {
             "{},{},{},{},{:.6},{:.6},{:.6},{},{}\n",
             m.r,
             m.gamma,
-            m.sigma_bytes,
-            m.supersegments,
-            m.tau_secs,
-            m.tau_compress_secs,
+            m.sizing.sigma_bytes,
+            m.sizing.supersegments,
+            m.sizing.tau_secs,
+            m.sizing.tau_compress_secs,
             m.tau_render_secs,
             if m.q().is_finite() {
                 format!("{:.4}", m.q())

@@ -318,8 +318,8 @@ pub fn adaptive_search(
 /// The paper's ladder of size budgets (Fig. 8): from just above the smallest σ of `rows`,
 /// each 1.5× the previous, up to the largest σ.
 pub fn size_ladder(rows: &[Measurement]) -> Vec<u64> {
-    let lo = rows.iter().map(|m| m.sigma_bytes).min().unwrap_or(0);
-    let hi = rows.iter().map(|m| m.sigma_bytes).max().unwrap_or(0);
+    let lo = rows.iter().map(|m| m.sizing.sigma_bytes).min().unwrap_or(0);
+    let hi = rows.iter().map(|m| m.sizing.sigma_bytes).max().unwrap_or(0);
     let mut out = Vec::new();
     let mut t = (lo as f64 * 1.5).max(1.0);
     while t <= hi as f64 * 1.5 {

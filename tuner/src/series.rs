@@ -138,6 +138,7 @@ pub fn cross_table(per_step: &[Vec<Measurement>], u: &dyn Utility) -> Vec<Cross>
 mod tests {
     use super::*;
     use crate::utility::SizeBudget;
+    use insitu_core::evaluate::Sizing;
     use insitu_core::metrics::Db;
 
     #[test]
@@ -171,10 +172,10 @@ mod tests {
         Measurement {
             r,
             gamma: 0.1,
-            sigma_bytes: sigma,
-            supersegments: 0,
-            tau_secs: 0.0,
-            tau_compress_secs: 0.0,
+            sizing: Sizing {
+                sigma_bytes: sigma,
+                ..Sizing::default()
+            },
             tau_render_secs: 0.0,
             q_db: Db(q),
             view_q_db: vec![],

@@ -45,7 +45,7 @@ pub trait Oracle {
     /// # Errors
     /// [`StudyError`].
     fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
-        self.measure(c).map(|m| m.sigma_bytes)
+        self.measure(c).map(|m| m.sizing.sigma_bytes)
     }
     /// Candidates generated so far (cache hits excluded).
     fn generations(&self) -> u64;
@@ -234,7 +234,7 @@ impl Oracle for Study<'_> {
         );
         let m = Measurement::from_evaluation(&e);
         self.generations += 1;
-        self.generation_secs += m.tau_secs;
+        self.generation_secs += m.sizing.tau_secs;
         self.cache.insert(m.clone())?;
         Ok(m)
     }
@@ -278,7 +278,7 @@ impl Oracle for TableOracle<'_> {
                 StudyError::Invalid(format!("r = {}, γ = {} is not in the table", c.r, c.gamma))
             })?;
         if self.asked.insert((c.r, c.gamma.to_bits())) {
-            self.secs += m.tau_secs;
+            self.secs += m.sizing.tau_secs;
         }
         Ok(m.clone())
     }

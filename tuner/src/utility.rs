@@ -46,7 +46,7 @@ impl Utility for SizeBudget {
         format!("max q with σ < {}", bytes_text(self.sigma_target))
     }
     fn value(&self, m: &Measurement) -> f64 {
-        if m.sigma_bytes < self.sigma_target {
+        if m.sizing.sigma_bytes < self.sigma_target {
             -m.q()
         } else {
             f64::INFINITY
@@ -59,7 +59,7 @@ impl Utility for TimeBudget {
         format!("max q with τ < {} s", self.tau_target)
     }
     fn value(&self, m: &Measurement) -> f64 {
-        if m.tau_secs < self.tau_target {
+        if m.sizing.tau_secs < self.tau_target {
             -m.q()
         } else {
             f64::INFINITY
@@ -76,7 +76,7 @@ impl Utility for SizeAndTime {
         )
     }
     fn value(&self, m: &Measurement) -> f64 {
-        if m.sigma_bytes < self.sigma_target && m.tau_secs < self.tau_target {
+        if m.sizing.sigma_bytes < self.sigma_target && m.sizing.tau_secs < self.tau_target {
             -m.q()
         } else {
             f64::INFINITY
@@ -90,7 +90,7 @@ impl Utility for QualityTarget {
     }
     fn value(&self, m: &Measurement) -> f64 {
         if m.q() >= self.q_target {
-            m.sigma_bytes as f64
+            m.sizing.sigma_bytes as f64
         } else {
             f64::INFINITY
         }
@@ -262,23 +262,25 @@ pub fn best<'m>(rows: &'m [Measurement], u: &dyn Utility) -> Option<(&'m Measure
         .filter(|(_, v)| *v < f64::INFINITY)
         .min_by(|a, b| {
             a.1.total_cmp(&b.1)
-                .then(a.0.sigma_bytes.cmp(&b.0.sigma_bytes))
+                .then(a.0.sizing.sigma_bytes.cmp(&b.0.sizing.sigma_bytes))
         })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use insitu_core::evaluate::Sizing;
     use insitu_core::metrics::Db;
 
     fn m(sigma: u64, q: f64, tau: f64) -> Measurement {
         Measurement {
             r: 1,
             gamma: 0.1,
-            sigma_bytes: sigma,
-            supersegments: 0,
-            tau_secs: tau,
-            tau_compress_secs: 0.0,
+            sizing: Sizing {
+                sigma_bytes: sigma,
+                tau_secs: tau,
+                ..Sizing::default()
+            },
             tau_render_secs: 0.0,
             q_db: Db(q),
             view_q_db: vec![],
@@ -290,7 +292,7 @@ mod tests {
     fn the_papers_equations_and_the_dual() {
         let rows = [m(100, 30.0, 1.0), m(200, 35.0, 2.0), m(300, 40.0, 3.0)];
         let pick = |spec: &str| {
-            best(&rows, parse_utility(spec).unwrap().as_ref()).map(|(m, _)| m.sigma_bytes)
+            best(&rows, parse_utility(spec).unwrap().as_ref()).map(|(m, _)| m.sizing.sigma_bytes)
         };
         assert_eq!(pick("size:250"), Some(200));
         assert_eq!(pick("size:200"), Some(100), "σ < σ_target is strict");

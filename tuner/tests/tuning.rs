@@ -114,7 +114,7 @@ fn a_second_identical_run_generates_nothing_and_changed_inputs_are_not_trusted()
 /// Brute force: the largest q among rows with σ < target.
 fn brute_best_q(rows: &[Measurement], target: u64) -> Option<f64> {
     rows.iter()
-        .filter(|m| m.sigma_bytes < target)
+        .filter(|m| m.sizing.sigma_bytes < target)
         .map(Measurement::q)
         .max_by(f64::total_cmp)
 }
@@ -143,10 +143,10 @@ fn check_ladder(rows: &[Measurement]) {
             },
         )
         .unwrap();
-        assert!(m.sigma_bytes < target);
+        assert!(m.sizing.sigma_bytes < target);
         assert_eq!(Some(m.q()), brute_best_q(rows, target), "σ_target {target}");
     }
-    let smallest = rows.iter().map(|m| m.sigma_bytes).min().unwrap();
+    let smallest = rows.iter().map(|m| m.sizing.sigma_bytes).min().unwrap();
     assert!(
         best(
             rows,
@@ -184,7 +184,7 @@ impl Oracle for Counting<'_> {
 
     fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
         self.sized.insert((c.r, c.gamma.to_bits()));
-        self.table.measure(c).map(|m| m.sigma_bytes)
+        self.table.measure(c).map(|m| m.sizing.sigma_bytes)
     }
 
     fn generations(&self) -> u64 {
@@ -219,7 +219,7 @@ fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
             probed_rs.len()
         );
         let (gq, aq) = (g.best.as_ref().unwrap().q(), a.best.as_ref().unwrap().q());
-        assert!(a.best.as_ref().unwrap().sigma_bytes < target);
+        assert!(a.best.as_ref().unwrap().sizing.sigma_bytes < target);
         assert!(
             aq >= gq - 0.25,
             "σ_target {target}: adaptive {aq} dB vs grid {gq} dB"
@@ -242,13 +242,13 @@ fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
     let a = a.best.unwrap();
     assert!(a.q() >= q_target);
     assert!(
-        a.sigma_bytes as f64 <= g.sigma_bytes as f64 * 1.25,
+        a.sizing.sigma_bytes as f64 <= g.sizing.sigma_bytes as f64 * 1.25,
         "adaptive σ {} vs grid σ {}",
-        a.sigma_bytes,
-        g.sigma_bytes
+        a.sizing.sigma_bytes,
+        g.sizing.sigma_bytes
     );
     // Below the smallest σ nothing is feasible: a clear None.
-    let smallest = rows.iter().map(|m| m.sigma_bytes).min().unwrap();
+    let smallest = rows.iter().map(|m| m.sizing.sigma_bytes).min().unwrap();
     assert!(
         adaptive_search(&mut TableOracle::new(rows), grid, Target::Size(smallest))
             .unwrap()

@@ -12,6 +12,7 @@ use crate::store::{
     StoreError,
 };
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
+use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::volume::bricks::{self, DecompositionError};
 use insitu_core::{Backend, Vdi};
@@ -184,17 +185,18 @@ pub fn compose_step(
     } else {
         (None, None)
     };
+    let mut entry = step_entry(step, world_size, &ready, missing);
+    entry.sizing.supersegments = composed.supersegments().len() as u64;
     Ok(Some(StepEntry {
         vdi: Some(vdi_name),
         references,
-        supersegments: composed.supersegments().len() as u64,
         quality,
-        ..step_entry(step, world_size, &ready, missing)
+        ..entry
     }))
 }
 
-/// A step's entry from its ranks: σ summed, τ of the slowest, `P_M` and codec of the first;
-/// nothing composed yet (no files, no q, no error).
+/// A step's entry from its ranks: their [`Sizing::of_ranks`] (σ and supersegments summed, τ of
+/// the slowest), `P_M` and codec of the first; nothing composed yet (no files, no q, no error).
 pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32>) -> StepEntry {
     let first = ranks.first();
     StepEntry {
@@ -204,9 +206,7 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
         missing,
         vdi: None,
         references: None,
-        sigma_bytes: ranks.iter().map(|e| e.sigma_bytes).sum(),
-        tau_secs: ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
-        supersegments: 0,
+        sizing: Sizing::of_ranks(ranks.iter().map(|e| &e.sizing)),
         resolution: first.map_or(0, |e| e.resolution),
         gamma: first.map_or(0.0, |e| e.gamma),
         pm_version: first.map_or(0, |e| e.pm_version),

@@ -4,6 +4,8 @@ use crate::decoded::{read_vdi, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
 use crate::store::{Entry, Placement, Recording, References, StepEntry, StoreError};
+use insitu_core::backend::TimeSource;
+use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, DecodeLimits};
 use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
@@ -94,9 +96,9 @@ pub fn step_report(s: &StepEntry) -> pb::QualityReport {
         resolution: s.resolution,
         gamma: s.gamma,
         codec: s.codec.parse().map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
-        sigma_bytes: s.sigma_bytes,
-        tau_secs: s.tau_secs,
-        supersegments: s.supersegments,
+        sigma_bytes: s.sizing.sigma_bytes,
+        tau_secs: s.sizing.tau_secs,
+        supersegments: s.sizing.supersegments,
         q_db: q.map(|q| q.q_db.0),
         view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
         ssim: q.and_then(|q| q.ssim),
@@ -118,9 +120,9 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         resolution: e.resolution,
         gamma: e.gamma,
         codec: e.codec.parse().map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
-        sigma_bytes: e.sigma_bytes,
-        tau_secs: e.tau_secs,
-        supersegments: e.supersegments,
+        sigma_bytes: e.sizing.sigma_bytes,
+        tau_secs: e.sizing.tau_secs,
+        supersegments: e.sizing.supersegments,
         q_db: q.map(|q| q.q_db.0),
         view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
         ssim: q.and_then(|q| q.ssim),
@@ -403,6 +405,15 @@ impl VizService {
                 )));
             }
             let codec = codec_from_pb(h.codec)?.map_or_else(String::new, |c| c.name().to_owned());
+            // Nodes that do not say (an empty string) measured τ on the wall clock.
+            let tau_source = match h.tau_source.as_str() {
+                "" => TimeSource::WallClock,
+                name => TimeSource::from_name(name).ok_or_else(|| {
+                    Status::invalid_argument(format!(
+                        "{what}: tau_source {name:?} is neither wall-clock nor gpu-timestamps"
+                    ))
+                })?,
+            };
             let meta = Entry {
                 step: h.step,
                 rank: h.rank,
@@ -413,10 +424,13 @@ impl VizService {
                 resolution: h.resolution,
                 gamma: h.gamma,
                 codec,
-                sigma_bytes: bytes.len() as u64,
-                supersegments: vdi.supersegments().len() as u64,
-                tau_secs: h.tau_secs,
-                tau_compress_secs: h.tau_compress_secs,
+                sizing: Sizing {
+                    sigma_bytes: bytes.len() as u64,
+                    supersegments: vdi.supersegments().len() as u64,
+                    tau_secs: h.tau_secs,
+                    tau_source,
+                    tau_compress_secs: h.tau_compress_secs,
+                },
                 tf_name: vdi.meta().tf_name.clone(),
                 tf_hash: vdi.meta().tf_hash,
                 quality: None,

@@ -7,6 +7,7 @@
 //! that is not complete; [`Recording::recover`] tidies what a crash leaves on the next start.
 
 use crate::index::{IndexDb, INDEX_DB};
+use insitu_core::evaluate::Sizing;
 pub use insitu_core::metrics::Db;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Image};
@@ -94,14 +95,10 @@ pub struct Entry {
     pub gamma: f32,
     /// Codec name.
     pub codec: String,
-    /// σ, bytes.
-    pub sigma_bytes: u64,
-    /// Supersegments.
-    pub supersegments: u64,
-    /// τ, seconds.
-    pub tau_secs: f64,
-    /// Compression time, seconds.
-    pub tau_compress_secs: f64,
+    /// σ, τ (and its source) and the supersegments, as the generator-node reported them
+    /// (flattened: their keys sit in the entry's JSON).
+    #[serde(flatten)]
+    pub sizing: Sizing,
     /// Transfer function name and identity.
     pub tf_name: String,
     /// [`insitu_core::TransferFunction::identity_hash`].
@@ -143,12 +140,12 @@ pub struct StepEntry {
     pub vdi: Option<String>,
     /// The composed reference frames.
     pub references: Option<String>,
-    /// σ, bytes: the sum of the ranks' files.
-    pub sigma_bytes: u64,
-    /// τ, seconds: the slowest rank's.
-    pub tau_secs: f64,
-    /// Supersegments over all ranks.
-    pub supersegments: u64,
+    /// The ranks' [`Sizing::of_ranks`]: σ summed over their files, τ the slowest rank's; the
+    /// supersegments the composed VDI's once it is composed, the ranks' sum before
+    /// (flattened, as in [`Entry`]; a step stored before the compression time was kept reads
+    /// it as 0).
+    #[serde(flatten)]
+    pub sizing: Sizing,
     /// `r`, `γ` and the P_M version of the ranks.
     pub resolution: u32,
     /// `γ`.
@@ -176,10 +173,7 @@ impl Entry {
             resolution: 0,
             gamma: 0.0,
             codec: String::new(),
-            sigma_bytes: 0,
-            supersegments: 0,
-            tau_secs: 0.0,
-            tau_compress_secs: 0.0,
+            sizing: Sizing::default(),
             tf_name: String::new(),
             tf_hash: 0,
             quality: None,
@@ -743,6 +737,7 @@ impl Recording {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use insitu_core::backend::TimeSource;
 
     fn entry(step: u64) -> Entry {
         Entry {
@@ -865,6 +860,46 @@ mod tests {
         assert_eq!(rec.entry(4, 0), Some(e));
         assert!(dir.path().join("index.json.imported").exists());
         assert!(!dir.path().join(LEGACY_INDEX).exists());
+    }
+
+    /// Index rows written before the σ/τ record was shared read as they were: an entry
+    /// without a τ source (wall clock), a step without a compression time (0).
+    #[test]
+    fn rows_written_before_the_shared_record_still_read() {
+        let mut e = serde_json::to_value(Entry {
+            sizing: Sizing {
+                sigma_bytes: 900,
+                supersegments: 12,
+                tau_secs: 0.4,
+                tau_source: TimeSource::GpuTimestamps,
+                tau_compress_secs: 0.05,
+            },
+            ..entry(5)
+        })
+        .unwrap();
+        assert_eq!(e["sigma_bytes"], 900);
+        assert_eq!(e["tau_source"], "gpu-timestamps");
+        e.as_object_mut().unwrap().remove("tau_source");
+        let old: Entry = serde_json::from_value(e).unwrap();
+        assert_eq!(old.sizing.tau_source, TimeSource::WallClock);
+        assert_eq!(
+            (old.sizing.sigma_bytes, old.sizing.tau_compress_secs),
+            (900, 0.05)
+        );
+        let step = serde_json::json!({"step": 5, "world_size": 2, "ranks": [0, 1], "missing": [],
+            "vdi": null, "references": null, "sigma_bytes": 1800, "tau_secs": 0.4,
+            "supersegments": 30, "resolution": 4, "gamma": 0.5, "pm_version": 1,
+            "codec": "zstd", "quality": null, "error": null});
+        let old: StepEntry = serde_json::from_value(step).unwrap();
+        assert_eq!(
+            old.sizing,
+            Sizing {
+                sigma_bytes: 1800,
+                supersegments: 30,
+                tau_secs: 0.4,
+                ..Sizing::default()
+            }
+        );
     }
 
     #[test]

@@ -111,7 +111,7 @@ pub fn run(a: Args) -> Result<()> {
         })
         .collect();
     if a.json {
-        let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": m.gamma, "sigma_bytes": m.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.tau_secs});
+        let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.sizing.tau_secs});
         println!(
             "{}",
             serde_json::json!({
@@ -146,9 +146,9 @@ pub fn run(a: Args) -> Result<()> {
                 "  step {t:>3}: best r = {}, γ = {}: σ {}, q {} dB, τ {:.3} s",
                 m.r,
                 m.gamma,
-                bytes_text(m.sigma_bytes),
+                bytes_text(m.sizing.sigma_bytes),
                 q_text(m.q()),
-                m.tau_secs
+                m.sizing.tau_secs
             ),
             None => println!("  step {t:>3}: infeasible"),
         }
@@ -169,9 +169,9 @@ pub fn run(a: Args) -> Result<()> {
                 "{a_step:>6} {b_step:>6} | {:>5} {:>6.3} | {:>10} {:>8} {:>8.3} | {}",
                 m.r,
                 m.gamma,
-                bytes_text(m.sigma_bytes),
+                bytes_text(m.sizing.sigma_bytes),
                 q_text(m.q()),
-                m.tau_secs,
+                m.sizing.tau_secs,
                 if x.holds { "yes" } else { "NO" }
             ),
             None => println!("{a_step:>6} {b_step:>6} | (A infeasible)"),

@@ -50,7 +50,7 @@ fn target(spec: &str) -> Result<Target> {
 
 fn row_json(m: &Measurement) -> serde_json::Value {
     serde_json::json!({
-        "r": m.r, "gamma": m.gamma, "sigma_bytes": m.sigma_bytes, "tau_s": m.tau_secs,
+        "r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "tau_s": m.sizing.tau_secs,
         "q_db": super::q_json(m.q()), "ssim": m.ssim,
     })
 }
@@ -139,10 +139,10 @@ pub fn run(a: Args) -> Result<()> {
             "best P_M: r = {}, gamma = {} | sigma = {} ({}), q = {} dB, tau = {:.3} s",
             best.r,
             best.gamma,
-            best.sigma_bytes,
-            bytes_text(best.sigma_bytes),
+            best.sizing.sigma_bytes,
+            bytes_text(best.sizing.sigma_bytes),
             q_text(best.q()),
-            best.tau_secs
+            best.sizing.tau_secs
         );
         println!(
             "generated {} of {} candidates (the rest from the cache or not needed), sum of tau {:.2} s, wall clock {:.1} s",
@@ -160,7 +160,7 @@ fn ladder(a: &Args) -> Result<()> {
     let rc = p.raycaster()?;
     let mut study = a.study.study(&p, &rc)?;
     let rows = run_grid(&mut study, &p.grid)?;
-    let grid_tau: f64 = rows.iter().map(|m| m.tau_secs).sum();
+    let grid_tau: f64 = rows.iter().map(|m| m.sizing.tau_secs).sum();
     let mut out = Vec::new();
     let mut points = Vec::new();
     if !a.json {

@@ -4,7 +4,7 @@
 //! refused, not allowed to take the node's memory.
 
 use crate::common::{index, load_vdi, local_q, viz, viz_status};
-use insitu_core::evaluate::render_references;
+use insitu_core::evaluate::{render_references, Sizing};
 use insitu_core::vdi::codec::{encode, Codec};
 use insitu_core::vdi::{generate::generate, VdiParams};
 use insitu_core::{Backend, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
@@ -146,7 +146,10 @@ fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
             resolution: 24,
             gamma: 0.01,
             codec: "zstd".into(),
-            sigma_bytes: file.len() as u64,
+            sizing: Sizing {
+                sigma_bytes: file.len() as u64,
+                ..Sizing::default()
+            },
             ..Entry::empty(8, 0)
         };
         r.store_vdi(meta, &file).unwrap();

@@ -160,8 +160,8 @@ fn ranks_with_different_ranges_share_one_tf_across_a_restart() {
     assert_eq!(first[0].tf_hash, first[1].tf_hash, "{first:?}");
     assert_eq!(first[0].tf_name, "default[0, 1000]");
     // Rank 0's brick is transparent under that TF: an empty VDI.
-    assert_eq!(first[0].supersegments, 0);
-    assert!(first[1].supersegments > 0);
+    assert_eq!(first[0].sizing.supersegments, 0);
+    assert!(first[1].sizing.supersegments > 0);
     // Rank 1's node dies and comes back; its next brick has another range, the TF stays.
     g1.kill();
     let g1 = generator(&cfg, tmp.path(), &[]);

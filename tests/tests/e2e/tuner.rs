@@ -235,10 +235,10 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
     for e in &tuned {
         assert_eq!((e.resolution, e.gamma), (d.resolution, d.gamma));
         assert!(
-            e.sigma_bytes < 60_000,
+            e.sizing.sigma_bytes < 60_000,
             "step {} σ {}",
             e.step,
-            e.sigma_bytes
+            e.sizing.sigma_bytes
         );
     }
     let before: Vec<_> = entries.iter().filter(|e| e.pm_version == 0).collect();
@@ -253,11 +253,11 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
         d.trials,
         d.trial_secs,
         before.len(),
-        before.iter().map(|e| e.sigma_bytes).min().unwrap_or(0),
-        before.iter().map(|e| e.sigma_bytes).max().unwrap_or(0),
+        before.iter().map(|e| e.sizing.sigma_bytes).min().unwrap_or(0),
+        before.iter().map(|e| e.sizing.sigma_bytes).max().unwrap_or(0),
         tuned.len(),
-        tuned.iter().map(|e| e.sigma_bytes).min().unwrap_or(0),
-        tuned.iter().map(|e| e.sigma_bytes).max().unwrap_or(0),
+        tuned.iter().map(|e| e.sizing.sigma_bytes).min().unwrap_or(0),
+        tuned.iter().map(|e| e.sizing.sigma_bytes).max().unwrap_or(0),
     );
     assert_eq!(status(&g.addr).pm_version, s.pm_version);
     g.terminate();

@@ -11,6 +11,7 @@ use axum::extract::{Query, State};
 use axum::http::{header, HeaderName};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
+use insitu_core::evaluate::Sizing;
 use serde::Deserialize;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
@@ -41,20 +42,19 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
                 "r": e.resolution,
                 "gamma": short(e.gamma),
                 "pm_version": e.pm_version,
-                "sigma_bytes": e.sigma_bytes,
-                "tau_s": e.tau_secs,
-                "supersegments": e.supersegments,
+                "sigma_bytes": e.sizing.sigma_bytes,
+                "tau_s": e.sizing.tau_secs,
+                "supersegments": e.sizing.supersegments,
                 "sampled": e.with_references || e.references.is_some(),
                 "quality": quality(&e.quality),
             })
         })
         .collect();
     let first = ranks.first();
-    let (sigma, tau, q) = match (composed, world) {
-        (Some(c), w) if w > 1 => (c.sigma_bytes, c.tau_secs, quality(&c.quality)),
+    let (sizing, q) = match (composed, world) {
+        (Some(c), w) if w > 1 => (c.sizing, quality(&c.quality)),
         _ => (
-            ranks.iter().map(|e| e.sigma_bytes).sum(),
-            ranks.iter().map(|e| e.tau_secs).fold(0.0, f64::max),
+            Sizing::of_ranks(ranks.iter().map(|e| &e.sizing)),
             first.and_then(|e| quality(&e.quality)),
         ),
     };
@@ -70,8 +70,8 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
         "r": first.map(|e| e.resolution),
         "gamma": first.map(|e| short(e.gamma)),
         "pm_version": first.map(|e| e.pm_version),
-        "sigma_bytes": sigma,
-        "tau_s": tau,
+        "sigma_bytes": sizing.sigma_bytes,
+        "tau_s": sizing.tau_secs,
         "quality": q,
         "sampled": ranks.iter().any(|e| e.with_references || e.references.is_some()),
     })
