@@ -163,7 +163,8 @@ pub fn compose_step(
                 problem: other.to_string(),
             },
         })?;
-    let codec: Codec = ready[0].codec.parse().unwrap_or(Codec::Zstd);
+    // A rank whose node did not name its codec: the composed file in zstd.
+    let codec = ready[0].codec.unwrap_or(Codec::Zstd);
     let file = codec::encode(&composed, codec).map_err(|e| StepError::Rank {
         step,
         rank: ready[0].rank,
@@ -210,7 +211,7 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
         resolution: first.map_or(0, |e| e.resolution),
         gamma: first.map_or(0.0, |e| e.gamma),
         pm_version: first.map_or(0, |e| e.pm_version),
-        codec: first.map_or_else(String::new, |e| e.codec.clone()),
+        codec: first.and_then(|e| e.codec),
         quality: None,
         error: None,
     }

@@ -95,7 +95,7 @@ pub fn step_report(s: &StepEntry) -> pb::QualityReport {
         rank: 0,
         resolution: s.resolution,
         gamma: s.gamma,
-        codec: s.codec.parse().map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
+        codec: s.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
         sigma_bytes: s.sizing.sigma_bytes,
         tau_secs: s.sizing.tau_secs,
         supersegments: s.sizing.supersegments,
@@ -119,7 +119,7 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         rank: e.rank,
         resolution: e.resolution,
         gamma: e.gamma,
-        codec: e.codec.parse().map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
+        codec: e.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
         sigma_bytes: e.sizing.sigma_bytes,
         tau_secs: e.sizing.tau_secs,
         supersegments: e.sizing.supersegments,
@@ -404,7 +404,7 @@ impl VizService {
                     h.resolution, h.gamma, p.resolution, p.gamma
                 )));
             }
-            let codec = codec_from_pb(h.codec)?.map_or_else(String::new, |c| c.name().to_owned());
+            let codec = codec_from_pb(h.codec)?;
             // Nodes that do not say (an empty string) measured τ on the wall clock.
             let tau_source = match h.tau_source.as_str() {
                 "" => TimeSource::WallClock,

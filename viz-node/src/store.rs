@@ -9,6 +9,7 @@
 use crate::index::{IndexDb, INDEX_DB};
 use insitu_core::evaluate::Sizing;
 pub use insitu_core::metrics::Db;
+use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Image};
 use serde::{Deserialize, Serialize};
@@ -93,8 +94,9 @@ pub struct Entry {
     pub resolution: u32,
     /// `γ`.
     pub gamma: f32,
-    /// Codec name.
-    pub codec: String,
+    /// The codec of the VDI file (`None`: the generator-node did not say; `""` in the JSON).
+    #[serde(with = "codec_name")]
+    pub codec: Option<Codec>,
     /// σ, τ (and its source) and the supersegments, as the generator-node reported them
     /// (flattened: their keys sit in the entry's JSON).
     #[serde(flatten)]
@@ -152,8 +154,9 @@ pub struct StepEntry {
     pub gamma: f32,
     /// P_M version.
     pub pm_version: u64,
-    /// Codec name of the ranks' files (the composed file uses it too).
-    pub codec: String,
+    /// Codec of the ranks' files (the composed file uses it too; as in [`Entry`]).
+    #[serde(with = "codec_name")]
+    pub codec: Option<Codec>,
     /// q of the composed VDI against the composed references.
     pub quality: Option<Quality>,
     /// Why it could not be composed.
@@ -172,7 +175,7 @@ impl Entry {
             references: None,
             resolution: 0,
             gamma: 0.0,
-            codec: String::new(),
+            codec: None,
             sizing: Sizing::default(),
             tf_name: String::new(),
             tf_hash: 0,
@@ -180,6 +183,25 @@ impl Entry {
             pm_version: 0,
             placement: None,
             with_references: false,
+        }
+    }
+}
+
+/// An entry's codec in JSON: its name, `""` for none (as the index held it when it was a
+/// string); an unknown name is an error that names it.
+mod codec_name {
+    use insitu_core::vdi::codec::Codec;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(codec: &Option<Codec>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(codec.map_or("", Codec::name))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Codec>, D::Error> {
+        let name = String::deserialize(d)?;
+        match name.as_str() {
+            "" => Ok(None),
+            name => name.parse().map(Some).map_err(serde::de::Error::custom),
         }
     }
 }
@@ -743,7 +765,7 @@ mod tests {
         Entry {
             resolution: 4,
             gamma: 0.5,
-            codec: "zstd".into(),
+            codec: Some(Codec::Zstd),
             ..Entry::empty(step, 0)
         }
     }
@@ -862,8 +884,9 @@ mod tests {
         assert!(!dir.path().join(LEGACY_INDEX).exists());
     }
 
-    /// Index rows written before the σ/τ record was shared read as they were: an entry
-    /// without a τ source (wall clock), a step without a compression time (0).
+    /// Index rows written before the σ/τ record was shared and the codec typed read as they
+    /// were: an entry without a τ source (wall clock), a step without a compression time (0),
+    /// a codec the node did not name (`""`).
     #[test]
     fn rows_written_before_the_shared_record_still_read() {
         let mut e = serde_json::to_value(Entry {
@@ -879,13 +902,23 @@ mod tests {
         .unwrap();
         assert_eq!(e["sigma_bytes"], 900);
         assert_eq!(e["tau_source"], "gpu-timestamps");
+        assert_eq!(e["codec"], "zstd");
         e.as_object_mut().unwrap().remove("tau_source");
-        let old: Entry = serde_json::from_value(e).unwrap();
+        let old: Entry = serde_json::from_value(e.clone()).unwrap();
         assert_eq!(old.sizing.tau_source, TimeSource::WallClock);
         assert_eq!(
             (old.sizing.sigma_bytes, old.sizing.tau_compress_secs),
             (900, 0.05)
         );
+        assert_eq!(old.codec, Some(Codec::Zstd));
+        // A codec the node did not name was stored as "".
+        e["codec"] = "".into();
+        let unnamed: Entry = serde_json::from_value(e.clone()).unwrap();
+        assert_eq!(unnamed.codec, None);
+        assert_eq!(serde_json::to_value(&unnamed).unwrap()["codec"], "");
+        e["codec"] = "lzma".into();
+        let err = serde_json::from_value::<Entry>(e).unwrap_err().to_string();
+        assert!(err.contains("lzma"), "{err}");
         let step = serde_json::json!({"step": 5, "world_size": 2, "ranks": [0, 1], "missing": [],
             "vdi": null, "references": null, "sigma_bytes": 1800, "tau_secs": 0.4,
             "supersegments": 30, "resolution": 4, "gamma": 0.5, "pm_version": 1,

@@ -55,8 +55,9 @@ pub const ZSTD_PART: usize = 8_000_000;
 const HEADER_LEN: usize = 32;
 const MAX_TF_NAME: usize = 1024;
 
-/// Compression applied to the payload.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// Compression applied to the payload. In files and JSON by its [`Codec::name`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Codec {
     /// Stored as is.
     None,

@@ -313,3 +313,15 @@ fn a_bad_part_table_is_refused() {
         );
     }
 }
+
+/// A codec in JSON is its name, the one `FromStr` reads.
+#[test]
+fn codecs_serialize_as_their_names() {
+    for codec in Codec::ALL {
+        let json = serde_json::to_value(codec).unwrap();
+        assert_eq!(json, codec.name());
+        assert_eq!(serde_json::from_value::<Codec>(json).unwrap(), codec);
+        assert_eq!(codec.name().parse::<Codec>().unwrap(), codec);
+    }
+    assert!(serde_json::from_str::<Codec>(r#""lzma""#).is_err());
+}

@@ -145,7 +145,7 @@ fn a_viz_node_killed_before_scoring_scores_on_restart_and_tidies_up() {
             world_size: 1,
             resolution: 24,
             gamma: 0.01,
-            codec: "zstd".into(),
+            codec: Some(Codec::Zstd),
             sizing: Sizing {
                 sigma_bytes: file.len() as u64,
                 ..Sizing::default()
