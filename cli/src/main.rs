@@ -69,8 +69,9 @@ fn main() -> std::process::ExitCode {
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err}");
-            for cause in err.chain().skip(1) {
+            let mut messages = insitu_proto::peer::error_messages(err.as_ref()).into_iter();
+            eprintln!("error: {}", messages.next().unwrap_or_default());
+            for cause in messages {
                 eprintln!("  caused by: {cause}");
             }
             std::process::ExitCode::FAILURE

@@ -24,5 +24,5 @@ pub mod tuning;
 pub mod work;
 
 pub use config::Config;
-pub use node::{start, RunningNode, Summary};
+pub use node::{start, RunningNode, StartError, Summary};
 pub use queue::Policy;

@@ -2,17 +2,20 @@
 //! together, with a graceful shutdown that drains what it can and says what it dropped.
 
 use crate::config::Config;
+use crate::config::ConfigError;
 use crate::queue::BoundedQueue;
 use crate::service::{GeneratorService, Shared};
 use crate::ship::Shipper;
+use crate::spool::SpoolError;
 use crate::stats::{Counters, Stats};
 use crate::work;
-use anyhow::Context;
+use insitu_core::backend::{BackendChoice, BackendError};
 use insitu_proto::health::Health;
 use insitu_proto::pb::generator_server::GeneratorServer;
-use insitu_proto::security::Security;
+use insitu_proto::security::{Security, SecurityError};
 use insitu_proto::transport;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 use tokio::sync::oneshot;
@@ -40,6 +43,65 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// Why a node did not start; each names the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The configuration.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The token, TLS files or a peer address.
+    #[error(transparent)]
+    Security(#[from] SecurityError),
+    /// The spool directory.
+    #[error("spool {}: {source}", dir.display())]
+    Spool {
+        /// The directory.
+        dir: PathBuf,
+        /// Why.
+        source: SpoolError,
+    },
+    /// The run configuration the spool recorded (`run.pb`) does not apply.
+    #[error("spool {}: run.pb: {problem}", dir.display())]
+    SpoolRun {
+        /// The spool directory.
+        dir: PathBuf,
+        /// Why.
+        problem: String,
+    },
+    /// The compute backend.
+    #[error("backend {choice}: {source}")]
+    Backend {
+        /// The choice configured.
+        choice: BackendChoice,
+        /// Why.
+        source: BackendError,
+    },
+    /// The backend's selection did not finish (it panicked).
+    #[error("backend {choice}: its selection did not finish: {source}")]
+    BackendTask {
+        /// The choice configured.
+        choice: BackendChoice,
+        /// Why.
+        source: tokio::task::JoinError,
+    },
+    /// The listening address.
+    #[error("cannot listen on {addr}: {source}")]
+    Listen {
+        /// The address configured.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The worker pool of `threads`.
+    #[error("threads = {threads}: cannot start the worker threads: {source}")]
+    Threads {
+        /// The count configured.
+        threads: usize,
+        /// Why.
+        source: rayon::ThreadPoolBuildError,
+    },
+}
+
 /// A started node.
 pub struct RunningNode {
     addr: SocketAddr,
@@ -56,17 +118,24 @@ pub struct RunningNode {
 /// Binds, then starts the server, the worker and (with a viz-node configured) the shipper.
 ///
 /// # Errors
-/// A bad config or token, a non-loopback address without a token, or a bind failure.
-pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
+/// [`StartError`]: a bad config, token, TLS file or spool, a non-loopback address without a
+/// token, no backend, or a bind failure.
+pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let mut generation = cfg.generation()?;
     let (spool, recovered) = match &cfg.spool {
         Some(sc) => {
             let (spool, steps) = crate::spool::Spool::open(&sc.dir, sc.durable, sc.max_bytes)
-                .with_context(|| format!("spool {}", sc.dir.display()))?;
+                .map_err(|source| StartError::Spool {
+                    dir: sc.dir.clone(),
+                    source,
+                })?;
             // The scene of the interrupted run, so that its steps and the next ones match.
             if let Some((version, run)) = spool.load_run() {
                 generation = crate::service::apply_config(&generation, &run).map_err(|e| {
-                    anyhow::anyhow!("spool {}: run.pb: {}", sc.dir.display(), e.message())
+                    StartError::SpoolRun {
+                        dir: sc.dir.clone(),
+                        problem: e.message().to_owned(),
+                    }
                 })?;
                 generation.pm_version = version;
                 info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
@@ -85,14 +154,16 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
     let viz = security.peer_for("viz", cfg.viz.as_deref())?;
     let tuner_peer = security.peer_for("tuner", cfg.tuner.as_deref())?;
     let choice = cfg.backend;
-    let backend = tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
-        .await?
-        .with_context(|| format!("backend {choice}"))?;
+    let backend = select_backend(choice).await?;
     info!("generating on {}", backend.describe());
+    let listen = |source| StartError::Listen {
+        addr: cfg.listen,
+        source,
+    };
     let listener = tokio::net::TcpListener::bind(cfg.listen)
         .await
-        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
-    let addr = listener.local_addr()?;
+        .map_err(listen)?;
+    let addr = listener.local_addr().map_err(listen)?;
     let stats = Arc::new(Stats::default());
     let (tuning, summaries) = match &cfg.tuner {
         Some(_) => {
@@ -127,7 +198,7 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
                     .num_threads(n)
                     .thread_name(|i| format!("generate-{i}"))
                     .build()
-                    .with_context(|| format!("threads = {n}: cannot start the worker threads"))?,
+                    .map_err(|source| StartError::Threads { threads: n, source })?,
             )),
         },
         scene: match (&viz, tf_configured) {
@@ -187,6 +258,14 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningNode> {
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
+}
+
+/// [`insitu_core::Backend::select`] off the runtime (a GPU's set-up blocks).
+async fn select_backend(choice: BackendChoice) -> Result<insitu_core::Backend, StartError> {
+    tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
+        .await
+        .map_err(|source| StartError::BackendTask { choice, source })?
+        .map_err(|source| StartError::Backend { choice, source })
 }
 
 /// Queues the steps an earlier run acknowledged and did not deliver, in the background (the
@@ -381,5 +460,63 @@ impl RunningNode {
             counters: self.shared.stats.get(),
             lost_at_shutdown: lost,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::SpoolConfig;
+
+    fn cpu() -> Config {
+        Config {
+            backend: BackendChoice::Cpu,
+            listen: SocketAddr::from(([127, 0, 0, 1], 0)),
+            ..Config::default()
+        }
+    }
+
+    /// A taken port and a spool that cannot be a directory each come back as their own
+    /// variant, naming the address or the directory once.
+    #[tokio::test]
+    async fn start_errors_name_the_input_at_fault() {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = taken.local_addr().unwrap();
+        let Err(err) = start(Config {
+            listen: addr,
+            ..cpu()
+        })
+        .await
+        else {
+            panic!("a taken port started");
+        };
+        assert!(
+            matches!(&err, StartError::Listen { addr: a, .. } if *a == addr),
+            "{err:?}"
+        );
+        let said = insitu_proto::peer::error_chain(&err);
+        assert_eq!(said.matches(&addr.to_string()).count(), 1, "{said}");
+        assert_eq!(said.matches("in use").count(), 1, "{said}");
+
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("not-a-dir");
+        std::fs::write(&file, b"x").unwrap();
+        let spool = SpoolConfig {
+            dir: file.clone(),
+            durable: false,
+            max_bytes: 1 << 20,
+        };
+        let Err(err) = start(Config {
+            spool: Some(spool),
+            ..cpu()
+        })
+        .await
+        else {
+            panic!("a file as spool started");
+        };
+        assert!(
+            matches!(&err, StartError::Spool { dir, .. } if *dir == file),
+            "{err:?}"
+        );
     }
 }

@@ -85,7 +85,7 @@ pub async fn run_main(
     match main.await {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", crate::peer::error_chain(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }

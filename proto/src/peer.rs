@@ -82,16 +82,29 @@ impl Peer {
 }
 
 /// `e` and its sources, joined by `: ` (tonic's transport errors say only "transport error"
-/// at the top; the cause, e.g. a refused certificate, is further down).
+/// at the top; the cause, e.g. a refused certificate, is further down), each said once
+/// ([`error_messages`]).
 pub fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
+    error_messages(e).join(": ")
+}
+
+/// The messages of `e` and its sources, top first, without the sources that the message
+/// before them already ends with: most of the workspace's errors say their cause inline
+/// (`"spool /x: permission denied"`) and also hand it on as their source, which a printer of
+/// the whole chain would otherwise say twice.
+pub fn error_messages(e: &dyn std::error::Error) -> Vec<String> {
+    let mut messages = vec![e.to_string()];
+    let mut last = e.to_string();
     let mut next = e.source();
     while let Some(cause) = next {
-        s.push_str(": ");
-        s.push_str(&cause.to_string());
+        let message = cause.to_string();
+        if !last.ends_with(&message) {
+            messages.push(message.clone());
+        }
+        last = message;
         next = cause.source();
     }
-    s
+    messages
 }
 
 /// Whether `authority` (`host:port`, possibly with a path) names a loopback host.
@@ -109,6 +122,34 @@ fn is_loopback_host(authority: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[derive(Debug, thiserror::Error)]
+    enum Outer {
+        #[error("spool /x: {source}")]
+        Inline { source: std::io::Error },
+        #[error("transport error")]
+        Apart { source: std::io::Error },
+        #[error("config: {source}")]
+        Nested { source: Box<Outer> },
+    }
+
+    /// A cause said inline is not said again; one said only as a source is.
+    #[test]
+    fn each_cause_is_said_once() {
+        let io = || std::io::Error::new(std::io::ErrorKind::PermissionDenied, "permission denied");
+        let inline = Outer::Inline { source: io() };
+        assert_eq!(error_messages(&inline), ["spool /x: permission denied"]);
+        assert_eq!(error_chain(&inline), "spool /x: permission denied");
+        let apart = Outer::Apart { source: io() };
+        assert_eq!(error_chain(&apart), "transport error: permission denied");
+        let nested = Outer::Nested {
+            source: Box::new(Outer::Apart { source: io() }),
+        };
+        assert_eq!(
+            error_messages(&nested),
+            ["config: transport error", "permission denied"]
+        );
+    }
 
     #[test]
     fn tokens_never_travel_in_clear_off_loopback() {

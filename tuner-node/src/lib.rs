@@ -22,4 +22,4 @@ pub mod state;
 mod tune;
 
 pub use config::Config;
-pub use node::{start, RunningTuner};
+pub use node::{start, RunningTuner, StartError};

@@ -2,16 +2,16 @@
 //! quality reports.
 
 use crate::config::Config;
+use crate::config::ConfigError;
 use crate::engine::{Engine, Event};
 use crate::service::TunerService;
-use crate::state::State;
-use anyhow::Context;
+use crate::state::{State, StateError};
 use insitu_proto::health::Health;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_server::TunerServer;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::{error_chain, Peer};
-use insitu_proto::security::Security;
+use insitu_proto::security::{Security, SecurityError};
 use insitu_tuner::live::Tracker;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -20,6 +20,28 @@ use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{info, warn};
+
+/// Why a tuner-node did not start; each names the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The configuration.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The token, TLS files or the viz-node's address.
+    #[error(transparent)]
+    Security(#[from] SecurityError),
+    /// The state directory (the errors name the file).
+    #[error(transparent)]
+    State(#[from] StateError),
+    /// The listening address.
+    #[error("cannot listen on {addr}: {source}")]
+    Listen {
+        /// The address configured.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+}
 
 /// A started tuner.
 pub struct RunningTuner {
@@ -34,9 +56,9 @@ pub struct RunningTuner {
 /// Loads (or starts) the state, binds, and serves.
 ///
 /// # Errors
-/// A bad config or token, a non-loopback address without a token, an unreadable state file,
-/// or a bind failure.
-pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
+/// [`StartError`]: a bad config, token or TLS file, a non-loopback address without a token,
+/// an unreadable or unwritable state file, or a bind failure.
+pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
     let resolved = cfg.resolve()?;
     let security = Security::load(
         cfg.listen,
@@ -61,15 +83,18 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningTuner> {
                 cfg.characteristic.threshold,
                 cfg.characteristic.max,
             ));
-            s.save(&cfg.state_dir)
-                .with_context(|| format!("state directory {}", cfg.state_dir.display()))?;
+            s.save(&cfg.state_dir)?;
             s
         }
     };
+    let listen = |source| StartError::Listen {
+        addr: cfg.listen,
+        source,
+    };
     let listener = tokio::net::TcpListener::bind(cfg.listen)
         .await
-        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
-    let addr = listener.local_addr()?;
+        .map_err(listen)?;
+    let addr = listener.local_addr().map_err(listen)?;
     let (engine, events) = Engine::new(cfg, resolved, state);
     let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
     if let Some(viz) = viz {

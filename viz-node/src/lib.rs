@@ -20,4 +20,4 @@ pub mod store;
 pub mod view;
 
 pub use config::Config;
-pub use node::{start, RunningViz};
+pub use node::{start, RunningViz, StartError};

@@ -1,17 +1,20 @@
 //! A running viz-node: the gRPC server and the scoring task.
 
 use crate::config::Config;
+use crate::config::ConfigError;
 use crate::decoded::Kept;
+use crate::http::tls::HttpsError;
 use crate::http::Http;
 use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
 use crate::store::Recording;
-use anyhow::Context;
+use crate::store::StoreError;
+use insitu_core::backend::{BackendChoice, BackendError};
 use insitu_core::Backend;
-use insitu_proto::auth::check_bind;
+use insitu_proto::auth::{check_bind, AuthError};
 use insitu_proto::health::Health;
 use insitu_proto::pb::viz_server::VizServer;
-use insitu_proto::security::Security;
+use insitu_proto::security::{Security, SecurityError};
 use insitu_proto::transport;
 use std::collections::HashSet;
 use std::net::SocketAddr;
@@ -23,6 +26,57 @@ use tokio::task::JoinHandle;
 use tokio_stream::wrappers::TcpListenerStream;
 use tonic::service::interceptor::InterceptedService;
 use tracing::info;
+
+/// Why a viz-node did not start; each names the input at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The configuration.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The token, TLS files or a peer address.
+    #[error(transparent)]
+    Security(#[from] SecurityError),
+    /// The recording directory, its index or its scene (the errors name the file).
+    #[error("recording: {0}")]
+    Recording(#[from] StoreError),
+    /// The compute backend.
+    #[error("backend {choice}: {source}")]
+    Backend {
+        /// The choice configured.
+        choice: BackendChoice,
+        /// Why.
+        source: BackendError,
+    },
+    /// The backend's selection did not finish (it panicked).
+    #[error("backend {choice}: its selection did not finish: {source}")]
+    BackendTask {
+        /// The choice configured.
+        choice: BackendChoice,
+        /// Why.
+        source: tokio::task::JoinError,
+    },
+    /// A listening address (`listen`, or `http_listen` for the web viewer).
+    #[error("cannot listen on {addr} ({key}): {source}")]
+    Listen {
+        /// The config key.
+        key: &'static str,
+        /// The address configured.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The web viewer's HTTPS configuration.
+    #[error("http_listen: {0}")]
+    Https(#[from] HttpsError),
+    /// The web viewer's address without the token or TLS it needs off loopback.
+    #[error("http_listen {addr}: {source}")]
+    HttpBind {
+        /// The address configured.
+        addr: SocketAddr,
+        /// Why.
+        source: AuthError,
+    },
+}
 
 /// A started viz-node.
 pub struct RunningViz {
@@ -46,9 +100,9 @@ struct HttpParts {
 /// Opens the recording, binds, and serves.
 ///
 /// # Errors
-/// A bad config or token, a non-loopback address without a token, a corrupt index, or a bind
-/// failure.
-pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
+/// [`StartError`]: a bad config, token or TLS file, a non-loopback address without a token,
+/// a corrupt index, no backend, or a bind failure.
+pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
     cfg.validate()?;
     let security = Security::load(
         cfg.listen,
@@ -63,13 +117,11 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     )?;
     let choice = cfg.backend;
     let backend = tokio::task::spawn_blocking(move || Backend::select(choice))
-        .await?
-        .with_context(|| format!("backend {choice}"))?;
-    tracing::info!("rendering on {}", backend.describe());
-    let listener = tokio::net::TcpListener::bind(cfg.listen)
         .await
-        .with_context(|| format!("cannot listen on {}", cfg.listen))?;
-    let addr = listener.local_addr()?;
+        .map_err(|source| StartError::BackendTask { choice, source })?
+        .map_err(|source| StartError::Backend { choice, source })?;
+    tracing::info!("rendering on {}", backend.describe());
+    let (listener, addr) = bind("listen", cfg.listen).await?;
     let recovery = recording.recover()?;
     let (to_score, score_rx) = mpsc::channel(cfg.score_queue);
     let shared = Arc::new(Shared {
@@ -126,13 +178,24 @@ pub async fn start(cfg: Config) -> anyhow::Result<RunningViz> {
     })
 }
 
+/// A listener on `addr` (config key `key`) and the address it got.
+async fn bind(
+    key: &'static str,
+    addr: SocketAddr,
+) -> Result<(tokio::net::TcpListener, SocketAddr), StartError> {
+    let listen = |source| StartError::Listen { key, addr, source };
+    let listener = tokio::net::TcpListener::bind(addr).await.map_err(listen)?;
+    let got = listener.local_addr().map_err(listen)?;
+    Ok((listener, got))
+}
+
 /// Binds and serves the web viewer ([`crate::http`]).
 async fn start_http(
     at: SocketAddr,
     cfg: &Config,
     security: &Security,
     shared: Arc<Shared>,
-) -> anyhow::Result<HttpParts> {
+) -> Result<HttpParts, StartError> {
     // HTTPS with the gRPC side's certificate when it has one; off loopback as for gRPC.
     let tls = cfg
         .tls
@@ -140,11 +203,8 @@ async fn start_http(
         .then(|| crate::http::tls::server_config(&cfg.tls))
         .transpose()?;
     check_bind(at, security.token(), tls.is_some(), cfg.insecure)
-        .with_context(|| format!("http_listen {at}"))?;
-    let listener = tokio::net::TcpListener::bind(at)
-        .await
-        .with_context(|| format!("cannot listen on {at} (http_listen)"))?;
-    let addr = listener.local_addr()?;
+        .map_err(|source| StartError::HttpBind { addr: at, source })?;
+    let (listener, addr) = bind("http_listen", at).await?;
     let http = Arc::new(Http::new(
         shared,
         security.token().cloned(),
@@ -245,5 +305,44 @@ impl RunningViz {
             // Open sockets keep a graceful shutdown waiting; the page reconnects to a new node.
             server.abort();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording directory that is a file, and a taken web-viewer port, come back as their
+    /// own variants, naming the path or the address and key.
+    #[tokio::test]
+    async fn start_errors_name_the_input_at_fault() {
+        let dir = tempfile::tempdir().unwrap();
+        let cpu = |recording_dir| Config {
+            backend: BackendChoice::Cpu,
+            listen: SocketAddr::from(([127, 0, 0, 1], 0)),
+            recording_dir,
+            ..Config::default()
+        };
+        let file = dir.path().join("not-a-dir");
+        std::fs::write(&file, b"x").unwrap();
+        let Err(err) = start(cpu(file.clone())).await else {
+            panic!("a file as recording started");
+        };
+        assert!(matches!(err, StartError::Recording(_)), "{err:?}");
+        assert!(err.to_string().contains("not-a-dir"), "{err}");
+
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = taken.local_addr().unwrap();
+        let cfg = Config {
+            http_listen: Some(addr),
+            ..cpu(dir.path().join("rec"))
+        };
+        let Err(err) = start(cfg).await else {
+            panic!("a taken port started");
+        };
+        assert!(
+            matches!(&err, StartError::Listen { key: "http_listen", addr: a, .. } if *a == addr),
+            "{err:?}"
+        );
     }
 }
