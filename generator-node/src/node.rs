@@ -1,12 +1,12 @@
 //! A running generator-node: the gRPC server, the generation worker and the shipper, wired
 //! together, with a graceful shutdown that drains what it can and says what it dropped.
 
-use crate::config::Config;
-use crate::config::ConfigError;
+use crate::config::{Config, ConfigError, Generation, SpoolConfig};
+use crate::ingest::RawStep;
 use crate::queue::BoundedQueue;
 use crate::service::{GeneratorService, Shared};
 use crate::ship::Shipper;
-use crate::spool::SpoolError;
+use crate::spool::{Spool, SpoolError};
 use crate::stats::{Counters, Stats};
 use crate::work;
 use insitu_core::backend::{BackendChoice, BackendError};
@@ -123,25 +123,7 @@ pub struct RunningNode {
 pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let mut generation = cfg.generation()?;
     let (spool, recovered) = match &cfg.spool {
-        Some(sc) => {
-            let (spool, steps) = crate::spool::Spool::open(&sc.dir, sc.durable, sc.max_bytes)
-                .map_err(|source| StartError::Spool {
-                    dir: sc.dir.clone(),
-                    source,
-                })?;
-            // The scene of the interrupted run, so that its steps and the next ones match.
-            if let Some((version, run)) = spool.load_run() {
-                generation = crate::service::apply_config(&generation, &run).map_err(|e| {
-                    StartError::SpoolRun {
-                        dir: sc.dir.clone(),
-                        problem: e.message().to_owned(),
-                    }
-                })?;
-                generation.pm_version = version;
-                info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
-            }
-            (Some(Arc::new(spool)), steps)
-        }
+        Some(sc) => open_spool(sc, &mut generation)?,
         None => (None, Vec::new()),
     };
     let tf_configured = generation.tf.is_some();
@@ -191,16 +173,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         spool,
         epoch: new_epoch(),
         spare_field: Mutex::new(None),
-        pool: match cfg.threads {
-            0 => None,
-            n => Some(Arc::new(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .thread_name(|i| format!("generate-{i}"))
-                    .build()
-                    .map_err(|source| StartError::Threads { threads: n, source })?,
-            )),
-        },
+        pool: worker_pool(cfg.threads)?,
         scene: match (&viz, tf_configured) {
             (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
                 viz.clone(),
@@ -260,6 +233,43 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     })
 }
 
+/// The spool in `sc.dir` and the steps it holds; where it recorded the run's configuration
+/// (`run.pb`), that configuration applied to `generation`, so that the interrupted run's steps
+/// and the next ones share a scene.
+fn open_spool(
+    sc: &SpoolConfig,
+    generation: &mut Generation,
+) -> Result<(Option<Arc<Spool>>, Vec<RawStep>), StartError> {
+    let (spool, steps) =
+        Spool::open(&sc.dir, sc.durable, sc.max_bytes).map_err(|source| StartError::Spool {
+            dir: sc.dir.clone(),
+            source,
+        })?;
+    if let Some((version, run)) = spool.load_run() {
+        *generation =
+            crate::service::apply_config(generation, &run).map_err(|e| StartError::SpoolRun {
+                dir: sc.dir.clone(),
+                problem: e.message().to_owned(),
+            })?;
+        generation.pm_version = version;
+        info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
+    }
+    Ok((Some(Arc::new(spool)), steps))
+}
+
+/// The worker pool of `threads` (0: none of its own, rayon's global pool, one per core).
+fn worker_pool(threads: usize) -> Result<Option<Arc<rayon::ThreadPool>>, StartError> {
+    if threads == 0 {
+        return Ok(None);
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("generate-{i}"))
+        .build()
+        .map(|pool| Some(Arc::new(pool)))
+        .map_err(|source| StartError::Threads { threads, source })
+}
+
 /// [`insitu_core::Backend::select`] off the runtime (a GPU's set-up blocks).
 async fn select_backend(choice: BackendChoice) -> Result<insitu_core::Backend, StartError> {
     tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
@@ -270,7 +280,7 @@ async fn select_backend(choice: BackendChoice) -> Result<insitu_core::Backend, S
 
 /// Queues the steps an earlier run acknowledged and did not deliver, in the background (the
 /// queue is bounded, so this waits for the worker like any push), ahead of new pushes.
-fn requeue(shared: &Arc<Shared>, recovered: Vec<crate::ingest::RawStep>) {
+fn requeue(shared: &Arc<Shared>, recovered: Vec<RawStep>) {
     if recovered.is_empty() {
         return;
     }
@@ -466,7 +476,6 @@ impl RunningNode {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::SpoolConfig;
 
     fn cpu() -> Config {
         Config {
