@@ -182,26 +182,18 @@ impl Sizing {
     /// the slowest rank (the step is done when its last rank is), the first rank's τ source.
     /// All zero for no ranks.
     pub fn of_ranks<'a>(ranks: impl IntoIterator<Item = &'a Sizing>) -> Sizing {
-        let mut ranks = ranks.into_iter().peekable();
-        let tau_source = ranks.peek().map(|s| s.tau_source).unwrap_or_default();
-        ranks.fold(
-            Sizing {
-                tau_source,
-                ..Sizing::default()
-            },
-            |acc, s| Sizing {
-                sigma_bytes: acc.sigma_bytes.saturating_add(s.sigma_bytes),
-                supersegments: acc.supersegments.saturating_add(s.supersegments),
-                tau_secs: acc.tau_secs.max(s.tau_secs),
-                tau_source,
-                tau_compress_secs: acc.tau_compress_secs.max(s.tau_compress_secs),
-            },
-        )
+        Self::fold(ranks, u64::saturating_add)
     }
 
     /// The worst case of several (the same candidate on several steps): each field's largest,
     /// the first one's τ source. All zero for none.
     pub fn worst<'a>(all: impl IntoIterator<Item = &'a Sizing>) -> Sizing {
+        Self::fold(all, u64::max)
+    }
+
+    /// `all` folded into one: σ and the supersegments by `sizes`, the times by their largest,
+    /// the first one's τ source.
+    fn fold<'a>(all: impl IntoIterator<Item = &'a Sizing>, sizes: fn(u64, u64) -> u64) -> Sizing {
         let mut all = all.into_iter().peekable();
         let tau_source = all.peek().map(|s| s.tau_source).unwrap_or_default();
         all.fold(
@@ -210,8 +202,8 @@ impl Sizing {
                 ..Sizing::default()
             },
             |acc, s| Sizing {
-                sigma_bytes: acc.sigma_bytes.max(s.sigma_bytes),
-                supersegments: acc.supersegments.max(s.supersegments),
+                sigma_bytes: sizes(acc.sigma_bytes, s.sigma_bytes),
+                supersegments: sizes(acc.supersegments, s.supersegments),
                 tau_secs: acc.tau_secs.max(s.tau_secs),
                 tau_source,
                 tau_compress_secs: acc.tau_compress_secs.max(s.tau_compress_secs),
