@@ -359,45 +359,13 @@ async fn worker(shared: Arc<Shared>) {
                 if let Some(t) = &shared.tuning {
                     t.after_step(for_tuner);
                 }
-                let first_tf = {
-                    let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
-                    let first = g.tf.is_none();
-                    if first {
-                        if shared.scene.is_none() && raw_world_size > 1 {
-                            warn!(tf = %tf.1, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
-                        } else {
-                            info!(tf = %tf.1, "using the transfer function for the rest of the run");
-                        }
-                        g.tf = Some(tf);
-                    }
-                    first
-                };
-                if first_tf {
-                    shared.save_run();
-                }
+                keep_tf(&shared, tf, raw_world_size);
                 shared.stats.update(|c| c.generated += 1);
                 if !shared.shipping {
                     shared.unspool(spooled.as_ref());
                     continue;
                 }
-                let n = product.bytes();
-                match shared.outbox.push(product, n).await {
-                    Ok(dropped) if !dropped.is_empty() => {
-                        for d in &dropped {
-                            info!(
-                                step = d.vdi_header.step,
-                                rank = d.vdi_header.rank,
-                                "dropped an unshipped VDI (outbox full)"
-                            );
-                            shared.unspool(d.spool.as_ref());
-                        }
-                        shared
-                            .stats
-                            .update(|c| c.dropped_outbox += dropped.len() as u64);
-                    }
-                    Ok(_) => {}
-                    Err(_) => shared.stats.update(|c| c.dropped_outbox += 1),
-                }
+                to_outbox(&shared, product).await;
             }
             Ok(Err(e)) => {
                 error!(step, rank, error = %e, "generation failed");
@@ -410,6 +378,47 @@ async fn worker(shared: Arc<Shared>) {
                 shared.stats.update(|c| c.failed += 1);
             }
         }
+    }
+}
+
+/// The first step's transfer function kept for the rest of the run (and recorded in the
+/// spool's `run.pb`); later steps' are the same one, so nothing changes.
+fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_size: u32) {
+    {
+        let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
+        if g.tf.is_some() {
+            return;
+        }
+        if shared.scene.is_none() && world_size > 1 {
+            warn!(tf = %tf.1, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
+        } else {
+            info!(tf = %tf.1, "using the transfer function for the rest of the run");
+        }
+        g.tf = Some(tf);
+    }
+    shared.save_run();
+}
+
+/// `product` into the outbox for the shipper; what the outbox's policy drops to make room is
+/// logged, counted and taken out of the spool.
+async fn to_outbox(shared: &Shared, product: work::Product) {
+    let n = product.bytes();
+    match shared.outbox.push(product, n).await {
+        Ok(dropped) if !dropped.is_empty() => {
+            for d in &dropped {
+                info!(
+                    step = d.vdi_header.step,
+                    rank = d.vdi_header.rank,
+                    "dropped an unshipped VDI (outbox full)"
+                );
+                shared.unspool(d.spool.as_ref());
+            }
+            shared
+                .stats
+                .update(|c| c.dropped_outbox += dropped.len() as u64);
+        }
+        Ok(_) => {}
+        Err(_) => shared.stats.update(|c| c.dropped_outbox += 1),
     }
 }
 
