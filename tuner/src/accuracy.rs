@@ -168,6 +168,17 @@ fn study_of<'a>(s: &Sweep<'a>, rc: &'a Raycaster<'a>) -> Result<Study<'a>, Accur
 /// # Errors
 /// [`AccuracyError`] for bad base parameters or a failed measurement.
 pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
+    let mut rows = dvr_rows(s)?;
+    let rc = Raycaster::new(s.volume, s.tf, s.base)?;
+    rows.extend(vdi_rows_of_knobs(s, &rc)?);
+    rows.extend(codec_rows(s, &rc)?);
+    Ok(rows)
+}
+
+/// The direct rendering's knobs: the step and early termination against a reference of a
+/// quarter step without termination, empty-space skipping against the base rendering, and
+/// shading (an effect, so no q).
+fn dvr_rows(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
     let mut rows = Vec::new();
     let truth_params = RaycastParams {
         step: s.base.step / 4.0,
@@ -229,15 +240,19 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
             None,
         )?);
     }
-    let rc = Raycaster::new(s.volume, s.tf, s.base)?;
-    let mut study = study_of(s, &rc)?;
+    Ok(rows)
+}
+
+/// The VDI's knobs, each around the base P_M: r, γ and generation's early termination.
+fn vdi_rows_of_knobs(s: &Sweep, rc: &Raycaster) -> Result<Vec<AccuracyRow>, AccuracyError> {
+    let mut study = study_of(s, rc)?;
     let pm = s.base_pm;
     let rs: Vec<(String, Candidate)> = [pm.r / 2, pm.r, pm.r * 2]
         .into_iter()
         .filter(|&r| r >= 1)
         .map(|r| (format!("{r}"), Candidate { r, ..pm }))
         .collect();
-    rows.extend(vdi_rows(&mut study, "VDI resolution r", &rs)?);
+    let mut rows = vdi_rows(&mut study, "VDI resolution r", &rs)?;
     let gammas: Vec<(String, Candidate)> = [0.001f32, 0.013, 0.05, 0.13, 0.26]
         .into_iter()
         .map(|gamma| (format!("{gamma}"), Candidate { gamma, ..pm }))
@@ -258,14 +273,21 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
             &[(value, pm)],
         )?);
     }
-    // The codec is lossless: one VDI at the base P_M, encoded by each codec.
+    Ok(rows)
+}
+
+/// The codecs (lossless): one VDI at the base P_M, encoded by each; σ and the compression
+/// time.
+fn codec_rows(s: &Sweep, rc: &Raycaster) -> Result<Vec<AccuracyRow>, AccuracyError> {
+    let pm = s.base_pm;
+    let mut rows = Vec::new();
     let params = VdiParams {
         resolution: pm.r,
         gamma: pm.gamma,
     };
     let vdi = s
         .backend
-        .prepare(&rc)?
+        .prepare(rc)?
         .generate(&s.camera, params, s.tf.identity_hash(), s.tf_name)
         .map_err(EvalError::from)?
         .value;
