@@ -9,8 +9,11 @@ use crate::scene::Scene;
 use anyhow::{bail, Context, Result};
 use insitu_core::volume::RawFormat;
 use insitu_core::TransferFunction;
-use insitu_tuner::series::{characteristic_steps, conservative, cross_table, distance, histograms};
+use insitu_tuner::series::{
+    characteristic_steps, conservative, cross_table, distance, histograms, Cross,
+};
 use insitu_tuner::utility::{best, bytes_text, parse_utility};
+use insitu_tuner::Candidate;
 use std::path::Path;
 
 #[derive(clap::Args, Debug)]
@@ -77,30 +80,12 @@ pub fn run(a: Args) -> Result<()> {
     let chosen = characteristic_steps(&hists, a.threshold, a.max_steps);
     let mut per_step = Vec::with_capacity(chosen.len());
     for &t in &chosen {
-        let p = Prepared {
-            scene: Scene {
-                volume: scenes[t].volume.clone(),
-                tf: scenes[t].tf.clone(),
-                tf_name: scenes[t].tf_name.clone(),
-                volume_name: format!("{} t={t}", scenes[t].volume_name),
-                params: scenes[t].params,
-            },
-            grid: base.grid.clone(),
-            views: base.views.clone(),
-            size: base.size,
-            codec: base.codec,
-            backend: base.backend.clone(),
-        };
-        let rc = p.raycaster()?;
-        let mut study = a.study.study(&p, &rc)?;
-        per_step.push(run_grid(&mut study, &p.grid)?);
+        per_step.push(study_step(&a, &base, &scenes[t], t)?);
     }
     let optima: Vec<_> = per_step
         .iter()
         .map(|rows| best(rows, utility.as_ref()).map(|(m, _)| m.clone()))
         .collect();
-    let cons = conservative(&per_step, utility.as_ref());
-    let table = cross_table(&per_step, utility.as_ref());
     let nearest: Vec<(usize, f64)> = (0..scenes.len())
         .map(|i| {
             chosen
@@ -110,38 +95,103 @@ pub fn run(a: Args) -> Result<()> {
                 .unwrap_or((0, 0.0))
         })
         .collect();
+    let outcome = Outcome {
+        steps: scenes.len(),
+        utility: utility.describe(),
+        conservative: conservative(&per_step, utility.as_ref()).map(|(c, _)| c),
+        cross: cross_table(&per_step, utility.as_ref()),
+        chosen,
+        nearest,
+        optima,
+    };
     if a.json {
-        let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.sizing.tau_secs});
-        println!(
-            "{}",
-            serde_json::json!({
-                "utility": utility.describe(),
-                "characteristic_steps": chosen,
-                "nearest": nearest.iter().map(|(c, d)| serde_json::json!({"step": c, "distance": d})).collect::<Vec<_>>(),
-                "optima": optima.iter().map(|o| o.as_ref().map(m)).collect::<Vec<_>>(),
-                "conservative": cons.map(|(c, _)| serde_json::json!({"r": c.r, "gamma": c.gamma})),
-                "cross": table.iter().map(|x| serde_json::json!({
-                    "tuned_on": chosen[x.tuned_on], "evaluated_on": chosen[x.evaluated_on],
-                    "measurement": x.on_b.as_ref().map(m), "holds": x.holds,
-                })).collect::<Vec<_>>(),
-            })
-        );
-        return Ok(());
+        print_json(&outcome);
+    } else {
+        print_text(&a, &outcome);
     }
-    println!("{} steps; {}", scenes.len(), utility.describe());
+    Ok(())
+}
+
+/// What a series' tuning found.
+struct Outcome {
+    /// Time steps in the series.
+    steps: usize,
+    /// The utility, described.
+    utility: String,
+    /// The characteristic steps.
+    chosen: Vec<usize>,
+    /// Per step of the series: the nearest characteristic step and its histogram distance.
+    nearest: Vec<(usize, f64)>,
+    /// Per characteristic step: its best measurement, if any is feasible.
+    optima: Vec<Option<insitu_tuner::Measurement>>,
+    /// The P_M that meets the constraint on every characteristic step, with the best worst case.
+    conservative: Option<Candidate>,
+    /// Each step's optimum measured on each other step.
+    cross: Vec<Cross>,
+}
+
+/// The grid's measurements on step `t` of the series.
+fn study_step(
+    a: &Args,
+    base: &Prepared,
+    step: &Scene,
+    t: usize,
+) -> Result<Vec<insitu_tuner::Measurement>> {
+    let p = Prepared {
+        scene: Scene {
+            volume: step.volume.clone(),
+            tf: step.tf.clone(),
+            tf_name: step.tf_name.clone(),
+            volume_name: format!("{} t={t}", step.volume_name),
+            params: step.params,
+        },
+        grid: base.grid.clone(),
+        views: base.views.clone(),
+        size: base.size,
+        codec: base.codec,
+        backend: base.backend.clone(),
+    };
+    let rc = p.raycaster()?;
+    let mut study = a.study.study(&p, &rc)?;
+    run_grid(&mut study, &p.grid)
+}
+
+/// [`Outcome`] as one JSON object.
+fn print_json(o: &Outcome) {
+    let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.sizing.tau_secs});
     println!(
-        "characteristic steps {chosen:?} (threshold {}, max {}); each step's nearest: {}",
+        "{}",
+        serde_json::json!({
+            "utility": o.utility,
+            "characteristic_steps": o.chosen,
+            "nearest": o.nearest.iter().map(|(c, d)| serde_json::json!({"step": c, "distance": d})).collect::<Vec<_>>(),
+            "optima": o.optima.iter().map(|x| x.as_ref().map(m)).collect::<Vec<_>>(),
+            "conservative": o.conservative.map(|c| serde_json::json!({"r": c.r, "gamma": c.gamma})),
+            "cross": o.cross.iter().map(|x| serde_json::json!({
+                "tuned_on": o.chosen[x.tuned_on], "evaluated_on": o.chosen[x.evaluated_on],
+                "measurement": x.on_b.as_ref().map(m), "holds": x.holds,
+            })).collect::<Vec<_>>(),
+        })
+    );
+}
+
+/// [`Outcome`] as text: the steps, each optimum, the conservative P_M, the cross table.
+fn print_text(a: &Args, o: &Outcome) {
+    println!("{} steps; {}", o.steps, o.utility);
+    println!(
+        "characteristic steps {:?} (threshold {}, max {}); each step's nearest: {}",
+        o.chosen,
         a.threshold,
         a.max_steps,
-        nearest
+        o.nearest
             .iter()
             .enumerate()
             .map(|(i, (c, d))| format!("{i}→{c} ({d:.3})"))
             .collect::<Vec<_>>()
             .join(", ")
     );
-    for (t, o) in chosen.iter().zip(&optima) {
-        match o {
+    for (t, optimum) in o.chosen.iter().zip(&o.optima) {
+        match optimum {
             Some(m) => println!(
                 "  step {t:>3}: best r = {}, γ = {}: σ {}, q {} dB, τ {:.3} s",
                 m.r,
@@ -153,8 +203,8 @@ pub fn run(a: Args) -> Result<()> {
             None => println!("  step {t:>3}: infeasible"),
         }
     }
-    match cons {
-        Some((c, _)) => println!("conservative P_M (meets the constraint on every characteristic step, best worst case): r = {}, γ = {}", c.r, c.gamma),
+    match o.conservative {
+        Some(c) => println!("conservative P_M (meets the constraint on every characteristic step, best worst case): r = {}, γ = {}", c.r, c.gamma),
         None => println!("no P_M of the grid meets the constraint on every characteristic step"),
     }
     println!("cross-evaluation (P_M tuned on A, measured on B):");
@@ -162,8 +212,8 @@ pub fn run(a: Args) -> Result<()> {
         "{:>6} {:>6} | {:>5} {:>6} | {:>10} {:>8} {:>8} | holds",
         "A", "B", "r", "gamma", "sigma", "q dB", "tau s"
     );
-    for x in &table {
-        let (a_step, b_step) = (chosen[x.tuned_on], chosen[x.evaluated_on]);
+    for x in &o.cross {
+        let (a_step, b_step) = (o.chosen[x.tuned_on], o.chosen[x.evaluated_on]);
         match &x.on_b {
             Some(m) => println!(
                 "{a_step:>6} {b_step:>6} | {:>5} {:>6.3} | {:>10} {:>8} {:>8.3} | {}",
@@ -177,5 +227,4 @@ pub fn run(a: Args) -> Result<()> {
             None => println!("{a_step:>6} {b_step:>6} | (A infeasible)"),
         }
     }
-    Ok(())
 }
