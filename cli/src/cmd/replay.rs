@@ -134,27 +134,8 @@ fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> R
 
 async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
     let started = Instant::now();
-    let load = |t: usize| format.load(&a.series, t, glam::Vec3::ONE);
-    let first = load(0)?;
-    let (tf, tf_name) = match &a.tf {
-        Some(p) => (
-            TransferFunction::load(p)?,
-            p.file_name()
-                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-        ),
-        None => TransferFunction::default_for_volume(&first),
-    };
-    let config = pb::GenerationConfig {
-        resolution: a.pipeline.pm.r,
-        gamma: a.pipeline.pm.gamma,
-        codec: codec_to_pb(a.pipeline.codec(DEFAULTS)) as i32,
-        tf_json: Some(serde_json::to_string(&tf)?),
-        tf_name: Some(tf_name),
-        reference_every: Some(
-            u32::try_from(a.sample_every).context("--sample-every is too large")?,
-        ),
-        ..Default::default()
-    };
+    let first = format.load(&a.series, 0, glam::Vec3::ONE)?;
+    let config = scene_config(&a, &first)?;
     let local = match &a.generator {
         Some(_) => None,
         None => Some(LocalNodes::start(&a.pipeline, DEFAULTS, |_| {}).await?),
@@ -194,6 +175,51 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
     } else {
         println!("{line}");
     }
+    let pushed = push_series(&a, &format, &bricks, first, &mut client, local.is_none()).await?;
+    let status = client.close(Duration::from_secs(600)).await?;
+    match (local, printer) {
+        (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
+        _ => print_flushed(a.pipeline.json, pushed, &status),
+    }
+    Ok(())
+}
+
+/// The generator-node's configuration for the series: `--tf` (else the default ramp over the
+/// first step's range, which all ranks then share), P_M, codec and the reference frames' period.
+fn scene_config(a: &Args, first: &Volume) -> Result<pb::GenerationConfig> {
+    let (tf, tf_name) = match &a.tf {
+        Some(p) => (
+            TransferFunction::load(p)?,
+            p.file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        ),
+        None => TransferFunction::default_for_volume(first),
+    };
+    Ok(pb::GenerationConfig {
+        resolution: a.pipeline.pm.r,
+        gamma: a.pipeline.pm.gamma,
+        codec: codec_to_pb(a.pipeline.codec(DEFAULTS)) as i32,
+        tf_json: Some(serde_json::to_string(&tf)?),
+        tf_name: Some(tf_name),
+        reference_every: Some(
+            u32::try_from(a.sample_every).context("--sample-every is too large")?,
+        ),
+        ..Default::default()
+    })
+}
+
+/// Pushes the series' steps (each split into `bricks`, one rank each), paced by
+/// `--step-interval`; with `report` (no local nodes to report on the VDIs), says each push's
+/// reply. Returns the pushes made.
+async fn push_series(
+    a: &Args,
+    format: &RawFormat,
+    bricks: &[Brick],
+    first: Volume,
+    client: &mut SimClient,
+    report: bool,
+) -> Result<u64> {
+    let world_size = bricks.len() as u32;
     let mut pushed = 0;
     let mut next = Instant::now();
     for t in 0..a.steps.unwrap_or(format.steps).min(format.steps) {
@@ -201,18 +227,22 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
             tokio::time::sleep_until(next.into()).await;
             next += Duration::from_secs_f64(secs);
         }
-        let v = if t == 0 { first.clone() } else { load(t)? };
+        let v = if t == 0 {
+            first.clone()
+        } else {
+            format.load(&a.series, t, glam::Vec3::ONE)?
+        };
         for (rank, b) in bricks.iter().enumerate() {
             let reply = client
                 .push_step(brick_step(&v, t as u64, b, rank as u32, world_size)?)
                 .await?;
             pushed += 1;
-            if local.is_none() && a.pipeline.json {
+            if report && a.pipeline.json {
                 println!(
                     "{}",
                     serde_json::json!({"pushed": {"step": t, "rank": rank, "queue": reply.queue_depth, "dropped_by_push": reply.dropped_by_push}})
                 );
-            } else if local.is_none() {
+            } else if report {
                 println!(
                     "pushed step {t} rank {rank}: queue {}, dropped by this push {}",
                     reply.queue_depth, reply.dropped_by_push
@@ -220,26 +250,29 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
             }
         }
     }
-    let status = client.close(Duration::from_secs(600)).await?;
-    match (local, printer) {
-        (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
-        _ if a.pipeline.json => println!(
+    Ok(pushed)
+}
+
+/// The generator-node's counts after the last push, as JSON or text.
+fn print_flushed(json: bool, pushed: u64, status: &pb::GeneratorStatus) {
+    if json {
+        println!(
             "{}",
-            serde_json::json!({ "summary": crate::pipeline::counts_json(pushed, &status) })
-        ),
-        _ => println!(
-            "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}; P_M version {}",
-            status.steps_received,
-            status.steps_generated,
-            status.steps_shipped,
-            status.dropped_queue + status.dropped_outbox,
-            status.dropped_queue,
-            status.dropped_outbox,
-            status.failed,
-            status.pm_version
-        ),
+            serde_json::json!({ "summary": crate::pipeline::counts_json(pushed, status) })
+        );
+        return;
     }
-    Ok(())
+    println!(
+        "flushed: received {}, generated {}, shipped {}, dropped {} (queue {}, outbox {}), failed {}; P_M version {}",
+        status.steps_received,
+        status.steps_generated,
+        status.steps_shipped,
+        status.dropped_queue + status.dropped_outbox,
+        status.dropped_queue,
+        status.dropped_outbox,
+        status.failed,
+        status.pm_version
+    );
 }
 
 #[cfg(test)]
