@@ -3,7 +3,7 @@
 use crate::decoded::{read_vdi, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
-use crate::store::{Entry, Placement, Recording, References, StepEntry, StoreError};
+use crate::store::{Entry, Placement, Quality, Recording, References, StepEntry, StoreError};
 use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, DecodeLimits};
@@ -89,49 +89,48 @@ pub enum Job {
 
 /// The report for a composed step (rank 0, `composed`).
 pub fn step_report(s: &StepEntry) -> pb::QualityReport {
-    let q = s.quality.as_ref();
     pb::QualityReport {
         step: s.step,
         rank: 0,
         resolution: s.resolution,
         gamma: s.gamma,
         codec: s.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
-        sigma_bytes: s.sizing.sigma_bytes,
-        tau_secs: s.sizing.tau_secs,
-        supersegments: s.sizing.supersegments,
-        q_db: q.map(|q| q.q_db.0),
-        view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
-        ssim: q.and_then(|q| q.ssim),
         path: s.vdi.clone().unwrap_or_default(),
         pm_version: s.pm_version,
         world_size: s.world_size,
         composed: true,
         missing_ranks: s.missing.clone(),
         error: s.error.clone().unwrap_or_default(),
+        ..measured(&s.sizing, s.quality.as_ref())
     }
 }
 
 /// The report for an entry.
 pub fn report(e: &Entry) -> pb::QualityReport {
-    let q = e.quality.as_ref();
     pb::QualityReport {
         step: e.step,
         rank: e.rank,
         resolution: e.resolution,
         gamma: e.gamma,
         codec: e.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
-        sigma_bytes: e.sizing.sigma_bytes,
-        tau_secs: e.sizing.tau_secs,
-        supersegments: e.sizing.supersegments,
-        q_db: q.map(|q| q.q_db.0),
-        view_q_db: q.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
-        ssim: q.and_then(|q| q.ssim),
         path: e.vdi.clone().unwrap_or_default(),
         pm_version: e.pm_version,
         world_size: e.world_size,
-        composed: false,
-        missing_ranks: vec![],
-        error: String::new(),
+        ..measured(&e.sizing, e.quality.as_ref())
+    }
+}
+
+/// A report's measured part, σ, τ and the supersegments, and q and SSIM where scored; the
+/// other fields empty.
+fn measured(sizing: &Sizing, quality: Option<&Quality>) -> pb::QualityReport {
+    pb::QualityReport {
+        sigma_bytes: sizing.sigma_bytes,
+        tau_secs: sizing.tau_secs,
+        supersegments: sizing.supersegments,
+        q_db: quality.map(|q| q.q_db.0),
+        view_q_db: quality.map_or_else(Vec::new, |q| q.view_q_db.iter().map(|d| d.0).collect()),
+        ssim: quality.and_then(|q| q.ssim),
+        ..Default::default()
     }
 }
 
