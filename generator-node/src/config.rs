@@ -8,8 +8,8 @@ use insitu_core::raycast::{
 use insitu_core::vdi::codec::Codec;
 use insitu_core::BackendChoice;
 use insitu_core::{Camera, TransferFunction, VdiParams};
-use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::daemon::{load_toml, DaemonConfig};
 use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
@@ -254,6 +254,15 @@ fn invalid(key: &'static str, problem: impl Into<String>) -> ConfigError {
     ConfigError::Invalid {
         key,
         problem: problem.into(),
+    }
+}
+
+impl DaemonConfig for Config {
+    fn listen_mut(&mut self) -> &mut SocketAddr {
+        &mut self.listen
+    }
+    fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
+        &mut self.token_file
     }
 }
 

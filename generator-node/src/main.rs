@@ -4,32 +4,25 @@
 use anyhow::Result;
 use clap::Parser;
 use insitu_generator_node::{start, Config, Policy};
-use insitu_proto::daemon::{run_main, shutdown_signal};
-use std::net::SocketAddr;
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
 #[command(
     name = "generator-node",
     version,
-    about = "Makes VDIs beside a simulation and ships them to a viz-node"
+    about = "Makes VDIs beside a simulation and ships them to a viz-node",
+    after_help = "Every config key is documented in deploy/generator-node.toml."
 )]
 struct Args {
-    /// TOML config file (every key is documented in deploy/generator-node.toml).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
-    #[arg(long)]
-    listen: Option<SocketAddr>,
+    #[command(flatten)]
+    common: CommonArgs,
     /// The viz-node, host:port.
     #[arg(long)]
     viz: Option<String>,
     /// The tuner service, host:port (the node dials out to it).
     #[arg(long)]
     tuner: Option<String>,
-    /// File holding the bearer token (else INSITU_TOKEN).
-    #[arg(long)]
-    token_file: Option<PathBuf>,
     /// Input queue policy: block, drop-oldest or latest-only.
     #[arg(long)]
     policy: Option<Policy>,
@@ -64,18 +57,9 @@ struct Args {
 }
 
 fn config(a: Args) -> Result<Config> {
-    let mut c = match &a.config {
-        Some(p) => Config::load(p)?,
-        None => Config::default(),
-    };
-    if let Some(v) = a.listen {
-        c.listen = v;
-    }
+    let mut c: Config = a.common.config()?;
     if a.viz.is_some() {
         c.viz = a.viz;
-    }
-    if a.token_file.is_some() {
-        c.token_file = a.token_file;
     }
     if a.tuner.is_some() {
         c.tuner = a.tuner;

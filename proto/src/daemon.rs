@@ -1,7 +1,9 @@
-//! What both daemons do the same way (feature `daemon`): logging to stderr, waiting for
-//! SIGINT/SIGTERM, and reading a TOML config file with errors that name the file.
+//! What the daemons do the same way (feature `daemon`): logging to stderr, waiting for
+//! SIGINT/SIGTERM, reading a TOML config file with errors that name the file, and the flags
+//! they all take ([`CommonArgs`]).
 
 use serde::de::DeserializeOwned;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
 /// Errors loading a configuration; each names the file or key.
@@ -46,6 +48,50 @@ pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
         path: path.to_owned(),
         source,
     })
+}
+
+/// The flags every daemon takes, flattened into its own (`#[command(flatten)]`).
+#[derive(clap::Args, Debug)]
+pub struct CommonArgs {
+    /// TOML config file (where its keys are documented: see the end of this help).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
+    #[arg(long)]
+    pub listen: Option<SocketAddr>,
+    /// File holding the bearer token (else INSITU_TOKEN).
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+}
+
+/// A daemon's configuration, as far as [`CommonArgs`] sets it.
+pub trait DaemonConfig: Default + DeserializeOwned {
+    /// The address to serve on.
+    fn listen_mut(&mut self) -> &mut SocketAddr;
+    /// The token file.
+    fn token_file_mut(&mut self) -> &mut Option<PathBuf>;
+}
+
+impl CommonArgs {
+    /// The `--config` file's configuration (else the defaults) with `--listen` and
+    /// `--token-file` applied. Not yet checked: the daemon applies its own flags, then
+    /// checks the whole.
+    ///
+    /// # Errors
+    /// [`ConfigError::Read`] or [`ConfigError::Parse`], naming the file.
+    pub fn config<C: DaemonConfig>(&self) -> Result<C, ConfigError> {
+        let mut c = match &self.config {
+            Some(path) => load_toml(path)?,
+            None => C::default(),
+        };
+        if let Some(listen) = self.listen {
+            *c.listen_mut() = listen;
+        }
+        if self.token_file.is_some() {
+            c.token_file_mut().clone_from(&self.token_file);
+        }
+        Ok(c)
+    }
 }
 
 /// Logs to stderr at `RUST_LOG` or `info` (coloured only on a terminal).

@@ -1,8 +1,8 @@
 //! The tuner-node's configuration: one TOML file (every key documented in
 //! `deploy/tuner-node.toml`), overridden by command-line flags.
 
-use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::daemon::{load_toml, DaemonConfig};
 use insitu_proto::tls::TlsFiles;
 use insitu_tuner::search::Target;
 use insitu_tuner::utility::{Utility, UtilitySpec};
@@ -169,6 +169,15 @@ pub struct Resolved {
     /// σ_target (bytes) and τ_target (seconds) of the utility, where it has them: what a
     /// production step is checked against.
     pub budgets: (Option<u64>, Option<f64>),
+}
+
+impl DaemonConfig for Config {
+    fn listen_mut(&mut self) -> &mut SocketAddr {
+        &mut self.listen
+    }
+    fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
+        &mut self.token_file
+    }
 }
 
 impl Config {

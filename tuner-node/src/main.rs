@@ -3,24 +3,20 @@
 
 use anyhow::Result;
 use clap::Parser;
-use insitu_proto::daemon::{run_main, shutdown_signal};
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
 use insitu_tuner_node::{start, Config};
-use std::net::SocketAddr;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
 #[command(
     name = "tuner-node",
     version,
-    about = "Tunes the VDI parameters (r, gamma) of running generator-nodes"
+    about = "Tunes the VDI parameters (r, gamma) of running generator-nodes",
+    after_help = "Every config key is documented in deploy/tuner-node.toml."
 )]
 struct Args {
-    /// TOML config file (every key is documented in deploy/tuner-node.toml).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
-    #[arg(long)]
-    listen: Option<SocketAddr>,
+    #[command(flatten)]
+    common: CommonArgs,
     /// Directory of the persisted state.
     #[arg(long)]
     state_dir: Option<PathBuf>,
@@ -30,19 +26,10 @@ struct Args {
     /// Utility: size:BYTES, time:SECS, size:BYTES,time:SECS or quality:DB.
     #[arg(long)]
     utility: Option<String>,
-    /// File holding the bearer token (else INSITU_TOKEN).
-    #[arg(long)]
-    token_file: Option<PathBuf>,
 }
 
 fn config(a: Args) -> Result<Config> {
-    let mut c = match &a.config {
-        Some(p) => Config::load(p)?,
-        None => Config::default(),
-    };
-    if let Some(v) = a.listen {
-        c.listen = v;
-    }
+    let mut c: Config = a.common.config()?;
     if let Some(v) = a.state_dir {
         c.state_dir = v;
     }
@@ -51,9 +38,6 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.utility {
         c.utility = v;
-    }
-    if a.token_file.is_some() {
-        c.token_file = a.token_file;
     }
     c.resolve()?;
     Ok(c)

@@ -2,8 +2,8 @@
 //! `deploy/viz-node.toml`), overridden by command-line flags.
 
 use insitu_core::BackendChoice;
-use insitu_proto::daemon::load_toml;
 pub use insitu_proto::daemon::ConfigError;
+use insitu_proto::daemon::{load_toml, DaemonConfig};
 use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
@@ -79,6 +79,15 @@ impl Default for Config {
             http_listen: None,
             tuner: None,
         }
+    }
+}
+
+impl DaemonConfig for Config {
+    fn listen_mut(&mut self) -> &mut SocketAddr {
+        &mut self.listen
+    }
+    fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
+        &mut self.token_file
     }
 }
 

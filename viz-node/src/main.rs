@@ -2,7 +2,7 @@
 //! overrides, serves until SIGINT/SIGTERM.
 
 use clap::Parser;
-use insitu_proto::daemon::{run_main, shutdown_signal};
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
 use insitu_viz_node::{start, Config};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -11,21 +11,15 @@ use std::path::PathBuf;
 #[command(
     name = "viz-node",
     version,
-    about = "Records, renders and scores VDIs shipped by generator-nodes"
+    about = "Records, renders and scores VDIs shipped by generator-nodes",
+    after_help = "Every config key is documented in deploy/viz-node.toml."
 )]
 struct Args {
-    /// TOML config file (every key is documented in deploy/viz-node.toml).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Address to serve on (port 0: ephemeral; the chosen one is printed).
-    #[arg(long)]
-    listen: Option<SocketAddr>,
+    #[command(flatten)]
+    common: CommonArgs,
     /// Recording directory.
     #[arg(long)]
     recording_dir: Option<PathBuf>,
-    /// File holding the bearer token (else INSITU_TOKEN).
-    #[arg(long)]
-    token_file: Option<PathBuf>,
     /// Where VDIs are rendered: cpu, gpu or auto (a hardware GPU if found, else the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
@@ -45,18 +39,9 @@ struct Args {
 async fn main() -> std::process::ExitCode {
     run_main(async {
         let a = Args::parse();
-        let mut cfg = match &a.config {
-            Some(p) => Config::load(p)?,
-            None => Config::default(),
-        };
-        if let Some(v) = a.listen {
-            cfg.listen = v;
-        }
+        let mut cfg: Config = a.common.config()?;
         if let Some(v) = a.recording_dir {
             cfg.recording_dir = v;
-        }
-        if a.token_file.is_some() {
-            cfg.token_file = a.token_file;
         }
         if let Some(v) = a.backend {
             cfg.backend = v;
