@@ -136,3 +136,75 @@ pub async fn run_main(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Default, serde::Deserialize, Debug, PartialEq)]
+    #[serde(default, deny_unknown_fields)]
+    struct Cfg {
+        listen: Option<SocketAddr>,
+        token_file: Option<PathBuf>,
+        other: u32,
+    }
+
+    impl DaemonConfig for Cfg {
+        fn listen_mut(&mut self) -> &mut SocketAddr {
+            self.listen
+                .get_or_insert(SocketAddr::from(([127, 0, 0, 1], 1)))
+        }
+        fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
+            &mut self.token_file
+        }
+    }
+
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        common: CommonArgs,
+    }
+
+    fn parse(args: &[&str]) -> CommonArgs {
+        Flags::parse_from(std::iter::once("daemon").chain(args.iter().copied())).common
+    }
+
+    /// The file's values, replaced by the flags that are given and kept where none is; no
+    /// file: the defaults; a bad file: an error naming it.
+    #[test]
+    fn flags_override_the_file_and_only_where_given() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("d.toml");
+        std::fs::write(
+            &file,
+            "listen = \"127.0.0.1:7000\"\ntoken_file = \"/from/file\"\nother = 5\n",
+        )
+        .unwrap();
+        let f = file.to_str().unwrap();
+        let c: Cfg = parse(&["--config", f]).config().unwrap();
+        assert_eq!(c.listen, Some(SocketAddr::from(([127, 0, 0, 1], 7000))));
+        assert_eq!(c.token_file.as_deref(), Some(Path::new("/from/file")));
+        assert_eq!(c.other, 5);
+        let c: Cfg = parse(&[
+            "--config",
+            f,
+            "--listen",
+            "0.0.0.0:9",
+            "--token-file",
+            "/flag",
+        ])
+        .config()
+        .unwrap();
+        assert_eq!(c.listen, Some(SocketAddr::from(([0, 0, 0, 0], 9))));
+        assert_eq!(c.token_file.as_deref(), Some(Path::new("/flag")));
+        assert_eq!(c.other, 5);
+        assert_eq!(parse(&[]).config::<Cfg>().unwrap(), Cfg::default());
+        std::fs::write(&file, "unknown = 1\n").unwrap();
+        let err = parse(&["--config", f]).config::<Cfg>().unwrap_err();
+        assert!(
+            matches!(&err, ConfigError::Parse { path, .. } if *path == file),
+            "{err}"
+        );
+    }
+}

@@ -10,7 +10,8 @@
 //! - [`security`]: a daemon's token, TLS and `insecure` keys, for its server and its peers.
 //! - [`transport`]: HTTP/2 windows and message limits tuned for bulk field data.
 //! - `convert` (feature `core`): wire messages ↔ `insitu-core` types.
-//! - `daemon` (feature `daemon`): logging, signals and TOML loading shared by the daemons.
+//! - `daemon` (feature `daemon`): logging, signals, TOML loading and the flags every daemon
+//!   takes.
 //! - `health` (feature `daemon`): the daemons' gRPC health service (`grpc.health.v1`) and a
 //!   probe that waits for it.
 
