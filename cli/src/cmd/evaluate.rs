@@ -4,9 +4,9 @@
 use super::{q_json, q_text};
 use crate::output::write_png;
 use crate::progress::bar;
-use crate::scene::SceneArgs;
+use crate::scene::{Scene, SceneArgs};
 use anyhow::{Context, Result};
-use insitu_core::evaluate::{evaluate, DEFAULT_VIEW_ANGLES};
+use insitu_core::evaluate::{evaluate, Evaluation, DEFAULT_VIEW_ANGLES};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::{Image, Raycaster};
 use std::path::PathBuf;
@@ -42,7 +42,6 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let (w, h) = super::parse_size(&a.size)?;
-    let codec_kind = a.codec;
     let angles = if a.views.is_empty() {
         DEFAULT_VIEW_ANGLES.to_vec()
     } else {
@@ -69,7 +68,7 @@ pub fn run(a: Args) -> Result<()> {
         &prepared,
         &camera,
         params,
-        codec_kind,
+        a.codec,
         &angles,
         &references,
         scene.tf.identity_hash(),
@@ -82,58 +81,88 @@ pub fn run(a: Args) -> Result<()> {
     let strip = Image::grid(&tiles, angles.len()).context("cannot assemble the strip")?;
     write_png(&a.out, &strip)?;
 
+    let said = Said {
+        scene: &scene,
+        size: (w, h),
+        eval: &eval,
+        tau_reference,
+        backend: backend.describe(),
+    };
     if a.json {
-        let views: Vec<_> = eval
-            .views
-            .iter()
-            .map(|v| serde_json::json!({"angle_deg": v.angle_deg, "q_db": q_json(v.q_db), "ssim": v.ssim}))
-            .collect();
-        println!(
-            "{}",
-            serde_json::json!({
-                "volume": scene.volume_name, "tf": scene.tf_name,
-                "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
-                "step": scene.params.step, "size": [w, h],
-                "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
-                "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
-                "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
-                "tau_reference_s": tau_reference, "tau_source": eval.sizing.tau_source,
-                "backend": backend.describe(),
-                "q_db": q_json(eval.q_db), "views": views, "strip": a.out,
-            })
-        );
+        print_json(&a, &said);
     } else {
-        println!(
-            "{} with {} | r = {}, gamma = {}, step = {}, {}x{}",
-            scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.step, w, h
-        );
-        println!(
-            "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
-            eval.sizing.sigma_bytes,
-            codec_kind,
-            eval.sizing.supersegments,
-            eval.sizing.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
-        );
-        println!(
-            "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",
-            eval.sizing.tau_secs, eval.sizing.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, tau_reference
-        );
-        println!(
-            "backend {}: generation, render and DVR times from {}",
-            backend.describe(),
-            eval.sizing.tau_source
-        );
-        println!(
-            "q = {} dB (pooled over {} views)",
-            q_text(eval.q_db),
-            angles.len()
-        );
-        println!("{:>8} {:>9} {:>7}", "angle", "q [dB]", "SSIM");
-        for v in &eval.views {
-            let ssim = v.ssim.map_or("-".to_owned(), |s| format!("{s:.4}"));
-            println!("{:>7}° {:>9} {:>7}", v.angle_deg, q_text(v.q_db), ssim);
-        }
-        println!("strip (VDI top, reference bottom) -> {}", a.out.display());
+        print_text(&a, &said);
     }
     Ok(())
+}
+
+/// What `evaluate` reports beside its flags.
+struct Said<'a> {
+    scene: &'a Scene,
+    /// Image width and height, pixels.
+    size: (u32, u32),
+    eval: &'a Evaluation,
+    /// Mean seconds of a reference DVR per view.
+    tau_reference: f64,
+    /// The backend, described.
+    backend: String,
+}
+
+/// The evaluation as one JSON object.
+fn print_json(a: &Args, s: &Said) {
+    let (scene, eval, (w, h)) = (s.scene, s.eval, s.size);
+    let views: Vec<_> = eval
+        .views
+        .iter()
+        .map(|v| serde_json::json!({"angle_deg": v.angle_deg, "q_db": q_json(v.q_db), "ssim": v.ssim}))
+        .collect();
+    println!(
+        "{}",
+        serde_json::json!({
+            "volume": scene.volume_name, "tf": scene.tf_name,
+            "r": a.pm.r, "gamma": a.pm.gamma, "codec": a.codec.name(),
+            "step": scene.params.step, "size": [w, h],
+            "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
+            "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
+            "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
+            "tau_reference_s": s.tau_reference, "tau_source": eval.sizing.tau_source,
+            "backend": s.backend,
+            "q_db": q_json(eval.q_db), "views": views, "strip": a.out,
+        })
+    );
+}
+
+/// The evaluation as text: the scene, σ, τ, q per view and where the strip went.
+fn print_text(a: &Args, s: &Said) {
+    let (scene, eval, (w, h)) = (s.scene, s.eval, s.size);
+    println!(
+        "{} with {} | r = {}, gamma = {}, step = {}, {}x{}",
+        scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.step, w, h
+    );
+    println!(
+        "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
+        eval.sizing.sigma_bytes,
+        a.codec,
+        eval.sizing.supersegments,
+        eval.sizing.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
+    );
+    println!(
+        "tau = {:.3} s generation, {:.3} s compression, {:.3} s decode; render {:.3} s/view (reference DVR {:.3} s/view)",
+        eval.sizing.tau_secs, eval.sizing.tau_compress_secs, eval.tau_decode_secs, eval.tau_render_secs, s.tau_reference
+    );
+    println!(
+        "backend {}: generation, render and DVR times from {}",
+        s.backend, eval.sizing.tau_source
+    );
+    println!(
+        "q = {} dB (pooled over {} views)",
+        q_text(eval.q_db),
+        eval.views.len()
+    );
+    println!("{:>8} {:>9} {:>7}", "angle", "q [dB]", "SSIM");
+    for v in &eval.views {
+        let ssim = v.ssim.map_or("-".to_owned(), |s| format!("{s:.4}"));
+        println!("{:>7}° {:>9} {:>7}", v.angle_deg, q_text(v.q_db), ssim);
+    }
+    println!("strip (VDI top, reference bottom) -> {}", a.out.display());
 }
