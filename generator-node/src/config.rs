@@ -240,6 +240,13 @@ pub struct Generation {
 }
 
 impl Generation {
+    /// The camera `P_A` of a step: the configured one, else the default for the whole
+    /// domain's box (the same for every rank of a step).
+    pub fn camera_for(&self, info: &crate::ingest::StepInfo) -> Camera {
+        self.camera
+            .unwrap_or_else(|| Camera::default_for_box(&info.global_box()))
+    }
+
     /// Side of the reference frames for the current `r`.
     pub fn reference_side(&self) -> u32 {
         if self.reference_size == 0 {

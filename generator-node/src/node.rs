@@ -102,13 +102,16 @@ pub enum StartError {
     },
 }
 
+/// The gRPC server's task.
+type ServerTask = JoinHandle<Result<(), tonic::transport::Error>>;
+
 /// A started node.
 pub struct RunningNode {
     addr: SocketAddr,
     shared: Arc<Shared>,
     health: Health,
     stop_server: oneshot::Sender<()>,
-    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    server: ServerTask,
     worker: JoinHandle<()>,
     shipper: Option<JoinHandle<()>>,
     tuner: Option<JoinHandle<()>>,
@@ -147,18 +150,24 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         .map_err(listen)?;
     let addr = listener.local_addr().map_err(listen)?;
     let stats = Arc::new(Stats::default());
-    let (tuning, summaries) = match &cfg.tuner {
-        Some(_) => {
-            let (t, rx) =
-                crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave, stats.clone());
-            (Some(Arc::new(t)), Some(rx))
-        }
-        None => (None, None),
+    // With a tuner: the node's side of the link, and the channel of step summaries to it.
+    let tuner = tuner_peer.map(|peer| {
+        let (t, rx) =
+            crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave, stats.clone());
+        (peer, Arc::new(t), rx)
+    });
+    let scene = match (&viz, tf_configured) {
+        (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
+            viz.clone(),
+            Duration::from_secs_f64(cfg.max_backoff_secs),
+            stats.clone(),
+        ))),
+        _ => None,
     };
     let shared = Arc::new(Shared {
         queue: BoundedQueue::new(cfg.queue.max_items, cfg.queue.max_bytes, cfg.queue.policy),
         generation: RwLock::new(generation),
-        stats: stats.clone(),
+        stats,
         max_step_bytes: cfg.max_step_bytes,
         shipping: cfg.viz.is_some(),
         outbox: Arc::new(BoundedQueue::new(
@@ -168,36 +177,15 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         )),
         backend,
         lane: tokio::sync::Mutex::new(()),
-        tuning: tuning.clone(),
+        tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         ship_failed_reported: Default::default(),
         spool,
         epoch: new_epoch(),
         spare_field: Mutex::new(None),
         pool: worker_pool(cfg.threads)?,
-        scene: match (&viz, tf_configured) {
-            (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
-                viz.clone(),
-                Duration::from_secs_f64(cfg.max_backoff_secs),
-                stats.clone(),
-            ))),
-            _ => None,
-        },
+        scene,
     });
-    let (stop_server, stopped) = oneshot::channel::<()>();
-    let svc = GeneratorServer::new(GeneratorService(shared.clone()))
-        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
-    let svc = tonic::service::interceptor::InterceptedService::new(svc, security.require_token());
-    let (health, health_svc) = Health::serving::<GeneratorServer<GeneratorService>>().await;
-    let server = tokio::spawn(
-        security
-            .server()?
-            .add_service(svc)
-            .add_service(health_svc)
-            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
-                let _ = stopped.await;
-            }),
-    );
+    let (health, stop_server, server) = serve(&shared, &security, listener).await?;
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
     requeue(&shared, recovered);
@@ -205,20 +193,13 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
         tokio::spawn(s.run(shared.clone()).instrument(info_span!("shipper")))
     });
-    let tuner = match (tuner_peer, tuning, summaries) {
-        (Some(peer), Some(t), Some(rx)) => {
-            let link = crate::tuning::Link::new(
-                peer,
-                Duration::from_secs_f64(cfg.max_backoff_secs),
-                format!("{addr}/{}", std::process::id()),
-            );
-            Some(tokio::spawn(
-                link.run(shared.clone(), t, rx)
-                    .instrument(info_span!("tuner")),
-            ))
-        }
-        _ => None,
-    };
+    let tuner = tuner.map(|(peer, tuning, summaries)| {
+        let backoff = Duration::from_secs_f64(cfg.max_backoff_secs);
+        let link =
+            crate::tuning::Link::new(peer, backoff, format!("{addr}/{}", std::process::id()));
+        let run = link.run(shared.clone(), tuning, summaries);
+        tokio::spawn(run.instrument(info_span!("tuner")))
+    });
     info!(%addr, tls = security.serves_tls(), viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
     Ok(RunningNode {
         addr,
@@ -231,6 +212,29 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
+}
+
+/// The gRPC service of `shared` (behind `security`'s token check, with the health service)
+/// served on `listener` until the returned sender fires or is dropped.
+async fn serve(
+    shared: &Arc<Shared>,
+    security: &Security,
+    listener: tokio::net::TcpListener,
+) -> Result<(Health, oneshot::Sender<()>, ServerTask), StartError> {
+    let (stop, stopped) = oneshot::channel::<()>();
+    let svc = GeneratorServer::new(GeneratorService(shared.clone()))
+        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+    let svc = tonic::service::interceptor::InterceptedService::new(svc, security.require_token());
+    let (health, health_svc) = Health::serving::<GeneratorServer<GeneratorService>>().await;
+    let server = security
+        .server()?
+        .add_service(svc)
+        .add_service(health_svc)
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
+            let _ = stopped.await;
+        });
+    Ok((health, stop, tokio::spawn(server)))
 }
 
 /// The spool in `sc.dir` and the steps it holds; where it recorded the run's configuration

@@ -5,7 +5,7 @@
 use crate::config::Generation;
 use crate::ingest::RawStep;
 use bytes::Bytes;
-use insitu_core::backend::BackendError;
+use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi};
@@ -66,9 +66,7 @@ pub fn run(
 ) -> Result<(Product, Vdi), WorkError> {
     let raycaster = Raycaster::new(&raw.field, &tf.0, gen.raycast)?;
     let scene = backend.prepare(&raycaster)?;
-    let camera = gen
-        .camera
-        .unwrap_or_else(|| Camera::default_for_box(&raw.info.global_box()));
+    let camera = gen.camera_for(&raw.info);
     let tf_hash = tf.0.identity_hash();
     let generated = info_span!(
         "generate",
@@ -76,84 +74,94 @@ pub fn run(
         gamma = gen.params.gamma
     )
     .in_scope(|| scene.generate_reusing(&camera, gen.params, tf_hash, &tf.1, spare))?;
-    let (vdi, tau_secs) = (&generated.value, generated.seconds);
+    let vdi = &generated.value;
     let t = Instant::now();
     let file =
         info_span!("compress", codec = %gen.codec).in_scope(|| codec::encode(vdi, gen.codec))?;
     let tau_compress_secs = t.elapsed().as_secs_f64();
     let references = if with_references {
-        let size = gen.reference_side();
-        // One rank of several: each pixel carries its opacity too, so that the viz-node can
-        // composite the ranks' frames into the whole domain's (`ReferenceHeader.opacity`).
-        let opacity = raw.info.world_size > 1;
-        let span = info_span!(
-            "references",
-            views = gen.view_angles_deg.len(),
-            size,
-            opacity
-        );
-        // `views × h × w × (3 | 4)` little-endian f32 (see `ReferenceHeader`).
-        let bytes: Vec<u8> = span.in_scope(|| {
-            if opacity {
-                Ok::<_, WorkError>(
-                    render_references_with_opacity(&scene, &camera, &gen.view_angles_deg, size)
-                        .iter()
-                        .flat_map(|(image, alpha)| rgba_f32_le(image, alpha))
-                        .collect(),
-                )
-            } else {
-                Ok(
-                    render_references(&scene, &camera, &gen.view_angles_deg, size)?
-                        .iter()
-                        .flat_map(Image::to_f32_le)
-                        .collect(),
-                )
-            }
-        })?;
-        Some((
-            pb::ReferenceHeader {
-                step: raw.info.step,
-                rank: raw.info.rank,
-                width: size,
-                height: size,
-                camera: Some(camera_to_pb(&camera)),
-                view_angles_deg: gen.view_angles_deg.clone(),
-                total_bytes: bytes.len() as u64,
-                opacity,
-            },
-            Bytes::from(bytes),
-        ))
+        Some(references(&scene, &camera, raw, gen)?)
     } else {
         None
     };
     let product = Product {
         vdi_header: pb::VdiHeader {
-            step: raw.info.step,
-            sim_time: raw.info.sim_time,
-            rank: raw.info.rank,
-            world_size: raw.info.world_size,
-            resolution: gen.params.resolution,
-            gamma: gen.params.gamma,
-            codec: codec_to_pb(gen.codec) as i32,
             total_bytes: file.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
-            tau_secs,
+            tau_secs: generated.seconds,
             tau_compress_secs,
+            tau_source: generated.source.name().into(),
             tf_hash,
             tf_name: tf.1.clone(),
-            tau_source: generated.source.name().into(),
             backend: backend.describe(),
-            pm_version: gen.pm_version,
-            global_dims: Some(dims_to_pb(raw.info.global_dims)),
-            brick_offset: Some(dims_to_pb(raw.info.brick_offset)),
-            brick_dims: Some(dims_to_pb(raw.info.brick_dims)),
             with_references: references.is_some(),
+            ..vdi_header(raw, gen)
         },
         vdi: Bytes::from(file),
         references,
         spool: raw.spooled(),
     };
     Ok((product, generated.value))
+}
+
+/// The header fields of a step's VDI that its step and `P_M` give (the rest: what
+/// generation and compression measured).
+fn vdi_header(raw: &RawStep, gen: &Generation) -> pb::VdiHeader {
+    pb::VdiHeader {
+        step: raw.info.step,
+        sim_time: raw.info.sim_time,
+        rank: raw.info.rank,
+        world_size: raw.info.world_size,
+        resolution: gen.params.resolution,
+        gamma: gen.params.gamma,
+        codec: codec_to_pb(gen.codec) as i32,
+        pm_version: gen.pm_version,
+        global_dims: Some(dims_to_pb(raw.info.global_dims)),
+        brick_offset: Some(dims_to_pb(raw.info.brick_offset)),
+        brick_dims: Some(dims_to_pb(raw.info.brick_dims)),
+        ..Default::default()
+    }
+}
+
+/// The reference frames of a sampled step: each test view rendered from the original data
+/// on `scene`, as `views × h × w × (3 | 4)` little-endian f32 (see `ReferenceHeader`), with
+/// their header.
+fn references(
+    scene: &Scene,
+    camera: &Camera,
+    raw: &RawStep,
+    gen: &Generation,
+) -> Result<(pb::ReferenceHeader, Bytes), WorkError> {
+    let size = gen.reference_side();
+    // One rank of several: each pixel carries its opacity too, so that the viz-node can
+    // composite the ranks' frames into the whole domain's (`ReferenceHeader.opacity`).
+    let opacity = raw.info.world_size > 1;
+    let views = &gen.view_angles_deg;
+    let span = info_span!("references", views = views.len(), size, opacity);
+    let bytes: Vec<u8> = span.in_scope(|| -> Result<_, WorkError> {
+        Ok(if opacity {
+            render_references_with_opacity(scene, camera, views, size)
+                .iter()
+                .flat_map(|(image, alpha)| rgba_f32_le(image, alpha))
+                .collect()
+        } else {
+            render_references(scene, camera, views, size)?
+                .iter()
+                .flat_map(Image::to_f32_le)
+                .collect()
+        })
+    })?;
+    let header = pb::ReferenceHeader {
+        step: raw.info.step,
+        rank: raw.info.rank,
+        width: size,
+        height: size,
+        camera: Some(camera_to_pb(camera)),
+        view_angles_deg: views.clone(),
+        total_bytes: bytes.len() as u64,
+        opacity,
+    };
+    Ok((header, Bytes::from(bytes)))
 }
 
 fn dims_to_pb(d: [usize; 3]) -> pb::Dims3 {
@@ -209,9 +217,7 @@ pub fn for_tuner(
         sampled: product.references.is_some(),
     };
     let held = crate::hold::HeldStep {
-        camera: gen
-            .camera
-            .unwrap_or_else(|| Camera::default_for_box(&raw.info.global_box())),
+        camera: gen.camera_for(&raw.info),
         volume: Arc::new(volume),
         tf: Arc::new(tf.clone()),
         raycast: gen.raycast,
