@@ -23,6 +23,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinHandle;
 use tracing::{info, warn};
 
 /// Steps kept waiting for their last rank or their q before they are given up.
@@ -480,16 +481,55 @@ impl Loop {
 }
 
 impl Engine {
+    /// After a restart: a tuning over the persisted characteristic steps, unless the decision
+    /// in force was validated on exactly these.
+    fn resume(&self) -> Option<Trigger> {
+        let s = self.state();
+        let steps = s.tracker.step_indices();
+        (!steps.is_empty() && s.validated != steps).then(|| Trigger {
+            step: steps.last().copied().unwrap_or(0),
+            reason: "resuming the tuning of a restarted tuner".into(),
+        })
+    }
+
+    /// A tuning for `trigger` on the blocking pool (trials wait on the nodes); it gives back
+    /// whether it finished, and its trigger.
+    fn start_tuning(self: &Arc<Self>, trigger: Trigger) -> JoinHandle<(bool, Trigger)> {
+        {
+            let mut c = self.counters();
+            c.retunes += 1;
+            c.tuning = true;
+        }
+        info!(reason = %trigger.reason, "tuning");
+        let e = self.clone();
+        tokio::task::spawn_blocking(move || (crate::tune::tune(&e, &trigger), trigger))
+    }
+
+    /// Removes the characteristic steps lost with their nodes during a tuning from the set
+    /// (persisted); a tuning over the steps left when any were lost and some are left.
+    fn forget_lost(&self) -> Option<Trigger> {
+        let lost: Vec<u64> =
+            std::mem::take(&mut *self.lost.lock().unwrap_or_else(|e| e.into_inner()));
+        let first = *lost.first()?;
+        let mut s = self.state();
+        for step in &lost {
+            if s.forget(*step) {
+                info!(
+                    step,
+                    "no node holds this characteristic step any more: it leaves the set"
+                );
+            }
+        }
+        self.save(&s);
+        (!s.tracker.steps.is_empty()).then(|| Trigger {
+            step: first,
+            reason: format!("characteristic step(s) {lost:?} lost with their node"),
+        })
+    }
+
     /// The engine task: takes events in order and tunes when the characteristic set changed.
     pub async fn run(self: Arc<Self>, mut events: mpsc::Receiver<Event>) {
-        let resume = {
-            let s = self.state();
-            let steps = s.tracker.step_indices();
-            (!steps.is_empty() && s.validated != steps).then(|| Trigger {
-                step: steps.last().copied().unwrap_or(0),
-                reason: "resuming the tuning of a restarted tuner".into(),
-            })
-        };
+        let resume = self.resume();
         let mut l = Loop {
             engine: self.clone(),
             pending: BTreeMap::new(),
@@ -500,7 +540,7 @@ impl Engine {
             deferred: Vec::new(),
         };
         // The running tuning gives back its trigger and whether it finished.
-        let mut tuning: Option<tokio::task::JoinHandle<(bool, Trigger)>> = None;
+        let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
         // A tuning that failed without losing a step (a trial timed out) is tried again after
         // the trial timeout, unless something else starts one first.
         let mut retry: Option<(tokio::time::Instant, Trigger)> = None;
@@ -509,18 +549,7 @@ impl Engine {
                 retry = None;
             }
             if tuning.is_none() {
-                if let Some(trigger) = l.dirty.take() {
-                    let e = self.clone();
-                    {
-                        let mut c = self.counters();
-                        c.retunes += 1;
-                        c.tuning = true;
-                    }
-                    info!(reason = %trigger.reason, "tuning");
-                    tuning = Some(tokio::task::spawn_blocking(move || {
-                        (crate::tune::tune(&e, &trigger), trigger)
-                    }));
-                }
+                tuning = l.dirty.take().map(|trigger| self.start_tuning(trigger));
             }
             tokio::select! {
                 ev = events.recv() => match ev {
@@ -548,18 +577,9 @@ impl Engine {
                         let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
                         retry = Some((tokio::time::Instant::now() + wait, trigger));
                     }
-                    let lost: Vec<u64> = std::mem::take(&mut *self.lost.lock().unwrap_or_else(|e| e.into_inner()));
-                    if !lost.is_empty() {
-                        let mut s = self.state();
-                        for step in &lost {
-                            if s.forget(*step) {
-                                info!(step, "no node holds this characteristic step any more: it leaves the set");
-                            }
-                        }
-                        self.save(&s);
-                        if l.dirty.is_none() && !s.tracker.steps.is_empty() {
-                            l.dirty = Some(Trigger { step: lost[0], reason: format!("characteristic step(s) {lost:?} lost with their node") });
-                        }
+                    let again = self.forget_lost();
+                    if l.dirty.is_none() {
+                        l.dirty = again;
                     }
                 }
             }

@@ -13,7 +13,7 @@ use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_tuner::live::{combine_ranks, WorstCase};
-use insitu_tuner::search::{adaptive_search, grid_search};
+use insitu_tuner::search::{adaptive_search, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
 use insitu_tuner::{Candidate, Measurement};
 use std::sync::atomic::Ordering;
@@ -243,6 +243,36 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         return true;
     }
     let secs0 = engine.counters().trial_secs;
+    let outcome = match search(engine, &steps, &world_sizes) {
+        Ok(o) => o,
+        Err(e) => {
+            say_why_it_stopped(engine, &e);
+            return false;
+        }
+    };
+    let trial_secs = engine.counters().trial_secs - secs0;
+    let Some(best) = outcome.best else {
+        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
+        return true;
+    };
+    decide(
+        engine,
+        trigger,
+        steps,
+        best,
+        outcome.generations,
+        trial_secs,
+    );
+    true
+}
+
+/// The search of the engine's grid (adaptive towards its target, else the grid's plan) over
+/// the worst case of `steps` (with each step's world size, 1 when unknown).
+fn search(
+    engine: &Arc<Engine>,
+    steps: &[u64],
+    world_sizes: &std::collections::BTreeMap<u64, u32>,
+) -> Result<Outcome, StudyError> {
     let oracles: Vec<Box<dyn Oracle>> = steps
         .iter()
         .map(|&step| {
@@ -257,46 +287,51 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         .collect();
     let mut oracle = WorstCase::new(oracles);
     let r = &engine.resolved;
-    let outcome = match r.target {
+    match r.target {
         Some(t) => adaptive_search(&mut oracle, &r.grid, t),
         None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
-    };
-    let trial_secs = engine.counters().trial_secs - secs0;
-    let outcome = match outcome {
-        Ok(o) => o,
-        Err(e) => {
-            // A node that left (with a characteristic step) or the tuner stopping ends a
-            // search as a matter of course: the tuning runs again on the steps left (see
-            // `Engine::lost`); anything else is a failure worth a warning.
-            let lost = !engine
-                .lost
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .is_empty();
-            if engine.stopping.load(Ordering::Relaxed) {
-                info!(error = %e, "tuning stopped with the tuner; the decision in force stays");
-            } else if lost {
-                info!(error = %e, "tuning interrupted: a characteristic step left with its node; the decision in force stays");
-            } else {
-                warn!(error = %e, "tuning failed; the decision in force stays");
-            }
-            return false;
-        }
-    };
-    let Some(best) = outcome.best else {
-        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
-        return true;
-    };
+    }
+}
+
+/// Logs why a search ended without an outcome. A node that left (with a characteristic step)
+/// or the tuner stopping ends a search as a matter of course: the tuning runs again on the
+/// steps left (see `Engine::lost`); anything else is a failure worth a warning.
+fn say_why_it_stopped(engine: &Engine, e: &StudyError) {
+    let lost = !engine
+        .lost
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .is_empty();
+    if engine.stopping.load(Ordering::Relaxed) {
+        info!(error = %e, "tuning stopped with the tuner; the decision in force stays");
+    } else if lost {
+        info!(error = %e, "tuning interrupted: a characteristic step left with its node; the decision in force stays");
+    } else {
+        warn!(error = %e, "tuning failed; the decision in force stays");
+    }
+}
+
+/// Records `best` (found on `steps` with `trials` generations taking `trial_secs`): as a new
+/// decision, persisted and pushed to every node, when it differs from the P_M in force;
+/// else as a re-validation of the P_M in force on `steps`.
+fn decide(
+    engine: &Engine,
+    trigger: &Trigger,
+    steps: Vec<u64>,
+    best: Measurement,
+    trials: u64,
+    trial_secs: f64,
+) {
     let mut s = engine.state();
     let old = s
         .current()
         .map(|d| d.candidate)
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     if old == Some(best.candidate()) && s.current().is_some() {
-        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials = outcome.generations, "re-tuned: P_M unchanged");
+        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
         s.validated = steps;
         engine.save(&s);
-        return true;
+        return;
     }
     let d = Decision {
         pm_version: s.next_version(),
@@ -306,7 +341,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         predicted: best,
         reason: trigger.reason.clone(),
         trigger_step: trigger.step,
-        trials: outcome.generations,
+        trials,
         trial_secs,
         utility: engine.utility(),
     };
@@ -319,5 +354,4 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
     engine.hub.broadcast(&Down::Decision(m.clone()));
     let _ = engine.decisions.send(m);
-    true
 }
