@@ -276,6 +276,32 @@ pub struct LocalNodes {
     pub keep_serving: bool,
 }
 
+/// A tuner on loopback watching the viz-node at `viz`, with its state in `recording`: the
+/// adaptive search where `utility` is one it can bisect (a size budget), else the grid search.
+async fn start_tuner(
+    utility: String,
+    recording: &std::path::Path,
+    viz: SocketAddr,
+) -> Result<insitu_tuner_node::RunningTuner> {
+    use insitu_tuner_node::config::Strategy;
+    let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
+        Strategy::Adaptive
+    } else {
+        Strategy::Grid
+    };
+    let cfg = insitu_tuner_node::Config {
+        listen: SocketAddr::from(([127, 0, 0, 1], 0)),
+        state_dir: recording.join("tuner-state"),
+        viz: Some(viz.to_string()),
+        utility,
+        strategy,
+        ..Default::default()
+    };
+    insitu_tuner_node::start(cfg)
+        .await
+        .context("starting the tuner")
+}
+
 /// A fresh recording directory name.
 pub fn default_recording() -> PathBuf {
     let secs = std::time::SystemTime::now()
@@ -307,6 +333,7 @@ impl LocalNodes {
         .await
         .context("starting the viz-node")?;
         if let Some(url) = viz.viewer_url() {
+            // Beside JSON lines on stdout, on stderr.
             let line = format!("web viewer: {url}");
             if a.json {
                 eprintln!("{line}");
@@ -321,24 +348,7 @@ impl LocalNodes {
                 .utility
                 .clone()
                 .unwrap_or_else(|| defaults.utility.to_owned());
-            let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
-                insitu_tuner_node::config::Strategy::Adaptive
-            } else {
-                insitu_tuner_node::config::Strategy::Grid
-            };
-            let cfg = insitu_tuner_node::Config {
-                listen: SocketAddr::from(([127, 0, 0, 1], 0)),
-                state_dir: recording.join("tuner-state"),
-                viz: Some(viz.local_addr().to_string()),
-                utility,
-                strategy,
-                ..Default::default()
-            };
-            Some(
-                insitu_tuner_node::start(cfg)
-                    .await
-                    .context("starting the tuner")?,
-            )
+            Some(start_tuner(utility, &recording, viz.local_addr()).await?)
         };
         if let (Some(t), Some(h)) = (&tuner, viz.http()) {
             h.watch_tuner(Peer::new(&t.local_addr().to_string(), None, None, false)?);

@@ -336,6 +336,67 @@ pub async fn scorer(shared: Arc<Shared>, mut rx: mpsc::Receiver<Job>) {
 /// The gRPC service.
 pub struct VizService(pub Arc<Shared>);
 
+/// Checks a received VDI (`bytes`, with its header `h`) against what is stored, decodes it,
+/// checks the header against the file, and stores it: its index entry, and whether it is new.
+/// Decoded once: the VDI is kept for the scorer or the composer that reads it next.
+fn store_vdi(
+    s: &Shared,
+    h: &pb::VdiHeader,
+    bytes: &[u8],
+    placement: Option<Placement>,
+) -> Result<(Entry, bool), Status> {
+    check_against_stored(&s.recording, h, placement)?;
+    let what = format!("VDI of step {} rank {}", h.step, h.rank);
+    let vdi = codec::decode(bytes, &DecodeLimits::default())
+        .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
+    let p = vdi.meta().params;
+    if p.resolution != h.resolution || p.gamma.to_bits() != h.gamma.to_bits() {
+        return Err(Status::invalid_argument(format!(
+            "{what}: header says r = {}, γ = {} but the file holds r = {}, γ = {}",
+            h.resolution, h.gamma, p.resolution, p.gamma
+        )));
+    }
+    // Nodes that do not say (an empty string) measured τ on the wall clock.
+    let tau_source = match h.tau_source.as_str() {
+        "" => TimeSource::WallClock,
+        name => TimeSource::from_name(name).ok_or_else(|| {
+            Status::invalid_argument(format!(
+                "{what}: tau_source {name:?} is neither wall-clock nor gpu-timestamps"
+            ))
+        })?,
+    };
+    let meta = Entry {
+        step: h.step,
+        rank: h.rank,
+        world_size: h.world_size,
+        sim_time: h.sim_time,
+        vdi: None,
+        references: None,
+        resolution: h.resolution,
+        gamma: h.gamma,
+        codec: codec_from_pb(h.codec)?,
+        sizing: Sizing {
+            sigma_bytes: bytes.len() as u64,
+            supersegments: vdi.supersegments().len() as u64,
+            tau_secs: h.tau_secs,
+            tau_source,
+            tau_compress_secs: h.tau_compress_secs,
+        },
+        tf_name: vdi.meta().tf_name.clone(),
+        tf_hash: vdi.meta().tf_hash,
+        quality: None,
+        pm_version: h.pm_version,
+        placement,
+        with_references: h.with_references,
+    };
+    let (entry, new) = s.recording.store_vdi(meta, bytes).map_err(store_status)?;
+    let read_next = h.with_references || h.world_size > 1;
+    if let (true, true, Some(name)) = (new, read_next, &entry.vdi) {
+        s.kept.keep_vdi(name, vdi);
+    }
+    Ok((entry, new))
+}
+
 /// `ALREADY_EXISTS` for a (step, rank) stored with other content; `RESOURCE_EXHAUSTED` when
 /// the disk is full; `INTERNAL` for other storage failures. Each names the file or the item.
 fn store_status(e: StoreError) -> Status {
@@ -391,62 +452,9 @@ impl VizService {
         }
         let placement = placement(&h)?;
         let s = self.0.clone();
-        let entry = tokio::task::spawn_blocking(move || {
-            let what = format!("VDI of step {} rank {}", h.step, h.rank);
-            check_against_stored(&s.recording, &h, placement)?;
-            let vdi = codec::decode(&bytes, &DecodeLimits::default())
-                .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
-            let p = vdi.meta().params;
-            if p.resolution != h.resolution || p.gamma.to_bits() != h.gamma.to_bits() {
-                return Err(Status::invalid_argument(format!(
-                    "{what}: header says r = {}, γ = {} but the file holds r = {}, γ = {}",
-                    h.resolution, h.gamma, p.resolution, p.gamma
-                )));
-            }
-            let codec = codec_from_pb(h.codec)?;
-            // Nodes that do not say (an empty string) measured τ on the wall clock.
-            let tau_source = match h.tau_source.as_str() {
-                "" => TimeSource::WallClock,
-                name => TimeSource::from_name(name).ok_or_else(|| {
-                    Status::invalid_argument(format!(
-                        "{what}: tau_source {name:?} is neither wall-clock nor gpu-timestamps"
-                    ))
-                })?,
-            };
-            let meta = Entry {
-                step: h.step,
-                rank: h.rank,
-                world_size: h.world_size,
-                sim_time: h.sim_time,
-                vdi: None,
-                references: None,
-                resolution: h.resolution,
-                gamma: h.gamma,
-                codec,
-                sizing: Sizing {
-                    sigma_bytes: bytes.len() as u64,
-                    supersegments: vdi.supersegments().len() as u64,
-                    tau_secs: h.tau_secs,
-                    tau_source,
-                    tau_compress_secs: h.tau_compress_secs,
-                },
-                tf_name: vdi.meta().tf_name.clone(),
-                tf_hash: vdi.meta().tf_hash,
-                quality: None,
-                pm_version: h.pm_version,
-                placement,
-                with_references: h.with_references,
-            };
-            let stored = s.recording.store_vdi(meta, &bytes).map_err(store_status)?;
-            // Decoded once: kept for the scorer or the composer that reads it next.
-            let read_next = h.with_references || h.world_size > 1;
-            if let (true, true, Some(name)) = (stored.1, read_next, &stored.0.vdi) {
-                s.kept.keep_vdi(name, vdi);
-            }
-            Ok(stored)
-        })
-        .await
-        .map_err(join_error)??;
+        let entry = tokio::task::spawn_blocking(move || store_vdi(&s, &h, &bytes, placement))
+            .await
+            .map_err(join_error)??;
         let (entry, new) = entry;
         if new {
             self.0.vdis_stored.fetch_add(1, Ordering::Relaxed);
@@ -459,77 +467,19 @@ impl VizService {
         &self,
         mut stream: Streaming<pb::ReferenceChunk>,
     ) -> Result<Entry, Status> {
-        let (h, bytes) = chunk::receive(
-            &mut stream,
-            self.0.max_reference_bytes,
-            |h: &pb::ReferenceHeader| {
-                let side_ok = |v: u32| (1..=MAX_IMAGE_SIDE).contains(&v);
-                if !side_ok(h.width) || !side_ok(h.height) {
-                    return Err(Status::invalid_argument(format!(
-                        "reference frames of {}×{}: sides must be in 1..={MAX_IMAGE_SIDE}",
-                        h.width, h.height
-                    )));
-                }
-                let views = h.view_angles_deg.len();
-                if views == 0
-                    || views > MAX_VIEWS
-                    || h.view_angles_deg.iter().any(|a| !a.is_finite())
-                {
-                    return Err(Status::invalid_argument(format!(
-                        "{views} view angles: need 1..={MAX_VIEWS} finite angles"
-                    )));
-                }
-                let channels = if h.opacity { 4 } else { 3 };
-                let expected =
-                    views as u64 * u64::from(h.width) * u64::from(h.height) * 4 * channels;
-                if h.total_bytes != expected {
-                    return Err(Status::invalid_argument(format!(
-                        "total_bytes {} does not match {views} views of {}×{}×{channels} f32 ({expected})",
-                        h.total_bytes, h.width, h.height
-                    )));
-                }
-                camera_from_pb(
-                    h.camera
-                        .as_ref()
-                        .ok_or_else(|| Status::invalid_argument("camera is missing"))?,
-                )?;
-                Ok(())
-            },
-        )
+        let (h, bytes) = chunk::receive(&mut stream, self.0.max_reference_bytes, |h| {
+            reference_camera(h).map(drop)
+        })
         .await
         .map_err(over_limit)?;
         Span::current()
             .record("step", h.step)
             .record("rank", h.rank);
-        let camera = camera_from_pb(
-            h.camera
-                .as_ref()
-                .ok_or_else(|| Status::invalid_argument("camera is missing"))?,
-        )?;
+        let camera = reference_camera(&h)?;
         let s = self.0.clone();
-        let entry = tokio::task::spawn_blocking(move || {
-            let refs = References::from_bytes(
-                camera,
-                h.view_angles_deg,
-                (h.width, h.height),
-                h.opacity,
-                &bytes,
-            )
-            .map_err(|e| {
-                Status::invalid_argument(format!(
-                    "references of step {} rank {}: {e}",
-                    h.step, h.rank
-                ))
-            })?;
-            let stored = s.recording.store_references(h.step, h.rank, &refs);
-            let stored = stored.map_err(store_status)?;
-            if let (true, Some(name)) = (stored.1, &stored.0.references) {
-                s.kept.keep_references(name, refs);
-            }
-            Ok::<_, Status>(stored)
-        })
-        .await
-        .map_err(join_error)??;
+        let entry = tokio::task::spawn_blocking(move || store_references(&s, h, camera, &bytes))
+            .await
+            .map_err(join_error)??;
         let (entry, new) = entry;
         if new {
             self.0.references_stored.fetch_add(1, Ordering::Relaxed);
@@ -537,6 +487,67 @@ impl VizService {
         }
         Ok(entry)
     }
+}
+
+/// The camera of a reference header whose frames' sides, view angles and byte count are
+/// valid (`views × h × w × (3 | 4)` f32).
+///
+/// # Errors
+/// `INVALID_ARGUMENT` naming the field at fault.
+fn reference_camera(h: &pb::ReferenceHeader) -> Result<insitu_core::Camera, Status> {
+    let side_ok = |v: u32| (1..=MAX_IMAGE_SIDE).contains(&v);
+    if !side_ok(h.width) || !side_ok(h.height) {
+        return Err(Status::invalid_argument(format!(
+            "reference frames of {}×{}: sides must be in 1..={MAX_IMAGE_SIDE}",
+            h.width, h.height
+        )));
+    }
+    let views = h.view_angles_deg.len();
+    if views == 0 || views > MAX_VIEWS || h.view_angles_deg.iter().any(|a| !a.is_finite()) {
+        return Err(Status::invalid_argument(format!(
+            "{views} view angles: need 1..={MAX_VIEWS} finite angles"
+        )));
+    }
+    let channels = if h.opacity { 4 } else { 3 };
+    let expected = views as u64 * u64::from(h.width) * u64::from(h.height) * 4 * channels;
+    if h.total_bytes != expected {
+        return Err(Status::invalid_argument(format!(
+            "total_bytes {} does not match {views} views of {}×{}×{channels} f32 ({expected})",
+            h.total_bytes, h.width, h.height
+        )));
+    }
+    let camera = h
+        .camera
+        .as_ref()
+        .ok_or_else(|| Status::invalid_argument("camera is missing"))?;
+    camera_from_pb(camera)
+}
+
+/// Parses received reference frames (`bytes`, with their header `h` and its `camera`) and
+/// stores them: their index entry, and whether they are new (then kept, parsed, for the
+/// scorer).
+fn store_references(
+    s: &Shared,
+    h: pb::ReferenceHeader,
+    camera: insitu_core::Camera,
+    bytes: &[u8],
+) -> Result<(Entry, bool), Status> {
+    let size = (h.width, h.height);
+    let refs =
+        References::from_bytes(camera, h.view_angles_deg, size, h.opacity, bytes).map_err(|e| {
+            Status::invalid_argument(format!(
+                "references of step {} rank {}: {e}",
+                h.step, h.rank
+            ))
+        })?;
+    let (entry, new) = s
+        .recording
+        .store_references(h.step, h.rank, &refs)
+        .map_err(store_status)?;
+    if let (true, Some(name)) = (new, &entry.references) {
+        s.kept.keep_references(name, refs);
+    }
+    Ok((entry, new))
 }
 
 /// The brick placement a VDI header states, when it states one.
