@@ -114,16 +114,7 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
                 .collect()
         })
         .collect();
-    let mut offsets = Vec::with_capacity(r * r + 1);
-    offsets.push(0u32);
-    let mut sum = 0u32;
-    for (j, active) in row_parts.iter().enumerate() {
-        for i in 0..r {
-            let p = i + r * j;
-            sum += active.iter().map(|v| v.count(p)).sum::<u32>();
-            offsets.push(sum);
-        }
-    }
+    let offsets = composed_offsets(&row_parts, r);
     let mut flat = vec![Supersegment::default(); total as usize];
     // Split the flat array into one slice per row, then fill rows in parallel.
     let mut rows: Vec<(usize, &mut [Supersegment])> = Vec::with_capacity(r);
@@ -137,33 +128,10 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
     rows.into_par_iter()
         .filter(|(_, row)| !row.is_empty())
         .for_each_init(Vec::new, |order, (j, row)| {
-            let active = &row_parts[j];
             let mut at = 0;
-            for i in 0..r {
-                let p = i + r * j;
-                if offsets[p] == offsets[p + 1] {
-                    continue;
-                }
-                order.clear();
-                order.extend(active.iter().filter_map(|v| {
-                    let (a, b) = (v.offsets()[p] as usize, v.offsets()[p + 1] as usize);
-                    (a < b).then(|| &v.supersegments()[a..b])
-                }));
-                order.sort_unstable_by(|a: &&[Supersegment], b| {
-                    a[0].z_start.total_cmp(&b[0].z_start)
-                });
-                let mut prev_end = f32::NEG_INFINITY;
-                for list in order.iter() {
-                    for s in list.iter() {
-                        let mut s = *s;
-                        if s.z_start < prev_end {
-                            s.z_start = prev_end;
-                            s.z_end = s.z_end.max(prev_end);
-                        }
-                        prev_end = s.z_end;
-                        row[at] = s;
-                        at += 1;
-                    }
+            for p in r * j..r * (j + 1) {
+                if offsets[p] != offsets[p + 1] {
+                    at += compose_pixel(&row_parts[j], p, order, &mut row[at..]);
                 }
             }
         });
@@ -171,6 +139,52 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
     meta.volume_box =
         union_box(parts.iter().map(|v| v.meta().volume_box)).unwrap_or(meta.volume_box);
     Vdi::from_parts(meta, offsets, flat).ok_or(ComposeError::Empty)
+}
+
+/// The composed VDI's list offsets (`r² + 1`, as [`Vdi::offsets`]): each pixel's list is
+/// the sum of its lists in the parts with content in its row (`row_parts[j]` for row `j`).
+/// The caller checked that the total fits a `u32`.
+fn composed_offsets(row_parts: &[Vec<&Vdi>], r: usize) -> Vec<u32> {
+    let mut offsets = Vec::with_capacity(r * r + 1);
+    offsets.push(0u32);
+    let mut sum = 0u32;
+    for (j, active) in row_parts.iter().enumerate() {
+        for p in r * j..r * (j + 1) {
+            sum += active.iter().map(|v| v.count(p)).sum::<u32>();
+            offsets.push(sum);
+        }
+    }
+    offsets
+}
+
+/// Writes pixel `p`'s composed list to the start of `out` and returns its length: the lists
+/// of `parts` at `p`, ordered by their first supersegment's depth (`order` is scratch) and
+/// concatenated, each supersegment that starts before the previous one's end moved to start
+/// there (see the module docs).
+fn compose_pixel<'v>(
+    parts: &[&'v Vdi],
+    p: usize,
+    order: &mut Vec<&'v [Supersegment]>,
+    out: &mut [Supersegment],
+) -> usize {
+    order.clear();
+    order.extend(parts.iter().filter_map(|v| {
+        let (a, b) = (v.offsets()[p] as usize, v.offsets()[p + 1] as usize);
+        (a < b).then(|| &v.supersegments()[a..b])
+    }));
+    order.sort_unstable_by(|a, b| a[0].z_start.total_cmp(&b[0].z_start));
+    let mut prev_end = f32::NEG_INFINITY;
+    let segments = order.iter().flat_map(|list| list.iter());
+    for (out, s) in out.iter_mut().zip(segments) {
+        let mut s = *s;
+        if s.z_start < prev_end {
+            s.z_start = prev_end;
+            s.z_end = s.z_end.max(prev_end);
+        }
+        prev_end = s.z_end;
+        *out = s;
+    }
+    order.iter().map(|list| list.len()).sum()
 }
 
 /// One brick's frame at one view: colour (premultiplied, black background), accumulated
