@@ -254,6 +254,47 @@ async fn trials(
     }
 }
 
+/// Acts on one message from the tuner (of stream `epoch`) and returns the reply it needs now:
+/// a hold answered; a trial queued for the worker, or refused at once when more than
+/// `TRIAL_BACKLOG` wait (the tuner fails that trial) instead of queued without bound; a
+/// decision applied or refused, and acknowledged either way.
+fn answer(
+    shared: &Arc<Shared>,
+    tuning: &Tuning,
+    trial_tx: &mpsc::Sender<(u64, pb::TrialRequest)>,
+    epoch: u64,
+    m: Option<Down>,
+) -> Option<Up> {
+    match m? {
+        Down::Hold(h) => {
+            tuning.holds.answer(h.step, h.keep);
+            None
+        }
+        Down::Trial(t) => match trial_tx.try_send((epoch, t)) {
+            Err(TrySendError::Full((_, t))) => Some(Up::Trial(refusal(
+                &t,
+                format!("{TRIAL_BACKLOG} trials already wait on this node"),
+            ))),
+            _ => None,
+        },
+        Down::Decision(d) => {
+            let error = apply_decision(shared, &d).err().unwrap_or_default();
+            if !error.is_empty() {
+                warn!(%error, "refused a decision");
+            }
+            let ack = pb::DecisionAck {
+                pm_version: d.pm_version,
+                error,
+            };
+            Some(Up::Ack(ack))
+        }
+        Down::Error(e) => {
+            warn!(error = %e.message, "the tuner refused a message");
+            None
+        }
+    }
+}
+
 /// The result of a trial `req` that is not run, saying why.
 fn refusal(req: &pb::TrialRequest, error: String) -> pb::TrialResult {
     pb::TrialResult {
@@ -325,6 +366,24 @@ impl Link {
         }
     }
 
+    /// What this node says first on a stream: its identity, the `P_M` in force, and the
+    /// steps it still holds for trials from before a reconnection.
+    fn hello(&self, shared: &Shared, tuning: &Tuning) -> pb::NodeHello {
+        let g = shared.generation();
+        pb::NodeHello {
+            node_id: self.node_id.clone(),
+            pm_version: g.pm_version,
+            resolution: g.params.resolution,
+            gamma: g.params.gamma,
+            held: tuning
+                .holds
+                .claimed_after_reconnect()
+                .into_iter()
+                .map(|(step, rank)| pb::StepRank { step, rank })
+                .collect(),
+        }
+    }
+
     async fn session(
         &self,
         shared: &Arc<Shared>,
@@ -341,19 +400,7 @@ impl Link {
             .map_err(|e| format!("tuner {}: {}", self.peer.uri(), error_chain(&e)))?;
         let mut client = TunerClient::with_interceptor(channel, self.peer.auth());
         let (out, out_rx) = mpsc::channel::<pb::NodeMessage>(256);
-        let g = shared.generation();
-        let hello = pb::NodeHello {
-            node_id: self.node_id.clone(),
-            pm_version: g.pm_version,
-            resolution: g.params.resolution,
-            gamma: g.params.gamma,
-            held: tuning
-                .holds
-                .claimed_after_reconnect()
-                .into_iter()
-                .map(|(step, rank)| pb::StepRank { step, rank })
-                .collect(),
-        };
+        let hello = self.hello(shared, tuning);
         let send = |m: Up| pb::NodeMessage { msg: Some(m) };
         out.send(send(Up::Hello(hello)))
             .await
@@ -379,28 +426,8 @@ impl Link {
                 }
                 m = incoming.message() => {
                     let m = m.map_err(|e| e.message().to_owned())?.ok_or("the tuner ended the stream")?;
-                    match m.msg {
-                        Some(Down::Hold(h)) => {
-                            tuning.holds.answer(h.step, h.keep);
-                        }
-                        Some(Down::Trial(t)) => {
-                            // More than TRIAL_BACKLOG asked at once: refused now (the tuner
-                            // fails that trial) instead of queued without bound.
-                            if let Err(TrySendError::Full((_, t))) = trial_tx.try_send((epoch, t)) {
-                                let busy = refusal(&t, format!("{TRIAL_BACKLOG} trials already wait on this node"));
-                                out.send(send(Up::Trial(busy))).await.map_err(closed)?;
-                            }
-                        }
-                        Some(Down::Decision(d)) => {
-                            let error = apply_decision(shared, &d).err().unwrap_or_default();
-                            if !error.is_empty() {
-                                warn!(%error, "refused a decision");
-                            }
-                            let ack = pb::DecisionAck { pm_version: d.pm_version, error };
-                            out.send(send(Up::Ack(ack))).await.map_err(closed)?;
-                        }
-                        Some(Down::Error(e)) => warn!(error = %e.message, "the tuner refused a message"),
-                        None => {}
+                    if let Some(reply) = answer(shared, tuning, trial_tx, epoch, m.msg) {
+                        out.send(send(reply)).await.map_err(closed)?;
                     }
                 }
             }
