@@ -264,6 +264,48 @@ impl Lin {
     fn at(self, t: f32) -> f32 {
         self.f0 + self.f1 * t
     }
+
+    /// `a·self + sign·other`, coefficient by coefficient.
+    #[inline]
+    fn scaled_plus(self, a: f32, sign: f32, other: Lin) -> Lin {
+        Lin {
+            f0: a * self.f0 + sign * other.f0,
+            f1: a * self.f1 + sign * other.f1,
+        }
+    }
+}
+
+/// The part `t0 … t1` of a ray with generation eye coordinates `x, y, z` (linear in t)
+/// inside the generation frustum `|x| ≤ tx·z`, `|y| ≤ ty·z`, `z ≥ NEAR_DEPTH`; `None` where
+/// nothing is left (or a bound is NaN).
+fn frustum_span(
+    [x, y, z]: [Lin; 3],
+    (tx, ty): (f32, f32),
+    (mut t0, mut t1): (f32, f32),
+) -> Option<(f32, f32)> {
+    let planes = [
+        z.scaled_plus(tx, -1.0, x),
+        z.scaled_plus(tx, 1.0, x),
+        z.scaled_plus(ty, -1.0, y),
+        z.scaled_plus(ty, 1.0, y),
+        Lin {
+            f0: z.f0 - NEAR_DEPTH,
+            f1: z.f1,
+        },
+    ];
+    for p in planes {
+        if p.f1 > 0.0 {
+            t0 = t0.max(-p.f0 / p.f1);
+        } else if p.f1 < 0.0 {
+            t1 = t1.min(-p.f0 / p.f1);
+        } else if p.f0 < 0.0 {
+            return None;
+        }
+    }
+    if t1.is_nan() || t0.is_nan() || t1 <= t0 {
+        return None;
+    }
+    Some((t0, t1))
 }
 
 impl<'a> Walker<'a> {
@@ -308,12 +350,12 @@ impl<'a> Walker<'a> {
     /// frustum and projected into the generation image; `None` where nothing is left.
     fn segment(&self, ray: &Ray) -> Option<Segment> {
         let g = &self.gen;
-        let (mut t0, mut t1) = self
+        let (t0, t1) = self
             .vdi
             .meta()
             .volume_box
             .intersect(ray.origin, ray.dir.recip());
-        t0 = t0.max(0.0);
+        let t0 = t0.max(0.0);
         // Eye-space coordinates of the ray in the generation camera, linear in t.
         let e0 = g.to_eye(ray.origin);
         let e1 = Vec3::new(
@@ -325,41 +367,7 @@ impl<'a> Walker<'a> {
         let y = Lin { f0: e0.y, f1: e1.y };
         let z = Lin { f0: e0.z, f1: e1.z };
         let (tx, ty) = (g.tan_half_x, g.tan_half_y);
-        // Frustum: |x| ≤ tx·z, |y| ≤ ty·z, z > 0.
-        let planes = [
-            Lin {
-                f0: tx * z.f0 - x.f0,
-                f1: tx * z.f1 - x.f1,
-            },
-            Lin {
-                f0: tx * z.f0 + x.f0,
-                f1: tx * z.f1 + x.f1,
-            },
-            Lin {
-                f0: ty * z.f0 - y.f0,
-                f1: ty * z.f1 - y.f1,
-            },
-            Lin {
-                f0: ty * z.f0 + y.f0,
-                f1: ty * z.f1 + y.f1,
-            },
-            Lin {
-                f0: z.f0 - NEAR_DEPTH,
-                f1: z.f1,
-            },
-        ];
-        for p in planes {
-            if p.f1 > 0.0 {
-                t0 = t0.max(-p.f0 / p.f1);
-            } else if p.f1 < 0.0 {
-                t1 = t1.min(-p.f0 / p.f1);
-            } else if p.f0 < 0.0 {
-                return None;
-            }
-        }
-        if t1.is_nan() || t0.is_nan() || t1 <= t0 {
-            return None;
-        }
+        let (t0, t1) = frustum_span([x, y, z], (tx, ty), (t0, t1))?;
         let r = self.r as f32;
         // Pixel coordinates: px = (x/(z·tx) + 1)·r/2, py = (1 − y/(z·ty))·r/2.
         let px = |t: f32| (x.at(t) / (z.at(t) * tx) + 1.0) * 0.5 * r;
@@ -372,32 +380,7 @@ impl<'a> Walker<'a> {
         // a crossing (its own division) is solved only where a list is composited.
         let (w0, w1) = (inverse_depth(z.at(t0)), inverse_depth(z.at(t1)));
         let dw = w1 - w0;
-        let axis = |p0: f32, p1: f32| -> Axis {
-            let d = p1 - p0;
-            let step = if d > DEGENERATE_PX {
-                1
-            } else if d < -DEGENERATE_PX {
-                -1
-            } else {
-                0
-            };
-            let cell = if step < 0 {
-                fastmath::ceil(p0) as i64 - 1
-            } else {
-                -fastmath::ceil(-p0) as i64
-            };
-            let inv_d = if step == 0 { 0.0 } else { 1.0 / d };
-            Axis {
-                p0,
-                inv_d,
-                step,
-                ahead: i64::from(step > 0),
-                cell: cell.clamp(0, self.r - 1),
-                // The pixel coordinates' rounding (a few ulp of r; 1e-5·(r + 1) taken) over
-                // the axis' extent, times the depth range.
-                depth_error: (1e-5 * (r + 1.0) * inv_d.abs()).min(1.0) * dw.abs(),
-            }
-        };
+        let axis = |p0: f32, p1: f32| Axis::new(p0, p1, self.r, dw);
         Some(Segment {
             x,
             y,
@@ -780,6 +763,35 @@ struct Axis {
 }
 
 impl Axis {
+    /// The axis of a projection from `p0` to `p1` (pixels) in an image of `r` pixels a side,
+    /// over a depth range `dw` (inverse depth).
+    fn new(p0: f32, p1: f32, r: i64, dw: f32) -> Self {
+        let d = p1 - p0;
+        let step = if d > DEGENERATE_PX {
+            1
+        } else if d < -DEGENERATE_PX {
+            -1
+        } else {
+            0
+        };
+        let cell = if step < 0 {
+            fastmath::ceil(p0) as i64 - 1
+        } else {
+            -fastmath::ceil(-p0) as i64
+        };
+        let inv_d = if step == 0 { 0.0 } else { 1.0 / d };
+        Axis {
+            p0,
+            inv_d,
+            step,
+            ahead: i64::from(step > 0),
+            cell: cell.clamp(0, r - 1),
+            // The pixel coordinates' rounding (a few ulp of r; 1e-5·(r + 1) taken) over the
+            // axis' extent, times the depth range.
+            depth_error: (1e-5 * (r as f32 + 1.0) * inv_d.abs()).min(1.0) * dw.abs(),
+        }
+    }
+
     /// `u` where the segment reaches boundary `b`.
     #[inline]
     fn at(&self, b: i64) -> f32 {
