@@ -333,7 +333,7 @@ impl LocalNodes {
         .await
         .context("starting the viz-node")?;
         if let Some(url) = viz.viewer_url() {
-            // Beside JSON lines on stdout, on stderr.
+            // With --json, stdout holds JSON lines only: the address goes to stderr.
             let line = format!("web viewer: {url}");
             if a.json {
                 eprintln!("{line}");

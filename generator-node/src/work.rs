@@ -84,43 +84,36 @@ pub fn run(
     } else {
         None
     };
+    // Every field named: a field added to the header is a compile error here until it is set.
+    let info = &raw.info;
     let product = Product {
         vdi_header: pb::VdiHeader {
+            step: info.step,
+            sim_time: info.sim_time,
+            rank: info.rank,
+            world_size: info.world_size,
+            resolution: gen.params.resolution,
+            gamma: gen.params.gamma,
+            codec: codec_to_pb(gen.codec) as i32,
             total_bytes: file.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
             tau_secs: generated.seconds,
             tau_compress_secs,
-            tau_source: generated.source.name().into(),
             tf_hash,
             tf_name: tf.1.clone(),
+            tau_source: generated.source.name().into(),
             backend: backend.describe(),
+            pm_version: gen.pm_version,
+            global_dims: Some(dims_to_pb(info.global_dims)),
+            brick_offset: Some(dims_to_pb(info.brick_offset)),
+            brick_dims: Some(dims_to_pb(info.brick_dims)),
             with_references: references.is_some(),
-            ..vdi_header(raw, gen)
         },
         vdi: Bytes::from(file),
         references,
         spool: raw.spooled(),
     };
     Ok((product, generated.value))
-}
-
-/// The header fields of a step's VDI that its step and `P_M` give (the rest: what
-/// generation and compression measured).
-fn vdi_header(raw: &RawStep, gen: &Generation) -> pb::VdiHeader {
-    pb::VdiHeader {
-        step: raw.info.step,
-        sim_time: raw.info.sim_time,
-        rank: raw.info.rank,
-        world_size: raw.info.world_size,
-        resolution: gen.params.resolution,
-        gamma: gen.params.gamma,
-        codec: codec_to_pb(gen.codec) as i32,
-        pm_version: gen.pm_version,
-        global_dims: Some(dims_to_pb(raw.info.global_dims)),
-        brick_offset: Some(dims_to_pb(raw.info.brick_offset)),
-        brick_dims: Some(dims_to_pb(raw.info.brick_dims)),
-        ..Default::default()
-    }
 }
 
 /// The reference frames of a sampled step: each test view rendered from the original data
