@@ -452,10 +452,10 @@ impl VizService {
         }
         let placement = placement(&h)?;
         let s = self.0.clone();
-        let entry = tokio::task::spawn_blocking(move || store_vdi(&s, &h, &bytes, placement))
-            .await
-            .map_err(join_error)??;
-        let (entry, new) = entry;
+        let (entry, new) =
+            tokio::task::spawn_blocking(move || store_vdi(&s, &h, &bytes, placement))
+                .await
+                .map_err(join_error)??;
         if new {
             self.0.vdis_stored.fetch_add(1, Ordering::Relaxed);
             self.0.after_store(&entry, true).await;
@@ -477,10 +477,10 @@ impl VizService {
             .record("rank", h.rank);
         let camera = reference_camera(&h)?;
         let s = self.0.clone();
-        let entry = tokio::task::spawn_blocking(move || store_references(&s, h, camera, &bytes))
-            .await
-            .map_err(join_error)??;
-        let (entry, new) = entry;
+        let (entry, new) =
+            tokio::task::spawn_blocking(move || store_references(&s, h, camera, &bytes))
+                .await
+                .map_err(join_error)??;
         if new {
             self.0.references_stored.fetch_add(1, Ordering::Relaxed);
             self.0.after_store(&entry, false).await;
