@@ -67,6 +67,42 @@ fn texture(binding: u32, view_dimension: wgpu::TextureViewDimension) -> wgpu::Bi
     )
 }
 
+/// The WGSL module of `parts` concatenated.
+fn shader_module(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+    })
+}
+
+/// The compute pipeline of `entry_point` in `module`, with bind groups `layouts` (in order)
+/// and the pipeline-overridable `constants`.
+fn compute_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    module: &wgpu::ShaderModule,
+    entry_point: &str,
+    layouts: &[&wgpu::BindGroupLayout],
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &layouts.iter().map(|l| Some(*l)).collect::<Vec<_>>(),
+        immediate_size: 0,
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: Some(&layout),
+        module,
+        entry_point: Some(entry_point),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants,
+            ..Default::default()
+        },
+        cache: None,
+    })
+}
+
 impl Kernels {
     pub(super) fn new(device: &wgpu::Device) -> Result<Self, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -107,41 +143,14 @@ impl Kernels {
                 storage(4, true),
             ],
         );
-        let module = |label: &str, parts: &[&str]| {
-            device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
-            })
-        };
-        let pipeline = |label: &str,
-                        module: &wgpu::ShaderModule,
-                        entry_point: &str,
-                        layouts: &[&wgpu::BindGroupLayout],
-                        constants: &[(&str, f64)]| {
-            let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(label),
-                bind_group_layouts: &layouts.iter().map(|l| Some(*l)).collect::<Vec<_>>(),
-                immediate_size: 0,
-            });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(label),
-                layout: Some(&layout),
-                module,
-                entry_point: Some(entry_point),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants,
-                    ..Default::default()
-                },
-                cache: None,
-            })
-        };
-        let dvr_module = module("dvr", &[PRELUDE, COMMON, DVR]);
-        let generate_module = module("generate", &[PRELUDE, COMMON, GENERATE]);
-        let compact_module = module("compact", &[PRELUDE, COMPACT]);
-        let render_module = module("render", &[PRELUDE, RENDER]);
+        let dvr_module = shader_module(device, "dvr", &[PRELUDE, COMMON, DVR]);
+        let generate_module = shader_module(device, "generate", &[PRELUDE, COMMON, GENERATE]);
+        let compact_module = shader_module(device, "compact", &[PRELUDE, COMPACT]);
+        let render_module = shader_module(device, "render", &[PRELUDE, RENDER]);
         let shade = |on: bool| [("SHADE", if on { 1.0 } else { 0.0 })];
         let dvr = [false, true].map(|on| {
-            pipeline(
+            compute_pipeline(
+                device,
                 "dvr",
                 &dvr_module,
                 "dvr_main",
@@ -150,7 +159,8 @@ impl Kernels {
             )
         });
         let generate = [false, true].map(|on| {
-            pipeline(
+            compute_pipeline(
+                device,
                 "generate",
                 &generate_module,
                 "generate_main",
@@ -158,14 +168,16 @@ impl Kernels {
                 &shade(on),
             )
         });
-        let compact = pipeline(
+        let compact = compute_pipeline(
+            device,
             "compact",
             &compact_module,
             "compact_main",
             &[&compact_layout],
             &[],
         );
-        let render = pipeline(
+        let render = compute_pipeline(
+            device,
             "render",
             &render_module,
             "render_main",
