@@ -154,227 +154,309 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
     let (g, shots) = (&r.generator, artefacts());
     rt().block_on(async {
         let c = r.open().await;
-        // A first still frame of the latest step, not blank.
-        let first = wait_frame(&c, 20.0, |d| d["kind"] == "still").await;
-        assert_eq!(first["step"], "5", "follows the latest step: {first}");
-        let img0 = image_of(&c, "frame").await;
-        assert!(not_blank(&img0), "the first frame is blank");
-        std::fs::write(shots.join("viewer-first.png"), c.screenshot().await.unwrap()).unwrap();
+        let first = first_frame_and_charts(&c, &shots).await;
+        orbit_matches_the_api(&c, &first, &shots).await;
+        time_slider_and_reference(&c, &shots).await;
+        follows_new_steps(&c, &g.addr, &shots).await;
+        reconnects_without_holding_up_pushes(&c, &g.addr).await;
+        camera_bursts_are_superseded(&c).await;
+        c.close().await.unwrap();
+    });
+    r.generator.terminate();
+}
 
-        // The charts hold one point per stored step.
-        for id in ["chart-sigma", "chart-tau"] {
-            let e = c.find(Locator::Id(id)).await.unwrap();
-            assert_eq!(e.attr("data-points").await.unwrap().as_deref(), Some("6"), "{id}");
-        }
-        let q_points = c
-            .find(Locator::Id("chart-q"))
+/// The page as it looks now, kept as `name` among the test's artefacts.
+async fn screenshot(c: &Client, shots: &Path, name: &str) {
+    std::fs::write(shots.join(name), c.screenshot().await.unwrap()).unwrap();
+}
+
+/// The first still frame is the latest step's and not blank, and the charts hold one point
+/// per stored step (q on the sampled ones); returns that frame.
+async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
+    // A first still frame of the latest step, not blank.
+    let first = wait_frame(c, 20.0, |d| d["kind"] == "still").await;
+    assert_eq!(first["step"], "5", "follows the latest step: {first}");
+    let img0 = image_of(c, "frame").await;
+    assert!(not_blank(&img0), "the first frame is blank");
+    screenshot(c, shots, "viewer-first.png").await;
+
+    // The charts hold one point per stored step.
+    for id in ["chart-sigma", "chart-tau"] {
+        let e = c.find(Locator::Id(id)).await.unwrap();
+        assert_eq!(
+            e.attr("data-points").await.unwrap().as_deref(),
+            Some("6"),
+            "{id}"
+        );
+    }
+    let q_points = c
+        .find(Locator::Id("chart-q"))
+        .await
+        .unwrap()
+        .attr("data-points")
+        .await
+        .unwrap();
+    assert_eq!(
+        q_points.as_deref(),
+        Some("3"),
+        "q on the sampled steps 0, 2, 4"
+    );
+    img0
+}
+
+/// Dragging orbits: the frame changes, and its still matches the API's render of that
+/// camera.
+async fn orbit_matches_the_api(c: &Client, img0: &Image, shots: &Path) {
+    // Drag to orbit: the frame changes, and its still matches the API's render of that
+    // camera.
+    let frame = c.find(Locator::Id("frame")).await.unwrap();
+    let mouse = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: frame.clone(),
+            duration: None,
+            x: 0.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down {
+            button: MOUSE_BUTTON_LEFT,
+        })
+        .then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(300)),
+            x: -120.0,
+            y: 40.0,
+        })
+        .then(PointerAction::Up {
+            button: MOUSE_BUTTON_LEFT,
+        });
+    c.perform_actions(mouse).await.unwrap();
+    let after = wait_frame(c, 20.0, |d| {
+        d["kind"] == "still" && d["angle"] != "0" && d["elevation"] != "0"
+    })
+    .await;
+    let shown = image_of(c, "frame").await;
+    assert!(mse(&shown, img0).unwrap() > 0.0, "the frame did not change");
+    let api = image_of(
+        c,
+        &format!(
+            "/api/render?step={}&angle={}&elevation={}&zoom={}&size={}&format=png",
+            after["step"].as_str().unwrap(),
+            after["angle"].as_str().unwrap(),
+            after["elevation"].as_str().unwrap(),
+            after["zoom"].as_str().unwrap(),
+            after["width"].as_str().unwrap()
+        ),
+    )
+    .await;
+    let q = psnr_from_mse(mse(&shown, &api).unwrap());
+    assert!(q >= 40.0, "page vs API still: {q} dB");
+    screenshot(c, shots, "viewer-orbit.png").await;
+}
+
+/// The time slider moves through the steps by keyboard; on a sampled step, the stored
+/// reference appears beside the frame, byte for byte the API's, with the VDI shown from the
+/// reference's camera.
+async fn time_slider_and_reference(c: &Client, shots: &Path) {
+    // The time slider: two steps back with the keyboard shows step 3.
+    let slider = c.find(Locator::Id("slider")).await.unwrap();
+    slider
+        .send_keys(&format!("{}{}", Key::Left, Key::Left))
+        .await
+        .unwrap();
+    wait_frame(c, 20.0, |d| d["step"] == "3" && d["kind"] == "still").await;
+
+    // VDI vs reference on a sampled step (references on 0, 2, 4): the stored reference
+    // appears beside the frame, byte for byte the API's, and the VDI is shown from the
+    // reference's camera.
+    slider.send_keys(&Key::Right.to_string()).await.unwrap();
+    wait_frame(c, 20.0, |d| d["step"] == "4" && d["kind"] == "still").await;
+    c.find(Locator::Id("compare"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let t = Instant::now();
+    while js(
+        c,
+        "const r = document.getElementById('reference');
+         done(!r.hidden && r.complete && r.naturalWidth > 0 && r.src.startsWith('blob:'));",
+    )
+    .await
+        != json!(true)
+    {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "no reference frame shown"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let shown_ref = image_of(c, "reference").await;
+    let api_ref = image_of(c, "/api/reference?step=4&view=0").await;
+    assert!(
+        shown_ref == api_ref,
+        "the page's reference is not the API's"
+    );
+    assert!(not_blank(&shown_ref), "the reference frame is blank");
+    let ref_angle = js(
+        c,
+        "const r = await fetch('/api/reference?step=4&view=0'); done(r.headers.get('x-angle'));",
+    )
+    .await;
+    let ref_angle: f64 = ref_angle.as_str().unwrap().parse().unwrap();
+    wait_frame(c, 20.0, |d| {
+        d["kind"] == "still"
+            && d["step"] == "4"
+            && d["angle"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(ref_angle)
+            && d["elevation"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(0.0)
+    })
+    .await;
+    screenshot(c, shots, "viewer-compare.png").await;
+    c.find(Locator::Id("compare"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+}
+
+/// With "follow latest", a step pushed to the generator at `generator` appears without a
+/// reload, and the charts grow by it.
+async fn follows_new_steps(c: &Client, generator: &str, shots: &Path) {
+    // Follow latest: new steps appear without a reload.
+    c.find(Locator::Id("follow"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    push_ocean(generator, 40, 7).await;
+    wait_frame(c, 30.0, |d| d["step"] == "40").await;
+    let points = async {
+        c.find(Locator::Id("chart-sigma"))
+            .await
+            .unwrap()
+            .attr("data-points")
+            .await
+            .unwrap()
+    };
+    let t = Instant::now();
+    let mut p = points.await;
+    while p.as_deref() != Some("7") && t.elapsed() < Duration::from_secs(10) {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        p = c
+            .find(Locator::Id("chart-sigma"))
             .await
             .unwrap()
             .attr("data-points")
             .await
             .unwrap();
-        assert_eq!(q_points.as_deref(), Some("3"), "q on the sampled steps 0, 2, 4");
+    }
+    assert_eq!(p.as_deref(), Some("7"), "the chart grew by the new step");
+    screenshot(c, shots, "viewer-live.png").await;
+}
 
-        // Drag to orbit: the frame changes, and its still matches the API's render of that
-        // camera.
-        let frame = c.find(Locator::Id("frame")).await.unwrap();
-        let mouse = MouseActions::new("mouse".into())
-            .then(PointerAction::MoveToElement {
-                element: frame.clone(),
-                duration: None,
-                x: 0.0,
-                y: 0.0,
-            })
-            .then(PointerAction::Down {
-                button: MOUSE_BUTTON_LEFT,
-            })
-            .then(PointerAction::MoveBy {
-                duration: Some(Duration::from_millis(300)),
-                x: -120.0,
-                y: 40.0,
-            })
-            .then(PointerAction::Up {
-                button: MOUSE_BUTTON_LEFT,
-            });
-        c.perform_actions(mouse).await.unwrap();
-        let after = wait_frame(&c, 20.0, |d| {
-            d["kind"] == "still" && d["angle"] != "0" && d["elevation"] != "0"
-        })
-        .await;
-        let shown = image_of(&c, "frame").await;
-        assert!(mse(&shown, &img0).unwrap() > 0.0, "the frame did not change");
-        let api = image_of(
-            &c,
-            &format!(
-                "/api/render?step={}&angle={}&elevation={}&zoom={}&size={}&format=png",
-                after["step"].as_str().unwrap(),
-                after["angle"].as_str().unwrap(),
-                after["elevation"].as_str().unwrap(),
-                after["zoom"].as_str().unwrap(),
-                after["width"].as_str().unwrap()
-            ),
-        )
-        .await;
-        let q = psnr_from_mse(mse(&shown, &api).unwrap());
-        assert!(q >= 40.0, "page vs API still: {q} dB");
-        std::fs::write(shots.join("viewer-orbit.png"), c.screenshot().await.unwrap()).unwrap();
+/// The page's connection drops while the simulation pushes a step: the push is not held
+/// up, and the page reconnects and shows that step.
+async fn reconnects_without_holding_up_pushes(c: &Client, generator: &str) {
+    // The connection drops (as a network would drop it) while the simulation pushes a
+    // step: the push is not held up, and the page reconnects and shows that step.
+    let connections = || js(c, "done(document.body.dataset.connections || '0');");
+    assert_eq!(connections().await, json!("1"));
+    js(c, "window.insituViewer.dropConnection(); done(true);").await;
+    let pushed = Instant::now();
+    push_ocean(generator, 41, 8).await;
+    let push_secs = pushed.elapsed().as_secs_f64();
+    let t = Instant::now();
+    while connections().await != json!("2") {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "the page did not reconnect"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    wait_frame(c, 30.0, |d| d["step"] == "41" && d["kind"] == "still").await;
+    eprintln!("push while the page was away: {push_secs:.3} s");
+    assert!(
+        push_secs < 5.0,
+        "the push waited {push_secs} s for the viewer"
+    );
+}
 
-        // The time slider: two steps back with the keyboard shows step 3.
-        let slider = c.find(Locator::Id("slider")).await.unwrap();
-        slider.send_keys(&format!("{}{}", Key::Left, Key::Left)).await.unwrap();
-        wait_frame(&c, 20.0, |d| d["step"] == "3" && d["kind"] == "still").await;
-
-        // VDI vs reference on a sampled step (references on 0, 2, 4): the stored reference
-        // appears beside the frame, byte for byte the API's, and the VDI is shown from the
-        // reference's camera.
-        slider.send_keys(&Key::Right.to_string()).await.unwrap();
-        wait_frame(&c, 20.0, |d| d["step"] == "4" && d["kind"] == "still").await;
-        c.find(Locator::Id("compare")).await.unwrap().click().await.unwrap();
-        let t = Instant::now();
-        while js(
-            &c,
-            "const r = document.getElementById('reference');
-             done(!r.hidden && r.complete && r.naturalWidth > 0 && r.src.startsWith('blob:'));",
-        )
-        .await
-            != json!(true)
-        {
-            assert!(t.elapsed() < Duration::from_secs(20), "no reference frame shown");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-        let shown_ref = image_of(&c, "reference").await;
-        let api_ref = image_of(&c, "/api/reference?step=4&view=0").await;
-        assert!(shown_ref == api_ref, "the page's reference is not the API's");
-        assert!(not_blank(&shown_ref), "the reference frame is blank");
-        let ref_angle = js(
-            &c,
-            "const r = await fetch('/api/reference?step=4&view=0'); done(r.headers.get('x-angle'));",
-        )
-        .await;
-        let ref_angle: f64 = ref_angle.as_str().unwrap().parse().unwrap();
-        wait_frame(&c, 20.0, |d| {
-            d["kind"] == "still"
-                && d["step"] == "4"
-                && d["angle"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(ref_angle)
-                && d["elevation"].as_str().and_then(|a| a.parse::<f64>().ok()) == Some(0.0)
-        })
-        .await;
-        std::fs::write(shots.join("viewer-compare.png"), c.screenshot().await.unwrap()).unwrap();
-        c.find(Locator::Id("compare")).await.unwrap().click().await.unwrap();
-
-        // Follow latest: new steps appear without a reload.
-        c.find(Locator::Id("follow")).await.unwrap().click().await.unwrap();
-        push_ocean(&g.addr, 40, 7).await;
-        wait_frame(&c, 30.0, |d| d["step"] == "40").await;
-        let points = async {
-            c.find(Locator::Id("chart-sigma"))
-                .await
-                .unwrap()
-                .attr("data-points")
-                .await
-                .unwrap()
-        };
-        let t = Instant::now();
-        let mut p = points.await;
-        while p.as_deref() != Some("7") && t.elapsed() < Duration::from_secs(10) {
-            tokio::time::sleep(Duration::from_millis(100)).await;
-            p = c
-                .find(Locator::Id("chart-sigma"))
-                .await
-                .unwrap()
-                .attr("data-points")
-                .await
-                .unwrap();
-        }
-        assert_eq!(p.as_deref(), Some("7"), "the chart grew by the new step");
-        std::fs::write(shots.join("viewer-live.png"), c.screenshot().await.unwrap()).unwrap();
-
-        // The connection drops (as a network would drop it) while the simulation pushes a
-        // step: the push is not held up, and the page reconnects and shows that step.
-        let connections = || js(&c, "done(document.body.dataset.connections || '0');");
-        assert_eq!(connections().await, json!("1"));
-        js(&c, "window.insituViewer.dropConnection(); done(true);").await;
-        let pushed = Instant::now();
-        push_ocean(&g.addr, 41, 8).await;
-        let push_secs = pushed.elapsed().as_secs_f64();
-        let t = Instant::now();
-        while connections().await != json!("2") {
-            assert!(t.elapsed() < Duration::from_secs(20), "the page did not reconnect");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-        wait_frame(&c, 30.0, |d| d["step"] == "41" && d["kind"] == "still").await;
-        eprintln!("push while the page was away: {push_secs:.3} s");
-        assert!(push_secs < 5.0, "the push waited {push_secs} s for the viewer");
-
-        // 50 quick camera changes on one socket: the latest is rendered, the rest superseded.
-        let burst = js(
-            &c,
-            "const before = await (await fetch('/api/stats')).json();
-             const ws = new WebSocket(location.href.replace(/^http/, 'ws').replace(/\\/?(\\?.*)?$/, '/api/live'));
-             ws.binaryType = 'arraybuffer';
-             const frames = [], levels = {};
-             let errors = [];
-             ws.onmessage = (m) => { if (typeof m.data === 'string') { const j = JSON.parse(m.data);
-               if (j.frame !== undefined) { frames.push(j.frame); levels[j.frame] = j.vdi_resolution; }
-               if (j.error) errors.push(j.error); } };
-             await new Promise(r => ws.onopen = r);
-             ws.send('{not json');
-             for (let i = 1; i <= 50; i++) ws.send(JSON.stringify({id: i, step: null, rank: null,
-               angle: i * 3, elevation: 10, zoom: 1, width: 256, height: 256, format: 'jpeg'}));
-             const t0 = Date.now();
-             while (!frames.includes(50) && Date.now() - t0 < 20000) await new Promise(r => setTimeout(r, 50));
-             // Bad requests one at a time (a newer request would supersede a waiting one).
-             for (const bad of [{id: 51, step: 999999, width: 8, height: 8, format: 'png'},
-                                {id: 52, step: null, width: 0, height: 8, format: 'png'}]) {
-               const n = errors.length;
-               ws.send(JSON.stringify(bad));
-               while (errors.length === n && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 20));
-             }
-             ws.send(JSON.stringify({id: 53, step: null, width: 64, height: 64, format: 'png'}));
-             while (!frames.includes(53) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
-             // An 8² frame asked with and without the matching level of detail.
-             for (const [id, lod] of [[54, true], [55, false]]) {
-               ws.send(JSON.stringify({id, step: null, width: 8, height: 8, format: 'png', lod}));
-               while (!frames.includes(id) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
-             }
-             // The same through the still-image API.
-             const rest = [];
-             for (const lod of [true, false])
-               rest.push((await fetch(`/api/render?size=8&lod=${lod}`)).headers.get('x-vdi-resolution'));
-             const after = await (await fetch('/api/stats')).json();
-             ws.close();
-             done({frames, errors, levels, rest, before, after});",
-        )
-        .await;
-        let frames = burst["frames"].as_array().unwrap();
-        let rendered = burst["after"]["rendered"].as_u64().unwrap()
-            - burst["before"]["rendered"].as_u64().unwrap();
-        let superseded = burst["after"]["superseded"].as_u64().unwrap()
-            - burst["before"]["superseded"].as_u64().unwrap();
-        eprintln!("50 camera changes: {rendered} renders, {superseded} superseded, frames {frames:?}");
-        assert!(frames.contains(&json!(50)) && frames.contains(&json!(53)), "{burst}");
-        // An 8² frame with `lod` walks the VDI halved down to r = 8, without it the VDI itself
-        // (what the 64² still was rendered from).
-        let full = burst["levels"]["53"].as_u64().unwrap();
-        assert!(full >= 16, "{burst}");
-        assert_eq!(burst["levels"]["54"], json!(8), "{burst}");
-        assert_eq!(burst["levels"]["55"], json!(full), "{burst}");
-        assert_eq!(burst["rest"], json!(["8", full.to_string()]), "{burst}");
-        // Other sockets (the page's own) may render meanwhile; the burst's 50 requests must
-        // not have queued 50 renders.
-        assert!(rendered <= 12 && superseded >= 40, "{burst}");
-        let errors: Vec<&str> = burst["errors"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter_map(Value::as_str)
-            .collect();
-        assert!(errors.iter().any(|e| e.contains("malformed")), "{errors:?}");
-        assert!(errors.iter().any(|e| e.contains("step 999999")), "{errors:?}");
-        assert!(errors.iter().any(|e| e.contains("width 0")), "{errors:?}");
-        c.close().await.unwrap();
-    });
-    r.generator.terminate();
+/// Fifty quick camera changes on one socket render the latest and supersede the rest; bad
+/// requests get clear errors; the level of detail follows `lod`.
+async fn camera_bursts_are_superseded(c: &Client) {
+    // 50 quick camera changes on one socket: the latest is rendered, the rest superseded.
+    let burst = js(
+        c,
+        "const before = await (await fetch('/api/stats')).json();
+         const ws = new WebSocket(location.href.replace(/^http/, 'ws').replace(/\\/?(\\?.*)?$/, '/api/live'));
+         ws.binaryType = 'arraybuffer';
+         const frames = [], levels = {};
+         let errors = [];
+         ws.onmessage = (m) => { if (typeof m.data === 'string') { const j = JSON.parse(m.data);
+           if (j.frame !== undefined) { frames.push(j.frame); levels[j.frame] = j.vdi_resolution; }
+           if (j.error) errors.push(j.error); } };
+         await new Promise(r => ws.onopen = r);
+         ws.send('{not json');
+         for (let i = 1; i <= 50; i++) ws.send(JSON.stringify({id: i, step: null, rank: null,
+           angle: i * 3, elevation: 10, zoom: 1, width: 256, height: 256, format: 'jpeg'}));
+         const t0 = Date.now();
+         while (!frames.includes(50) && Date.now() - t0 < 20000) await new Promise(r => setTimeout(r, 50));
+         // Bad requests one at a time (a newer request would supersede a waiting one).
+         for (const bad of [{id: 51, step: 999999, width: 8, height: 8, format: 'png'},
+                            {id: 52, step: null, width: 0, height: 8, format: 'png'}]) {
+           const n = errors.length;
+           ws.send(JSON.stringify(bad));
+           while (errors.length === n && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 20));
+         }
+         ws.send(JSON.stringify({id: 53, step: null, width: 64, height: 64, format: 'png'}));
+         while (!frames.includes(53) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
+         // An 8² frame asked with and without the matching level of detail.
+         for (const [id, lod] of [[54, true], [55, false]]) {
+           ws.send(JSON.stringify({id, step: null, width: 8, height: 8, format: 'png', lod}));
+           while (!frames.includes(id) && Date.now() - t0 < 30000) await new Promise(r => setTimeout(r, 50));
+         }
+         // The same through the still-image API.
+         const rest = [];
+         for (const lod of [true, false])
+           rest.push((await fetch(`/api/render?size=8&lod=${lod}`)).headers.get('x-vdi-resolution'));
+         const after = await (await fetch('/api/stats')).json();
+         ws.close();
+         done({frames, errors, levels, rest, before, after});",
+    )
+    .await;
+    let frames = burst["frames"].as_array().unwrap();
+    let rendered = burst["after"]["rendered"].as_u64().unwrap()
+        - burst["before"]["rendered"].as_u64().unwrap();
+    let superseded = burst["after"]["superseded"].as_u64().unwrap()
+        - burst["before"]["superseded"].as_u64().unwrap();
+    eprintln!("50 camera changes: {rendered} renders, {superseded} superseded, frames {frames:?}");
+    assert!(
+        frames.contains(&json!(50)) && frames.contains(&json!(53)),
+        "{burst}"
+    );
+    // An 8² frame with `lod` walks the VDI halved down to r = 8, without it the VDI itself
+    // (what the 64² still was rendered from).
+    let full = burst["levels"]["53"].as_u64().unwrap();
+    assert!(full >= 16, "{burst}");
+    assert_eq!(burst["levels"]["54"], json!(8), "{burst}");
+    assert_eq!(burst["levels"]["55"], json!(full), "{burst}");
+    assert_eq!(burst["rest"], json!(["8", full.to_string()]), "{burst}");
+    // Other sockets (the page's own) may render meanwhile; the burst's 50 requests must
+    // not have queued 50 renders.
+    assert!(rendered <= 12 && superseded >= 40, "{burst}");
+    let errors: Vec<&str> = burst["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .collect();
+    assert!(errors.iter().any(|e| e.contains("malformed")), "{errors:?}");
+    assert!(
+        errors.iter().any(|e| e.contains("step 999999")),
+        "{errors:?}"
+    );
+    assert!(errors.iter().any(|e| e.contains("width 0")), "{errors:?}");
 }
 
 /// A recording of two ranks: the page shows the step composed over both by default and one
@@ -422,7 +504,7 @@ fn the_rank_selection_shows_one_brick_or_the_composed_step() {
                 "rank 1 alone looks like the composed step ({apart} dB)"
             );
         }
-        std::fs::write(shots.join("viewer-rank.png"), c.screenshot().await.unwrap()).unwrap();
+        screenshot(&c, &shots, "viewer-rank.png").await;
         c.close().await.unwrap();
     });
     r.generator.terminate();
