@@ -178,6 +178,9 @@ def main():
                     help="also render a VDI of resolution R (made at 0°, the default camera) "
                          "from the same view in each round (repeatable)")
     ap.add_argument("--gamma", type=float, default=0.013, help="the VDIs' interrupt threshold")
+    ap.add_argument("--row", metavar="FILE",
+                    help="also append this comparison to FILE as a Markdown table row: volume, "
+                         "view, both medians, the ratio of medians (of minima), PSNR")
     a = ap.parse_args()
 
     data, dims = load_raw(a.volume)
@@ -224,6 +227,11 @@ def main():
     print(f"  ratio VTK / insitu: {mv / mo:.2f}×;  PSNR between the images: {psnr(theirs, ours):.1f} dB")
     print(f"  (minima: VTK {min(t_vtk):.3f} s, insitu {min(t_ours):.3f} s, "
           f"ratio {min(t_vtk) / min(t_ours):.2f}×)")
+    if a.row:
+        with open(a.row, "a") as f:
+            f.write(f"| {os.path.basename(a.volume)} | {a.angle:g}° | {mv:.3f} s | {mo:.3f} s | "
+                    f"{mv / mo:.2f}× ({min(t_vtk) / min(t_ours):.2f}×) | "
+                    f"{psnr(theirs, ours):.1f} dB |\n")
     for r, _, png, times in vdis:
         m = statistics.median(times)
         q = psnr(ours, np.asarray(Image.open(png).convert("RGB")))

@@ -7,6 +7,8 @@
 #   bench/vtk_compare.sh --runs 9              # the same, 9 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
+#   bench/vtk_compare.sh --suite --runs 7      # the eight views of the README's table (the four
+#                                              # shared volumes at 30° and 10°), then the table
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=bench/.venv
@@ -18,6 +20,26 @@ cargo build --release --quiet -p insitu-cli
 data=${INSITU_DATA_DIR:-../shared/data}
 tfs=${INSITU_TF_DIR:-../shared/tf}
 args=("$@")
+if [ "${1:-}" = "--suite" ]; then
+  # Each view in turn (its own VTK window and insitu processes), each adding its row.
+  table=$(mktemp)
+  for angle in 30 10; do
+    for v in "teapot_256x256x178_uint8.raw teapot.json" "hydrogen_64x64x64_float32.raw hydrogen.json" \
+             "neghip_66x66x66_uint8.raw" "stent_128x128x256_int16.raw"; do
+      set -- $v
+      tf=()
+      [ -n "${2:-}" ] && tf=(--tf "$tfs/$2")
+      "$venv/bin/python" bench/vtk_compare.py --insitu target/release/insitu \
+        --volume "$data/$1" "${tf[@]}" --angle "$angle" --row "$table" "${args[@]:1}"
+    done
+  done
+  echo
+  echo "| volume | view | VTK median | insitu median | ratio of medians (of minima) | PSNR |"
+  echo "|---|---|---|---|---|---|"
+  cat "$table"
+  rm -f "$table"
+  exit 0
+fi
 # Without --volume, the teapot with its TF at 30° (the other options still apply).
 case " $* " in
   *" --volume "*) ;;
