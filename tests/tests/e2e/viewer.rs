@@ -165,6 +165,26 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
     r.generator.terminate();
 }
 
+/// Clicks the element with id `id`.
+async fn click(c: &Client, id: &str) {
+    c.find(Locator::Id(id))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+}
+
+/// The points the chart with id `id` says it draws (its `data-points`).
+async fn chart_points(c: &Client, id: &str) -> Option<String> {
+    c.find(Locator::Id(id))
+        .await
+        .unwrap()
+        .attr("data-points")
+        .await
+        .unwrap()
+}
+
 /// The page as it looks now, kept as `name` among the test's artefacts.
 async fn screenshot(c: &Client, shots: &Path, name: &str) {
     std::fs::write(shots.join(name), c.screenshot().await.unwrap()).unwrap();
@@ -173,7 +193,6 @@ async fn screenshot(c: &Client, shots: &Path, name: &str) {
 /// The first still frame is the latest step's and not blank, and the charts hold one point
 /// per stored step (q on the sampled ones); returns that frame.
 async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
-    // A first still frame of the latest step, not blank.
     let first = wait_frame(c, 20.0, |d| d["kind"] == "still").await;
     assert_eq!(first["step"], "5", "follows the latest step: {first}");
     let img0 = image_of(c, "frame").await;
@@ -182,22 +201,10 @@ async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
 
     // The charts hold one point per stored step.
     for id in ["chart-sigma", "chart-tau"] {
-        let e = c.find(Locator::Id(id)).await.unwrap();
-        assert_eq!(
-            e.attr("data-points").await.unwrap().as_deref(),
-            Some("6"),
-            "{id}"
-        );
+        assert_eq!(chart_points(c, id).await.as_deref(), Some("6"), "{id}");
     }
-    let q_points = c
-        .find(Locator::Id("chart-q"))
-        .await
-        .unwrap()
-        .attr("data-points")
-        .await
-        .unwrap();
     assert_eq!(
-        q_points.as_deref(),
+        chart_points(c, "chart-q").await.as_deref(),
         Some("3"),
         "q on the sampled steps 0, 2, 4"
     );
@@ -207,8 +214,6 @@ async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
 /// Dragging orbits: the frame changes, and its still matches the API's render of that
 /// camera.
 async fn orbit_matches_the_api(c: &Client, img0: &Image, shots: &Path) {
-    // Drag to orbit: the frame changes, and its still matches the API's render of that
-    // camera.
     let frame = c.find(Locator::Id("frame")).await.unwrap();
     let mouse = MouseActions::new("mouse".into())
         .then(PointerAction::MoveToElement {
@@ -269,12 +274,7 @@ async fn time_slider_and_reference(c: &Client, shots: &Path) {
     // reference's camera.
     slider.send_keys(&Key::Right.to_string()).await.unwrap();
     wait_frame(c, 20.0, |d| d["step"] == "4" && d["kind"] == "still").await;
-    c.find(Locator::Id("compare"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    click(c, "compare").await;
     let t = Instant::now();
     while js(
         c,
@@ -311,45 +311,20 @@ async fn time_slider_and_reference(c: &Client, shots: &Path) {
     })
     .await;
     screenshot(c, shots, "viewer-compare.png").await;
-    c.find(Locator::Id("compare"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    click(c, "compare").await;
 }
 
 /// With "follow latest", a step pushed to the generator at `generator` appears without a
 /// reload, and the charts grow by it.
 async fn follows_new_steps(c: &Client, generator: &str, shots: &Path) {
-    // Follow latest: new steps appear without a reload.
-    c.find(Locator::Id("follow"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    click(c, "follow").await;
     push_ocean(generator, 40, 7).await;
     wait_frame(c, 30.0, |d| d["step"] == "40").await;
-    let points = async {
-        c.find(Locator::Id("chart-sigma"))
-            .await
-            .unwrap()
-            .attr("data-points")
-            .await
-            .unwrap()
-    };
     let t = Instant::now();
-    let mut p = points.await;
+    let mut p = chart_points(c, "chart-sigma").await;
     while p.as_deref() != Some("7") && t.elapsed() < Duration::from_secs(10) {
         tokio::time::sleep(Duration::from_millis(100)).await;
-        p = c
-            .find(Locator::Id("chart-sigma"))
-            .await
-            .unwrap()
-            .attr("data-points")
-            .await
-            .unwrap();
+        p = chart_points(c, "chart-sigma").await;
     }
     assert_eq!(p.as_deref(), Some("7"), "the chart grew by the new step");
     screenshot(c, shots, "viewer-live.png").await;
@@ -358,8 +333,6 @@ async fn follows_new_steps(c: &Client, generator: &str, shots: &Path) {
 /// The page's connection drops while the simulation pushes a step: the push is not held
 /// up, and the page reconnects and shows that step.
 async fn reconnects_without_holding_up_pushes(c: &Client, generator: &str) {
-    // The connection drops (as a network would drop it) while the simulation pushes a
-    // step: the push is not held up, and the page reconnects and shows that step.
     let connections = || js(c, "done(document.body.dataset.connections || '0');");
     assert_eq!(connections().await, json!("1"));
     js(c, "window.insituViewer.dropConnection(); done(true);").await;
@@ -385,7 +358,6 @@ async fn reconnects_without_holding_up_pushes(c: &Client, generator: &str) {
 /// Fifty quick camera changes on one socket render the latest and supersede the rest; bad
 /// requests get clear errors; the level of detail follows `lod`.
 async fn camera_bursts_are_superseded(c: &Client) {
-    // 50 quick camera changes on one socket: the latest is rendered, the rest superseded.
     let burst = js(
         c,
         "const before = await (await fetch('/api/stats')).json();
