@@ -395,6 +395,58 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     assert!(stderr(&o).contains("--strategy grid"), "{}", stderr(&o));
 }
 
+/// `tune --ladder`: at every size budget of the ladder (each 1.5× the previous) both choices
+/// fit the budget, and the adaptive search, which walks the same grid priced from the table,
+/// finds no better q than the grid's optimum and generates no more candidates than the grid has.
+#[test]
+fn the_ladder_compares_the_grid_and_the_adaptive_choice_at_every_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(
+        &[
+            "tune",
+            "--ladder",
+            "--json",
+            "--chart",
+            "ladder.png",
+            "--volume",
+            "gray-scott:24:300",
+            "--r-grid",
+            "16:32:8",
+            "--gamma-grid",
+            "0.01,0.05,0.2",
+            "--views",
+            "0,30",
+            "--size",
+            "24",
+            "--cache-dir",
+            "cache",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rungs: Vec<serde_json::Value> = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(rungs.len() >= 2, "{rungs:?}");
+    // "inf" for a view the VDI reproduces exactly.
+    let q = |m: &serde_json::Value| m["q_db"].as_f64().unwrap_or(f64::INFINITY);
+    let mut previous = 0;
+    for rung in &rungs {
+        let target = rung["sigma_target"].as_u64().unwrap();
+        assert!(target as f64 >= 1.49 * previous as f64, "{rungs:?}");
+        previous = target;
+        for choice in ["grid", "adaptive"] {
+            let sigma = rung[choice]["sigma_bytes"].as_u64().unwrap();
+            assert!(sigma < target, "{choice} over budget: {rung}");
+        }
+        assert!(q(&rung["adaptive"]) <= q(&rung["grid"]), "{rung}");
+        assert_eq!(rung["grid_evaluations"].as_u64(), Some(9), "{rung}");
+        assert!(
+            rung["adaptive_evaluations"].as_u64().unwrap() <= 9,
+            "{rung}"
+        );
+    }
+    assert!(dir.path().join("ladder.png").exists());
+}
+
 #[test]
 fn series_picks_one_step_per_regime_and_cross_evaluates() {
     let dir = tempfile::tempdir().unwrap();

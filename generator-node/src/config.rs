@@ -284,11 +284,21 @@ impl Config {
         Ok(cfg)
     }
 
-    /// Checks the limits and resolves the generation settings.
+    /// Checks the limits and resolves the generation settings
+    /// ([`GenerationConfig::resolve`]).
     ///
     /// # Errors
     /// [`ConfigError::Invalid`] naming the key.
     pub fn generation(&self) -> Result<Generation, ConfigError> {
+        self.check_limits()?;
+        self.generation.resolve()
+    }
+
+    /// The queues' bounds and the timeouts.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`] naming the key.
+    fn check_limits(&self) -> Result<(), ConfigError> {
         for (key, q) in [("queue", &self.queue), ("outbox", &self.outbox)] {
             if q.max_items == 0 || q.max_bytes == 0 {
                 return Err(invalid(key, "max_items and max_bytes must be ≥ 1"));
@@ -300,18 +310,28 @@ impl Config {
         if !(self.max_backoff_secs.is_finite() && self.max_backoff_secs > 0.0) {
             return Err(invalid("max_backoff_secs", "must be finite and > 0"));
         }
-        let g = &self.generation;
+        Ok(())
+    }
+}
+
+impl GenerationConfig {
+    /// The settings checked and resolved: VDI and ray-casting parameters, codec, the TF file
+    /// read, the camera.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`] naming the key (`generation.…`).
+    pub fn resolve(&self) -> Result<Generation, ConfigError> {
         let params = VdiParams {
-            resolution: g.resolution,
-            gamma: g.gamma,
+            resolution: self.resolution,
+            gamma: self.gamma,
         };
         params
             .validate()
             .map_err(|e| invalid("generation.resolution/gamma", e.to_string()))?;
         let raycast = RaycastParams {
-            step: g.step,
-            termination: g.termination,
-            generation_termination: g.generation_termination,
+            step: self.step,
+            termination: self.termination,
+            generation_termination: self.generation_termination,
             ..Default::default()
         };
         raycast.validate().map_err(|e| {
@@ -320,13 +340,13 @@ impl Config {
                 e.to_string(),
             )
         })?;
-        let codec: Codec = g
-            .codec
-            .parse()
-            .map_err(|e: insitu_core::vdi::codec::CodecError| {
-                invalid("generation.codec", e.to_string())
-            })?;
-        let tf = match &g.tf {
+        let codec: Codec =
+            self.codec
+                .parse()
+                .map_err(|e: insitu_core::vdi::codec::CodecError| {
+                    invalid("generation.codec", e.to_string())
+                })?;
+        let tf = match &self.tf {
             Some(p) => {
                 let tf = TransferFunction::load(p)
                     .map_err(|e| invalid("generation.tf", e.to_string()))?;
@@ -338,17 +358,17 @@ impl Config {
             }
             None => None,
         };
-        let camera = g.camera.map(Camera::from);
+        let camera = self.camera.map(Camera::from);
         if camera.is_some_and(|c| !c.is_valid()) {
             return Err(invalid("generation.camera", "degenerate camera"));
         }
-        if g.view_angles_deg.iter().any(|a| !a.is_finite()) {
+        if self.view_angles_deg.iter().any(|a| !a.is_finite()) {
             return Err(invalid(
                 "generation.view_angles_deg",
                 "angles must be finite",
             ));
         }
-        if g.reference_size > insitu_core::vdi::MAX_RESOLUTION {
+        if self.reference_size > insitu_core::vdi::MAX_RESOLUTION {
             return Err(invalid("generation.reference_size", "too large"));
         }
         Ok(Generation {
@@ -357,9 +377,9 @@ impl Config {
             codec,
             tf,
             camera,
-            view_angles_deg: g.view_angles_deg.clone(),
-            reference_every: g.reference_every,
-            reference_size: g.reference_size,
+            view_angles_deg: self.view_angles_deg.clone(),
+            reference_every: self.reference_every,
+            reference_size: self.reference_size,
             pm_version: 0,
         })
     }

@@ -167,68 +167,84 @@ impl SceneAgreement {
                 p.step, p.rank, p.world_size
             )));
         }
-        let (complete, deadline) = {
-            let mut s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
-            match s.world_size {
-                Some(w) if w != p.world_size => {
-                    return Err(Status::invalid_argument(format!(
-                        "step {} rank {} says world size {}, but ranks {:?} said {w}",
-                        p.step,
-                        p.rank,
-                        p.world_size,
-                        s.ranges.keys().collect::<Vec<_>>()
-                    )))
-                }
-                _ => s.world_size = Some(p.world_size),
-            }
-            s.step = s.step.max(p.step);
-            s.ranges.insert(p.rank, (p.min, p.max));
-            let first = *s.first_at.get_or_insert_with(Instant::now);
-            (
-                (s.ranges.len() == p.world_size as usize).then(|| s.agree(p.world_size)),
-                first + self.timeout,
-            )
-        };
+        let (complete, deadline) = self.record(p)?;
         if let Some(agreed) = complete {
             self.fix(agreed)?;
         }
         let mut rx = self.agreed.subscribe();
-        let now = Instant::now();
-        let until_timeout = deadline.saturating_duration_since(now);
+        let until_timeout = deadline.saturating_duration_since(Instant::now());
         let waited =
             tokio::time::timeout(wait.min(until_timeout), rx.wait_for(Option::is_some)).await;
         match waited {
             Ok(Ok(a)) => a.clone().ok_or_else(|| Status::internal("scene lost")),
             Ok(Err(_)) => Err(Status::unavailable("the viz-node is shutting down")),
-            Err(_) if Instant::now() >= deadline => {
-                // The world waited long enough for its missing ranks.
-                let agreed = {
-                    let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
-                    s.agree(p.world_size)
-                };
-                if self.agreed().is_none() {
-                    tracing::warn!(
-                        ranks = ?agreed.ranks,
-                        world_size = p.world_size,
-                        timeout_secs = self.timeout.as_secs_f64(),
-                        "not every rank reported its range in time: the scene is fixed over those that did"
-                    );
-                    self.fix(agreed)?;
-                }
-                self.agreed().ok_or_else(|| Status::internal("scene lost"))
-            }
-            Err(_) => {
-                let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
-                let missing: Vec<u32> = (0..p.world_size)
-                    .filter(|r| !s.ranges.contains_key(r))
-                    .collect();
-                Err(Status::deadline_exceeded(format!(
-                    "no scene agreed after {:.0} s: ranks {missing:?} of {} have not reported their range",
-                    wait.as_secs_f64(),
-                    p.world_size
+            Err(_) if Instant::now() >= deadline => self.fix_without_the_missing(p.world_size),
+            Err(_) => Err(Status::deadline_exceeded(format!(
+                "no scene agreed after {:.0} s: ranks {:?} of {} have not reported their range",
+                wait.as_secs_f64(),
+                self.missing(p.world_size),
+                p.world_size
+            ))),
+        }
+    }
+
+    /// Records `p`'s range: the scene when `p` completes the world (`None` before), and the
+    /// instant the agreement times out (`timeout` after the first report).
+    ///
+    /// # Errors
+    /// `INVALID_ARGUMENT` when `p` gives a world size other than the ranks before it did.
+    fn record(
+        &self,
+        p: &insitu_proto::pb::SceneProposal,
+    ) -> Result<(Option<Agreed>, Instant), Status> {
+        let mut s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
+        match s.world_size {
+            Some(w) if w != p.world_size => {
+                return Err(Status::invalid_argument(format!(
+                    "step {} rank {} says world size {}, but ranks {:?} said {w}",
+                    p.step,
+                    p.rank,
+                    p.world_size,
+                    s.ranges.keys().collect::<Vec<_>>()
                 )))
             }
+            _ => s.world_size = Some(p.world_size),
         }
+        s.step = s.step.max(p.step);
+        s.ranges.insert(p.rank, (p.min, p.max));
+        let first = *s.first_at.get_or_insert_with(Instant::now);
+        let complete = (s.ranges.len() == p.world_size as usize).then(|| s.agree(p.world_size));
+        Ok((complete, first + self.timeout))
+    }
+
+    /// The scene over the ranks that reported, once the world has waited long enough for
+    /// the others (fixed by the first caller to get here; the others read it).
+    ///
+    /// # Errors
+    /// `INTERNAL` when `scene.json` cannot be written.
+    fn fix_without_the_missing(&self, world_size: u32) -> Result<Agreed, Status> {
+        let agreed = {
+            let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
+            s.agree(world_size)
+        };
+        if self.agreed().is_none() {
+            tracing::warn!(
+                ranks = ?agreed.ranks,
+                world_size,
+                timeout_secs = self.timeout.as_secs_f64(),
+                "not every rank reported its range in time: the scene is fixed over those that did"
+            );
+            self.fix(agreed)?;
+        }
+        self.agreed().ok_or_else(|| Status::internal("scene lost"))
+    }
+
+    /// The ranks of `0..world_size` that have not reported their range.
+    fn missing(&self, world_size: u32) -> Vec<u32> {
+        let s = self.proposals.lock().unwrap_or_else(|e| e.into_inner());
+        (0..world_size)
+            .filter(|r| !s.ranges.contains_key(r))
+            .collect()
     }
 }
 

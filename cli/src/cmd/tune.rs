@@ -180,41 +180,26 @@ fn ladder(a: &Args) -> Result<()> {
         let g = insitu_tuner::utility::best(&rows, &SizeBudget { sigma_target: t });
         let mut oracle = TableOracle::new(&rows);
         let ad = adaptive_search(&mut oracle, &p.grid, Target::Size(t))?;
-        let share = ad.generation_secs / grid_tau.max(1e-12);
-        match (g, &ad.best) {
-            (Some((gm, _)), Some(am)) => {
-                points.push(LadderPoint {
-                    sigma_target: t,
-                    grid: (gm.r, gm.gamma, gm.q()),
-                    adaptive: Some((am.r, am.gamma, am.q())),
-                });
-                if a.json {
-                    out.push(serde_json::json!({
-                        "sigma_target": t, "grid": row_json(gm), "adaptive": row_json(am),
-                        "adaptive_evaluations": ad.generations, "grid_evaluations": rows.len(),
-                        "adaptive_tau_share": share,
-                    }));
-                } else {
-                    println!(
-                        "{:>11} | {:>5} {:>6.3} {:>7} | {:>5} {:>6.3} {:>7} {:>7.2} | {:>6} {:>8.1}%",
-                        bytes_text(t),
-                        gm.r,
-                        gm.gamma,
-                        q_text(gm.q()),
-                        am.r,
-                        am.gamma,
-                        q_text(am.q()),
-                        am.q() - gm.q(),
-                        ad.generations,
-                        100.0 * share
-                    );
-                }
-            }
+        let rung = match (g, &ad.best) {
+            (Some((grid, _)), Some(adaptive)) => Rung {
+                sigma_target: t,
+                grid,
+                adaptive,
+                evaluations: ad.generations,
+                tau_share: ad.generation_secs / grid_tau.max(1e-12),
+            },
             _ => {
                 if !a.json {
                     println!("{:>11} | infeasible", bytes_text(t));
                 }
+                continue;
             }
+        };
+        points.push(rung.point());
+        if a.json {
+            out.push(rung.json(rows.len()));
+        } else {
+            println!("{}", rung.text());
         }
     }
     let title = format!(
@@ -229,6 +214,57 @@ fn ladder(a: &Args) -> Result<()> {
         println!("-> {}", a.chart.display());
     }
     Ok(())
+}
+
+/// One rung of `--ladder`: the grid's and the adaptive search's choices under one size budget.
+struct Rung<'a> {
+    /// σ_target, bytes.
+    sigma_target: u64,
+    grid: &'a Measurement,
+    adaptive: &'a Measurement,
+    /// Candidates the adaptive search generated.
+    evaluations: u64,
+    /// The adaptive search's sum of τ over the grid's.
+    tau_share: f64,
+}
+
+impl Rung<'_> {
+    /// The rung as the chart draws it.
+    fn point(&self) -> LadderPoint {
+        let (g, a) = (self.grid, self.adaptive);
+        LadderPoint {
+            sigma_target: self.sigma_target,
+            grid: (g.r, g.gamma, g.q()),
+            adaptive: Some((a.r, a.gamma, a.q())),
+        }
+    }
+
+    /// The rung as `--json` prints it, beside the grid's `grid_evaluations`.
+    fn json(&self, grid_evaluations: usize) -> serde_json::Value {
+        serde_json::json!({
+            "sigma_target": self.sigma_target, "grid": row_json(self.grid),
+            "adaptive": row_json(self.adaptive), "adaptive_evaluations": self.evaluations,
+            "grid_evaluations": grid_evaluations, "adaptive_tau_share": self.tau_share,
+        })
+    }
+
+    /// The rung as a row of the table under the header `ladder` prints.
+    fn text(&self) -> String {
+        let (g, a) = (self.grid, self.adaptive);
+        format!(
+            "{:>11} | {:>5} {:>6.3} {:>7} | {:>5} {:>6.3} {:>7} {:>7.2} | {:>6} {:>8.1}%",
+            bytes_text(self.sigma_target),
+            g.r,
+            g.gamma,
+            q_text(g.q()),
+            a.r,
+            a.gamma,
+            q_text(a.q()),
+            a.q() - g.q(),
+            self.evaluations,
+            100.0 * self.tau_share
+        )
+    }
 }
 
 #[cfg(test)]
