@@ -262,6 +262,84 @@ fn render_repeat_reports_the_warm_median_and_the_same_image() {
     );
 }
 
+/// The flags for data whose file name says nothing (README, "Your own data"): `--dims` and
+/// `--type` read a file as its descriptive name would, `--dims …xT` with `--t` picks one step
+/// of a time series, and `--no-skipping` changes the time, never the image. Each compared as
+/// PNG bytes against the render of an equivalent file.
+#[test]
+fn own_data_flags_read_the_file_as_its_name_would() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Two steps of a 12×10×8 byte blob, the second shifted along x.
+    let step = |shift: f32| -> Vec<u8> {
+        let mut v = Vec::new();
+        for z in 0..8 {
+            for y in 0..10 {
+                for x in 0..12 {
+                    let r2 = (x as f32 - 5.0 - shift).powi(2)
+                        + (y as f32 - 4.5).powi(2)
+                        + (z as f32 - 3.5).powi(2);
+                    v.push((255.0 * (-r2 / 12.0).exp()) as u8);
+                }
+            }
+        }
+        v
+    };
+    let (first, second) = (step(0.0), step(2.0));
+    std::fs::write(d.join("blob_12x10x8_uint8.raw"), &first).unwrap();
+    std::fs::write(d.join("shifted_12x10x8_uint8.raw"), &second).unwrap();
+    std::fs::write(d.join("blob.dat"), &first).unwrap();
+    std::fs::write(d.join("series.dat"), [first, second].concat()).unwrap();
+    let render = |extra: &[&str], out: &str| {
+        let mut args = vec![
+            "render",
+            "--size",
+            "32",
+            "--angle",
+            "30",
+            "--backend",
+            "cpu",
+            "--out",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        let o = insitu(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        std::fs::read(d.join(out)).unwrap()
+    };
+    let named = render(&["--volume", "blob_12x10x8_uint8.raw"], "named.png");
+    let flags = &[
+        "--volume", "blob.dat", "--dims", "12x10x8", "--type", "uint8",
+    ];
+    assert_eq!(render(flags, "flags.png"), named, "--dims/--type");
+    let unskipped = &["--volume", "blob_12x10x8_uint8.raw", "--no-skipping"];
+    assert_eq!(render(unskipped, "unskipped.png"), named, "--no-skipping");
+    let shifted = render(&["--volume", "shifted_12x10x8_uint8.raw"], "shifted.png");
+    assert_ne!(
+        shifted, named,
+        "the two steps must differ for --t to be tested"
+    );
+    let series = &[
+        "--volume",
+        "series.dat",
+        "--dims",
+        "12x10x8x2",
+        "--type",
+        "uint8",
+    ];
+    let mut t1 = series.to_vec();
+    t1.extend_from_slice(&["--t", "1"]);
+    assert_eq!(render(&t1, "t1.png"), shifted, "--t 1");
+    assert_eq!(render(series, "t0.png"), named, "--t 0 (the default)");
+    // A name that says nothing, and no flags: the error names the file.
+    assert_fails(
+        &["render", "--volume", "blob.dat", "--out", "none.png"],
+        d,
+        "blob.dat",
+        "none.png",
+    );
+}
+
 #[test]
 fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let dir = tempfile::tempdir().unwrap();
