@@ -71,6 +71,60 @@ fn generate_then_view() {
     assert!(dir.path().join("v.png").exists());
 }
 
+/// `view --lod` renders from the coarsest level with the image's resolution: the VDI itself
+/// at `size = r` (the same PNG as without `--lod`), its `r/2` level at `size = r/2`. The
+/// camera flags move the view: a zoom or an elevation gives another image, and their
+/// neutral values (zoom 1, elevation 0) the default one.
+#[test]
+fn view_lod_zoom_and_elevation_do_what_they_say() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = insitu(
+        &[
+            "generate",
+            "--volume",
+            "gray-scott:16:50",
+            "--r",
+            "32",
+            "--out",
+            "a.vdi",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let view = |extra: &[&str], out: &str| {
+        let mut args = vec![
+            "view",
+            "--vdi",
+            "a.vdi",
+            "--angle",
+            "40",
+            "--backend",
+            "cpu",
+        ];
+        args.extend_from_slice(&["--out", out]);
+        args.extend_from_slice(extra);
+        let o = insitu(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let line = String::from_utf8_lossy(&o.stdout).into_owned();
+        (std::fs::read(d.join(out)).unwrap(), line)
+    };
+    let (full, _) = view(&["--size", "32"], "full.png");
+    let (full_lod, line) = view(&["--size", "32", "--lod"], "full_lod.png");
+    assert!(line.contains("from its level r=32"), "{line}");
+    assert_eq!(full_lod, full, "--lod at size r must use the VDI itself");
+    let (half, _) = view(&["--size", "16"], "half.png");
+    let (half_lod, line) = view(&["--size", "16", "--lod"], "half_lod.png");
+    assert!(line.contains("from its level r=16"), "{line}");
+    assert_ne!(half_lod, half, "the r/2 level is a different VDI");
+    let neutral = &["--size", "32", "--zoom", "1", "--elevation", "0"];
+    assert_eq!(view(neutral, "neutral.png").0, full);
+    assert_ne!(view(&["--size", "32", "--zoom", "2"], "zoom.png").0, full);
+    let (raised, line) = view(&["--size", "32", "--elevation", "35"], "raised.png");
+    assert!(line.contains("elevation 35°"), "{line}");
+    assert_ne!(raised, full);
+}
+
 fn assert_fails(args: &[&str], dir: &Path, needle: &str, out: &str) {
     let o = insitu(args, dir);
     assert!(!o.status.success(), "{args:?} succeeded");
