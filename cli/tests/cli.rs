@@ -600,8 +600,8 @@ fn series_picks_one_step_per_regime_and_cross_evaluates() {
         }
     }
     std::fs::write(dir.path().join("s_12x12x12x6_float32.raw"), bytes).unwrap();
-    let o = insitu(
-        &[
+    let series = |extra: &[&str]| {
+        let mut args = vec![
             "series",
             "--volume",
             "s_12x12x12x6_float32.raw",
@@ -619,17 +619,20 @@ fn series_picks_one_step_per_regime_and_cross_evaluates() {
             "size:1GB",
             "--no-cache",
             "--json",
-        ],
-        dir.path(),
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let steps: Vec<u64> = v["characteristic_steps"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s.as_u64().unwrap())
-        .collect();
+        ];
+        args.extend_from_slice(extra);
+        let o = insitu(&args, dir.path());
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let steps: Vec<u64> = v["characteristic_steps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s.as_u64().unwrap())
+            .collect();
+        (steps, v)
+    };
+    let (steps, v) = series(&[]);
     assert_eq!(steps.len(), 2, "{v}");
     assert!(steps[0] < 3 && steps[1] >= 3, "{steps:?}");
     assert_eq!(v["cross"].as_array().unwrap().len(), 4);
@@ -639,6 +642,12 @@ fn series_picks_one_step_per_regime_and_cross_evaluates() {
         .iter()
         .all(|c| c["holds"] == true));
     assert!(v["conservative"]["r"].is_u64(), "{v}");
+    // Fewer steps when asked for at most one, or when no distance can exceed the threshold
+    // (a total-variation distance is at most 1).
+    for extra in [["--max-steps", "1"], ["--threshold", "1"]] {
+        let (steps, v) = series(&extra);
+        assert_eq!(steps.len(), 1, "{extra:?}: {v}");
+    }
 }
 
 /// `evaluate --json` on a small Gray–Scott field with `--backend B` and environment `env`.
