@@ -423,11 +423,20 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     assert!(o.status.success(), "{}\n{out}", stderr(&o));
     let lines: Vec<&str> = out.lines().filter(|l| l.starts_with("step ")).collect();
     assert_eq!(lines.len(), 4, "{out}");
-    // Pushes 0 and 2 (steps 50 and 70) carry reference frames, so their lines have q.
-    let with_q = lines.iter().filter(|l| l.contains(" dB")).count();
-    assert_eq!(with_q, 2, "{out}");
+    // Steps that are multiples of `every × sample-every` (20) carry reference frames, so the
+    // lines of steps 60 and 80 have q, those of 50 and 70 not.
+    let mut with_q: Vec<&str> = lines
+        .iter()
+        .filter(|l| l.contains(" dB"))
+        .filter_map(|l| l.split_whitespace().nth(1))
+        .collect();
+    with_q.sort_unstable();
+    assert_eq!(with_q, ["60", "80"], "{out}");
     assert!(out.contains("stored 4, dropped 0"), "{out}");
     assert!(out.contains("recording: rec"), "{out}");
+    // By default the viz-node serves the web viewer and a tuner is attached.
+    assert!(out.contains("web viewer: http://"), "{out}");
+    assert!(out.contains("tuner (max q"), "{out}");
     // The index, exported: four stored VDIs, two with q.
     let o = insitu(
         &["export", "--recording", "rec", "--format", "csv"],
@@ -443,6 +452,37 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let o = insitu(&["export", "--recording", "rec"], dir.path());
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(json["entries"].as_array().map(Vec::len), Some(4), "{json}");
+    // --no-http and --no-tune: the same steps, without the viewer and the tuner.
+    let o = insitu(
+        &[
+            "demo",
+            "--size",
+            "24",
+            "--warmup",
+            "50",
+            "--every",
+            "10",
+            "--pushes",
+            "2",
+            "--r",
+            "32",
+            "--recording",
+            "bare",
+            "--no-http",
+            "--no-tune",
+        ],
+        dir.path(),
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}\n{out}");
+    assert!(out.contains("P_M fixed (--no-tune)"), "{out}");
+    assert!(
+        !out.contains("tuner (") && !out.contains("web viewer"),
+        "{out}"
+    );
+    assert!(!err.contains("web viewer"), "{err}");
+    assert!(out.contains("stored 2, dropped 0"), "{out}");
 }
 
 #[test]

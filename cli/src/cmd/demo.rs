@@ -38,7 +38,8 @@ pub struct Args {
     /// Time steps to push.
     #[arg(long, default_value_t = 40)]
     pushes: u64,
-    /// Ship reference frames (and so report q) on every m-th pushed step.
+    /// Ship reference frames (and so report q) on every m-th pushed step: those whose step
+    /// number is a multiple of m × --every.
     #[arg(long, default_value_t = 5)]
     sample_every: u64,
     #[command(flatten)]
