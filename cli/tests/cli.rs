@@ -394,6 +394,76 @@ fn own_data_flags_read_the_file_as_its_name_would() {
     );
 }
 
+/// The accuracy knobs reach the marcher: `--generation-termination 0.3` stops generation
+/// rays early, so the VDI holds fewer supersegments than with `off`; `--termination 0.3`
+/// and `--shading` change the direct rendering; values outside (0, 1] are refused, naming
+/// the flag, with nothing written.
+#[test]
+fn termination_and_shading_flags_reach_the_marcher() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let supersegments = |termination: &str, out: &str| -> u64 {
+        let o = insitu(
+            &[
+                "generate",
+                "--volume",
+                "gray-scott:24:300",
+                "--r",
+                "32",
+                "--generation-termination",
+                termination,
+                "--out",
+                out,
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+        let line = String::from_utf8_lossy(&o.stdout).into_owned();
+        let count = line
+            .split(" supersegments")
+            .next()
+            .and_then(|head| head.rsplit(' ').next())
+            .and_then(|n| n.parse().ok());
+        count.unwrap_or_else(|| panic!("no supersegment count in {line:?}"))
+    };
+    let (off, early) = (
+        supersegments("off", "off.vdi"),
+        supersegments("0.3", "early.vdi"),
+    );
+    assert!(early < off, "0.3: {early} supersegments, off: {off}");
+    let render = |extra: &[&str], out: &str| {
+        let mut args = vec!["render", "--volume", "gray-scott:24:300", "--size", "24"];
+        args.extend_from_slice(&["--backend", "cpu", "--out", out]);
+        args.extend_from_slice(extra);
+        let o = insitu(&args, d);
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        std::fs::read(d.join(out)).unwrap()
+    };
+    let plain = render(&[], "plain.png");
+    assert_ne!(render(&["--termination", "0.3"], "early.png"), plain);
+    assert_ne!(render(&["--shading"], "shaded.png"), plain);
+    let bad_generation = [
+        "generate",
+        "--volume",
+        "gray-scott:16:20",
+        "--generation-termination",
+        "0",
+        "--out",
+        "bad.vdi",
+    ];
+    assert_fails(&bad_generation, d, "--generation-termination", "bad.vdi");
+    let bad_render = [
+        "render",
+        "--volume",
+        "gray-scott:16:20",
+        "--termination",
+        "1.5",
+        "--out",
+        "bad.png",
+    ];
+    assert_fails(&bad_render, d, "1.5", "bad.png");
+}
+
 #[test]
 fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let dir = tempfile::tempdir().unwrap();
