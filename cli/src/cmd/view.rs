@@ -4,6 +4,7 @@
 use crate::output::write_png;
 use anyhow::{Context, Result};
 use insitu_core::vdi::codec::{decode, DecodeLimits};
+use insitu_core::vdi::Vdi;
 use insitu_viz_node::view::{self, View};
 use std::path::PathBuf;
 
@@ -59,28 +60,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let (width, height) = super::parse_size(&a.size)?;
-    let (vdi, what) = match (&a.vdi, &a.recording, a.step) {
-        (Some(path), _, _) => {
-            let bytes =
-                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-            let vdi = decode(&bytes, &DecodeLimits::default())
-                .with_context(|| format!("{} is not a usable VDI", path.display()))?;
-            (vdi, path.display().to_string())
-        }
-        (None, Some(dir), Some(step)) => {
-            let (entries, steps) = insitu_viz_node::index::read(dir)
-                .with_context(|| format!("{} is not a readable recording", dir.display()))?;
-            let ranks: Vec<_> = entries.into_iter().filter(|e| e.step == step).collect();
-            let composed = steps.into_iter().find(|s| s.step == step);
-            let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
-            let what = match a.rank {
-                Some(r) => format!("step {step} rank {r} of {}", dir.display()),
-                None => format!("step {step} of {}", dir.display()),
-            };
-            (view::load_vdi(dir, &name)?, what)
-        }
-        _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --step N"),
-    };
+    let (vdi, what) = source(&a)?;
     let termination = a.termination.unwrap_or(vdi.meta().termination);
     if !(termination > 0.0 && termination <= 1.0) {
         anyhow::bail!("--termination {termination} must be in (0, 1]");
@@ -127,4 +107,31 @@ pub fn run(a: Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// The VDI to view and how to name it: `--vdi FILE`, or `--step N` (`--rank R`, else the
+/// composed VDI or the step's only rank) of `--recording DIR`.
+fn source(a: &Args) -> Result<(Vdi, String)> {
+    Ok(match (&a.vdi, &a.recording, a.step) {
+        (Some(path), _, _) => {
+            let bytes =
+                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let vdi = decode(&bytes, &DecodeLimits::default())
+                .with_context(|| format!("{} is not a usable VDI", path.display()))?;
+            (vdi, path.display().to_string())
+        }
+        (None, Some(dir), Some(step)) => {
+            let (entries, steps) = insitu_viz_node::index::read(dir)
+                .with_context(|| format!("{} is not a readable recording", dir.display()))?;
+            let ranks: Vec<_> = entries.into_iter().filter(|e| e.step == step).collect();
+            let composed = steps.into_iter().find(|s| s.step == step);
+            let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
+            let what = match a.rank {
+                Some(r) => format!("step {step} rank {r} of {}", dir.display()),
+                None => format!("step {step} of {}", dir.display()),
+            };
+            (view::load_vdi(dir, &name)?, what)
+        }
+        _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --step N"),
+    })
 }
