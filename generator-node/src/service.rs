@@ -98,6 +98,93 @@ impl Shared {
         }
     }
 
+    /// One pushed step, its chunks converted into the brick's storage as they arrive (no
+    /// copy of the bytes), into the spare field of an earlier step where there is one.
+    ///
+    /// # Errors
+    /// The stream's rules broken ([`chunk::receive_into`]: a bad header, a step over
+    /// `max_step_bytes`, chunks that do not fill it), or a transport error, as a status.
+    async fn receive(&self, mut stream: Streaming<pb::StepChunk>) -> Result<RawStep, Status> {
+        let (_, (info, field)) = chunk::receive_into(
+            &mut stream,
+            self.max_step_bytes,
+            |h: &pb::StepHeader| {
+                let info = check_header(h)?;
+                let spare = self
+                    .spare_field
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .take();
+                Ok((info, info.assembler(spare)))
+            },
+            |(_, field), bytes| field.push(bytes),
+        )
+        .await?;
+        info.with_field(field)
+    }
+
+    /// With a spool: `raw` on disk (fsync'd when durable) before it is acknowledged, and its
+    /// spool name recorded in it.
+    ///
+    /// # Errors
+    /// `RESOURCE_EXHAUSTED` when the spool has no room for it, `UNAVAILABLE` when it cannot
+    /// be written.
+    async fn spool(&self, raw: &mut RawStep) -> Result<(), Status> {
+        let Some(spool) = &self.spool else {
+            return Ok(());
+        };
+        let name = spool.put(raw).await.map_err(|e| match e {
+            crate::spool::SpoolError::TooLarge { .. } => Status::resource_exhausted(e.to_string()),
+            crate::spool::SpoolError::Io { .. } => Status::unavailable(e.to_string()),
+        })?;
+        raw.spool = Some(name);
+        Ok(())
+    }
+
+    /// Reports `raw`'s value range to the scene agreement while no TF is fixed.
+    fn propose_scene(&self, raw: &RawStep) {
+        let Some(scene) = &self.scene else {
+            return;
+        };
+        // A read of one field, not a copy of the settings, on every push.
+        let no_tf = self
+            .generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .tf
+            .is_none();
+        if no_tf {
+            scene.propose(raw);
+        }
+    }
+
+    /// Queues `raw` (waiting for room, or dropping by the queue's policy) and counts it:
+    /// the steps it dropped and the steps received so far.
+    ///
+    /// # Errors
+    /// `UNAVAILABLE` when the node is shutting down.
+    async fn enqueue(&self, raw: RawStep) -> Result<(u64, u64), Status> {
+        let (step, rank, n) = (raw.info.step, raw.info.rank, raw.bytes());
+        let span = info_span!("receive", step, rank, bytes = n);
+        let dropped = self
+            .queue
+            .push(raw, n)
+            .instrument(span)
+            .await
+            .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
+        for d in &dropped {
+            info!(step = d.info.step, rank = d.info.rank, policy = %self.queue.policy(), "dropped a queued step");
+            self.unspool(d.spooled().as_ref());
+        }
+        let mut received = 0;
+        self.stats.update(|c| {
+            c.received += 1;
+            c.dropped_queue += dropped.len() as u64;
+            received = c.received;
+        });
+        Ok((dropped.len() as u64, received))
+    }
+
     /// Removes a settled step's file from the spool (no-op without one).
     pub fn unspool(&self, spool: Option<&(String, u64)>) {
         if let (Some(sp), Some((name, bytes))) = (&self.spool, spool) {
@@ -207,70 +294,13 @@ impl Generator for GeneratorService {
         request: Request<Streaming<pb::StepChunk>>,
     ) -> Result<Response<pb::PushReply>, Status> {
         let s = &self.0;
-        let mut stream = request.into_inner();
-        // Each chunk is converted into the brick's storage as it arrives (no copy of the bytes).
-        let (_, (info, field)) = chunk::receive_into(
-            &mut stream,
-            s.max_step_bytes,
-            |h: &pb::StepHeader| {
-                let info = check_header(h)?;
-                let spare = s
-                    .spare_field
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .take();
-                Ok((info, info.assembler(spare)))
-            },
-            |(_, field), bytes| field.push(bytes),
-        )
-        .await?;
-        let mut raw = info.with_field(field)?;
-        if let Some(spool) = &s.spool {
-            // On disk (fsync'd when durable) before the acknowledgement.
-            let name = spool.put(&raw).await.map_err(|e| match e {
-                crate::spool::SpoolError::TooLarge { .. } => {
-                    Status::resource_exhausted(e.to_string())
-                }
-                crate::spool::SpoolError::Io { .. } => Status::unavailable(e.to_string()),
-            })?;
-            raw.spool = Some(name);
-        }
-        if let Some(scene) = &s.scene {
-            // A read of one field, not a copy of the settings, on every push.
-            let no_tf = s
-                .generation
-                .read()
-                .unwrap_or_else(|e| e.into_inner())
-                .tf
-                .is_none();
-            if no_tf {
-                scene.propose(&raw);
-            }
-        }
-        let (step, rank, n) = (raw.info.step, raw.info.rank, raw.bytes());
-        let span = info_span!("receive", step, rank, bytes = n);
-        let dropped = s
-            .queue
-            .push(raw, n)
-            .instrument(span)
-            .await
-            .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
-        for d in &dropped {
-            info!(step = d.info.step, rank = d.info.rank, policy = %s.queue.policy(), "dropped a queued step");
-            s.unspool(d.spooled().as_ref());
-        }
-        let received = {
-            let mut received = 0;
-            s.stats.update(|c| {
-                c.received += 1;
-                c.dropped_queue += dropped.len() as u64;
-                received = c.received;
-            });
-            received
-        };
+        let mut raw = s.receive(request.into_inner()).await?;
+        s.spool(&mut raw).await?;
+        s.propose_scene(&raw);
+        let (dropped, received) = s.enqueue(raw).await?;
         Ok(Response::new(pb::PushReply {
             queue_depth: s.queue.len() as u32,
-            dropped_by_push: dropped.len() as u64,
+            dropped_by_push: dropped,
             steps_received: received,
             epoch: s.epoch,
         }))
