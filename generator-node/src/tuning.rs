@@ -144,62 +144,87 @@ fn run_trial(
         gamma: req.gamma,
         ..Default::default()
     };
-    let result = (|| -> Result<(), String> {
-        let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
-        let scene = shared
-            .backend
-            .prepare(&raycaster)
-            .map_err(|e| e.to_string())?;
-        let params = VdiParams {
-            resolution: req.resolution,
-            gamma: req.gamma,
-        };
-        let (hash, name) = (h.tf.0.identity_hash(), &h.tf.1);
-        let size = if req.size_only {
-            generate_encoded(&scene, &h.camera, params, h.codec, hash, name)
-                .map_err(|e| e.to_string())?
-                .1
-        } else {
-            let side = if h.reference_size == 0 {
-                req.resolution
-            } else {
-                h.reference_size
-            };
-            let refs = match h.references.get(&side) {
-                Some(r) => r.clone(),
-                None => {
-                    let t = Instant::now();
-                    let r = Arc::new(
-                        render_references(&scene, &h.camera, &h.view_angles_deg, side)
-                            .map_err(|e| e.to_string())?,
-                    );
-                    out.reference_secs = t.elapsed().as_secs_f64();
-                    tuning
-                        .holds
-                        .set_references((req.step, rank), side, r.clone());
-                    r
-                }
-            };
-            let (views, refs) = (&h.view_angles_deg, &refs);
-            let (e, _) = evaluate(&scene, &h.camera, params, h.codec, views, refs, hash, name)
-                .map_err(|e| e.to_string())?;
-            out.tau_render_secs = e.tau_render_secs;
-            out.view_mse = e.views.iter().map(|v| v.mse).collect();
-            out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
-            out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
-            e.sizing
-        };
-        out.sigma_bytes = size.sigma_bytes;
-        out.supersegments = size.supersegments;
-        out.tau_secs = size.tau_secs;
-        out.tau_compress_secs = size.tau_compress_secs;
-        Ok(())
-    })();
-    if let Err(e) = result {
+    if let Err(e) = measure(shared, tuning, rank, &h, req, &mut out) {
         out.error = e;
     }
     out.trial_secs = t.elapsed().as_secs_f64();
     out
+}
+
+/// [`run_trial`]'s measurement of `req` on the held step `h`, written into `out`: σ, τ and
+/// the supersegments, and unless `size_only` the views' MSE and q, SSIM and the render time.
+///
+/// # Errors
+/// The failure, in words (a bad `P_M`, the backend's, the codec's).
+fn measure(
+    shared: &Shared,
+    tuning: &Tuning,
+    rank: u32,
+    h: &HeldStep,
+    req: &pb::TrialRequest,
+    out: &mut pb::TrialResult,
+) -> Result<(), String> {
+    let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
+    let scene = shared
+        .backend
+        .prepare(&raycaster)
+        .map_err(|e| e.to_string())?;
+    let params = VdiParams {
+        resolution: req.resolution,
+        gamma: req.gamma,
+    };
+    let (hash, name) = (h.tf.0.identity_hash(), &h.tf.1);
+    let size = if req.size_only {
+        generate_encoded(&scene, &h.camera, params, h.codec, hash, name)
+            .map_err(|e| e.to_string())?
+            .1
+    } else {
+        let refs = references(tuning, &scene, (req.step, rank), h, req.resolution, out)?;
+        let views = &h.view_angles_deg;
+        let (e, _) = evaluate(&scene, &h.camera, params, h.codec, views, &refs, hash, name)
+            .map_err(|e| e.to_string())?;
+        out.tau_render_secs = e.tau_render_secs;
+        out.view_mse = e.views.iter().map(|v| v.mse).collect();
+        out.view_q_db = e.views.iter().map(|v| v.q_db).collect();
+        out.ssim = insitu_core::evaluate::mean_ssim(&e.views);
+        e.sizing
+    };
+    out.sigma_bytes = size.sigma_bytes;
+    out.supersegments = size.supersegments;
+    out.tau_secs = size.tau_secs;
+    out.tau_compress_secs = size.tau_compress_secs;
+    Ok(())
+}
+
+/// The reference frames of held step `key` at its reference size (`resolution` where the
+/// step sets none): those kept from an earlier trial, else rendered now, kept, and their
+/// time written to `out.reference_secs`.
+///
+/// # Errors
+/// The backend's failure, in words.
+fn references(
+    tuning: &Tuning,
+    scene: &insitu_core::backend::Scene,
+    key: (u64, u32),
+    h: &HeldStep,
+    resolution: u32,
+    out: &mut pb::TrialResult,
+) -> Result<Arc<Vec<insitu_core::Image>>, String> {
+    let side = if h.reference_size == 0 {
+        resolution
+    } else {
+        h.reference_size
+    };
+    if let Some(r) = h.references.get(&side) {
+        return Ok(r.clone());
+    }
+    let t = Instant::now();
+    let r = Arc::new(
+        render_references(scene, &h.camera, &h.view_angles_deg, side).map_err(|e| e.to_string())?,
+    );
+    out.reference_secs = t.elapsed().as_secs_f64();
+    tuning.holds.set_references(key, side, r.clone());
+    Ok(r)
 }
 
 /// Runs trial requests one at a time, after production.
