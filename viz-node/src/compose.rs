@@ -149,29 +149,8 @@ pub fn compose_step(
         .iter()
         .map(|e| load_vdi(rec, kept, e))
         .collect::<Result<Vec<_>, _>>()?;
-    let composed =
-        compose_vdis(&vdis.iter().map(|v| &**v).collect::<Vec<_>>()).map_err(|e| match e {
-            ComposeError::Mismatch { part, what } => StepError::Scene {
-                step,
-                first: ready[0].rank,
-                rank: ready[part].rank,
-                what: what.into(),
-            },
-            other => StepError::Rank {
-                step,
-                rank: ready[0].rank,
-                problem: other.to_string(),
-            },
-        })?;
-    // A rank whose node did not name its codec: the composed file in zstd.
-    let codec = ready[0].codec.unwrap_or(Codec::Zstd);
-    let file = codec::encode(&composed, codec).map_err(|e| StepError::Rank {
-        step,
-        rank: ready[0].rank,
-        problem: format!("encoding the composed VDI: {e}"),
-    })?;
-    let vdi_name = composed_vdi_name(step);
-    write_atomic(rec.dir(), &vdi_name, &file)?;
+    let composed = compose_ranks(step, &ready, &vdis)?;
+    let vdi_name = store_composed(rec, step, &ready, &composed)?;
     let with_frames = ready.iter().all(|e| e.with_references);
     let (references, quality) = if with_frames {
         let refs = compose_references(rec, kept, &ready, &vdis)?;
@@ -194,6 +173,50 @@ pub fn compose_step(
         quality,
         ..entry
     }))
+}
+
+/// The ranks' VDIs (in `ready`'s order) composed into one ([`compose_vdis`]).
+///
+/// # Errors
+/// [`StepError::Scene`] naming the first rank and the one whose scene differs;
+/// [`StepError::Rank`] for any other failure.
+fn compose_ranks(step: u64, ready: &[&Entry], vdis: &[Arc<Vdi>]) -> Result<Vdi, StepError> {
+    compose_vdis(&vdis.iter().map(|v| &**v).collect::<Vec<_>>()).map_err(|e| match e {
+        ComposeError::Mismatch { part, what } => StepError::Scene {
+            step,
+            first: ready[0].rank,
+            rank: ready[part].rank,
+            what: what.into(),
+        },
+        other => StepError::Rank {
+            step,
+            rank: ready[0].rank,
+            problem: other.to_string(),
+        },
+    })
+}
+
+/// Writes the composed VDI of `step` in the first rank's codec (zstd when its node did not
+/// name one) and returns its file name.
+///
+/// # Errors
+/// [`StepError::Rank`] when it cannot be encoded, [`StepError::Store`] when it cannot be
+/// written.
+fn store_composed(
+    rec: &Recording,
+    step: u64,
+    ready: &[&Entry],
+    composed: &Vdi,
+) -> Result<String, StepError> {
+    let codec = ready[0].codec.unwrap_or(Codec::Zstd);
+    let file = codec::encode(composed, codec).map_err(|e| StepError::Rank {
+        step,
+        rank: ready[0].rank,
+        problem: format!("encoding the composed VDI: {e}"),
+    })?;
+    let name = composed_vdi_name(step);
+    write_atomic(rec.dir(), &name, &file)?;
+    Ok(name)
 }
 
 /// A step's entry from its ranks: their [`Sizing::of_ranks`] (σ and supersegments summed, τ of
@@ -225,6 +248,50 @@ fn compose_references(
     ready: &[&Entry],
     vdis: &[Arc<Vdi>],
 ) -> Result<References, StepError> {
+    let all = rank_references(rec, kept, ready)?;
+    let first = &all[0];
+    let mut frames = Vec::with_capacity(first.frames.len());
+    let mut planes = Vec::with_capacity(first.frames.len());
+    for (view, &angle) in first.view_angles_deg.iter().enumerate() {
+        let bricks: Vec<BrickFrame> = all
+            .iter()
+            .zip(vdis)
+            .filter_map(|(r, v)| {
+                Some(BrickFrame {
+                    image: r.frames.get(view)?,
+                    opacity: r.opacity.as_ref()?.get(view)?,
+                    world_box: v.meta().volume_box,
+                })
+            })
+            .collect();
+        let (image, opacity) =
+            compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(|e| StepError::Rank {
+                step: ready[0].step,
+                rank: ready[0].rank,
+                problem: format!("compositing reference frames: {e}"),
+            })?;
+        frames.push(image);
+        planes.push(opacity);
+    }
+    Ok(References {
+        camera: first.camera,
+        view_angles_deg: first.view_angles_deg.clone(),
+        frames,
+        opacity: Some(planes),
+    })
+}
+
+/// Each ready rank's reference frames, checked: every rank has frames with opacity, all
+/// of the same views (camera, angles, frame size) as the first rank's.
+///
+/// # Errors
+/// [`StepError::Rank`] for a rank without frames or opacity, [`StepError::Scene`] for views
+/// that differ from the first rank's, [`StepError::Store`] when a file cannot be read.
+fn rank_references(
+    rec: &Recording,
+    kept: &Kept,
+    ready: &[&Entry],
+) -> Result<Vec<Arc<References>>, StepError> {
     let mut all = Vec::with_capacity(ready.len());
     for e in ready {
         let rank_err = |problem: String| StepError::Rank {
@@ -260,33 +327,5 @@ fn compose_references(
             });
         }
     }
-    let mut frames = Vec::with_capacity(first.frames.len());
-    let mut planes = Vec::with_capacity(first.frames.len());
-    for (view, &angle) in first.view_angles_deg.iter().enumerate() {
-        let bricks: Vec<BrickFrame> = all
-            .iter()
-            .zip(vdis)
-            .filter_map(|(r, v)| {
-                Some(BrickFrame {
-                    image: r.frames.get(view)?,
-                    opacity: r.opacity.as_ref()?.get(view)?,
-                    world_box: v.meta().volume_box,
-                })
-            })
-            .collect();
-        let (image, opacity) =
-            compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(|e| StepError::Rank {
-                step: ready[0].step,
-                rank: ready[0].rank,
-                problem: format!("compositing reference frames: {e}"),
-            })?;
-        frames.push(image);
-        planes.push(opacity);
-    }
-    Ok(References {
-        camera: first.camera,
-        view_angles_deg: first.view_angles_deg.clone(),
-        frames,
-        opacity: Some(planes),
-    })
+    Ok(all)
 }
