@@ -21,7 +21,7 @@ use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_proto::peer::{error_chain, Peer};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc::{self, error::TrySendError};
 use tokio_stream::wrappers::ReceiverStream;
@@ -44,6 +44,10 @@ pub struct Tuning {
     since_trial: AtomicU64,
     /// Under load, one trial per this many production steps (0: only when idle).
     interleave: u64,
+    /// The last trial's VDI, whose allocations the next trial reuses, as production reuses
+    /// the last step's: a trial's τ is then what production pays
+    /// ([`insitu_core::evaluate::generate_encoded`]). Trials run one at a time.
+    spare: Mutex<Option<insitu_core::vdi::Vdi>>,
 }
 
 impl Tuning {
@@ -62,6 +66,7 @@ impl Tuning {
                 epoch: AtomicU64::new(0),
                 since_trial: AtomicU64::new(0),
                 interleave,
+                spare: Mutex::new(None),
             },
             rx,
         )
@@ -173,16 +178,19 @@ fn measure(
         resolution: req.resolution,
         gamma: req.gamma,
     };
-    let (hash, name) = (h.tf.0.identity_hash(), &h.tf.1);
+    let tf = (h.tf.0.identity_hash(), h.tf.1.as_str());
+    let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());
     let size = if req.size_only {
-        generate_encoded(&scene, &h.camera, params, h.codec, hash, name)
+        generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare)
             .map_err(|e| e.to_string())?
             .1
     } else {
         let refs = references(tuning, &scene, (req.step, rank), h, req.resolution, out)?;
         let views = &h.view_angles_deg;
-        let (e, _) = evaluate(&scene, &h.camera, params, h.codec, views, &refs, hash, name)
-            .map_err(|e| e.to_string())?;
+        let (e, _) = evaluate(
+            &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare,
+        )
+        .map_err(|e| e.to_string())?;
         out.tau_render_secs = e.tau_render_secs;
         out.view_mse = e.views.iter().map(|v| v.mse).collect();
         out.view_q_db = e.views.iter().map(|v| v.q_db).collect();

@@ -39,7 +39,7 @@ pub trait Oracle {
     fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError>;
     /// σ of `c` alone, bytes: all a size budget needs to tell a feasible candidate from
     /// another (the adaptive search's probes). Oracles that can generate and encode without
-    /// rendering and scoring override it ([`insitu_core::evaluate::size_of`]); the default
+    /// rendering and scoring override it ([`insitu_core::evaluate::generate_encoded`]); the default
     /// measures `c` fully.
     ///
     /// # Errors
@@ -152,6 +152,9 @@ pub struct Study<'a> {
     cache: Cache,
     generations: u64,
     generation_secs: f64,
+    /// The last candidate's VDI, whose allocations the next one reuses (as production does
+    /// from step to step, so that τ is what production pays).
+    spare: Option<insitu_core::vdi::Vdi>,
 }
 
 impl<'a> Study<'a> {
@@ -166,6 +169,7 @@ impl<'a> Study<'a> {
             cache,
             generations: 0,
             generation_secs: 0.0,
+            spare: None,
         }
     }
 
@@ -223,8 +227,8 @@ impl Oracle for Study<'_> {
             s.codec,
             &s.view_angles,
             &s.references,
-            s.tf_hash,
-            &s.tf_name,
+            (s.tf_hash, &s.tf_name),
+            &mut self.spare,
         )?;
         tracing::debug!(
             r = c.r,

@@ -71,8 +71,8 @@ pub fn run(a: Args) -> Result<()> {
         a.codec,
         &angles,
         &references,
-        scene.tf.identity_hash(),
-        &scene.tf_name,
+        (scene.tf.identity_hash(), &scene.tf_name),
+        &mut None,
     )?;
     pb.finish_and_clear();
 

@@ -64,8 +64,8 @@ fn teapot_quality_falls_smoothly_off_view() {
         Codec::Zstd,
         &angles,
         &refs,
-        tf.identity_hash(),
-        "teapot",
+        (tf.identity_hash(), "teapot"),
+        &mut None,
     )
     .unwrap();
     for (v, image) in eval.views.iter().zip(&images) {
