@@ -18,6 +18,18 @@ fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// Runs `insitu` with `args`, then `--out out`, then `extra`; asserts that it succeeds and
+/// returns the bytes it wrote to `out` and its standard output.
+fn written(dir: &Path, args: &[&str], extra: &[&str], out: &str) -> (Vec<u8>, String) {
+    let mut all = args.to_vec();
+    all.extend_from_slice(&["--out", out]);
+    all.extend_from_slice(extra);
+    let o = insitu(&all, dir);
+    assert!(o.status.success(), "{all:?}: {}", stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    (std::fs::read(dir.join(out)).unwrap(), stdout)
+}
+
 #[test]
 fn evaluate_json_on_the_embedded_default() {
     let dir = tempfile::tempdir().unwrap();
@@ -93,7 +105,7 @@ fn view_lod_zoom_and_elevation_do_what_they_say() {
     );
     assert!(o.status.success(), "{}", stderr(&o));
     let view = |extra: &[&str], out: &str| {
-        let mut args = vec![
+        let args = [
             "view",
             "--vdi",
             "a.vdi",
@@ -102,12 +114,7 @@ fn view_lod_zoom_and_elevation_do_what_they_say() {
             "--backend",
             "cpu",
         ];
-        args.extend_from_slice(&["--out", out]);
-        args.extend_from_slice(extra);
-        let o = insitu(&args, d);
-        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
-        let line = String::from_utf8_lossy(&o.stdout).into_owned();
-        (std::fs::read(d.join(out)).unwrap(), line)
+        written(d, &args, extra, out)
     };
     let (full, _) = view(&["--size", "32"], "full.png");
     let (full_lod, line) = view(&["--size", "32", "--lod"], "full_lod.png");
@@ -345,7 +352,7 @@ fn own_data_flags_read_the_file_as_its_name_would() {
     std::fs::write(d.join("blob.dat"), &first).unwrap();
     std::fs::write(d.join("series.dat"), [first, second].concat()).unwrap();
     let render = |extra: &[&str], out: &str| {
-        let mut args = vec![
+        let args = [
             "render",
             "--size",
             "32",
@@ -353,13 +360,8 @@ fn own_data_flags_read_the_file_as_its_name_would() {
             "30",
             "--backend",
             "cpu",
-            "--out",
-            out,
         ];
-        args.extend_from_slice(extra);
-        let o = insitu(&args, d);
-        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
-        std::fs::read(d.join(out)).unwrap()
+        written(d, &args, extra, out).0
     };
     let named = render(&["--volume", "blob_12x10x8_uint8.raw"], "named.png");
     let flags = &[
@@ -432,12 +434,16 @@ fn termination_and_shading_flags_reach_the_marcher() {
     );
     assert!(early < off, "0.3: {early} supersegments, off: {off}");
     let render = |extra: &[&str], out: &str| {
-        let mut args = vec!["render", "--volume", "gray-scott:24:300", "--size", "24"];
-        args.extend_from_slice(&["--backend", "cpu", "--out", out]);
-        args.extend_from_slice(extra);
-        let o = insitu(&args, d);
-        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
-        std::fs::read(d.join(out)).unwrap()
+        let args = [
+            "render",
+            "--volume",
+            "gray-scott:24:300",
+            "--size",
+            "24",
+            "--backend",
+            "cpu",
+        ];
+        written(d, &args, extra, out).0
     };
     let plain = render(&[], "plain.png");
     assert_ne!(render(&["--termination", "0.3"], "early.png"), plain);

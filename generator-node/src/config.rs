@@ -340,12 +340,10 @@ impl GenerationConfig {
                 e.to_string(),
             )
         })?;
-        let codec: Codec =
-            self.codec
-                .parse()
-                .map_err(|e: insitu_core::vdi::codec::CodecError| {
-                    invalid("generation.codec", e.to_string())
-                })?;
+        let codec = self
+            .codec
+            .parse::<Codec>()
+            .map_err(|e| invalid("generation.codec", e.to_string()))?;
         let tf = match &self.tf {
             Some(p) => {
                 let tf = TransferFunction::load(p)
