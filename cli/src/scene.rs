@@ -65,6 +65,7 @@ impl SceneArgs {
     pub fn load(&self) -> Result<Scene> {
         let source = self.volume.as_deref().unwrap_or(DEFAULT_SOURCE);
         let volume = if source.starts_with("gray-scott") {
+            self.refuse_raw_flags(source)?;
             tracing::info!(source, "running the built-in Gray-Scott simulation");
             GrayScott::from_spec(source)?.v_volume()
         } else {
@@ -100,6 +101,28 @@ impl SceneArgs {
             volume_name: source.to_owned(),
             params,
         })
+    }
+
+    /// The flags that describe a raw file, refused for the built-in simulation (which runs on
+    /// a unit grid of its own) rather than silently ignored.
+    fn refuse_raw_flags(&self, source: &str) -> Result<()> {
+        let given = [
+            ("--dims", self.dims.is_some()),
+            ("--type", self.scalar_type.is_some()),
+            ("--t", self.t != 0),
+            (
+                "--spacing",
+                parse_spacing(&self.spacing)? != glam::Vec3::ONE,
+            ),
+        ];
+        let given: Vec<&str> = given.iter().filter(|g| g.1).map(|g| g.0).collect();
+        if !given.is_empty() {
+            bail!(
+                "{} describe a raw file; {source} is the built-in simulation on its own unit grid",
+                given.join(", ")
+            );
+        }
+        Ok(())
     }
 
     fn load_raw(&self, source: &str) -> Result<Volume> {

@@ -174,6 +174,12 @@ fn bad_input_fails_cleanly() {
         "o.png",
     );
     assert_fails(&render("novolume.raw"), d, "novolume.raw", "o.png");
+    // A raw file's flags with the built-in simulation: refused, not silently ignored.
+    for raw_flag in [["--spacing", "2"], ["--dims", "4x4x4"], ["--t", "1"]] {
+        let mut args = render("gray-scott:16:20");
+        args.extend_from_slice(&raw_flag);
+        assert_fails(&args, d, raw_flag[0], "o.png");
+    }
     for (tf, needle) in [
         ("bad.json", "increase"),
         ("range.json", "outside"),
