@@ -597,6 +597,18 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     );
     let csv = std::fs::read_to_string(dir.path().join("s.csv")).unwrap();
     assert_eq!(csv.lines().count(), 10, "{csv}");
+    for chart in ["s_map.png", "s_pareto.png", "s_ladder.png"] {
+        assert!(dir.path().join(chart).exists(), "{chart} missing: {v}");
+    }
+    // --no-charts: the same tables (from the cache), no charts.
+    let mut bare = vec!["study", "--json", "--no-charts", "--out", "t"];
+    bare.extend_from_slice(&common);
+    let o = insitu(&bare, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["charts"].as_array().map(Vec::len), Some(0), "{v}");
+    assert!(dir.path().join("t.csv").exists());
+    assert!(!dir.path().join("t_map.png").exists());
     // tune on the same scene: everything comes from the cache.
     let mut tune = vec!["tune", "--json", "--utility", "size:1GB"];
     tune.extend_from_slice(&common);
