@@ -91,19 +91,8 @@ fn generate_then_view() {
 fn view_lod_zoom_and_elevation_do_what_they_say() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let o = insitu(
-        &[
-            "generate",
-            "--volume",
-            "gray-scott:16:50",
-            "--r",
-            "32",
-            "--out",
-            "a.vdi",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
+    let generate = ["generate", "--volume", "gray-scott:16:50", "--r", "32"];
+    written(d, &generate, &[], "a.vdi");
     let view = |extra: &[&str], out: &str| {
         let args = [
             "view",
@@ -411,22 +400,8 @@ fn termination_and_shading_flags_reach_the_marcher() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let supersegments = |termination: &str, out: &str| -> u64 {
-        let o = insitu(
-            &[
-                "generate",
-                "--volume",
-                "gray-scott:24:300",
-                "--r",
-                "32",
-                "--generation-termination",
-                termination,
-                "--out",
-                out,
-            ],
-            d,
-        );
-        assert!(o.status.success(), "{}", stderr(&o));
-        let line = String::from_utf8_lossy(&o.stdout).into_owned();
+        let args = ["generate", "--volume", "gray-scott:24:300", "--r", "32"];
+        let (_, line) = written(d, &args, &["--generation-termination", termination], out);
         let count = line
             .split(" supersegments")
             .next()
