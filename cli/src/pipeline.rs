@@ -365,6 +365,10 @@ impl LocalNodes {
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec(defaults).name().to_owned();
+        // A pool of its own, as the daemon in its own process has (0 would be rayon's global
+        // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
+        // simulation's steps, and τ counts their time).
+        cfg.threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         tweak(&mut cfg);
         let generator = gen::start(cfg)
             .await

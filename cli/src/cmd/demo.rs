@@ -58,23 +58,21 @@ pub fn run(a: Args) -> Result<()> {
 async fn demo(a: Args) -> Result<()> {
     let started = Instant::now();
     let mut sim = GrayScott::new(a.size, GrayScottParams::default())?;
-    // The simulation and the generator-node each get threads of their own, as separate
-    // processes have (the viz-node keeps rayon's global pool). On one shared pool a
-    // generation's jobs queued behind the simulation's, and τ counted the simulation's time
-    // (3–5× the generation's own on 2 cores; README, "Two commands"). The pools still share
-    // the cores, as an in situ run does.
+    // The simulation's own threads, as a simulation in its own process has (the
+    // generator-node has its pool: `LocalNodes::start`). On rayon's global pool, shared with
+    // the generator-node, a generation's jobs queued behind the simulation's, and τ counted
+    // the simulation's time (3–5× the generation's own on 2 cores; README, "Two commands").
+    // The pools still share the cores, as an in situ run does.
     let sim_pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
             .thread_name(|i| format!("simulate-{i}"))
             .build()?,
     );
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let reference_every = a.every * a.sample_every;
     let nodes = LocalNodes::start(&a.pipeline, DEFAULTS, |c| {
         c.generation.reference_every = reference_every;
         // Small frames keep the demo quick; the VDI itself is r × r.
         c.generation.reference_size = a.pipeline.pm.r.min(256);
-        c.threads = cores; // a pool of its own (0 would be rayon's global pool)
     })
     .await?;
     let say = |line: String| {
