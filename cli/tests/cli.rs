@@ -509,6 +509,28 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let o = insitu(&["export", "--recording", "rec"], dir.path());
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(json["entries"].as_array().map(Vec::len), Some(4), "{json}");
+    // A recorded step renders; one the recording lacks is refused, naming the steps it has.
+    let (png, _) = written(
+        dir.path(),
+        &["view", "--recording", "rec"],
+        &["--step", "60"],
+        "s.png",
+    );
+    assert!(image::load_from_memory(&png).is_ok());
+    assert_fails(
+        &[
+            "view",
+            "--recording",
+            "rec",
+            "--step",
+            "61",
+            "--out",
+            "x.png",
+        ],
+        dir.path(),
+        "step 61 is not in rec: it holds 4 steps from 50 to 80",
+        "x.png",
+    );
     // --no-http and --no-tune: the same steps, without the viewer and the tuner.
     let o = insitu(
         &[

@@ -123,8 +123,16 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
         (None, Some(dir), Some(step)) => {
             let (entries, steps) = insitu_viz_node::index::read(dir)
                 .with_context(|| format!("{} is not a readable recording", dir.display()))?;
+            let held: std::collections::BTreeSet<u64> = entries.iter().map(|e| e.step).collect();
             let ranks: Vec<_> = entries.into_iter().filter(|e| e.step == step).collect();
             let composed = steps.into_iter().find(|s| s.step == step);
+            if ranks.is_empty() && composed.is_none() {
+                anyhow::bail!(
+                    "step {step} is not in {}: it holds {}",
+                    dir.display(),
+                    steps_held(&held)
+                );
+            }
             let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
             let what = match a.rank {
                 Some(r) => format!("step {step} rank {r} of {}", dir.display()),
@@ -134,4 +142,15 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
         }
         _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --step N"),
     })
+}
+
+/// The steps a recording holds, for an error: their count and range, and where to list them.
+fn steps_held(steps: &std::collections::BTreeSet<u64>) -> String {
+    match (steps.first(), steps.last()) {
+        (Some(first), Some(last)) => format!(
+            "{} steps from {first} to {last} (`insitu export` lists them)",
+            steps.len()
+        ),
+        _ => "no steps yet".to_owned(),
+    }
 }
