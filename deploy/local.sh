@@ -60,5 +60,5 @@ trap 'exit 130' INT TERM
 echo "viz-node       $viz   (recording: $rec)"
 [[ -n $tuner_pid ]] && echo "tuner-node     $tuner   (${TUNER_UTILITY:-size:1MB}; log: $logs/tuner.log)"
 echo "generator-node $gen"
-echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops both)"
+echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops the daemons)"
 wait "$gen_pid"
