@@ -180,7 +180,6 @@ impl Daemon {
         rest
     }
 
-    /// Kills it at once (SIGKILL), as a crash would.
     /// Sends `signal` (e.g. `STOP`, `CONT`) to the process with `kill`.
     pub fn signal(&self, signal: &str) {
         let ok = Command::new("kill")
@@ -210,6 +209,7 @@ impl Daemon {
             .map_or(0.0, |kb| kb / 1024.0)
     }
 
+    /// Kills it at once (SIGKILL), as a crash would.
     pub fn kill(mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
@@ -223,8 +223,6 @@ impl Drop for Daemon {
     }
 }
 
-/// The shared data directory (`INSITU_DATA_DIR` or `../shared/data`); panics with a clear
-/// message when it is missing, unless `INSITU_SKIP_DATA_TESTS=1` (then `None`).
 /// Starts a viz-node recording into `dir` on `listen`, with `extra` flags, logs in `logs`.
 pub fn start_viz(dir: &Path, listen: &str, extra: &[&str], logs: &Path) -> Daemon {
     let mut args = vec!["--listen", listen, "--recording-dir"];
@@ -234,6 +232,8 @@ pub fn start_viz(dir: &Path, listen: &str, extra: &[&str], logs: &Path) -> Daemo
     Daemon::start("viz-node", &args, &[], logs)
 }
 
+/// The shared data directory (`INSITU_DATA_DIR` or `../shared/data`); panics with a clear
+/// message when it is missing, unless `INSITU_SKIP_DATA_TESTS=1` (then `None`).
 pub fn data_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("INSITU_DATA_DIR")
         .map(PathBuf::from)

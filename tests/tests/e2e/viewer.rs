@@ -13,11 +13,11 @@ use insitu_core::metrics::{mse, psnr_from_mse};
 use insitu_core::volume::RawFormat;
 use insitu_core::Image;
 use insitu_e2e::browser::{artefacts, browser, js, start_driver};
-use insitu_e2e::{data_dir, rt, Daemon};
+use insitu_e2e::{bin, data_dir, rt, Daemon};
 use serde_json::{json, Value};
-use std::io::{Read, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Polls `attr` of `#frame` until `pred` holds, within `secs`.
@@ -600,4 +600,86 @@ fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_err
     }
     let (code, _) = http(&addr, "/api/stats", &[bearer]);
     assert_eq!(code, 200);
+}
+
+/// `insitu demo --keep-serving` (README, "Web viewer"): once the run's summary is out, its
+/// viewer still answers over the recording, until SIGINT (Ctrl-C); then the process exits
+/// cleanly and the port is closed.
+#[test]
+fn the_demo_keeps_serving_its_recording_until_interrupted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut child = Command::new(bin("insitu"))
+        .args(["demo", "--size", "24", "--warmup", "50", "--every", "10"])
+        .args([
+            "--pushes",
+            "2",
+            "--r",
+            "32",
+            "--no-tune",
+            "--recording",
+            "rec",
+        ])
+        .arg("--keep-serving")
+        .current_dir(tmp.path())
+        .env_remove("INSITU_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The line that says it serves on, read on a thread: a run that never prints it fails the
+    // test after the timeout instead of blocking it.
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    let reader = std::thread::spawn(move || {
+        let mut seen = String::new();
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let serving = line.strip_prefix("serving the recording at ");
+            if let Some(url) = serving.and_then(|l| l.strip_suffix(" until Ctrl-C")) {
+                let _ = tx.send(url.to_owned());
+            }
+            seen.push_str(&line);
+            seen.push('\n');
+        }
+        seen
+    });
+    let Ok(url) = rx.recv_timeout(Duration::from_secs(120)) else {
+        let _ = child.kill();
+        panic!("no 'serving' line; stderr:\n{}", reader.join().unwrap());
+    };
+    let addr = url.trim_start_matches("http://").trim_end_matches('/');
+    let (status, body) = http(addr, "/api/steps", &[]);
+    assert_eq!(status, 200, "{body}");
+    let steps: Value = serde_json::from_str(&body).unwrap();
+    let listed: Vec<u64> = steps["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|s| s["step"].as_u64())
+        .collect();
+    assert_eq!(listed, [50, 60], "{body}");
+    let (status, png) = http(addr, "/api/render?step=60&size=64", &[]);
+    assert_eq!(status, 200, "{png}");
+
+    let interrupted = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(interrupted, "kill -INT failed");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let exit = loop {
+        if let Some(exit) = child.try_wait().unwrap() {
+            break exit;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("still running 30 s after SIGINT");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = reader.join().unwrap();
+    assert!(exit.success(), "{exit}; stderr:\n{log}");
+    assert!(
+        std::net::TcpStream::connect(addr).is_err(),
+        "the viewer still accepts connections after the exit"
+    );
 }
