@@ -657,8 +657,8 @@ fn the_demo_keeps_serving_its_recording_until_interrupted() {
         .filter_map(|s| s["step"].as_u64())
         .collect();
     assert_eq!(listed, [50, 60], "{body}");
-    let (status, png) = http(addr, "/api/render?step=60&size=64", &[]);
-    assert_eq!(status, 200, "{png}");
+    let (status, answer) = http(addr, "/api/render?step=60&size=64", &[]);
+    assert_eq!(status, 200, "{answer}");
 
     let interrupted = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
