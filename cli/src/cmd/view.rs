@@ -123,14 +123,16 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
         (None, Some(dir), Some(step)) => {
             let (entries, steps) = insitu_viz_node::index::read(dir)
                 .with_context(|| format!("{} is not a readable recording", dir.display()))?;
-            let held: std::collections::BTreeSet<u64> = entries.iter().map(|e| e.step).collect();
-            let ranks: Vec<_> = entries.into_iter().filter(|e| e.step == step).collect();
+            let (ranks, others): (Vec<_>, Vec<_>) =
+                entries.into_iter().partition(|e| e.step == step);
             let composed = steps.into_iter().find(|s| s.step == step);
+            // Before `vdi_file`, which has only this step's entries: here the others are at
+            // hand to say what the recording does hold.
             if ranks.is_empty() && composed.is_none() {
                 anyhow::bail!(
                     "step {step} is not in {}: it holds {}",
                     dir.display(),
-                    steps_held(&held)
+                    steps_held(others.iter().map(|e| e.step).collect())
                 );
             }
             let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
@@ -145,7 +147,7 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
 }
 
 /// The steps a recording holds, for an error: their count and range, and where to list them.
-fn steps_held(steps: &std::collections::BTreeSet<u64>) -> String {
+fn steps_held(steps: std::collections::BTreeSet<u64>) -> String {
     match (steps.first(), steps.last()) {
         (Some(first), Some(last)) => format!(
             "{} steps from {first} to {last} (`insitu export` lists them)",
