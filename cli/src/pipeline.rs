@@ -276,25 +276,18 @@ pub struct LocalNodes {
     pub keep_serving: bool,
 }
 
-/// A tuner on loopback watching the viz-node at `viz`, with its state in `recording`: the
-/// adaptive search where `utility` is one it can bisect (a size budget), else the grid search.
+/// A tuner on loopback watching the viz-node at `viz`, with its state in `recording`, and the
+/// adaptive search.
 async fn start_tuner(
     utility: String,
     recording: &std::path::Path,
     viz: SocketAddr,
 ) -> Result<insitu_tuner_node::RunningTuner> {
-    use insitu_tuner_node::config::Strategy;
-    let strategy = if insitu_tuner::search::Target::for_spec(&utility).is_ok() {
-        Strategy::Adaptive
-    } else {
-        Strategy::Grid
-    };
     let cfg = insitu_tuner_node::Config {
         listen: SocketAddr::from(([127, 0, 0, 1], 0)),
         state_dir: recording.join("tuner-state"),
         viz: Some(viz.to_string()),
         utility,
-        strategy,
         ..Default::default()
     };
     insitu_tuner_node::start(cfg)

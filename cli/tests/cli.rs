@@ -651,11 +651,31 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["strategy"], "adaptive", "{v}");
-    let mut bad = vec!["tune", "--utility", "time:0.1", "--strategy", "adaptive"];
-    bad.extend_from_slice(&common);
-    let o = insitu(&bad, dir.path());
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("--strategy grid"), "{}", stderr(&o));
+    // The adaptive search takes time budgets too (from the cache: no generation).
+    let mut time = vec![
+        "tune",
+        "--utility",
+        "time:1000",
+        "--strategy",
+        "adaptive",
+        "--json",
+    ];
+    time.extend_from_slice(&common);
+    let o = insitu(&time, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["generated"].as_u64(), Some(0), "{v}");
+    assert!(
+        v["best"]["tau_s"].as_f64().is_some_and(|t| t < 1000.0),
+        "{v}"
+    );
+    time[2] = "time:1e-9";
+    let o = insitu(&time, dir.path());
+    assert!(
+        !o.status.success() && stderr(&o).contains("infeasible"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// `tune --ladder`: at every size budget of the ladder (each 1.5× the previous) both choices

@@ -152,8 +152,8 @@ pub fn mean_ssim(views: &[ViewScore]) -> Option<f64> {
 }
 
 /// What generating and encoding `P_M` costs, without scoring it: the cheap half of a
-/// measurement, enough to decide whether a candidate meets a size budget (the adaptive
-/// search's probes: `Oracle::measure_size` in `insitu-tuner`; [`generate_encoded`]).
+/// measurement, enough to decide whether a candidate meets a size or time budget (the adaptive
+/// search's probes: `Oracle::measure_sizing` in `insitu-tuner`; [`generate_encoded`]).
 ///
 /// The one σ/τ record of the workspace: the tuner's measurements and probes and the
 /// viz-node's index rows carry it (flattened in their JSON: the keys below). σ and τ are

@@ -4,7 +4,6 @@
 pub use insitu_proto::daemon::ConfigError;
 use insitu_proto::daemon::{load_toml, DaemonConfig};
 use insitu_proto::tls::TlsFiles;
-use insitu_tuner::search::Target;
 use insitu_tuner::utility::{Utility, UtilitySpec};
 use insitu_tuner::ParamGrid;
 use serde::{Deserialize, Serialize};
@@ -111,7 +110,8 @@ pub struct Config {
     /// The utility ν: `size:BYTES`, `time:SECS`, `size:BYTES,time:SECS` or `quality:DB`.
     /// For a world of ranks σ is a step's VDIs summed over ranks and τ the slowest rank's.
     pub utility: String,
-    /// `adaptive` (size and quality utilities) or `grid`.
+    /// `adaptive` (bisects the budgets or the quality target; see `insitu_tuner::search`) or
+    /// `grid` (every candidate on every characteristic step).
     pub strategy: Strategy,
     /// Candidates.
     pub grid: GridConfig,
@@ -162,8 +162,8 @@ pub struct Resolved {
     pub utility: Box<dyn Utility>,
     /// ν with the headroom taken off the budgets (what the search optimises).
     pub plan: Box<dyn Utility>,
-    /// For the adaptive strategy (with the headroom).
-    pub target: Option<Target>,
+    /// For the adaptive strategy: the utility it bisects (with the headroom).
+    pub target: Option<UtilitySpec>,
     /// Candidates.
     pub grid: ParamGrid,
     /// σ_target (bytes) and τ_target (seconds) of the utility, where it has them: what a
@@ -194,8 +194,8 @@ impl Config {
     /// Checks every key and parses the utility and the grid.
     ///
     /// # Errors
-    /// [`ConfigError::Invalid`] naming the key: a bad or non-positive budget, an adaptive
-    /// strategy with a time budget, an empty or malformed grid, a threshold outside [0, 1],
+    /// [`ConfigError::Invalid`] naming the key: a bad or non-positive budget, an empty or
+    /// malformed grid, a threshold outside [0, 1],
     /// `max` 0, a non-positive timeout or share.
     pub fn resolve(&self) -> Result<Resolved, ConfigError> {
         let spec =
@@ -205,10 +205,7 @@ impl Config {
         }
         let plan = spec.scaled(1.0 - self.headroom);
         let target = match self.strategy {
-            Strategy::Adaptive => Some(
-                Target::for_utility(plan)
-                    .map_err(|e| invalid("strategy", format!("{:?}: {e}", self.utility)))?,
-            ),
+            Strategy::Adaptive => Some(plan),
             Strategy::Grid => None,
         };
         let grid = ParamGrid::parse(&self.grid.r, &self.grid.gamma)
@@ -269,7 +266,7 @@ mod tests {
         assert!(bad("utility = \"size:0\"").contains("utility"));
         assert!(bad("utility = \"size:-1MB\"").contains("utility"));
         assert!(bad("utility = \"time:0\"\nstrategy = \"grid\"").contains("utility"));
-        assert!(bad("utility = \"time:0.5\"").contains("strategy"));
+        assert!(bad("utility = \"time:0.5\"").is_empty());
         assert!(bad("utility = \"time:0.5\"\nstrategy = \"grid\"").is_empty());
         assert!(bad("[grid]\nr = \"\"").contains("grid"));
         assert!(bad("[grid]\ngamma = \"0.2:0.1:0.01\"").contains("grid"));

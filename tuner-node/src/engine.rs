@@ -53,7 +53,7 @@ pub struct Counters {
     pub summaries: u64,
     /// Trials run by this process.
     pub trials_run: u64,
-    /// Of `trials_run`, size probes (σ only: no rendering or scoring).
+    /// Of `trials_run`, size probes (σ and τ only: no rendering or scoring).
     pub size_probes: u64,
     /// Trials answered from the state.
     pub trials_reused: u64,

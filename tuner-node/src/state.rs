@@ -188,17 +188,14 @@ impl State {
         })
     }
 
-    /// σ of `c` on `step` from a size probe or a trial, if either was run.
-    pub fn sigma(&self, step: u64, c: Candidate) -> Option<u64> {
+    /// σ and τ of `c` on `step` from a size probe or a trial, if either was run.
+    pub fn sizing(&self, step: u64, c: Candidate) -> Option<Sizing> {
         let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
         self.size_probes
             .iter()
             .find(|p| p.step == step && same(p.candidate))
-            .map(|p| p.sizing.sigma_bytes)
-            .or_else(|| {
-                self.trial(step, c)
-                    .map(|t| t.measurement.sizing.sigma_bytes)
-            })
+            .map(|p| p.sizing)
+            .or_else(|| self.trial(step, c).map(|t| t.measurement.sizing))
     }
 
     /// Loads `dir/tuner-state.json`; `None` when there is none.

@@ -189,13 +189,13 @@ impl Oracle for StepOracle {
         Ok(m)
     }
 
-    /// σ summed over the step's ranks, from a size probe on the nodes (generation and
-    /// compression only) unless a probe or trial of `c` was run before.
-    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
+    /// σ summed over the step's ranks and the slowest rank's τ, from a size probe on the
+    /// nodes (generation and compression only) unless a probe or trial of `c` was run before.
+    fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
         let e = self.engine.clone();
-        if let Some(sigma) = e.state().sigma(self.step, c) {
+        if let Some(sizing) = e.state().sizing(self.step, c) {
             e.counters().trials_reused += 1;
-            return Ok(sigma);
+            return Ok(sizing);
         }
         let (results, secs) = self.run(c, true)?;
         let p = SizeProbe {
@@ -217,7 +217,7 @@ impl Oracle for StepOracle {
         let mut s = e.state();
         s.size_probes.push(p.clone());
         e.save(&s);
-        Ok(p.sizing.sigma_bytes)
+        Ok(p.sizing)
     }
 
     fn generations(&self) -> u64 {

@@ -268,13 +268,14 @@ impl Oracle for WorstCase<'_> {
         worst_case(&ms).map_err(|e| StudyError::Invalid(e.to_string()))
     }
 
-    /// The largest σ over the steps (as [`worst_case`] takes it).
-    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
-        let mut worst = 0;
-        for o in &mut self.steps {
-            worst = worst.max(o.measure_size(c)?);
-        }
-        Ok(worst)
+    /// The largest σ and τ over the steps (as [`worst_case`] takes them).
+    fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
+        let all = self
+            .steps
+            .iter_mut()
+            .map(|o| o.measure_sizing(c))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Sizing::worst(&all))
     }
 
     fn generations(&self) -> u64 {
@@ -290,10 +291,10 @@ impl Oracle for WorstCase<'_> {
 mod tests {
     use super::*;
     use crate::grid::ParamGrid;
-    use crate::search::{adaptive_search, grid_search, Target};
+    use crate::search::{adaptive_search, grid_search};
     use crate::series::{characteristic_steps, conservative, histograms};
     use crate::study::TableOracle;
-    use crate::utility::{QualityTarget, SizeBudget, Utility};
+    use crate::utility::UtilitySpec;
 
     fn series() -> Vec<Vec<f32>> {
         // Regimes: steps 0–4 near 0, 5–9 near 5, 10–14 near 10, 15–19 near 0 again.
@@ -407,7 +408,11 @@ mod tests {
                 sizing: Sizing {
                     sigma_bytes: (scale * f64::from(c.r * c.r) / (1.0 + 40.0 * f64::from(c.gamma)))
                         as u64,
-                    tau_secs: 0.01 * f64::from(c.r) / 100.0,
+                    // τ rises with r, falls a little with γ, and differs between steps.
+                    tau_secs: 1e-4
+                        * f64::from(c.r)
+                        * (1.0 + 0.1 * step as f64)
+                        * (1.0 - 0.2 * f64::from(c.gamma)),
                     ..Sizing::default()
                 },
                 tau_render_secs: 0.0,
@@ -428,18 +433,13 @@ mod tests {
     fn the_worst_case_search_finds_the_conservative_choice() {
         let grid = ParamGrid::parse("64:512:32", "0.001:0.26:0.008").unwrap();
         let tables: Vec<Vec<Measurement>> = (0..3).map(|s| table(s, &grid)).collect();
-        for (target, u) in [
-            (
-                Target::Size(60_000),
-                Box::new(SizeBudget {
-                    sigma_target: 60_000,
-                }) as Box<dyn Utility>,
-            ),
-            (
-                Target::Quality(24.0),
-                Box::new(QualityTarget { q_target: 24.0 }),
-            ),
+        for target in [
+            UtilitySpec::Size(60_000),
+            UtilitySpec::Quality(24.0),
+            UtilitySpec::Time(0.035),
+            UtilitySpec::SizeAndTime(80_000, 0.035),
         ] {
+            let u = target.utility();
             let (expected, worst) = conservative(&tables, u.as_ref()).unwrap();
             let mut all = WorstCase::new(oracles(&tables));
             let exhaustive = grid_search(&mut all, &grid, u.as_ref()).unwrap();

@@ -11,14 +11,22 @@
 //! skipped. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
 //!
-//! Under a size budget the probes ask the oracle for σ alone ([`Oracle::measure_size`]: a
+//! A time budget (Eq. 2) has the size budget's shape: τ rises with r (r² rays) and falls a
+//! little as γ grows (fewer supersegments to close and write), so at most resolutions either
+//! the smallest γ meets it (one probe) or even the largest misses (two probes, and no larger r
+//! is tried); only near the resolution where τ crosses the budget is γ bisected. τ is a
+//! timing, so a probe near the budget may fall either side of it: a bisection then settles on
+//! a larger γ than needed (never on one that missed), and the climb over r weighs that
+//! resolution's answer against its neighbours'. Both budgets at once need both met.
+//!
+//! Under budgets the probes ask the oracle for σ and τ alone ([`Oracle::measure_sizing`]: a
 //! generation and an encoding, no rendering or scoring); only each resolution's answer is
-//! measured fully.
+//! measured fully, and kept only if that measurement meets the budgets too.
 
 use crate::grid::{Candidate, ParamGrid};
 use crate::measure::Measurement;
 use crate::study::{Oracle, StudyError};
-use crate::utility::{best, QualityTarget, SizeBudget, Utility, UtilityError, UtilitySpec};
+use crate::utility::{best, Utility, UtilitySpec};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -79,56 +87,10 @@ pub fn grid_search(
     Ok(outcome(found, oracle, g0, s0, t))
 }
 
-/// The constraint an adaptive search bisects against.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Target {
-    /// ν_size (Eq. 1): best q with σ < σ_target (bytes).
-    Size(u64),
-    /// The dual: smallest σ with q ≥ q_target (dB).
-    Quality(f64),
-}
-
-impl Target {
-    /// The target an adaptive search bisects for a utility spec (see
-    /// [`crate::utility::parse_utility`]): `size:BYTES` or `quality:DB`.
-    ///
-    /// # Errors
-    /// [`UtilityError`] for a bad spec, or one the adaptive search cannot bisect (time budgets,
-    /// both budgets): those need the grid search.
-    pub fn for_spec(spec: &str) -> Result<Self, UtilityError> {
-        Self::for_utility(UtilitySpec::parse(spec)?).map_err(|problem| UtilityError {
-            spec: spec.to_owned(),
-            problem,
-        })
-    }
-
-    /// The target for a parsed utility.
-    ///
-    /// # Errors
-    /// A message for the utilities the adaptive search cannot bisect (time budgets, both).
-    pub fn for_utility(u: UtilitySpec) -> Result<Self, String> {
-        match u {
-            UtilitySpec::Size(s) => Ok(Self::Size(s)),
-            UtilitySpec::Quality(q) => Ok(Self::Quality(q)),
-            other => Err(format!(
-                "the adaptive search supports size:BYTES and quality:DB, not {}; use the grid strategy",
-                other.utility().describe()
-            )),
-        }
-    }
-
-    fn utility(self) -> Box<dyn Utility> {
-        match self {
-            Self::Size(s) => Box::new(SizeBudget { sigma_target: s }),
-            Self::Quality(q) => Box::new(QualityTarget { q_target: q }),
-        }
-    }
-}
-
 struct Adaptive<'o> {
     oracle: &'o mut dyn Oracle,
     grid: &'o ParamGrid,
-    target: Target,
+    target: UtilitySpec,
     utility: Box<dyn Utility>,
     per_r: BTreeMap<usize, Option<(Measurement, f64)>>,
 }
@@ -149,19 +111,18 @@ impl Adaptive<'_> {
         self.utility.value(m) < f64::INFINITY
     }
 
-    /// Whether candidate (`ri`, `gi`) meets the target. Under a size budget σ alone decides,
+    /// Whether candidate (`ri`, `gi`) meets the target. Under budgets σ and τ alone decide,
     /// so the probe costs a generation and an encoding but no rendering or scoring
-    /// ([`Oracle::measure_size`]); a quality target needs the full measurement.
+    /// ([`Oracle::measure_sizing`]); a quality target needs the full measurement.
     fn probe(&mut self, ri: usize, gi: usize) -> Result<bool, StudyError> {
-        match self.target {
-            Target::Size(sigma_target) => {
-                Ok(self.oracle.measure_size(self.candidate(ri, gi))? < sigma_target)
-            }
-            Target::Quality(_) => {
-                let m = self.measure(ri, gi)?;
-                Ok(self.feasible(&m))
-            }
+        if matches!(self.target, UtilitySpec::Quality(_)) {
+            let m = self.measure(ri, gi)?;
+            return Ok(self.feasible(&m));
         }
+        let (sigma_target, tau_target) = self.target.budgets();
+        let s = self.oracle.measure_sizing(self.candidate(ri, gi))?;
+        Ok(sigma_target.is_none_or(|t| s.sigma_bytes < t)
+            && tau_target.is_none_or(|t| s.tau_secs < t))
     }
 
     /// Bounds on the γ index of resolution `ri`'s answer from the nearest resolutions already
@@ -200,12 +161,12 @@ impl Adaptive<'_> {
             return Ok(v.clone());
         }
         // Search in "boundary order" k: feasibility is upward-closed in k and the best γ is
-        // the smallest feasible k. For a size budget k is the γ index (feasible for γ ≥ γ*,
+        // the smallest feasible k. For budgets k is the γ index (feasible for γ ≥ γ*,
         // smallest γ best); for a quality target it runs backwards (feasible for γ ≤ γ*,
         // largest γ best). Either way γ* grows with r, so the neighbouring resolutions'
         // answers bracket it.
         let n = self.grid.gammas.len();
-        let forward = matches!(self.target, Target::Size(_));
+        let forward = !matches!(self.target, UtilitySpec::Quality(_));
         let gamma_index = |k: usize| if forward { k } else { n - 1 - k };
         let (blo, bhi) = self.bracket(ri);
         let (mut lo, mut hi) = if forward {
@@ -258,19 +219,26 @@ impl Adaptive<'_> {
             match self.best_at(ri)? {
                 Some((_, v)) if best.is_none_or(|(_, b)| v < b) => best = Some((ri, v)),
                 Some(_) => {}
-                // σ rises with r: no larger r can meet a size budget this one misses.
-                None if matches!(self.target, Target::Size(_)) => break,
+                // σ and τ rise with r: no larger r can meet a budget this one misses.
+                None if !matches!(self.target, UtilitySpec::Quality(_)) => break,
                 None => {}
             }
         }
         let Some((mut at, mut value)) = best else {
             return Ok(None);
         };
-        // Climb to better neighbours.
+        // Climb to better neighbours. A time budget looks two resolutions each way: a
+        // resolution whose τ lies near the budget may have come out worse (or infeasible) by
+        // the timing's noise alone, and must not stop the climb.
+        let reach = if self.target.budgets().1.is_some() {
+            2
+        } else {
+            1
+        };
         loop {
             let mut moved = false;
-            for ri in [at.wrapping_sub(1), at + 1] {
-                if ri >= n {
+            for ri in at.saturating_sub(reach)..=(at + reach).min(n - 1) {
+                if ri == at {
                     continue;
                 }
                 if let Some((_, v)) = self.best_at(ri)? {
@@ -287,14 +255,15 @@ impl Adaptive<'_> {
     }
 }
 
-/// The adaptive search for `target` over `grid` (see the module docs).
+/// The adaptive search for `target` (any built-in utility: size or time budgets, both, or a
+/// quality target) over `grid` (see the module docs).
 ///
 /// # Errors
 /// [`StudyError`] from a measurement; an empty grid.
 pub fn adaptive_search(
     oracle: &mut dyn Oracle,
     grid: &ParamGrid,
-    target: Target,
+    target: UtilitySpec,
 ) -> Result<Outcome, StudyError> {
     if grid.is_empty() {
         return Err(StudyError::Invalid("the grid is empty".into()));

@@ -5,7 +5,7 @@ use crate::cache::{Cache, CacheError};
 use crate::grid::Candidate;
 use crate::measure::Measurement;
 use insitu_core::backend::{BackendError, Scene};
-use insitu_core::evaluate::{evaluate, EvalError};
+use insitu_core::evaluate::{evaluate, EvalError, Sizing};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::VdiParams;
 use insitu_core::volume::Fnv1a;
@@ -37,15 +37,15 @@ pub trait Oracle {
     /// # Errors
     /// [`StudyError`].
     fn measure(&mut self, c: Candidate) -> Result<Measurement, StudyError>;
-    /// σ of `c` alone, bytes: all a size budget needs to tell a feasible candidate from
-    /// another (the adaptive search's probes). Oracles that can generate and encode without
-    /// rendering and scoring override it ([`insitu_core::evaluate::generate_encoded`]); the default
-    /// measures `c` fully.
+    /// σ and τ of `c` alone: all a size or time budget needs to tell a feasible candidate
+    /// from another (the adaptive search's probes). Oracles that can generate and encode
+    /// without rendering and scoring override it
+    /// ([`insitu_core::evaluate::generate_encoded`]); the default measures `c` fully.
     ///
     /// # Errors
     /// [`StudyError`].
-    fn measure_size(&mut self, c: Candidate) -> Result<u64, StudyError> {
-        self.measure(c).map(|m| m.sizing.sigma_bytes)
+    fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
+        self.measure(c).map(|m| m.sizing)
     }
     /// Candidates generated so far (cache hits excluded).
     fn generations(&self) -> u64;

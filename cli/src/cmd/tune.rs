@@ -5,15 +5,15 @@ use super::q_text;
 use super::study::{run_grid, StudyArgs};
 use anyhow::{bail, Context, Result};
 use insitu_tuner::charts::{self, LadderPoint};
-use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Outcome, Target};
-use insitu_tuner::utility::{bytes_text, parse_utility, SizeBudget};
+use insitu_tuner::search::{adaptive_search, grid_search, size_ladder, Outcome};
+use insitu_tuner::utility::{bytes_text, SizeBudget, UtilitySpec};
 use insitu_tuner::{Measurement, Oracle, TableOracle};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Strategy {
     /// Measure every candidate of the grid (the paper).
     Grid,
-    /// Bisection on gamma per r and a climb over r (size or quality targets).
+    /// Bisection on gamma per r and a climb over r (any utility: size or time budgets, quality).
     Adaptive,
 }
 
@@ -41,11 +41,6 @@ pub struct Args {
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
-}
-
-fn target(spec: &str) -> Result<Target> {
-    Target::for_spec(spec)
-        .map_err(|e| anyhow::anyhow!("--strategy adaptive: {e} (--strategy grid)"))
 }
 
 fn row_json(m: &Measurement) -> serde_json::Value {
@@ -99,7 +94,8 @@ pub fn run(a: Args) -> Result<()> {
         return ladder(&a);
     }
     let (spec, strategy) = resolve(&a)?;
-    let utility = parse_utility(&spec)?;
+    let spec = UtilitySpec::parse(&spec)?;
+    let utility = spec.utility();
     let p = a.study.prepare()?;
     let rc = p.raycaster()?;
     let mut study = a.study.study(&p, &rc)?;
@@ -114,7 +110,7 @@ pub fn run(a: Args) -> Result<()> {
             o.wall_secs = t.elapsed().as_secs_f64();
             o
         }
-        Strategy::Adaptive => adaptive_search(&mut study, &p.grid, target(&spec)?)?,
+        Strategy::Adaptive => adaptive_search(&mut study, &p.grid, spec)?,
     };
     study.save()?;
     let Some(best) = &out.best else {
@@ -179,7 +175,7 @@ fn ladder(a: &Args) -> Result<()> {
     for t in size_ladder(&rows) {
         let g = insitu_tuner::utility::best(&rows, &SizeBudget { sigma_target: t });
         let mut oracle = TableOracle::new(&rows);
-        let ad = adaptive_search(&mut oracle, &p.grid, Target::Size(t))?;
+        let ad = adaptive_search(&mut oracle, &p.grid, UtilitySpec::Size(t))?;
         let rung = match (g, &ad.best) {
             (Some((grid, _)), Some(adaptive)) => Rung {
                 sigma_target: t,

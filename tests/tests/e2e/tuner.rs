@@ -517,7 +517,7 @@ fn bad_input_is_refused_clearly_and_nothing_is_persisted() {
     for (flag, problem) in [
         (vec!["--utility", "size:0"], "utility"),
         (vec!["--utility", "size:-2MB"], "utility"),
-        (vec!["--utility", "time:0.5"], "strategy"),
+        (vec!["--utility", "quality:40,size:1MB"], "utility"),
     ] {
         let out = Command::new(bin("tuner-node"))
             .args(["--listen", "127.0.0.1:0", "--state-dir"])
