@@ -188,6 +188,27 @@ impl State {
         })
     }
 
+    /// Records a trial and returns its measurement as recorded: with τ lowered to that of an
+    /// earlier size probe of the same candidate on the same step where the probe was faster.
+    /// The simulation's and production's work on a node only ever add to a timing, and the
+    /// adaptive search must not drop a candidate whose probe met a time budget because the
+    /// second timing of the same generation was slowed down.
+    pub fn add_trial(&mut self, mut t: Trial) -> Measurement {
+        let c = t.measurement.candidate();
+        let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
+        if let Some(p) = self
+            .size_probes
+            .iter()
+            .find(|p| p.step == t.step && same(p.candidate))
+        {
+            let tau = &mut t.measurement.sizing.tau_secs;
+            *tau = tau.min(p.sizing.tau_secs);
+        }
+        let m = t.measurement.clone();
+        self.trials.push(t);
+        m
+    }
+
     /// σ and τ of `c` on `step` from a size probe or a trial, if either was run.
     pub fn sizing(&self, step: u64, c: Candidate) -> Option<Sizing> {
         let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
@@ -289,5 +310,50 @@ mod tests {
         .unwrap();
         let e = State::load(dir.path()).unwrap_err().to_string();
         assert!(e.contains(STATE_FILE) && e.contains("not valid"), "{e}");
+    }
+
+    /// A trial's τ is the faster of its own timing and an earlier size probe's of the same
+    /// candidate on the same step; σ and q are the trial's, other steps and candidates unused.
+    #[test]
+    fn a_trial_keeps_the_faster_of_its_timing_and_its_probes() {
+        let mut s = State::new(Tracker::new(0.1, 4));
+        let sizing = |tau_secs| Sizing {
+            sigma_bytes: 10,
+            tau_secs,
+            ..Sizing::default()
+        };
+        let c = Candidate { r: 64, gamma: 0.01 };
+        let probe = |step, candidate, tau| SizeProbe {
+            step,
+            candidate,
+            sizing: sizing(tau),
+            trial_secs: tau,
+            run_by: 1,
+        };
+        s.size_probes.push(probe(3, c, 0.012));
+        s.size_probes.push(probe(4, c, 0.001));
+        s.size_probes
+            .push(probe(3, Candidate { r: 64, gamma: 0.02 }, 0.001));
+        let trial = |step, tau| Trial {
+            step,
+            measurement: Measurement {
+                r: c.r,
+                gamma: c.gamma,
+                sizing: sizing(tau),
+                tau_render_secs: 0.0,
+                q_db: Db(40.0),
+                view_q_db: vec![Db(40.0)],
+                ssim: None,
+            },
+            ranks: 1,
+            trial_secs: tau,
+            run_by: 1,
+        };
+        assert_eq!(s.add_trial(trial(3, 0.034)).sizing.tau_secs, 0.012);
+        assert_eq!(s.add_trial(trial(3, 0.005)).sizing.tau_secs, 0.005);
+        assert_eq!(s.add_trial(trial(5, 0.034)).sizing.tau_secs, 0.034);
+        assert_eq!(s.trials.len(), 3);
+        assert_eq!(s.trial(3, c).unwrap().measurement.sizing.tau_secs, 0.012);
+        assert_eq!(s.trial(3, c).unwrap().measurement.q(), 40.0);
     }
 }

@@ -165,17 +165,19 @@ impl Oracle for StepOracle {
         let (results, secs) = self.run(c, false)?;
         let ms: Vec<Measurement> = results.iter().map(measurement).collect();
         let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
-        {
+        let timed = m.sizing.tau_secs;
+        let m = {
             let mut s = e.state();
-            s.trials.push(Trial {
+            let m = s.add_trial(Trial {
                 step: self.step,
-                measurement: m.clone(),
+                measurement: m,
                 ranks: results.len() as u32,
                 trial_secs: secs,
                 run_by: e.process,
             });
             e.save(&s);
-        }
+            m
+        };
         info!(
             step = self.step,
             r = c.r,
@@ -183,6 +185,7 @@ impl Oracle for StepOracle {
             sigma = m.sizing.sigma_bytes,
             q_db = m.q(),
             tau = m.sizing.tau_secs,
+            tau_timed = timed,
             secs,
             "trial"
         );

@@ -13,11 +13,13 @@
 //!
 //! A time budget (Eq. 2) has the size budget's shape: τ rises with r (r² rays) and falls a
 //! little as γ grows (fewer supersegments to close and write), so at most resolutions either
-//! the smallest γ meets it (one probe) or even the largest misses (two probes, and no larger r
-//! is tried); only near the resolution where τ crosses the budget is γ bisected. τ is a
-//! timing, so a probe near the budget may fall either side of it: a bisection then settles on
-//! a larger γ than needed (never on one that missed), and the climb over r weighs that
-//! resolution's answer against its neighbours'. Both budgets at once need both met.
+//! the smallest γ meets it (one probe) or even the largest misses (two probes); only near the
+//! resolution where τ crosses the budget is γ bisected. Resolutions being that cheap, a time
+//! budget tries every one from the smallest up, until two in a row miss at every γ, instead
+//! of climbing: τ is a timing, and a resolution near the budget may come out worse or
+//! infeasible by noise alone, which would stop a climb, and q need not be unimodal in r. A
+//! probe near the budget may fall either side of it: a bisection then settles on a larger γ
+//! than needed, never on one that missed. Both budgets at once need both met.
 //!
 //! Under budgets the probes ask the oracle for σ and τ alone ([`Oracle::measure_sizing`]: a
 //! generation and an encoding, no rendering or scoring); only each resolution's answer is
@@ -163,10 +165,33 @@ impl Adaptive<'_> {
         // Search in "boundary order" k: feasibility is upward-closed in k and the best γ is
         // the smallest feasible k. For budgets k is the γ index (feasible for γ ≥ γ*,
         // smallest γ best); for a quality target it runs backwards (feasible for γ ≤ γ*,
-        // largest γ best). Either way γ* grows with r, so the neighbouring resolutions'
-        // answers bracket it.
+        // largest γ best).
         let n = self.grid.gammas.len();
         let forward = !matches!(self.target, UtilitySpec::Quality(_));
+        let gamma_index = |k: usize| if forward { k } else { n - 1 - k };
+        let k = if self.target.budgets().1.is_some() {
+            self.gallop(ri)?
+        } else {
+            self.bisect(ri, forward)?
+        };
+        // The answer is measured fully (a quality target's probe already was: the oracle
+        // answers it again from its cache or trials).
+        let found = match k {
+            Some(k) => {
+                let m = self.measure(ri, gamma_index(k))?;
+                let v = self.utility.value(&m);
+                (v < f64::INFINITY).then_some((m, v))
+            }
+            None => None,
+        };
+        self.per_r.insert(ri, found.clone());
+        Ok(found)
+    }
+
+    /// The smallest feasible k at resolution `ri`, by bisection. γ* grows with r, so the
+    /// neighbouring resolutions' answers bracket it.
+    fn bisect(&mut self, ri: usize, forward: bool) -> Result<Option<usize>, StudyError> {
+        let n = self.grid.gammas.len();
         let gamma_index = |k: usize| if forward { k } else { n - 1 - k };
         let (blo, bhi) = self.bracket(ri);
         let (mut lo, mut hi) = if forward {
@@ -176,38 +201,61 @@ impl Adaptive<'_> {
         };
         // The bracket's best end first: when it is feasible it is the answer (one measurement
         // instead of a bisection; common when the budget is loose for this r).
-        let mut feasible = self.probe(ri, gamma_index(lo))?;
-        if !feasible {
+        if self.probe(ri, gamma_index(lo))? {
+            return Ok(Some(lo));
+        }
+        let mut feasible = self.probe(ri, gamma_index(hi))?;
+        if !feasible && hi < n - 1 {
+            (lo, hi) = (hi + 1, n - 1);
             feasible = self.probe(ri, gamma_index(hi))?;
-            if !feasible && hi < n - 1 {
-                (lo, hi) = (hi + 1, n - 1);
-                feasible = self.probe(ri, gamma_index(hi))?;
-            }
-            if feasible {
-                while lo < hi {
-                    let mid = (lo + hi) / 2;
-                    if self.probe(ri, gamma_index(mid))? {
-                        hi = mid;
-                    } else {
-                        lo = mid + 1;
-                    }
-                }
+        }
+        if !feasible {
+            return Ok(None);
+        }
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if self.probe(ri, gamma_index(mid))? {
+                hi = mid;
+            } else {
+                lo = mid + 1;
             }
         }
-        // The answer is measured fully (a quality target's probe already was: the oracle
-        // answers it again from its cache or trials).
-        let found = if feasible {
-            let m = self.measure(ri, gamma_index(lo))?;
-            let v = self.utility.value(&m);
-            (v < f64::INFINITY).then_some((m, v))
-        } else {
-            None
-        };
-        self.per_r.insert(ri, found.clone());
-        Ok(found)
+        Ok(Some(lo))
+    }
+
+    /// The smallest feasible γ index at resolution `ri` under a time budget: probes from
+    /// the smallest γ up at growing strides (0, 1, 3, 7, …, then the largest), then a
+    /// bisection of the last gap. Timings near the budget fall either side of it by noise,
+    /// so a bisection of the whole axis would settle anywhere; galloping stops at the first
+    /// γ that met it, near the smallest, where q is best. The neighbours' answers are not
+    /// trusted as a bracket: they are as noisy.
+    fn gallop(&mut self, ri: usize) -> Result<Option<usize>, StudyError> {
+        let n = self.grid.gammas.len();
+        let (mut missed, mut k, mut stride) = (None, 0, 1);
+        while !self.probe(ri, k)? {
+            if k == n - 1 {
+                return Ok(None);
+            }
+            missed = Some(k);
+            k = (k + stride).min(n - 1);
+            stride *= 2;
+        }
+        let (mut lo, mut hi) = (missed.map_or(0, |m| m + 1), k);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if self.probe(ri, mid)? {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        Ok(Some(lo))
     }
 
     fn run(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
+        if self.target.budgets().1.is_some() {
+            return self.sweep();
+        }
         let n = self.grid.rs.len();
         let stride = (n / 5).max(1);
         let mut probes: Vec<usize> = (0..n).step_by(stride).collect();
@@ -227,18 +275,11 @@ impl Adaptive<'_> {
         let Some((mut at, mut value)) = best else {
             return Ok(None);
         };
-        // Climb to better neighbours. A time budget looks two resolutions each way: a
-        // resolution whose τ lies near the budget may have come out worse (or infeasible) by
-        // the timing's noise alone, and must not stop the climb.
-        let reach = if self.target.budgets().1.is_some() {
-            2
-        } else {
-            1
-        };
+        // Climb to better neighbours.
         loop {
             let mut moved = false;
-            for ri in at.saturating_sub(reach)..=(at + reach).min(n - 1) {
-                if ri == at {
+            for ri in [at.wrapping_sub(1), at + 1] {
+                if ri >= n {
                     continue;
                 }
                 if let Some((_, v)) = self.best_at(ri)? {
@@ -252,6 +293,33 @@ impl Adaptive<'_> {
             }
         }
         Ok(self.per_r.get(&at).cloned().flatten())
+    }
+
+    /// Under a time budget: every resolution from the smallest up, until two in a row meet
+    /// the budget at no γ (one could by the timing's noise alone), and the best of their
+    /// answers. A resolution costs one or two probes there (τ hardly depends on γ), so
+    /// trying each is cheap, and it does not rely on q being unimodal in r, which it need
+    /// not be (a VDI at the test views' resolution matches their pixels at its own view).
+    fn sweep(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
+        let mut best: Option<(usize, f64)> = None;
+        let mut misses = 0;
+        for ri in 0..self.grid.rs.len() {
+            match self.best_at(ri)? {
+                Some((_, v)) => {
+                    misses = 0;
+                    if best.is_none_or(|(_, b)| v < b) {
+                        best = Some((ri, v));
+                    }
+                }
+                None => {
+                    misses += 1;
+                    if misses == 2 {
+                        break;
+                    }
+                }
+            }
+        }
+        Ok(best.and_then(|(at, _)| self.per_r.get(&at).cloned().flatten()))
     }
 }
 

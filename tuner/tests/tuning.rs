@@ -492,7 +492,7 @@ impl Oracle for NoisyTimings {
 
 /// Under time budgets (alone and with a size budget) with timings ±20 % noisy, the adaptive
 /// search's answer meets the budgets as measured and is at least as good as the best candidate
-/// that meets them under any noise, for a small fraction of the grid's generations.
+/// that meets them under any noise, in at most a fifth of the grid's generations.
 #[test]
 fn time_budgets_are_searched_adaptively_despite_noisy_timings() {
     let grid = ParamGrid::parse("128:768:32", "0.001:0.26:0.008").unwrap();
@@ -532,7 +532,7 @@ fn time_budgets_are_searched_adaptively_despite_noisy_timings() {
         }
     }
     assert!(
-        most <= grid.len() as u64 / 10,
+        most <= grid.len() as u64 / 5,
         "{most} generations of a grid of {}",
         grid.len()
     );
