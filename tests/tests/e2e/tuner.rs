@@ -265,6 +265,68 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
     v.terminate();
 }
 
+/// A time budget is searched adaptively too: the decision arrives after a fraction of the
+/// grid's trials, most of them size probes, and meets the budget (less the headroom) on every
+/// step it was tuned on, as its persisted trials timed it.
+#[test]
+fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
+    let Some(data) = data_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    // Here r = 64 generates an ocean step in about 4 ms, r = 128 in about 8 ms, r = 256 in
+    // over 10 ms: the budget lies within the grid (r 64–256), above the nodes' P_M (r = 32).
+    let t = tuner(&st, "127.0.0.1:0", &v.addr, "time:0.01", tmp.path());
+    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
+    let run = replay(
+        &data.join(OCEAN),
+        &g.addr,
+        &["--sample-every", "4", "--step-interval", "1.0"],
+    );
+    finish(run);
+    let s = tuner_status(&t.addr);
+    assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
+    let d = decision(&t.addr, s.pm_version).unwrap();
+    let plan = 0.01 * 0.95;
+    assert!(d.predicted_tau_secs < plan, "{d:?}");
+    let state = state(&st);
+    for step in &d.characteristic_steps {
+        let trial = state["trials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| {
+                x["step"].as_u64() == Some(*step)
+                    && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
+                    && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
+            })
+            .unwrap_or_else(|| panic!("no trial of the decision on step {step}"));
+        assert!(trial["measurement"]["tau_secs"].as_f64().unwrap() < plan);
+    }
+    // The grid is 4 r × 17 γ per characteristic step.
+    let grid = 68 * s.characteristic_steps.len() as u64;
+    assert!(
+        s.trials_run * 2 < grid && s.size_probes * 2 > s.trials_run,
+        "{} trials ({} size probes) for a grid of {grid}: {s:?}",
+        s.trials_run,
+        s.size_probes
+    );
+    eprintln!(
+        "ocean, time:0.01: decision v{} r {} γ {} on steps {:?} (predicted τ {:.4} s, q {:.2} dB); {} trials of which {} size probes, grid {grid}",
+        d.pm_version,
+        d.resolution,
+        d.gamma,
+        d.characteristic_steps,
+        d.predicted_tau_secs,
+        d.predicted_q_db,
+        s.trials_run,
+        s.size_probes
+    );
+    g.terminate();
+    t.terminate();
+    v.terminate();
+}
+
 #[test]
 fn a_change_of_character_retunes_once_and_alike_steps_never() {
     let tmp = tempfile::tempdir().unwrap();
