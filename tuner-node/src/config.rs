@@ -122,6 +122,11 @@ pub struct Config {
     /// A production step whose q is more than this many dB below the decision's prediction
     /// becomes characteristic (re-tuning).
     pub q_margin_db: f64,
+    /// Production steps in a row, made with the P_M in force, whose τ must break τ_target
+    /// before the last becomes characteristic (re-tuning); ≥ 1. τ counts whatever else the
+    /// node runs meanwhile (the simulation), so one slow step alone is noise more often than
+    /// a changed field. A σ over σ_target acts at once (σ is no timing).
+    pub time_breaks: u32,
     /// Share of σ_target and τ_target kept free when choosing, in [0, 0.5): the search plans
     /// for `(1 − headroom) × target`, so alike steps that drift a little do not break the
     /// budget at once (the optimum of ν_size sits right at the budget). Production steps are
@@ -144,6 +149,7 @@ impl Default for Config {
             characteristic: CharacteristicConfig::default(),
             trials: TrialConfig::default(),
             q_margin_db: 3.0,
+            time_breaks: 2,
             headroom: 0.05,
         }
     }
@@ -196,7 +202,7 @@ impl Config {
     /// # Errors
     /// [`ConfigError::Invalid`] naming the key: a bad or non-positive budget, an empty or
     /// malformed grid, a threshold outside [0, 1],
-    /// `max` 0, a non-positive timeout or share.
+    /// `max` 0, a non-positive timeout or share, `time_breaks` 0.
     pub fn resolve(&self) -> Result<Resolved, ConfigError> {
         let spec =
             UtilitySpec::parse(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
@@ -237,6 +243,9 @@ impl Config {
         if !(self.q_margin_db.is_finite() && self.q_margin_db >= 0.0) {
             return Err(invalid("q_margin_db", "must be finite and ≥ 0"));
         }
+        if self.time_breaks == 0 {
+            return Err(invalid("time_breaks", "must be ≥ 1"));
+        }
         Ok(Resolved {
             utility: spec.utility(),
             plan: plan.utility(),
@@ -276,6 +285,7 @@ mod tests {
         assert!(bad("[trials]\ntimeout_secs = -1").contains("trials.timeout_secs"));
         assert!(bad("colour = 3").contains("colour"));
         assert!(bad("headroom = 0.5").contains("headroom"));
+        assert!(bad("time_breaks = 0").contains("time_breaks"));
         let r = toml::from_str::<Config>("utility = \"size:1MB,time:2\"\nstrategy = \"grid\"")
             .unwrap()
             .resolve()

@@ -273,6 +273,17 @@ struct Loop {
     /// Evicted characteristic steps whose fields a running tuning may still ask trials of:
     /// released when it ends (unless characteristic again by then).
     deferred: Vec<u64>,
+    /// The P_M version of the last production step checked against the budget, and how many
+    /// steps made with it in a row ended with one whose τ broke τ_target.
+    slow: (u64, u32),
+}
+
+/// How a production step broke the budget.
+enum Break {
+    /// σ ≥ σ_target.
+    Size(String),
+    /// τ ≥ τ_target.
+    Time(String),
 }
 
 impl Loop {
@@ -344,15 +355,56 @@ impl Loop {
     }
 
     /// σ and τ of a production step against the budget (σ summed over ranks, τ the slowest).
-    fn over_budget(&self, p: &Pending) -> Option<String> {
+    fn over_budget(&self, p: &Pending) -> Option<Break> {
         let (size, time) = self.engine.resolved.budgets;
         if let Some(t) = size.filter(|&t| p.sigma_bytes >= t) {
-            return Some(format!("σ {} B ≥ σ_target {t} B", p.sigma_bytes));
+            return Some(Break::Size(format!(
+                "σ {} B ≥ σ_target {t} B",
+                p.sigma_bytes
+            )));
         }
         if let Some(t) = time.filter(|&t| p.tau_secs >= t) {
-            return Some(format!("τ {:.4} s ≥ τ_target {t} s", p.tau_secs));
+            return Some(Break::Time(format!(
+                "τ {:.4} s ≥ τ_target {t} s",
+                p.tau_secs
+            )));
         }
         None
+    }
+
+    /// Why the production step `p` (made with the version in force) starts a re-tuning, if
+    /// it does: a σ over the budget at once, a τ over it when it is the `time_breaks`-th such
+    /// step in a row.
+    fn retunes(&mut self, p: &Pending) -> Option<String> {
+        let version = p.pm_version;
+        let streak = if self.slow.0 == version {
+            self.slow.1
+        } else {
+            0
+        };
+        let why = match self.over_budget(p) {
+            Some(Break::Size(why)) => Some(why),
+            Some(Break::Time(why)) => {
+                let n = streak + 1;
+                let needed = self.engine.cfg.time_breaks;
+                self.slow = (version, n);
+                (n >= needed).then(|| {
+                    if needed > 1 {
+                        format!("{why}, {n} steps in a row")
+                    } else {
+                        why
+                    }
+                })
+            }
+            None => {
+                self.slow = (version, 0);
+                None
+            }
+        };
+        if why.is_some() {
+            self.slow = (version, 0);
+        }
+        why
     }
 
     /// The version in force, when a production step made with it that breaks the budget
@@ -400,7 +452,7 @@ impl Loop {
             self.recent.pop_front();
         }
         if self.unforced_version() == Some(p.pm_version) {
-            if let Some(why) = self.over_budget(&p) {
+            if let Some(why) = self.retunes(&p) {
                 self.force(step, &h, p.world_size, why);
                 return;
             }
@@ -538,6 +590,7 @@ impl Engine {
             newest: 0,
             dirty: resume,
             deferred: Vec::new(),
+            slow: (0, 0),
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
@@ -611,12 +664,19 @@ mod tests {
         }
     }
 
-    /// An engine whose decision v1 (r 64, γ 0.01, predicted q 40 dB) was tuned on step 0.
+    /// An engine whose decision v1 (r 64, γ 0.01, predicted q 40 dB) was tuned on step 0,
+    /// for σ_target 1 000 B.
     fn tuned(dir: &std::path::Path) -> Loop {
+        tuned_for(dir, "size:1000", 2)
+    }
+
+    /// As [`tuned`] for `utility`, with `time_breaks`.
+    fn tuned_for(dir: &std::path::Path, utility: &str, time_breaks: u32) -> Loop {
         let cfg = Config {
             state_dir: dir.to_owned(),
             viz: Some("127.0.0.1:1".into()),
-            utility: "size:1000".into(),
+            utility: utility.into(),
+            time_breaks,
             ..Default::default()
         };
         let resolved = cfg.resolve().unwrap();
@@ -659,6 +719,7 @@ mod tests {
             newest: 0,
             dirty: None,
             deferred: Vec::new(),
+            slow: (0, 0),
         }
     }
 
@@ -766,5 +827,48 @@ mod tests {
         assert!(r.contains("became characteristic"), "{r}");
         l.summary(3, summary(3, 3, 5000, 1));
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+    }
+
+    /// A τ over τ_target re-tunes only as the `time_breaks`-th such step in a row (made with
+    /// the version in force); a step within the budget between them starts the count again.
+    #[test]
+    fn a_time_break_retunes_only_when_it_repeats() {
+        let timed = |step, tau_secs| pb::StepSummary {
+            tau_secs,
+            ..summary(step, 3, 500, 1)
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned_for(dir.path(), "size:1000,time:0.05", 2);
+        l.summary(1, timed(1, 0.08));
+        assert!(l.dirty.is_none());
+        l.summary(2, timed(2, 0.01));
+        l.summary(3, timed(3, 0.05));
+        assert!(l.dirty.is_none(), "one slow step after a fast one");
+        l.summary(4, timed(4, 0.07));
+        let r = &l.dirty.as_ref().unwrap().reason;
+        assert!(
+            r.contains("production step 4 broke the budget (τ 0.0700 s ≥ τ_target 0.05 s, 2 steps in a row)"),
+            "{r}"
+        );
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 4]);
+        // Steps made with an older version neither count nor break a run.
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned_for(dir.path(), "size:1000,time:0.05", 2);
+        l.summary(1, timed(1, 0.08));
+        l.summary(
+            2,
+            pb::StepSummary {
+                pm_version: 0,
+                ..timed(2, 0.01)
+            },
+        );
+        l.summary(3, timed(3, 0.09));
+        assert_eq!(l.dirty.as_ref().map(|d| d.step), Some(3));
+        // time_breaks = 1: every slow step re-tunes, as σ does.
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned_for(dir.path(), "time:0.05", 1);
+        l.summary(1, timed(1, 0.06));
+        let r = &l.dirty.as_ref().unwrap().reason;
+        assert!(r.ends_with("(τ 0.0600 s ≥ τ_target 0.05 s)"), "{r}");
     }
 }
