@@ -237,9 +237,26 @@ pub struct Generation {
     pub reference_size: u32,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
     pub pm_version: u64,
+    /// The `P_M` and version in force before the last decision, for the steps before
+    /// `from_step` (a decision applies from a step boundary, the same for every rank of a
+    /// step, so that the viz-node can compose it); `None` without one.
+    pub previous: Option<(VdiParams, u64)>,
+    /// The first step made with `params` when `previous` is set.
+    pub from_step: u64,
 }
 
 impl Generation {
+    /// The settings step `step` is made with: `params` from `from_step` on, the previous
+    /// `P_M` and version before it.
+    pub fn for_step(mut self, step: u64) -> Self {
+        if let Some((params, version)) = self.previous.take() {
+            if step < self.from_step {
+                (self.params, self.pm_version) = (params, version);
+            }
+        }
+        self
+    }
+
     /// The camera `P_A` of a step: the configured one, else the default for the whole
     /// domain's box (the same for every rank of a step).
     pub fn camera_for(&self, info: &crate::ingest::StepInfo) -> Camera {
@@ -379,6 +396,8 @@ impl GenerationConfig {
             reference_every: self.reference_every,
             reference_size: self.reference_size,
             pm_version: 0,
+            previous: None,
+            from_step: 0,
         })
     }
 }

@@ -16,6 +16,7 @@ use insitu_proto::security::{Security, SecurityError};
 use insitu_proto::transport;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::Duration;
 use tokio::sync::oneshot;
@@ -179,6 +180,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         lane: tokio::sync::Mutex::new(()),
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         ship_failed_reported: Default::default(),
+        begun: Default::default(),
         spool,
         epoch: new_epoch(),
         spare_field: Mutex::new(None),
@@ -326,7 +328,9 @@ async fn worker(shared: Arc<Shared>) {
     while let Some(raw) = shared.queue.pop().await {
         let (step, rank, raw_world_size) = (raw.info.step, raw.info.rank, raw.info.world_size);
         let spooled = raw.spooled();
-        let mut gen = shared.generation();
+        // Begun before the snapshot: a decision applied in between takes effect after it.
+        shared.begun.fetch_max(step + 1, Ordering::SeqCst);
+        let mut gen = shared.generation().for_step(step);
         if gen.tf.is_none() {
             if let Some(scene) = &shared.scene {
                 // The first step of a run with no TF configured: wait for the world's.

@@ -40,6 +40,9 @@ pub struct Shared {
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
     /// `ship_failed` as of the last `Flush`: a flush reports the refusals since the previous.
     pub ship_failed_reported: std::sync::atomic::AtomicU64,
+    /// The first step index no rank of which this node has begun to generate: a tuner's
+    /// decision applies from it at the earliest.
+    pub begun: std::sync::atomic::AtomicU64,
     /// The durable spool, when configured.
     pub spool: Option<Arc<crate::spool::Spool>>,
     /// This run's identity (`PushReply.epoch`).
@@ -235,8 +238,9 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     let bad =
         |field: &str, e: &dyn std::fmt::Display| Status::invalid_argument(format!("{field}: {e}"));
     let mut next = g.clone();
-    // An operator's P_M is not a tuner's decision.
+    // An operator's P_M is not a tuner's decision, and applies from the next step.
     next.pm_version = 0;
+    next.previous = None;
     next.params = VdiParams {
         resolution: c.resolution,
         gamma: c.gamma,

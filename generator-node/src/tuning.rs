@@ -95,7 +95,9 @@ impl Tuning {
     }
 }
 
-/// Applies a tuner's decision to the node's settings (from the next step on).
+/// Applies a tuner's decision to the node's settings, from its `from_step` or the first step
+/// no rank of which this node has begun, whichever is later: every rank of a step keeps the
+/// `P_M` its first rank was made with, and nodes agree on the step (see `PmDecision`).
 ///
 /// # Errors
 /// A message naming the problem: not newer than the version applied, or a bad `P_M`.
@@ -114,13 +116,22 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
     params
         .validate()
         .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
+    let begun = shared.begun.load(Ordering::SeqCst);
+    let from_step = d.from_step.max(begun);
+    // An earlier decision not yet in force: the P_M before it stays in force until this one.
+    let earlier_pending = g.previous.is_some() && begun < g.from_step;
+    if !earlier_pending {
+        g.previous = Some((g.params, g.pm_version));
+    }
+    g.from_step = from_step.max(if earlier_pending { g.from_step } else { 0 });
     info!(
         pm_version = d.pm_version,
+        from_step = g.from_step,
         r = params.resolution,
         gamma = params.gamma,
         old_r = g.params.resolution,
         old_gamma = g.params.gamma,
-        "applying the tuner's P_M from the next step"
+        "applying the tuner's P_M"
     );
     g.params = params;
     g.pm_version = d.pm_version;

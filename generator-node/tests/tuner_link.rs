@@ -91,8 +91,15 @@ fn send(tx: &mpsc::Sender<Out>, m: Down) {
     tx.try_send(Ok(pb::TunerMessage { msg: Some(m) })).unwrap();
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_node_summarises_runs_trials_and_applies_decisions() {
+/// A node (r = 32, CPU, zstd, no reference frames unless a trial asks) attached to a scripted
+/// tuner, once its hello is in and the node says it is connected: the node, the node's
+/// messages and the tuner's sender.
+async fn scripted_node() -> (
+    insitu_generator_node::RunningNode,
+    mpsc::Receiver<pb::NodeMessage>,
+    mpsc::Sender<Out>,
+    pb::NodeHello,
+) {
     let (up_tx, mut up) = mpsc::channel(1024);
     let (down, down_rx) = mpsc::channel(256);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -121,8 +128,6 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     let Up::Hello(hello) = next(&mut up).await else {
         panic!("the first message must be a hello")
     };
-    assert_eq!((hello.pm_version, hello.resolution), (0, 32));
-    assert!(hello.held.is_empty());
     assert!(tokio::time::timeout(Duration::from_secs(10), async {
         while !node.shared().status().tuner_connected {
             tokio::time::sleep(Duration::from_millis(20)).await;
@@ -130,6 +135,14 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     })
     .await
     .is_ok());
+    (node, up, down, hello)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_node_summarises_runs_trials_and_applies_decisions() {
+    let (node, mut up, down, hello) = scripted_node().await;
+    assert_eq!((hello.pm_version, hello.resolution), (0, 32));
+    assert!(hello.held.is_empty());
 
     let mut client = insitu_client::SimClient::connect(&node.local_addr().to_string(), None)
         .await
@@ -298,5 +311,76 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (s.step, s.pm_version, s.resolution, s.gamma),
         (1, 3, 20, 0.02)
     );
+    node.shutdown().await;
+}
+
+/// Pushes rank `rank` of step `t` of a 16³ field cut in two z-bricks (sharing a plane) and
+/// returns the version and r its summary reports.
+async fn made(
+    client: &mut insitu_client::SimClient,
+    up: &mut mpsc::Receiver<pb::NodeMessage>,
+    t: u64,
+    rank: u32,
+) -> (u64, u32) {
+    let whole = field(16, t);
+    let z0 = 7 * rank as usize;
+    let step = insitu_client::Step {
+        step: t,
+        sim_time: t as f64,
+        dtype: insitu_client::ScalarType::F32,
+        global_dims: [16, 16, 16],
+        brick_offset: [0, 0, z0 as u32],
+        brick_dims: [16, 16, 9],
+        rank,
+        world_size: 2,
+        spacing: [1.0; 3],
+        data: insitu_client::f32_bytes(&whole[z0 * 256..(z0 + 9) * 256]),
+    };
+    client.push_step(step).await.unwrap();
+    let Up::Summary(s) = next(up).await else {
+        panic!("expected a summary")
+    };
+    assert_eq!((s.step, s.rank), (t, rank));
+    (s.pm_version, s.resolution)
+}
+
+/// Every rank of a step is made with one P_M, whatever the moment a decision arrives: a node
+/// applies it from the first step no rank of which it has begun, or from the decision's
+/// `from_step` when that is later (the viz-node composes only ranks that agree).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_decision_applies_from_a_step_boundary_for_every_rank() {
+    let (node, mut up, down, _) = scripted_node().await;
+    let mut client = insitu_client::SimClient::connect(&node.local_addr().to_string(), None)
+        .await
+        .unwrap();
+    let decide = |v: u64, r: u32, from_step: u64| {
+        Down::Decision(pb::PmDecision {
+            pm_version: v,
+            resolution: r,
+            gamma: 0.02,
+            from_step,
+            ..Default::default()
+        })
+    };
+    assert_eq!(made(&mut client, &mut up, 0, 0).await, (0, 32));
+    // v1 arrives between the ranks of step 0 (its from_step already past): rank 1 of step 0
+    // keeps r = 32, step 1 takes it.
+    send(&down, decide(1, 24, 0));
+    let Up::Ack(ack) = next(&mut up).await else {
+        panic!("expected an ack")
+    };
+    assert_eq!((ack.pm_version, ack.error.as_str()), (1, ""));
+    assert_eq!(made(&mut client, &mut up, 0, 1).await, (0, 32));
+    assert_eq!(made(&mut client, &mut up, 1, 0).await, (1, 24));
+    // v2 from step 3: steps 1 and 2 keep v1 on both ranks.
+    send(&down, decide(2, 40, 3));
+    let Up::Ack(_) = next(&mut up).await else {
+        panic!("expected an ack")
+    };
+    assert_eq!(made(&mut client, &mut up, 1, 1).await, (1, 24));
+    assert_eq!(made(&mut client, &mut up, 2, 0).await, (1, 24));
+    assert_eq!(made(&mut client, &mut up, 2, 1).await, (1, 24));
+    assert_eq!(made(&mut client, &mut up, 3, 0).await, (2, 40));
+    assert_eq!(made(&mut client, &mut up, 3, 1).await, (2, 40));
     node.shutdown().await;
 }

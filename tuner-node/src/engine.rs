@@ -19,7 +19,7 @@ use insitu_tuner::series::BINS;
 use insitu_tuner::utility::UtilitySpec;
 use insitu_tuner::Candidate;
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
@@ -86,6 +86,8 @@ pub struct Engine {
     pub(crate) reported: Mutex<Option<Candidate>>,
     /// Set on shutdown: a tuning in progress gives up at its next trial.
     pub stopping: AtomicBool,
+    /// The newest step summarised by any node (a decision applies from 2 steps past it).
+    pub(crate) newest: AtomicU64,
     events: mpsc::Sender<Event>,
 }
 
@@ -106,6 +108,7 @@ pub fn decision_pb(d: &Decision) -> pb::PmDecision {
         old_gamma: d.old.map_or(0.0, |c| c.gamma),
         trigger_step: d.trigger_step,
         utility: d.utility.clone(),
+        from_step: d.from_step,
     }
 }
 
@@ -133,6 +136,7 @@ impl Engine {
                 lost: Mutex::new(Vec::new()),
                 reported: Mutex::new(None),
                 stopping: AtomicBool::new(false),
+                newest: AtomicU64::new(0),
                 events,
             }),
             rx,
@@ -335,6 +339,8 @@ impl Loop {
             }
         }
         self.newest = self.newest.max(s.step);
+        e.newest
+            .fetch_max(s.step, std::sync::atomic::Ordering::Relaxed);
         let stale: Vec<u64> = self
             .pending
             .keys()
@@ -505,14 +511,15 @@ impl Loop {
         };
         a.mses.push(mse_from_psnr(q));
         // A composed report is the whole step's q (the viz-node composes steps of several
-        // ranks); otherwise the ranks' MSEs are pooled once all are in.
+        // ranks); otherwise (older viz-nodes) the ranks' MSEs are summed once all are in, as
+        // `combine_ranks` estimates a composed step's error from its bricks'.
         if !r.composed && a.mses.len() < r.world_size.max(a.world_size) as usize {
             return;
         }
         let Some(a) = self.awaiting.remove(&r.step) else {
             return;
         };
-        let q = psnr_from_mse(a.mses.iter().sum::<f64>() / a.mses.len() as f64);
+        let q = psnr_from_mse(a.mses.iter().sum::<f64>());
         let e = self.engine.clone();
         let predicted = e.state().current().map(|d| d.predicted.q());
         if let (Some(v), Some(pq)) = (self.unforced_version(), predicted) {
@@ -708,6 +715,7 @@ mod tests {
             trials: 0,
             trial_secs: 0.0,
             utility: "size".into(),
+            from_step: 0,
         });
         state.validated = vec![0];
         let (engine, _rx) = Engine::new(cfg, resolved, state);

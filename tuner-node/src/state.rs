@@ -93,6 +93,9 @@ pub struct Decision {
     pub trial_secs: f64,
     /// The utility.
     pub utility: String,
+    /// The first step made with it (see `PmDecision.from_step`); 0 in states written before.
+    #[serde(default)]
+    pub from_step: u64,
 }
 
 /// Everything persisted.

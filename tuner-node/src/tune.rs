@@ -347,6 +347,7 @@ fn decide(
         trials,
         trial_secs,
         utility: engine.utility(),
+        from_step: engine.newest.load(Ordering::Relaxed) + 2,
     };
     s.decisions.push(d.clone());
     s.validated = d.characteristic_steps.clone();
@@ -354,7 +355,7 @@ fn decide(
     drop(s);
     engine.counters().decisions += 1;
     let m = decision_pb(&d);
-    info!(pm_version = d.pm_version, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
+    info!(pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
     engine.hub.broadcast(&Down::Decision(m.clone()));
     let _ = engine.decisions.send(m);
 }
