@@ -14,12 +14,14 @@
 //! A time budget (Eq. 2) has the size budget's shape: τ rises with r (r² rays) and falls a
 //! little as γ grows (fewer supersegments to close and write), so at most resolutions either
 //! the smallest γ meets it (one probe) or even the largest misses (two probes); only near the
-//! resolution where τ crosses the budget is γ bisected. Resolutions being that cheap, a time
-//! budget tries every one from the smallest up, until two in a row miss at every γ, instead
-//! of climbing: τ is a timing, and a resolution near the budget may come out worse or
-//! infeasible by noise alone, which would stop a climb, and q need not be unimodal in r. A
-//! probe near the budget may fall either side of it: a bisection then settles on a larger γ
-//! than needed, never on one that missed. Both budgets at once need both met.
+//! resolution where τ crosses the budget does γ need searching. Resolutions being that cheap,
+//! a time budget tries every one from the smallest up, until two in a row miss at every γ,
+//! instead of climbing: τ is a timing, and a resolution near the budget may come out worse or
+//! infeasible by noise alone, which would stop a climb, and q need not be unimodal in r. At
+//! each r, γ is probed upwards from the smallest at growing strides rather than bisected over
+//! the whole axis: near the budget each probe falls either side of it by chance, and a
+//! bisection would settle anywhere on the axis, where galloping stops at the first γ that met
+//! it, near the smallest, where q is best. Both budgets at once need both met.
 //!
 //! Under budgets the probes ask the oracle for σ and τ alone ([`Oracle::measure_sizing`]: a
 //! generation and an encoding, no rendering or scoring); only each resolution's answer is
@@ -212,6 +214,17 @@ impl Adaptive<'_> {
         if !feasible {
             return Ok(None);
         }
+        self.narrow(ri, lo, hi, gamma_index).map(Some)
+    }
+
+    /// The smallest k in `lo..=hi` found feasible by bisection, `hi` known feasible.
+    fn narrow(
+        &mut self,
+        ri: usize,
+        mut lo: usize,
+        mut hi: usize,
+        gamma_index: impl Fn(usize) -> usize,
+    ) -> Result<usize, StudyError> {
         while lo < hi {
             let mid = (lo + hi) / 2;
             if self.probe(ri, gamma_index(mid))? {
@@ -220,7 +233,7 @@ impl Adaptive<'_> {
                 lo = mid + 1;
             }
         }
-        Ok(Some(lo))
+        Ok(lo)
     }
 
     /// The smallest feasible γ index at resolution `ri` under a time budget: probes from
@@ -240,16 +253,8 @@ impl Adaptive<'_> {
             k = (k + stride).min(n - 1);
             stride *= 2;
         }
-        let (mut lo, mut hi) = (missed.map_or(0, |m| m + 1), k);
-        while lo < hi {
-            let mid = (lo + hi) / 2;
-            if self.probe(ri, mid)? {
-                hi = mid;
-            } else {
-                lo = mid + 1;
-            }
-        }
-        Ok(Some(lo))
+        self.narrow(ri, missed.map_or(0, |m| m + 1), k, |k| k)
+            .map(Some)
     }
 
     fn run(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
