@@ -118,12 +118,13 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
         .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
     let begun = shared.begun.load(Ordering::SeqCst);
     let from_step = d.from_step.max(begun);
-    // An earlier decision not yet in force: the P_M before it stays in force until this one.
-    let earlier_pending = g.previous.is_some() && begun < g.from_step;
-    if !earlier_pending {
+    if g.previous.is_some() && begun < g.from_step {
+        // An earlier decision not yet in force: the P_M before it stays until this one.
+        g.from_step = g.from_step.max(from_step);
+    } else {
         g.previous = Some((g.params, g.pm_version));
+        g.from_step = from_step;
     }
-    g.from_step = from_step.max(if earlier_pending { g.from_step } else { 0 });
     info!(
         pm_version = d.pm_version,
         from_step = g.from_step,

@@ -272,7 +272,6 @@ struct Loop {
     pending: BTreeMap<u64, Pending>,
     awaiting: BTreeMap<u64, AwaitingQ>,
     recent: VecDeque<(u64, [f64; BINS])>,
-    newest: u64,
     dirty: Option<Trigger>,
     /// Evicted characteristic steps whose fields a running tuning may still ask trials of:
     /// released when it ends (unless characteristic again by then).
@@ -338,15 +337,16 @@ impl Loop {
                 self.complete(s.step, p);
             }
         }
-        self.newest = self.newest.max(s.step);
-        e.newest
-            .fetch_max(s.step, std::sync::atomic::Ordering::Relaxed);
+        let newest = e
+            .newest
+            .fetch_max(s.step, std::sync::atomic::Ordering::Relaxed)
+            .max(s.step);
         let stale: Vec<u64> = self
             .pending
             .keys()
             .chain(self.awaiting.keys())
             .copied()
-            .filter(|&k| k + STALE_STEPS < self.newest)
+            .filter(|&k| k + STALE_STEPS < newest)
             .collect();
         for k in stale {
             if self.pending.remove(&k).is_some() {
@@ -594,7 +594,6 @@ impl Engine {
             pending: BTreeMap::new(),
             awaiting: BTreeMap::new(),
             recent: VecDeque::new(),
-            newest: 0,
             dirty: resume,
             deferred: Vec::new(),
             slow: (0, 0),
@@ -724,7 +723,6 @@ mod tests {
             pending: BTreeMap::new(),
             awaiting: BTreeMap::new(),
             recent: VecDeque::new(),
-            newest: 0,
             dirty: None,
             deferred: Vec::new(),
             slow: (0, 0),
