@@ -183,38 +183,80 @@ fn two_regime_series(dir: &Path, steps: usize, switch: usize) -> PathBuf {
     path
 }
 
-#[test]
-fn a_tuned_ocean_replay_meets_the_size_budget() {
-    let Some(data) = data_dir() else { return };
+/// A viz-node, a tuner for `utility` and a tuned generator-node, after `insitu replay` of the
+/// ocean series (with `args`) through them has finished; `None` without the shared data.
+struct TunedOcean {
+    rec: PathBuf,
+    st: PathBuf,
+    v: Daemon,
+    t: Daemon,
+    g: Daemon,
+    _tmp: tempfile::TempDir,
+}
+
+impl TunedOcean {
+    /// Stops the daemons, the generator-node first.
+    fn stop(self) {
+        self.g.terminate();
+        self.t.terminate();
+        self.v.terminate();
+    }
+}
+
+fn tuned_ocean(utility: &str, args: &[&str]) -> Option<TunedOcean> {
+    let data = data_dir()?;
     let tmp = tempfile::tempdir().unwrap();
     let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
     let v = viz(&rec, "127.0.0.1:0", tmp.path());
-    let t = tuner(&st, "127.0.0.1:0", &v.addr, "size:60kB", tmp.path());
+    let t = tuner(&st, "127.0.0.1:0", &v.addr, utility, tmp.path());
     let g = tuned_generator(&v.addr, &t.addr, tmp.path());
-    let run = replay(
-        &data.join(OCEAN),
-        &g.addr,
+    finish(replay(&data.join(OCEAN), &g.addr, args));
+    Some(TunedOcean {
+        rec,
+        st,
+        v,
+        t,
+        g,
+        _tmp: tmp,
+    })
+}
+
+/// The persisted trial of decision `d` on `step`.
+fn decision_trial<'s>(
+    state: &'s serde_json::Value,
+    step: u64,
+    d: &pb::PmDecision,
+) -> &'s serde_json::Value {
+    state["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|x| {
+            x["step"].as_u64() == Some(step)
+                && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
+                && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
+        })
+        .unwrap_or_else(|| panic!("no trial of the decision on step {step}"))
+}
+
+#[test]
+fn a_tuned_ocean_replay_meets_the_size_budget() {
+    let Some(o) = tuned_ocean(
+        "size:60kB",
         &["--sample-every", "2", "--step-interval", "1.5"],
-    );
-    finish(run);
+    ) else {
+        return;
+    };
+    let (rec, st, t, g) = (&o.rec, &o.st, &o.t, &o.g);
     let s = tuner_status(&t.addr);
     assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
     let d = decision(&t.addr, 1).unwrap();
     assert!(d.characteristic_steps.contains(&0), "{d:?}");
     assert!(d.predicted_sigma_bytes < 60_000, "{d:?}");
     // The decision meets σ_target on every step it was tuned on (trials, persisted).
-    let state = state(&st);
+    let state = state(st);
     for step in &d.characteristic_steps {
-        let trial = state["trials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|x| {
-                x["step"].as_u64() == Some(*step)
-                    && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
-                    && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
-            })
-            .unwrap_or_else(|| panic!("no trial of the decision on step {step}"));
+        let trial = decision_trial(&state, *step, &d);
         assert!(trial["measurement"]["sigma_bytes"].as_u64().unwrap() < 60_000);
     }
     // The log names the characteristic steps.
@@ -224,7 +266,7 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
         "{log}"
     );
     // Production steps made with the tuned P_M: stamped with its version, and within budget.
-    let entries = index(&rec);
+    let entries = index(rec);
     assert_eq!(entries.len(), 12);
     let tuned: Vec<_> = entries.iter().filter(|e| e.pm_version >= 1).collect();
     assert!(
@@ -260,9 +302,7 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
         tuned.iter().map(|e| e.sizing.sigma_bytes).max().unwrap_or(0),
     );
     assert_eq!(status(&g.addr).pm_version, s.pm_version);
-    g.terminate();
-    t.terminate();
-    v.terminate();
+    o.stop();
 }
 
 /// A time budget is searched adaptively too: the decision arrives after a fraction of the
@@ -270,37 +310,23 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
 /// step it was tuned on, as its persisted trials timed it.
 #[test]
 fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
-    let Some(data) = data_dir() else { return };
-    let tmp = tempfile::tempdir().unwrap();
-    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
-    let v = viz(&rec, "127.0.0.1:0", tmp.path());
     // Here r = 64 generates an ocean step in about 4 ms, r = 128 in about 8 ms, r = 256 in
     // over 10 ms: the budget lies within the grid (r 64–256), above the nodes' P_M (r = 32).
-    let t = tuner(&st, "127.0.0.1:0", &v.addr, "time:0.01", tmp.path());
-    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
-    let run = replay(
-        &data.join(OCEAN),
-        &g.addr,
+    let Some(o) = tuned_ocean(
+        "time:0.01",
         &["--sample-every", "4", "--step-interval", "1.0"],
-    );
-    finish(run);
+    ) else {
+        return;
+    };
+    let (st, t) = (&o.st, &o.t);
     let s = tuner_status(&t.addr);
     assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
     let d = decision(&t.addr, s.pm_version).unwrap();
     let plan = 0.01 * 0.95;
     assert!(d.predicted_tau_secs < plan, "{d:?}");
-    let state = state(&st);
+    let state = state(st);
     for step in &d.characteristic_steps {
-        let trial = state["trials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|x| {
-                x["step"].as_u64() == Some(*step)
-                    && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
-                    && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
-            })
-            .unwrap_or_else(|| panic!("no trial of the decision on step {step}"));
+        let trial = decision_trial(&state, *step, &d);
         assert!(trial["measurement"]["tau_secs"].as_f64().unwrap() < plan);
     }
     // The grid is 4 r × 17 γ per characteristic step.
@@ -322,9 +348,7 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
         s.trials_run,
         s.size_probes
     );
-    g.terminate();
-    t.terminate();
-    v.terminate();
+    o.stop();
 }
 
 /// A world of 4 ranks on one node: every step composes, the one the decision lands in too
@@ -334,20 +358,12 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
 /// uncomposed, and q pooled as the mean of the bricks' MSEs was 5 dB too high here.)
 #[test]
 fn with_four_ranks_the_predicted_q_is_the_composed_steps() {
-    let Some(data) = data_dir() else { return };
-    let tmp = tempfile::tempdir().unwrap();
-    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
-    let v = viz(&rec, "127.0.0.1:0", tmp.path());
-    let t = tuner(&st, "127.0.0.1:0", &v.addr, "size:600kB", tmp.path());
-    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
-    let run = replay(
-        &data.join(OCEAN),
-        &g.addr,
-        &["--ranks", "4", "--step-interval", "2"],
-    );
-    finish(run);
+    let Some(o) = tuned_ocean("size:600kB", &["--ranks", "4", "--step-interval", "2"]) else {
+        return;
+    };
+    let (rec, t) = (&o.rec, &o.t);
     let summary = || {
-        steps(&rec)
+        steps(rec)
             .iter()
             .map(|s| (s.step, s.pm_version, s.quality.as_ref().map(|q| q.q_db.0)))
             .collect::<Vec<_>>()
@@ -385,9 +401,7 @@ fn with_four_ranks_the_predicted_q_is_the_composed_steps() {
         "4 ranks, size:600kB: v1 r {} γ {} from step {}, predicted q {:.2} dB; composed {composed:?}",
         d.resolution, d.gamma, d.from_step, d.predicted_q_db
     );
-    g.terminate();
-    t.terminate();
-    v.terminate();
+    o.stop();
 }
 
 #[test]
