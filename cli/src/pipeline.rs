@@ -84,7 +84,7 @@ pub fn decision_line(d: &pb::PmDecision) -> String {
     format!(
         "P_M v{} from step {}: {old} → r {} γ {:.4} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
         d.pm_version,
-        d.trigger_step,
+        d.from_step,
         d.resolution,
         d.gamma,
         d.reason,
@@ -102,6 +102,7 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
     serde_json::json!({
         "event": "pm_change",
         "step": d.trigger_step,
+        "from_step": d.from_step,
         "pm_version": d.pm_version,
         "old": {"r": d.old_resolution, "gamma": d.old_gamma},
         "new": {"r": d.resolution, "gamma": d.gamma},

@@ -19,7 +19,7 @@ use insitu_tuner::series::BINS;
 use insitu_tuner::utility::UtilitySpec;
 use insitu_tuner::Candidate;
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicBool, AtomicU64};
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
@@ -86,9 +86,42 @@ pub struct Engine {
     pub(crate) reported: Mutex<Option<Candidate>>,
     /// Set on shutdown: a tuning in progress gives up at its next trial.
     pub stopping: AtomicBool,
-    /// The newest step summarised by any node (a decision applies from 2 steps past it).
-    pub(crate) newest: AtomicU64,
+    /// The newest step summarised by any node and the stride of the step indices.
+    pub(crate) progress: Mutex<Progress>,
     events: mpsc::Sender<Event>,
+}
+
+/// How far the nodes have come: the newest step summarised by any node, and the stride of
+/// the step indices (a simulation may push every n-th step).
+#[derive(Debug, Default)]
+pub(crate) struct Progress {
+    newest: Option<u64>,
+    stride: u64,
+}
+
+impl Progress {
+    /// Records a summarised step; returns the newest.
+    fn saw(&mut self, step: u64) -> u64 {
+        match self.newest {
+            Some(n) if step <= n => n,
+            n => {
+                if let Some(n) = n {
+                    self.stride = step - n;
+                }
+                self.newest = Some(step);
+                step
+            }
+        }
+    }
+
+    /// The first step a decision made now applies from (`PmDecision.from_step`): two strides
+    /// past the newest step summarised, which covers a node that has begun the next step but
+    /// not yet summarised it (it applies a decision only from a step it has not begun); 0
+    /// before any summary.
+    pub(crate) fn decision_start(&self) -> u64 {
+        self.newest
+            .map_or(0, |n| n.saturating_add(2 * self.stride.max(1)))
+    }
 }
 
 /// A decision as a wire message.
@@ -136,7 +169,7 @@ impl Engine {
                 lost: Mutex::new(Vec::new()),
                 reported: Mutex::new(None),
                 stopping: AtomicBool::new(false),
-                newest: AtomicU64::new(0),
+                progress: Mutex::new(Progress::default()),
                 events,
             }),
             rx,
@@ -338,9 +371,10 @@ impl Loop {
             }
         }
         let newest = e
-            .newest
-            .fetch_max(s.step, std::sync::atomic::Ordering::Relaxed)
-            .max(s.step);
+            .progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .saw(s.step);
         let stale: Vec<u64> = self
             .pending
             .keys()
@@ -876,5 +910,19 @@ mod tests {
         l.summary(1, timed(1, 0.06));
         let r = &l.dirty.as_ref().unwrap().reason;
         assert!(r.ends_with("(τ 0.0600 s ≥ τ_target 0.05 s)"), "{r}");
+    }
+
+    /// A decision applies two strides past the newest step summarised (the stride learnt from
+    /// the step indices); a late summary of an older step changes neither.
+    #[test]
+    fn decisions_apply_two_strides_past_the_newest_step() {
+        let mut p = Progress::default();
+        assert_eq!(p.decision_start(), 0);
+        assert_eq!(p.saw(2000), 2000);
+        assert_eq!(p.decision_start(), 2002);
+        assert_eq!(p.saw(2100), 2100);
+        assert_eq!(p.decision_start(), 2300);
+        assert_eq!(p.saw(2000), 2100, "another rank's older step");
+        assert_eq!(p.decision_start(), 2300);
     }
 }

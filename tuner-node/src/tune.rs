@@ -347,7 +347,11 @@ fn decide(
         trials,
         trial_secs,
         utility: engine.utility(),
-        from_step: engine.newest.load(Ordering::Relaxed) + 2,
+        from_step: engine
+            .progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .decision_start(),
     };
     s.decisions.push(d.clone());
     s.validated = d.characteristic_steps.clone();

@@ -453,6 +453,19 @@ fn a_change_of_character_retunes_once_and_alike_steps_never() {
         "{text}"
     );
     assert_eq!(t["retunes"], 2, "{text}");
+    // Each P_M is used from its from_step on, past the step that triggered it.
+    for c in &changes {
+        let (v, from) = (c["pm_version"].as_u64(), c["from_step"].as_u64().unwrap());
+        assert!(from > c["step"].as_u64().unwrap(), "{c}");
+        let mut made = lines
+            .iter()
+            .filter(|l| l.get("event").is_none() && l["pm_version"].as_u64() == v);
+        assert!(made.clone().count() > 0, "{c}");
+        assert!(
+            made.all(|l| l["step"].as_u64().unwrap() >= from),
+            "{c}\n{text}"
+        );
+    }
     for c in &changes {
         let steps = c["characteristic_steps"].as_array().unwrap();
         assert!(
