@@ -119,8 +119,9 @@ impl Progress {
     /// not yet summarised it (it applies a decision only from a step it has not begun); 0
     /// before any summary.
     pub(crate) fn decision_start(&self) -> u64 {
-        self.newest
-            .map_or(0, |n| n.saturating_add(2 * self.stride.max(1)))
+        self.newest.map_or(0, |n| {
+            n.saturating_add(self.stride.max(1).saturating_mul(2))
+        })
     }
 }
 
@@ -924,5 +925,8 @@ mod tests {
         assert_eq!(p.decision_start(), 2300);
         assert_eq!(p.saw(2000), 2100, "another rank's older step");
         assert_eq!(p.decision_start(), 2300);
+        // Step indices are the nodes' to choose: a huge jump saturates, it does not wrap.
+        assert_eq!(p.saw(u64::MAX - 1), u64::MAX - 1);
+        assert_eq!(p.decision_start(), u64::MAX);
     }
 }
