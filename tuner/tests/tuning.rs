@@ -269,10 +269,11 @@ fn check_adaptive(rows: &[Measurement], grid: &ParamGrid) {
 /// Time budgets on a measured table, whose τ are timings of a few milliseconds: not
 /// monotone in γ (±15 % between neighbours), so the grid's optimum may be a candidate that
 /// met the budget by chance once. The adaptive answer meets each budget of a ladder (from the
-/// smallest τ up, each 1.2× the previous) in under half the grid's generations, and is as good (within
-/// 0.25 dB, as q is not quite monotone either) as the best candidate at a resolution that
-/// meets the budget at every γ, as every smaller resolution does: those answers no noise in
-/// the table can hide.
+/// smallest τ up, each 1.2× the previous) in fewer generations than the grid, and is as good
+/// (within 0.25 dB, as q is not quite monotone either) as the best candidate at a resolution
+/// that meets the budget at every γ, as every smaller resolution does: those answers no noise
+/// in the table can hide. (On a grid of 7 γ the gallop saves little: up to 4 probes per
+/// resolution; what it saves on the paper's grid is pinned by the noisy-timing test.)
 fn check_time_ladder(rows: &[Measurement], grid: &ParamGrid) {
     let tau = |m: &Measurement| m.sizing.tau_secs;
     let (lo, hi) = rows
@@ -307,7 +308,7 @@ fn check_time_ladder(rows: &[Measurement], grid: &ParamGrid) {
             a.best.as_ref().map(Measurement::candidate)
         );
         assert!(
-            a.generations * 2 < rows.len() as u64,
+            a.generations < rows.len() as u64,
             "{spec:?}: {} generations",
             a.generations
         );
