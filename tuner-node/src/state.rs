@@ -197,13 +197,7 @@ impl State {
     /// adaptive search must not drop a candidate whose probe met a time budget because the
     /// second timing of the same generation was slowed down.
     pub fn add_trial(&mut self, mut t: Trial) -> Measurement {
-        let c = t.measurement.candidate();
-        let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
-        if let Some(p) = self
-            .size_probes
-            .iter()
-            .find(|p| p.step == t.step && same(p.candidate))
-        {
+        if let Some(p) = self.probe(t.step, t.measurement.candidate()) {
             let tau = &mut t.measurement.sizing.tau_secs;
             *tau = tau.min(p.sizing.tau_secs);
         }
@@ -214,12 +208,18 @@ impl State {
 
     /// σ and τ of `c` on `step` from a size probe or a trial, if either was run.
     pub fn sizing(&self, step: u64, c: Candidate) -> Option<Sizing> {
-        let same = |k: Candidate| k.r == c.r && k.gamma.to_bits() == c.gamma.to_bits();
-        self.size_probes
-            .iter()
-            .find(|p| p.step == step && same(p.candidate))
+        self.probe(step, c)
             .map(|p| p.sizing)
             .or_else(|| self.trial(step, c).map(|t| t.measurement.sizing))
+    }
+
+    /// A size probe of `c` on `step`, if one was run.
+    fn probe(&self, step: u64, c: Candidate) -> Option<&SizeProbe> {
+        self.size_probes.iter().find(|p| {
+            p.step == step
+                && p.candidate.r == c.r
+                && p.candidate.gamma.to_bits() == c.gamma.to_bits()
+        })
     }
 
     /// Loads `dir/tuner-state.json`; `None` when there is none.
