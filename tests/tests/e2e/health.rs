@@ -32,7 +32,7 @@ fn every_daemon_reports_serving_and_a_watcher_sees_the_shutdown() {
     let tmp = tempfile::tempdir().unwrap();
     let logs = tmp.path();
     let v = viz(&logs.join("rec"), "127.0.0.1:0", logs);
-    let t = crate::tuner::tuner(
+    let t = crate::tuned::tuner(
         &logs.join("state"),
         "127.0.0.1:0",
         &v.addr,

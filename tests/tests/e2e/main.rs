@@ -14,5 +14,6 @@ mod policies;
 mod ranks;
 mod replay;
 mod tls;
+mod tuned;
 mod tuner;
 mod viewer;

@@ -2,121 +2,23 @@
 //! hold"): a tuned ocean replay, a change of character, a tuner restart, a generator-node killed
 //! during trials, and bad input.
 
-use crate::common::{flush, free_port, generator, index, small_config, status, steps, viz};
+use crate::common::{flush, free_port, index, status, steps, viz};
+use crate::tuned::{
+    client, decision, decision_trial, finish, replay, state, tuned_generator, tuned_ocean,
+    tuner_paced, tuner_status,
+};
 use insitu_client::{SimClient, Step};
-use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
+use insitu_e2e::{bin, rt, wait_until, Daemon};
+use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
-use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::pb::tuner_message::Msg as Down;
-use insitu_proto::{pb, transport};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-
-const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
+use std::process::Command;
 
 /// Trials may use 10 % of the wall clock and nothing more: a tuning then takes seconds, long
 /// enough to kill something in the middle of it.
 const PACED: &str = "timeout_secs = 60.0\nshare = 0.1\nburst_secs = 0.0";
-
-/// A tuner-node with a small grid (fast trials) and no trial share limit in a short test.
-pub(crate) fn tuner(state: &Path, listen: &str, viz: &str, utility: &str, logs: &Path) -> Daemon {
-    tuner_paced(
-        state,
-        listen,
-        viz,
-        utility,
-        "timeout_secs = 60.0\nshare = 1.0\nburst_secs = 600.0",
-        logs,
-    )
-}
-
-/// As [`tuner`] with the trial budget `trials` (TOML keys of `[trials]`): a small share makes
-/// a tuning last long enough to interrupt it.
-fn tuner_paced(
-    state: &Path,
-    listen: &str,
-    viz: &str,
-    utility: &str,
-    trials: &str,
-    logs: &Path,
-) -> Daemon {
-    let cfg = logs.join(format!("tuner-{}.toml", free_port()));
-    std::fs::write(
-        &cfg,
-        format!(
-            r#"listen = "{listen}"
-state_dir = "{}"
-viz = "{viz}"
-utility = "{utility}"
-[grid]
-r = "64:256:64"
-gamma = "0.001:0.26:0.016"
-[characteristic]
-threshold = 0.15
-max = 4
-[trials]
-hold_wait_secs = 2.0
-{trials}
-"#,
-            state.display()
-        ),
-    )
-    .unwrap();
-    Daemon::start(
-        "tuner-node",
-        &["--config", cfg.to_str().unwrap()],
-        &[],
-        logs,
-    )
-}
-
-/// A generator-node shipping to `viz` and dialling `tuner`, once its stream to the tuner is up
-/// (steps made before that are not summarised: there is no one to send them to).
-fn tuned_generator(viz: &str, tuner: &str, logs: &Path) -> Daemon {
-    let toml = small_config(viz, "block", 16).replace(
-        "max_backoff_secs = 0.2",
-        &format!("max_backoff_secs = 0.2\ntuner = \"{tuner}\""),
-    );
-    let g = generator(&toml, logs, &[]);
-    assert!(
-        wait_until(30.0, || status(&g.addr).tuner_connected),
-        "the generator-node did not reach the tuner"
-    );
-    g
-}
-
-async fn client(addr: &str) -> TunerClient<tonic::transport::Channel> {
-    TunerClient::new(transport::connect(&transport::uri(addr)).await.unwrap())
-}
-
-fn tuner_status(addr: &str) -> pb::TunerStatus {
-    rt().block_on(async {
-        client(addr)
-            .await
-            .get_status(pb::StatusRequest {})
-            .await
-            .unwrap()
-            .into_inner()
-    })
-}
-
-fn decision(addr: &str, version: u64) -> Result<pb::PmDecision, tonic::Status> {
-    rt().block_on(async {
-        client(addr)
-            .await
-            .get_decision(pb::DecisionRequest {
-                pm_version: version,
-            })
-            .await
-            .map(tonic::Response::into_inner)
-    })
-}
-
-/// The persisted state.
-fn state(dir: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(dir.join("tuner-state.json")).unwrap()).unwrap()
-}
 
 /// (step, r, γ bits) of every persisted trial.
 fn trials(dir: &Path) -> Vec<(u64, u64, u64)> {
@@ -133,30 +35,6 @@ fn trials(dir: &Path) -> Vec<(u64, u64, u64)> {
             )
         })
         .collect()
-}
-
-/// `insitu replay` of `series` pushing to `generator`, started in the background.
-fn replay(series: &Path, generator: &str, extra: &[&str]) -> Child {
-    Command::new(bin("insitu"))
-        .args(["replay", "--series", series.to_str().unwrap()])
-        .args(["--generator", generator, "--r", "128", "--codec", "zstd"])
-        .args(extra)
-        .env_remove("INSITU_TOKEN")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
-}
-
-fn finish(child: Child) -> String {
-    let out = child.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "replay failed: {}\n{text}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
 }
 
 /// A 32³ series of `steps` steps whose character changes at `switch`: a small Gaussian blob
@@ -181,62 +59,6 @@ fn two_regime_series(dir: &Path, steps: usize, switch: usize) -> PathBuf {
     }
     std::fs::write(&path, bytes).unwrap();
     path
-}
-
-/// A viz-node, a tuner for `utility` and a tuned generator-node, after `insitu replay` of the
-/// ocean series (with `args`) through them has finished; `None` without the shared data.
-struct TunedOcean {
-    rec: PathBuf,
-    st: PathBuf,
-    v: Daemon,
-    t: Daemon,
-    g: Daemon,
-    _tmp: tempfile::TempDir,
-}
-
-impl TunedOcean {
-    /// Stops the daemons, the generator-node first.
-    fn stop(self) {
-        self.g.terminate();
-        self.t.terminate();
-        self.v.terminate();
-    }
-}
-
-fn tuned_ocean(utility: &str, args: &[&str]) -> Option<TunedOcean> {
-    let data = data_dir()?;
-    let tmp = tempfile::tempdir().unwrap();
-    let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
-    let v = viz(&rec, "127.0.0.1:0", tmp.path());
-    let t = tuner(&st, "127.0.0.1:0", &v.addr, utility, tmp.path());
-    let g = tuned_generator(&v.addr, &t.addr, tmp.path());
-    finish(replay(&data.join(OCEAN), &g.addr, args));
-    Some(TunedOcean {
-        rec,
-        st,
-        v,
-        t,
-        g,
-        _tmp: tmp,
-    })
-}
-
-/// The persisted trial of decision `d` on `step`.
-fn decision_trial<'s>(
-    state: &'s serde_json::Value,
-    step: u64,
-    d: &pb::PmDecision,
-) -> &'s serde_json::Value {
-    state["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|x| {
-            x["step"].as_u64() == Some(step)
-                && x["measurement"]["r"].as_u64() == Some(u64::from(d.resolution))
-                && (x["measurement"]["gamma"].as_f64().unwrap() as f32) == d.gamma
-        })
-        .unwrap_or_else(|| panic!("no trial of the decision on step {step}"))
 }
 
 #[test]
@@ -302,52 +124,6 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
         tuned.iter().map(|e| e.sizing.sigma_bytes).max().unwrap_or(0),
     );
     assert_eq!(status(&g.addr).pm_version, s.pm_version);
-    o.stop();
-}
-
-/// A time budget is searched adaptively too: the decision arrives after a fraction of the
-/// grid's trials, most of them size probes, and meets the budget (less the headroom) on every
-/// step it was tuned on, as its persisted trials timed it.
-#[test]
-fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
-    // Here r = 64 generates an ocean step in about 4 ms, r = 128 in about 8 ms, r = 256 in
-    // over 10 ms: the budget lies within the grid (r 64–256), above the nodes' P_M (r = 32).
-    let Some(o) = tuned_ocean(
-        "time:0.01",
-        &["--sample-every", "4", "--step-interval", "1.0"],
-    ) else {
-        return;
-    };
-    let (st, t) = (&o.st, &o.t);
-    let s = tuner_status(&t.addr);
-    assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
-    let d = decision(&t.addr, s.pm_version).unwrap();
-    let plan = 0.01 * 0.95;
-    assert!(d.predicted_tau_secs < plan, "{d:?}");
-    let state = state(st);
-    for step in &d.characteristic_steps {
-        let trial = decision_trial(&state, *step, &d);
-        assert!(trial["measurement"]["tau_secs"].as_f64().unwrap() < plan);
-    }
-    // The grid is 4 r × 17 γ per characteristic step.
-    let grid = 68 * s.characteristic_steps.len() as u64;
-    assert!(
-        s.trials_run * 2 < grid && s.size_probes * 2 > s.trials_run,
-        "{} trials ({} size probes) for a grid of {grid}: {s:?}",
-        s.trials_run,
-        s.size_probes
-    );
-    eprintln!(
-        "ocean, time:0.01: decision v{} r {} γ {} on steps {:?} (predicted τ {:.4} s, q {:.2} dB); {} trials of which {} size probes, grid {grid}",
-        d.pm_version,
-        d.resolution,
-        d.gamma,
-        d.characteristic_steps,
-        d.predicted_tau_secs,
-        d.predicted_q_db,
-        s.trials_run,
-        s.size_probes
-    );
     o.stop();
 }
 
