@@ -529,6 +529,7 @@ impl Run<'_> {
                     "trial_secs": t.trial_secs,
                     "retunes": t.retunes,
                     "decisions": t.decisions,
+                    "tunings_infeasible": t.tunings_infeasible,
                 })),
                 "wall_s": self.elapsed_secs,
                 "recording": self.recording.display().to_string(),
@@ -589,6 +590,12 @@ impl Run<'_> {
                 t.trials_reused,
                 t.trials_failed
             );
+            if t.tunings_infeasible > 0 {
+                println!(
+                    "  {} tuning(s) found no candidate within the budget on every characteristic step; the P_M in force stayed",
+                    t.tunings_infeasible
+                );
+            }
         }
     }
 }

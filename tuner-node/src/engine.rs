@@ -65,6 +65,8 @@ pub struct Counters {
     pub retunes: u64,
     /// Decisions made by this process.
     pub decisions: u64,
+    /// Tunings that found no candidate within the budget on every characteristic step.
+    pub tunings_infeasible: u64,
     /// Whether a tuning runs.
     pub tuning: bool,
 }
@@ -229,6 +231,7 @@ impl Engine {
             utility: self.utility(),
             tuning: c.tuning,
             size_probes: c.size_probes,
+            tunings_infeasible: c.tunings_infeasible,
             sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
             tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
             q_target_db: match UtilitySpec::parse(&self.cfg.utility) {

@@ -255,6 +255,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     };
     let trial_secs = engine.counters().trial_secs - secs0;
     let Some(best) = outcome.best else {
+        engine.counters().tunings_infeasible += 1;
         warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
         return true;
     };
@@ -362,4 +363,66 @@ fn decide(
     info!(pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
     engine.hub.broadcast(&Down::Decision(m.clone()));
     let _ = engine.decisions.send(m);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Config, GridConfig};
+    use crate::state::State;
+    use insitu_tuner::live::{Tracker, Verdict};
+    use insitu_tuner::series::BINS;
+
+    /// A budget no candidate meets ends the tuning without a decision, counted in the status
+    /// (and warned of in the log); the trials were persisted ones, so no node is asked.
+    #[test]
+    fn a_tuning_without_a_feasible_candidate_keeps_the_p_m_and_says_so() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = Config {
+            state_dir: dir.path().to_owned(),
+            viz: Some("127.0.0.1:1".into()),
+            utility: "size:1000".into(),
+            grid: GridConfig {
+                r: "64,128".into(),
+                gamma: "0.01,0.02,0.04".into(),
+            },
+            ..Default::default()
+        };
+        let resolved = cfg.resolve().unwrap();
+        let mut state = State::new(Tracker::new(0.15, 4));
+        let mut h = [0.0; BINS];
+        h[3] = 1.0;
+        assert!(matches!(state.tracker.observe(0, &h), Verdict::New { .. }));
+        for candidate in resolved.grid.candidates() {
+            state.size_probes.push(SizeProbe {
+                step: 0,
+                candidate,
+                sizing: Sizing {
+                    sigma_bytes: 5000 + u64::from(candidate.r),
+                    tau_secs: 0.01,
+                    ..Sizing::default()
+                },
+                trial_secs: 0.01,
+                run_by: 0,
+            });
+        }
+        let (engine, _rx) = Engine::new(cfg, resolved, state);
+        let trigger = Trigger {
+            step: 0,
+            reason: "test".into(),
+        };
+        assert!(tune(&engine, &trigger), "the search finished");
+        let s = engine.status();
+        assert_eq!(
+            (
+                s.tunings_infeasible,
+                s.decisions,
+                s.pm_version,
+                s.trials_run
+            ),
+            (1, 0, 0, 0),
+            "{s:?}"
+        );
+        assert!(s.trials_reused > 0, "{s:?}");
+    }
 }
