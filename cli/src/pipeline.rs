@@ -530,6 +530,7 @@ impl Run<'_> {
                     "retunes": t.retunes,
                     "decisions": t.decisions,
                     "tunings_infeasible": t.tunings_infeasible,
+                    "tuning_at_end": t.tuning,
                 })),
                 "wall_s": self.elapsed_secs,
                 "recording": self.recording.display().to_string(),
@@ -594,6 +595,12 @@ impl Run<'_> {
                 println!(
                     "  {} tuning(s) found no candidate within the budget on every characteristic step; the P_M in force stayed",
                     t.tunings_infeasible
+                );
+            }
+            if t.tuning {
+                println!(
+                    "  a tuning was under way when the run ended: it made no decision; its trials are kept in {}",
+                    self.recording.join("tuner-state").display()
                 );
             }
         }
