@@ -689,7 +689,6 @@ mod tests {
     use super::*;
     use insitu_core::evaluate::Sizing;
     use insitu_core::metrics::Db;
-    use insitu_tuner::live::Tracker;
     use insitu_tuner::Measurement;
 
     fn summary(step: u64, bin: usize, sigma: u64, version: u64) -> pb::StepSummary {
@@ -724,10 +723,7 @@ mod tests {
             ..Default::default()
         };
         let resolved = cfg.resolve().unwrap();
-        let mut state = State::new(Tracker::new(0.15, 4));
-        let mut h = [0.0; BINS];
-        h[3] = 1.0;
-        assert!(matches!(state.tracker.observe(0, &h), Verdict::New { .. }));
+        let mut state = State::with_step_zero();
         let c = Candidate { r: 64, gamma: 0.01 };
         let predicted = Measurement {
             r: 64,

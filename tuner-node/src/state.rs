@@ -124,6 +124,16 @@ pub struct State {
 }
 
 impl State {
+    /// For tests: a state whose one characteristic step is step 0 (threshold 0.15, at most 4).
+    #[cfg(test)]
+    pub(crate) fn with_step_zero() -> Self {
+        let mut state = Self::new(Tracker::new(0.15, 4));
+        let mut h = [0.0; BINS];
+        h[3] = 1.0;
+        assert!(matches!(state.tracker.observe(0, &h), Verdict::New { .. }));
+        state
+    }
+
     /// An empty state.
     pub fn new(tracker: Tracker) -> Self {
         Self {

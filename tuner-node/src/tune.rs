@@ -370,8 +370,6 @@ mod tests {
     use super::*;
     use crate::config::{Config, GridConfig};
     use crate::state::State;
-    use insitu_tuner::live::{Tracker, Verdict};
-    use insitu_tuner::series::BINS;
 
     /// A budget no candidate meets ends the tuning without a decision, counted in the status
     /// (and warned of in the log); the trials were persisted ones, so no node is asked.
@@ -389,10 +387,7 @@ mod tests {
             ..Default::default()
         };
         let resolved = cfg.resolve().unwrap();
-        let mut state = State::new(Tracker::new(0.15, 4));
-        let mut h = [0.0; BINS];
-        h[3] = 1.0;
-        assert!(matches!(state.tracker.observe(0, &h), Verdict::New { .. }));
+        let mut state = State::with_step_zero();
         for candidate in resolved.grid.candidates() {
             state.size_probes.push(SizeProbe {
                 step: 0,

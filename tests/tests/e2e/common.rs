@@ -8,8 +8,25 @@ use insitu_core::Vdi;
 use insitu_e2e::{rt, Daemon};
 use insitu_viz_node::store::{Entry, References, StepEntry};
 use std::path::Path;
+use std::process::{Child, Output};
 
 pub use insitu_e2e::free_port;
+
+/// The standard output of `insitu replay` (`out`), once it has succeeded.
+pub fn replayed(out: Output) -> String {
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "replay failed: {}\n{text}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
+/// [`replayed`] of a replay started in the background with its output piped.
+pub fn finish(child: Child) -> String {
+    replayed(child.wait_with_output().unwrap())
+}
 
 /// Starts a viz-node recording into `dir` on `listen`.
 pub fn viz(dir: &Path, listen: &str, logs: &Path) -> Daemon {

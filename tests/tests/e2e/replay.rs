@@ -1,6 +1,6 @@
 //! The ocean series through `insitu replay` → generator-node → viz-node, all real processes.
 
-use crate::common::{generator, index, load_vdi, local_q, viz};
+use crate::common::{generator, index, load_vdi, local_q, replayed, viz};
 use insitu_core::vdi::render;
 use insitu_e2e::{bin, data_dir, Daemon};
 use insitu_proto::convert::camera_to_pb;
@@ -27,13 +27,7 @@ pub fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "replay failed: {}\n{text}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
+    replayed(out)
 }
 
 #[test]

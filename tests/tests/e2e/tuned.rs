@@ -3,7 +3,7 @@
 //! that dials it, a replay of the ocean series through them, and readers of the tuner's status,
 //! decisions and persisted state.
 
-use crate::common::{free_port, generator, small_config, status, viz};
+use crate::common::{finish, free_port, generator, small_config, status, viz};
 use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::{pb, transport};
@@ -122,17 +122,6 @@ pub(crate) fn replay(series: &Path, generator: &str, extra: &[&str]) -> Child {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap()
-}
-
-pub(crate) fn finish(child: Child) -> String {
-    let out = child.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "replay failed: {}\n{text}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
 }
 
 /// A viz-node, a tuner for `utility` and a tuned generator-node, after `insitu replay` of the

@@ -2,10 +2,10 @@
 //! hold"): a tuned ocean replay, a change of character, a tuner restart, a generator-node killed
 //! during trials, and bad input.
 
-use crate::common::{flush, free_port, index, status, steps, viz};
+use crate::common::{finish, flush, free_port, index, status, steps, viz};
 use crate::tuned::{
-    client, decision, decision_trial, finish, replay, state, tuned_generator, tuned_ocean,
-    tuner_paced, tuner_status,
+    client, decision, decision_trial, replay, state, tuned_generator, tuned_ocean, tuner_paced,
+    tuner_status,
 };
 use insitu_client::{SimClient, Step};
 use insitu_e2e::{bin, rt, wait_until, Daemon};
