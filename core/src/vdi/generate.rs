@@ -53,6 +53,8 @@ pub fn generate(
 /// A generator that makes one VDI after another (a time step each) keeps one `Vdi` for this:
 /// a VDI of tens of MB in fresh memory costs a page fault per 4 KiB (the teapot at r = 768,
 /// 37 MB: about 9 000, a few percent of the generation time); reused memory costs none.
+/// Reused at the same resolution, the flat array keeps the room it had and no estimate of the
+/// supersegments is marched (see [`estimate_supersegments`]).
 ///
 /// # Errors
 /// As [`generate`]. `vdi` is unchanged after a parameter or camera error, and left an empty VDI
@@ -70,6 +72,9 @@ pub fn generate_into(
         return Err(VdiParamError::Camera(*camera));
     }
     let r = params.resolution;
+    // The last VDI's room, where it had this resolution: the steps of a run are alike, so it
+    // almost always suffices (growth doubles it when not).
+    let roomy = vdi.meta.params.resolution == r && vdi.supersegments.capacity() > 0;
     vdi.lists_changed();
     if raycaster.macro_grid().visibility().iter().all(|v| !v) {
         // Nothing visible under the TF (e.g. a rank's brick away from the feature): the empty
@@ -89,8 +94,10 @@ pub fn generate_into(
     // memory): grown by doubling instead, each growth would copy it and, for a while, hold
     // both copies. A reservation the allocator refuses (an estimate beyond what fits) is
     // left to growth.
-    let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
-    let _ = vdi.supersegments.try_reserve(estimate);
+    if !roomy {
+        let estimate = estimate_supersegments(raycaster, camera, params).min(u32::MAX as usize);
+        let _ = vdi.supersegments.try_reserve(estimate);
+    }
     // Rays that no visible macro cell covers get no supersegments, unmarched.
     let coverage = Coverage::new(raycaster, &camera.frame(r, r));
     let band = r.div_ceil(BANDS);
@@ -138,7 +145,9 @@ const ESTIMATE_SIDE: u32 = 64;
 /// A generous estimate of the supersegments the VDI will hold: the count of an
 /// `ESTIMATE_SIDE²` grid of its rays (every `r / ESTIMATE_SIDE`-th row and column, about 1 % of
 /// the rays at r = 768 and 6 % at r = 256) scaled to `r²`, plus a quarter. 0 below r = 256,
-/// where the sample would be a large share of the rays and the VDI is small anyway.
+/// where the sample would be a large share of the rays and the VDI is small anyway. Its rays
+/// are marched one at a time: at r = 256 it took 7–9 % of the teapot's generation (one thread,
+/// 31–44 ms), so a VDI reused at the same resolution skips it.
 fn estimate_supersegments(raycaster: &Raycaster, camera: &Camera, params: VdiParams) -> usize {
     let r = params.resolution;
     let stride = r / ESTIMATE_SIDE;
@@ -594,12 +603,16 @@ mod tests {
         let p = |resolution, gamma| VdiParams { resolution, gamma };
         let mut vdi = generate(&rc, &cam.orbit_y(40.0), p(48, 0.001), 1, "first").unwrap();
         // Shrinking (truncation), growing within the capacity (zeroed extension), growing
-        // beyond it (a new array), and another camera.
+        // beyond it (a new array), and another camera; then at r = 256 (where a fresh VDI's
+        // room is estimated) again at the same r with many more supersegments than the room
+        // the first one left (no estimate: grown).
         for (camera, params) in [
             (cam, p(8, 0.2)),
             (cam, p(24, 0.02)),
             (cam, p(64, 0.001)),
             (cam.orbit_y(180.0), p(32, 0.05)),
+            (cam, p(256, 0.5)),
+            (cam.orbit_y(90.0), p(256, 0.001)),
         ] {
             let fresh = generate(&rc, &camera, params, 7, "next").unwrap();
             generate_into(&rc, &camera, params, 7, "next", &mut vdi).unwrap();
