@@ -2,6 +2,7 @@
 //! trials in flight. A node's disconnection fails its trials at once (their data is gone with
 //! it) instead of letting them run into the timeout.
 
+use crate::check::check_trial_result;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_tuner::Candidate;
@@ -49,7 +50,9 @@ struct Node {
 }
 
 struct Pending {
-    expected: usize,
+    asked: pb::TrialRequest,
+    /// rank → the connection asked for it.
+    ranks: BTreeMap<u32, u64>,
     conns: BTreeSet<u64>,
     results: Vec<pb::TrialResult>,
     reply: oneshot::Sender<TrialReply>,
@@ -205,7 +208,8 @@ impl Hub {
         i.pending.insert(
             id,
             Pending {
-                expected: ranks.len(),
+                asked: req,
+                ranks,
                 conns,
                 results: Vec::new(),
                 reply,
@@ -215,10 +219,12 @@ impl Hub {
     }
 
     /// A rank's result from `conn`; the trial completes when every rank has answered, or
-    /// fails at the first error.
+    /// fails at the first error or bad result ([`check_trial_result`], a rank not asked of
+    /// `conn` or answered twice).
     ///
     /// # Errors
-    /// A message for the node when the trial is unknown (finished, abandoned or never asked).
+    /// A message for the node when the trial is unknown (finished, abandoned or never asked)
+    /// or the result is bad.
     pub fn trial_result(&self, conn: u64, r: pb::TrialResult) -> Result<(), String> {
         let mut i = self.inner();
         let Some(p) = i.pending.get_mut(&r.trial_id) else {
@@ -246,8 +252,29 @@ impl Hub {
             }
             return Ok(());
         }
+        let bad = check_trial_result(&r, &p.asked).err().or_else(|| {
+            if p.ranks.get(&r.rank) != Some(&conn) {
+                Some(format!(
+                    "trial {id}: rank {} of step {} was not asked of this node",
+                    r.rank, r.step
+                ))
+            } else if p.results.iter().any(|x| x.rank == r.rank) {
+                Some(format!("trial {id}: rank {} answered twice", r.rank))
+            } else {
+                None
+            }
+        });
+        if let Some(problem) = bad {
+            if let Some(p) = i.pending.remove(&id) {
+                let _ = p.reply.send(Err(TrialFailure {
+                    message: format!("a bad result: {problem}"),
+                    step_lost: false,
+                }));
+            }
+            return Err(problem);
+        }
         p.results.push(r);
-        if p.results.len() >= p.expected {
+        if p.results.len() >= p.ranks.len() {
             if let Some(p) = i.pending.remove(&id) {
                 let _ = p.reply.send(Ok(p.results));
             }
@@ -267,11 +294,16 @@ impl Hub {
 mod tests {
     use super::*;
 
+    /// Rank `rank`'s answer to trial `id` of step 5 at r 64, γ 0.01 (a good one unless
+    /// `error`).
     fn result(id: u64, rank: u32, error: &str) -> pb::TrialResult {
         pb::TrialResult {
             trial_id: id,
             step: 5,
             rank,
+            resolution: 64,
+            gamma: 0.01,
+            sigma_bytes: 100,
             error: error.into(),
             not_held: error.contains("not held"),
             ..Default::default()
@@ -332,5 +364,61 @@ mod tests {
         hub.abandon(id);
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
         assert_eq!(hub.nodes(), 1);
+    }
+
+    #[test]
+    fn a_bad_result_fails_the_trial_at_once_and_the_node_hears_why() {
+        let hub = Hub::default();
+        let (tx, _rx) = mpsc::channel(16);
+        let (tx2, _rx2) = mpsc::channel(16);
+        let a = hub.connect("a", tx);
+        let b = hub.connect("b", tx2);
+        let c = Candidate { r: 64, gamma: 0.01 };
+        hub.held(a, 5, 0);
+        hub.held(b, 5, 1);
+        let bad: [(u64, pb::TrialResult, &str); 4] = [
+            // A NaN τ (JSON could not even persist it).
+            (
+                a,
+                pb::TrialResult {
+                    tau_secs: f64::NAN,
+                    ..result(0, 0, "")
+                },
+                "tau_secs NaN",
+            ),
+            // Another candidate than the one asked.
+            (
+                a,
+                pb::TrialResult {
+                    gamma: 0.02,
+                    ..result(0, 0, "")
+                },
+                "was asked",
+            ),
+            // A rank that another node holds.
+            (
+                a,
+                result(0, 1, ""),
+                "rank 1 of step 5 was not asked of this node",
+            ),
+            // The same rank twice (after a good first answer).
+            (a, result(0, 0, ""), "rank 0 answered twice"),
+        ];
+        for (conn, r, needle) in bad {
+            let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
+            let r = pb::TrialResult { trial_id: id, ..r };
+            if needle.contains("twice") {
+                hub.trial_result(conn, r.clone()).unwrap();
+            }
+            let e = hub.trial_result(conn, r).unwrap_err();
+            assert!(e.contains(needle), "{needle}: {e}");
+            let failure = done.try_recv().unwrap().unwrap_err();
+            assert!(
+                failure.message.contains(needle) && !failure.step_lost,
+                "{failure:?}"
+            );
+            // The trial is over: the other rank's late answer is refused as unknown.
+            assert!(hub.trial_result(b, result(id, 1, "")).is_err());
+        }
     }
 }

@@ -1,11 +1,11 @@
 //! The `Tuner` gRPC service: the generator-nodes' `Attach` streams, status and decisions.
 
+use crate::check::check_summary;
 use crate::engine::{Engine, Event};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
 use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_proto::pb::tuner_server::Tuner;
-use insitu_tuner::series::BINS;
 use std::pin::Pin;
 use std::sync::Arc;
 use tokio::sync::mpsc;
@@ -19,33 +19,6 @@ const NODE_BACKLOG: usize = 1024;
 
 /// The gRPC service.
 pub struct TunerService(pub Arc<Engine>);
-
-/// Checks a summary: 64 bins, a finite range with lo < hi, 1 ≤ world_size, rank < world_size.
-///
-/// # Errors
-/// A message naming the field and the step.
-pub fn check_summary(s: &pb::StepSummary) -> Result<(), String> {
-    let what = format!("summary of step {} rank {}", s.step, s.rank);
-    if s.histogram.len() != BINS {
-        return Err(format!(
-            "{what}: the histogram has {} bins, not {BINS}",
-            s.histogram.len()
-        ));
-    }
-    if !(s.range_lo.is_finite() && s.range_hi.is_finite() && s.range_lo < s.range_hi) {
-        return Err(format!(
-            "{what}: histogram range [{}, {}] must be finite with lo < hi",
-            s.range_lo, s.range_hi
-        ));
-    }
-    if s.world_size == 0 || s.rank >= s.world_size {
-        return Err(format!(
-            "{what}: need 0 ≤ rank < world_size (world_size {})",
-            s.world_size
-        ));
-    }
-    Ok(())
-}
 
 type Boxed<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
@@ -143,49 +116,5 @@ impl Tuner for TunerService {
         let first = tokio_stream::iter(self.0.current().map(Ok));
         let rest = BroadcastStream::new(rx).filter_map(|r| r.ok().map(Ok));
         Ok(Response::new(Box::pin(first.chain(rest))))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn summaries_are_checked_field_by_field() {
-        let good = pb::StepSummary {
-            step: 3,
-            world_size: 1,
-            histogram: vec![1; BINS],
-            range_lo: 0.0,
-            range_hi: 1.0,
-            ..Default::default()
-        };
-        assert!(check_summary(&good).is_ok());
-        let e = check_summary(&pb::StepSummary {
-            histogram: vec![1; 63],
-            ..good.clone()
-        })
-        .unwrap_err();
-        assert!(e.contains("63 bins") && e.contains("step 3"), "{e}");
-        for bad in [
-            pb::StepSummary {
-                range_hi: 0.0,
-                ..good.clone()
-            },
-            pb::StepSummary {
-                range_lo: f64::NAN,
-                ..good.clone()
-            },
-            pb::StepSummary {
-                world_size: 0,
-                ..good.clone()
-            },
-            pb::StepSummary {
-                rank: 1,
-                ..good.clone()
-            },
-        ] {
-            assert!(check_summary(&bad).is_err(), "{bad:?}");
-        }
     }
 }
