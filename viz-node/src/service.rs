@@ -345,8 +345,25 @@ fn store_vdi(
     bytes: &[u8],
     placement: Option<Placement>,
 ) -> Result<(Entry, bool), Status> {
-    check_against_stored(&s.recording, h, placement)?;
     let what = format!("VDI of step {} rank {}", h.step, h.rank);
+    // The index and its JSON hold these as numbers: NaN or ±∞ has no place there.
+    for (field, v, least) in [
+        ("tau_secs", h.tau_secs, 0.0),
+        ("tau_compress_secs", h.tau_compress_secs, 0.0),
+        ("sim_time", h.sim_time, f64::MIN),
+    ] {
+        if !(v.is_finite() && v >= least) {
+            let must = if least == 0.0 {
+                "finite and non-negative"
+            } else {
+                "finite"
+            };
+            return Err(Status::invalid_argument(format!(
+                "{what}: {field} {v} must be {must}"
+            )));
+        }
+    }
+    check_against_stored(&s.recording, h, placement)?;
     let vdi = codec::decode(bytes, &DecodeLimits::default())
         .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
     let p = vdi.meta().params;

@@ -179,12 +179,53 @@ fn the_viz_node_rejects_a_corrupt_vdi_and_stores_nothing() {
             .unwrap_err();
         assert_eq!(e.code(), Code::InvalidArgument);
         assert!(e.message().contains("step 3"), "{}", e.message());
+        // A good file whose header carries a time that is not a number, or a negative one:
+        // refused, naming the field (the index could not have held it).
+        let (file, _) = crate::faults::vdi_and_refs(0.01);
+        let good = crate::faults::header(4, &file, 0.01);
+        for (field, h) in [
+            (
+                "tau_secs",
+                pb::VdiHeader {
+                    tau_secs: f64::NAN,
+                    ..good.clone()
+                },
+            ),
+            (
+                "tau_compress_secs",
+                pb::VdiHeader {
+                    tau_compress_secs: -1.0,
+                    ..good.clone()
+                },
+            ),
+            (
+                "sim_time",
+                pb::VdiHeader {
+                    sim_time: f64::INFINITY,
+                    ..good.clone()
+                },
+            ),
+        ] {
+            let e = c
+                .ship_vdi(tokio_stream::iter(chunk::split(
+                    h,
+                    Bytes::from(file.clone()),
+                )))
+                .await
+                .unwrap_err();
+            assert_eq!(e.code(), Code::InvalidArgument, "{field}: {e:?}");
+            assert!(
+                e.message().contains(field) && e.message().contains("step 4"),
+                "{}",
+                e.message()
+            );
+        }
         let s = c
             .get_status(pb::StatusRequest {})
             .await
             .unwrap()
             .into_inner();
-        assert_eq!((s.vdis_stored, s.rejected), (0, 1));
+        assert_eq!((s.vdis_stored, s.rejected), (0, 4));
     });
     assert!(index(&rec).is_empty());
     // Nothing but the (empty) index.

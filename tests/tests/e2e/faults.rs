@@ -15,7 +15,7 @@ use insitu_viz_node::store::{Entry, Recording, References};
 use tonic::Code;
 
 /// A small VDI file of a blob, with its reference frames at 0° and 40°.
-fn vdi_and_refs(gamma: f32) -> (Vec<u8>, References) {
+pub(crate) fn vdi_and_refs(gamma: f32) -> (Vec<u8>, References) {
     let v = Volume::from_fn([16, 16, 16], |x, y, z| {
         let d2 = (x as f32 - 8.0).powi(2) + (y as f32 - 7.0).powi(2) + (z as f32 - 8.0).powi(2);
         (-d2 / 18.0).exp()
@@ -42,7 +42,7 @@ fn vdi_and_refs(gamma: f32) -> (Vec<u8>, References) {
     (encode(&vdi, Codec::Zstd).unwrap(), refs)
 }
 
-fn header(step: u64, file: &[u8], gamma: f32) -> pb::VdiHeader {
+pub(crate) fn header(step: u64, file: &[u8], gamma: f32) -> pb::VdiHeader {
     pb::VdiHeader {
         step,
         world_size: 1,
