@@ -509,6 +509,9 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let o = insitu(&["export", "--recording", "rec"], dir.path());
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(json["entries"].as_array().map(Vec::len), Some(4), "{json}");
+    // γ as it was given (an f32 through a serde_json::Value would print 0.013000000268220901).
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(text.matches("\"gamma\": 0.013,").count(), 4, "{text}");
     // A recorded step renders; one the recording lacks is refused, naming the steps it has.
     let (png, _) = written(
         dir.path(),

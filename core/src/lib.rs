@@ -38,6 +38,7 @@ pub mod file;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod image;
+pub mod json;
 pub mod metrics;
 pub mod raycast;
 pub mod tf;

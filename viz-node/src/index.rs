@@ -7,7 +7,7 @@
 //!
 //! Columns beside the JSON of each row (step, rank, world size, P_M version, σ, τ, q) are what
 //! the viewer's queries read (series of σ, τ, q; P_M versions); the JSON keeps everything else.
-//! [`IndexDb::export_json`] and [`IndexDb::export_csv`] write it out for people who want a file.
+//! [`IndexDb::export`] and [`IndexDb::export_csv`] write it out for people who want a file.
 
 use crate::store::{Entry, StepEntry, StoreError};
 use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
@@ -17,6 +17,17 @@ use std::path::{Path, PathBuf};
 pub const INDEX_DB: &str = "index.sqlite";
 /// The schema version kept in `meta`.
 pub const SCHEMA_VERSION: u32 = 2;
+
+/// The whole index ([`IndexDb::export`]).
+#[derive(Debug, serde::Serialize)]
+pub struct Export {
+    /// [`SCHEMA_VERSION`].
+    pub schema: u32,
+    /// Every (step, rank) row.
+    pub entries: Vec<Entry>,
+    /// Every composed step's row.
+    pub steps: Vec<StepEntry>,
+}
 
 /// The open index.
 pub struct IndexDb {
@@ -205,16 +216,18 @@ impl IndexDb {
             .collect()
     }
 
-    /// The index as one JSON document: `{"entries": [...], "steps": [...]}` (the rows' JSON).
+    /// The index as one document, `{"schema", "entries": [...], "steps": [...]}` in JSON (the
+    /// rows' JSON). Serialise it directly: through a `serde_json::Value` an `f32` such as γ
+    /// would print widened (0.013000000268220901).
     ///
     /// # Errors
     /// As [`Self::entries`].
-    pub fn export_json(&self) -> Result<serde_json::Value, StoreError> {
-        Ok(serde_json::json!({
-            "schema": SCHEMA_VERSION,
-            "entries": self.entries()?,
-            "steps": self.steps()?,
-        }))
+    pub fn export(&self) -> Result<Export, StoreError> {
+        Ok(Export {
+            schema: SCHEMA_VERSION,
+            entries: self.entries()?,
+            steps: self.steps()?,
+        })
     }
 
     /// The index as CSV, one line per (step, rank) and one per composed step (`rank` empty):

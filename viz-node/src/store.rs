@@ -571,12 +571,12 @@ impl Recording {
         Ok(r)
     }
 
-    /// The index as JSON (see [`IndexDb::export_json`]).
+    /// The whole index (see [`IndexDb::export`]).
     ///
     /// # Errors
-    /// As [`IndexDb::export_json`].
-    pub fn export_json(&self) -> Result<serde_json::Value, StoreError> {
-        self.lock().db.export_json()
+    /// As [`IndexDb::export`].
+    pub fn export(&self) -> Result<crate::index::Export, StoreError> {
+        self.lock().db.export()
     }
 
     /// The directory.

@@ -114,14 +114,14 @@ fn print_json(a: &Args, s: &Said) {
     let views: Vec<_> = eval
         .views
         .iter()
-        .map(|v| serde_json::json!({"angle_deg": v.angle_deg, "q_db": q_json(v.q_db), "ssim": v.ssim}))
+        .map(|v| serde_json::json!({"angle_deg": insitu_core::json::f32_number(v.angle_deg), "q_db": q_json(v.q_db), "ssim": v.ssim}))
         .collect();
     println!(
         "{}",
         serde_json::json!({
             "volume": scene.volume_name, "tf": scene.tf_name,
-            "r": a.pm.r, "gamma": a.pm.gamma, "codec": a.codec.name(),
-            "step": scene.params.step, "size": [w, h],
+            "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": a.codec.name(),
+            "step": insitu_core::json::f32_number(scene.params.step), "size": [w, h],
             "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
             "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
             "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,

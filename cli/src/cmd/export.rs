@@ -23,7 +23,7 @@ pub fn run(a: Args) -> Result<()> {
     let db = IndexDb::open(&a.recording, false)
         .with_context(|| format!("{} is not a recording", a.recording.display()))?;
     let text = match a.format.as_str() {
-        "json" => serde_json::to_string_pretty(&db.export_json()?)? + "\n",
+        "json" => serde_json::to_string_pretty(&db.export()?)? + "\n",
         "csv" => db.export_csv()?,
         other => bail!("--format {other:?}: use json or csv"),
     };

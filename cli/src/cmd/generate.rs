@@ -52,7 +52,7 @@ pub fn run(a: Args) -> Result<()> {
         println!(
             "{}",
             serde_json::json!({
-                "r": a.pm.r, "gamma": a.pm.gamma, "codec": codec_kind.name(),
+                "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": codec_kind.name(),
                 "sigma_bytes": bytes.len(), "supersegments": vdi.supersegments().len(),
                 "tau_s": tau, "tau_source": generated.source, "tau_wall_s": generated.wall_s,
                 "backend": backend.describe(),

@@ -158,7 +158,7 @@ fn study_step(
 
 /// [`Outcome`] as one JSON object.
 fn print_json(o: &Outcome) {
-    let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.sizing.tau_secs});
+    let m = |m: &insitu_tuner::Measurement| serde_json::json!({"r": m.r, "gamma": insitu_core::json::f32_number(m.gamma), "sigma_bytes": m.sizing.sigma_bytes, "q_db": super::q_json(m.q()), "tau_s": m.sizing.tau_secs});
     println!(
         "{}",
         serde_json::json!({
@@ -166,7 +166,7 @@ fn print_json(o: &Outcome) {
             "characteristic_steps": o.chosen,
             "nearest": o.nearest.iter().map(|(c, d)| serde_json::json!({"step": c, "distance": d})).collect::<Vec<_>>(),
             "optima": o.optima.iter().map(|x| x.as_ref().map(m)).collect::<Vec<_>>(),
-            "conservative": o.conservative.map(|c| serde_json::json!({"r": c.r, "gamma": c.gamma})),
+            "conservative": o.conservative.map(|c| serde_json::json!({"r": c.r, "gamma": insitu_core::json::f32_number(c.gamma)})),
             "cross": o.cross.iter().map(|x| serde_json::json!({
                 "tuned_on": o.chosen[x.tuned_on], "evaluated_on": o.chosen[x.evaluated_on],
                 "measurement": x.on_b.as_ref().map(m), "holds": x.holds,

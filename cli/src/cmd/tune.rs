@@ -45,7 +45,7 @@ pub struct Args {
 
 fn row_json(m: &Measurement) -> serde_json::Value {
     serde_json::json!({
-        "r": m.r, "gamma": m.gamma, "sigma_bytes": m.sizing.sigma_bytes, "tau_s": m.sizing.tau_secs,
+        "r": m.r, "gamma": insitu_core::json::f32_number(m.gamma), "sigma_bytes": m.sizing.sigma_bytes, "tau_s": m.sizing.tau_secs,
         "q_db": super::q_json(m.q()), "ssim": m.ssim,
     })
 }

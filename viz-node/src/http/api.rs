@@ -12,19 +12,13 @@ use axum::http::{header, HeaderName};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use insitu_core::evaluate::Sizing;
+use insitu_core::json::f32_number;
 use serde::Deserialize;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
-
-/// An `f32` as the JSON number it reads as (0.013, not 0.013000000268220901).
-fn short(v: f32) -> Value {
-    v.to_string()
-        .parse::<f64>()
-        .map_or(Value::Null, Value::from)
-}
 
 /// One stored step as the API shows it: its ranks and, for a world of ranks, the composed
 /// step (σ summed, τ of the slowest rank, q of the composition).
@@ -40,7 +34,7 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
             json!({
                 "rank": e.rank,
                 "r": e.resolution,
-                "gamma": short(e.gamma),
+                "gamma": f32_number(e.gamma),
                 "pm_version": e.pm_version,
                 "sigma_bytes": e.sizing.sigma_bytes,
                 "tau_s": e.sizing.tau_secs,
@@ -68,7 +62,7 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
         "partial": composed.is_some_and(|c| !c.missing.is_empty()),
         "composed": composed.is_some_and(|c| c.vdi.is_some()),
         "r": first.map(|e| e.resolution),
-        "gamma": first.map(|e| short(e.gamma)),
+        "gamma": first.map(|e| f32_number(e.gamma)),
         "pm_version": first.map(|e| e.pm_version),
         "sigma_bytes": sizing.sigma_bytes,
         "tau_s": sizing.tau_secs,
