@@ -39,7 +39,8 @@ fn check_sizes(a: &Image, b: &Image) -> Result<(), MetricError> {
 }
 
 /// A PSNR in dB that may be `+∞` (identical images); JSON has no infinity, so it is written as
-/// the string `"inf"`.
+/// the string `"inf"` (and the values no PSNR should take, `−∞` and NaN, as `"-inf"` and
+/// `"nan"`, so that they read back as what they were rather than as identical images).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Db(pub f64);
 
@@ -47,8 +48,12 @@ impl serde::Serialize for Db {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         if self.0.is_finite() {
             s.serialize_f64(self.0)
-        } else {
+        } else if self.0.is_nan() {
+            s.serialize_str("nan")
+        } else if self.0 > 0.0 {
             s.serialize_str("inf")
+        } else {
+            s.serialize_str("-inf")
         }
     }
 }
@@ -64,6 +69,8 @@ impl<'de> serde::Deserialize<'de> for Db {
         match <Repr as serde::Deserialize>::deserialize(d)? {
             Repr::Num(v) => Ok(Db(v)),
             Repr::Str(s) if s == "inf" => Ok(Db(f64::INFINITY)),
+            Repr::Str(s) if s == "-inf" => Ok(Db(f64::NEG_INFINITY)),
+            Repr::Str(s) if s == "nan" => Ok(Db(f64::NAN)),
             Repr::Str(s) => Err(serde::de::Error::custom(format!(
                 "expected a number or \"inf\", got {s:?}"
             ))),
@@ -196,6 +203,22 @@ pub fn ssim(test: &Image, reference: &Image) -> Result<f64, MetricError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn db_reads_back_as_written_infinite_and_nan_included() {
+        for (q, text) in [
+            (40.5, "40.5"),
+            (f64::INFINITY, "\"inf\""),
+            (f64::NEG_INFINITY, "\"-inf\""),
+            (f64::NAN, "\"nan\""),
+        ] {
+            let json = serde_json::to_string(&Db(q)).unwrap();
+            assert_eq!(json, text);
+            let back: Db = serde_json::from_str(&json).unwrap();
+            assert!(back.0 == q || (q.is_nan() && back.0.is_nan()), "{q}: {}", back.0);
+        }
+        assert!(serde_json::from_str::<Db>("\"infinite\"").is_err());
+    }
 
     /// The fixed test images; the same formulas are in the Python snippet below.
     fn pattern(w: u32, h: u32, phase: f64) -> Image {

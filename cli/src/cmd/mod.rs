@@ -117,21 +117,18 @@ pub fn codec_arg(s: &str) -> Result<Codec, insitu_core::vdi::codec::CodecError> 
     s.parse()
 }
 
-/// q as JSON: a number, or the string "inf" when the images are identical.
+/// q as JSON ([`insitu_core::metrics::Db`]): a number, or the string "inf" when the images
+/// are identical.
 pub fn q_json(q: f64) -> serde_json::Value {
-    if q.is_finite() {
-        serde_json::json!(q)
-    } else {
-        serde_json::json!("inf")
-    }
+    serde_json::to_value(insitu_core::metrics::Db(q)).unwrap_or(serde_json::Value::Null)
 }
 
-/// q as text.
+/// q as text: two decimals, or "inf" when the images are identical (NaN as "NaN").
 pub fn q_text(q: f64) -> String {
     if q.is_finite() {
         format!("{q:.2}")
     } else {
-        "inf".to_owned()
+        q.to_string()
     }
 }
 
