@@ -215,7 +215,11 @@ mod tests {
             let json = serde_json::to_string(&Db(q)).unwrap();
             assert_eq!(json, text);
             let back: Db = serde_json::from_str(&json).unwrap();
-            assert!(back.0 == q || (q.is_nan() && back.0.is_nan()), "{q}: {}", back.0);
+            assert!(
+                back.0 == q || (q.is_nan() && back.0.is_nan()),
+                "{q}: {}",
+                back.0
+            );
         }
         assert!(serde_json::from_str::<Db>("\"infinite\"").is_err());
     }

@@ -347,13 +347,13 @@ fn store_vdi(
 ) -> Result<(Entry, bool), Status> {
     let what = format!("VDI of step {} rank {}", h.step, h.rank);
     // The index and its JSON hold these as numbers: NaN or ±∞ has no place there.
-    for (field, v, least) in [
-        ("tau_secs", h.tau_secs, 0.0),
-        ("tau_compress_secs", h.tau_compress_secs, 0.0),
-        ("sim_time", h.sim_time, f64::MIN),
+    for (field, v, duration) in [
+        ("tau_secs", h.tau_secs, true),
+        ("tau_compress_secs", h.tau_compress_secs, true),
+        ("sim_time", h.sim_time, false),
     ] {
-        if !(v.is_finite() && v >= least) {
-            let must = if least == 0.0 {
+        if !v.is_finite() || (duration && v < 0.0) {
+            let must = if duration {
                 "finite and non-negative"
             } else {
                 "finite"
