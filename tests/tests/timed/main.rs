@@ -26,23 +26,26 @@ fn alone() -> MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// (r, γ, τ in ms) of every persisted trial, in the order run.
+/// (r, γ, τ in ms) of every persisted size probe, then of every trial, each in the order run.
 fn timed(state: &serde_json::Value) -> Vec<(u64, f64, f64)> {
-    state["trials"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|t| {
-                    let m = &t["measurement"];
-                    (
-                        m["r"].as_u64().unwrap_or(0),
-                        m["gamma"].as_f64().unwrap_or(f64::NAN),
-                        m["tau_secs"].as_f64().unwrap_or(f64::NAN) * 1e3,
-                    )
-                })
-                .collect()
-        })
-        .unwrap_or_default()
+    let row = |c: &serde_json::Value, tau: &serde_json::Value| {
+        let r = c["r"].as_u64().unwrap_or(0);
+        let gamma = c["gamma"].as_f64().unwrap_or(f64::NAN);
+        (r, gamma, tau.as_f64().unwrap_or(f64::NAN) * 1e3)
+    };
+    let list = |key: &str| state[key].as_array().cloned().unwrap_or_default();
+    // A probe's sizing is flattened into it; a trial's candidate and sizing are its measurement.
+    let probes = list("size_probes");
+    let trials = list("trials");
+    probes
+        .iter()
+        .map(|p| row(&p["candidate"], &p["tau_secs"]))
+        .chain(
+            trials
+                .iter()
+                .map(|t| row(&t["measurement"], &t["measurement"]["tau_secs"])),
+        )
+        .collect()
 }
 
 /// A time budget is searched adaptively too: the decision arrives after a fraction of the
@@ -50,11 +53,15 @@ fn timed(state: &serde_json::Value) -> Vec<(u64, f64, f64)> {
 /// step it was tuned on, as its persisted trials timed it.
 #[test]
 fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
-    // Here r = 64 generates an ocean step in about 4 ms, r = 128 in about 8 ms, r = 256 in
-    // over 10 ms: the budget lies within the grid (r 64–256), above the nodes' P_M (r = 32).
+    // In these debug-profile daemons, beside the replay, size probes of an ocean step took
+    // 4–13 ms at r = 64 (30 ms for the very first), 7–20 ms at r = 128 and 11–20 ms at
+    // r = 256 (47 ms for its first): the budget lies near the top of the grid (r 64–256),
+    // with room for a CI machine twice as slow at r = 64 (10 ms, the earlier budget, was
+    // within the noise of r = 64 here).
+    const BUDGET_SECS: f64 = 0.02;
     let _alone = alone();
     let Some(o) = tuned_ocean(
-        "time:0.01",
+        &format!("time:{BUDGET_SECS}"),
         &["--sample-every", "4", "--step-interval", "1.0"],
     ) else {
         return;
@@ -67,7 +74,7 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
         timed(&state(st))
     );
     let d = decision(&t.addr, s.pm_version).unwrap();
-    let plan = 0.01 * 0.95;
+    let plan = BUDGET_SECS * 0.95;
     assert!(d.predicted_tau_secs < plan, "{d:?}");
     let state = state(st);
     for step in &d.characteristic_steps {
@@ -83,7 +90,7 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
         s.size_probes
     );
     eprintln!(
-        "ocean, time:0.01: decision v{} r {} γ {} on steps {:?} (predicted τ {:.4} s, q {:.2} dB); {} trials of which {} size probes, grid {grid}",
+        "ocean, time:{BUDGET_SECS}: decision v{} r {} γ {} on steps {:?} (predicted τ {:.4} s, q {:.2} dB); {} trials of which {} size probes, grid {grid}",
         d.pm_version,
         d.resolution,
         d.gamma,
