@@ -5,6 +5,10 @@
 //! `demo` (the in situ pipeline on the built-in simulation) and `replay` (a recorded series
 //! through the pipeline).
 
+// The arguments' doc comments are their `--help` text, where `<name>` reads as a placeholder;
+// rustdoc would take it for an HTML tag.
+#![allow(rustdoc::invalid_html_tags)]
+
 mod cmd;
 mod output;
 mod pipeline;

@@ -146,7 +146,7 @@ impl TransferFunction {
         )
     }
 
-    /// [`Self::default_named`] over `volume`'s finite values ([`Volume::finite_range`]; over
+    /// [`Self::default_named`] over `volume`'s finite values ([`crate::Volume::finite_range`]; over
     /// [0, 1] when it has none, e.g. all NaN).
     pub fn default_for_volume(volume: &crate::volume::Volume) -> (Self, String) {
         let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));

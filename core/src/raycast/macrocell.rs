@@ -83,7 +83,7 @@ impl MacroGrid {
         self.visible[self.flat(self.cell_of([ix, iy, iz]))]
     }
 
-    /// Side of a cell, voxels (a power of two: 8 or 16, [`cell_size_for`]).
+    /// Side of a cell, voxels (a power of two: 8 or 16, `cell_size_for`).
     pub fn cell_size(&self) -> usize {
         self.size
     }

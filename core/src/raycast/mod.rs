@@ -262,7 +262,7 @@ impl<'a> Raycaster<'a> {
     }
 
     /// Readies the ray-caster for a render of `rays` rays: builds the occupancy bits
-    /// ([`occupancy`]) when the render takes at least about as many samples as the volume has
+    /// (`occupancy`) when the render takes at least about as many samples as the volume has
     /// voxels (`rays` × its longest axis ≥ its voxels), once. The bits cost a pass over the
     /// visible cells' voxels (about 7 ms on the teapot, more on a large field where every
     /// cell is visible) and save time per sample marched: a 768² DVR repays them many times,

@@ -54,7 +54,7 @@ pub fn generate(
 /// a VDI of tens of MB in fresh memory costs a page fault per 4 KiB (the teapot at r = 768,
 /// 37 MB: about 9 000, a few percent of the generation time); reused memory costs none.
 /// Reused at the same resolution, the flat array keeps the room it had and no estimate of the
-/// supersegments is marched (see [`estimate_supersegments`]).
+/// supersegments is marched (see `estimate_supersegments`).
 ///
 /// # Errors
 /// As [`generate`]. `vdi` is unchanged after a parameter or camera error, and left an empty VDI

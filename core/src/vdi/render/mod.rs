@@ -17,7 +17,7 @@
 //! one supersegment that contains them.
 //!
 //! [`Walker::render`] walks the rays in packets of eight along the new image's epipolar
-//! lines ([`packet`]): the generation pixels they share are visited once, and the per-ray work
+//! lines (`packet`): the generation pixels they share are visited once, and the per-ray work
 //! (spans, occupancy tests, compositing) runs eight lanes wide. The single-ray walk below is
 //! what each lane does, and the reference the packets are tested against.
 
