@@ -5,6 +5,7 @@
 //! `--json` every line is a JSON object instead.
 
 use anyhow::{Context, Result};
+use insitu_core::json::f32_number;
 use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
@@ -104,8 +105,8 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "step": d.trigger_step,
         "from_step": d.from_step,
         "pm_version": d.pm_version,
-        "old": {"r": d.old_resolution, "gamma": insitu_core::json::f32_number(d.old_gamma)},
-        "new": {"r": d.resolution, "gamma": insitu_core::json::f32_number(d.gamma)},
+        "old": {"r": d.old_resolution, "gamma": f32_number(d.old_gamma)},
+        "new": {"r": d.resolution, "gamma": f32_number(d.gamma)},
         "characteristic_steps": d.characteristic_steps,
         "predicted": {
             "sigma_bytes": d.predicted_sigma_bytes,
@@ -125,7 +126,7 @@ pub fn report_json(r: &pb::QualityReport) -> serde_json::Value {
         "step": r.step,
         "rank": r.rank,
         "r": r.resolution,
-        "gamma": insitu_core::json::f32_number(r.gamma),
+        "gamma": f32_number(r.gamma),
         "pm_version": r.pm_version,
         "sigma_bytes": r.sigma_bytes,
         "tau_s": r.tau_secs,

@@ -426,28 +426,22 @@ impl Loop {
         } else {
             0
         };
-        let why = match self.over_budget(p) {
-            Some(Break::Size(why)) => Some(why),
+        // The reason, if any, and the run of slow steps left behind (none after a re-tuning).
+        let (why, run) = match self.over_budget(p) {
+            Some(Break::Size(why)) => (Some(why), 0),
             Some(Break::Time(why)) => {
-                let n = streak + 1;
-                let needed = self.engine.cfg.time_breaks;
-                self.slow = (version, n);
-                (n >= needed).then(|| {
-                    if needed > 1 {
-                        format!("{why}, {n} steps in a row")
-                    } else {
-                        why
-                    }
-                })
+                let (n, needed) = (streak + 1, self.engine.cfg.time_breaks);
+                if n < needed {
+                    (None, n)
+                } else if needed > 1 {
+                    (Some(format!("{why}, {n} steps in a row")), 0)
+                } else {
+                    (Some(why), 0)
+                }
             }
-            None => {
-                self.slow = (version, 0);
-                None
-            }
+            None => (None, 0),
         };
-        if why.is_some() {
-            self.slow = (version, 0);
-        }
+        self.slow = (version, run);
         why
     }
 
