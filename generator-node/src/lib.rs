@@ -18,6 +18,7 @@ pub mod queue;
 pub mod scene;
 pub mod service;
 pub mod ship;
+pub mod spare;
 pub mod spool;
 pub mod stats;
 pub mod tuning;

@@ -17,7 +17,7 @@ use insitu_proto::transport;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -183,7 +183,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         begun: Default::default(),
         spool,
         epoch: new_epoch(),
-        spare_field: Mutex::new(None),
+        spare_fields: Default::default(),
         pool: worker_pool(cfg.threads)?,
         scene,
     });
@@ -352,7 +352,7 @@ async fn worker(shared: Arc<Shared>) {
                 let for_tuner = if s.tuning.as_ref().is_some_and(|t| t.connected()) {
                     Some(work::for_tuner(raw, &gen, &tf, &product))
                 } else {
-                    *s.spare_field.lock().unwrap_or_else(|e| e.into_inner()) = Some(raw.field);
+                    s.spare_fields.put(raw.field);
                     None
                 };
                 Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))

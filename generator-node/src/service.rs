@@ -10,7 +10,7 @@ use insitu_core::{TransferFunction, VdiParams};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb};
 use insitu_proto::pb::generator_server::Generator;
 use insitu_proto::{chunk, pb};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
 use tonic::{Request, Response, Status, Streaming};
 use tracing::{info, info_span, Instrument};
@@ -52,9 +52,9 @@ pub struct Shared {
     pub scene: Option<Arc<crate::scene::SceneLink>>,
     /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
     pub pool: Option<Arc<rayon::ThreadPool>>,
-    /// The last generated step's field, when nothing else holds it: the next push is received
-    /// into its memory (at most one field beyond what the queue counts).
-    pub spare_field: Mutex<Option<insitu_core::Volume>>,
+    /// Fields of settled steps (generated or dropped): the next pushes are received into
+    /// their memory (at most [`crate::spare::MAX_SPARE_FIELDS`] beyond what the queue counts).
+    pub spare_fields: crate::spare::SpareFields,
 }
 
 impl Shared {
@@ -113,12 +113,7 @@ impl Shared {
             self.max_step_bytes,
             |h: &pb::StepHeader| {
                 let info = check_header(h)?;
-                let spare = self
-                    .spare_field
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .take();
-                Ok((info, info.assembler(spare)))
+                Ok((info, info.assembler(self.spare_fields.take())))
             },
             |(_, field), bytes| field.push(bytes),
         )
@@ -175,17 +170,19 @@ impl Shared {
             .instrument(span)
             .await
             .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
-        for d in &dropped {
+        let n_dropped = dropped.len() as u64;
+        for d in dropped {
             info!(step = d.info.step, rank = d.info.rank, policy = %self.queue.policy(), "dropped a queued step");
             self.unspool(d.spooled().as_ref());
+            self.spare_fields.put(d.field);
         }
         let mut received = 0;
         self.stats.update(|c| {
             c.received += 1;
-            c.dropped_queue += dropped.len() as u64;
+            c.dropped_queue += n_dropped;
             received = c.received;
         });
-        Ok((dropped.len() as u64, received))
+        Ok((n_dropped, received))
     }
 
     /// Removes a settled step's file from the spool (no-op without one).

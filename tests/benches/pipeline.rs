@@ -64,11 +64,12 @@ fn ingest(tmp: &std::path::Path) {
         (t.elapsed().as_secs_f64(), pushes)
     });
     println!(
-        "ingest: {pushes} pushes of {:.0} MiB in {secs:.2} s = {:.2} GB/s; generator-node RSS {:.0} MiB, peak {:.0} MiB",
+        "ingest: {pushes} pushes of {:.0} MiB in {secs:.2} s = {:.2} GB/s; generator-node RSS {:.0} MiB, peak {:.0} MiB, {} page faults",
         bytes / (1 << 20) as f64,
         pushes as f64 * bytes / secs / 1e9,
         g.rss_mib(),
-        g.peak_rss_mib()
+        g.peak_rss_mib(),
+        g.minor_faults()
     );
     g.terminate();
 }

@@ -199,6 +199,19 @@ impl Daemon {
         self.proc_status_mib("VmRSS:")
     }
 
+    /// The process's minor page faults so far (`minflt` in `/proc/PID/stat`; each one a page
+    /// the kernel handed out, zeroed, on first touch); 0 once it has exited.
+    pub fn minor_faults(&self) -> u64 {
+        let stat =
+            std::fs::read_to_string(format!("/proc/{}/stat", self.child.id())).unwrap_or_default();
+        // Fields after the command name (which may hold spaces) start at `state`, field 3;
+        // `minflt` is field 10.
+        stat.rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(10 - 3))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    }
+
     fn proc_status_mib(&self, field: &str) -> f64 {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id()))
             .unwrap_or_default();
