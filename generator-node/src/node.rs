@@ -183,7 +183,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         begun: Default::default(),
         spool,
         epoch: new_epoch(),
-        spare_fields: Default::default(),
+        spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
         pool: worker_pool(cfg.threads)?,
         scene,
     });

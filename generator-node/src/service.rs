@@ -53,7 +53,8 @@ pub struct Shared {
     /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
     pub pool: Option<Arc<rayon::ThreadPool>>,
     /// Fields of settled steps (generated or dropped): the next pushes are received into
-    /// their memory (at most [`crate::spare::MAX_SPARE_FIELDS`] beyond what the queue counts).
+    /// their memory (beyond what the queue counts: one, and a second within the queue's
+    /// `max_bytes`; see [`crate::spare`]).
     pub spare_fields: crate::spare::SpareFields,
 }
 

@@ -6,7 +6,10 @@
 //! worker hands its field back while the next push is already being received into a fresh
 //! one, and the fields of steps the queue's policy drops (`latest-only`) used to be freed.
 //! [`SpareFields`] keeps a few, from generated and dropped steps alike. The node's resident
-//! memory therefore includes up to [`MAX_SPARE_FIELDS`] idle fields between pushes.
+//! memory therefore includes idle fields between pushes: one always (as before there were
+//! spares), a second only while both fit the byte bound the node gives (its queue's
+//! `max_bytes`, the memory the operator set aside for waiting steps), so that large bricks do
+//! not double what a node holds idle.
 
 use insitu_core::Volume;
 use std::sync::Mutex;
@@ -15,16 +18,32 @@ use std::sync::Mutex;
 pub const MAX_SPARE_FIELDS: usize = 2;
 
 /// A small stack of fields whose steps are settled (generated or dropped).
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct SpareFields {
     fields: Mutex<Vec<Volume>>,
+    /// Most bytes kept in more than one field.
+    max_bytes: u64,
 }
 
 impl SpareFields {
-    /// Keeps `field` for a later receive, or frees it when [`MAX_SPARE_FIELDS`] are kept.
+    /// None kept yet; beyond the first, fields are kept while all fit `max_bytes`.
+    pub fn new(max_bytes: u64) -> Self {
+        Self {
+            fields: Mutex::new(Vec::new()),
+            max_bytes,
+        }
+    }
+
+    /// Keeps `field` for a later receive: always when none is kept, else while fewer than
+    /// [`MAX_SPARE_FIELDS`] are kept and all fit the byte bound; otherwise frees it.
     pub fn put(&self, field: Volume) {
         let mut fields = self.fields.lock().unwrap_or_else(|e| e.into_inner());
-        if fields.len() < MAX_SPARE_FIELDS {
+        let bytes = |v: &Volume| v.storage_bytes() as u64;
+        let kept: u64 = fields.iter().map(bytes).sum();
+        if fields.is_empty()
+            || (fields.len() < MAX_SPARE_FIELDS
+                && kept.saturating_add(bytes(&field)) <= self.max_bytes)
+        {
             fields.push(field);
         }
     }
@@ -55,7 +74,7 @@ mod tests {
 
     #[test]
     fn keeps_at_most_the_bound_and_gives_the_last_kept_first() {
-        let spares = SpareFields::default();
+        let spares = SpareFields::new(u64::MAX);
         assert!(spares.take().is_none());
         for v in 0..=MAX_SPARE_FIELDS {
             spares.put(field(v as f32));
@@ -66,5 +85,30 @@ mod tests {
             assert_eq!(f.data()[0], v as f32, "the one kept last comes first");
         }
         assert!(spares.is_empty());
+    }
+
+    #[test]
+    fn keeps_a_second_field_only_within_the_byte_bound() {
+        // Each test field holds 8 f32 voxels: 32 bytes.
+        let one = field(1.0).storage_bytes() as u64;
+        let tight = SpareFields::new(one);
+        tight.put(field(1.0));
+        tight.put(field(2.0));
+        assert_eq!(
+            tight.len(),
+            1,
+            "one field is always kept, a second only within the bound"
+        );
+        assert_eq!(tight.take().expect("kept").data()[0], 1.0);
+
+        let roomy = SpareFields::new(2 * one);
+        roomy.put(field(1.0));
+        roomy.put(field(2.0));
+        assert_eq!(
+            roomy.len(),
+            2,
+            "two fields of {one} bytes fit {} bytes",
+            2 * one
+        );
     }
 }
