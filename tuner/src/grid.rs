@@ -48,6 +48,9 @@ impl Default for ParamGrid {
     }
 }
 
+/// Most values one `START:END:STEP` range may give.
+const MAX_VALUES: usize = 100_000;
+
 fn range_f64(what: &'static str, spec: &str) -> Result<Vec<f64>, GridError> {
     let err = |problem: &str| GridError::Range {
         what,
@@ -64,11 +67,14 @@ fn range_f64(what: &'static str, spec: &str) -> Result<Vec<f64>, GridError> {
         if !(a.is_finite() && b.is_finite() && step.is_finite() && step > 0.0 && b >= a) {
             return Err(err("need START ≤ END and STEP > 0"));
         }
-        let n = ((b - a) / step + 1e-9).floor() as usize + 1;
-        if n > 100_000 {
-            return Err(err("more than 100000 values"));
+        // Counted in f64 and bounded before the conversion: a huge END / STEP (1e300, or
+        // more values than a usize holds; infinite, never NaN, as the operands are finite and
+        // STEP > 0) is refused, not saturated into an overflow.
+        let n = ((b - a) / step + 1e-9).floor() + 1.0;
+        if n > MAX_VALUES as f64 {
+            return Err(err(&format!("more than {MAX_VALUES} values")));
         }
-        (0..n).map(|i| a + step * i as f64).collect()
+        (0..n as usize).map(|i| a + step * i as f64).collect()
     } else {
         spec.split(',').map(num).collect::<Result<_, _>>()?
     };
@@ -165,6 +171,20 @@ mod tests {
         assert_eq!(
             ParamGrid::parse("64,32,64", "0.1,0.05").unwrap().rs,
             vec![32, 64]
+        );
+    }
+
+    /// A range with more values than a `usize` holds (found by the `configs` fuzz target) and
+    /// one just past the bound are refused with the bound named; one at the bound parses.
+    #[test]
+    fn ranges_beyond_the_bound_are_refused_not_overflowed() {
+        for spec in ["0.001:1.1e56:0.008", "0.001:1e300:1e-300", "0:100000:1"] {
+            let e = ParamGrid::parse("64", spec).unwrap_err().to_string();
+            assert!(e.contains("more than 100000 values"), "{spec}: {e}");
+        }
+        assert_eq!(
+            ParamGrid::parse("64", "0:99999:1").unwrap().gammas.len(),
+            MAX_VALUES
         );
     }
 }
