@@ -19,7 +19,13 @@ Run through bench/vtk_compare.sh, which makes the venv. The conventions match DE
 - sampling: VTK's sample distance 0.5 (automatic adjustment off), image sample distance 1;
   ours --step 0.5 (the default); both stop a ray at opacity 0.99 (ours by default, VTK's
   fixed-point mapper at its built-in 0.99..1 cut-off);
-- background black; images compared as 8-bit RGB, row 0 at the top.
+- background black; images compared as 8-bit RGB, row 0 at the top;
+- a time series (the ocean): its first step on both sides (insitu's `--t` defaults to 0);
+- NaN (the ocean's land): missing and transparent for insitu (DESIGN.md), so a sample with a
+  NaN corner adds nothing; VTK's fixed-point mapper takes NaN as the bottom of the range (the
+  same image as with NaN replaced by the minimum), which its opacity ramp makes transparent
+  but which still blends into its neighbours' samples. The two images therefore differ along
+  the coasts (about 33 dB), by convention, not by a camera or TF mismatch.
 """
 
 import argparse

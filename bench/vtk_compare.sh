@@ -7,8 +7,9 @@
 #   bench/vtk_compare.sh --runs 9              # the same, 9 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
-#   bench/vtk_compare.sh --suite --runs 7      # the eight views of the README's table (the four
-#                                              # shared volumes at 30° and 10°), then the table
+#   bench/vtk_compare.sh --suite --runs 7      # the ten views of the README's table (the five
+#                                              # shared volumes at 30° and 10°; the ocean's first
+#                                              # time step), then the table
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=bench/.venv
@@ -25,7 +26,8 @@ if [ "${1:-}" = "--suite" ]; then
   table=$(mktemp)
   for angle in 30 10; do
     for v in "teapot_256x256x178_uint8.raw teapot.json" "hydrogen_64x64x64_float32.raw hydrogen.json" \
-             "neghip_66x66x66_uint8.raw" "stent_128x128x256_int16.raw"; do
+             "neghip_66x66x66_uint8.raw" "stent_128x128x256_int16.raw" \
+             "ocean_temp_ts_180x90x19x12_float32.raw"; do
       set -- $v
       tf=()
       [ -n "${2:-}" ] && tf=(--tf "$tfs/$2")
