@@ -49,8 +49,9 @@ fn timed(state: &serde_json::Value) -> Vec<(u64, f64, f64)> {
 }
 
 /// A time budget is searched adaptively too: the decision arrives after a fraction of the
-/// grid's trials, most of them size probes, and meets the budget (less the headroom) on every
-/// step it was tuned on, as its persisted trials timed it.
+/// grid's trials (each r probed on each characteristic step, then a bisection over γ), and
+/// meets the budget (less the headroom) on every step it was tuned on, as its persisted trials
+/// timed it.
 #[test]
 fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
     // In these debug-profile daemons, beside the replay, size probes of an ocean step took
@@ -81,13 +82,18 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
         let trial = decision_trial(&state, *step, &d);
         assert!(trial["measurement"]["tau_secs"].as_f64().unwrap() < plan);
     }
-    // The grid is 4 r × 17 γ per characteristic step.
-    let grid = 68 * s.characteristic_steps.len() as u64;
+    // The grid is 4 r × 17 γ per characteristic step. How the trials split between probes and
+    // the bisection depends on how many r meet the budget on this machine: where all four do
+    // (stop 44's Zen-5 VM), 4 probes and 4 bisection trials a step, an even split; so only
+    // that probes ran on every characteristic step is asserted of them.
+    let steps = s.characteristic_steps.len() as u64;
+    let grid = 68 * steps;
     assert!(
-        s.trials_run * 2 < grid && s.size_probes * 2 > s.trials_run,
-        "{} trials ({} size probes) for a grid of {grid}: {s:?}",
+        s.trials_run * 2 < grid && s.size_probes >= steps,
+        "{} trials ({} size probes) for a grid of {grid}: {s:?}; (r, γ, τ) timed: {:?}",
         s.trials_run,
-        s.size_probes
+        s.size_probes,
+        timed(&state)
     );
     eprintln!(
         "ocean, time:{BUDGET_SECS}: decision v{} r {} γ {} on steps {:?} (predicted τ {:.4} s, q {:.2} dB); {} trials of which {} size probes, grid {grid}",
