@@ -54,13 +54,9 @@ impl SpareFields {
     }
 
     /// How many are kept now.
-    pub fn len(&self) -> usize {
+    #[cfg(test)]
+    fn len(&self) -> usize {
         self.fields.lock().unwrap_or_else(|e| e.into_inner()).len()
-    }
-
-    /// Whether none is kept.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 }
 
@@ -84,7 +80,7 @@ mod tests {
             let f = spares.take().expect("a spare is kept");
             assert_eq!(f.data()[0], v as f32, "the one kept last comes first");
         }
-        assert!(spares.is_empty());
+        assert_eq!(spares.len(), 0);
     }
 
     #[test]

@@ -33,15 +33,13 @@ fn timed(state: &serde_json::Value) -> Vec<(u64, f64, f64)> {
         let gamma = c["gamma"].as_f64().unwrap_or(f64::NAN);
         (r, gamma, tau.as_f64().unwrap_or(f64::NAN) * 1e3)
     };
-    let list = |key: &str| state[key].as_array().cloned().unwrap_or_default();
+    let list = |key: &str| state[key].as_array().map_or(&[][..], Vec::as_slice);
     // A probe's sizing is flattened into it; a trial's candidate and sizing are its measurement.
-    let probes = list("size_probes");
-    let trials = list("trials");
-    probes
+    list("size_probes")
         .iter()
         .map(|p| row(&p["candidate"], &p["tau_secs"]))
         .chain(
-            trials
+            list("trials")
                 .iter()
                 .map(|t| row(&t["measurement"], &t["measurement"]["tau_secs"])),
         )
