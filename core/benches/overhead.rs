@@ -1,7 +1,9 @@
 //! VDI generation's cost over the reference DVR pass, the target of issue 3: generation at
 //! r = 768 ≤ 1.15× the DVR at 768² (teapot, step 0.5, `../shared/tf/teapot.json`), for
 //! γ = 0.013 and, to show what a finer γ costs, 0.001 and 0.26; generating into the previous
-//! VDI (`generate_into`, as the generator-node does step after step) is timed as well.
+//! VDI (`generate_into`, as the generator-node does step after step) is timed as well. First,
+//! the floor under those ratios: generation's march alone (its rays to the box exit, every
+//! sample handed to a visitor that only counts it), which no change to the merge can go below.
 //!
 //! A bench binary rather than criterion: on a shared machine both passes drift by tens of
 //! percent within minutes, and a ratio of two separately timed criterion groups carries that
@@ -11,10 +13,13 @@
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 
+use insitu_core::raycast::Coverage;
 use insitu_core::vdi::generate::{generate, generate_into};
 use insitu_core::vdi::VdiParams;
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster};
+use rayon::prelude::*;
 use std::hint::black_box;
+use std::ops::ControlFlow;
 use std::time::Instant;
 
 mod common;
@@ -38,6 +43,43 @@ fn quartiles(mut v: Vec<f64>) -> [f64; 3] {
     [at(0.25), at(0.5), at(0.75)]
 }
 
+/// Runs `passes` (the first the DVR) once each to warm up, then `rounds` times back to back,
+/// the order rotating, and prints each pass's quartiles and each later pass's ratio to the
+/// DVR of the same round.
+fn compare(rounds: usize, passes: &mut [Pass]) {
+    for (_, pass) in passes.iter_mut() {
+        pass();
+    }
+    let n = passes.len();
+    let mut ms = vec![Vec::new(); n];
+    let mut ratios = vec![Vec::new(); n];
+    for k in 0..rounds {
+        let mut s = vec![0.0; n];
+        for m in 0..n {
+            let p = (k + m) % n;
+            s[p] = (passes[p].1)();
+        }
+        for p in 0..n {
+            ms[p].push(s[p] * 1e3);
+            ratios[p].push(s[p] / s[0]);
+        }
+    }
+    for (p, (times, ratios)) in ms.into_iter().zip(ratios).enumerate() {
+        let [a, b, c] = quartiles(times);
+        let ratio = match p {
+            0 => String::new(),
+            _ => {
+                let [r1, r2, r3] = quartiles(ratios);
+                format!("   ×DVR {r1:.3} / {r2:.3} / {r3:.3}")
+            }
+        };
+        println!(
+            "  {:<30} {a:7.1} / {b:7.1} / {c:7.1} ms{ratio}",
+            passes[p].0
+        );
+    }
+}
+
 fn main() {
     let (volume, tf) = match common::teapot() {
         Ok(scene) => scene,
@@ -58,6 +100,43 @@ fn main() {
         "teapot {SIZE}², step 0.5, r = {SIZE}, {} threads, {rounds} rounds (q1 / median / q3)",
         rayon::current_num_threads()
     );
+    // What no merge can take off: generation's march alone, its rays run to the box exit
+    // (generation termination off, the default) handing every sample to a visitor that only
+    // counts it. Generation at γ = 0.013 must fit its merge, its closes and its lists into
+    // what is left of 1.15× above this.
+    let frame = cam.frame(SIZE, SIZE);
+    let coverage = Coverage::new(&rc, &frame);
+    let march_alone = || {
+        (0..SIZE)
+            .into_par_iter()
+            .map(|j| {
+                let mut samples = 0u64;
+                for i in (0..SIZE).filter(|&i| coverage.covers(i, j)) {
+                    rc.march(&frame.pixel_ray(i, j), |_| {
+                        samples += 1;
+                        ControlFlow::Continue(())
+                    });
+                }
+                samples
+            })
+            .sum::<u64>()
+    };
+    let samples = march_alone();
+    println!(
+        "generation's march alone (rays to the box exit, {samples} samples handed over, no merge)"
+    );
+    let mut passes: [Pass; 2] = [
+        ("DVR", Box::new(dvr_pass)),
+        (
+            "march alone",
+            Box::new(|| {
+                seconds(|| {
+                    black_box(march_alone());
+                })
+            }),
+        ),
+    ];
+    compare(rounds, &mut passes);
     for gamma in [0.013, 0.001, 0.26] {
         let params = VdiParams {
             resolution: SIZE,
@@ -65,6 +144,10 @@ fn main() {
         };
         let fresh = || generate(&rc, &cam, params, 0, "teapot").expect("valid");
         let mut spare = fresh();
+        println!(
+            "γ = {gamma} ({} supersegments)",
+            spare.supersegments().len()
+        );
         let mut passes: [Pass; 3] = [
             ("DVR", Box::new(dvr_pass)),
             (
@@ -80,39 +163,7 @@ fn main() {
                 }),
             ),
         ];
-        for (_, pass) in passes.iter_mut() {
-            pass();
-        }
-        // Back to back, the order rotating; ratios within each round.
-        let mut ms: [Vec<f64>; 3] = Default::default();
-        let mut ratios: [Vec<f64>; 2] = Default::default();
-        for k in 0..rounds {
-            let mut s = [0.0; 3];
-            for n in 0..3 {
-                let p = (k + n) % 3;
-                s[p] = (passes[p].1)();
-            }
-            for p in 0..3 {
-                ms[p].push(s[p] * 1e3);
-            }
-            ratios[0].push(s[1] / s[0]);
-            ratios[1].push(s[2] / s[0]);
-        }
-        println!("γ = {gamma}");
-        for (p, times) in ms.into_iter().enumerate() {
-            let [a, b, c] = quartiles(times);
-            let ratio = match p {
-                0 => String::new(),
-                _ => {
-                    let [r1, r2, r3] = quartiles(std::mem::take(&mut ratios[p - 1]));
-                    format!("   ×DVR {r1:.3} / {r2:.3} / {r3:.3}")
-                }
-            };
-            println!(
-                "  {:<30} {a:7.1} / {b:7.1} / {c:7.1} ms{ratio}",
-                passes[p].0
-            );
-        }
+        compare(rounds, &mut passes);
     }
     println!("(target: generation ≤ 1.15 × DVR at γ = 0.013)");
 }
