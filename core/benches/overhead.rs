@@ -13,7 +13,7 @@
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 
-use insitu_core::raycast::Coverage;
+use insitu_core::raycast::{Coverage, Sample};
 use insitu_core::vdi::generate::{generate, generate_into};
 use insitu_core::vdi::VdiParams;
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster};
@@ -102,36 +102,60 @@ fn main() {
     );
     // What no merge can take off: generation's march alone, its rays run to the box exit
     // (generation termination off, the default) handing every sample to a visitor that only
-    // counts it. Generation at γ = 0.013 must fit its merge, its closes and its lists into
-    // what is left of 1.15× above this.
+    // counts it (the marcher computes only what the visitor reads), then to one that stores
+    // each whole sample (a 64-entry ring, overwritten: what generation must read of every
+    // sample, at the cost of one store). Generation at γ = 0.013 must fit its merge, its
+    // closes and its lists into what is left of 1.15× above these.
     let frame = cam.frame(SIZE, SIZE);
     let coverage = Coverage::new(&rc, &frame);
-    let march_alone = || {
+    let march_alone = |store: bool| {
         (0..SIZE)
             .into_par_iter()
             .map(|j| {
+                let mut ring = [Sample {
+                    index: 0,
+                    t_start: 0.0,
+                    t_end: 0.0,
+                    len: 0.0,
+                    rgb: [0.0; 3],
+                    alpha_unit: 0.0,
+                    kappa: 0.0,
+                    alpha: 0.0,
+                }; 64];
                 let mut samples = 0u64;
                 for i in (0..SIZE).filter(|&i| coverage.covers(i, j)) {
-                    rc.march(&frame.pixel_ray(i, j), |_| {
+                    rc.march(&frame.pixel_ray(i, j), |s| {
+                        if store {
+                            ring[samples as usize % 64] = *s;
+                        }
                         samples += 1;
                         ControlFlow::Continue(())
                     });
                 }
+                black_box(&ring);
                 samples
             })
             .sum::<u64>()
     };
-    let samples = march_alone();
+    let samples = march_alone(false);
     println!(
         "generation's march alone (rays to the box exit, {samples} samples handed over, no merge)"
     );
-    let mut passes: [Pass; 2] = [
+    let mut passes: [Pass; 3] = [
         ("DVR", Box::new(dvr_pass)),
         (
-            "march alone",
+            "march, samples counted",
             Box::new(|| {
                 seconds(|| {
-                    black_box(march_alone());
+                    black_box(march_alone(false));
+                })
+            }),
+        ),
+        (
+            "march, samples stored",
+            Box::new(|| {
+                seconds(|| {
+                    black_box(march_alone(true));
                 })
             }),
         ),
