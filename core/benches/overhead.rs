@@ -3,7 +3,8 @@
 //! γ = 0.013 and, to show what a finer γ costs, 0.001 and 0.26; generating into the previous
 //! VDI (`generate_into`, as the generator-node does step after step) is timed as well. First,
 //! the floor under those ratios: generation's march alone (its rays to the box exit, every
-//! sample handed to a visitor that only counts it), which no change to the merge can go below.
+//! sample handed to a visitor that only counts it, then to one that stores it), which no
+//! change to the merge can go below.
 //!
 //! A bench binary rather than criterion: on a shared machine both passes drift by tens of
 //! percent within minutes, and a ratio of two separately timed criterion groups carries that
