@@ -3,6 +3,7 @@
 use crate::output::write_png;
 use crate::scene::SceneArgs;
 use anyhow::Result;
+use insitu_core::backend::TimeSource;
 use insitu_core::Raycaster;
 use std::path::PathBuf;
 
@@ -43,16 +44,19 @@ pub fn run(a: Args) -> Result<()> {
     }
     let repeated = super::warm_median(again);
     write_png(&a.out, &image.value)?;
+    // The whole call's wall time only where the time reported is another (GPU timestamps).
+    let source = match image.source {
+        TimeSource::WallClock => image.source.to_string(),
+        other => format!("{other}; {:.3} s wall", image.wall_s),
+    };
     println!(
-        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({}; {:.3} s wall){repeated} -> {}",
+        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({source}){repeated} -> {}",
         scene.volume_name,
         w,
         h,
         a.angle,
         scene.params.step,
         image.seconds,
-        image.source,
-        image.wall_s,
         a.out.display()
     );
     Ok(())
