@@ -71,6 +71,7 @@ impl SceneArgs {
         } else {
             self.load_raw(source)?
         };
+        warn_if_flat(source, &volume);
         let tf_name;
         let tf = match &self.tf {
             Some(path) => {
@@ -153,6 +154,25 @@ impl SceneArgs {
     /// The generation camera: the default view of the volume box.
     pub fn camera(scene: &Scene) -> Camera {
         Camera::default_for_box(&scene.volume.world_box())
+    }
+}
+
+/// Warns when `volume` is one voxel thick along an axis: its box spans `(n − 1)·s` there
+/// (DESIGN.md, "Volume"), so it has no depth, rays cross nothing, and every image and VDI of
+/// it is empty — right by the convention, but a black image should not come unexplained.
+fn warn_if_flat(source: &str, volume: &Volume) {
+    let flat: Vec<&str> = ["x", "y", "z"]
+        .into_iter()
+        .zip(volume.dims())
+        .filter(|&(_, n)| n == 1)
+        .map(|(axis, _)| axis)
+        .collect();
+    if !flat.is_empty() {
+        tracing::warn!(
+            "{source} is one voxel thick along {}: its box spans (n − 1) × spacing there, so it \
+             has no depth and renders empty; give it two or more slices",
+            flat.join(" and ")
+        );
     }
 }
 

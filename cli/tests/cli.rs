@@ -391,6 +391,46 @@ fn own_data_flags_read_the_file_as_its_name_would() {
     );
 }
 
+/// A volume one voxel thick has a flat box (DESIGN.md: `(n − 1)·s` per axis), so its image is
+/// empty; the command says why instead of writing a black image unexplained, and a volume
+/// two voxels thick renders without the warning.
+#[test]
+fn a_flat_volume_renders_empty_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let slab = |z: usize| -> Vec<u8> { (0..6 * 5 * z).map(|i| (40 + i % 200) as u8).collect() };
+    std::fs::write(d.join("flat_6x5x1_uint8.raw"), slab(1)).unwrap();
+    std::fs::write(d.join("thick_6x5x2_uint8.raw"), slab(2)).unwrap();
+    let render = |volume: &str, out: &str| {
+        let o = insitu(
+            &[
+                "render",
+                "--volume",
+                volume,
+                "--size",
+                "16",
+                "--backend",
+                "cpu",
+                "--out",
+                out,
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{volume}: {}", stderr(&o));
+        let pixels = image::open(d.join(out)).unwrap().to_rgb8();
+        (stderr(&o), pixels.pixels().any(|p| p.0 != [0, 0, 0]))
+    };
+    let (said, lit) = render("flat_6x5x1_uint8.raw", "flat.png");
+    assert!(!lit, "a flat box has no depth to composite");
+    assert!(
+        said.contains("flat_6x5x1_uint8.raw is one voxel thick along z"),
+        "{said}"
+    );
+    let (said, lit) = render("thick_6x5x2_uint8.raw", "thick.png");
+    assert!(lit, "two slices have depth");
+    assert!(!said.contains("one voxel thick"), "{said}");
+}
+
 /// The accuracy knobs reach the marcher: `--generation-termination 0.3` stops generation
 /// rays early, so the VDI holds fewer supersegments than with `off`; `--termination 0.3`
 /// and `--shading` change the direct rendering; values outside (0, 1] are refused, naming
