@@ -365,7 +365,7 @@ async fn worker(shared: Arc<Shared>) {
             Ok(Ok((product, tf, vdi, for_tuner))) => {
                 spare = Some(vdi);
                 if let Some(t) = &shared.tuning {
-                    t.after_step(for_tuner);
+                    t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);
                 shared.stats.update(|c| c.generated += 1);

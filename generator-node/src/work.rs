@@ -208,6 +208,8 @@ pub fn for_tuner(
         sigma_bytes: product.vdi_header.total_bytes,
         tau_secs: product.vdi_header.tau_secs,
         sampled: product.references.is_some(),
+        // Set when it is sent (`Tuning::after_step`).
+        begun: 0,
     };
     let held = crate::hold::HeldStep {
         camera: gen.camera_for(&raw.info),

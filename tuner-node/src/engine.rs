@@ -14,12 +14,13 @@ use crate::state::{Decision, State};
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
+use insitu_tuner::control::{Controller, Observation, Plan};
 use insitu_tuner::live::{normalise, Verdict};
 use insitu_tuner::series::BINS;
 use insitu_tuner::utility::UtilitySpec;
 use insitu_tuner::Candidate;
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
@@ -63,8 +64,12 @@ pub struct Counters {
     pub trial_secs: f64,
     /// Tunings started.
     pub retunes: u64,
-    /// Decisions made by this process.
+    /// Decisions made by this process (tunings' and corrections).
     pub decisions: u64,
+    /// Of `decisions`, corrections between tunings (closed-loop control).
+    pub corrections: u64,
+    /// Tunings cut short for a newer characteristic step.
+    pub tunings_superseded: u64,
     /// Tunings that found no candidate within the budget on every characteristic step.
     pub tunings_infeasible: u64,
     /// Whether a tuning runs.
@@ -90,40 +95,64 @@ pub struct Engine {
     pub stopping: AtomicBool,
     /// The newest step summarised by any node and the stride of the step indices.
     pub(crate) progress: Mutex<Progress>,
+    /// The closed-loop controller: production steps in, corrections and forecasts out.
+    pub(crate) control: Mutex<Controller>,
+    /// Set when a newer characteristic step overtakes the running tuning: it gives up at its
+    /// next trial, and the tuning over the newer set starts (its trials so far are kept).
+    pub(crate) superseded: AtomicBool,
     events: mpsc::Sender<Event>,
 }
 
-/// How far the nodes have come: the newest step summarised by any node, and the stride of
-/// the step indices (a simulation may push every n-th step).
+/// How far the nodes have come: the newest step summarised by any node, the stride of the step
+/// indices (a simulation may push every n-th step), and for the newest step the first step
+/// index its nodes had not begun (`StepSummary.begun`) and how many nodes summarised it.
 #[derive(Debug, Default)]
 pub(crate) struct Progress {
     newest: Option<u64>,
     stride: u64,
+    begun: u64,
+    nodes: Vec<u64>,
 }
 
 impl Progress {
-    /// Records a summarised step; returns the newest.
-    fn saw(&mut self, step: u64) -> u64 {
+    /// Records a summarised step from connection `conn`, whose node had not begun step
+    /// `begun` (0: unknown); returns the newest step.
+    fn saw(&mut self, step: u64, begun: u64, conn: u64) -> u64 {
         match self.newest {
-            Some(n) if step <= n => n,
+            Some(n) if step < n => return n,
+            Some(n) if step == n => {}
             n => {
                 if let Some(n) = n {
                     self.stride = step - n;
                 }
                 self.newest = Some(step);
-                step
+                self.begun = 0;
+                self.nodes.clear();
             }
         }
+        self.begun = self.begun.max(begun);
+        if !self.nodes.contains(&conn) {
+            self.nodes.push(conn);
+        }
+        step
     }
 
-    /// The first step a decision made now applies from (`PmDecision.from_step`): two strides
-    /// past the newest step summarised, which covers a node that has begun the next step but
-    /// not yet summarised it (it applies a decision only from a step it has not begun); 0
-    /// before any summary.
+    /// The first step a decision made now applies from (`PmDecision.from_step`): the first
+    /// step on the stride past the newest step summarised and past every step its nodes had
+    /// begun, one stride further when several nodes summarised it (one may begin the next
+    /// step before the decision reaches it; a node applies a decision only from a step it
+    /// has not begun, so all must agree on one no node can have begun). Without `begun`
+    /// (older nodes) two strides past the newest step. 0 before any summary.
     pub(crate) fn decision_start(&self) -> u64 {
-        self.newest.map_or(0, |n| {
-            n.saturating_add(self.stride.max(1).saturating_mul(2))
-        })
+        let Some(n) = self.newest else { return 0 };
+        let stride = self.stride.max(1);
+        let strides = if self.begun == 0 {
+            2
+        } else {
+            let past = self.begun.saturating_sub(n).max(1).div_ceil(stride);
+            past + u64::from(self.nodes.len() > 1)
+        };
+        n.saturating_add(stride.saturating_mul(strides))
     }
 }
 
@@ -145,6 +174,8 @@ pub fn decision_pb(d: &Decision) -> pb::PmDecision {
         trigger_step: d.trigger_step,
         utility: d.utility.clone(),
         from_step: d.from_step,
+        corrects_version: d.corrects.unwrap_or(0),
+        forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
     }
 }
 
@@ -161,8 +192,6 @@ impl Engine {
             .map_or(0, |d| d.as_millis() as u64);
         (
             Arc::new(Self {
-                cfg,
-                resolved,
                 state: Mutex::new(state),
                 hub: Arc::new(Hub::default()),
                 counters: Mutex::new(Counters::default()),
@@ -173,7 +202,15 @@ impl Engine {
                 reported: Mutex::new(None),
                 stopping: AtomicBool::new(false),
                 progress: Mutex::new(Progress::default()),
+                control: Mutex::new(Controller::new(
+                    resolved.budgets,
+                    cfg.headroom,
+                    resolved.grid.clone(),
+                )),
+                superseded: AtomicBool::new(false),
                 events,
+                cfg,
+                resolved,
             }),
             rx,
         )
@@ -192,6 +229,37 @@ impl Engine {
 
     pub(crate) fn counters(&self) -> std::sync::MutexGuard<'_, Counters> {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub(crate) fn control(&self) -> std::sync::MutexGuard<'_, Controller> {
+        self.control.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The first step a decision made now applies from (see [`Progress::decision_start`]).
+    pub(crate) fn decision_start(&self) -> u64 {
+        self.progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .decision_start()
+    }
+
+    /// Records `d` as the decision in force (persisted), counts it and pushes it to every
+    /// node and subscriber.
+    pub(crate) fn publish(&self, d: Decision) {
+        {
+            let mut s = self.state();
+            s.decisions.push(d.clone());
+            self.save(&s);
+        }
+        {
+            let mut c = self.counters();
+            c.decisions += 1;
+            c.corrections += u64::from(d.corrects.is_some());
+        }
+        let m = decision_pb(&d);
+        info!(pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, forecast = ?d.forecast_ratio, trials = d.trials, trial_secs = d.trial_secs, reason = %d.reason, "new P_M");
+        self.hub.broadcast(&Down::Decision(m.clone()));
+        let _ = self.decisions.send(m);
     }
 
     /// Every new decision.
@@ -232,6 +300,8 @@ impl Engine {
             tuning: c.tuning,
             size_probes: c.size_probes,
             tunings_infeasible: c.tunings_infeasible,
+            corrections: c.corrections,
+            tunings_superseded: c.tunings_superseded,
             sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
             tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
             q_target_db: match UtilitySpec::parse(&self.cfg.utility) {
@@ -286,7 +356,20 @@ struct Pending {
     sigma_bytes: u64,
     tau_secs: f64,
     pm_version: u64,
+    /// The `P_M` the production VDIs were made with (the first rank's).
+    candidate: Candidate,
     sampled: bool,
+}
+
+impl Pending {
+    /// The step's production σ and τ (σ summed over its ranks, τ of the slowest).
+    fn sizing(&self) -> insitu_core::evaluate::Sizing {
+        insitu_core::evaluate::Sizing {
+            sigma_bytes: self.sigma_bytes,
+            tau_secs: self.tau_secs,
+            ..Default::default()
+        }
+    }
 }
 
 /// A step waiting for its q reports before its fields are released.
@@ -316,6 +399,9 @@ struct Loop {
     /// The P_M version of the last production step checked against the budget, and how many
     /// steps made with it in a row ended with one whose τ broke τ_target.
     slow: (u64, u32),
+    /// Whether the last tuning was cut short for a newer step (the next one is not: a field
+    /// that changes character at every step would otherwise never be tuned for).
+    cut_last: bool,
 }
 
 /// How a production step broke the budget.
@@ -354,6 +440,12 @@ impl Loop {
         if s.held {
             e.hub.held(conn, s.step, s.rank);
         }
+        // Progress first: a decision made for this step applies past it.
+        let newest = e
+            .progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .saw(s.step, s.begun, conn);
         let p = self.pending.entry(s.step).or_insert(Pending {
             world_size: s.world_size,
             counts: [0; BINS],
@@ -361,6 +453,10 @@ impl Loop {
             sigma_bytes: 0,
             tau_secs: 0.0,
             pm_version: s.pm_version,
+            candidate: Candidate {
+                r: s.resolution,
+                gamma: s.gamma,
+            },
             sampled: s.sampled,
         });
         for (c, &n) in p.counts.iter_mut().zip(&s.histogram) {
@@ -374,11 +470,6 @@ impl Loop {
                 self.complete(s.step, p);
             }
         }
-        let newest = e
-            .progress
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .saw(s.step);
         let stale: Vec<u64> = self
             .pending
             .keys()
@@ -460,11 +551,21 @@ impl Loop {
             .map(|d| d.pm_version)
     }
 
-    fn force(&mut self, step: u64, h: &[f64; BINS], world_size: u32, why: String) {
+    fn force(
+        &mut self,
+        step: u64,
+        h: &[f64; BINS],
+        world_size: u32,
+        production: Option<(Candidate, insitu_core::evaluate::Sizing)>,
+        why: String,
+    ) {
         let e = self.engine.clone();
         let evicted = {
             let mut s = e.state();
             let ev = s.force(step, h, world_size);
+            if let Some((c, sizing)) = production {
+                s.add_production(step, c, sizing, e.process);
+            }
             e.save(&s);
             ev
         };
@@ -479,7 +580,81 @@ impl Loop {
         }
         let reason = format!("production step {step} broke the budget ({why})");
         info!(step, %reason, "step becomes characteristic");
-        self.dirty = Some(Trigger { step, reason });
+        self.mark_dirty(Trigger { step, reason });
+    }
+
+    /// A tuning is due for `trigger`; a running one is cut short for it unless the last was.
+    fn mark_dirty(&mut self, trigger: Trigger) {
+        if self.engine.counters().tuning && !self.cut_last {
+            self.engine.superseded.store(true, Ordering::SeqCst);
+        }
+        self.dirty = Some(trigger);
+    }
+
+    /// Closed-loop control after production step `step` (all ranks in): the controller
+    /// records it and, when the `P_M` in force misses the plan for the step a decision made
+    /// now would apply from (or a finer one clears it), pushes a correction of the tuned
+    /// decision. Nothing before the first tuning, without a budget, or while no candidate of
+    /// the tuning was measured.
+    fn control(&mut self, step: u64, p: &Pending) {
+        let e = self.engine.clone();
+        let mut ctl = e.control();
+        if !ctl.active() {
+            return;
+        }
+        ctl.observe(Observation {
+            step,
+            candidate: p.candidate,
+            sigma_bytes: p.sigma_bytes,
+            tau_secs: p.tau_secs,
+        });
+        let at = e.decision_start();
+        let (tuned, current, surface, next) = {
+            let s = e.state();
+            let (Some(t), Some(c)) = (s.tuned(), s.current()) else {
+                return;
+            };
+            (
+                t.clone(),
+                c.candidate,
+                s.surface(&t.characteristic_steps),
+                s.next_version(),
+            )
+        };
+        let Some(plan) = ctl.correct(&surface, tuned.ceiling(), current, at) else {
+            return;
+        };
+        drop(ctl);
+        let k = plan.forecast;
+        let reason = format!(
+            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}",
+            k.sigma_now,
+            k.sigma,
+            (plan.sigma_bytes / 1e3).round(),
+            e.utility()
+        );
+        let q = self.q_of(&tuned.characteristic_steps, plan.candidate);
+        e.publish(Decision {
+            pm_version: next,
+            candidate: plan.candidate,
+            old: Some(current),
+            characteristic_steps: tuned.characteristic_steps.clone(),
+            predicted: planned(&plan, q),
+            reason,
+            trigger_step: step,
+            trials: 0,
+            trial_secs: 0.0,
+            utility: e.utility(),
+            from_step: at,
+            corrects: Some(tuned.pm_version),
+            tuned: None,
+            forecast_ratio: Some(k.sigma),
+        });
+    }
+
+    /// q of `c`: its worst over `steps` where it was scored on each, else NaN.
+    fn q_of(&self, steps: &[u64], c: Candidate) -> f64 {
+        q_on(&self.engine.state(), steps, c)
     }
 
     fn complete(&mut self, step: u64, p: Pending) {
@@ -489,9 +664,11 @@ impl Loop {
         if self.recent.len() > STALE_STEPS as usize {
             self.recent.pop_front();
         }
+        self.control(step, &p);
+        let production = Some((p.candidate, p.sizing()));
         if self.unforced_version() == Some(p.pm_version) {
             if let Some(why) = self.retunes(&p) {
-                self.force(step, &h, p.world_size, why);
+                self.force(step, &h, p.world_size, production, why);
                 return;
             }
         }
@@ -499,6 +676,7 @@ impl Loop {
             let mut s = e.state();
             let v = s.observe(step, &h, p.world_size);
             if matches!(v, Verdict::New { .. }) {
+                s.add_production(step, p.candidate, p.sizing(), e.process);
                 e.save(&s);
             }
             v
@@ -518,7 +696,7 @@ impl Loop {
                     ),
                 };
                 info!(step, %reason, "characteristic step");
-                self.dirty = Some(Trigger { step, reason });
+                self.mark_dirty(Trigger { step, reason });
             }
             Verdict::Alike { .. } if p.sampled && e.cfg.viz.is_some() => {
                 // Keep the field until its q is known: a q far below the prediction makes
@@ -562,12 +740,45 @@ impl Loop {
                         "q {q:.2} dB is more than {} dB below the predicted {pq:.2} dB",
                         e.cfg.q_margin_db
                     );
-                    self.force(r.step, &h, a.world_size, why);
+                    self.force(r.step, &h, a.world_size, None, why);
                     return;
                 }
             }
         }
         e.hub.hold(r.step, false);
+    }
+}
+
+/// q of `c` on `steps`: its worst where a trial scored it on each step, else NaN.
+pub(crate) fn q_on(s: &State, steps: &[u64], c: Candidate) -> f64 {
+    if steps.is_empty() {
+        return f64::NAN;
+    }
+    steps
+        .iter()
+        .map(|&step| s.trial(step, c).map(|t| t.measurement.q()))
+        .try_fold(f64::INFINITY, |lo, q| q.map(|q| lo.min(q)))
+        .unwrap_or(f64::NAN)
+}
+
+/// A plan as the predicted measurement of a decision: σ and τ forecast, q as measured (`q_db`).
+pub(crate) fn planned(p: &Plan, q_db: f64) -> insitu_tuner::Measurement {
+    insitu_tuner::Measurement {
+        r: p.candidate.r,
+        gamma: p.candidate.gamma,
+        sizing: insitu_core::evaluate::Sizing {
+            sigma_bytes: p.sigma_bytes.round() as u64,
+            tau_secs: if p.tau_secs.is_finite() {
+                p.tau_secs
+            } else {
+                0.0
+            },
+            ..Default::default()
+        },
+        tau_render_secs: 0.0,
+        q_db: insitu_core::metrics::Db(q_db),
+        view_q_db: Vec::new(),
+        ssim: None,
     }
 }
 
@@ -629,6 +840,7 @@ impl Engine {
             dirty: resume,
             deferred: Vec::new(),
             slow: (0, 0),
+            cut_last: false,
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
@@ -663,6 +875,10 @@ impl Engine {
                 done = async { match tuning.as_mut() { Some(t) => t.await.ok(), None => None } }, if tuning.is_some() => {
                     tuning = None;
                     self.counters().tuning = false;
+                    l.cut_last = self.superseded.swap(false, Ordering::SeqCst);
+                    if l.cut_last {
+                        self.counters().tunings_superseded += 1;
+                    }
                     l.tuning_ended();
                     if let Some((false, trigger)) = done {
                         let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
@@ -743,6 +959,9 @@ mod tests {
             trial_secs: 0.0,
             utility: "size".into(),
             from_step: 0,
+            corrects: None,
+            tuned: None,
+            forecast_ratio: None,
         });
         state.validated = vec![0];
         let (engine, _rx) = Engine::new(cfg, resolved, state);
@@ -754,6 +973,7 @@ mod tests {
             dirty: None,
             deferred: Vec::new(),
             slow: (0, 0),
+            cut_last: false,
         }
     }
 
@@ -906,20 +1126,31 @@ mod tests {
         assert!(r.ends_with("(τ 0.0600 s ≥ τ_target 0.05 s)"), "{r}");
     }
 
-    /// A decision applies two strides past the newest step summarised (the stride learnt from
-    /// the step indices); a late summary of an older step changes neither.
+    /// A decision applies from the first step on the stride that no node had begun when the
+    /// newest step was summarised: one stride past it when one idle node serves the world,
+    /// past the steps a node had begun, one stride more for several nodes, two strides
+    /// without the nodes' `begun`; a late summary of an older step changes nothing.
     #[test]
-    fn decisions_apply_two_strides_past_the_newest_step() {
+    fn decisions_apply_from_the_first_step_no_node_had_begun() {
         let mut p = Progress::default();
         assert_eq!(p.decision_start(), 0);
-        assert_eq!(p.saw(2000), 2000);
+        // An older node (no `begun`): two strides.
+        assert_eq!(p.saw(2000, 0, 1), 2000);
         assert_eq!(p.decision_start(), 2002);
-        assert_eq!(p.saw(2100), 2100);
+        // One node, idle after step 2100 (stride 100): the next step.
+        assert_eq!(p.saw(2100, 2101, 1), 2100);
+        assert_eq!(p.decision_start(), 2200);
+        assert_eq!(p.saw(2000, 2001, 1), 2100, "another rank's older step");
+        assert_eq!(p.decision_start(), 2200);
+        // The node had begun step 2200 already: the one after.
+        assert_eq!(p.saw(2100, 2201, 1), 2100);
         assert_eq!(p.decision_start(), 2300);
-        assert_eq!(p.saw(2000), 2100, "another rank's older step");
-        assert_eq!(p.decision_start(), 2300);
+        // Two nodes summarised step 2200, neither had begun more: one stride of margin.
+        p.saw(2200, 2201, 1);
+        p.saw(2200, 2201, 2);
+        assert_eq!(p.decision_start(), 2400);
         // Step indices are the nodes' to choose: a huge jump saturates, it does not wrap.
-        assert_eq!(p.saw(u64::MAX - 1), u64::MAX - 1);
+        assert_eq!(p.saw(u64::MAX - 1, u64::MAX, 1), u64::MAX - 1);
         assert_eq!(p.decision_start(), u64::MAX);
     }
 }

@@ -6,6 +6,7 @@
 //! versions continue.
 
 use insitu_core::evaluate::Sizing;
+use insitu_tuner::control::{Point, Surface};
 use insitu_tuner::live::{Tracker, Verdict};
 use insitu_tuner::series::BINS;
 use insitu_tuner::{Candidate, Measurement};
@@ -96,6 +97,26 @@ pub struct Decision {
     /// The first step made with it (see `PmDecision.from_step`); 0 in states written before.
     #[serde(default)]
     pub from_step: u64,
+    /// For a correction between tunings (`insitu_tuner::control`): the version of the tuned
+    /// decision it adjusts; `None` for a tuning's own decision.
+    #[serde(default)]
+    pub corrects: Option<u64>,
+    /// For a tuning's decision that was adjusted for the forecast before it was pushed: the
+    /// search's best on the characteristic steps (the finest `P_M` corrections may return to).
+    #[serde(default)]
+    pub tuned: Option<Candidate>,
+    /// Production σ over the measured σ at the same `P_M`, forecast for `from_step`; `None`
+    /// when no production step had been measured.
+    #[serde(default)]
+    pub forecast_ratio: Option<f64>,
+}
+
+impl Decision {
+    /// The finest `P_M` the controller may use under this tuning's decision: the search's
+    /// best, whether or not it was pushed as found.
+    pub fn ceiling(&self) -> Candidate {
+        self.tuned.unwrap_or(self.candidate)
+    }
 }
 
 /// Everything persisted.
@@ -151,6 +172,20 @@ impl State {
     /// The decision in force.
     pub fn current(&self) -> Option<&Decision> {
         self.decisions.last()
+    }
+
+    /// The newest decision a tuning made (corrections between tunings left out).
+    pub fn tuned(&self) -> Option<&Decision> {
+        self.decisions.iter().rev().find(|d| d.corrects.is_none())
+    }
+
+    /// The candidate a decision version stands for (`None`: unknown or version 0).
+    pub fn candidate_of(&self, version: u64) -> Option<Candidate> {
+        self.decisions
+            .iter()
+            .rev()
+            .find(|d| d.pm_version == version)
+            .map(|d| d.candidate)
     }
 
     /// The version for the next decision.
@@ -221,6 +256,59 @@ impl State {
         self.probe(step, c)
             .map(|p| p.sizing)
             .or_else(|| self.trial(step, c).map(|t| t.measurement.sizing))
+    }
+
+    /// A production step made with `c`, kept as a size probe of `c` on `step` (the step's own
+    /// measurement: the search then need not probe the `P_M` in force on it) unless `c` was
+    /// measured on it before.
+    pub fn add_production(&mut self, step: u64, c: Candidate, sizing: Sizing, run_by: u64) {
+        if self.sizing(step, c).is_none() {
+            self.size_probes.push(SizeProbe {
+                step,
+                candidate: c,
+                sizing,
+                trial_secs: 0.0,
+                run_by,
+            });
+        }
+    }
+
+    /// The σ/τ surface measured on `steps` (size probes and trials): each candidate's worst
+    /// case over the steps, from the candidates measured on all of them (on any of them when
+    /// none was).
+    pub fn surface(&self, steps: &[u64]) -> Surface {
+        // By candidate (r, γ's bits): the candidate, its worst σ and τ, the steps measured.
+        type Worst = (Candidate, f64, f64, Vec<u64>);
+        let mut by: BTreeMap<(u32, u32), Worst> = BTreeMap::new();
+        let measured = self
+            .size_probes
+            .iter()
+            .map(|p| (p.step, p.candidate, p.sizing))
+            .chain(
+                self.trials
+                    .iter()
+                    .map(|t| (t.step, t.measurement.candidate(), t.measurement.sizing)),
+            );
+        for (step, c, sizing) in measured.filter(|m| steps.contains(&m.0)) {
+            let e = by
+                .entry((c.r, c.gamma.to_bits()))
+                .or_insert((c, 0.0, 0.0, Vec::new()));
+            e.1 = e.1.max(sizing.sigma_bytes as f64);
+            e.2 = e.2.max(sizing.tau_secs);
+            if !e.3.contains(&step) {
+                e.3.push(step);
+            }
+        }
+        let whole = by.values().any(|e| e.3.len() == steps.len());
+        Surface::new(
+            by.into_values()
+                .filter(|e| !whole || e.3.len() == steps.len())
+                .map(|(candidate, sigma_bytes, tau_secs, _)| Point {
+                    candidate,
+                    sigma_bytes,
+                    tau_secs,
+                }),
+        )
     }
 
     /// A size probe of `c` on `step`, if one was run.

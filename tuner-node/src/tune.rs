@@ -5,13 +5,12 @@
 //! up on timeout), combines the ranks' results and persists them. The winner is pushed as the
 //! next decision when it differs from the P_M in force.
 
-use crate::engine::{decision_pb, Engine, Trigger};
+use crate::engine::{Engine, Trigger};
 use crate::state::{Decision, SizeProbe, Trial};
 use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
-use insitu_proto::pb::tuner_message::Msg as Down;
 use insitu_tuner::live::{combine_ranks, WorstCase};
 use insitu_tuner::search::{adaptive_search, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
@@ -131,6 +130,12 @@ impl StepOracle {
                 e.hub.abandon(id);
                 return Err(StudyError::Invalid(format!(
                     "{what}: the tuner is stopping"
+                )));
+            }
+            if e.superseded.load(Ordering::Relaxed) {
+                e.hub.abandon(id);
+                return Err(StudyError::Invalid(format!(
+                    "{what}: a newer characteristic step overtook the tuning"
                 )));
             }
             if started.elapsed() > timeout {
@@ -308,6 +313,8 @@ fn say_why_it_stopped(engine: &Engine, e: &StudyError) {
         .is_empty();
     if engine.stopping.load(Ordering::Relaxed) {
         info!(error = %e, "tuning stopped with the tuner; the decision in force stays");
+    } else if engine.superseded.load(Ordering::Relaxed) {
+        info!(error = %e, "tuning cut short for a newer characteristic step; it starts over on the new set, its trials kept");
     } else if lost {
         info!(error = %e, "tuning interrupted: a characteristic step left with its node; the decision in force stays");
     } else {
@@ -317,7 +324,10 @@ fn say_why_it_stopped(engine: &Engine, e: &StudyError) {
 
 /// Records `best` (found on `steps` with `trials` generations taking `trial_secs`): as a new
 /// decision, persisted and pushed to every node, when it differs from the P_M in force;
-/// else as a re-validation of the P_M in force on `steps`.
+/// else as a re-validation of the P_M in force on `steps`. The decision is chosen for the
+/// step it will apply from: when the production steps measured so far forecast that `best`
+/// would miss the budget there, the controller's coarser candidate is pushed instead (and
+/// `best` kept as the finest the corrections may return to).
 fn decide(
     engine: &Engine,
     trigger: &Trigger,
@@ -326,43 +336,63 @@ fn decide(
     trials: u64,
     trial_secs: f64,
 ) {
+    let from_step = engine.decision_start();
+    let surface = engine.state().surface(&steps);
+    let plan = engine
+        .control()
+        .choose(&surface, best.candidate(), from_step)
+        .filter(|p| p.candidate != best.candidate());
     let mut s = engine.state();
     let old = s
         .current()
         .map(|d| d.candidate)
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
-    if old == Some(best.candidate()) && s.current().is_some() {
-        info!(r = best.r, gamma = best.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
+    let pushed = plan.map_or(best.candidate(), |p| p.candidate);
+    if old == Some(pushed) && s.current().is_some() {
+        info!(r = pushed.r, gamma = pushed.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
         s.validated = steps;
         engine.save(&s);
         return;
     }
+    let (predicted, reason, tuned, forecast) = match &plan {
+        None => (best, trigger.reason.clone(), None, None),
+        Some(p) => {
+            let q = crate::engine::q_on(&s, &steps, p.candidate);
+            let reason = format!(
+                "{}; tuned r {} γ {} (q {:.2} dB), coarsened for production σ forecast {:.2}× the measured by step {from_step}",
+                trigger.reason,
+                best.r,
+                best.gamma,
+                best.q(),
+                p.forecast.sigma
+            );
+            (
+                crate::engine::planned(p, q),
+                reason,
+                Some(best.candidate()),
+                Some(p.forecast.sigma),
+            )
+        }
+    };
     let d = Decision {
         pm_version: s.next_version(),
-        candidate: best.candidate(),
+        candidate: pushed,
         old,
         characteristic_steps: steps,
-        predicted: best,
-        reason: trigger.reason.clone(),
+        predicted,
+        reason,
         trigger_step: trigger.step,
         trials,
         trial_secs,
         utility: engine.utility(),
-        from_step: engine
-            .progress
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .decision_start(),
+        from_step,
+        corrects: None,
+        tuned,
+        forecast_ratio: forecast,
     };
-    s.decisions.push(d.clone());
     s.validated = d.characteristic_steps.clone();
-    engine.save(&s);
     drop(s);
-    engine.counters().decisions += 1;
-    let m = decision_pb(&d);
-    info!(pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, trials = d.trials, trial_secs, reason = %d.reason, "new P_M");
-    engine.hub.broadcast(&Down::Decision(m.clone()));
-    let _ = engine.decisions.send(m);
+    engine.publish(d);
 }
 
 #[cfg(test)]

@@ -10,6 +10,8 @@
 //! - [`series`]: characteristic time steps, the conservative `P_M`, cross-evaluation.
 //! - [`live`]: the same while a simulation runs (the tuner service's maths): characteristic
 //!   steps as they arrive, the worst case over steps as an oracle, budgets over ranks.
+//! - [`control`]: closed-loop control between tunings: every production step corrects the
+//!   measured σ/τ surface, forecasts the growth and steps `P_M` to keep the budget.
 //! - [`accuracy`]: what accuracy costs in time, knob by knob.
 //! - [`charts`]: the study map (Fig. 7), Pareto fronts, the budget ladder (Fig. 8), accuracy.
 //! - [`report`]: CSV and JSON of a study.
@@ -19,6 +21,7 @@
 pub mod accuracy;
 pub mod cache;
 pub mod charts;
+pub mod control;
 pub mod grid;
 pub mod live;
 pub mod measure;

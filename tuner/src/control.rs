@@ -1,0 +1,567 @@
+//! Closed-loop control of `P_M` between tunings: the tuner's rate control.
+//!
+//! A tuning measures σ and τ of candidates on the characteristic steps, which are past steps;
+//! a drifting simulation outgrows what was measured before the decision lands. A video
+//! encoder's rate control has the same problem (x264's ABR: a model of the frame size updated
+//! from every frame's actual size), and the same answer serves here:
+//!
+//! - [`Surface`]: the measured σ(r, γ) and τ(r, γ) of the characteristic steps (their worst
+//!   case), interpolated between measured candidates (log σ piecewise linear in log γ at a
+//!   resolution; σ and τ ∝ r² across resolutions, as the rays are r²).
+//! - Every production step is a free measurement of its own `P_M` on the newest data: its
+//!   σ over the surface's σ at that `P_M` is the *ratio* k (1 when the production data is as
+//!   the characteristic steps were). [`Controller::observe`] records it.
+//! - [`Forecast`]: k at the step a new `P_M` will apply to, from the trend of k over recent
+//!   production steps (the median slope between consecutive steps, so that an error of the
+//!   surface at one candidate, a jump between two steps, does not read as growth; only growth
+//!   is extrapolated, a shrinking field keeps its latest k).
+//! - [`Controller::choose`]: the finest candidate, not finer than the tuned one, whose σ and τ
+//!   scaled by the forecast meet the plan `(1 − headroom) × budget`: the tuned resolution with
+//!   γ stepped up, and a lower resolution when γ alone would need more than
+//!   [`GAMMA_SPAN`] times the tuned γ. [`Controller::correct`] says when that warrants a
+//!   change: at once when the `P_M` in force misses the plan, back towards the tuned one only
+//!   when the finer candidate clears the plan by the hysteresis (so steps that hover near the
+//!   budget do not flip the `P_M` back and forth, and still data changes nothing).
+
+use crate::grid::{Candidate, ParamGrid};
+use std::collections::{BTreeMap, VecDeque};
+
+/// Production steps the controller remembers (the forecast's window).
+pub const WINDOW: usize = 8;
+
+/// How far γ may be raised above the tuned γ at a resolution before a lower resolution is
+/// preferred (γ that large costs more q than a step down in r, Sec. 6.1).
+pub const GAMMA_SPAN: f32 = 4.0;
+
+/// The most growth a forecast extrapolates (a factor on σ).
+pub const MAX_GROWTH: f64 = 4.0;
+
+/// Slope of ln σ over ln γ assumed at a resolution measured at one γ only, when no other
+/// resolution has two (σ ∝ 1/γ: supersegments close at a rate set by γ).
+const DEFAULT_SIGMA_SLOPE: f64 = -1.0;
+
+/// Slope bounds of ln σ over ln γ (σ falls as γ grows; never faster than γ⁻⁴).
+const SIGMA_SLOPE: (f64, f64) = (-4.0, 0.0);
+
+/// Slope bounds of ln τ over ln γ (τ falls a little as γ grows).
+const TAU_SLOPE: (f64, f64) = (-1.0, 0.0);
+
+/// One measured candidate: its σ (bytes) and τ (seconds), worst case over the characteristic
+/// steps (σ summed over a step's ranks, τ of its slowest rank).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Point {
+    /// The candidate.
+    pub candidate: Candidate,
+    /// σ, bytes (> 0 to count).
+    pub sigma_bytes: f64,
+    /// τ, seconds (> 0 to count for τ).
+    pub tau_secs: f64,
+}
+
+/// A measured `(ln γ, ln value)` curve at one resolution.
+type Curve = Vec<(f64, f64)>;
+
+/// σ and τ over the candidate plane, from measured points.
+#[derive(Clone, Debug, Default)]
+pub struct Surface {
+    sigma: BTreeMap<u32, Curve>,
+    tau: BTreeMap<u32, Curve>,
+}
+
+impl Surface {
+    /// The surface through `points`; points with a σ or τ that is not a positive finite number
+    /// leave that quantity out. The same candidate twice keeps the larger value.
+    pub fn new(points: impl IntoIterator<Item = Point>) -> Self {
+        let mut s = Self::default();
+        for p in points {
+            let (r, g) = (p.candidate.r, f64::from(p.candidate.gamma));
+            if !(r > 0 && g > 0.0 && g.is_finite()) {
+                continue;
+            }
+            for (curves, v) in [(&mut s.sigma, p.sigma_bytes), (&mut s.tau, p.tau_secs)] {
+                if v > 0.0 && v.is_finite() {
+                    insert(curves.entry(r).or_default(), g.ln(), v.ln());
+                }
+            }
+        }
+        s
+    }
+
+    /// Whether no σ was measured.
+    pub fn is_empty(&self) -> bool {
+        self.sigma.is_empty()
+    }
+
+    /// σ of `c`, bytes; `None` when nothing was measured.
+    pub fn sigma(&self, c: Candidate) -> Option<f64> {
+        predict(&self.sigma, c, SIGMA_SLOPE, DEFAULT_SIGMA_SLOPE)
+    }
+
+    /// τ of `c`, seconds; `None` when no τ was measured.
+    pub fn tau(&self, c: Candidate) -> Option<f64> {
+        predict(&self.tau, c, TAU_SLOPE, 0.0)
+    }
+}
+
+/// Adds `(x, y)` to a curve kept sorted by x; the same x keeps the larger y.
+fn insert(curve: &mut Curve, x: f64, y: f64) {
+    match curve.binary_search_by(|p| p.0.total_cmp(&x)) {
+        Ok(i) => curve[i].1 = curve[i].1.max(y),
+        Err(i) => curve.insert(i, (x, y)),
+    }
+}
+
+/// The mean slope of every curve with two points or more, clamped; `default` when none has.
+fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64), default: f64) -> f64 {
+    let slopes: Vec<f64> = curves
+        .values()
+        .filter(|c| c.len() >= 2)
+        .filter_map(|c| {
+            let (a, b) = (c[0], c[c.len() - 1]);
+            let s = (b.1 - a.1) / (b.0 - a.0);
+            s.is_finite().then(|| s.clamp(bounds.0, bounds.1))
+        })
+        .collect();
+    if slopes.is_empty() {
+        default
+    } else {
+        slopes.iter().sum::<f64>() / slopes.len() as f64
+    }
+}
+
+/// A value at `c`: interpolated on the curve of the nearest measured resolution (in ln r),
+/// scaled by `(r / r_measured)²`.
+fn predict(
+    curves: &BTreeMap<u32, Curve>,
+    c: Candidate,
+    bounds: (f64, f64),
+    default: f64,
+) -> Option<f64> {
+    let g = f64::from(c.gamma);
+    if c.r == 0 || g.is_nan() || g <= 0.0 {
+        return None;
+    }
+    let lr = f64::from(c.r).ln();
+    let (&r0, curve) = curves
+        .iter()
+        .min_by(|a, b| {
+            let da = (f64::from(*a.0).ln() - lr).abs();
+            let db = (f64::from(*b.0).ln() - lr).abs();
+            da.total_cmp(&db)
+        })
+        .filter(|(_, c)| !c.is_empty())?;
+    let x = g.ln();
+    let y = if curve.len() == 1 {
+        curve[0].1 + pooled_slope(curves, bounds, default) * (x - curve[0].0)
+    } else {
+        // The segment containing x, or the end segment nearest it.
+        let i = curve
+            .iter()
+            .position(|p| p.0 >= x)
+            .unwrap_or(curve.len())
+            .clamp(1, curve.len() - 1);
+        let (a, b) = (curve[i - 1], curve[i]);
+        let s = ((b.1 - a.1) / (b.0 - a.0)).clamp(bounds.0, bounds.1);
+        if x <= b.0 && x >= a.0 {
+            // Inside: straight interpolation (through both points).
+            a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
+        } else if x < a.0 {
+            a.1 + s * (x - a.0)
+        } else {
+            b.1 + s * (x - b.0)
+        }
+    };
+    let scale = 2.0 * (lr - f64::from(r0).ln());
+    Some((y + scale).exp())
+}
+
+/// A production step as the controller sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Step index.
+    pub step: u64,
+    /// The `P_M` it was made with.
+    pub candidate: Candidate,
+    /// σ of the step (summed over its ranks), bytes.
+    pub sigma_bytes: u64,
+    /// τ of the step (its slowest rank), seconds.
+    pub tau_secs: f64,
+}
+
+/// The ratio of measured to modelled σ (and τ) expected at a step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Forecast {
+    /// k of σ at the newest production step.
+    pub sigma_now: f64,
+    /// k of σ forecast for the step planned for (≥ `sigma_now`).
+    pub sigma: f64,
+    /// Growth of σ per unit of step index (a factor; 1 when none was seen).
+    pub sigma_growth_per_step: f64,
+    /// k of τ (the median of the window; τ is a timing, its trend is noise more than drift).
+    pub tau: f64,
+    /// The newest production step.
+    pub newest: u64,
+}
+
+/// What [`Controller::choose`] found for a step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plan {
+    /// The candidate.
+    pub candidate: Candidate,
+    /// Its σ forecast for the step, bytes.
+    pub sigma_bytes: f64,
+    /// Its τ forecast for the step, seconds (`NaN` when τ was never measured).
+    pub tau_secs: f64,
+    /// The forecast behind it.
+    pub forecast: Forecast,
+    /// Whether it meets the plan (`false`: the coarsest candidate was the best that could be
+    /// done).
+    pub feasible: bool,
+}
+
+/// The closed-loop controller: production observations and the rule that turns them into a
+/// `P_M`.
+#[derive(Clone, Debug)]
+pub struct Controller {
+    /// σ_target, bytes.
+    pub sigma_target: Option<f64>,
+    /// τ_target, seconds.
+    pub tau_target: Option<f64>,
+    /// Share of each target kept free: candidates are chosen for `(1 − headroom) × target`.
+    pub headroom: f64,
+    /// A step back towards the tuned `P_M` is taken only when its forecast clears the plan by
+    /// this share.
+    pub hysteresis: f64,
+    grid: ParamGrid,
+    window: VecDeque<Observation>,
+}
+
+impl Controller {
+    /// A controller for the budgets `(σ_target bytes, τ_target seconds)` over `grid`.
+    pub fn new(budgets: (Option<u64>, Option<f64>), headroom: f64, grid: ParamGrid) -> Self {
+        Self {
+            sigma_target: budgets.0.map(|b| b as f64),
+            tau_target: budgets.1,
+            headroom,
+            hysteresis: 0.1,
+            grid,
+            window: VecDeque::with_capacity(WINDOW),
+        }
+    }
+
+    /// Whether there is a budget to keep.
+    pub fn active(&self) -> bool {
+        self.sigma_target.is_some() || self.tau_target.is_some()
+    }
+
+    /// Records a production step (steps older than the newest are ignored: another rank's
+    /// late summary).
+    pub fn observe(&mut self, o: Observation) {
+        if self.window.back().is_some_and(|b| o.step <= b.step) {
+            return;
+        }
+        if self.window.len() == WINDOW {
+            self.window.pop_front();
+        }
+        self.window.push_back(o);
+    }
+
+    /// The production steps remembered, oldest first.
+    pub fn observations(&self) -> impl Iterator<Item = &Observation> {
+        self.window.iter()
+    }
+
+    /// The ratio of measured to modelled σ and τ forecast for step `at`, over `surface`;
+    /// `None` before any production step with a modelled σ.
+    pub fn forecast(&self, surface: &Surface, at: u64) -> Option<Forecast> {
+        let ks: Vec<(u64, Candidate, f64)> = self
+            .window
+            .iter()
+            .filter_map(|o| {
+                let m = surface.sigma(o.candidate)?;
+                let k = (o.sigma_bytes as f64 / m).ln();
+                k.is_finite().then_some((o.step, o.candidate, k))
+            })
+            .collect();
+        let &(newest, _, now) = ks.last()?;
+        // Growth per step: the median slope between consecutive steps (an error of the
+        // surface at one P_M is a jump between two steps, which the median passes over).
+        let mut slopes: Vec<f64> = ks
+            .windows(2)
+            .filter(|w| w[1].0 > w[0].0)
+            .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
+            .collect();
+        slopes.sort_by(f64::total_cmp);
+        let slope = slopes
+            .get(slopes.len() / 2)
+            .copied()
+            .unwrap_or(0.0)
+            .max(0.0);
+        let ahead = at.saturating_sub(newest) as f64;
+        let grown = (slope * ahead).min(MAX_GROWTH.ln());
+        let mut taus: Vec<f64> = self
+            .window
+            .iter()
+            .filter_map(|o| {
+                let k = o.tau_secs / surface.tau(o.candidate)?;
+                (k.is_finite() && k > 0.0).then_some(k)
+            })
+            .collect();
+        taus.sort_by(f64::total_cmp);
+        Some(Forecast {
+            sigma_now: now.exp(),
+            sigma: (now + grown).exp(),
+            sigma_growth_per_step: slope.exp(),
+            tau: taus.get(taus.len() / 2).copied().unwrap_or(1.0),
+            newest,
+        })
+    }
+
+    /// σ and τ of `c` forecast with `f`, and whether they meet the plan scaled by `margin`
+    /// (1: the plan itself).
+    fn fits(&self, surface: &Surface, f: &Forecast, c: Candidate, margin: f64) -> (f64, f64, bool) {
+        let sigma = surface.sigma(c).map_or(f64::INFINITY, |s| s * f.sigma);
+        let tau = surface.tau(c).map_or(f64::NAN, |t| t * f.tau);
+        let plan = |t: f64| (1.0 - self.headroom) * t * margin;
+        let ok = self.sigma_target.is_none_or(|t| sigma <= plan(t))
+            && self
+                .tau_target
+                .is_none_or(|t| tau.is_nan() || tau <= plan(t));
+        (sigma, tau, ok)
+    }
+
+    /// The `P_M` for step `at`: the finest candidate no finer than `tuned` whose forecast
+    /// meets the plan, searched from `tuned`'s resolution down (γ at least `tuned`'s at that
+    /// resolution, at most [`GAMMA_SPAN`] times it; below it any γ of the grid), else the
+    /// smallest γ that meets the plan at any lower resolution, else the coarsest candidate.
+    /// `None` before there is a forecast.
+    pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
+        let f = self.forecast(surface, at)?;
+        let plan = |c: Candidate, feasible: bool| {
+            let (sigma_bytes, tau_secs, _) = self.fits(surface, &f, c, 1.0);
+            Plan {
+                candidate: c,
+                sigma_bytes,
+                tau_secs,
+                forecast: f,
+                feasible,
+            }
+        };
+        let rs: Vec<u32> = self
+            .grid
+            .rs
+            .iter()
+            .rev()
+            .copied()
+            .filter(|&r| r <= tuned.r)
+            .collect();
+        let first_fit = |r: u32, lo: f32, hi: f32| {
+            self.grid
+                .gammas
+                .iter()
+                .copied()
+                .filter(|&g| g >= lo && g <= hi)
+                .map(|gamma| Candidate { r, gamma })
+                .find(|&c| self.fits(surface, &f, c, 1.0).2)
+        };
+        let span = tuned.gamma * GAMMA_SPAN;
+        let found = rs
+            .iter()
+            .find_map(|&r| {
+                let lo = if r == tuned.r { tuned.gamma } else { 0.0 };
+                first_fit(r, lo, span.max(lo))
+            })
+            .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
+        Some(match found {
+            Some(c) => plan(c, true),
+            None => plan(
+                Candidate {
+                    r: self.grid.rs.first().copied().unwrap_or(tuned.r),
+                    gamma: self.grid.gammas.last().copied().unwrap_or(tuned.gamma),
+                },
+                false,
+            ),
+        })
+    }
+
+    /// A change of `P_M` for step `at`, when one is due: [`Self::choose`]'s candidate when the
+    /// `P_M` in force (`current`) misses the plan under the forecast, or when the candidate is
+    /// finer than `current` and clears the plan by the hysteresis. `None` when `current`
+    /// should stay.
+    pub fn correct(
+        &self,
+        surface: &Surface,
+        tuned: Candidate,
+        current: Candidate,
+        at: u64,
+    ) -> Option<Plan> {
+        let p = self.choose(surface, tuned, at)?;
+        if p.candidate == current {
+            return None;
+        }
+        let current_fits = self.fits(surface, &p.forecast, current, 1.0).2;
+        if !current_fits {
+            return Some(p);
+        }
+        let finer = p.candidate.r > current.r
+            || (p.candidate.r == current.r && p.candidate.gamma < current.gamma);
+        let clears = self
+            .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
+            .2;
+        (finer && clears).then_some(p)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn c(r: u32, gamma: f32) -> Candidate {
+        Candidate { r, gamma }
+    }
+
+    /// σ = 1e6 · (r / 256)² · (0.01 / γ) bytes: the power law the surface is built to follow.
+    fn law(c: Candidate) -> f64 {
+        1e6 * (f64::from(c.r) / 256.0).powi(2) * (0.01 / f64::from(c.gamma))
+    }
+
+    fn surface_of(cs: &[Candidate]) -> Surface {
+        Surface::new(cs.iter().map(|&c| Point {
+            candidate: c,
+            sigma_bytes: law(c),
+            tau_secs: 0.1,
+        }))
+    }
+
+    /// γ number `i` of [`grid`] (as the grid holds it, bit for bit).
+    fn g(i: u8) -> f32 {
+        f32::from(i) * 0.005
+    }
+
+    fn grid() -> ParamGrid {
+        ParamGrid {
+            rs: vec![64, 128, 192, 256],
+            gammas: (1..=40).map(g).collect(),
+        }
+    }
+
+    #[test]
+    fn the_surface_reproduces_a_power_law_between_and_beyond_its_points() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(8)), c(128, g(4))]);
+        for q in [
+            c(256, 0.02),
+            c(256, 0.08),
+            c(256, 0.005),
+            c(192, 0.03),
+            c(64, 0.1),
+        ] {
+            let (got, want) = (s.sigma(q).unwrap(), law(q));
+            assert!((got / want - 1.0).abs() < 1e-9, "{q:?}: {got} vs {want}");
+        }
+        // Measured points come back exactly.
+        assert!((s.sigma(c(256, g(8))).unwrap() - law(c(256, g(8)))).abs() < 1e-3);
+        // A point with no σ is left out; an empty surface predicts nothing.
+        assert!(Surface::new([Point {
+            candidate: c(64, 0.01),
+            sigma_bytes: f64::NAN,
+            tau_secs: 0.1
+        }])
+        .is_empty());
+        assert_eq!(Surface::default().sigma(c(64, 0.01)), None);
+    }
+
+    fn observed(ctl: &mut Controller, step: u64, at: Candidate, k: f64) {
+        ctl.observe(Observation {
+            step,
+            candidate: at,
+            sigma_bytes: (law(at) * k) as u64,
+            tau_secs: 0.1,
+        });
+    }
+
+    #[test]
+    fn still_data_changes_nothing() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(192, g(4))]);
+        // Budget: the tuned P_M (256, g(2)) at 1 MB sits just under a 1.06 MB plan.
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, g(2));
+        for step in 0..20 {
+            observed(&mut ctl, step * 10, tuned, 1.0);
+            assert_eq!(ctl.correct(&s, tuned, tuned, step * 10 + 10), None);
+        }
+        let f = ctl.forecast(&s, 400).unwrap();
+        assert!(
+            (f.sigma - 1.0).abs() < 1e-6 && f.sigma_growth_per_step == 1.0,
+            "{f:?}"
+        );
+    }
+
+    #[test]
+    fn growth_is_forecast_and_gamma_is_stepped_to_meet_the_budget() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, g(2));
+        // σ grows 10 % per step of 10: k = 1.1^(n).
+        for n in 0..4 {
+            observed(&mut ctl, n * 10, tuned, 1.1f64.powi(n as i32));
+        }
+        let f = ctl.forecast(&s, 40).unwrap();
+        assert!((f.sigma_now - 1.1f64.powi(3)).abs() < 1e-3, "{f:?}");
+        assert!(
+            (f.sigma - 1.1f64.powi(4)).abs() < 1e-3,
+            "one step ahead: {f:?}"
+        );
+        let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
+        // Needed: 1e6·0.01/γ·1.4641 ≤ 1.064e6 → γ ≥ 0.01376 → 0.015 on the grid.
+        assert_eq!(p.candidate, c(256, g(3)));
+        assert!(p.feasible && p.sigma_bytes <= 0.95 * 1_120_000.0);
+    }
+
+    #[test]
+    fn the_resolution_drops_when_gamma_alone_would_go_too_far() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, g(2));
+        // σ at 6× the model: γ would need 0.06 > 4 × 0.01 at r 256; r 192 needs 0.034 → 0.035.
+        observed(&mut ctl, 0, tuned, 6.0);
+        let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
+        assert_eq!(p.candidate, c(192, g(7)));
+        // Far beyond: the coarsest candidate, flagged as not meeting the plan.
+        observed(&mut ctl, 10, tuned, 1e6);
+        let p = ctl.correct(&s, tuned, tuned, 20).unwrap();
+        assert_eq!((p.candidate, p.feasible), (c(64, g(40)), false));
+    }
+
+    #[test]
+    fn a_shrinking_field_steps_back_only_past_the_hysteresis_and_never_past_the_tuned_pm() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, g(2));
+        let current = c(256, g(4));
+        // At γ 0.02 the field measures k = 1.05: the tuned γ 0.01 would forecast 1.05 MB, under
+        // the 1.064 MB plan but not by the hysteresis: stay.
+        observed(&mut ctl, 0, current, 1.05);
+        assert_eq!(ctl.correct(&s, tuned, current, 10), None);
+        // k = 0.5: the tuned γ fits with room; back to it, not finer.
+        observed(&mut ctl, 10, current, 0.5);
+        let p = ctl.correct(&s, tuned, current, 20).unwrap();
+        assert_eq!(p.candidate, tuned);
+    }
+
+    #[test]
+    fn a_surface_error_at_a_new_candidate_is_not_read_as_growth() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        for step in [0, 10, 20] {
+            observed(&mut ctl, step, c(256, g(2)), 1.0);
+        }
+        // The next P_M measures 30 % above its model, and stays there: a level, not a trend.
+        observed(&mut ctl, 30, c(256, g(3)), 1.3);
+        observed(&mut ctl, 40, c(256, g(3)), 1.3);
+        let f = ctl.forecast(&s, 100).unwrap();
+        assert!((f.sigma - 1.3).abs() < 1e-5, "{f:?}");
+        // Older steps than the newest are ignored.
+        observed(&mut ctl, 5, c(256, g(2)), 9.0);
+        assert_eq!(ctl.observations().count(), 5);
+    }
+}
