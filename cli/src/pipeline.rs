@@ -11,6 +11,7 @@ use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::Peer;
 use insitu_proto::{pb, transport};
+use insitu_tuner::adherence::Adherence;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -45,6 +46,10 @@ pub struct PipelineArgs {
     /// Keep P_M fixed: start no tuner.
     #[arg(long)]
     pub no_tune: bool,
+    /// Hard limit on a step's sigma (e.g. 1MB): a VDI over it is made again at a coarser P_M
+    /// before it ships, so no stored step exceeds it (the summary counts the retries).
+    #[arg(long, value_parser = size_max_arg)]
+    pub size_max: Option<u64>,
     /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
     #[arg(long)]
     pub json: bool,
@@ -57,6 +62,13 @@ pub struct PipelineArgs {
     /// After the run, keep the viz-node and its web viewer serving the recording until Ctrl-C.
     #[arg(long)]
     pub keep_serving: bool,
+}
+
+/// `--size-max`: bytes, with an optional unit (B, kB, MB, GB).
+fn size_max_arg(s: &str) -> Result<u64, String> {
+    insitu_tuner::utility::parse_bytes(s)
+        .filter(|&b| b > 0)
+        .ok_or_else(|| format!("{s:?} is not a size in bytes (e.g. 1MB, 500kB)"))
 }
 
 /// What a command chooses when its flags do not.
@@ -120,8 +132,63 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
     })
 }
 
-/// A stored VDI as the JSON line of `--json`.
-pub fn report_json(r: &pb::QualityReport) -> serde_json::Value {
+/// The tuner's budgets, σ_target in bytes and τ_target in seconds (none without a tuner or
+/// where its utility has none): what every step is shown against.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Budgets {
+    /// σ_target, bytes.
+    pub sigma_bytes: Option<f64>,
+    /// τ_target, seconds.
+    pub tau_secs: Option<f64>,
+}
+
+impl Budgets {
+    /// The budgets of a tuner's status (0 there: none).
+    pub fn of(s: &pb::TunerStatus) -> Self {
+        Self {
+            sigma_bytes: (s.sigma_target_bytes > 0).then_some(s.sigma_target_bytes as f64),
+            tau_secs: (s.tau_target_secs > 0.0).then_some(s.tau_target_secs),
+        }
+    }
+
+    /// σ and τ of a report over their budgets.
+    fn ratios(&self, r: &pb::QualityReport) -> (Option<f64>, Option<f64>) {
+        (
+            self.sigma_bytes.map(|b| r.sigma_bytes as f64 / b),
+            self.tau_secs.map(|b| r.tau_secs / b),
+        )
+    }
+
+    /// Adherence of the stored VDIs (one per step, or the composed step of several ranks) to
+    /// σ_target and τ_target.
+    fn adherence(&self, reports: &[pb::QualityReport]) -> (Option<Adherence>, Option<Adherence>) {
+        let steps: Vec<&pb::QualityReport> = reports
+            .iter()
+            .filter(|r| r.composed || r.world_size <= 1)
+            .collect();
+        let of = |b: Option<f64>, v: fn(&pb::QualityReport) -> f64| {
+            b.map(|b| Adherence::of(steps.iter().map(|r| (r.pm_version, v(r))), b))
+        };
+        (
+            of(self.sigma_bytes, |r| r.sigma_bytes as f64),
+            of(self.tau_secs, |r| r.tau_secs),
+        )
+    }
+}
+
+/// An adherence as JSON.
+fn adherence_json(a: &Adherence) -> serde_json::Value {
+    serde_json::json!({
+        "steps": a.steps,
+        "within": a.within,
+        "share": a.share(),
+        "worst_ratio": a.worst_ratio,
+    })
+}
+
+/// A stored VDI as the JSON line of `--json`, with σ and τ over the budgets.
+pub fn report_json(r: &pb::QualityReport, budgets: Budgets) -> serde_json::Value {
+    let (sigma_ratio, tau_ratio) = budgets.ratios(r);
     serde_json::json!({
         "step": r.step,
         "rank": r.rank,
@@ -135,11 +202,13 @@ pub fn report_json(r: &pb::QualityReport) -> serde_json::Value {
         "composed": r.composed,
         "missing_ranks": r.missing_ranks,
         "error": (!r.error.is_empty()).then_some(&r.error),
+        "sigma_budget_ratio": sigma_ratio,
+        "tau_budget_ratio": tau_ratio,
     })
 }
 
-/// A step's line, from a quality report and the generator's queue state.
-pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
+/// A step's line, from a quality report, the budgets and the generator's queue state.
+pub fn report_line(r: &pb::QualityReport, budgets: Budgets, queue: Option<(u32, u64)>) -> String {
     let q = r.q_db.map_or_else(
         || "    -   ".to_owned(),
         |q| format!("{:>5} dB", crate::cmd::q_text(q)),
@@ -161,14 +230,24 @@ pub fn report_line(r: &pb::QualityReport, queue: Option<(u32, u64)>) -> String {
             r.missing_ranks
         )
     };
+    // Shares of the budgets where the tuner has them (a ! marks a step over one).
+    let share = |x: Option<f64>| {
+        x.map_or_else(String::new, |x| {
+            let mark = if x >= 1.0 { "!" } else { "" };
+            format!(" ({:.0} %{mark})", 100.0 * x)
+        })
+    };
+    let (sigma_ratio, tau_ratio) = budgets.ratios(r);
     format!(
-        "step {:>6}  {who}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB  τ {:.3} s  q {q}{queue}",
+        "step {:>6}  {who}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB{}  τ {:.3} s{}  q {q}{queue}",
         r.step,
         r.pm_version,
         r.resolution,
         r.gamma,
         r.sigma_bytes as f64 / 1e3,
+        share(sigma_ratio),
         r.tau_secs,
+        share(tau_ratio),
     )
 }
 
@@ -229,6 +308,7 @@ pub async fn print_reports(
         .await?
         .into_inner();
     let mut decisions = tuner.map(|t| t.engine().subscribe());
+    let budgets = tuner.map_or_else(Budgets::default, |t| Budgets::of(&t.engine().status()));
     let seen = Arc::new(Mutex::new(Seen::default()));
     let c = seen.clone();
     let task = tokio::spawn(async move {
@@ -237,13 +317,13 @@ pub async fn print_reports(
                 r = stream.next() => {
                     let Some(Ok(r)) = r else { break };
                     if json {
-                        println!("{}", report_json(&r));
+                        println!("{}", report_json(&r, budgets));
                     } else {
                         let queue = generator.as_ref().map(|g| {
                             let s = g.status();
                             (s.queue_depth, s.dropped_queue + s.dropped_outbox)
                         });
-                        println!("{}", report_line(&r, queue));
+                        println!("{}", report_line(&r, budgets, queue));
                     }
                     c.lock().unwrap_or_else(|e| e.into_inner()).reports.push(r);
                 }
@@ -360,6 +440,7 @@ impl LocalNodes {
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec(defaults).name().to_owned();
+        cfg.generation.size_max = a.size_max.unwrap_or(0);
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global
         // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
         // simulation's steps, and τ counts their time).
@@ -473,6 +554,8 @@ pub fn counts_json(
         "dropped_outbox": s.dropped_outbox,
         "failed": s.failed,
         "final_pm_version": s.pm_version,
+        "limit_retries": s.limit_retries,
+        "limit_retry_secs": s.limit_retry_secs,
     });
     v.as_object().cloned().unwrap_or_default()
 }
@@ -520,8 +603,14 @@ impl Run<'_> {
                 "q_db_min": t.q.map(|q| crate::cmd::q_json(q.1)),
                 "q_db_max": t.q.map(|q| crate::cmd::q_json(q.2)),
                 "pm_changes": self.seen.decisions.len(),
-                "tuner": self.tuner.map(|t| serde_json::json!({
+                "tuner": self.tuner.map(|t| {
+                    let (sigma, tau) = Budgets::of(t).adherence(reports);
+                    serde_json::json!({
                     "utility": t.utility,
+                    "sigma_adherence": sigma.as_ref().map(adherence_json),
+                    "tau_adherence": tau.as_ref().map(adherence_json),
+                    "corrections": t.corrections,
+                    "tunings_superseded": t.tunings_superseded,
                     "characteristic_steps": t.characteristic_steps,
                     "trials_run": t.trials_run,
                     "size_probes": t.size_probes,
@@ -532,7 +621,7 @@ impl Run<'_> {
                     "decisions": t.decisions,
                     "tunings_infeasible": t.tunings_infeasible,
                     "tuning_at_end": t.tuning,
-                })),
+                })}),
                 "wall_s": self.elapsed_secs,
                 "recording": self.recording.display().to_string(),
                 "generator": generator,
@@ -592,6 +681,21 @@ impl Run<'_> {
                 t.trials_reused,
                 t.trials_failed
             );
+            if t.corrections > 0 || t.tunings_superseded > 0 {
+                println!(
+                    "  of the P_M changes, {} correction(s) between tunings from the production steps; {} tuning(s) cut short for a newer characteristic step",
+                    t.corrections, t.tunings_superseded
+                );
+            }
+            let (sigma, tau) = Budgets::of(t).adherence(reports);
+            for (what, a) in [("σ", sigma), ("τ", tau)] {
+                if let Some(a) = a {
+                    println!(
+                        "  {what} budget, steps made with a tuned P_M: {}",
+                        a.describe()
+                    );
+                }
+            }
             if t.tunings_infeasible > 0 {
                 println!(
                     "  {} tuning(s) found no candidate within the budget on every characteristic step; the P_M in force stayed",

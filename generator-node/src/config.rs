@@ -92,6 +92,12 @@ pub struct GenerationConfig {
     pub reference_every: u64,
     /// Side of the reference frames, pixels; 0 = `resolution`.
     pub reference_size: u32,
+    /// Hard limit on σ of a step, bytes (summed over its ranks; each rank keeps its share);
+    /// 0: none. A VDI that comes out at or over it is made again at a coarser `P_M` before it
+    /// ships (γ raised, then, for a world of one rank, r lowered; τ counts every generation),
+    /// so no stored step exceeds it; one that cannot get under it is not shipped (counted as
+    /// failed, logged).
+    pub size_max: u64,
 }
 
 impl Default for GenerationConfig {
@@ -108,6 +114,7 @@ impl Default for GenerationConfig {
             view_angles_deg: insitu_core::evaluate::DEFAULT_VIEW_ANGLES.to_vec(),
             reference_every: 10,
             reference_size: 0,
+            size_max: 0,
         }
     }
 }
@@ -235,6 +242,8 @@ pub struct Generation {
     pub reference_every: u64,
     /// Reference side (0 = `r`).
     pub reference_size: u32,
+    /// Hard limit on a step's σ, bytes (0: none; see `GenerationConfig::size_max`).
+    pub size_max: u64,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
     pub pm_version: u64,
     /// The `P_M` and version in force before the last decision, for the steps before
@@ -395,6 +404,7 @@ impl GenerationConfig {
             view_angles_deg: self.view_angles_deg.clone(),
             reference_every: self.reference_every,
             reference_size: self.reference_size,
+            size_max: self.size_max,
             pm_version: 0,
             previous: None,
             from_step: 0,

@@ -25,7 +25,7 @@ use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{error, info, info_span, warn, Instrument};
 
 /// What a shutdown leaves behind.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Summary {
     /// The final counters (anything unshipped at the drain deadline is in `dropped_outbox`).
     pub counters: Counters,
@@ -40,7 +40,15 @@ impl std::fmt::Display for Summary {
             f,
             "received {}, generated {}, shipped {}, dropped from queue {}, dropped from outbox {} (of which unshipped at shutdown {}), failed {}",
             c.received, c.generated, c.shipped, c.dropped_queue, c.dropped_outbox, self.lost_at_shutdown, c.failed
-        )
+        )?;
+        if c.limit_retries > 0 {
+            write!(
+                f,
+                "; {} VDI(s) made again under the hard size limit ({:.3} s)",
+                c.limit_retries, c.limit_retry_secs
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -368,7 +376,12 @@ async fn worker(shared: Arc<Shared>) {
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);
-                shared.stats.update(|c| c.generated += 1);
+                let (retries, retry_secs) = product.limit_retries;
+                shared.stats.update(|c| {
+                    c.generated += 1;
+                    c.limit_retries += u64::from(retries);
+                    c.limit_retry_secs += retry_secs;
+                });
                 if !shared.shipping {
                     shared.unspool(spooled.as_ref());
                     continue;

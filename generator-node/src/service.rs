@@ -99,6 +99,8 @@ impl Shared {
             epoch: self.epoch,
             recovered: c.recovered,
             spooled_bytes: self.spool.as_ref().map_or(0, |s| s.used()),
+            limit_retries: c.limit_retries,
+            limit_retry_secs: c.limit_retry_secs,
         }
     }
 

@@ -5,7 +5,7 @@ use tokio::sync::watch;
 /// What happened to the steps received so far. Every received step ends in exactly one of
 /// `shipped` (or `generated` when no viz-node is configured), `dropped_queue`,
 /// `dropped_outbox` or `failed`; until then it is in flight.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Counters {
     /// Steps fully received and queued.
     pub received: u64,
@@ -23,6 +23,10 @@ pub struct Counters {
     pub ship_failed: u64,
     /// Steps found in the spool at start (acknowledged by an earlier run), queued again.
     pub recovered: u64,
+    /// VDIs made again at a coarser `P_M` because σ came out over the hard limit.
+    pub limit_retries: u64,
+    /// Seconds of the generations and compressions those threw away.
+    pub limit_retry_secs: f64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.

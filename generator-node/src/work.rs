@@ -8,7 +8,7 @@ use bytes::Bytes;
 use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
-use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi};
+use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
@@ -26,6 +26,10 @@ pub struct Product {
     pub references: Option<(pb::ReferenceHeader, Bytes)>,
     /// The step's file in the spool and its field bytes, removed once the VDI is settled.
     pub spool: Option<(String, u64)>,
+    /// Generations made again at a coarser `P_M` because σ came out over the hard limit
+    /// (`generation.size_max`), and their seconds (generation and compression of the VDIs
+    /// thrown away).
+    pub limit_retries: (u32, f64),
 }
 
 impl Product {
@@ -47,6 +51,43 @@ pub enum WorkError {
     /// The backend failed (bad `P_M` or camera on any backend; GPU limits or device).
     #[error(transparent)]
     Backend(#[from] BackendError),
+    /// σ stayed over the hard limit at the coarsest `P_M` the step may take.
+    #[error("σ {sigma} B of step {step} stays over the hard limit of {limit} B for this rank even at r {r}, γ {gamma}: the VDI is not shipped")]
+    OverLimit {
+        /// The step.
+        step: u64,
+        /// σ at the coarsest `P_M` tried, bytes.
+        sigma: u64,
+        /// The limit for this rank, bytes.
+        limit: u64,
+        /// That `P_M`.
+        r: u32,
+        /// That `P_M`.
+        gamma: f32,
+    },
+}
+
+/// γ is raised up to this when a VDI comes out over the hard limit (far above any γ worth
+/// tuning: at 2 nearly every ray closes one supersegment per run of visible samples).
+pub const MAX_LIMIT_GAMMA: f32 = 2.0;
+
+/// Generations a step may take to come under the hard limit.
+pub const MAX_LIMIT_RETRIES: u32 = 8;
+
+/// The `P_M` a VDI whose σ is `over` times the limit is made again with: γ raised by that
+/// factor (σ falls about as 1/γ, Sec. 6.1), at least doubled, up to [`MAX_LIMIT_GAMMA`]; from
+/// there the resolution shrunk by its square root (σ ∝ r²), at least by an eighth, when
+/// `may_shrink_r` (a world of one rank: the ranks of a step must share r to be composed).
+/// `None` when neither can go further.
+pub fn coarser(p: VdiParams, over: f64, may_shrink_r: bool) -> Option<VdiParams> {
+    let factor = over.max(2.0) as f32;
+    if p.gamma < MAX_LIMIT_GAMMA {
+        let gamma = (p.gamma.max(1e-3) * factor).min(MAX_LIMIT_GAMMA);
+        return Some(VdiParams { gamma, ..p });
+    }
+    let r = (f64::from(p.resolution) / over.max(1.0).sqrt()).min(f64::from(p.resolution) * 0.875);
+    let r = r.floor() as u32;
+    (may_shrink_r && r >= 1 && r < p.resolution).then_some(VdiParams { resolution: r, ..p })
 }
 
 /// Generates, compresses and (if `with_references`) renders the references for one step on
@@ -68,36 +109,65 @@ pub fn run(
     let scene = backend.prepare(&raycaster)?;
     let camera = gen.camera_for(&raw.info);
     let tf_hash = tf.0.identity_hash();
-    let generated = info_span!(
-        "generate",
-        r = gen.params.resolution,
-        gamma = gen.params.gamma
-    )
-    .in_scope(|| scene.generate_reusing(&camera, gen.params, tf_hash, &tf.1, spare))?;
+    let info = &raw.info;
+    // The hard limit is the step's; each rank keeps its share.
+    let limit = (gen.size_max > 0).then(|| gen.size_max / u64::from(info.world_size.max(1)));
+    let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
+    let (generated, file, tau_secs, tau_compress_secs) = loop {
+        let generated = info_span!("generate", r = params.resolution, gamma = params.gamma)
+            .in_scope(|| scene.generate_reusing(&camera, params, tf_hash, &tf.1, spare.take()))?;
+        let t = Instant::now();
+        let file = info_span!("compress", codec = %gen.codec)
+            .in_scope(|| codec::encode(&generated.value, gen.codec))?;
+        let compress = t.elapsed().as_secs_f64();
+        let sigma = file.len() as u64;
+        let Some(limit) = limit.filter(|&l| sigma >= l) else {
+            // τ counts every generation of the step, the ones thrown away too.
+            let tau = generated.seconds + retries.1;
+            break (generated, file, tau, compress);
+        };
+        let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
+            .filter(|_| retries.0 < MAX_LIMIT_RETRIES);
+        let Some(next) = next else {
+            return Err(WorkError::OverLimit {
+                step: info.step,
+                sigma,
+                limit,
+                r: params.resolution,
+                gamma: params.gamma,
+            });
+        };
+        tracing::info!(
+            step = info.step,
+            sigma,
+            limit,
+            r = next.resolution,
+            gamma = next.gamma,
+            "σ over the hard limit: made again at a coarser P_M"
+        );
+        retries = (retries.0 + 1, retries.1 + generated.seconds + compress);
+        params = next;
+        spare = Some(generated.value);
+    };
     let vdi = &generated.value;
-    let t = Instant::now();
-    let file =
-        info_span!("compress", codec = %gen.codec).in_scope(|| codec::encode(vdi, gen.codec))?;
-    let tau_compress_secs = t.elapsed().as_secs_f64();
     let references = if with_references {
         Some(references(&scene, &camera, raw, gen)?)
     } else {
         None
     };
     // Every field named: a field added to the header is a compile error here until it is set.
-    let info = &raw.info;
     let product = Product {
         vdi_header: pb::VdiHeader {
             step: info.step,
             sim_time: info.sim_time,
             rank: info.rank,
             world_size: info.world_size,
-            resolution: gen.params.resolution,
-            gamma: gen.params.gamma,
+            resolution: params.resolution,
+            gamma: params.gamma,
             codec: codec_to_pb(gen.codec) as i32,
             total_bytes: file.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
-            tau_secs: generated.seconds,
+            tau_secs,
             tau_compress_secs,
             tf_hash,
             tf_name: tf.1.clone(),
@@ -112,6 +182,7 @@ pub fn run(
         vdi: Bytes::from(file),
         references,
         spool: raw.spooled(),
+        limit_retries: retries,
     };
     Ok((product, generated.value))
 }
@@ -203,8 +274,9 @@ pub fn for_tuner(
         voxels: volume.voxels().len() as u64,
         held: false,
         pm_version: gen.pm_version,
-        resolution: gen.params.resolution,
-        gamma: gen.params.gamma,
+        // The P_M the VDI was made with (coarser than the version's after the hard limit).
+        resolution: product.vdi_header.resolution,
+        gamma: product.vdi_header.gamma,
         sigma_bytes: product.vdi_header.total_bytes,
         tau_secs: product.vdi_header.tau_secs,
         sampled: product.references.is_some(),
@@ -236,6 +308,106 @@ pub fn on_pool<R: Send>(pool: Option<&rayon::ThreadPool>, f: impl FnOnce() -> R 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ingest::check_header;
+
+    /// Step 7 of a 24³ f32 field full of fine structure (many supersegments per ray).
+    fn busy_step() -> RawStep {
+        let n = 24u32;
+        let d = pb::Dims3 { x: n, y: n, z: n };
+        let h = pb::StepHeader {
+            step: 7,
+            dtype: pb::ScalarType::F32 as i32,
+            global_dims: Some(d),
+            brick_offset: Some(pb::Dims3 { x: 0, y: 0, z: 0 }),
+            brick_dims: Some(d),
+            world_size: 1,
+            total_bytes: 4 * u64::from(n).pow(3),
+            ..Default::default()
+        };
+        let info = check_header(&h).unwrap();
+        let mut field = info.assembler(None);
+        let values: Vec<u8> = (0..n.pow(3))
+            .flat_map(|i| {
+                let (x, y, z) = (i % n, i / n % n, i / n / n);
+                let v = ((x * 7 + y * 13 + z * 3) % 11) as f32 / 10.0;
+                v.to_le_bytes()
+            })
+            .collect();
+        field.push(&values);
+        info.with_field(field).unwrap()
+    }
+
+    fn generation(size_max: u64) -> Generation {
+        let mut g = crate::config::GenerationConfig {
+            resolution: 48,
+            gamma: 0.001,
+            codec: "zstd".into(),
+            size_max,
+            ..Default::default()
+        }
+        .resolve()
+        .unwrap();
+        g.pm_version = 3;
+        g
+    }
+
+    #[test]
+    fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
+        let raw = busy_step();
+        let tf = TransferFunction::default_for_volume(&raw.field);
+        let (free, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
+        let sigma = free.vdi.len() as u64;
+        assert_eq!(free.limit_retries, (0, 0.0));
+        let limit = sigma / 3;
+        let (p, _) = run(&Backend::Cpu, &raw, &generation(limit), &tf, false, None).unwrap();
+        let h = &p.vdi_header;
+        assert!(h.total_bytes < limit, "{} ≥ {limit}", h.total_bytes);
+        assert_eq!(h.total_bytes, p.vdi.len() as u64);
+        assert!(p.limit_retries.0 >= 1 && p.limit_retries.1 > 0.0);
+        // Stamped with the P_M it was made with, under the version in force; τ counts both.
+        assert!(h.gamma > 0.001 && h.pm_version == 3, "{h:?}");
+        assert!(h.tau_secs >= p.limit_retries.1);
+        // A limit no P_M meets: not shipped, and the error names the step and the limit.
+        let e = run(&Backend::Cpu, &raw, &generation(1), &tf, false, None).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                WorkError::OverLimit {
+                    step: 7,
+                    limit: 1,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn coarser_raises_gamma_then_lowers_r_for_one_rank_only() {
+        let p = VdiParams {
+            resolution: 256,
+            gamma: 0.01,
+        };
+        assert_eq!(
+            coarser(p, 1.2, true).unwrap().gamma,
+            0.02,
+            "at least doubled"
+        );
+        assert!((coarser(p, 5.0, true).unwrap().gamma - 0.05).abs() < 1e-6);
+        let top = VdiParams {
+            gamma: MAX_LIMIT_GAMMA,
+            ..p
+        };
+        assert_eq!(coarser(p, 1e9, true).unwrap().gamma, MAX_LIMIT_GAMMA);
+        assert_eq!(coarser(top, 4.0, true).unwrap().resolution, 128);
+        assert_eq!(coarser(top, 1.01, true).unwrap().resolution, 224);
+        assert_eq!(coarser(top, 4.0, false), None, "ranks of a step share r");
+        let tiny = VdiParams {
+            resolution: 1,
+            ..top
+        };
+        assert_eq!(coarser(tiny, 4.0, true), None);
+    }
 
     #[test]
     fn work_runs_on_the_configured_threads() {

@@ -71,6 +71,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.tls.tls_ca.is_some() && a.generator.is_none() {
         bail!("--tls-ca is for --generator: local nodes started by replay speak clear text on loopback");
     }
+    if a.pipeline.size_max.is_some() && a.generator.is_some() {
+        bail!("--size-max is for the local nodes: a running generator-node takes generation.size_max from its config");
+    }
     let format = RawFormat::from_file_name(&a.series)?;
     let bricks = bricks_for(&a, format.dims)?;
     tokio::runtime::Runtime::new()?.block_on(replay(a, format, bricks))
