@@ -11,6 +11,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 pub mod browser;
+pub mod drift;
 
 /// A loopback port nobody listens on right now (for a daemon that starts later).
 pub fn free_port() -> u16 {

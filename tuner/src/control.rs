@@ -197,7 +197,10 @@ pub struct Forecast {
     pub sigma: f64,
     /// Growth of σ per unit of step index (a factor; 1 when none was seen).
     pub sigma_growth_per_step: f64,
-    /// k of τ (the median of the window; τ is a timing, its trend is noise more than drift).
+    /// k of τ: the largest of the window. τ is a timing: production steps share the node
+    /// with the simulation and the scorer, and at one `P_M` they spread ±50 % on a busy
+    /// machine, so a budget kept on most steps must be planned for the slow ones; its trend
+    /// is noise more than drift.
     pub tau: f64,
     /// The newest production step.
     pub newest: u64,
@@ -299,20 +302,19 @@ impl Controller {
             .max(0.0);
         let ahead = at.saturating_sub(newest) as f64;
         let grown = (slope * ahead).min(MAX_GROWTH.ln());
-        let mut taus: Vec<f64> = self
+        let tau = self
             .window
             .iter()
             .filter_map(|o| {
                 let k = o.tau_secs / surface.tau(o.candidate)?;
                 (k.is_finite() && k > 0.0).then_some(k)
             })
-            .collect();
-        taus.sort_by(f64::total_cmp);
+            .fold(None, |m: Option<f64>, k| Some(m.map_or(k, |m| m.max(k))));
         Some(Forecast {
             sigma_now: now.exp(),
             sigma: (now + grown).exp(),
             sigma_growth_per_step: slope.exp(),
-            tau: taus.get(taus.len() / 2).copied().unwrap_or(1.0),
+            tau: tau.unwrap_or(1.0),
             newest,
         })
     }
@@ -546,6 +548,32 @@ mod tests {
         observed(&mut ctl, 10, current, 0.5);
         let p = ctl.correct(&s, tuned, current, 20).unwrap();
         assert_eq!(p.candidate, tuned);
+    }
+
+    #[test]
+    fn a_time_budget_is_planned_for_the_slowest_recent_step() {
+        // τ = 0.1 s · (r / 256)², flat in γ.
+        let tau = |r: u32| 0.1 * (f64::from(r) / 256.0).powi(2);
+        let s = Surface::new([256, 128].map(|r| Point {
+            candidate: c(r, g(2)),
+            sigma_bytes: 1e3,
+            tau_secs: tau(r),
+        }));
+        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let tuned = c(256, g(2));
+        for (step, t) in [(0, 0.08), (1, 0.12), (2, 0.09)] {
+            ctl.observe(Observation {
+                step,
+                candidate: tuned,
+                sigma_bytes: 1000,
+                tau_secs: t,
+            });
+        }
+        let p = ctl.correct(&s, tuned, tuned, 3).unwrap();
+        assert!((p.forecast.tau - 1.2).abs() < 1e-9, "{:?}", p.forecast);
+        // r 256 at 1.2 × 0.1 s misses the 0.095 s plan whatever γ; r 192: 0.0675 s.
+        assert_eq!(p.candidate, c(192, g(1)));
+        assert!((p.tau_secs - 1.2 * tau(192)).abs() < 1e-9);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 
 mod bad_input;
 mod common;
+mod drift;
 mod faults;
 mod gpu;
 mod health;
