@@ -5,13 +5,13 @@
 //! `--json` every line is a JSON object instead.
 
 use anyhow::{Context, Result};
+use insitu_core::adherence::Adherence;
 use insitu_core::json::f32_number;
 use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::Peer;
 use insitu_proto::{pb, transport};
-use insitu_tuner::adherence::Adherence;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -94,8 +94,13 @@ pub fn decision_line(d: &pb::PmDecision) -> String {
     } else {
         format!("r {} γ {:.4}", d.old_resolution, d.old_gamma)
     };
+    let kind = if d.corrects_version > 0 {
+        format!(" (correction of v{})", d.corrects_version)
+    } else {
+        String::new()
+    };
     format!(
-        "P_M v{} from step {}: {old} → r {} γ {:.4} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
+        "P_M v{}{kind} from step {}: {old} → r {} γ {:.4} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
         d.pm_version,
         d.from_step,
         d.resolution,
@@ -129,6 +134,8 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "trial_secs": d.trial_secs,
         "reason": d.reason,
         "utility": d.utility,
+        "corrects_version": (d.corrects_version > 0).then_some(d.corrects_version),
+        "forecast_ratio": (d.forecast_ratio > 0.0).then_some(d.forecast_ratio),
     })
 }
 

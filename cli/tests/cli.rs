@@ -552,6 +552,59 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     // γ as it was given (an f32 through a serde_json::Value would print 0.013000000268220901).
     let text = String::from_utf8_lossy(&o.stdout);
     assert_eq!(text.matches("\"gamma\": 0.013,").count(), 4, "{text}");
+    // With the run's budget: the adherence of the steps made with a tuned P_M, and each
+    // line's σ over the budget.
+    let o = insitu(
+        &["export", "--recording", "rec", "--budget", "size:10kB"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let with: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let tuned: Vec<u64> = json["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["pm_version"].as_u64() > Some(0))
+        .map(|e| e["sigma_bytes"].as_u64().unwrap())
+        .collect();
+    let a = &with["adherence"]["sigma"];
+    assert_eq!(a["steps"].as_u64(), Some(tuned.len() as u64), "{a}");
+    let within = tuned.iter().filter(|&&s| s < 10_000).count() as u64;
+    assert_eq!(a["within"].as_u64(), Some(within), "{a}");
+    assert!(with["adherence"]["tau"].is_null(), "{with}");
+    let o = insitu(
+        &[
+            "export",
+            "--recording",
+            "rec",
+            "--format",
+            "csv",
+            "--budget",
+            "size:10kB",
+        ],
+        dir.path(),
+    );
+    let csv = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        csv.starts_with("step,")
+            && csv
+                .lines()
+                .next()
+                .unwrap()
+                .ends_with(",sigma_budget_ratio,tau_budget_ratio"),
+        "{csv}"
+    );
+    for line in csv.lines().skip(1) {
+        let cols: Vec<&str> = line.split(',').collect();
+        let sigma: f64 = cols[6].parse().unwrap();
+        let ratio: f64 = cols[cols.len() - 2].parse().unwrap();
+        assert!((ratio - sigma / 1e4).abs() < 1e-9, "{line}");
+    }
+    let o = insitu(
+        &["export", "--recording", "rec", "--budget", "quality:40"],
+        dir.path(),
+    );
+    assert!(!o.status.success() && stderr(&o).contains("states no size or time budget"));
     // A recorded step renders; one the recording lacks is refused, naming the steps it has.
     let (png, _) = written(
         dir.path(),

@@ -28,6 +28,7 @@
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+pub mod adherence;
 pub mod backend;
 pub mod camera;
 pub mod compose;

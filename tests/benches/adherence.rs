@@ -26,12 +26,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use glam::Vec3;
+use insitu_core::adherence::Adherence;
 use insitu_core::evaluate::{evaluate, generate_encoded, render_references, DEFAULT_VIEW_ANGLES};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
 use insitu_core::{Backend, Camera, RaycastParams, Raycaster, TransferFunction, VdiParams};
 use insitu_e2e::drift::{growing_structure, write_series, RunLines, StepLine};
-use insitu_tuner::adherence::Adherence;
 use insitu_tuner::ParamGrid;
 use std::path::{Path, PathBuf};
 use std::process::Command;

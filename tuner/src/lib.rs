@@ -12,7 +12,6 @@
 //!   steps as they arrive, the worst case over steps as an oracle, budgets over ranks.
 //! - [`control`]: closed-loop control between tunings: every production step corrects the
 //!   measured σ/τ surface, forecasts the growth and steps `P_M` to keep the budget.
-//! - [`adherence`]: how well a run kept its budget (share of steps within, worst overshoot).
 //! - [`accuracy`]: what accuracy costs in time, knob by knob.
 //! - [`charts`]: the study map (Fig. 7), Pareto fronts, the budget ladder (Fig. 8), accuracy.
 //! - [`report`]: CSV and JSON of a study.
@@ -20,7 +19,6 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod accuracy;
-pub mod adherence;
 pub mod cache;
 pub mod charts;
 pub mod control;

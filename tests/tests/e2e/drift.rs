@@ -2,9 +2,9 @@
 //! structure grows at every step, through `insitu replay` with the tuner, judged by σ (a
 //! size, not a timing, so the outcome does not hang on this machine's speed).
 
+use insitu_core::adherence::Adherence;
 use insitu_e2e::bin;
 use insitu_e2e::drift::{growing_structure, write_series, RunLines};
-use insitu_tuner::adherence::Adherence;
 use std::process::Command;
 
 /// Grid side and steps of the series.

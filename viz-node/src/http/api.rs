@@ -11,6 +11,7 @@ use axum::extract::{Query, State};
 use axum::http::{header, HeaderName};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
+use insitu_core::adherence::Adherence;
 use insitu_core::evaluate::Sizing;
 use insitu_core::json::f32_number;
 use serde::Deserialize;
@@ -98,7 +99,9 @@ pub async fn steps(State(http): State<Arc<Http>>) -> Json<Value> {
 }
 
 /// `GET /api/series`: per stored step σ, τ, q (null when not sampled) and the P_M version,
-/// plus the steps where the P_M version changed.
+/// the steps where the P_M version changed, the tuner's budget, and the adherence of the steps
+/// made with a tuned P_M to it (`insitu_core::adherence`: steps, within, share, worst_ratio;
+/// null without that budget).
 pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
     let steps = all_steps(&http);
     let col = |k: &str| -> Vec<Value> { steps.iter().map(|s| s[k].clone()).collect() };
@@ -114,6 +117,21 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
         }
         last = Some(v);
     }
+    let budget = http.budget().await;
+    // Adherence of the steps made with a tuned P_M to each budget the tuner has.
+    let adherence = |key: &str| {
+        let b = budget[key].as_f64().filter(|&b| b > 0.0)?;
+        let a = Adherence::of(
+            steps.iter().map(|s| {
+                let v = s[key].as_f64().unwrap_or(f64::NAN);
+                (s["pm_version"].as_u64().unwrap_or(0), v)
+            }),
+            b,
+        );
+        Some(
+            json!({"steps": a.steps, "within": a.within, "share": a.share(), "worst_ratio": a.worst_ratio}),
+        )
+    };
     Json(json!({
         "step": col("step"),
         "sigma_bytes": col("sigma_bytes"),
@@ -121,7 +139,8 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
         "q_db": q,
         "pm_version": col("pm_version"),
         "pm_changes": changes,
-        "budget": http.budget().await,
+        "adherence": {"sigma": adherence("sigma_bytes"), "tau": adherence("tau_s")},
+        "budget": budget,
     }))
 }
 

@@ -261,6 +261,14 @@ function drawCharts() {
   chart($("chart-sigma"), series.step, series.sigma_bytes, b.sigma_bytes, series.pm_changes);
   chart($("chart-tau"), series.step, series.tau_s, b.tau_s, series.pm_changes);
   chart($("chart-q"), series.step, series.q_db, b.q_db, series.pm_changes);
+  // Adherence of the steps made with a tuned P_M to the budget, under its chart.
+  const a = series.adherence || {};
+  for (const k of ["sigma", "tau"]) {
+    const x = a[k];
+    $(`adherence-${k}`).textContent = x
+      ? `${x.within} of ${x.steps} tuned steps within the budget (${Math.round(100 * x.share)} %), worst ${x.worst_ratio.toFixed(2)}×`
+      : "";
+  }
 }
 
 // VDI vs reference: the stored reference frame of a test view beside the VDI at that view.
