@@ -43,6 +43,9 @@ struct Scenario {
     utilities: Vec<&'static str>,
 }
 
+/// The best q of a stored step in hindsight (see [`hindsight`]).
+type Hindsight<'a> = &'a dyn Fn(&StepLine) -> Option<f64>;
+
 /// What one run of one scenario gave.
 struct Row {
     label: String,
@@ -215,12 +218,7 @@ fn hindsight(series: &Path, t: usize, tf: &TransferFunction, budget: f64) -> Opt
     best
 }
 
-fn row(
-    label: String,
-    lines: &RunLines,
-    utility: &str,
-    hindsight_of: Option<&dyn Fn(&StepLine) -> Option<f64>>,
-) -> Row {
+fn row(label: String, lines: &RunLines, utility: &str, hindsight_of: Option<Hindsight<'_>>) -> Row {
     let (size, time) = budgets(utility);
     let tuned: Vec<&StepLine> = lines.steps.iter().collect();
     let adherence = match (size, time) {
@@ -334,7 +332,7 @@ fn main() {
                 let extra: Vec<&str> = extra.iter().map(String::as_str).collect();
                 let lines = run(&bin, &s.series, &tf_path, utility, &extra);
                 let h = |st: &StepLine| hindsight(&s.series, st.step as usize, &tf, size?);
-                let hind: Option<&dyn Fn(&StepLine) -> Option<f64>> =
+                let hind: Option<Hindsight<'_>> =
                     (with_regret && size.is_some()).then_some(&h as _);
                 let r = row(
                     format!("{} {utility}{suffix}", s.name),
