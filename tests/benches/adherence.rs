@@ -44,7 +44,7 @@ struct Scenario {
 }
 
 /// The best q of a stored step in hindsight (see [`hindsight`]).
-type Hindsight<'a> = &'a dyn Fn(&StepLine) -> Option<f64>;
+type Hindsight<'a> = &'a dyn Fn(&StepLine) -> Option<(f64, VdiParams)>;
 
 /// What one run of one scenario gave.
 struct Row {
@@ -164,7 +164,12 @@ fn run(bin: &Path, series: &Path, tf: &Path, utility: &str, extra: &[&str]) -> R
 /// hindsight: at every r the smallest γ whose σ meets the budget (σ falls as γ grows:
 /// bisection), scored as the viz-node scores a step (references at side r, the default test
 /// views, zstd); the best of those q. `None` when no candidate meets the budget.
-fn hindsight(series: &Path, t: usize, tf: &TransferFunction, budget: f64) -> Option<f64> {
+fn hindsight(
+    series: &Path,
+    t: usize,
+    tf: &TransferFunction,
+    budget: f64,
+) -> Option<(f64, VdiParams)> {
     let grid = ParamGrid::parse("64:512:64", "0.001:0.26:0.008").unwrap();
     let format = RawFormat::from_file_name(series).unwrap();
     let volume = format.load(series, t, Vec3::ONE).unwrap();
@@ -174,7 +179,7 @@ fn hindsight(series: &Path, t: usize, tf: &TransferFunction, budget: f64) -> Opt
     let camera = Camera::default_for_box(&volume.world_box());
     let tfid = (tf.identity_hash(), "bench");
     let mut spare = None;
-    let mut best: Option<f64> = None;
+    let mut best: Option<(f64, VdiParams)> = None;
     for &r in &grid.rs {
         let fits = |g: f32, spare: &mut Option<_>| {
             let p = VdiParams {
@@ -213,7 +218,9 @@ fn hindsight(series: &Path, t: usize, tf: &TransferFunction, budget: f64) -> Opt
             &mut spare,
         )
         .unwrap();
-        best = Some(best.map_or(e.q_db, |b: f64| b.max(e.q_db)));
+        if best.is_none_or(|b| e.q_db > b.0) {
+            best = Some((e.q_db, p));
+        }
     }
     best
 }
@@ -244,9 +251,19 @@ fn row(label: String, lines: &RunLines, utility: &str, hindsight_of: Option<Hind
             .filter(|(i, _)| scored.len() <= 6 || i % scored.len().div_ceil(6) == 0)
             .map(|x| x.1)
             .collect();
+        let verbose = std::env::var("INSITU_ADHERENCE_VERBOSE").is_ok_and(|v| v == "1");
         let gaps: Vec<f64> = pick
             .iter()
-            .filter_map(|s| Some((h(s)? - s.q_db?).max(0.0)))
+            .filter_map(|s| {
+                let (q, p) = h(s)?;
+                if verbose {
+                    println!(
+                        "  step {}: run r {} γ {:.3} σ {} B q {:.2} dB; hindsight r {} γ {:.3} q {q:.2} dB",
+                        s.step, s.r, s.gamma, s.sigma_bytes, s.q_db?, p.resolution, p.gamma
+                    );
+                }
+                Some((q - s.q_db?).max(0.0))
+            })
             .collect();
         gaps.iter().sum::<f64>() / gaps.len().max(1) as f64
     });

@@ -12,9 +12,10 @@
 //!   σ over the surface's σ at that `P_M` is the *ratio* k (1 when the production data is as
 //!   the characteristic steps were). [`Controller::observe`] records it.
 //! - [`Forecast`]: k at the step a new `P_M` will apply to, from the trend of k over recent
-//!   production steps (the median slope between consecutive steps, so that an error of the
-//!   surface at one candidate, a jump between two steps, does not read as growth; only growth
-//!   is extrapolated, a shrinking field keeps its latest k).
+//!   production steps (the median slope between consecutive steps of one `P_M`, or of any
+//!   while none repeats, so that an error of the surface at one candidate, a jump between two
+//!   steps, does not read as growth; only growth is extrapolated, a shrinking field keeps its
+//!   latest k).
 //! - [`Controller::choose`]: the finest candidate, not finer than the tuned one, whose σ and τ
 //!   scaled by the forecast meet the plan `(1 − headroom) × budget`: the tuned resolution with
 //!   γ stepped up, and a lower resolution when γ alone would need more than
@@ -40,11 +41,14 @@ pub const MAX_GROWTH: f64 = 4.0;
 /// resolution has two (σ ∝ 1/γ: supersegments close at a rate set by γ).
 const DEFAULT_SIGMA_SLOPE: f64 = -1.0;
 
-/// Slope bounds of ln σ over ln γ (σ falls as γ grows; never faster than γ⁻⁴).
-const SIGMA_SLOPE: (f64, f64) = (-4.0, 0.0);
+/// Slope bounds of ln σ over ln γ (σ falls as γ grows; never faster than γ⁻⁴), and beyond the
+/// measured γ never flatter than γ^−½: two probes of nearly equal σ give a flat end segment,
+/// which would promise that no γ can lower σ (the error then shows in the next production
+/// step's ratio and is corrected there).
+const SIGMA_SLOPE: (f64, f64, f64) = (-4.0, 0.0, -0.5);
 
-/// Slope bounds of ln τ over ln γ (τ falls a little as γ grows).
-const TAU_SLOPE: (f64, f64) = (-1.0, 0.0);
+/// Slope bounds of ln τ over ln γ (τ falls a little as γ grows; flat beyond the measured).
+const TAU_SLOPE: (f64, f64, f64) = (-1.0, 0.0, 0.0);
 
 /// One measured candidate: its σ (bytes) and τ (seconds), worst case over the characteristic
 /// steps (σ summed over a step's ranks, τ of its slowest rank).
@@ -112,7 +116,7 @@ fn insert(curve: &mut Curve, x: f64, y: f64) {
 }
 
 /// The mean slope of every curve with two points or more, clamped; `default` when none has.
-fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64), default: f64) -> f64 {
+fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64, f64), default: f64) -> f64 {
     let slopes: Vec<f64> = curves
         .values()
         .filter(|c| c.len() >= 2)
@@ -130,11 +134,12 @@ fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64), default: f64)
 }
 
 /// A value at `c`: interpolated on the curve of the nearest measured resolution (in ln r),
-/// scaled by `(r / r_measured)²`.
+/// scaled by `(r / r_measured)²`; beyond the curve's ends, extended with the end segment's
+/// slope within `bounds` (lowest, highest, highest beyond the measured).
 fn predict(
     curves: &BTreeMap<u32, Curve>,
     c: Candidate,
-    bounds: (f64, f64),
+    bounds: (f64, f64, f64),
     default: f64,
 ) -> Option<f64> {
     let g = f64::from(c.gamma);
@@ -152,7 +157,7 @@ fn predict(
         .filter(|(_, c)| !c.is_empty())?;
     let x = g.ln();
     let y = if curve.len() == 1 {
-        curve[0].1 + pooled_slope(curves, bounds, default) * (x - curve[0].0)
+        curve[0].1 + pooled_slope(curves, bounds, default).min(bounds.2) * (x - curve[0].0)
     } else {
         // The segment containing x, or the end segment nearest it.
         let i = curve
@@ -161,7 +166,7 @@ fn predict(
             .unwrap_or(curve.len())
             .clamp(1, curve.len() - 1);
         let (a, b) = (curve[i - 1], curve[i]);
-        let s = ((b.1 - a.1) / (b.0 - a.0)).clamp(bounds.0, bounds.1);
+        let s = ((b.1 - a.1) / (b.0 - a.0)).clamp(bounds.0, bounds.2);
         if x <= b.0 && x >= a.0 {
             // Inside: straight interpolation (through both points).
             a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
@@ -287,13 +292,20 @@ impl Controller {
             })
             .collect();
         let &(newest, _, now) = ks.last()?;
-        // Growth per step: the median slope between consecutive steps (an error of the
-        // surface at one P_M is a jump between two steps, which the median passes over).
-        let mut slopes: Vec<f64> = ks
-            .windows(2)
-            .filter(|w| w[1].0 > w[0].0)
-            .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
-            .collect();
+        // Growth per step: the median slope between consecutive steps made with the same
+        // P_M, which the surface's error does not touch; while every step has a P_M of its own
+        // (corrections at each step), between any consecutive steps (an error of the surface
+        // at one P_M is then a jump between two steps, which the median passes over).
+        let slope = |same: bool| -> Vec<f64> {
+            ks.windows(2)
+                .filter(|w| w[1].0 > w[0].0 && (!same || w[0].1 == w[1].1))
+                .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
+                .collect()
+        };
+        let mut slopes = slope(true);
+        if slopes.is_empty() {
+            slopes = slope(false);
+        }
         slopes.sort_by(f64::total_cmp);
         let slope = slopes
             .get(slopes.len() / 2)
@@ -470,6 +482,19 @@ mod tests {
         }])
         .is_empty());
         assert_eq!(Surface::default().sigma(c(64, 0.01)), None);
+        // Two probes of equal σ: flat between them, falling as γ^−½ beyond.
+        let flat = Surface::new([g(2), g(4)].map(|gamma| Point {
+            candidate: c(64, gamma),
+            sigma_bytes: 1000.0,
+            tau_secs: 0.1,
+        }));
+        assert!((flat.sigma(c(64, g(3))).unwrap() - 1000.0).abs() < 1e-6);
+        let beyond = flat.sigma(c(64, g(16))).unwrap();
+        assert!((beyond - 500.0).abs() < 1e-3, "{beyond}");
+        assert!(
+            (flat.tau(c(64, g(16))).unwrap() - 0.1).abs() < 1e-9,
+            "τ stays flat"
+        );
     }
 
     fn observed(ctl: &mut Controller, step: u64, at: Candidate, k: f64) {
