@@ -1053,6 +1053,69 @@ mod tests {
         assert_eq!(released(&mut rx), 1, "no tuning: released at once");
     }
 
+    /// A production step of P_M v1 (r 64, γ 0.01) with σ `sigma`, its node idle after it.
+    fn made_with_v1(step: u64, sigma: u64) -> pb::StepSummary {
+        pb::StepSummary {
+            resolution: 64,
+            gamma: 0.01,
+            begun: step + 1,
+            ..summary(step, 3, sigma, 1)
+        }
+    }
+
+    /// [`tuned`] with the tuning's size probes on step 0: σ(64, 0.01) = 900 B (the decision's
+    /// prediction) and σ(64, 0.02) = 450 B.
+    fn tuned_with_probes(dir: &std::path::Path) -> Loop {
+        let l = tuned(dir);
+        for (gamma, sigma_bytes) in [(0.01, 900), (0.02, 450)] {
+            l.engine.state().size_probes.push(crate::state::SizeProbe {
+                step: 0,
+                candidate: Candidate { r: 64, gamma },
+                sizing: Sizing {
+                    sigma_bytes,
+                    tau_secs: 0.01,
+                    ..Sizing::default()
+                },
+                trial_secs: 0.01,
+                run_by: 0,
+            });
+        }
+        l
+    }
+
+    #[test]
+    fn still_data_keeps_the_p_m_and_drifting_data_gets_a_correction_from_the_next_step() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned_with_probes(dir.path());
+        // Production as the tuning measured it: nothing changes, however long.
+        for step in 1..=12 {
+            l.summary(1, made_with_v1(step, 900));
+        }
+        assert_eq!(l.engine.state().decisions.len(), 1);
+        assert_eq!(l.engine.status().corrections, 0);
+        // σ grows 5 % a step: within the budget at first, then the P_M in force would miss
+        // the 950 B plan by the next step, and a correction of v1 lands there.
+        let mut sigma = 900.0;
+        let mut step = 12;
+        while l.engine.state().decisions.len() == 1 && step < 30 {
+            step += 1;
+            sigma *= 1.05;
+            l.summary(1, made_with_v1(step, sigma as u64));
+        }
+        let s = l.engine.state();
+        let d = s.current().unwrap();
+        assert_eq!((d.pm_version, d.corrects), (2, Some(1)), "{d:?}");
+        assert_eq!(d.from_step, step + 1, "the next step: the node had begun no later one");
+        assert_eq!(d.candidate.r, 64);
+        assert!(d.candidate.gamma > 0.01, "{d:?}");
+        // Planned for at least the latest ratio (the median growth of the window is still
+        // that of the still steps): its σ forecast meets the plan.
+        let k = d.forecast_ratio.unwrap();
+        assert!(k >= (sigma as u64) as f64 / 900.0 - 1e-9, "forecast {k}");
+        assert!(d.predicted.sizing.sigma_bytes < 950, "{d:?}");
+        assert!(d.reason.contains("correction after step"), "{}", d.reason);
+    }
+
     #[test]
     fn a_budget_break_retunes_once_and_none_while_a_tuning_is_due() {
         let dir = tempfile::tempdir().unwrap();
