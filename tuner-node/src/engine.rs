@@ -1105,7 +1105,11 @@ mod tests {
         let s = l.engine.state();
         let d = s.current().unwrap();
         assert_eq!((d.pm_version, d.corrects), (2, Some(1)), "{d:?}");
-        assert_eq!(d.from_step, step + 1, "the next step: the node had begun no later one");
+        assert_eq!(
+            d.from_step,
+            step + 1,
+            "the next step: the node had begun no later one"
+        );
         assert_eq!(d.candidate.r, 64);
         assert!(d.candidate.gamma > 0.01, "{d:?}");
         // Planned for at least the latest ratio (the median growth of the window is still
