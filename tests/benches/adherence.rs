@@ -13,7 +13,7 @@
 //!   settings that overshot), `size:1MB` and `time:0.03`;
 //! - `gs128-switch`: the same, 40 pushes, F/k switched half-way (as the tuning bench does),
 //!   `size:1MB`;
-//! - `gs256`: Gray–Scott 256³ after 500 steps, a push every 20, 20 pushes, `size:4MB`;
+//! - `gs256`: Gray–Scott 256³ after 500 steps, a push every 20, 20 pushes, `size:200kB`;
 //! - `ocean`: the shared ocean series (12 monthly steps), `size:150kB` (skipped without data);
 //! - `growing`: [`insitu_e2e::drift::growing_structure`] 64³, 30 steps, `size:300kB` and
 //!   `time:0.01`.
@@ -307,7 +307,7 @@ fn main() {
         scenarios.push(Scenario {
             name: "gs256",
             series: gray_scott("gs256", 256, 500, 20, 20, None),
-            utilities: vec!["size:4MB"],
+            utilities: vec!["size:200kB"],
         });
     }
     if wanted("ocean") {

@@ -244,7 +244,14 @@ pub struct Controller {
     pub hysteresis: f64,
     grid: ParamGrid,
     window: VecDeque<Observation>,
+    /// The last production step made with each candidate (by r and γ's bits) within
+    /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
+    /// like today's, whatever the surface says of it.
+    seen: BTreeMap<(u32, u32), Observation>,
 }
+
+/// Production steps (counted in observations) a candidate's own measurement is remembered.
+pub const MEMORY: u64 = 32;
 
 impl Controller {
     /// A controller for the budgets `(σ_target bytes, τ_target seconds)` over `grid`.
@@ -256,6 +263,7 @@ impl Controller {
             hysteresis: 0.1,
             grid,
             window: VecDeque::with_capacity(WINDOW),
+            seen: BTreeMap::new(),
         }
     }
 
@@ -274,6 +282,18 @@ impl Controller {
             self.window.pop_front();
         }
         self.window.push_back(o);
+        self.seen
+            .insert((o.candidate.r, o.candidate.gamma.to_bits()), o);
+        let oldest = self.seen.len().saturating_sub(MEMORY as usize);
+        if oldest > 0 {
+            // Forget the candidates seen longest ago.
+            let mut by_age: Vec<((u32, u32), u64)> =
+                self.seen.iter().map(|(k, o)| (*k, o.step)).collect();
+            by_age.sort_by_key(|x| x.1);
+            for (k, _) in by_age.into_iter().take(oldest) {
+                self.seen.remove(&k);
+            }
+        }
     }
 
     /// The production steps remembered, oldest first.
@@ -335,8 +355,35 @@ impl Controller {
 
     /// σ and τ of `c` forecast with `f`, and whether they meet the plan scaled by `margin`
     /// (1: the plan itself).
+    /// The ratio forecast at `c`: the window's, or the one `c` itself measured when it was last
+    /// made (within [`MEMORY`] steps) if that was larger. The surface can be off at one
+    /// candidate (measured on other steps, interpolated), and a `P_M` that overshot on its own
+    /// step is not taken back on the strength of other candidates' ratios.
+    fn sigma_ratio(&self, surface: &Surface, f: &Forecast, c: Candidate) -> f64 {
+        let own = self
+            .seen
+            .get(&(c.r, c.gamma.to_bits()))
+            .filter(|o| f.newest.saturating_sub(o.step) <= MEMORY * self.stride())
+            .and_then(|o| Some(o.sigma_bytes as f64 / surface.sigma(c)?))
+            .filter(|k| k.is_finite());
+        own.map_or(f.sigma, |k| k.max(f.sigma))
+    }
+
+    /// The smallest gap between consecutive steps of the window (1 when unknown).
+    fn stride(&self) -> u64 {
+        self.window
+            .iter()
+            .zip(self.window.iter().skip(1))
+            .map(|(a, b)| b.step - a.step)
+            .min()
+            .unwrap_or(1)
+            .max(1)
+    }
+
     fn fits(&self, surface: &Surface, f: &Forecast, c: Candidate, margin: f64) -> (f64, f64, bool) {
-        let sigma = surface.sigma(c).map_or(f64::INFINITY, |s| s * f.sigma);
+        let sigma = surface
+            .sigma(c)
+            .map_or(f64::INFINITY, |s| s * self.sigma_ratio(surface, f, c));
         let tau = surface.tau(c).map_or(f64::NAN, |t| t * f.tau);
         let plan = |t: f64| (1.0 - self.headroom) * t * margin;
         let ok = self.sigma_target.is_none_or(|t| sigma <= plan(t))
@@ -380,7 +427,10 @@ impl Controller {
                 .map(|gamma| Candidate { r, gamma })
                 .find(|&c| self.fits(surface, &f, c, 1.0).2)
         };
-        let span = tuned.gamma * GAMMA_SPAN;
+        // At least the grid's next γ above the tuned one (a coarse γ axis would otherwise
+        // leave nothing within the span).
+        let next = self.grid.gammas.iter().copied().find(|&g| g > tuned.gamma);
+        let span = (tuned.gamma * GAMMA_SPAN).max(next.unwrap_or(0.0));
         let found = rs
             .iter()
             .find_map(|&r| {
@@ -541,9 +591,8 @@ mod tests {
             "one step ahead: {f:?}"
         );
         let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
-        // At r 256: 1e6·0.01/γ·1.4641 ≤ 1.064e6 needs γ ≥ 0.0138, beyond 1.3 × the tuned 0.01;
-        // r 192 (σ × 0.5625) meets it at the tuned γ.
-        assert_eq!(p.candidate, c(192, g(2)));
+        // At r 256: 1e6·0.01/γ·1.4641 ≤ 1.064e6 needs γ ≥ 0.0138: the grid's next γ, 0.015.
+        assert_eq!(p.candidate, c(256, g(3)));
         assert!(p.feasible && p.sigma_bytes <= 0.95 * 1_120_000.0);
         // 3 % more than the model still fits the plan: no change.
         let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
@@ -556,12 +605,12 @@ mod tests {
         let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
         let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
         let tuned = c(256, g(2));
-        // σ at 6× the model: within 1.3 × the tuned γ no resolution down to 128 meets the plan
-        // (r 256 needs γ 0.056, r 192 0.032, r 128 0.014); r 64 does at γ 0.005.
+        // σ at 6× the model: with γ up to the grid's next (0.015), r 256 (needs γ 0.056) and
+        // r 192 (0.032) miss the plan; r 128 (0.014) meets it.
         observed(&mut ctl, 0, tuned, 6.0);
         let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
-        assert_eq!(p.candidate, c(64, g(1)));
-        // Beyond every span: the largest r with a γ that meets the plan (r 128, γ ≥ 0.141).
+        assert_eq!(p.candidate, c(128, g(3)));
+        // Beyond every span: the largest r with any γ that meets the plan (r 128, γ ≥ 0.141).
         let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
         observed(&mut ctl, 0, tuned, 60.0);
         let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
@@ -612,6 +661,29 @@ mod tests {
         // r 256 at 1.2 × 0.1 s misses the 0.095 s plan whatever γ; r 192: 0.0675 s.
         assert_eq!(p.candidate, c(192, g(1)));
         assert!((p.tau_secs - 1.2 * tau(192)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_candidate_that_overshot_on_its_own_step_is_not_taken_back_on_others_ratios() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let (tuned, coarse) = (c(256, g(2)), c(256, g(4)));
+        // The tuned P_M measured 20 % over its model (over the plan); the coarser one then
+        // measures 0.9 of its own: by the window's ratio the tuned one would fit again
+        // (0.9 MB), by its own it does not, and the step back stops short of it.
+        observed(&mut ctl, 0, tuned, 1.2);
+        observed(&mut ctl, 1, coarse, 0.9);
+        observed(&mut ctl, 2, coarse, 0.9);
+        let back = ctl.correct(&s, tuned, coarse, 3).unwrap().candidate;
+        assert_eq!(back, c(256, g(3)));
+        // Once its memory has passed, the window's ratio rules again.
+        for step in 3..40 {
+            observed(&mut ctl, step, coarse, 0.8);
+        }
+        assert_eq!(
+            ctl.correct(&s, tuned, coarse, 40).map(|p| p.candidate),
+            Some(tuned)
+        );
     }
 
     #[test]
