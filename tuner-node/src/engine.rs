@@ -583,9 +583,12 @@ impl Loop {
         self.mark_dirty(Trigger { step, reason });
     }
 
-    /// A tuning is due for `trigger`; a running one is cut short for it unless the last was.
+    /// A tuning is due for `trigger`; a running one is cut short for it, unless the last one
+    /// was or no decision is in force yet (the first decision, even on fewer steps, is worth
+    /// more than a better one later: the nodes run on the configured P_M until it comes).
     fn mark_dirty(&mut self, trigger: Trigger) {
-        if self.engine.counters().tuning && !self.cut_last {
+        let decided = self.engine.state().current().is_some();
+        if decided && self.engine.counters().tuning && !self.cut_last {
             self.engine.superseded.store(true, Ordering::SeqCst);
         }
         self.dirty = Some(trigger);
@@ -1118,6 +1121,26 @@ mod tests {
         assert!(k >= (sigma as u64) as f64 / 900.0 - 1e-9, "forecast {k}");
         assert!(d.predicted.sizing.sigma_bytes < 950, "{d:?}");
         assert!(d.reason.contains("correction after step"), "{}", d.reason);
+    }
+
+    #[test]
+    fn a_newer_characteristic_step_cuts_a_running_tuning_short_but_not_twice_nor_the_first() {
+        let cut = |decided: bool, cut_last: bool| {
+            let dir = tempfile::tempdir().unwrap();
+            let mut l = tuned(dir.path());
+            if !decided {
+                l.engine.state().decisions.clear();
+            }
+            l.cut_last = cut_last;
+            l.engine.counters().tuning = true;
+            // Far from step 0's histogram: characteristic.
+            l.summary(1, summary(5, 40, 500, 1));
+            assert!(l.dirty.is_some());
+            l.engine.superseded.load(Ordering::SeqCst)
+        };
+        assert!(cut(true, false));
+        assert!(!cut(true, true), "never twice in a row");
+        assert!(!cut(false, false), "the first tuning runs to its decision");
     }
 
     #[test]

@@ -103,6 +103,21 @@ impl Surface {
         predict(&self.sigma, c, SIGMA_SLOPE, DEFAULT_SIGMA_SLOPE)
     }
 
+    /// The smallest γ measured at the resolution that stands for `r` (the nearest measured, in
+    /// ln r): below it σ is extrapolated.
+    pub fn gamma_floor(&self, r: u32) -> Option<f32> {
+        let lr = f64::from(r.max(1)).ln();
+        self.sigma
+            .iter()
+            .min_by(|a, b| {
+                let da = (f64::from(*a.0).ln() - lr).abs();
+                let db = (f64::from(*b.0).ln() - lr).abs();
+                da.total_cmp(&db)
+            })
+            .and_then(|(_, c)| c.first())
+            .map(|p| p.0.exp() as f32)
+    }
+
     /// τ of `c`, seconds; `None` when no τ was measured.
     pub fn tau(&self, c: Candidate) -> Option<f64> {
         predict(&self.tau, c, TAU_SLOPE, 0.0)
@@ -173,7 +188,9 @@ fn predict(
             // Inside: straight interpolation (through both points).
             a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
         } else if x < a.0 {
-            a.1 + s * (x - a.0)
+            // Below the measured γ σ is taken to rise at least as 1/γ: the end segment may lie
+            // where σ flattens, and a low guess there would overshoot.
+            a.1 + s.min(default) * (x - a.0)
         } else {
             b.1 + s * (x - b.0)
         }
@@ -434,7 +451,10 @@ impl Controller {
         let found = rs
             .iter()
             .find_map(|&r| {
-                let lo = if r == tuned.r { tuned.gamma } else { 0.0 };
+                // At a lower resolution the finest γ measured there (or where its σ is
+                // modelled from), not an extrapolation below it.
+                let floor = surface.gamma_floor(r).map_or(0.0, |g| g * (1.0 - 1e-6));
+                let lo = if r == tuned.r { tuned.gamma } else { floor };
                 first_fit(r, lo, span.max(lo))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
@@ -658,8 +678,9 @@ mod tests {
         }
         let p = ctl.correct(&s, tuned, tuned, 3).unwrap();
         assert!((p.forecast.tau - 1.2).abs() < 1e-9, "{:?}", p.forecast);
-        // r 256 at 1.2 × 0.1 s misses the 0.095 s plan whatever γ; r 192: 0.0675 s.
-        assert_eq!(p.candidate, c(192, g(1)));
+        // r 256 at 1.2 × 0.1 s misses the 0.095 s plan whatever γ; r 192: 0.0675 s, at the
+        // finest γ measured (0.01; nothing below it is extrapolated).
+        assert_eq!(p.candidate, c(192, g(2)));
         assert!((p.tau_secs - 1.2 * tau(192)).abs() < 1e-9);
     }
 
