@@ -183,16 +183,6 @@ impl Budgets {
     }
 }
 
-/// An adherence as JSON.
-fn adherence_json(a: &Adherence) -> serde_json::Value {
-    serde_json::json!({
-        "steps": a.steps,
-        "within": a.within,
-        "share": a.share(),
-        "worst_ratio": a.worst_ratio,
-    })
-}
-
 /// A stored VDI as the JSON line of `--json`, with σ and τ over the budgets.
 pub fn report_json(r: &pb::QualityReport, budgets: Budgets) -> serde_json::Value {
     let (sigma_ratio, tau_ratio) = budgets.ratios(r);
@@ -614,8 +604,8 @@ impl Run<'_> {
                     let (sigma, tau) = Budgets::of(t).adherence(reports);
                     serde_json::json!({
                     "utility": t.utility,
-                    "sigma_adherence": sigma.as_ref().map(adherence_json),
-                    "tau_adherence": tau.as_ref().map(adherence_json),
+                    "sigma_adherence": sigma.as_ref().map(Adherence::json),
+                    "tau_adherence": tau.as_ref().map(Adherence::json),
                     "corrections": t.corrections,
                     "tunings_superseded": t.tunings_superseded,
                     "characteristic_steps": t.characteristic_steps,

@@ -45,6 +45,17 @@ impl Adherence {
         }
     }
 
+    /// As JSON: `{"steps", "within", "share", "worst_ratio"}` (what the CLI, the viewer's API
+    /// and the export print).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "steps": self.steps,
+            "within": self.within,
+            "share": self.share(),
+            "worst_ratio": self.worst_ratio,
+        })
+    }
+
     /// In words, e.g. "49 of 50 steps within (98 %), worst 1.10×".
     pub fn describe(&self) -> String {
         format!(

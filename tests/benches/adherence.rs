@@ -121,15 +121,10 @@ fn tf_for(series: &Path) -> (PathBuf, TransferFunction) {
 }
 
 fn budgets(utility: &str) -> (Option<f64>, Option<f64>) {
-    let mut out = (None, None);
-    for part in utility.split(',') {
-        if let Some(b) = part.strip_prefix("size:") {
-            out.0 = insitu_tuner::utility::parse_bytes(b).map(|b| b as f64);
-        } else if let Some(t) = part.strip_prefix("time:") {
-            out.1 = t.parse().ok();
-        }
-    }
-    out
+    let (size, time) = insitu_tuner::utility::UtilitySpec::parse(utility)
+        .unwrap()
+        .budgets();
+    (size.map(|b| b as f64), time)
 }
 
 fn run(bin: &Path, series: &Path, tf: &Path, utility: &str, extra: &[&str]) -> RunLines {

@@ -636,7 +636,7 @@ impl Loop {
             (plan.sigma_bytes / 1e3).round(),
             e.utility()
         );
-        let q = self.q_of(&tuned.characteristic_steps, plan.candidate);
+        let q = q_on(&e.state(), &tuned.characteristic_steps, plan.candidate);
         e.publish(Decision {
             pm_version: next,
             candidate: plan.candidate,
@@ -653,11 +653,6 @@ impl Loop {
             tuned: None,
             forecast_ratio: Some(k.sigma),
         });
-    }
-
-    /// q of `c`: its worst over `steps` where it was scored on each, else NaN.
-    fn q_of(&self, steps: &[u64], c: Candidate) -> f64 {
-        q_on(&self.engine.state(), steps, c)
     }
 
     fn complete(&mut self, step: u64, p: Pending) {

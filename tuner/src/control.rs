@@ -106,14 +106,7 @@ impl Surface {
     /// The smallest γ measured at the resolution that stands for `r` (the nearest measured, in
     /// ln r): below it σ is extrapolated.
     pub fn gamma_floor(&self, r: u32) -> Option<f32> {
-        let lr = f64::from(r.max(1)).ln();
-        self.sigma
-            .iter()
-            .min_by(|a, b| {
-                let da = (f64::from(*a.0).ln() - lr).abs();
-                let db = (f64::from(*b.0).ln() - lr).abs();
-                da.total_cmp(&db)
-            })
+        nearest(&self.sigma, r)
             .and_then(|(_, c)| c.first())
             .map(|p| p.0.exp() as f32)
     }
@@ -150,6 +143,16 @@ fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64, f64), default:
     }
 }
 
+/// The measured resolution nearest `r` (in ln r) and its curve.
+fn nearest(curves: &BTreeMap<u32, Curve>, r: u32) -> Option<(u32, &Curve)> {
+    let lr = f64::from(r.max(1)).ln();
+    let dist = |x: u32| (f64::from(x).ln() - lr).abs();
+    curves
+        .iter()
+        .min_by(|a, b| dist(*a.0).total_cmp(&dist(*b.0)))
+        .map(|(&r, c)| (r, c))
+}
+
 /// A value at `c`: interpolated on the curve of the nearest measured resolution (in ln r),
 /// scaled by `(r / r_measured)²`; beyond the curve's ends, extended with the end segment's
 /// slope within `bounds` (lowest, highest, highest beyond the measured).
@@ -164,14 +167,7 @@ fn predict(
         return None;
     }
     let lr = f64::from(c.r).ln();
-    let (&r0, curve) = curves
-        .iter()
-        .min_by(|a, b| {
-            let da = (f64::from(*a.0).ln() - lr).abs();
-            let db = (f64::from(*b.0).ln() - lr).abs();
-            da.total_cmp(&db)
-        })
-        .filter(|(_, c)| !c.is_empty())?;
+    let (r0, curve) = nearest(curves, c.r).filter(|(_, c)| !c.is_empty())?;
     let x = g.ln();
     let y = if curve.len() == 1 {
         curve[0].1 + pooled_slope(curves, bounds, default).min(bounds.2) * (x - curve[0].0)

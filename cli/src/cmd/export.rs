@@ -55,10 +55,7 @@ pub fn run(a: Args) -> Result<()> {
             let e = db.export()?;
             let adherence = a.budget.map(|(size, time)| {
                 let of = |b: Option<f64>, f: fn(&insitu_core::evaluate::Sizing) -> f64| {
-                    b.map(|b| {
-                        let a = Adherence::of(step_values(&e, f), b);
-                        serde_json::json!({"steps": a.steps, "within": a.within, "share": a.share(), "worst_ratio": a.worst_ratio})
-                    })
+                    b.map(|b| Adherence::of(step_values(&e, f), b).json())
                 };
                 serde_json::json!({
                     "sigma": of(size, |s| s.sigma_bytes as f64),

@@ -121,16 +121,11 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
     // Adherence of the steps made with a tuned P_M to each budget the tuner has.
     let adherence = |key: &str| {
         let b = budget[key].as_f64().filter(|&b| b > 0.0)?;
-        let a = Adherence::of(
-            steps.iter().map(|s| {
-                let v = s[key].as_f64().unwrap_or(f64::NAN);
-                (s["pm_version"].as_u64().unwrap_or(0), v)
-            }),
-            b,
-        );
-        Some(
-            json!({"steps": a.steps, "within": a.within, "share": a.share(), "worst_ratio": a.worst_ratio}),
-        )
+        let values = steps.iter().map(|s| {
+            let v = s[key].as_f64().unwrap_or(f64::NAN);
+            (s["pm_version"].as_u64().unwrap_or(0), v)
+        });
+        Some(Adherence::of(values, b).json())
     };
     Json(json!({
         "step": col("step"),
