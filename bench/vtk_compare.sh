@@ -7,7 +7,7 @@
 #   bench/vtk_compare.sh --runs 9              # the same, 9 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
-#   bench/vtk_compare.sh --suite --runs 7      # the ten views of the README's table (the five
+#   bench/vtk_compare.sh --suite --runs 7      # the ten views of the table of docs/performance.md (the five
 #                                              # shared volumes at 30° and 10°; the ocean's first
 #                                              # time step), then the table
 set -euo pipefail

@@ -318,7 +318,7 @@ fn render_repeat_reports_the_warm_median_and_the_same_image() {
     );
 }
 
-/// The flags for data whose file name says nothing (README, "Your own data"): `--dims` and
+/// The flags for data whose file name says nothing (docs/your-data.md): `--dims` and
 /// `--type` read a file as its descriptive name would, `--dims …xT` with `--t` picks one step
 /// of a time series, and `--no-skipping` changes the time, never the image. Each compared as
 /// PNG bytes against the render of an equivalent file.

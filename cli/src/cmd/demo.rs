@@ -61,7 +61,7 @@ async fn demo(a: Args) -> Result<()> {
     // The simulation's own threads, as a simulation in its own process has (the
     // generator-node has its pool: `LocalNodes::start`). On rayon's global pool, shared with
     // the generator-node, a generation's jobs queued behind the simulation's, and τ counted
-    // the simulation's time (3–5× the generation's own on 2 cores; README, "Two commands").
+    // the simulation's time (3–5× the generation's own on 2 cores; docs/demo.md).
     // The pools still share the cores, as an in situ run does.
     let sim_pool = Arc::new(
         rayon::ThreadPoolBuilder::new()

@@ -44,7 +44,7 @@ pub struct Args {
     termination: Option<f32>,
     /// Render from the coarsest level of the VDI (halved, `r/2`, `r/4`, ...) that still has
     /// the image's resolution, as the web viewer does while the camera moves: faster, at a
-    /// cost in accuracy the README's viewer table measures.
+    /// cost in accuracy the viewer table of docs/viewer.md measures.
     #[arg(long)]
     lod: bool,
     /// Render this many times and report the first (which builds the VDI's walk tables and

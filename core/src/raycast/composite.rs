@@ -19,7 +19,7 @@ pub struct FrontToBack {
     /// Accumulated opacity at which the ray stops. Kept between the colour and `T`: adjacent,
     /// the four floats invite LLVM to pack them into one vector register, which puts a
     /// shuffle and a blend on every sample's `T` chain (seen: neghip's DVR 12 % slower after
-    /// an unrelated change to the march; README, "stop 37").
+    /// an unrelated change to the march).
     termination: f32,
     /// `T`, the fraction of light from behind that still gets through, in [0, 1].
     pub transmittance: f32,

@@ -55,7 +55,7 @@ const _: () = assert!(SIMD_CHUNK % 8 == 0 && SIMD_CHUNK <= 64);
 /// Default early-ray-termination threshold on accumulated opacity.
 pub const DEFAULT_TERMINATION: f32 = 0.99;
 /// Default early termination of VDI generation rays: off (chosen from the `accuracy` rows in
-/// README: see [`RaycastParams::generation_termination`]).
+/// docs/performance.md: see [`RaycastParams::generation_termination`]).
 pub const DEFAULT_GENERATION_TERMINATION: Option<f32> = None;
 
 /// Errors for ray-casting parameters.

@@ -15,8 +15,8 @@
 //! colours `â·ĉ` differ by at most the VDI's own γ are merged again (the generation's
 //! criterion, DESIGN.md), so the level stays about as compact as the original.
 //!
-//! What it costs in accuracy is measured, not assumed: `real_data::lod_*` and the README's
-//! viewer table give the PSNR of a level against the full VDI at the same frame.
+//! What it costs in accuracy is measured, not assumed: `real_data::lod_*` and the viewer table of
+//! docs/viewer.md give the PSNR of a level against the full VDI at the same frame.
 
 use super::generate::append_rows;
 use super::{Supersegment, Vdi, VdiMeta, VdiParams};

@@ -602,7 +602,7 @@ fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_err
     assert_eq!(code, 200);
 }
 
-/// `insitu demo --keep-serving` (README, "Web viewer"): once the run's summary is out, its
+/// `insitu demo --keep-serving` (docs/viewer.md): once the run's summary is out, its
 /// viewer still answers over the recording, until SIGINT (Ctrl-C); then the process exits
 /// cleanly and the port is closed.
 #[test]

@@ -1,4 +1,4 @@
-//! The JSON API (README, "Web viewer"): what is stored, the series over time, and still
+//! The JSON API (docs/viewer.md): what is stored, the series over time, and still
 //! frames of any stored step from any camera. Errors are `{"error": message}` with 400
 //! (bad parameter), 401 (token), 404 (no such step, rank or view), 413 (image too large) or
 //! 500 (a stored file cannot be read).

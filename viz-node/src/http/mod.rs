@@ -2,7 +2,7 @@
 //!
 //! - `GET /` and its assets: the page, embedded in the binary (nothing fetched at run time).
 //! - `GET /api/steps`, `GET /api/series`, `GET /api/render`, `GET /api/reference`,
-//!   `GET /api/stats`: the JSON API the page and scripts share ([`api`]; README, "Web viewer").
+//!   `GET /api/stats`: the JSON API the page and scripts share ([`api`]; docs/viewer.md).
 //! - `GET /api/live`: a WebSocket of camera requests in and frames out ([`live`]); the server
 //!   renders only each client's latest request.
 //!
