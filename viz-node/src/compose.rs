@@ -1,4 +1,4 @@
-//! One picture per step of a world of ranks (DESIGN.md, "A world of ranks"; issue: many ranks, one
+//! One picture per step of a world of ranks (docs/design.md, "A world of ranks"; issue: many ranks, one
 //! picture): once every rank's VDI (and, on sampled steps, its reference frames) is stored,
 //! or `compose_timeout_secs` after the step's first rank arrived, the ranks' VDIs are merged
 //! into one ([`insitu_core::compose::compose_vdis`]), their frames composited front to back

@@ -118,7 +118,7 @@ pub struct Entry {
     pub with_references: bool,
 }
 
-/// A rank's brick in the whole grid, voxels (DESIGN.md, "A world of ranks").
+/// A rank's brick in the whole grid, voxels (docs/design.md, "A world of ranks").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Placement {
     /// The whole grid.
