@@ -1,5 +1,5 @@
 """Render one volume with VTK's CPU ray caster and with `insitu render`, interleaved; print
-both times, their ratio and the PSNR between the images (issue 17, "A benchmark against VTK").
+both times, their ratio and the PSNR between the images.
 
 Run through bench/vtk_compare.sh, which makes the venv. The conventions match docs/design.md
 ("Conventions every part shares"), which chose VTK's where there was a choice:

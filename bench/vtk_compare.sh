@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # VTK's CPU ray caster against `insitu render`, same volume, TF, camera and step, interleaved
-# (issue 17). Makes a venv with PyPI's vtk in bench/.venv on first use (needs network once),
+# runs. Makes a venv with PyPI's vtk in bench/.venv on first use (needs network once),
 # builds the release CLI, and prints both times, their ratio and the PSNR between the images.
 #
 #   bench/vtk_compare.sh                       # the teapot at 30°, 768², 5 runs

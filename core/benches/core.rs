@@ -1,4 +1,4 @@
-//! Benchmarks on the teapot at 768², step 0.5, `../shared/tf/teapot.json` (issue 3):
+//! Benchmarks on the teapot at 768², step 0.5, `../shared/tf/teapot.json`:
 //! reference DVR (with and without shading, with and without empty-space skipping), VDI
 //! generation at r = 768 and 256, VDI rendering at 30°, compression with each codec.
 //!

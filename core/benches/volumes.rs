@@ -1,4 +1,4 @@
-//! The reference DVR on each shared volume, render time alone (issue 17: the marcher against
+//! The reference DVR on each shared volume, render time alone (the marcher against
 //! VTK's, whose side of the comparison is `bench/vtk_compare.sh`): the teapot and hydrogen with
 //! their TFs, neghip and the stent with the default ramp over their data range (as
 //! `vtk_compare.sh` without `--tf`), 768², 30° and 10°; the ray-caster's set-up for the

@@ -69,7 +69,7 @@ fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3],
 /// rays, neighbouring voxels), written straight into the one output buffer: no per-tile
 /// allocation, so a large image costs one buffer, which goes back to the system when dropped
 /// (per-tile vectors spread over the worker threads' heaps used to stay resident after large
-/// renders, issue 15). [`blocks`] with one pixel a block, written out: the DVR's per-pixel
+/// renders). [`blocks`] with one pixel a block, written out: the DVR's per-pixel
 /// march was 10–15 % slower behind a block's buffer.
 pub(crate) fn tiles<P: Copy + Default + Send>(
     frame: &ViewFrame,

@@ -1,4 +1,4 @@
-//! Bearer tokens (issue 5, "Security basics").
+//! Bearer tokens.
 //!
 //! A daemon started with a token rejects every call whose `authorization` metadata is not
 //! `Bearer <token>` with `UNAUTHENTICATED`. Listening on anything but loopback without a token

@@ -1,4 +1,4 @@
-//! TLS for every gRPC link (issue 15, "TLS"): rustls through tonic, certificates and keys as
+//! TLS for every gRPC link: rustls through tonic, certificates and keys as
 //! PEM files, optional mutual TLS.
 //!
 //! One [`TlsFiles`] per daemon (the `[tls]` table of its TOML) serves two roles: with

@@ -1,4 +1,4 @@
-//! Pipeline benchmarks (issue 5, "Speed"), with the daemons as real processes on loopback:
+//! Pipeline benchmarks, with the daemons as real processes on loopback:
 //!
 //! 1. ingest: field data pushed through the client (a push returns once the step is queued),
 //!    GB/s, for 64 MiB steps, with the Rust client and with the C client

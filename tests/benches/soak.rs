@@ -1,4 +1,4 @@
-//! Soak (issue 15, "Soak"): thousands of 64³ steps through both daemons, as real processes on
+//! Soak: thousands of 64³ steps through both daemons, as real processes on
 //! loopback, while either daemon is killed with SIGKILL every 1–3 s and restarted on the
 //! same port. The generator-node has a durable spool and a fixed transfer function; the
 //! simulation (this program) pushes each step until it is acknowledged, reconnecting after a

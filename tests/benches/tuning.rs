@@ -1,4 +1,4 @@
-//! What the tuner service costs and how fast it reacts (issue 13, "Speed"), with the daemons
+//! What the tuner service costs and how fast it reacts, with the daemons
 //! as real processes on loopback and the simulation in this process:
 //!
 //! - the trials' CPU time as a share of the run: CPU time (user + system, from `/proc`) of the

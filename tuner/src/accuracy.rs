@@ -1,5 +1,5 @@
 //! What accuracy costs in time: one scene, each knob that trades quality for speed swept on
-//! its own from a base setting, with q, τ and σ per setting (issue 4, item 6).
+//! its own from a base setting, with q, τ and σ per setting.
 //!
 //! - Ray-casting step and early-termination threshold: the direct rendering at each setting
 //!   against a ground truth at a quarter of the base step without early termination; τ is the

@@ -1,4 +1,4 @@
-//! The charts people open first (issue 4, item 5), as PNG with a bundled font (DejaVu Sans,
+//! The charts people open first, as PNG with a bundled font (DejaVu Sans,
 //! `assets/`), so nothing depends on the system's fonts:
 //!
 //! - [`study_map`]: the Fig. 7 map — γ across, r up; each candidate a disc whose colour is q,

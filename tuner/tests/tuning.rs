@@ -1,4 +1,4 @@
-//! The tuner against brute force and against itself (issue 4, "What must hold").
+//! The tuner against brute force and against itself.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

@@ -1,4 +1,4 @@
-//! Any stored step from any camera (issue 16; paper Sec. 3.1: a VDI is explored later from
+//! Any stored step from any camera (paper Sec. 3.1: a VDI is explored later from
 //! other viewpoints): which VDI shows a step (one rank's, or for a world of ranks the step's
 //! composed VDI), the camera of a view (an orbit about the generation camera's target), the
 //! checks on a request, and the encoding of the frame. Shared by the web viewer

@@ -1,5 +1,5 @@
 //! What the benchmarks share: the shared volumes and their transfer functions, above all the
-//! teapot scene of issue 3 (256×256×178 u8 from `../shared/data`, `../shared/tf/teapot.json`;
+//! teapot scene (256×256×178 u8 from `../shared/data`, `../shared/tf/teapot.json`;
 //! `INSITU_DATA_DIR` and `INSITU_TF_DIR` override the folders).
 
 use insitu_core::volume::RawFormat;

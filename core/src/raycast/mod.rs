@@ -77,7 +77,7 @@ pub struct RaycastParams {
     /// Early termination while generating a VDI, separate from the DVR's: `Some(a)` stops a
     /// generation ray once its accumulated opacity reaches `a` (in (0, 1]); `None` never stops
     /// it, so the VDI keeps what lies behind dense structures for views that look past them
-    /// (issue 17: stopping at 0.99 left holes that showed as dark streaks from 10–30°). The
+    /// (stopping at 0.99 left holes that showed as dark streaks from 10–30°). The
     /// `accuracy` report measures each choice; see [`DEFAULT_GENERATION_TERMINATION`].
     pub generation_termination: Option<f32>,
     /// Blinn–Phong gradient shading; `None` is pure emission–absorption.

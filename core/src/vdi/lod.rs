@@ -1,4 +1,4 @@
-//! Coarser levels of a VDI, for interactive frames (issue 16/17: a ¼-area frame of an
+//! Coarser levels of a VDI, for interactive frames (a ¼-area frame of an
 //! r = 768 VDI within 50 ms).
 //!
 //! Rendering walks the generation pixels a ray's projection crosses, so its cost grows with

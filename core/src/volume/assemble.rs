@@ -1,5 +1,5 @@
 //! A field that arrives in pieces (a gRPC stream's chunks, a file read in blocks) converted
-//! into the volume's own storage as each piece comes (issue 17, item 6): one pass over the
+//! into the volume's own storage as each piece comes: one pass over the
 //! bytes, no intermediate buffer of the whole step.
 
 use super::voxels::{Storage, PAD};

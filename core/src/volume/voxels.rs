@@ -1,4 +1,4 @@
-//! Voxel storage in the data's own type (issue 17): a byte volume stays one byte per voxel
+//! Voxel storage in the data's own type: a byte volume stays one byte per voxel
 //! instead of four, so the field costs what it costs the simulation or the file, and the
 //! marcher reads a quarter of the memory. Values are the stored numbers as `f32` (exact for
 //! u8, u16 and i16); f64, which f32 cannot hold exactly, is stored as f32.

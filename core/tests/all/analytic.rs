@@ -198,7 +198,7 @@ fn opaque_slab_blocks_everything() {
     let _ = Vec3::ZERO;
 }
 
-/// Generation's early termination (issue 17): an opaque slab in front of a blob, seen from the
+/// Generation's early termination: an opaque slab in front of a blob, seen from the
 /// generation camera (+z). Stopping generation rays at 0.99 leaves the blob out of the VDI, so
 /// a view from the side (90°), where the DVR shows it beside the slab, shows nothing there;
 /// generation without early termination keeps it and matches the DVR.

@@ -1,5 +1,4 @@
-//! End-to-end tests with the daemons as real processes on 127.0.0.1 (issue 5, "What must
-//! hold").
+//! End-to-end tests with the daemons as real processes on 127.0.0.1.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

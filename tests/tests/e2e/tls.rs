@@ -1,4 +1,4 @@
-//! TLS (issue 15, "TLS"): the daemons off loopback with a token and TLS, mutual TLS on every
+//! TLS: the daemons off loopback with a token and TLS, mutual TLS on every
 //! link (simulation → generator-node → viz-node), certificates from a throw-away CA made here
 //! with rcgen; and what is refused: clear text to a TLS node, a server certificate from
 //! another CA, a client without a certificate or with one from another CA, a wrong token, and

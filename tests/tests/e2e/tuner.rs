@@ -1,6 +1,5 @@
-//! The tuner service with every daemon a real process on 127.0.0.1 (issue 13, "What must
-//! hold"): a tuned ocean replay, a change of character, a tuner restart, a generator-node killed
-//! during trials, and bad input.
+//! The tuner service with every daemon a real process on 127.0.0.1: a tuned ocean replay, a
+//! change of character, a tuner restart, a generator-node killed during trials, and bad input.
 
 use crate::common::{finish, flush, free_port, index, status, steps, viz};
 use crate::tuned::{
@@ -130,7 +129,7 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
 /// A world of 4 ranks on one node: every step composes, the one the decision lands in too
 /// (its ranks keep one P_M), and the decision's predicted q is the composed step's q, which
 /// the viz-node measures on the composed VDI, to within 1.5 dB, so no step is re-tuned for
-/// falling short of it. (Until stop 42 a decision landing between the ranks of a step left it
+/// falling short of it. (A decision once landing between the ranks of a step left it
 /// uncomposed, and q pooled as the mean of the bricks' MSEs was 5 dB too high here.)
 #[test]
 fn with_four_ranks_the_predicted_q_is_the_composed_steps() {

@@ -1,4 +1,4 @@
-//! The web viewer in a real browser (issue 16, "What must hold"): Debian's Chromium, headless,
+//! The web viewer in a real browser: Debian's Chromium, headless,
 //! driven over WebDriver by chromedriver, against a viz-node process serving a recording that
 //! a replay made, while more steps arrive. Screenshots go to `target/test-artifacts/`.
 

@@ -82,7 +82,7 @@ fn a_tuned_ocean_replay_meets_a_time_budget_with_a_fraction_of_the_grid() {
     }
     // The grid is 4 r × 17 γ per characteristic step. How the trials split between probes and
     // the bisection depends on how many r meet the budget on this machine: where all four do
-    // (stop 44's Zen-5 VM), 4 probes and 4 bisection trials a step, an even split; so only
+    // (a Zen-5 VM), 4 probes and 4 bisection trials a step, an even split; so only
     // that probes ran on every characteristic step is asserted of them.
     let steps = s.characteristic_steps.len() as u64;
     let grid = 68 * steps;

@@ -1,4 +1,4 @@
-//! The web viewer (issue 16): HTTP on the viz-node's tokio runtime, beside the gRPC server.
+//! The web viewer: HTTP on the viz-node's tokio runtime, beside the gRPC server.
 //!
 //! - `GET /` and its assets: the page, embedded in the binary (nothing fetched at run time).
 //! - `GET /api/steps`, `GET /api/series`, `GET /api/render`, `GET /api/reference`,
