@@ -106,6 +106,17 @@ pub(crate) fn decision(addr: &str, version: u64) -> Result<pb::PmDecision, tonic
     })
 }
 
+/// The newest decision up to version `newest` that the search pushed as it found it: not a
+/// correction between tunings, not coarsened for the forecast (those name a candidate the
+/// trials may never have measured). `None` when every one was. (Read by the timed tests.)
+#[allow(dead_code)]
+pub(crate) fn as_found(addr: &str, newest: u64) -> Option<pb::PmDecision> {
+    (1..=newest)
+        .rev()
+        .filter_map(|v| decision(addr, v).ok())
+        .find(|d| d.corrects_version == 0 && d.forecast_ratio == 0.0)
+}
+
 /// The persisted state.
 pub(crate) fn state(dir: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(dir.join("tuner-state.json")).unwrap()).unwrap()
