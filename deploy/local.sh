@@ -8,7 +8,7 @@
 #   deploy/local.sh [RECORDING_DIR] [-- extra generator-node flags]
 #
 # Then push data, e.g.:
-#   target/release/insitu replay --series ../shared/data/ocean_temp_ts_180x90x19x12_float32.raw \
+#   target/release/insitu replay --series data/ocean_temp_ts_180x90x19x12_float32.raw \
 #       --generator <generator address printed below>
 # Configs: deploy/generator-node.toml, deploy/viz-node.toml and deploy/tuner-node.toml document
 # every key; set GENERATOR_CONFIG / VIZ_CONFIG / TUNER_CONFIG to use your own.

@@ -62,6 +62,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    insitu_core::backend::quiet_vulkan_layers();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()

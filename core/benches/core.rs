@@ -1,8 +1,8 @@
-//! Benchmarks on the teapot at 768², step 0.5, `../shared/tf/teapot.json`:
+//! Benchmarks on the teapot at 768², step 0.5, `data/tf/teapot.json`:
 //! reference DVR (with and without shading, with and without empty-space skipping), VDI
 //! generation at r = 768 and 256, VDI rendering at 30°, compression with each codec.
 //!
-//! Needs `../shared/data` (or `INSITU_DATA_DIR`) and `../shared/tf` (or `INSITU_TF_DIR`).
+//! Needs the teapot and `teapot.json` (docs/data.md).
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 

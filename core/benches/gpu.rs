@@ -1,6 +1,6 @@
 //! GPU against CPU for the three kernels (issue: GPU path): reference DVR, VDI generation
 //! (r = 768 and 256, γ = 0.013) and VDI rendering from 30°, on the teapot (768², step 0.5,
-//! `../shared/tf/teapot.json`) and on an analytic 256³ field, at 768² and 1920×1080.
+//! `data/tf/teapot.json`) and on an analytic 256³ field, at 768² and 1920×1080.
 //!
 //! A bench binary rather than criterion: each GPU row reports two times, the wall clock of
 //! the call (uploads of the camera, read-back of the result) and the kernel time from GPU

@@ -1,5 +1,5 @@
 //! VDI generation's cost over the reference DVR pass, against the aim of generation at
-//! r = 768 ≤ 1.15× the DVR at 768² (teapot, step 0.5, `../shared/tf/teapot.json`), for
+//! r = 768 ≤ 1.15× the DVR at 768² (teapot, step 0.5, `data/tf/teapot.json`), for
 //! γ = 0.013 and, to show what a finer γ costs, 0.001 and 0.26; generating into the previous
 //! VDI (`generate_into`, as the generator-node does step after step) is timed as well. First,
 //! the floor under those ratios: generation's march alone (its rays to the box exit, every

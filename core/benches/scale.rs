@@ -1,5 +1,5 @@
 //! How DVR, VDI generation, peak memory and VDI size grow with the volume:
-//! the teapot (`../shared/data`, `teapot.json`) resampled trilinearly to N³ for N = 128, 256,
+//! the teapot (with `teapot.json`; docs/data.md) resampled trilinearly to N³ for N = 128, 256,
 //! 512 and 1024, as u8 (rounded) and as f32, rendered and generated at 768² / r = 768 from
 //! 30°, step 0.5 voxel of the resampled grid, γ = 0.013, CPU backend.
 //!

@@ -17,6 +17,25 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Instant;
 
+/// Keeps Mesa's Vulkan device-selection layer out of a process that has no display session.
+///
+/// The layer (an implicit layer Mesa installs beside its drivers) orders GPUs by the display
+/// the user sits at, and to find it connects to Wayland: where `XDG_RUNTIME_DIR` is unset, the
+/// normal case on a compute node, under a batch scheduler or over ssh, that prints
+/// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` at every adapter
+/// enumeration. We pick the adapter ourselves ([`Backend::select`]) and never present to a
+/// display, so the layer has nothing to do here; this sets its documented off switch,
+/// `NODEVICE_SELECT=1`, unless the user set it. With a display session the layer is left alone.
+///
+/// Call it first thing in `main`, before any thread starts: it changes the process
+/// environment, which other threads may be reading.
+pub fn quiet_vulkan_layers() {
+    let session = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|v| !v.is_empty());
+    if !session && std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 /// What the user asked for.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -108,8 +108,8 @@ fn config(a: Args) -> Result<Config> {
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-#[tokio::main]
-async fn main() -> std::process::ExitCode {
+fn main() -> std::process::ExitCode {
+    insitu_core::backend::quiet_vulkan_layers();
     run_main(async {
         let node = start(config(Args::parse())?).await?;
         // Scripts and tests read the actual address from this line.
@@ -120,5 +120,4 @@ async fn main() -> std::process::ExitCode {
         println!("summary: {summary}");
         anyhow::Ok(())
     })
-    .await
 }

@@ -123,12 +123,18 @@ pub async fn shutdown_signal() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
-/// Runs a daemon's `main`: prints its error chain and exits non-zero on failure.
-pub async fn run_main(
+/// Runs a daemon's `main` on a multi-threaded tokio runtime: prints its error chain and exits
+/// non-zero on failure (also when the runtime cannot be started).
+pub fn run_main(
     main: impl std::future::Future<Output = anyhow::Result<()>>,
 ) -> std::process::ExitCode {
     init_tracing();
-    match main.await {
+    let result = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(anyhow::Error::from)
+        .and_then(|rt| rt.block_on(main));
+    match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", crate::peer::error_chain(e.as_ref()));

@@ -306,15 +306,11 @@ fn main() {
         });
     }
     if wanted("ocean") {
-        // The shared data (as the data tests find it); the bench skips the ocean without it.
-        let dir = std::env::var_os("INSITU_DATA_DIR").map_or_else(
-            || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
-            PathBuf::from,
-        );
-        match dir.is_dir().then_some(dir) {
-            Some(d) => scenarios.push(Scenario {
+        // The ocean series as the data tests find it; the bench skips the ocean without it.
+        match insitu_e2e::ocean() {
+            Some(series) => scenarios.push(Scenario {
                 name: "ocean",
-                series: d.join("ocean_temp_ts_180x90x19x12_float32.raw"),
+                series,
                 utilities: vec!["size:150kB"],
             }),
             None => eprintln!("ocean: skipped (no data directory)"),

@@ -17,7 +17,7 @@
 
 use insitu_client::{SimClient, Step};
 use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
-use insitu_e2e::{data_dir, rt, Daemon};
+use insitu_e2e::{ocean, rt, Daemon};
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{pb, transport};
@@ -376,8 +376,8 @@ fn main() {
     let tmp = tempfile::tempdir().unwrap();
     // Build the daemons before anything is timed.
     insitu_e2e::ensure_built();
-    if let Some(data) = data_dir() {
-        let ocean = Source::Ocean(data.join("ocean_temp_ts_180x90x19x12_float32.raw"));
+    if let Some(series) = ocean() {
+        let ocean = Source::Ocean(series);
         let without = run(&ocean, None, tmp.path(), 2, "bzip2");
         let with = run(&ocean, Some("size:150kB"), tmp.path(), 2, "bzip2");
         report(

@@ -246,26 +246,32 @@ pub fn start_viz(dir: &Path, listen: &str, extra: &[&str], logs: &Path) -> Daemo
     Daemon::start("viz-node", &args, &[], logs)
 }
 
-/// The shared data directory (`INSITU_DATA_DIR` or `../shared/data`); panics with a clear
-/// message when it is missing, unless `INSITU_SKIP_DATA_TESTS=1` (then `None`).
-pub fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("INSITU_DATA_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
-    if dir.is_dir() {
-        return Some(dir);
+pub use insitu_testenv::{data_file, tf_file};
+
+/// The ocean series (180×90×19 f32, 12 monthly steps, NaN land; docs/data.md).
+pub const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
+
+/// The ocean series' path, or `None` where it is in none of the data folders (the test skips
+/// and the binary says so when it exits; `insitu_testenv`).
+pub fn ocean() -> Option<PathBuf> {
+    data_file(OCEAN)
+}
+
+/// Whether `insitu` finds a GPU adapter (`--backend gpu` on a tiny render); `None` (the test
+/// skips; `insitu_testenv`) where it finds none.
+pub fn gpu_adapter() -> Option<()> {
+    let png = std::env::temp_dir().join(format!("insitu-gpu-probe-{}.png", std::process::id()));
+    let out = Command::new(bin("insitu"))
+        .args(["render", "--backend", "gpu", "--size", "16", "--out"])
+        .arg(&png)
+        .output()
+        .ok()?;
+    let _ = std::fs::remove_file(&png);
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("no GPU adapter found") {
+        return insitu_testenv::skip(insitu_testenv::Need::Gpu, &err);
     }
-    if std::env::var("INSITU_SKIP_DATA_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!(
-            "SKIPPED: data directory {} missing (INSITU_SKIP_DATA_TESTS=1)",
-            dir.display()
-        );
-        return None;
-    }
-    panic!(
-        "data directory {} is missing: set INSITU_DATA_DIR, or INSITU_SKIP_DATA_TESTS=1 to skip",
-        dir.display()
-    );
+    Some(())
 }
 
 /// A current-thread runtime for async client calls inside a test.
@@ -328,19 +334,8 @@ pub fn build_c(compiler: &Path, source: &str, exe: &Path, flags: &[&str]) {
     );
 }
 
-/// The path of `tool` on `PATH`; panics naming the package to install when it is missing,
-/// unless `INSITU_SKIP_MPI=1` (then `None`, and the test says it skipped).
+/// The path of the Open MPI program `tool` on `PATH`, or `None` (the test skips;
+/// `insitu_testenv`).
 pub fn mpi_tool(tool: &str) -> Option<PathBuf> {
-    let found = std::env::var_os("PATH").and_then(|paths| {
-        std::env::split_paths(&paths)
-            .map(|d| d.join(tool))
-            .find(|p| p.is_file())
-    });
-    if found.is_none() && std::env::var("INSITU_SKIP_MPI").is_ok_and(|v| v == "1") {
-        eprintln!("SKIPPED: {tool} not found (INSITU_SKIP_MPI=1)");
-        return None;
-    }
-    Some(found.unwrap_or_else(|| {
-        panic!("{tool} not found: install Open MPI (apt-get install openmpi-bin libopenmpi-dev), or set INSITU_SKIP_MPI=1 to skip")
-    }))
+    insitu_testenv::tool(tool, insitu_testenv::Need::Mpi)
 }

@@ -43,8 +43,8 @@ fn config(a: Args) -> Result<Config> {
     Ok(c)
 }
 
-#[tokio::main]
-async fn main() -> std::process::ExitCode {
+fn main() -> std::process::ExitCode {
+    insitu_core::backend::quiet_vulkan_layers();
     run_main(async {
         let node = start(config(Args::parse())?).await?;
         // Scripts and tests read the actual address from this line.
@@ -54,5 +54,4 @@ async fn main() -> std::process::ExitCode {
         node.shutdown().await;
         anyhow::Ok(())
     })
-    .await
 }

@@ -11,34 +11,6 @@ use insitu_tuner::study::StudyError;
 use insitu_tuner::utility::{best, QualityTarget, SizeBudget, UtilitySpec};
 use insitu_tuner::{Candidate, Measurement, Oracle, ParamGrid, Study, StudyScene, TableOracle};
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
-
-fn shared(sub: &str) -> Option<PathBuf> {
-    let (var, dir) = if sub == "data" {
-        ("INSITU_DATA_DIR", "data")
-    } else {
-        ("INSITU_TF_DIR", "tf")
-    };
-    let p = std::env::var_os(var).map(PathBuf::from).unwrap_or_else(|| {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared")
-            .join(dir)
-    });
-    if p.is_dir() {
-        return Some(p);
-    }
-    if std::env::var("INSITU_SKIP_DATA_TESTS").is_ok_and(|v| v == "1") {
-        eprintln!(
-            "SKIPPED: {} missing (INSITU_SKIP_DATA_TESTS=1)",
-            p.display()
-        );
-        return None;
-    }
-    panic!(
-        "{} is missing: set {var}, or INSITU_SKIP_DATA_TESTS=1 to skip",
-        p.display()
-    );
-}
 
 fn blob() -> Volume {
     Volume::from_fn([24, 24, 24], |x, y, z| {
@@ -121,14 +93,13 @@ fn brute_best_q(rows: &[Measurement], target: u64) -> Option<f64> {
 }
 
 fn real(name: &str, tf: &str, grid: &ParamGrid) -> Option<Vec<Measurement>> {
-    let data = shared("data")?;
-    let tfs = shared("tf")?;
-    let path = data.join(name);
+    let path = insitu_testenv::data_file(name)?;
+    let tf_path = insitu_testenv::tf_file(tf)?;
     let v = RawFormat::from_file_name(&path)
         .unwrap()
         .load(&path, 0, glam::Vec3::ONE)
         .unwrap();
-    let tf = TransferFunction::load(&tfs.join(tf)).unwrap();
+    let tf = TransferFunction::load(&tf_path).unwrap();
     let mut s = Study::new(scene(&v, &tf, 64, Codec::Bzip2), None);
     Some(s.run(&grid.candidates(), |_, _| {}).unwrap())
 }

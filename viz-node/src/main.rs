@@ -35,8 +35,8 @@ struct Args {
     compose_timeout_secs: Option<f64>,
 }
 
-#[tokio::main]
-async fn main() -> std::process::ExitCode {
+fn main() -> std::process::ExitCode {
+    insitu_core::backend::quiet_vulkan_layers();
     run_main(async {
         let a = Args::parse();
         let mut cfg: Config = a.common.config()?;
@@ -65,5 +65,4 @@ async fn main() -> std::process::ExitCode {
         node.shutdown().await;
         anyhow::Ok(())
     })
-    .await
 }

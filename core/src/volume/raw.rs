@@ -1,5 +1,5 @@
 //! Headerless raw volumes: `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`, little-endian, x fastest,
-//! then y, z and t (`../shared/data/README.md`).
+//! then y, z and t (docs/data.md).
 
 use super::{Volume, VolumeError};
 use glam::Vec3;

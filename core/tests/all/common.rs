@@ -2,47 +2,27 @@
 
 use insitu_core::volume::RawFormat;
 use insitu_core::{Image, TransferFunction, Volume};
-use std::path::PathBuf;
 
 /// The CT teapot, the issues' benchmark volume.
 pub const TEAPOT: &str = "teapot_256x256x178_uint8.raw";
 
-/// `../shared/data` beside the repository, or `$INSITU_DATA_DIR`.
-pub fn data_dir() -> PathBuf {
-    std::env::var_os("INSITU_DATA_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
-}
-
-/// `../shared/tf` beside the repository, or `$INSITU_TF_DIR`.
-pub fn tf_dir() -> PathBuf {
-    std::env::var_os("INSITU_TF_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/tf"))
-}
-
-/// Loads a shared volume by file name, time step `t`. A missing file fails the test with a
-/// message saying so, unless `INSITU_SKIP_DATA_TESTS=1`, in which case it returns `None`
-/// after printing that the test was skipped.
+/// Loads a real volume by file name, time step `t`, from wherever `insitu_testenv` finds it;
+/// `None` (the test skips) where it is in none of the data folders.
 pub fn shared_volume(name: &str, t: usize) -> Option<Volume> {
-    let path = data_dir().join(name);
-    if !path.exists() {
-        let msg = format!(
-            "real-data test needs {} (set INSITU_DATA_DIR, or INSITU_SKIP_DATA_TESTS=1 to skip)",
-            path.display()
-        );
-        if std::env::var("INSITU_SKIP_DATA_TESTS").as_deref() == Ok("1") {
-            eprintln!("SKIPPED: {msg}");
-            return None;
-        }
-        panic!("{msg}");
-    }
+    let path = insitu_testenv::data_file(name)?;
     let format = RawFormat::from_file_name(&path).expect("shared data names carry their layout");
     Some(
         format
             .load(&path, t, glam::Vec3::ONE)
             .expect("shared volume loads"),
     )
+}
+
+/// Loads a transfer function of the real volumes by file name; `None` (the test skips) where
+/// it is in none of the TF folders.
+pub fn shared_tf(name: &str) -> Option<TransferFunction> {
+    let path = insitu_testenv::tf_file(name)?;
+    Some(TransferFunction::load(&path).expect("shared TF loads"))
 }
 
 /// Asserts that no channel of the image is NaN or infinite, and all lie in [0, 1].
@@ -54,7 +34,7 @@ pub fn assert_valid(image: &Image, what: &str) {
 }
 
 /// The shared volumes with their transfer function (a ramp over the data range where
-/// `../shared/tf` has none).
+/// the TF folders have none).
 pub fn shared_scenes() -> Vec<(&'static str, Volume, TransferFunction)> {
     let cases = [
         (TEAPOT, 0, Some("teapot.json")),
@@ -69,7 +49,10 @@ pub fn shared_scenes() -> Vec<(&'static str, Volume, TransferFunction)> {
             continue;
         };
         let tf = match tf {
-            Some(f) => TransferFunction::load(&tf_dir().join(f)).expect("shared TF loads"),
+            Some(f) => match shared_tf(f) {
+                Some(tf) => tf,
+                None => continue,
+            },
             None => {
                 let (lo, hi) = volume.finite_range().expect("volume has data");
                 TransferFunction::default_for_range(lo, hi)

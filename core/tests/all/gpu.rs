@@ -1,5 +1,5 @@
 //! The GPU backend against the CPU path (issue: GPU parity). Runs on whatever adapter wgpu
-//! finds (lavapipe in CI). No adapter fails the test unless `INSITU_SKIP_GPU_TESTS=1`.
+//! finds (lavapipe in CI). Without an adapter they skip (`insitu_testenv`).
 
 use crate::common::{assert_valid, shared_scenes};
 use crate::hard_cases::assert_vdi_finite;
@@ -19,12 +19,7 @@ pub fn gpu() -> Option<&'static Gpu> {
             Some(g)
         }
         Err(e @ GpuError::NoAdapter(_)) => {
-            if std::env::var("INSITU_SKIP_GPU_TESTS").as_deref() == Ok("1") {
-                eprintln!("SKIPPED: GPU tests need an adapter: {e}");
-                None
-            } else {
-                panic!("GPU tests need an adapter (install mesa-vulkan-drivers, or set INSITU_SKIP_GPU_TESTS=1): {e}");
-            }
+            insitu_testenv::skip(insitu_testenv::Need::Gpu, &format!("GPU tests: {e}"))
         }
         Err(e) => panic!("opening the GPU failed: {e}"),
     })

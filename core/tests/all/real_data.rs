@@ -1,10 +1,10 @@
-//! Real volumes from `../shared/data` (see `common::shared_volume` for missing data).
+//! Real volumes (docs/data.md); each test skips where its volume is missing (`insitu_testenv`).
 
-use crate::common::{assert_valid, shared_scenes as scenes, shared_volume, tf_dir};
+use crate::common::{assert_valid, shared_scenes as scenes, shared_tf, shared_volume};
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, Volume};
 
 use crate::common::TEAPOT;
 
@@ -47,7 +47,9 @@ fn teapot_quality_falls_smoothly_off_view() {
     let Some(volume) = shared_volume(TEAPOT, 0) else {
         return;
     };
-    let tf = TransferFunction::load(&tf_dir().join("teapot.json")).unwrap();
+    let Some(tf) = shared_tf("teapot.json") else {
+        return;
+    };
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
     let cam = Camera::default_for_box(&volume.world_box());
     let angles = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0];

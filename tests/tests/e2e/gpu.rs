@@ -3,15 +3,11 @@
 
 use crate::common::{generator, index, local_q, small_config};
 use crate::replay::replay;
-use insitu_e2e::data_dir;
+use insitu_e2e::{gpu_adapter, ocean};
 
 #[test]
 fn the_pipeline_runs_on_the_gpu_backend() {
-    if data_dir().is_none() {
-        return;
-    }
-    if std::env::var("INSITU_SKIP_GPU_TESTS").as_deref() == Ok("1") {
-        eprintln!("SKIPPED: INSITU_SKIP_GPU_TESTS=1");
+    if ocean().is_none() || gpu_adapter().is_none() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

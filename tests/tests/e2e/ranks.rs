@@ -9,13 +9,11 @@ use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
-use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
+use insitu_e2e::{bin, ocean, rt, wait_until, Daemon};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{chunk, pb, transport};
 use std::path::Path;
 use std::process::Command;
-
-const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
 
 fn decode_file(path: &Path) -> Vdi {
     decode(&std::fs::read(path).unwrap(), &DecodeLimits::default()).unwrap()
@@ -26,7 +24,7 @@ fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
     let rec = tmp.join(format!("rec-{split}"));
     let v = viz(&rec, "127.0.0.1:0", tmp);
     let g = generator(&small_config(&v.addr, "block", 16), tmp, &[]);
-    let series = data_dir().unwrap().join(OCEAN);
+    let series = ocean().unwrap();
     let out = Command::new(bin("insitu"))
         .args(["replay", "--series", series.to_str().unwrap()])
         .args(["--generator", &g.addr, "--split", split])
@@ -72,7 +70,7 @@ fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
 
 #[test]
 fn composed_ocean_steps_render_and_score_like_the_whole_domain() {
-    if data_dir().is_none() {
+    if ocean().is_none() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

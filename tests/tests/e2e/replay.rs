@@ -2,17 +2,14 @@
 
 use crate::common::{generator, index, load_vdi, local_q, replayed, viz};
 use insitu_core::vdi::render;
-use insitu_e2e::{bin, data_dir, Daemon};
+use insitu_e2e::{bin, ocean, Daemon};
 use insitu_proto::convert::camera_to_pb;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{pb, transport};
 use std::process::Command;
 
-const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
-
 pub fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -> String {
-    let series = data_dir().map(|d| d.join(OCEAN));
-    let series = series.unwrap();
+    let series = ocean().unwrap();
     let out = Command::new(bin("insitu"))
         .args([
             "replay",
@@ -32,7 +29,7 @@ pub fn replay(generator: &Daemon, ranks: u32, steps: usize, sample_every: u32) -
 
 #[test]
 fn ocean_replay_is_stored_counted_and_scored_like_locally() {
-    if data_dir().is_none() {
+    if ocean().is_none() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -105,7 +102,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
 
 #[test]
 fn bricks_over_two_and_four_ranks_are_stored_and_render() {
-    if data_dir().is_none() {
+    if ocean().is_none() {
         return;
     }
     for ranks in [2u32, 4] {

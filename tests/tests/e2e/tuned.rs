@@ -4,13 +4,11 @@
 //! decisions and persisted state.
 
 use crate::common::{finish, free_port, generator, small_config, status, viz};
-use insitu_e2e::{bin, data_dir, rt, wait_until, Daemon};
+use insitu_e2e::{bin, ocean, rt, wait_until, Daemon};
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::{pb, transport};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-
-pub(crate) const OCEAN: &str = "ocean_temp_ts_180x90x19x12_float32.raw";
 
 /// A tuner-node with a small grid (fast trials) and no trial share limit in a short test.
 pub(crate) fn tuner(state: &Path, listen: &str, viz: &str, utility: &str, logs: &Path) -> Daemon {
@@ -156,13 +154,13 @@ impl TunedOcean {
 }
 
 pub(crate) fn tuned_ocean(utility: &str, args: &[&str]) -> Option<TunedOcean> {
-    let data = data_dir()?;
+    let series = ocean()?;
     let tmp = tempfile::tempdir().unwrap();
     let (rec, st) = (tmp.path().join("rec"), tmp.path().join("state"));
     let v = viz(&rec, "127.0.0.1:0", tmp.path());
     let t = tuner(&st, "127.0.0.1:0", &v.addr, utility, tmp.path());
     let g = tuned_generator(&v.addr, &t.addr, tmp.path());
-    finish(replay(&data.join(OCEAN), &g.addr, args));
+    finish(replay(&series, &g.addr, args));
     Some(TunedOcean {
         rec,
         st,

@@ -13,7 +13,7 @@ use insitu_core::metrics::{mse, psnr_from_mse};
 use insitu_core::volume::RawFormat;
 use insitu_core::Image;
 use insitu_e2e::browser::{artefacts, browser, js, start_driver};
-use insitu_e2e::{bin, data_dir, rt, Daemon};
+use insitu_e2e::{bin, ocean, rt, Daemon};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
@@ -86,9 +86,7 @@ fn not_blank(img: &Image) -> bool {
 
 /// Pushes ocean step `t` as step index `step` straight to the generator-node.
 async fn push_ocean(generator: &str, step: u64, t: usize) {
-    let path = data_dir()
-        .unwrap()
-        .join("ocean_temp_ts_180x90x19x12_float32.raw");
+    let path = ocean().unwrap();
     let format = RawFormat::from_file_name(&path).unwrap();
     let vol = format.load(&path, t, glam::Vec3::ONE).unwrap();
     let d = vol.dims().map(|x| x as u32);
@@ -122,15 +120,16 @@ struct Recorded {
 }
 
 impl Recorded {
-    /// `None` (and a message from `data_dir`) without the shared data.
+    /// `None` without the ocean series (the test skips).
     fn replay(ranks: u32, steps: usize, sample_every: u32) -> Option<Self> {
-        data_dir()?;
+        ocean()?;
+        let driver = start_driver()?;
         let tmp = tempfile::tempdir().unwrap();
         let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
         let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
         replay(&g, ranks, steps, sample_every);
         Some(Self {
-            driver: start_driver(),
+            driver,
             url,
             generator: g,
             _viz: v,
