@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Starts a viz-node, a tuner-node and a generator-node on 127.0.0.1 (ephemeral ports) from this
-# checkout's release binaries — the same binaries the end-to-end tests start — and keeps them
+# checkout's release binaries (built first), or from prebuilt ones in INSITU_BIN_DIR (nothing
+# is built then: e.g. INSITU_BIN_DIR=/opt/insitu/bin on a machine without Rust), and keeps them
 # running until Ctrl-C, then stops them gracefully (the generator drains and prints what it
 # dropped). The tuner optimises TUNER_UTILITY (default size:1MB) and keeps its state in
 # RECORDING_DIR/tuner-state; NO_TUNE=1 starts no tuner (P_M stays as configured).
@@ -17,8 +18,15 @@ cd "$(dirname "$0")/.."
 rec=${1:-recording}
 shift $(( $# > 0 ? 1 : 0 ))
 [[ ${1:-} == "--" ]] && shift
-cargo build --release --quiet --bins -p insitu-generator-node -p insitu-viz-node -p insitu-tuner-node -p insitu-cli
-bin=target/release
+if [[ -n ${INSITU_BIN_DIR:-} ]]; then
+  bin=$INSITU_BIN_DIR
+  for b in viz-node tuner-node generator-node; do
+    [[ -x $bin/$b ]] || { echo "INSITU_BIN_DIR=$bin has no executable $b" >&2; exit 1; }
+  done
+else
+  cargo build --release --quiet --bins -p insitu-generator-node -p insitu-viz-node -p insitu-tuner-node -p insitu-cli
+  bin=target/release
+fi
 logs=$(mktemp -d)
 
 wait_addr() { # file → prints the address once the daemon has printed it

@@ -295,7 +295,7 @@ impl Printer {
 /// When the viz-node cannot be reached.
 pub async fn print_reports(
     viz: SocketAddr,
-    generator: Option<Arc<gen::service::Shared>>,
+    generator: Option<Arc<gen::shared::Shared>>,
     tuner: Option<&insitu_tuner_node::RunningTuner>,
     json: bool,
 ) -> Result<Printer> {

@@ -157,7 +157,7 @@ impl RawStep {
     }
 
     /// Its spool file and the bytes counted for it there (what
-    /// [`crate::service::Shared::unspool`] releases once the step is settled).
+    /// [`crate::shared::Shared::unspool`] releases once the step is settled).
     pub fn spooled(&self) -> Option<(String, u64)> {
         self.spool.clone().map(|n| (n, self.bytes()))
     }

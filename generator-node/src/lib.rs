@@ -4,7 +4,7 @@
 //! a bounded [`queue`] with a named policy; a worker turns each into a compressed VDI on the
 //! blocking pool ([`work`]), with reference frames of the test views every k-th step; the
 //! [`ship`]per delivers them to the viz-node, reconnecting with back-off, from a bounded outbox.
-//! With a tuner configured, the node dials out to it ([`tuning`]): a summary per step up,
+//! With a tuner configured, the node dials out to it ([`tuner_link`], with its state in [`tuning`]): a summary per step up,
 //! claims on [`hold`]s of fields, trials and `P_M` decisions down.
 //! [`node`] wires it together and shuts it down gracefully; [`config`] is the TOML file.
 
@@ -17,10 +17,13 @@ pub mod node;
 pub mod queue;
 pub mod scene;
 pub mod service;
+pub mod settings;
+pub mod shared;
 pub mod ship;
 pub mod spare;
 pub mod spool;
 pub mod stats;
+pub mod tuner_link;
 pub mod tuning;
 pub mod work;
 

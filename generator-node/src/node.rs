@@ -4,7 +4,8 @@
 use crate::config::{Config, ConfigError, Generation, SpoolConfig};
 use crate::ingest::RawStep;
 use crate::queue::BoundedQueue;
-use crate::service::{GeneratorService, Shared};
+use crate::service::GeneratorService;
+use crate::shared::Shared;
 use crate::ship::Shipper;
 use crate::spool::{Spool, SpoolError};
 use crate::stats::{Counters, Stats};
@@ -206,7 +207,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let tuner = tuner.map(|(peer, tuning, summaries)| {
         let backoff = Duration::from_secs_f64(cfg.max_backoff_secs);
         let link =
-            crate::tuning::Link::new(peer, backoff, format!("{addr}/{}", std::process::id()));
+            crate::tuner_link::Link::new(peer, backoff, format!("{addr}/{}", std::process::id()));
         let run = link.run(shared.clone(), tuning, summaries);
         tokio::spawn(run.instrument(info_span!("tuner")))
     });
@@ -261,7 +262,7 @@ fn open_spool(
         })?;
     if let Some((version, run)) = spool.load_run() {
         *generation =
-            crate::service::apply_config(generation, &run).map_err(|e| StartError::SpoolRun {
+            crate::settings::apply_config(generation, &run).map_err(|e| StartError::SpoolRun {
                 dir: sc.dir.clone(),
                 problem: e.message().to_owned(),
             })?;

@@ -9,7 +9,7 @@ use crate::ingest::RawStep;
 use insitu_core::TransferFunction;
 use insitu_proto::pb;
 use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::peer::Peer;
+use insitu_proto::peer::{is_transient, Backoff, Peer};
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -89,7 +89,7 @@ impl SceneLink {
     }
 
     async fn agree(&self, p: pb::SceneProposal) {
-        let mut backoff = Duration::from_millis(100);
+        let mut backoff = Backoff::new(self.max_backoff);
         loop {
             if self.is_agreed() {
                 return;
@@ -108,7 +108,7 @@ impl SceneLink {
                     self.agreed.send_replace(Some(result));
                     return;
                 }
-                Err(e) if !crate::ship::is_transient(e.code()) => {
+                Err(e) if !is_transient(e.code()) => {
                     let why = format!(
                         "agreeing the scene with the viz-node {}: {:?}: {}",
                         self.peer.uri(),
@@ -134,8 +134,7 @@ impl SceneLink {
                     ));
                 }
             }
-            tokio::time::sleep(backoff).await;
-            backoff = (backoff * 2).min(self.max_backoff);
+            backoff.wait().await;
         }
     }
 

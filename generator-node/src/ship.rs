@@ -6,7 +6,7 @@ use crate::stats::Stats;
 use crate::work::Product;
 use insitu_proto::auth::AttachToken;
 use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::peer::{error_chain, Peer};
+use insitu_proto::peer::{error_chain, is_transient, Backoff, Peer};
 use insitu_proto::{chunk, pb, transport};
 use std::sync::Arc;
 use std::time::Duration;
@@ -16,21 +16,6 @@ use tonic::{Code, Status};
 use tracing::{info, info_span, warn, Instrument};
 
 type Client = VizClient<InterceptedService<Channel, AttachToken>>;
-
-/// Whether an error may go away by trying again: the peer is away or restarting, or its disk
-/// is full (`RESOURCE_EXHAUSTED`, which the viz-node returns only for that on these calls:
-/// the item waits in the outbox until there is room, like a step while the viz-node is away).
-pub fn is_transient(code: Code) -> bool {
-    matches!(
-        code,
-        Code::Unavailable
-            | Code::Unknown
-            | Code::Cancelled
-            | Code::DeadlineExceeded
-            | Code::Aborted
-            | Code::ResourceExhausted
-    )
-}
 
 /// Ships the outbox to one viz-node.
 pub struct Shipper {
@@ -102,7 +87,7 @@ impl Shipper {
     /// # Errors
     /// The viz-node's status when it refuses the item for a reason retrying cannot fix.
     pub async fn ship(&mut self, p: &Product, stats: &Stats) -> Result<(), Status> {
-        let mut backoff = Duration::from_millis(100);
+        let mut backoff = Backoff::new(self.max_backoff);
         let mut references_done = false;
         loop {
             match self.try_once(p, &mut references_done).await {
@@ -132,15 +117,14 @@ impl Shipper {
                         e.message()
                     ));
                     self.client = None;
-                    tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(self.max_backoff);
+                    backoff.wait().await;
                 }
             }
         }
     }
 
     /// Ships items until the outbox is closed and empty; a settled item leaves the spool.
-    pub async fn run(mut self, shared: Arc<crate::service::Shared>) {
+    pub async fn run(mut self, shared: Arc<crate::shared::Shared>) {
         let stats = shared.stats.clone();
         while let Some(p) = shared.outbox.pop().await {
             let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);

@@ -81,6 +81,64 @@ impl Peer {
     }
 }
 
+/// Exponential back-off between attempts at something that may come back (a peer that is
+/// away or restarting, a disk that is full): the first wait is [`Backoff::FIRST`], each next
+/// one twice the last, never more than the cap. Every retry loop of the daemons uses it.
+#[derive(Clone, Debug)]
+pub struct Backoff {
+    next: std::time::Duration,
+    max: std::time::Duration,
+}
+
+impl Backoff {
+    /// The first wait after a failure.
+    pub const FIRST: std::time::Duration = std::time::Duration::from_millis(100);
+    /// The cap where a daemon has no `max_backoff_secs` setting.
+    pub const DEFAULT_MAX: std::time::Duration = std::time::Duration::from_secs(5);
+
+    /// Back-off from [`Backoff::FIRST`] up to `max` (at least `FIRST`).
+    pub fn new(max: std::time::Duration) -> Self {
+        Self {
+            next: Self::FIRST,
+            max: max.max(Self::FIRST),
+        }
+    }
+
+    /// The wait before the next attempt; the one after it doubles, up to the cap.
+    pub fn next_delay(&mut self) -> std::time::Duration {
+        let d = self.next;
+        self.next = (self.next * 2).min(self.max);
+        d
+    }
+
+    /// Sleeps [`Backoff::next_delay`] on the tokio timer.
+    pub async fn wait(&mut self) {
+        tokio::time::sleep(self.next_delay()).await;
+    }
+
+    /// After a success: the next failure waits [`Backoff::FIRST`] again.
+    pub fn reset(&mut self) {
+        self.next = Self::FIRST;
+    }
+}
+
+/// Whether a call's failure may go away by trying again: the peer is away or restarting, or
+/// its disk is full (`RESOURCE_EXHAUSTED`, which the viz-node returns only for that on the
+/// calls that store: the item waits until there is room, like a step while the viz-node is
+/// away). Anything else is a refusal that retrying cannot fix.
+pub fn is_transient(code: tonic::Code) -> bool {
+    use tonic::Code;
+    matches!(
+        code,
+        Code::Unavailable
+            | Code::Unknown
+            | Code::Cancelled
+            | Code::DeadlineExceeded
+            | Code::Aborted
+            | Code::ResourceExhausted
+    )
+}
+
 /// `e` and its sources, joined by `: ` (tonic's transport errors say only "transport error"
 /// at the top; the cause, e.g. a refused certificate, is further down), each said once
 /// ([`error_messages`]).
@@ -122,6 +180,30 @@ fn is_loopback_host(authority: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn backoff_doubles_to_its_cap_and_resets() {
+        use std::time::Duration;
+        let mut b = Backoff::new(Duration::from_millis(500));
+        let waits: Vec<u128> = (0..5).map(|_| b.next_delay().as_millis()).collect();
+        assert_eq!(waits, [100, 200, 400, 500, 500]);
+        b.reset();
+        assert_eq!(b.next_delay(), Backoff::FIRST);
+        // A cap below the first wait is raised to it.
+        let mut tiny = Backoff::new(Duration::from_millis(1));
+        assert_eq!(tiny.next_delay(), Backoff::FIRST);
+        assert_eq!(tiny.next_delay(), Backoff::FIRST);
+    }
+
+    #[test]
+    fn only_what_may_come_back_is_transient() {
+        use tonic::Code;
+        assert!(is_transient(Code::Unavailable));
+        assert!(is_transient(Code::ResourceExhausted));
+        assert!(!is_transient(Code::InvalidArgument));
+        assert!(!is_transient(Code::PermissionDenied));
+        assert!(!is_transient(Code::Unauthenticated));
+    }
 
     #[derive(Debug, thiserror::Error)]
     enum Outer {

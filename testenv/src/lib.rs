@@ -18,9 +18,9 @@
 //!    `scripts/fetch-data.sh` puts the volumes;
 //! 3. `../shared/data` or `../shared/tf` beside the repository.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Once;
+use std::sync::{Mutex, Once};
 
 /// Something a test needs from the machine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,7 +74,9 @@ fn requires(list: &str, need: Need) -> bool {
         .any(|n| n == "all" || n == need.name())
 }
 
-static SKIPPED: [AtomicUsize; 4] = [const { AtomicUsize::new(0) }; 4];
+/// The tests skipped, by need (a test is named by its thread, as the harness names it; one
+/// test that looks up several missing files counts once).
+static SKIPPED: Mutex<BTreeSet<(usize, String)>> = Mutex::new(BTreeSet::new());
 static SUMMARY: Once = Once::new();
 
 /// Records that the calling test is skipped because `need` is not met (`what` says what was
@@ -90,10 +92,14 @@ pub fn skip<T>(need: Need, what: &str) -> Option<T> {
             need.remedy()
         );
     }
-    SKIPPED[need.index()].fetch_add(1, Ordering::Relaxed);
+    let test = std::thread::current().name().unwrap_or("main").to_owned();
+    SKIPPED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .insert((need.index(), test));
     SUMMARY.call_once(|| {
-        // SAFETY: `summary` is an `extern "C" fn()` that reads only atomics and writes to
-        // stderr, both valid until the process ends; registering it has no other precondition.
+        // SAFETY: `summary` is an `extern "C" fn()` that reads a static and writes to stderr,
+        // both valid until the process ends; registering it has no other precondition.
         #[allow(unsafe_code)]
         unsafe {
             libc::atexit(summary);
@@ -105,10 +111,11 @@ pub fn skip<T>(need: Need, what: &str) -> Option<T> {
 /// Printed when the test binary exits: the harness captures what tests print and ends with
 /// `process::exit`, which runs `atexit` handlers.
 extern "C" fn summary() {
+    let skipped = SKIPPED.lock().unwrap_or_else(|e| e.into_inner());
     let parts: Vec<String> = NEEDS
         .iter()
         .filter_map(|&n| {
-            let k = SKIPPED[n.index()].load(Ordering::Relaxed);
+            let k = skipped.iter().filter(|(i, _)| *i == n.index()).count();
             (k > 0).then(|| format!("{k} need {} ({})", n.name(), n.remedy()))
         })
         .collect();

@@ -10,7 +10,8 @@
 
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
-use crate::state::{Decision, State};
+use crate::state::{decision_pb, Decision, State};
+use crate::trigger::Trigger;
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
@@ -101,7 +102,13 @@ pub struct Engine {
     /// next trial, and the tuning over the newer set starts (its trials so far are kept).
     pub(crate) superseded: AtomicBool,
     events: mpsc::Sender<Event>,
+    /// What runs one tuning ([`crate::tune::tune`] in the daemon; the node wires it in).
+    tuning: TuningFn,
 }
+
+/// One tuning for a trigger, blocking; returns whether the search finished (`false` when a
+/// trial failed it).
+pub type TuningFn = fn(&Arc<Engine>, &Trigger) -> bool;
 
 /// How far the nodes have come: the newest step summarised by any node, the stride of the step
 /// indices (a simulation may push every n-th step), and for the newest step the first step
@@ -156,35 +163,13 @@ impl Progress {
     }
 }
 
-/// A decision as a wire message.
-pub fn decision_pb(d: &Decision) -> pb::PmDecision {
-    pb::PmDecision {
-        pm_version: d.pm_version,
-        resolution: d.candidate.r,
-        gamma: d.candidate.gamma,
-        characteristic_steps: d.characteristic_steps.clone(),
-        predicted_sigma_bytes: d.predicted.sizing.sigma_bytes,
-        predicted_q_db: d.predicted.q(),
-        predicted_tau_secs: d.predicted.sizing.tau_secs,
-        reason: d.reason.clone(),
-        trials: d.trials,
-        trial_secs: d.trial_secs,
-        old_resolution: d.old.map_or(0, |c| c.r),
-        old_gamma: d.old.map_or(0.0, |c| c.gamma),
-        trigger_step: d.trigger_step,
-        utility: d.utility.clone(),
-        from_step: d.from_step,
-        corrects_version: d.corrects.unwrap_or(0),
-        forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
-    }
-}
-
 impl Engine {
     /// An engine over `state`; events go to the returned receiver (for [`Engine::run`]).
     pub fn new(
         cfg: Config,
         resolved: Resolved,
         state: State,
+        tuning: TuningFn,
     ) -> (Arc<Self>, mpsc::Receiver<Event>) {
         let (events, rx) = mpsc::channel(EVENT_BACKLOG);
         let process = std::time::SystemTime::now()
@@ -209,6 +194,7 @@ impl Engine {
                 )),
                 superseded: AtomicBool::new(false),
                 events,
+                tuning,
                 cfg,
                 resolved,
             }),
@@ -377,13 +363,6 @@ struct AwaitingQ {
     world_size: u32,
     mses: Vec<f64>,
     pm_version: u64,
-}
-
-/// Why the characteristic set changed.
-#[derive(Clone, Debug)]
-pub(crate) struct Trigger {
-    pub(crate) step: u64,
-    pub(crate) reason: String,
 }
 
 /// The engine task's own state.
@@ -801,8 +780,8 @@ impl Engine {
             c.tuning = true;
         }
         info!(reason = %trigger.reason, "tuning");
-        let e = self.clone();
-        tokio::task::spawn_blocking(move || (crate::tune::tune(&e, &trigger), trigger))
+        let (e, tune) = (self.clone(), self.tuning);
+        tokio::task::spawn_blocking(move || (tune(&e, &trigger), trigger))
     }
 
     /// Removes the characteristic steps lost with their nodes during a tuning from the set
@@ -962,7 +941,7 @@ mod tests {
             forecast_ratio: None,
         });
         state.validated = vec![0];
-        let (engine, _rx) = Engine::new(cfg, resolved, state);
+        let (engine, _rx) = Engine::new(cfg, resolved, state, |_, _| true);
         Loop {
             engine,
             pending: BTreeMap::new(),

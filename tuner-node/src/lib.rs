@@ -20,6 +20,7 @@ pub mod hub;
 pub mod node;
 pub mod service;
 pub mod state;
+pub mod trigger;
 mod tune;
 
 pub use config::Config;

@@ -10,12 +10,11 @@ use insitu_proto::health::Health;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_server::TunerServer;
 use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::peer::{error_chain, Peer};
+use insitu_proto::peer::{error_chain, Backoff, Peer};
 use insitu_proto::security::{Security, SecurityError};
 use insitu_tuner::live::Tracker;
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::time::Duration;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tokio_stream::wrappers::TcpListenerStream;
@@ -95,7 +94,7 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
         .await
         .map_err(listen)?;
     let addr = listener.local_addr().map_err(listen)?;
-    let (engine, events) = Engine::new(cfg, resolved, state);
+    let (engine, events) = Engine::new(cfg, resolved, state, crate::tune::tune);
     let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
     if let Some(viz) = viz {
         tasks.push(tokio::spawn(watch(viz, engine.clone())));
@@ -130,7 +129,7 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
 /// to the engine.
 async fn watch(viz: Peer, engine: Arc<Engine>) {
     let uri = viz.uri().to_owned();
-    let mut backoff = Duration::from_millis(100);
+    let mut backoff = Backoff::new(Backoff::DEFAULT_MAX);
     loop {
         let r: Result<(), String> = async {
             let channel = viz.connect().await.map_err(|e| error_chain(&e))?;
@@ -141,7 +140,7 @@ async fn watch(viz: Peer, engine: Arc<Engine>) {
                 .map_err(|e| e.message().to_owned())?
                 .into_inner();
             info!(%uri, "watching the viz-node's quality reports");
-            backoff = Duration::from_millis(100);
+            backoff.reset();
             while let Some(r) = stream.message().await.map_err(|e| e.message().to_owned())? {
                 engine.event(Event::Report(r)).await;
             }
@@ -151,8 +150,7 @@ async fn watch(viz: Peer, engine: Arc<Engine>) {
         if let Err(e) = r {
             warn!(%uri, error = %e, "viz-node reports unavailable; retrying");
         }
-        tokio::time::sleep(backoff).await;
-        backoff = (backoff * 2).min(Duration::from_secs(5));
+        backoff.wait().await;
     }
 }
 

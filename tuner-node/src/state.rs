@@ -6,6 +6,7 @@
 //! versions continue.
 
 use insitu_core::evaluate::Sizing;
+use insitu_proto::pb;
 use insitu_tuner::control::{Point, Surface};
 use insitu_tuner::live::{Tracker, Verdict};
 use insitu_tuner::series::BINS;
@@ -361,6 +362,29 @@ impl State {
         let path = dir.join(STATE_FILE);
         insitu_core::file::write_atomic(&path, &bytes, insitu_core::file::Durability::PowerLoss)
             .map_err(io(&path))
+    }
+}
+
+/// A decision as a wire message.
+pub fn decision_pb(d: &Decision) -> pb::PmDecision {
+    pb::PmDecision {
+        pm_version: d.pm_version,
+        resolution: d.candidate.r,
+        gamma: d.candidate.gamma,
+        characteristic_steps: d.characteristic_steps.clone(),
+        predicted_sigma_bytes: d.predicted.sizing.sigma_bytes,
+        predicted_q_db: d.predicted.q(),
+        predicted_tau_secs: d.predicted.sizing.tau_secs,
+        reason: d.reason.clone(),
+        trials: d.trials,
+        trial_secs: d.trial_secs,
+        old_resolution: d.old.map_or(0, |c| c.r),
+        old_gamma: d.old.map_or(0.0, |c| c.gamma),
+        trigger_step: d.trigger_step,
+        utility: d.utility.clone(),
+        from_step: d.from_step,
+        corrects_version: d.corrects.unwrap_or(0),
+        forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
     }
 }
 

@@ -5,8 +5,9 @@
 //! up on timeout), combines the ranks' results and persists them. The winner is pushed as the
 //! next decision when it differs from the P_M in force.
 
-use crate::engine::{Engine, Trigger};
+use crate::engine::Engine;
 use crate::state::{Decision, SizeProbe, Trial};
+use crate::trigger::Trigger;
 use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
@@ -431,7 +432,7 @@ mod tests {
                 run_by: 0,
             });
         }
-        let (engine, _rx) = Engine::new(cfg, resolved, state);
+        let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
         let trigger = Trigger {
             step: 0,
             reason: "test".into(),

@@ -9,7 +9,7 @@
 //! the viewer's queries read (series of σ, τ, q; P_M versions); the JSON keeps everything else.
 //! [`IndexDb::export`] and [`IndexDb::export_csv`] write it out for people who want a file.
 
-use crate::store::{Entry, StepEntry, StoreError};
+use crate::rows::{Entry, StepEntry, StoreError};
 use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
 use std::path::{Path, PathBuf};
 

@@ -11,6 +11,7 @@ use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb};
 use insitu_proto::pb::viz_server::Viz;
+use insitu_proto::peer::Backoff;
 use insitu_proto::{chunk, pb};
 use std::collections::HashSet;
 use std::pin::Pin;
@@ -281,7 +282,7 @@ impl Shared {
             .map_err(|err| Status::invalid_argument(err.to_string()))?;
         // A full disk delays q, it does not lose it: the write is retried (the scorer waits,
         // and with it the bounded queue of jobs behind it) until there is room again.
-        let mut wait = std::time::Duration::from_millis(200);
+        let mut backoff = Backoff::new(Backoff::DEFAULT_MAX);
         let e = loop {
             match self.recording.set_quality(step, rank, q.clone()) {
                 Ok(e) => break e,
@@ -289,8 +290,7 @@ impl Shared {
                     if source.kind() == std::io::ErrorKind::StorageFull =>
                 {
                     warn!(step, rank, "disk full: q not recorded yet; retrying");
-                    std::thread::sleep(wait);
-                    wait = (wait * 2).min(std::time::Duration::from_secs(5));
+                    std::thread::sleep(backoff.next_delay());
                 }
                 Err(err) => return Err(Status::internal(err.to_string())),
             }

@@ -1,0 +1,117 @@
+//! The state a generator-node's parts share: the queue, the settings in force, the counters,
+//! the outbox, the compute lane and pool, the spool, and the links to the tuner and to the
+//! viz-node's scene agreement. The gRPC service, the worker, the shipper and the tuner link
+//! each hold an `Arc` of it.
+
+use crate::config::Generation;
+use crate::ingest::RawStep;
+use crate::queue::BoundedQueue;
+use crate::settings::to_pb;
+use crate::stats::Stats;
+use insitu_proto::pb;
+use std::sync::{Arc, RwLock};
+
+/// State shared by the service, the worker and the shipper.
+pub struct Shared {
+    /// Steps waiting for generation.
+    pub queue: BoundedQueue<RawStep>,
+    /// Current settings (a worker takes a snapshot per step).
+    pub generation: RwLock<Generation>,
+    /// Counters.
+    pub stats: Arc<Stats>,
+    /// Largest accepted step, bytes.
+    pub max_step_bytes: u64,
+    /// Whether a viz-node is configured.
+    pub shipping: bool,
+    /// Finished VDIs waiting to be shipped.
+    pub outbox: Arc<BoundedQueue<crate::work::Product>>,
+    /// Where VDIs and reference frames are made.
+    pub backend: insitu_core::Backend,
+    /// Production steps and the tuner's trials take turns on this lane.
+    pub lane: tokio::sync::Mutex<()>,
+    /// The link to the tuner, when one is configured.
+    pub tuning: Option<Arc<crate::tuning::Tuning>>,
+    /// `ship_failed` as of the last `Flush`: a flush reports the refusals since the previous.
+    pub ship_failed_reported: std::sync::atomic::AtomicU64,
+    /// The first step index no rank of which this node has begun to generate: a tuner's
+    /// decision applies from it at the earliest.
+    pub begun: std::sync::atomic::AtomicU64,
+    /// The durable spool, when configured.
+    pub spool: Option<Arc<crate::spool::Spool>>,
+    /// This run's identity (`PushReply.epoch`).
+    pub epoch: u64,
+    /// Where the world's default transfer function is agreed (the viz-node), when one is
+    /// configured and the config names no transfer function.
+    pub scene: Option<Arc<crate::scene::SceneLink>>,
+    /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
+    pub pool: Option<Arc<rayon::ThreadPool>>,
+    /// Fields of settled steps (generated or dropped): the next pushes are received into
+    /// their memory (beyond what the queue counts: one, and a second within the queue's
+    /// `max_bytes`; see [`crate::spare`]).
+    pub spare_fields: crate::spare::SpareFields,
+}
+
+impl Shared {
+    /// Runs CPU work (generation, reference frames, trials) on the node's worker threads
+    /// ([`crate::work::on_pool`]).
+    pub fn compute<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        crate::work::on_pool(self.pool.as_deref(), f)
+    }
+
+    /// A snapshot of the current settings.
+    pub fn generation(&self) -> Generation {
+        self.generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// The status message.
+    pub fn status(&self) -> pb::GeneratorStatus {
+        let c = self.stats.get();
+        let g = self.generation();
+        pb::GeneratorStatus {
+            queue_depth: self.queue.len() as u32,
+            queue_limit: self.queue.max_items() as u32,
+            queue_bytes: self.queue.bytes(),
+            queue_policy: self.queue.policy().name().to_owned(),
+            outbox_depth: self.outbox.len() as u32,
+            steps_received: c.received,
+            steps_generated: c.generated,
+            steps_shipped: c.shipped,
+            dropped_queue: c.dropped_queue,
+            dropped_outbox: c.dropped_outbox,
+            failed: c.failed,
+            resolution: g.params.resolution,
+            gamma: g.params.gamma,
+            viz_connected: c.viz_connected,
+            pm_version: g.pm_version,
+            tuner_connected: c.tuner_connected,
+            ship_failed: c.ship_failed,
+            ship_error: self.stats.ship_error(),
+            epoch: self.epoch,
+            recovered: c.recovered,
+            spooled_bytes: self.spool.as_ref().map_or(0, |s| s.used()),
+            limit_retries: c.limit_retries,
+            limit_retry_secs: c.limit_retry_secs,
+        }
+    }
+
+    /// Removes a settled step's file from the spool (no-op without one).
+    pub fn unspool(&self, spool: Option<&(String, u64)>) {
+        if let (Some(sp), Some((name, bytes))) = (&self.spool, spool) {
+            sp.remove(name, *bytes);
+        }
+    }
+
+    /// Records the current generation settings in the spool (no-op without one), so that a
+    /// restarted node continues the same scene.
+    pub fn save_run(&self) {
+        if let Some(sp) = &self.spool {
+            let g = self.generation();
+            if let Err(e) = sp.save_run(g.pm_version, &to_pb(&g)) {
+                tracing::warn!(error = %e, "could not record the run configuration");
+            }
+        }
+    }
+}

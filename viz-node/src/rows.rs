@@ -1,0 +1,186 @@
+//! What the recording's index holds, and how the recording fails: a row per step and rank
+//! ([`Entry`]), a row per composed step ([`StepEntry`]), and [`StoreError`]. The index
+//! ([`crate::index`]) reads and writes these rows; the recording ([`crate::store`]) keeps the
+//! files they name.
+
+use insitu_core::evaluate::Sizing;
+use insitu_core::metrics::Db;
+use insitu_core::vdi::codec::Codec;
+use insitu_core::volume::bricks::Brick;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Errors of the recording; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A file is not what it should be.
+    #[error("{path}: {problem}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The same step and rank was stored before with different bytes.
+    #[error("step {step} rank {rank}: {what} already stored with different content")]
+    AlreadyExists {
+        /// The step.
+        step: u64,
+        /// The rank.
+        rank: u32,
+        /// `VDI` or `reference frames`.
+        what: &'static str,
+    },
+}
+
+/// Quality of a stored VDI against its step's reference frames.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// Pooled PSNR (of the mean MSE), dB.
+    pub q_db: Db,
+    /// Per-view PSNR, dB, in the references' order.
+    pub view_q_db: Vec<Db>,
+    /// Per-view MSE.
+    pub view_mse: Vec<f64>,
+    /// Mean SSIM over the views (none for frames under 11×11).
+    pub ssim: Option<f64>,
+}
+
+/// One step and rank in the recording.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Entry {
+    /// Step index.
+    pub step: u64,
+    /// Rank.
+    pub rank: u32,
+    /// Number of ranks.
+    pub world_size: u32,
+    /// Simulation time.
+    pub sim_time: f64,
+    /// VDI file, relative to the recording directory.
+    pub vdi: Option<String>,
+    /// Reference frames file, relative to the recording directory.
+    pub references: Option<String>,
+    /// `r`.
+    pub resolution: u32,
+    /// `γ`.
+    pub gamma: f32,
+    /// The codec of the VDI file (`None`: the generator-node did not say; `""` in the JSON).
+    #[serde(with = "codec_name")]
+    pub codec: Option<Codec>,
+    /// σ, τ (and its source) and the supersegments, as the generator-node reported them
+    /// (flattened: their keys sit in the entry's JSON).
+    #[serde(flatten)]
+    pub sizing: Sizing,
+    /// Transfer function name and identity.
+    pub tf_name: String,
+    /// [`insitu_core::TransferFunction::identity_hash`].
+    pub tf_hash: u64,
+    /// q, once scored.
+    pub quality: Option<Quality>,
+    /// The tuner's P_M version the VDI was made with (0: not from a tuner).
+    #[serde(default)]
+    pub pm_version: u64,
+    /// Where the rank's brick lies in the whole grid (none from nodes that do not say).
+    #[serde(default)]
+    pub placement: Option<Placement>,
+    /// Whether reference frames of this step and rank were announced with the VDI.
+    #[serde(default)]
+    pub with_references: bool,
+}
+
+/// A rank's brick in the whole grid, voxels (docs/design.md, "A world of ranks").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Placement {
+    /// The whole grid.
+    pub global_dims: [usize; 3],
+    /// The brick.
+    pub brick: Brick,
+}
+
+/// One step of a world of ranks, composed from its ranks' VDIs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepEntry {
+    /// Step index.
+    pub step: u64,
+    /// Ranks of the world.
+    pub world_size: u32,
+    /// Ranks in the composition.
+    pub ranks: Vec<u32>,
+    /// Ranks missing (a partial step, composed after the timeout).
+    pub missing: Vec<u32>,
+    /// The composed VDI, relative to the recording directory.
+    pub vdi: Option<String>,
+    /// The composed reference frames.
+    pub references: Option<String>,
+    /// The ranks' [`Sizing::of_ranks`]: σ summed over their files, τ the slowest rank's; the
+    /// supersegments the composed VDI's once it is composed, the ranks' sum before
+    /// (flattened, as in [`Entry`]; a step stored before the compression time was kept reads
+    /// it as 0).
+    #[serde(flatten)]
+    pub sizing: Sizing,
+    /// `r`, `γ` and the P_M version of the ranks.
+    pub resolution: u32,
+    /// `γ`.
+    pub gamma: f32,
+    /// P_M version.
+    pub pm_version: u64,
+    /// Codec of the ranks' files (the composed file uses it too; as in [`Entry`]).
+    #[serde(with = "codec_name")]
+    pub codec: Option<Codec>,
+    /// q of the composed VDI against the composed references.
+    pub quality: Option<Quality>,
+    /// Why it could not be composed.
+    pub error: Option<String>,
+}
+
+impl Entry {
+    /// An entry of `step` and `rank` with nothing stored yet.
+    pub fn empty(step: u64, rank: u32) -> Self {
+        Self {
+            step,
+            rank,
+            world_size: 1,
+            sim_time: 0.0,
+            vdi: None,
+            references: None,
+            resolution: 0,
+            gamma: 0.0,
+            codec: None,
+            sizing: Sizing::default(),
+            tf_name: String::new(),
+            tf_hash: 0,
+            quality: None,
+            pm_version: 0,
+            placement: None,
+            with_references: false,
+        }
+    }
+}
+
+/// An entry's codec in JSON: its name, `""` for none (as the index held it when it was a
+/// string); an unknown name is an error that names it.
+mod codec_name {
+    use insitu_core::vdi::codec::Codec;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(codec: &Option<Codec>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(codec.map_or("", Codec::name))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Codec>, D::Error> {
+        let name = String::deserialize(d)?;
+        match name.as_str() {
+            "" => Ok(None),
+            name => name.parse().map(Some).map_err(serde::de::Error::custom),
+        }
+    }
+}
