@@ -17,10 +17,10 @@ Run through bench/vtk_compare.sh, which makes the venv. The conventions match do
   insitu's the second render of `insitu render --repeat 2` (the first, cold one is printed
   apart: the thread pool's start and the ray-caster's occupancy bits);
 - sampling: VTK's sample distance 0.5 (automatic adjustment off), image sample distance 1;
-  ours --step 0.5 (the default); both stop a ray at opacity 0.99 (ours by default, VTK's
+  ours --sample-distance 0.5 (the default); both stop a ray at opacity 0.99 (ours by default, VTK's
   fixed-point mapper at its built-in 0.99..1 cut-off);
 - background black; images compared as 8-bit RGB, row 0 at the top;
-- a time series (the ocean): its first step on both sides (insitu's `--t` defaults to 0);
+- a time series (the ocean): its first step on both sides (insitu's `--time-step` defaults to 0);
 - NaN (the ocean's land): missing and transparent for insitu (docs/design.md), so a sample with a
   NaN corner adds nothing; VTK's fixed-point mapper takes NaN as the bottom of the range (the
   same image as with NaN replaced by the minimum), which its opacity ramp makes transparent
@@ -141,7 +141,7 @@ def insitu_render(exe, volume, tf, angle, size, step, out):
     """The cold render's time and the warm one's (`--repeat 2`: the second, as VTK's renders
     are timed after a warm-up render)."""
     cmd = [exe, "render", "--volume", volume, "--tf", tf, "--angle", str(angle), "--size",
-           str(size), "--step", str(step), "--repeat", "2", "--backend", "cpu", "--out", out]
+           str(size), "--sample-distance", str(step), "--repeat", "2", "--backend", "cpu", "--out", out]
     p = subprocess.run(cmd, capture_output=True, text=True, check=True)
     m = re.search(r" in ([0-9.]+) s .*then ([0-9.]+) s", p.stdout + p.stderr)
     if not m:
@@ -177,7 +177,7 @@ def main():
     ap.add_argument("--tf", help="TF JSON (default: a ramp over the data range)")
     ap.add_argument("--angle", type=float, default=30.0)
     ap.add_argument("--size", type=int, default=768)
-    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--sample-distance", dest="step", type=float, default=0.5)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--insitu", default="target/release/insitu")
     ap.add_argument("--vdi", type=int, action="append", default=[], metavar="R",

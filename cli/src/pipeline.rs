@@ -436,7 +436,7 @@ impl LocalNodes {
         cfg.queue.max_items = a.queue_steps;
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
-        cfg.generation.codec = a.codec(defaults).name().to_owned();
+        cfg.generation.codec = a.codec(defaults);
         cfg.generation.size_max = a.size_max.unwrap_or(0);
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global
         // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
@@ -682,6 +682,11 @@ impl Run<'_> {
                 println!(
                     "  of the P_M changes, {} correction(s) between tunings from the production steps; {} tuning(s) cut short for a newer characteristic step",
                     t.corrections, t.tunings_superseded
+                );
+            }
+            if !reports.is_empty() && reports.iter().all(|r| r.pm_version == 0) {
+                println!(
+                    "  no stored step was made with a tuned P_M: a decision applies from the first step no node had begun when it was made (docs/tuning.md, \"When a decision applies\"), so a run needs steps after the first tuning; push more steps, or fewer between tunings"
                 );
             }
             let (sigma, tau) = Budgets::of(t).adherence(reports);

@@ -23,8 +23,8 @@ pub struct SceneArgs {
     /// Voxel type (uint8, uint16, int16, float32, float64) when the file name does not carry it.
     #[arg(long = "type")]
     pub scalar_type: Option<String>,
-    /// Time step of a 4-D file.
-    #[arg(long, default_value_t = 0)]
+    /// Time step of a 4-D file (its index along T, from 0).
+    #[arg(long = "time-step", default_value_t = 0)]
     pub t: usize,
     /// Voxel spacing `sx,sy,sz` in world units.
     #[arg(long, default_value = "1,1,1")]
@@ -32,8 +32,8 @@ pub struct SceneArgs {
     /// Transfer function JSON (docs/design.md format). Default: a ramp over the data range.
     #[arg(long)]
     pub tf: Option<PathBuf>,
-    /// Ray-casting step, world units (voxels at spacing 1).
-    #[arg(long, default_value_t = DEFAULT_STEP)]
+    /// Ray-casting sample distance, world units (voxels at spacing 1).
+    #[arg(long = "sample-distance", default_value_t = DEFAULT_STEP)]
     pub step: f32,
     /// Early ray termination threshold on accumulated opacity, in (0, 1], of direct renderings
     /// and of VDI rendering.
@@ -110,7 +110,7 @@ impl SceneArgs {
         let given = [
             ("--dims", self.dims.is_some()),
             ("--type", self.scalar_type.is_some()),
-            ("--t", self.t != 0),
+            ("--time-step", self.t != 0),
             (
                 "--spacing",
                 parse_spacing(&self.spacing)? != glam::Vec3::ONE,

@@ -164,7 +164,11 @@ fn bad_input_fails_cleanly() {
     );
     assert_fails(&render("novolume.raw"), d, "novolume.raw", "o.png");
     // A raw file's flags with the built-in simulation: refused, not silently ignored.
-    for raw_flag in [["--spacing", "2"], ["--dims", "4x4x4"], ["--t", "1"]] {
+    for raw_flag in [
+        ["--spacing", "2"],
+        ["--dims", "4x4x4"],
+        ["--time-step", "1"],
+    ] {
         let mut args = render("gray-scott:16:20");
         args.extend_from_slice(&raw_flag);
         assert_fails(&args, d, raw_flag[0], "o.png");
@@ -221,7 +225,7 @@ fn bad_input_fails_cleanly() {
             "render",
             "--volume",
             "ok_4x4x4_uint8.raw",
-            "--step",
+            "--sample-distance",
             "0",
             "--out",
             "o.png",
@@ -319,7 +323,7 @@ fn render_repeat_reports_the_warm_median_and_the_same_image() {
 }
 
 /// The flags for data whose file name says nothing (docs/data.md): `--dims` and
-/// `--type` read a file as its descriptive name would, `--dims …xT` with `--t` picks one step
+/// `--type` read a file as its descriptive name would, `--dims …xT` with `--time-step` picks one step
 /// of a time series, and `--no-skipping` changes the time, never the image. Each compared as
 /// PNG bytes against the render of an equivalent file.
 #[test]
@@ -368,7 +372,7 @@ fn own_data_flags_read_the_file_as_its_name_would() {
     let shifted = render(&["--volume", "shifted_12x10x8_uint8.raw"], "shifted.png");
     assert_ne!(
         shifted, named,
-        "the two steps must differ for --t to be tested"
+        "the two steps must differ for --time-step to be tested"
     );
     let series = &[
         "--volume",
@@ -379,9 +383,13 @@ fn own_data_flags_read_the_file_as_its_name_would() {
         "uint8",
     ];
     let mut t1 = series.to_vec();
-    t1.extend_from_slice(&["--t", "1"]);
-    assert_eq!(render(&t1, "t1.png"), shifted, "--t 1");
-    assert_eq!(render(series, "t0.png"), named, "--t 0 (the default)");
+    t1.extend_from_slice(&["--time-step", "1"]);
+    assert_eq!(render(&t1, "t1.png"), shifted, "--time-step 1");
+    assert_eq!(
+        render(series, "t0.png"),
+        named,
+        "--time-step 0 (the default)"
+    );
     // A name that says nothing, and no flags: the error names the file.
     assert_fails(
         &["render", "--volume", "blob.dat", "--out", "none.png"],
@@ -609,7 +617,7 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
     let (png, _) = written(
         dir.path(),
         &["view", "--recording", "rec"],
-        &["--step", "60"],
+        &["--time-step", "60"],
         "s.png",
     );
     assert!(image::load_from_memory(&png).is_ok());
@@ -618,7 +626,7 @@ fn demo_runs_the_pipeline_and_prints_a_line_per_step() {
             "view",
             "--recording",
             "rec",
-            "--step",
+            "--time-step",
             "61",
             "--out",
             "x.png",
@@ -1026,4 +1034,23 @@ fn without_a_display_session_stderr_holds_only_our_lines() {
             );
         }
     }
+}
+
+/// A run too short for any decision to apply says so in its summary, instead of leaving the
+/// user to wonder why every step kept the configured P_M.
+#[test]
+fn a_run_too_short_for_a_tuned_p_m_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(
+        &[
+            "demo", "--size", "16", "--warmup", "10", "--every", "10", "--pushes", "2",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("no stored step was made with a tuned P_M"),
+        "{out}"
+    );
 }

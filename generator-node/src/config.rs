@@ -79,7 +79,7 @@ pub struct GenerationConfig {
     /// and the VDI keeps what lies behind dense structures (`RaycastParams`).
     pub generation_termination: Option<f32>,
     /// `bzip2` (σ as in the paper), `zstd` or `none`.
-    pub codec: String,
+    pub codec: Codec,
     /// Transfer function file (docs/design.md format); unset: the default over the global range of
     /// the first step, agreed with every rank through the viz-node (`AgreeScene`; without a
     /// viz-node, over this node's first brick).
@@ -108,7 +108,7 @@ impl Default for GenerationConfig {
             step: DEFAULT_STEP,
             termination: DEFAULT_TERMINATION,
             generation_termination: DEFAULT_GENERATION_TERMINATION,
-            codec: "bzip2".into(),
+            codec: Codec::Bzip2,
             tf: None,
             camera: None,
             view_angles_deg: insitu_core::evaluate::DEFAULT_VIEW_ANGLES.to_vec(),
@@ -366,10 +366,7 @@ impl GenerationConfig {
                 e.to_string(),
             )
         })?;
-        let codec = self
-            .codec
-            .parse::<Codec>()
-            .map_err(|e| invalid("generation.codec", e.to_string()))?;
+        let codec = self.codec;
         let tf = match &self.tf {
             Some(p) => {
                 let tf = TransferFunction::load(p)
@@ -431,7 +428,8 @@ mod tests {
         };
         assert!(bad("[generation]\nresolution = 0").contains("generation.resolution"));
         assert!(bad("[generation]\ngamma = -1.0").contains("generation.resolution/gamma"));
-        assert!(bad("[generation]\ncodec = \"lzma\"").contains("generation.codec"));
+        let codec = bad("[generation]\ncodec = \"lzma\"");
+        assert!(codec.contains("codec") && codec.contains("lzma"), "{codec}");
         assert!(bad("[queue]\nmax_items = 0\nmax_bytes = 1\npolicy = \"block\"").contains("queue"));
         assert!(
             bad("[queue]\nmax_items = 1\nmax_bytes = 1\npolicy = \"drop-newest\"")

@@ -36,8 +36,8 @@ struct Args {
     #[arg(long, allow_negative_numbers = true)]
     gamma: Option<f32>,
     /// bzip2, zstd or none.
-    #[arg(long)]
-    codec: Option<String>,
+    #[arg(long, value_parser = |s: &str| s.parse::<insitu_core::vdi::codec::Codec>())]
+    codec: Option<insitu_core::vdi::codec::Codec>,
     /// Transfer function file.
     #[arg(long)]
     tf: Option<PathBuf>,

@@ -24,6 +24,16 @@ pub enum Policy {
     LatestOnly,
 }
 
+/// A queue policy for the wire (`GeneratorStatus.queue_policy`).
+pub fn policy_to_pb(p: Policy) -> insitu_proto::pb::QueuePolicy {
+    use insitu_proto::pb::QueuePolicy as Pb;
+    match p {
+        Policy::Block => Pb::Block,
+        Policy::DropOldest => Pb::DropOldest,
+        Policy::LatestOnly => Pb::LatestOnly,
+    }
+}
+
 impl Policy {
     /// The name used in config files and on the command line.
     pub fn name(self) -> &'static str {

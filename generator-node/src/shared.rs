@@ -74,7 +74,7 @@ impl Shared {
             queue_depth: self.queue.len() as u32,
             queue_limit: self.queue.max_items() as u32,
             queue_bytes: self.queue.bytes(),
-            queue_policy: self.queue.policy().name().to_owned(),
+            queue_policy: crate::queue::policy_to_pb(self.queue.policy()) as i32,
             outbox_depth: self.outbox.len() as u32,
             steps_received: c.received,
             steps_generated: c.generated,

@@ -172,7 +172,7 @@ pub fn run(
             tau_compress_secs,
             tf_hash,
             tf_name: tf.1.clone(),
-            tau_source: generated.source.name().into(),
+            tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
             backend: backend.describe(),
             pm_version: gen.pm_version,
             global_dims: Some(dims_to_pb(info.global_dims)),
@@ -342,7 +342,7 @@ mod tests {
         let mut g = crate::config::GenerationConfig {
             resolution: 48,
             gamma: 0.001,
-            codec: "zstd".into(),
+            codec: codec::Codec::Zstd,
             size_max,
             ..Default::default()
         }

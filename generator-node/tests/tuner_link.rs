@@ -123,7 +123,7 @@ async fn scripted_node() -> (
     cfg.generation.reference_every = 0;
     cfg.generation.reference_size = 24;
     cfg.generation.view_angles_deg = vec![0.0, 20.0];
-    cfg.generation.codec = "zstd".into();
+    cfg.generation.codec = insitu_core::vdi::codec::Codec::Zstd;
     let node = start(cfg).await.unwrap();
     let Up::Hello(hello) = next(&mut up).await else {
         panic!("the first message must be a hello")

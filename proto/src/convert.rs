@@ -3,6 +3,7 @@
 
 use crate::pb;
 use glam::Vec3;
+use insitu_core::backend::TimeSource;
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::ScalarType;
 use insitu_core::Camera;
@@ -76,6 +77,27 @@ pub fn codec_from_pb(v: i32) -> Result<Option<Codec>, Status> {
         Ok(pb::Codec::Bzip2) => Ok(Some(Codec::Bzip2)),
         Ok(pb::Codec::Zstd) => Ok(Some(Codec::Zstd)),
         Err(_) => Err(Status::invalid_argument(format!("unknown codec {v}"))),
+    }
+}
+
+/// Where a τ comes from, for the wire.
+pub fn tau_source_to_pb(t: TimeSource) -> pb::TauSource {
+    match t {
+        TimeSource::WallClock => pb::TauSource::WallClock,
+        TimeSource::GpuTimestamps => pb::TauSource::GpuTimestamps,
+    }
+}
+
+/// Where a τ comes from, from the wire; unspecified (a node that does not say) is the wall
+/// clock.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` for an unknown value.
+pub fn tau_source_from_pb(v: i32) -> Result<TimeSource, Status> {
+    match pb::TauSource::try_from(v) {
+        Ok(pb::TauSource::Unspecified | pb::TauSource::WallClock) => Ok(TimeSource::WallClock),
+        Ok(pb::TauSource::GpuTimestamps) => Ok(TimeSource::GpuTimestamps),
+        Err(_) => Err(Status::invalid_argument(format!("unknown tau_source {v}"))),
     }
 }
 

@@ -11,7 +11,7 @@
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
 use crate::state::{decision_pb, Decision, State};
-use crate::trigger::Trigger;
+use crate::trigger::{Cause, Trigger};
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_message::Msg as Down;
@@ -557,9 +557,12 @@ impl Loop {
             );
             self.release_evicted(gone);
         }
-        let reason = format!("production step {step} broke the budget ({why})");
-        info!(step, %reason, "step becomes characteristic");
-        self.mark_dirty(Trigger { step, reason });
+        let trigger = Trigger {
+            step,
+            cause: Cause::BrokeBudget { why },
+        };
+        info!(step, reason = %trigger, "step becomes characteristic");
+        self.mark_dirty(trigger);
     }
 
     /// A tuning is due for `trigger`; a running one is cut short for it, unless the last one
@@ -665,15 +668,16 @@ impl Loop {
                     info!(evicted = gone, nearest = d, max = e.cfg.characteristic.max, "evicted the most redundant characteristic step (its nearest other one is closest)");
                     self.release_evicted(gone);
                 }
-                let reason = match distance {
-                    None => format!("step {step} is the first characteristic step"),
-                    Some(d) => format!(
-                        "step {step} became characteristic (histogram distance {d:.3} > threshold {})",
-                        e.cfg.characteristic.threshold
-                    ),
+                let cause = match distance {
+                    None => Cause::First,
+                    Some(d) => Cause::NewCharacter {
+                        distance: d,
+                        threshold: e.cfg.characteristic.threshold,
+                    },
                 };
-                info!(step, %reason, "characteristic step");
-                self.mark_dirty(Trigger { step, reason });
+                let trigger = Trigger { step, cause };
+                info!(step, reason = %trigger, "characteristic step");
+                self.mark_dirty(trigger);
             }
             Verdict::Alike { .. } if p.sampled && e.cfg.viz.is_some() => {
                 // Keep the field until its q is known: a q far below the prediction makes
@@ -767,7 +771,7 @@ impl Engine {
         let steps = s.tracker.step_indices();
         (!steps.is_empty() && s.validated != steps).then(|| Trigger {
             step: steps.last().copied().unwrap_or(0),
-            reason: "resuming the tuning of a restarted tuner".into(),
+            cause: Cause::Resume,
         })
     }
 
@@ -779,7 +783,7 @@ impl Engine {
             c.retunes += 1;
             c.tuning = true;
         }
-        info!(reason = %trigger.reason, "tuning");
+        info!(reason = %trigger, "tuning");
         let (e, tune) = (self.clone(), self.tuning);
         tokio::task::spawn_blocking(move || (tune(&e, &trigger), trigger))
     }
@@ -802,7 +806,7 @@ impl Engine {
         self.save(&s);
         (!s.tracker.steps.is_empty()).then(|| Trigger {
             step: first,
-            reason: format!("characteristic step(s) {lost:?} lost with their node"),
+            cause: Cause::Lost { steps: lost },
         })
     }
 
@@ -979,9 +983,8 @@ mod tests {
         let d = l.dirty.clone().unwrap();
         assert_eq!(d.step, 2);
         assert!(
-            d.reason.contains("below the predicted 40.00 dB"),
-            "{}",
-            d.reason
+            matches!(&d.cause, Cause::BrokeBudget { why } if why.contains("below the predicted 40.00 dB")),
+            "{d:?}"
         );
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
         // Persisted; the decision in force is no longer validated on the set.
@@ -1123,12 +1126,10 @@ mod tests {
         let mut l = tuned(dir.path());
         // σ 1 000 B ≥ σ_target 1 000 B: breaks the budget (strict, Eq. 1).
         l.summary(1, summary(1, 3, 1000, 1));
-        assert!(l
-            .dirty
-            .as_ref()
-            .unwrap()
-            .reason
-            .contains("broke the budget"));
+        assert!(matches!(
+            l.dirty.as_ref().unwrap().cause,
+            Cause::BrokeBudget { .. }
+        ));
         l.dirty = None;
         // Breaking it again before the re-tuning has taken step 1 into account forces nothing.
         l.summary(2, summary(2, 3, 5000, 1));
@@ -1141,8 +1142,8 @@ mod tests {
         assert!(l.dirty.is_none());
         // Nor while a tuning is pending: a new characteristic step is waiting for one.
         l.summary(2, summary(2, 40, 500, 1));
-        let r = &l.dirty.as_ref().unwrap().reason;
-        assert!(r.contains("became characteristic"), "{r}");
+        let c = &l.dirty.as_ref().unwrap().cause;
+        assert!(matches!(c, Cause::NewCharacter { .. }), "{c:?}");
         l.summary(3, summary(3, 3, 5000, 1));
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
     }
@@ -1163,11 +1164,14 @@ mod tests {
         l.summary(3, timed(3, 0.05));
         assert!(l.dirty.is_none(), "one slow step after a fast one");
         l.summary(4, timed(4, 0.07));
-        let r = &l.dirty.as_ref().unwrap().reason;
-        assert!(
-            r.contains("production step 4 broke the budget (τ 0.0700 s ≥ τ_target 0.05 s, 2 steps in a row)"),
-            "{r}"
+        let t = l.dirty.as_ref().unwrap();
+        assert_eq!(
+            t.cause,
+            Cause::BrokeBudget {
+                why: "τ 0.0700 s ≥ τ_target 0.05 s, 2 steps in a row".into()
+            }
         );
+        assert_eq!(t.step, 4);
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 4]);
         // Steps made with an older version neither count nor break a run.
         let dir = tempfile::tempdir().unwrap();
@@ -1186,8 +1190,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut l = tuned_for(dir.path(), "time:0.05", 1);
         l.summary(1, timed(1, 0.06));
-        let r = &l.dirty.as_ref().unwrap().reason;
-        assert!(r.ends_with("(τ 0.0600 s ≥ τ_target 0.05 s)"), "{r}");
+        let c = &l.dirty.as_ref().unwrap().cause;
+        assert_eq!(
+            c,
+            &Cause::BrokeBudget {
+                why: "τ 0.0600 s ≥ τ_target 0.05 s".into()
+            }
+        );
     }
 
     /// A decision applies from the first step on the stride that no node had begun when the

@@ -1,11 +1,91 @@
-//! Why a tuning starts: the step that changed the characteristic set, and the reason said in
-//! the log and in the decision it leads to.
+//! Why a tuning starts: the step that changed the characteristic set and the cause, which the
+//! log and the decision it leads to say in words.
 
-/// Why the characteristic set changed.
+use std::fmt;
+
+/// Why the characteristic set changed, so that a tuning is due.
 #[derive(Clone, Debug)]
 pub struct Trigger {
     /// The step that changed the set (or the newest one when none did).
     pub step: u64,
-    /// Why, in words (logged, and the reason of the decision).
-    pub reason: String,
+    /// Why.
+    pub cause: Cause,
+}
+
+/// The causes of a tuning.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Cause {
+    /// The run's first characteristic step.
+    First,
+    /// A step whose histogram lies farther than the threshold (total variation) from every
+    /// characteristic step.
+    NewCharacter {
+        /// Its distance to the nearest characteristic step.
+        distance: f64,
+        /// The threshold it exceeded.
+        threshold: f64,
+    },
+    /// A production step broke the budget; `why` names the indicator and by how much.
+    BrokeBudget {
+        /// E.g. `σ 1000 B ≥ σ_target 1000 B`.
+        why: String,
+    },
+    /// Characteristic steps were lost with the node that held them.
+    Lost {
+        /// The steps lost.
+        steps: Vec<u64>,
+    },
+    /// A restarted tuner resumes the tuning it had under way.
+    Resume,
+}
+
+impl fmt::Display for Trigger {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let step = self.step;
+        match &self.cause {
+            Cause::First => write!(f, "step {step} is the first characteristic step"),
+            Cause::NewCharacter {
+                distance,
+                threshold,
+            } => write!(
+                f,
+                "step {step} became characteristic (histogram distance {distance:.3} > threshold {threshold})"
+            ),
+            Cause::BrokeBudget { why } => {
+                write!(f, "production step {step} broke the budget ({why})")
+            }
+            Cause::Lost { steps } => {
+                write!(f, "characteristic step(s) {steps:?} lost with their node")
+            }
+            Cause::Resume => write!(f, "resuming the tuning of a restarted tuner"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_cause_reads_as_its_reason() {
+        let t = |cause| Trigger { step: 7, cause }.to_string();
+        assert_eq!(t(Cause::First), "step 7 is the first characteristic step");
+        assert_eq!(
+            t(Cause::NewCharacter {
+                distance: 0.2,
+                threshold: 0.15
+            }),
+            "step 7 became characteristic (histogram distance 0.200 > threshold 0.15)"
+        );
+        assert_eq!(
+            t(Cause::BrokeBudget {
+                why: "σ 2 kB ≥ σ_target 1 kB".into()
+            }),
+            "production step 7 broke the budget (σ 2 kB ≥ σ_target 1 kB)"
+        );
+        assert_eq!(
+            t(Cause::Lost { steps: vec![3, 5] }),
+            "characteristic step(s) [3, 5] lost with their node"
+        );
+    }
 }

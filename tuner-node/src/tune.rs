@@ -248,7 +248,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     };
     if steps.is_empty() {
         // Every characteristic step left with its node: nothing to tune on until a new one.
-        info!(reason = %trigger.reason, "no characteristic step left; the decision in force stays");
+        info!(reason = %trigger, "no characteristic step left; the decision in force stays");
         return true;
     }
     let secs0 = engine.counters().trial_secs;
@@ -356,12 +356,11 @@ fn decide(
         return;
     }
     let (predicted, reason, tuned, forecast) = match &plan {
-        None => (best, trigger.reason.clone(), None, None),
+        None => (best, trigger.to_string(), None, None),
         Some(p) => {
             let q = crate::engine::q_on(&s, &steps, p.candidate);
             let reason = format!(
-                "{}; tuned r {} γ {} (q {:.2} dB), coarsened for production σ forecast {:.2}× the measured by step {from_step}",
-                trigger.reason,
+                "{trigger}; tuned r {} γ {} (q {:.2} dB), coarsened for production σ forecast {:.2}× the measured by step {from_step}",
                 best.r,
                 best.gamma,
                 best.q(),
@@ -401,6 +400,7 @@ mod tests {
     use super::*;
     use crate::config::{Config, GridConfig};
     use crate::state::State;
+    use crate::trigger::Cause;
 
     /// A budget no candidate meets ends the tuning without a decision, counted in the status
     /// (and warned of in the log); the trials were persisted ones, so no node is asked.
@@ -435,7 +435,7 @@ mod tests {
         let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
         let trigger = Trigger {
             step: 0,
-            reason: "test".into(),
+            cause: Cause::First,
         };
         assert!(tune(&engine, &trigger), "the search finished");
         let s = engine.status();

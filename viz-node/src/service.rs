@@ -4,12 +4,11 @@ use crate::decoded::{read_vdi, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
 use crate::store::{Entry, Placement, Quality, Recording, References, StepEntry, StoreError};
-use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, DecodeLimits};
 use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb};
+use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb, tau_source_from_pb};
 use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::peer::Backoff;
 use insitu_proto::{chunk, pb};
@@ -373,15 +372,8 @@ fn store_vdi(
             h.resolution, h.gamma, p.resolution, p.gamma
         )));
     }
-    // Nodes that do not say (an empty string) measured τ on the wall clock.
-    let tau_source = match h.tau_source.as_str() {
-        "" => TimeSource::WallClock,
-        name => TimeSource::from_name(name).ok_or_else(|| {
-            Status::invalid_argument(format!(
-                "{what}: tau_source {name:?} is neither wall-clock nor gpu-timestamps"
-            ))
-        })?,
-    };
+    let tau_source = tau_source_from_pb(h.tau_source)
+        .map_err(|e| Status::invalid_argument(format!("{what}: {}", e.message())))?;
     let meta = Entry {
         step: h.step,
         rank: h.rank,

@@ -1,7 +1,7 @@
 //! `insitu export`: the index of a recording (`index.sqlite`) as JSON or CSV, for people who
 //! want a file. Reads only; safe while a viz-node is writing the recording.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use insitu_core::adherence::Adherence;
 use insitu_viz_node::index::IndexDb;
 use std::path::PathBuf;
@@ -13,8 +13,8 @@ pub struct Args {
     recording: PathBuf,
     /// `json` (every row: `{"entries": [...], "steps": [...]}`) or `csv` (one line per step
     /// and rank, and per composed step with an empty rank).
-    #[arg(long, default_value = "json")]
-    format: String,
+    #[arg(long, value_enum, default_value_t = Format::Json)]
+    format: Format,
     /// Write here instead of standard output.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -23,6 +23,15 @@ pub struct Args {
     /// share, worst_ratio), and the CSV a `sigma_budget_ratio` and `tau_budget_ratio` column.
     #[arg(long, value_parser = budget_arg)]
     budget: Option<(Option<f64>, Option<f64>)>,
+}
+
+/// What `insitu export` writes.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Format {
+    /// Every row: `{"entries": [...], "steps": [...]}`.
+    Json,
+    /// One line per step and rank, and per composed step with an empty rank.
+    Csv,
 }
 
 /// `--budget`: σ_target and τ_target of a utility spec with at least one of them.
@@ -50,8 +59,8 @@ fn step_values(
 pub fn run(a: Args) -> Result<()> {
     let db = IndexDb::open(&a.recording, false)
         .with_context(|| format!("{} is not a recording", a.recording.display()))?;
-    let text = match a.format.as_str() {
-        "json" => {
+    let text = match a.format {
+        Format::Json => {
             let e = db.export()?;
             let adherence = a.budget.map(|(size, time)| {
                 let of = |b: Option<f64>, f: fn(&insitu_core::evaluate::Sizing) -> f64| {
@@ -76,8 +85,7 @@ pub fn run(a: Args) -> Result<()> {
                 adherence,
             })? + "\n"
         }
-        "csv" => with_ratios(&db.export_csv()?, a.budget),
-        other => bail!("--format {other:?}: use json or csv"),
+        Format::Csv => with_ratios(&db.export_csv()?, a.budget),
     };
     match &a.out {
         Some(path) => crate::output::write_atomic(path, text.as_bytes())?,

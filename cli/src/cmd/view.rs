@@ -17,13 +17,13 @@ pub struct Args {
         conflicts_with = "recording"
     )]
     vdi: Option<PathBuf>,
-    /// A viz-node's recording directory (with --step): renders a stored step, composed over
+    /// A viz-node's recording directory (with --time-step): renders a stored step, composed over
     /// its ranks unless --rank. Works while a viz-node is writing it.
-    #[arg(long, requires = "step")]
+    #[arg(long, requires = "time_step")]
     recording: Option<PathBuf>,
-    /// The stored step to render (with --recording).
-    #[arg(long)]
-    step: Option<u64>,
+    /// The stored time step to render (with --recording).
+    #[arg(long = "time-step")]
+    time_step: Option<u64>,
     /// One rank of the step (with --recording); default: the step composed over its ranks.
     #[arg(long, requires = "recording")]
     rank: Option<u32>,
@@ -109,10 +109,10 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// The VDI to view and how to name it: `--vdi FILE`, or `--step N` (`--rank R`, else the
+/// The VDI to view and how to name it: `--vdi FILE`, or `--time-step N` (`--rank R`, else the
 /// composed VDI or the step's only rank) of `--recording DIR`.
 fn source(a: &Args) -> Result<(Vdi, String)> {
-    Ok(match (&a.vdi, &a.recording, a.step) {
+    Ok(match (&a.vdi, &a.recording, a.time_step) {
         (Some(path), _, _) => {
             let bytes =
                 std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -142,7 +142,7 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
             };
             (view::load_vdi(dir, &name)?, what)
         }
-        _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --step N"),
+        _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --time-step N"),
     })
 }
 
