@@ -804,7 +804,7 @@ impl Engine {
             }
         }
         self.save(&s);
-        (!s.tracker.steps.is_empty()).then(|| Trigger {
+        (!s.tracker.steps.is_empty()).then_some(Trigger {
             step: first,
             cause: Cause::Lost { steps: lost },
         })
