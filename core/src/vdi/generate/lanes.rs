@@ -233,8 +233,8 @@ unsafe fn merge_avx2(
     out: &mut [Vec<Supersegment>; LANES],
 ) {
     use std::arch::x86_64::*;
-    // SAFETY (all loads and stores below): unaligned accesses of whole `[_; 8]` arrays of
-    // 4-byte elements.
+    // SAFETY: the caller guarantees AVX2 (this function's contract); every load and store
+    // below is an unaligned access of a whole `[_; 8]` array of 4-byte elements.
     unsafe {
         let load = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
         let load_i = |a: &[u32; LANES]| _mm256_loadu_si256(a.as_ptr().cast());

@@ -1021,12 +1021,14 @@ unsafe fn segments_avx2(
         _mm256_div_ps,
     );
     let max = |a, b| _mm256_max_ps(a, b);
-    // SAFETY (the helpers): this function's AVX2.
+    // SAFETY: the helpers need AVX2 only, which this function's caller guarantees.
     let d = unsafe { pixel_rays_avx2(frame, block) };
     let o = frame.eye;
+    // SAFETY: as above.
     let (t0, t1) = unsafe { box_span_avx2(&walker.vdi.meta().volume_box, o, d) };
     let g = &walker.gen;
     let e0 = g.to_eye(o);
+    // SAFETY: as above.
     let ((t0, t1, valid), [x1, y1, z1]) = unsafe { frustum_span_avx2(g, e0, d, (t0, t1)) };
     let (x0, y0, z0) = (splat(e0.x), splat(e0.y), splat(e0.z));
     let (tx, ty) = (splat(g.tan_half_x), splat(g.tan_half_y));
@@ -1056,6 +1058,7 @@ unsafe fn segments_avx2(
     let abs = |v| _mm256_andnot_ps(splat(-0.0), v);
     let dw = abs(sub(w1, w0));
     let rounding = mul(splat(1e-4), max(abs(w0), abs(w1)));
+    // SAFETY: as above.
     let (ax, ay) = unsafe {
         (
             axis_lanes_avx2(px0, px1, dw, r),
