@@ -211,7 +211,8 @@ impl<'a, T: Gather> Lanes<'a, T> {
         visible
     }
 
-    /// Eight steps of [`Lanes::classify`].
+    /// Eight steps of [`Lanes::classify`]: the samples' positions, the occupancy test of their
+    /// blocks, the trilinear samples, and their table indices and visibility.
     ///
     /// # Safety
     /// The CPU must have AVX2, `nx·ny·nz + OVERREAD ≤ data.len() ≤ i32::MAX` (both made sure
@@ -220,9 +221,35 @@ impl<'a, T: Gather> Lanes<'a, T> {
     #[target_feature(enable = "avx2")]
     #[inline]
     unsafe fn gather8(&self, k: u32, out: &mut [i32; 8]) -> u32 {
+        // SAFETY: AVX2, as this function's contract.
+        let (i, f) = unsafe { self.positions8(k) };
+        // SAFETY: AVX2; the lower voxels are in the grid (`positions8`).
+        if unsafe { self.blocks_empty8(i) } {
+            return 0;
+        }
+        // SAFETY: AVX2 and the data's length, as this function's contract.
+        let v = unsafe { self.sample8(i, f) };
+        // SAFETY: AVX2.
+        unsafe { self.classify8(v, out) }
+    }
+
+    /// Steps `k..k + 8`: each sample's lower voxel (clamped to `n − 2` per axis, so its
+    /// corners are in the grid) and its fractions along x, y and z.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn positions8(
+        &self,
+        k: u32,
+    ) -> (
+        [std::arch::x86_64::__m256i; 3],
+        [std::arch::x86_64::__m256; 3],
+    ) {
         use std::arch::x86_64::*;
         let [nx, ny, nz] = self.dims;
-        let [sx, sy, sz] = self.strides.map(|s| s as i32);
         let kf = _mm256_cvtepi32_ps(_mm256_add_epi32(
             _mm256_set1_epi32(k as i32),
             _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
@@ -245,6 +272,19 @@ impl<'a, T: Gather> Lanes<'a, T> {
         let (ix, fx) = axis(self.o_v.x, self.d_v.x, self.max_voxel.x, nx);
         let (iy, fy) = axis(self.o_v.y, self.d_v.y, self.max_voxel.y, ny);
         let (iz, fz) = axis(self.o_v.z, self.d_v.z, self.max_voxel.z, nz);
+        ([ix, iy, iz], [fx, fy, fz])
+    }
+
+    /// Whether every lane's 2³-voxel block is empty (occupancy bits; `false` without them).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2; `[ix, iy, iz]` lower voxels in the grid (as [`Self::positions8`]
+    /// gives them).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn blocks_empty8(&self, [ix, iy, iz]: [std::arch::x86_64::__m256i; 3]) -> bool {
+        use std::arch::x86_64::*;
         if let Some((o, words)) = self.occupancy {
             // The lanes' blocks: cell `c` from the lower voxel / S, block `b` within it from
             // (voxel / 2) mod (S/2) per axis; bit `b mod 32` of word `c·words + b / 32`. In
@@ -287,9 +327,27 @@ impl<'a, T: Gather> Lanes<'a, T> {
             let bit = _mm256_srlv_epi32(word, _mm256_and_si256(b, _mm256_set1_epi32(31)));
             if _mm256_testz_si256(bit, _mm256_set1_epi32(1)) != 0 {
                 // Every lane in an empty block: transparent, nothing to gather.
-                return 0;
+                return true;
             }
         }
+        false
+    }
+
+    /// The trilinear samples at lower voxels `[ix, iy, iz]` with fractions `[fx, fy, fz]`.
+    ///
+    /// # Safety
+    /// As [`Self::gather8`], with the voxels as [`Self::positions8`] gives them.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn sample8(
+        &self,
+        [ix, iy, iz]: [std::arch::x86_64::__m256i; 3],
+        [fx, fy, fz]: [std::arch::x86_64::__m256; 3],
+    ) -> std::arch::x86_64::__m256 {
+        use std::arch::x86_64::*;
+        let [nx, ny, _] = self.dims;
+        let [sx, sy, sz] = self.strides.map(|s| s as i32);
         let base = _mm256_add_epi32(
             ix,
             _mm256_mullo_epi32(
@@ -377,7 +435,18 @@ impl<'a, T: Gather> Lanes<'a, T> {
         };
         let c0 = lerp(c00, c10, fy);
         let c1 = lerp(c01, c11, fy);
-        let v = lerp(c0, c1, fz);
+        lerp(c0, c1, fz)
+    }
+
+    /// The samples `v`'s table indices into `out` (0 for NaN) and the bits of the visible ones.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn classify8(&self, v: std::arch::x86_64::__m256, out: &mut [i32; 8]) -> u32 {
+        use std::arch::x86_64::*;
         // Table index as `Lut::index`: ((v − lo)·scale) clamped to the table, + 0.5, truncated.
         // NaN lanes (unordered with themselves) are masked out of the gather and invisible.
         let x = _mm256_mul_ps(
