@@ -63,6 +63,30 @@ fn step_key(step: u64) -> i64 {
     step as i64
 }
 
+/// Whether `dir` holds an index this crate made: `index.sqlite` with its tables. A missing
+/// file, an empty one (0 bytes: truncated, or created by something else) or a database
+/// without the tables is not one.
+///
+/// # Errors
+/// [`StoreError::Corrupt`] when the file is there but is not a database.
+pub fn holds_index(dir: &Path) -> Result<bool, StoreError> {
+    let path = dir.join(INDEX_DB);
+    if !path.exists() {
+        return Ok(false);
+    }
+    let err = db_err(&path);
+    let conn =
+        Connection::open_with_flags(&path, OpenFlags::SQLITE_OPEN_READ_ONLY).map_err(&err)?;
+    let tables: i64 = conn
+        .query_row(
+            "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = 'entries'",
+            [],
+            |r| r.get(0),
+        )
+        .map_err(&err)?;
+    Ok(tables > 0)
+}
+
 impl IndexDb {
     /// Opens (creating when `create`) the index of `dir`.
     ///

@@ -282,7 +282,9 @@ impl Recording {
     /// silently orphaned by a new recording beside them).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
-        let fresh = !dir.join(INDEX_DB).exists();
+        // An empty index file (truncated, say) is no index: were it taken as a new one, the next
+        // steps' files would replace the old steps' files of the same names.
+        let fresh = !crate::index::holds_index(dir)?;
         let legacy = dir.join(LEGACY_INDEX);
         let imported = if fresh && legacy.exists() {
             let text = std::fs::read(&legacy).map_err(io(&legacy))?;
@@ -314,7 +316,7 @@ impl Recording {
                 return Err(StoreError::Corrupt {
                     path: dir.join(INDEX_DB),
                     problem: format!(
-                        "missing, but the directory holds {payloads} VDI or reference files: restore the index, or record into another directory (a new index here would orphan them)"
+                        "missing or empty, but the directory holds {payloads} VDI or reference files: restore the index, or record into another directory (a new index here would orphan them, and the next steps would replace their files)"
                     ),
                 });
             }
@@ -691,6 +693,31 @@ mod tests {
         assert_eq!(r.files_without_rows, [vdi_name(9, 0)]);
         assert_eq!(r.rows_without_files, [vdi_name(2, 0)]);
         assert!(!dir.path().join(".tmp-abc").exists());
+    }
+
+    /// An index emptied (truncated to 0 bytes) beside stored steps is refused like a missing
+    /// one, and the stored files stay as they were.
+    #[test]
+    fn an_emptied_index_beside_stored_steps_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = Recording::open(dir.path()).unwrap();
+        rec.store_vdi(entry(1), b"one").unwrap();
+        drop(rec);
+        for aside in ["-wal", "-shm"] {
+            let _ = std::fs::remove_file(dir.path().join(format!("{INDEX_DB}{aside}")));
+        }
+        std::fs::write(dir.path().join(INDEX_DB), b"").unwrap();
+        let e = Recording::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("missing or empty") && e.contains("1 VDI"), "{e}");
+        assert_eq!(
+            std::fs::read(dir.path().join(vdi_name(1, 0))).unwrap(),
+            b"one"
+        );
+        // An empty index with no stored steps beside it is a new recording.
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(INDEX_DB), b"").unwrap();
+        let rec = Recording::open(dir.path()).unwrap();
+        rec.store_vdi(entry(1), b"one").unwrap();
     }
 
     #[test]
