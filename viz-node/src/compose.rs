@@ -116,7 +116,7 @@ fn load_vdi(rec: &Recording, kept: &Kept, e: &Entry) -> Result<Arc<Vdi>, StepErr
         problem,
     };
     let name = e.vdi.as_ref().ok_or_else(|| rank_err("no VDI".into()))?;
-    kept.take_vdi(rec.dir(), name)
+    kept.take_vdi(rec.dir(), name, e.into())
         .map_err(|err| rank_err(err.to_string()))
 }
 

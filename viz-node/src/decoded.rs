@@ -17,7 +17,7 @@
 //! [`crate::store::Recording::store_vdi`]) are kept; composed files, which a later complete
 //! composition replaces, are always read from disk.
 
-use crate::store::{References, StoreError};
+use crate::store::{Entry, References, StepEntry, StoreError};
 use insitu_core::vdi::codec::{self, CodecError, DecodeLimits};
 use insitu_core::Vdi;
 use std::collections::VecDeque;
@@ -36,6 +36,16 @@ pub enum LoadError {
         /// Why.
         source: std::io::Error,
     },
+    /// The file is a VDI, but not the one its index row describes (swapped or replaced).
+    #[error("{path} holds {} bytes and {} supersegments, but its index row says {} bytes and {} supersegments: it is not this step's VDI", found.0, found.1, row.0, row.1)]
+    Mismatch {
+        /// The file.
+        path: PathBuf,
+        /// Its bytes and supersegments.
+        found: (u64, u64),
+        /// The row's.
+        row: (u64, u64),
+    },
     /// The file is not a VDI this node can decode.
     #[error("{path} is not a usable VDI: {source}")]
     Decode {
@@ -46,18 +56,62 @@ pub enum LoadError {
     },
 }
 
-/// Reads and decodes the VDI file `name` of the recording in `dir`.
+/// What an index row says of its VDI file, checked when the file is read: a file that
+/// disagrees (another step's file, swapped or replaced) is refused rather than shown as this
+/// step. A rank's row gives the file's bytes and supersegments; a composed step's row sums its
+/// ranks', which says nothing of the composed file, so it checks nothing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Expected {
+    /// The file's length, bytes (σ of a rank's VDI).
+    pub bytes: Option<u64>,
+    /// Its supersegments.
+    pub supersegments: Option<u64>,
+}
+
+impl From<&Entry> for Expected {
+    fn from(e: &Entry) -> Self {
+        Self {
+            bytes: Some(e.sizing.sigma_bytes),
+            supersegments: Some(e.sizing.supersegments),
+        }
+    }
+}
+
+impl From<&StepEntry> for Expected {
+    fn from(_: &StepEntry) -> Self {
+        Self::default()
+    }
+}
+
+/// Reads and decodes the VDI file `name` of the recording in `dir`, checked against what its
+/// row says (`expected`).
 ///
 /// # Errors
-/// [`LoadError`] naming the file.
-pub fn read_vdi(dir: &Path, name: &str) -> Result<Vdi, LoadError> {
+/// [`LoadError`] naming the file; [`LoadError::Mismatch`] when it disagrees with its row.
+pub fn read_vdi(dir: &Path, name: &str, expected: Expected) -> Result<Vdi, LoadError> {
     let path = dir.join(name);
     let bytes = std::fs::read(&path).map_err(|source| LoadError::Read {
         path: path.clone(),
         source,
     })?;
-    codec::decode(&bytes, &DecodeLimits::default())
-        .map_err(|source| LoadError::Decode { path, source })
+    let vdi =
+        codec::decode(&bytes, &DecodeLimits::default()).map_err(|source| LoadError::Decode {
+            path: path.clone(),
+            source,
+        })?;
+    let found = (bytes.len() as u64, vdi.supersegments().len() as u64);
+    let differs = |want: Option<u64>, got: u64| want.is_some_and(|w| w != got);
+    if differs(expected.bytes, found.0) || differs(expected.supersegments, found.1) {
+        return Err(LoadError::Mismatch {
+            path,
+            found,
+            row: (
+                expected.bytes.unwrap_or(found.0),
+                expected.supersegments.unwrap_or(found.1),
+            ),
+        });
+    }
+    Ok(vdi)
 }
 
 /// Values decoded from files, by file name, taken once, within `budget_bytes`.
@@ -168,10 +222,15 @@ impl Kept {
     ///
     /// # Errors
     /// [`LoadError`] naming the file.
-    pub fn take_vdi(&self, dir: &Path, name: &str) -> Result<Arc<Vdi>, LoadError> {
+    pub fn take_vdi(
+        &self,
+        dir: &Path,
+        name: &str,
+        expected: Expected,
+    ) -> Result<Arc<Vdi>, LoadError> {
         match self.count(self.vdis.take(name)) {
             Some(vdi) => Ok(vdi),
-            None => read_vdi(dir, name).map(Arc::new),
+            None => read_vdi(dir, name, expected).map(Arc::new),
         }
     }
 
@@ -238,15 +297,68 @@ mod tests {
         assert_eq!(cache.take("kept").as_deref(), Some(&-1));
     }
 
+    /// Two stored VDIs swapped on disk: each is refused as the other's step, naming the file
+    /// and what it holds against what its row says; read as itself, each is accepted.
+    #[test]
+    fn a_vdi_that_disagrees_with_its_row_is_refused() {
+        use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, VdiParams, Volume};
+        let dir = tempfile::tempdir().unwrap();
+        let mut files = Vec::new();
+        for (k, radius) in [(0, 5.0f32), (1, 9.0)] {
+            let v = Volume::from_fn([16, 16, 16], |x, y, z| {
+                let d = (x as f32 - 8.0).hypot(y as f32 - 8.0).hypot(z as f32 - 8.0);
+                (radius - d).max(0.0)
+            })
+            .unwrap();
+            let tf = TransferFunction::default_for_range(0.0, 9.0);
+            let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+            let cam = Camera::default_for_box(&v.world_box());
+            let params = VdiParams {
+                resolution: 32,
+                gamma: 0.01,
+            };
+            let vdi = insitu_core::vdi::generate::generate(&rc, &cam, params, 0, "ramp").unwrap();
+            let bytes = codec::encode(&vdi, codec::Codec::None).unwrap();
+            let name = format!("v{k}.vdi");
+            std::fs::write(dir.path().join(&name), &bytes).unwrap();
+            let row = Expected {
+                bytes: Some(bytes.len() as u64),
+                supersegments: Some(vdi.supersegments().len() as u64),
+            };
+            files.push((name, row));
+        }
+        for (name, row) in &files {
+            assert!(read_vdi(dir.path(), name, *row).is_ok());
+        }
+        let (a, b) = (&files[0], &files[1]);
+        assert_ne!(
+            a.1, b.1,
+            "the two VDIs must differ for the test to mean anything"
+        );
+        let e = read_vdi(dir.path(), &a.0, b.1).unwrap_err();
+        assert!(matches!(e, LoadError::Mismatch { .. }), "{e}");
+        let text = e.to_string();
+        assert!(
+            text.contains("v0.vdi") && text.contains("index row says"),
+            "{text}"
+        );
+        // A composed step's row checks nothing.
+        assert!(read_vdi(dir.path(), &a.0, Expected::default()).is_ok());
+    }
+
     #[test]
     fn a_value_not_kept_is_read_from_the_recording() {
         let dir = tempfile::tempdir().unwrap();
         let kept = Kept::new(1 << 20);
-        let missing = kept.take_vdi(dir.path(), "no-such.vdi").unwrap_err();
+        let missing = kept
+            .take_vdi(dir.path(), "no-such.vdi", Expected::default())
+            .unwrap_err();
         assert!(matches!(missing, LoadError::Read { .. }), "{missing}");
         assert!(missing.to_string().contains("no-such.vdi"), "{missing}");
         std::fs::write(dir.path().join("bad.vdi"), b"not a VDI").unwrap();
-        let bad = kept.take_vdi(dir.path(), "bad.vdi").unwrap_err();
+        let bad = kept
+            .take_vdi(dir.path(), "bad.vdi", Expected::default())
+            .unwrap_err();
         assert!(matches!(bad, LoadError::Decode { .. }), "{bad}");
         assert!(bad.to_string().contains("bad.vdi"), "{bad}");
         assert_eq!(kept.counts(), (0, 2));
@@ -271,8 +383,15 @@ mod tests {
         kept.keep_vdi("s0.vdi", vdi.clone());
         assert_eq!(kept.vdis.held_bytes(), vdi.memory_bytes() as u64);
         // No file: the kept VDI is the one returned, once; then the disk is asked.
-        assert_eq!(*kept.take_vdi(dir.path(), "s0.vdi").unwrap(), vdi);
-        assert!(kept.take_vdi(dir.path(), "s0.vdi").is_err());
+        assert_eq!(
+            *kept
+                .take_vdi(dir.path(), "s0.vdi", Expected::default())
+                .unwrap(),
+            vdi
+        );
+        assert!(kept
+            .take_vdi(dir.path(), "s0.vdi", Expected::default())
+            .is_err());
         assert_eq!(kept.counts(), (1, 1));
         assert_eq!(kept.vdis.held_bytes(), 0);
     }

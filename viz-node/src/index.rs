@@ -210,20 +210,35 @@ impl IndexDb {
         Ok(())
     }
 
-    /// Every (step, rank) row, by step then rank.
+    /// Every (step, rank) row, by step then rank. A row's file names are only ever its own
+    /// ([`Entry::confine_names`]): any other name is dropped, with a warning.
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] for an unreadable row.
     pub fn entries(&self) -> Result<Vec<Entry>, StoreError> {
-        self.rows("SELECT entry FROM entries ORDER BY step, rank")
+        let mut rows: Vec<Entry> = self.rows("SELECT entry FROM entries ORDER BY step, rank")?;
+        for e in &mut rows {
+            let dropped = e.confine_names();
+            if !dropped.is_empty() {
+                tracing::warn!(index = %self.path.display(), step = e.step, rank = e.rank, names = ?dropped, "an index row names files that are not its own; they are not read");
+            }
+        }
+        Ok(rows)
     }
 
-    /// Every composed step, in order.
+    /// Every composed step, in order, its file names confined as [`Self::entries`]'.
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] for an unreadable row.
     pub fn steps(&self) -> Result<Vec<StepEntry>, StoreError> {
-        self.rows("SELECT entry FROM steps ORDER BY step")
+        let mut rows: Vec<StepEntry> = self.rows("SELECT entry FROM steps ORDER BY step")?;
+        for s in &mut rows {
+            let dropped = s.confine_names();
+            if !dropped.is_empty() {
+                tracing::warn!(index = %self.path.display(), step = s.step, names = ?dropped, "an index row names files that are not its own; they are not read");
+            }
+        }
+        Ok(rows)
     }
 
     fn rows<T: serde::de::DeserializeOwned>(&self, sql: &str) -> Result<Vec<T>, StoreError> {

@@ -184,3 +184,57 @@ mod codec_name {
         }
     }
 }
+
+/// The file name of a step's VDI.
+pub fn vdi_name(step: u64, rank: u32) -> String {
+    format!("step_{step:08}_rank_{rank:04}.vdi")
+}
+
+/// The file name of a step's composed VDI.
+pub fn composed_vdi_name(step: u64) -> String {
+    format!("step_{step:08}_composed.vdi")
+}
+
+/// The file name of a step's composed reference frames.
+pub fn composed_refs_name(step: u64) -> String {
+    format!("step_{step:08}_composed.refs")
+}
+
+/// The file name of a step's reference frames.
+pub fn refs_name(step: u64, rank: u32) -> String {
+    format!("step_{step:08}_rank_{rank:04}.refs")
+}
+
+/// Keeps `name` where it is `own` (the file the row's step and rank name), else drops it into
+/// `dropped`: a row never makes the recording read a file by another name (an absolute path, a
+/// `../` path, another step's file).
+fn confine(name: &mut Option<String>, own: String, dropped: &mut Vec<String>) {
+    if name.as_ref().is_some_and(|n| *n != own) {
+        dropped.extend(name.take());
+    }
+}
+
+impl Entry {
+    /// Drops the file names of this row that are not its step's and rank's own
+    /// ([`vdi_name`], [`refs_name`]); returns them (for a warning). The step then reads as
+    /// having no such file.
+    pub fn confine_names(&mut self) -> Vec<String> {
+        let mut dropped = Vec::new();
+        confine(&mut self.vdi, vdi_name(self.step, self.rank), &mut dropped);
+        let own = refs_name(self.step, self.rank);
+        confine(&mut self.references, own, &mut dropped);
+        dropped
+    }
+}
+
+impl StepEntry {
+    /// As [`Entry::confine_names`], for a composed step's files ([`composed_vdi_name`],
+    /// [`composed_refs_name`]).
+    pub fn confine_names(&mut self) -> Vec<String> {
+        let mut dropped = Vec::new();
+        confine(&mut self.vdi, composed_vdi_name(self.step), &mut dropped);
+        let own = composed_refs_name(self.step);
+        confine(&mut self.references, own, &mut dropped);
+        dropped
+    }
+}

@@ -1,6 +1,6 @@
 //! The `Viz` gRPC service: store VDIs and reference frames, score and report, render.
 
-use crate::decoded::{read_vdi, Kept};
+use crate::decoded::{read_vdi, Expected, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
 use crate::store::{Entry, Placement, Quality, Recording, References, StepEntry, StoreError};
@@ -252,11 +252,12 @@ impl Shared {
     }
 
     fn load_vdi(&self, e: &Entry) -> Result<Vdi, Status> {
-        self.load_file(vdi_name(e)?)
+        self.load_file(vdi_name(e)?, e.into())
     }
 
-    fn load_file(&self, name: &str) -> Result<Vdi, Status> {
-        read_vdi(self.recording.dir(), name).map_err(|err| Status::data_loss(err.to_string()))
+    fn load_file(&self, name: &str, expected: Expected) -> Result<Vdi, Status> {
+        read_vdi(self.recording.dir(), name, expected)
+            .map_err(|err| Status::data_loss(err.to_string()))
     }
 
     /// Scores a stored step against its stored references, records and publishes q.
@@ -269,7 +270,7 @@ impl Shared {
             .entry(step, rank)
             .ok_or_else(|| Status::not_found(format!("step {step} rank {rank}")))?;
         let dir = self.recording.dir();
-        let vdi = self.kept.take_vdi(dir, vdi_name(&e)?);
+        let vdi = self.kept.take_vdi(dir, vdi_name(&e)?, (&e).into());
         let vdi = vdi.map_err(|err| Status::data_loss(err.to_string()))?;
         let refs_name = e
             .references
@@ -741,14 +742,14 @@ impl Viz for VizService {
         let png = tokio::task::spawn_blocking(move || {
             let _permit = permit;
             let vdi = if r.composed {
-                let name = s
-                    .recording
-                    .step(r.step)
-                    .and_then(|c| c.vdi)
+                let composed = s.recording.step(r.step);
+                let name = composed
+                    .as_ref()
+                    .and_then(|c| c.vdi.clone())
                     .ok_or_else(|| {
                         Status::not_found(format!("step {} has no composed VDI", r.step))
                     })?;
-                s.load_file(&name)?
+                s.load_file(&name, Expected::default())?
             } else {
                 let e = s.recording.entry(r.step, r.rank).ok_or_else(|| {
                     Status::not_found(format!(

@@ -7,7 +7,10 @@
 //! that is not complete; [`Recording::recover`] tidies what a crash leaves on the next start.
 
 use crate::index::{IndexDb, INDEX_DB};
-pub use crate::rows::{Entry, Placement, Quality, StepEntry, StoreError};
+pub use crate::rows::{
+    composed_refs_name, composed_vdi_name, refs_name, vdi_name, Entry, Placement, Quality,
+    StepEntry, StoreError,
+};
 pub use insitu_core::metrics::Db;
 use insitu_core::{Camera, Image};
 use serde::{Deserialize, Serialize};
@@ -250,26 +253,6 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreErr
     let path = dir.join(name);
     insitu_core::file::write_atomic(&path, bytes, insitu_core::file::Durability::PowerLoss)
         .map_err(io(&path))
-}
-
-/// The file name of a step's VDI.
-pub fn vdi_name(step: u64, rank: u32) -> String {
-    format!("step_{step:08}_rank_{rank:04}.vdi")
-}
-
-/// The file name of a step's composed VDI.
-pub fn composed_vdi_name(step: u64) -> String {
-    format!("step_{step:08}_composed.vdi")
-}
-
-/// The file name of a step's composed reference frames.
-pub fn composed_refs_name(step: u64) -> String {
-    format!("step_{step:08}_composed.refs")
-}
-
-/// The file name of a step's reference frames.
-pub fn refs_name(step: u64, rank: u32) -> String {
-    format!("step_{step:08}_rank_{rank:04}.refs")
 }
 
 impl Recording {
@@ -693,6 +676,35 @@ mod tests {
         assert_eq!(r.files_without_rows, [vdi_name(9, 0)]);
         assert_eq!(r.rows_without_files, [vdi_name(2, 0)]);
         assert!(!dir.path().join(".tmp-abc").exists());
+    }
+
+    /// A row naming a file that is not its own (an absolute path, `../`, another step's file)
+    /// makes nothing read it: the name is dropped when the index is read, and the step reads
+    /// as having no such file.
+    #[test]
+    fn an_index_row_never_names_a_file_outside_its_own() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = Recording::open(dir.path()).unwrap();
+        rec.store_vdi(entry(1), b"one").unwrap();
+        rec.store_vdi(entry(2), b"two").unwrap();
+        drop(rec);
+        let db = IndexDb::open(dir.path(), true).unwrap();
+        let mut e = db.entries().unwrap().remove(0);
+        assert_eq!(e.vdi.as_deref(), Some(vdi_name(1, 0).as_str()));
+        for outside in ["/etc/passwd", "../other/step_00000001_rank_0000.vdi"] {
+            e.vdi = Some(outside.into());
+            e.references = Some(vdi_name(2, 0));
+            db.put_entry(&e).unwrap();
+            let read = db.entries().unwrap().remove(0);
+            assert_eq!((read.step, read.vdi, read.references), (1, None, None));
+        }
+        drop(db);
+        let rec = Recording::open(dir.path()).unwrap();
+        assert_eq!(rec.entry(1, 0).unwrap().vdi, None);
+        assert_eq!(
+            rec.entry(2, 0).unwrap().vdi.as_deref(),
+            Some(vdi_name(2, 0).as_str())
+        );
     }
 
     /// An index emptied (truncated to 0 bytes) beside stored steps is refused like a missing

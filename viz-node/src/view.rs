@@ -4,6 +4,7 @@
 //! checks on a request, and the encoding of the frame. Shared by the web viewer
 //! ([`crate::http`]), the `Render` call and `insitu view --recording`.
 
+use crate::decoded::Expected;
 use crate::store::{Entry, StepEntry};
 use insitu_core::vdi::Vdi;
 use insitu_core::{Backend, Camera, Image};
@@ -121,7 +122,7 @@ pub fn vdi_file(
     rank: Option<u32>,
     ranks: &[Entry],
     composed: Option<&StepEntry>,
-) -> Result<String, ViewError> {
+) -> Result<VdiFile, ViewError> {
     let missing = |what: String| ViewError::NotFound(what);
     if ranks.is_empty() && composed.is_none() {
         return Err(missing(format!("step {step} is not in the recording")));
@@ -133,9 +134,12 @@ pub fn vdi_file(
                 "step {step} has no rank {r} (stored ranks: {stored:?})"
             ))
         })?;
-        e.vdi
-            .clone()
-            .ok_or_else(|| missing(format!("step {step} rank {r} has no VDI yet")))
+        let name = e.vdi.clone();
+        name.map(|name| VdiFile {
+            name,
+            expected: e.into(),
+        })
+        .ok_or_else(|| missing(format!("step {step} rank {r} has no VDI yet")))
     };
     if let Some(r) = rank {
         return of_rank(r);
@@ -144,11 +148,27 @@ pub fn vdi_file(
     if world <= 1 {
         return of_rank(stored.first().copied().unwrap_or(0));
     }
-    composed.and_then(|c| c.vdi.clone()).ok_or_else(|| {
+    composed
+        .and_then(|c| {
+            c.vdi.clone().map(|name| VdiFile {
+                name,
+                expected: c.into(),
+            })
+        })
+        .ok_or_else(|| {
         missing(format!(
             "step {step} of {world} ranks is not composed yet (stored ranks: {stored:?}); ask for one rank"
         ))
     })
+}
+
+/// A VDI file of the recording and what its index row says of it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VdiFile {
+    /// The file name, relative to the recording.
+    pub name: String,
+    /// What the row says of it (checked when it is read).
+    pub expected: Expected,
 }
 
 /// Ranks of the world `ranks` (a step's stored entries) belong to; 1 when none is stored.
@@ -156,12 +176,13 @@ pub fn world_size(ranks: &[Entry]) -> u32 {
     ranks.iter().map(|e| e.world_size).max().unwrap_or(1)
 }
 
-/// Reads and decodes the VDI file `name` of the recording in `dir`.
+/// Reads and decodes the VDI file `file` of the recording in `dir`, checked against its row.
 ///
 /// # Errors
-/// [`ViewError::Failed`] naming the file.
-pub fn load_vdi(dir: &Path, name: &str) -> Result<Vdi, ViewError> {
-    crate::decoded::read_vdi(dir, name).map_err(|e| ViewError::Failed(e.to_string()))
+/// [`ViewError::Failed`] naming the file (also when it is not the VDI its row describes).
+pub fn load_vdi(dir: &Path, file: &VdiFile) -> Result<Vdi, ViewError> {
+    crate::decoded::read_vdi(dir, &file.name, file.expected)
+        .map_err(|e| ViewError::Failed(e.to_string()))
 }
 
 /// What a frame of `view` is rendered from: with `lod`, the coarsest level of `vdi` still as
@@ -323,8 +344,11 @@ mod tests {
     #[test]
     fn the_file_of_a_step_is_its_rank_or_its_composition() {
         let single = [entry(3, 0, 1, Some("s3r0.vdi"))];
-        assert_eq!(vdi_file(3, None, &single, None).unwrap(), "s3r0.vdi");
-        assert_eq!(vdi_file(3, Some(0), &single, None).unwrap(), "s3r0.vdi");
+        assert_eq!(vdi_file(3, None, &single, None).unwrap().name, "s3r0.vdi");
+        assert_eq!(
+            vdi_file(3, Some(0), &single, None).unwrap().name,
+            "s3r0.vdi"
+        );
         let e = vdi_file(3, Some(2), &single, None).unwrap_err();
         assert!(e.to_string().contains("no rank 2"), "{e}");
         let e = vdi_file(9, None, &[], None).unwrap_err();
@@ -342,11 +366,11 @@ mod tests {
             ..crate::compose::step_entry(4, 2, &[], vec![])
         };
         assert_eq!(
-            vdi_file(4, None, &world, Some(&composed)).unwrap(),
+            vdi_file(4, None, &world, Some(&composed)).unwrap().name,
             "c4.vdi"
         );
         assert_eq!(
-            vdi_file(4, Some(0), &world, Some(&composed)).unwrap(),
+            vdi_file(4, Some(0), &world, Some(&composed)).unwrap().name,
             "r0.vdi"
         );
     }

@@ -135,12 +135,12 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
                     steps_held(others.iter().map(|e| e.step).collect())
                 );
             }
-            let name = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
+            let file = view::vdi_file(step, a.rank, &ranks, composed.as_ref())?;
             let what = match a.rank {
                 Some(r) => format!("step {step} rank {r} of {}", dir.display()),
                 None => format!("step {step} of {}", dir.display()),
             };
-            (view::load_vdi(dir, &name)?, what)
+            (view::load_vdi(dir, &file)?, what)
         }
         _ => anyhow::bail!("give --vdi FILE, or --recording DIR with --time-step N"),
     })

@@ -201,7 +201,7 @@ pub async fn render_frame(
     let step = step
         .or_else(|| rec.latest_step())
         .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))?;
-    let name = view::vdi_file(step, rank, &rec.ranks_of(step), rec.step(step).as_ref())?;
+    let file = view::vdi_file(step, rank, &rec.ranks_of(step), rec.step(step).as_ref())?;
     let permit = http
         .renders
         .clone()
@@ -211,7 +211,7 @@ pub async fn render_frame(
     let h = http.clone();
     let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        let vdi = h.vdi(&name)?;
+        let vdi = h.vdi(&file)?;
         let level = view::level(&vdi, &v, lod);
         let (image, render_secs) =
             view::render(&h.shared.backend, level, &v, h.shared.termination)?;

@@ -126,16 +126,17 @@ impl Http {
         v
     }
 
-    /// The decoded VDI file `name` of the recording, from the cache or the disk.
+    /// The decoded VDI `file` of the recording, from the cache or the disk.
     ///
     /// # Errors
-    /// [`ViewError::Failed`] when it cannot be read or decoded.
-    pub fn vdi(&self, name: &str) -> Result<Arc<Vdi>, ViewError> {
+    /// [`ViewError::Failed`] when it cannot be read or decoded, or is not what its row says.
+    pub fn vdi(&self, file: &crate::view::VdiFile) -> Result<Arc<Vdi>, ViewError> {
+        let name = file.name.as_str();
         let lock = || self.cache.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, v)) = lock().iter().find(|(n, _)| n == name) {
             return Ok(v.clone());
         }
-        let v = Arc::new(crate::view::load_vdi(self.shared.recording.dir(), name)?);
+        let v = Arc::new(crate::view::load_vdi(self.shared.recording.dir(), file)?);
         let mut c = lock();
         c.retain(|(n, _)| n != name);
         c.push((name.to_owned(), v.clone()));
