@@ -143,13 +143,12 @@ impl Interceptor for RequireToken {
         let Some(token) = &self.0 else {
             return Ok(req);
         };
-        let expected = token.header();
         let given = req
             .metadata()
             .get("authorization")
             .and_then(|v| v.to_str().ok())
-            .unwrap_or("");
-        if constant_time_eq(given.as_bytes(), expected.as_bytes()) {
+            .and_then(bearer);
+        if given.is_some_and(|t| token.matches(t)) {
             Ok(req)
         } else {
             Err(Status::unauthenticated(
@@ -180,6 +179,15 @@ impl Interceptor for AttachToken {
     }
 }
 
+/// The token of an `Authorization` value `Bearer <token>`; the scheme's name in any case
+/// (RFC 7235: schemes are case-insensitive), then one or more spaces. `None` for any other
+/// scheme or no token.
+pub fn bearer(value: &str) -> Option<&str> {
+    let (scheme, token) = value.split_once(' ')?;
+    let token = token.trim_start_matches(' ');
+    (scheme.eq_ignore_ascii_case("bearer") && !token.is_empty()).then_some(token)
+}
+
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
@@ -201,6 +209,12 @@ mod tests {
         let t = Token::new(" s3cret\n", "test").unwrap();
         let mut need = RequireToken::new(Some(t.clone()));
         assert!(need.call(with_auth(Some("Bearer s3cret"))).is_ok());
+        // The scheme's name in any case (RFC 7235), and more than one space after it.
+        assert!(need.call(with_auth(Some("bearer s3cret"))).is_ok());
+        assert!(need.call(with_auth(Some("BEARER  s3cret"))).is_ok());
+        assert!(need.call(with_auth(Some("Basic s3cret"))).is_err());
+        assert!(need.call(with_auth(Some("Bearer"))).is_err());
+        assert!(need.call(with_auth(Some("s3cret"))).is_err());
         for bad in [
             None,
             Some("Bearer s3cre"),

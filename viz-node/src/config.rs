@@ -49,6 +49,10 @@ pub struct Config {
     /// Off loopback it needs a token, and since it serves plain HTTP also `insecure` (reach
     /// it through an SSH tunnel or a TLS proxy instead).
     pub http_listen: Option<SocketAddr>,
+    /// Names (`viz.example.org`, a port is ignored) the viewer answers to besides IP
+    /// addresses and `localhost`: a request whose `Host` or browser `Origin` is anything else is
+    /// refused (DNS rebinding, other sites' pages).
+    pub http_hosts: Vec<String>,
     /// The tuner-node, `host:port`, whose budget the viewer's charts draw (dialled with the
     /// token and `[tls]` as any peer); unset: no budget lines.
     pub tuner: Option<String>,
@@ -77,6 +81,7 @@ impl Default for Config {
             render_concurrency: 2,
             max_render_pixels: 4096 * 4096,
             http_listen: None,
+            http_hosts: Vec::new(),
             tuner: None,
         }
     }

@@ -209,6 +209,7 @@ async fn start_http(
         shared,
         security.token().cloned(),
         cfg.render_concurrency,
+        &cfg.http_hosts,
     ));
     if let Some(peer) = security.peer_for("tuner", cfg.tuner.as_deref())? {
         http.watch_tuner(peer);

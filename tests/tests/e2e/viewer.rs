@@ -481,11 +481,15 @@ fn the_rank_selection_shows_one_brick_or_the_composed_step() {
     r.generator.terminate();
 }
 
-/// One HTTP/1.1 request on loopback; returns the status code and the body.
+/// One HTTP/1.1 request on loopback (`Host: addr` unless `headers` name one); returns the
+/// status code and the body.
 fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
-    let mut req = format!("GET {target} HTTP/1.1\r\nHost: {addr}\r\n");
+    let mut req = format!("GET {target} HTTP/1.1\r\n");
+    if !headers.iter().any(|h| h.starts_with("Host:")) {
+        req.push_str(&format!("Host: {addr}\r\n"));
+    }
     if !headers.iter().any(|h| h.starts_with("Connection:")) {
         req.push_str("Connection: close\r\n");
     }
@@ -514,6 +518,60 @@ fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
         }
     }
     insitu_e2e::parse_http_response(&out)
+}
+
+/// Without a token (the loopback default) another site's page can neither read the API under a
+/// rebound name nor open the live socket; the viewer's own page, scripts and configured names
+/// can.
+#[test]
+fn foreign_hosts_and_origins_are_refused_token_or_not() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (v, url) = viz_with_http(
+        &tmp.path().join("rec"),
+        tmp.path(),
+        &["--config", &hosts_config(tmp.path())],
+    );
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_owned();
+    let upgrade = [
+        "Connection: Upgrade",
+        "Upgrade: websocket",
+        "Sec-WebSocket-Version: 13",
+        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+    ];
+    // Its own address, with or without the page's origin; a configured name; localhost.
+    assert_eq!(http(&addr, "/api/steps", &[]).0, 200);
+    let own = format!("Origin: http://{addr}");
+    assert_eq!(http(&addr, "/api/steps", &[&own]).0, 200);
+    assert_eq!(
+        http(&addr, "/api/steps", &["Host: viz.example.org:8080"]).0,
+        200
+    );
+    let port = addr.rsplit(':').next().unwrap();
+    let localhost = format!("Host: localhost:{port}");
+    assert_eq!(http(&addr, "/api/steps", &[&localhost]).0, 200);
+    let mut socket = upgrade.to_vec();
+    socket.push(&own);
+    assert_eq!(http(&addr, "/api/live", &socket).0, 101);
+    // A rebound name, and another site's page: refused with a reason, the socket too.
+    let (status, body) = http(&addr, "/api/steps", &["Host: evil.example:8080"]);
+    assert_eq!(status, 421, "{body}");
+    assert!(body.contains("http_hosts"), "{body}");
+    let (status, body) = http(&addr, "/api/steps", &["Origin: https://evil.example"]);
+    assert_eq!(status, 403, "{body}");
+    let mut foreign = upgrade.to_vec();
+    foreign.push("Origin: https://evil.example");
+    assert_eq!(http(&addr, "/api/live", &foreign).0, 403);
+    v.terminate();
+}
+
+/// A viz-node config answering to `viz.example.org` besides addresses and localhost.
+fn hosts_config(dir: &Path) -> String {
+    let path = dir.join("hosts.toml");
+    std::fs::write(&path, "http_hosts = [\"viz.example.org\"]\n").unwrap();
+    path.to_string_lossy().into_owned()
 }
 
 #[test]

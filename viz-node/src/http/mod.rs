@@ -14,6 +14,7 @@
 
 pub mod api;
 pub mod live;
+pub mod origin;
 pub mod tls;
 
 use crate::service::Shared;
@@ -48,6 +49,8 @@ pub struct Http {
     /// The viz-node's state (recording, backend, reports).
     pub shared: Arc<Shared>,
     token: Option<Token>,
+    /// The `Host` and `Origin` answered to ([`origin`]).
+    allowed: origin::Allowed,
     /// Renders at once over all HTTP clients.
     renders: Arc<Semaphore>,
     cache: Mutex<Vec<(String, Arc<Vdi>)>>,
@@ -67,11 +70,17 @@ pub struct Http {
 
 impl Http {
     /// Over `shared`, requiring `token` when one is configured; `render_concurrency` renders
-    /// at once.
-    pub fn new(shared: Arc<Shared>, token: Option<Token>, render_concurrency: usize) -> Self {
+    /// at once; answering to IP addresses, `localhost` and the names `hosts` ([`origin`]).
+    pub fn new(
+        shared: Arc<Shared>,
+        token: Option<Token>,
+        render_concurrency: usize,
+        hosts: &[String],
+    ) -> Self {
         Self {
             shared,
             token,
+            allowed: origin::Allowed::new(hosts),
             renders: Arc::new(Semaphore::new(render_concurrency.max(1))),
             cache: Mutex::new(Vec::new()),
             rendered: AtomicU64::new(0),
@@ -164,6 +173,11 @@ pub fn router(http: Arc<Http>) -> Router {
             http.clone(),
             require_token,
         ))
+        // Outermost: a request from a foreign host or origin gets no further, token or not.
+        .layer(axum::middleware::from_fn_with_state(
+            http.clone(),
+            require_own_origin,
+        ))
         .with_state(http)
 }
 
@@ -213,6 +227,37 @@ impl IntoResponse for ViewError {
     }
 }
 
+async fn require_own_origin(State(http): State<Arc<Http>>, req: Request, next: Next) -> Response {
+    if let Err((status, message)) = own_origin(&http.allowed, &req) {
+        return error(status, message);
+    }
+    next.run(req).await
+}
+
+/// [`require_own_origin`]'s check: the refusal for a foreign `Host` or `Origin`.
+fn own_origin(allowed: &origin::Allowed, req: &Request) -> Result<(), (StatusCode, String)> {
+    let text = |name| req.headers().get(name).and_then(|v| v.to_str().ok());
+    // HTTP/1.1 sends `Host`; HTTP/2 the URI's authority.
+    let host = text(header::HOST)
+        .or_else(|| req.uri().authority().map(|a| a.as_str()))
+        .unwrap_or_default();
+    if !allowed.host(host) {
+        return Err((
+            StatusCode::MISDIRECTED_REQUEST,
+            format!("Host {host:?} is not one this viewer answers to: use its address, localhost, or a name listed in http_hosts"),
+        ));
+    }
+    if let Some(origin) = text(header::ORIGIN) {
+        if !allowed.origin(origin, host) {
+            return Err((
+                StatusCode::FORBIDDEN,
+                format!("requests from the origin {origin:?} are not answered: the viewer serves its own page only (or names listed in http_hosts)"),
+            ));
+        }
+    }
+    Ok(())
+}
+
 async fn require_token(State(http): State<Arc<Http>>, req: Request, next: Next) -> Response {
     let Some(token) = &http.token else {
         return next.run(req).await;
@@ -221,7 +266,7 @@ async fn require_token(State(http): State<Arc<Http>>, req: Request, next: Next) 
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "));
+        .and_then(insitu_proto::auth::bearer);
     let query = req.uri().query().and_then(|q| {
         form_urlencoded::parse(q.as_bytes()).find_map(|(k, v)| (k == "token").then_some(v))
     });
