@@ -50,7 +50,7 @@ pub fn run(a: Args) -> Result<()> {
         other => format!("{other}; {:.3} s wall", image.wall_s),
     };
     println!(
-        "rendered {} at {}x{} ({}°, step {}) in {:.3} s ({source}){repeated} -> {}",
+        "rendered {} at {}x{} ({}°, sample distance {}) in {:.3} s ({source}){repeated} -> {}",
         scene.volume_name,
         w,
         h,
