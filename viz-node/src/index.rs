@@ -87,20 +87,61 @@ pub fn holds_index(dir: &Path) -> Result<bool, StoreError> {
     Ok(tables > 0)
 }
 
+/// Opens the index at `path` for reading, writing nothing beside it. A recording that no
+/// viz-node is writing (no write-ahead log with content) opens *immutable*: SQLite then
+/// creates no `-shm` file and needs no write access, so a recording on read-only media or
+/// owned by another user reads too. One being written opens read-only through its log (to
+/// see the newest rows), and where that cannot be (the log's shared memory not creatable) as
+/// immutable, which reads the rows checkpointed so far.
+fn open_read_only(path: &Path) -> rusqlite::Result<Connection> {
+    let wal = path.with_file_name(format!("{INDEX_DB}-wal"));
+    let written = wal.metadata().is_ok_and(|m| m.len() > 0);
+    if written {
+        if let Ok(conn) = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY) {
+            // Opening is lazy: a read shows whether the log can be used.
+            if conn
+                .query_row("SELECT count(*) FROM sqlite_master", [], |_| Ok(()))
+                .is_ok()
+            {
+                return Ok(conn);
+            }
+        }
+    }
+    let uri = format!("file:{}?immutable=1", uri_path(path));
+    Connection::open_with_flags(
+        uri,
+        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_URI,
+    )
+}
+
+/// `path` percent-encoded for an SQLite URI (all but unreserved characters and `/`).
+fn uri_path(path: &Path) -> String {
+    let mut out = String::new();
+    for &b in path.as_os_str().as_encoded_bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~/".contains(&b) {
+            out.push(b as char);
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
+}
+
 impl IndexDb {
-    /// Opens (creating when `create`) the index of `dir`.
+    /// Opens (creating when `create`) the index of `dir`; without `create`, for reading only
+    /// and leaving nothing behind ([`open_read_only`]).
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] when the file is not an index of this version.
     pub fn open(dir: &Path, create: bool) -> Result<Self, StoreError> {
         let path = dir.join(INDEX_DB);
         let err = db_err(&path);
-        let flags = if create {
-            OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_CREATE
+        let conn = if create {
+            let flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_CREATE;
+            Connection::open_with_flags(&path, flags).map_err(&err)?
         } else {
-            OpenFlags::SQLITE_OPEN_READ_ONLY
+            open_read_only(&path).map_err(&err)?
         };
-        let conn = Connection::open_with_flags(&path, flags).map_err(&err)?;
         conn.busy_timeout(std::time::Duration::from_secs(10))
             .map_err(&err)?;
         if create {

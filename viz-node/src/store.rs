@@ -678,6 +678,39 @@ mod tests {
         assert!(!dir.path().join(".tmp-abc").exists());
     }
 
+    /// Reading a recording no viz-node is writing leaves no file beside its index (it may be
+    /// on read-only media); one being written is read through its log, newest rows included.
+    #[test]
+    fn reading_a_recording_writes_nothing_and_sees_the_newest_rows() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("a dir with spaces & 100%");
+        let rec = Recording::open(&dir).unwrap();
+        rec.store_vdi(entry(1), b"one").unwrap();
+        // Being written: the log holds the row.
+        let (rows, _) = crate::index::read(&dir).unwrap();
+        assert_eq!(rows.len(), 1);
+        rec.store_vdi(entry(2), b"two").unwrap();
+        assert_eq!(crate::index::read(&dir).unwrap().0.len(), 2);
+        drop(rec);
+        let beside = |dir: &Path| {
+            let mut names: Vec<String> = std::fs::read_dir(dir)
+                .unwrap()
+                .map(|d| d.unwrap().file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(INDEX_DB))
+                .collect();
+            names.sort();
+            names
+        };
+        assert_eq!(beside(&dir), [INDEX_DB]);
+        let (rows, _) = crate::index::read(&dir).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(
+            beside(&dir),
+            [INDEX_DB],
+            "reading left files beside the index"
+        );
+    }
+
     /// A row naming a file that is not its own (an absolute path, `../`, another step's file)
     /// makes nothing read it: the name is dropped when the index is read, and the step reads
     /// as having no such file.
