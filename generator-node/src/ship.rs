@@ -102,7 +102,7 @@ impl Shipper {
                 Err(e) if !is_transient(e.code()) => return Err(e),
                 Err(e) => {
                     let why = if e.code() == Code::ResourceExhausted {
-                        "cannot store (out of space)"
+                        "cannot store (out of space, read-only or refused; see the message)"
                     } else {
                         "unreachable"
                     };

@@ -39,11 +39,19 @@ pub struct IndexDb {
 /// reaches callers as `RESOURCE_EXHAUSTED`, like a payload that did not fit), the rest
 /// [`StoreError::Corrupt`].
 fn db_err(path: &Path) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+    use rusqlite::ErrorCode;
+    use std::io::ErrorKind;
+    let io = |kind: ErrorKind, e: &rusqlite::Error| StoreError::Io {
+        path: path.to_owned(),
+        source: std::io::Error::new(kind, format!("SQLite: {e}")),
+    };
+    // What the storage did (full, read-only, refused, failing) is an I/O error an operator can
+    // fix, not a corrupt index.
     move |e| match e.sqlite_error_code() {
-        Some(rusqlite::ErrorCode::DiskFull) => StoreError::Io {
-            path: path.to_owned(),
-            source: std::io::Error::new(std::io::ErrorKind::StorageFull, format!("SQLite: {e}")),
-        },
+        Some(ErrorCode::DiskFull) => io(ErrorKind::StorageFull, &e),
+        Some(ErrorCode::ReadOnly) => io(ErrorKind::ReadOnlyFilesystem, &e),
+        Some(ErrorCode::PermissionDenied) => io(ErrorKind::PermissionDenied, &e),
+        Some(ErrorCode::SystemIoFailure) => io(ErrorKind::Other, &e),
         _ => StoreError::Corrupt {
             path: path.to_owned(),
             problem: format!("SQLite: {e}"),

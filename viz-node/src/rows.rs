@@ -41,6 +41,29 @@ pub enum StoreError {
     },
 }
 
+impl StoreError {
+    /// Whether the storage refused the write for a reason an operator can fix and that
+    /// retrying outlasts: no space or quota left, a read-only file system (a remount), access
+    /// denied, or an I/O error of the device (EIO, SQLite's I/O failure). The item is then
+    /// kept by its sender and retried, not counted as failed.
+    pub fn is_storage_fault(&self) -> bool {
+        use std::io::ErrorKind::*;
+        let StoreError::Io { source, .. } = self else {
+            return false;
+        };
+        matches!(
+            source.kind(),
+            StorageFull | QuotaExceeded | ReadOnlyFilesystem | PermissionDenied
+        ) || source.raw_os_error() == Some(libc_eio())
+            || source.to_string().starts_with("SQLite: disk I/O error")
+    }
+}
+
+/// EIO, the device's I/O error (5 on Linux and the BSDs).
+const fn libc_eio() -> i32 {
+    5
+}
+
 /// Quality of a stored VDI against its step's reference frames.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Quality {

@@ -280,16 +280,15 @@ impl Shared {
         let refs = refs.map_err(|err| Status::data_loss(err.to_string()))?;
         let q = score(&self.backend, &vdi, &refs, self.termination)
             .map_err(|err| Status::invalid_argument(err.to_string()))?;
-        // A full disk delays q, it does not lose it: the write is retried (the scorer waits,
-        // and with it the bounded queue of jobs behind it) until there is room again.
+        // A storage fault (full, read-only, access denied) delays q, it does not lose it: the
+        // write is retried (the scorer waits, and with it the bounded queue of jobs behind it)
+        // until the storage takes it again.
         let mut backoff = Backoff::new(Backoff::DEFAULT_MAX);
         let e = loop {
             match self.recording.set_quality(step, rank, q.clone()) {
                 Ok(e) => break e,
-                Err(StoreError::Io { source, .. })
-                    if source.kind() == std::io::ErrorKind::StorageFull =>
-                {
-                    warn!(step, rank, "disk full: q not recorded yet; retrying");
+                Err(err) if err.is_storage_fault() => {
+                    warn!(step, rank, error = %err, "q not recorded yet; retrying");
                     std::thread::sleep(backoff.next_delay());
                 }
                 Err(err) => return Err(Status::internal(err.to_string())),
@@ -408,13 +407,13 @@ fn store_vdi(
 }
 
 /// `ALREADY_EXISTS` for a (step, rank) stored with other content; `RESOURCE_EXHAUSTED` when
-/// the disk is full; `INTERNAL` for other storage failures. Each names the file or the item.
+/// the storage refused the write for a reason an operator fixes (full, read-only, access
+/// denied, failing: [`StoreError::is_storage_fault`]), which the generator-node waits out,
+/// keeping the item; `INTERNAL` for other failures. Each names the file or the item.
 fn store_status(e: StoreError) -> Status {
     match &e {
         StoreError::AlreadyExists { .. } => Status::already_exists(e.to_string()),
-        StoreError::Io { source, .. } if source.kind() == std::io::ErrorKind::StorageFull => {
-            Status::resource_exhausted(e.to_string())
-        }
+        _ if e.is_storage_fault() => Status::resource_exhausted(e.to_string()),
         _ => Status::internal(e.to_string()),
     }
 }

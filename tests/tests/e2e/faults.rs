@@ -561,3 +561,67 @@ fn full_disk_delays_delivery_and_loses_nothing() {
     g.terminate();
     v.terminate();
 }
+
+/// ReadOnly: the recording directory turned read-only while steps arrive (a read-only bind
+/// mount over it, as an operator's mistake or a file system remounted read-only after errors
+/// makes it; files already open stay writable, new ones fail with EROFS). The viz-node refuses
+/// each item as a storage fault (`RESOURCE_EXHAUSTED`, naming the read-only file system), the
+/// generator-node keeps and retries them instead of counting them failed, and once the
+/// directory is writable again every acknowledged step is stored exactly once and scored.
+#[test]
+fn a_read_only_recording_delays_delivery_and_loses_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = crate::common::generator(&sampled_config(&v.addr, "block"), tmp.path(), &[]);
+    crate::common::push_steps(&g.addr, 0..2);
+    crate::common::flush(&g.addr);
+    let mount = |args: &[&str]| {
+        std::process::Command::new("mount")
+            .args(args)
+            .arg(&rec)
+            .arg(&rec)
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if !mount(&["--bind"]) {
+        eprintln!("SKIPPED a_read_only_recording_delays_delivery_and_loses_nothing: cannot bind-mount here (needs root; CI runs as root)");
+        return;
+    }
+    let ro = std::process::Command::new("mount")
+        .args(["-o", "remount,bind,ro"])
+        .arg(&rec)
+        .status()
+        .is_ok_and(|s| s.success());
+    let unmount = || {
+        let _ = std::process::Command::new("umount").arg(&rec).status();
+    };
+    if !ro {
+        unmount();
+        panic!("mount -o remount,bind,ro {} failed", rec.display());
+    }
+    let replies = crate::common::push_steps(&g.addr, 2..8);
+    let refused = wait_until(30.0, || {
+        crate::common::status(&g.addr)
+            .ship_error
+            .contains("ResourceExhausted")
+    });
+    let status = crate::common::status(&g.addr);
+    unmount();
+    assert_eq!(replies.len(), 6, "every push acknowledged");
+    assert!(refused, "{status:?}");
+    assert!(
+        status.ship_error.contains("ead-only"),
+        "{}",
+        status.ship_error
+    );
+    assert_eq!(status.failed, 0, "a storage fault fails no VDI");
+    let s = crate::common::flush(&g.addr);
+    assert_eq!((s.steps_shipped, s.failed), (8, 0));
+    assert_recording(&rec, &(0..8).collect::<Vec<_>>(), 4);
+    eprintln!(
+        "ReadOnly: acknowledged 8, stored 8 (6 after it was writable again), lost 0, duplicated 0"
+    );
+    g.terminate();
+    v.terminate();
+}
