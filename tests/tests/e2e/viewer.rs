@@ -484,9 +484,14 @@ fn the_rank_selection_shows_one_brick_or_the_composed_step() {
 /// One HTTP/1.1 request on loopback (`Host: addr` unless `headers` name one); returns the
 /// status code and the body.
 fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
+    request(addr, "GET", target, headers)
+}
+
+/// [`http`] with another method.
+fn request(addr: &str, method: &str, target: &str, headers: &[&str]) -> (u16, String) {
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
-    let mut req = format!("GET {target} HTTP/1.1\r\n");
+    let mut req = format!("{method} {target} HTTP/1.1\r\n");
     if !headers.iter().any(|h| h.starts_with("Host:")) {
         req.push_str(&format!("Host: {addr}\r\n"));
     }
@@ -512,7 +517,9 @@ fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
                     .strip_prefix("content-length:")
                     .and_then(|v| v.trim().parse::<usize>().ok())
             });
-            if head.starts_with("HTTP/1.1 101") || length.is_some_and(|n| body.len() >= n) {
+            if head.starts_with("HTTP/1.1 101")
+                || length.is_some_and(|n| body.len() >= n || method == "HEAD")
+            {
                 break;
             }
         }
@@ -564,6 +571,25 @@ fn foreign_hosts_and_origins_are_refused_token_or_not() {
     let mut foreign = upgrade.to_vec();
     foreign.push("Origin: https://evil.example");
     assert_eq!(http(&addr, "/api/live", &foreign).0, 403);
+    v.terminate();
+}
+
+/// HEAD on a render is refused without rendering; a number beyond f32 is named as given.
+#[test]
+fn head_renders_nothing_and_numbers_are_named_as_given() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_owned();
+    let (status, _) = request(&addr, "HEAD", "/api/render?size=4096", &[]);
+    assert_eq!(status, 405);
+    let (status, body) = http(&addr, "/api/render?elevation=1e308", &[]);
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("1e308"), "{body}");
+    let stats: Value = serde_json::from_str(&http(&addr, "/api/stats", &[]).1).unwrap();
+    assert_eq!(stats["rendered"], 0, "{stats}");
     v.terminate();
 }
 

@@ -145,10 +145,11 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
 pub struct RenderQuery {
     step: Option<u64>,
     rank: Option<u32>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::numbers::angle")]
     angle: f32,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::numbers::narrow")]
     elevation: f32,
+    #[serde(default, deserialize_with = "super::numbers::narrow_opt")]
     zoom: Option<f32>,
     /// `N` or `WxH`.
     size: Option<String>,

@@ -42,13 +42,13 @@ pub struct FrameRequest {
     /// Rank; none: the step composed over its ranks.
     pub rank: Option<u32>,
     /// Degrees about +y.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::numbers::angle")]
     pub angle: f32,
     /// Degrees up.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::numbers::narrow")]
     pub elevation: f32,
     /// Distance factor.
-    #[serde(default = "one")]
+    #[serde(default = "one", deserialize_with = "super::numbers::narrow")]
     pub zoom: f32,
     /// Pixels.
     pub width: u32,

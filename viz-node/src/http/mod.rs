@@ -14,6 +14,7 @@
 
 pub mod api;
 pub mod live;
+pub mod numbers;
 pub mod origin;
 pub mod tls;
 
@@ -164,7 +165,8 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/style.css", get(style))
         .route("/api/steps", get(api::steps))
         .route("/api/series", get(api::series))
-        .route("/api/render", get(api::render))
+        // HEAD would render the whole frame to send its headers: refused instead.
+        .route("/api/render", get(api::render).head(no_head))
         .route("/api/reference", get(api::reference))
         .route("/api/stats", get(api::stats))
         .route("/api/live", get(live::upgrade))
@@ -223,8 +225,37 @@ impl IntoResponse for ViewError {
             ViewError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ViewError::Failed(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
-        error(status, self.to_string())
+        let message = self.to_string();
+        if status == StatusCode::INTERNAL_SERVER_ERROR {
+            // The whole story for the operator (a corrupt or swapped file, say); the caller
+            // learns what failed, not where the server keeps its files.
+            tracing::warn!(error = %message, "a viewer request failed");
+            return error(status, without_dirs(&message));
+        }
+        error(status, message)
     }
+}
+
+/// `message` with every absolute path cut to its file name.
+fn without_dirs(message: &str) -> String {
+    message
+        .split(' ')
+        .map(|word| match word.strip_prefix('/') {
+            Some(rest) => rest.rsplit('/').next().unwrap_or(rest),
+            None => word,
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+async fn no_head() -> Response {
+    let mut r = error(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "HEAD would render the frame to send its headers: use GET".into(),
+    );
+    r.headers_mut()
+        .insert(header::ALLOW, header::HeaderValue::from_static("GET"));
+    r
 }
 
 async fn require_own_origin(State(http): State<Arc<Http>>, req: Request, next: Next) -> Response {
@@ -312,4 +343,18 @@ pub fn stats(http: &Http) -> serde_json::Value {
         "clients": n(&http.clients),
         "vdis_stored": n(&http.shared.vdis_stored),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failures_name_files_not_the_server_s_folders() {
+        assert_eq!(
+            without_dirs("cannot read /srv/rec/step_00000001_rank_0000.vdi: No such file"),
+            "cannot read step_00000001_rank_0000.vdi: No such file"
+        );
+        assert_eq!(without_dirs("nothing to cut"), "nothing to cut");
+    }
 }
