@@ -588,6 +588,9 @@ fn head_renders_nothing_and_numbers_are_named_as_given() {
     let (status, body) = http(&addr, "/api/render?elevation=1e308", &[]);
     assert_eq!(status, 400, "{body}");
     assert!(body.contains("1e308"), "{body}");
+    let (status, body) = http(&addr, "/api/reference?step=3&rank=7&view=0", &[]);
+    assert_eq!(status, 404, "{body}");
+    assert!(body.contains("step 3 is not in the recording"), "{body}");
     let stats: Value = serde_json::from_str(&http(&addr, "/api/stats", &[]).1).unwrap();
     assert_eq!(stats["rendered"], 0, "{stats}");
     v.terminate();

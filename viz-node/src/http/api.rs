@@ -323,9 +323,21 @@ pub async fn reference(
             .find(|e| e.rank == r.unwrap_or(0))
             .and_then(|e| e.references.clone()),
     };
+    if ranks.is_empty() && rec.step(q.step).is_none() {
+        return ViewError::NotFound(format!("step {} is not in the recording", q.step))
+            .into_response();
+    }
+    if let Some(r) = q.rank.filter(|r| !ranks.iter().any(|e| e.rank == *r)) {
+        let stored: Vec<u32> = ranks.iter().map(|e| e.rank).collect();
+        return ViewError::NotFound(format!(
+            "step {} has no rank {r} (stored ranks: {stored:?})",
+            q.step
+        ))
+        .into_response();
+    }
     let Some(name) = name else {
         return ViewError::NotFound(format!(
-            "step {} has no stored reference frames (not a sampled step, or not in the recording)",
+            "step {} has no stored reference frames (not a sampled step)",
             q.step
         ))
         .into_response();
