@@ -596,6 +596,71 @@ fn head_renders_nothing_and_numbers_are_named_as_given() {
     v.terminate();
 }
 
+/// A camera request far over the limit (100 kB) ends the socket with a close frame 1009
+/// ("message too big") that says why, rather than a dropped connection.
+#[test]
+fn an_oversized_socket_message_is_closed_with_1009() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_owned();
+    let mut s = std::net::TcpStream::connect(&addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    write!(
+        s,
+        "GET /api/live HTTP/1.1\r\nHost: {addr}\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+    )
+    .unwrap();
+    // The handshake's head, to its blank line.
+    let mut head = Vec::new();
+    let mut byte = [0u8; 1];
+    while !head.ends_with(b"\r\n\r\n") {
+        s.read_exact(&mut byte).unwrap();
+        head.push(byte[0]);
+    }
+    assert!(
+        head.starts_with(b"HTTP/1.1 101"),
+        "{}",
+        String::from_utf8_lossy(&head)
+    );
+    // One masked text frame of 100 kB (a client's frames are masked; key 0 keeps the bytes).
+    let payload = vec![b' '; 100_000];
+    let mut frame = vec![0x81, 0x80 | 127];
+    frame.extend_from_slice(&(payload.len() as u64).to_be_bytes());
+    frame.extend_from_slice(&[0, 0, 0, 0]);
+    frame.extend_from_slice(&payload);
+    s.write_all(&frame).unwrap();
+    // Frames until the close: opcode 8, its first two payload bytes the code.
+    let close = loop {
+        let mut h = [0u8; 2];
+        s.read_exact(&mut h).unwrap();
+        let len = match h[1] & 0x7f {
+            126 => {
+                let mut l = [0u8; 2];
+                s.read_exact(&mut l).unwrap();
+                u64::from(u16::from_be_bytes(l))
+            }
+            127 => {
+                let mut l = [0u8; 8];
+                s.read_exact(&mut l).unwrap();
+                u64::from_be_bytes(l)
+            }
+            n => u64::from(n),
+        };
+        let mut body = vec![0u8; len as usize];
+        s.read_exact(&mut body).unwrap();
+        if h[0] & 0x0f == 8 {
+            break body;
+        }
+    };
+    assert_eq!(u16::from_be_bytes([close[0], close[1]]), 1009);
+    let reason = String::from_utf8_lossy(&close[2..]);
+    assert!(reason.contains("100000 bytes"), "{reason}");
+    v.terminate();
+}
+
 /// A viz-node config answering to `viz.example.org` besides addresses and localhost.
 fn hosts_config(dir: &Path) -> String {
     let path = dir.join("hosts.toml");

@@ -16,7 +16,7 @@
 use super::api::render_frame;
 use super::Http;
 use crate::view::{Format, View, ViewError};
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
 use axum::response::Response;
 use futures_util::{SinkExt, StreamExt};
@@ -29,6 +29,11 @@ use tokio::sync::{mpsc, Notify};
 
 /// Largest camera request, bytes.
 const MAX_REQUEST_BYTES: usize = 4096;
+
+/// Largest message read from a socket, bytes: a larger request is answered in-band up to
+/// `4 × MAX_REQUEST_BYTES`, and beyond it the socket is closed with 1009 ("message too big",
+/// RFC 6455) up to this size; only what exceeds this is cut off by the WebSocket layer.
+const MAX_MESSAGE_BYTES: usize = 1 << 20;
 
 /// One camera request.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -90,7 +95,7 @@ pub fn parse(text: &str) -> Result<FrameRequest, String> {
 
 /// Upgrades to the socket.
 pub async fn upgrade(State(http): State<Arc<Http>>, ws: WebSocketUpgrade) -> Response {
-    ws.max_message_size(MAX_REQUEST_BYTES * 4)
+    ws.max_message_size(MAX_MESSAGE_BYTES)
         .on_upgrade(move |socket| session(http, socket))
 }
 
@@ -128,6 +133,18 @@ async fn session(http: Arc<Http>, socket: WebSocket) {
     };
     while let Some(Ok(msg)) = stream.next().await {
         let text = match msg {
+            Message::Text(t) if t.len() > 4 * MAX_REQUEST_BYTES => {
+                let reason = format!(
+                    "a message of {} bytes: camera requests are at most {MAX_REQUEST_BYTES}",
+                    t.len()
+                );
+                let close = CloseFrame {
+                    code: 1009,
+                    reason: reason.into(),
+                };
+                let _ = out_tx.send(Message::Close(Some(close))).await;
+                break;
+            }
             Message::Text(t) => t,
             Message::Close(_) => break,
             Message::Binary(_) => {
