@@ -29,6 +29,9 @@ pub enum ViewError {
     /// The image is larger than the server allows.
     #[error("{0}")]
     TooLarge(String),
+    /// Too many frames wait to render: try again shortly (503 with `Retry-After`).
+    #[error("{0}")]
+    Busy(String),
     /// A stored file cannot be read or decoded, or rendering failed.
     #[error("{0}")]
     Failed(String),

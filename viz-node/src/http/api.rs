@@ -203,12 +203,27 @@ pub async fn render_frame(
         .or_else(|| rec.latest_step())
         .ok_or_else(|| ViewError::NotFound("the recording holds no step yet".into()))?;
     let file = view::vdi_file(step, rank, &rec.ranks_of(step), rec.step(step).as_ref())?;
-    let permit = http
-        .renders
-        .clone()
-        .acquire_owned()
-        .await
-        .map_err(|_| ViewError::Failed("the server is stopping".into()))?;
+    let busy = |b: super::lanes::Busy, what: &str| {
+        ViewError::Busy(format!(
+            "{} {what} already wait to render; try again shortly",
+            b.waiting
+        ))
+    };
+    let large = u64::from(v.width) * u64::from(v.height) > super::lanes::LARGE_PIXELS;
+    let lane = if large {
+        Some(
+            http.large
+                .enter()
+                .await
+                .map_err(|b| busy(b, "large stills"))?,
+        )
+    } else {
+        None
+    };
+    let permit = (
+        http.renders.enter().await.map_err(|b| busy(b, "frames"))?,
+        lane,
+    );
     let h = http.clone();
     let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;

@@ -13,6 +13,7 @@
 //! own semaphore, so it never holds up storing or scoring.
 
 pub mod api;
+pub mod lanes;
 pub mod live;
 pub mod numbers;
 pub mod origin;
@@ -35,7 +36,6 @@ use insitu_proto::peer::Peer;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::Semaphore;
 
 /// Decoded VDIs kept for quick re-rendering (dragging renders one VDI many times). Each keeps
 /// what rendering derived from it: the walk's tables (8 bytes per supersegment) and the levels
@@ -53,7 +53,9 @@ pub struct Http {
     /// The `Host` and `Origin` answered to ([`origin`]).
     allowed: origin::Allowed,
     /// Renders at once over all HTTP clients.
-    renders: Arc<Semaphore>,
+    renders: lanes::Lane,
+    /// The lane of large stills, one at a time ([`lanes`]).
+    large: lanes::Lane,
     cache: Mutex<Vec<(String, Arc<Vdi>)>>,
     /// Frames rendered (still renders and socket frames).
     pub rendered: AtomicU64,
@@ -82,7 +84,8 @@ impl Http {
             shared,
             token,
             allowed: origin::Allowed::new(hosts),
-            renders: Arc::new(Semaphore::new(render_concurrency.max(1))),
+            renders: lanes::Lane::new(render_concurrency, lanes::WAITING),
+            large: lanes::Lane::new(1, lanes::LARGE_WAITING),
             cache: Mutex::new(Vec::new()),
             rendered: AtomicU64::new(0),
             superseded: AtomicU64::new(0),
@@ -223,9 +226,16 @@ impl IntoResponse for ViewError {
             ViewError::NotFound(_) => StatusCode::NOT_FOUND,
             ViewError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ViewError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            ViewError::Busy(_) => StatusCode::SERVICE_UNAVAILABLE,
             ViewError::Failed(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
         let message = self.to_string();
+        if status == StatusCode::SERVICE_UNAVAILABLE {
+            let mut r = error(status, message);
+            r.headers_mut()
+                .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
+            return r;
+        }
         if status == StatusCode::INTERNAL_SERVER_ERROR {
             // The whole story for the operator (a corrupt or swapped file, say); the caller
             // learns what failed, not where the server keeps its files.
