@@ -23,7 +23,10 @@ use std::sync::Mutex;
 pub const LEGACY_INDEX: &str = "index.json";
 /// The legacy JSON index's format version.
 pub const LEGACY_INDEX_VERSION: u32 = 1;
-const REFS_MAGIC: &[u8; 8] = b"INSREF1\n";
+/// Reference frames as written now: header, frames, and a CRC-32 of all before it.
+const REFS_MAGIC: &[u8; 8] = b"INSREF2\n";
+/// As written before the checksum (still read, unchecked).
+const REFS_MAGIC_V1: &[u8; 8] = b"INSREF1\n";
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
@@ -170,21 +173,39 @@ impl References {
                 }
             }
         }
+        let crc = crc32fast::hash(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
         out
     }
 
-    /// Reads a `.refs` file.
+    /// Reads a `.refs` file; its checksum must match (files written before the checksum are
+    /// read unchecked).
     ///
     /// # Errors
-    /// [`StoreError`] for I/O or a malformed file.
+    /// [`StoreError`] for I/O or a malformed file, or one whose checksum does not match.
     pub fn read(path: &Path) -> Result<Self, StoreError> {
-        let bytes = std::fs::read(path).map_err(io(path))?;
+        let mut bytes = std::fs::read(path).map_err(io(path))?;
         let corrupt = |problem: String| StoreError::Corrupt {
             path: path.to_owned(),
             problem,
         };
-        if bytes.len() < 16 || &bytes[..8] != REFS_MAGIC {
+        let checked = bytes.get(..8) == Some(REFS_MAGIC.as_slice());
+        if bytes.len() < 16 || !(checked || &bytes[..8] == REFS_MAGIC_V1) {
             return Err(corrupt("not a reference-frames file".into()));
+        }
+        if checked {
+            let Some(body) = bytes.len().checked_sub(4).filter(|&b| b >= 16) else {
+                return Err(corrupt("too short for its checksum".into()));
+            };
+            let mut stored = [0u8; 4];
+            stored.copy_from_slice(&bytes[body..]);
+            let (stored, computed) = (u32::from_le_bytes(stored), crc32fast::hash(&bytes[..body]));
+            if stored != computed {
+                return Err(corrupt(format!(
+                    "checksum mismatch (stored CRC-32 {stored:08x}, computed {computed:08x}): the file is damaged"
+                )));
+            }
+            bytes.truncate(body);
         }
         let mut n = [0u8; 8];
         n.copy_from_slice(&bytes[8..16]);
@@ -848,6 +869,41 @@ mod tests {
             .collect();
         assert!(References::from_bytes(cam, vec![0.0], (2, 2), false, &nan).is_err());
         assert!(References::from_bytes(cam, vec![], (2, 2), false, &[]).is_err());
+    }
+
+    /// A reference-frames file damaged within range (one float's low byte changed: still a
+    /// valid frame) is refused by its checksum, not served; a file of the format before the
+    /// checksum still reads.
+    #[test]
+    fn damaged_reference_frames_are_refused_by_their_checksum() {
+        let cam = Camera {
+            eye: glam_vec(5.0),
+            target: glam_vec(0.0),
+            up: glam::Vec3::Y,
+            fov_y_deg: 30.0,
+        };
+        let frames: Vec<u8> = (0..12u32)
+            .flat_map(|k| (k as f32 / 16.0).to_le_bytes())
+            .collect();
+        let refs = References::from_bytes(cam, vec![0.0], (2, 2), false, &frames).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.refs");
+        let good = refs.to_file_bytes();
+        std::fs::write(&path, &good).unwrap();
+        assert_eq!(References::read(&path).unwrap(), refs);
+        let mut damaged = good.clone();
+        let at = damaged.len() - 4 - 8; // a frame float's low byte, before the checksum
+        damaged[at] ^= 1;
+        std::fs::write(&path, &damaged).unwrap();
+        let e = References::read(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("checksum mismatch") && e.contains("r.refs"),
+            "{e}"
+        );
+        let mut v1 = good[..good.len() - 4].to_vec();
+        v1[..8].copy_from_slice(REFS_MAGIC_V1);
+        std::fs::write(&path, &v1).unwrap();
+        assert_eq!(References::read(&path).unwrap(), refs);
     }
 
     fn glam_vec(v: f32) -> glam::Vec3 {
