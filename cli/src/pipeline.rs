@@ -713,3 +713,33 @@ impl Run<'_> {
         }
     }
 }
+
+/// Flushes `client` (within 600 s) and disconnects, saying on stderr, as soon as it is known
+/// and whenever it changes, why steps are not stored yet (the viz-node away, or unable to
+/// store: the generator-node's `ship_error`) instead of waiting in silence.
+///
+/// # Errors
+/// As [`SimClient::flush`]: a refusal, or steps still not stored after 600 s.
+pub async fn flush_saying_why(
+    mut client: insitu_client::SimClient,
+) -> Result<pb::GeneratorStatus, insitu_client::ClientError> {
+    const EVERY: Duration = Duration::from_secs(3);
+    let deadline = std::time::Instant::now() + Duration::from_secs(600);
+    let mut said = String::new();
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match client.flush(left.min(EVERY)).await {
+            Err(insitu_client::ClientError::Refused {
+                code: insitu_client::Code::DeadlineExceeded,
+                ..
+            }) if left > EVERY => {
+                let why = client.status().await?.ship_error;
+                if !why.is_empty() && why != said {
+                    eprintln!("warning: steps not stored yet, still trying: {why}");
+                    said = why;
+                }
+            }
+            other => return other,
+        }
+    }
+}

@@ -11,7 +11,7 @@ use insitu_client::{SimClient, Step};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// The demo's defaults. Budget: the Gray–Scott VDIs at the default P_M (r = 256, γ = 0.013)
 /// are 3–6 MB once the pattern fills the box, so 1 MB per step makes the tuner work. Codec:
@@ -128,7 +128,7 @@ async fn demo(a: Args) -> Result<()> {
         );
         client.push_step(step).await?;
     }
-    let status = client.close(Duration::from_secs(600)).await?;
+    let status = crate::pipeline::flush_saying_why(client).await?;
     say(format!(
         "simulation compute time {sim_secs:.1} s (excluding pushes)"
     ));

@@ -179,7 +179,7 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
         println!("{line}");
     }
     let pushed = push_series(&a, &format, &bricks, first, &mut client, local.is_none()).await?;
-    let status = client.close(Duration::from_secs(600)).await?;
+    let status = crate::pipeline::flush_saying_why(client).await?;
     match (local, printer) {
         (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
         _ => print_flushed(a.pipeline.json, pushed, &status),

@@ -40,3 +40,44 @@ fn a_viz_node_outage_loses_nothing() {
     assert!(summary.contains("shipped 10"), "{summary}");
     v.terminate();
 }
+
+/// `insitu replay` waiting for steps the generator-node cannot deliver (its viz-node down)
+/// says so on stderr while it waits, then finishes once the viz-node is back.
+#[test]
+fn replay_says_why_it_waits_while_steps_cannot_be_stored() {
+    use std::io::{BufRead, BufReader};
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let viz_addr = format!("127.0.0.1:{}", insitu_e2e::free_port());
+    let g = generator(&small_config(&viz_addr, "block", 16), tmp.path(), &[]);
+    let series = insitu_e2e::drift::write_series(tmp.path(), "blob", 16, 3, |t| {
+        (0..16 * 16 * 16).map(|i| ((i + t) % 7) as f32).collect()
+    });
+    let mut replay = std::process::Command::new(insitu_e2e::bin("insitu"))
+        .args(["replay", "--series"])
+        .arg(&series)
+        .args(["--generator", &g.addr, "--no-tune"])
+        .env_remove("INSITU_TOKEN")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(replay.stderr.take().unwrap());
+    let mut line = String::new();
+    let warned = loop {
+        line.clear();
+        if err.read_line(&mut line).unwrap() == 0 {
+            break None;
+        }
+        if line.starts_with("warning: steps not stored yet") {
+            break Some(line.clone());
+        }
+    };
+    let warned = warned.expect("replay never said why it waits");
+    assert!(warned.contains("unreachable"), "{warned}");
+    let v = viz(&rec, &viz_addr, tmp.path());
+    assert!(replay.wait().unwrap().success());
+    assert_eq!(index(&rec).len(), 3);
+    g.terminate();
+    v.terminate();
+}
