@@ -108,6 +108,16 @@ fn viz_with_http(rec: &Path, logs: &Path, extra: &[&str]) -> (Daemon, String) {
     (v, url)
 }
 
+/// A viz-node with its viewer over an empty recording in `dir`; returns its HTTP address.
+fn viewer_on(dir: &Path, extra: &[&str]) -> (Daemon, String) {
+    let (v, url) = viz_with_http(&dir.join("rec"), dir, extra);
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_owned();
+    (v, addr)
+}
+
 /// A viz-node serving the viewer on a recording replayed from the ocean series through a
 /// generator-node (still attached, for later pushes), and chromedriver.
 struct Recorded {
@@ -533,15 +543,7 @@ fn request(addr: &str, method: &str, target: &str, headers: &[&str]) -> (u16, St
 #[test]
 fn foreign_hosts_and_origins_are_refused_token_or_not() {
     let tmp = tempfile::tempdir().unwrap();
-    let (v, url) = viz_with_http(
-        &tmp.path().join("rec"),
-        tmp.path(),
-        &["--config", &hosts_config(tmp.path())],
-    );
-    let addr = url
-        .trim_start_matches("http://")
-        .trim_end_matches('/')
-        .to_owned();
+    let (v, addr) = viewer_on(tmp.path(), &["--config", &hosts_config(tmp.path())]);
     let upgrade = [
         "Connection: Upgrade",
         "Upgrade: websocket",
@@ -578,11 +580,7 @@ fn foreign_hosts_and_origins_are_refused_token_or_not() {
 #[test]
 fn head_renders_nothing_and_numbers_are_named_as_given() {
     let tmp = tempfile::tempdir().unwrap();
-    let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
-    let addr = url
-        .trim_start_matches("http://")
-        .trim_end_matches('/')
-        .to_owned();
+    let (v, addr) = viewer_on(tmp.path(), &[]);
     let (status, _) = request(&addr, "HEAD", "/api/render?size=4096", &[]);
     assert_eq!(status, 405);
     let (status, body) = http(&addr, "/api/render?elevation=1e308", &[]);
@@ -601,11 +599,7 @@ fn head_renders_nothing_and_numbers_are_named_as_given() {
 #[test]
 fn an_oversized_socket_message_is_closed_with_1009() {
     let tmp = tempfile::tempdir().unwrap();
-    let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
-    let addr = url
-        .trim_start_matches("http://")
-        .trim_end_matches('/')
-        .to_owned();
+    let (v, addr) = viewer_on(tmp.path(), &[]);
     let mut s = std::net::TcpStream::connect(&addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
     write!(
