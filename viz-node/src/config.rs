@@ -53,6 +53,9 @@ pub struct Config {
     /// addresses and `localhost`: a request whose `Host` or browser `Origin` is anything else is
     /// refused (DNS rebinding, other sites' pages).
     pub http_hosts: Vec<String>,
+    /// Viewer connections open at once at most (page, API and sockets together); at the cap a
+    /// new connection waits until one closes.
+    pub http_max_connections: usize,
     /// The tuner-node, `host:port`, whose budget the viewer's charts draw (dialled with the
     /// token and `[tls]` as any peer); unset: no budget lines.
     pub tuner: Option<String>,
@@ -82,6 +85,7 @@ impl Default for Config {
             max_render_pixels: 4096 * 4096,
             http_listen: None,
             http_hosts: Vec::new(),
+            http_max_connections: crate::http::cap::DEFAULT_MAX_CONNECTIONS,
             tuner: None,
         }
     }
@@ -132,9 +136,10 @@ impl Config {
             || self.score_queue == 0
             || self.render_concurrency == 0
             || self.max_render_pixels == 0
+            || self.http_max_connections == 0
         {
             return Err(ConfigError::Invalid {
-                key: "report_buffer/max_vdi_bytes/max_reference_bytes/score_queue/render_concurrency/max_render_pixels",
+                key: "report_buffer/max_vdi_bytes/max_reference_bytes/score_queue/render_concurrency/max_render_pixels/http_max_connections",
                 problem: "must be ≥ 1".into(),
             });
         }

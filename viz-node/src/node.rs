@@ -216,9 +216,16 @@ async fn start_http(
     }
     let (stop, stopped) = oneshot::channel::<()>();
     let scheme = if tls.is_some() { "https" } else { "http" };
-    let server = tokio::spawn(crate::http::serve(listener, tls, http.clone(), async {
-        let _ = stopped.await;
-    }));
+    let max = cfg.http_max_connections;
+    let server = tokio::spawn(crate::http::serve(
+        listener,
+        tls,
+        http.clone(),
+        max,
+        async {
+            let _ = stopped.await;
+        },
+    ));
     let url = format!("{scheme}://{addr}/");
     info!(%addr, "web viewer on {url}");
     Ok(HttpParts {

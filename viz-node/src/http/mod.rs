@@ -13,6 +13,7 @@
 //! own semaphore, so it never holds up storing or scoring.
 
 pub mod api;
+pub mod cap;
 pub mod lanes;
 pub mod live;
 pub mod numbers;
@@ -194,11 +195,13 @@ pub async fn serve(
     listener: tokio::net::TcpListener,
     tls: Option<rustls::ServerConfig>,
     http: Arc<Http>,
+    max_connections: usize,
     stop: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     match tls {
         Some(cfg) => {
-            axum::serve(tls::TlsListener::new(listener, cfg)?, router(http))
+            let listener = cap::Capped::new(tls::TlsListener::new(listener, cfg)?, max_connections);
+            axum::serve(listener, router(http))
                 .with_graceful_shutdown(stop)
                 .await
         }
@@ -208,6 +211,7 @@ pub async fn serve(
             let listener = listener.tap_io(|tcp| {
                 let _ = tcp.set_nodelay(true);
             });
+            let listener = cap::Capped::new(listener, max_connections);
             axum::serve(listener, router(http))
                 .with_graceful_shutdown(stop)
                 .await
