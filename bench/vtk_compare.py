@@ -1,7 +1,7 @@
 """Render one volume with VTK's CPU ray caster and with `insitu render`, interleaved; print
 both times, their ratio and the PSNR between the images.
 
-Run through bench/vtk_compare.sh, which makes the venv. The conventions match docs/design.md
+Run through bench/vtk_compare.sh, which makes the venv. The conventions match docs/conventions.md
 ("Conventions every part shares"), which chose VTK's where there was a choice:
 
 - volume: image data with origin 0 and spacing 1, so voxel centres sit at integer coordinates
@@ -21,7 +21,7 @@ Run through bench/vtk_compare.sh, which makes the venv. The conventions match do
   fixed-point mapper at its built-in 0.99..1 cut-off);
 - background black; images compared as 8-bit RGB, row 0 at the top;
 - a time series (the ocean): its first step on both sides (insitu's `--time-step` defaults to 0);
-- NaN (the ocean's land): missing and transparent for insitu (docs/design.md), so a sample with a
+- NaN (the ocean's land): missing and transparent for insitu (docs/conventions.md), so a sample with a
   NaN corner adds nothing; VTK's fixed-point mapper takes NaN as the bottom of the range (the
   same image as with NaN replaced by the minimum), which its opacity ramp makes transparent
   but which still blends into its neighbours' samples. The two images therefore differ along

@@ -29,7 +29,7 @@ pub struct SceneArgs {
     /// Voxel spacing `sx,sy,sz` in world units.
     #[arg(long, default_value = "1,1,1")]
     pub spacing: String,
-    /// Transfer function JSON (docs/design.md format). Default: a ramp over the data range.
+    /// Transfer function JSON (docs/conventions.md format). Default: a ramp over the data range.
     #[arg(long)]
     pub tf: Option<PathBuf>,
     /// Ray-casting sample distance, world units (voxels at spacing 1).
@@ -158,7 +158,7 @@ impl SceneArgs {
 }
 
 /// Warns when `volume` is one voxel thick along an axis: its box spans `(n − 1)·s` there
-/// (docs/design.md, "Volume"), so it has no depth, rays cross nothing, and every image and VDI of
+/// (docs/conventions.md, "Volume"), so it has no depth, rays cross nothing, and every image and VDI of
 /// it is empty — right by the convention, but a black image should not come unexplained.
 fn warn_if_flat(source: &str, volume: &Volume) {
     let flat: Vec<&str> = ["x", "y", "z"]

@@ -399,7 +399,7 @@ fn own_data_flags_read_the_file_as_its_name_would() {
     );
 }
 
-/// A volume one voxel thick has a flat box (docs/design.md: `(n − 1)·s` per axis), so its image is
+/// A volume one voxel thick has a flat box (docs/conventions.md: `(n − 1)·s` per axis), so its image is
 /// empty; the command says why instead of writing a black image unexplained, and a volume
 /// two voxels thick renders without the warning.
 #[test]

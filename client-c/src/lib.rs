@@ -27,7 +27,7 @@
 //! program typically opens one per rank. `insitu_close` must not race other calls on the same
 //! client (it frees it).
 //!
-//! Rank decomposition (docs/design.md, "A world of ranks"): neighbouring bricks share their boundary plane of
+//! Rank decomposition (docs/conventions.md, "A world of ranks"): neighbouring bricks share their boundary plane of
 //! voxels; a simulation with halo cells sends its owned voxels plus the first halo plane on the
 //! upper side of every axis that has a neighbour.
 

@@ -1,5 +1,5 @@
 //! Backend selection: the CPU path (rayon) or the GPU path (wgpu compute shaders) behind the
-//! same three functions (docs/design.md: both implement the same functions and are tested against
+//! same three functions (docs/conventions.md: both implement the same functions and are tested against
 //! each other): reference DVR, VDI generation `R` and VDI rendering `I`.
 //!
 //! [`BackendChoice`] is what a user asks for (`cpu`, `gpu`, `auto`); [`Backend::select`]

@@ -1,4 +1,4 @@
-//! Perspective cameras and primary rays (docs/design.md, "Camera").
+//! Perspective cameras and primary rays (docs/conventions.md, "Camera").
 //!
 //! The default camera looks along −z at the centre of the volume box from `R / sin(15°)`
 //! (`R` the half-diagonal), with a 30° vertical field of view and +y up, so the whole box is

@@ -1,5 +1,5 @@
 //! Many ranks, one picture: the sub-VDIs and the reference frames of a step's bricks
-//! composed into those of the whole domain (docs/design.md, "A world of ranks").
+//! composed into those of the whole domain (docs/conventions.md, "A world of ranks").
 //!
 //! All ranks of a step share the generation camera, and their bricks are boxes whose
 //! interiors are disjoint (neighbours share at most their boundary plane). A ray meets

@@ -177,7 +177,7 @@ pub struct Sizing {
 }
 
 impl Sizing {
-    /// One step of a world of ranks from its ranks' VDIs (docs/design.md, "A world of ranks"):
+    /// One step of a world of ranks from its ranks' VDIs (docs/conventions.md, "A world of ranks"):
     /// σ and the supersegments summed (the step's VDIs together), τ and the compression time of
     /// the slowest rank (the step is done when its last rank is), the first rank's τ source.
     /// All zero for no ranks.

@@ -4,7 +4,7 @@
 //! cameras, the reference ray-caster, Volumetric Depth Image (VDI) generation, the VDI codec,
 //! VDI rendering from new views and image metrics. Synchronous and deterministic; no
 //! networking, no CLI. The method is Frey & Ertl, "Auto-Tuning Intermediate Representations
-//! for In Situ Visualization"; conventions are those of `docs/design.md`.
+//! for In Situ Visualization"; conventions are those of `docs/conventions.md`.
 //!
 //! Main types: [`Volume`], [`TransferFunction`], [`Camera`], [`Raycaster`] (shared sampling),
 //! [`Vdi`] (supersegment lists), [`Image`].

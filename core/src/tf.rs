@@ -1,4 +1,4 @@
-//! Transfer functions (docs/design.md, "Transfer function").
+//! Transfer functions (docs/conventions.md, "Transfer function").
 //!
 //! A [`TransferFunction`] is piecewise-linear RGBA over the data domain, read from JSON:
 //! `{"domain": [lo, hi], "points": [[x, r, g, b, a], ...]}` with `x` in [0, 1] across the

@@ -12,7 +12,7 @@
  * a block of the N³ grid and exchanges one halo layer with its six face neighbours before
  * every step. Every EVERY steps each rank pushes its owned voxels plus the first halo plane on
  * the upper side of each axis where it is not the last block: neighbouring bricks then share
- * their boundary plane, which is how the viz-node composes one picture (docs/design.md, "A world of ranks").
+ * their boundary plane, which is how the viz-node composes one picture (docs/conventions.md, "A world of ranks").
  *
  * Usage: mpirun -np P gray_scott_mpi GENERATOR_ADDR N STEPS EVERY
  *   e.g. mpirun -np 4 gray_scott_mpi 127.0.0.1:50051 64 400 100

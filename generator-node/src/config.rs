@@ -80,7 +80,7 @@ pub struct GenerationConfig {
     pub generation_termination: Option<f32>,
     /// `bzip2` (σ as in the paper), `zstd` or `none`.
     pub codec: Codec,
-    /// Transfer function file (docs/design.md format); unset: the default over the global range of
+    /// Transfer function file (docs/conventions.md format); unset: the default over the global range of
     /// the first step, agreed with every rank through the viz-node (`AgreeScene`; without a
     /// viz-node, over this node's first brick).
     pub tf: Option<PathBuf>,

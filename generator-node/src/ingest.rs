@@ -1,6 +1,6 @@
 //! Receiving a time step: the header is validated before any payload is read, and the
 //! payload is converted into the volume's own storage chunk by chunk as it arrives
-//! ([`FieldAssembler`]: one pass, no copy of the received bytes kept, docs/design.md).
+//! ([`FieldAssembler`]: one pass, no copy of the received bytes kept, docs/conventions.md).
 
 use glam::Vec3;
 use insitu_core::volume::{Aabb, FieldAssembler, ScalarType};

@@ -1,4 +1,4 @@
-//! The generator-node: the daemon beside a simulation (docs/design.md, "The system").
+//! The generator-node: the daemon beside a simulation (docs/conventions.md, "The system").
 //!
 //! A simulation pushes time steps (one rank's brick each) over gRPC ([`service`]); they wait in
 //! a bounded [`queue`] with a named policy; a worker turns each into a compressed VDI on the

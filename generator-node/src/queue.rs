@@ -1,4 +1,4 @@
-//! A bounded async queue with a named policy for when it is full (docs/design.md: the node "never
+//! A bounded async queue with a named policy for when it is full (docs/conventions.md: the node "never
 //! blocks the simulation for longer than a copy of the step; what happens when the queue is
 //! full is a named, configurable policy").
 //!

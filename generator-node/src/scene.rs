@@ -1,4 +1,4 @@
-//! One scene per world, the generator-node's side (docs/design.md, "A world of ranks"): with no transfer
+//! One scene per world, the generator-node's side (docs/conventions.md, "A world of ranks"): with no transfer
 //! function configured, each rank's first step reports its brick's value range to the
 //! viz-node (`AgreeScene`) as soon as it is received, before it is queued, and the worker
 //! waits for the world's answer before it generates. Reporting at receipt, not in the worker,

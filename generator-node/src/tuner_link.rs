@@ -1,4 +1,4 @@
-//! The link to the tuner service (docs/design.md, "The system"): the node dials out (compute nodes
+//! The link to the tuner service (docs/conventions.md, "The system"): the node dials out (compute nodes
 //! often accept no inbound connections) and keeps one `Attach` stream open, reconnecting with
 //! back-off. Up the stream go a summary per production step and the results of trials; down it
 //! come claims on held fields, trial requests and P_M decisions.

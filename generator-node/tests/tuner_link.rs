@@ -187,7 +187,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     assert_eq!((r.trial_id, r.step, r.rank, r.resolution), (1, 0, 0, 24));
     assert_eq!((r.view_mse.len(), r.view_q_db.len()), (2, 2));
     assert!(r.sigma_bytes > 0 && r.tau_secs > 0.0 && r.reference_secs > 0.0);
-    // At r = reference side and the generation view, the VDI reproduces the DVR (docs/design.md).
+    // At r = reference side and the generation view, the VDI reproduces the DVR (docs/conventions.md).
     assert!(r.view_q_db[0] > 60.0, "{:?}", r.view_q_db);
     send(&down, trial(2, 0, 24));
     let Up::Trial(again) = next(&mut up).await else {

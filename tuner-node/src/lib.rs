@@ -1,4 +1,4 @@
-//! The tuner service (docs/design.md, "The system"; Frey & Ertl, Sec. 4, 6, 7): a thin layer over
+//! The tuner service (docs/conventions.md, "The system"; Frey & Ertl, Sec. 4, 6, 7): a thin layer over
 //! the `insitu-tuner` library that closes the loop while a simulation runs.
 //!
 //! Generator-nodes dial out to it and keep one stream open ([`service`], [`hub`]). From their

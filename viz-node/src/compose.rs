@@ -1,5 +1,5 @@
-//! One picture per step of a world of ranks (docs/design.md, "A world of ranks"; issue: many ranks, one
-//! picture): once every rank's VDI (and, on sampled steps, its reference frames) is stored,
+//! One picture per step of a world of ranks (docs/conventions.md, "A world of ranks"):
+//! once every rank's VDI (and, on sampled steps, its reference frames) is stored,
 //! or `compose_timeout_secs` after the step's first rank arrived, the ranks' VDIs are merged
 //! into one ([`insitu_core::compose::compose_vdis`]), their frames composited front to back
 //! ([`insitu_core::compose::compose_frames`]), and the composed VDI scored against the

@@ -51,7 +51,11 @@ fn db_err(path: &Path) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
         Some(ErrorCode::DiskFull) => io(ErrorKind::StorageFull, &e),
         Some(ErrorCode::ReadOnly) => io(ErrorKind::ReadOnlyFilesystem, &e),
         Some(ErrorCode::PermissionDenied) => io(ErrorKind::PermissionDenied, &e),
-        Some(ErrorCode::SystemIoFailure) => io(ErrorKind::Other, &e),
+        // The device failed: reported as the EIO a payload write would get.
+        Some(ErrorCode::SystemIoFailure) => StoreError::Io {
+            path: path.to_owned(),
+            source: std::io::Error::from_raw_os_error(crate::rows::EIO),
+        },
         _ => StoreError::Corrupt {
             path: path.to_owned(),
             problem: format!("SQLite: {e}"),
@@ -137,7 +141,7 @@ fn uri_path(path: &Path) -> String {
 
 impl IndexDb {
     /// Opens (creating when `create`) the index of `dir`; without `create`, for reading only
-    /// and leaving nothing behind ([`open_read_only`]).
+    /// and leaving nothing behind (immutable when no viz-node writes it).
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] when the file is not an index of this version.

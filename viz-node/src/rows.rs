@@ -54,15 +54,12 @@ impl StoreError {
         matches!(
             source.kind(),
             StorageFull | QuotaExceeded | ReadOnlyFilesystem | PermissionDenied
-        ) || source.raw_os_error() == Some(libc_eio())
-            || source.to_string().starts_with("SQLite: disk I/O error")
+        ) || source.raw_os_error() == Some(EIO)
     }
 }
 
 /// EIO, the device's I/O error (5 on Linux and the BSDs).
-const fn libc_eio() -> i32 {
-    5
-}
+pub const EIO: i32 = 5;
 
 /// Quality of a stored VDI against its step's reference frames.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -120,7 +117,7 @@ pub struct Entry {
     pub with_references: bool,
 }
 
-/// A rank's brick in the whole grid, voxels (docs/design.md, "A world of ranks").
+/// A rank's brick in the whole grid, voxels (docs/conventions.md, "A world of ranks").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Placement {
     /// The whole grid.

@@ -1,5 +1,5 @@
 //! The GPU backend: reference DVR, VDI generation and VDI rendering as WGSL compute shaders
-//! through wgpu (docs/design.md: "the GPU path and the CPU path implement the same functions and
+//! through wgpu (docs/conventions.md: "the GPU path and the CPU path implement the same functions and
 //! are tested against each other"). The paper generates with a CUDA ray-caster and renders
 //! with OpenGL (Sec. 6); the kernels here mirror the CPU code operation for operation so the
 //! two agree up to float rounding, and their output is the same [`crate::Vdi`] and

@@ -1,4 +1,4 @@
-//! Front-to-back compositing of one ray's samples, emission–absorption (docs/design.md, "Direct
+//! Front-to-back compositing of one ray's samples, emission–absorption (docs/conventions.md, "Direct
 //! volume rendering"): `C += T·α·c`, `T *= 1 − α`, stopping once the accumulated opacity
 //! `1 − T` reaches the termination threshold. The reference DVR's per-ray work; the VDI walk
 //! blends supersegments with it, and the composition of ranks' frames layers premultiplied

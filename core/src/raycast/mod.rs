@@ -39,7 +39,7 @@ use glam::Vec3;
 use std::ops::ControlFlow;
 use std::sync::OnceLock;
 
-/// Default ray-casting step, world units (docs/design.md: 0.5 voxel).
+/// Default ray-casting step, world units (docs/conventions.md: 0.5 voxel).
 pub const DEFAULT_STEP: f32 = 0.5;
 /// Shortest run of steps in a visible macro cell worth sampling eight lanes at a time.
 #[cfg(target_arch = "x86_64")]

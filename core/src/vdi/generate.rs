@@ -1,4 +1,4 @@
-//! VDI generation `R(S_A, P_A, P_M) → M` (Sec. 3.2, 5.2; docs/design.md, "VDI").
+//! VDI generation `R(S_A, P_A, P_M) → M` (Sec. 3.2, 5.2; docs/conventions.md, "VDI").
 //!
 //! Each of the `r²` rays is marched with the same [`Raycaster`] as the reference DVR (rows in
 //! parallel); its samples are collected, then merged front to back in a separate loop into the

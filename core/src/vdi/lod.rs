@@ -13,7 +13,7 @@
 //! `σ̄ = Σσᵢ / 4` (a pixel with no supersegment there contributes 0) and the
 //! extinction-weighted colour `ĉ = Σσᵢĉᵢ / Σσᵢ`. Neighbouring intervals whose premultiplied
 //! colours `â·ĉ` differ by at most the VDI's own γ are merged again (the generation's
-//! criterion, docs/design.md), so the level stays about as compact as the original.
+//! criterion, docs/conventions.md), so the level stays about as compact as the original.
 //!
 //! What it costs in accuracy is measured, not assumed: `real_data::lod_*` and the viewer table of
 //! docs/viewer.md give the PSNR of a level against the full VDI at the same frame.

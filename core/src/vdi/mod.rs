@@ -1,4 +1,4 @@
-//! Volumetric Depth Images (Sec. 3.2, Fig. 2; docs/design.md, "VDI").
+//! Volumetric Depth Images (Sec. 3.2, Fig. 2; docs/conventions.md, "VDI").
 //!
 //! A [`Vdi`] holds, for an `r × r` grid of rays from the generation camera, a depth-ordered
 //! list of [`Supersegment`]s per pixel, laid out as prefix offsets (`r² + 1` entries) into

@@ -1,5 +1,5 @@
 //! Domain decomposition: a grid of `global` voxels cut into bricks, one per rank, and the
-//! checks a step's bricks must pass before their pictures are composed (docs/design.md, "A world of ranks").
+//! checks a step's bricks must pass before their pictures are composed (docs/conventions.md, "A world of ranks").
 //!
 //! Convention: neighbouring bricks **share their boundary plane of voxels** (a brick owning
 //! voxels `o ..= o + n − 1` on an axis is followed by one starting at `o + n − 1`). A brick's

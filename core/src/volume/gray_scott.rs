@@ -1,4 +1,4 @@
-//! The Gray–Scott reaction–diffusion model: the embedded demo simulation (docs/design.md, "Data").
+//! The Gray–Scott reaction–diffusion model: the embedded demo simulation (docs/conventions.md, "Data").
 //!
 //! Settings follow the ADIOS2 tutorial's `gray-scott`: `Du = 0.2`, `Dv = 0.1`, `F = 0.01`,
 //! `k = 0.05`, `dt = 2.0`, noise `1e-7` (uniform in ±noise, added to du), a 7-point Laplacian

@@ -1,4 +1,4 @@
-//! Scalar volumes on a regular grid (docs/design.md, "Volume").
+//! Scalar volumes on a regular grid (docs/conventions.md, "Volume").
 //!
 //! A [`Volume`] holds `nx × ny × nz` samples, x fastest, in their own type (u8, u16 or f32:
 //! [`VoxelSlice`]), with a voxel spacing.

@@ -1,4 +1,4 @@
-//! VDI rendering `I(M, P_I) → O` from any camera (Sec. 3.2, Fig. 2b; docs/design.md, "Rendering a
+//! VDI rendering `I(M, P_I) → O` from any camera (Sec. 3.2, Fig. 2b; docs/conventions.md, "Rendering a
 //! VDI from a new camera").
 //!
 //! A ray of the new camera is clipped to the volume box and to the generation camera's
