@@ -3,11 +3,13 @@
 //! of the test views from the original data (Alg. 1, line 9).
 
 use crate::config::Generation;
-use crate::ingest::RawStep;
+use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
-use insitu_core::backend::{BackendError, Scene};
+use insitu_core::backend::{BackendError, Scene, TimeSource};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
+use insitu_core::vdi::provenance::Provenance;
+use insitu_core::volume::bricks::Brick;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb};
 use insitu_proto::pb;
@@ -117,14 +119,16 @@ pub fn run(
     let (generated, file, tau_secs, tau_compress_secs) = loop {
         let generated = info_span!("generate", r = params.resolution, gamma = params.gamma)
             .in_scope(|| scene.generate_reusing(&camera, params, tf_hash, &tf.1, spare.take()))?;
+        // τ counts every generation of the step, the ones thrown away too.
+        let tau = generated.seconds + retries.1;
         let t = Instant::now();
-        let file = info_span!("compress", codec = %gen.codec)
-            .in_scope(|| codec::encode(&generated.value, gen.codec))?;
+        let provenance = provenance(info, gen.pm_version, tau, generated.source);
+        let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
+            codec::encode_with_provenance(&generated.value, gen.codec, Some(&provenance))
+        })?;
         let compress = t.elapsed().as_secs_f64();
         let sigma = file.len() as u64;
         let Some(limit) = limit.filter(|&l| sigma >= l) else {
-            // τ counts every generation of the step, the ones thrown away too.
-            let tau = generated.seconds + retries.1;
             break (generated, file, tau, compress);
         };
         let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
@@ -186,6 +190,42 @@ pub fn run(
         limit_retries: retries,
     };
     Ok((product, generated.value))
+}
+
+/// Where the VDI of `info`'s step and rank comes from, as its file carries it.
+fn provenance(
+    info: &StepInfo,
+    pm_version: u64,
+    tau_secs: f64,
+    tau_source: TimeSource,
+) -> Provenance {
+    Provenance {
+        step: info.step,
+        rank: info.rank,
+        world_size: info.world_size.max(1),
+        pm_version,
+        sim_time: if info.sim_time.is_finite() {
+            info.sim_time
+        } else {
+            0.0
+        },
+        tau_secs,
+        tau_source,
+        // Ingest checked the brick against the grid; one that does not fit is left unsaid
+        // rather than making the file unreadable.
+        placement: (0..3)
+            .all(|a| {
+                info.brick_dims[a] >= 1
+                    && info.brick_offset[a] + info.brick_dims[a] <= info.global_dims[a]
+            })
+            .then_some((
+                info.global_dims,
+                Brick {
+                    offset: info.brick_offset,
+                    dims: info.brick_dims,
+                },
+            )),
+    }
 }
 
 /// The reference frames of a sampled step: each test view rendered from the original data

@@ -14,7 +14,8 @@ use crate::store::{
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, Codec};
-use insitu_core::volume::bricks::{self, DecompositionError};
+use insitu_core::vdi::provenance::Provenance;
+use insitu_core::volume::bricks::{self, Brick, DecompositionError};
 use insitu_core::{Backend, Vdi};
 use std::sync::Arc;
 
@@ -155,7 +156,7 @@ pub fn compose_step(
     let (references, quality) = if with_frames {
         let refs = compose_references(rec, kept, &ready, &vdis)?;
         let name = composed_refs_name(step);
-        write_atomic(rec.dir(), &name, &refs.to_file_bytes())?;
+        write_atomic(rec.dir(), &name, &refs.to_file_bytes((step, None)))?;
         let q = score(backend, &composed, &refs, termination).map_err(|e| StepError::Rank {
             step,
             rank: ready[0].rank,
@@ -209,10 +210,32 @@ fn store_composed(
     composed: &Vdi,
 ) -> Result<String, StepError> {
     let codec = ready[0].codec.unwrap_or(Codec::Zstd);
-    let file = codec::encode(composed, codec).map_err(|e| StepError::Rank {
+    // One VDI of the whole grid: a world of one, its τ the slowest rank's.
+    let provenance = Provenance {
         step,
-        rank: ready[0].rank,
-        problem: format!("encoding the composed VDI: {e}"),
+        rank: 0,
+        world_size: 1,
+        pm_version: ready[0].pm_version,
+        sim_time: ready[0].sim_time,
+        tau_secs: ready.iter().map(|e| e.sizing.tau_secs).fold(0.0, f64::max),
+        tau_source: ready[0].sizing.tau_source,
+        placement: ready[0]
+            .placement
+            .filter(|p| p.global_dims.iter().all(|&n| n >= 1))
+            .map(|p| {
+                let whole = Brick {
+                    offset: [0; 3],
+                    dims: p.global_dims,
+                };
+                (p.global_dims, whole)
+            }),
+    };
+    let file = codec::encode_with_provenance(composed, codec, Some(&provenance)).map_err(|e| {
+        StepError::Rank {
+            step,
+            rank: ready[0].rank,
+            problem: format!("encoding the composed VDI: {e}"),
+        }
     })?;
     let name = composed_vdi_name(step);
     write_atomic(rec.dir(), &name, &file)?;

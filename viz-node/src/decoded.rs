@@ -46,6 +46,16 @@ pub enum LoadError {
         /// The row's.
         row: (u64, u64),
     },
+    /// The file says it is the VDI of another step or rank than its row (swapped or replaced).
+    #[error("{path} holds the VDI of step {} rank {}, but its index row is step {}{}: it is not this row's VDI", found.0, found.1, row.0, row.1.map(|r| format!(" rank {r}")).unwrap_or_default())]
+    NotItsRow {
+        /// The file.
+        path: PathBuf,
+        /// The step and rank its provenance names.
+        found: (u64, u32),
+        /// The row's step, and rank (none for a composed step).
+        row: (u64, Option<u32>),
+    },
     /// The file is not a VDI this node can decode.
     #[error("{path} is not a usable VDI: {source}")]
     Decode {
@@ -66,6 +76,10 @@ pub struct Expected {
     pub bytes: Option<u64>,
     /// Its supersegments.
     pub supersegments: Option<u64>,
+    /// The row's step: a file whose provenance names another is refused.
+    pub step: Option<u64>,
+    /// The row's rank (none for a composed step, whose file is one VDI of the whole grid).
+    pub rank: Option<u32>,
 }
 
 impl From<&Entry> for Expected {
@@ -76,13 +90,23 @@ impl From<&Entry> for Expected {
         Self {
             bytes: said(e.sizing.sigma_bytes),
             supersegments: said(e.sizing.supersegments),
+            step: Some(e.step),
+            rank: Some(e.rank),
         }
     }
 }
 
 impl From<&StepEntry> for Expected {
-    fn from(_: &StepEntry) -> Self {
-        Self::default()
+    /// σ of a composed step is its ranks' sum, not the composed file's length: only the
+    /// supersegments (the composed VDI's, once composed) and the step are checked.
+    fn from(st: &StepEntry) -> Self {
+        Self {
+            bytes: None,
+            supersegments: (st.vdi.is_some() && st.sizing.supersegments > 0)
+                .then_some(st.sizing.supersegments),
+            step: Some(st.step),
+            rank: None,
+        }
     }
 }
 
@@ -97,11 +121,22 @@ pub fn read_vdi(dir: &Path, name: &str, expected: Expected) -> Result<Vdi, LoadE
         path: path.clone(),
         source,
     })?;
-    let vdi =
-        codec::decode(&bytes, &DecodeLimits::default()).map_err(|source| LoadError::Decode {
+    let (vdi, provenance) = codec::decode_with_provenance(&bytes, &DecodeLimits::default())
+        .map_err(|source| LoadError::Decode {
             path: path.clone(),
             source,
         })?;
+    if let Some(p) = provenance {
+        let other_step = expected.step.is_some_and(|s| s != p.step);
+        let other_rank = expected.rank.is_some_and(|r| r != p.rank);
+        if other_step || other_rank {
+            return Err(LoadError::NotItsRow {
+                path,
+                found: (p.step, p.rank),
+                row: (expected.step.unwrap_or(p.step), expected.rank),
+            });
+        }
+    }
     let found = (bytes.len() as u64, vdi.supersegments().len() as u64);
     let differs = |want: Option<u64>, got: u64| want.is_some_and(|w| w != got);
     if differs(expected.bytes, found.0) || differs(expected.supersegments, found.1) {
@@ -321,12 +356,25 @@ mod tests {
                 gamma: 0.01,
             };
             let vdi = insitu_core::vdi::generate::generate(&rc, &cam, params, 0, "ramp").unwrap();
-            let bytes = codec::encode(&vdi, codec::Codec::None).unwrap();
+            let provenance = insitu_core::vdi::provenance::Provenance {
+                step: k,
+                rank: 0,
+                world_size: 1,
+                pm_version: 0,
+                sim_time: 0.0,
+                tau_secs: 0.0,
+                tau_source: Default::default(),
+                placement: None,
+            };
+            let bytes =
+                codec::encode_with_provenance(&vdi, codec::Codec::None, Some(&provenance)).unwrap();
             let name = format!("v{k}.vdi");
             std::fs::write(dir.path().join(&name), &bytes).unwrap();
             let row = Expected {
                 bytes: Some(bytes.len() as u64),
                 supersegments: Some(vdi.supersegments().len() as u64),
+                step: Some(k),
+                rank: Some(0),
             };
             files.push((name, row));
         }
@@ -338,14 +386,31 @@ mod tests {
             a.1, b.1,
             "the two VDIs must differ for the test to mean anything"
         );
-        let e = read_vdi(dir.path(), &a.0, b.1).unwrap_err();
+        let sizes_of_b = Expected {
+            step: a.1.step,
+            ..b.1
+        };
+        let e = read_vdi(dir.path(), &a.0, sizes_of_b).unwrap_err();
         assert!(matches!(e, LoadError::Mismatch { .. }), "{e}");
         let text = e.to_string();
         assert!(
             text.contains("v0.vdi") && text.contains("index row says"),
             "{text}"
         );
-        // A composed step's row checks nothing.
+        // Same size and count, but the file says it is another step's (a swap of two files
+        // that happen to agree in size): refused by its provenance.
+        let other_step = Expected {
+            step: Some(1),
+            ..a.1
+        };
+        let e = read_vdi(dir.path(), &a.0, other_step).unwrap_err();
+        assert!(matches!(e, LoadError::NotItsRow { .. }), "{e}");
+        assert!(
+            e.to_string().contains("step 0 rank 0")
+                && e.to_string().contains("row is step 1 rank 0"),
+            "{e}"
+        );
+        // A row that says nothing checks nothing.
         assert!(read_vdi(dir.path(), &a.0, Expected::default()).is_ok());
     }
 

@@ -6,6 +6,7 @@ use crate::score::score;
 use crate::store::{Entry, Placement, Quality, Recording, References, StepEntry, StoreError};
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, DecodeLimits};
+use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::{self, Brick};
 use insitu_core::{Backend, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb, tau_source_from_pb};
@@ -363,8 +364,11 @@ fn store_vdi(
         }
     }
     check_against_stored(&s.recording, h, placement)?;
-    let vdi = codec::decode(bytes, &DecodeLimits::default())
+    let (vdi, provenance) = codec::decode_with_provenance(bytes, &DecodeLimits::default())
         .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
+    if let Some(p) = provenance {
+        check_provenance(&what, h, placement, &p)?;
+    }
     let p = vdi.meta().params;
     if p.resolution != h.resolution || p.gamma.to_bits() != h.gamma.to_bits() {
         return Err(Status::invalid_argument(format!(
@@ -404,6 +408,57 @@ fn store_vdi(
         s.kept.keep_vdi(name, vdi);
     }
     Ok((entry, new))
+}
+
+/// `INVALID_ARGUMENT` when the file says it comes from elsewhere in the run than its header
+/// (`what` names the VDI): another step, rank, world, `P_M` version or brick.
+fn check_provenance(
+    what: &str,
+    h: &pb::VdiHeader,
+    placement: Option<Placement>,
+    p: &Provenance,
+) -> Result<(), Status> {
+    let file_placement = p
+        .placement
+        .map(|(global_dims, brick)| Placement { global_dims, brick });
+    let disagree = [
+        (
+            "step",
+            p.step != h.step,
+            p.step.to_string(),
+            h.step.to_string(),
+        ),
+        (
+            "rank",
+            p.rank != h.rank,
+            p.rank.to_string(),
+            h.rank.to_string(),
+        ),
+        (
+            "world size",
+            p.world_size != h.world_size.max(1),
+            p.world_size.to_string(),
+            h.world_size.to_string(),
+        ),
+        (
+            "P_M version",
+            p.pm_version != h.pm_version,
+            p.pm_version.to_string(),
+            h.pm_version.to_string(),
+        ),
+        (
+            "brick",
+            file_placement.is_some() && placement.is_some() && file_placement != placement,
+            format!("{file_placement:?}"),
+            format!("{placement:?}"),
+        ),
+    ];
+    match disagree.into_iter().find(|d| d.1) {
+        Some((field, _, file, header)) => Err(Status::invalid_argument(format!(
+            "{what}: the file's {field} is {file} but its header's is {header}: not this item's VDI"
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// `ALREADY_EXISTS` for a (step, rank) stored with other content; `RESOURCE_EXHAUSTED` when

@@ -69,7 +69,17 @@ struct RefsHeader {
     view_angles_deg: Vec<f32>,
     #[serde(default)]
     opacity: bool,
+    /// The step the frames belong to (none in files written before it was kept).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    step: Option<u64>,
+    /// Their rank (none for a composed step's frames).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    rank: Option<u32>,
 }
+
+/// Whose reference frames a `.refs` file holds: the step, and the rank (none: the step
+/// composed over its ranks).
+pub type RefsOrigin = (u64, Option<u32>);
 
 impl References {
     /// Builds from the wire layout: `views × h × w × 3` little-endian f32, or `× 4` (RGB and
@@ -134,8 +144,9 @@ impl References {
         frames + planes
     }
 
-    /// The `.refs` file layout: magic, JSON header length and header, then the frames.
-    pub fn to_file_bytes(&self) -> Vec<u8> {
+    /// The `.refs` file layout: magic, JSON header length and header (with `origin`, whose
+    /// frames they are), then the frames, then a CRC-32 of all before it.
+    pub fn to_file_bytes(&self, origin: RefsOrigin) -> Vec<u8> {
         let (w, h) = self
             .frames
             .first()
@@ -149,6 +160,8 @@ impl References {
             height: h,
             view_angles_deg: self.view_angles_deg.clone(),
             opacity: self.opacity.is_some(),
+            step: Some(origin.0),
+            rank: origin.1,
         };
         // Serialising a plain struct of numbers cannot fail.
         let json = serde_json::to_vec(&header).unwrap_or_default();
@@ -184,6 +197,15 @@ impl References {
     /// # Errors
     /// [`StoreError`] for I/O or a malformed file, or one whose checksum does not match.
     pub fn read(path: &Path) -> Result<Self, StoreError> {
+        Self::read_with_origin(path).map(|(refs, _)| refs)
+    }
+
+    /// As [`References::read`], with whose frames the file says they are (none in files
+    /// written before it said).
+    ///
+    /// # Errors
+    /// As [`References::read`].
+    pub fn read_with_origin(path: &Path) -> Result<(Self, Option<RefsOrigin>), StoreError> {
         let mut bytes = std::fs::read(path).map_err(io(path))?;
         let corrupt = |problem: String| StoreError::Corrupt {
             path: path.to_owned(),
@@ -220,14 +242,16 @@ impl References {
             up: h.up.into(),
             fov_y_deg: h.fov_y_deg,
         };
-        Self::from_bytes(
+        let origin = h.step.map(|step| (step, h.rank));
+        let refs = Self::from_bytes(
             camera,
             h.view_angles_deg,
             (h.width, h.height),
             h.opacity,
             &bytes[16 + n..],
         )
-        .map_err(corrupt)
+        .map_err(corrupt)?;
+        Ok((refs, origin))
     }
 }
 
@@ -539,7 +563,7 @@ impl Recording {
         rank: u32,
         refs: &References,
     ) -> Result<(Entry, bool), StoreError> {
-        let bytes = refs.to_file_bytes();
+        let bytes = refs.to_file_bytes((step, Some(rank)));
         let existing = self.entry(step, rank);
         let key = (step, rank, "reference frames");
         if self.duplicate(
@@ -888,9 +912,12 @@ mod tests {
         let refs = References::from_bytes(cam, vec![0.0], (2, 2), false, &frames).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("r.refs");
-        let good = refs.to_file_bytes();
+        let good = refs.to_file_bytes((7, Some(2)));
         std::fs::write(&path, &good).unwrap();
-        assert_eq!(References::read(&path).unwrap(), refs);
+        assert_eq!(
+            References::read_with_origin(&path).unwrap(),
+            (refs.clone(), Some((7, Some(2))))
+        );
         let mut damaged = good.clone();
         let at = damaged.len() - 4 - 8; // a frame float's low byte, before the checksum
         damaged[at] ^= 1;

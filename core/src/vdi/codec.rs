@@ -3,7 +3,7 @@
 //! ```text
 //! offset  size  field
 //!  0       8    magic  89 'V' 'D' 'I' 0D 0A 1A 0A
-//!  8       2    format version (u16 LE) = 2
+//!  8       2    format version (u16 LE) = 3
 //! 10       1    codec: 0 none, 1 bzip2, 2 zstd
 //! 11       1    reserved = 0
 //! 12       8    payload length after decompression (u64 LE)
@@ -12,11 +12,13 @@
 //! 32       …    body: the payload in parts, each compressed on its own with the codec
 //! ```
 //!
-//! The body (version 2): the part count `m` (u32 LE), then per part its compressed and its
-//! decompressed length (u64 LE each), then the parts' compressed bytes back to back. The parts
-//! are consecutive pieces of the payload, so they are compressed and decompressed in parallel
-//! (rayon): bzip2 in parts of [`BZIP2_PART`] bytes, zstd in parts of [`ZSTD_PART`], `none` in
-//! one part. Version 1 files (one stream of the whole payload, no table) are still read.
+//! The body (version 3): the length of the provenance block (u32 LE, 0 when there is none) and
+//! the block ([`super::provenance`]: step, rank, world, `P_M` version, τ, brick), uncompressed;
+//! then the part count `m` (u32 LE), per part its compressed and its decompressed length (u64
+//! LE each), then the parts' compressed bytes back to back. The parts are consecutive pieces of
+//! the payload, so they are compressed and decompressed in parallel (rayon): bzip2 in parts of
+//! [`BZIP2_PART`] bytes, zstd in parts of [`ZSTD_PART`], `none` in one part. Version 2 files (no
+//! provenance) and version 1 files (one stream of the whole payload, no table) are still read.
 //!
 //! The payload (all little-endian): `r` u32, γ f32, step f32, termination f32, shaded u8;
 //! camera eye, target, up (3 × f32 each), fov_y_deg f32; volume box min, max (3 × f32 each);
@@ -29,6 +31,7 @@
 //! counts agree with lengths, and that every number is finite and in range, so a decoded
 //! [`Vdi`] is safe to render.
 
+use super::provenance::Provenance;
 use super::{Supersegment, Vdi, VdiMeta, VdiParams, MAX_RESOLUTION};
 use crate::camera::Camera;
 use crate::volume::Aabb;
@@ -39,9 +42,13 @@ use std::io::Read;
 /// File magic.
 pub const MAGIC: [u8; 8] = [0x89, b'V', b'D', b'I', 0x0d, 0x0a, 0x1a, 0x0a];
 /// Current format version.
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
+/// The version before provenance, still read.
+const FORMAT_VERSION_PARTS: u16 = 2;
 /// The version before parts (the body one stream), still read.
 const FORMAT_VERSION_SINGLE: u16 = 1;
+/// Longest provenance block read, bytes (this version writes [`super::provenance::LEN`]).
+const MAX_PROVENANCE: usize = 4096;
 /// Payload bytes per bzip2 part: two blocks at bzip2's best compression (900 k each). σ stays
 /// that of one stream within 0.2 % (teapot, r = 256 and 768: 2 139 358 against 2 143 794 bytes,
 /// 18 047 709 against 18 050 853), where parts of one block cost up to 1.4 % (a part's last
@@ -188,11 +195,25 @@ pub enum CodecError {
 }
 
 /// Serialises and compresses `vdi` with `codec`, its parts in parallel (on the calling
-/// thread's rayon pool); the result's length is σ.
+/// thread's rayon pool), without provenance; the result's length is σ.
 ///
 /// # Errors
 /// [`CodecError::Compress`] if the compressor fails.
 pub fn encode(vdi: &Vdi, codec: Codec) -> Result<Vec<u8>, CodecError> {
+    encode_with_provenance(vdi, codec, None)
+}
+
+/// As [`encode`], the file carrying `provenance` (where in a run the VDI comes from) when
+/// given; the result's length is σ.
+///
+/// # Errors
+/// [`CodecError::Compress`] if the compressor fails.
+pub fn encode_with_provenance(
+    vdi: &Vdi,
+    codec: Codec,
+    provenance: Option<&Provenance>,
+) -> Result<Vec<u8>, CodecError> {
+    let block = provenance.map(Provenance::to_bytes).unwrap_or_default();
     let payload = payload(vdi);
     let part = match codec {
         Codec::Bzip2 => BZIP2_PART,
@@ -203,8 +224,10 @@ pub fn encode(vdi: &Vdi, codec: Codec) -> Result<Vec<u8>, CodecError> {
         .par_chunks(part)
         .map(|piece| compress(codec, piece))
         .collect::<Result<_, _>>()?;
-    let table = 4 + 16 * parts.len();
+    let table = 4 + block.len() + 4 + 16 * parts.len();
     let mut body = Vec::with_capacity(table + parts.iter().map(Vec::len).sum::<usize>());
+    body.extend_from_slice(&(block.len() as u32).to_le_bytes());
+    body.extend_from_slice(&block);
     body.extend_from_slice(&(parts.len() as u32).to_le_bytes());
     for (compressed, piece) in parts.iter().zip(payload.chunks(part)) {
         body.extend_from_slice(&(compressed.len() as u64).to_le_bytes());
@@ -303,50 +326,122 @@ fn truncate_utf8(s: &str, max: usize) -> &str {
 /// Any [`CodecError`]: wrong magic or version, unknown codec, a claimed size over `limits`,
 /// checksum mismatch, a body that does not decompress to exactly the claimed length, counts
 /// that disagree with lengths, a non-finite number, a depth range or colour out of range, or
-/// lists that are not depth-sorted.
+/// lists that are not depth-sorted; a provenance block that is malformed.
 pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<Vdi, CodecError> {
-    let mut hdr = Reader::new(bytes);
-    if hdr.take(8, "magic")? != MAGIC {
-        return Err(CodecError::BadMagic);
-    }
-    let version = hdr.u16("version")?;
-    if version != FORMAT_VERSION && version != FORMAT_VERSION_SINGLE {
-        return Err(CodecError::UnsupportedVersion(version));
-    }
-    let codec_id = hdr.u8("codec")?;
-    let codec = Codec::from_id(codec_id).ok_or(CodecError::UnknownCodec(codec_id))?;
-    if hdr.u8("reserved")? != 0 {
-        return Err(CodecError::Invalid("reserved header byte is not 0".into()));
-    }
-    let payload_len = hdr.u64("payload length")?;
-    let body_len = hdr.u64("body length")?;
-    let stored = hdr.u32("checksum")?;
-    let body = hdr.rest();
-    if body_len != body.len() as u64 {
-        return Err(CodecError::Invalid(format!(
-            "header says the body has {body_len} bytes, the file holds {}",
-            body.len()
-        )));
-    }
-    if payload_len > limits.max_payload_bytes {
+    decode_with_provenance(bytes, limits).map(|(vdi, _)| vdi)
+}
+
+/// As [`decode`], with the file's provenance (none in files before version 3, or written
+/// without it).
+///
+/// # Errors
+/// As [`decode`].
+pub fn decode_with_provenance(
+    bytes: &[u8],
+    limits: &DecodeLimits,
+) -> Result<(Vdi, Option<Provenance>), CodecError> {
+    let file = File::read(bytes)?;
+    if file.payload_len > limits.max_payload_bytes {
         return Err(CodecError::TooLarge {
-            claimed: payload_len,
+            claimed: file.payload_len,
             limit: limits.max_payload_bytes,
         });
     }
-    let computed = checksum(&bytes[..28], body);
-    if computed != stored {
-        return Err(CodecError::Checksum { stored, computed });
+    let computed = checksum(&bytes[..28], file.body);
+    if computed != file.stored_crc {
+        return Err(CodecError::Checksum {
+            stored: file.stored_crc,
+            computed,
+        });
     }
-    let payload = if version == FORMAT_VERSION_SINGLE {
-        decompress(codec, body, payload_len, ("the body", "the header"))?
+    let payload = if file.version == FORMAT_VERSION_SINGLE {
+        decompress(
+            file.codec,
+            file.parts,
+            file.payload_len,
+            ("the body", "the header"),
+        )?
     } else {
-        decompress_parts(codec, body, payload_len)?
+        decompress_parts(file.codec, file.parts, file.payload_len)?
     };
-    parse_payload(&payload)
+    Ok((parse_payload(&payload)?, file.provenance))
 }
 
-/// The payload of a version 2 body: its part table checked against the body and the
+/// The provenance of a VDI file from its header and provenance block alone (nothing is
+/// decompressed and the checksum is not computed: [`decode`] checks the whole file).
+///
+/// # Errors
+/// As [`decode`] for the header and the block.
+pub fn provenance(bytes: &[u8]) -> Result<Option<Provenance>, CodecError> {
+    File::read(bytes).map(|f| f.provenance)
+}
+
+/// A file's header and its body split into the provenance and the parts.
+struct File<'a> {
+    version: u16,
+    codec: Codec,
+    payload_len: u64,
+    stored_crc: u32,
+    /// The whole body, under the checksum.
+    body: &'a [u8],
+    provenance: Option<Provenance>,
+    /// The part table and parts (version 1: the one stream).
+    parts: &'a [u8],
+}
+
+impl<'a> File<'a> {
+    fn read(bytes: &'a [u8]) -> Result<Self, CodecError> {
+        let mut hdr = Reader::new(bytes);
+        if hdr.take(8, "magic")? != MAGIC {
+            return Err(CodecError::BadMagic);
+        }
+        let version = hdr.u16("version")?;
+        if ![FORMAT_VERSION, FORMAT_VERSION_PARTS, FORMAT_VERSION_SINGLE].contains(&version) {
+            return Err(CodecError::UnsupportedVersion(version));
+        }
+        let codec_id = hdr.u8("codec")?;
+        let codec = Codec::from_id(codec_id).ok_or(CodecError::UnknownCodec(codec_id))?;
+        if hdr.u8("reserved")? != 0 {
+            return Err(CodecError::Invalid("reserved header byte is not 0".into()));
+        }
+        let payload_len = hdr.u64("payload length")?;
+        let body_len = hdr.u64("body length")?;
+        let stored_crc = hdr.u32("checksum")?;
+        let body = hdr.rest();
+        if body_len != body.len() as u64 {
+            return Err(CodecError::Invalid(format!(
+                "header says the body has {body_len} bytes, the file holds {}",
+                body.len()
+            )));
+        }
+        let mut rd = Reader::new(body);
+        let provenance = if version == FORMAT_VERSION {
+            let len = rd.u32("provenance length")? as usize;
+            if len > MAX_PROVENANCE {
+                return Err(CodecError::Invalid(format!(
+                    "a provenance block of {len} bytes (at most {MAX_PROVENANCE})"
+                )));
+            }
+            let block = rd.take(len, "provenance")?;
+            (len > 0)
+                .then(|| Provenance::from_bytes(block))
+                .transpose()?
+        } else {
+            None
+        };
+        Ok(Self {
+            version,
+            codec,
+            payload_len,
+            stored_crc,
+            body,
+            provenance,
+            parts: rd.rest(),
+        })
+    }
+}
+
+/// The payload of a version 2 or 3 body: its part table checked against the body and the
 /// header's payload length, then the parts decompressed in parallel, each to exactly its
 /// stated length.
 fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u8>, CodecError> {
@@ -609,13 +704,13 @@ fn check_depth_order(offsets: &[u32], segs: &[Supersegment]) -> Result<(), Codec
 }
 
 /// Bounds-checked little-endian reader.
-struct Reader<'a> {
+pub(super) struct Reader<'a> {
     bytes: &'a [u8],
     pos: usize,
 }
 
 impl<'a> Reader<'a> {
-    fn new(bytes: &'a [u8]) -> Self {
+    pub(super) fn new(bytes: &'a [u8]) -> Self {
         Self { bytes, pos: 0 }
     }
 
@@ -629,7 +724,7 @@ impl<'a> Reader<'a> {
         rest
     }
 
-    fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
+    pub(super) fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
         if n > self.remaining() {
             return Err(CodecError::Truncated {
                 what,
@@ -642,25 +737,28 @@ impl<'a> Reader<'a> {
         Ok(out)
     }
 
-    fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], CodecError> {
+    pub(super) fn array<const N: usize>(
+        &mut self,
+        what: &'static str,
+    ) -> Result<[u8; N], CodecError> {
         let mut a = [0u8; N];
         a.copy_from_slice(self.take(N, what)?);
         Ok(a)
     }
 
-    fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
+    pub(super) fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
         Ok(self.array::<1>(what)?[0])
     }
 
-    fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
+    pub(super) fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
         Ok(u16::from_le_bytes(self.array(what)?))
     }
 
-    fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
+    pub(super) fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
         Ok(u32::from_le_bytes(self.array(what)?))
     }
 
-    fn u64(&mut self, what: &'static str) -> Result<u64, CodecError> {
+    pub(super) fn u64(&mut self, what: &'static str) -> Result<u64, CodecError> {
         Ok(u64::from_le_bytes(self.array(what)?))
     }
 

@@ -11,6 +11,7 @@
 pub mod codec;
 pub mod generate;
 pub mod lod;
+pub mod provenance;
 pub mod render;
 
 use crate::camera::Camera;

@@ -200,12 +200,16 @@ fn meta(resolution: u32, tf_hash: u64, tf_name: &str) -> VdiMeta {
     }
 }
 
+/// Where the part table starts in a file without provenance: the 32-byte header, then the
+/// provenance block's length (0).
+const TABLE: usize = 36;
+
 /// The body's part table: `(compressed, payload)` lengths per part.
 fn part_table(bytes: &[u8]) -> Vec<(u64, u64)> {
     let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
-    let count = u32::from_le_bytes(bytes[32..36].try_into().unwrap()) as usize;
+    let count = u32::from_le_bytes(bytes[TABLE..TABLE + 4].try_into().unwrap()) as usize;
     (0..count)
-        .map(|i| (u64_at(36 + 16 * i), u64_at(44 + 16 * i)))
+        .map(|i| (u64_at(TABLE + 4 + 16 * i), u64_at(TABLE + 12 + 16 * i)))
         .collect()
 }
 
@@ -246,7 +250,7 @@ fn version_1_files_are_still_read() {
     // body of the `none` encoding after its one-part table.
     let vdi = large_vdi(800);
     let plain = encode(&vdi, Codec::None).unwrap();
-    let payload = &plain[32 + 4 + 16..];
+    let payload = &plain[TABLE + 4 + 16..];
     let mut body = Vec::new();
     std::io::Read::read_to_end(
         &mut bzip2::read::BzEncoder::new(payload, bzip2::Compression::best()),
@@ -288,21 +292,21 @@ fn a_bad_part_table_is_refused() {
     let put = |b: &mut Vec<u8>, at: usize, v: u64| b[at..at + 8].copy_from_slice(&v.to_le_bytes());
     let cases: [(&str, &Edit<'_>); 5] = [
         ("no parts", &|b| {
-            b[32..36].copy_from_slice(&0u32.to_le_bytes())
+            b[TABLE..TABLE + 4].copy_from_slice(&0u32.to_le_bytes())
         }),
         ("more parts than the body holds", &|b| {
-            b[32..36].copy_from_slice(&u32::MAX.to_le_bytes())
+            b[TABLE..TABLE + 4].copy_from_slice(&u32::MAX.to_le_bytes())
         }),
         ("compressed lengths that miss the body", &|b| {
-            put(b, 36, table[0].0 + 1)
+            put(b, TABLE + 4, table[0].0 + 1)
         }),
         ("payload lengths that miss the header's", &|b| {
-            put(b, 44, table[0].1 - 1)
+            put(b, TABLE + 12, table[0].1 - 1)
         }),
         // The sums hold, but the first part no longer decompresses to its stated length.
         ("two parts' payload lengths swapped", &|b| {
-            put(b, 44, table[last].1);
-            put(b, 44 + 16 * last, table[0].1);
+            put(b, TABLE + 12, table[last].1);
+            put(b, TABLE + 12 + 16 * last, table[0].1);
         }),
     ];
     for (what, edit) in cases {
@@ -324,4 +328,66 @@ fn codecs_serialize_as_their_names() {
         assert_eq!(codec.name().parse::<Codec>().unwrap(), codec);
     }
     assert!(serde_json::from_str::<Codec>(r#""lzma""#).is_err());
+}
+
+/// A file carries where it comes from, readable without decoding it; files of version 2 (no
+/// provenance) still read, and a damaged block is caught by the checksum.
+#[test]
+fn provenance_travels_in_the_file_and_older_files_still_read() {
+    use insitu_core::backend::TimeSource;
+    use insitu_core::vdi::codec::{decode_with_provenance, encode_with_provenance, provenance};
+    use insitu_core::vdi::provenance::Provenance;
+    use insitu_core::volume::bricks::Brick;
+    let vdi = large_vdi(40);
+    let p = Provenance {
+        step: 42,
+        rank: 1,
+        world_size: 2,
+        pm_version: 5,
+        sim_time: 4.2,
+        tau_secs: 0.125,
+        tau_source: TimeSource::WallClock,
+        placement: Some((
+            [64, 64, 127],
+            Brick {
+                offset: [0, 0, 63],
+                dims: [64, 64, 64],
+            },
+        )),
+    };
+    let limits = DecodeLimits::default();
+    let with = encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();
+    assert_eq!(provenance(&with).unwrap(), Some(p));
+    assert_eq!(
+        decode_with_provenance(&with, &limits).unwrap(),
+        (vdi.clone(), Some(p))
+    );
+    let without = encode(&vdi, Codec::Zstd).unwrap();
+    assert_eq!(provenance(&without).unwrap(), None);
+    assert_eq!(
+        with.len() - without.len(),
+        insitu_core::vdi::provenance::LEN,
+        "σ grows by the block alone"
+    );
+    // Version 2: the same body without the block's length.
+    let mut v2 = without[..32].to_vec();
+    v2[8..10].copy_from_slice(&2u16.to_le_bytes());
+    v2[20..28].copy_from_slice(&((without.len() - TABLE) as u64).to_le_bytes());
+    v2.extend_from_slice(&without[TABLE..]);
+    fix_checksum(&mut v2);
+    assert_eq!(decode_with_provenance(&v2, &limits).unwrap(), (vdi, None));
+    // A flipped byte in the step: the checksum refuses the file.
+    let mut damaged = with.clone();
+    damaged[TABLE] ^= 1;
+    assert!(matches!(
+        decode(&damaged, &limits),
+        Err(CodecError::Checksum { .. })
+    ));
+    // A block longer than any version writes is refused before it is read.
+    let mut huge = with;
+    huge[32..36].copy_from_slice(&1_000_000u32.to_le_bytes());
+    assert!(provenance(&huge)
+        .unwrap_err()
+        .to_string()
+        .contains("provenance block of 1000000 bytes"));
 }
