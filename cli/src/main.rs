@@ -51,6 +51,9 @@ enum Command {
     Health(cmd::health::Args),
     /// A recording's index (steps, ranks, σ, τ, q, P_M versions) as JSON or CSV.
     Export(cmd::export::Args),
+    /// Rebuild a recording's missing, emptied or damaged index from its files (every VDI and
+    /// reference file says which step and rank it holds), then score and compose what lacks q.
+    Recover(cmd::recover::Args),
     /// Parameter study over a grid of (r, gamma): sigma, q, tau per candidate, cached; CSV + JSON.
     Study(cmd::study::Args),
     /// The best (r, gamma) for a utility function (size or time budget, quality target).
@@ -93,6 +96,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Replay(a) => cmd::replay::run(a),
         Command::Export(a) => cmd::export::run(a),
+        Command::Recover(a) => cmd::recover::run(a),
         Command::Health(a) => cmd::health::run(a),
         Command::Study(a) => cmd::study::run(a),
         Command::Tune(a) => cmd::tune::run(a),

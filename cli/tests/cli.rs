@@ -1054,3 +1054,105 @@ fn a_run_too_short_for_a_tuned_p_m_says_so() {
         "{out}"
     );
 }
+
+/// The rows of `insitu export --recording rec` as JSON, without what a rebuild cannot know
+/// (compression time is measured by the node and is not in the file).
+fn exported_rows(dir: &Path) -> serde_json::Value {
+    let o = insitu(&["export", "--recording", "rec"], dir);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for key in ["entries", "steps"] {
+        for row in v[key].as_array_mut().unwrap() {
+            row.as_object_mut().unwrap().remove("tau_compress_secs");
+        }
+    }
+    v
+}
+
+/// An emptied or cut index beside stored steps stops the next run (nothing is overwritten), and
+/// `insitu recover` rebuilds it from the files: the same rows, q scored again to the same
+/// values, the steps of two ranks composed again; the damaged index is kept beside.
+#[test]
+fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
+    let dir = tempfile::tempdir().unwrap();
+    // A growing ball over 3 steps of 17³, pushed as 2 ranks with frames every step.
+    let (n, steps) = (17usize, 3usize);
+    let mut bytes = Vec::with_capacity(n * n * n * steps * 4);
+    for t in 0..steps {
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    let d = [x, y, z].map(|c| c as f32 - 8.0);
+                    let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    bytes.extend_from_slice(&(5.0 + t as f32 - r).max(0.0).to_le_bytes());
+                }
+            }
+        }
+    }
+    std::fs::write(dir.path().join("ball_17x17x17x3_float32.raw"), bytes).unwrap();
+    let replay = [
+        "replay",
+        "--series",
+        "ball_17x17x17x3_float32.raw",
+        "--ranks",
+        "2",
+        "--r",
+        "32",
+        "--no-tune",
+        "--no-http",
+        "--recording",
+        "rec",
+    ];
+    let o = insitu(&replay, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = exported_rows(dir.path());
+    assert_eq!(before["entries"].as_array().unwrap().len(), 6, "{before}");
+    assert_eq!(before["steps"].as_array().unwrap().len(), 3, "{before}");
+    let rec = dir.path().join("rec");
+    let vdi = rec.join("step_00000000_rank_0000.vdi");
+    let original = std::fs::read(&vdi).unwrap();
+    for damage in ["emptied", "cut"] {
+        let index = rec.join("index.sqlite");
+        match damage {
+            "emptied" => std::fs::write(&index, b"").unwrap(),
+            _ => {
+                let f = std::fs::OpenOptions::new()
+                    .write(true)
+                    .open(&index)
+                    .unwrap();
+                f.set_len(f.metadata().unwrap().len() / 2).unwrap();
+            }
+        }
+        let o = insitu(&replay, dir.path());
+        assert!(!o.status.success(), "{damage}: a run started on it");
+        assert!(stderr(&o).contains("insitu recover"), "{}", stderr(&o));
+        assert_eq!(std::fs::read(&vdi).unwrap(), original, "{damage}");
+        let o = insitu(
+            &["recover", "--recording", "rec", "--backend", "cpu"],
+            dir.path(),
+        );
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{damage}: {}\n{out}", stderr(&o));
+        assert!(out.contains("rebuilt 6 rows"), "{out}");
+        assert!(out.contains("kept the damaged index.sqlite as"), "{out}");
+        assert_eq!(exported_rows(dir.path()), before, "{damage}");
+    }
+    let kept: Vec<String> = std::fs::read_dir(&rec)
+        .unwrap()
+        .map(|d| d.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| {
+            name.starts_with("index.sqlite.damaged-")
+                && !name.ends_with("-wal")
+                && !name.ends_with("-shm")
+        })
+        .collect();
+    assert_eq!(kept.len(), 2, "both damaged indexes are kept: {kept:?}");
+    // A sound index is left alone.
+    let o = insitu(&["recover", "--recording", "rec"], dir.path());
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("sound index with 6 rows"),
+        "{}",
+        stderr(&o)
+    );
+}

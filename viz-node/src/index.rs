@@ -208,6 +208,26 @@ impl IndexDb {
         &self.path
     }
 
+    /// SQLite's `quick_check`: whether every page and tree of the file is whole (a file cut
+    /// short, or overwritten in part, fails it).
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] naming the database and the first problem SQLite found.
+    pub fn check(&self) -> Result<(), StoreError> {
+        let found: String = self
+            .conn
+            .query_row("PRAGMA quick_check", [], |r| r.get(0))
+            .map_err(db_err(&self.path))?;
+        if found == "ok" {
+            Ok(())
+        } else {
+            Err(StoreError::Corrupt {
+                path: self.path.clone(),
+                problem: format!("damaged (SQLite quick_check: {found})"),
+            })
+        }
+    }
+
     /// Inserts or replaces the row of `e` (one transaction).
     ///
     /// # Errors

@@ -13,6 +13,7 @@ pub mod decoded;
 pub mod http;
 pub mod index;
 pub mod node;
+pub mod rebuild;
 pub mod rows;
 pub mod scene;
 pub mod score;

@@ -300,6 +300,20 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreErr
         .map_err(io(&path))
 }
 
+/// `e` with how to recover when it says the index of `dir` is damaged.
+fn with_recovery_advice(e: StoreError, dir: &Path) -> StoreError {
+    match e {
+        StoreError::Corrupt { path, problem } if path.ends_with(INDEX_DB) => StoreError::Corrupt {
+            path,
+            problem: format!(
+                "{problem}: restore it, or rebuild it from the recording's files with `insitu recover {}` (the damaged file is kept beside)",
+                dir.display()
+            ),
+        },
+        other => other,
+    }
+}
+
 impl Recording {
     /// Opens (creating) `dir`, continuing an existing index; a legacy `index.json` is
     /// imported once (and renamed `index.json.imported`).
@@ -312,7 +326,7 @@ impl Recording {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         // An empty index file (truncated, say) is no index: were it taken as a new one, the next
         // steps' files would replace the old steps' files of the same names.
-        let fresh = !crate::index::holds_index(dir)?;
+        let fresh = !crate::index::holds_index(dir).map_err(|e| with_recovery_advice(e, dir))?;
         let legacy = dir.join(LEGACY_INDEX);
         let imported = if fresh && legacy.exists() {
             let text = std::fs::read(&legacy).map_err(io(&legacy))?;
@@ -344,12 +358,15 @@ impl Recording {
                 return Err(StoreError::Corrupt {
                     path: dir.join(INDEX_DB),
                     problem: format!(
-                        "missing or empty, but the directory holds {payloads} VDI or reference files: restore the index, or record into another directory (a new index here would orphan them, and the next steps would replace their files)"
+                        "missing or empty, but the directory holds {payloads} VDI or reference files: restore the index, rebuild it from the files with `insitu recover {}`, or record into another directory (a new index here would orphan them, and the next steps would replace their files)",
+                        dir.display()
                     ),
                 });
             }
         }
-        let db = IndexDb::open(dir, true)?;
+        let db = IndexDb::open(dir, true)
+            .and_then(|db| db.check().map(|()| db))
+            .map_err(|e| with_recovery_advice(e, dir))?;
         if let Some(file) = imported {
             for e in &file.entries {
                 db.put_entry(e)?;

@@ -6,6 +6,7 @@ pub mod evaluate;
 pub mod export;
 pub mod generate;
 pub mod health;
+pub mod recover;
 pub mod render;
 pub mod replay;
 pub mod series;

@@ -376,6 +376,14 @@ pub fn provenance(bytes: &[u8]) -> Result<Option<Provenance>, CodecError> {
     File::read(bytes).map(|f| f.provenance)
 }
 
+/// The codec a VDI file was compressed with, from its header alone.
+///
+/// # Errors
+/// As [`decode`] for the header and the provenance block.
+pub fn codec_of(bytes: &[u8]) -> Result<Codec, CodecError> {
+    File::read(bytes).map(|f| f.codec)
+}
+
 /// A file's header and its body split into the provenance and the parts.
 struct File<'a> {
     version: u16,
