@@ -56,6 +56,12 @@ pub struct Config {
     /// Viewer connections open at once at most (page, API and sockets together); at the cap a
     /// new connection waits until one closes.
     pub http_max_connections: usize,
+    /// Seconds a viewer request's head may take to arrive (a client trickling its headers is
+    /// cut off).
+    pub http_header_timeout_secs: f64,
+    /// Seconds a viewer connection may sit with no request being answered and nothing read or
+    /// written before it is closed (the live socket stays open while its page answers pings).
+    pub http_idle_secs: f64,
     /// The tuner-node, `host:port`, whose budget the viewer's charts draw (dialled with the
     /// token and `[tls]` as any peer); unset: no budget lines.
     pub tuner: Option<String>,
@@ -86,6 +92,8 @@ impl Default for Config {
             http_listen: None,
             http_hosts: Vec::new(),
             http_max_connections: crate::http::cap::DEFAULT_MAX_CONNECTIONS,
+            http_header_timeout_secs: crate::http::conn::DEFAULT_HEADER_SECS,
+            http_idle_secs: crate::http::conn::DEFAULT_IDLE_SECS,
             tuner: None,
         }
     }
@@ -111,6 +119,14 @@ impl Config {
         Ok(cfg)
     }
 
+    /// The viewer's connection timeouts.
+    pub fn http_timeouts(&self) -> crate::http::conn::Timeouts {
+        crate::http::conn::Timeouts {
+            header: std::time::Duration::from_secs_f64(self.http_header_timeout_secs),
+            idle: std::time::Duration::from_secs_f64(self.http_idle_secs),
+        }
+    }
+
     /// Checks the values.
     ///
     /// # Errors
@@ -129,6 +145,17 @@ impl Config {
                 key: "compose_timeout_secs",
                 problem: format!("{} is not seconds in [0, 86400]", self.compose_timeout_secs),
             });
+        }
+        for (key, secs) in [
+            ("http_header_timeout_secs", self.http_header_timeout_secs),
+            ("http_idle_secs", self.http_idle_secs),
+        ] {
+            if !(secs.is_finite() && secs > 0.0 && secs <= 86_400.0) {
+                return Err(ConfigError::Invalid {
+                    key,
+                    problem: format!("{secs} is not seconds in (0, 86400]"),
+                });
+            }
         }
         if self.report_buffer == 0
             || self.max_vdi_bytes == 0

@@ -210,6 +210,7 @@ async fn start_http(
         security.token().cloned(),
         cfg.render_concurrency,
         &cfg.http_hosts,
+        cfg.http_timeouts().idle,
     ));
     if let Some(peer) = security.peer_for("tuner", cfg.tuner.as_deref())? {
         http.watch_tuner(peer);
@@ -222,6 +223,7 @@ async fn start_http(
         tls,
         http.clone(),
         max,
+        cfg.http_timeouts(),
         async {
             let _ = stopped.await;
         },

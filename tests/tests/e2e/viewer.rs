@@ -655,6 +655,60 @@ fn an_oversized_socket_message_is_closed_with_1009() {
     v.terminate();
 }
 
+/// Held connections do not hold the daemon: one that sends nothing is closed after the
+/// header timeout, and a live socket whose peer never answers the pings after the idle time.
+#[test]
+fn silent_connections_and_sockets_that_miss_their_pings_are_closed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("timeouts.toml");
+    std::fs::write(
+        &cfg,
+        "http_header_timeout_secs = 1.0\nhttp_idle_secs = 1.5\n",
+    )
+    .unwrap();
+    let (v, addr) = viewer_on(tmp.path(), &["--config", cfg.to_str().unwrap()]);
+    let t0 = std::time::Instant::now();
+    let mut silent = std::net::TcpStream::connect(&addr).unwrap();
+    silent
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    let mut rest = Vec::new();
+    let _ = silent.read_to_end(&mut rest);
+    let secs = t0.elapsed().as_secs_f64();
+    assert!(
+        (0.8..5.0).contains(&secs),
+        "a silent connection held {secs} s"
+    );
+    let mut s = std::net::TcpStream::connect(&addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    write!(
+        s,
+        "GET /api/live HTTP/1.1\r\nHost: {addr}\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+    )
+    .unwrap();
+    let t0 = std::time::Instant::now();
+    let mut rest = Vec::new();
+    let _ = s.read_to_end(&mut rest);
+    let secs = t0.elapsed().as_secs_f64();
+    assert!(
+        rest.starts_with(b"HTTP/1.1 101"),
+        "{}",
+        String::from_utf8_lossy(&rest)
+    );
+    // After the handshake's head: a ping (opcode 9) came before the socket was closed.
+    let head = rest.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4;
+    assert!(
+        rest[head..].first().is_some_and(|b| b & 0x0f == 9),
+        "no ping first: {:?}",
+        &rest[head..]
+    );
+    assert!(
+        (1.2..6.0).contains(&secs),
+        "an unanswering socket held {secs} s"
+    );
+    v.terminate();
+}
+
 /// A viz-node config answering to `viz.example.org` besides addresses and localhost.
 fn hosts_config(dir: &Path) -> String {
     let path = dir.join("hosts.toml");

@@ -131,7 +131,21 @@ async fn session(http: Arc<Http>, socket: WebSocket) {
             }
         })
     };
-    while let Some(Ok(msg)) = stream.next().await {
+    // Pings keep a quiet page's socket open through proxies and show a vanished peer: a socket
+    // with no message at all (pongs included) for `socket_idle` is closed.
+    let pinger = {
+        let out = out_tx.clone();
+        let every = http.socket_idle / 3;
+        tokio::spawn(async move {
+            loop {
+                tokio::time::sleep(every).await;
+                if out.send(Message::Ping(Vec::new().into())).await.is_err() {
+                    break;
+                }
+            }
+        })
+    };
+    while let Ok(Some(Ok(msg))) = tokio::time::timeout(http.socket_idle, stream.next()).await {
         let text = match msg {
             Message::Text(t) if t.len() > 4 * MAX_REQUEST_BYTES => {
                 let reason = format!(
@@ -170,6 +184,7 @@ async fn session(http: Arc<Http>, socket: WebSocket) {
     }
     renderer.abort();
     events.abort();
+    pinger.abort();
     drop(out_tx);
     let _ = writer.await;
     http.clients.fetch_sub(1, Ordering::Relaxed);

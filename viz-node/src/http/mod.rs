@@ -14,6 +14,7 @@
 
 pub mod api;
 pub mod cap;
+pub mod conn;
 pub mod lanes;
 pub mod live;
 pub mod numbers;
@@ -66,6 +67,9 @@ pub struct Http {
     pub refused: AtomicU64,
     /// Sockets open now.
     pub clients: AtomicU64,
+    /// A live socket that has sent nothing (not even a pong to the pings sent every third of
+    /// this) for this long is closed.
+    socket_idle: Duration,
     /// The tuner whose budget the charts draw.
     tuner: Mutex<Option<Peer>>,
     /// Its budget as last read, and when.
@@ -74,12 +78,14 @@ pub struct Http {
 
 impl Http {
     /// Over `shared`, requiring `token` when one is configured; `render_concurrency` renders
-    /// at once; answering to IP addresses, `localhost` and the names `hosts` ([`origin`]).
+    /// at once; answering to IP addresses, `localhost` and the names `hosts` ([`origin`]);
+    /// live sockets closed after `socket_idle` without a word from their page.
     pub fn new(
         shared: Arc<Shared>,
         token: Option<Token>,
         render_concurrency: usize,
         hosts: &[String],
+        socket_idle: Duration,
     ) -> Self {
         Self {
             shared,
@@ -92,6 +98,7 @@ impl Http {
             superseded: AtomicU64::new(0),
             refused: AtomicU64::new(0),
             clients: AtomicU64::new(0),
+            socket_idle,
             tuner: Mutex::new(None),
             budget: tokio::sync::Mutex::new(None),
         }
@@ -187,23 +194,24 @@ pub fn router(http: Arc<Http>) -> Router {
         .with_state(http)
 }
 
-/// Serves the viewer on `listener` until `stop` resolves: HTTPS with `tls`, else HTTP.
+/// Serves the viewer on `listener` until `stop` resolves: HTTPS with `tls`, else HTTP; at most
+/// `max_connections` open at once ([`cap`]), each under `timeouts` ([`conn`]).
 ///
 /// # Errors
-/// An I/O error of the server.
+/// An I/O error setting up TLS.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     tls: Option<rustls::ServerConfig>,
     http: Arc<Http>,
     max_connections: usize,
+    timeouts: conn::Timeouts,
     stop: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    let router = router(http);
     match tls {
         Some(cfg) => {
             let listener = cap::Capped::new(tls::TlsListener::new(listener, cfg)?, max_connections);
-            axum::serve(listener, router(http))
-                .with_graceful_shutdown(stop)
-                .await
+            conn::serve(listener, router, timeouts, stop).await;
         }
         None => {
             // Frames are a small header then the image: without TCP_NODELAY the image's last
@@ -212,11 +220,10 @@ pub async fn serve(
                 let _ = tcp.set_nodelay(true);
             });
             let listener = cap::Capped::new(listener, max_connections);
-            axum::serve(listener, router(http))
-                .with_graceful_shutdown(stop)
-                .await
+            conn::serve(listener, router, timeouts, stop).await;
         }
     }
+    Ok(())
 }
 
 /// A JSON error `{"error": message}` with `status`.
