@@ -22,6 +22,10 @@ pub struct Config {
     pub tls: TlsFiles,
     /// Where VDIs, reference frames and the index are recorded (created if missing).
     pub recording_dir: PathBuf,
+    /// Serve the recording as a read-only archive: opened without writing anything (on
+    /// read-only media, or owned by another user), viewer and `Render` served, every item
+    /// shipped refused with `FAILED_PRECONDITION`, nothing scored or composed.
+    pub read_only: bool,
     /// File holding the bearer token (else `INSITU_TOKEN`, if set).
     pub token_file: Option<PathBuf>,
     /// Largest VDI file accepted, bytes.
@@ -78,6 +82,7 @@ impl Default for Config {
             insecure: false,
             tls: TlsFiles::default(),
             recording_dir: PathBuf::from("recording"),
+            read_only: false,
             token_file: None,
             max_vdi_bytes: 2 << 30,
             max_reference_bytes: 2 << 30,

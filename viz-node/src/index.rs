@@ -87,8 +87,7 @@ pub fn holds_index(dir: &Path) -> Result<bool, StoreError> {
         return Ok(false);
     }
     let err = db_err(&path);
-    let conn =
-        Connection::open_with_flags(&path, OpenFlags::SQLITE_OPEN_READ_ONLY).map_err(&err)?;
+    let conn = open_read_only(&path).map_err(&err)?;
     let tables: i64 = conn
         .query_row(
             "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name = 'entries'",

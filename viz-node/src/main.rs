@@ -20,6 +20,9 @@ struct Args {
     /// Recording directory.
     #[arg(long)]
     recording_dir: Option<PathBuf>,
+    /// Serve the recording as a read-only archive: nothing written, shipped items refused.
+    #[arg(long)]
+    read_only: bool,
     /// Where VDIs are rendered: cpu, gpu or auto (a hardware GPU if found, else the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
@@ -43,6 +46,7 @@ fn main() -> std::process::ExitCode {
         if let Some(v) = a.recording_dir {
             cfg.recording_dir = v;
         }
+        cfg.read_only |= a.read_only;
         if let Some(v) = a.backend {
             cfg.backend = v;
         }

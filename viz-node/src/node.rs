@@ -110,7 +110,11 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
         &cfg.tls,
         cfg.insecure,
     )?;
-    let recording = Recording::open(&cfg.recording_dir)?;
+    let recording = if cfg.read_only {
+        Recording::open_read_only(&cfg.recording_dir)?
+    } else {
+        Recording::open(&cfg.recording_dir)?
+    };
     let scene = SceneAgreement::open(
         &cfg.recording_dir,
         Duration::from_secs_f64(cfg.compose_timeout_secs),
@@ -122,7 +126,12 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
         .map_err(|source| StartError::Backend { choice, source })?;
     tracing::info!("rendering on {}", backend.describe());
     let (listener, addr) = bind("listen", cfg.listen).await?;
-    let recovery = recording.recover()?;
+    // An archive is served as it is: nothing tidied, scored or composed.
+    let recovery = if cfg.read_only {
+        crate::store::Recovery::default()
+    } else {
+        recording.recover()?
+    };
     let (to_score, score_rx) = mpsc::channel(cfg.score_queue);
     let shared = Arc::new(Shared {
         recording,
@@ -145,6 +154,7 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
         references_stored: AtomicU64::new(0),
         reports_sent: AtomicU64::new(0),
         rejected: AtomicU64::new(0),
+        read_only: cfg.read_only,
     });
     tokio::spawn(scorer(shared.clone(), score_rx));
     resume(&shared, recovery);

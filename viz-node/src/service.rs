@@ -72,6 +72,21 @@ pub struct Shared {
     pub reports_sent: AtomicU64,
     /// Streams rejected.
     pub rejected: AtomicU64,
+    /// Serving a read-only archive: every item shipped is refused.
+    pub read_only: bool,
+}
+
+impl Shared {
+    /// `FAILED_PRECONDITION` on a read-only archive (`what` is being shipped or proposed).
+    fn writable(&self, what: &str) -> Result<(), Status> {
+        if self.read_only {
+            return Err(Status::failed_precondition(format!(
+                "{what} refused: this viz-node serves {} as a read-only archive",
+                self.recording.dir().display()
+            )));
+        }
+        Ok(())
+    }
 }
 
 /// Work for the scoring task, in arrival order.
@@ -498,6 +513,7 @@ impl VizService {
     }
 
     async fn ship_vdi_inner(&self, mut stream: Streaming<pb::VdiChunk>) -> Result<Entry, Status> {
+        self.0.writable("a VDI")?;
         let (h, bytes) = chunk::receive(&mut stream, self.0.max_vdi_bytes, |h: &pb::VdiHeader| {
             codec_from_pb(h.codec)?
                 .ok_or_else(|| Status::invalid_argument("codec is unspecified"))?;
@@ -531,6 +547,7 @@ impl VizService {
         &self,
         mut stream: Streaming<pb::ReferenceChunk>,
     ) -> Result<Entry, Status> {
+        self.0.writable("reference frames")?;
         let (h, bytes) = chunk::receive(&mut stream, self.0.max_reference_bytes, |h| {
             reference_camera(h).map(drop)
         })
@@ -744,6 +761,7 @@ impl Viz for VizService {
         &self,
         request: Request<pb::SceneProposal>,
     ) -> Result<Response<pb::SceneAgreement>, Status> {
+        self.0.writable("a scene proposal")?;
         let p = request.into_inner();
         let wait = if p.wait_secs > 0.0 && p.wait_secs.is_finite() {
             p.wait_secs.min(crate::scene::MAX_WAIT_SECS)

@@ -381,6 +381,29 @@ impl Recording {
                 "imported the legacy index.json"
             );
         }
+        Self::over(dir, db)
+    }
+
+    /// Opens the recording in `dir` for reading only: nothing is created, tidied or written
+    /// beside it ([`IndexDb::open`] read-only; immutable when no viz-node is writing it), so a
+    /// recording on read-only media or owned by another user opens. Storing into it fails.
+    ///
+    /// # Errors
+    /// [`StoreError::Corrupt`] naming the index when there is none (no recording here) or it
+    /// cannot be read.
+    pub fn open_read_only(dir: &Path) -> Result<Self, StoreError> {
+        if !crate::index::holds_index(dir).map_err(|e| with_recovery_advice(e, dir))? {
+            return Err(StoreError::Corrupt {
+                path: dir.join(INDEX_DB),
+                problem: "missing or empty: no recording to serve here".into(),
+            });
+        }
+        let db = IndexDb::open(dir, false)?;
+        Self::over(dir, db)
+    }
+
+    /// The recording in `dir` over its opened index, its rows cached.
+    fn over(dir: &Path, db: IndexDb) -> Result<Self, StoreError> {
         let entries = db
             .entries()?
             .into_iter()

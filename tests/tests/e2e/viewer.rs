@@ -709,6 +709,103 @@ fn silent_connections_and_sockets_that_miss_their_pings_are_closed() {
     v.terminate();
 }
 
+/// Names, sizes and modification times of the files in `dir`.
+fn listing(dir: &Path) -> Vec<(String, u64, std::time::SystemTime)> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|d| {
+            let d = d.unwrap();
+            let m = d.metadata().unwrap();
+            (
+                d.file_name().to_string_lossy().into_owned(),
+                m.len(),
+                m.modified().unwrap(),
+            )
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+/// A finished recording served as a read-only archive (`--read-only`), on a read-only bind
+/// mount where the machine allows one (CI runs as root): the viewer lists and renders its
+/// steps, shipping into it is refused, and nothing beside it is written.
+#[test]
+fn an_archive_is_browsed_read_only_and_nothing_is_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let made = Command::new(bin("insitu"))
+        .args([
+            "demo", "--size", "24", "--warmup", "50", "--every", "10", "--pushes", "3",
+        ])
+        .args(["--r", "32", "--no-http", "--no-tune", "--recording"])
+        .arg(tmp.path().join("rec"))
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let rec = tmp.path().join("rec");
+    let before = listing(&rec);
+    let _mount = ReadOnlyMount::over(&rec);
+    let (v, addr) = viewer_on(tmp.path(), &["--read-only"]);
+    let (status, body) = http(&addr, "/api/steps", &[]);
+    let steps: Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(status, 200, "{body}");
+    let listed = steps["steps"].as_array().map_or(0, Vec::len);
+    assert_eq!(listed, 3, "{body}");
+    let (status, png) = http(&addr, "/api/render?size=48&angle=30", &[]);
+    assert_eq!(status, 200, "{png}");
+    let refused = rt().block_on(async {
+        let mut c = insitu_proto::pb::viz_client::VizClient::connect(format!("http://{}", v.addr))
+            .await
+            .unwrap();
+        c.agree_scene(insitu_proto::pb::SceneProposal::default())
+            .await
+            .unwrap_err()
+    });
+    assert_eq!(
+        refused.code(),
+        tonic::Code::FailedPrecondition,
+        "{refused:?}"
+    );
+    assert!(
+        refused.message().contains("read-only archive"),
+        "{refused:?}"
+    );
+    v.terminate();
+    assert_eq!(listing(&rec), before, "the archive was written to");
+}
+
+/// A read-only bind mount of a directory over itself, unmounted on drop; `None` where this
+/// machine does not allow mounting (not root).
+struct ReadOnlyMount(std::path::PathBuf);
+
+impl ReadOnlyMount {
+    fn over(dir: &Path) -> Option<Self> {
+        let mount = |args: &[&str]| {
+            Command::new("mount")
+                .args(args)
+                .arg(dir)
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        };
+        if !mount(&["--bind", dir.to_str()?]) {
+            return None;
+        }
+        let m = Self(dir.to_owned());
+        mount(&["-o", "remount,bind,ro"]).then_some(m)
+    }
+}
+
+impl Drop for ReadOnlyMount {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(&self.0).status();
+    }
+}
+
 /// A viz-node config answering to `viz.example.org` besides addresses and localhost.
 fn hosts_config(dir: &Path) -> String {
     let path = dir.join("hosts.toml");
