@@ -709,6 +709,59 @@ fn silent_connections_and_sockets_that_miss_their_pings_are_closed() {
     v.terminate();
 }
 
+/// In a real browser, a page of another origin (a second server on loopback) cannot open the
+/// live socket, with no token set; the viewer's own page can.
+#[test]
+fn a_page_from_another_origin_cannot_open_the_live_socket() {
+    let Some(driver) = start_driver() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (v, addr) = viewer_on(tmp.path(), &[]);
+    // The other origin: one page, whose script tries the viewer's socket.
+    let other = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let other_url = format!("http://{}/", other.local_addr().unwrap());
+    let page = "<!doctype html><title>another site</title><p>another site</p>";
+    std::thread::spawn(move || {
+        for s in other.incoming() {
+            let Ok(mut s) = s else { break };
+            let mut head = [0u8; 4096];
+            let _ = s.read(&mut head);
+            let _ = write!(
+                s,
+                "HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{page}",
+                page.len()
+            );
+        }
+    });
+    // Resolves to "open" or "refused" (an error or a close before opening).
+    let try_socket = format!(
+        "const ws = new WebSocket('ws://{addr}/api/live');
+         ws.onopen = () => {{ ws.close(); done('open'); }};
+         ws.onerror = () => done('refused');
+         ws.onclose = () => done('refused');"
+    );
+    let stats = || -> Value { serde_json::from_str(&http(&addr, "/api/stats", &[]).1).unwrap() };
+    rt().block_on(async {
+        let c = browser(&driver, &tmp.path().join("profile")).await;
+        c.goto(&other_url).await.unwrap();
+        assert_eq!(
+            js(&c, &try_socket).await,
+            json!("refused"),
+            "from {other_url}"
+        );
+        assert_eq!(stats()["clients"], 0, "a foreign page's socket was served");
+        c.goto(&format!("http://{addr}/")).await.unwrap();
+        assert_eq!(
+            js(&c, &try_socket).await,
+            json!("open"),
+            "from the viewer's page"
+        );
+        c.close().await.unwrap();
+    });
+    v.terminate();
+}
+
 /// Names, sizes and modification times of the files in `dir`.
 fn listing(dir: &Path) -> Vec<(String, u64, std::time::SystemTime)> {
     let mut files: Vec<_> = std::fs::read_dir(dir)
