@@ -125,18 +125,25 @@ impl Daemon {
     /// Starts `name` with `args` (and `envs`), logging stderr to `log_dir/name.log`, and waits
     /// for its `listening on ADDR` line.
     pub fn start(name: &str, args: &[&str], envs: &[(&str, &str)], log_dir: &Path) -> Self {
+        let mut cmd = Command::new(bin(name));
+        cmd.args(args);
+        for (k, v) in envs {
+            cmd.env(k, v);
+        }
+        Self::spawn(name, cmd, log_dir)
+    }
+
+    /// Starts `cmd` (a daemon `name`, perhaps under a wrapper such as `setpriv`), its stderr
+    /// into `log_dir`, and waits for its `listening on` line.
+    pub fn spawn(name: &str, mut cmd: Command, log_dir: &Path) -> Self {
         let log = log_dir.join(format!("{name}-{}.log", std::process::id()));
         let log_file = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&log)
             .unwrap();
-        let mut cmd = Command::new(bin(name));
-        cmd.args(args).stdout(Stdio::piped()).stderr(log_file);
+        cmd.stdout(Stdio::piped()).stderr(log_file);
         cmd.env_remove("INSITU_TOKEN");
-        for (k, v) in envs {
-            cmd.env(k, v);
-        }
         let mut child = cmd
             .spawn()
             .unwrap_or_else(|e| panic!("starting {name}: {e}"));

@@ -625,3 +625,71 @@ fn a_read_only_recording_delays_delivery_and_loses_nothing() {
     g.terminate();
     v.terminate();
 }
+
+/// Permission denied: the recording directory's write permission removed while steps arrive
+/// (an operator's `chmod`, a quota tool), then restored. The viz-node runs as `nobody` so that
+/// the permission binds it (root ignores it; CI runs as root, and a machine where the test is
+/// not root runs it as itself). Each item is refused as a storage fault naming the denial, the
+/// generator-node keeps and retries them, and once the permission is back every acknowledged
+/// step is stored exactly once and scored.
+#[test]
+fn permission_denied_delays_delivery_and_loses_nothing() {
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    std::fs::create_dir(&rec).unwrap();
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| o.stdout.starts_with(b"0\n"));
+    let viz = if root {
+        // nobody reaches its own copy of the binary and a recording it owns, nothing else.
+        std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        let exe = tmp.path().join("viz-node");
+        std::fs::copy(insitu_e2e::bin("viz-node"), &exe).unwrap();
+        let owned = std::process::Command::new("chown")
+            .args(["65534:65534"])
+            .arg(&rec)
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(owned, "chown nobody {}", rec.display());
+        let mut cmd = std::process::Command::new("setpriv");
+        cmd.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(&exe)
+            .args(["--listen", "127.0.0.1:0", "--recording-dir"])
+            .arg(&rec)
+            .args(["--backend", "cpu"]);
+        insitu_e2e::Daemon::spawn("viz-node", cmd, tmp.path())
+    } else {
+        viz(&rec, "127.0.0.1:0", tmp.path())
+    };
+    let g = crate::common::generator(&sampled_config(&viz.addr, "block"), tmp.path(), &[]);
+    crate::common::push_steps(&g.addr, 0..2);
+    crate::common::flush(&g.addr);
+    let mode = |m: u32| std::fs::set_permissions(&rec, std::fs::Permissions::from_mode(m)).unwrap();
+    mode(0o555);
+    let replies = crate::common::push_steps(&g.addr, 2..8);
+    let refused = wait_until(30.0, || {
+        crate::common::status(&g.addr)
+            .ship_error
+            .contains("ResourceExhausted")
+    });
+    let status = crate::common::status(&g.addr);
+    mode(0o755);
+    assert_eq!(replies.len(), 6, "every push acknowledged");
+    assert!(refused, "{status:?}");
+    assert!(
+        status.ship_error.contains("ermission denied"),
+        "{}",
+        status.ship_error
+    );
+    assert_eq!(status.failed, 0, "a storage fault fails no VDI");
+    let s = crate::common::flush(&g.addr);
+    assert_eq!((s.steps_shipped, s.failed), (8, 0));
+    assert_recording(&rec, &(0..8).collect::<Vec<_>>(), 4);
+    eprintln!(
+        "PermissionDenied: acknowledged 8, stored 8 (6 after the permission was restored), lost 0, duplicated 0"
+    );
+    g.terminate();
+    viz.terminate();
+}
