@@ -126,15 +126,16 @@ impl Daemon {
     /// for its `listening on ADDR` line.
     pub fn start(name: &str, args: &[&str], envs: &[(&str, &str)], log_dir: &Path) -> Self {
         let mut cmd = Command::new(bin(name));
-        cmd.args(args);
+        cmd.args(args).env_remove("INSITU_TOKEN");
         for (k, v) in envs {
             cmd.env(k, v);
         }
         Self::spawn(name, cmd, log_dir)
     }
 
-    /// Starts `cmd` (a daemon `name`, perhaps under a wrapper such as `setpriv`), its stderr
-    /// into `log_dir`, and waits for its `listening on` line.
+    /// Starts `cmd` (a daemon `name`, perhaps under a wrapper such as `setpriv`; its
+    /// environment as `cmd` sets it), its stderr into `log_dir`, and waits for its
+    /// `listening on` line.
     pub fn spawn(name: &str, mut cmd: Command, log_dir: &Path) -> Self {
         let log = log_dir.join(format!("{name}-{}.log", std::process::id()));
         let log_file = std::fs::OpenOptions::new()
@@ -143,7 +144,6 @@ impl Daemon {
             .open(&log)
             .unwrap();
         cmd.stdout(Stdio::piped()).stderr(log_file);
-        cmd.env_remove("INSITU_TOKEN");
         let mut child = cmd
             .spawn()
             .unwrap_or_else(|e| panic!("starting {name}: {e}"));

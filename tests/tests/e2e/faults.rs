@@ -654,7 +654,8 @@ fn permission_denied_delays_delivery_and_loses_nothing() {
             .is_ok_and(|s| s.success());
         assert!(owned, "chown nobody {}", rec.display());
         let mut cmd = std::process::Command::new("setpriv");
-        cmd.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+        cmd.env_remove("INSITU_TOKEN")
+            .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
             .arg(&exe)
             .args(["--listen", "127.0.0.1:0", "--recording-dir"])
             .arg(&rec)
