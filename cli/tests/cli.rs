@@ -1055,15 +1055,19 @@ fn a_run_too_short_for_a_tuned_p_m_says_so() {
     );
 }
 
-/// The rows of `insitu export --recording rec` as JSON, without what a rebuild cannot know
-/// (compression time is measured by the node and is not in the file).
+/// The rows of `insitu export --recording rec` as JSON, without what a rebuild cannot know:
+/// τ and the compression time are measurements, not kept in the files (a VDI made again must
+/// have the same bytes).
 fn exported_rows(dir: &Path) -> serde_json::Value {
     let o = insitu(&["export", "--recording", "rec"], dir);
     assert!(o.status.success(), "{}", stderr(&o));
     let mut v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     for key in ["entries", "steps"] {
         for row in v[key].as_array_mut().unwrap() {
-            row.as_object_mut().unwrap().remove("tau_compress_secs");
+            let row = row.as_object_mut().unwrap();
+            for key in ["tau_secs", "tau_source", "tau_compress_secs"] {
+                row.remove(key);
+            }
         }
     }
     v

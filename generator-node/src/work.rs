@@ -5,7 +5,7 @@
 use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
-use insitu_core::backend::{BackendError, Scene, TimeSource};
+use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
 use insitu_core::vdi::provenance::Provenance;
@@ -122,7 +122,7 @@ pub fn run(
         // τ counts every generation of the step, the ones thrown away too.
         let tau = generated.seconds + retries.1;
         let t = Instant::now();
-        let provenance = provenance(info, gen.pm_version, tau, generated.source);
+        let provenance = provenance(info, gen.pm_version);
         let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
             codec::encode_with_provenance(&generated.value, gen.codec, Some(&provenance))
         })?;
@@ -193,12 +193,7 @@ pub fn run(
 }
 
 /// Where the VDI of `info`'s step and rank comes from, as its file carries it.
-fn provenance(
-    info: &StepInfo,
-    pm_version: u64,
-    tau_secs: f64,
-    tau_source: TimeSource,
-) -> Provenance {
+fn provenance(info: &StepInfo, pm_version: u64) -> Provenance {
     Provenance {
         step: info.step,
         rank: info.rank,
@@ -209,8 +204,6 @@ fn provenance(
         } else {
             0.0
         },
-        tau_secs,
-        tau_source,
         // Ingest checked the brick against the grid; one that does not fit is left unsaid
         // rather than making the file unreadable.
         placement: (0..3)
@@ -420,6 +413,28 @@ mod tests {
                 }
             ),
             "{e}"
+        );
+    }
+
+    /// A step made again (a node restarted from its spool) gives the same file, which the
+    /// viz-node then stores once; the file says which step, rank and brick it is.
+    #[test]
+    fn a_step_made_again_has_the_same_bytes_and_says_where_it_belongs() {
+        let raw = busy_step();
+        let tf = TransferFunction::default_for_volume(&raw.field);
+        let (a, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
+        let (b, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
+        assert_ne!(a.vdi_header.tau_secs, 0.0);
+        assert_eq!(a.vdi, b.vdi, "a step made again differs");
+        let p = codec::provenance(&a.vdi).unwrap().unwrap();
+        assert_eq!(
+            (p.step, p.rank, p.world_size, p.pm_version),
+            (raw.info.step, raw.info.rank, raw.info.world_size.max(1), 3)
+        );
+        let (global, brick) = p.placement.unwrap();
+        assert_eq!(
+            (global, brick.offset, brick.dims),
+            (raw.info.global_dims, raw.info.brick_offset, raw.info.brick_dims)
         );
     }
 

@@ -210,15 +210,13 @@ fn store_composed(
     composed: &Vdi,
 ) -> Result<String, StepError> {
     let codec = ready[0].codec.unwrap_or(Codec::Zstd);
-    // One VDI of the whole grid: a world of one, its τ the slowest rank's.
+    // One VDI of the whole grid: a world of one.
     let provenance = Provenance {
         step,
         rank: 0,
         world_size: 1,
         pm_version: ready[0].pm_version,
         sim_time: ready[0].sim_time,
-        tau_secs: ready.iter().map(|e| e.sizing.tau_secs).fold(0.0, f64::max),
-        tau_source: ready[0].sizing.tau_source,
         placement: ready[0]
             .placement
             .filter(|p| p.global_dims.iter().all(|&n| n >= 1))

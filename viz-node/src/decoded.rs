@@ -362,8 +362,6 @@ mod tests {
                 world_size: 1,
                 pm_version: 0,
                 sim_time: 0.0,
-                tau_secs: 0.0,
-                tau_source: Default::default(),
                 placement: None,
             };
             let bytes =

@@ -2,10 +2,11 @@
 //! missing, emptied or damaged beside stored steps: the viz-node refuses to start on such a
 //! recording rather than let a new index orphan the files and the next steps replace them.
 //!
-//! Every rank's VDI file carries its provenance (step, rank, world, `P_M` version, τ, brick:
+//! Every rank's VDI file carries its provenance (step, rank, world, `P_M` version, brick:
 //! [`insitu_core::vdi::provenance`]) under its checksum, and every `.refs` file whose frames
 //! it holds, so a row is made from the files alone: r, γ, the codec, the TF, σ (the file's
-//! length) and the supersegments from the VDI itself. A file that cannot say where it belongs
+//! length) and the supersegments from the VDI itself. τ, a measurement the file does not
+//! keep (a VDI made again must have the same bytes), is 0 in a rebuilt row: unknown. A file that cannot say where it belongs
 //! (no provenance, a checksum that fails, a name its provenance contradicts) is left out and
 //! listed, never guessed at. Composed steps are not rows of their own: the viz-node composes
 //! and scores them again on its next start, as it does after a crash ([`crate::store::Recovery`]).
@@ -191,8 +192,8 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
         sizing: Sizing {
             sigma_bytes: bytes.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
-            tau_secs: p.tau_secs,
-            tau_source: p.tau_source,
+            tau_secs: 0.0,
+            tau_source: Default::default(),
             tau_compress_secs: 0.0,
         },
         tf_name: meta.tf_name.clone(),
@@ -210,7 +211,6 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
 mod tests {
     use super::*;
     use crate::store::Recording;
-    use insitu_core::backend::TimeSource;
     use insitu_core::vdi::codec::Codec;
     use insitu_core::vdi::provenance::Provenance;
     use insitu_core::volume::bricks::Brick;
@@ -240,8 +240,6 @@ mod tests {
             world_size: 2,
             pm_version: 4,
             sim_time: step as f64 * 0.5,
-            tau_secs: 0.01 * f64::from(rank + 1),
-            tau_source: TimeSource::WallClock,
             placement: Some(([15, 8, 8], brick)),
         };
         let bytes = codec::encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();
@@ -254,8 +252,8 @@ mod tests {
             sizing: Sizing {
                 sigma_bytes: bytes.len() as u64,
                 supersegments: vdi.supersegments().len() as u64,
-                tau_secs: p.tau_secs,
-                tau_source: p.tau_source,
+                tau_secs: 0.0,
+                tau_source: Default::default(),
                 tau_compress_secs: 0.0,
             },
             tf_name: "ramp".into(),

@@ -13,7 +13,7 @@
 //! ```
 //!
 //! The body (version 3): the length of the provenance block (u32 LE, 0 when there is none) and
-//! the block ([`super::provenance`]: step, rank, world, `P_M` version, τ, brick), uncompressed;
+//! the block ([`super::provenance`]: step, rank, world, `P_M` version, brick), uncompressed;
 //! then the part count `m` (u32 LE), per part its compressed and its decompressed length (u64
 //! LE each), then the parts' compressed bytes back to back. The parts are consecutive pieces of
 //! the payload, so they are compressed and decompressed in parallel (rayon): bzip2 in parts of

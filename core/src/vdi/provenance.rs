@@ -1,5 +1,5 @@
-//! Where in a run a VDI file comes from: the step, the rank and its brick, the world, the
-//! `P_M` version and τ. A VDI file of format version 3 carries it uncompressed at the start
+//! Where in a run a VDI file comes from: the step, the rank and its brick, the world and the
+//! `P_M` version. A VDI file of format version 3 carries it uncompressed at the start
 //! of its body (under the file's checksum), so that a recording's index can be rebuilt from its
 //! files alone and a file can be checked against the row that names it without decoding it
 //! (docs/guarantees.md, "The recording").
@@ -11,21 +11,20 @@
 //! 12       4    world size (u32)
 //! 16       8    P_M version (u64; 0: not from a tuner)
 //! 24       8    simulation time (f64)
-//! 32       8    τ, seconds (f64)
-//! 40       1    τ source: 0 wall clock, 1 GPU timestamps
-//! 41       1    1 when a placement follows, else 0
-//! 42      72    global dims, brick offset, brick dims (3 × u64 each)
+//! 32       1    1 when a placement follows, else 0
+//! 33      72    global dims, brick offset, brick dims (3 × u64 each)
 //! ```
 //!
 //! A block longer than this is read up to here (a later version may append fields); a
-//! shorter one is refused.
+//! shorter one is refused. Everything in it is fixed by the step and the run, so a VDI made
+//! again for the same step (a generator-node restarted from its spool) has the same bytes and
+//! is stored once; τ, a measurement that differs each time, stays in the index.
 
 use super::codec::{CodecError, Reader};
-use crate::backend::TimeSource;
 use crate::volume::bricks::Brick;
 
 /// Bytes of the block this version writes.
-pub const LEN: usize = 114;
+pub const LEN: usize = 105;
 
 /// Where a VDI file comes from.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,10 +39,6 @@ pub struct Provenance {
     pub pm_version: u64,
     /// Simulation time of the step.
     pub sim_time: f64,
-    /// τ: seconds of generation (every generation of the step, Sec. 5.3).
-    pub tau_secs: f64,
-    /// Where τ comes from.
-    pub tau_source: TimeSource,
     /// The whole grid's dims and the rank's brick in it, voxels (none when not said).
     pub placement: Option<([usize; 3], Brick)>,
 }
@@ -57,11 +52,6 @@ impl Provenance {
         out.extend_from_slice(&self.world_size.to_le_bytes());
         out.extend_from_slice(&self.pm_version.to_le_bytes());
         out.extend_from_slice(&self.sim_time.to_le_bytes());
-        out.extend_from_slice(&self.tau_secs.to_le_bytes());
-        out.push(match self.tau_source {
-            TimeSource::WallClock => 0,
-            TimeSource::GpuTimestamps => 1,
-        });
         let (global, brick) = self.placement.unwrap_or((
             [0; 3],
             Brick {
@@ -81,7 +71,7 @@ impl Provenance {
     /// # Errors
     /// [`CodecError::Truncated`] for a block shorter than [`LEN`];
     /// [`CodecError::Invalid`] for a world of 0 ranks, a rank outside it, a non-finite time, an
-    /// unknown τ source or flag, or a brick that is empty or leaves the grid.
+    /// unknown flag, or a brick that is empty or leaves the grid.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
         let mut rd = Reader::new(bytes);
         let step = rd.u64("provenance step")?;
@@ -89,16 +79,6 @@ impl Provenance {
         let world_size = rd.u32("provenance world size")?;
         let pm_version = rd.u64("provenance P_M version")?;
         let sim_time = f64::from_le_bytes(rd.array("provenance simulation time")?);
-        let tau_secs = f64::from_le_bytes(rd.array("provenance τ")?);
-        let tau_source = match rd.u8("provenance τ source")? {
-            0 => TimeSource::WallClock,
-            1 => TimeSource::GpuTimestamps,
-            other => {
-                return Err(CodecError::Invalid(format!(
-                    "provenance τ source {other} is not 0 or 1"
-                )))
-            }
-        };
         let placed = rd.u8("provenance placement flag")?;
         let mut dims = [[0usize; 3]; 3];
         for d in dims.iter_mut().flatten() {
@@ -108,8 +88,8 @@ impl Provenance {
         if world_size == 0 || rank >= world_size {
             return invalid(format!("rank {rank} of a world of {world_size}"));
         }
-        if !sim_time.is_finite() || !tau_secs.is_finite() || tau_secs < 0.0 {
-            return invalid(format!("simulation time {sim_time}, τ {tau_secs} s"));
+        if !sim_time.is_finite() {
+            return invalid(format!("simulation time {sim_time}"));
         }
         let placement = match placed {
             0 => None,
@@ -136,8 +116,6 @@ impl Provenance {
             world_size,
             pm_version,
             sim_time,
-            tau_secs,
-            tau_source,
             placement,
         })
     }
@@ -154,8 +132,6 @@ mod tests {
             world_size: 8,
             pm_version: 7,
             sim_time: 12.5,
-            tau_secs: 0.25,
-            tau_source: TimeSource::GpuTimestamps,
             placement: Some((
                 [64, 64, 128],
                 Brick {
@@ -202,7 +178,6 @@ mod tests {
         assert!(with(|p| p.rank = 8).contains("rank 8 of a world of 8"));
         assert!(with(|p| p.world_size = 0).contains("world of 0"));
         assert!(with(|p| p.sim_time = f64::NAN).contains("simulation time NaN"));
-        assert!(with(|p| p.tau_secs = -1.0).contains("τ -1"));
         assert!(with(|p| {
             if let Some((_, b)) = &mut p.placement {
                 b.offset[2] = 64;
@@ -210,7 +185,7 @@ mod tests {
         })
         .contains("not inside"));
         let mut flag = bytes.clone();
-        flag[41] = 2;
+        flag[32] = 2;
         assert!(Provenance::from_bytes(&flag)
             .unwrap_err()
             .to_string()

@@ -334,7 +334,6 @@ fn codecs_serialize_as_their_names() {
 /// provenance) still read, and a damaged block is caught by the checksum.
 #[test]
 fn provenance_travels_in_the_file_and_older_files_still_read() {
-    use insitu_core::backend::TimeSource;
     use insitu_core::vdi::codec::{decode_with_provenance, encode_with_provenance, provenance};
     use insitu_core::vdi::provenance::Provenance;
     use insitu_core::volume::bricks::Brick;
@@ -345,8 +344,6 @@ fn provenance_travels_in_the_file_and_older_files_still_read() {
         world_size: 2,
         pm_version: 5,
         sim_time: 4.2,
-        tau_secs: 0.125,
-        tau_source: TimeSource::WallClock,
         placement: Some((
             [64, 64, 127],
             Brick {
