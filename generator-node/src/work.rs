@@ -434,7 +434,11 @@ mod tests {
         let (global, brick) = p.placement.unwrap();
         assert_eq!(
             (global, brick.offset, brick.dims),
-            (raw.info.global_dims, raw.info.brick_offset, raw.info.brick_dims)
+            (
+                raw.info.global_dims,
+                raw.info.brick_offset,
+                raw.info.brick_dims
+            )
         );
     }
 

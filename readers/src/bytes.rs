@@ -1,0 +1,215 @@
+//! What every reader needs: a bounded cursor over a header, and typed samples turned into a
+//! [`Volume`] in the type the core keeps (u8, u16, i16 as they are; the rest as f32).
+
+use crate::ReadError;
+use glam::Vec3;
+use insitu_core::Volume;
+use std::path::Path;
+
+/// A sample type as files store it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sample {
+    /// Signed byte.
+    I8,
+    /// Unsigned byte.
+    U8,
+    /// Signed 16-bit.
+    I16,
+    /// Unsigned 16-bit.
+    U16,
+    /// Signed 32-bit.
+    I32,
+    /// Unsigned 32-bit.
+    U32,
+    /// Signed 64-bit.
+    I64,
+    /// Unsigned 64-bit.
+    U64,
+    /// IEEE single.
+    F32,
+    /// IEEE double.
+    F64,
+}
+
+impl Sample {
+    /// Bytes per sample.
+    pub fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::I64 | Self::U64 | Self::F64 => 8,
+        }
+    }
+}
+
+/// Byte order of the samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Endian {
+    /// Least significant byte first.
+    Little,
+    /// Most significant byte first.
+    Big,
+}
+
+/// The `i`-th sample of `bytes` as f64.
+fn value(bytes: &[u8], i: usize, t: Sample, e: Endian) -> f64 {
+    let n = t.size();
+    let mut b = [0u8; 8];
+    b[..n].copy_from_slice(&bytes[i * n..(i + 1) * n]);
+    if e == Endian::Big {
+        b[..n].reverse();
+    }
+    match t {
+        Sample::I8 => f64::from(b[0] as i8),
+        Sample::U8 => f64::from(b[0]),
+        Sample::I16 => f64::from(i16::from_le_bytes([b[0], b[1]])),
+        Sample::U16 => f64::from(u16::from_le_bytes([b[0], b[1]])),
+        Sample::I32 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        Sample::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        Sample::I64 => i64::from_le_bytes(b) as f64,
+        Sample::U64 => u64::from_le_bytes(b) as f64,
+        Sample::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        Sample::F64 => f64::from_le_bytes(b),
+    }
+}
+
+/// `bytes` (exactly `dims` samples of `t`, x fastest) as a volume at `spacing`: u8, u16 and
+/// i16 kept in their type, the rest as f32 (f32 bit for bit).
+///
+/// # Errors
+/// [`ReadError::Invalid`] naming `path` when the length does not match.
+pub fn volume(
+    path: &Path,
+    bytes: &[u8],
+    dims: [usize; 3],
+    spacing: Vec3,
+    t: Sample,
+    e: Endian,
+) -> Result<Volume, ReadError> {
+    let n = crate::samples(path, &dims)?;
+    if n.checked_mul(t.size()) != Some(bytes.len()) {
+        return Err(ReadError::invalid(
+            path,
+            format!(
+                "{} bytes of data where {dims:?} samples of {} bytes need {}",
+                bytes.len(),
+                t.size(),
+                n.saturating_mul(t.size())
+            ),
+        ));
+    }
+    let bad = |e: insitu_core::volume::VolumeError| ReadError::invalid(path, e.to_string());
+    let pairs = |k: usize| -> [u8; 2] {
+        let p = [bytes[2 * k], bytes[2 * k + 1]];
+        if e == Endian::Big {
+            [p[1], p[0]]
+        } else {
+            p
+        }
+    };
+    match t {
+        Sample::U8 => Volume::from_u8(dims, spacing, bytes.to_vec()).map_err(bad),
+        Sample::U16 => Volume::from_u16(
+            dims,
+            spacing,
+            (0..n).map(|k| u16::from_le_bytes(pairs(k))).collect(),
+        )
+        .map_err(bad),
+        Sample::I16 => Volume::from_i16(
+            dims,
+            spacing,
+            (0..n).map(|k| i16::from_le_bytes(pairs(k))).collect(),
+        )
+        .map_err(bad),
+        Sample::F32 => {
+            let data = bytes
+                .chunks_exact(4)
+                .map(|c| {
+                    let b = [c[0], c[1], c[2], c[3]];
+                    match e {
+                        Endian::Little => f32::from_le_bytes(b),
+                        Endian::Big => f32::from_be_bytes(b),
+                    }
+                })
+                .collect();
+            Volume::new(dims, spacing, data).map_err(bad)
+        }
+        other => {
+            let data = (0..n).map(|i| value(bytes, i, other, e) as f32).collect();
+            Volume::new(dims, spacing, data).map_err(bad)
+        }
+    }
+}
+
+/// `bytes` (samples of `t`) as f64 values, for readers that scale or mask them.
+pub fn values(bytes: &[u8], t: Sample, e: Endian) -> Vec<f64> {
+    (0..bytes.len() / t.size())
+        .map(|i| value(bytes, i, t, e))
+        .collect()
+}
+
+/// A cursor over a header held in memory; every read names what it reads when the bytes run
+/// out.
+pub struct Cursor<'a> {
+    path: &'a Path,
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cursor<'a> {
+    /// At the start of `bytes`, the file `path`.
+    pub fn new(path: &'a Path, bytes: &'a [u8]) -> Self {
+        Self {
+            path,
+            bytes,
+            pos: 0,
+        }
+    }
+
+    /// Bytes read so far.
+    pub fn pos(&self) -> usize {
+        self.pos
+    }
+
+    /// The next `n` bytes.
+    ///
+    /// # Errors
+    /// [`ReadError::Invalid`]: the file ends before `what`.
+    pub fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], ReadError> {
+        let end = self.pos.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(ReadError::invalid(
+                self.path,
+                format!(
+                    "truncated: {what} needs {n} bytes at offset {}, {} left",
+                    self.pos,
+                    self.bytes.len() - self.pos
+                ),
+            ));
+        };
+        let out = &self.bytes[self.pos..end];
+        self.pos = end;
+        Ok(out)
+    }
+
+    /// A big-endian u32.
+    ///
+    /// # Errors
+    /// As [`Cursor::take`].
+    pub fn be_u32(&mut self, what: &str) -> Result<u32, ReadError> {
+        let b = self.take(4, what)?;
+        Ok(u32::from_be_bytes([b[0], b[1], b[2], b[3]]))
+    }
+
+    /// A big-endian u64.
+    ///
+    /// # Errors
+    /// As [`Cursor::take`].
+    pub fn be_u64(&mut self, what: &str) -> Result<u64, ReadError> {
+        let b = self.take(8, what)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(u64::from_be_bytes(a))
+    }
+}

@@ -1,0 +1,198 @@
+//! Volume readers for the files simulations and their tools write, each giving the grid's
+//! dims, spacing, origin, its fields and (for a time series) its steps, and one step at a time
+//! as an [`insitu_core::Volume`] placed at its origin (docs/data.md):
+//!
+//! | extension | format | module |
+//! | --- | --- | --- |
+//! | `.raw` | our raw layout, dims and type in the name | [`raw`] |
+//! | `.nc` | NetCDF classic (CDF-1, CDF-2, CDF-5), CF conventions | [`netcdf3`] |
+//! | `.nrrd`, `.nhdr` | NRRD, attached or detached, raw or gzip | [`nrrd`] |
+//! | `.vti` | VTK XML ImageData: ASCII, base64, appended raw, zlib blocks | [`vti`] |
+//! | `.vtk` | legacy VTK STRUCTURED_POINTS, ASCII or binary | [`legacy_vtk`] |
+//!
+//! Every reader is pure Rust (core never links a C library) and refuses a truncated file, a
+//! size that does not add up, a layout it does not read or a bad attribute with a
+//! [`ReadError`] naming the file and the problem; none panics on any input (fuzzed).
+
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+
+pub mod bytes;
+pub mod legacy_vtk;
+pub mod netcdf3;
+pub mod nrrd;
+pub mod raw;
+pub mod vti;
+
+use glam::Vec3;
+use insitu_core::Volume;
+use std::path::{Path, PathBuf};
+
+/// Why a file could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not what its format says, or not a layout this reader takes.
+    #[error("{path}: {problem}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, naming the field or attribute.
+        problem: String,
+    },
+}
+
+impl ReadError {
+    pub(crate) fn invalid(path: &Path, problem: impl Into<String>) -> Self {
+        Self::Invalid {
+            path: path.to_owned(),
+            problem: problem.into(),
+        }
+    }
+
+    pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> Self + '_ {
+        move |source| Self::Io {
+            path: path.to_owned(),
+            source,
+        }
+    }
+}
+
+/// What to read from a file that holds several fields.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// The field (VTK array, NetCDF variable, raw: ignored); none: the first (NetCDF: the first
+    /// variable with three or four dimensions that is not a coordinate).
+    pub field: Option<String>,
+}
+
+/// An opened file: its grid and fields, read one step at a time.
+#[derive(Debug)]
+pub struct Dataset {
+    /// The file.
+    pub path: PathBuf,
+    /// Samples per axis (x, y, z).
+    pub dims: [usize; 3],
+    /// Steps (1 for a single volume).
+    pub steps: usize,
+    /// Distance between samples per axis, world units.
+    pub spacing: Vec3,
+    /// World position of the first sample.
+    pub origin: Vec3,
+    /// The field read.
+    pub field: String,
+    /// Every field the file holds (on this grid).
+    pub fields: Vec<String>,
+    /// What was done to fit the grid, for the user (e.g. an uneven axis taken by index).
+    pub notes: Vec<String>,
+    source: Source,
+}
+
+#[derive(Debug)]
+enum Source {
+    Raw(raw::Raw),
+    NetCdf(netcdf3::Variable),
+    Nrrd(nrrd::Nrrd),
+    Vti(vti::Vti),
+    LegacyVtk(legacy_vtk::LegacyVtk),
+}
+
+impl Dataset {
+    /// Step `t` (from 0) as a volume at the file's origin and spacing.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the file: `t` past the last step, a truncated or malformed body.
+    pub fn read_step(&self, t: usize) -> Result<Volume, ReadError> {
+        if t >= self.steps {
+            return Err(ReadError::invalid(
+                &self.path,
+                format!(
+                    "step {t} asked of {} steps (0 to {})",
+                    self.steps,
+                    self.steps - 1
+                ),
+            ));
+        }
+        let volume = match &self.source {
+            Source::Raw(r) => r.read_step(&self.path, t, self.spacing)?,
+            Source::NetCdf(v) => v.read_step(&self.path, t, self.dims, self.spacing)?,
+            Source::Nrrd(n) => n.read(&self.path, self.dims, self.spacing)?,
+            Source::Vti(v) => v.read(&self.path, self.dims, self.spacing)?,
+            Source::LegacyVtk(v) => v.read(&self.path, self.dims, self.spacing)?,
+        };
+        volume
+            .with_origin(self.origin)
+            .map_err(|e| ReadError::invalid(&self.path, e.to_string()))
+    }
+}
+
+/// The formats [`open`] reads, by extension.
+pub const EXTENSIONS: &[&str] = &["raw", "nc", "nrrd", "nhdr", "vti", "vtk"];
+
+/// Opens `path`, choosing the reader by its extension.
+///
+/// # Errors
+/// [`ReadError`] naming the file: an unknown extension (listing the known ones), or what the
+/// format's reader finds wrong.
+pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "raw" => raw::open(path),
+        "nc" => netcdf3::open(path, options),
+        "nrrd" | "nhdr" => nrrd::open(path),
+        "vti" => vti::open(path, options),
+        "vtk" => legacy_vtk::open(path, options),
+        other => Err(ReadError::invalid(
+            path,
+            format!(
+                "unknown volume format {:?}: expected one of .{}",
+                other,
+                EXTENSIONS.join(", .")
+            ),
+        )),
+    }
+}
+
+/// Grid spacing as files give it: every component finite and positive.
+pub(crate) fn check_grid(
+    path: &Path,
+    dims: [usize; 3],
+    spacing: Vec3,
+    origin: Vec3,
+) -> Result<(), ReadError> {
+    if dims.contains(&0) {
+        return Err(ReadError::invalid(
+            path,
+            format!("dims {dims:?} hold no sample"),
+        ));
+    }
+    if !spacing.is_finite() || spacing.min_element() <= 0.0 {
+        return Err(ReadError::invalid(
+            path,
+            format!("spacing {spacing} must be finite and positive"),
+        ));
+    }
+    if !origin.is_finite() {
+        return Err(ReadError::invalid(
+            path,
+            format!("origin {origin} is not finite"),
+        ));
+    }
+    Ok(())
+}
+
+/// `dims` multiplied out, or an error naming them when the count overflows.
+pub(crate) fn samples(path: &Path, dims: &[usize]) -> Result<usize, ReadError> {
+    dims.iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .ok_or_else(|| ReadError::invalid(path, format!("dims {dims:?} overflow")))
+}

@@ -1,0 +1,608 @@
+//! NetCDF classic files (CDF-1, the 64-bit-offset CDF-2 and the 64-bit-data CDF-5; the
+//! format NetCDF-3 and most ocean and climate archives write) with the CF conventions.
+//!
+//! A variable of three dimensions `(z, y, x)` is one volume; of four, `(t, z, y, x)` a series
+//! whose first dimension (the record dimension or any other) gives the steps. The last
+//! dimension is x (C order, x fastest). Values are big-endian; `scale_factor` and
+//! `add_offset` are applied (`v · scale + offset`), and `_FillValue`, `missing_value` and
+//! values outside `valid_min`/`valid_max`/`valid_range` become NaN (missing data, which the
+//! renderer treats as empty). The axes come from the coordinate variables (a 1-D variable named
+//! as its dimension): an even axis gives the spacing and origin; an uneven one (an ocean
+//! model's depth levels) is resampled to an even grid at its smallest gap, linearly between
+//! levels, and the resampling is stated in [`crate::Dataset::notes`] ([`Options`] may keep the
+//! levels by index instead). A variable without coordinates is on a unit grid.
+//!
+//! Layout (Unidata's "NetCDF Classic and 64-bit Offset Format" and CDF-5 specification):
+//! `CDF` version, record count, dimension list, global attributes, variable list (name,
+//! dimension ids, attributes, type, size, begin), then the data.
+
+use crate::bytes::{Cursor, Endian, Sample};
+use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
+use glam::Vec3;
+use insitu_core::Volume;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
+
+/// The header is read whole: larger headers are refused.
+const MAX_HEADER: u64 = 64 << 20;
+/// An uneven axis is resampled to at most this many times its levels.
+const MAX_RESAMPLE_FACTOR: usize = 8;
+
+/// How an uneven axis is taken.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Uneven {
+    /// Resampled to an even grid at its smallest gap (at most 8× its levels), linearly.
+    #[default]
+    Resample,
+    /// Its levels kept as samples one unit apart (the raw layout's convention).
+    Index,
+}
+
+#[derive(Clone, Debug)]
+struct Dim {
+    name: String,
+    len: u64,
+}
+
+#[derive(Clone, Debug)]
+struct Attr {
+    name: String,
+    values: Vec<f64>,
+    text: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+struct Var {
+    name: String,
+    dims: Vec<usize>,
+    attrs: Vec<Attr>,
+    sample: Sample,
+    begin: u64,
+}
+
+/// A variable chosen for reading: where its samples lie and how they are turned into values.
+#[derive(Debug)]
+pub struct Variable {
+    sample: Sample,
+    begin: u64,
+    /// Bytes between steps (a record's size for a record variable, else one step's bytes).
+    stride: u64,
+    scale: f64,
+    offset: f64,
+    /// Raw values that mean "missing".
+    missing: Vec<f64>,
+    valid: (f64, f64),
+    /// Per axis (x, y, z): the coordinates to resample from, when uneven and resampled.
+    resample: [Option<Resample>; 3],
+    /// The file's dims (x, y, z) before resampling.
+    file_dims: [usize; 3],
+}
+
+#[derive(Debug)]
+struct Resample {
+    coords: Vec<f64>,
+    start: f64,
+    step: f64,
+    count: usize,
+}
+
+fn nc_type(path: &Path, t: u32) -> Result<(Sample, bool), ReadError> {
+    Ok(match t {
+        1 => (Sample::I8, false),
+        2 => (Sample::U8, true), // char
+        3 => (Sample::I16, false),
+        4 => (Sample::I32, false),
+        5 => (Sample::F32, false),
+        6 => (Sample::F64, false),
+        7 => (Sample::U8, false),
+        8 => (Sample::U16, false),
+        9 => (Sample::U32, false),
+        10 => (Sample::I64, false),
+        11 => (Sample::U64, false),
+        other => return Err(ReadError::invalid(path, format!("unknown nc_type {other}"))),
+    })
+}
+
+struct Header<'a> {
+    c: Cursor<'a>,
+    path: &'a Path,
+    /// CDF-5: counts and sizes are 8 bytes.
+    wide: bool,
+    /// CDF-2 and CDF-5: `begin` is 8 bytes.
+    long_offsets: bool,
+}
+
+impl Header<'_> {
+    fn count(&mut self, what: &str) -> Result<u64, ReadError> {
+        if self.wide {
+            self.c.be_u64(what)
+        } else {
+            self.c.be_u32(what).map(u64::from)
+        }
+    }
+
+    fn name(&mut self, what: &str) -> Result<String, ReadError> {
+        let n = self.count(what)?;
+        let n = usize::try_from(n)
+            .ok()
+            .filter(|&n| n <= 1 << 16)
+            .ok_or_else(|| ReadError::invalid(self.path, format!("{what} of {n} bytes")))?;
+        let bytes = self.c.take(n, what)?;
+        self.c.take((4 - n % 4) % 4, what)?;
+        String::from_utf8(bytes.to_vec())
+            .map_err(|_| ReadError::invalid(self.path, format!("{what} is not UTF-8")))
+    }
+
+    /// A list's tag and length: `(0, 0)` when absent.
+    fn list(&mut self, tag: u32, what: &str) -> Result<u64, ReadError> {
+        let t = self.c.be_u32(what)?;
+        let n = self.count(what)?;
+        if t == 0 && n == 0 {
+            return Ok(0);
+        }
+        if t != tag {
+            return Err(ReadError::invalid(
+                self.path,
+                format!("{what}: tag {t:#x} where {tag:#x} was expected"),
+            ));
+        }
+        Ok(n)
+    }
+
+    fn attrs(&mut self, what: &str) -> Result<Vec<Attr>, ReadError> {
+        let n = self.list(0x0C, what)?;
+        let mut out = Vec::new();
+        for _ in 0..n {
+            let name = self.name("attribute name")?;
+            let (sample, is_char) = nc_type(self.path, self.c.be_u32("attribute type")?)?;
+            let count = self.count("attribute length")?;
+            let bytes = usize::try_from(count)
+                .ok()
+                .and_then(|c| c.checked_mul(sample.size()))
+                .ok_or_else(|| {
+                    ReadError::invalid(self.path, format!("attribute {name}: {count} values"))
+                })?;
+            let data = self.c.take(bytes, "attribute values")?;
+            self.c.take((4 - bytes % 4) % 4, "attribute padding")?;
+            let (values, text) = if is_char {
+                (
+                    Vec::new(),
+                    Some(
+                        String::from_utf8_lossy(data)
+                            .trim_end_matches('\0')
+                            .to_owned(),
+                    ),
+                )
+            } else {
+                (crate::bytes::values(data, sample, Endian::Big), None)
+            };
+            out.push(Attr { name, values, text });
+        }
+        Ok(out)
+    }
+}
+
+/// Opens a NetCDF classic file, choosing `options.field` (else the first variable of three or
+/// four dimensions that is not a coordinate).
+///
+/// # Errors
+/// [`ReadError`] naming the file: not a classic NetCDF file (a netCDF-4/HDF5 one is named as
+/// such), a truncated header, an unknown or absent variable, a variable of other than three
+/// or four dimensions, non-numeric data.
+pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    open_with(path, options, Uneven::default())
+}
+
+/// [`open`], an uneven axis taken as `uneven` says.
+///
+/// # Errors
+/// As [`open`].
+pub fn open_with(path: &Path, options: &Options, uneven: Uneven) -> Result<Dataset, ReadError> {
+    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let len = file.metadata().map_err(ReadError::io(path))?.len();
+    let mut head = Vec::new();
+    (&mut file)
+        .take(len.min(MAX_HEADER))
+        .read_to_end(&mut head)
+        .map_err(ReadError::io(path))?;
+    if head.starts_with(b"\x89HDF") {
+        return Err(ReadError::invalid(
+            path,
+            "a netCDF-4 (HDF5) file: this build reads NetCDF classic (CDF-1, 2, 5) only",
+        ));
+    }
+    let mut h = Header {
+        c: Cursor::new(path, &head),
+        path,
+        wide: false,
+        long_offsets: false,
+    };
+    let magic = h.c.take(4, "magic")?;
+    if &magic[..3] != b"CDF" {
+        return Err(ReadError::invalid(path, "not a NetCDF file (no CDF magic)"));
+    }
+    match magic[3] {
+        1 => {}
+        2 => h.long_offsets = true,
+        5 => (h.wide, h.long_offsets) = (true, true),
+        v => {
+            return Err(ReadError::invalid(
+                path,
+                format!("NetCDF classic version {v} is not 1, 2 or 5"),
+            ))
+        }
+    }
+    let numrecs = h.count("record count")?;
+    let ndims = h.list(0x0A, "dimension list")?;
+    let mut dims = Vec::new();
+    for _ in 0..ndims.min(1 << 16) {
+        let name = h.name("dimension name")?;
+        let len = h.count("dimension length")?;
+        dims.push(Dim { name, len });
+    }
+    h.attrs("global attributes")?;
+    let nvars = h.list(0x0B, "variable list")?;
+    let mut vars = Vec::new();
+    for _ in 0..nvars.min(1 << 16) {
+        let name = h.name("variable name")?;
+        let n = h.count("variable rank")?;
+        let mut ids = Vec::new();
+        for _ in 0..n.min(64) {
+            let id = h.count("dimension id")?;
+            let id = usize::try_from(id)
+                .ok()
+                .filter(|&i| i < dims.len())
+                .ok_or_else(|| {
+                    ReadError::invalid(
+                        path,
+                        format!("variable {name}: dimension id {id} of {}", dims.len()),
+                    )
+                })?;
+            ids.push(id);
+        }
+        let attrs = h.attrs("variable attributes")?;
+        let (sample, is_char) = nc_type(path, h.c.be_u32("variable type")?)?;
+        let _vsize = h.count("variable size")?;
+        let begin = if h.long_offsets {
+            h.c.be_u64("variable begin")?
+        } else {
+            u64::from(h.c.be_u32("variable begin")?)
+        };
+        if !is_char {
+            vars.push(Var {
+                name,
+                dims: ids,
+                attrs,
+                sample,
+                begin,
+            });
+        }
+    }
+    // A record's size: every record variable's slab, padded to 4 bytes unless it is the only one.
+    let is_record = |v: &Var| v.dims.first().is_some_and(|&d| dims[d].len == 0);
+    let slab = |v: &Var| -> u64 {
+        v.dims
+            .iter()
+            .skip(usize::from(is_record(v)))
+            .map(|&d| dims[d].len)
+            .product::<u64>()
+            .saturating_mul(v.sample.size() as u64)
+    };
+    let record_vars: Vec<&Var> = vars.iter().filter(|v| is_record(v)).collect();
+    let recsize: u64 = if record_vars.len() == 1 {
+        slab(record_vars[0])
+    } else {
+        record_vars.iter().map(|v| slab(v).div_ceil(4) * 4).sum()
+    };
+    let is_coord = |v: &Var| v.dims.len() == 1 && dims[v.dims[0]].name == v.name;
+    let volumes: Vec<&Var> = vars
+        .iter()
+        .filter(|v| (3..=4).contains(&v.dims.len()) && !is_coord(v))
+        .collect();
+    let var = match &options.field {
+        Some(name) => vars.iter().find(|v| &v.name == name).ok_or_else(|| {
+            ReadError::invalid(
+                path,
+                format!(
+                    "no variable {name:?}; volumes here: {}",
+                    volumes
+                        .iter()
+                        .map(|v| v.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            )
+        })?,
+        None => volumes
+            .first()
+            .copied()
+            .ok_or_else(|| ReadError::invalid(path, "no variable of three or four dimensions"))?,
+    };
+    if !(3..=4).contains(&var.dims.len()) {
+        return Err(ReadError::invalid(
+            path,
+            format!(
+                "variable {} has {} dimensions: a volume has (z, y, x) or (t, z, y, x)",
+                var.name,
+                var.dims.len()
+            ),
+        ));
+    }
+    let len_of = |d: usize| -> u64 {
+        if dims[d].len == 0 {
+            numrecs
+        } else {
+            dims[d].len
+        }
+    };
+    let k = var.dims.len();
+    let to_usize = |v: u64| usize::try_from(v).unwrap_or(usize::MAX);
+    let file_dims = [
+        to_usize(len_of(var.dims[k - 1])),
+        to_usize(len_of(var.dims[k - 2])),
+        to_usize(len_of(var.dims[k - 3])),
+    ];
+    let steps = if k == 4 {
+        to_usize(len_of(var.dims[0]))
+    } else {
+        1
+    };
+    let step_bytes = samples(path, &file_dims)?
+        .checked_mul(var.sample.size())
+        .ok_or_else(|| ReadError::invalid(path, "variable size overflows"))?
+        as u64;
+    let stride = if is_record(var) { recsize } else { step_bytes };
+    let last = var
+        .begin
+        .checked_add(stride.saturating_mul(steps.saturating_sub(1) as u64))
+        .and_then(|b| b.checked_add(step_bytes));
+    if steps == 0 || last.is_none_or(|end| end > len) {
+        return Err(ReadError::invalid(
+            path,
+            format!(
+                "truncated: variable {} needs {} bytes from offset {}, the file holds {len}",
+                var.name,
+                last.map_or("more".to_owned(), |l| l.to_string()),
+                var.begin
+            ),
+        ));
+    }
+    let attr = |name: &str| var.attrs.iter().find(|a| a.name == name);
+    let first = |name: &str| attr(name).and_then(|a| a.values.first().copied());
+    let mut missing: Vec<f64> = ["_FillValue", "missing_value"]
+        .iter()
+        .filter_map(|n| attr(n))
+        .flat_map(|a| a.values.iter().copied())
+        .collect();
+    missing.dedup();
+    let valid = match attr("valid_range").map(|a| a.values.as_slice()) {
+        Some([lo, hi]) => (*lo, *hi),
+        _ => (
+            first("valid_min").unwrap_or(f64::NEG_INFINITY),
+            first("valid_max").unwrap_or(f64::INFINITY),
+        ),
+    };
+    // The axes from the coordinate variables, x first.
+    let mut notes = Vec::new();
+    let mut spacing = [1.0f32; 3];
+    let mut origin = [0.0f32; 3];
+    let mut resample: [Option<Resample>; 3] = [None, None, None];
+    let mut out_dims = file_dims;
+    let mut units = Vec::new();
+    for a in 0..3 {
+        let d = var.dims[k - 1 - a];
+        let Some(cv) = vars.iter().find(|v| is_coord(v) && v.dims[0] == d) else {
+            notes.push(format!(
+                "{} has no coordinate variable: unit spacing",
+                dims[d].name
+            ));
+            continue;
+        };
+        let n = file_dims[a];
+        let coords = read_coords(&mut file, path, cv, n)?;
+        if let Some(u) = cv
+            .attrs
+            .iter()
+            .find(|a| a.name == "units")
+            .and_then(|a| a.text.clone())
+        {
+            units.push(format!("{}: {u}", cv.name));
+        }
+        if n < 2 {
+            origin[a] = coords.first().copied().unwrap_or(0.0) as f32;
+            continue;
+        }
+        let gaps: Vec<f64> = coords.windows(2).map(|w| w[1] - w[0]).collect();
+        let (lo, hi) = gaps
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &g| {
+                (l.min(g), h.max(g))
+            });
+        if lo.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+            || !coords.iter().all(|c| c.is_finite())
+        {
+            notes.push(format!(
+                "{} does not increase: taken by index (unit spacing)",
+                cv.name
+            ));
+            continue;
+        }
+        if hi - lo <= 1e-4 * hi {
+            spacing[a] = ((coords[n - 1] - coords[0]) / (n - 1) as f64) as f32;
+            origin[a] = coords[0] as f32;
+            continue;
+        }
+        match uneven {
+            Uneven::Index => notes.push(format!(
+                "{} is uneven ({lo} to {hi} apart): its {n} levels taken by index, one unit apart",
+                cv.name
+            )),
+            Uneven::Resample => {
+                let extent = coords[n - 1] - coords[0];
+                let count = ((extent / lo).round() as usize + 1).min(MAX_RESAMPLE_FACTOR * n);
+                let step = extent / (count - 1) as f64;
+                notes.push(format!(
+                    "{} is uneven ({lo} to {hi} apart): resampled linearly from {n} levels to {count} at {step} apart",
+                    cv.name
+                ));
+                spacing[a] = step as f32;
+                origin[a] = coords[0] as f32;
+                out_dims[a] = count;
+                resample[a] = Some(Resample {
+                    start: coords[0],
+                    coords,
+                    step,
+                    count,
+                });
+            }
+        }
+    }
+    if !units.is_empty() {
+        notes.push(format!("world units per axis: {}", units.join(", ")));
+    }
+    let (spacing, origin) = (Vec3::from(spacing), Vec3::from(origin));
+    check_grid(path, out_dims, spacing, origin)?;
+    let scale = first("scale_factor").unwrap_or(1.0);
+    let offset = first("add_offset").unwrap_or(0.0);
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims: out_dims,
+        steps,
+        spacing,
+        origin,
+        field: var.name.clone(),
+        fields: volumes.iter().map(|v| v.name.clone()).collect(),
+        notes,
+        source: Source::NetCdf(Variable {
+            sample: var.sample,
+            begin: var.begin,
+            stride,
+            scale,
+            offset,
+            missing,
+            valid,
+            resample,
+            file_dims,
+        }),
+    })
+}
+
+/// The `n` values of the coordinate variable `cv`.
+fn read_coords(
+    file: &mut std::fs::File,
+    path: &Path,
+    cv: &Var,
+    n: usize,
+) -> Result<Vec<f64>, ReadError> {
+    let mut bytes = vec![0u8; n.saturating_mul(cv.sample.size())];
+    file.seek(SeekFrom::Start(cv.begin))
+        .and_then(|_| file.read_exact(&mut bytes))
+        .map_err(|e| ReadError::invalid(path, format!("coordinate variable {}: {e}", cv.name)))?;
+    Ok(crate::bytes::values(&bytes, cv.sample, Endian::Big))
+}
+
+impl Variable {
+    /// Step `t` as a volume of `dims` (after resampling) at `spacing`.
+    pub(crate) fn read_step(
+        &self,
+        path: &Path,
+        t: usize,
+        dims: [usize; 3],
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let n = samples(path, &self.file_dims)?;
+        let mut bytes = vec![0u8; n * self.sample.size()];
+        let at = self.begin + self.stride * t as u64;
+        let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+        file.seek(SeekFrom::Start(at))
+            .and_then(|_| file.read_exact(&mut bytes))
+            .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
+        let plain = self.scale == 1.0
+            && self.offset == 0.0
+            && self.missing.is_empty()
+            && self.valid == (f64::NEG_INFINITY, f64::INFINITY)
+            && self.resample.iter().all(Option::is_none);
+        if plain {
+            return crate::bytes::volume(
+                path,
+                &bytes,
+                self.file_dims,
+                spacing,
+                self.sample,
+                Endian::Big,
+            );
+        }
+        let raw = crate::bytes::values(&bytes, self.sample, Endian::Big);
+        let mut data: Vec<f32> =
+            raw.iter()
+                .map(|&v| {
+                    let missing = v.is_nan()
+                        || self.missing.iter().any(|&m| {
+                            m == v || (self.sample == Sample::F32 && m as f32 == v as f32)
+                        })
+                        || v < self.valid.0
+                        || v > self.valid.1;
+                    if missing {
+                        f32::NAN
+                    } else if self.scale == 1.0 && self.offset == 0.0 {
+                        v as f32
+                    } else {
+                        (v * self.scale + self.offset) as f32
+                    }
+                })
+                .collect();
+        let mut cur = self.file_dims;
+        for (a, r) in self.resample.iter().enumerate() {
+            if let Some(r) = r {
+                data = resample_axis(&data, cur, a, r);
+                cur[a] = r.count;
+            }
+        }
+        Volume::new(dims, spacing, data).map_err(|e| ReadError::invalid(path, e.to_string()))
+    }
+}
+
+/// `data` (dims `dims`, x fastest) resampled along axis `a` to `r.count` even positions,
+/// linearly between the two levels around each (NaN where either is NaN, except at a level
+/// itself).
+fn resample_axis(data: &[f32], dims: [usize; 3], a: usize, r: &Resample) -> Vec<f32> {
+    let mut out_dims = dims;
+    out_dims[a] = r.count;
+    let stride = |d: [usize; 3]| [1, d[0], d[0] * d[1]];
+    let (si, so) = (stride(dims), stride(out_dims));
+    // For each output position along the axis: the level below and the weight of the one above.
+    let weights: Vec<(usize, f32)> = (0..r.count)
+        .map(|j| {
+            let x = r.start + r.step * j as f64;
+            let i = r
+                .coords
+                .partition_point(|&c| c <= x)
+                .saturating_sub(1)
+                .min(r.coords.len() - 2);
+            let w = ((x - r.coords[i]) / (r.coords[i + 1] - r.coords[i])).clamp(0.0, 1.0);
+            (i, w as f32)
+        })
+        .collect();
+    let mut out = vec![0.0f32; out_dims.iter().product()];
+    for z in 0..out_dims[2] {
+        for y in 0..out_dims[1] {
+            for x in 0..out_dims[0] {
+                let p = [x, y, z];
+                let (i, w) = weights[p[a]];
+                let mut q = p;
+                q[a] = i;
+                let lo = data[q[0] * si[0] + q[1] * si[1] + q[2] * si[2]];
+                q[a] = i + 1;
+                let hi = data[q[0] * si[0] + q[1] * si[1] + q[2] * si[2]];
+                out[x * so[0] + y * so[1] + z * so[2]] = if w == 0.0 {
+                    lo
+                } else if w == 1.0 {
+                    hi
+                } else {
+                    lo + (hi - lo) * w
+                };
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,289 @@
+//! NRRD (teem's "nearly raw raster data"): a text header, then the samples in the same file
+//! (`.nrrd`) or in the one its `data file` names (`.nhdr`, detached). Read: three dimensions,
+//! every scalar type, `raw` and `gzip` encodings, either `endian`, `line skip`/`byte skip`,
+//! `spacings` or axis-aligned `space directions` (anything else — rotated or sheared axes — is
+//! refused, naming the vectors), and `space origin`.
+
+use crate::bytes::{Endian, Sample};
+use crate::{check_grid, samples, Dataset, ReadError, Source};
+use glam::Vec3;
+use insitu_core::Volume;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// Longest header read, bytes.
+const MAX_HEADER: usize = 1 << 20;
+
+/// Where an NRRD's samples are and how they are stored.
+#[derive(Debug)]
+pub struct Nrrd {
+    data: PathBuf,
+    /// Bytes of the data file before the samples (`byte skip`, or after the header).
+    offset: u64,
+    line_skip: usize,
+    sample: Sample,
+    endian: Endian,
+    gzip: bool,
+}
+
+fn sample_type(name: &str) -> Option<Sample> {
+    Some(match name {
+        "signed char" | "int8" | "int8_t" => Sample::I8,
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => Sample::U8,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            Sample::I16
+        }
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => Sample::U16,
+        "int" | "signed int" | "int32" | "int32_t" => Sample::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => Sample::U32,
+        "longlong"
+        | "long long"
+        | "long long int"
+        | "signed long long"
+        | "signed long long int"
+        | "int64"
+        | "int64_t" => Sample::I64,
+        "ulonglong" | "unsigned long long" | "unsigned long long int" | "uint64" | "uint64_t" => {
+            Sample::U64
+        }
+        "float" => Sample::F32,
+        "double" => Sample::F64,
+        _ => return None,
+    })
+}
+
+/// `(a,b,c)` vectors of a `space directions` or `space origin` line.
+fn vectors(path: &Path, text: &str) -> Result<Vec<[f64; 3]>, ReadError> {
+    let bad = || ReadError::invalid(path, format!("vectors {text:?} are not (x,y,z) triples"));
+    text.split(')')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            let inner = s.strip_prefix('(').ok_or_else(bad)?;
+            let v: Vec<f64> = inner
+                .split(',')
+                .map(|c| c.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| bad())?;
+            <[f64; 3]>::try_from(v).map_err(|_| bad())
+        })
+        .collect()
+}
+
+/// Opens an NRRD file (`.nrrd`, or a detached `.nhdr`).
+///
+/// # Errors
+/// [`ReadError`] naming the file: no `NRRD` magic, a missing or unknown field, other than
+/// three dimensions, an encoding other than raw or gzip, axes that are not axis-aligned.
+pub fn open(path: &Path) -> Result<Dataset, ReadError> {
+    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut head = Vec::new();
+    (&mut file)
+        .take(MAX_HEADER as u64)
+        .read_to_end(&mut head)
+        .map_err(ReadError::io(path))?;
+    if !head.starts_with(b"NRRD000") {
+        return Err(ReadError::invalid(
+            path,
+            "not an NRRD file (no NRRD000x magic)",
+        ));
+    }
+    // The header ends at the first empty line (or the end of a detached header).
+    let mut end = head.len();
+    let mut fields = Vec::new();
+    let mut pos = 0;
+    let mut first = true;
+    while pos < head.len() {
+        let line_end = head[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(head.len(), |i| pos + i);
+        let line = String::from_utf8_lossy(&head[pos..line_end]);
+        let line = line.trim_end_matches('\r');
+        pos = line_end + 1;
+        if first {
+            first = false;
+            continue;
+        }
+        if line.is_empty() {
+            end = pos.min(head.len());
+            break;
+        }
+        if line.starts_with('#') {
+            continue;
+        }
+        let (key, value) = line
+            .split_once(": ")
+            .or_else(|| line.split_once(":="))
+            .ok_or_else(|| {
+                ReadError::invalid(path, format!("header line {line:?} is not 'field: value'"))
+            })?;
+        fields.push((key.trim().to_ascii_lowercase(), value.trim().to_owned()));
+    }
+    let get = |k: &str| fields.iter().find(|(f, _)| f == k).map(|(_, v)| v.as_str());
+    let need = |k: &str| get(k).ok_or_else(|| ReadError::invalid(path, format!("no {k:?} field")));
+    let sample = sample_type(need("type")?)
+        .ok_or_else(|| ReadError::invalid(path, format!("unknown type {:?}", get("type"))))?;
+    let dimension = need("dimension")?;
+    if dimension != "3" {
+        return Err(ReadError::invalid(
+            path,
+            format!("dimension {dimension}: a volume has 3"),
+        ));
+    }
+    let sizes: Vec<usize> = need("sizes")?
+        .split_whitespace()
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|_| {
+            ReadError::invalid(path, format!("sizes {:?} are not counts", get("sizes")))
+        })?;
+    let dims: [usize; 3] = sizes
+        .try_into()
+        .map_err(|_| ReadError::invalid(path, "sizes must give three counts"))?;
+    let encoding = need("encoding")?;
+    let gzip = match encoding {
+        "raw" => false,
+        "gzip" | "gz" => true,
+        other => {
+            return Err(ReadError::invalid(
+                path,
+                format!("encoding {other:?}: this reader takes raw and gzip"),
+            ))
+        }
+    };
+    let endian = match get("endian") {
+        Some("big") => Endian::Big,
+        Some("little") => Endian::Little,
+        None if sample.size() == 1 => Endian::Little,
+        other => {
+            return Err(ReadError::invalid(
+                path,
+                format!("endian {other:?} is not little or big"),
+            ))
+        }
+    };
+    let mut spacing = [1.0f64; 3];
+    if let Some(dirs) = get("space directions") {
+        let v = vectors(path, dirs)?;
+        if v.len() != 3 {
+            return Err(ReadError::invalid(
+                path,
+                format!("space directions {dirs:?}: need three vectors"),
+            ));
+        }
+        for (a, d) in v.iter().enumerate() {
+            let off_axis = (0..3).any(|k| k != a && d[k] != 0.0);
+            if off_axis || d[a].partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("space directions {dirs:?} are not axis-aligned and positive: rotated or flipped grids are not read"),
+                ));
+            }
+            spacing[a] = d[a];
+        }
+    } else if let Some(s) = get("spacings") {
+        let v: Vec<f64> = s
+            .split_whitespace()
+            .map(str::parse)
+            .collect::<Result<_, _>>()
+            .map_err(|_| ReadError::invalid(path, format!("spacings {s:?} are not numbers")))?;
+        spacing = v
+            .try_into()
+            .map_err(|_| ReadError::invalid(path, "spacings must give three numbers"))?;
+    }
+    let origin = match get("space origin") {
+        Some(o) => match vectors(path, o)?.as_slice() {
+            [v] => *v,
+            _ => {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("space origin {o:?} is not one vector"),
+                ))
+            }
+        },
+        None => [0.0; 3],
+    };
+    let as_vec = |v: [f64; 3]| Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
+    let (spacing, origin) = (as_vec(spacing), as_vec(origin));
+    check_grid(path, dims, spacing, origin)?;
+    let skip = |k: &str| -> Result<usize, ReadError> {
+        get(k).map_or(Ok(0), |v| {
+            v.parse()
+                .map_err(|_| ReadError::invalid(path, format!("{k} {v:?} is not a count")))
+        })
+    };
+    let (line_skip, byte_skip) = (skip("line skip")?, skip("byte skip")?);
+    let (data, offset) = match get("data file").or_else(|| get("datafile")) {
+        Some(name) => {
+            let dir = path.parent().unwrap_or(Path::new("."));
+            (dir.join(name), byte_skip as u64)
+        }
+        None => (path.to_owned(), (end + byte_skip) as u64),
+    };
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims,
+        steps: 1,
+        spacing,
+        origin,
+        field: "values".into(),
+        fields: vec!["values".into()],
+        notes: Vec::new(),
+        source: Source::Nrrd(Nrrd {
+            data,
+            offset,
+            line_skip,
+            sample,
+            endian,
+            gzip,
+        }),
+    })
+}
+
+impl Nrrd {
+    pub(crate) fn read(
+        &self,
+        path: &Path,
+        dims: [usize; 3],
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let want = samples(path, &dims)?
+            .checked_mul(self.sample.size())
+            .ok_or_else(|| ReadError::invalid(path, "size overflows"))?;
+        let bytes = std::fs::read(&self.data).map_err(ReadError::io(&self.data))?;
+        let mut start = usize::try_from(self.offset)
+            .unwrap_or(usize::MAX)
+            .min(bytes.len());
+        for _ in 0..self.line_skip {
+            start = bytes[start..]
+                .iter()
+                .position(|&b| b == b'\n')
+                .map_or(bytes.len(), |i| start + i + 1);
+        }
+        let body = &bytes[start..];
+        let raw = if self.gzip {
+            let mut out = Vec::with_capacity(want);
+            flate2::read::MultiGzDecoder::new(body)
+                .take(want as u64 + 1)
+                .read_to_end(&mut out)
+                .map_err(|e| ReadError::invalid(&self.data, format!("gzip data: {e}")))?;
+            out
+        } else {
+            body.get(..want)
+                .map(<[u8]>::to_vec)
+                .unwrap_or_else(|| body.to_vec())
+        };
+        if raw.len() != want {
+            return Err(ReadError::invalid(
+                &self.data,
+                format!(
+                    "{} bytes of samples where {dims:?} of {} bytes need {want}",
+                    raw.len(),
+                    self.sample.size()
+                ),
+            ));
+        }
+        crate::bytes::volume(path, &raw, dims, spacing, self.sample, self.endian)
+    }
+}

@@ -1,0 +1,468 @@
+//! VTK XML ImageData (`.vti`) as VTK writes it: one piece, point data, arrays in `ascii`,
+//! inline `binary` (base64) or `appended` (`raw` or `base64`) format, uncompressed or in
+//! zlib blocks (`vtkZLibDataCompressor`), with a `UInt32` or `UInt64` header, either byte order.
+//! `--field` picks a point-data array by name (default: the active scalars, else the first).
+//! `Origin` and `Spacing` place the grid; a `Direction` other than the identity, several
+//! pieces, several components and other compressors are refused, naming what was found.
+//!
+//! A data block is `[byte count][data]`, or compressed `[blocks][block size][last block
+//! size][compressed size per block][blocks…]`, each header word of `header_type`.
+
+use crate::bytes::{Endian, Sample};
+use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
+use base64::Engine as _;
+use glam::Vec3;
+use insitu_core::Volume;
+use quick_xml::events::{BytesStart, Event};
+use std::io::Read;
+use std::path::Path;
+
+/// Where the chosen array is, and how it is encoded.
+#[derive(Debug)]
+pub struct Vti {
+    sample: Sample,
+    endian: Endian,
+    wide_header: bool,
+    zlib: bool,
+    data: ArrayData,
+}
+
+#[derive(Debug)]
+enum ArrayData {
+    /// Whitespace-separated numbers.
+    Ascii(String),
+    /// Base64 of the block (inline `binary`, or appended `base64` from its offset).
+    Base64(String),
+    /// The block's bytes start at this file offset (appended `raw`).
+    Raw(u64),
+}
+
+struct Array {
+    name: String,
+    sample: Sample,
+    components: usize,
+    format: String,
+    offset: Option<u64>,
+    text: String,
+}
+
+fn sample_type(name: &str) -> Option<Sample> {
+    Some(match name {
+        "Int8" => Sample::I8,
+        "UInt8" => Sample::U8,
+        "Int16" => Sample::I16,
+        "UInt16" => Sample::U16,
+        "Int32" => Sample::I32,
+        "UInt32" => Sample::U32,
+        "Int64" => Sample::I64,
+        "UInt64" => Sample::U64,
+        "Float32" => Sample::F32,
+        "Float64" => Sample::F64,
+        _ => return None,
+    })
+}
+
+fn attr(e: &BytesStart, key: &str) -> Option<String> {
+    e.attributes()
+        .flatten()
+        .find(|a| a.key.as_ref() == key.as_bytes())
+        .and_then(|a| a.unescape_value().ok().map(|v| v.into_owned()))
+}
+
+fn numbers(path: &Path, what: &str, text: &str, n: usize) -> Result<Vec<f64>, ReadError> {
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|_| ReadError::invalid(path, format!("{what} {text:?} is not numbers")))?;
+    if v.len() != n {
+        return Err(ReadError::invalid(
+            path,
+            format!("{what} {text:?} needs {n} numbers"),
+        ));
+    }
+    Ok(v)
+}
+
+/// Opens a `.vti` file, choosing `options.field`.
+///
+/// # Errors
+/// [`ReadError`] naming the file: not ImageData, malformed XML, a missing attribute, a
+/// rotated grid, several pieces, an unknown type or compressor, no array of that name.
+pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
+    let bad = |m: String| ReadError::invalid(path, m);
+    // The XML ends where appended raw data begins (which is not XML).
+    let appended = find(&bytes, b"<AppendedData");
+    let xml = &bytes[..appended.unwrap_or(bytes.len())];
+    let mut reader = quick_xml::Reader::from_reader(xml);
+    let mut buf = Vec::new();
+    let (mut endian, mut wide_header, mut zlib) = (Endian::Little, false, false);
+    let (mut extent, mut origin, mut spacing) = (None, Vec3::ZERO, Vec3::ONE);
+    let (mut in_points, mut pieces, mut active) = (false, 0, None);
+    let mut arrays: Vec<Array> = Vec::new();
+    let mut open_array: Option<Array> = None;
+    loop {
+        let event = match reader.read_event_into(&mut buf) {
+            Ok(e) => e,
+            // The header cut at <AppendedData may leave the document unfinished.
+            Err(_) if appended.is_some() => break,
+            Err(e) => return Err(bad(format!("XML: {e}"))),
+        };
+        match &event {
+            Event::Start(e) | Event::Empty(e) => match e.name().as_ref() {
+                b"VTKFile" => {
+                    let kind = attr(e, "type").unwrap_or_default();
+                    if kind != "ImageData" {
+                        return Err(bad(format!("a VTK {kind:?} file: only ImageData is read")));
+                    }
+                    endian = match attr(e, "byte_order").as_deref() {
+                        Some("BigEndian") => Endian::Big,
+                        _ => Endian::Little,
+                    };
+                    wide_header = attr(e, "header_type").as_deref() == Some("UInt64");
+                    zlib = match attr(e, "compressor").as_deref() {
+                        None | Some("") => false,
+                        Some("vtkZLibDataCompressor") => true,
+                        Some(other) => {
+                            return Err(bad(format!("compressor {other}: only zlib is read")))
+                        }
+                    };
+                }
+                b"ImageData" => {
+                    let ext = attr(e, "WholeExtent")
+                        .ok_or_else(|| bad("ImageData has no WholeExtent".into()))?;
+                    extent = Some(numbers(path, "WholeExtent", &ext, 6)?);
+                    if let Some(o) = attr(e, "Origin") {
+                        let v = numbers(path, "Origin", &o, 3)?;
+                        origin = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
+                    }
+                    if let Some(s) = attr(e, "Spacing") {
+                        let v = numbers(path, "Spacing", &s, 3)?;
+                        spacing = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
+                    }
+                    if let Some(d) = attr(e, "Direction") {
+                        let v = numbers(path, "Direction", &d, 9)?;
+                        if v != [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] {
+                            return Err(bad(format!(
+                                "Direction {d:?}: only axis-aligned grids (the identity) are read"
+                            )));
+                        }
+                    }
+                }
+                b"Piece" => {
+                    pieces += 1;
+                    if pieces > 1 {
+                        return Err(bad("several pieces: only one-piece files are read".into()));
+                    }
+                    if let (Some(p), Some(w)) = (attr(e, "Extent"), &extent) {
+                        if numbers(path, "Extent", &p, 6)? != *w {
+                            return Err(bad(format!("piece extent {p:?} is not the whole extent")));
+                        }
+                    }
+                }
+                b"PointData" => {
+                    in_points = matches!(event, Event::Start(_));
+                    active = attr(e, "Scalars");
+                }
+                b"DataArray" if in_points => {
+                    let name = attr(e, "Name").unwrap_or_default();
+                    let t = attr(e, "type").unwrap_or_default();
+                    let sample = sample_type(&t)
+                        .ok_or_else(|| bad(format!("array {name}: unknown type {t:?}")))?;
+                    let a = Array {
+                        name,
+                        sample,
+                        components: attr(e, "NumberOfComponents")
+                            .and_then(|c| c.parse().ok())
+                            .unwrap_or(1),
+                        format: attr(e, "format").unwrap_or_else(|| "ascii".into()),
+                        offset: attr(e, "offset").and_then(|o| o.parse().ok()),
+                        text: String::new(),
+                    };
+                    if matches!(event, Event::Start(_)) {
+                        open_array = Some(a);
+                    } else {
+                        arrays.push(a);
+                    }
+                }
+                _ => {}
+            },
+            Event::Text(t) => {
+                if let Some(a) = open_array.as_mut() {
+                    a.text.push_str(&String::from_utf8_lossy(t.as_ref()));
+                }
+            }
+            Event::End(e) => match e.name().as_ref() {
+                b"DataArray" => arrays.extend(open_array.take()),
+                b"PointData" => in_points = false,
+                _ => {}
+            },
+            Event::Eof => break,
+            _ => {}
+        }
+        buf.clear();
+    }
+    let extent = extent.ok_or_else(|| bad("no ImageData element".into()))?;
+    let mut dims = [0usize; 3];
+    for a in 0..3 {
+        let n = extent[2 * a + 1] - extent[2 * a] + 1.0;
+        if !((1.0..1e9).contains(&n) && n.fract() == 0.0) {
+            return Err(bad(format!("WholeExtent {extent:?} is not a grid")));
+        }
+        dims[a] = n as usize;
+    }
+    // VTK places the sample (i, j, k) of the extent at origin + (i, j, k) · spacing.
+    let origin = origin + Vec3::new(extent[0] as f32, extent[2] as f32, extent[4] as f32) * spacing;
+    check_grid(path, dims, spacing, origin)?;
+    let names: Vec<String> = arrays.iter().map(|a| a.name.clone()).collect();
+    let wanted = options.field.clone().or(active);
+    let chosen = match &wanted {
+        Some(f) => arrays.iter().position(|a| &a.name == f),
+        None => (!arrays.is_empty()).then_some(0),
+    }
+    .ok_or_else(|| match &wanted {
+        Some(f) => bad(format!(
+            "no point-data array {f:?}; arrays here: {}",
+            names.join(", ")
+        )),
+        None => bad("no point-data array".into()),
+    })?;
+    let a = arrays.swap_remove(chosen);
+    if a.components != 1 {
+        return Err(bad(format!(
+            "array {} has {} components: one is read",
+            a.name, a.components
+        )));
+    }
+    let data = match a.format.as_str() {
+        "ascii" => ArrayData::Ascii(a.text),
+        "binary" => ArrayData::Base64(a.text),
+        "appended" => {
+            let at = appended.ok_or_else(|| {
+                bad(format!(
+                    "array {} is appended, but there is no AppendedData",
+                    a.name
+                ))
+            })?;
+            let head = &bytes[at..];
+            let tag_end =
+                find(head, b">").ok_or_else(|| bad("AppendedData is not closed".into()))?;
+            let tag = String::from_utf8_lossy(&head[..tag_end]);
+            let underscore = find(&head[tag_end..], b"_")
+                .ok_or_else(|| bad("AppendedData has no '_' mark".into()))?;
+            let start = (at + tag_end + underscore + 1) as u64;
+            let offset = a
+                .offset
+                .ok_or_else(|| bad(format!("array {} has no offset", a.name)))?;
+            if tag.contains("encoding=\"base64\"") {
+                let from = usize::try_from(start + offset)
+                    .unwrap_or(usize::MAX)
+                    .min(bytes.len());
+                let text: String = bytes[from..]
+                    .iter()
+                    .take_while(|&&b| b != b'<')
+                    .map(|&b| b as char)
+                    .collect();
+                ArrayData::Base64(text)
+            } else {
+                ArrayData::Raw(start + offset)
+            }
+        }
+        other => return Err(bad(format!("array {}: format {other:?}", a.name))),
+    };
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims,
+        steps: 1,
+        spacing,
+        origin,
+        field: a.name,
+        fields: names,
+        notes: Vec::new(),
+        source: Source::Vti(Vti {
+            sample: a.sample,
+            endian,
+            wide_header,
+            zlib,
+            data,
+        }),
+    })
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+impl Vti {
+    fn word(&self) -> usize {
+        if self.wide_header {
+            8
+        } else {
+            4
+        }
+    }
+
+    fn words(&self, bytes: &[u8]) -> Vec<u64> {
+        bytes
+            .chunks_exact(self.word())
+            .map(|c| {
+                let mut b = [0u8; 8];
+                b[..c.len()].copy_from_slice(c);
+                if self.endian == Endian::Big {
+                    b[..c.len()].reverse();
+                }
+                u64::from_le_bytes(b)
+            })
+            .collect()
+    }
+
+    pub(crate) fn read(
+        &self,
+        path: &Path,
+        dims: [usize; 3],
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let n = samples(path, &dims)?;
+        let want = n
+            .checked_mul(self.sample.size())
+            .ok_or_else(|| ReadError::invalid(path, "array size overflows"))?;
+        let bytes = match &self.data {
+            ArrayData::Ascii(text) => {
+                let v: Vec<f32> = text
+                    .split_whitespace()
+                    .map(|s| s.parse::<f64>().map(|v| v as f32))
+                    .collect::<Result<_, _>>()
+                    .map_err(|_| {
+                        ReadError::invalid(path, "an ascii array holds something not a number")
+                    })?;
+                if v.len() != n {
+                    return Err(ReadError::invalid(
+                        path,
+                        format!("{} ascii values where {dims:?} needs {n}", v.len()),
+                    ));
+                }
+                return Volume::new(dims, spacing, v)
+                    .map_err(|e| ReadError::invalid(path, e.to_string()));
+            }
+            ArrayData::Base64(text) => self.decode_base64(path, text, want)?,
+            ArrayData::Raw(at) => {
+                let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+                std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(*at))
+                    .map_err(ReadError::io(path))?;
+                let mut block = Vec::new();
+                f.take(u64::MAX)
+                    .read_to_end(&mut block)
+                    .map_err(ReadError::io(path))?;
+                self.block(path, &block, want)?
+            }
+        };
+        crate::bytes::volume(path, &bytes, dims, spacing, self.sample, self.endian)
+    }
+
+    /// The samples of a block starting at `bytes[0]` (the rest of the file may follow).
+    fn block(&self, path: &Path, bytes: &[u8], want: usize) -> Result<Vec<u8>, ReadError> {
+        let w = self.word();
+        let short = |what: &str| ReadError::invalid(path, format!("truncated: the array's {what}"));
+        if !self.zlib {
+            let len = self.words(bytes.get(..w).ok_or_else(|| short("byte count"))?)[0];
+            if len != want as u64 {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("the array holds {len} bytes where the extent needs {want}"),
+                ));
+            }
+            return bytes
+                .get(w..w + want)
+                .map(<[u8]>::to_vec)
+                .ok_or_else(|| short("samples"));
+        }
+        let head = self.words(bytes.get(..3 * w).ok_or_else(|| short("block header"))?);
+        let (blocks, size, last) = (head[0], head[1], head[2]);
+        let blocks = usize::try_from(blocks)
+            .ok()
+            .filter(|&b| b <= want / size.max(1) as usize + 1)
+            .ok_or_else(|| {
+                ReadError::invalid(path, format!("{blocks} compressed blocks for {want} bytes"))
+            })?;
+        let sizes = self.words(
+            bytes
+                .get(3 * w..(3 + blocks) * w)
+                .ok_or_else(|| short("block sizes"))?,
+        );
+        let total = if blocks == 0 {
+            0
+        } else {
+            size * (blocks as u64 - 1) + if last == 0 { size } else { last }
+        };
+        if total != want as u64 {
+            return Err(ReadError::invalid(
+                path,
+                format!("compressed blocks of {total} bytes where the extent needs {want}"),
+            ));
+        }
+        let mut out = Vec::with_capacity(want);
+        let mut at = (3 + blocks) * w;
+        for (k, &c) in sizes.iter().enumerate() {
+            let end = at
+                .checked_add(c as usize)
+                .filter(|&e| e <= bytes.len())
+                .ok_or_else(|| short("compressed blocks"))?;
+            let expect = if k + 1 == blocks && last != 0 {
+                last
+            } else {
+                size
+            };
+            let before = out.len();
+            flate2::read::ZlibDecoder::new(&bytes[at..end])
+                .take(expect + 1)
+                .read_to_end(&mut out)
+                .map_err(|e| ReadError::invalid(path, format!("zlib block {k}: {e}")))?;
+            if (out.len() - before) as u64 != expect {
+                return Err(ReadError::invalid(
+                    path,
+                    format!(
+                        "zlib block {k} holds {} bytes, not {expect}",
+                        out.len() - before
+                    ),
+                ));
+            }
+            at = end;
+        }
+        Ok(out)
+    }
+
+    /// The samples of a base64 block: header and data encoded as one stream, or (as VTK does
+    /// for compressed arrays) the header and then the data each on its own.
+    fn decode_base64(&self, path: &Path, text: &str, want: usize) -> Result<Vec<u8>, ReadError> {
+        let clean: String = text.chars().filter(|c| !c.is_ascii_whitespace()).collect();
+        let b64 = base64::engine::general_purpose::STANDARD;
+        let bad = |e: base64::DecodeError| ReadError::invalid(path, format!("base64: {e}"));
+        if let Ok(all) = b64.decode(&clean) {
+            if let Ok(v) = self.block(path, &all, want) {
+                return Ok(v);
+            }
+        }
+        let w = self.word();
+        let header_words = if self.zlib {
+            let first = b64
+                .decode(clean.get(..4 * w).unwrap_or_default())
+                .map_err(bad)?;
+            3 + usize::try_from(self.words(&first)[0])
+                .unwrap_or(usize::MAX)
+                .min(1 << 24)
+        } else {
+            1
+        };
+        let chars = (header_words * w).div_ceil(3) * 4;
+        let head = b64
+            .decode(clean.get(..chars).unwrap_or_default())
+            .map_err(bad)?;
+        let data = b64
+            .decode(clean.get(chars..).unwrap_or_default())
+            .map_err(bad)?;
+        let mut joined = head;
+        joined.extend_from_slice(&data);
+        self.block(path, &joined, want)
+    }
+}
