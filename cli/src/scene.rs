@@ -13,10 +13,20 @@ pub const DEFAULT_SOURCE: &str = "gray-scott:64:1000";
 /// Where the data comes from and how it is classified and sampled.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Volume: a raw file `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`, or `gray-scott:N[:STEPS]`
-    /// (the built-in simulation). Default: the built-in Gray–Scott run.
+    /// Volume: a file (`.vti`, `.vtk`, `.nrrd`/`.nhdr`, `.nc`, or raw
+    /// `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`; docs/data.md), or `gray-scott:N[:STEPS]` (the
+    /// built-in simulation). Default: the built-in Gray–Scott run.
     #[arg(long)]
     pub volume: Option<String>,
+    /// The field to render from a file with several (a VTK array, a NetCDF variable).
+    /// Default: the file's active scalars, else its first.
+    #[arg(long, visible_alias = "var")]
+    pub field: Option<String>,
+    /// How an uneven NetCDF axis (an ocean model's depth levels) is taken: `resample` (to an
+    /// even grid at its smallest gap, linearly; said on stderr) or `index` (its levels one unit
+    /// apart, as a raw file would hold them).
+    #[arg(long, value_enum, default_value_t = UnevenAxis::Resample)]
+    pub uneven: UnevenAxis,
     /// Dimensions `XxYxZ[xT]` when the file name does not carry them.
     #[arg(long)]
     pub dims: Option<String>,
@@ -26,9 +36,9 @@ pub struct SceneArgs {
     /// Time step of a 4-D file (its index along T, from 0).
     #[arg(long = "time-step", default_value_t = 0)]
     pub t: usize,
-    /// Voxel spacing `sx,sy,sz` in world units.
-    #[arg(long, default_value = "1,1,1")]
-    pub spacing: String,
+    /// Voxel spacing `sx,sy,sz` in world units (default: the file's; 1,1,1 for raw files).
+    #[arg(long)]
+    pub spacing: Option<String>,
     /// Transfer function JSON (docs/conventions.md format). Default: a ramp over the data range.
     #[arg(long)]
     pub tf: Option<PathBuf>,
@@ -64,12 +74,17 @@ impl SceneArgs {
     /// Loads the volume and TF and checks the parameters.
     pub fn load(&self) -> Result<Scene> {
         let source = self.volume.as_deref().unwrap_or(DEFAULT_SOURCE);
+        let is_raw = std::path::Path::new(source)
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
         let volume = if source.starts_with("gray-scott") {
-            self.refuse_raw_flags(source)?;
+            self.refuse_raw_flags(source, "the built-in simulation on its own unit grid")?;
             tracing::info!(source, "running the built-in Gray-Scott simulation");
             GrayScott::from_spec(source)?.v_volume()
-        } else {
+        } else if is_raw {
             self.load_raw(source)?
+        } else {
+            self.load_file(source)?
         };
         warn_if_flat(source, &volume);
         let tf_name;
@@ -104,31 +119,51 @@ impl SceneArgs {
         })
     }
 
-    /// The flags that describe a raw file, refused for the built-in simulation (which runs on
-    /// a unit grid of its own) rather than silently ignored.
-    fn refuse_raw_flags(&self, source: &str) -> Result<()> {
+    /// The flags that describe a raw file, refused for a source that says all of it itself
+    /// (`what` it is) rather than silently ignored.
+    fn refuse_raw_flags(&self, source: &str, what: &str) -> Result<()> {
+        let builtin = source.starts_with("gray-scott");
         let given = [
             ("--dims", self.dims.is_some()),
             ("--type", self.scalar_type.is_some()),
-            ("--time-step", self.t != 0),
-            (
-                "--spacing",
-                parse_spacing(&self.spacing)? != glam::Vec3::ONE,
-            ),
+            ("--time-step", builtin && self.t != 0),
+            ("--spacing", builtin && self.spacing.is_some()),
+            ("--field", builtin && self.field.is_some()),
         ];
         let given: Vec<&str> = given.iter().filter(|g| g.1).map(|g| g.0).collect();
         if !given.is_empty() {
             bail!(
-                "{} describe a raw file; {source} is the built-in simulation on its own unit grid",
+                "{} describe a raw file; {source} is {what}",
                 given.join(", ")
             );
         }
         Ok(())
     }
 
+    /// A file in one of the formats `insitu-readers` takes: step `--time-step`, the file's
+    /// origin and spacing (`--spacing` overrides the spacing); what the reader did to fit the
+    /// grid is said on stderr.
+    fn load_file(&self, source: &str) -> Result<Volume> {
+        self.refuse_raw_flags(source, "a file that gives its own dims and type")?;
+        let data = open_dataset(
+            std::path::Path::new(source),
+            self.field.as_deref(),
+            self.uneven,
+        )?;
+        let mut volume = data.read_step(self.t)?;
+        if let Some(s) = &self.spacing {
+            let (origin, spacing) = (volume.origin(), parse_spacing(s)?);
+            let dims = volume.dims();
+            volume = Volume::new(dims, spacing, volume.data().into_owned())
+                .and_then(|v| v.with_origin(origin))
+                .with_context(|| format!("--spacing {s}"))?;
+        }
+        Ok(volume)
+    }
+
     fn load_raw(&self, source: &str) -> Result<Volume> {
         let path = PathBuf::from(source);
-        let spacing = parse_spacing(&self.spacing)?;
+        let spacing = parse_spacing(self.spacing.as_deref().unwrap_or("1,1,1"))?;
         let from_name = || RawFormat::from_file_name(&path);
         let format = match (&self.dims, &self.scalar_type) {
             (None, None) => from_name()?,
@@ -187,6 +222,46 @@ fn parse_dims(s: &str) -> Result<([usize; 3], usize)> {
         [x, y, z, t] => Ok(([*x, *y, *z], *t)),
         _ => bail!("--dims {s:?} is not XxYxZ[xT]"),
     }
+}
+
+/// How an uneven axis of a NetCDF file is taken (`--uneven`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum UnevenAxis {
+    /// Resampled to an even grid at its smallest gap, linearly.
+    Resample,
+    /// Its levels taken one unit apart.
+    Index,
+}
+
+/// Opens `path` with the reader its extension names (`field` chosen, an uneven NetCDF axis
+/// taken as `uneven` says) and says on stderr what the reader did to fit the grid.
+///
+/// # Errors
+/// What the reader finds wrong, naming the file.
+pub fn open_dataset(
+    path: &std::path::Path,
+    field: Option<&str>,
+    uneven: UnevenAxis,
+) -> Result<insitu_readers::Dataset> {
+    let options = insitu_readers::Options {
+        field: field.map(str::to_owned),
+    };
+    let is_nc = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("nc"));
+    let data = if is_nc {
+        let uneven = match uneven {
+            UnevenAxis::Resample => insitu_readers::netcdf3::Uneven::Resample,
+            UnevenAxis::Index => insitu_readers::netcdf3::Uneven::Index,
+        };
+        insitu_readers::netcdf3::open_with(path, &options, uneven)?
+    } else {
+        insitu_readers::open(path, &options)?
+    };
+    for note in &data.notes {
+        eprintln!("note: {}: {note}", path.display());
+    }
+    Ok(data)
 }
 
 fn parse_spacing(s: &str) -> Result<glam::Vec3> {

@@ -1160,3 +1160,74 @@ fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
         stderr(&o)
     );
 }
+
+/// The same field as a raw file, an NRRD and a legacy VTK file (the VTK one moved by its
+/// origin, which the camera follows) renders the same image; a wrong field or a raw-only flag
+/// is refused by name.
+#[test]
+fn every_format_renders_the_field_it_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 12usize;
+    let v: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, i / n % n, i / (n * n));
+            let d = [x, y, z].map(|c| c as f32 - 5.5);
+            (5.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()).max(0.0)
+        })
+        .collect();
+    let le: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("ball_12x12x12_float32.raw"), &le).unwrap();
+    let mut nrrd =
+        b"NRRD0004\ntype: float\ndimension: 3\nsizes: 12 12 12\nendian: little\nencoding: raw\n\n"
+            .to_vec();
+    nrrd.extend_from_slice(&le);
+    std::fs::write(dir.path().join("ball.nrrd"), &nrrd).unwrap();
+    let mut vtk = b"# vtk DataFile Version 3.0\nball\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS 12 12 12\nORIGIN 100 -50 7\nSPACING 1 1 1\nPOINT_DATA 1728\nSCALARS rho float\nLOOKUP_TABLE default\n".to_vec();
+    vtk.extend(v.iter().flat_map(|x| x.to_be_bytes()));
+    std::fs::write(dir.path().join("ball.vtk"), &vtk).unwrap();
+    let render = |volume: &str| {
+        let args = [
+            "render",
+            "--volume",
+            volume,
+            "--size",
+            "48",
+            "--angle",
+            "30",
+            "--backend",
+            "cpu",
+        ];
+        written(dir.path(), &args, &[], &format!("{volume}.png")).0
+    };
+    let raw = render("ball_12x12x12_float32.raw");
+    assert_eq!(render("ball.nrrd"), raw, "NRRD");
+    assert_eq!(render("ball.vtk"), raw, "legacy VTK");
+    assert_fails(
+        &[
+            "render", "--volume", "ball.vtk", "--field", "p", "--size", "8",
+        ],
+        dir.path(),
+        "no array \"p\"; arrays here: rho",
+        "x.png",
+    );
+    assert_fails(
+        &[
+            "render",
+            "--volume",
+            "ball.nrrd",
+            "--dims",
+            "12x12x12",
+            "--size",
+            "8",
+        ],
+        dir.path(),
+        "--dims describe a raw file",
+        "x.png",
+    );
+    assert_fails(
+        &["render", "--volume", "ball.h5", "--size", "8"],
+        dir.path(),
+        "unknown volume format",
+        "x.png",
+    );
+}

@@ -1,4 +1,5 @@
-//! `insitu replay`: feeds a recorded time series (a 4-D raw file) through the simulation
+//! `insitu replay`: feeds a recorded time series (a NetCDF variable over time, a 4-D raw file,
+//! or one volume of any format `insitu-readers` takes) through the simulation
 //! client, as a simulation would, optionally split into a grid of bricks over several ranks. Without
 //! `--generator` it starts a generator-node and a viz-node in this process (like the demo);
 //! with it, it pushes to a running generator-node and sets its config first.
@@ -8,7 +9,6 @@ use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
-use insitu_core::volume::RawFormat;
 use insitu_core::{TransferFunction, Volume};
 use insitu_proto::auth::Token;
 use insitu_proto::convert::codec_to_pb;
@@ -18,9 +18,17 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The series: `<name>_<X>x<Y>x<Z>x<T>_<type>.raw`.
+    /// The series: a NetCDF file whose variable has a time dimension (`--var`), a raw file
+    /// `<name>_<X>x<Y>x<Z>x<T>_<type>.raw`, or any volume file (`.vti`, `.vtk`, `.nrrd`: one
+    /// step); docs/data.md.
     #[arg(long)]
     series: PathBuf,
+    /// The variable or array to push (default: the file's first volume).
+    #[arg(long, visible_alias = "var")]
+    field: Option<String>,
+    /// How an uneven NetCDF axis is taken (`resample` or `index`; see `insitu render --help`).
+    #[arg(long, value_enum, default_value_t = crate::scene::UnevenAxis::Resample)]
+    uneven: crate::scene::UnevenAxis,
     /// Transfer function JSON. Default: a ramp over the first step's range (all ranks share it).
     #[arg(long)]
     tf: Option<PathBuf>,
@@ -74,9 +82,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.pipeline.size_max.is_some() && a.generator.is_some() {
         bail!("--size-max is for the local nodes: a running generator-node takes generation.size_max from its config");
     }
-    let format = RawFormat::from_file_name(&a.series)?;
-    let bricks = bricks_for(&a, format.dims)?;
-    tokio::runtime::Runtime::new()?.block_on(replay(a, format, bricks))
+    let data = crate::scene::open_dataset(&a.series, a.field.as_deref(), a.uneven)?;
+    let bricks = bricks_for(&a, data.dims)?;
+    tokio::runtime::Runtime::new()?.block_on(replay(a, data, bricks))
 }
 
 fn parse_split(s: &str) -> Result<[usize; 3], String> {
@@ -135,9 +143,9 @@ fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> R
     })
 }
 
-async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
+async fn replay(a: Args, data: insitu_readers::Dataset, bricks: Vec<Brick>) -> Result<()> {
     let started = Instant::now();
-    let first = format.load(&a.series, 0, glam::Vec3::ONE)?;
+    let first = data.read_step(0)?;
     let config = scene_config(&a, &first)?;
     let local = match &a.generator {
         Some(_) => None,
@@ -161,8 +169,8 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
     let line = format!(
         "replay: {} ({} steps, {:?}), {} rank(s), pushing to {addr}{}",
         a.series.display(),
-        format.steps,
-        format.dims,
+        data.steps,
+        data.dims,
         world_size,
         local
             .as_ref()
@@ -178,7 +186,7 @@ async fn replay(a: Args, format: RawFormat, bricks: Vec<Brick>) -> Result<()> {
     } else {
         println!("{line}");
     }
-    let pushed = push_series(&a, &format, &bricks, first, &mut client, local.is_none()).await?;
+    let pushed = push_series(&a, &data, &bricks, first, &mut client, local.is_none()).await?;
     let status = crate::pipeline::flush_saying_why(client).await?;
     match (local, printer) {
         (Some(nodes), Some(printer)) => nodes.finish(printer, &status, pushed, started).await,
@@ -216,7 +224,7 @@ fn scene_config(a: &Args, first: &Volume) -> Result<pb::GenerationConfig> {
 /// reply. Returns the pushes made.
 async fn push_series(
     a: &Args,
-    format: &RawFormat,
+    data: &insitu_readers::Dataset,
     bricks: &[Brick],
     first: Volume,
     client: &mut SimClient,
@@ -225,7 +233,7 @@ async fn push_series(
     let world_size = bricks.len() as u32;
     let mut pushed = 0;
     let mut next = Instant::now();
-    for t in 0..a.steps.unwrap_or(format.steps).min(format.steps) {
+    for t in 0..a.steps.unwrap_or(data.steps).min(data.steps) {
         if let Some(secs) = a.step_interval {
             tokio::time::sleep_until(next.into()).await;
             next += Duration::from_secs_f64(secs);
@@ -233,7 +241,7 @@ async fn push_series(
         let v = if t == 0 {
             first.clone()
         } else {
-            format.load(&a.series, t, glam::Vec3::ONE)?
+            data.read_step(t)?
         };
         for (rank, b) in bricks.iter().enumerate() {
             let reply = client

@@ -43,9 +43,17 @@ fn load_steps(a: &Args) -> Result<Vec<Scene>> {
         .volume
         .as_deref()
         .context("--volume: give the 4-D series file")?;
-    let steps = RawFormat::from_file_name(Path::new(source))?.steps;
+    let scene = &a.study.scene;
+    let steps = if Path::new(source)
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("raw"))
+    {
+        RawFormat::from_file_name(Path::new(source))?.steps
+    } else {
+        crate::scene::open_dataset(Path::new(source), scene.field.as_deref(), scene.uneven)?.steps
+    };
     if steps < 2 {
-        bail!("--volume {source}: a series needs at least 2 time steps, the name says {steps}");
+        bail!("--volume {source}: a series needs at least 2 time steps, the file holds {steps}");
     }
     let mut scenes = (0..steps)
         .map(|t| {
