@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 secs=${1:-30}
 export RUSTC_BOOTSTRAP=1
-for t in vdi_decode chunk_receive tf_json step_header configs; do
+for t in vdi_decode chunk_receive tf_json step_header configs readers; do
   work=$(mktemp -d)
   log=$(mktemp)
   cp -r "corpus/$t/." "$work/"

@@ -225,7 +225,9 @@ impl LegacyVtk {
         let n = samples(path, &dims)?;
         let rest = bytes.get(self.offset..).unwrap_or_default();
         if self.binary {
-            let len = n * self.sample.size();
+            let len = n
+                .checked_mul(self.sample.size())
+                .ok_or_else(|| ReadError::invalid(path, "array size overflows"))?;
             let body = rest.get(..len).ok_or_else(|| {
                 ReadError::invalid(path, format!("truncated: {len} bytes of samples"))
             })?;
@@ -235,7 +237,8 @@ impl LegacyVtk {
             bytes: rest,
             pos: 0,
         };
-        let mut data = Vec::with_capacity(n);
+        // At most one value per two bytes of text.
+        let mut data = Vec::with_capacity(n.min(rest.len() / 2 + 1));
         for k in 0..n {
             let v = w
                 .next()

@@ -494,7 +494,18 @@ fn read_coords(
     cv: &Var,
     n: usize,
 ) -> Result<Vec<f64>, ReadError> {
-    let mut bytes = vec![0u8; n.saturating_mul(cv.sample.size())];
+    let len = file.metadata().map_err(ReadError::io(path))?.len();
+    let size = n.saturating_mul(cv.sample.size());
+    if cv.begin.saturating_add(size as u64) > len {
+        return Err(ReadError::invalid(
+            path,
+            format!(
+                "truncated: coordinate variable {} needs {size} bytes from offset {}",
+                cv.name, cv.begin
+            ),
+        ));
+    }
+    let mut bytes = vec![0u8; size];
     file.seek(SeekFrom::Start(cv.begin))
         .and_then(|_| file.read_exact(&mut bytes))
         .map_err(|e| ReadError::invalid(path, format!("coordinate variable {}: {e}", cv.name)))?;

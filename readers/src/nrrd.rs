@@ -263,7 +263,8 @@ impl Nrrd {
         }
         let body = &bytes[start..];
         let raw = if self.gzip {
-            let mut out = Vec::with_capacity(want);
+            // Grown as the data decompresses: a header cannot make us allocate what is not there.
+            let mut out = Vec::new();
             flate2::read::MultiGzDecoder::new(body)
                 .take(want as u64 + 1)
                 .read_to_end(&mut out)

@@ -372,8 +372,9 @@ impl Vti {
                     format!("the array holds {len} bytes where the extent needs {want}"),
                 ));
             }
-            return bytes
-                .get(w..w + want)
+            return w
+                .checked_add(want)
+                .and_then(|end| bytes.get(w..end))
                 .map(<[u8]>::to_vec)
                 .ok_or_else(|| short("samples"));
         }
@@ -401,7 +402,7 @@ impl Vti {
                 format!("compressed blocks of {total} bytes where the extent needs {want}"),
             ));
         }
-        let mut out = Vec::with_capacity(want);
+        let mut out = Vec::with_capacity(want.min(bytes.len().saturating_mul(4)));
         let mut at = (3 + blocks) * w;
         for (k, &c) in sizes.iter().enumerate() {
             let end = at

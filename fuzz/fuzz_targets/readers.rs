@@ -1,0 +1,30 @@
+//! Every volume reader on arbitrary bytes: the first byte picks the format (NetCDF, NRRD, VTK
+//! XML, legacy VTK), the rest is the file. Opening and reading the first step give a volume
+//! of the dims the file claims, or an error; never a panic, and never an allocation the file's
+//! bytes do not justify (libFuzzer's malloc limit catches one).
+#![no_main]
+
+use insitu_readers::{open, Options};
+use libfuzzer_sys::fuzz_target;
+
+const FORMATS: [&str; 4] = ["nc", "nrrd", "vti", "vtk"];
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&pick, file)) = data.split_first() else {
+        return;
+    };
+    let ext = FORMATS[usize::from(pick) % FORMATS.len()];
+    let dir = std::env::temp_dir().join(format!("insitu-fuzz-readers-{}", std::process::id()));
+    let _ = std::fs::create_dir_all(&dir);
+    let path = dir.join(format!("input.{ext}"));
+    if std::fs::write(&path, file).is_err() {
+        return;
+    }
+    for field in [None, Some("a".to_owned())] {
+        if let Ok(d) = open(&path, &Options { field }) {
+            if let Ok(v) = d.read_step(0) {
+                assert_eq!(v.dims(), d.dims);
+            }
+        }
+    }
+});
