@@ -142,6 +142,16 @@ pub fn volume(
     }
 }
 
+/// A number written as text, as a sample of type `t` is kept: f32 samples parsed straight to
+/// the nearest f32 (as VTK reads them; through f64 could round twice), others through f64.
+pub fn parse_text(s: &str, t: Sample) -> Option<f32> {
+    if t == Sample::F32 {
+        s.parse::<f32>().ok()
+    } else {
+        s.parse::<f64>().ok().map(|v| v as f32)
+    }
+}
+
 /// `bytes` (samples of `t`) as f64 values, for readers that scale or mask them.
 pub fn values(bytes: &[u8], t: Sample, e: Endian) -> Vec<f64> {
     (0..bytes.len() / t.size())

@@ -169,12 +169,14 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
                 }
             }
             "VECTORS"
+            | "METADATA"
             | "NORMALS"
             | "TENSORS"
             | "COLOR_SCALARS"
             | "TEXTURE_COORDINATES"
             | "FIELD" => {
-                // Arrays this reader does not render: the ones already found stay usable.
+                // Arrays this reader does not render, or (format 5.1) the last array's metadata:
+                // the arrays already found stay usable.
                 break;
             }
             other => return Err(bad(format!("unexpected keyword {other:?}"))),
@@ -242,11 +244,11 @@ impl LegacyVtk {
         for k in 0..n {
             let v = w
                 .next()
-                .and_then(|s| s.parse::<f64>().ok())
+                .and_then(|s| crate::bytes::parse_text(s, self.sample))
                 .ok_or_else(|| {
                     ReadError::invalid(path, format!("value {k} of {n} is missing or not a number"))
                 })?;
-            data.push(v as f32);
+            data.push(v);
         }
         Volume::new(dims, spacing, data).map_err(|e| ReadError::invalid(path, e.to_string()))
     }

@@ -331,9 +331,9 @@ impl Vti {
             ArrayData::Ascii(text) => {
                 let v: Vec<f32> = text
                     .split_whitespace()
-                    .map(|s| s.parse::<f64>().map(|v| v as f32))
+                    .map(|s| crate::bytes::parse_text(s, self.sample).ok_or(()))
                     .collect::<Result<_, _>>()
-                    .map_err(|_| {
+                    .map_err(|()| {
                         ReadError::invalid(path, "an ascii array holds something not a number")
                     })?;
                 if v.len() != n {
@@ -433,37 +433,66 @@ impl Vti {
         Ok(out)
     }
 
-    /// The samples of a base64 block: header and data encoded as one stream, or (as VTK does
-    /// for compressed arrays) the header and then the data each on its own.
+    /// The samples of a base64 block (text that may run on into other arrays' blocks): the
+    /// header and the data encoded as one stream, or (as VTK writes them) each on its own.
     fn decode_base64(&self, path: &Path, text: &str, want: usize) -> Result<Vec<u8>, ReadError> {
         let clean: String = text.chars().filter(|c| !c.is_ascii_whitespace()).collect();
         let b64 = base64::engine::general_purpose::STANDARD;
-        let bad = |e: base64::DecodeError| ReadError::invalid(path, format!("base64: {e}"));
-        if let Ok(all) = b64.decode(&clean) {
-            if let Ok(v) = self.block(path, &all, want) {
-                return Ok(v);
+        let chars = |bytes: usize| bytes.div_ceil(3).saturating_mul(4);
+        let decode = |from: usize, len: usize| -> Option<Vec<u8>> {
+            let end = from.checked_add(len)?;
+            b64.decode(clean.get(from..end)?).ok()
+        };
+        let w = self.word();
+        // The first word says how many bytes (uncompressed) or blocks follow.
+        let first = decode(0, chars(w))
+            .filter(|b| b.len() >= w)
+            .ok_or_else(|| {
+                ReadError::invalid(path, "base64: the array's header does not decode")
+            })?;
+        let count = usize::try_from(self.words(&first[..w])[0]).unwrap_or(usize::MAX);
+        let header = if self.zlib {
+            count.min(want / 2 + 2).saturating_add(3).saturating_mul(w)
+        } else {
+            w
+        };
+        // The data's length, from the header's words.
+        let data_len = |head: &[u8]| -> usize {
+            if self.zlib {
+                self.words(head.get(3 * w..header).unwrap_or_default())
+                    .iter()
+                    .fold(0usize, |s, &c| {
+                        s.saturating_add(usize::try_from(c).unwrap_or(usize::MAX))
+                    })
+            } else {
+                count
+            }
+        };
+        let mut tried = Vec::new();
+        // One stream: the header's words, then the data, without padding between them.
+        if let Some(head) = decode(0, chars(header)).filter(|h| h.len() >= header) {
+            let total = header.saturating_add(data_len(&head));
+            if let Some(all) = decode(0, chars(total)) {
+                match self.block(path, &all, want) {
+                    Ok(v) => return Ok(v),
+                    Err(e) => tried.push(e.to_string()),
+                }
             }
         }
-        let w = self.word();
-        let header_words = if self.zlib {
-            let first = b64
-                .decode(clean.get(..4 * w).unwrap_or_default())
-                .map_err(bad)?;
-            3 + usize::try_from(self.words(&first)[0])
-                .unwrap_or(usize::MAX)
-                .min(1 << 24)
-        } else {
-            1
-        };
-        let chars = (header_words * w).div_ceil(3) * 4;
-        let head = b64
-            .decode(clean.get(..chars).unwrap_or_default())
-            .map_err(bad)?;
-        let data = b64
-            .decode(clean.get(chars..).unwrap_or_default())
-            .map_err(bad)?;
-        let mut joined = head;
-        joined.extend_from_slice(&data);
-        self.block(path, &joined, want)
+        // Apart: the header padded on its own, then the data.
+        if let Some(head) = decode(0, chars(header)) {
+            if let Some(data) = decode(chars(header), chars(data_len(&head))) {
+                let mut joined = head;
+                joined.extend_from_slice(&data);
+                return self.block(path, &joined, want);
+            }
+        }
+        Err(ReadError::invalid(
+            path,
+            format!(
+                "base64 data does not decode as one block {}",
+                tried.join("; ")
+            ),
+        ))
     }
 }

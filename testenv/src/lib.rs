@@ -33,9 +33,17 @@ pub enum Need {
     Mpi,
     /// Debian's `chromium` and `chromedriver`.
     Browser,
+    /// The readers' test files written by the reference libraries (`scripts/write-fixtures.sh`).
+    Fixtures,
 }
 
-const NEEDS: [Need; 4] = [Need::Data, Need::Gpu, Need::Mpi, Need::Browser];
+const NEEDS: [Need; 5] = [
+    Need::Data,
+    Need::Gpu,
+    Need::Mpi,
+    Need::Browser,
+    Need::Fixtures,
+];
 
 impl Need {
     /// The name `INSITU_REQUIRE` uses.
@@ -45,6 +53,7 @@ impl Need {
             Need::Gpu => "gpu",
             Need::Mpi => "mpi",
             Need::Browser => "browser",
+            Need::Fixtures => "fixtures",
         }
     }
 
@@ -55,6 +64,7 @@ impl Need {
             Need::Gpu => "apt-get install mesa-vulkan-drivers",
             Need::Mpi => "apt-get install openmpi-bin libopenmpi-dev",
             Need::Browser => "apt-get install chromium chromium-driver",
+            Need::Fixtures => "scripts/write-fixtures.sh",
         }
     }
 
@@ -182,6 +192,24 @@ fn find(name: &str, dirs: &[PathBuf]) -> Option<PathBuf> {
 /// The first `dir/name` that is a file.
 fn locate(name: &str, dirs: &[PathBuf]) -> Option<PathBuf> {
     dirs.iter().map(|d| d.join(name)).find(|p| p.is_file())
+}
+
+/// The folder of the readers' test files (`$INSITU_FIXTURE_DIR`, else `target/fixtures` in
+/// the repository) when it holds their `manifest.json`, or `None` (the test skips).
+///
+/// # Panics
+/// As [`skip`], when the files are missing and fixtures are required.
+pub fn fixture_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("INSITU_FIXTURE_DIR")
+        .filter(|v| !v.is_empty())
+        .map_or_else(|| repo().join("target/fixtures"), PathBuf::from);
+    if dir.join("manifest.json").is_file() {
+        return Some(dir);
+    }
+    skip(
+        Need::Fixtures,
+        &format!("{} holds no manifest.json", dir.display()),
+    )
 }
 
 /// The program `name` on `PATH`, or `None` (the test skips for `need`).

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Writes the readers' test files with the reference libraries (PyPI vtk, pynrrd, netCDF4) into
+# target/fixtures/ (or $INSITU_FIXTURE_DIR), from scripts/write_fixtures.py. Makes the venv
+# target/fixtures-venv on first use (needs network once). readers/tests/fixtures.rs reads them.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out=${INSITU_FIXTURE_DIR:-target/fixtures}
+venv=target/fixtures-venv
+if [ ! -x "$venv/bin/python" ]; then
+  python3 -m venv "$venv"
+  "$venv/bin/pip" install --quiet numpy vtk pynrrd netCDF4
+fi
+"$venv/bin/python" scripts/write_fixtures.py "$out"

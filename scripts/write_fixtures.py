@@ -1,0 +1,206 @@
+"""Writes the readers' test files with the reference libraries: VTK (vtkXMLImageDataWriter,
+vtkStructuredPointsWriter), pynrrd and netCDF4, from synthetic fields with several arrays, a
+non-zero origin, anisotropic spacing, packed integers, fill values, big-endian and compressed
+variants. Beside each the expected samples as raw files (x fastest, little-endian) and a
+manifest.json that says, for every file, the field, the grid (dims, origin, spacing, steps), the
+bounds VTK's own reader reports where VTK reads the format, and the raw file the samples must
+equal bit for bit. Run by scripts/write-fixtures.sh (which makes the venv).
+
+    python write_fixtures.py OUTDIR
+"""
+
+import json
+import os
+import sys
+
+import numpy as np
+
+DIMS = (12, 10, 8)  # x, y, z
+ORIGIN = (1.5, -2.0, 10.0)
+SPACING = (0.5, 1.0, 2.5)
+STEPS = 3
+
+
+def fields(t=0):
+    """The arrays of step t, each indexed [z, y, x] (C order, x fastest)."""
+    z, y, x = np.meshgrid(*(np.arange(n, dtype=np.float64) for n in DIMS[::-1]), indexing="ij")
+    r = np.sqrt((x - 5.5) ** 2 + (y - 4.5) ** 2 + (z - 3.5) ** 2)
+    rho = np.maximum(0.0, 4.0 + t - r).astype(np.float32)
+    rho[0, 0, :3] = np.float32(np.nan) if t else rho[0, 0, :3]
+    temp = (np.sin(x * 0.3 + t) * np.cos(y * 0.2) * 1e3 + z * 1e-3).astype(np.float64)
+    mask = ((x + y + z + t) % 3 == 0).astype(np.uint8) * 200
+    level = ((x - y) * 300 + z * 7 - 1000 + t).astype(np.int16)
+    return {"rho": rho, "temp": temp, "mask": mask, "level": level}
+
+
+NAMES = {np.float32: "float32", np.float64: "float64", np.uint8: "uint8", np.int16: "int16"}
+
+
+def expect(out, name, arrays):
+    """Writes `arrays` (one per step) as a raw file named with its dims, steps and type (as the
+    raw reader takes it, all as float32 when mixed); returns its name."""
+    a = np.stack(arrays) if len(arrays) > 1 else arrays[0]
+    kind = NAMES[a.dtype.type]
+    steps = f"x{len(arrays)}" if len(arrays) > 1 else ""
+    fname = f"expect_{name}_{DIMS[0]}x{DIMS[1]}x{DIMS[2]}{steps}_{kind}.raw"
+    a.astype(a.dtype.newbyteorder("<")).tofile(os.path.join(out, fname))
+    return fname
+
+
+def as_read(reader, name):
+    """The array `name` as VTK's own reader returns it, indexed [z, y, x]: the source itself
+    for binary files, and for ASCII ones what the text holds (VTK writes about 6 digits)."""
+    from vtk.util import numpy_support
+
+    a = numpy_support.vtk_to_numpy(reader.GetOutput().GetPointData().GetArray(name))
+    return a.reshape(DIMS[::-1])
+
+
+def vtk_files(out, entries):
+    import vtk
+    from vtk.util import numpy_support
+
+    f = fields()
+    image = vtk.vtkImageData()
+    image.SetDimensions(*DIMS)
+    image.SetOrigin(*ORIGIN)
+    image.SetSpacing(*SPACING)
+    for name in ["rho", "temp", "mask", "level"]:
+        arr = numpy_support.numpy_to_vtk(f[name].ravel(), deep=True)
+        arr.SetName(name)
+        image.GetPointData().AddArray(arr)
+    image.GetPointData().SetActiveScalars("rho")
+    variants = {
+        "appended_raw_zlib": dict(mode="appended", encode=False, zlib=True, header=64),
+        "appended_base64": dict(mode="appended", encode=True, zlib=False, header=32),
+        "binary_zlib": dict(mode="binary", zlib=True, header=32),
+        "binary": dict(mode="binary", zlib=False, header=64),
+        "ascii": dict(mode="ascii", zlib=False, header=32),
+        "bigendian": dict(mode="appended", encode=False, zlib=False, header=32, big=True),
+    }
+    for tag, v in variants.items():
+        path = os.path.join(out, f"vti_{tag}.vti")
+        w = vtk.vtkXMLImageDataWriter()
+        w.SetFileName(path)
+        w.SetInputData(image)
+        {"appended": w.SetDataModeToAppended, "binary": w.SetDataModeToBinary,
+         "ascii": w.SetDataModeToAscii}[v["mode"]]()
+        if v["mode"] == "appended":
+            w.SetEncodeAppendedData(1 if v.get("encode") else 0)
+        if v["zlib"]:
+            w.SetCompressorTypeToZLib()
+        else:
+            w.SetCompressorTypeToNone()
+        w.SetHeaderTypeToUInt64() if v["header"] == 64 else w.SetHeaderTypeToUInt32()
+        if v.get("big"):
+            w.SetByteOrderToBigEndian()
+        assert w.Write() == 1, path
+        r = vtk.vtkXMLImageDataReader()
+        r.SetFileName(path)
+        r.Update()
+        bounds = list(r.GetOutput().GetBounds())
+        for name in ["rho", "temp", "mask", "level"]:
+            entries.append(dict(file=os.path.basename(path), field=name, steps=1, bounds=bounds,
+                                expect=expect(out, f"{tag}_{name}", [as_read(r, name)])))
+    for tag, binary in [("ascii", False), ("binary", True)]:
+        path = os.path.join(out, f"legacy_{tag}.vtk")
+        w = vtk.vtkStructuredPointsWriter()
+        w.SetFileName(path)
+        w.SetInputData(image)
+        w.SetFileTypeToBinary() if binary else w.SetFileTypeToASCII()
+        assert w.Write() == 1, path
+        r = vtk.vtkStructuredPointsReader()
+        r.SetFileName(path)
+        r.Update()
+        bounds = list(r.GetOutput().GetBounds())
+        # VTK writes the active scalars as SCALARS (the others as FIELD data).
+        entries.append(dict(file=os.path.basename(path), field="rho", steps=1, bounds=bounds,
+                            expect=expect(out, f"legacy_{tag}_rho", [as_read(r, "rho")])))
+
+
+def nrrd_files(out, entries):
+    import nrrd
+
+    f = fields()
+    header = {
+        "space dimension": 3,
+        "space directions": np.diag(SPACING),
+        "space origin": np.array(ORIGIN),
+    }
+    cases = [
+        ("nrrd_raw.nrrd", "rho", dict(encoding="raw", endian="little"), False),
+        ("nrrd_gzip.nrrd", "level", dict(encoding="gzip", endian="little"), False),
+        ("nrrd_detached_be.nhdr", "temp", dict(encoding="raw", endian="big"), True),
+        ("nrrd_u8.nrrd", "mask", dict(encoding="gzip"), False),
+    ]
+    for name, field, extra, detached in cases:
+        h = dict(header, **extra)
+        data = f[field]
+        if extra.get("endian") == "big":
+            # pynrrd writes the array's own byte order.
+            data = data.astype(data.dtype.newbyteorder(">"))
+        # pynrrd takes Fortran order: the array indexed [x, y, z].
+        nrrd.write(os.path.join(out, name), data.transpose(2, 1, 0), h, index_order="F",
+                   detached_header=detached)
+        entries.append(dict(file=name, field=None, steps=1, bounds=None,
+                            expect=expect(out, field, [f[field]])))
+
+
+def netcdf_files(out, entries):
+    import netCDF4
+
+    steps = [fields(t) for t in range(STEPS)]
+    scale, offset = np.float32(0.05), np.float32(3.0)
+    for fmt, tag in [("NETCDF3_CLASSIC", "classic"), ("NETCDF3_64BIT_OFFSET", "64bit"),
+                     ("NETCDF3_64BIT_DATA", "cdf5")]:
+        name = f"nc_{tag}.nc"
+        ds = netCDF4.Dataset(os.path.join(out, name), "w", format=fmt)
+        ds.createDimension("time", None)
+        for axis, n in zip("zyx", DIMS[::-1]):
+            ds.createDimension(axis, n)
+        for a, (axis, n) in enumerate(zip("xyz", DIMS)):
+            c = ds.createVariable(axis, "f8", (axis,))
+            c.units = "m"
+            c[:] = ORIGIN[a] + SPACING[a] * np.arange(n)
+        ds.createVariable("time", "f8", ("time",))[:] = np.arange(STEPS) * 10.0
+        ds.createVariable("surface", "f4", ("y", "x"))[:] = np.zeros(DIMS[1::-1])
+        rho = ds.createVariable("rho", "f4", ("time", "z", "y", "x"), fill_value=np.float32(-9e33))
+        level = ds.createVariable("level", "i2", ("time", "z", "y", "x"), fill_value=np.int16(-32767))
+        level.scale_factor, level.add_offset = scale, offset
+        level.set_auto_maskandscale(False)
+        for t, f in enumerate(steps):
+            r = f["rho"].copy()
+            r[np.isnan(r)] = np.float32(-9e33)
+            rho[t] = r
+            packed = f["level"].copy()
+            packed[1, 2, 3] = -32767  # a fill value
+            level[t] = packed
+        ds.close()
+        exp_rho = [f["rho"] for f in steps]
+        exp_level = []
+        for f in steps:
+            p = f["level"].copy()
+            v = (p.astype(np.float64) * np.float64(scale) + np.float64(offset)).astype(np.float32)
+            v[1, 2, 3] = np.float32(np.nan)
+            exp_level.append(v)
+        entries.append(dict(file=name, field="rho", steps=STEPS, bounds=None,
+                            expect=expect(out, f"{tag}_rho", exp_rho)))
+        entries.append(dict(file=name, field="level", steps=STEPS, bounds=None,
+                            expect=expect(out, f"{tag}_level", exp_level)))
+
+
+def main():
+    out = sys.argv[1]
+    os.makedirs(out, exist_ok=True)
+    entries = []
+    vtk_files(out, entries)
+    nrrd_files(out, entries)
+    netcdf_files(out, entries)
+    grid = dict(dims=list(DIMS), origin=list(ORIGIN), spacing=list(SPACING))
+    with open(os.path.join(out, "manifest.json"), "w") as fh:
+        json.dump(dict(grid=grid, files=entries), fh, indent=1)
+    print(f"wrote {len(entries)} fixture entries to {out}")
+
+
+if __name__ == "__main__":
+    main()
