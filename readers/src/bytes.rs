@@ -3,7 +3,9 @@
 
 use crate::ReadError;
 use glam::Vec3;
+use insitu_core::volume::{FieldAssembler, ScalarType};
 use insitu_core::Volume;
+use std::io::Read;
 use std::path::Path;
 
 /// A sample type as files store it.
@@ -74,6 +76,141 @@ fn value(bytes: &[u8], i: usize, t: Sample, e: Endian) -> f64 {
     }
 }
 
+/// Bytes read from a file per piece while streaming samples into a volume.
+pub const PIECE: usize = 4 << 20;
+
+/// Samples streamed into a volume piece by piece: big-endian ones swapped, the types the core
+/// does not keep (i8, 32- and 64-bit integers) converted to f32, f64 narrowed to f32. Reading a
+/// field so costs the volume and one piece, not the file's bytes besides.
+pub struct Samples {
+    asm: FieldAssembler,
+    t: Sample,
+    e: Endian,
+    /// The bytes of a sample split between two pieces.
+    carry: Vec<u8>,
+    scratch: Vec<u8>,
+}
+
+impl Samples {
+    /// Room for `n` samples of `t` stored `e` (reserved at once: for data whose length was
+    /// checked against the file, or a bound the file's bytes justify).
+    pub fn new(t: Sample, e: Endian, n: usize) -> Self {
+        let kept = match t {
+            Sample::U8 => ScalarType::U8,
+            Sample::U16 => ScalarType::U16,
+            Sample::I16 => ScalarType::I16,
+            Sample::F64 => ScalarType::F64,
+            _ => ScalarType::F32,
+        };
+        Self {
+            asm: FieldAssembler::new(kept, n),
+            t,
+            e,
+            carry: Vec::new(),
+            scratch: Vec::new(),
+        }
+    }
+
+    /// Whether the pieces pass to the core unchanged (little-endian, a type it takes).
+    fn as_is(&self) -> bool {
+        (self.e == Endian::Little || self.t.size() == 1)
+            && matches!(
+                self.t,
+                Sample::U8 | Sample::U16 | Sample::I16 | Sample::F32 | Sample::F64
+            )
+    }
+
+    /// Appends the next bytes of the field (a piece may split a sample anywhere).
+    pub fn push(&mut self, bytes: &[u8]) {
+        if self.as_is() {
+            self.asm.push(bytes);
+            return;
+        }
+        let size = self.t.size();
+        let mut data = bytes;
+        if !self.carry.is_empty() {
+            let need = size - self.carry.len();
+            let take = need.min(data.len());
+            self.carry.extend_from_slice(&data[..take]);
+            data = &data[take..];
+            if self.carry.len() < size {
+                return;
+            }
+            let sample = std::mem::take(&mut self.carry);
+            self.convert(&sample);
+        }
+        let whole = data.len() / size * size;
+        self.convert(&data[..whole]);
+        self.carry.extend_from_slice(&data[whole..]);
+    }
+
+    /// Whole samples, swapped or converted, to the core in its little-endian layout.
+    fn convert(&mut self, whole: &[u8]) {
+        let size = self.t.size();
+        self.scratch.clear();
+        let keeps_type = matches!(
+            self.t,
+            Sample::U16 | Sample::I16 | Sample::F32 | Sample::F64
+        );
+        if keeps_type {
+            // Big-endian samples of a kept type: their bytes reversed.
+            for s in whole.chunks_exact(size) {
+                self.scratch.extend(s.iter().rev());
+            }
+        } else {
+            for k in 0..whole.len() / size {
+                let v = value(whole, k, self.t, self.e) as f32;
+                self.scratch.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        self.asm.push(&self.scratch);
+    }
+
+    /// Reads exactly `len` bytes of samples from `from`, a piece at a time; with `exact`,
+    /// `from` must end there.
+    ///
+    /// # Errors
+    /// [`ReadError::Invalid`] naming `path` when the data ends early.
+    pub fn read_from(
+        &mut self,
+        path: &Path,
+        mut from: impl Read,
+        len: usize,
+        exact: bool,
+    ) -> Result<(), ReadError> {
+        let mut buf = vec![0u8; PIECE.min(len)];
+        let mut left = len;
+        while left > 0 {
+            let n = left.min(buf.len());
+            from.read_exact(&mut buf[..n]).map_err(|e| {
+                ReadError::invalid(path, format!("the data ends {} bytes early: {e}", left))
+            })?;
+            self.push(&buf[..n]);
+            left -= n;
+        }
+        if exact && from.read(&mut [0u8; 1]).is_ok_and(|k| k > 0) {
+            return Err(ReadError::invalid(
+                path,
+                format!("the data holds more than the {len} bytes the header says"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The volume of `dims` at `spacing`.
+    ///
+    /// # Errors
+    /// [`ReadError::Invalid`] naming `path` when the samples pushed are not `dims` of them.
+    pub fn finish(self, path: &Path, dims: [usize; 3], spacing: Vec3) -> Result<Volume, ReadError> {
+        if !self.carry.is_empty() {
+            return Err(ReadError::invalid(path, "the data ends within a sample"));
+        }
+        self.asm
+            .finish(dims, spacing)
+            .map_err(|e| ReadError::invalid(path, e.to_string()))
+    }
+}
+
 /// `bytes` (exactly `dims` samples of `t`, x fastest) as a volume at `spacing`: u8, u16 and
 /// i16 kept in their type, the rest as f32 (f32 bit for bit).
 ///
@@ -99,47 +236,9 @@ pub fn volume(
             ),
         ));
     }
-    let bad = |e: insitu_core::volume::VolumeError| ReadError::invalid(path, e.to_string());
-    let pairs = |k: usize| -> [u8; 2] {
-        let p = [bytes[2 * k], bytes[2 * k + 1]];
-        if e == Endian::Big {
-            [p[1], p[0]]
-        } else {
-            p
-        }
-    };
-    match t {
-        Sample::U8 => Volume::from_u8(dims, spacing, bytes.to_vec()).map_err(bad),
-        Sample::U16 => Volume::from_u16(
-            dims,
-            spacing,
-            (0..n).map(|k| u16::from_le_bytes(pairs(k))).collect(),
-        )
-        .map_err(bad),
-        Sample::I16 => Volume::from_i16(
-            dims,
-            spacing,
-            (0..n).map(|k| i16::from_le_bytes(pairs(k))).collect(),
-        )
-        .map_err(bad),
-        Sample::F32 => {
-            let data = bytes
-                .chunks_exact(4)
-                .map(|c| {
-                    let b = [c[0], c[1], c[2], c[3]];
-                    match e {
-                        Endian::Little => f32::from_le_bytes(b),
-                        Endian::Big => f32::from_be_bytes(b),
-                    }
-                })
-                .collect();
-            Volume::new(dims, spacing, data).map_err(bad)
-        }
-        other => {
-            let data = (0..n).map(|i| value(bytes, i, other, e) as f32).collect();
-            Volume::new(dims, spacing, data).map_err(bad)
-        }
-    }
+    let mut s = Samples::new(t, e, n);
+    s.push(bytes);
+    s.finish(path, dims, spacing)
 }
 
 /// A number written as text, as a sample of type `t` is kept: f32 samples parsed straight to

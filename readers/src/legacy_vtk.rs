@@ -4,7 +4,7 @@
 //! them). `--field` picks an array by name (default: the first). Other datasets, cell data
 //! and vectors are refused, naming what was found.
 
-use crate::bytes::{Endian, Sample};
+use crate::bytes::{Endian, Sample, Samples};
 use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
 use glam::Vec3;
 use insitu_core::Volume;
@@ -223,18 +223,21 @@ impl LegacyVtk {
         dims: [usize; 3],
         spacing: Vec3,
     ) -> Result<Volume, ReadError> {
-        let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
         let n = samples(path, &dims)?;
-        let rest = bytes.get(self.offset..).unwrap_or_default();
         if self.binary {
+            // Streamed from the file (open checked that it holds the array).
             let len = n
                 .checked_mul(self.sample.size())
                 .ok_or_else(|| ReadError::invalid(path, "array size overflows"))?;
-            let body = rest.get(..len).ok_or_else(|| {
-                ReadError::invalid(path, format!("truncated: {len} bytes of samples"))
-            })?;
-            return crate::bytes::volume(path, body, dims, spacing, self.sample, Endian::Big);
+            let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+            std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(self.offset as u64))
+                .map_err(ReadError::io(path))?;
+            let mut s = Samples::new(self.sample, Endian::Big, n);
+            s.read_from(path, f, len, false)?;
+            return s.finish(path, dims, spacing);
         }
+        let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
+        let rest = bytes.get(self.offset..).unwrap_or_default();
         let mut w = Words {
             bytes: rest,
             pos: 0,

@@ -16,7 +16,7 @@
 //! `CDF` version, record count, dimension list, global attributes, variable list (name,
 //! dimension ids, attributes, type, size, begin), then the data.
 
-use crate::bytes::{Cursor, Endian, Sample};
+use crate::bytes::{Cursor, Endian, Sample, Samples};
 use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
 use glam::Vec3;
 use insitu_core::Volume;
@@ -513,6 +513,25 @@ fn read_coords(
 }
 
 impl Variable {
+    /// A stored value as the field holds it: NaN where it means missing (a fill or missing
+    /// value, outside the valid range), else `v · scale + offset`.
+    fn unpack(&self, v: f64) -> f32 {
+        let missing = v.is_nan()
+            || self
+                .missing
+                .iter()
+                .any(|&m| m == v || (self.sample == Sample::F32 && m as f32 == v as f32))
+            || v < self.valid.0
+            || v > self.valid.1;
+        if missing {
+            f32::NAN
+        } else if self.scale == 1.0 && self.offset == 0.0 {
+            v as f32
+        } else {
+            (v * self.scale + self.offset) as f32
+        }
+    }
+
     /// Step `t` as a volume of `dims` (after resampling) at `spacing`.
     pub(crate) fn read_step(
         &self,
@@ -522,11 +541,10 @@ impl Variable {
         spacing: Vec3,
     ) -> Result<Volume, ReadError> {
         let n = samples(path, &self.file_dims)?;
-        let mut bytes = vec![0u8; n * self.sample.size()];
+        let size = self.sample.size();
         let at = self.begin + self.stride * t as u64;
         let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
         file.seek(SeekFrom::Start(at))
-            .and_then(|_| file.read_exact(&mut bytes))
             .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
         let plain = self.scale == 1.0
             && self.offset == 0.0
@@ -534,34 +552,26 @@ impl Variable {
             && self.valid == (f64::NEG_INFINITY, f64::INFINITY)
             && self.resample.iter().all(Option::is_none);
         if plain {
-            return crate::bytes::volume(
-                path,
-                &bytes,
-                self.file_dims,
-                spacing,
-                self.sample,
-                Endian::Big,
+            // Open checked that the file holds every step's bytes.
+            let mut s = Samples::new(self.sample, Endian::Big, n);
+            s.read_from(path, file, n * size, false)?;
+            return s.finish(path, self.file_dims, spacing);
+        }
+        // Unpacked and masked a piece at a time: the f32 field and one piece in memory.
+        let mut data: Vec<f32> = Vec::with_capacity(n);
+        let mut piece = vec![0u8; (crate::bytes::PIECE / size * size).min(n * size)];
+        let mut left = n * size;
+        while left > 0 {
+            let k = left.min(piece.len());
+            file.read_exact(&mut piece[..k])
+                .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
+            left -= k;
+            data.extend(
+                crate::bytes::values(&piece[..k], self.sample, Endian::Big)
+                    .into_iter()
+                    .map(|v| self.unpack(v)),
             );
         }
-        let raw = crate::bytes::values(&bytes, self.sample, Endian::Big);
-        let mut data: Vec<f32> =
-            raw.iter()
-                .map(|&v| {
-                    let missing = v.is_nan()
-                        || self.missing.iter().any(|&m| {
-                            m == v || (self.sample == Sample::F32 && m as f32 == v as f32)
-                        })
-                        || v < self.valid.0
-                        || v > self.valid.1;
-                    if missing {
-                        f32::NAN
-                    } else if self.scale == 1.0 && self.offset == 0.0 {
-                        v as f32
-                    } else {
-                        (v * self.scale + self.offset) as f32
-                    }
-                })
-                .collect();
         let mut cur = self.file_dims;
         for (a, r) in self.resample.iter().enumerate() {
             if let Some(r) = r {

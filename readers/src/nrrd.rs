@@ -4,7 +4,7 @@
 //! `spacings` or axis-aligned `space directions` (anything else — rotated or sheared axes — is
 //! refused, naming the vectors), and `space origin`.
 
-use crate::bytes::{Endian, Sample};
+use crate::bytes::{Endian, Sample, Samples};
 use crate::{check_grid, samples, Dataset, ReadError, Source};
 use glam::Vec3;
 use insitu_core::Volume;
@@ -251,40 +251,44 @@ impl Nrrd {
         let want = samples(path, &dims)?
             .checked_mul(self.sample.size())
             .ok_or_else(|| ReadError::invalid(path, "size overflows"))?;
-        let bytes = std::fs::read(&self.data).map_err(ReadError::io(&self.data))?;
-        let mut start = usize::try_from(self.offset)
-            .unwrap_or(usize::MAX)
-            .min(bytes.len());
+        let io = ReadError::io(&self.data);
+        let file = std::fs::File::open(&self.data).map_err(io)?;
+        let len = file.metadata().map_err(ReadError::io(&self.data))?.len();
+        let mut from = std::io::BufReader::new(file);
+        std::io::Seek::seek(&mut from, std::io::SeekFrom::Start(self.offset.min(len)))
+            .map_err(ReadError::io(&self.data))?;
+        let mut skipped = self.offset.min(len);
         for _ in 0..self.line_skip {
-            start = bytes[start..]
-                .iter()
-                .position(|&b| b == b'\n')
-                .map_or(bytes.len(), |i| start + i + 1);
+            let mut line = Vec::new();
+            skipped += std::io::BufRead::read_until(&mut from, b'\n', &mut line)
+                .map_err(ReadError::io(&self.data))? as u64;
         }
-        let body = &bytes[start..];
-        let raw = if self.gzip {
-            // Grown as the data decompresses: a header cannot make us allocate what is not there.
-            let mut out = Vec::new();
-            flate2::read::MultiGzDecoder::new(body)
-                .take(want as u64 + 1)
-                .read_to_end(&mut out)
-                .map_err(|e| ReadError::invalid(&self.data, format!("gzip data: {e}")))?;
-            out
-        } else {
-            body.get(..want)
-                .map(<[u8]>::to_vec)
-                .unwrap_or_else(|| body.to_vec())
-        };
-        if raw.len() != want {
-            return Err(ReadError::invalid(
+        let n = want / self.sample.size();
+        let short = |have: u64| {
+            ReadError::invalid(
                 &self.data,
                 format!(
-                    "{} bytes of samples where {dims:?} of {} bytes need {want}",
-                    raw.len(),
+                    "{have} bytes of samples where {dims:?} of {} bytes need {want}",
                     self.sample.size()
                 ),
-            ));
-        }
-        crate::bytes::volume(path, &raw, dims, spacing, self.sample, self.endian)
+            )
+        };
+        let s = if self.gzip {
+            // Reserved as the data decompresses (at most 1032:1, deflate's limit): a header
+            // cannot make us allocate what is not there.
+            let bound = (len - skipped).saturating_mul(1032) as usize / self.sample.size();
+            let mut s = Samples::new(self.sample, self.endian, n.min(bound));
+            let gz = flate2::read::MultiGzDecoder::new(from);
+            s.read_from(&self.data, gz, want, true)?;
+            s
+        } else {
+            if len - skipped < want as u64 {
+                return Err(short(len - skipped));
+            }
+            let mut s = Samples::new(self.sample, self.endian, n);
+            s.read_from(&self.data, from, want, false)?;
+            s
+        };
+        s.finish(path, dims, spacing)
     }
 }

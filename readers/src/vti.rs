@@ -8,7 +8,7 @@
 //! A data block is `[byte count][data]`, or compressed `[blocks][block size][last block
 //! size][compressed size per block][blocks…]`, each header word of `header_type`.
 
-use crate::bytes::{Endian, Sample};
+use crate::bytes::{Endian, Sample, Samples};
 use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
 use base64::Engine as _;
 use glam::Vec3;
@@ -90,10 +90,9 @@ fn numbers(path: &Path, what: &str, text: &str, n: usize) -> Result<Vec<f64>, Re
 /// [`ReadError`] naming the file: not ImageData, malformed XML, a missing attribute, a
 /// rotated grid, several pieces, an unknown type or compressor, no array of that name.
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
     let bad = |m: String| ReadError::invalid(path, m);
-    // The XML ends where appended raw data begins (which is not XML).
-    let appended = find(&bytes, b"<AppendedData");
+    // The XML ends where appended raw data begins (which is not XML): only that much is read.
+    let (bytes, appended) = read_to_appended(path)?;
     let xml = &bytes[..appended.unwrap_or(bytes.len())];
     let mut reader = quick_xml::Reader::from_reader(xml);
     let mut buf = Vec::new();
@@ -256,10 +255,11 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
                 .offset
                 .ok_or_else(|| bad(format!("array {} has no offset", a.name)))?;
             if tag.contains("encoding=\"base64\"") {
+                let all = std::fs::read(path).map_err(ReadError::io(path))?;
                 let from = usize::try_from(start + offset)
                     .unwrap_or(usize::MAX)
-                    .min(bytes.len());
-                let text: String = bytes[from..]
+                    .min(all.len());
+                let text: String = all[from..]
                     .iter()
                     .take_while(|&&b| b != b'<')
                     .map(|&b| b as char)
@@ -288,6 +288,32 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
             data,
         }),
     })
+}
+
+/// The file's bytes up to a little past `<AppendedData …>_` (all of it when there is none),
+/// and where `<AppendedData` starts.
+fn read_to_appended(path: &Path) -> Result<(Vec<u8>, Option<usize>), ReadError> {
+    const MARK: &[u8] = b"<AppendedData";
+    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut bytes = Vec::new();
+    let mut chunk = vec![0u8; 1 << 20];
+    let mut at = None;
+    loop {
+        let n = file.read(&mut chunk).map_err(ReadError::io(path))?;
+        let from = bytes.len().saturating_sub(MARK.len());
+        bytes.extend_from_slice(&chunk[..n]);
+        if at.is_none() {
+            at = find(&bytes[from..], MARK).map(|p| from + p);
+        }
+        if let Some(a) = at {
+            if n == 0 || find(&bytes[a..], b"_").is_some() {
+                return Ok((bytes, at));
+            }
+        }
+        if n == 0 {
+            return Ok((bytes, None));
+        }
+    }
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
@@ -346,18 +372,101 @@ impl Vti {
                     .map_err(|e| ReadError::invalid(path, e.to_string()));
             }
             ArrayData::Base64(text) => self.decode_base64(path, text, want)?,
-            ArrayData::Raw(at) => {
-                let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
-                std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(*at))
-                    .map_err(ReadError::io(path))?;
-                let mut block = Vec::new();
-                f.take(u64::MAX)
-                    .read_to_end(&mut block)
-                    .map_err(ReadError::io(path))?;
-                self.block(path, &block, want)?
-            }
+            ArrayData::Raw(at) => return self.read_raw(path, *at, dims, spacing, want),
         };
         crate::bytes::volume(path, &bytes, dims, spacing, self.sample, self.endian)
+    }
+
+    /// An appended raw block at file offset `at`, streamed into the volume: uncompressed
+    /// samples straight from the file, zlib blocks one at a time.
+    fn read_raw(
+        &self,
+        path: &Path,
+        at: u64,
+        dims: [usize; 3],
+        spacing: Vec3,
+        want: usize,
+    ) -> Result<Volume, ReadError> {
+        let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+        let len = f.metadata().map_err(ReadError::io(path))?.len();
+        std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(at.min(len)))
+            .map_err(ReadError::io(path))?;
+        let mut f = std::io::BufReader::new(f);
+        let w = self.word();
+        let short = |what: &str| ReadError::invalid(path, format!("truncated: the array's {what}"));
+        let mut read_words = |k: usize, what: &str| -> Result<Vec<u64>, ReadError> {
+            let mut b = vec![0u8; k.checked_mul(w).ok_or_else(|| short(what))?];
+            f.read_exact(&mut b).map_err(|_| short(what))?;
+            Ok(self.words(&b))
+        };
+        let n = want / self.sample.size();
+        let left = len.saturating_sub(at);
+        if !self.zlib {
+            let count = read_words(1, "byte count")?[0];
+            if count != want as u64 {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("the array holds {count} bytes where the extent needs {want}"),
+                ));
+            }
+            if left < (w + want) as u64 {
+                return Err(short("samples"));
+            }
+            let mut s = Samples::new(self.sample, self.endian, n);
+            s.read_from(path, f, want, false)?;
+            return s.finish(path, dims, spacing);
+        }
+        let head = read_words(3, "block header")?;
+        let (blocks, size, last) = (head[0], head[1], head[2]);
+        let blocks = usize::try_from(blocks)
+            .ok()
+            .filter(|&b| b <= want / size.max(1) as usize + 1 && (b * w) as u64 <= left)
+            .ok_or_else(|| {
+                ReadError::invalid(path, format!("{blocks} compressed blocks for {want} bytes"))
+            })?;
+        let sizes = read_words(blocks, "block sizes")?;
+        let total = if blocks == 0 {
+            0
+        } else {
+            size * (blocks as u64 - 1) + if last == 0 { size } else { last }
+        };
+        if total != want as u64 {
+            return Err(ReadError::invalid(
+                path,
+                format!("compressed blocks of {total} bytes where the extent needs {want}"),
+            ));
+        }
+        let compressed: u64 = sizes.iter().fold(0u64, |a, &c| a.saturating_add(c));
+        if compressed > left {
+            return Err(short("compressed blocks"));
+        }
+        let bound = usize::try_from(compressed.saturating_mul(1032)).unwrap_or(usize::MAX)
+            / self.sample.size();
+        let mut s = Samples::new(self.sample, self.endian, n.min(bound));
+        let (mut packed, mut plain) = (Vec::new(), Vec::new());
+        for (k, &c) in sizes.iter().enumerate() {
+            packed.resize(c as usize, 0);
+            f.read_exact(&mut packed)
+                .map_err(|_| short("compressed blocks"))?;
+            let expect = if k + 1 == blocks && last != 0 {
+                last
+            } else {
+                size
+            };
+            plain.clear();
+            flate2::read::ZlibDecoder::new(&packed[..])
+                .take(expect + 1)
+                .read_to_end(&mut plain)
+                .map_err(|e| ReadError::invalid(path, format!("zlib block {k}: {e}")))?;
+            if plain.len() as u64 != expect {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("zlib block {k} holds {} bytes, not {expect}", plain.len()),
+                ));
+            }
+            s.push(&plain);
+        }
+        s.finish(path, dims, spacing)
     }
 
     /// The samples of a block starting at `bytes[0]` (the rest of the file may follow).
