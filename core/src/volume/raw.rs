@@ -1,7 +1,7 @@
 //! Headerless raw volumes: `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`, little-endian, x fastest,
 //! then y, z and t (docs/data.md).
 
-use super::{Volume, VolumeError};
+use super::{FieldAssembler, Volume, VolumeError};
 use glam::Vec3;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
@@ -93,6 +93,9 @@ impl std::str::FromStr for ScalarType {
         })
     }
 }
+
+/// Bytes read per piece when a raw field is converted as it is read.
+const READ_PIECE: usize = 4 << 20;
 
 /// Layout of a raw file: spatial dims, number of time steps and voxel type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -201,12 +204,25 @@ impl RawFormat {
         let len = usize::try_from(step_bytes).map_err(|_| {
             VolumeError::Invalid(format!("{step_bytes} bytes do not fit in memory"))
         })?;
-        // Room for the byte storage's padding, so a byte volume is read in place.
-        let mut bytes = Vec::with_capacity(len + 4);
-        bytes.resize(len, 0u8);
-        file.read_exact(&mut bytes).map_err(io)?;
-        // u8, u16 and i16 kept in their own type (exact as f32 values), the others as f32.
-        Volume::from_le_bytes(self.dims, spacing, self.scalar, bytes)
+        if self.scalar == ScalarType::U8 {
+            // Room for the byte storage's padding, so a byte volume is read in place.
+            let mut bytes = Vec::with_capacity(len + 4);
+            bytes.resize(len, 0u8);
+            file.read_exact(&mut bytes).map_err(io)?;
+            return Volume::from_le_bytes(self.dims, spacing, self.scalar, bytes);
+        }
+        // u16 and i16 kept in their own type (exact as f32 values), the others as f32: converted
+        // a piece at a time, so reading costs the field and one piece, not the file's bytes too.
+        let mut field = FieldAssembler::new(self.scalar, len / self.scalar.size_bytes());
+        let mut piece = vec![0u8; READ_PIECE.min(len)];
+        let mut left = len;
+        while left > 0 {
+            let n = left.min(piece.len());
+            file.read_exact(&mut piece[..n]).map_err(io)?;
+            field.push(&piece[..n]);
+            left -= n;
+        }
+        field.finish(self.dims, spacing)
     }
 }
 
