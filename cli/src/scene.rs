@@ -74,9 +74,20 @@ impl SceneArgs {
     /// Loads the volume and TF and checks the parameters.
     pub fn load(&self) -> Result<Scene> {
         let source = self.volume.as_deref().unwrap_or(DEFAULT_SOURCE);
-        let is_raw = std::path::Path::new(source)
+        // Raw samples: a `.raw` file, one described by --dims and --type, or one whose name
+        // gives its layout; the formats with a header go to their reader (which names the
+        // formats it knows when the extension is none of them).
+        let path = std::path::Path::new(source);
+        let ext = path
             .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        let has_header = ext != "raw" && insitu_readers::EXTENSIONS.contains(&ext.as_str());
+        let is_raw = !has_header
+            && (ext == "raw"
+                || self.dims.is_some()
+                || self.scalar_type.is_some()
+                || RawFormat::from_file_name(path).is_ok());
         let volume = if source.starts_with("gray-scott") {
             self.refuse_raw_flags(source, "the built-in simulation on its own unit grid")?;
             tracing::info!(source, "running the built-in Gray-Scott simulation");

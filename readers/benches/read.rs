@@ -6,6 +6,8 @@
 //!
 //! `cargo bench -p insitu-readers --bench read`
 
+#![allow(clippy::unwrap_used, clippy::expect_used)] // a bench fails loudly
+
 use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
