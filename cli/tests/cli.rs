@@ -1055,6 +1055,186 @@ fn a_run_too_short_for_a_tuned_p_m_says_so() {
     );
 }
 
+/// Writes a growing ball over 3 steps of 17³ (`ball_17x17x17x3_float32.raw`) in `dir` and
+/// replays it into the recording `dir/rec` as 2 ranks with frames every step (so each step is
+/// composed and scored); returns the replay's arguments.
+fn ball_recording(dir: &Path) -> [&'static str; 11] {
+    let (n, steps) = (17usize, 3usize);
+    let mut bytes = Vec::with_capacity(n * n * n * steps * 4);
+    for t in 0..steps {
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    let d = [x, y, z].map(|c| c as f32 - 8.0);
+                    let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    bytes.extend_from_slice(&(5.0 + t as f32 - r).max(0.0).to_le_bytes());
+                }
+            }
+        }
+    }
+    std::fs::write(dir.join("ball_17x17x17x3_float32.raw"), bytes).unwrap();
+    let replay = [
+        "replay",
+        "--series",
+        "ball_17x17x17x3_float32.raw",
+        "--ranks",
+        "2",
+        "--r",
+        "32",
+        "--no-tune",
+        "--no-http",
+        "--recording",
+        "rec",
+    ];
+    let o = insitu(&replay, dir);
+    assert!(o.status.success(), "{}", stderr(&o));
+    replay
+}
+
+/// A Cinema database of a recording of two ranks: one row per step and view with the step's
+/// P_M and metrics and FILE last; every image is what `insitu view` renders of that step and
+/// view, byte for byte; an independent reader (pandas and Pillow) accepts it; an existing
+/// database is not overwritten.
+#[test]
+fn cinema_export_renders_every_step_at_every_view() {
+    let dir = tempfile::tempdir().unwrap();
+    ball_recording(dir.path());
+    let export = [
+        "export",
+        "--recording",
+        "rec",
+        "--cinema",
+        "run.cdb",
+        "--phi",
+        "0,120,-90",
+        "--theta",
+        "0,30",
+        "--size",
+        "40",
+        "--backend",
+        "cpu",
+    ];
+    let o = insitu(&export, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let db = dir.path().join("run.cdb");
+    let csv = std::fs::read_to_string(db.join("data.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "time,phi,theta,step,pm_version,r,gamma,sigma_bytes,tau_s,q_db,FILE"
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 3 * 3 * 2, "{csv}");
+    for row in &rows {
+        let (phi, theta, step, file) = (row[1], row[2], row[3], row[10]);
+        assert_eq!(row[5], "32", "r");
+        assert!(
+            row[9].parse::<f64>().is_ok_and(|q| q > 10.0),
+            "q {}",
+            row[9]
+        );
+        let out = format!("view_{step}_{phi}_{theta}.png");
+        let args = [
+            "view",
+            "--recording",
+            "rec",
+            "--time-step",
+            step,
+            "--angle",
+            phi,
+            "--elevation",
+            theta,
+            "--size",
+            "40",
+            "--backend",
+            "cpu",
+            "--out",
+            &out,
+        ];
+        let o = insitu(&args, dir.path());
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert_eq!(
+            std::fs::read(db.join(file)).unwrap(),
+            std::fs::read(dir.path().join(&out)).unwrap(),
+            "{file} is not `insitu view` of step {step} at {phi}, {theta}"
+        );
+    }
+    let o = insitu(&export, dir.path());
+    assert!(
+        !o.status.success() && stderr(&o).contains("exists"),
+        "{}",
+        stderr(&o)
+    );
+    if let Some(python) = insitu_testenv::fixture_python() {
+        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/check_cinema.py");
+        let o = Command::new(python)
+            .args([script, db.to_str().unwrap(), "time", "phi", "theta", "q_db"])
+            .output()
+            .unwrap();
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{}{out}", stderr(&o));
+        assert!(out.contains("18 rows") && out.contains("(40, 40)"), "{out}");
+    }
+}
+
+/// A movie of a recording: the frames the orbit asks for, H.264 at the size asked, read back
+/// by ffprobe; without ffmpeg on PATH a clear error and no file.
+#[test]
+fn movie_export_encodes_every_frame_or_says_ffmpeg_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    ball_recording(dir.path());
+    let export = [
+        "export",
+        "--recording",
+        "rec",
+        "--movie",
+        "run.mp4",
+        "--frames-per-step",
+        "5",
+        "--size",
+        "48x32",
+        "--backend",
+        "cpu",
+    ];
+    let o = Command::new(env!("CARGO_BIN_EXE_insitu"))
+        .args(export)
+        .current_dir(dir.path())
+        .env("PATH", dir.path())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("ffmpeg is not installed"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.path().join("run.mp4").exists());
+    let Some(ffprobe) = insitu_testenv::tool("ffprobe", insitu_testenv::Need::Ffmpeg) else {
+        return;
+    };
+    let o = insitu(&export, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let probe = Command::new(ffprobe)
+        .args([
+            "-v",
+            "error",
+            "-count_frames",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+        ])
+        .args([
+            "stream=nb_read_frames,width,height,codec_name",
+            "-of",
+            "csv=p=0",
+        ])
+        .arg(dir.path().join("run.mp4"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&probe.stdout);
+    assert_eq!(text.trim(), "h264,48,32,15", "{text}");
+}
+
 /// The rows of `insitu export --recording rec` as JSON, without what a rebuild cannot know:
 /// τ and the compression time are measurements, not kept in the files (a VDI made again must
 /// have the same bytes).
@@ -1079,36 +1259,7 @@ fn exported_rows(dir: &Path) -> serde_json::Value {
 #[test]
 fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
     let dir = tempfile::tempdir().unwrap();
-    // A growing ball over 3 steps of 17³, pushed as 2 ranks with frames every step.
-    let (n, steps) = (17usize, 3usize);
-    let mut bytes = Vec::with_capacity(n * n * n * steps * 4);
-    for t in 0..steps {
-        for z in 0..n {
-            for y in 0..n {
-                for x in 0..n {
-                    let d = [x, y, z].map(|c| c as f32 - 8.0);
-                    let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                    bytes.extend_from_slice(&(5.0 + t as f32 - r).max(0.0).to_le_bytes());
-                }
-            }
-        }
-    }
-    std::fs::write(dir.path().join("ball_17x17x17x3_float32.raw"), bytes).unwrap();
-    let replay = [
-        "replay",
-        "--series",
-        "ball_17x17x17x3_float32.raw",
-        "--ranks",
-        "2",
-        "--r",
-        "32",
-        "--no-tune",
-        "--no-http",
-        "--recording",
-        "rec",
-    ];
-    let o = insitu(&replay, dir.path());
-    assert!(o.status.success(), "{}", stderr(&o));
+    let replay = ball_recording(dir.path());
     let before = exported_rows(dir.path());
     assert_eq!(before["entries"].as_array().unwrap().len(), 6, "{before}");
     assert_eq!(before["steps"].as_array().unwrap().len(), 3, "{before}");

@@ -33,16 +33,20 @@ pub enum Need {
     Mpi,
     /// Debian's `chromium` and `chromedriver`.
     Browser,
-    /// The readers' test files written by the reference libraries (`scripts/write-fixtures.sh`).
+    /// The readers' test files written by the reference libraries, and their venv
+    /// (`scripts/write-fixtures.sh`).
     Fixtures,
+    /// Debian's `ffmpeg` (with `ffprobe`).
+    Ffmpeg,
 }
 
-const NEEDS: [Need; 5] = [
+const NEEDS: [Need; 6] = [
     Need::Data,
     Need::Gpu,
     Need::Mpi,
     Need::Browser,
     Need::Fixtures,
+    Need::Ffmpeg,
 ];
 
 impl Need {
@@ -54,6 +58,7 @@ impl Need {
             Need::Mpi => "mpi",
             Need::Browser => "browser",
             Need::Fixtures => "fixtures",
+            Need::Ffmpeg => "ffmpeg",
         }
     }
 
@@ -65,6 +70,7 @@ impl Need {
             Need::Mpi => "apt-get install openmpi-bin libopenmpi-dev",
             Need::Browser => "apt-get install chromium chromium-driver",
             Need::Fixtures => "scripts/write-fixtures.sh",
+            Need::Ffmpeg => "apt-get install ffmpeg",
         }
     }
 
@@ -209,6 +215,18 @@ pub fn fixture_dir() -> Option<PathBuf> {
     skip(
         Need::Fixtures,
         &format!("{} holds no manifest.json", dir.display()),
+    )
+}
+
+/// The Python of the fixtures' venv (`target/fixtures-venv`, with numpy, pandas, Pillow and
+/// the reference libraries), or `None` (the test skips).
+///
+/// # Panics
+/// As [`skip`], when it is missing and fixtures are required.
+pub fn fixture_python() -> Option<PathBuf> {
+    file(
+        &repo().join("target/fixtures-venv/bin/python"),
+        Need::Fixtures,
     )
 }
 

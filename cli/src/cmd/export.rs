@@ -1,5 +1,7 @@
 //! `insitu export`: the index of a recording (`index.sqlite`) as JSON or CSV, for people who
-//! want a file. Reads only; safe while a viz-node is writing the recording.
+//! want a file; or its steps rendered into a Cinema database (`--cinema`, [`super::cinema`])
+//! or a movie (`--movie`, [`super::movie`]). Reads only; safe while a viz-node is writing the
+//! recording.
 
 use anyhow::{Context, Result};
 use insitu_core::adherence::Adherence;
@@ -23,6 +25,47 @@ pub struct Args {
     /// share, worst_ratio), and the CSV a `sigma_budget_ratio` and `tau_budget_ratio` column.
     #[arg(long, value_parser = budget_arg)]
     budget: Option<(Option<f64>, Option<f64>)>,
+    /// Render every step (composed over its ranks) at the --phi × --theta grid into this
+    /// Cinema database (Spec D: `data.csv` with `time,phi,theta`, the step's P_M and metrics,
+    /// `FILE`; the PNGs under `image/`), e.g. `run.cdb`. It must not exist yet.
+    #[arg(long, conflicts_with_all = ["format", "out", "budget", "movie"])]
+    cinema: Option<PathBuf>,
+    /// Orbit angles about +y for --cinema, degrees, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,45,90,135,180,225,270,315",
+        allow_negative_numbers = true
+    )]
+    phi: Vec<f32>,
+    /// Elevations for --cinema, degrees in [-89, 89], comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0",
+        allow_negative_numbers = true
+    )]
+    theta: Vec<f32>,
+    /// Render every step along an orbit into this H.264 movie (needs ffmpeg), e.g. `run.mp4`.
+    #[arg(long, conflicts_with_all = ["format", "out", "budget"])]
+    movie: Option<PathBuf>,
+    /// Degrees the --movie camera orbits about +y per frame.
+    #[arg(long, default_value_t = 3.0, allow_negative_numbers = true)]
+    orbit: f32,
+    /// Elevation of the --movie camera, degrees.
+    #[arg(long, default_value_t = 15.0, allow_negative_numbers = true)]
+    elevation: f32,
+    /// --movie frames per step (the camera keeps orbiting while a step is shown).
+    #[arg(long, default_value_t = 4)]
+    frames_per_step: u32,
+    /// --movie frames per second.
+    #[arg(long, default_value_t = 24)]
+    fps: u32,
+    /// Image size of --cinema and --movie, `N` or `WxH`.
+    #[arg(long, default_value = "512")]
+    size: String,
+    #[command(flatten)]
+    backend: super::BackendArgs,
 }
 
 /// What `insitu export` writes.
@@ -57,6 +100,9 @@ fn step_values(
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if a.cinema.is_some() || a.movie.is_some() {
+        return render(&a);
+    }
     let db = IndexDb::open(&a.recording, false)
         .with_context(|| format!("{} is not a recording", a.recording.display()))?;
     let text = match a.format {
@@ -90,6 +136,52 @@ pub fn run(a: Args) -> Result<()> {
     match &a.out {
         Some(path) => crate::output::write_atomic(path, text.as_bytes())?,
         None => print!("{text}"),
+    }
+    Ok(())
+}
+
+/// `--cinema` or `--movie`: the steps rendered.
+fn render(a: &Args) -> Result<()> {
+    let (width, height) = super::parse_size(&a.size)?;
+    let stored = super::stored::Stored::read(&a.recording)?;
+    for why in &stored.left_out {
+        eprintln!("note: left out: {why}");
+    }
+    if stored.steps.is_empty() {
+        anyhow::bail!("{} holds no step to render", a.recording.display());
+    }
+    let backend = a.backend.open()?;
+    if let Some(out) = &a.cinema {
+        let grid = super::cinema::Grid {
+            phi: a.phi.clone(),
+            theta: a.theta.clone(),
+            width,
+            height,
+        };
+        let n = super::cinema::write(&stored, out, &grid, &backend)?;
+        println!(
+            "cinema: {} steps × {} views = {n} images → {}",
+            stored.steps.len(),
+            grid.phi.len() * grid.theta.len(),
+            out.display()
+        );
+    }
+    if let Some(out) = &a.movie {
+        let orbit = super::movie::Orbit {
+            orbit_deg: a.orbit,
+            elevation: a.elevation,
+            frames_per_step: a.frames_per_step,
+            fps: a.fps,
+            width,
+            height,
+        };
+        let n = super::movie::write(&stored, out, &orbit, &backend)?;
+        println!(
+            "movie: {} steps, {n} frames at {} fps → {}",
+            stored.steps.len(),
+            a.fps,
+            out.display()
+        );
     }
     Ok(())
 }

@@ -1,15 +1,18 @@
 //! One module per subcommand.
 
 pub mod accuracy;
+pub mod cinema;
 pub mod demo;
 pub mod evaluate;
 pub mod export;
 pub mod generate;
 pub mod health;
+pub mod movie;
 pub mod recover;
 pub mod render;
 pub mod replay;
 pub mod series;
+pub mod stored;
 pub mod study;
 pub mod tune;
 pub mod view;
