@@ -12,6 +12,7 @@ pub mod config;
 pub mod decoded;
 pub mod http;
 pub mod index;
+pub mod movie;
 pub mod node;
 pub mod rebuild;
 pub mod rows;

@@ -782,7 +782,8 @@ fn listing(dir: &Path) -> Vec<(String, u64, std::time::SystemTime)> {
 
 /// A finished recording served as a read-only archive (`--read-only`), on a read-only bind
 /// mount where the machine allows one (CI runs as root): the viewer lists and renders its
-/// steps, shipping into it is refused, and nothing beside it is written.
+/// steps and makes a movie of them, shipping into it is refused, and nothing beside it is
+/// written.
 #[test]
 fn an_archive_is_browsed_read_only_and_nothing_is_written() {
     let tmp = tempfile::tempdir().unwrap();
@@ -827,6 +828,22 @@ fn an_archive_is_browsed_read_only_and_nothing_is_written() {
         refused.message().contains("read-only archive"),
         "{refused:?}"
     );
+    // The page's movie of the steps it shows: an MP4 from ffmpeg, or 501 saying it is missing.
+    let (status, body) = http(&addr, "/api/movie?size=33&frames_per_step=2", &[]);
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("even"), "{body}");
+    let (status, body) = http(&addr, "/api/movie?size=32&frames_per_step=2&fps=4", &[]);
+    match insitu_testenv::tool("ffmpeg", insitu_testenv::Need::Ffmpeg) {
+        Some(_) => {
+            assert_eq!(status, 200, "{body}");
+            assert!(
+                body.get(4..8) == Some("ftyp"),
+                "not an MP4: {:?}",
+                body.get(..16)
+            );
+        }
+        None => assert_eq!(status, 501, "{body}"),
+    }
     v.terminate();
     assert_eq!(listing(&rec), before, "the archive was written to");
 }

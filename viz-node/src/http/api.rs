@@ -163,7 +163,7 @@ pub struct RenderQuery {
 }
 
 /// Parses `N` or `WxH`.
-fn parse_size(s: &str) -> Result<(u32, u32), ViewError> {
+pub(super) fn parse_size(s: &str) -> Result<(u32, u32), ViewError> {
     let bad = || ViewError::BadRequest(format!("size {s:?} must be N or WxH pixels"));
     let (w, h) = s.split_once('x').unwrap_or((s, s));
     Ok((w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?))

@@ -5,6 +5,7 @@
 //!   `GET /api/stats`: the JSON API the page and scripts share ([`api`]; docs/viewer.md).
 //! - `GET /api/live`: a WebSocket of camera requests in and frames out ([`live`]); the server
 //!   renders only each client's latest request.
+//! - `GET /api/movie`: the stored steps as an MP4 download, encoded by `ffmpeg` ([`movie`]).
 //!
 //! The gRPC side's rules hold: loopback by default; off loopback a token and TLS (the
 //! viz-node's `[tls]` certificate: HTTPS, [`tls`]) unless `insecure`; with a token configured
@@ -17,6 +18,7 @@ pub mod cap;
 pub mod conn;
 pub mod lanes;
 pub mod live;
+pub mod movie;
 pub mod numbers;
 pub mod origin;
 pub mod tls;
@@ -180,6 +182,7 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/render", get(api::render).head(no_head))
         .route("/api/reference", get(api::reference))
         .route("/api/stats", get(api::stats))
+        .route("/api/movie", get(movie::movie).head(no_head))
         .route("/api/live", get(live::upgrade))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
         .layer(axum::middleware::from_fn_with_state(

@@ -149,6 +149,16 @@ async function refresh() {
     steps = s.steps;
     const slider = $("slider");
     slider.max = String(Math.max(0, steps.length - 1));
+    if (steps.length > 0) {
+      // The movie of the steps shown, orbiting from the elevation on screen (ffmpeg on the node).
+      const range = `from=${steps[0].step}&to=${steps[steps.length - 1].step}`;
+      $("movie").href = withToken(`api/movie?${range}&elevation=${Math.round(view.elevation)}`);
+    }
+    if (steps.length > 0) {
+      // The movie of the steps shown, orbiting from the elevation on screen (ffmpeg on the node).
+      const range = `from=${steps[0].step}&to=${steps[steps.length - 1].step}`;
+      $("movie").href = withToken(`api/movie?${range}&elevation=${Math.round(view.elevation)}`);
+    }
     if ($("follow").checked) slider.value = slider.max;
     updateRanks();
     series = await getJson("api/series");
