@@ -48,6 +48,24 @@ DTYPES = {"uint8": np.uint8, "uint16": np.uint16, "int16": np.int16, "float32": 
           "float64": np.float64}
 
 
+def load(path, field=None):
+    """The samples, dims, origin and spacing of a raw file (origin 0, spacing 1) or, as
+    VTK's own reader places it, of a `.vti` file (its array `field`, else the active scalars)."""
+    if path.endswith(".vti"):
+        r = vtk.vtkXMLImageDataReader()
+        r.SetFileName(path)
+        r.Update()
+        image = r.GetOutput()
+        pd = image.GetPointData()
+        arr = pd.GetArray(field) if field else pd.GetScalars()
+        if arr is None:
+            sys.exit(f"{path}: no array {field}")
+        return (numpy_support.vtk_to_numpy(arr), image.GetDimensions(), image.GetOrigin(),
+                image.GetSpacing())
+    data, dims = load_raw(path)
+    return data, dims, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+
+
 def load_raw(path):
     m = re.search(r"_(\d+)x(\d+)x(\d+)(?:x\d+)?_([a-z0-9]+)\.raw$", os.path.basename(path))
     if not m:
@@ -71,11 +89,11 @@ def default_ramp(data):
                        [1.0, 1.0, 0.3, 0.1, 0.3]]}
 
 
-def vtk_volume(data, dims, tf, step):
+def vtk_volume(data, dims, tf, step, origin=(0, 0, 0), spacing=(1, 1, 1)):
     image = vtk.vtkImageData()
     image.SetDimensions(*dims)
-    image.SetOrigin(0, 0, 0)
-    image.SetSpacing(1, 1, 1)
+    image.SetOrigin(*origin)
+    image.SetSpacing(*spacing)
     arr = numpy_support.numpy_to_vtk(data, deep=True)
     image.GetPointData().SetScalars(arr)
 
@@ -104,7 +122,7 @@ def vtk_volume(data, dims, tf, step):
     return volume
 
 
-def vtk_scene(volume, dims, size, angle):
+def vtk_scene(volume, dims, size, angle, origin=(0, 0, 0), spacing=(1, 1, 1)):
     ren = vtk.vtkRenderer()
     ren.SetBackground(0, 0, 0)
     ren.AddVolume(volume)
@@ -112,8 +130,9 @@ def vtk_scene(volume, dims, size, angle):
     win.SetOffScreenRendering(1)
     win.SetSize(size, size)
     win.AddRenderer(ren)
-    centre = [(n - 1) / 2.0 for n in dims]
-    half_diagonal = 0.5 * math.sqrt(sum((n - 1) ** 2 for n in dims))
+    extent = [(n - 1) * s for n, s in zip(dims, spacing)]
+    centre = [o + e / 2.0 for o, e in zip(origin, extent)]
+    half_diagonal = 0.5 * math.sqrt(sum(e ** 2 for e in extent))
     dist = half_diagonal / math.sin(math.radians(15.0))
     cam = ren.GetActiveCamera()
     cam.SetFocalPoint(*centre)
@@ -137,11 +156,13 @@ def vtk_image(win):
     return np.flipud(rgb)  # VTK's row 0 is the bottom
 
 
-def insitu_render(exe, volume, tf, angle, size, step, out):
+def insitu_render(exe, volume, tf, angle, size, step, out, field=None):
     """The cold render's time and the warm one's (`--repeat 2`: the second, as VTK's renders
     are timed after a warm-up render)."""
     cmd = [exe, "render", "--volume", volume, "--tf", tf, "--angle", str(angle), "--size",
            str(size), "--sample-distance", str(step), "--repeat", "2", "--backend", "cpu", "--out", out]
+    if field:
+        cmd += ["--field", field]
     p = subprocess.run(cmd, capture_output=True, text=True, check=True)
     m = re.search(r" in ([0-9.]+) s .*then ([0-9.]+) s", p.stdout + p.stderr)
     if not m:
@@ -173,7 +194,10 @@ def psnr(a, b):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--volume", required=True)
+    ap.add_argument("--volume", required=True,
+                    help="a raw file, or a .vti (VTK places it by its origin and spacing, insitu "
+                         "by its reader: the images agree only where the two boxes do)")
+    ap.add_argument("--field", help="the .vti's array (default: its active scalars)")
     ap.add_argument("--tf", help="TF JSON (default: a ramp over the data range)")
     ap.add_argument("--angle", type=float, default=30.0)
     ap.add_argument("--size", type=int, default=768)
@@ -189,17 +213,17 @@ def main():
                          "view, both medians, the ratio of medians (of minima), PSNR")
     a = ap.parse_args()
 
-    data, dims = load_raw(a.volume)
+    data, dims, origin, spacing = load(a.volume, a.field)
     if a.tf is None:
         a.tf = os.path.join(tempfile.mkdtemp(), "ramp.json")
         with open(a.tf, "w") as f:
             json.dump(default_ramp(data), f)
     tf = json.load(open(a.tf))
-    volume = vtk_volume(data, dims, tf, a.step)
-    ren, win = vtk_scene(volume, dims, a.size, a.angle)
+    volume = vtk_volume(data, dims, tf, a.step, origin, spacing)
+    ren, win = vtk_scene(volume, dims, a.size, a.angle, origin, spacing)
     win.Render()  # warm-up: builds the mapper's tables
     ours_png = os.path.join(tempfile.mkdtemp(), "insitu.png")
-    insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png)
+    insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png, a.field)
 
     tmp = tempfile.mkdtemp()
     vdis = []
@@ -214,7 +238,8 @@ def main():
         t0 = time.perf_counter()
         win.Render()
         t_vtk.append(time.perf_counter() - t0)
-        cold, warm = insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png)
+        cold, warm = insitu_render(a.insitu, a.volume, a.tf, a.angle, a.size, a.step, ours_png,
+                                   a.field)
         t_cold.append(cold)
         t_ours.append(warm)
         for _, path, png, times in vdis:
