@@ -211,36 +211,6 @@ impl Samples {
     }
 }
 
-/// `bytes` (exactly `dims` samples of `t`, x fastest) as a volume at `spacing`: u8, u16 and
-/// i16 kept in their type, the rest as f32 (f32 bit for bit).
-///
-/// # Errors
-/// [`ReadError::Invalid`] naming `path` when the length does not match.
-pub fn volume(
-    path: &Path,
-    bytes: &[u8],
-    dims: [usize; 3],
-    spacing: Vec3,
-    t: Sample,
-    e: Endian,
-) -> Result<Volume, ReadError> {
-    let n = crate::samples(path, &dims)?;
-    if n.checked_mul(t.size()) != Some(bytes.len()) {
-        return Err(ReadError::invalid(
-            path,
-            format!(
-                "{} bytes of data where {dims:?} samples of {} bytes need {}",
-                bytes.len(),
-                t.size(),
-                n.saturating_mul(t.size())
-            ),
-        ));
-    }
-    let mut s = Samples::new(t, e, n);
-    s.push(bytes);
-    s.finish(path, dims, spacing)
-}
-
 /// A number written as text, as a sample of type `t` is kept: f32 samples parsed straight to
 /// the nearest f32 (as VTK reads them; through f64 could round twice), others through f64.
 pub fn parse_text(s: &str, t: Sample) -> Option<f32> {

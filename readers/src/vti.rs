@@ -17,6 +17,13 @@ use quick_xml::events::{BytesStart, Event};
 use std::io::Read;
 use std::path::Path;
 
+/// The grid a block fills, and its bytes.
+struct Grid {
+    dims: [usize; 3],
+    spacing: Vec3,
+    want: usize,
+}
+
 /// Where the chosen array is, and how it is encoded.
 #[derive(Debug)]
 pub struct Vti {
@@ -353,7 +360,12 @@ impl Vti {
         let want = n
             .checked_mul(self.sample.size())
             .ok_or_else(|| ReadError::invalid(path, "array size overflows"))?;
-        let bytes = match &self.data {
+        let grid = Grid {
+            dims,
+            spacing,
+            want,
+        };
+        match &self.data {
             ArrayData::Ascii(text) => {
                 let v: Vec<f32> = text
                     .split_whitespace()
@@ -368,41 +380,39 @@ impl Vti {
                         format!("{} ascii values where {dims:?} needs {n}", v.len()),
                     ));
                 }
-                return Volume::new(dims, spacing, v)
-                    .map_err(|e| ReadError::invalid(path, e.to_string()));
+                Volume::new(dims, spacing, v).map_err(|e| ReadError::invalid(path, e.to_string()))
             }
-            ArrayData::Base64(text) => self.decode_base64(path, text, want)?,
-            ArrayData::Raw(at) => return self.read_raw(path, *at, dims, spacing, want),
-        };
-        crate::bytes::volume(path, &bytes, dims, spacing, self.sample, self.endian)
+            ArrayData::Base64(text) => self.decode_base64(path, text, &grid),
+            ArrayData::Raw(at) => {
+                let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+                let len = f.metadata().map_err(ReadError::io(path))?.len();
+                std::io::Seek::seek(&mut f, std::io::SeekFrom::Start((*at).min(len)))
+                    .map_err(ReadError::io(path))?;
+                let left = len.saturating_sub(*at);
+                self.read_block(path, std::io::BufReader::new(f), left, &grid)
+            }
+        }
     }
 
-    /// An appended raw block at file offset `at`, streamed into the volume: uncompressed
-    /// samples straight from the file, zlib blocks one at a time.
-    fn read_raw(
+    /// A data block read from `from` (which holds `left` more bytes) and streamed into the
+    /// volume: uncompressed samples as they come, zlib blocks one at a time.
+    fn read_block(
         &self,
         path: &Path,
-        at: u64,
-        dims: [usize; 3],
-        spacing: Vec3,
-        want: usize,
+        mut from: impl Read,
+        left: u64,
+        grid: &Grid,
     ) -> Result<Volume, ReadError> {
-        let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
-        let len = f.metadata().map_err(ReadError::io(path))?.len();
-        std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(at.min(len)))
-            .map_err(ReadError::io(path))?;
-        let mut f = std::io::BufReader::new(f);
-        let w = self.word();
+        let (want, w) = (grid.want, self.word());
         let short = |what: &str| ReadError::invalid(path, format!("truncated: the array's {what}"));
-        let mut read_words = |k: usize, what: &str| -> Result<Vec<u64>, ReadError> {
+        let read_words = |from: &mut dyn Read, k: usize, what: &str| {
             let mut b = vec![0u8; k.checked_mul(w).ok_or_else(|| short(what))?];
-            f.read_exact(&mut b).map_err(|_| short(what))?;
-            Ok(self.words(&b))
+            from.read_exact(&mut b).map_err(|_| short(what))?;
+            Ok::<_, ReadError>(self.words(&b))
         };
         let n = want / self.sample.size();
-        let left = len.saturating_sub(at);
         if !self.zlib {
-            let count = read_words(1, "byte count")?[0];
+            let count = read_words(&mut from, 1, "byte count")?[0];
             if count != want as u64 {
                 return Err(ReadError::invalid(
                     path,
@@ -413,10 +423,10 @@ impl Vti {
                 return Err(short("samples"));
             }
             let mut s = Samples::new(self.sample, self.endian, n);
-            s.read_from(path, f, want, false)?;
-            return s.finish(path, dims, spacing);
+            s.read_from(path, from, want, false)?;
+            return s.finish(path, grid.dims, grid.spacing);
         }
-        let head = read_words(3, "block header")?;
+        let head = read_words(&mut from, 3, "block header")?;
         let (blocks, size, last) = (head[0], head[1], head[2]);
         let blocks = usize::try_from(blocks)
             .ok()
@@ -424,7 +434,7 @@ impl Vti {
             .ok_or_else(|| {
                 ReadError::invalid(path, format!("{blocks} compressed blocks for {want} bytes"))
             })?;
-        let sizes = read_words(blocks, "block sizes")?;
+        let sizes = read_words(&mut from, blocks, "block sizes")?;
         let total = if blocks == 0 {
             0
         } else {
@@ -440,13 +450,14 @@ impl Vti {
         if compressed > left {
             return Err(short("compressed blocks"));
         }
+        // Reserved as the data decompresses (at most 1032:1, deflate's limit).
         let bound = usize::try_from(compressed.saturating_mul(1032)).unwrap_or(usize::MAX)
             / self.sample.size();
         let mut s = Samples::new(self.sample, self.endian, n.min(bound));
         let (mut packed, mut plain) = (Vec::new(), Vec::new());
         for (k, &c) in sizes.iter().enumerate() {
             packed.resize(c as usize, 0);
-            f.read_exact(&mut packed)
+            from.read_exact(&mut packed)
                 .map_err(|_| short("compressed blocks"))?;
             let expect = if k + 1 == blocks && last != 0 {
                 last
@@ -466,85 +477,12 @@ impl Vti {
             }
             s.push(&plain);
         }
-        s.finish(path, dims, spacing)
+        s.finish(path, grid.dims, grid.spacing)
     }
 
-    /// The samples of a block starting at `bytes[0]` (the rest of the file may follow).
-    fn block(&self, path: &Path, bytes: &[u8], want: usize) -> Result<Vec<u8>, ReadError> {
-        let w = self.word();
-        let short = |what: &str| ReadError::invalid(path, format!("truncated: the array's {what}"));
-        if !self.zlib {
-            let len = self.words(bytes.get(..w).ok_or_else(|| short("byte count"))?)[0];
-            if len != want as u64 {
-                return Err(ReadError::invalid(
-                    path,
-                    format!("the array holds {len} bytes where the extent needs {want}"),
-                ));
-            }
-            return w
-                .checked_add(want)
-                .and_then(|end| bytes.get(w..end))
-                .map(<[u8]>::to_vec)
-                .ok_or_else(|| short("samples"));
-        }
-        let head = self.words(bytes.get(..3 * w).ok_or_else(|| short("block header"))?);
-        let (blocks, size, last) = (head[0], head[1], head[2]);
-        let blocks = usize::try_from(blocks)
-            .ok()
-            .filter(|&b| b <= want / size.max(1) as usize + 1)
-            .ok_or_else(|| {
-                ReadError::invalid(path, format!("{blocks} compressed blocks for {want} bytes"))
-            })?;
-        let sizes = self.words(
-            bytes
-                .get(3 * w..(3 + blocks) * w)
-                .ok_or_else(|| short("block sizes"))?,
-        );
-        let total = if blocks == 0 {
-            0
-        } else {
-            size * (blocks as u64 - 1) + if last == 0 { size } else { last }
-        };
-        if total != want as u64 {
-            return Err(ReadError::invalid(
-                path,
-                format!("compressed blocks of {total} bytes where the extent needs {want}"),
-            ));
-        }
-        let mut out = Vec::with_capacity(want.min(bytes.len().saturating_mul(4)));
-        let mut at = (3 + blocks) * w;
-        for (k, &c) in sizes.iter().enumerate() {
-            let end = at
-                .checked_add(c as usize)
-                .filter(|&e| e <= bytes.len())
-                .ok_or_else(|| short("compressed blocks"))?;
-            let expect = if k + 1 == blocks && last != 0 {
-                last
-            } else {
-                size
-            };
-            let before = out.len();
-            flate2::read::ZlibDecoder::new(&bytes[at..end])
-                .take(expect + 1)
-                .read_to_end(&mut out)
-                .map_err(|e| ReadError::invalid(path, format!("zlib block {k}: {e}")))?;
-            if (out.len() - before) as u64 != expect {
-                return Err(ReadError::invalid(
-                    path,
-                    format!(
-                        "zlib block {k} holds {} bytes, not {expect}",
-                        out.len() - before
-                    ),
-                ));
-            }
-            at = end;
-        }
-        Ok(out)
-    }
-
-    /// The samples of a base64 block (text that may run on into other arrays' blocks): the
-    /// header and the data encoded as one stream, or (as VTK writes them) each on its own.
-    fn decode_base64(&self, path: &Path, text: &str, want: usize) -> Result<Vec<u8>, ReadError> {
+    /// A base64 block (text that may run on into other arrays' blocks): the header and the
+    /// data encoded as one stream, or (as VTK writes them) each on its own.
+    fn decode_base64(&self, path: &Path, text: &str, grid: &Grid) -> Result<Volume, ReadError> {
         let clean: String = text.chars().filter(|c| !c.is_ascii_whitespace()).collect();
         let b64 = base64::engine::general_purpose::STANDARD;
         let chars = |bytes: usize| bytes.div_ceil(3).saturating_mul(4);
@@ -552,7 +490,7 @@ impl Vti {
             let end = from.checked_add(len)?;
             b64.decode(clean.get(from..end)?).ok()
         };
-        let w = self.word();
+        let (want, w) = (grid.want, self.word());
         // The first word says how many bytes (uncompressed) or blocks follow.
         let first = decode(0, chars(w))
             .filter(|b| b.len() >= w)
@@ -577,12 +515,13 @@ impl Vti {
                 count
             }
         };
+        let block = |bytes: &[u8]| self.read_block(path, bytes, bytes.len() as u64, grid);
         let mut tried = Vec::new();
         // One stream: the header's words, then the data, without padding between them.
         if let Some(head) = decode(0, chars(header)).filter(|h| h.len() >= header) {
             let total = header.saturating_add(data_len(&head));
             if let Some(all) = decode(0, chars(total)) {
-                match self.block(path, &all, want) {
+                match block(&all) {
                     Ok(v) => return Ok(v),
                     Err(e) => tried.push(e.to_string()),
                 }
@@ -593,7 +532,7 @@ impl Vti {
             if let Some(data) = decode(chars(header), chars(data_len(&head))) {
                 let mut joined = head;
                 joined.extend_from_slice(&data);
-                return self.block(path, &joined, want);
+                return block(&joined);
             }
         }
         Err(ReadError::invalid(

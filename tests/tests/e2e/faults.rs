@@ -600,6 +600,22 @@ fn a_read_only_recording_delays_delivery_and_loses_nothing() {
         unmount();
         panic!("mount -o remount,bind,ro {} failed", rec.display());
     }
+    outlasts_storage_fault(&g, &rec, "ead-only", unmount, "ReadOnly");
+    g.terminate();
+    v.terminate();
+}
+
+/// With steps 0 and 1 stored and the recording now refusing writes: steps 2 to 7 pushed while
+/// it lasts are acknowledged, each refused as a storage fault naming `cause` and kept by the
+/// generator-node (none counted failed); once `undo` ends the fault every step is stored
+/// exactly once and scored. `case` names the fault in the line printed.
+fn outlasts_storage_fault(
+    g: &insitu_e2e::Daemon,
+    rec: &std::path::Path,
+    cause: &str,
+    undo: impl FnOnce(),
+    case: &str,
+) {
     let replies = crate::common::push_steps(&g.addr, 2..8);
     let refused = wait_until(30.0, || {
         crate::common::status(&g.addr)
@@ -607,23 +623,17 @@ fn a_read_only_recording_delays_delivery_and_loses_nothing() {
             .contains("ResourceExhausted")
     });
     let status = crate::common::status(&g.addr);
-    unmount();
+    undo();
     assert_eq!(replies.len(), 6, "every push acknowledged");
     assert!(refused, "{status:?}");
-    assert!(
-        status.ship_error.contains("ead-only"),
-        "{}",
-        status.ship_error
-    );
+    assert!(status.ship_error.contains(cause), "{}", status.ship_error);
     assert_eq!(status.failed, 0, "a storage fault fails no VDI");
     let s = crate::common::flush(&g.addr);
     assert_eq!((s.steps_shipped, s.failed), (8, 0));
-    assert_recording(&rec, &(0..8).collect::<Vec<_>>(), 4);
+    assert_recording(rec, &(0..8).collect::<Vec<_>>(), 4);
     eprintln!(
-        "ReadOnly: acknowledged 8, stored 8 (6 after it was writable again), lost 0, duplicated 0"
+        "{case}: acknowledged 8, stored 8 (6 after the fault was undone), lost 0, duplicated 0"
     );
-    g.terminate();
-    v.terminate();
 }
 
 /// Permission denied: the recording directory's write permission removed while steps arrive
@@ -669,27 +679,12 @@ fn permission_denied_delays_delivery_and_loses_nothing() {
     crate::common::flush(&g.addr);
     let mode = |m: u32| std::fs::set_permissions(&rec, std::fs::Permissions::from_mode(m)).unwrap();
     mode(0o555);
-    let replies = crate::common::push_steps(&g.addr, 2..8);
-    let refused = wait_until(30.0, || {
-        crate::common::status(&g.addr)
-            .ship_error
-            .contains("ResourceExhausted")
-    });
-    let status = crate::common::status(&g.addr);
-    mode(0o755);
-    assert_eq!(replies.len(), 6, "every push acknowledged");
-    assert!(refused, "{status:?}");
-    assert!(
-        status.ship_error.contains("ermission denied"),
-        "{}",
-        status.ship_error
-    );
-    assert_eq!(status.failed, 0, "a storage fault fails no VDI");
-    let s = crate::common::flush(&g.addr);
-    assert_eq!((s.steps_shipped, s.failed), (8, 0));
-    assert_recording(&rec, &(0..8).collect::<Vec<_>>(), 4);
-    eprintln!(
-        "PermissionDenied: acknowledged 8, stored 8 (6 after the permission was restored), lost 0, duplicated 0"
+    outlasts_storage_fault(
+        &g,
+        &rec,
+        "ermission denied",
+        || mode(0o755),
+        "PermissionDenied",
     );
     g.terminate();
     viz.terminate();
