@@ -1353,6 +1353,27 @@ fn every_format_renders_the_field_it_holds() {
     let raw = render("ball_12x12x12_float32.raw");
     assert_eq!(render("ball.nrrd"), raw, "NRRD");
     assert_eq!(render("ball.vtk"), raw, "legacy VTK");
+    // Through the pipeline the grid keeps the file's origin: the stored VDI's box starts there.
+    let args = [
+        "replay",
+        "--series",
+        "ball.vtk",
+        "--r",
+        "16",
+        "--no-tune",
+        "--no-http",
+        "--recording",
+        "rec",
+    ];
+    let o = insitu(&args, dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bytes = std::fs::read(dir.path().join("rec/step_00000000_rank_0000.vdi")).unwrap();
+    let vdi = insitu_core::vdi::codec::decode(&bytes, &Default::default()).unwrap();
+    let b = vdi.meta().volume_box;
+    assert_eq!(
+        (b.min.to_array(), b.max.to_array()),
+        ([100.0, -50.0, 7.0], [111.0, -39.0, 18.0])
+    );
     assert_fails(
         &[
             "render", "--volume", "ball.vtk", "--field", "p", "--size", "8",

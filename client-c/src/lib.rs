@@ -404,6 +404,8 @@ pub unsafe extern "C" fn insitu_push_step(
             rank,
             world_size,
             spacing,
+            // The C API places the grid at the origin (its push takes no origin yet).
+            origin: [0.0; 3],
             data: field,
         };
         // SAFETY: forwarded from this function's contract.

@@ -105,6 +105,8 @@ pub struct Step {
     pub world_size: u32,
     /// Voxel spacing, world units.
     pub spacing: [f32; 3],
+    /// World position of the whole grid's first voxel (where the brick at offset 0 starts).
+    pub origin: [f32; 3],
     /// The field, little-endian, x fastest: `brick voxels × dtype size` bytes.
     pub data: Bytes,
 }
@@ -131,6 +133,7 @@ impl Step {
             rank: 0,
             world_size: 1,
             spacing: [1.0; 3],
+            origin: [0.0; 3],
             data,
         }
     }
@@ -174,6 +177,11 @@ impl Step {
                 x: self.spacing[0],
                 y: self.spacing[1],
                 z: self.spacing[2],
+            }),
+            origin: Some(pb::Vec3 {
+                x: self.origin[0],
+                y: self.origin[1],
+                z: self.origin[2],
             }),
         })
     }

@@ -33,6 +33,8 @@ pub struct StepInfo {
     pub brick_dims: [usize; 3],
     /// Voxel spacing, world units.
     pub spacing: Vec3,
+    /// World position of the whole grid's first voxel.
+    pub origin: Vec3,
 }
 
 /// One rank's brick of one time step, as received.
@@ -98,6 +100,15 @@ pub fn check_header(h: &pb::StepHeader) -> Result<StepInfo, Status> {
             "spacing {spacing} must be finite and positive"
         )));
     }
+    let origin = h
+        .origin
+        .as_ref()
+        .map_or(Vec3::ZERO, |o| Vec3::new(o.x, o.y, o.z));
+    if !origin.is_finite() {
+        return Err(Status::invalid_argument(format!(
+            "origin {origin} must be finite"
+        )));
+    }
     if !h.sim_time.is_finite() {
         return Err(Status::invalid_argument("sim_time must be finite"));
     }
@@ -111,6 +122,7 @@ pub fn check_header(h: &pb::StepHeader) -> Result<StepInfo, Status> {
         brick_offset,
         brick_dims,
         spacing,
+        origin,
     })
 }
 
@@ -127,7 +139,7 @@ impl StepInfo {
     /// `INVALID_ARGUMENT` when the payload does not match the header's brick (cannot happen
     /// after [`check_header`] and a complete stream, but the check is cheap).
     pub fn with_field(self, field: FieldAssembler) -> Result<RawStep, Status> {
-        let origin = Vec3::from(self.brick_offset.map(|o| o as f32)) * self.spacing;
+        let origin = self.origin + Vec3::from(self.brick_offset.map(|o| o as f32)) * self.spacing;
         let field = field
             .finish(self.brick_dims, self.spacing)
             .and_then(|v| v.with_origin(origin))
@@ -139,13 +151,14 @@ impl StepInfo {
         })
     }
 
-    /// The world box of the whole grid, `[0, (n − 1)·s]` (what the default camera frames, so
-    /// that all ranks share one camera).
+    /// The world box of the whole grid, `origin + [0, (n − 1)·s]` (what the default camera
+    /// frames, so that all ranks share one camera).
     pub fn global_box(&self) -> Aabb {
         let [nx, ny, nz] = self.global_dims;
         Aabb {
-            min: Vec3::ZERO,
-            max: Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32) * self.spacing,
+            min: self.origin,
+            max: self.origin
+                + Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32) * self.spacing,
         }
     }
 }
@@ -180,6 +193,7 @@ mod tests {
             world_size: 2,
             total_bytes: 8 * 6 * 5 * 4,
             spacing: None,
+            origin: None,
         }
     }
 
@@ -199,6 +213,50 @@ mod tests {
         assert_eq!(v.data()[239], 239.0);
         assert_eq!(s.info.global_box().max, Vec3::new(7.0, 5.0, 9.0));
         assert_eq!(s.bytes(), 960);
+    }
+
+    /// The grid's origin moves every brick and the box the default camera frames; a
+    /// non-finite one is refused by name.
+    #[test]
+    fn the_grid_s_origin_places_the_brick_and_the_box() {
+        let h = pb::StepHeader {
+            origin: Some(pb::Vec3 {
+                x: 10.0,
+                y: -2.0,
+                z: 3.0,
+            }),
+            spacing: Some(pb::Vec3 {
+                x: 2.0,
+                y: 1.0,
+                z: 0.5,
+            }),
+            ..header()
+        };
+        let info = check_header(&h).unwrap();
+        let mut field = info.assembler(None);
+        field.push(&vec![0u8; 960]);
+        let s = info.with_field(field).unwrap();
+        // Offset (0, 0, 5) at spacing (2, 1, 0.5) from (10, −2, 3).
+        assert_eq!(s.field.world_box().min, Vec3::new(10.0, -2.0, 5.5));
+        let whole = s.info.global_box();
+        assert_eq!(
+            (whole.min, whole.max),
+            (Vec3::new(10.0, -2.0, 3.0), Vec3::new(24.0, 3.0, 7.5))
+        );
+        let bad = pb::StepHeader {
+            origin: Some(pb::Vec3 {
+                x: f32::NAN,
+                y: 0.0,
+                z: 0.0,
+            }),
+            ..header()
+        };
+        let e = check_header(&bad).unwrap_err();
+        assert!(
+            e.message().contains("origin [NaN, 0, 0] must be finite"),
+            "{}",
+            e.message()
+        );
     }
 
     #[test]

@@ -100,6 +100,11 @@ fn header_of(raw: &RawStep) -> pb::StepHeader {
             y: raw.info.spacing.y,
             z: raw.info.spacing.z,
         }),
+        origin: Some(pb::Vec3 {
+            x: raw.info.origin.x,
+            y: raw.info.origin.y,
+            z: raw.info.origin.z,
+        }),
     }
 }
 
@@ -307,6 +312,7 @@ mod tests {
             world_size: 1,
             total_bytes: 4 * n as u64,
             spacing: None,
+            origin: None,
         };
         let info = check_header(&h).unwrap();
         let mut field = info.assembler(None);

@@ -334,6 +334,7 @@ async fn made(
         rank,
         world_size: 2,
         spacing: [1.0; 3],
+        origin: [0.0; 3],
         data: insitu_client::f32_bytes(&whole[z0 * 256..(z0 + 9) * 256]),
     };
     client.push_step(step).await.unwrap();

@@ -139,6 +139,8 @@ fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> R
         rank,
         world_size,
         spacing: v.spacing().to_array(),
+        // The file's origin: the whole grid's, which every brick is placed from.
+        origin: v.origin().to_array(),
         data: f32_bytes(&brick.data()),
     })
 }

@@ -316,6 +316,7 @@ fn push_two_ranks(series: &Path, steps: std::ops::Range<usize>, a: &str, b: &str
                     rank,
                     world_size: 2,
                     spacing: [1.0; 3],
+                    origin: [0.0; 3],
                     data: insitu_client::f32_bytes(data),
                 };
                 if rank == 0 {
