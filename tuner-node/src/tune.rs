@@ -13,7 +13,7 @@ use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
 use insitu_tuner::live::{combine_ranks, WorstCase};
-use insitu_tuner::search::{adaptive_search, grid_search, Outcome};
+use insitu_tuner::search::{adaptive_search_near, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
 use insitu_tuner::{Candidate, Measurement};
 use std::sync::atomic::Ordering;
@@ -276,8 +276,9 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     true
 }
 
-/// The search of the engine's grid (adaptive towards its target, else the grid's plan) over
-/// the worst case of `steps` (with each step's world size, 1 when unknown).
+/// The search of the engine's grid (adaptive towards its target, from the `P_M` in force,
+/// else the grid's plan) over the worst case of `steps` (with each step's world size, 1 when
+/// unknown).
 fn search(
     engine: &Arc<Engine>,
     steps: &[u64],
@@ -297,8 +298,10 @@ fn search(
         .collect();
     let mut oracle = WorstCase::new(oracles);
     let r = &engine.resolved;
+    // Size probes start at the P_M in force: the answer is most often near it.
+    let in_force = engine.state().current().map(|d| d.candidate);
     match r.target {
-        Some(t) => adaptive_search(&mut oracle, &r.grid, t),
+        Some(t) => adaptive_search_near(&mut oracle, &r.grid, t, in_force),
         None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
     }
 }

@@ -97,6 +97,10 @@ struct Adaptive<'o> {
     target: UtilitySpec,
     utility: Box<dyn Utility>,
     per_r: BTreeMap<usize, Option<(Measurement, f64)>>,
+    /// Under a size budget, the grid point nearest the `P_M` in force: its resolution is
+    /// searched first, from its γ (a re-tune's answer is most often near it, and the
+    /// production steps have measured it already).
+    first: Option<(usize, usize)>,
 }
 
 impl Adaptive<'_> {
@@ -201,6 +205,22 @@ impl Adaptive<'_> {
         } else {
             (n - 1 - bhi, n - 1 - blo)
         };
+        // Starting at the P_M in force: its γ splits the axis, feasible ones below it (the
+        // answer at or under it) or not (the answer above it).
+        if let Some((_, g)) = self.first.take_if(|f| forward && f.0 == ri) {
+            if self.probe(ri, g)? {
+                (lo, hi) = (lo.min(g), g);
+                if lo < hi && self.probe(ri, lo)? {
+                    return Ok(Some(lo));
+                }
+                return self.narrow(ri, lo, hi, gamma_index).map(Some);
+            }
+            (lo, hi) = (g + 1, n - 1);
+            if lo > hi || !self.probe(ri, hi)? {
+                return Ok(None);
+            }
+            return self.narrow(ri, lo, hi, gamma_index).map(Some);
+        }
         // The bracket's best end first: when it is feasible it is the answer (one measurement
         // instead of a bisection; common when the budget is loose for this r).
         if self.probe(ri, gamma_index(lo))? {
@@ -262,6 +282,10 @@ impl Adaptive<'_> {
             return self.sweep();
         }
         let n = self.grid.rs.len();
+        if let Some((ri, _)) = self.first {
+            // Answered first; the spread below takes it from `per_r`.
+            self.best_at(ri)?;
+        }
         let stride = (n / 5).max(1);
         let mut probes: Vec<usize> = (0..n).step_by(stride).collect();
         if probes.last() != Some(&(n - 1)) {
@@ -338,6 +362,23 @@ pub fn adaptive_search(
     grid: &ParamGrid,
     target: UtilitySpec,
 ) -> Result<Outcome, StudyError> {
+    adaptive_search_near(oracle, grid, target, None)
+}
+
+/// [`adaptive_search`] that, under a size budget, probes first near `near` (the `P_M` in
+/// force, whose σ the production steps have measured): the grid's resolution nearest its r is
+/// searched first, from the γ nearest its own (on a log scale), then the others as usual.
+/// The answer is the one [`adaptive_search`] finds; on a re-tune it usually costs fewer
+/// probes, since the answer is usually near the `P_M` in force.
+///
+/// # Errors
+/// As [`adaptive_search`].
+pub fn adaptive_search_near(
+    oracle: &mut dyn Oracle,
+    grid: &ParamGrid,
+    target: UtilitySpec,
+    near: Option<Candidate>,
+) -> Result<Outcome, StudyError> {
     if grid.is_empty() {
         return Err(StudyError::Invalid("the grid is empty".into()));
     }
@@ -346,12 +387,29 @@ pub fn adaptive_search(
         oracle.generations(),
         oracle.generation_secs(),
     );
+    let size_only = matches!(target.budgets(), (Some(_), None));
+    let nearest = |xs: &[f64], x: f64| {
+        (0..xs.len()).min_by(|&a, &b| (xs[a] - x).abs().total_cmp(&(xs[b] - x).abs()))
+    };
+    let first = near.filter(|_| size_only).and_then(|c| {
+        let rs: Vec<f64> = grid.rs.iter().map(|&r| f64::from(r)).collect();
+        let gs: Vec<f64> = grid
+            .gammas
+            .iter()
+            .map(|&g| f64::from(g.max(1e-9)).ln())
+            .collect();
+        Some((
+            nearest(&rs, f64::from(c.r))?,
+            nearest(&gs, f64::from(c.gamma.max(1e-9)).ln())?,
+        ))
+    });
     let mut a = Adaptive {
         oracle,
         grid,
         target,
         utility: target.utility(),
         per_r: BTreeMap::new(),
+        first,
     };
     let found = a.run()?;
     Ok(outcome(found, a.oracle, g0, s0, t))

@@ -509,3 +509,59 @@ fn time_budgets_are_searched_adaptively_despite_noisy_timings() {
         grid.len()
     );
 }
+
+/// A re-tune under a size budget starts at the P_M in force: it finds the answer the plain
+/// search finds, wherever the P_M in force lies, and when that P_M is the answer (still data) or
+/// a neighbour of it (drift), in fewer generations.
+#[test]
+fn a_size_search_from_the_p_m_in_force_finds_the_same_answer_sooner() {
+    use insitu_tuner::search::adaptive_search_near;
+    let grid = ParamGrid::parse("128:768:32", "0.001:0.26:0.008").unwrap();
+    let (mut plain_total, mut near_total) = (0, 0);
+    for sigma_target in [150_000u64, 400_000, 900_000, 2_000_000] {
+        let spec = UtilitySpec::Size(sigma_target);
+        let a = adaptive_search(&mut NoisyTimings::new(0.0, 1), &grid, spec).unwrap();
+        let best = a.best.as_ref().unwrap().candidate();
+        let step = |i: usize, d: isize| i.saturating_add_signed(d);
+        let (ri, gi) = (
+            grid.rs.iter().position(|&r| r == best.r).unwrap(),
+            grid.gammas
+                .iter()
+                .position(|g| g.to_bits() == best.gamma.to_bits())
+                .unwrap(),
+        );
+        let mut hints = vec![best];
+        for (dr, dg) in [(0, 2), (0, -2), (-1, 1), (1, -1)] {
+            let (r, g) = (step(ri, dr), step(gi, dg));
+            if r < grid.rs.len() && g < grid.gammas.len() {
+                hints.push(Candidate {
+                    r: grid.rs[r],
+                    gamma: grid.gammas[g],
+                });
+            }
+        }
+        // Far away too: the answer is the same, whatever the probes cost.
+        hints.push(Candidate {
+            r: grid.rs[0],
+            gamma: grid.gammas[grid.gammas.len() - 1],
+        });
+        for (k, hint) in hints.iter().enumerate() {
+            let n = adaptive_search_near(&mut NoisyTimings::new(0.0, 1), &grid, spec, Some(*hint))
+                .unwrap();
+            assert_eq!(
+                n.best.as_ref().map(Measurement::candidate),
+                Some(best),
+                "σ_target {sigma_target}, from {hint:?}"
+            );
+            if k + 1 < hints.len() {
+                plain_total += a.generations;
+                near_total += n.generations;
+            }
+        }
+    }
+    assert!(
+        near_total < plain_total,
+        "from the P_M in force or a neighbour: {near_total} generations, plain: {plain_total}"
+    );
+    eprintln!("size searches from the P_M in force or a neighbour: {near_total} generations against {plain_total}");
+}
