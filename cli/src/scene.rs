@@ -161,15 +161,13 @@ impl SceneArgs {
             self.field.as_deref(),
             self.uneven,
         )?;
-        let mut volume = data.read_step(self.t)?;
-        if let Some(s) = &self.spacing {
-            let (origin, spacing) = (volume.origin(), parse_spacing(s)?);
-            let dims = volume.dims();
-            volume = Volume::new(dims, spacing, volume.data().into_owned())
-                .and_then(|v| v.with_origin(origin))
-                .with_context(|| format!("--spacing {s}"))?;
-        }
-        Ok(volume)
+        let volume = data.read_step(self.t)?;
+        Ok(match &self.spacing {
+            Some(s) => volume
+                .with_spacing(parse_spacing(s)?)
+                .with_context(|| format!("--spacing {s}"))?,
+            None => volume,
+        })
     }
 
     fn load_raw(&self, source: &str) -> Result<Volume> {

@@ -1352,6 +1352,26 @@ fn every_format_renders_the_field_it_holds() {
     };
     let raw = render("ball_12x12x12_float32.raw");
     assert_eq!(render("ball.nrrd"), raw, "NRRD");
+    // --spacing overrides a file's spacing as it sets a raw file's.
+    let stretched = |volume: &str| {
+        let args = [
+            "render",
+            "--volume",
+            volume,
+            "--spacing",
+            "1,2,0.5",
+            "--size",
+            "48",
+            "--angle",
+            "30",
+            "--backend",
+            "cpu",
+        ];
+        written(dir.path(), &args, &[], &format!("{volume}.stretched.png")).0
+    };
+    let raw_stretched = stretched("ball_12x12x12_float32.raw");
+    assert_ne!(raw_stretched, raw, "the spacing changes the picture");
+    assert_eq!(stretched("ball.nrrd"), raw_stretched, "NRRD with --spacing");
     assert_eq!(render("ball.vtk"), raw, "legacy VTK");
     // Through the pipeline the grid keeps the file's origin: the stored VDI's box starts there.
     let args = [

@@ -182,6 +182,20 @@ impl Volume {
         Ok(self)
     }
 
+    /// The same samples (in their own storage type) `spacing` apart.
+    ///
+    /// # Errors
+    /// [`VolumeError::Invalid`] when a component is not finite and positive.
+    pub fn with_spacing(mut self, spacing: Vec3) -> Result<Self, VolumeError> {
+        if !(spacing.is_finite() && spacing.min_element() > 0.0) {
+            return Err(VolumeError::Invalid(format!(
+                "spacing {spacing} must be finite and positive"
+            )));
+        }
+        self.spacing = spacing;
+        Ok(self)
+    }
+
     /// World position of the first voxel.
     pub fn origin(&self) -> Vec3 {
         self.origin
@@ -422,6 +436,24 @@ mod tests {
         let b = v.world_box();
         assert_eq!(b.min, Vec3::ZERO);
         assert_eq!(b.max, Vec3::new(2.0, 6.0, 2.0));
+    }
+
+    /// A new spacing moves the box and keeps the samples in their own type; a spacing that is
+    /// not finite and positive is refused.
+    #[test]
+    fn a_new_spacing_keeps_the_samples_as_they_are() {
+        let v = Volume::from_u8([3, 4, 5], Vec3::ONE, vec![7; 60])
+            .unwrap()
+            .with_origin(Vec3::new(1.0, 1.0, 1.0))
+            .unwrap();
+        let bytes = v.storage_bytes();
+        let w = v.with_spacing(Vec3::new(2.0, 0.5, 1.0)).unwrap();
+        assert_eq!(w.storage_bytes(), bytes, "still one byte a voxel");
+        let b = w.world_box();
+        assert_eq!((b.min, b.max), (Vec3::ONE, Vec3::new(5.0, 2.5, 5.0)));
+        for bad in [Vec3::ZERO, Vec3::new(1.0, f32::NAN, 1.0), Vec3::splat(-1.0)] {
+            assert!(w.clone().with_spacing(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]
