@@ -180,6 +180,19 @@ InsituStatus insitu_push_step(const InsituClient *c,
                               InsituNodeStatus *out);
 
 /**
+ * Sets the world position of the whole grid's first voxel, sent with every step pushed from
+ * now on (the origin of the grid's coordset; default (0, 0, 0)): each brick is placed at
+ * `origin + brick_offset · spacing`.
+ *
+ * Returns `INSITU_STATUS_INVALID_ARGUMENT` for a null pointer or a value that is not finite
+ * (the origin in force stays).
+ *
+ * # Safety
+ * `c` is a live client; `origin` is valid for 3 reads.
+ */
+InsituStatus insitu_set_origin(const InsituClient *c, const float *origin);
+
+/**
  * Waits until every step received by the node so far is generated and shipped (or dropped
  * and counted), at most `timeout_secs` (≤ 0: 600 s). `*out` (if not null) receives the
  * counters.

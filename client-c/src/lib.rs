@@ -101,6 +101,8 @@ pub struct InsituNodeStatus {
 pub struct InsituClient {
     rt: tokio::runtime::Runtime,
     client: Mutex<Option<SimClient>>,
+    /// The grid's origin sent with every step ([`insitu_set_origin`]).
+    origin: Mutex<[f32; 3]>,
 }
 
 thread_local! {
@@ -279,6 +281,7 @@ pub unsafe extern "C" fn insitu_connect_tls(
                 let c = Box::new(InsituClient {
                     rt,
                     client: Mutex::new(Some(client)),
+                    origin: Mutex::new([0.0; 3]),
                 });
                 // SAFETY: `out` is non-null and valid for a write (contract).
                 unsafe { *out = Box::into_raw(c) };
@@ -404,8 +407,10 @@ pub unsafe extern "C" fn insitu_push_step(
             rank,
             world_size,
             spacing,
-            // The C API places the grid at the origin (its push takes no origin yet).
-            origin: [0.0; 3],
+            // SAFETY: `c` is null (refused by `with_client` below) or live by the contract.
+            origin: unsafe { c.as_ref() }.map_or([0.0; 3], |c| {
+                *c.origin.lock().unwrap_or_else(|p| p.into_inner())
+            }),
             data: field,
         };
         // SAFETY: forwarded from this function's contract.
@@ -426,6 +431,42 @@ pub unsafe extern "C" fn insitu_push_step(
                 Err(e) => from_client_error(&e),
             })
         }
+    })
+}
+
+/// Sets the world position of the whole grid's first voxel, sent with every step pushed from
+/// now on (the origin of the grid's coordset; default (0, 0, 0)): each brick is placed at
+/// `origin + brick_offset · spacing`.
+///
+/// Returns `INSITU_STATUS_INVALID_ARGUMENT` for a null pointer or a value that is not finite
+/// (the origin in force stays).
+///
+/// # Safety
+/// `c` is a live client; `origin` is valid for 3 reads.
+#[no_mangle]
+pub unsafe extern "C" fn insitu_set_origin(
+    c: *const InsituClient,
+    origin: *const f32,
+) -> InsituStatus {
+    guarded(|| {
+        if c.is_null() {
+            return fail(InsituStatus::InvalidArgument, "client is null");
+        }
+        // SAFETY: forwarded from this function's contract.
+        let o = match unsafe { triple(origin, "origin") } {
+            Ok(o) => o,
+            Err(s) => return s,
+        };
+        if !o.iter().all(|v| v.is_finite()) {
+            return fail(
+                InsituStatus::InvalidArgument,
+                format!("origin {o:?} must be finite"),
+            );
+        }
+        // SAFETY: non-null and live by the contract; only shared access is taken.
+        let c = unsafe { &*c };
+        *c.origin.lock().unwrap_or_else(|p| p.into_inner()) = o;
+        InsituStatus::Ok
     })
 }
 
@@ -538,5 +579,44 @@ mod tests {
             unsafe { insitu_close(std::ptr::null_mut(), 1.0, std::ptr::null_mut()) },
             InsituStatus::Ok
         );
+    }
+
+    /// The origin is kept for the pushes that follow; a null or non-finite one is refused and
+    /// the one in force stays.
+    #[test]
+    fn an_origin_is_kept_or_refused_by_name() {
+        let c = InsituClient {
+            rt: tokio::runtime::Builder::new_current_thread()
+                .build()
+                .unwrap(),
+            client: Mutex::new(None),
+            origin: Mutex::new([0.0; 3]),
+        };
+        let o = [100.0f32, -50.0, 7.0];
+        assert_eq!(
+            unsafe { insitu_set_origin(&c, o.as_ptr()) },
+            InsituStatus::Ok
+        );
+        assert_eq!(*c.origin.lock().unwrap(), o);
+        let bad = [0.0, f32::NAN, 0.0];
+        assert_eq!(
+            unsafe { insitu_set_origin(&c, bad.as_ptr()) },
+            InsituStatus::InvalidArgument
+        );
+        assert!(
+            last().contains("origin") && last().contains("finite"),
+            "{}",
+            last()
+        );
+        assert_eq!(
+            unsafe { insitu_set_origin(&c, std::ptr::null()) },
+            InsituStatus::InvalidArgument
+        );
+        assert_eq!(last(), "origin is null (need 3 values)");
+        assert_eq!(
+            unsafe { insitu_set_origin(std::ptr::null(), o.as_ptr()) },
+            InsituStatus::InvalidArgument
+        );
+        assert_eq!(*c.origin.lock().unwrap(), o, "the origin in force stays");
     }
 }
