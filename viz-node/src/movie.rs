@@ -3,8 +3,10 @@
 //! has finished, so a failed encode leaves nothing under it. Used by `insitu export --movie`
 //! and the viewer's `/api/movie`.
 
-use insitu_core::Image;
+use crate::view::{self, View};
+use insitu_core::{Backend, Image, Vdi};
 use std::io::Write;
+use std::ops::Deref;
 use std::path::Path;
 use std::process::{Command, Stdio};
 
@@ -31,6 +33,60 @@ pub enum MovieError {
     /// `ffmpeg` failed, or its output could not be kept.
     #[error("ffmpeg: {0}")]
     Ffmpeg(String),
+}
+
+/// A movie's camera path: `start` (its elevation, zoom and frame size) orbited by
+/// `orbit_deg` about +y each frame, each step shown for `frames_per_step` frames.
+#[derive(Clone, Copy, Debug)]
+pub struct Orbit {
+    /// The first frame's view.
+    pub start: View,
+    /// Degrees about +y from one frame to the next.
+    pub orbit_deg: f32,
+    /// Frames per step (the camera keeps moving while a step is shown).
+    pub frames_per_step: u32,
+    /// Frames per second.
+    pub fps: u32,
+}
+
+/// Encodes `steps` steps along `orbit` into `out`: step `i`'s VDI from `load(i)` (loaded once
+/// for its frames), rendered on `backend` with the early termination `termination` gives for
+/// it. Returns the frames written.
+///
+/// # Errors
+/// As [`encode`]; a step that cannot be loaded or rendered is a [`MovieError::Frame`].
+pub fn encode_orbit<V: Deref<Target = Vdi>>(
+    out: &Path,
+    orbit: &Orbit,
+    steps: usize,
+    backend: &Backend,
+    mut load: impl FnMut(usize) -> Result<V, String>,
+    termination: impl Fn(&Vdi) -> f32,
+) -> Result<u32, MovieError> {
+    let per = orbit.frames_per_step.max(1);
+    let frames = u32::try_from(steps)
+        .ok()
+        .and_then(|n| n.checked_mul(per))
+        .ok_or_else(|| MovieError::BadRequest(format!("{steps} steps × {per} frames")))?;
+    let size = (orbit.start.width, orbit.start.height);
+    let mut shown: Option<(usize, V)> = None;
+    encode(out, size, orbit.fps, frames, |k| {
+        let i = (k / per) as usize;
+        if shown.as_ref().is_none_or(|(j, _)| *j != i) {
+            shown = Some((i, load(i)?));
+        }
+        let Some((_, vdi)) = &shown else {
+            return Err("no step".into());
+        };
+        let v = View {
+            angle_deg: orbit.start.angle_deg + orbit.orbit_deg * k as f32,
+            ..orbit.start
+        };
+        view::render(backend, vdi, &v, termination(vdi))
+            .map(|(image, _)| image)
+            .map_err(|e| e.to_string())
+    })?;
+    Ok(frames)
 }
 
 /// Encodes `frames` frames of `width × height` at `fps` into `out`, frame `k` rendered by

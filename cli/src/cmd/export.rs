@@ -167,13 +167,16 @@ fn render(a: &Args) -> Result<()> {
         );
     }
     if let Some(out) = &a.movie {
-        let orbit = super::movie::Orbit {
+        let orbit = insitu_viz_node::movie::Orbit {
+            start: insitu_viz_node::view::View {
+                elevation_deg: a.elevation,
+                width,
+                height,
+                ..Default::default()
+            },
             orbit_deg: a.orbit,
-            elevation: a.elevation,
             frames_per_step: a.frames_per_step,
             fps: a.fps,
-            width,
-            height,
         };
         let n = super::movie::write(&stored, out, &orbit, &backend)?;
         println!(

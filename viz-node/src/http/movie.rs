@@ -99,7 +99,8 @@ async fn make(
         _ => "steps.mp4".to_owned(),
     };
     let per = q.frames_per_step.unwrap_or(4).max(1);
-    let frames = u32::try_from(files.len())
+    // Refused before it takes the lane: the HTTP bound on frames.
+    u32::try_from(files.len())
         .ok()
         .and_then(|n| n.checked_mul(per))
         .filter(|&n| (1..=MAX_FRAMES).contains(&n))
@@ -130,24 +131,21 @@ async fn make(
         let _lane = lane;
         let dir = tempfile_dir()?;
         let out = dir.join("movie.mp4");
-        let mut shown: Option<(usize, Arc<insitu_core::Vdi>)> = None;
-        let made = crate::movie::encode(&out, (width, height), fps, frames, |k| {
-            let i = (k / per) as usize;
-            if shown.as_ref().is_none_or(|(j, _)| *j != i) {
-                shown = Some((i, h.vdi(&files[i]).map_err(|e| e.to_string())?));
-            }
-            let Some((_, vdi)) = &shown else {
-                return Err("no step".into());
-            };
-            let v = View {
-                angle_deg: orbit * k as f32,
-                ..first
-            };
-            view::render(&h.shared.backend, vdi, &v, h.shared.termination)
-                .map(|(image, _)| image)
-                .map_err(|e| e.to_string())
-        });
-        let bytes = made.and_then(|()| {
+        let orbit = crate::movie::Orbit {
+            start: first,
+            orbit_deg: orbit,
+            frames_per_step: per,
+            fps,
+        };
+        let made = crate::movie::encode_orbit(
+            &out,
+            &orbit,
+            files.len(),
+            &h.shared.backend,
+            |i| h.vdi(&files[i]).map_err(|e| e.to_string()),
+            |_| h.shared.termination,
+        );
+        let bytes = made.and_then(|_| {
             std::fs::read(&out).map_err(|e| MovieError::Ffmpeg(format!("reading the movie: {e}")))
         });
         let _ = std::fs::remove_dir_all(&dir);
