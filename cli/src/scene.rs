@@ -254,19 +254,12 @@ pub fn open_dataset(
 ) -> Result<insitu_readers::Dataset> {
     let options = insitu_readers::Options {
         field: field.map(str::to_owned),
+        uneven: match uneven {
+            UnevenAxis::Resample => insitu_readers::Uneven::Resample,
+            UnevenAxis::Index => insitu_readers::Uneven::Index,
+        },
     };
-    let is_nc = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("nc"));
-    let data = if is_nc {
-        let uneven = match uneven {
-            UnevenAxis::Resample => insitu_readers::netcdf3::Uneven::Resample,
-            UnevenAxis::Index => insitu_readers::netcdf3::Uneven::Index,
-        };
-        insitu_readers::netcdf3::open_with(path, &options, uneven)?
-    } else {
-        insitu_readers::open(path, &options)?
-    };
+    let data = insitu_readers::open(path, &options)?;
     for note in &data.notes {
         eprintln!("note: {}: {note}", path.display());
     }

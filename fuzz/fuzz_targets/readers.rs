@@ -21,7 +21,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     }
     for field in [None, Some("a".to_owned())] {
-        if let Ok(d) = open(&path, &Options { field }) {
+        if let Ok(d) = open(&path, &Options { field, ..Options::default() }) {
             if let Ok(v) = d.read_step(0) {
                 assert_eq!(v.dims(), d.dims);
             }

@@ -17,12 +17,14 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod bytes;
+mod cf;
 pub mod legacy_vtk;
 pub mod netcdf3;
 pub mod nrrd;
 pub mod raw;
 pub mod vti;
 
+pub use cf::Uneven;
 use glam::Vec3;
 use insitu_core::Volume;
 use std::path::{Path, PathBuf};
@@ -70,6 +72,8 @@ pub struct Options {
     /// The field (VTK array, NetCDF variable, raw: ignored); none: the first (NetCDF: the first
     /// variable with three or four dimensions that is not a coordinate).
     pub field: Option<String>,
+    /// How an uneven NetCDF axis is taken.
+    pub uneven: Uneven,
 }
 
 /// An opened file: its grid and fields, read one step at a time.

@@ -16,8 +16,9 @@
 //! `CDF` version, record count, dimension list, global attributes, variable list (name,
 //! dimension ids, attributes, type, size, begin), then the data.
 
-use crate::bytes::{Cursor, Endian, Sample, Samples};
-use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
+use crate::bytes::{Cursor, Endian, Sample};
+use crate::cf::{self, Axis, Coordinate, Decode, Packing};
+use crate::{samples, Dataset, Options, ReadError, Source};
 use glam::Vec3;
 use insitu_core::Volume;
 use std::io::{Read, Seek, SeekFrom};
@@ -25,19 +26,6 @@ use std::path::Path;
 
 /// The header is read whole: larger headers are refused.
 const MAX_HEADER: u64 = 64 << 20;
-/// An uneven axis is resampled to at most this many times its levels.
-const MAX_RESAMPLE_FACTOR: usize = 8;
-
-/// How an uneven axis is taken.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Uneven {
-    /// Resampled to an even grid at its smallest gap (at most 8× its levels), linearly.
-    #[default]
-    Resample,
-    /// Its levels kept as samples one unit apart (the raw layout's convention).
-    Index,
-}
-
 #[derive(Clone, Debug)]
 struct Dim {
     name: String,
@@ -60,30 +48,13 @@ struct Var {
     begin: u64,
 }
 
-/// A variable chosen for reading: where its samples lie and how they are turned into values.
+/// A variable chosen for reading: where its samples lie and how they become the field.
 #[derive(Debug)]
 pub struct Variable {
-    sample: Sample,
+    decode: Decode,
     begin: u64,
     /// Bytes between steps (a record's size for a record variable, else one step's bytes).
     stride: u64,
-    scale: f64,
-    offset: f64,
-    /// Raw values that mean "missing".
-    missing: Vec<f64>,
-    valid: (f64, f64),
-    /// Per axis (x, y, z): the coordinates to resample from, when uneven and resampled.
-    resample: [Option<Resample>; 3],
-    /// The file's dims (x, y, z) before resampling.
-    file_dims: [usize; 3],
-}
-
-#[derive(Debug)]
-struct Resample {
-    coords: Vec<f64>,
-    start: f64,
-    step: f64,
-    count: usize,
 }
 
 fn nc_type(path: &Path, t: u32) -> Result<(Sample, bool), ReadError> {
@@ -190,14 +161,6 @@ impl Header<'_> {
 /// such), a truncated header, an unknown or absent variable, a variable of other than three
 /// or four dimensions, non-numeric data.
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    open_with(path, options, Uneven::default())
-}
-
-/// [`open`], an uneven axis taken as `uneven` says.
-///
-/// # Errors
-/// As [`open`].
-pub fn open_with(path: &Path, options: &Options, uneven: Uneven) -> Result<Dataset, ReadError> {
     let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
     let len = file.metadata().map_err(ReadError::io(path))?.len();
     let mut head = Vec::new();
@@ -367,122 +330,61 @@ pub fn open_with(path: &Path, options: &Options, uneven: Uneven) -> Result<Datas
             ),
         ));
     }
-    let attr = |name: &str| var.attrs.iter().find(|a| a.name == name);
-    let first = |name: &str| attr(name).and_then(|a| a.values.first().copied());
-    let mut missing: Vec<f64> = ["_FillValue", "missing_value"]
-        .iter()
-        .filter_map(|n| attr(n))
-        .flat_map(|a| a.values.iter().copied())
-        .collect();
-    missing.dedup();
-    let valid = match attr("valid_range").map(|a| a.values.as_slice()) {
-        Some([lo, hi]) => (*lo, *hi),
-        _ => (
-            first("valid_min").unwrap_or(f64::NEG_INFINITY),
-            first("valid_max").unwrap_or(f64::INFINITY),
-        ),
-    };
+    let packing = Packing::from_attrs(
+        |name| {
+            var.attrs
+                .iter()
+                .find(|a| a.name == name)
+                .map(|a| a.values.clone())
+        },
+        var.sample,
+    );
     // The axes from the coordinate variables, x first.
-    let mut notes = Vec::new();
-    let mut spacing = [1.0f32; 3];
-    let mut origin = [0.0f32; 3];
-    let mut resample: [Option<Resample>; 3] = [None, None, None];
-    let mut out_dims = file_dims;
-    let mut units = Vec::new();
+    let mut axes = Vec::with_capacity(3);
     for a in 0..3 {
         let d = var.dims[k - 1 - a];
-        let Some(cv) = vars.iter().find(|v| is_coord(v) && v.dims[0] == d) else {
-            notes.push(format!(
-                "{} has no coordinate variable: unit spacing",
-                dims[d].name
-            ));
-            continue;
+        let coordinate = match vars.iter().find(|v| is_coord(v) && v.dims[0] == d) {
+            Some(cv) => Some(Coordinate {
+                name: cv.name.clone(),
+                values: read_coords(&mut file, path, cv, file_dims[a])?,
+                units: cv
+                    .attrs
+                    .iter()
+                    .find(|a| a.name == "units")
+                    .and_then(|a| a.text.clone()),
+            }),
+            None => None,
         };
-        let n = file_dims[a];
-        let coords = read_coords(&mut file, path, cv, n)?;
-        if let Some(u) = cv
-            .attrs
-            .iter()
-            .find(|a| a.name == "units")
-            .and_then(|a| a.text.clone())
-        {
-            units.push(format!("{}: {u}", cv.name));
-        }
-        if n < 2 {
-            origin[a] = coords.first().copied().unwrap_or(0.0) as f32;
-            continue;
-        }
-        let gaps: Vec<f64> = coords.windows(2).map(|w| w[1] - w[0]).collect();
-        let (lo, hi) = gaps
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &g| {
-                (l.min(g), h.max(g))
-            });
-        if lo.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
-            || !coords.iter().all(|c| c.is_finite())
-        {
-            notes.push(format!(
-                "{} does not increase: taken by index (unit spacing)",
-                cv.name
-            ));
-            continue;
-        }
-        if hi - lo <= 1e-4 * hi {
-            spacing[a] = ((coords[n - 1] - coords[0]) / (n - 1) as f64) as f32;
-            origin[a] = coords[0] as f32;
-            continue;
-        }
-        match uneven {
-            Uneven::Index => notes.push(format!(
-                "{} is uneven ({lo} to {hi} apart): its {n} levels taken by index, one unit apart",
-                cv.name
-            )),
-            Uneven::Resample => {
-                let extent = coords[n - 1] - coords[0];
-                let count = ((extent / lo).round() as usize + 1).min(MAX_RESAMPLE_FACTOR * n);
-                let step = extent / (count - 1) as f64;
-                notes.push(format!(
-                    "{} is uneven ({lo} to {hi} apart): resampled linearly from {n} levels to {count} at {step} apart",
-                    cv.name
-                ));
-                spacing[a] = step as f32;
-                origin[a] = coords[0] as f32;
-                out_dims[a] = count;
-                resample[a] = Some(Resample {
-                    start: coords[0],
-                    coords,
-                    step,
-                    count,
-                });
-            }
-        }
+        axes.push(Axis {
+            dim: dims[d].name.clone(),
+            coordinate,
+        });
     }
-    if !units.is_empty() {
-        notes.push(format!("world units per axis: {}", units.join(", ")));
-    }
-    let (spacing, origin) = (Vec3::from(spacing), Vec3::from(origin));
-    check_grid(path, out_dims, spacing, origin)?;
-    let scale = first("scale_factor").unwrap_or(1.0);
-    let offset = first("add_offset").unwrap_or(0.0);
+    let axes: [Axis; 3] = axes
+        .try_into()
+        .map_err(|_| ReadError::invalid(path, "three axes"))?;
+    let grid = cf::grid(
+        path,
+        file_dims,
+        axes,
+        var.sample,
+        Endian::Big,
+        packing,
+        options.uneven,
+    )?;
     Ok(Dataset {
         path: path.to_owned(),
-        dims: out_dims,
+        dims: grid.dims,
         steps,
-        spacing,
-        origin,
+        spacing: grid.spacing,
+        origin: grid.origin,
         field: var.name.clone(),
         fields: volumes.iter().map(|v| v.name.clone()).collect(),
-        notes,
+        notes: grid.notes,
         source: Source::NetCdf(Variable {
-            sample: var.sample,
+            decode: grid.decode,
             begin: var.begin,
             stride,
-            scale,
-            offset,
-            missing,
-            valid,
-            resample,
-            file_dims,
         }),
     })
 }
@@ -513,25 +415,6 @@ fn read_coords(
 }
 
 impl Variable {
-    /// A stored value as the field holds it: NaN where it means missing (a fill or missing
-    /// value, outside the valid range), else `v · scale + offset`.
-    fn unpack(&self, v: f64) -> f32 {
-        let missing = v.is_nan()
-            || self
-                .missing
-                .iter()
-                .any(|&m| m == v || (self.sample == Sample::F32 && m as f32 == v as f32))
-            || v < self.valid.0
-            || v > self.valid.1;
-        if missing {
-            f32::NAN
-        } else if self.scale == 1.0 && self.offset == 0.0 {
-            v as f32
-        } else {
-            (v * self.scale + self.offset) as f32
-        }
-    }
-
     /// Step `t` as a volume of `dims` (after resampling) at `spacing`.
     pub(crate) fn read_step(
         &self,
@@ -540,90 +423,25 @@ impl Variable {
         dims: [usize; 3],
         spacing: Vec3,
     ) -> Result<Volume, ReadError> {
-        let n = samples(path, &self.file_dims)?;
-        let size = self.sample.size();
+        let size = self.decode.sample_size();
+        let n = self.decode.stored_samples(path)?;
         let at = self.begin + self.stride * t as u64;
         let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
         file.seek(SeekFrom::Start(at))
             .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
-        let plain = self.scale == 1.0
-            && self.offset == 0.0
-            && self.missing.is_empty()
-            && self.valid == (f64::NEG_INFINITY, f64::INFINITY)
-            && self.resample.iter().all(Option::is_none);
-        if plain {
-            // Open checked that the file holds every step's bytes.
-            let mut s = Samples::new(self.sample, Endian::Big, n);
-            s.read_from(path, file, n * size, false)?;
-            return s.finish(path, self.file_dims, spacing);
-        }
-        // Unpacked and masked a piece at a time: the f32 field and one piece in memory.
-        let mut data: Vec<f32> = Vec::with_capacity(n);
-        let mut piece = vec![0u8; (crate::bytes::PIECE / size * size).min(n * size)];
-        let mut left = n * size;
-        while left > 0 {
-            let k = left.min(piece.len());
-            file.read_exact(&mut piece[..k])
-                .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
-            left -= k;
-            data.extend(
-                crate::bytes::values(&piece[..k], self.sample, Endian::Big)
-                    .into_iter()
-                    .map(|v| self.unpack(v)),
-            );
-        }
-        let mut cur = self.file_dims;
-        for (a, r) in self.resample.iter().enumerate() {
-            if let Some(r) = r {
-                data = resample_axis(&data, cur, a, r);
-                cur[a] = r.count;
+        // Open checked that the file holds every step's bytes; read a piece at a time.
+        self.decode.volume(path, dims, spacing, |push| {
+            let mut piece = vec![0u8; (crate::bytes::PIECE / size * size).min(n * size)];
+            let mut left = n * size;
+            while left > 0 {
+                let k = left.min(piece.len());
+                file.read_exact(&mut piece[..k]).map_err(|e| {
+                    ReadError::invalid(path, format!("step {t} at offset {at}: {e}"))
+                })?;
+                push(&piece[..k]);
+                left -= k;
             }
-        }
-        Volume::new(dims, spacing, data).map_err(|e| ReadError::invalid(path, e.to_string()))
-    }
-}
-
-/// `data` (dims `dims`, x fastest) resampled along axis `a` to `r.count` even positions,
-/// linearly between the two levels around each (NaN where either is NaN, except at a level
-/// itself).
-fn resample_axis(data: &[f32], dims: [usize; 3], a: usize, r: &Resample) -> Vec<f32> {
-    let mut out_dims = dims;
-    out_dims[a] = r.count;
-    let stride = |d: [usize; 3]| [1, d[0], d[0] * d[1]];
-    let (si, so) = (stride(dims), stride(out_dims));
-    // For each output position along the axis: the level below and the weight of the one above.
-    let weights: Vec<(usize, f32)> = (0..r.count)
-        .map(|j| {
-            let x = r.start + r.step * j as f64;
-            let i = r
-                .coords
-                .partition_point(|&c| c <= x)
-                .saturating_sub(1)
-                .min(r.coords.len() - 2);
-            let w = ((x - r.coords[i]) / (r.coords[i + 1] - r.coords[i])).clamp(0.0, 1.0);
-            (i, w as f32)
+            Ok(())
         })
-        .collect();
-    let mut out = vec![0.0f32; out_dims.iter().product()];
-    for z in 0..out_dims[2] {
-        for y in 0..out_dims[1] {
-            for x in 0..out_dims[0] {
-                let p = [x, y, z];
-                let (i, w) = weights[p[a]];
-                let mut q = p;
-                q[a] = i;
-                let lo = data[q[0] * si[0] + q[1] * si[1] + q[2] * si[2]];
-                q[a] = i + 1;
-                let hi = data[q[0] * si[0] + q[1] * si[1] + q[2] * si[2]];
-                out[x * so[0] + y * so[1] + z * so[2]] = if w == 0.0 {
-                    lo
-                } else if w == 1.0 {
-                    hi
-                } else {
-                    lo + (hi - lo) * w
-                };
-            }
-        }
     }
-    out
 }

@@ -25,7 +25,14 @@ fn files_written_by_the_reference_libraries_read_as_their_source() {
         let name = f["file"].as_str().unwrap();
         let field = f["field"].as_str().map(str::to_owned);
         let what = format!("{name} {field:?}");
-        let d = open(&dir.join(name), &Options { field }).unwrap_or_else(|e| panic!("{what}: {e}"));
+        let d = open(
+            &dir.join(name),
+            &Options {
+                field,
+                ..Options::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("{what}: {e}"));
         assert_eq!(d.dims, dims, "{what}");
         assert_eq!(d.steps as u64, f["steps"].as_u64().unwrap(), "{what}");
         assert_eq!(d.origin.to_array(), origin, "{what}: origin");

@@ -27,6 +27,7 @@ fn values(path: &Path, field: Option<&str>, t: usize) -> (insitu_readers::Datase
         path,
         &Options {
             field: field.map(str::to_owned),
+            ..Options::default()
         },
     )
     .unwrap();
@@ -181,10 +182,11 @@ fn ocean_like(dir: &Path) -> (PathBuf, Vec<i16>) {
 fn netcdf_applies_cf_attributes_and_places_the_axes() {
     let dir = tempfile::tempdir().unwrap();
     let (path, raw) = ocean_like(dir.path());
-    let opts = Options::default();
-    let d =
-        insitu_readers::netcdf3::open_with(&path, &opts, insitu_readers::netcdf3::Uneven::Index)
-            .unwrap();
+    let opts = Options {
+        uneven: insitu_readers::Uneven::Index,
+        ..Options::default()
+    };
+    let d = open(&path, &opts).unwrap();
     assert_eq!((d.dims, d.steps, d.field.as_str()), ([5, 4, 3], 2, "TEMP"));
     assert_eq!(d.spacing, Vec3::new(2.0, 5.0, 1.0));
     assert_eq!(d.origin, Vec3::new(10.0, -30.0, 0.0));
@@ -206,7 +208,7 @@ fn netcdf_applies_cf_attributes_and_places_the_axes() {
     }
     // Resampled: depth 0..30 at its smallest gap (10) gives 4 levels; level 2 (z = 20) lies
     // halfway between the file's levels 1 (10 m) and 2 (30 m).
-    let d = open(&path, &opts).unwrap();
+    let d = open(&path, &Options::default()).unwrap();
     assert_eq!((d.dims, d.spacing.z), ([5, 4, 4], 10.0));
     assert!(
         d.notes
@@ -235,6 +237,7 @@ fn netcdf_refuses_what_it_cannot_read_by_name() {
         &path,
         &Options {
             field: Some("SALT".into()),
+            ..Options::default()
         },
     )
     .unwrap_err()
@@ -247,6 +250,7 @@ fn netcdf_refuses_what_it_cannot_read_by_name() {
         &path,
         &Options {
             field: Some("lon".into()),
+            ..Options::default()
         },
     )
     .unwrap_err()
@@ -280,9 +284,9 @@ fn the_ocean_atlas_temp_equals_the_raw_series() {
     };
     let opts = Options {
         field: Some("TEMP".into()),
+        uneven: insitu_readers::Uneven::Index,
     };
-    let d = insitu_readers::netcdf3::open_with(&nc, &opts, insitu_readers::netcdf3::Uneven::Index)
-        .unwrap();
+    let d = open(&nc, &opts).unwrap();
     assert_eq!((d.dims, d.steps), ([180, 90, 19], 12));
     let series = open(&raw, &Options::default()).unwrap();
     for t in 0..12 {
@@ -405,6 +409,7 @@ fn legacy_vtk_ascii_and_binary_with_several_arrays() {
         &path,
         &Options {
             field: Some("third".into()),
+            ..Options::default()
         },
     )
     .unwrap_err()
@@ -534,6 +539,7 @@ fn vti_ascii_base64_appended_and_zlib_read_as_written() {
         &write(dir.path(), "f.vti", &file),
         &Options {
             field: Some("p".into()),
+            ..Options::default()
         },
     )
     .unwrap_err()
