@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Writes the readers' test files with the reference libraries (PyPI vtk, pynrrd, netCDF4) into
+# Writes the readers' test files with the reference libraries (PyPI vtk, pynrrd, netCDF4, h5py) into
 # target/fixtures/ (or $INSITU_FIXTURE_DIR), from scripts/write_fixtures.py. Makes the venv
 # target/fixtures-venv on first use (needs network once); its pandas and Pillow also read the
 # Cinema databases `insitu export --cinema` writes (scripts/check_cinema.py) in the CLI tests.
@@ -10,6 +10,8 @@ out=${INSITU_FIXTURE_DIR:-target/fixtures}
 venv=target/fixtures-venv
 if [ ! -x "$venv/bin/python" ]; then
   python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet numpy vtk pynrrd netCDF4 pandas pillow
+fi
+if ! "$venv/bin/python" -c 'import numpy, vtk, nrrd, netCDF4, h5py, pandas, PIL' 2>/dev/null; then
+  "$venv/bin/pip" install --quiet numpy vtk pynrrd netCDF4 h5py pandas pillow
 fi
 "$venv/bin/python" scripts/write_fixtures.py "$out"

@@ -1,5 +1,6 @@
 """Writes the readers' test files with the reference libraries: VTK (vtkXMLImageDataWriter,
-vtkStructuredPointsWriter), pynrrd and netCDF4, from synthetic fields with several arrays, a
+vtkStructuredPointsWriter), pynrrd, netCDF4 (classic and netCDF-4) and h5py (with XDMF
+descriptions), from synthetic fields with several arrays, a
 non-zero origin, anisotropic spacing, packed integers, fill values, big-endian and compressed
 variants. Beside each the expected samples as raw files (x fastest, little-endian) and a
 manifest.json that says, for every file, the field, the grid (dims, origin, spacing, steps), the
@@ -12,6 +13,7 @@ equal bit for bit. Run by scripts/write-fixtures.sh (which makes the venv).
 import json
 import os
 import sys
+import warnings
 
 import numpy as np
 
@@ -36,13 +38,13 @@ def fields(t=0):
 NAMES = {np.float32: "float32", np.float64: "float64", np.uint8: "uint8", np.int16: "int16"}
 
 
-def expect(out, name, arrays):
-    """Writes `arrays` (one per step) as a raw file named with its dims, steps and type (as the
-    raw reader takes it, all as float32 when mixed); returns its name."""
+def expect(out, name, arrays, dims=DIMS):
+    """Writes `arrays` (one per step, each of `dims` x, y, z) as a raw file named with its dims,
+    steps and type (as the raw reader takes it, all as float32 when mixed); returns its name."""
     a = np.stack(arrays) if len(arrays) > 1 else arrays[0]
-    kind = NAMES[a.dtype.type]
+    kind = NAMES[a.dtype.newbyteorder("=").type]
     steps = f"x{len(arrays)}" if len(arrays) > 1 else ""
-    fname = f"expect_{name}_{DIMS[0]}x{DIMS[1]}x{DIMS[2]}{steps}_{kind}.raw"
+    fname = f"expect_{name}_{dims[0]}x{dims[1]}x{dims[2]}{steps}_{kind}.raw"
     a.astype(a.dtype.newbyteorder("<")).tofile(os.path.join(out, fname))
     return fname
 
@@ -151,10 +153,16 @@ def netcdf_files(out, entries):
 
     steps = [fields(t) for t in range(STEPS)]
     scale, offset = np.float32(0.05), np.float32(3.0)
-    for fmt, tag in [("NETCDF3_CLASSIC", "classic"), ("NETCDF3_64BIT_OFFSET", "64bit"),
-                     ("NETCDF3_64BIT_DATA", "cdf5")]:
+    # netCDF-4 variants (HDF5 underneath) are read through netCDF-C: `needs` names the feature.
+    for fmt, tag, needs in [("NETCDF3_CLASSIC", "classic", None),
+                            ("NETCDF3_64BIT_OFFSET", "64bit", None),
+                            ("NETCDF3_64BIT_DATA", "cdf5", None),
+                            ("NETCDF4", "nc4", "netcdf4"),
+                            ("NETCDF4_CLASSIC", "nc4classic", "netcdf4")]:
         name = f"nc_{tag}.nc"
         ds = netCDF4.Dataset(os.path.join(out, name), "w", format=fmt)
+        # netCDF-4: deflated and shuffled in chunks, rho big-endian.
+        nc4 = dict(zlib=True, complevel=4, shuffle=True, chunksizes=(1, 4, 5, 6)) if needs else {}
         ds.createDimension("time", None)
         for axis, n in zip("zyx", DIMS[::-1]):
             ds.createDimension(axis, n)
@@ -164,8 +172,10 @@ def netcdf_files(out, entries):
             c[:] = ORIGIN[a] + SPACING[a] * np.arange(n)
         ds.createVariable("time", "f8", ("time",))[:] = np.arange(STEPS) * 10.0
         ds.createVariable("surface", "f4", ("y", "x"))[:] = np.zeros(DIMS[1::-1])
-        rho = ds.createVariable("rho", "f4", ("time", "z", "y", "x"), fill_value=np.float32(-9e33))
-        level = ds.createVariable("level", "i2", ("time", "z", "y", "x"), fill_value=np.int16(-32767))
+        rho = ds.createVariable("rho", "f4", ("time", "z", "y", "x"), fill_value=np.float32(-9e33),
+                                **nc4, **(dict(endian="big") if needs else {}))
+        level = ds.createVariable("level", "i2", ("time", "z", "y", "x"),
+                                  fill_value=np.int16(-32767), **nc4)
         level.scale_factor, level.add_offset = scale, offset
         level.set_auto_maskandscale(False)
         for t, f in enumerate(steps):
@@ -183,19 +193,102 @@ def netcdf_files(out, entries):
             v = (p.astype(np.float64) * np.float64(scale) + np.float64(offset)).astype(np.float32)
             v[1, 2, 3] = np.float32(np.nan)
             exp_level.append(v)
-        entries.append(dict(file=name, field="rho", steps=STEPS, bounds=None,
+        entries.append(dict(file=name, field="rho", steps=STEPS, bounds=None, needs=needs,
                             expect=expect(out, f"{tag}_rho", exp_rho)))
-        entries.append(dict(file=name, field="level", steps=STEPS, bounds=None,
+        entries.append(dict(file=name, field="level", steps=STEPS, bounds=None, needs=needs,
                             expect=expect(out, f"{tag}_level", exp_level)))
 
 
+def hdf5_files(out, entries):
+    """HDF5 written by h5py, bare (read on a unit grid) and described by XDMF (placed on the
+    grid; a temporal collection of per-step datasets, node and cell data)."""
+    import h5py
+
+    steps = [fields(t) for t in range(STEPS)]
+    unit = dict(dims=list(DIMS), origin=[0.0, 0.0, 0.0], spacing=[1.0, 1.0, 1.0])
+    with h5py.File(os.path.join(out, "h5_series.h5"), "w") as f:
+        g = f.create_group("fields")
+        g.create_dataset("rho", data=np.stack([s["rho"] for s in steps]), compression="gzip",
+                         shuffle=True, chunks=(1, 4, 5, 6))
+        g.create_dataset("temp", data=np.stack([s["temp"] for s in steps]).astype(">f8"))
+        f.create_dataset("level", data=steps[0]["level"])
+        f.create_dataset("mask", data=steps[0]["mask"], compression="gzip", shuffle=True)
+        f.create_dataset("surface", data=np.zeros(DIMS[1::-1], dtype=np.float32))
+    for field, series in [("/fields/rho", True), ("/fields/temp", True), ("/level", False),
+                          ("/mask", False)]:
+        key = field.rsplit("/", 1)[1]
+        arrays = [s[key] for s in steps] if series else [steps[0][key]]
+        entries.append(dict(file="h5_series.h5", field=field, steps=len(arrays), bounds=None,
+                            needs="hdf5", grid=unit,
+                            expect=expect(out, f"h5_{key}", arrays)))
+    # Per-step datasets; cell data one fewer per axis.
+    cells = [s["rho"][1:, 1:, 1:] * 0.5 + np.float32(t) for t, s in enumerate(steps)]
+    with h5py.File(os.path.join(out, "h5_steps.h5"), "w") as f:
+        for t, s in enumerate(steps):
+            f.create_dataset(f"t{t}/rho", data=s["rho"])
+            f.create_dataset(f"t{t}/cellrho", data=cells[t])
+            f.create_dataset(f"t{t}/mask", data=s["mask"])
+    nx, ny, nz = DIMS
+    geometry = f"""<Topology TopologyType="3DCoRectMesh" Dimensions="{nz} {ny} {nx}"/>
+      <Geometry GeometryType="ORIGIN_DXDYDZ">
+        <DataItem Format="XML" Dimensions="3">{ORIGIN[2]} {ORIGIN[1]} {ORIGIN[0]}</DataItem>
+        <DataItem Format="XML" Dimensions="3">{SPACING[2]} {SPACING[1]} {SPACING[0]}</DataItem>
+      </Geometry>"""
+
+    def attribute(name, center, dims, dataset):
+        return f"""<Attribute Name="{name}" AttributeType="Scalar" Center="{center}">
+        <DataItem Format="HDF" NumberType="Float" Precision="4" Dimensions="{dims}">h5_steps.h5:{dataset}</DataItem>
+      </Attribute>"""
+
+    grids = "".join(f"""
+    <Grid Name="step{t}" GridType="Uniform">
+      <Time Value="{t * 10.0}"/>
+      {geometry}
+      {attribute("rho", "Node", f"{nz} {ny} {nx}", f"/t{t}/rho")}
+      {attribute("cellrho", "Cell", f"{nz - 1} {ny - 1} {nx - 1}", f"/t{t}/cellrho")}
+    </Grid>""" for t in range(STEPS))
+    with open(os.path.join(out, "xdmf_series.xmf"), "w") as fh:
+        fh.write(f"""<?xml version="1.0" ?>
+<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>
+<Xdmf Version="3.0">
+  <Domain>
+    <Grid Name="series" GridType="Collection" CollectionType="Temporal">{grids}
+    </Grid>
+  </Domain>
+</Xdmf>
+""")
+    with open(os.path.join(out, "xdmf_one.xmf"), "w") as fh:
+        fh.write(f"""<?xml version="1.0" ?>
+<Xdmf Version="2.0">
+  <Domain>
+    <Grid Name="mesh" GridType="Uniform">
+      {geometry}
+      {attribute("mask", "Node", f"{nz} {ny} {nx}", "/t0/mask")}
+    </Grid>
+  </Domain>
+</Xdmf>
+""")
+    entries.append(dict(file="xdmf_series.xmf", field="rho", steps=STEPS, bounds=None,
+                        needs="hdf5", expect=expect(out, "xdmf_rho", [s["rho"] for s in steps])))
+    half = [o + d / 2 for o, d in zip(ORIGIN, SPACING)]
+    entries.append(dict(file="xdmf_series.xmf", field="cellrho", steps=STEPS, bounds=None,
+                        needs="hdf5",
+                        grid=dict(dims=[n - 1 for n in DIMS], origin=half, spacing=list(SPACING)),
+                        expect=expect(out, "xdmf_cellrho", cells, dims=[n - 1 for n in DIMS])))
+    entries.append(dict(file="xdmf_one.xmf", field=None, steps=1, bounds=None, needs="hdf5",
+                        expect=expect(out, "xdmf_mask", [steps[0]["mask"]])))
+
+
 def main():
+    # netCDF4 warns that a native fill value meets a big-endian variable; it stores it right.
+    warnings.filterwarnings("ignore", "endian-ness of dtype")
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
     entries = []
     vtk_files(out, entries)
     nrrd_files(out, entries)
     netcdf_files(out, entries)
+    hdf5_files(out, entries)
     grid = dict(dims=list(DIMS), origin=list(ORIGIN), spacing=list(SPACING))
     with open(os.path.join(out, "manifest.json"), "w") as fh:
         json.dump(dict(grid=grid, files=entries), fh, indent=1)

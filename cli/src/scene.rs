@@ -13,14 +13,15 @@ pub const DEFAULT_SOURCE: &str = "gray-scott:64:1000";
 /// Where the data comes from and how it is classified and sampled.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Volume: a file (`.vti`, `.vtk`, `.nrrd`/`.nhdr`, `.nc`, or raw
+    /// Volume: a file (`.vti`, `.vtk`, `.nrrd`/`.nhdr`, `.nc`, `.h5`, `.xmf`, or raw
     /// `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`; docs/data.md), or `gray-scott:N[:STEPS]` (the
     /// built-in simulation). Default: the built-in Gray–Scott run.
     #[arg(long)]
     pub volume: Option<String>,
-    /// The field to render from a file with several (a VTK array, a NetCDF variable).
+    /// The field to render from a file with several (a VTK array, a NetCDF variable, an HDF5
+    /// dataset's path, an XDMF attribute).
     /// Default: the file's active scalars, else its first.
-    #[arg(long, visible_alias = "var")]
+    #[arg(long, visible_aliases = ["var", "dataset"])]
     pub field: Option<String>,
     /// How an uneven NetCDF axis (an ocean model's depth levels) is taken: `resample` (to an
     /// even grid at its smallest gap, linearly; said on stderr) or `index` (its levels one unit

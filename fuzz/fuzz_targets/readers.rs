@@ -1,5 +1,5 @@
-//! Every volume reader on arbitrary bytes: the first byte picks the format (NetCDF, NRRD, VTK
-//! XML, legacy VTK), the rest is the file. Opening and reading the first step give a volume
+//! Every pure-Rust volume reader on arbitrary bytes: the first byte picks the format (NetCDF
+//! classic, NRRD, VTK XML, legacy VTK, XDMF), the rest is the file. Opening and reading the first step give a volume
 //! of the dims the file claims, or an error; never a panic, and never an allocation the file's
 //! bytes do not justify (libFuzzer's malloc limit catches one).
 #![no_main]
@@ -7,7 +7,7 @@
 use insitu_readers::{open, Options};
 use libfuzzer_sys::fuzz_target;
 
-const FORMATS: [&str; 4] = ["nc", "nrrd", "vti", "vtk"];
+const FORMATS: [&str; 5] = ["nc", "nrrd", "vti", "vtk", "xmf"];
 
 fuzz_target!(|data: &[u8]| {
     let Some((&pick, file)) = data.split_first() else {

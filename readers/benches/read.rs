@@ -1,10 +1,12 @@
 //! How fast each reader loads a large field, and what memory it takes to do it: an N³ f32 field
 //! (N = 512 unless `INSITU_READ_BENCH_N` says otherwise) written as raw-appended `.vti`
-//! (UInt64 header), NetCDF classic (big-endian), NRRD (raw) and our raw layout, each read in a
-//! process of its own three times from the page cache. Prints per format the best read's GB/s
-//! (file bytes over seconds) and the process's peak RSS over the field's size.
+//! (UInt64 header), NetCDF classic (big-endian), NRRD (raw) and our raw layout, and with the
+//! features `netcdf4` and `hdf5` as netCDF-4 (contiguous, and deflated in z-planes) and HDF5
+//! (contiguous), each read in a process of its own three times from the page cache. Prints per
+//! format the best read's GB/s (file bytes, and the field's f32 bytes, over seconds) and the
+//! process's peak RSS over the field's size.
 //!
-//! `cargo bench -p insitu-readers --bench read`
+//! `cargo bench -p insitu-readers --bench read [--features netcdf4,hdf5]`
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a bench fails loudly
 
@@ -84,6 +86,33 @@ fn write_all(dir: &Path, n: usize) -> Vec<(&'static str, std::path::PathBuf)> {
     f.write_all(&be).unwrap();
     drop(f);
     out.push(("nc", nc));
+    let v = field(n);
+    #[cfg(feature = "netcdf4")]
+    for (name, deflate) in [("netCDF-4", false), ("netCDF-4 deflate", true)] {
+        let path = dir.join(format!("field_{}.nc", usize::from(deflate)));
+        let mut f = netcdf::create(&path).unwrap();
+        for (d, len) in [("z", n), ("y", n), ("x", n)] {
+            f.add_dimension(d, len).unwrap();
+        }
+        let mut var = f.add_variable::<f32>("f", &["z", "y", "x"]).unwrap();
+        if deflate {
+            var.set_chunking(&[1, n, n]).unwrap();
+            var.set_compression(1, true).unwrap();
+        }
+        var.put_values(&v, ..).unwrap();
+        drop(f);
+        out.push((name, path));
+    }
+    #[cfg(feature = "hdf5")]
+    {
+        let path = dir.join("field.h5");
+        let f = hdf5::File::create(&path).unwrap();
+        let ds = f.new_dataset::<f32>().shape([n, n, n]).create("f").unwrap();
+        ds.write_raw(&v).unwrap();
+        drop(f);
+        out.push(("HDF5", path));
+    }
+    drop(v);
     out
 }
 
@@ -125,8 +154,8 @@ fn main() {
         "read: {n}³ f32 ({:.0} MiB), best of 3 from the page cache, a process per format",
         field / (1 << 20) as f64
     );
-    println!("| format | GB/s | peak RSS / field |");
-    println!("| --- | --- | --- |");
+    println!("| format | file GB/s | field GB/s | peak RSS / field |");
+    println!("| --- | --- | --- | --- |");
     for (name, path) in files {
         let bytes = std::fs::metadata(&path).unwrap().len() as f64;
         let out = std::process::Command::new(&args[0])
@@ -144,8 +173,9 @@ fn main() {
         let secs: f64 = it.next().unwrap().parse().unwrap();
         let rss: f64 = it.next().unwrap().parse().unwrap();
         println!(
-            "| {name} | {:.2} | {:.2} |",
+            "| {name} | {:.2} | {:.2} | {:.2} |",
             bytes / secs / 1e9,
+            field / secs / 1e9,
             rss / field
         );
     }

@@ -254,6 +254,12 @@ impl Decode {
         samples(path, &self.file_dims)
     }
 
+    /// The stored dims (x, y, z), before resampling.
+    #[cfg_attr(not(feature = "netcdf4"), allow(dead_code))]
+    pub(crate) fn stored_dims(&self) -> [usize; 3] {
+        self.file_dims
+    }
+
     /// Bytes per stored sample.
     pub(crate) fn sample_size(&self) -> usize {
         self.sample.size()

@@ -6,11 +6,17 @@
 //! | --- | --- | --- |
 //! | `.raw` | our raw layout, dims and type in the name | [`raw`] |
 //! | `.nc` | NetCDF classic (CDF-1, CDF-2, CDF-5), CF conventions | [`netcdf3`] |
+//! | `.nc`, `.nc4` (HDF5 inside) | netCDF-4, CF conventions (feature `netcdf4`) | `netcdf4` |
 //! | `.nrrd`, `.nhdr` | NRRD, attached or detached, raw or gzip | [`nrrd`] |
 //! | `.vti` | VTK XML ImageData: ASCII, base64, appended raw, zlib blocks | [`vti`] |
 //! | `.vtk` | legacy VTK STRUCTURED_POINTS, ASCII or binary | [`legacy_vtk`] |
+//! | `.h5`, `.hdf5` | an HDF5 dataset (feature `hdf5`) | `hdf5` |
+//! | `.xmf`, `.xdmf` | XDMF: a 3DCoRectMesh over HDF5 datasets (reading: feature `hdf5`) | [`xdmf`] |
 //!
-//! Every reader is pure Rust (core never links a C library) and refuses a truncated file, a
+//! The readers of netCDF-4 and HDF5 link Unidata's netCDF-C and the HDF Group's HDF5 (Debian's
+//! `libnetcdf-dev`, `libhdf5-dev`) and are built only with their features; without them such a
+//! file is refused with the feature to turn on. The rest are pure Rust (core never links a C
+//! library), and every reader refuses a truncated file, a
 //! size that does not add up, a layout it does not read or a bad attribute with a
 //! [`ReadError`] naming the file and the problem; none panics on any input (fuzzed).
 
@@ -18,11 +24,16 @@
 
 pub mod bytes;
 mod cf;
+#[cfg(feature = "hdf5")]
+pub mod hdf5;
 pub mod legacy_vtk;
 pub mod netcdf3;
+#[cfg(feature = "netcdf4")]
+pub mod netcdf4;
 pub mod nrrd;
 pub mod raw;
 pub mod vti;
+pub mod xdmf;
 
 pub use cf::Uneven;
 use glam::Vec3;
@@ -101,7 +112,11 @@ pub struct Dataset {
 #[derive(Debug)]
 enum Source {
     Raw(raw::Raw),
-    NetCdf(netcdf3::Variable),
+    NetCdf(Box<netcdf3::Variable>),
+    #[cfg(feature = "netcdf4")]
+    NetCdf4(Box<netcdf4::Variable>),
+    #[cfg(feature = "hdf5")]
+    Hdf5(hdf5::Parts),
     Nrrd(nrrd::Nrrd),
     Vti(vti::Vti),
     LegacyVtk(legacy_vtk::LegacyVtk),
@@ -126,6 +141,10 @@ impl Dataset {
         let volume = match &self.source {
             Source::Raw(r) => r.read_step(&self.path, t, self.spacing)?,
             Source::NetCdf(v) => v.read_step(&self.path, t, self.dims, self.spacing)?,
+            #[cfg(feature = "netcdf4")]
+            Source::NetCdf4(v) => v.read_step(&self.path, t, self.dims, self.spacing)?,
+            #[cfg(feature = "hdf5")]
+            Source::Hdf5(p) => p.read_step(&self.path, t, self.dims, self.spacing)?,
             Source::Nrrd(n) => n.read(&self.path, self.dims, self.spacing)?,
             Source::Vti(v) => v.read(&self.path, self.dims, self.spacing)?,
             Source::LegacyVtk(v) => v.read(&self.path, self.dims, self.spacing)?,
@@ -137,7 +156,9 @@ impl Dataset {
 }
 
 /// The formats [`open`] reads, by extension.
-pub const EXTENSIONS: &[&str] = &["raw", "nc", "nrrd", "nhdr", "vti", "vtk"];
+pub const EXTENSIONS: &[&str] = &[
+    "raw", "nc", "nc4", "nrrd", "nhdr", "vti", "vtk", "h5", "hdf5", "xmf", "xdmf",
+];
 
 /// Opens `path`, choosing the reader by its extension.
 ///
@@ -151,10 +172,13 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         .unwrap_or_default();
     match ext.as_str() {
         "raw" => raw::open(path),
+        "nc" | "nc4" if is_hdf5(path)? => open_netcdf4(path, options),
         "nc" => netcdf3::open(path, options),
         "nrrd" | "nhdr" => nrrd::open(path),
         "vti" => vti::open(path, options),
         "vtk" => legacy_vtk::open(path, options),
+        "h5" | "hdf5" => open_hdf5(path, options),
+        "xmf" | "xdmf" => xdmf::open(path, options),
         other => Err(ReadError::invalid(
             path,
             format!(
@@ -164,6 +188,42 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
             ),
         )),
     }
+}
+
+/// Whether the file starts with HDF5's signature (a netCDF-4 file does).
+fn is_hdf5(path: &Path) -> Result<bool, ReadError> {
+    let mut magic = [0u8; 8];
+    let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let n = std::io::Read::read(&mut f, &mut magic).map_err(ReadError::io(path))?;
+    Ok(magic[..n] == *b"\x89HDF\r\n\x1a\n")
+}
+
+#[cfg(feature = "netcdf4")]
+fn open_netcdf4(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    netcdf4::open(path, options)
+}
+
+#[cfg(not(feature = "netcdf4"))]
+fn open_netcdf4(path: &Path, _: &Options) -> Result<Dataset, ReadError> {
+    Err(ReadError::invalid(
+        path,
+        "a netCDF-4 (HDF5) file: this build reads NetCDF classic only; build with \
+         `--features netcdf4` (needs Debian's libnetcdf-dev) to read it",
+    ))
+}
+
+#[cfg(feature = "hdf5")]
+fn open_hdf5(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    hdf5::open(path, options)
+}
+
+#[cfg(not(feature = "hdf5"))]
+fn open_hdf5(path: &Path, _: &Options) -> Result<Dataset, ReadError> {
+    Err(ReadError::invalid(
+        path,
+        "an HDF5 file: this build reads HDF5 only with `--features hdf5` (needs Debian's \
+         libhdf5-dev)",
+    ))
 }
 
 /// Grid spacing as files give it: every component finite and positive.

@@ -341,12 +341,12 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
     );
     // The axes from the coordinate variables, x first.
     let mut axes = Vec::with_capacity(3);
-    for a in 0..3 {
+    for (a, &n) in file_dims.iter().enumerate() {
         let d = var.dims[k - 1 - a];
         let coordinate = match vars.iter().find(|v| is_coord(v) && v.dims[0] == d) {
             Some(cv) => Some(Coordinate {
                 name: cv.name.clone(),
-                values: read_coords(&mut file, path, cv, file_dims[a])?,
+                values: read_coords(&mut file, path, cv, n)?,
                 units: cv
                     .attrs
                     .iter()
@@ -381,11 +381,11 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         field: var.name.clone(),
         fields: volumes.iter().map(|v| v.name.clone()).collect(),
         notes: grid.notes,
-        source: Source::NetCdf(Variable {
+        source: Source::NetCdf(Box::new(Variable {
             decode: grid.decode,
             begin: var.begin,
             stride,
-        }),
+        })),
     })
 }
 

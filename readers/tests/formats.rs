@@ -550,5 +550,101 @@ fn vti_ascii_base64_appended_and_zlib_read_as_written() {
 #[test]
 fn an_unknown_extension_names_the_known_ones() {
     let dir = tempfile::tempdir().unwrap();
-    refused(&write(dir.path(), "x.h5", b""), ".vti");
+    refused(&write(dir.path(), "x.grib", b""), ".vti, .vtk, .h5");
+}
+
+/// A 3DCoRectMesh of 4×3×2 points at origin (1, 2, 3), spacing (0.5, 1, 2), with `attribute`.
+fn xdmf(topology: &str, attribute: &str) -> Vec<u8> {
+    format!(
+        r#"<?xml version="1.0"?>
+<Xdmf Version="3.0"><Domain><Grid Name="g" GridType="Uniform">
+  <Topology TopologyType="{topology}" Dimensions="2 3 4"/>
+  <Geometry GeometryType="ORIGIN_DXDYDZ">
+    <DataItem Format="XML" Dimensions="3">3 2 1</DataItem>
+    <DataItem Format="XML" Dimensions="3">2 1 0.5</DataItem>
+  </Geometry>
+  {attribute}
+</Grid></Domain></Xdmf>"#
+    )
+    .into_bytes()
+}
+
+#[test]
+fn xdmf_descriptions_are_checked_before_any_dataset_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let rho = r#"<Attribute Name="rho" Center="Node"><DataItem Format="HDF" Dimensions="2 3 4">missing.h5:/rho</DataItem></Attribute>"#;
+    refused(
+        &write(dir.path(), "rect.xmf", &xdmf("3DRectMesh", rho)),
+        "only a uniform 3DCoRectMesh",
+    );
+    refused(
+        &write(
+            dir.path(),
+            "binary.xmf",
+            &xdmf("3DCoRectMesh", &rho.replace("HDF", "Binary")),
+        ),
+        "only HDF data items",
+    );
+    refused(
+        &write(
+            dir.path(),
+            "vector.xmf",
+            &xdmf(
+                "3DCoRectMesh",
+                &rho.replace("Center", "AttributeType=\"Vector\" Center"),
+            ),
+        ),
+        "only scalar fields",
+    );
+    refused(
+        &write(dir.path(), "cut.xmf", &xdmf("3DCoRectMesh", rho)[..200]),
+        "XML",
+    );
+    let ok = write(dir.path(), "ok.xmf", &xdmf("3DCoRectMesh", rho));
+    let e = open(
+        &ok,
+        &Options {
+            field: Some("p".into()),
+            ..Options::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("no attribute \"p\"; attributes here: rho"),
+        "{e}"
+    );
+    // The description is sound; what is missing is the HDF5 file it names (or, without the
+    // feature, the means to read it).
+    let e = open(&ok, &Options::default()).unwrap_err().to_string();
+    let want = if cfg!(feature = "hdf5") {
+        "missing.h5: HDF5 cannot open it"
+    } else {
+        "--features hdf5"
+    };
+    assert!(e.contains(want), "{e}");
+}
+
+#[test]
+fn files_that_need_a_c_library_name_the_feature_or_the_library_refuses_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let h5 = write(dir.path(), "x.h5", b"\x89HDF\r\n\x1a\n....");
+    let nc4 = write(dir.path(), "x.nc", b"\x89HDF\r\n\x1a\n....");
+    // With the feature, the library itself refuses the cut file, and says so.
+    refused(
+        &h5,
+        if cfg!(feature = "hdf5") {
+            "HDF5 cannot open it"
+        } else {
+            "--features hdf5"
+        },
+    );
+    refused(
+        &nc4,
+        if cfg!(feature = "netcdf4") {
+            "netCDF-C cannot open this netCDF-4 file"
+        } else {
+            "--features netcdf4"
+        },
+    );
 }

@@ -18,13 +18,14 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The series: a NetCDF file whose variable has a time dimension (`--var`), a raw file
+    /// The series: a NetCDF or HDF5 file whose variable or dataset has a time dimension
+    /// (`--var`, `--dataset`), an XDMF temporal collection, a raw file
     /// `<name>_<X>x<Y>x<Z>x<T>_<type>.raw`, or any volume file (`.vti`, `.vtk`, `.nrrd`: one
     /// step); docs/data.md.
     #[arg(long)]
     series: PathBuf,
-    /// The variable or array to push (default: the file's first volume).
-    #[arg(long, visible_alias = "var")]
+    /// The variable, array, dataset or attribute to push (default: the file's first volume).
+    #[arg(long, visible_aliases = ["var", "dataset"])]
     field: Option<String>,
     /// How an uneven NetCDF axis is taken (`resample` or `index`; see `insitu render --help`).
     #[arg(long, value_enum, default_value_t = crate::scene::UnevenAxis::Resample)]
