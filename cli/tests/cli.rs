@@ -1417,9 +1417,20 @@ fn every_format_renders_the_field_it_holds() {
         "x.png",
     );
     assert_fails(
-        &["render", "--volume", "ball.h5", "--size", "8"],
+        &["render", "--volume", "ball.grib", "--size", "8"],
         dir.path(),
         "unknown volume format",
+        "x.png",
+    );
+    // A format read through a C library names the feature that reads it when it is off.
+    assert_fails(
+        &["render", "--volume", "ball.h5", "--size", "8"],
+        dir.path(),
+        if cfg!(feature = "hdf5") {
+            "HDF5 cannot open it"
+        } else {
+            "--features hdf5"
+        },
         "x.png",
     );
 }
