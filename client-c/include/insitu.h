@@ -68,6 +68,22 @@ typedef enum {
 } InsituDtype;
 
 /**
+ * Where a field's values sit (Conduit Blueprint's `fields/<name>/association`), passed as
+ * `uint32_t`.
+ */
+typedef enum {
+  /**
+   * `"vertex"`: one value per point of the brick.
+   */
+  INSITU_ASSOCIATION_VERTEX = 0,
+  /**
+   * `"element"`: one value per cell (one fewer per axis), rendered at the cells' centres;
+   * from a single rank only.
+   */
+  INSITU_ASSOCIATION_ELEMENT = 1,
+} InsituAssociation;
+
+/**
  * A connection to one generator-node (opaque).
  */
 typedef struct InsituClient InsituClient;
@@ -105,6 +121,72 @@ typedef struct {
    */
   uint64_t failed;
 } InsituNodeStatus;
+
+/**
+ * One named field of a step, as Conduit Blueprint's `fields/<name>` holds it.
+ */
+typedef struct {
+  /**
+   * `fields/<name>`: NUL-terminated UTF-8, 1 to 128 bytes, unique within the step.
+   */
+  const char *name;
+  /**
+   * `fields/<name>/association`: an [`InsituAssociation`].
+   */
+  uint32_t association;
+  /**
+   * The type of `fields/<name>/values`: an [`InsituDtype`].
+   */
+  uint32_t dtype;
+  /**
+   * `fields/<name>/values`, x fastest: one per point of the brick (vertex) or per cell
+   * (element).
+   */
+  const void *values;
+} InsituField;
+
+/**
+ * One rank's brick of a step on a uniform mesh, as Conduit Blueprint describes it (what
+ * Ascent and Catalyst 2 users fill), with the rank's place in the whole grid.
+ */
+typedef struct {
+  /**
+   * `coordsets/coords/dims/{i,j,k}`: the whole grid's points per axis.
+   */
+  uint32_t global_dims[3];
+  /**
+   * This brick's first point in the whole grid (its index).
+   */
+  uint32_t brick_offset[3];
+  /**
+   * This brick's points per axis.
+   */
+  uint32_t brick_dims[3];
+  /**
+   * `coordsets/coords/origin/{x,y,z}`: world position of the whole grid's first point.
+   */
+  float origin[3];
+  /**
+   * `coordsets/coords/spacing/{dx,dy,dz}`: world units between points, positive.
+   */
+  float spacing[3];
+  /**
+   * This rank, `0 ≤ rank < world_size`.
+   */
+  uint32_t rank;
+  /**
+   * Number of ranks.
+   */
+  uint32_t world_size;
+  /**
+   * `fields`: `num_fields` entries, their values sent in this order.
+   */
+  const InsituField *fields;
+  /**
+   * Number of entries in `fields`, at least 1.
+   */
+  uint32_t num_fields;
+} InsituMesh;
 
 #ifdef __cplusplus
 extern "C" {
@@ -177,6 +259,30 @@ InsituStatus insitu_push_step(const InsituClient *c,
                               const float *spacing,
                               uint32_t rank,
                               uint32_t world_size,
+                              InsituNodeStatus *out);
+
+/**
+ * Pushes one rank's brick of one time step with named fields (a Blueprint-shaped `mesh`) and
+ * returns once the generator-node has queued it (the values may be reused then). The node
+ * keeps the field its scene names (`field` in its configuration; default the first) and skips
+ * the others. `*out` (if not null) receives the node's counters. Ignores
+ * [`insitu_set_origin`]: the mesh carries its origin.
+ *
+ * Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, no field, a name that is not
+ * UTF-8, an unknown dtype or association, sizes that overflow: nothing sent; the message
+ * names the field), `INSITU_STATUS_REFUSED` (the node refused the step, e.g. values that do
+ * not fill the brick or a field named twice; the message says why),
+ * `INSITU_STATUS_UNREACHABLE`.
+ *
+ * # Safety
+ * `c` is a live client; `mesh` is valid for a read; its `fields` valid for `num_fields`
+ * reads, each `name` a NUL-terminated string and each `values` valid for reads of its
+ * field's bytes; `out` is null or valid for a write.
+ */
+InsituStatus insitu_push_mesh(const InsituClient *c,
+                              uint64_t step,
+                              double sim_time,
+                              const InsituMesh *mesh,
                               InsituNodeStatus *out);
 
 /**

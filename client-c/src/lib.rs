@@ -344,18 +344,9 @@ pub unsafe extern "C" fn insitu_push_step(
     out: *mut InsituNodeStatus,
 ) -> InsituStatus {
     guarded(|| {
-        let (dtype, size) = match dtype {
-            1 => (ScalarType::U8, 1u64),
-            2 => (ScalarType::U16, 2),
-            3 => (ScalarType::I16, 2),
-            4 => (ScalarType::F32, 4),
-            5 => (ScalarType::F64, 8),
-            other => {
-                return fail(
-                    InsituStatus::InvalidArgument,
-                    format!("dtype {other} is not one of INSITU_DTYPE_U8..F64 (1..=5)"),
-                )
-            }
+        let (dtype, size) = match scalar(dtype, "dtype") {
+            Ok(t) => t,
+            Err(s) => return s,
         };
         // SAFETY: forwarded from this function's contract.
         let dims = unsafe {
@@ -407,30 +398,239 @@ pub unsafe extern "C" fn insitu_push_step(
             rank,
             world_size,
             spacing,
-            // SAFETY: `c` is null (refused by `with_client` below) or live by the contract.
-            origin: unsafe { c.as_ref() }.map_or([0.0; 3], |c| {
-                *c.origin.lock().unwrap_or_else(|p| p.into_inner())
-            }),
+            // SAFETY: `c` is null (refused by `push` below) or live by the contract.
+            origin: unsafe { origin_of(c) },
             data: field,
+            fields: Vec::new(),
         };
         // SAFETY: forwarded from this function's contract.
-        unsafe {
-            with_client(c, |rt, client| match rt.block_on(client.push_step(s)) {
-                Ok(reply) => {
-                    if !out.is_null() {
-                        let status = InsituNodeStatus {
-                            queue_depth: reply.queue_depth,
-                            steps_received: reply.steps_received,
-                            ..Default::default()
-                        };
-                        // SAFETY: non-null and valid for a write by the contract.
-                        *out = status;
-                    }
-                    InsituStatus::Ok
-                }
-                Err(e) => from_client_error(&e),
-            })
+        unsafe { push(c, s, out) }
+    })
+}
+
+/// The grid's origin set by [`insitu_set_origin`] ((0, 0, 0) for a null client).
+///
+/// # Safety
+/// `c` is null or a live client.
+unsafe fn origin_of(c: *const InsituClient) -> [f32; 3] {
+    // SAFETY: null or live by the caller's contract.
+    unsafe { c.as_ref() }.map_or([0.0; 3], |c| {
+        *c.origin.lock().unwrap_or_else(|p| p.into_inner())
+    })
+}
+
+/// An [`InsituDtype`] value as a scalar type and its size in bytes.
+fn scalar(dtype: u32, what: &str) -> Result<(ScalarType, u64), InsituStatus> {
+    Ok(match dtype {
+        1 => (ScalarType::U8, 1),
+        2 => (ScalarType::U16, 2),
+        3 => (ScalarType::I16, 2),
+        4 => (ScalarType::F32, 4),
+        5 => (ScalarType::F64, 8),
+        other => {
+            return Err(fail(
+                InsituStatus::InvalidArgument,
+                format!("{what} {other} is not one of INSITU_DTYPE_U8..F64 (1..=5)"),
+            ))
         }
+    })
+}
+
+/// Sends `s` and writes the node's counters to `out` (if not null).
+///
+/// # Safety
+/// `c` is null or a live client; `out` is null or valid for a write.
+unsafe fn push(c: *const InsituClient, s: Step, out: *mut InsituNodeStatus) -> InsituStatus {
+    // SAFETY: forwarded from this function's contract.
+    unsafe {
+        with_client(c, |rt, client| match rt.block_on(client.push_step(s)) {
+            Ok(reply) => {
+                if !out.is_null() {
+                    let status = InsituNodeStatus {
+                        queue_depth: reply.queue_depth,
+                        steps_received: reply.steps_received,
+                        ..Default::default()
+                    };
+                    // SAFETY: non-null and valid for a write by the contract.
+                    *out = status;
+                }
+                InsituStatus::Ok
+            }
+            Err(e) => from_client_error(&e),
+        })
+    }
+}
+
+/// Where a field's values sit (Conduit Blueprint's `fields/<name>/association`), passed as
+/// `uint32_t`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InsituAssociation {
+    /// `"vertex"`: one value per point of the brick.
+    Vertex = 0,
+    /// `"element"`: one value per cell (one fewer per axis), rendered at the cells' centres;
+    /// from a single rank only.
+    Element = 1,
+}
+
+/// One named field of a step, as Conduit Blueprint's `fields/<name>` holds it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct InsituField {
+    /// `fields/<name>`: NUL-terminated UTF-8, 1 to 128 bytes, unique within the step.
+    pub name: *const c_char,
+    /// `fields/<name>/association`: an [`InsituAssociation`].
+    pub association: u32,
+    /// The type of `fields/<name>/values`: an [`InsituDtype`].
+    pub dtype: u32,
+    /// `fields/<name>/values`, x fastest: one per point of the brick (vertex) or per cell
+    /// (element).
+    pub values: *const c_void,
+}
+
+/// One rank's brick of a step on a uniform mesh, as Conduit Blueprint describes it (what
+/// Ascent and Catalyst 2 users fill), with the rank's place in the whole grid.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct InsituMesh {
+    /// `coordsets/coords/dims/{i,j,k}`: the whole grid's points per axis.
+    pub global_dims: [u32; 3],
+    /// This brick's first point in the whole grid (its index).
+    pub brick_offset: [u32; 3],
+    /// This brick's points per axis.
+    pub brick_dims: [u32; 3],
+    /// `coordsets/coords/origin/{x,y,z}`: world position of the whole grid's first point.
+    pub origin: [f32; 3],
+    /// `coordsets/coords/spacing/{dx,dy,dz}`: world units between points, positive.
+    pub spacing: [f32; 3],
+    /// This rank, `0 ≤ rank < world_size`.
+    pub rank: u32,
+    /// Number of ranks.
+    pub world_size: u32,
+    /// `fields`: `num_fields` entries, their values sent in this order.
+    pub fields: *const InsituField,
+    /// Number of entries in `fields`, at least 1.
+    pub num_fields: u32,
+}
+
+/// Pushes one rank's brick of one time step with named fields (a Blueprint-shaped `mesh`) and
+/// returns once the generator-node has queued it (the values may be reused then). The node
+/// keeps the field its scene names (`field` in its configuration; default the first) and skips
+/// the others. `*out` (if not null) receives the node's counters. Ignores
+/// [`insitu_set_origin`]: the mesh carries its origin.
+///
+/// Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, no field, a name that is not
+/// UTF-8, an unknown dtype or association, sizes that overflow: nothing sent; the message
+/// names the field), `INSITU_STATUS_REFUSED` (the node refused the step, e.g. values that do
+/// not fill the brick or a field named twice; the message says why),
+/// `INSITU_STATUS_UNREACHABLE`.
+///
+/// # Safety
+/// `c` is a live client; `mesh` is valid for a read; its `fields` valid for `num_fields`
+/// reads, each `name` a NUL-terminated string and each `values` valid for reads of its
+/// field's bytes; `out` is null or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn insitu_push_mesh(
+    c: *const InsituClient,
+    step: u64,
+    sim_time: f64,
+    mesh: *const InsituMesh,
+    out: *mut InsituNodeStatus,
+) -> InsituStatus {
+    guarded(|| {
+        // SAFETY: null or valid for a read by the contract.
+        let Some(m) = (unsafe { mesh.as_ref() }) else {
+            return fail(InsituStatus::InvalidArgument, "mesh is null");
+        };
+        if m.fields.is_null() || m.num_fields == 0 {
+            return fail(InsituStatus::InvalidArgument, "mesh has no field");
+        }
+        let count = |less: u32| {
+            m.brick_dims.iter().try_fold(1u64, |n, &d| {
+                n.checked_mul(u64::from(d.saturating_sub(less)))
+            })
+        };
+        let (Some(points), Some(cells)) = (count(0), count(1)) else {
+            return fail(
+                InsituStatus::InvalidArgument,
+                format!("brick_dims {:?} overflow", m.brick_dims),
+            );
+        };
+        let mut fields = Vec::with_capacity(m.num_fields as usize);
+        for i in 0..m.num_fields as usize {
+            // SAFETY: `fields` is valid for `num_fields` reads by the contract.
+            let f = unsafe { *m.fields.add(i) };
+            if f.name.is_null() {
+                return fail(
+                    InsituStatus::InvalidArgument,
+                    format!("fields[{i}].name is null"),
+                );
+            }
+            // SAFETY: non-null and NUL-terminated by the contract.
+            let Ok(name) = unsafe { CStr::from_ptr(f.name) }.to_str() else {
+                return fail(
+                    InsituStatus::InvalidArgument,
+                    format!("fields[{i}].name is not UTF-8"),
+                );
+            };
+            let (dtype, size) = match scalar(f.dtype, &format!("field {name:?}: dtype")) {
+                Ok(t) => t,
+                Err(s) => return s,
+            };
+            let (association, n) = match f.association {
+                0 => (insitu_client::Association::Vertex, points),
+                1 => (insitu_client::Association::Element, cells),
+                other => {
+                    return fail(
+                        InsituStatus::InvalidArgument,
+                        format!("field {name:?}: association {other} is not INSITU_ASSOCIATION_VERTEX (0) or _ELEMENT (1)"),
+                    )
+                }
+            };
+            let Some(bytes) = n.checked_mul(size).and_then(|b| usize::try_from(b).ok()) else {
+                return fail(
+                    InsituStatus::InvalidArgument,
+                    format!("field {name:?}: {n} values overflow the address space"),
+                );
+            };
+            if f.values.is_null() && bytes > 0 {
+                return fail(
+                    InsituStatus::InvalidArgument,
+                    format!("field {name:?}: values is null"),
+                );
+            }
+            let values = if bytes == 0 {
+                Bytes::new()
+            } else {
+                // SAFETY: non-null, valid for `bytes` reads by the contract; copied before
+                // return.
+                Bytes::copy_from_slice(unsafe {
+                    std::slice::from_raw_parts(f.values.cast::<u8>(), bytes)
+                })
+            };
+            fields.push(insitu_client::Field {
+                name: name.to_owned(),
+                association,
+                dtype,
+                values,
+            });
+        }
+        let s = Step {
+            step,
+            sim_time,
+            dtype: ScalarType::Unspecified,
+            global_dims: m.global_dims,
+            brick_offset: m.brick_offset,
+            brick_dims: m.brick_dims,
+            rank: m.rank,
+            world_size: m.world_size,
+            spacing: m.spacing,
+            origin: m.origin,
+            data: Bytes::new(),
+            fields,
+        };
+        // SAFETY: forwarded from this function's contract.
+        unsafe { push(c, s, out) }
     })
 }
 

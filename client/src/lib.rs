@@ -30,7 +30,9 @@ use tonic::transport::Channel;
 
 pub use bytes::Bytes;
 pub use insitu_proto::auth::Token as BearerToken;
-pub use insitu_proto::pb::{ConfigReply, GenerationConfig, GeneratorStatus, PushReply, ScalarType};
+pub use insitu_proto::pb::{
+    Association, ConfigReply, GenerationConfig, GeneratorStatus, PushReply, ScalarType,
+};
 pub use insitu_proto::peer::Peer;
 pub use insitu_proto::tls::TlsFiles;
 pub use tonic::Code;
@@ -107,8 +109,59 @@ pub struct Step {
     pub spacing: [f32; 3],
     /// World position of the whole grid's first voxel (where the brick at offset 0 starts).
     pub origin: [f32; 3],
-    /// The field, little-endian, x fastest: `brick voxels × dtype size` bytes.
+    /// The field, little-endian, x fastest: `brick voxels × dtype size` bytes; empty when the
+    /// step carries named `fields` instead.
     pub data: Bytes,
+    /// The step's named fields (Conduit Blueprint's `fields/<name>` on the uniform mesh the
+    /// dims, origin and spacing above describe); empty: `data` is the step's one field.
+    pub fields: Vec<Field>,
+}
+
+/// One named field of a step (Blueprint `fields/<name>`: `association`, `values`).
+#[derive(Clone, Debug)]
+pub struct Field {
+    /// Its name, unique within the step, 1 to 128 bytes.
+    pub name: String,
+    /// On the grid's points (`brick_dims` values) or cells (`brick_dims − 1` per axis).
+    pub association: Association,
+    /// Scalar type of `values`.
+    pub dtype: ScalarType,
+    /// The values, little-endian, x fastest.
+    pub values: Bytes,
+}
+
+impl Field {
+    /// A vertex-associated `f32` field.
+    pub fn vertex_f32(name: &str, values: &[f32]) -> Self {
+        Self {
+            name: name.into(),
+            association: Association::Vertex,
+            dtype: ScalarType::F32,
+            values: f32_bytes(values),
+        }
+    }
+
+    /// An element-associated (cell) `f32` field.
+    pub fn element_f32(name: &str, values: &[f32]) -> Self {
+        Self {
+            association: Association::Element,
+            ..Self::vertex_f32(name, values)
+        }
+    }
+}
+
+/// Longest field name, bytes.
+pub const MAX_FIELD_NAME: usize = 128;
+
+/// Bytes per sample of `t`.
+fn size_of(t: ScalarType) -> Result<u64, String> {
+    Ok(match t {
+        ScalarType::U8 => 1,
+        ScalarType::U16 | ScalarType::I16 => 2,
+        ScalarType::F32 => 4,
+        ScalarType::F64 => 8,
+        ScalarType::Unspecified => return Err("dtype is unspecified".into()),
+    })
 }
 
 impl Step {
@@ -120,6 +173,16 @@ impl Step {
     /// A whole single-rank `u8` field (x fastest), unit spacing.
     pub fn whole_u8(step: u64, sim_time: f64, dims: [u32; 3], field: impl Into<Bytes>) -> Self {
         Self::whole(step, sim_time, ScalarType::U8, dims, field.into())
+    }
+
+    /// The step with named `fields` in place of one unnamed field (`data` emptied, `dtype`
+    /// then unused).
+    pub fn with_fields(self, fields: Vec<Field>) -> Self {
+        Self {
+            data: Bytes::new(),
+            fields,
+            ..self
+        }
     }
 
     fn whole(step: u64, sim_time: f64, dtype: ScalarType, dims: [u32; 3], data: Bytes) -> Self {
@@ -135,27 +198,79 @@ impl Step {
             spacing: [1.0; 3],
             origin: [0.0; 3],
             data,
+            fields: Vec::new(),
         }
     }
 
-    fn header(&self) -> Result<pb::StepHeader, ClientError> {
-        let size = match self.dtype {
-            ScalarType::U8 => 1,
-            ScalarType::U16 | ScalarType::I16 => 2,
-            ScalarType::F32 => 4,
-            ScalarType::F64 => 8,
-            ScalarType::Unspecified => {
-                return Err(ClientError::InvalidStep("dtype is unspecified".into()))
-            }
-        };
-        let voxels: u64 = self.brick_dims.iter().map(|&d| u64::from(d)).product();
-        if voxels * size != self.data.len() as u64 {
-            return Err(ClientError::InvalidStep(format!(
-                "{} bytes for a brick of {:?} voxels of {size} bytes",
-                self.data.len(),
-                self.brick_dims
-            )));
+    /// The payload: `data`, or each field's values in order.
+    fn payload(&self) -> Vec<Bytes> {
+        if self.fields.is_empty() {
+            vec![self.data.clone()]
+        } else {
+            self.fields.iter().map(|f| f.values.clone()).collect()
         }
+    }
+
+    /// Checks the named fields against the brick: names, types, and each field's bytes.
+    fn check_fields(&self) -> Result<Vec<pb::Field>, String> {
+        if !self.data.is_empty() {
+            return Err("a step carries either data or named fields, not both".into());
+        }
+        let points: u64 = self.brick_dims.iter().map(|&d| u64::from(d)).product();
+        let cells: u64 = self
+            .brick_dims
+            .iter()
+            .map(|&d| u64::from(d.saturating_sub(1)))
+            .product();
+        let mut out = Vec::with_capacity(self.fields.len());
+        for (i, f) in self.fields.iter().enumerate() {
+            if f.name.is_empty() || f.name.len() > MAX_FIELD_NAME {
+                return Err(format!(
+                    "field {i}: a name of 1 to {MAX_FIELD_NAME} bytes, not {:?}",
+                    f.name
+                ));
+            }
+            if self.fields[..i].iter().any(|g| g.name == f.name) {
+                return Err(format!("field {:?} is named twice", f.name));
+            }
+            let size = size_of(f.dtype).map_err(|e| format!("field {:?}: {e}", f.name))?;
+            let (count, what) = match f.association {
+                Association::Vertex => (points, "points"),
+                Association::Element => (cells, "cells"),
+            };
+            if count * size != f.values.len() as u64 {
+                return Err(format!(
+                    "field {:?}: {} bytes for the {count} {what} of a brick of {:?} points at {size} bytes each",
+                    f.name,
+                    f.values.len(),
+                    self.brick_dims
+                ));
+            }
+            out.push(pb::Field {
+                name: f.name.clone(),
+                association: f.association as i32,
+                dtype: f.dtype as i32,
+            });
+        }
+        Ok(out)
+    }
+
+    fn header(&self) -> Result<pb::StepHeader, ClientError> {
+        let fields = if self.fields.is_empty() {
+            let size = size_of(self.dtype).map_err(ClientError::InvalidStep)?;
+            let voxels: u64 = self.brick_dims.iter().map(|&d| u64::from(d)).product();
+            if voxels * size != self.data.len() as u64 {
+                return Err(ClientError::InvalidStep(format!(
+                    "{} bytes for a brick of {:?} voxels of {size} bytes",
+                    self.data.len(),
+                    self.brick_dims
+                )));
+            }
+            Vec::new()
+        } else {
+            self.check_fields().map_err(ClientError::InvalidStep)?
+        };
+        let total_bytes = self.payload().iter().map(|b| b.len() as u64).sum();
         let d = |v: [u32; 3]| {
             Some(pb::Dims3 {
                 x: v[0],
@@ -172,7 +287,7 @@ impl Step {
             brick_dims: d(self.brick_dims),
             rank: self.rank,
             world_size: self.world_size,
-            total_bytes: self.data.len() as u64,
+            total_bytes,
             spacing: Some(pb::Vec3 {
                 x: self.spacing[0],
                 y: self.spacing[1],
@@ -183,6 +298,7 @@ impl Step {
                 y: self.origin[1],
                 z: self.origin[2],
             }),
+            fields,
         })
     }
 }
@@ -244,7 +360,7 @@ impl SimClient {
     /// # Errors
     /// [`ClientError::InvalidStep`] before sending; [`ClientError::Refused`] from the node.
     pub async fn push_step(&mut self, step: Step) -> Result<PushReply, ClientError> {
-        let msgs = chunk::split::<pb::StepChunk>(step.header()?, step.data);
+        let msgs = chunk::split_parts::<pb::StepChunk>(step.header()?, step.payload());
         Ok(self
             .inner
             .push_step(tokio_stream::iter(msgs))
@@ -307,6 +423,39 @@ mod tests {
         assert!(matches!(s.header(), Err(ClientError::InvalidStep(m)) if m.contains("32 bytes")));
         s.dtype = ScalarType::Unspecified;
         assert!(s.header().is_err());
+    }
+
+    #[test]
+    fn named_fields_are_checked_against_the_brick_before_sending() {
+        let points = [0.0f32; 24];
+        let cells = [0.0f32; 6];
+        let s = Step::whole_f32(1, 0.0, [4, 3, 2], &[]).with_fields(vec![
+            Field::vertex_f32("u", &points),
+            Field::element_f32("p", &cells),
+        ]);
+        let h = s.header().unwrap();
+        assert_eq!(h.total_bytes, 120);
+        assert_eq!(
+            h.fields.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(),
+            ["u", "p"]
+        );
+        assert_eq!(s.payload().len(), 2, "each field's values sent as they are");
+        let refused = |s: &Step, words: &str| match s.header() {
+            Err(ClientError::InvalidStep(m)) => assert!(m.contains(words), "{m}"),
+            other => panic!("{other:?}"),
+        };
+        let mut bad = s.clone();
+        bad.fields[1] = Field::element_f32("p", &points);
+        refused(&bad, "field \"p\": 96 bytes for the 6 cells");
+        let mut bad = s.clone();
+        bad.fields[1].name = "u".into();
+        refused(&bad, "field \"u\" is named twice");
+        let mut bad = s.clone();
+        bad.fields[0].name = String::new();
+        refused(&bad, "field 0: a name of 1 to 128 bytes");
+        let mut bad = s.clone();
+        bad.data = f32_bytes(&points);
+        refused(&bad, "either data or named fields");
     }
 
     #[test]

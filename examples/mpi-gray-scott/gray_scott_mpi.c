@@ -1,6 +1,7 @@
 /*
- * Gray–Scott reaction–diffusion with MPI, pushing each rank's brick of V to a generator-node
- * through the insitu C client (client-c/include/insitu.h).
+ * Gray–Scott reaction–diffusion with MPI, pushing each rank's brick of V and U to a
+ * generator-node as named fields of a Blueprint-shaped mesh (insitu_push_mesh) through the
+ * insitu C client (client-c/include/insitu.h).
  *
  * The model is the ADIOS2 tutorial's, as in core/src/volume/gray_scott.rs: Du = 0.2, Dv = 0.1,
  * F = 0.01, k = 0.05, dt = 2, a 7-point Laplacian divided by 6, periodic boundaries, u = 1 and
@@ -181,22 +182,43 @@ int main(int argc, char **argv) {
         bdims[a] = (uint32_t)b.n[a] + (coords[a] + 1 < dims[a] ? 1u : 0u);
     }
     size_t voxels = (size_t)bdims[0] * bdims[1] * bdims[2];
-    float *field = malloc(voxels * sizeof(float));
+    /* Both species as named fields of a Blueprint-shaped mesh; the generator-node renders the
+     * one its scene names (by default the first, v) and skips the other. */
+    float *fv = malloc(voxels * sizeof(float)), *fu = malloc(voxels * sizeof(float));
+    InsituField fields[2] = {
+        {"v", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fv},
+        {"u", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fu},
+    };
+    InsituMesh mesh = {
+        .origin = {0.0f, 0.0f, 0.0f},
+        .spacing = {1.0f, 1.0f, 1.0f},
+        .rank = (uint32_t)rank,
+        .world_size = (uint32_t)size,
+        .fields = fields,
+        .num_fields = 2,
+    };
+    for (int a = 0; a < 3; a++) {
+        mesh.global_dims[a] = global[a];
+        mesh.brick_offset[a] = offset[a];
+        mesh.brick_dims[a] = bdims[a];
+    }
     for (int s = 1; s <= steps && !failed; s++) {
         exchange(&b, b.u, cart);
         exchange(&b, b.v, cart);
         step_once(&b, N, (uint64_t)(s - 1));
         if (s % every == 0) {
+            exchange(&b, b.u, cart);
             exchange(&b, b.v, cart);
             size_t k = 0;
             for (uint32_t z = 0; z < bdims[2]; z++)
                 for (uint32_t y = 0; y < bdims[1]; y++)
-                    for (uint32_t x = 0; x < bdims[0]; x++)
-                        field[k++] = (float)b.v[at(&b, (int)x, (int)y, (int)z)];
-            failed = check(insitu_push_step(client, (uint64_t)s, (double)s * DT, field, INSITU_DTYPE_F32,
-                                            global, offset, bdims, NULL, (uint32_t)rank,
-                                            (uint32_t)size, NULL),
-                           "insitu_push_step", rank);
+                    for (uint32_t x = 0; x < bdims[0]; x++, k++) {
+                        size_t i = at(&b, (int)x, (int)y, (int)z);
+                        fv[k] = (float)b.v[i];
+                        fu[k] = (float)b.u[i];
+                    }
+            failed = check(insitu_push_mesh(client, (uint64_t)s, (double)s * DT, &mesh, NULL),
+                           "insitu_push_mesh", rank);
         }
         /* One rank failing stops all: a simulation would not go on half-observed. */
         MPI_Allreduce(MPI_IN_PLACE, &failed, 1, MPI_INT, MPI_MAX, cart);
@@ -207,7 +229,7 @@ int main(int argc, char **argv) {
         printf("gray-scott %d^3, %d ranks (%dx%dx%d), %d steps: pushed every %d; node received %llu, shipped %llu\n",
                N, size, dims[0], dims[1], dims[2], steps, every, (unsigned long long)st.steps_received,
                (unsigned long long)st.steps_shipped);
-    free(field);
+    free(fv); free(fu);
     free(b.u); free(b.v); free(b.u2); free(b.v2);
     MPI_Comm_free(&cart);
     MPI_Finalize();

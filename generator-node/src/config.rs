@@ -98,6 +98,9 @@ pub struct GenerationConfig {
     /// so no stored step exceeds it; one that cannot get under it is not shipped (counted as
     /// failed, logged).
     pub size_max: u64,
+    /// The field to render from steps that carry named fields (Blueprint `fields/<name>`);
+    /// unset: each step's first. A step that names none holds one field, which is rendered.
+    pub field: Option<String>,
 }
 
 impl Default for GenerationConfig {
@@ -115,6 +118,7 @@ impl Default for GenerationConfig {
             reference_every: 10,
             reference_size: 0,
             size_max: 0,
+            field: None,
         }
     }
 }
@@ -244,6 +248,8 @@ pub struct Generation {
     pub reference_size: u32,
     /// Hard limit on a step's σ, bytes (0: none; see `GenerationConfig::size_max`).
     pub size_max: u64,
+    /// The field to render by name; `None`: each step's first.
+    pub field: Option<String>,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
     pub pm_version: u64,
     /// The `P_M` and version in force before the last decision, for the steps before
@@ -392,6 +398,9 @@ impl GenerationConfig {
         if self.reference_size > insitu_core::vdi::MAX_RESOLUTION {
             return Err(invalid("generation.reference_size", "too large"));
         }
+        if let Some(f) = &self.field {
+            crate::ingest::check_field_name(f).map_err(|e| invalid("generation.field", e))?;
+        }
         Ok(Generation {
             params,
             raycast,
@@ -402,6 +411,7 @@ impl GenerationConfig {
             reference_every: self.reference_every,
             reference_size: self.reference_size,
             size_max: self.size_max,
+            field: self.field.clone(),
             pm_version: 0,
             previous: None,
             from_step: 0,

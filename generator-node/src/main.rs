@@ -47,6 +47,9 @@ struct Args {
     /// Side of the reference frames, pixels (0 = the VDI resolution).
     #[arg(long)]
     reference_size: Option<u32>,
+    /// The field to render from steps that carry named fields (default: each step's first).
+    #[arg(long)]
+    field: Option<String>,
     /// Where VDIs and references are made: cpu, gpu or auto (a hardware GPU if found, else
     /// the CPU).
     #[arg(long)]
@@ -94,6 +97,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.reference_size {
         g.reference_size = v;
+    }
+    if a.field.is_some() {
+        g.field = a.field;
     }
     c.generation()?;
     Ok(c)

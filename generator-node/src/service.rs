@@ -1,7 +1,7 @@
 //! The `Generator` gRPC service: receive steps into the bounded queue, take configuration
 //! pushed by a tuner or an operator, report status, flush.
 
-use crate::ingest::{check_header, RawStep};
+use crate::ingest::{check_step, RawStep};
 use crate::settings::apply_config;
 use crate::shared::Shared;
 use insitu_proto::pb::generator_server::Generator;
@@ -15,21 +15,30 @@ use tracing::{info, info_span, Instrument};
 pub struct GeneratorService(pub Arc<Shared>);
 
 impl GeneratorService {
-    /// One pushed step, its chunks converted into the brick's storage as they arrive (no
-    /// copy of the bytes), into the spare field of an earlier step where there is one.
+    /// One pushed step, the chunks of the field its scene renders converted into the brick's
+    /// storage as they arrive (no copy of the bytes; other fields skipped), into the spare
+    /// field of an earlier step where there is one.
     ///
     /// # Errors
     /// The stream's rules broken ([`chunk::receive_into`]: a bad header, a step over
     /// `max_step_bytes`, chunks that do not fill it), or a transport error, as a status.
     async fn receive(&self, mut stream: Streaming<pb::StepChunk>) -> Result<RawStep, Status> {
-        let (_, (info, field)) = chunk::receive_into(
+        // The field the scene renders; a step's other fields are skipped as they arrive.
+        let wanted = self
+            .0
+            .generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .field
+            .clone();
+        let (_, (info, _, field)) = chunk::receive_into(
             &mut stream,
             self.0.max_step_bytes,
             |h: &pb::StepHeader| {
-                let info = check_header(h)?;
-                Ok((info, info.assembler(self.0.spare_fields.take())))
+                let (info, window) = check_step(h, wanted.as_deref())?;
+                Ok((info, window, info.assembler(self.0.spare_fields.take())))
             },
-            |(_, field), bytes| field.push(bytes),
+            |(_, window, field), bytes| field.push(window.take(bytes)),
         )
         .await?;
         info.with_field(field)

@@ -28,6 +28,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         view_angles_deg: g.view_angles_deg.clone(),
         reference_every: u32::try_from(g.reference_every).ok(),
         reference_size: Some(g.reference_size),
+        field: Some(g.field.clone().unwrap_or_default()),
     }
 }
 
@@ -88,6 +89,14 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
             return Err(bad("reference_size", &format!("{s} is too large")));
         }
         next.reference_size = s;
+    }
+    if let Some(f) = &c.field {
+        next.field = if f.is_empty() {
+            None
+        } else {
+            crate::ingest::check_field_name(f).map_err(|e| bad("field", &e))?;
+            Some(f.clone())
+        };
     }
     Ok(next)
 }

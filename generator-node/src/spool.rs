@@ -105,6 +105,9 @@ fn header_of(raw: &RawStep) -> pb::StepHeader {
             y: raw.info.origin.y,
             z: raw.info.origin.z,
         }),
+        // The field kept (the one the scene renders, as received; cell data already on the
+        // grid of its cells' centres) as the step's one unnamed field.
+        fields: Vec::new(),
     }
 }
 
@@ -313,6 +316,7 @@ mod tests {
             total_bytes: 4 * n as u64,
             spacing: None,
             origin: None,
+            fields: Vec::new(),
         };
         let info = check_header(&h).unwrap();
         let mut field = info.assembler(None);

@@ -336,6 +336,7 @@ async fn made(
         spacing: [1.0; 3],
         origin: [0.0; 3],
         data: insitu_client::f32_bytes(&whole[z0 * 256..(z0 + 9) * 256]),
+        fields: Vec::new(),
     };
     client.push_step(step).await.unwrap();
     let Up::Summary(s) = next(up).await else {

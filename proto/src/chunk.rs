@@ -75,13 +75,24 @@ chunked!(
 
 /// The messages of one stream: `header`, then `payload` in [`CHUNK_BYTES`] slices.
 pub fn split<M: Chunked>(header: M::Header, payload: Bytes) -> Vec<M> {
-    let mut out = Vec::with_capacity(1 + payload.len().div_ceil(CHUNK_BYTES));
-    out.push(M::header(header));
-    let mut at = 0;
-    while at < payload.len() {
-        let end = (at + CHUNK_BYTES).min(payload.len());
-        out.push(M::data(payload.slice(at..end)));
-        at = end;
+    split_parts(header, [payload])
+}
+
+/// The messages of one stream whose payload is `parts` one after another (the named fields
+/// of a step): `header`, then each part in [`CHUNK_BYTES`] slices of its own (no part is
+/// copied to join another).
+pub fn split_parts<M: Chunked>(
+    header: M::Header,
+    parts: impl IntoIterator<Item = Bytes>,
+) -> Vec<M> {
+    let mut out = vec![M::header(header)];
+    for payload in parts {
+        let mut at = 0;
+        while at < payload.len() {
+            let end = (at + CHUNK_BYTES).min(payload.len());
+            out.push(M::data(payload.slice(at..end)));
+            at = end;
+        }
     }
     out
 }

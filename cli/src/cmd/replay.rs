@@ -143,6 +143,7 @@ fn brick_step(v: &Volume, step: u64, b: &Brick, rank: u32, world_size: u32) -> R
         // The file's origin: the whole grid's, which every brick is placed from.
         origin: v.origin().to_array(),
         data: f32_bytes(&brick.data()),
+        fields: Vec::new(),
     })
 }
 

@@ -6,6 +6,7 @@ mod bad_input;
 mod common;
 mod drift;
 mod faults;
+mod fields;
 mod gpu;
 mod health;
 mod mpi;

@@ -127,6 +127,7 @@ fn slab(step: u64, rank: u32, world_size: u32, value: f32) -> Step {
         spacing: [1.0; 3],
         origin: [0.0; 3],
         data: f32_bytes(&vec![value; 16 * 16 * 9]),
+        fields: Vec::new(),
     }
 }
 

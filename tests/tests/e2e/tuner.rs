@@ -318,6 +318,7 @@ fn push_two_ranks(series: &Path, steps: std::ops::Range<usize>, a: &str, b: &str
                     spacing: [1.0; 3],
                     origin: [0.0; 3],
                     data: insitu_client::f32_bytes(data),
+                    fields: Vec::new(),
                 };
                 if rank == 0 {
                     ca.push_step(step).await.unwrap();
