@@ -5,7 +5,7 @@
 //! or kept by index ([`Uneven`]).
 
 use crate::bytes::{Endian, Sample, Samples};
-use crate::{check_grid, samples, ReadError};
+use crate::{check_grid, samples, Dataset, ReadError, Source};
 use glam::Vec3;
 use insitu_core::Volume;
 use std::path::Path;
@@ -246,6 +246,31 @@ pub(crate) fn grid(
             file_dims,
         },
     })
+}
+
+impl Grid {
+    /// The dataset of `steps` steps of `field` (one of `fields`) in `path` on this grid, read
+    /// by the source `source` makes of the grid's decoder.
+    pub(crate) fn dataset(
+        self,
+        path: &Path,
+        steps: usize,
+        field: String,
+        fields: Vec<String>,
+        source: impl FnOnce(Decode) -> Source,
+    ) -> Dataset {
+        Dataset {
+            path: path.to_owned(),
+            dims: self.dims,
+            steps,
+            spacing: self.spacing,
+            origin: self.origin,
+            field,
+            fields,
+            notes: self.notes,
+            source: source(self.decode),
+        }
+    }
 }
 
 impl Decode {

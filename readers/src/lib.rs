@@ -254,6 +254,30 @@ pub(crate) fn check_grid(
     Ok(())
 }
 
+/// Whitespace-separated numbers in `text` (an XML attribute or element), exactly `n` of them.
+///
+/// # Errors
+/// [`ReadError`] naming `path` and `what` when one is not a number or the count differs.
+pub(crate) fn numbers(
+    path: &Path,
+    what: &str,
+    text: &str,
+    n: usize,
+) -> Result<Vec<f64>, ReadError> {
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|_| ReadError::invalid(path, format!("{what} {text:?} is not numbers")))?;
+    if v.len() != n {
+        return Err(ReadError::invalid(
+            path,
+            format!("{what} {text:?} needs {n} numbers"),
+        ));
+    }
+    Ok(v)
+}
+
 /// `dims` multiplied out, or an error naming them when the count overflows.
 pub(crate) fn samples(path: &Path, dims: &[usize]) -> Result<usize, ReadError> {
     dims.iter()

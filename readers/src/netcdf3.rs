@@ -372,21 +372,16 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         packing,
         options.uneven,
     )?;
-    Ok(Dataset {
-        path: path.to_owned(),
-        dims: grid.dims,
-        steps,
-        spacing: grid.spacing,
-        origin: grid.origin,
-        field: var.name.clone(),
-        fields: volumes.iter().map(|v| v.name.clone()).collect(),
-        notes: grid.notes,
-        source: Source::NetCdf(Box::new(Variable {
-            decode: grid.decode,
-            begin: var.begin,
-            stride,
-        })),
-    })
+    let fields = volumes.iter().map(|v| v.name.clone()).collect();
+    Ok(
+        grid.dataset(path, steps, var.name.clone(), fields, |decode| {
+            Source::NetCdf(Box::new(Variable {
+                decode,
+                begin: var.begin,
+                stride,
+            }))
+        }),
+    )
 }
 
 /// The `n` values of the coordinate variable `cv`.

@@ -170,21 +170,14 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         packing,
         options.uneven,
     )?;
-    Ok(Dataset {
-        path: path.to_owned(),
-        dims: grid.dims,
-        steps,
-        spacing: grid.spacing,
-        origin: grid.origin,
-        field: name.clone(),
-        fields: volumes,
-        notes: grid.notes,
-        source: Source::NetCdf4(Box::new(Variable {
+    let series = k == 4;
+    Ok(grid.dataset(path, steps, name.clone(), volumes, |decode| {
+        Source::NetCdf4(Box::new(Variable {
             name,
-            decode: grid.decode,
-            series: k == 4,
-        })),
-    })
+            decode,
+            series,
+        }))
+    }))
 }
 
 impl Variable {

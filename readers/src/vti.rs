@@ -9,7 +9,7 @@
 //! size][compressed size per block][blocks…]`, each header word of `header_type`.
 
 use crate::bytes::{Endian, Sample, Samples};
-use crate::{check_grid, samples, Dataset, Options, ReadError, Source};
+use crate::{check_grid, numbers, samples, Dataset, Options, ReadError, Source};
 use base64::Engine as _;
 use glam::Vec3;
 use insitu_core::Volume;
@@ -74,21 +74,6 @@ fn attr(e: &BytesStart, key: &str) -> Option<String> {
         .flatten()
         .find(|a| a.key.as_ref() == key.as_bytes())
         .and_then(|a| a.unescape_value().ok().map(|v| v.into_owned()))
-}
-
-fn numbers(path: &Path, what: &str, text: &str, n: usize) -> Result<Vec<f64>, ReadError> {
-    let v: Vec<f64> = text
-        .split_whitespace()
-        .map(str::parse)
-        .collect::<Result<_, _>>()
-        .map_err(|_| ReadError::invalid(path, format!("{what} {text:?} is not numbers")))?;
-    if v.len() != n {
-        return Err(ReadError::invalid(
-            path,
-            format!("{what} {text:?} needs {n} numbers"),
-        ));
-    }
-    Ok(v)
 }
 
 /// Opens a `.vti` file, choosing `options.field`.

@@ -12,7 +12,7 @@
 //! The description is parsed here in pure Rust (fuzzed); reading the datasets needs the `hdf5`
 //! feature.
 
-use crate::{check_grid, Dataset, Options, ReadError};
+use crate::{check_grid, numbers, Dataset, Options, ReadError};
 use glam::Vec3;
 use quick_xml::events::Event;
 use std::path::{Path, PathBuf};
@@ -109,22 +109,6 @@ fn parse(path: &Path, xml: &[u8]) -> Result<Element, ReadError> {
         return Err(bad("XML: the document ends inside an element".into()));
     }
     stack.pop().ok_or_else(|| bad("XML: no document".into()))
-}
-
-/// Whitespace-separated numbers, exactly `n` of them.
-fn numbers(path: &Path, what: &str, text: &str, n: usize) -> Result<Vec<f64>, ReadError> {
-    let v: Vec<f64> = text
-        .split_whitespace()
-        .map(str::parse)
-        .collect::<Result<_, _>>()
-        .map_err(|_| ReadError::invalid(path, format!("{what} {text:?} is not numbers")))?;
-    if v.len() != n {
-        return Err(ReadError::invalid(
-            path,
-            format!("{what} {text:?} needs {n} numbers"),
-        ));
-    }
-    Ok(v)
 }
 
 /// Where an attribute is centred.
