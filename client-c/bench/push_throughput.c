@@ -31,8 +31,8 @@ int main(int argc, char **argv) {
     struct timespec t0, t1;
     for (int k = 0; k <= pushes; k++) {
         if (k == 1) clock_gettime(CLOCK_MONOTONIC, &t0);
-        if (insitu_push_step(c, (uint64_t)k, (double)k, field, INSITU_DTYPE_F32, dims, zero, dims, NULL, 0,
-                             1, NULL) != INSITU_STATUS_OK) {
+        if (insitu_push_step(c, (uint64_t)k, (double)k, field, voxels * sizeof(float), INSITU_DTYPE_F32,
+                             dims, zero, dims, NULL, 0, 1, NULL) != INSITU_STATUS_OK) {
             fprintf(stderr, "push: %s\n", insitu_last_error());
             return 1;
         }
@@ -42,7 +42,7 @@ int main(int argc, char **argv) {
     double bytes = (double)voxels * sizeof(float);
     printf("ingest (C client): %d pushes of %.0f MiB in %.2f s = %.2f GB/s\n", pushes,
            bytes / (1 << 20), secs, pushes * bytes / secs / 1e9);
-    insitu_close(c, 60.0, NULL);
+    insitu_close(&c, 60.0, NULL);
     free(field);
     return 0;
 }

@@ -143,6 +143,10 @@ typedef struct {
    * (element).
    */
   const void *values;
+  /**
+   * The bytes `values` holds; must be the field's count times its type's size.
+   */
+  size_t values_bytes;
 } InsituField;
 
 /**
@@ -233,25 +237,30 @@ InsituStatus insitu_connect_tls(const char *addr,
 
 /**
  * Pushes one rank's brick of one time step and returns once the generator-node has queued it
- * (the field may be reused then). `data` holds `brick_dims[0]·brick_dims[1]·brick_dims[2]`
- * values of `dtype` (an [`InsituDtype`]), x fastest. `global_dims`, `brick_offset` and
- * `brick_dims` point to 3 values each (voxels; see the module docs for how bricks share
- * boundary planes); `spacing` to 3 positive world units per voxel, or null for (1, 1, 1).
+ * (the field may be reused then). `data` holds `data_bytes` bytes: exactly
+ * `brick_dims[0]·brick_dims[1]·brick_dims[2]` values of `dtype` (an [`InsituDtype`]), x
+ * fastest. `global_dims`, `brick_offset` and `brick_dims` point to 3 values each and count
+ * grid points: `global_dims` the whole grid's, `brick_offset` the brick's first point in it,
+ * `brick_dims` its points, and where a neighbouring rank's brick follows along an axis the
+ * brick repeats that neighbour's first plane (so bricks share their boundary planes).
+ * `spacing` points to 3 positive world units between points, or is null for (1, 1, 1).
  * `0 ≤ rank < world_size`. On success, `*out` (if not null) receives the node's counters.
  *
- * Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, unknown dtype, sizes that
- * overflow: nothing sent), `INSITU_STATUS_REFUSED` (the node refused the step; the message
- * says why), `INSITU_STATUS_UNREACHABLE`.
+ * Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, unknown dtype, a `data_bytes` that
+ * is not the brick's bytes, sizes that overflow: nothing read or sent),
+ * `INSITU_STATUS_REFUSED` (the node refused the step; the message says why),
+ * `INSITU_STATUS_UNREACHABLE`.
  *
  * # Safety
- * `c` is a live client; `data` is valid for reads of the brick's bytes; the dims pointers
- * are valid for 3 reads; `spacing` is null or valid for 3 reads; `out` is null or valid for
- * a write.
+ * `c` is null or a live client; `data` is valid for reads of `data_bytes` bytes; the dims
+ * pointers are valid for 3 reads; `spacing` is null or valid for 3 reads; `out` is null or
+ * valid for a write.
  */
 InsituStatus insitu_push_step(const InsituClient *c,
                               uint64_t step,
                               double sim_time,
                               const void *data,
+                              size_t data_bytes,
                               uint32_t dtype,
                               const uint32_t *global_dims,
                               const uint32_t *brick_offset,
@@ -275,9 +284,9 @@ InsituStatus insitu_push_step(const InsituClient *c,
  * `INSITU_STATUS_UNREACHABLE`.
  *
  * # Safety
- * `c` is a live client; `mesh` is valid for a read; its `fields` valid for `num_fields`
- * reads, each `name` a NUL-terminated string and each `values` valid for reads of its
- * field's bytes; `out` is null or valid for a write.
+ * `c` is null or a live client; `mesh` is valid for a read; its `fields` valid for
+ * `num_fields` reads, each `name` a NUL-terminated string and each `values` valid for reads
+ * of its `values_bytes`; `out` is null or valid for a write.
  */
 InsituStatus insitu_push_mesh(const InsituClient *c,
                               uint64_t step,
@@ -312,13 +321,16 @@ InsituStatus insitu_set_origin(const InsituClient *c, const float *origin);
 InsituStatus insitu_flush(const InsituClient *c, double timeout_secs, InsituNodeStatus *out);
 
 /**
- * Flushes (as [`insitu_flush`]) and frees the client, whatever the flush's outcome; `c` is
- * invalid afterwards. Null is accepted and does nothing.
+ * Flushes (as [`insitu_flush`]) and frees the client `*c`, whatever the flush's outcome, and
+ * sets `*c` to null, so that a later call with the same handle gets
+ * `INSITU_STATUS_INVALID_ARGUMENT` ("client is null") instead of touching freed memory.
+ * A null `c` or `*c` is accepted and does nothing.
  *
  * # Safety
- * `c` is null or a live client that no other thread is using.
+ * `c` is null or valid for a read and a write; `*c` is null or a live client that no other
+ * thread is using (copies of the handle elsewhere are dangling afterwards).
  */
-InsituStatus insitu_close(InsituClient *c, double timeout_secs, InsituNodeStatus *out);
+InsituStatus insitu_close(InsituClient **c, double timeout_secs, InsituNodeStatus *out);
 
 #ifdef __cplusplus
 }  // extern "C"

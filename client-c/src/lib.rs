@@ -9,9 +9,9 @@
 //!     fprintf(stderr, "insitu: %s\n", insitu_last_error());
 //! }
 //! uint32_t global[3] = {256, 256, 256}, offset[3] = {0, 0, 128}, dims[3] = {256, 256, 129};
-//! insitu_push_step(c, step, t, field, INSITU_DTYPE_F32, global, offset, dims, NULL,
-//!                  rank, size, NULL);
-//! insitu_close(c, 600.0, NULL);
+//! insitu_push_step(c, step, t, field, sizeof(float) * dims[0] * dims[1] * dims[2],
+//!                  INSITU_DTYPE_F32, global, offset, dims, NULL, rank, size, NULL);
+//! insitu_close(&c, 600.0, NULL); /* c is NULL afterwards */
 //! ```
 //!
 //! **Blocking.** Every call returns when done: `insitu_push_step` once the generator-node has
@@ -27,9 +27,11 @@
 //! program typically opens one per rank. `insitu_close` must not race other calls on the same
 //! client (it frees it).
 //!
-//! Rank decomposition (docs/conventions.md, "A world of ranks"): neighbouring bricks share their boundary plane of
-//! voxels; a simulation with halo cells sends its owned voxels plus the first halo plane on the
-//! upper side of every axis that has a neighbour.
+//! **Bricks.** Dims count grid points. `global_dims` is the whole grid's, `brick_offset` a
+//! rank's first point in it and `brick_dims` its points; where a neighbouring rank's brick
+//! follows along an axis, the brick repeats that neighbour's first plane, so neighbouring
+//! bricks share their boundary plane. A simulation with halo cells sends its owned points plus
+//! the first halo plane on the upper side of every axis that has a neighbour.
 
 use insitu_client::{
     BearerToken, Bytes, ClientError, GeneratorStatus, Peer, ScalarType, SimClient, Step, TlsFiles,
@@ -132,12 +134,22 @@ fn from_client_error(e: &ClientError) -> InsituStatus {
     fail(status, e.to_string())
 }
 
-/// Runs `f`, turning a panic into `INSITU_STATUS_INTERNAL`.
+/// Runs `f`, turning a panic into `INSITU_STATUS_INTERNAL` with its message in
+/// [`insitu_last_error`]. Nothing is printed: a C, C++ or Fortran host gets a status and a
+/// message, never a Rust backtrace on its stderr (the library's panic hook, installed by the
+/// first call, is silent; the host has no Rust code of its own to hear it).
 fn guarded(f: impl FnOnce() -> InsituStatus) -> InsituStatus {
-    catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|_| {
+    static QUIET: std::sync::Once = std::sync::Once::new();
+    QUIET.call_once(|| std::panic::set_hook(Box::new(|_| {})));
+    catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|payload| {
+        let what = payload
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
         fail(
             InsituStatus::Internal,
-            "internal error in the insitu client (please report)",
+            format!("internal error in the insitu client (please report): {what}"),
         )
     })
 }
@@ -313,20 +325,24 @@ unsafe fn with_client(
 }
 
 /// Pushes one rank's brick of one time step and returns once the generator-node has queued it
-/// (the field may be reused then). `data` holds `brick_dims[0]·brick_dims[1]·brick_dims[2]`
-/// values of `dtype` (an [`InsituDtype`]), x fastest. `global_dims`, `brick_offset` and
-/// `brick_dims` point to 3 values each (voxels; see the module docs for how bricks share
-/// boundary planes); `spacing` to 3 positive world units per voxel, or null for (1, 1, 1).
+/// (the field may be reused then). `data` holds `data_bytes` bytes: exactly
+/// `brick_dims[0]·brick_dims[1]·brick_dims[2]` values of `dtype` (an [`InsituDtype`]), x
+/// fastest. `global_dims`, `brick_offset` and `brick_dims` point to 3 values each and count
+/// grid points: `global_dims` the whole grid's, `brick_offset` the brick's first point in it,
+/// `brick_dims` its points, and where a neighbouring rank's brick follows along an axis the
+/// brick repeats that neighbour's first plane (so bricks share their boundary planes).
+/// `spacing` points to 3 positive world units between points, or is null for (1, 1, 1).
 /// `0 ≤ rank < world_size`. On success, `*out` (if not null) receives the node's counters.
 ///
-/// Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, unknown dtype, sizes that
-/// overflow: nothing sent), `INSITU_STATUS_REFUSED` (the node refused the step; the message
-/// says why), `INSITU_STATUS_UNREACHABLE`.
+/// Returns `INSITU_STATUS_INVALID_ARGUMENT` (null pointers, unknown dtype, a `data_bytes` that
+/// is not the brick's bytes, sizes that overflow: nothing read or sent),
+/// `INSITU_STATUS_REFUSED` (the node refused the step; the message says why),
+/// `INSITU_STATUS_UNREACHABLE`.
 ///
 /// # Safety
-/// `c` is a live client; `data` is valid for reads of the brick's bytes; the dims pointers
-/// are valid for 3 reads; `spacing` is null or valid for 3 reads; `out` is null or valid for
-/// a write.
+/// `c` is null or a live client; `data` is valid for reads of `data_bytes` bytes; the dims
+/// pointers are valid for 3 reads; `spacing` is null or valid for 3 reads; `out` is null or
+/// valid for a write.
 #[no_mangle]
 #[allow(clippy::too_many_arguments)]
 pub unsafe extern "C" fn insitu_push_step(
@@ -334,6 +350,7 @@ pub unsafe extern "C" fn insitu_push_step(
     step: u64,
     sim_time: f64,
     data: *const c_void,
+    data_bytes: usize,
     dtype: u32,
     global_dims: *const u32,
     brick_offset: *const u32,
@@ -379,6 +396,14 @@ pub unsafe extern "C" fn insitu_push_step(
                 format!("brick_dims {brick_dims:?} overflow the address space"),
             );
         };
+        if data_bytes != bytes {
+            return fail(
+                InsituStatus::InvalidArgument,
+                format!(
+                    "data_bytes {data_bytes} is not the {bytes} bytes of a brick of {brick_dims:?} points of {size}-byte values"
+                ),
+            );
+        }
         if data.is_null() && bytes > 0 {
             return fail(InsituStatus::InvalidArgument, "data is null");
         }
@@ -486,6 +511,8 @@ pub struct InsituField {
     /// `fields/<name>/values`, x fastest: one per point of the brick (vertex) or per cell
     /// (element).
     pub values: *const c_void,
+    /// The bytes `values` holds; must be the field's count times its type's size.
+    pub values_bytes: usize,
 }
 
 /// One rank's brick of a step on a uniform mesh, as Conduit Blueprint describes it (what
@@ -526,9 +553,9 @@ pub struct InsituMesh {
 /// `INSITU_STATUS_UNREACHABLE`.
 ///
 /// # Safety
-/// `c` is a live client; `mesh` is valid for a read; its `fields` valid for `num_fields`
-/// reads, each `name` a NUL-terminated string and each `values` valid for reads of its
-/// field's bytes; `out` is null or valid for a write.
+/// `c` is null or a live client; `mesh` is valid for a read; its `fields` valid for
+/// `num_fields` reads, each `name` a NUL-terminated string and each `values` valid for reads
+/// of its `values_bytes`; `out` is null or valid for a write.
 #[no_mangle]
 pub unsafe extern "C" fn insitu_push_mesh(
     c: *const InsituClient,
@@ -593,6 +620,15 @@ pub unsafe extern "C" fn insitu_push_mesh(
                     format!("field {name:?}: {n} values overflow the address space"),
                 );
             };
+            if f.values_bytes != bytes {
+                return fail(
+                    InsituStatus::InvalidArgument,
+                    format!(
+                        "field {name:?}: values_bytes {} is not the {bytes} bytes of its {n} values of {size} bytes",
+                        f.values_bytes
+                    ),
+                );
+            }
             if f.values.is_null() && bytes > 0 {
                 return fail(
                     InsituStatus::InvalidArgument,
@@ -712,24 +748,33 @@ pub unsafe extern "C" fn insitu_flush(
     })
 }
 
-/// Flushes (as [`insitu_flush`]) and frees the client, whatever the flush's outcome; `c` is
-/// invalid afterwards. Null is accepted and does nothing.
+/// Flushes (as [`insitu_flush`]) and frees the client `*c`, whatever the flush's outcome, and
+/// sets `*c` to null, so that a later call with the same handle gets
+/// `INSITU_STATUS_INVALID_ARGUMENT` ("client is null") instead of touching freed memory.
+/// A null `c` or `*c` is accepted and does nothing.
 ///
 /// # Safety
-/// `c` is null or a live client that no other thread is using.
+/// `c` is null or valid for a read and a write; `*c` is null or a live client that no other
+/// thread is using (copies of the handle elsewhere are dangling afterwards).
 #[no_mangle]
 pub unsafe extern "C" fn insitu_close(
-    c: *mut InsituClient,
+    c: *mut *mut InsituClient,
     timeout_secs: f64,
     out: *mut InsituNodeStatus,
 ) -> InsituStatus {
-    if c.is_null() {
+    // SAFETY: null or valid for a read by the contract.
+    let Some(client) = (unsafe { c.as_mut() }) else {
+        return InsituStatus::Ok;
+    };
+    let handle = std::mem::replace(client, ptr::null_mut());
+    if handle.is_null() {
         return InsituStatus::Ok;
     }
     // SAFETY: forwarded from this function's contract.
-    let status = unsafe { insitu_flush(c, timeout_secs, out) };
-    // SAFETY: `c` came from `Box::into_raw` in `insitu_connect` and is not used by anyone else.
-    drop(unsafe { Box::from_raw(c) });
+    let status = unsafe { insitu_flush(handle, timeout_secs, out) };
+    // SAFETY: `handle` came from `Box::into_raw` in `insitu_connect` and is not used by
+    // anyone else (contract); the caller's copy is null now.
+    drop(unsafe { Box::from_raw(handle) });
     status
 }
 
@@ -763,6 +808,7 @@ mod tests {
                 0,
                 0.0,
                 data.as_ptr().cast(),
+                32,
                 4,
                 dims.as_ptr(),
                 [0u32; 3].as_ptr(),
@@ -775,8 +821,39 @@ mod tests {
         };
         assert_eq!(s, InsituStatus::InvalidArgument);
         assert_eq!(last(), "client is null");
+        // A buffer shorter than the brick is refused before it is read.
+        let s = unsafe {
+            insitu_push_step(
+                std::ptr::null(),
+                0,
+                0.0,
+                data.as_ptr().cast(),
+                16,
+                5,
+                dims.as_ptr(),
+                [0u32; 3].as_ptr(),
+                dims.as_ptr(),
+                std::ptr::null(),
+                0,
+                1,
+                std::ptr::null_mut(),
+            )
+        };
+        assert_eq!(s, InsituStatus::InvalidArgument);
+        assert!(
+            last().contains(
+                "data_bytes 16 is not the 64 bytes of a brick of [2, 2, 2] points of 8-byte values"
+            ),
+            "{}",
+            last()
+        );
         assert_eq!(
             unsafe { insitu_close(std::ptr::null_mut(), 1.0, std::ptr::null_mut()) },
+            InsituStatus::Ok
+        );
+        let mut none: *mut InsituClient = std::ptr::null_mut();
+        assert_eq!(
+            unsafe { insitu_close(&mut none, 1.0, std::ptr::null_mut()) },
             InsituStatus::Ok
         );
     }

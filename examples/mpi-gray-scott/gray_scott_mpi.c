@@ -186,8 +186,8 @@ int main(int argc, char **argv) {
      * one its scene names (by default the first, v) and skips the other. */
     float *fv = malloc(voxels * sizeof(float)), *fu = malloc(voxels * sizeof(float));
     InsituField fields[2] = {
-        {"v", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fv},
-        {"u", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fu},
+        {"v", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fv, voxels * sizeof(float)},
+        {"u", INSITU_ASSOCIATION_VERTEX, INSITU_DTYPE_F32, fu, voxels * sizeof(float)},
     };
     InsituMesh mesh = {
         .origin = {0.0f, 0.0f, 0.0f},
@@ -224,7 +224,7 @@ int main(int argc, char **argv) {
         MPI_Allreduce(MPI_IN_PLACE, &failed, 1, MPI_INT, MPI_MAX, cart);
     }
     InsituNodeStatus st;
-    if (client != NULL) failed |= check(insitu_close(client, 600.0, &st), "insitu_close", rank);
+    if (client != NULL) failed |= check(insitu_close(&client, 600.0, &st), "insitu_close", rank);
     if (rank == 0 && !failed)
         printf("gray-scott %d^3, %d ranks (%dx%dx%d), %d steps: pushed every %d; node received %llu, shipped %llu\n",
                N, size, dims[0], dims[1], dims[2], steps, every, (unsigned long long)st.steps_received,

@@ -38,15 +38,18 @@ pub enum Need {
     Fixtures,
     /// Debian's `ffmpeg` (with `ffprobe`).
     Ffmpeg,
+    /// Debian's `gfortran` (behind Open MPI's `mpifort`).
+    Fortran,
 }
 
-const NEEDS: [Need; 6] = [
+const NEEDS: [Need; 7] = [
     Need::Data,
     Need::Gpu,
     Need::Mpi,
     Need::Browser,
     Need::Fixtures,
     Need::Ffmpeg,
+    Need::Fortran,
 ];
 
 impl Need {
@@ -59,6 +62,7 @@ impl Need {
             Need::Browser => "browser",
             Need::Fixtures => "fixtures",
             Need::Ffmpeg => "ffmpeg",
+            Need::Fortran => "fortran",
         }
     }
 
@@ -71,6 +75,7 @@ impl Need {
             Need::Browser => "apt-get install chromium chromium-driver",
             Need::Fixtures => "scripts/write-fixtures.sh",
             Need::Ffmpeg => "apt-get install ffmpeg",
+            Need::Fortran => "apt-get install gfortran",
         }
     }
 

@@ -341,6 +341,33 @@ pub fn build_c(compiler: &Path, source: &str, exe: &Path, flags: &[&str]) {
     );
 }
 
+/// Compiles the Fortran `sources` (relative to the repository root; modules first) with
+/// `compiler` (`gfortran`, `mpifort`) against the C client into `exe`, with `-O2` and `flags`,
+/// the modules' `.mod` files beside `exe`; panics with the compiler's messages when it fails.
+pub fn build_fortran(compiler: &Path, sources: &[&str], exe: &Path, flags: &[&str]) {
+    let (lib, _) = c_client();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let modules = exe.parent().unwrap_or(Path::new("."));
+    let out = Command::new(compiler)
+        .arg("-O2")
+        .args(flags)
+        .arg("-J")
+        .arg(modules)
+        .arg("-o")
+        .arg(exe)
+        .args(sources.iter().map(|s| root.join(s)))
+        .arg(&lib)
+        .args(["-lpthread", "-ldl", "-lm"])
+        .output()
+        .unwrap_or_else(|e| panic!("running {}: {e}", compiler.display()));
+    assert!(
+        out.status.success(),
+        "{} {sources:?}: {}",
+        compiler.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// The path of the Open MPI program `tool` on `PATH`, or `None` (the test skips;
 /// `insitu_testenv`).
 pub fn mpi_tool(tool: &str) -> Option<PathBuf> {

@@ -7,6 +7,7 @@ mod common;
 mod drift;
 mod faults;
 mod fields;
+mod fortran;
 mod gpu;
 mod health;
 mod mpi;
