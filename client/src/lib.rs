@@ -316,6 +316,8 @@ pub fn f32_bytes(field: &[f32]) -> Bytes {
 #[derive(Clone)]
 pub struct SimClient {
     inner: GeneratorClient<InterceptedService<Channel, AttachToken>>,
+    /// The ranks this client pushed steps for: a flush reports their refusals only.
+    ranks: std::collections::BTreeSet<u32>,
 }
 
 impl SimClient {
@@ -352,6 +354,7 @@ impl SimClient {
             inner: GeneratorClient::with_interceptor(channel, peer.auth())
                 .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
                 .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
+            ranks: Default::default(),
         })
     }
 
@@ -361,6 +364,7 @@ impl SimClient {
     /// [`ClientError::InvalidStep`] before sending; [`ClientError::Refused`] from the node.
     pub async fn push_step(&mut self, step: Step) -> Result<PushReply, ClientError> {
         let msgs = chunk::split_parts::<pb::StepChunk>(step.header()?, step.payload());
+        self.ranks.insert(step.rank);
         Ok(self
             .inner
             .push_step(tokio_stream::iter(msgs))
@@ -391,13 +395,17 @@ impl SimClient {
             .into_inner())
     }
 
-    /// Waits until everything pushed so far is shipped (or dropped by policy).
+    /// Waits until everything the node has received so far is shipped (or dropped by policy).
     ///
     /// # Errors
-    /// [`ClientError::Refused`] with `DeadlineExceeded` after `timeout`.
+    /// [`ClientError::Refused`] with `DeadlineExceeded` after `timeout`, or with
+    /// `FailedPrecondition` when the viz-node refused VDIs of the ranks this client pushed
+    /// since their last flush (each refusal reported once; other ranks' are left to their own
+    /// clients).
     pub async fn flush(&mut self, timeout: Duration) -> Result<GeneratorStatus, ClientError> {
         let req = pb::FlushRequest {
             timeout_secs: timeout.as_secs_f64(),
+            ranks: self.ranks.iter().copied().collect(),
         };
         Ok(self.inner.flush(req).await?.into_inner())
     }

@@ -15,6 +15,7 @@ pub mod hold;
 pub mod ingest;
 pub mod node;
 pub mod queue;
+pub mod refusals;
 pub mod scene;
 pub mod service;
 pub mod settings;

@@ -188,7 +188,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         backend,
         lane: tokio::sync::Mutex::new(()),
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
-        ship_failed_reported: Default::default(),
+        refusals: Default::default(),
         begun: Default::default(),
         spool,
         epoch: new_epoch(),

@@ -159,7 +159,8 @@ impl Generator for GeneratorService {
         &self,
         request: Request<pb::FlushRequest>,
     ) -> Result<Response<pb::GeneratorStatus>, Status> {
-        let t = request.into_inner().timeout_secs;
+        let request = request.into_inner();
+        let t = request.timeout_secs;
         let timeout = if t.is_finite() && t > 0.0 {
             t.min(86_400.0)
         } else {
@@ -184,17 +185,17 @@ impl Generator for GeneratorService {
                 }
             ))
         })?;
-        // Refusals since the previous flush make this one fail, naming the last cause: the
-        // steps were received, but the viz-node did not store their VDIs.
-        let failed = s.stats.get().ship_failed;
-        let before = s
-            .ship_failed_reported
-            .swap(failed, std::sync::atomic::Ordering::Relaxed);
-        if failed > before {
+        // Refusals of the flushing client's ranks since their last flush make this one fail,
+        // naming the last cause: the steps were received, but the viz-node did not store
+        // their VDIs. Another rank's refusals are left for that rank's client.
+        if let Some((n, why)) = s.refusals.take(&request.ranks) {
             return Err(Status::failed_precondition(format!(
-                "flush: the viz-node refused {} VDI(s) since the last flush; last: {}",
-                failed - before,
-                s.stats.ship_error()
+                "flush: the viz-node refused {n} VDI(s) of {} since the last flush; last: {why}",
+                if request.ranks.is_empty() {
+                    "this node".to_owned()
+                } else {
+                    format!("rank(s) {:?}", request.ranks)
+                }
             )));
         }
         Ok(Response::new(s.status()))

@@ -31,8 +31,8 @@ pub struct Shared {
     pub lane: tokio::sync::Mutex<()>,
     /// The link to the tuner, when one is configured.
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
-    /// `ship_failed` as of the last `Flush`: a flush reports the refusals since the previous.
-    pub ship_failed_reported: std::sync::atomic::AtomicU64,
+    /// The viz-node's refusals per rank, until a flush of that rank's client reports them.
+    pub refusals: crate::refusals::Refusals,
     /// The first step index no rank of which this node has begun to generate: a tuner's
     /// decision applies from it at the earliest.
     pub begun: std::sync::atomic::AtomicU64,

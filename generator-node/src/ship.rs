@@ -134,13 +134,15 @@ impl Shipper {
                 Ok(()) => stats.update(|c| c.shipped += 1),
                 Err(e) => {
                     warn!(step = p.vdi_header.step, rank = p.vdi_header.rank, code = ?e.code(), error = %e.message(), "the viz-node refused a VDI; it is counted as failed");
-                    stats.set_ship_error(format!(
+                    let why = format!(
                         "the viz-node refused step {} rank {}: {:?}: {}",
                         p.vdi_header.step,
                         p.vdi_header.rank,
                         e.code(),
                         e.message()
-                    ));
+                    );
+                    stats.set_ship_error(why.clone());
+                    shared.refusals.record(p.vdi_header.rank, why);
                     stats.update(|c| {
                         c.failed += 1;
                         c.ship_failed += 1;

@@ -353,3 +353,44 @@ fn bad_decompositions_are_refused_naming_the_step_and_ranks() {
     assert!(s3.vdi.is_none());
     v.terminate();
 }
+
+/// With one client per rank, a flush reports the refusals of its own ranks' VDIs, once, and
+/// not another rank's: rank 1 pushes a step under a world size the step's rank 0 contradicts,
+/// rank 0's flush after that refusal is clean, rank 1's names it.
+#[test]
+fn each_rank_s_flush_reports_its_own_refusals() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = generator(&small_config(&v.addr, "block", 4), tmp.path(), &[]);
+    // A fixed TF: no agreement over a world whose rank 1 never comes.
+    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
+    let config = pb::GenerationConfig {
+        resolution: 32,
+        gamma: 0.01,
+        tf_json: Some(serde_json::to_string(&tf).unwrap()),
+        tf_name: Some("fixed".into()),
+        ..Default::default()
+    };
+    let secs = std::time::Duration::from_secs(60);
+    rt().block_on(async {
+        let mut rank0 = SimClient::connect(&g.addr, None).await.unwrap();
+        let mut rank1 = SimClient::connect(&g.addr, None).await.unwrap();
+        rank0.set_config(config).await.unwrap();
+        rank0.push_step(slab(1, 0, 2, 1.0)).await.unwrap();
+        rank0.flush(secs).await.unwrap();
+        rank1.push_step(slab(1, 1, 3, 2.0)).await.unwrap();
+        rank0
+            .flush(secs)
+            .await
+            .expect("rank 0's own steps were all stored");
+        let e = rank1.flush(secs).await.unwrap_err().to_string();
+        assert!(
+            e.contains("refused 1 VDI(s) of rank(s) [1]") && e.contains("world size 3"),
+            "{e}"
+        );
+        rank1.flush(secs).await.expect("a refusal is reported once");
+    });
+    g.terminate();
+    v.terminate();
+}
