@@ -40,9 +40,11 @@ pub enum Need {
     Ffmpeg,
     /// Debian's `gfortran` (behind Open MPI's `mpifort`).
     Fortran,
+    /// `cmake` and `pkg-config`, to build against the installed C library.
+    Cmake,
 }
 
-const NEEDS: [Need; 7] = [
+const NEEDS: [Need; 8] = [
     Need::Data,
     Need::Gpu,
     Need::Mpi,
@@ -50,6 +52,7 @@ const NEEDS: [Need; 7] = [
     Need::Fixtures,
     Need::Ffmpeg,
     Need::Fortran,
+    Need::Cmake,
 ];
 
 impl Need {
@@ -63,6 +66,7 @@ impl Need {
             Need::Fixtures => "fixtures",
             Need::Ffmpeg => "ffmpeg",
             Need::Fortran => "fortran",
+            Need::Cmake => "cmake",
         }
     }
 
@@ -76,6 +80,7 @@ impl Need {
             Need::Fixtures => "scripts/write-fixtures.sh",
             Need::Ffmpeg => "apt-get install ffmpeg",
             Need::Fortran => "apt-get install gfortran",
+            Need::Cmake => "apt-get install cmake pkg-config",
         }
     }
 

@@ -10,6 +10,7 @@ mod fields;
 mod fortran;
 mod gpu;
 mod health;
+mod install;
 mod mpi;
 mod outage;
 mod policies;
