@@ -40,8 +40,9 @@ pub enum Need {
     Ffmpeg,
     /// Debian's `gfortran` (behind Open MPI's `mpifort`).
     Fortran,
-    /// `cmake` and `pkg-config`, to build against the installed C library.
-    Cmake,
+    /// `cmake`, `pkg-config` and `valgrind`, to build against the installed C library and check
+    /// its memory use.
+    CTools,
 }
 
 const NEEDS: [Need; 8] = [
@@ -52,7 +53,7 @@ const NEEDS: [Need; 8] = [
     Need::Fixtures,
     Need::Ffmpeg,
     Need::Fortran,
-    Need::Cmake,
+    Need::CTools,
 ];
 
 impl Need {
@@ -66,7 +67,7 @@ impl Need {
             Need::Fixtures => "fixtures",
             Need::Ffmpeg => "ffmpeg",
             Need::Fortran => "fortran",
-            Need::Cmake => "cmake",
+            Need::CTools => "ctools",
         }
     }
 
@@ -80,7 +81,7 @@ impl Need {
             Need::Fixtures => "scripts/write-fixtures.sh",
             Need::Ffmpeg => "apt-get install ffmpeg",
             Need::Fortran => "apt-get install gfortran",
-            Need::Cmake => "apt-get install cmake pkg-config",
+            Need::CTools => "apt-get install cmake pkg-config valgrind",
         }
     }
 
