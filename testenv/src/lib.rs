@@ -43,9 +43,12 @@ pub enum Need {
     /// `cmake`, `pkg-config` and `valgrind`, to build against the installed C library and check
     /// its memory use.
     CTools,
+    /// The Python package built from `python/` and installed in the fixtures' venv
+    /// (`scripts/build-python.sh`).
+    Python,
 }
 
-const NEEDS: [Need; 8] = [
+const NEEDS: [Need; 9] = [
     Need::Data,
     Need::Gpu,
     Need::Mpi,
@@ -54,6 +57,7 @@ const NEEDS: [Need; 8] = [
     Need::Ffmpeg,
     Need::Fortran,
     Need::CTools,
+    Need::Python,
 ];
 
 impl Need {
@@ -68,6 +72,7 @@ impl Need {
             Need::Ffmpeg => "ffmpeg",
             Need::Fortran => "fortran",
             Need::CTools => "ctools",
+            Need::Python => "python",
         }
     }
 
@@ -82,6 +87,7 @@ impl Need {
             Need::Ffmpeg => "apt-get install ffmpeg",
             Need::Fortran => "apt-get install gfortran",
             Need::CTools => "apt-get install cmake pkg-config valgrind",
+            Need::Python => "scripts/build-python.sh",
         }
     }
 
@@ -239,6 +245,27 @@ pub fn fixture_python() -> Option<PathBuf> {
         &repo().join("target/fixtures-venv/bin/python"),
         Need::Fixtures,
     )
+}
+
+/// The fixtures' venv Python when the package `insitu` (built from `python/` by
+/// `scripts/build-python.sh`) imports there, or `None` (the test skips for [`Need::Python`]).
+///
+/// # Panics
+/// As [`skip`], when the package is missing and Python is required.
+pub fn python_package() -> Option<PathBuf> {
+    let python = repo().join("target/fixtures-venv/bin/python");
+    let imports = std::process::Command::new(&python)
+        .args(["-c", "import insitu"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if imports {
+        Some(python)
+    } else {
+        skip(
+            Need::Python,
+            &format!("the package insitu does not import in {}", python.display()),
+        )
+    }
 }
 
 /// The program `name` on `PATH`, or `None` (the test skips for `need`).

@@ -14,6 +14,7 @@ mod install;
 mod mpi;
 mod outage;
 mod policies;
+mod python;
 mod ranks;
 mod replay;
 mod tls;

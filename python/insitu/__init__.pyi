@@ -1,0 +1,94 @@
+"""Type stubs of the insitu package (its extension module insitu._insitu)."""
+
+from typing import Optional, Tuple, TypedDict
+
+import numpy as np
+import numpy.typing as npt
+
+class PushReply(TypedDict):
+    queue_depth: int
+    """Steps waiting in the node's queue after this push."""
+    dropped_by_push: int
+    """Older steps this push displaced (the drop-oldest and latest-only policies)."""
+    steps_received: int
+    """Steps the node has received so far (all clients)."""
+    epoch: int
+    """This run of the node: a new value means it restarted (docs/guarantees.md)."""
+
+class NodeStatus(TypedDict):
+    queue_depth: int
+    steps_received: int
+    steps_generated: int
+    steps_shipped: int
+    dropped_queue: int
+    dropped_outbox: int
+    failed: int
+
+class Error(Exception):
+    """A call to the generator-node failed; the message says why."""
+
+class UnreachableError(Error):
+    """Nothing answers at the address, or the connection broke."""
+
+class RefusedError(Error):
+    """The node refused the call: a bad step (e.g. a brick outside the grid), a wrong token,
+    shutting down, or (from flush) VDIs of this client's ranks that the viz-node refused."""
+
+class TimeoutError(Error):
+    """flush or close did not finish within its timeout."""
+
+class Client:
+    """A connection to one generator-node.
+
+    ``Client(address, token=None)``: ``address`` is ``host:port`` or ``http://host:port``;
+    ``token`` (default: the ``INSITU_TOKEN`` environment variable) is sent with every call.
+    Raises UnreachableError when nothing answers, ValueError for a bad address or a token
+    that would travel in clear text off loopback. Use as a context manager to close (and
+    flush) on exit.
+    """
+
+    def __init__(self, address: str, token: Optional[str] = None) -> None: ...
+    def push(
+        self,
+        step: int,
+        field: npt.NDArray[np.float32 | np.float64 | np.uint8 | np.uint16 | np.int16],
+        *,
+        offset: Tuple[int, int, int] = (0, 0, 0),
+        global_dims: Optional[Tuple[int, int, int]] = None,
+        rank: int = 0,
+        world_size: int = 1,
+        spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
+        origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+        sim_time: float = 0.0,
+    ) -> PushReply:
+        """Pushes rank ``rank`` of ``world_size``'s brick of step ``step`` and returns once the
+        node has queued it (the array may be changed then, not before).
+
+        ``field``: shape ``(nz, ny, nx)``, C-contiguous, float32/float64/uint8/uint16/int16 in
+        native byte order; sent without a copy. ``offset`` (x, y, z): the brick's first point in
+        the whole grid; ``global_dims`` (x, y, z): the whole grid's points (default: offset +
+        the brick's dims). Dims count points: where a neighbouring rank's brick follows along an
+        axis, the brick repeats that neighbour's first plane. ``spacing`` (x, y, z): world units
+        between points; ``origin``: the whole grid's first point; ``sim_time`` in the
+        simulation's units.
+
+        Raises TypeError (not an ndarray, a dtype the service does not take), ValueError (not
+        3-D, not C-contiguous, negative offsets, non-finite spacing, a closed client, a brick
+        inconsistent with its dims), RefusedError (the node refused the step: e.g. a brick
+        outside the grid, rank ≥ world_size), UnreachableError.
+        """
+    def flush(self, timeout: Optional[float] = None) -> NodeStatus:
+        """Waits until every step the node has received is generated and shipped (at most
+        ``timeout`` seconds, default 600); the node's counters. Raises TimeoutError,
+        RefusedError (the viz-node refused VDIs of this client's ranks since their last
+        flush), UnreachableError, ValueError (closed)."""
+    def status(self) -> NodeStatus:
+        """The node's counters."""
+    def close(self, timeout: Optional[float] = None) -> Optional[NodeStatus]:
+        """Flushes, then closes (None when already closed). Later calls raise ValueError."""
+    @property
+    def closed(self) -> bool: ...
+    @property
+    def address(self) -> str: ...
+    def __enter__(self) -> "Client": ...
+    def __exit__(self, *exc: object) -> bool: ...

@@ -1,0 +1,41 @@
+//! The Python client for real: the wheel `maturin build` makes of `python/`, installed in the
+//! fixtures' venv (`scripts/build-python.sh`), runs `python/tests/client.py` against real
+//! daemons: every dtype arrives, a 256 MiB field goes without a copy, bad input raises the
+//! exception its stub names, a closed client and a dead daemon are errors.
+
+use crate::common::{generator, index, small_config, viz};
+use std::process::Command;
+
+#[test]
+fn the_python_client_pushes_numpy_fields_and_names_bad_input() {
+    let Some(python) = insitu_testenv::python_package() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let cfg = small_config(&v.addr, "block", 4).replace(
+        "max_backoff_secs",
+        "max_step_bytes = 300000000\nmax_backoff_secs",
+    );
+    let g = generator(&cfg, tmp.path(), &[]);
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../python/tests/client.py");
+    let out = Command::new(python)
+        .arg(script)
+        .arg(&g.addr)
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.ends_with("ok\n"), "{stdout}");
+    eprintln!("{stdout}");
+    let stored: Vec<u64> = index(&rec).iter().map(|e| e.step).collect();
+    assert_eq!(stored, vec![0, 1, 2, 3, 4, 10]);
+    g.terminate();
+    v.terminate();
+}
