@@ -12,6 +12,7 @@ mod gpu;
 mod health;
 mod install;
 mod mpi;
+mod mpi_runs;
 mod outage;
 mod policies;
 mod python;

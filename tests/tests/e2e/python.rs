@@ -1,9 +1,11 @@
 //! The Python client for real: the wheel `maturin build` makes of `python/`, installed in the
 //! fixtures' venv (`scripts/build-python.sh`), runs `python/tests/client.py` against real
-//! daemons: every dtype arrives, a 256 MiB field goes without a copy, bad input raises the
-//! exception its stub names, a closed client and a dead daemon are errors.
+//! daemons (every dtype arrives, a 256 MiB field goes without a copy, bad input raises the
+//! exception its stub names, a closed client and a dead daemon are errors), and the mpi4py
+//! example runs under mpirun on 4 ranks and on 1 with the same picture.
 
 use crate::common::{generator, index, small_config, viz};
+use crate::mpi_runs::{assert_same_picture, run};
 use std::process::Command;
 
 #[test]
@@ -38,4 +40,37 @@ fn the_python_client_pushes_numpy_fields_and_names_bad_input() {
     assert_eq!(stored, vec![0, 1, 2, 3, 4, 10]);
     g.terminate();
     v.terminate();
+}
+
+/// The mpi4py example (`python/examples/gray_scott_mpi.py`: Gray–Scott in NumPy, halo
+/// exchange over a periodic Cartesian communicator) under `mpirun -np 4` and `-np 1`: every
+/// (step, rank) arrives, steps compose and are scored, and the pictures match.
+#[test]
+fn four_mpi4py_ranks_make_the_picture_one_makes() {
+    let (Some(python), Some(mpirun)) = (
+        insitu_testenv::python_package(),
+        insitu_e2e::mpi_tool("mpirun"),
+    ) else {
+        return;
+    };
+    let has_mpi4py = Command::new(&python)
+        .args(["-c", "import mpi4py"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_mpi4py {
+        let _: Option<()> = insitu_testenv::skip(
+            insitu_testenv::Need::Python,
+            "mpi4py does not import in the venv (scripts/build-python.sh)",
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../python/examples/gray_scott_mpi.py"
+    );
+    let program = [python.as_os_str(), std::ffi::OsStr::new(script)];
+    let four = run(&mpirun, &program, 4, tmp.path(), "mpi4py gray-scott");
+    let one = run(&mpirun, &program, 1, tmp.path(), "mpi4py gray-scott");
+    assert_same_picture(&four, &one, "mpi4py gray-scott");
 }
