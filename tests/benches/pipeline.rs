@@ -1,14 +1,18 @@
 //! Pipeline benchmarks, with the daemons as real processes on loopback:
 //!
 //! 1. ingest: field data pushed through the client (a push returns once the step is queued),
-//!    GB/s, for 64 MiB steps, with the Rust client and with the C client
-//!    (`client-c/bench/push_throughput.c`, compiled with `cc` against `libinsitu.a`);
+//!    GB/s, for 64 MiB steps, with the Rust client, the C client
+//!    (`client-c/bench/push_throughput.c`, compiled with `cc` against `libinsitu.a`), the
+//!    Fortran module (`client-c/fortran/bench/push_throughput.f90`, gfortran) and the Python
+//!    package (`python/bench/push_throughput.py`, which also pushes a 1 GiB array once and
+//!    reports how much the process's peak RSS grew: the zero-copy check);
 //! 2. the simulation's time per step with a generator-node attached versus without
 //!    (Gray–Scott 128³, pushing every 10th step);
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
-//! `PART`: `ingest_rust`, `ingest_c`, `simulation_overhead`, `latency`). Numbers depend on
+//! `PART`: `ingest_rust`, `ingest_c`, `ingest_fortran`, `ingest_python`, `simulation_overhead`,
+//! `latency`). Numbers depend on
 //! the cores the simulation and the generator-node share: on a 2-core machine they compete.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -94,6 +98,55 @@ fn ingest_c(tmp: &std::path::Path) {
     );
     print!("{}", String::from_utf8_lossy(&out.stdout));
     g.terminate();
+}
+
+/// Runs `program` against an ingest node as `program ADDR 256 16 [extra]` and prints its
+/// output.
+fn ingest_with(tmp: &std::path::Path, program: &[&std::ffi::OsStr], extra: &[&str]) {
+    let g = ingest_node(tmp);
+    let out = std::process::Command::new(program[0])
+        .args(&program[1..])
+        .args([g.addr.as_str(), "256", "16"])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    print!("{}", String::from_utf8_lossy(&out.stdout));
+    g.terminate();
+}
+
+fn ingest_fortran(tmp: &std::path::Path) {
+    let exe = tmp.join("push_throughput_f");
+    insitu_e2e::build_fortran(
+        std::path::Path::new("gfortran"),
+        &[
+            "client-c/fortran/insitu.f90",
+            "client-c/fortran/bench/push_throughput.f90",
+        ],
+        &exe,
+        &[],
+    );
+    ingest_with(tmp, &[exe.as_os_str()], &[]);
+}
+
+fn ingest_python(tmp: &std::path::Path) {
+    let Some(python) = insitu_testenv::python_package() else {
+        println!("ingest (Python client): skipped, run scripts/build-python.sh");
+        return;
+    };
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../python/bench/push_throughput.py"
+    );
+    ingest_with(
+        tmp,
+        &[python.as_os_str(), std::ffi::OsStr::new(script)],
+        &["1024"],
+    );
 }
 
 fn simulation_overhead(tmp: &std::path::Path) {
@@ -218,9 +271,11 @@ fn main() {
         .find(|a| !a.starts_with("--"))
         .unwrap_or_default();
     let tmp = tempfile::tempdir().unwrap();
-    let parts: [(&str, Part); 4] = [
+    let parts: [(&str, Part); 6] = [
         ("ingest_rust", ingest),
         ("ingest_c", ingest_c),
+        ("ingest_fortran", ingest_fortran),
+        ("ingest_python", ingest_python),
         ("simulation_overhead", simulation_overhead),
         ("latency", latency),
     ];
