@@ -8,8 +8,24 @@ docs/ranks-and-clients.md for an mpi4py simulation.
     import numpy as np, insitu
     with insitu.Client("127.0.0.1:50051") as c:
         c.push(step, field.astype(np.float32), sim_time=t)
+
+Offline, on NumPy arrays (the CPU): render (direct volume rendering, the reference),
+generate (a VDI, with Vdi.render, Vdi.save, Vdi.load) and evaluate (σ, τ and q of one P_M).
 """
 
-from ._insitu import Client, Error, RefusedError, TimeoutError, UnreachableError
+from ._insitu import Client, Error, RefusedError, TimeoutError, UnreachableError, Vdi
+from ._insitu import evaluate
+from ._insitu import generate_vdi as generate
+from ._insitu import render_volume as render
 
-__all__ = ["Client", "Error", "RefusedError", "TimeoutError", "UnreachableError"]
+__all__ = [
+    "Client",
+    "Error",
+    "RefusedError",
+    "TimeoutError",
+    "UnreachableError",
+    "Vdi",
+    "evaluate",
+    "generate",
+    "render",
+]

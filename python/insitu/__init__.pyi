@@ -92,3 +92,88 @@ class Client:
     def address(self) -> str: ...
     def __enter__(self) -> "Client": ...
     def __exit__(self, *exc: object) -> bool: ...
+
+Field3 = npt.NDArray[np.float32 | np.float64 | np.uint8 | np.uint16 | np.int16]
+"""A volume indexed [z, y, x]: shape (nz, ny, nx)."""
+
+def render(
+    volume: Field3,
+    tf: Optional[str] = None,
+    *,
+    size: int = 512,
+    angle: float = 0.0,
+    elevation: float = 0.0,
+    spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> npt.NDArray[np.float32]:
+    """Direct volume rendering (emission–absorption ray-casting, the reference of q) of
+    ``volume`` from the default camera for its box, orbited by ``angle`` degrees about +y and
+    raised by ``elevation`` (within ±89). ``tf``: transfer-function JSON text or a file
+    (docs/conventions.md format); None: a ramp over the data's range. Returns an array of
+    shape (size, size, 3), RGB in [0, 1]. Raises TypeError (dtype) or ValueError (shape,
+    angles, size, a bad transfer function)."""
+
+class Vdi:
+    """A Volumetric Depth Image: r × r rays, each a depth-ordered list of supersegments."""
+
+    def render(
+        self, *, size: int = 512, angle: float = 0.0, elevation: float = 0.0
+    ) -> npt.NDArray[np.float32]:
+        """The VDI rendered from its generation camera orbited by ``angle`` (about +y) and
+        raised by ``elevation`` degrees: an array (size, size, 3), RGB in [0, 1]."""
+    def save(self, path: str, codec: str = "zstd") -> int:
+        """Writes the VDI file (codec "zstd", "bzip2" or "none"), atomically; returns σ, its
+        bytes. Raises ValueError naming the file when it cannot be written."""
+    @staticmethod
+    def load(path: str) -> "Vdi":
+        """Reads a VDI file; ValueError naming the file when it is not one (or is damaged)."""
+    @property
+    def resolution(self) -> int: ...
+    @property
+    def gamma(self) -> float: ...
+    @property
+    def supersegments(self) -> int: ...
+
+def generate(
+    volume: Field3,
+    tf: Optional[str] = None,
+    *,
+    r: int = 256,
+    gamma: float = 0.013,
+    spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Vdi:
+    """The VDI of ``volume`` at P_M = (r, γ) from the default camera for its box."""
+
+class Evaluation(TypedDict):
+    r: int
+    gamma: float
+    codec: str
+    sigma_bytes: int
+    """σ: bytes of the compressed VDI file."""
+    supersegments: int
+    tau_s: float
+    """τ: seconds of VDI generation."""
+    tau_compress_s: float
+    tau_render_s: float
+    """Mean seconds to render the VDI at one view."""
+    q_db: float
+    """q: PSNR of the mean MSE over the views against direct rendering, dB."""
+    views: list[Tuple[float, float]]
+    """(angle in degrees, PSNR in dB) per view."""
+
+def evaluate(
+    volume: Field3,
+    tf: Optional[str] = None,
+    *,
+    r: int = 256,
+    gamma: float = 0.013,
+    codec: str = "zstd",
+    size: int = 256,
+    views: Optional[list[float]] = None,
+    spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Evaluation:
+    """σ, τ and q of P_M = (r, γ) on ``volume`` (the paper's Alg. 1, lines 11–18): the VDI
+    generated, compressed with ``codec``, rendered at the test views (orbit angles, degrees;
+    default 0 to 60 by 10) and compared with direct rendering at ``size`` × ``size``."""

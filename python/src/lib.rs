@@ -2,7 +2,8 @@
 //! wrapping the Rust client ([`insitu_client::SimClient`]: its retries of nothing, its checks
 //! and its messages). A C-contiguous NumPy field is sent without a copy (the array is kept
 //! alive, not copied, while its bytes are sent) with the GIL released; see `insitu/__init__.pyi`
-//! for the Python-side documentation.
+//! for the Python-side documentation. The core's maths on NumPy arrays (render, generate,
+//! evaluate, VDI files) are in [`offline`].
 
 use insitu_client::{
     BearerToken, Bytes, ClientError, Code, GeneratorStatus, PushReply, ScalarType, SimClient, Step,
@@ -13,6 +14,8 @@ use pyo3::exceptions::{PyException, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::time::Duration;
+
+mod offline;
 
 create_exception!(
     insitu,
@@ -363,6 +366,10 @@ impl Client {
 fn _insitu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Client>()?;
+    m.add_class::<offline::Vdi>()?;
+    m.add_function(wrap_pyfunction!(offline::render_volume, m)?)?;
+    m.add_function(wrap_pyfunction!(offline::generate_vdi, m)?)?;
+    m.add_function(wrap_pyfunction!(offline::evaluate, m)?)?;
     m.add("Error", py.get_type::<Error>())?;
     m.add("UnreachableError", py.get_type::<UnreachableError>())?;
     m.add("RefusedError", py.get_type::<RefusedError>())?;

@@ -74,3 +74,27 @@ fn four_mpi4py_ranks_make_the_picture_one_makes() {
     let one = run(&mpirun, &program, 1, tmp.path(), "mpi4py gray-scott");
     assert_same_picture(&four, &one, "mpi4py gray-scott");
 }
+
+/// The package's offline functions on NumPy arrays (`python/tests/offline.py`): direct
+/// rendering, VDI generation close to it from its own camera, a saved VDI that loads back to
+/// the same pictures with σ as evaluate measures it, bad input raised by name.
+#[test]
+fn the_python_offline_functions_keep_their_invariants() {
+    let Some(python) = insitu_testenv::python_package() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../python/tests/offline.py");
+    let out = Command::new(python)
+        .arg(script)
+        .arg(tmp.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.ends_with("ok\n"), "{stdout}");
+}
