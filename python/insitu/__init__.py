@@ -10,10 +10,11 @@ docs/ranks-and-clients.md for an mpi4py simulation.
         c.push(step, field.astype(np.float32), sim_time=t)
 
 Offline, on NumPy arrays (the CPU): render (direct volume rendering, the reference),
-generate (a VDI, with Vdi.render, Vdi.save, Vdi.load) and evaluate (σ, τ and q of one P_M).
+generate (a VDI, with Vdi.render, Vdi.save, Vdi.load) and evaluate (σ, τ and q of one P_M);
+Recording(path) reads a viz-node's recording: its steps as dicts, any step's picture.
 """
 
-from ._insitu import Client, Error, RefusedError, TimeoutError, UnreachableError, Vdi
+from ._insitu import Client, Error, Recording, RefusedError, TimeoutError, UnreachableError, Vdi
 from ._insitu import evaluate
 from ._insitu import generate_vdi as generate
 from ._insitu import render_volume as render
@@ -21,6 +22,7 @@ from ._insitu import render_volume as render
 __all__ = [
     "Client",
     "Error",
+    "Recording",
     "RefusedError",
     "TimeoutError",
     "UnreachableError",

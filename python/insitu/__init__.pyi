@@ -177,3 +177,23 @@ def evaluate(
     """σ, τ and q of P_M = (r, γ) on ``volume`` (the paper's Alg. 1, lines 11–18): the VDI
     generated, compressed with ``codec``, rendered at the test views (orbit angles, degrees;
     default 0 to 60 by 10) and compared with direct rendering at ``size`` × ``size``."""
+
+class Recording:
+    """A viz-node's recording (its directory), read-only: a running viz-node may go on writing.
+    Raises ValueError naming the directory when it holds no readable index."""
+
+    def __init__(self, path: str) -> None: ...
+    @property
+    def steps(self) -> list[dict]:
+        """Every stored step in order: step, world_size, ranks, missing, error, vdi (its file),
+        r, gamma, pm_version, sigma_bytes, supersegments, tau_s, q_db (None until scored);
+        sim_time for a step of one rank. A step of several ranks is the composed one."""
+    def vdi(self, step: int) -> Vdi:
+        """The step's VDI (composed over its ranks). KeyError for a step not stored,
+        ValueError for one without a VDI (partial, refused) or a damaged file."""
+    def image(
+        self, step: int, *, size: int = 512, angle: float = 0.0, elevation: float = 0.0
+    ) -> npt.NDArray[np.float32]:
+        """The step's picture from its generation camera orbited by ``angle`` and raised by
+        ``elevation`` degrees: an array (size, size, 3), RGB in [0, 1]."""
+    def __len__(self) -> int: ...

@@ -3,7 +3,7 @@
 //! and its messages). A C-contiguous NumPy field is sent without a copy (the array is kept
 //! alive, not copied, while its bytes are sent) with the GIL released; see `insitu/__init__.pyi`
 //! for the Python-side documentation. The core's maths on NumPy arrays (render, generate,
-//! evaluate, VDI files) are in [`offline`].
+//! evaluate, VDI files) are in [`offline`], a recording read from Python in [`recording`].
 
 use insitu_client::{
     BearerToken, Bytes, ClientError, Code, GeneratorStatus, PushReply, ScalarType, SimClient, Step,
@@ -16,6 +16,7 @@ use pyo3::types::PyDict;
 use std::time::Duration;
 
 mod offline;
+mod recording;
 
 create_exception!(
     insitu,
@@ -367,6 +368,7 @@ fn _insitu(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Client>()?;
     m.add_class::<offline::Vdi>()?;
+    m.add_class::<recording::Recording>()?;
     m.add_function(wrap_pyfunction!(offline::render_volume, m)?)?;
     m.add_function(wrap_pyfunction!(offline::generate_vdi, m)?)?;
     m.add_function(wrap_pyfunction!(offline::evaluate, m)?)?;

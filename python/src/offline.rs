@@ -91,17 +91,18 @@ fn transfer_function(
     }
 }
 
-/// The default camera for `b`, orbited by `angle` about +y and raised by `elevation`.
-fn camera(b: &insitu_core::volume::Aabb, angle: f32, elevation: f32) -> PyResult<Camera> {
+/// `camera` orbited by `angle` degrees about +y and raised by `elevation`.
+pub(crate) fn orbit(camera: &Camera, angle: f32, elevation: f32) -> PyResult<Camera> {
     if !(-89.0..=89.0).contains(&elevation) || !angle.is_finite() {
         return Err(PyValueError::new_err(format!(
             "angle {angle} must be finite and elevation {elevation} within [-89, 89] degrees"
         )));
     }
-    Ok(Camera::default_for_box(b).orbit(angle, elevation, 1.0))
+    Ok(camera.orbit(angle, elevation, 1.0))
 }
 
-fn size(size: u32) -> PyResult<u32> {
+/// An image side in pixels, 1 to the largest VDI resolution.
+pub(crate) fn size(size: u32) -> PyResult<u32> {
     if size == 0 || size > insitu_core::vdi::MAX_RESOLUTION {
         return Err(PyValueError::new_err(format!(
             "size {size} must be 1 to {}",
@@ -112,7 +113,10 @@ fn size(size: u32) -> PyResult<u32> {
 }
 
 /// An image as an array of shape (height, width, 3), RGB in [0, 1].
-fn to_array<'py>(py: Python<'py>, image: &Image) -> PyResult<Bound<'py, PyArray3<f32>>> {
+pub(crate) fn image_array<'py>(
+    py: Python<'py>,
+    image: &Image,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let flat: Vec<f32> = image
         .pixels()
@@ -140,7 +144,7 @@ pub fn render_volume<'py>(
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let v = self::volume(volume, spacing, origin)?;
     let (tf, _) = transfer_function(tf, &v)?;
-    let cam = camera(&v.world_box(), angle, elevation)?;
+    let cam = orbit(&Camera::default_for_box(&v.world_box()), angle, elevation)?;
     let s = self::size(size)?;
     let image = py
         .detach(|| -> Result<Image, String> {
@@ -153,13 +157,26 @@ pub fn render_volume<'py>(
                 .map_err(|e| e.to_string())
         })
         .map_err(PyValueError::new_err)?;
-    to_array(py, &image)
+    image_array(py, &image)
 }
 
 /// A Volumetric Depth Image.
 #[pyclass(module = "insitu._insitu")]
 pub struct Vdi {
     vdi: insitu_core::Vdi,
+}
+
+impl From<insitu_core::Vdi> for Vdi {
+    fn from(vdi: insitu_core::Vdi) -> Self {
+        Self { vdi }
+    }
+}
+
+impl Vdi {
+    /// The core's VDI.
+    pub(crate) fn inner(&self) -> &insitu_core::Vdi {
+        &self.vdi
+    }
 }
 
 #[pymethods]
@@ -174,15 +191,10 @@ impl Vdi {
         angle: f32,
         elevation: f32,
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-        let cam = self.vdi.meta().camera.orbit(angle, elevation, 1.0);
-        if !(-89.0..=89.0).contains(&elevation) || !angle.is_finite() {
-            return Err(PyValueError::new_err(format!(
-                "angle {angle} must be finite and elevation {elevation} within [-89, 89] degrees"
-            )));
-        }
+        let cam = orbit(&self.vdi.meta().camera, angle, elevation)?;
         let s = self::size(size)?;
         let image = py.detach(|| render::render(&self.vdi, &cam, s, s, DEFAULT_TERMINATION));
-        to_array(py, &image)
+        image_array(py, &image)
     }
 
     /// Writes the VDI file (compressed with `codec`: "zstd", "bzip2" or "none"); its σ.

@@ -1,11 +1,12 @@
 """The Python client against real daemons (run by tests/tests/e2e/python.rs):
 
-    python client.py GENERATOR_ADDR
+    python client.py GENERATOR_ADDR RECORDING_DIR
 
 Every case prints one line; an assertion failure exits non-zero. Checks: pushes of each dtype
 arrive; a 256 MiB float32 field is sent without a copy (peak RSS grows by < 10 % of it); bad
 input raises the exception the stubs name, with a message naming the problem, and the client
-goes on; a closed client refuses; a dead daemon is UnreachableError."""
+goes on; a closed client refuses; a dead daemon is UnreachableError; the viz-node's recording
+reads back every step, and any step's picture."""
 
 import resource
 import sys
@@ -65,6 +66,15 @@ def main():
     assert c.closed
     raises(ValueError, "is closed", lambda: c.push(11, ball.astype(np.float32)))
     assert c.close() is None, "closing twice does nothing"
+    rec = insitu.Recording(sys.argv[2])
+    assert [s["step"] for s in rec.steps] == [0, 1, 2, 3, 4, 10], rec.steps
+    assert all(s["r"] == 32 and s["sigma_bytes"] > 0 and s["world_size"] == 1 for s in rec.steps)
+    picture = rec.image(2, size=40, angle=30.0)
+    assert picture.shape == (40, 40, 3) and float(picture.max()) > 0.05, picture.max()
+    assert np.array_equal(picture, rec.vdi(2).render(size=40, angle=30.0))
+    print(f"recording: {len(rec)} steps, step 2's picture lit")
+    raises(KeyError, "no step 99", lambda: rec.image(99))
+    raises(ValueError, "missing", lambda: insitu.Recording(sys.argv[2] + "/missing"))
     print("ok")
 
 

@@ -25,6 +25,7 @@ fn the_python_client_pushes_numpy_fields_and_names_bad_input() {
     let out = Command::new(python)
         .arg(script)
         .arg(&g.addr)
+        .arg(&rec)
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
