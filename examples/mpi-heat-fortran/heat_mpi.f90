@@ -94,7 +94,7 @@ program heat_mpi
   end if
   call MPI_Comm_free(cart)
   call MPI_Finalize()
-  if (failed /= 0) error stop 1
+  if (failed /= 0) error stop 'heat_mpi: a rank failed'
 
 contains
 

@@ -14,16 +14,7 @@ import sys
 import numpy as np
 
 import insitu
-
-
-def raises(kind, words, f):
-    try:
-        f()
-    except kind as e:
-        assert words in str(e), f"{kind.__name__}: {e!r} lacks {words!r}"
-        print(f"{kind.__name__}: {e}")
-        return
-    raise AssertionError(f"no {kind.__name__} (wanted one mentioning {words!r})")
+from check import raises
 
 
 def peak_rss():

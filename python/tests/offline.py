@@ -12,21 +12,13 @@ import sys
 import numpy as np
 
 import insitu
+from check import raises
 
 
 def psnr(a, b):
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
     return float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
 
-
-def raises(kind, words, f):
-    try:
-        f()
-    except kind as e:
-        assert words in str(e), f"{kind.__name__}: {e!r} lacks {words!r}"
-        print(f"{kind.__name__}: {e}")
-        return
-    raise AssertionError(f"no {kind.__name__} (wanted one mentioning {words!r})")
 
 
 def main():

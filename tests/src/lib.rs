@@ -316,43 +316,35 @@ pub fn c_client() -> (PathBuf, PathBuf) {
 /// `mpicc`) against the C client into `exe`, with `-O2` and `flags`; panics with the
 /// compiler's messages when it fails.
 pub fn build_c(compiler: &Path, source: &str, exe: &Path, flags: &[&str]) {
-    let (lib, include) = c_client();
-    let source = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(source);
-    let out = Command::new(compiler)
-        .arg("-O2")
-        .args(flags)
-        .arg("-o")
-        .arg(exe)
-        .arg(&source)
-        .arg("-I")
-        .arg(&include)
-        .arg(&lib)
-        .args(["-lpthread", "-ldl", "-lm"])
-        .output()
-        .unwrap_or_else(|e| panic!("running {}: {e}", compiler.display()));
-    assert!(
-        out.status.success(),
-        "{} {}: {}",
-        compiler.display(),
-        source.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (_, include) = c_client();
+    let mut all = flags.to_vec();
+    let include = include.to_string_lossy().into_owned();
+    all.extend(["-I", &include]);
+    compile(compiler, &[source], exe, &all);
 }
 
 /// Compiles the Fortran `sources` (relative to the repository root; modules first) with
 /// `compiler` (`gfortran`, `mpifort`) against the C client into `exe`, with `-O2` and `flags`,
 /// the modules' `.mod` files beside `exe`; panics with the compiler's messages when it fails.
 pub fn build_fortran(compiler: &Path, sources: &[&str], exe: &Path, flags: &[&str]) {
+    let modules = exe
+        .parent()
+        .unwrap_or(Path::new("."))
+        .to_string_lossy()
+        .into_owned();
+    let mut all = flags.to_vec();
+    all.extend(["-J", &modules]);
+    compile(compiler, sources, exe, &all);
+}
+
+/// `compiler -O2 flags -o exe sources libinsitu.a -lpthread -ldl -lm`, or a panic with the
+/// compiler's messages.
+fn compile(compiler: &Path, sources: &[&str], exe: &Path, flags: &[&str]) {
     let (lib, _) = c_client();
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let modules = exe.parent().unwrap_or(Path::new("."));
     let out = Command::new(compiler)
         .arg("-O2")
         .args(flags)
-        .arg("-J")
-        .arg(modules)
         .arg("-o")
         .arg(exe)
         .args(sources.iter().map(|s| root.join(s)))

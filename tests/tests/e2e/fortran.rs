@@ -5,7 +5,7 @@
 //! one-process run of the same simulation.
 
 use crate::common::{generator, index, small_config, viz};
-use crate::mpi_runs::{assert_same_picture, run};
+use crate::mpi_runs::{assert_same_picture, run, R};
 use insitu_e2e::{build_fortran, mpi_tool};
 use std::process::Command;
 
@@ -30,7 +30,7 @@ fn four_fortran_ranks_make_the_picture_one_makes() {
     );
     let four = run(&mpirun, &[exe.as_os_str()], 4, tmp.path(), "heat");
     let one = run(&mpirun, &[exe.as_os_str()], 1, tmp.path(), "heat");
-    assert_same_picture(&four, &one, "fortran heat");
+    assert_same_picture(&four, &one, "fortran heat", R, (R * R / 50) as usize);
 }
 
 /// Bad input through the Fortran module gets a status and a message, and the program goes on:

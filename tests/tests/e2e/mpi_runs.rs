@@ -13,7 +13,8 @@ use std::process::Command;
 const N: usize = 32;
 const STEPS: u64 = 60;
 const EVERY: u64 = 20;
-const R: u32 = 64;
+/// The examples' VDI resolution, and the side of the pictures compared.
+pub const R: u32 = 64;
 
 /// Runs `program` (with its arguments before the generator's address) on `np` ranks under
 /// `mpirun`, against daemons of its own, as `program ADDR N STEPS EVERY`; checks that every
@@ -100,23 +101,21 @@ reference_every = 1
     decode(&bytes, &DecodeLimits::default()).unwrap()
 }
 
-/// Asserts that `many` (a run on several ranks) looks as `one` (one rank) from the generation
-/// view and two orbits of it: ≥ 40 dB, and not blank.
-pub fn assert_same_picture(many: &Vdi, one: &Vdi, what: &str) {
+/// Asserts that `many` (a run on several ranks) looks as `one` (one rank, or one process) from
+/// the generation view and two orbits of it, at `size`²: ≥ 40 dB, and more than `min_lit`
+/// pixels lit (not blank).
+pub fn assert_same_picture(many: &Vdi, one: &Vdi, what: &str, size: u32, min_lit: usize) {
     assert_eq!(many.meta().camera, one.meta().camera);
     for angle in [0.0, 30.0, 60.0] {
         let view = one.meta().camera.orbit_y(angle);
-        let a = render::render(many, &view, R, R, 0.99);
-        let b = render::render(one, &view, R, R, 0.99);
-        let lit = b
+        let a = render::render(many, &view, size, size, 0.99);
+        let b = render::render(one, &view, size, size, 0.99);
+        let lit = a
             .pixels()
             .iter()
             .filter(|p| p.iter().sum::<f32>() > 0.05)
             .count();
-        assert!(
-            lit > (R * R / 50) as usize,
-            "{what}: only {lit} lit pixels at {angle}°"
-        );
+        assert!(lit > min_lit, "{what}: only {lit} lit pixels at {angle}°");
         let q = psnr(&a, &b).unwrap();
         eprintln!("{what}, several ranks vs one at {angle}°: {q:.1} dB, {lit} lit pixels");
         assert!(
