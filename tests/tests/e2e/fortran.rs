@@ -5,7 +5,7 @@
 //! one-process run of the same simulation.
 
 use crate::common::{generator, index, small_config, viz};
-use crate::mpi_runs::{assert_same_picture, run, R};
+use crate::mpi_runs::{assert_same_picture, run, SMALL};
 use insitu_e2e::{build_fortran, mpi_tool};
 use std::process::Command;
 
@@ -28,9 +28,15 @@ fn four_fortran_ranks_make_the_picture_one_makes() {
         &exe,
         &["-std=f2018", "-Wall", "-Werror"],
     );
-    let four = run(&mpirun, &[exe.as_os_str()], 4, tmp.path(), "heat");
-    let one = run(&mpirun, &[exe.as_os_str()], 1, tmp.path(), "heat");
-    assert_same_picture(&four, &one, "fortran heat", R, (R * R / 50) as usize);
+    let (four, _) = run(&mpirun, &[exe.as_os_str()], 4, tmp.path(), "heat", SMALL);
+    let (one, _) = run(&mpirun, &[exe.as_os_str()], 1, tmp.path(), "heat", SMALL);
+    assert_same_picture(
+        &four,
+        &one,
+        "fortran heat",
+        SMALL.r,
+        (SMALL.r * SMALL.r / 50) as usize,
+    );
 }
 
 /// Bad input through the Fortran module gets a status and a message, and the program goes on:

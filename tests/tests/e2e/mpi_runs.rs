@@ -1,5 +1,6 @@
-//! Running an MPI example against real daemons and comparing pictures, for the examples
-//! in every language but C (`mpi.rs` compares the C one with the Rust model).
+//! Running an MPI example against real daemons and comparing pictures, for the examples in
+//! every language (`mpi.rs` compares the C one with the Rust model, `fortran.rs` and
+//! `python.rs` four ranks with one).
 
 use crate::common::{generator, index, steps, viz};
 use insitu_core::metrics::psnr;
@@ -7,27 +8,52 @@ use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::{render, Vdi};
 use insitu_e2e::wait_until;
 use std::ffi::OsStr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
-const N: usize = 32;
-const STEPS: u64 = 60;
-const EVERY: u64 = 20;
-/// The examples' VDI resolution, and the side of the pictures compared.
-pub const R: u32 = 64;
+/// What a run computes and pushes: an `n`³ grid for `steps` steps, a brick per rank every
+/// `every` steps, VDIs at resolution `r`.
+#[derive(Clone, Copy, Debug)]
+pub struct Sizes {
+    pub n: usize,
+    pub steps: u64,
+    pub every: u64,
+    pub r: u32,
+}
+
+/// The Fortran and mpi4py examples' sizes.
+pub const SMALL: Sizes = Sizes {
+    n: 32,
+    steps: 60,
+    every: 20,
+    r: 64,
+};
 
 /// Runs `program` (with its arguments before the generator's address) on `np` ranks under
 /// `mpirun`, against daemons of its own, as `program ADDR N STEPS EVERY`; checks that every
-/// (step, rank) arrived and every step was stored and scored; the last step's VDI (composed
-/// for several ranks).
-pub fn run(mpirun: &Path, program: &[&OsStr], np: u32, dir: &Path, what: &str) -> Vdi {
+/// (step, rank) arrived and every step was stored and scored. Returns the last step's VDI
+/// (composed for several ranks) and the recording.
+pub fn run(
+    mpirun: &Path,
+    program: &[&OsStr],
+    np: u32,
+    dir: &Path,
+    what: &str,
+    sizes: Sizes,
+) -> (Vdi, PathBuf) {
+    let Sizes {
+        n,
+        steps: last,
+        every,
+        r,
+    } = sizes;
     let rec = dir.join(format!("rec{np}"));
     let v = viz(&rec, "127.0.0.1:0", dir);
     let cfg = format!(
         r#"listen = "127.0.0.1:0"
 viz = "{}"
 [generation]
-resolution = {R}
+resolution = {r}
 gamma = 0.01
 codec = "zstd"
 reference_every = 1
@@ -44,7 +70,7 @@ reference_every = 1
         ])
         .args(program)
         .arg(&g.addr)
-        .args([N.to_string(), STEPS.to_string(), EVERY.to_string()])
+        .args([n.to_string(), last.to_string(), every.to_string()])
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
@@ -80,7 +106,7 @@ reference_every = 1
         scored(&rec)
     );
     let entries = index(&rec);
-    for step in (EVERY..=STEPS).step_by(EVERY as usize) {
+    for step in (every..=last).step_by(every as usize) {
         for rank in 0..np {
             assert!(
                 entries
@@ -90,15 +116,15 @@ reference_every = 1
             );
         }
     }
-    let (_, vdi, q) = scored(&rec).into_iter().find(|s| s.0 == STEPS).unwrap();
+    let (_, vdi, q) = scored(&rec).into_iter().find(|s| s.0 == last).unwrap();
     eprintln!(
-        "{what}, {np} ranks: step {STEPS} q {:.2} dB",
+        "{what}, {np} ranks: step {last} q {:.2} dB",
         q.unwrap_or_default()
     );
     let bytes = std::fs::read(rec.join(vdi.unwrap())).unwrap();
     g.terminate();
     v.terminate();
-    decode(&bytes, &DecodeLimits::default()).unwrap()
+    (decode(&bytes, &DecodeLimits::default()).unwrap(), rec)
 }
 
 /// Asserts that `many` (a run on several ranks) looks as `one` (one rank, or one process) from

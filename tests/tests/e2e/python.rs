@@ -5,7 +5,7 @@
 //! example runs under mpirun on 4 ranks and on 1 with the same picture.
 
 use crate::common::{generator, index, small_config, viz};
-use crate::mpi_runs::{assert_same_picture, run, R};
+use crate::mpi_runs::{assert_same_picture, run, SMALL};
 use std::process::Command;
 
 #[test]
@@ -71,9 +71,15 @@ fn four_mpi4py_ranks_make_the_picture_one_makes() {
         "/../python/examples/gray_scott_mpi.py"
     );
     let program = [python.as_os_str(), std::ffi::OsStr::new(script)];
-    let four = run(&mpirun, &program, 4, tmp.path(), "mpi4py gray-scott");
-    let one = run(&mpirun, &program, 1, tmp.path(), "mpi4py gray-scott");
-    assert_same_picture(&four, &one, "mpi4py gray-scott", R, (R * R / 50) as usize);
+    let (four, _) = run(&mpirun, &program, 4, tmp.path(), "mpi4py gray-scott", SMALL);
+    let (one, _) = run(&mpirun, &program, 1, tmp.path(), "mpi4py gray-scott", SMALL);
+    assert_same_picture(
+        &four,
+        &one,
+        "mpi4py gray-scott",
+        SMALL.r,
+        (SMALL.r * SMALL.r / 50) as usize,
+    );
 }
 
 /// The package's offline functions on NumPy arrays (`python/tests/offline.py`): direct
