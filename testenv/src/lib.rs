@@ -46,9 +46,11 @@ pub enum Need {
     /// The Python package built from `python/` and installed in the fixtures' venv
     /// (`scripts/build-python.sh`).
     Python,
+    /// Debian's `slurm-wlm` and `munge`, and root to start a one-host cluster.
+    Slurm,
 }
 
-const NEEDS: [Need; 9] = [
+const NEEDS: [Need; 10] = [
     Need::Data,
     Need::Gpu,
     Need::Mpi,
@@ -58,6 +60,7 @@ const NEEDS: [Need; 9] = [
     Need::Fortran,
     Need::CTools,
     Need::Python,
+    Need::Slurm,
 ];
 
 impl Need {
@@ -73,6 +76,7 @@ impl Need {
             Need::Fortran => "fortran",
             Need::CTools => "ctools",
             Need::Python => "python",
+            Need::Slurm => "slurm",
         }
     }
 
@@ -88,6 +92,7 @@ impl Need {
             Need::Fortran => "apt-get install gfortran",
             Need::CTools => "apt-get install cmake pkg-config valgrind",
             Need::Python => "scripts/build-python.sh",
+            Need::Slurm => "apt-get install slurm-wlm munge, as root",
         }
     }
 
