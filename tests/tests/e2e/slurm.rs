@@ -105,6 +105,7 @@ fn the_sbatch_file_runs_the_mpi_example_through_slurm() {
         String::from_utf8_lossy(&sbatch.stderr)
     );
     assert!(log.contains("4 ranks"), "job output:\n{log}");
+    eprintln!("job output:\n{log}");
     let all = wait_until(60.0, || {
         let s = steps(&rec);
         s.len() == 3 && s.iter().all(|s| s.missing.is_empty() && s.vdi.is_some())
