@@ -73,12 +73,18 @@ impl Shipper {
         Ok(())
     }
 
-    async fn try_once(&mut self, p: &Product, references_done: &mut bool) -> Result<(), Status> {
-        if let (false, Some((h, d))) = (*references_done, &p.references) {
-            self.ship_references(h, d).await?;
-            *references_done = true;
+    /// The VDI, then its reference frames: frames never reach the viz-node for a VDI it
+    /// refused (they would leave a row of their own there, without the VDI's world size or
+    /// brick, which later ranks of the step would be checked against).
+    async fn try_once(&mut self, p: &Product, vdi_done: &mut bool) -> Result<(), Status> {
+        if !*vdi_done {
+            self.ship_vdi(p).await?;
+            *vdi_done = true;
         }
-        self.ship_vdi(p).await
+        if let Some((h, d)) = &p.references {
+            self.ship_references(h, d).await?;
+        }
+        Ok(())
     }
 
     /// Ships `p`, retrying transient failures with back-off (100 ms doubling up to the
@@ -88,9 +94,9 @@ impl Shipper {
     /// The viz-node's status when it refuses the item for a reason retrying cannot fix.
     pub async fn ship(&mut self, p: &Product, stats: &Stats) -> Result<(), Status> {
         let mut backoff = Backoff::new(self.max_backoff);
-        let mut references_done = false;
+        let mut vdi_done = false;
         loop {
-            match self.try_once(p, &mut references_done).await {
+            match self.try_once(p, &mut vdi_done).await {
                 Ok(()) => {
                     if !stats.get().viz_connected {
                         info!(uri = %self.peer.uri(), "connected to the viz-node");

@@ -394,3 +394,43 @@ fn each_rank_s_flush_reports_its_own_refusals() {
     g.terminate();
     v.terminate();
 }
+
+/// A rank whose brick overlaps another's, through the generator-node with reference frames on:
+/// the viz-node refuses its VDI, so its frames never follow it there (before, they left a row
+/// of world size 1 and r 0 that later ranks were checked against, with a false message); only
+/// the refused rank's client hears of it.
+#[test]
+fn an_overlapping_rank_is_refused_without_leaving_a_row_behind() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let cfg =
+        small_config(&v.addr, "block", 8).replace("reference_every = 0", "reference_every = 1");
+    let g = generator(&cfg, tmp.path(), &[]);
+    let secs = std::time::Duration::from_secs(120);
+    rt().block_on(async {
+        let mut clients = Vec::new();
+        for rank in 0..4u32 {
+            let mut c = SimClient::connect(&g.addr, None).await.unwrap();
+            let mut s = slab(1, rank, 4, 1.0 + rank as f32);
+            if rank == 1 {
+                s.brick_offset = [0, 0, 4]; // over rank 0's z ∈ [0, 8]
+            }
+            c.push_step(s).await.unwrap();
+            clients.push(c);
+        }
+        let e = clients[1].flush(secs).await.unwrap_err().to_string();
+        assert!(e.contains("rank(s) [1]") && e.contains("overlap"), "{e}");
+        for rank in [0, 2, 3] {
+            clients[rank].flush(secs).await.unwrap();
+        }
+    });
+    let entries = index(&rec);
+    let rows: Vec<(u32, u32, u32)> = entries
+        .iter()
+        .map(|e| (e.rank, e.world_size, e.resolution))
+        .collect();
+    assert_eq!(rows, vec![(0, 4, 32), (2, 4, 32), (3, 4, 32)], "{rows:?}");
+    g.terminate();
+    v.terminate();
+}
