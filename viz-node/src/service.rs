@@ -166,7 +166,8 @@ impl Shared {
                 // The scoring task lives as long as the node. A full queue holds this call
                 // (and so the shipper's next item) until the scorer catches up.
                 let _ = self.to_score.send(Job::Score(e.step, e.rank)).await;
-            } else if e.vdi.is_some() {
+            } else if e.vdi.is_some() && !e.with_references {
+                // A VDI whose frames were announced is reported once scored, when they come.
                 self.publish(report(e));
             }
             return;
@@ -665,10 +666,11 @@ fn check_against_stored(
     h: &pb::VdiHeader,
     placement: Option<Placement>,
 ) -> Result<(), Status> {
+    // Only ranks whose VDI is stored have said a world size and a brick.
     let others: Vec<Entry> = rec
         .ranks_of(h.step)
         .into_iter()
-        .filter(|e| e.rank != h.rank)
+        .filter(|e| e.rank != h.rank && e.vdi.is_some())
         .collect();
     if let Some(o) = others.iter().find(|o| o.world_size != h.world_size) {
         return Err(Status::invalid_argument(format!(

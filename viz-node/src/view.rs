@@ -158,11 +158,15 @@ pub fn vdi_file(
                 expected: c.into(),
             })
         })
-        .ok_or_else(|| {
-        missing(format!(
-            "step {step} of {world} ranks is not composed yet (stored ranks: {stored:?}); ask for one rank"
-        ))
-    })
+        .ok_or_else(|| match composed.and_then(|c| c.error.as_deref()) {
+            // A step whose ranks cannot compose says why, not that it will later.
+            Some(why) => missing(format!(
+                "step {step} of {world} ranks cannot be composed: {why} (stored ranks: {stored:?}); ask for one rank"
+            )),
+            None => missing(format!(
+                "step {step} of {world} ranks is not composed yet (stored ranks: {stored:?}); ask for one rank"
+            )),
+        })
 }
 
 /// A VDI file of the recording and what its index row says of it.
@@ -375,6 +379,17 @@ mod tests {
         assert_eq!(
             vdi_file(4, Some(0), &world, Some(&composed)).unwrap().name,
             "r0.vdi"
+        );
+        // A step that cannot compose says why, not that it will later.
+        let failed = StepEntry {
+            error: Some("bricks of ranks [0, 1] do not cover the grid".into()),
+            ..crate::compose::step_entry(4, 2, &[], vec![])
+        };
+        let e = vdi_file(4, None, &world, Some(&failed)).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("cannot be composed: bricks of ranks [0, 1] do not cover the grid"),
+            "{e}"
         );
     }
 
