@@ -342,18 +342,19 @@ impl IndexDb {
     }
 
     /// The index as CSV, one line per (step, rank) and one per composed step (`rank` empty):
-    /// `step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi`.
+    /// `step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error`
+    /// (`error`: why a step of several ranks could not be composed, quoted as CSV quotes).
     ///
     /// # Errors
     /// As [`Self::entries`].
     pub fn export_csv(&self) -> Result<String, StoreError> {
         let mut out = String::from(
-            "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi\n",
+            "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error\n",
         );
         let q = |q: Option<f64>| q.map_or_else(String::new, |q| q.to_string());
         for e in self.entries()? {
             out.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{},,{}\n",
+                "{},{},{},{},{},{},{},{},{},,{},\n",
                 e.step,
                 e.rank,
                 e.world_size,
@@ -369,7 +370,7 @@ impl IndexDb {
         for s in self.steps()? {
             let missing: Vec<String> = s.missing.iter().map(u32::to_string).collect();
             out.push_str(&format!(
-                "{},,{},{},{},{},{},{},{},{},{}\n",
+                "{},,{},{},{},{},{},{},{},{},{},{}\n",
                 s.step,
                 s.world_size,
                 s.pm_version,
@@ -379,10 +380,21 @@ impl IndexDb {
                 s.sizing.tau_secs,
                 q(s.quality.as_ref().map(|q| q.q_db.0)),
                 missing.join(" "),
-                s.vdi.unwrap_or_default()
+                s.vdi.unwrap_or_default(),
+                csv_field(s.error.as_deref().unwrap_or_default())
             ));
         }
         Ok(out)
+    }
+}
+
+/// `text` as one CSV field: quoted (quotes doubled) when it holds a comma, a quote or a line
+/// break.
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_owned()
     }
 }
 
@@ -394,4 +406,32 @@ impl IndexDb {
 pub fn read(dir: &Path) -> Result<(Vec<Entry>, Vec<StepEntry>), StoreError> {
     let db = IndexDb::open(dir, false)?;
     Ok((db.entries()?, db.steps()?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A step that could not compose carries its reason in the CSV, quoted, in the last
+    /// column; rows of ranks leave it empty.
+    #[test]
+    fn the_csv_export_says_why_a_step_did_not_compose() {
+        let dir = tempfile::tempdir().unwrap();
+        let db = IndexDb::open(dir.path(), true).unwrap();
+        db.put_step(&StepEntry {
+            error: Some("step 3: bricks of ranks [0, 1] do not cover the grid".into()),
+            ..crate::compose::step_entry(3, 2, &[], vec![])
+        })
+        .unwrap();
+        let csv = db.export_csv().unwrap();
+        let mut lines = csv.lines();
+        assert!(lines.next().unwrap().ends_with(",vdi,error"));
+        let row = lines.next().unwrap();
+        assert!(
+            row.ends_with(",\"step 3: bricks of ranks [0, 1] do not cover the grid\""),
+            "{row}"
+        );
+        assert_eq!(csv_field("a \"b\", c"), "\"a \"\"b\"\", c\"");
+        assert_eq!(csv_field("plain"), "plain");
+    }
 }
