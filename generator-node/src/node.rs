@@ -189,6 +189,8 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         lane: tokio::sync::Mutex::new(()),
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         refusals: Default::default(),
+        composing: Default::default(),
+        viz: viz.clone(),
         begun: Default::default(),
         spool,
         epoch: new_epoch(),

@@ -161,3 +161,25 @@ impl SceneLink {
             .and_then(Result::ok)
     }
 }
+
+/// How composing `steps` came out at the viz-node (those composed or refused so far).
+///
+/// # Errors
+/// The viz-node unreachable, or its refusal.
+pub async fn step_outcomes(
+    peer: &Peer,
+    steps: Vec<u64>,
+) -> Result<Vec<pb::StepOutcome>, tonic::Status> {
+    let channel = peer.connect().await.map_err(|e| {
+        tonic::Status::unavailable(format!(
+            "viz-node {}: {}",
+            peer.uri(),
+            insitu_proto::peer::error_chain(&e)
+        ))
+    })?;
+    let mut client = VizClient::with_interceptor(channel, peer.auth());
+    let reply = client
+        .step_outcomes(pb::StepOutcomesRequest { steps })
+        .await?;
+    Ok(reply.into_inner().outcomes)
+}

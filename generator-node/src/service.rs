@@ -62,6 +62,49 @@ impl GeneratorService {
         Ok(())
     }
 
+    /// Why steps of `ranks` (every rank's when empty) could not be composed at the viz-node,
+    /// once per rank: the steps of several ranks shipped since, whose composition the viz-node
+    /// has decided (a step not composed yet is asked again at the next flush). `None` when
+    /// all composed, or the viz-node cannot say now.
+    async fn composition_errors(&self, ranks: &[u32]) -> Option<String> {
+        let viz = self.0.viz.as_ref()?;
+        let asked: Vec<u64> = {
+            let composing = self.0.composing.lock().unwrap_or_else(|e| e.into_inner());
+            composing
+                .iter()
+                .filter(|(_, r)| ranks.is_empty() || r.iter().any(|k| ranks.contains(k)))
+                .map(|(step, _)| *step)
+                .collect()
+        };
+        if asked.is_empty() {
+            return None;
+        }
+        let outcomes = crate::scene::step_outcomes(viz, asked).await.ok()?;
+        let mut errors = Vec::new();
+        let mut composing = self.0.composing.lock().unwrap_or_else(|e| e.into_inner());
+        for o in outcomes {
+            let Some(r) = composing.get_mut(&o.step) else {
+                continue;
+            };
+            let before = r.len();
+            r.retain(|k| !(ranks.is_empty() || ranks.contains(k)));
+            if !o.error.is_empty() && r.len() < before {
+                // The viz-node's reason names the step.
+                errors.push(o.error);
+            }
+            if r.is_empty() {
+                composing.remove(&o.step);
+            }
+        }
+        (!errors.is_empty()).then(|| {
+            format!(
+                "flush: {} step(s) of your ranks could not be composed at the viz-node: {}",
+                errors.len(),
+                errors.join("; ")
+            )
+        })
+    }
+
     /// Reports `raw`'s value range to the scene agreement while no TF is fixed.
     fn propose_scene(&self, raw: &RawStep) {
         let Some(scene) = &self.0.scene else {
@@ -188,6 +231,9 @@ impl Generator for GeneratorService {
         // Refusals of the flushing client's ranks since their last flush make this one fail,
         // naming the last cause: the steps were received, but the viz-node did not store
         // their VDIs. Another rank's refusals are left for that rank's client.
+        if let Some(why) = self.composition_errors(&request.ranks).await {
+            return Err(Status::failed_precondition(why));
+        }
         if let Some((n, why)) = s.refusals.take(&request.ranks) {
             return Err(Status::failed_precondition(format!(
                 "flush: the viz-node refused {n} VDI(s) of {} since the last flush; last: {why}",

@@ -33,6 +33,12 @@ pub struct Shared {
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
     /// The viz-node's refusals per rank, until a flush of that rank's client reports them.
     pub refusals: crate::refusals::Refusals,
+    /// The viz-node, when VDIs are shipped (asked how composing steps came out).
+    pub viz: Option<insitu_proto::peer::Peer>,
+    /// Steps of several ranks whose VDIs this node shipped, with those ranks, until a flush
+    /// of each rank's client has heard how composing the step came out.
+    pub composing:
+        std::sync::Mutex<std::collections::BTreeMap<u64, std::collections::BTreeSet<u32>>>,
     /// The first step index no rank of which this node has begun to generate: a tuner's
     /// decision applies from it at the earliest.
     pub begun: std::sync::atomic::AtomicU64,

@@ -24,6 +24,9 @@ pub struct Shipper {
     client: Option<Client>,
 }
 
+/// Steps of several ranks whose composition is remembered for the flushes to come.
+const MAX_COMPOSING_STEPS: usize = 100_000;
+
 impl Shipper {
     /// A shipper for the viz-node `peer`.
     pub fn new(peer: Peer, max_backoff: Duration) -> Self {
@@ -129,7 +132,8 @@ impl Shipper {
         }
     }
 
-    /// Ships items until the outbox is closed and empty; a settled item leaves the spool.
+    /// Ships items until the outbox is closed and empty; a settled item leaves the spool, and
+    /// a step of several ranks is kept for the flushes that will ask how composing it went.
     pub async fn run(mut self, shared: Arc<crate::shared::Shared>) {
         let stats = shared.stats.clone();
         while let Some(p) = shared.outbox.pop().await {
@@ -137,7 +141,18 @@ impl Shipper {
             let result = self.ship(&p, &stats).instrument(span).await;
             shared.unspool(p.spool.as_ref());
             match result {
-                Ok(()) => stats.update(|c| c.shipped += 1),
+                Ok(()) => {
+                    stats.update(|c| c.shipped += 1);
+                    let h = &p.vdi_header;
+                    if h.world_size > 1 {
+                        let mut c = shared.composing.lock().unwrap_or_else(|e| e.into_inner());
+                        c.entry(h.step).or_default().insert(h.rank);
+                        // Clients that never flush: the oldest steps are forgotten first.
+                        while c.len() > MAX_COMPOSING_STEPS {
+                            c.pop_first();
+                        }
+                    }
+                }
                 Err(e) => {
                     warn!(step = p.vdi_header.step, rank = p.vdi_header.rank, code = ?e.code(), error = %e.message(), "the viz-node refused a VDI; it is counted as failed");
                     let why = format!(

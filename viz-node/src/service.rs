@@ -759,6 +759,30 @@ impl Viz for VizService {
         }))
     }
 
+    async fn step_outcomes(
+        &self,
+        request: Request<pb::StepOutcomesRequest>,
+    ) -> Result<Response<pb::StepOutcomesReply>, Status> {
+        let steps = request.into_inner().steps;
+        if steps.len() > 100_000 {
+            return Err(Status::invalid_argument(format!(
+                "{} steps asked: at most 100000 per call",
+                steps.len()
+            )));
+        }
+        let outcomes = steps
+            .into_iter()
+            .filter_map(|step| self.0.recording.step(step))
+            .filter(|s| s.vdi.is_some() || s.error.is_some())
+            .map(|s| pb::StepOutcome {
+                step: s.step,
+                error: s.error.unwrap_or_default(),
+                missing: s.missing,
+            })
+            .collect();
+        Ok(Response::new(pb::StepOutcomesReply { outcomes }))
+    }
+
     async fn agree_scene(
         &self,
         request: Request<pb::SceneProposal>,

@@ -434,3 +434,49 @@ fn an_overlapping_rank_is_refused_without_leaving_a_row_behind() {
     g.terminate();
     v.terminate();
 }
+
+/// Bricks that leave a gap are stored, and the step cannot compose: each rank's client hears
+/// why at its next flush, once (before, every push and close returned OK).
+#[test]
+fn a_step_that_cannot_compose_reaches_each_rank_s_flush() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = generator(&small_config(&v.addr, "block", 8), tmp.path(), &[]);
+    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
+    let config = pb::GenerationConfig {
+        resolution: 32,
+        gamma: 0.01,
+        tf_json: Some(serde_json::to_string(&tf).unwrap()),
+        tf_name: Some("fixed".into()),
+        ..Default::default()
+    };
+    let secs = std::time::Duration::from_secs(120);
+    rt().block_on(async {
+        let mut rank0 = SimClient::connect(&g.addr, None).await.unwrap();
+        let mut rank1 = SimClient::connect(&g.addr, None).await.unwrap();
+        rank0.set_config(config).await.unwrap();
+        rank0.push_step(slab(1, 0, 2, 1.0)).await.unwrap();
+        // Rank 1 starts a plane late: z ∈ [9, 16], leaving the cells between 8 and 9 out.
+        let mut s = slab(1, 1, 2, 2.0);
+        s.brick_offset = [0, 0, 9];
+        s.brick_dims = [16, 16, 8];
+        s.data = insitu_client::f32_bytes(&vec![2.0; 16 * 16 * 8]);
+        rank1.push_step(s).await.unwrap();
+        assert!(
+            wait_until(30.0, || steps(&rec).iter().any(|s| s.error.is_some())),
+            "{:?}",
+            steps(&rec)
+        );
+        for (rank, c) in [(0, &mut rank0), (1, &mut rank1)] {
+            let e = c.flush(secs).await.unwrap_err().to_string();
+            assert!(
+                e.contains("could not be composed") && e.contains("step 1") && e.contains("cover"),
+                "rank {rank}: {e}"
+            );
+            c.flush(secs).await.expect("reported once");
+        }
+    });
+    g.terminate();
+    v.terminate();
+}
