@@ -30,6 +30,15 @@ fn written(dir: &Path, args: &[&str], extra: &[&str], out: &str) -> (Vec<u8>, St
     (std::fs::read(dir.join(out)).unwrap(), stdout)
 }
 
+/// `insitu render` of `volume` with `extra` flags at 48² from 30°, on the CPU, into `out`:
+/// the PNG's bytes.
+fn small_render(dir: &Path, volume: &str, extra: &[&str], out: &str) -> Vec<u8> {
+    let mut args = vec!["render", "--volume", volume];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--size", "48", "--angle", "30", "--backend", "cpu"]);
+    written(dir, &args, &[], out).0
+}
+
 #[test]
 fn evaluate_json_on_the_embedded_default() {
     let dir = tempfile::tempdir().unwrap();
@@ -1336,38 +1345,13 @@ fn every_format_renders_the_field_it_holds() {
     let mut vtk = b"# vtk DataFile Version 3.0\nball\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS 12 12 12\nORIGIN 100 -50 7\nSPACING 1 1 1\nPOINT_DATA 1728\nSCALARS rho float\nLOOKUP_TABLE default\n".to_vec();
     vtk.extend(v.iter().flat_map(|x| x.to_be_bytes()));
     std::fs::write(dir.path().join("ball.vtk"), &vtk).unwrap();
-    let render = |volume: &str| {
-        let args = [
-            "render",
-            "--volume",
-            volume,
-            "--size",
-            "48",
-            "--angle",
-            "30",
-            "--backend",
-            "cpu",
-        ];
-        written(dir.path(), &args, &[], &format!("{volume}.png")).0
-    };
+    let render = |volume: &str| small_render(dir.path(), volume, &[], &format!("{volume}.png"));
     let raw = render("ball_12x12x12_float32.raw");
     assert_eq!(render("ball.nrrd"), raw, "NRRD");
     // --spacing overrides a file's spacing as it sets a raw file's.
     let stretched = |volume: &str| {
-        let args = [
-            "render",
-            "--volume",
-            volume,
-            "--spacing",
-            "1,2,0.5",
-            "--size",
-            "48",
-            "--angle",
-            "30",
-            "--backend",
-            "cpu",
-        ];
-        written(dir.path(), &args, &[], &format!("{volume}.stretched.png")).0
+        let out = format!("{volume}.stretched.png");
+        small_render(dir.path(), volume, &["--spacing", "1,2,0.5"], &out)
     };
     let raw_stretched = stretched("ball_12x12x12_float32.raw");
     assert_ne!(raw_stretched, raw, "the spacing changes the picture");
@@ -1448,20 +1432,13 @@ fn netcdf4_and_xdmf_over_hdf5_render_and_replay() {
     let dir = tempfile::tempdir().unwrap();
     let render = |file: &str, field: &str| {
         let volume = fixtures.join(file);
-        let args = [
-            "render",
-            "--volume",
+        let out = format!("{file}.png");
+        small_render(
+            dir.path(),
             volume.to_str().unwrap(),
-            "--field",
-            field,
-            "--size",
-            "48",
-            "--angle",
-            "30",
-            "--backend",
-            "cpu",
-        ];
-        written(dir.path(), &args, &[], &format!("{file}.png")).0
+            &["--field", field],
+            &out,
+        )
     };
     let classic = render("nc_classic.nc", "rho");
     assert_eq!(render("nc_nc4.nc", "rho"), classic, "netCDF-4");

@@ -86,18 +86,7 @@ fn ingest_c(tmp: &std::path::Path) {
         &exe,
         &[],
     );
-    let g = ingest_node(tmp);
-    let out = std::process::Command::new(&exe)
-        .args([&g.addr, "256", "16"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    print!("{}", String::from_utf8_lossy(&out.stdout));
-    g.terminate();
+    ingest_with(tmp, &[exe.as_os_str()], &[]);
 }
 
 /// Runs `program` against an ingest node as `program ADDR 256 16 [extra]` and prints its

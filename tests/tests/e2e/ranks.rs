@@ -354,6 +354,19 @@ fn bad_decompositions_are_refused_naming_the_step_and_ranks() {
     v.terminate();
 }
 
+/// r 32, γ 0.01 and a fixed transfer function over [0, 3] (the slabs' values): steps are
+/// made without waiting for the world to agree one.
+fn fixed_tf_config() -> pb::GenerationConfig {
+    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
+    pb::GenerationConfig {
+        resolution: 32,
+        gamma: 0.01,
+        tf_json: Some(serde_json::to_string(&tf).unwrap()),
+        tf_name: Some("fixed".into()),
+        ..Default::default()
+    }
+}
+
 /// With one client per rank, a flush reports the refusals of its own ranks' VDIs, once, and
 /// not another rank's: rank 1 pushes a step under a world size the step's rank 0 contradicts,
 /// rank 0's flush after that refusal is clean, rank 1's names it.
@@ -364,14 +377,7 @@ fn each_rank_s_flush_reports_its_own_refusals() {
     let v = viz(&rec, "127.0.0.1:0", tmp.path());
     let g = generator(&small_config(&v.addr, "block", 4), tmp.path(), &[]);
     // A fixed TF: no agreement over a world whose rank 1 never comes.
-    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
-    let config = pb::GenerationConfig {
-        resolution: 32,
-        gamma: 0.01,
-        tf_json: Some(serde_json::to_string(&tf).unwrap()),
-        tf_name: Some("fixed".into()),
-        ..Default::default()
-    };
+    let config = fixed_tf_config();
     let secs = std::time::Duration::from_secs(60);
     rt().block_on(async {
         let mut rank0 = SimClient::connect(&g.addr, None).await.unwrap();
@@ -443,14 +449,7 @@ fn a_step_that_cannot_compose_reaches_each_rank_s_flush() {
     let rec = tmp.path().join("rec");
     let v = viz(&rec, "127.0.0.1:0", tmp.path());
     let g = generator(&small_config(&v.addr, "block", 8), tmp.path(), &[]);
-    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
-    let config = pb::GenerationConfig {
-        resolution: 32,
-        gamma: 0.01,
-        tf_json: Some(serde_json::to_string(&tf).unwrap()),
-        tf_name: Some("fixed".into()),
-        ..Default::default()
-    };
+    let config = fixed_tf_config();
     let secs = std::time::Duration::from_secs(120);
     rt().block_on(async {
         let mut rank0 = SimClient::connect(&g.addr, None).await.unwrap();
