@@ -50,6 +50,11 @@ pub struct PipelineArgs {
     /// before it ships, so no stored step exceeds it (the summary counts the retries).
     #[arg(long, value_parser = size_max_arg)]
     pub size_max: Option<u64>,
+    /// Hard limit on a step's tau, seconds (e.g. 0.05): a generation that would overrun it is
+    /// stopped and made again at a lower resolution, so no stored step's tau exceeds it (a
+    /// step that cannot fit is not stored; the summary counts the retries).
+    #[arg(long, value_parser = time_max_arg)]
+    pub time_max: Option<f64>,
     /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
     #[arg(long)]
     pub json: bool,
@@ -69,6 +74,14 @@ fn size_max_arg(s: &str) -> Result<u64, String> {
     insitu_tuner::utility::parse_bytes(s)
         .filter(|&b| b > 0)
         .ok_or_else(|| format!("{s:?} is not a size in bytes (e.g. 1MB, 500kB)"))
+}
+
+/// `--time-max`: seconds, finite and > 0.
+fn time_max_arg(s: &str) -> Result<f64, String> {
+    s.parse::<f64>()
+        .ok()
+        .filter(|t| t.is_finite() && *t > 0.0)
+        .ok_or_else(|| format!("{s:?} is not a time in seconds > 0 (e.g. 0.05)"))
 }
 
 /// What a command chooses when its flags do not.
@@ -438,6 +451,7 @@ impl LocalNodes {
         cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec(defaults);
         cfg.generation.size_max = a.size_max.unwrap_or(0);
+        cfg.generation.time_max = a.time_max.unwrap_or(0.0);
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global
         // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
         // simulation's steps, and τ counts their time).
@@ -662,6 +676,12 @@ impl Run<'_> {
                 "  q on {n} sampled steps: {} – {} dB",
                 crate::cmd::q_text(lo),
                 crate::cmd::q_text(hi)
+            );
+        }
+        if s.limit_retries > 0 {
+            println!(
+                "  hard limit: {} generation(s) made again at a coarser P_M, {:.3} s of generation thrown away (steps that could not keep it are counted as failed)",
+                s.limit_retries, s.limit_retry_secs
             );
         }
         println!("  wall clock {:.1} s", self.elapsed_secs);

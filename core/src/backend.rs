@@ -363,25 +363,71 @@ impl Scene<'_> {
         tf_name: &str,
         spare: Option<Vdi>,
     ) -> Result<Timed<Vdi>, BackendError> {
+        match self.generate_until(camera, params, tf_hash, tf_name, spare, &|_| false)? {
+            Attempt::Done(vdi) => Ok(vdi),
+            // Unreachable with a rule that never stops; answered as the empty VDI it left.
+            Attempt::Stopped { spare, progress } => Ok(Timed {
+                value: spare,
+                seconds: progress.seconds,
+                source: TimeSource::WallClock,
+                wall_s: progress.seconds,
+            }),
+        }
+    }
+
+    /// [`Self::generate_reusing`] under a stop rule asked between bands of rows
+    /// ([`generate::generate_into_until`]): how a generator keeps a deadline. The GPU path
+    /// runs its kernel whole and never stops (its τ is checked after).
+    ///
+    /// # Errors
+    /// As [`Self::generate`].
+    pub fn generate_until(
+        &self,
+        camera: &Camera,
+        params: VdiParams,
+        tf_hash: u64,
+        tf_name: &str,
+        spare: Option<Vdi>,
+        stop: &dyn Fn(generate::Progress) -> bool,
+    ) -> Result<Attempt, BackendError> {
         let start = Instant::now();
         match self {
             Self::Cpu(rc) => {
-                let vdi = match spare {
-                    Some(mut vdi) => {
-                        generate::generate_into(rc, camera, params, tf_hash, tf_name, &mut vdi)?;
-                        vdi
-                    }
-                    None => generate::generate(rc, camera, params, tf_hash, tf_name)?,
+                let mut vdi = match spare {
+                    Some(vdi) => vdi,
+                    None => generate::blank(rc, camera, params, tf_hash, tf_name),
                 };
-                Ok(wall(vdi, start))
+                match generate::generate_into_until(
+                    rc, camera, params, tf_hash, tf_name, &mut vdi, stop,
+                )? {
+                    generate::Outcome::Complete => Ok(Attempt::Done(wall(vdi, start))),
+                    generate::Outcome::Stopped(progress) => Ok(Attempt::Stopped {
+                        spare: vdi,
+                        progress,
+                    }),
+                }
             }
             #[cfg(feature = "gpu")]
-            Self::Gpu(s) => Ok(from_kernel(
+            Self::Gpu(s) => Ok(Attempt::Done(from_kernel(
                 s.generate(camera, params, tf_hash, tf_name)?,
                 start,
-            )),
+            ))),
         }
     }
+}
+
+/// How a generation under a stop rule ended ([`Scene::generate_until`]).
+#[derive(Debug)]
+pub enum Attempt {
+    /// The whole VDI, timed.
+    Done(Timed<Vdi>),
+    /// Stopped by the rule: how far it got, and the VDI's memory for the next try.
+    Stopped {
+        /// An empty VDI whose allocations the next generation reuses.
+        spare: Vdi,
+        /// The share of the work done and the seconds it took.
+        progress: generate::Progress,
+    },
 }
 
 /// A VDI prepared on a backend for rendering from any camera.

@@ -98,6 +98,13 @@ pub struct GenerationConfig {
     /// so no stored step exceeds it; one that cannot get under it is not shipped (counted as
     /// failed, logged).
     pub size_max: u64,
+    /// Hard limit on τ of a step (its generation, every try counted), seconds; 0: none. A
+    /// generation that would overrun it is stopped between bands of rows and the step made
+    /// again at a resolution its measured rate fits into the time left (a world of one rank:
+    /// the ranks of a step share r), so no stored step's τ exceeds it; one that cannot fit is
+    /// not shipped (counted as failed, logged). On the GPU the kernel runs whole: a step over
+    /// the limit there is not shipped.
+    pub time_max: f64,
     /// The field to render from steps that carry named fields (Blueprint `fields/<name>`);
     /// unset: each step's first. A step that names none holds one field, which is rendered.
     pub field: Option<String>,
@@ -118,6 +125,7 @@ impl Default for GenerationConfig {
             reference_every: 10,
             reference_size: 0,
             size_max: 0,
+            time_max: 0.0,
             field: None,
         }
     }
@@ -248,6 +256,8 @@ pub struct Generation {
     pub reference_size: u32,
     /// Hard limit on a step's σ, bytes (0: none; see `GenerationConfig::size_max`).
     pub size_max: u64,
+    /// Hard limit on a step's τ, seconds (0: none; see `GenerationConfig::time_max`).
+    pub time_max: f64,
     /// The field to render by name; `None`: each step's first.
     pub field: Option<String>,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
@@ -398,6 +408,12 @@ impl GenerationConfig {
         if self.reference_size > insitu_core::vdi::MAX_RESOLUTION {
             return Err(invalid("generation.reference_size", "too large"));
         }
+        if !(self.time_max.is_finite() && self.time_max >= 0.0) {
+            return Err(invalid(
+                "generation.time_max",
+                format!("{} is not a time in seconds ≥ 0", self.time_max),
+            ));
+        }
         if let Some(f) = &self.field {
             crate::ingest::check_field_name(f).map_err(|e| invalid("generation.field", e))?;
         }
@@ -411,6 +427,7 @@ impl GenerationConfig {
             reference_every: self.reference_every,
             reference_size: self.reference_size,
             size_max: self.size_max,
+            time_max: self.time_max,
             field: self.field.clone(),
             pm_version: 0,
             previous: None,

@@ -23,7 +23,8 @@ pub struct Counters {
     pub ship_failed: u64,
     /// Steps found in the spool at start (acknowledged by an earlier run), queued again.
     pub recovered: u64,
-    /// VDIs made again at a coarser `P_M` because σ came out over the hard limit.
+    /// VDIs made again at a coarser `P_M` because σ came out over the hard limit or τ would
+    /// have.
     pub limit_retries: u64,
     /// Seconds of the generations and compressions those threw away.
     pub limit_retry_secs: f64,

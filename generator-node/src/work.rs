@@ -5,9 +5,10 @@
 use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
-use insitu_core::backend::{BackendError, Scene};
+use insitu_core::backend::{Attempt, BackendError, Scene};
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
+use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
@@ -29,8 +30,8 @@ pub struct Product {
     /// The step's file in the spool and its field bytes, removed once the VDI is settled.
     pub spool: Option<(String, u64)>,
     /// Generations made again at a coarser `P_M` because σ came out over the hard limit
-    /// (`generation.size_max`), and their seconds (generation and compression of the VDIs
-    /// thrown away).
+    /// (`generation.size_max`) or τ would have (`generation.time_max`), and their seconds
+    /// (generation and compression of the VDIs thrown away, the stopped generations' time).
     pub limit_retries: (u32, f64),
 }
 
@@ -67,6 +68,22 @@ pub enum WorkError {
         /// That `P_M`.
         gamma: f32,
     },
+    /// τ would overrun the hard limit and no coarser `P_M` fits the time left.
+    #[error("τ of step {step} would overrun the hard limit of {limit} s at r {r}, γ {gamma} ({spent:.3} s spent; {why}): the VDI is not shipped")]
+    OverTime {
+        /// The step.
+        step: u64,
+        /// Seconds of generation spent on the step.
+        spent: f64,
+        /// The limit, seconds.
+        limit: f64,
+        /// The `P_M` of the last try.
+        r: u32,
+        /// The `P_M` of the last try.
+        gamma: f32,
+        /// Why no try is left.
+        why: &'static str,
+    },
 }
 
 /// γ is raised up to this when a VDI comes out over the hard limit (far above any γ worth
@@ -75,6 +92,50 @@ pub const MAX_LIMIT_GAMMA: f32 = 2.0;
 
 /// Generations a step may take to come under the hard limit.
 pub const MAX_LIMIT_RETRIES: u32 = 8;
+
+/// Share of the time left that a generation made again under the time limit plans for: the
+/// rate the stopped one measured spreads on a busy machine.
+pub const TIME_RETRY_SHARE: f64 = 0.6;
+
+/// The coarsest resolution a generation is made again at under the time limit.
+pub const MIN_LIMIT_RESOLUTION: u32 = 8;
+
+/// Whether a generation at `progress`, after `spent` seconds of the step's earlier tries,
+/// stops under the time limit `limit`: at the limit; and, when a try is left (`can_retry`),
+/// as soon as the time it projects for the whole (its seconds over its share done) would
+/// overrun it, once a fifth of the work is done or half the time gone, so a retry has time.
+pub fn must_stop(limit: f64, spent: f64, can_retry: bool, progress: Progress) -> bool {
+    let now = spent + progress.seconds;
+    let projected = if progress.done > 0.0 {
+        spent + progress.seconds / progress.done
+    } else {
+        f64::INFINITY
+    };
+    now >= limit || (can_retry && (progress.done >= 0.2 || now >= 0.5 * limit) && projected > limit)
+}
+
+/// The `P_M` a generation stopped at `progress` under the time limit is made again with,
+/// `left` seconds before the limit: the resolution whose r² rays the rate it measured fits
+/// into [`TIME_RETRY_SHARE`] of the time left (τ ∝ r²: the rays are as long at any r), at
+/// most ⅞ of its r; `None` for a world of several ranks (`may_shrink_r`: they must share r),
+/// below [`MIN_LIMIT_RESOLUTION`] or with no time left.
+pub fn faster(
+    p: VdiParams,
+    progress: Progress,
+    left: f64,
+    may_shrink_r: bool,
+) -> Option<VdiParams> {
+    if !may_shrink_r || left <= 0.0 {
+        return None;
+    }
+    // A try stopped before any band finished is taken to have done one band (1/32).
+    let whole = progress.seconds / progress.done.max(1.0 / 32.0);
+    let scale = (TIME_RETRY_SHARE * left / whole.max(1e-9))
+        .sqrt()
+        .min(0.875);
+    let r = (f64::from(p.resolution) * scale).floor() as u32;
+    (r >= MIN_LIMIT_RESOLUTION).then_some(VdiParams { resolution: r, ..p })
+}
 
 /// The `P_M` a VDI whose σ is `over` times the limit is made again with: γ raised by that
 /// factor and 15 % more (σ falls about as 1/γ, Sec. 6.1), at least by a quarter, up to
@@ -115,12 +176,65 @@ pub fn run(
     let info = &raw.info;
     // The hard limit is the step's; each rank keeps its share.
     let limit = (gen.size_max > 0).then(|| gen.size_max / u64::from(info.world_size.max(1)));
+    let time_limit = (gen.time_max > 0.0).then_some(gen.time_max);
+    let one_rank = info.world_size <= 1;
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
     let (generated, file, tau_secs, tau_compress_secs) = loop {
-        let generated = info_span!("generate", r = params.resolution, gamma = params.gamma)
-            .in_scope(|| scene.generate_reusing(&camera, params, tf_hash, &tf.1, spare.take()))?;
+        let can_retry = one_rank && retries.0 < MAX_LIMIT_RETRIES;
+        let spent = retries.1;
+        let stop = |p: Progress| time_limit.is_some_and(|t| must_stop(t, spent, can_retry, p));
+        let attempt = info_span!("generate", r = params.resolution, gamma = params.gamma)
+            .in_scope(|| {
+                scene.generate_until(&camera, params, tf_hash, &tf.1, spare.take(), &stop)
+            })?;
+        let generated = match attempt {
+            Attempt::Done(generated) => generated,
+            Attempt::Stopped { spare: s, progress } => {
+                let limit = time_limit.unwrap_or(0.0);
+                retries = (retries.0 + 1, retries.1 + progress.seconds);
+                let over = |why| WorkError::OverTime {
+                    step: info.step,
+                    spent: retries.1,
+                    limit,
+                    r: params.resolution,
+                    gamma: params.gamma,
+                    why,
+                };
+                if !can_retry {
+                    return Err(over(if one_rank {
+                        "no retry left"
+                    } else {
+                        "the ranks of a step share r"
+                    }));
+                }
+                let next = faster(params, progress, limit - retries.1, one_rank)
+                    .ok_or_else(|| over("no resolution fits the time left"))?;
+                tracing::info!(
+                    step = info.step,
+                    done = progress.done,
+                    seconds = progress.seconds,
+                    limit,
+                    r = next.resolution,
+                    "τ would overrun the hard limit: made again at a lower resolution"
+                );
+                params = next;
+                spare = Some(s);
+                continue;
+            }
+        };
         // τ counts every generation of the step, the ones thrown away too.
         let tau = generated.seconds + retries.1;
+        if let Some(limit) = time_limit.filter(|&t| tau > t) {
+            // A band that ran past the limit, or the GPU's kernel that runs whole.
+            return Err(WorkError::OverTime {
+                step: info.step,
+                spent: tau,
+                limit,
+                r: params.resolution,
+                gamma: params.gamma,
+                why: "the last try finished over it",
+            });
+        }
         let t = Instant::now();
         let provenance = provenance(info, gen.pm_version);
         let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
@@ -440,6 +554,97 @@ mod tests {
                 raw.info.brick_dims
             )
         );
+    }
+
+    fn timed(time_max: f64, resolution: u32) -> Generation {
+        let mut g = generation(0);
+        g.time_max = time_max;
+        g.params.resolution = resolution;
+        g
+    }
+
+    /// Under a time limit below the step's τ, the step ships at a lower resolution with τ
+    /// (every try counted) within the limit, or, where this busy machine's timing spoils
+    /// the plan, is refused: never stored over it. A limit no resolution fits, or a world
+    /// of several ranks (they share r), is refused with the reason.
+    #[test]
+    fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
+        let raw = busy_step();
+        let tf = TransferFunction::default_for_volume(&raw.field);
+        let free = |g: &Generation| run(&Backend::Cpu, &raw, g, &tf, false, None);
+        let tau = (0..3)
+            .map(|_| free(&timed(0.0, 256)).map(|(p, _)| p.vdi_header.tau_secs))
+            .collect::<Result<Vec<_>, _>>()
+            .unwrap()
+            .into_iter()
+            .fold(f64::INFINITY, f64::min);
+        let limit = tau / 3.0;
+        let (mut shipped, mut refused) = (0, Vec::new());
+        for _ in 0..5 {
+            match free(&timed(limit, 256)) {
+                Ok((p, _)) => {
+                    let h = &p.vdi_header;
+                    assert!(h.tau_secs <= limit, "τ {} over {limit}", h.tau_secs);
+                    assert_eq!(h.resolution < 256, p.limit_retries.0 >= 1, "{h:?}");
+                    assert!(h.tau_secs >= p.limit_retries.1);
+                    shipped += usize::from(p.limit_retries.0 >= 1);
+                }
+                Err(e) => {
+                    assert!(matches!(e, WorkError::OverTime { .. }), "{e}");
+                    refused.push(e.to_string());
+                }
+            }
+        }
+        assert!(
+            shipped >= 1,
+            "no step made again under {limit} s (free τ {tau} s) in 5 tries: {refused:#?}"
+        );
+        let e = free(&timed(1e-7, 256)).unwrap_err();
+        assert!(matches!(e, WorkError::OverTime { step: 7, .. }), "{e}");
+        let mut two = busy_step();
+        two.info.world_size = 2;
+        let e = run(&Backend::Cpu, &two, &timed(1e-7, 256), &tf, false, None).unwrap_err();
+        assert!(e.to_string().contains("share r"), "{e}");
+    }
+
+    /// The stop rule waits for a fifth of the work (or half the time) before it trusts a
+    /// projection; the retry's r fits the measured rate into the share of the time left.
+    #[test]
+    fn the_time_limit_stops_on_a_projected_overrun_and_plans_the_retry_from_the_rate() {
+        let at = |done, seconds| Progress { done, seconds };
+        assert!(
+            !must_stop(1.0, 0.0, true, at(0.1, 0.2)),
+            "too early to project"
+        );
+        assert!(must_stop(1.0, 0.0, true, at(0.2, 0.25)), "projects 1.25 s");
+        assert!(!must_stop(1.0, 0.0, true, at(0.5, 0.45)), "projects 0.9 s");
+        assert!(
+            must_stop(1.0, 0.0, true, at(0.1, 0.55)),
+            "half the time gone"
+        );
+        assert!(
+            !must_stop(1.0, 0.0, false, at(0.2, 0.9)),
+            "no retry: run to the limit"
+        );
+        assert!(must_stop(1.0, 0.0, false, at(0.9, 1.0)));
+        assert!(
+            must_stop(1.0, 0.5, true, at(0.5, 0.3)),
+            "earlier tries count"
+        );
+        let p = VdiParams {
+            resolution: 256,
+            gamma: 0.01,
+        };
+        // Whole: 1 s; 0.6 of 0.6 s left is 0.36 of the rays: r × 0.6.
+        let next = faster(p, at(0.25, 0.25), 0.6, true).unwrap();
+        assert_eq!((next.resolution, next.gamma), (153, 0.01));
+        assert_eq!(
+            faster(p, at(0.99, 0.5), 10.0, true).unwrap().resolution,
+            224
+        );
+        assert_eq!(faster(p, at(0.25, 0.25), 0.6, false), None);
+        assert_eq!(faster(p, at(0.25, 0.25), 0.0, true), None);
+        assert_eq!(faster(p, at(0.5, 10.0), 0.01, true), None, "below r = 8");
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //! them within the budget and the worst overshoot, mean q of the sampled steps, the q regret
 //! against the best `P_M` per step in hindsight (size budgets; see [`hindsight`]), the trials'
 //! node seconds as a share of the run's wall clock, the corrections between tunings and the
-//! retries under the hard limit. Size scenarios run once more with `--size-max` at the budget.
+//! retries under the hard limit. Size scenarios run once more with `--size-max` at the budget,
+//! time scenarios with `--time-max`.
 //!
 //! Scenarios (the series are written once into `target/tmp/adherence/`):
 //! - `gs128`: Gray–Scott 128³ after 1500 steps, a push every 20 steps, 60 pushes (the demo
@@ -55,6 +56,8 @@ struct Row {
     trial_share: f64,
     corrections: u64,
     limit_retries: u64,
+    /// Steps not stored (a hard limit that could not be kept; any other failure).
+    lost: u64,
 }
 
 fn work_dir() -> PathBuf {
@@ -272,6 +275,7 @@ fn row(label: String, lines: &RunLines, utility: &str, hindsight_of: Option<Hind
         trial_share: t["trial_secs"].as_f64().unwrap_or(0.0) / wall,
         corrections: t["corrections"].as_u64().unwrap_or(0),
         limit_retries: lines.summary["limit_retries"].as_u64().unwrap_or(0),
+        lost: lines.summary["failed"].as_u64().unwrap_or(0),
     }
 }
 
@@ -326,18 +330,24 @@ fn main() {
     println!("binary: {}", bin.display());
     println!(
         "{:<34} {:>6} {:>7} {:>7} {:>7} {:>8} {:>8} {:>6} {:>7}",
-        "run", "steps", "within", "worst", "mean q", "regret", "trials", "corr.", "retries"
+        "run", "steps", "within", "worst", "mean q", "regret", "trials", "corr.", "retr/lost"
     );
     for s in &scenarios {
         let (tf_path, tf) = tf_for(&s.series);
         for &utility in &s.utilities {
-            let (size, _) = budgets(utility);
+            let (size, time) = budgets(utility);
             let mut variants: Vec<(String, Vec<String>)> = vec![(String::new(), vec![])];
-            if let Some(b) = size {
-                if std::env::var("INSITU_ADHERENCE_HARD").map_or(true, |v| v != "0") {
+            if std::env::var("INSITU_ADHERENCE_HARD").map_or(true, |v| v != "0") {
+                if let Some(b) = size {
                     variants.push((
                         " +size_max".into(),
                         vec!["--size-max".into(), format!("{}", b as u64)],
+                    ));
+                }
+                if let Some(t) = time {
+                    variants.push((
+                        " +time_max".into(),
+                        vec!["--time-max".into(), format!("{t}")],
                     ));
                 }
             }
@@ -363,7 +373,7 @@ fn main() {
                     r.regret.map_or_else(|| "-".into(), |g| format!("{g:.2}")),
                     100.0 * r.trial_share,
                     r.corrections,
-                    r.limit_retries
+                    format!("{}/{}", r.limit_retries, r.lost)
                 );
             }
         }

@@ -83,6 +83,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.pipeline.size_max.is_some() && a.generator.is_some() {
         bail!("--size-max is for the local nodes: a running generator-node takes generation.size_max from its config");
     }
+    if a.pipeline.time_max.is_some() && a.generator.is_some() {
+        bail!("--time-max is for the local nodes: a running generator-node takes generation.time_max from its config");
+    }
     let data = crate::scene::open_dataset(&a.series, a.field.as_deref(), a.uneven)?;
     let bricks = bricks_for(&a, data.dims)?;
     tokio::runtime::Runtime::new()?.block_on(replay(a, data, bricks))

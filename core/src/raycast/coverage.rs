@@ -17,6 +17,7 @@ use super::Raycaster;
 use crate::camera::ViewFrame;
 use crate::volume::Aabb;
 use glam::Vec3;
+use std::ops::Range;
 
 /// Side of a coverage tile, pixels.
 pub const TILE: u32 = 4;
@@ -86,6 +87,21 @@ impl Coverage {
     pub fn covers(&self, i: u32, j: u32) -> bool {
         let t = (j / TILE) as usize * self.tiles_x as usize + (i / TILE) as usize;
         self.covered.get(t).copied().unwrap_or(false)
+    }
+
+    /// Covered tiles in the tile rows that pixel rows `rows` fall in (all covered tiles for
+    /// `0..height`): the work a generation of those rows has, for its progress.
+    pub fn covered_tiles(&self, rows: Range<u32>) -> usize {
+        let w = self.tiles_x as usize;
+        let (a, b) = (
+            rows.start.div_ceil(TILE) as usize,
+            rows.end.div_ceil(TILE) as usize,
+        );
+        let (a, b) = (
+            (a * w).min(self.covered.len()),
+            (b * w).min(self.covered.len()),
+        );
+        self.covered[a..b].iter().filter(|&&c| c).count()
     }
 
     /// Whether any of pixels `i0 … i1 − 1` of row `j` is covered.

@@ -38,14 +38,25 @@ pub fn generate(
     tf_hash: u64,
     tf_name: &str,
 ) -> Result<Vdi, VdiParamError> {
-    let mut vdi = Vdi {
+    let mut vdi = blank(raycaster, camera, params, tf_hash, tf_name);
+    generate_into(raycaster, camera, params, tf_hash, tf_name, &mut vdi)?;
+    Ok(vdi)
+}
+
+/// A VDI with `params`' metadata and no lists yet, for [`generate_into`] to fill.
+pub(crate) fn blank(
+    raycaster: &Raycaster,
+    camera: &Camera,
+    params: VdiParams,
+    tf_hash: u64,
+    tf_name: &str,
+) -> Vdi {
+    Vdi {
         meta: meta_for(raycaster, camera, params, tf_hash, tf_name),
         offsets: Vec::new(),
         supersegments: Vec::new(),
         derived: Default::default(),
-    };
-    generate_into(raycaster, camera, params, tf_hash, tf_name, &mut vdi)?;
-    Ok(vdi)
+    }
 }
 
 /// [`generate`] into `vdi`, replacing its content and reusing its allocations.
@@ -67,6 +78,46 @@ pub fn generate_into(
     tf_name: &str,
     vdi: &mut Vdi,
 ) -> Result<(), VdiParamError> {
+    generate_into_until(raycaster, camera, params, tf_hash, tf_name, vdi, &|_| false).map(|_| ())
+}
+
+/// How far a generation got, as the stop rule of [`generate_into_until`] sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Progress {
+    /// Share of the generation's work done, in `[0, 1]`: covered tiles of the rows marched
+    /// over all covered tiles (rays no visible cell covers cost nothing).
+    pub done: f64,
+    /// Seconds since the generation began.
+    pub seconds: f64,
+}
+
+/// How a generation under a stop rule ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// Every ray was marched: the VDI is whole.
+    Complete,
+    /// The stop rule said stop; the VDI was left empty. The progress when it stopped.
+    Stopped(Progress),
+}
+
+/// [`generate_into`], asking `stop` between bands of rows (1/32 of the rows each) whether to
+/// give up: a generator with a deadline (`generation.time_max`) stops a generation that would
+/// overrun and makes the step again coarser, using the rate this one measured. A band under
+/// way is finished first, so a generation overruns the moment `stop` says yes by at most one
+/// band. Stopped, `vdi` is left an empty VDI with the metadata of `params`.
+///
+/// # Errors
+/// As [`generate_into`].
+pub fn generate_into_until(
+    raycaster: &Raycaster,
+    camera: &Camera,
+    params: VdiParams,
+    tf_hash: u64,
+    tf_name: &str,
+    vdi: &mut Vdi,
+    stop: &dyn Fn(Progress) -> bool,
+) -> Result<Outcome, VdiParamError> {
+    let began = std::time::Instant::now();
     params.validate()?;
     if !camera.is_valid() {
         return Err(VdiParamError::Camera(*camera));
@@ -81,7 +132,7 @@ pub fn generate_into(
         // VDI, for one look at the macro cells instead of r² rays.
         vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
         vdi.empty_lists();
-        return Ok(());
+        return Ok(Outcome::Complete);
     }
     vdi.meta = meta_for(raycaster, camera, params, tf_hash, tf_name);
     vdi.offsets.clear();
@@ -101,11 +152,20 @@ pub fn generate_into(
     // Rays that no visible macro cell covers get no supersegments, unmarched.
     let coverage = Coverage::new(raycaster, &camera.frame(r, r));
     let band = r.div_ceil(BANDS);
+    let work = coverage.covered_tiles(0..r).max(1) as f64;
     // Band k + 1 is marched while band k is appended (a serial copy that would otherwise
     // leave a thread idle).
     let mut pending: Vec<(Vec<u32>, Vec<Supersegment>)> = Vec::new();
     let mut total = 0usize;
     for start in (0..r).step_by(band as usize) {
+        let progress = Progress {
+            done: coverage.covered_tiles(0..start) as f64 / work,
+            seconds: began.elapsed().as_secs_f64(),
+        };
+        if stop(progress) {
+            vdi.empty_lists();
+            return Ok(Outcome::Stopped(progress));
+        }
         let (offsets, supersegments) = (&mut vdi.offsets, &mut vdi.supersegments);
         let done = std::mem::take(&mut pending);
         let (rows, ()) = rayon::join(
@@ -129,7 +189,7 @@ pub fn generate_into(
         vdi.offsets.last().map(|&n| n as usize),
         Some(vdi.supersegments.len())
     );
-    Ok(())
+    Ok(Outcome::Complete)
 }
 
 /// Bands of rows generated one after another: only two bands' per-row lists (the one being
@@ -623,5 +683,50 @@ mod tests {
         assert!(generate_into(&rc, &cam, p(0, 0.1), 0, "", &mut vdi).is_err());
         assert!(generate_into(&rc, &cam, p(8, f32::NAN), 0, "", &mut vdi).is_err());
         assert_eq!(vdi, before, "a failed generation leaves the VDI as it was");
+    }
+
+    /// The stop rule sees progress that starts at 0 and only grows, within [0, 1]; a rule that stops at half the work leaves an empty VDI of the
+    /// right resolution, and the VDI memory it hands back then makes the whole VDI exactly.
+    #[test]
+    fn a_generation_stops_where_its_rule_says_and_leaves_an_empty_vdi() {
+        let volume = Volume::from_fn([32, 28, 24], |x, y, z| {
+            ((x * 3 + y * 5 + z * 7) % 23) as f32 / 23.0
+        })
+        .unwrap();
+        let tf = TransferFunction::default_for_range(0.0, 1.0);
+        let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let cam = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
+        let params = VdiParams {
+            resolution: 96,
+            gamma: 0.01,
+        };
+        let whole = generate(&rc, &cam, params, 3, "t").unwrap();
+        let seen = std::sync::Mutex::new(Vec::new());
+        let mut vdi = whole.clone();
+        let outcome = generate_into_until(&rc, &cam, params, 3, "t", &mut vdi, &|p| {
+            seen.lock().map(|mut s| s.push(p)).is_err()
+        })
+        .unwrap();
+        assert_eq!(outcome, Outcome::Complete);
+        assert_eq!(vdi, whole, "a rule that never stops changes nothing");
+        let seen = seen.into_inner().unwrap_or_default();
+        assert_eq!(seen.len(), BANDS as usize, "asked once per band");
+        assert_eq!(seen[0].done, 0.0);
+        assert!(seen
+            .windows(2)
+            .all(|w| w[0].done <= w[1].done && w[0].seconds <= w[1].seconds));
+        assert!(seen.iter().all(|p| p.done <= 1.0 && p.seconds >= 0.0));
+
+        let outcome =
+            generate_into_until(&rc, &cam, params, 3, "t", &mut vdi, &|p| p.done >= 0.5).unwrap();
+        let Outcome::Stopped(at) = outcome else {
+            panic!("not stopped: {outcome:?}");
+        };
+        assert!((0.5..0.75).contains(&at.done), "stopped at {at:?}");
+        assert_eq!(vdi.resolution(), 96);
+        assert!(vdi.supersegments().is_empty());
+        assert_eq!(vdi.offsets().len(), 96 * 96 + 1);
+        generate_into(&rc, &cam, params, 3, "t", &mut vdi).unwrap();
+        assert_eq!(vdi, whole);
     }
 }

@@ -69,3 +69,44 @@ fn a_growing_series_keeps_its_size_budget_after_the_first_decision() {
     let s = &run.summary["tuner"]["sigma_adherence"];
     assert_eq!(s["within"].as_u64(), Some(a.within as u64), "{s}");
 }
+
+/// The hard limits are guarantees: with `--size-max` and `--time-max` below what the fixed
+/// `P_M` gives, no stored step is over either (σ a size, exact; τ every try counted), steps
+/// are made again to get there, and every step is stored or counted as failed.
+#[test]
+fn no_stored_step_exceeds_the_hard_limits() {
+    let tmp = tempfile::tempdir().unwrap();
+    let steps = 12;
+    let series = write_series(tmp.path(), "growing", N, steps, |t| {
+        growing_structure(N, t, steps)
+    });
+    let fixed = ["--no-tune", "--r", "256", "--gamma", "0.005"];
+    let free = replay(&series, &tmp.path().join("free"), &fixed);
+    assert_eq!(free.steps.len(), steps, "{:?}", free.summary);
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let size_max = (median(free.steps.iter().map(|s| s.sigma_bytes as f64).collect()) / 2.0) as u64;
+    let time_max = median(free.steps.iter().map(|s| s.tau_secs).collect()) / 2.0;
+    let (s, t) = (size_max.to_string(), format!("{time_max}"));
+    let mut args = fixed.to_vec();
+    args.extend(["--size-max", s.as_str(), "--time-max", t.as_str()]);
+    let limited = replay(&series, &tmp.path().join("limited"), &args);
+    for st in &limited.steps {
+        assert!(st.sigma_bytes < size_max, "{st:?} over {size_max} B");
+        assert!(st.tau_secs <= time_max, "{st:?} over {time_max} s");
+    }
+    let summary = &limited.summary;
+    let failed = summary["failed"].as_u64().unwrap_or(u64::MAX);
+    assert_eq!(
+        limited.steps.len() as u64 + failed,
+        steps as u64,
+        "{summary}"
+    );
+    assert!(limited.steps.len() >= steps / 2, "{summary}");
+    assert!(
+        summary["limit_retries"].as_u64() >= Some(steps as u64 / 2),
+        "{summary}"
+    );
+}
