@@ -102,23 +102,24 @@ pub const MIN_LIMIT_RESOLUTION: u32 = 8;
 
 /// Whether a generation at `progress`, after `spent` seconds of the step's earlier tries,
 /// stops under the time limit `limit`: at the limit; and, when a try is left (`can_retry`),
-/// as soon as the time it projects for the whole (its seconds over its share done) would
-/// overrun it, once a fifth of the work is done or half the time gone, so a retry has time.
+/// as soon as the time it projects for the whole ([`Progress::projected`]: its set-up plus its
+/// marching scaled to the whole) would overrun it, once a fifth of the work is done or half
+/// the time gone, so a retry has time. Before any work is done nothing is projected.
 pub fn must_stop(limit: f64, spent: f64, can_retry: bool, progress: Progress) -> bool {
     let now = spent + progress.seconds;
-    let projected = if progress.done > 0.0 {
-        spent + progress.seconds / progress.done
-    } else {
-        f64::INFINITY
-    };
-    now >= limit || (can_retry && (progress.done >= 0.2 || now >= 0.5 * limit) && projected > limit)
+    let over = progress
+        .projected()
+        .is_some_and(|whole| spent + whole > limit);
+    now >= limit || (can_retry && (progress.done >= 0.2 || now >= 0.5 * limit) && over)
 }
 
 /// The `P_M` a generation stopped at `progress` under the time limit is made again with,
-/// `left` seconds before the limit: the resolution whose r² rays the rate it measured fits
-/// into [`TIME_RETRY_SHARE`] of the time left (τ ∝ r²: the rays are as long at any r), at
-/// most ⅞ of its r; `None` for a world of several ranks (`may_shrink_r`: they must share r),
-/// below [`MIN_LIMIT_RESOLUTION`] or with no time left.
+/// `left` seconds before the limit: the resolution whose r² rays the marching rate it measured
+/// fits into [`TIME_RETRY_SHARE`] of the time left less a set-up like its own (without the
+/// work done once per ray-caster; τ ∝ r² beyond the set-up: a ray is as long at any r), at
+/// most ⅞ of its r; `None` for a world of several
+/// ranks (`may_shrink_r`: they must share r), below [`MIN_LIMIT_RESOLUTION`] or with no time
+/// left.
 pub fn faster(
     p: VdiParams,
     progress: Progress,
@@ -129,10 +130,12 @@ pub fn faster(
         return None;
     }
     // A try stopped before any band finished is taken to have done one band (1/32).
-    let whole = progress.seconds / progress.done.max(1.0 / 32.0);
-    let scale = (TIME_RETRY_SHARE * left / whole.max(1e-9))
-        .sqrt()
-        .min(0.875);
+    let marching = (progress.seconds - progress.setup) / progress.done.max(1.0 / 32.0);
+    let room = TIME_RETRY_SHARE * left - (progress.setup - progress.setup_once);
+    if room <= 0.0 {
+        return None;
+    }
+    let scale = (room / marching.max(1e-9)).sqrt().min(0.875);
     let r = (f64::from(p.resolution) * scale).floor() as u32;
     (r >= MIN_LIMIT_RESOLUTION).then_some(VdiParams { resolution: r, ..p })
 }
@@ -213,6 +216,7 @@ pub fn run(
                     step = info.step,
                     done = progress.done,
                     seconds = progress.seconds,
+                    setup = progress.setup,
                     limit,
                     r = next.resolution,
                     "τ would overrun the hard limit: made again at a lower resolution"
@@ -611,7 +615,12 @@ mod tests {
     /// projection; the retry's r fits the measured rate into the share of the time left.
     #[test]
     fn the_time_limit_stops_on_a_projected_overrun_and_plans_the_retry_from_the_rate() {
-        let at = |done, seconds| Progress { done, seconds };
+        let at = |done, seconds| Progress {
+            done,
+            seconds,
+            setup: 0.0,
+            setup_once: 0.0,
+        };
         assert!(
             !must_stop(1.0, 0.0, true, at(0.1, 0.2)),
             "too early to project"
@@ -631,6 +640,20 @@ mod tests {
             must_stop(1.0, 0.5, true, at(0.5, 0.3)),
             "earlier tries count"
         );
+        assert!(
+            !must_stop(1.0, 0.6, true, at(0.0, 0.01)),
+            "nothing done: no projection"
+        );
+        // The set-up is paid once: 0.2 s of it and 0.1 s for a fifth of the rays project
+        // 0.7 s, not 1.5 s.
+        let with_setup = Progress {
+            done: 0.2,
+            seconds: 0.3,
+            setup: 0.2,
+            setup_once: 0.0,
+        };
+        assert!((with_setup.projected().unwrap() - 0.7).abs() < 1e-12);
+        assert!(!must_stop(1.0, 0.0, true, with_setup));
         let p = VdiParams {
             resolution: 256,
             gamma: 0.01,
@@ -645,6 +668,27 @@ mod tests {
         assert_eq!(faster(p, at(0.25, 0.25), 0.6, false), None);
         assert_eq!(faster(p, at(0.25, 0.25), 0.0, true), None);
         assert_eq!(faster(p, at(0.5, 10.0), 0.01, true), None, "below r = 8");
+        // 0.6 × 1 s left less a 0.1 s set-up leaves 0.5 s for rays marched at 2 s the whole;
+        // the set-up's work done once per ray-caster is not paid again.
+        let slow_setup = Progress {
+            done: 0.5,
+            seconds: 1.1,
+            setup: 0.1,
+            setup_once: 0.0,
+        };
+        assert_eq!(faster(p, slow_setup, 1.0, true).unwrap().resolution, 128);
+        assert_eq!(
+            faster(p, slow_setup, 0.1, true),
+            None,
+            "no room beside the set-up"
+        );
+        let once = Progress {
+            seconds: 1.6,
+            setup: 0.6,
+            setup_once: 0.5,
+            ..slow_setup
+        };
+        assert_eq!(faster(p, once, 1.0, true).unwrap().resolution, 128);
     }
 
     #[test]

@@ -89,6 +89,21 @@ pub struct Progress {
     pub done: f64,
     /// Seconds since the generation began.
     pub seconds: f64,
+    /// Of those, the seconds before the first band (validation, the supersegment estimate,
+    /// the occupancy bits, the coverage): a cost every generation pays whatever its r, which
+    /// a projection of the whole from `done` must not scale.
+    pub setup: f64,
+    /// Of `setup`, the seconds of work done once per ray-caster (its occupancy bits), which a
+    /// generation made again from the same ray-caster does not pay.
+    pub setup_once: f64,
+}
+
+impl Progress {
+    /// Seconds the whole generation would take at the rate of the bands marched so far: the
+    /// set-up plus the marching scaled by `1 / done`; `None` before any work is done.
+    pub fn projected(&self) -> Option<f64> {
+        (self.done > 0.0).then(|| self.setup + (self.seconds - self.setup) / self.done)
+    }
 }
 
 /// How a generation under a stop rule ended.
@@ -140,7 +155,9 @@ pub fn generate_into_until(
     vdi.offsets.push(0);
     vdi.supersegments.clear();
     // The ray-caster's occupancy bits, where r² rays repay them (before the estimate's rays).
+    let once = std::time::Instant::now();
     raycaster.prepare((r as usize).pow(2));
+    let setup_once = once.elapsed().as_secs_f64();
     // Room for the whole flat array up front (a generous guess; pages not written cost no
     // memory): grown by doubling instead, each growth would copy it and, for a while, hold
     // both copies. A reservation the allocator refuses (an estimate beyond what fits) is
@@ -157,10 +174,13 @@ pub fn generate_into_until(
     // leave a thread idle).
     let mut pending: Vec<(Vec<u32>, Vec<Supersegment>)> = Vec::new();
     let mut total = 0usize;
+    let setup = began.elapsed().as_secs_f64();
     for start in (0..r).step_by(band as usize) {
         let progress = Progress {
             done: coverage.covered_tiles(0..start) as f64 / work,
             seconds: began.elapsed().as_secs_f64(),
+            setup,
+            setup_once,
         };
         if stop(progress) {
             vdi.empty_lists();
@@ -715,7 +735,15 @@ mod tests {
         assert!(seen
             .windows(2)
             .all(|w| w[0].done <= w[1].done && w[0].seconds <= w[1].seconds));
-        assert!(seen.iter().all(|p| p.done <= 1.0 && p.seconds >= 0.0));
+        assert!(seen
+            .iter()
+            .all(|p| p.done <= 1.0 && p.seconds >= p.setup && p.setup >= p.setup_once));
+        assert!(seen.iter().all(|p| p.setup == seen[0].setup));
+        assert_eq!(
+            seen[0].projected(),
+            None,
+            "nothing to project from before any work"
+        );
 
         let outcome =
             generate_into_until(&rc, &cam, params, 3, "t", &mut vdi, &|p| p.done >= 0.5).unwrap();
