@@ -7,7 +7,8 @@
 //!    package (`python/bench/push_throughput.py`, which also pushes a 1 GiB array once and
 //!    reports how much the process's peak RSS grew: the zero-copy check);
 //! 2. the simulation's time per step with a generator-node attached versus without
-//!    (Gray–Scott 128³, pushing every 10th step);
+//!    (Gray–Scott 128³ and 256³, pushing every 10th step), in alternating rounds
+//!    (`INSITU_OVERHEAD_ROUNDS`, default 5): the median ratio and its range;
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
@@ -138,59 +139,87 @@ fn ingest_python(tmp: &std::path::Path) {
     );
 }
 
+/// Rounds of each configuration in [`simulation_overhead`] (`INSITU_OVERHEAD_ROUNDS`, default 5).
+fn overhead_rounds() -> usize {
+    std::env::var("INSITU_OVERHEAD_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&r| r >= 1)
+        .unwrap_or(5)
+}
+
+/// Median, lowest and highest of `v` (not empty).
+fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[0], v[v.len() - 1])
+}
+
+/// The simulation's time per step alone and with a generator-node attached, in rounds that
+/// alternate the two (alone, attached, alone, …) so that whatever else the machine does
+/// falls on both: each round's ratio is taken against the run alone just before it, and the
+/// median ratio and its range over the rounds are printed. The node runs at its default
+/// settings (threads = 0: rayon's pool over every core, which the simulation shares) and with
+/// one thread; it stays up between rounds (idle, it costs nothing).
 fn simulation_overhead(tmp: &std::path::Path) {
-    let n = 128;
-    let (steps, every) = (200u64, 10u64);
-    let run = |addr: Option<&str>| {
-        rt().block_on(async {
-            let mut client = match addr {
-                Some(a) => Some(SimClient::connect(a, None).await.unwrap()),
-                None => None,
-            };
-            let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
-            sim.advance(200);
-            let t = Instant::now();
-            for k in 1..=steps {
-                sim.advance(1);
-                if k % every == 0 {
-                    if let Some(c) = client.as_mut() {
-                        let field = sim.v_volume().data().to_vec();
-                        c.push_step(Step::whole_f32(k, k as f64, [n as u32; 3], &field))
-                            .await
-                            .unwrap();
+    let rounds = overhead_rounds();
+    for (n, steps, every) in [(128usize, 200u64, 10u64), (256, 60, 10)] {
+        let run = |addr: Option<&str>| {
+            rt().block_on(async {
+                let mut client = match addr {
+                    Some(a) => Some(SimClient::connect(a, None).await.unwrap()),
+                    None => None,
+                };
+                let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
+                sim.advance(20);
+                let t = Instant::now();
+                for k in 1..=steps {
+                    sim.advance(1);
+                    if k % every == 0 {
+                        if let Some(c) = client.as_mut() {
+                            let field = sim.v_volume().data().to_vec();
+                            c.push_step(Step::whole_f32(k, k as f64, [n as u32; 3], &field))
+                                .await
+                                .unwrap();
+                        }
                     }
                 }
+                let secs = t.elapsed().as_secs_f64();
+                if let Some(c) = client.as_mut() {
+                    c.flush(Duration::from_secs(600)).await.unwrap();
+                }
+                secs / steps as f64
+            })
+        };
+        for threads in ["0", "1"] {
+            let g = generator(
+                tmp,
+                &[
+                    "--resolution",
+                    "256",
+                    "--reference-every",
+                    "0",
+                    "--codec",
+                    "zstd",
+                    "--threads",
+                    threads,
+                ],
+            );
+            let (mut alone, mut with, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+            for _ in 0..rounds {
+                let a = run(None);
+                let w = run(Some(&g.addr));
+                alone.push(a);
+                with.push(w);
+                ratios.push(w / a);
             }
-            let secs = t.elapsed().as_secs_f64();
-            if let Some(c) = client.as_mut() {
-                c.flush(Duration::from_secs(600)).await.unwrap();
-            }
-            secs / steps as f64
-        })
-    };
-    let without = run(None);
-    for threads in ["0", "1"] {
-        let g = generator(
-            tmp,
-            &[
-                "--resolution",
-                "256",
-                "--reference-every",
-                "0",
-                "--codec",
-                "zstd",
-                "--threads",
-                threads,
-            ],
-        );
-        let with = run(Some(&g.addr));
-        g.terminate();
-        println!(
-            "simulation step, Gray–Scott {n}³, push every {every}th: {:.2} ms without, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}) = {:.3}×",
-            without * 1e3,
-            with * 1e3,
-            with / without
-        );
+            g.terminate();
+            let (a, w, (r, lo, hi)) = (spread(alone).0, spread(with).0, spread(ratios));
+            println!(
+                "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps: median {:.2} ms alone, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}); ratio median {r:.3}× (range {lo:.3}–{hi:.3}×)",
+                a * 1e3,
+                w * 1e3,
+            );
+        }
     }
 }
 
