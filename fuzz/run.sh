@@ -5,8 +5,8 @@
 # The targets are built first, all in one cargo invocation (their shared crates compiled once,
 # in parallel), then run one after another without building again. FUZZ_OPT_LEVEL sets the
 # optimisation of that build (default 3, cargo-fuzz's release build); CI's short smoke run asks
-# for 1, which builds in about half the time and still executes hundreds of thousands of
-# inputs per target.
+# for 1: on 2 cores the build took about 270 s instead of 420 s, and 20 s of each target ran
+# 70–95 % as many inputs (from 43 000 for the readers to 1.7 million for step headers).
 set -euo pipefail
 cd "$(dirname "$0")"
 secs=${1:-30}
