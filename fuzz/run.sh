@@ -6,7 +6,7 @@
 # in parallel), then run one after another without building again. FUZZ_OPT_LEVEL sets the
 # optimisation of that build (default 3, cargo-fuzz's release build); CI's short smoke run asks
 # for 1: on 2 cores the build took about 270 s instead of 420 s, and 20 s of each target ran
-# 70–95 % as many inputs (from 43 000 for the readers to 1.7 million for step headers).
+# 72–95 % as many inputs (from 43 000 for the readers to 1.7 million for step headers).
 set -euo pipefail
 cd "$(dirname "$0")"
 secs=${1:-30}
