@@ -120,11 +120,11 @@ async fn demo(a: Args) -> Result<()> {
         sim = s;
         sim_secs += t.elapsed().as_secs_f64();
         let index = sim.step_index();
-        let step = Step::whole_f32(
+        let step = Step::whole_f32_owned(
             index,
             index as f64 * GrayScottParams::default().dt,
             dims,
-            &field,
+            field,
         );
         client.push_step(step).await?;
     }
