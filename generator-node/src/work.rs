@@ -117,9 +117,8 @@ pub fn must_stop(limit: f64, spent: f64, can_retry: bool, progress: Progress) ->
 /// `left` seconds before the limit: the resolution whose r² rays the marching rate it measured
 /// fits into [`TIME_RETRY_SHARE`] of the time left less a set-up like its own (without the
 /// work done once per ray-caster; τ ∝ r² beyond the set-up: a ray is as long at any r), at
-/// most ⅞ of its r; `None` for a world of several
-/// ranks (`may_shrink_r`: they must share r), below [`MIN_LIMIT_RESOLUTION`] or with no time
-/// left.
+/// most ⅞ of its r; `None` for a world of several ranks (`may_shrink_r`: they must share r),
+/// below [`MIN_LIMIT_RESOLUTION`] or with no time left.
 pub fn faster(
     p: VdiParams,
     progress: Progress,
