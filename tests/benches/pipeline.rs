@@ -159,11 +159,15 @@ fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
 /// falls on both: each round's ratio is taken against the run alone just before it, and the
 /// median ratio and its range over the rounds are printed. The node runs at its default
 /// settings (threads = 0: rayon's pool over every core, which the simulation shares) and with
-/// one thread; it stays up between rounds (idle, it costs nothing).
+/// one thread, and once more with each push sent by a task while the simulation goes on; it
+/// stays up between rounds (idle, it costs nothing).
 fn simulation_overhead(tmp: &std::path::Path) {
     let rounds = overhead_rounds();
     for (n, steps, every) in [(128usize, 200u64, 10u64), (256, 60, 10)] {
-        let run = |addr: Option<&str>| {
+        // `background`: each push is sent by a task of its own (a clone of the client) while
+        // the simulation goes on, and awaited before the next push and at the end: what a
+        // push that returns before the transfer ends would give.
+        let run = |addr: Option<&str>, background: bool| {
             rt().block_on(async {
                 let mut client = match addr {
                     Some(a) => Some(SimClient::connect(a, None).await.unwrap()),
@@ -172,20 +176,35 @@ fn simulation_overhead(tmp: &std::path::Path) {
                 let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
                 sim.advance(20);
                 let t = Instant::now();
-                // The simulation's own part of a push: the copy out of its field and the call.
+                // The simulation's own part of a push: the copy out of its field and the call
+                // (in the background, the wait for the previous push).
                 let mut pushing = Duration::ZERO;
+                let mut in_flight: Option<tokio::task::JoinHandle<()>> = None;
                 for k in 1..=steps {
                     sim.advance(1);
                     if k % every == 0 {
                         if let Some(c) = client.as_mut() {
                             let p = Instant::now();
+                            if let Some(h) = in_flight.take() {
+                                h.await.unwrap();
+                            }
                             // One copy out of the simulation's buffer, sent as it is.
                             let field = sim.v_volume().data().to_vec();
                             let step = Step::whole_f32_owned(k, k as f64, [n as u32; 3], field);
-                            c.push_step(step).await.unwrap();
+                            if background {
+                                let mut c = c.clone();
+                                in_flight = Some(tokio::spawn(async move {
+                                    c.push_step(step).await.unwrap();
+                                }));
+                            } else {
+                                c.push_step(step).await.unwrap();
+                            }
                             pushing += p.elapsed();
                         }
                     }
+                }
+                if let Some(h) = in_flight.take() {
+                    h.await.unwrap();
                 }
                 let secs = t.elapsed().as_secs_f64();
                 if let Some(c) = client.as_mut() {
@@ -194,7 +213,7 @@ fn simulation_overhead(tmp: &std::path::Path) {
                 (secs / steps as f64, pushing.as_secs_f64() / steps as f64)
             })
         };
-        for threads in ["0", "1"] {
+        for (threads, background) in [("0", false), ("1", false), ("0", true)] {
             let g = generator(
                 tmp,
                 &[
@@ -211,8 +230,8 @@ fn simulation_overhead(tmp: &std::path::Path) {
             let (mut alone, mut with, mut ratios, mut added, mut pushes) =
                 (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for _ in 0..rounds {
-                let (a, _) = run(None);
-                let (w, p) = run(Some(&g.addr));
+                let (a, _) = run(None, false);
+                let (w, p) = run(Some(&g.addr), background);
                 alone.push(a);
                 with.push(w);
                 ratios.push(w / a);
@@ -223,9 +242,14 @@ fn simulation_overhead(tmp: &std::path::Path) {
             let (a, w, (r, lo, hi)) = (spread(alone).0, spread(with).0, spread(ratios));
             let (added, pushing) = (spread(added).0, spread(pushes).0);
             println!(
-                "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps: median {:.2} ms alone, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}); ratio median {r:.3}× (range {lo:.3}–{hi:.3}×); added per step (median over rounds) {:.2} ms, the simulation's own copy and push calls {:.2} ms per step",
+                "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps: median {:.2} ms alone, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}{}); ratio median {r:.3}× (range {lo:.3}–{hi:.3}×); added per step (median over rounds) {:.2} ms, the simulation's own copy and push calls {:.2} ms per step",
                 a * 1e3,
                 w * 1e3,
+                if background {
+                    ", each push sent in the background"
+                } else {
+                    ""
+                },
                 added * 1e3,
                 pushing * 1e3,
             );
