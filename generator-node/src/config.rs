@@ -179,6 +179,31 @@ pub struct Config {
     pub generation: GenerationConfig,
     /// The durable spool; unset: acknowledged steps live in memory only.
     pub spool: Option<SpoolConfig>,
+    /// Two-level composition of this node's ranks before shipping.
+    pub host: HostConfig,
+}
+
+/// `[host]`: the ranks of one step that this node serves are composed into box-shaped parts
+/// before they are shipped, so that the viz-node receives one part per host instead of one
+/// VDI per rank (`crate::host`, docs/scale.md).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct HostConfig {
+    /// Compose (false: every rank's VDI is shipped as it is made).
+    pub compose: bool,
+    /// How long a step's finished ranks wait for a rank this node served at the previous
+    /// step and has not received for this one, seconds (ranks received are always waited
+    /// for); after it, what is finished ships, and the late rank follows alone.
+    pub wait_secs: f64,
+}
+
+impl Default for HostConfig {
+    fn default() -> Self {
+        Self {
+            compose: true,
+            wait_secs: 2.0,
+        }
+    }
 }
 
 /// `[spool]`: acknowledged steps on local disk until delivered (see `spool.rs`).
@@ -231,6 +256,7 @@ impl Default for Config {
             trial_interleave: 1,
             generation: GenerationConfig::default(),
             spool: None,
+            host: HostConfig::default(),
         }
     }
 }
@@ -351,6 +377,9 @@ impl Config {
         }
         if !(self.max_backoff_secs.is_finite() && self.max_backoff_secs > 0.0) {
             return Err(invalid("max_backoff_secs", "must be finite and > 0"));
+        }
+        if !(self.host.wait_secs.is_finite() && (0.0..=3600.0).contains(&self.host.wait_secs)) {
+            return Err(invalid("host.wait_secs", "must be seconds in [0, 3600]"));
         }
         Ok(())
     }

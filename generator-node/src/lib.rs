@@ -2,7 +2,8 @@
 //!
 //! A simulation pushes time steps (one rank's brick each) over gRPC ([`service`]); they wait in
 //! a bounded [`queue`] with a named policy; a worker turns each into a compressed VDI on the
-//! blocking pool ([`work`]), with reference frames of the test views every k-th step; the
+//! blocking pool ([`work`]), with reference frames of the test views every k-th step; a
+//! world's ranks that share the node are composed into box-shaped parts ([`host`]); the
 //! [`ship`]per delivers them to the viz-node, reconnecting with back-off, from a bounded outbox.
 //! With a tuner configured, the node dials out to it ([`tuner_link`], with its state in [`tuning`]): a summary per step up,
 //! claims on [`hold`]s of fields, trials and `P_M` decisions down.
@@ -12,6 +13,7 @@
 
 pub mod config;
 pub mod hold;
+pub mod host;
 pub mod ingest;
 pub mod node;
 pub mod queue;

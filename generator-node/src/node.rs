@@ -123,6 +123,7 @@ pub struct RunningNode {
     stop_server: oneshot::Sender<()>,
     server: ServerTask,
     worker: JoinHandle<()>,
+    host: JoinHandle<()>,
     shipper: Option<JoinHandle<()>>,
     tuner: Option<JoinHandle<()>>,
     drain_timeout: Duration,
@@ -197,10 +198,12 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
         pool: worker_pool(cfg.threads)?,
         scene,
+        host: Arc::new(crate::host::Gather::new(&cfg.host)),
     });
     let (health, stop_server, server) = serve(&shared, &security, listener).await?;
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
+    let host = tokio::spawn(crate::host::run(shared.clone()).instrument(info_span!("host")));
     requeue(&shared, recovered);
     let shipper = viz.map(|viz| {
         let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
@@ -221,6 +224,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         stop_server,
         server,
         worker,
+        host,
         shipper,
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
@@ -313,6 +317,8 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<RawStep>) {
     let shared = shared.clone();
     tokio::spawn(async move {
         for raw in recovered {
+            // A part of the earlier run may be stored already: these ship rank by rank.
+            shared.host.alone(raw.info.step, raw.info.rank);
             let bytes = raw.bytes();
             if let Ok(dropped) = shared.queue.push(raw, bytes).await {
                 for d in dropped {
@@ -374,7 +380,6 @@ async fn worker(shared: Arc<Shared>) {
         drop(lane);
         match result {
             Ok(Ok((product, tf, vdi, for_tuner))) => {
-                spare = Some(vdi);
                 if let Some(t) = &shared.tuning {
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
@@ -386,18 +391,25 @@ async fn worker(shared: Arc<Shared>) {
                     c.limit_retry_secs += retry_secs;
                 });
                 if !shared.shipping {
+                    spare = Some(vdi);
                     shared.unspool(spooled.as_ref());
                     continue;
                 }
-                to_outbox(&shared, product).await;
+                // A rank of a world of several waits for its host's other ranks.
+                if let Some(f) = shared.host.finish(crate::host::Finished { product, vdi }) {
+                    spare = Some(f.vdi);
+                    to_outbox(&shared, f.product).await;
+                }
             }
             Ok(Err(e)) => {
                 error!(step, rank, error = %e, "generation failed");
+                shared.host.settled(step, rank);
                 shared.unspool(spooled.as_ref());
                 shared.stats.update(|c| c.failed += 1);
             }
             Err(e) => {
                 error!(step, rank, error = %e, "generation task panicked");
+                shared.host.settled(step, rank);
                 shared.unspool(spooled.as_ref());
                 shared.stats.update(|c| c.failed += 1);
             }
@@ -424,9 +436,10 @@ fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_s
 }
 
 /// `product` into the outbox for the shipper; what the outbox's policy drops to make room is
-/// logged, counted and taken out of the spool.
-async fn to_outbox(shared: &Shared, product: work::Product) {
+/// logged, counted (per rank) and taken out of the spool.
+pub(crate) async fn to_outbox(shared: &Shared, product: work::Product) {
     let n = product.bytes();
+    let ranks = product.ranks();
     match shared.outbox.push(product, n).await {
         Ok(dropped) if !dropped.is_empty() => {
             for d in &dropped {
@@ -435,14 +448,13 @@ async fn to_outbox(shared: &Shared, product: work::Product) {
                     rank = d.vdi_header.rank,
                     "dropped an unshipped VDI (outbox full)"
                 );
-                shared.unspool(d.spool.as_ref());
+                shared.unspool(&d.spool);
             }
-            shared
-                .stats
-                .update(|c| c.dropped_outbox += dropped.len() as u64);
+            let n: u64 = dropped.iter().map(work::Product::ranks).sum();
+            shared.stats.update(|c| c.dropped_outbox += n);
         }
         Ok(_) => {}
-        Err(_) => shared.stats.update(|c| c.dropped_outbox += 1),
+        Err(_) => shared.stats.update(|c| c.dropped_outbox += ranks),
     }
 }
 
@@ -477,6 +489,13 @@ impl RunningNode {
         }
         if let Some(t) = self.tuner {
             t.abort();
+        }
+        // The ranks held for their host's other ranks ship now.
+        self.shared.host.close();
+        let mut host = self.host;
+        if tokio::time::timeout_at(deadline, &mut host).await.is_err() {
+            host.abort();
+            let _ = host.await;
         }
         self.shared.outbox.close();
         let mut shipper_done = true;

@@ -131,16 +131,22 @@ impl GeneratorService {
     async fn enqueue(&self, raw: RawStep) -> Result<(u64, u64), Status> {
         let (step, rank, n) = (raw.info.step, raw.info.rank, raw.bytes());
         let span = info_span!("receive", step, rank, bytes = n);
+        // Announced before the worker can finish it: its host's other ranks wait for it.
+        self.0.host.received(step, rank, raw.info.world_size);
         let dropped = self
             .0
             .queue
             .push(raw, n)
             .instrument(span)
             .await
-            .map_err(|_| Status::unavailable("the generator-node is shutting down"))?;
+            .map_err(|_| {
+                self.0.host.settled(step, rank);
+                Status::unavailable("the generator-node is shutting down")
+            })?;
         let n_dropped = dropped.len() as u64;
         for d in dropped {
             info!(step = d.info.step, rank = d.info.rank, policy = %self.0.queue.policy(), "dropped a queued step");
+            self.0.host.settled(d.info.step, d.info.rank);
             self.0.unspool(d.spooled().as_ref());
             self.0.spare_fields.put(d.field);
         }

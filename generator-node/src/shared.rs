@@ -55,6 +55,8 @@ pub struct Shared {
     /// their memory (beyond what the queue counts: one, and a second within the queue's
     /// `max_bytes`; see [`crate::spare`]).
     pub spare_fields: crate::spare::SpareFields,
+    /// The ranks of steps in flight, composed into the host's parts before they ship.
+    pub host: Arc<crate::host::Gather>,
 }
 
 impl Shared {
@@ -100,13 +102,18 @@ impl Shared {
             spooled_bytes: self.spool.as_ref().map_or(0, |s| s.used()),
             limit_retries: c.limit_retries,
             limit_retry_secs: c.limit_retry_secs,
+            host_parts: c.host_parts,
+            host_ranks: c.host_ranks,
+            host_compose_secs: c.host_compose_secs,
         }
     }
 
-    /// Removes a settled step's file from the spool (no-op without one).
-    pub fn unspool(&self, spool: Option<&(String, u64)>) {
-        if let (Some(sp), Some((name, bytes))) = (&self.spool, spool) {
-            sp.remove(name, *bytes);
+    /// Removes settled steps' files (name, bytes) from the spool (no-op without one).
+    pub fn unspool<'a>(&self, spool: impl IntoIterator<Item = &'a (String, u64)>) {
+        if let Some(sp) = &self.spool {
+            for (name, bytes) in spool {
+                sp.remove(name, *bytes);
+            }
         }
     }
 

@@ -139,14 +139,20 @@ impl Shipper {
         while let Some(p) = shared.outbox.pop().await {
             let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);
             let result = self.ship(&p, &stats).instrument(span).await;
-            shared.unspool(p.spool.as_ref());
+            shared.unspool(&p.spool);
+            let ranks = p.ranks();
+            let held: Vec<u32> = if p.vdi_header.covers.is_empty() {
+                vec![p.vdi_header.rank]
+            } else {
+                p.vdi_header.covers.clone()
+            };
             match result {
                 Ok(()) => {
-                    stats.update(|c| c.shipped += 1);
+                    stats.update(|c| c.shipped += ranks);
                     let h = &p.vdi_header;
                     if h.world_size > 1 {
                         let mut c = shared.composing.lock().unwrap_or_else(|e| e.into_inner());
-                        c.entry(h.step).or_default().insert(h.rank);
+                        c.entry(h.step).or_default().extend(&held);
                         // Clients that never flush: the oldest steps are forgotten first.
                         while c.len() > MAX_COMPOSING_STEPS {
                             c.pop_first();
@@ -163,10 +169,12 @@ impl Shipper {
                         e.message()
                     );
                     stats.set_ship_error(why.clone());
-                    shared.refusals.record(p.vdi_header.rank, why);
+                    for r in held {
+                        shared.refusals.record(r, why.clone());
+                    }
                     stats.update(|c| {
-                        c.failed += 1;
-                        c.ship_failed += 1;
+                        c.failed += ranks;
+                        c.ship_failed += ranks;
                     });
                 }
             }

@@ -2,16 +2,17 @@
 
 use tokio::sync::watch;
 
-/// What happened to the steps received so far. Every received step ends in exactly one of
-/// `shipped` (or `generated` when no viz-node is configured), `dropped_queue`,
-/// `dropped_outbox` or `failed`; until then it is in flight.
+/// What happened to the steps received so far (one per rank). Every received step ends in
+/// exactly one of `shipped` (or `generated` when no viz-node is configured), `dropped_queue`,
+/// `dropped_outbox` or `failed`; until then it is in flight. A part holding several ranks
+/// counts once per rank in `shipped`, `dropped_outbox` and `failed`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Counters {
     /// Steps fully received and queued.
     pub received: u64,
     /// VDIs generated.
     pub generated: u64,
-    /// VDIs acknowledged (stored) by the viz-node.
+    /// Ranks' VDIs acknowledged (stored) by the viz-node, alone or in a host's part.
     pub shipped: u64,
     /// Steps dropped from the input queue by its policy.
     pub dropped_queue: u64,
@@ -28,6 +29,12 @@ pub struct Counters {
     pub limit_retries: u64,
     /// Seconds of the generations and compressions those threw away.
     pub limit_retry_secs: f64,
+    /// Parts shipped that hold several of this node's ranks (`crate::host`).
+    pub host_parts: u64,
+    /// Ranks in those parts.
+    pub host_ranks: u64,
+    /// Seconds spent composing and encoding them.
+    pub host_compose_secs: f64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.

@@ -27,8 +27,9 @@ pub struct Product {
     pub vdi: Bytes,
     /// Reference frames, on sampled steps.
     pub references: Option<(pb::ReferenceHeader, Bytes)>,
-    /// The step's file in the spool and its field bytes, removed once the VDI is settled.
-    pub spool: Option<(String, u64)>,
+    /// The step's file in the spool and its field bytes (each rank's, for a host's part),
+    /// removed once the VDI is settled.
+    pub spool: Vec<(String, u64)>,
     /// Generations made again at a coarser `P_M` because σ came out over the hard limit
     /// (`generation.size_max`) or τ would have (`generation.time_max`), and their seconds
     /// (generation and compression of the VDIs thrown away, the stopped generations' time).
@@ -36,6 +37,11 @@ pub struct Product {
 }
 
 impl Product {
+    /// The ranks' steps this product settles: those of a host's part, else one.
+    pub fn ranks(&self) -> u64 {
+        self.vdi_header.covers.len().max(1) as u64
+    }
+
     /// Bytes held (for the outbox's byte limit).
     pub fn bytes(&self) -> u64 {
         (self.vdi.len() + self.references.as_ref().map_or(0, |(_, b)| b.len())) as u64
@@ -300,10 +306,11 @@ pub fn run(
             brick_offset: Some(dims_to_pb(info.brick_offset)),
             brick_dims: Some(dims_to_pb(info.brick_dims)),
             with_references: references.is_some(),
+            covers: Vec::new(),
         },
         vdi: Bytes::from(file),
         references,
-        spool: raw.spooled(),
+        spool: raw.spooled().into_iter().collect(),
         limit_retries: retries,
     };
     Ok((product, generated.value))
@@ -335,6 +342,7 @@ fn provenance(info: &StepInfo, pm_version: u64) -> Provenance {
                     dims: info.brick_dims,
                 },
             )),
+        covers: Vec::new(),
     }
 }
 
@@ -375,6 +383,7 @@ fn references(
         view_angles_deg: views.clone(),
         total_bytes: bytes.len() as u64,
         opacity,
+        covers: Vec::new(),
     };
     Ok((header, Bytes::from(bytes)))
 }

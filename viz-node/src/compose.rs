@@ -62,11 +62,18 @@ pub fn ready(e: &Entry) -> bool {
     e.vdi.is_some() && (!e.with_references || e.references.is_some())
 }
 
-/// The ranks of `world_size` not ready among `entries`.
+/// The ranks of `world_size` that no ready entry among `entries` holds (an entry holds its
+/// rank, or every rank a host composed into it: [`Entry::ranks`]).
 pub fn missing(entries: &[Entry], world_size: u32) -> Vec<u32> {
-    (0..world_size)
-        .filter(|r| !entries.iter().any(|e| e.rank == *r && ready(e)))
-        .collect()
+    let mut held = vec![false; world_size as usize];
+    for e in entries.iter().filter(|e| ready(e)) {
+        for r in e.ranks() {
+            if let Some(h) = held.get_mut(r as usize) {
+                *h = true;
+            }
+        }
+    }
+    (0..world_size).filter(|&r| !held[r as usize]).collect()
 }
 
 /// Checks the placement of `entries` (one step's ranks) against each other: the same grid,
@@ -217,6 +224,7 @@ fn store_composed(
         world_size: 1,
         pm_version: ready[0].pm_version,
         sim_time: ready[0].sim_time,
+        covers: Vec::new(),
         placement: ready[0]
             .placement
             .filter(|p| p.global_dims.iter().all(|&n| n >= 1))
@@ -247,7 +255,11 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
     StepEntry {
         step,
         world_size,
-        ranks: ranks.iter().map(|e| e.rank).collect(),
+        ranks: {
+            let mut all: Vec<u32> = ranks.iter().flat_map(|e| e.ranks()).collect();
+            all.sort_unstable();
+            all
+        },
         missing,
         vdi: None,
         references: None,

@@ -363,6 +363,7 @@ mod tests {
                 pm_version: 0,
                 sim_time: 0.0,
                 placement: None,
+                covers: Vec::new(),
             };
             let bytes =
                 codec::encode_with_provenance(&vdi, codec::Codec::None, Some(&provenance)).unwrap();

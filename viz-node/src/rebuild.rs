@@ -204,6 +204,7 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
             .placement
             .map(|(global_dims, brick)| Placement { global_dims, brick }),
         with_references: false,
+        covers: if p.covers.len() > 1 { p.covers } else { Vec::new() },
     })
 }
 
@@ -241,6 +242,7 @@ mod tests {
             pm_version: 4,
             sim_time: step as f64 * 0.5,
             placement: Some(([15, 8, 8], brick)),
+            covers: Vec::new(),
         };
         let bytes = codec::encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();
         let row = Entry {

@@ -115,6 +115,30 @@ pub struct Entry {
     /// Whether reference frames of this step and rank were announced with the VDI.
     #[serde(default)]
     pub with_references: bool,
+    /// A host's part: the ranks its generator-node composed into this VDI (ascending, `rank`
+    /// first; the placement is their box). Empty: `rank` alone.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub covers: Vec<u32>,
+}
+
+impl Entry {
+    /// The ranks this entry's VDI holds: [`Self::covers`], or `rank` alone.
+    pub fn ranks(&self) -> Vec<u32> {
+        if self.covers.is_empty() {
+            vec![self.rank]
+        } else {
+            self.covers.clone()
+        }
+    }
+
+    /// Whether this entry's VDI holds `rank`.
+    pub fn holds(&self, rank: u32) -> bool {
+        if self.covers.is_empty() {
+            self.rank == rank
+        } else {
+            self.covers.binary_search(&rank).is_ok()
+        }
+    }
 }
 
 /// A rank's brick in the whole grid, voxels (docs/conventions.md, "A world of ranks").
@@ -182,6 +206,7 @@ impl Entry {
             pm_version: 0,
             placement: None,
             with_references: false,
+            covers: Vec::new(),
         }
     }
 }

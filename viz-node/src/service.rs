@@ -379,11 +379,15 @@ fn store_vdi(
             )));
         }
     }
-    check_against_stored(&s.recording, h, placement)?;
+    let ranks = part_ranks(h.step, h.rank, h.world_size, &h.covers)?;
+    if let Some(held) = check_against_stored(&s.recording, h, &ranks, placement)? {
+        info!(step = h.step, rank = h.rank, ranks = ?ranks, held_by = held.rank, "every rank of this part is stored already: acknowledged, not stored again");
+        return Ok((held, false));
+    }
     let (vdi, provenance) = codec::decode_with_provenance(bytes, &DecodeLimits::default())
         .map_err(|e| Status::invalid_argument(format!("{what}: {e}")))?;
     if let Some(p) = provenance {
-        check_provenance(&what, h, placement, &p)?;
+        check_provenance(&what, h, (placement, &ranks), &p)?;
     }
     let p = vdi.meta().params;
     if p.resolution != h.resolution || p.gamma.to_bits() != h.gamma.to_bits() {
@@ -417,6 +421,7 @@ fn store_vdi(
         pm_version: h.pm_version,
         placement,
         with_references: h.with_references,
+        covers: if ranks.len() > 1 { ranks } else { Vec::new() },
     };
     let (entry, new) = s.recording.store_vdi(meta, bytes).map_err(store_status)?;
     let read_next = h.with_references || h.world_size > 1;
@@ -431,7 +436,7 @@ fn store_vdi(
 fn check_provenance(
     what: &str,
     h: &pb::VdiHeader,
-    placement: Option<Placement>,
+    (placement, ranks): (Option<Placement>, &[u32]),
     p: &Provenance,
 ) -> Result<(), Status> {
     let file_placement = p
@@ -467,6 +472,12 @@ fn check_provenance(
             file_placement.is_some() && placement.is_some() && file_placement != placement,
             format!("{file_placement:?}"),
             format!("{placement:?}"),
+        ),
+        (
+            "ranks held",
+            p.ranks() != ranks,
+            format!("{:?}", p.ranks()),
+            format!("{ranks:?}"),
         ),
     ];
     match disagree.into_iter().find(|d| d.1) {
@@ -614,6 +625,16 @@ fn store_references(
     camera: insitu_core::Camera,
     bytes: &[u8],
 ) -> Result<(Entry, bool), Status> {
+    let ranks = part_ranks(h.step, h.rank, u32::MAX, &h.covers)?;
+    let stored: Vec<Entry> = s
+        .recording
+        .ranks_of(h.step)
+        .into_iter()
+        .filter(|e| e.vdi.is_some())
+        .collect();
+    if let Some(held) = held_elsewhere(&stored, h.step, (h.rank, &ranks), None)? {
+        return Ok((held, false));
+    }
     let size = (h.width, h.height);
     let refs =
         References::from_bytes(camera, h.view_angles_deg, size, h.opacity, bytes).map_err(|e| {
@@ -656,37 +677,108 @@ fn placement(h: &pb::VdiHeader) -> Result<Option<Placement>, Status> {
     }
 }
 
-/// Refuses a rank whose world size or brick contradicts the ranks of its step already stored
-/// (a second world size, overlapping bricks, another grid), naming the step and ranks.
+/// The ranks a VDI or its frames hold, as their header states them (`covers`, or `rank`
+/// alone), checked: ascending from `rank`, inside the world.
 ///
 /// # Errors
-/// `INVALID_ARGUMENT`.
+/// `INVALID_ARGUMENT` naming the step, the rank and the list.
+fn part_ranks(step: u64, rank: u32, world_size: u32, covers: &[u32]) -> Result<Vec<u32>, Status> {
+    if covers.is_empty() {
+        return Ok(vec![rank]);
+    }
+    let ascending = covers.windows(2).all(|w| w[0] < w[1]);
+    if covers[0] != rank || !ascending || covers.iter().any(|&r| r >= world_size.max(1)) {
+        return Err(Status::invalid_argument(format!(
+            "step {step} rank {rank}: covers {covers:?} must ascend from rank {rank} inside a world of {world_size}"
+        )));
+    }
+    Ok(covers.to_vec())
+}
+
+/// The stored part of step `step` that already holds every rank of `ranks` when the part
+/// `(rank, ranks)` is not itself stored: a generator-node restarted from its spool ships its
+/// ranks again, alone or grouped otherwise than before (docs/scale.md). Acknowledged when
+/// those parts carry `pm_version` too; `None` when the part is new or the same part again
+/// (then the store compares bytes).
+///
+/// # Errors
+/// `INVALID_ARGUMENT` naming the rank another part holds, when the part is not wholly held
+/// or was made with another `P_M` version.
+fn held_elsewhere(
+    stored: &[Entry],
+    step: u64,
+    (rank, ranks): (u32, &[u32]),
+    pm_version: Option<u64>,
+) -> Result<Option<Entry>, Status> {
+    if stored.iter().any(|e| e.rank == rank && e.ranks() == ranks) {
+        return Ok(None);
+    }
+    let holders: Vec<(u32, &Entry)> = ranks
+        .iter()
+        .filter_map(|&r| stored.iter().find(|e| e.holds(r)).map(|e| (r, e)))
+        .collect();
+    match holders.first() {
+        None => Ok(None),
+        Some(_)
+            if holders.len() == ranks.len()
+                && holders
+                    .iter()
+                    .all(|(_, e)| pm_version.is_none_or(|v| e.pm_version == v)) =>
+        {
+            Ok(Some(holders[0].1.clone()))
+        }
+        Some((r, e)) => Err(Status::invalid_argument(format!(
+            "step {step}: rank {r} is already held by the stored part of rank {} (ranks {:?}, P_M version {}); this part of rank {rank} holds ranks {ranks:?}{}",
+            e.rank,
+            e.ranks(),
+            e.pm_version,
+            pm_version.map_or_else(String::new, |v| format!(" at P_M version {v}"))
+        ))),
+    }
+}
+
+/// Refuses a part whose world size, ranks or brick contradicts the parts of its step already
+/// stored (a second world size, a rank another part holds, overlapping bricks, another grid),
+/// naming the step and ranks. Returns the stored part that holds all of its ranks, when one
+/// does ([`held_elsewhere`]): the part is then acknowledged, not stored.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` naming the contradiction.
 fn check_against_stored(
     rec: &crate::store::Recording,
     h: &pb::VdiHeader,
+    ranks: &[u32],
     placement: Option<Placement>,
-) -> Result<(), Status> {
-    // Only ranks whose VDI is stored have said a world size and a brick.
-    let others: Vec<Entry> = rec
+) -> Result<Option<Entry>, Status> {
+    // Only parts whose VDI is stored have said a world size and a brick.
+    let stored: Vec<Entry> = rec
         .ranks_of(h.step)
         .into_iter()
-        .filter(|e| e.rank != h.rank && e.vdi.is_some())
+        .filter(|e| e.vdi.is_some())
         .collect();
+    let others: Vec<&Entry> = stored.iter().filter(|e| e.rank != h.rank).collect();
     if let Some(o) = others.iter().find(|o| o.world_size != h.world_size) {
         return Err(Status::invalid_argument(format!(
             "step {}: rank {} says world size {}, but rank {} said {}",
             h.step, h.rank, h.world_size, o.rank, o.world_size
         )));
     }
-    let Some(p) = placement else { return Ok(()) };
+    if let Some(held) = held_elsewhere(&stored, h.step, (h.rank, ranks), Some(h.pm_version))? {
+        return Ok(Some(held));
+    }
+    let Some(p) = placement else { return Ok(None) };
     let this = Entry {
         placement: Some(p),
         ..Entry::empty(h.step, h.rank)
     };
-    let mut all: Vec<&Entry> = others.iter().filter(|o| o.placement.is_some()).collect();
+    let mut all: Vec<&Entry> = others
+        .into_iter()
+        .filter(|o| o.placement.is_some())
+        .collect();
     all.push(&this);
     crate::compose::check_bricks(h.step, &all, false)
-        .map_err(|e| Status::invalid_argument(e.to_string()))
+        .map_err(|e| Status::invalid_argument(e.to_string()))?;
+    Ok(None)
 }
 
 type ReportStream = Pin<Box<dyn Stream<Item = Result<pb::QualityReport, Status>> + Send>>;

@@ -114,7 +114,7 @@ impl View {
 }
 
 /// The VDI file (relative to the recording) that shows `step`: rank `rank`'s when one is
-/// asked for; else, for a single rank, its VDI, and for a world of ranks the step's composed
+/// asked for (the part holding it when its host composed it with others); else, for a single rank, its VDI, and for a world of ranks the step's composed
 /// VDI (all ranks in one picture). `ranks` are the step's stored ranks, `composed` its
 /// composed entry if any.
 ///
@@ -130,9 +130,12 @@ pub fn vdi_file(
     if ranks.is_empty() && composed.is_none() {
         return Err(missing(format!("step {step} is not in the recording")));
     }
-    let stored: Vec<u32> = ranks.iter().map(|e| e.rank).collect();
+    let mut stored: Vec<u32> = ranks.iter().flat_map(Entry::ranks).collect();
+    stored.sort_unstable();
+    // A rank is shown by its own VDI, or by the part its host composed it into.
     let of_rank = |r: u32| {
-        let e = ranks.iter().find(|e| e.rank == r).ok_or_else(|| {
+        let own = ranks.iter().find(|e| e.rank == r);
+        let e = own.or_else(|| ranks.iter().find(|e| e.holds(r))).ok_or_else(|| {
             missing(format!(
                 "step {step} has no rank {r} (stored ranks: {stored:?})"
             ))

@@ -47,8 +47,9 @@ pub const FORMAT_VERSION: u16 = 3;
 const FORMAT_VERSION_PARTS: u16 = 2;
 /// The version before parts (the body one stream), still read.
 const FORMAT_VERSION_SINGLE: u16 = 1;
-/// Longest provenance block read, bytes (this version writes [`super::provenance::LEN`]).
-const MAX_PROVENANCE: usize = 4096;
+/// Longest provenance block read, bytes (this version writes [`super::provenance::LEN`] plus
+/// 4 bytes per rank a host composed into the VDI, and 4: room for 16 000 ranks in one part).
+const MAX_PROVENANCE: usize = 65_536;
 /// Payload bytes per bzip2 part: two blocks at bzip2's best compression (900 k each). σ stays
 /// that of one stream within 0.2 % (teapot, r = 256 and 768: 2 139 358 against 2 143 794 bytes,
 /// 18 047 709 against 18 050 853), where parts of one block cost up to 1.4 % (a part's last
@@ -722,7 +723,7 @@ impl<'a> Reader<'a> {
         Self { bytes, pos: 0 }
     }
 
-    fn remaining(&self) -> usize {
+    pub(super) fn remaining(&self) -> usize {
         self.bytes.len() - self.pos
     }
 

@@ -13,21 +13,25 @@
 //! 24       8    simulation time (f64)
 //! 32       1    1 when a placement follows, else 0
 //! 33      72    global dims, brick offset, brick dims (3 × u64 each)
+//! 105      4    n: ranks the VDI holds when a host composed several (u32; 0: the rank alone)
+//! 109     4n    those ranks, ascending, the first being `rank` (u32 each)
 //! ```
 //!
-//! A block longer than this is read up to here (a later version may append fields); a
-//! shorter one is refused. Everything in it is fixed by the step and the run, so a VDI made
+//! A block of a host's composed part ([`Provenance::covers`]) names every rank it holds, and
+//! its placement is the union of their bricks, itself a box (docs/scale.md). A block that ends
+//! at byte 105 (written before hosts composed) holds its rank alone; a longer one is read up
+//! to the end of the ranks (a later version may append fields); a shorter one is refused. Everything in it is fixed by the step and the run, so a VDI made
 //! again for the same step (a generator-node restarted from its spool) has the same bytes and
 //! is stored once; τ, a measurement that differs each time, stays in the index.
 
 use super::codec::{CodecError, Reader};
 use crate::volume::bricks::Brick;
 
-/// Bytes of the block this version writes.
+/// Bytes of the block's fixed part (a block holding one rank is this long plus 4).
 pub const LEN: usize = 105;
 
 /// Where a VDI file comes from.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Provenance {
     /// The simulation step.
     pub step: u64,
@@ -41,12 +45,24 @@ pub struct Provenance {
     pub sim_time: f64,
     /// The whole grid's dims and the rank's brick in it, voxels (none when not said).
     pub placement: Option<([usize; 3], Brick)>,
+    /// The ranks the VDI holds when a generator-node composed several of its ranks into one
+    /// part (ascending, `rank` first); empty: `rank` alone.
+    pub covers: Vec<u32>,
 }
 
 impl Provenance {
-    /// The block as the file holds it ([`LEN`] bytes).
+    /// The ranks the VDI holds: [`Self::covers`], or `rank` alone.
+    pub fn ranks(&self) -> Vec<u32> {
+        if self.covers.is_empty() {
+            vec![self.rank]
+        } else {
+            self.covers.clone()
+        }
+    }
+
+    /// The block as the file holds it ([`LEN`] + 4 + 4 · covered ranks bytes).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(LEN);
+        let mut out = Vec::with_capacity(LEN + 4 + 4 * self.covers.len());
         out.extend_from_slice(&self.step.to_le_bytes());
         out.extend_from_slice(&self.rank.to_le_bytes());
         out.extend_from_slice(&self.world_size.to_le_bytes());
@@ -63,6 +79,10 @@ impl Provenance {
         for v in global.iter().chain(&brick.offset).chain(&brick.dims) {
             out.extend_from_slice(&(*v as u64).to_le_bytes());
         }
+        out.extend_from_slice(&(self.covers.len() as u32).to_le_bytes());
+        for r in &self.covers {
+            out.extend_from_slice(&r.to_le_bytes());
+        }
         out
     }
 
@@ -71,7 +91,8 @@ impl Provenance {
     /// # Errors
     /// [`CodecError::Truncated`] for a block shorter than [`LEN`];
     /// [`CodecError::Invalid`] for a world of 0 ranks, a rank outside it, a non-finite time, an
-    /// unknown flag, or a brick that is empty or leaves the grid.
+    /// unknown flag, a brick that is empty or leaves the grid, or covered ranks that are not
+    /// ascending from `rank` inside the world.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
         let mut rd = Reader::new(bytes);
         let step = rd.u64("provenance step")?;
@@ -110,6 +131,24 @@ impl Provenance {
             }
             other => return invalid(format!("placement flag {other} is not 0 or 1")),
         };
+        let mut covers = Vec::new();
+        if rd.remaining() > 0 {
+            let n = rd.u32("provenance covered ranks")?;
+            if n > world_size {
+                return invalid(format!("{n} covered ranks in a world of {world_size}"));
+            }
+            for _ in 0..n {
+                covers.push(rd.u32("provenance covered rank")?);
+            }
+            let ascending = covers.windows(2).all(|w| w[0] < w[1]);
+            let valid = covers.is_empty()
+                || (covers[0] == rank && ascending && covers.iter().all(|&r| r < world_size));
+            if !valid {
+                return invalid(format!(
+                    "covered ranks {covers:?} must ascend from rank {rank} inside a world of {world_size}"
+                ));
+            }
+        }
         Ok(Self {
             step,
             rank,
@@ -117,6 +156,7 @@ impl Provenance {
             pm_version,
             sim_time,
             placement,
+            covers,
         })
     }
 }
@@ -139,6 +179,7 @@ mod tests {
                     dims: [33, 32, 65],
                 },
             )),
+            covers: vec![3, 5],
         }
     }
 
@@ -146,14 +187,18 @@ mod tests {
     fn a_block_reads_back_as_written_and_may_grow() {
         let p = sample();
         let bytes = p.to_bytes();
-        assert_eq!(bytes.len(), LEN);
+        assert_eq!(bytes.len(), LEN + 4 + 8);
         assert_eq!(Provenance::from_bytes(&bytes).unwrap(), p);
+        assert_eq!(p.ranks(), [3, 5]);
         let mut longer = bytes.clone();
         longer.extend_from_slice(&[9; 16]);
         assert_eq!(Provenance::from_bytes(&longer).unwrap(), p);
+        // A block written before hosts composed: its rank alone.
+        let alone = Provenance::from_bytes(&bytes[..LEN]).unwrap();
+        assert_eq!((alone.covers.len(), alone.ranks()), (0, vec![3]));
         let unplaced = Provenance {
             placement: None,
-            ..p
+            ..p.clone()
         };
         assert_eq!(
             Provenance::from_bytes(&unplaced.to_bytes()).unwrap(),
@@ -164,10 +209,12 @@ mod tests {
     #[test]
     fn impossible_blocks_are_refused_with_the_reason() {
         let bytes = sample().to_bytes();
-        assert!(matches!(
-            Provenance::from_bytes(&bytes[..LEN - 1]),
-            Err(CodecError::Truncated { .. })
-        ));
+        for cut in [LEN - 1, LEN + 2, LEN + 6] {
+            assert!(matches!(
+                Provenance::from_bytes(&bytes[..cut]),
+                Err(CodecError::Truncated { .. })
+            ));
+        }
         let with = |f: fn(&mut Provenance)| {
             let mut p = sample();
             f(&mut p);
@@ -184,6 +231,10 @@ mod tests {
             }
         })
         .contains("not inside"));
+        assert!(with(|p| p.covers = vec![2, 3]).contains("ascend from rank 3"));
+        assert!(with(|p| p.covers = vec![3, 3]).contains("ascend from rank 3"));
+        assert!(with(|p| p.covers = vec![3, 8]).contains("inside a world of 8"));
+        assert!(with(|p| p.covers = (3..12).collect()).contains("9 covered ranks"));
         let mut flag = bytes.clone();
         flag[32] = 2;
         assert!(Provenance::from_bytes(&flag)

@@ -200,6 +200,62 @@ pub fn check(
     Ok(())
 }
 
+/// The brick covering `a` and `b` when together they are one box: equal on two axes and
+/// sharing their boundary plane on the third (interiors disjoint, as [`check`] requires).
+pub fn merged(a: &Brick, b: &Brick) -> Option<Brick> {
+    let same = |k: usize| a.offset[k] == b.offset[k] && a.dims[k] == b.dims[k];
+    let axis = (0..3).find(|&k| !same(k))?;
+    if (0..3).any(|k| k != axis && !same(k)) {
+        return None;
+    }
+    let (lo, hi) = if a.offset[axis] < b.offset[axis] {
+        (a, b)
+    } else {
+        (b, a)
+    };
+    (lo.offset[axis] + lo.dims[axis] - 1 == hi.offset[axis]).then(|| {
+        let mut dims = lo.dims;
+        dims[axis] = hi.offset[axis] + hi.dims[axis] - lo.offset[axis];
+        Brick {
+            offset: lo.offset,
+            dims,
+        }
+    })
+}
+
+/// The bricks of one host (several ranks on one generator-node) gathered into boxes: two
+/// groups merge whenever their boxes together form one ([`merged`]), until no two do. Each
+/// group is `(indices into bricks, ascending; its box)`, groups ordered by their first
+/// index. Bricks whose union is a box merge into one group when they can be joined pairwise
+/// (any grid of `a × b × c` bricks, as [`grid_bricks`] cuts, can); a host whose bricks are
+/// not one box gets several groups. A box is what the next level of composition needs: ray
+/// entry order per pixel is exact for disjoint convex boxes (`core::compose`).
+///
+/// Time `O(n³)` for `n` bricks (a host serves at most a few hundred ranks).
+pub fn box_groups(bricks: &[Brick]) -> Vec<(Vec<usize>, Brick)> {
+    let mut groups: Vec<(Vec<usize>, Brick)> = bricks
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (vec![i], *b))
+        .collect();
+    'merge: loop {
+        for i in 0..groups.len() {
+            for j in i + 1..groups.len() {
+                if let Some(b) = merged(&groups[i].1, &groups[j].1) {
+                    let (members, _) = groups.remove(j);
+                    groups[i].0.extend(members);
+                    groups[i].0.sort_unstable();
+                    groups[i].1 = b;
+                    continue 'merge;
+                }
+            }
+        }
+        break;
+    }
+    groups.sort_by_key(|(members, _)| members[0]);
+    groups
+}
+
 impl Volume {
     /// The brick `b` of this volume as a volume of its own, placed at its world position
     /// (origin + offset · spacing).
@@ -311,6 +367,60 @@ mod tests {
             check(g, &[(0, a), (1, d)], true),
             Err(DecompositionError::Gap { .. })
         ));
+    }
+
+    #[test]
+    fn a_host_s_bricks_gather_into_boxes_that_tile_what_they_cover() {
+        let global = [33, 29, 41];
+        for split in [[2, 2, 2], [4, 1, 1], [3, 2, 1], [1, 3, 4], [2, 3, 2]] {
+            let bricks = grid_bricks(global, split).unwrap();
+            // A whole grid of bricks is one box: the grid itself.
+            let all = box_groups(&bricks);
+            assert_eq!(all.len(), 1, "{split:?}");
+            assert_eq!(all[0].0, (0..bricks.len()).collect::<Vec<_>>());
+            let whole = Brick {
+                offset: [0; 3],
+                dims: global,
+            };
+            assert_eq!(all[0].1, whole);
+            // Every run of consecutive ranks (a host of MPI's block placement), boxes or not.
+            for start in 0..bricks.len() {
+                for end in start + 1..=bricks.len() {
+                    let host = &bricks[start..end];
+                    let groups = box_groups(host);
+                    let mut members: Vec<usize> =
+                        groups.iter().flat_map(|(m, _)| m.clone()).collect();
+                    members.sort_unstable();
+                    assert_eq!(members, (0..host.len()).collect::<Vec<_>>());
+                    for (m, b) in &groups {
+                        // The group's box holds exactly its members: same cells, none twice.
+                        let inner: Vec<(u32, Brick)> =
+                            m.iter().map(|&i| (i as u32, host[i])).collect();
+                        check(global, &inner, false).unwrap();
+                        let cells = |b: &Brick| -> usize {
+                            b.cells().iter().map(|(lo, hi)| hi - lo).product()
+                        };
+                        let sum: usize = m.iter().map(|&i| cells(&host[i])).sum();
+                        assert_eq!(cells(b), sum, "{split:?} {start}..{end}");
+                    }
+                    // The groups' boxes are themselves a valid decomposition of that part.
+                    let boxes: Vec<(u32, Brick)> = groups
+                        .iter()
+                        .map(|(m, b)| (m[0] as u32, *b))
+                        .collect();
+                    check(global, &boxes, false).unwrap();
+                }
+            }
+        }
+        // Three of a 2 × 2 grid (an L) are two boxes; the lone brick stays alone.
+        let quad = grid_bricks([9, 9, 2], [2, 2, 1]).unwrap();
+        let l = box_groups(&[quad[0], quad[1], quad[2]]);
+        assert_eq!(l.len(), 2);
+        assert_eq!((l[0].0.clone(), l[1].0.clone()), (vec![0, 1], vec![2]));
+        assert_eq!(box_groups(&quad[3..]), vec![(vec![0], quad[3])]);
+        // Diagonal neighbours and bricks with a gap between them do not merge.
+        assert_eq!(box_groups(&[quad[0], quad[3]]).len(), 2);
+        assert_eq!(merged(&quad[0], &quad[0]), None);
     }
 
     #[test]

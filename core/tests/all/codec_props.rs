@@ -351,19 +351,20 @@ fn provenance_travels_in_the_file_and_older_files_still_read() {
                 dims: [64, 64, 64],
             },
         )),
+        covers: vec![],
     };
     let limits = DecodeLimits::default();
     let with = encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();
-    assert_eq!(provenance(&with).unwrap(), Some(p));
+    assert_eq!(provenance(&with).unwrap(), Some(p.clone()));
     assert_eq!(
         decode_with_provenance(&with, &limits).unwrap(),
-        (vdi.clone(), Some(p))
+        (vdi.clone(), Some(p.clone()))
     );
     let without = encode(&vdi, Codec::Zstd).unwrap();
     assert_eq!(provenance(&without).unwrap(), None);
     assert_eq!(
         with.len() - without.len(),
-        insitu_core::vdi::provenance::LEN,
+        p.to_bytes().len(),
         "σ grows by the block alone"
     );
     // Version 2: the same body without the block's length.

@@ -5,7 +5,7 @@
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
 use insitu_core::metrics::psnr;
 use insitu_core::vdi::{generate::generate, render::render, VdiParams};
-use insitu_core::volume::bricks::{grid_bricks, Brick};
+use insitu_core::volume::bricks::{box_groups, grid_bricks, Brick};
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
 
 const R: u32 = 128;
@@ -121,6 +121,81 @@ fn composed_brick_frames_match_the_whole_frame_from_every_side() {
             psnr(&wrong, &want).unwrap() < q,
             "order must count at {angle}°"
         );
+    }
+}
+
+/// Two-level composition (hosts compose their ranks into box-shaped parts, then the parts
+/// are composed) gives the VDI of one-level composition bit for bit, and its frames within
+/// rounding, for hosts whose ranks form boxes and hosts whose ranks do not.
+#[test]
+fn hosts_composing_first_give_the_one_level_picture() {
+    let whole = field();
+    let camera = Camera::default_for_box(&whole.world_box());
+    let grid = grid_bricks(whole.dims(), [2, 2, 2]).unwrap();
+    let volumes = bricks(&whole, [2, 2, 2]);
+    let vdis: Vec<Vdi> = volumes.iter().map(|b| vdi_of(b, &camera)).collect();
+    let one_level = compose_vdis(&vdis.iter().collect::<Vec<_>>()).unwrap();
+    let views = [0.0, 30.0, 135.0, 270.0];
+    let frames: Vec<Vec<(insitu_core::Image, Vec<f32>, _)>> = views
+        .iter()
+        .map(|&angle| {
+            let cam = camera.orbit_y(angle);
+            volumes
+                .iter()
+                .map(|b| {
+                    let rc = Raycaster::new(b, &tf(), RaycastParams::default()).unwrap();
+                    let (i, o) = dvr::render_with_opacity(&rc, &cam, R, R);
+                    (i, o, b.world_box())
+                })
+                .collect()
+        })
+        .collect();
+    // Ranks per host, in rank order (MPI's block placement): [3, 3, 2] leaves L-shaped hosts.
+    // With the parts each split gives (an L is two boxes).
+    for (hosts, boxes) in [
+        (vec![4, 4], 2),
+        (vec![3, 3, 2], 5),
+        (vec![2, 2, 2, 2], 4),
+        (vec![8], 1),
+    ] {
+        let mut parts: Vec<(Vec<usize>, Vdi)> = Vec::new();
+        let mut start = 0;
+        for n in &hosts {
+            let members: Vec<usize> = (start..start + n).collect();
+            start += n;
+            let host_bricks: Vec<Brick> = members.iter().map(|&k| grid[k]).collect();
+            for (group, _) in box_groups(&host_bricks) {
+                let ranks: Vec<usize> = group.iter().map(|&i| members[i]).collect();
+                let sub: Vec<&Vdi> = ranks.iter().map(|&k| &vdis[k]).collect();
+                parts.push((ranks, compose_vdis(&sub).unwrap()));
+            }
+        }
+        assert_eq!(parts.len(), boxes, "{hosts:?}");
+        let two_level = compose_vdis(&parts.iter().map(|(_, v)| v).collect::<Vec<_>>()).unwrap();
+        assert_eq!(two_level, one_level, "hosts {hosts:?}");
+        for (v, per_view) in views.iter().zip(&frames) {
+            let cam = camera.orbit_y(*v);
+            let all: Vec<BrickFrame> = per_view.iter().map(BrickFrame::from).collect();
+            let (want, want_opacity) = compose_frames(&cam, &all).unwrap();
+            let host_frames: Vec<(insitu_core::Image, Vec<f32>, _)> = parts
+                .iter()
+                .map(|(ranks, part)| {
+                    let members: Vec<BrickFrame> = ranks.iter().map(|&k| all[k]).collect();
+                    let (i, o) = compose_frames(&cam, &members).unwrap();
+                    (i, o, part.meta().volume_box)
+                })
+                .collect();
+            let hf: Vec<BrickFrame> = host_frames.iter().map(BrickFrame::from).collect();
+            let (got, got_opacity) = compose_frames(&cam, &hf).unwrap();
+            let q = psnr(&got, &want).unwrap();
+            assert!(q >= 60.0, "hosts {hosts:?} at {v}°: {q:.1} dB");
+            let worst = got_opacity
+                .iter()
+                .zip(&want_opacity)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(worst < 1e-5, "opacity off by {worst} at {v}°");
+        }
     }
 }
 

@@ -1,0 +1,506 @@
+//! Two-level composition, the host's level (docs/scale.md). A generator-node that serves
+//! several ranks of a world composes each step's ranks before shipping: their bricks are
+//! gathered into boxes ([`box_groups`]), and each box's sub-VDIs and reference frames are
+//! composed with the code the viz-node uses ([`insitu_core::compose`]) into one part, a VDI
+//! whose header and file name the ranks it holds (`VdiHeader.covers`) and whose brick is
+//! their box. The viz-node composes the parts as it composes ranks: the bytes reaching it
+//! fall by the ranks per host, and the picture is the one-level picture (the sub-VDIs'
+//! supersegments bit for bit, the frames within rounding).
+//!
+//! A step's parts ship once every rank of it that this node received is finished or settled
+//! without a VDI (dropped, failed), and every rank the node served at its previous step has
+//! been received, or `wait_secs` after the step's last progress when one has not: a rank that
+//! comes later ships alone, in a part of its own, and the viz-node composes whatever parts
+//! hold the world's ranks. Steps found in the spool after a restart ship rank by rank, so that
+//! a part the viz-node stored before the crash is acknowledged rank by rank, never refused as
+//! a second holder of its ranks. Ranks whose VDIs cannot be composed together (they differ in
+//! camera, `P_M`, TF, frames) ship alone, with a warning.
+//!
+//! Memory: a step's finished ranks are held until its parts ship; their VDIs together are
+//! the size of the host's part, so the node holds its queue, at most one host VDI per step in
+//! flight, and the outbox.
+
+use crate::config::HostConfig;
+use crate::shared::Shared;
+use crate::work::Product;
+use bytes::Bytes;
+use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame};
+use insitu_core::vdi::codec::{self, Codec};
+use insitu_core::vdi::provenance::Provenance;
+use insitu_core::volume::bricks::{box_groups, Brick};
+use insitu_core::{Camera, Image, Vdi};
+use insitu_proto::convert::{camera_from_pb, codec_from_pb};
+use insitu_proto::pb;
+use std::collections::{BTreeMap, BTreeSet, HashSet};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::Notify;
+use tracing::{info, warn};
+
+/// A rank's finished step: what ships (compressed VDI, frames, spool entries) and its VDI in
+/// memory, for composing.
+pub struct Finished {
+    /// As the worker made it.
+    pub product: Product,
+    /// The VDI `product.vdi` encodes.
+    pub vdi: Vdi,
+}
+
+/// The ranks of the steps in flight on this node, and their finished VDIs until they ship.
+pub struct Gather {
+    compose: bool,
+    wait: Duration,
+    state: Mutex<State>,
+    wake: Notify,
+}
+
+#[derive(Default)]
+struct State {
+    steps: BTreeMap<u64, Pending>,
+    /// The ranks of the newest step shipped: those this node serves, as far as it knows.
+    served: BTreeSet<u32>,
+    /// Steps from the spool, shipped rank by rank.
+    alone: HashSet<(u64, u32)>,
+    closed: bool,
+}
+
+struct Pending {
+    /// Ranks received (or being received).
+    received: BTreeSet<u32>,
+    /// Ranks finished or settled without a VDI.
+    settled: BTreeSet<u32>,
+    done: Vec<Finished>,
+    /// When a rank last arrived or settled.
+    progress: Instant,
+}
+
+impl Pending {
+    fn new(now: Instant) -> Self {
+        Self {
+            received: BTreeSet::new(),
+            settled: BTreeSet::new(),
+            done: Vec::new(),
+            progress: now,
+        }
+    }
+}
+
+/// What to do with a step at `now`.
+enum Due {
+    /// Its parts ship.
+    Ship,
+    /// Wait for a rank not received yet, until the instant.
+    Until(Instant),
+    /// Wait for a received rank to finish.
+    Wait,
+}
+
+impl Gather {
+    /// A gatherer with `[host]`'s settings.
+    pub fn new(cfg: &HostConfig) -> Self {
+        Self {
+            compose: cfg.compose,
+            wait: Duration::from_secs_f64(cfg.wait_secs),
+            state: Mutex::new(State::default()),
+            wake: Notify::new(),
+        }
+    }
+
+    fn state(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Rank `rank` of `step`, of a world of `world_size`, is being received.
+    pub fn received(&self, step: u64, rank: u32, world_size: u32) {
+        if !self.compose || world_size <= 1 {
+            return;
+        }
+        let now = Instant::now();
+        let mut s = self.state();
+        let p = s.steps.entry(step).or_insert_with(|| Pending::new(now));
+        p.received.insert(rank);
+        p.progress = now;
+    }
+
+    /// Rank `rank` of `step` settled without a VDI (dropped from the queue, failed, not
+    /// received after all).
+    pub fn settled(&self, step: u64, rank: u32) {
+        let mut s = self.state();
+        if let Some(p) = s.steps.get_mut(&step) {
+            p.settled.insert(rank);
+            p.progress = Instant::now();
+            drop(s);
+            self.wake.notify_one();
+        }
+    }
+
+    /// Rank `rank` of `step` comes from the spool: it ships alone.
+    pub fn alone(&self, step: u64, rank: u32) {
+        self.state().alone.insert((step, rank));
+    }
+
+    /// A finished rank: handed back when it ships as it is (a world of one, composition off,
+    /// a step from the spool, a rank never announced), else kept for its step's parts.
+    pub fn finish(&self, f: Finished) -> Option<Finished> {
+        let h = &f.product.vdi_header;
+        let (step, rank) = (h.step, h.rank);
+        if !self.compose || h.world_size <= 1 {
+            return Some(f);
+        }
+        let mut s = self.state();
+        if s.alone.remove(&(step, rank)) {
+            return Some(f);
+        }
+        let Some(p) = s.steps.get_mut(&step).filter(|p| p.received.contains(&rank)) else {
+            return Some(f);
+        };
+        p.settled.insert(rank);
+        p.progress = Instant::now();
+        p.done.push(f);
+        drop(s);
+        self.wake.notify_one();
+        None
+    }
+
+    /// No more ranks: everything held ships now.
+    pub fn close(&self) {
+        self.state().closed = true;
+        self.wake.notify_one();
+    }
+
+    /// The steps whose parts ship at `now`, taken out (every step once closed), the earliest
+    /// instant another may, and whether the gatherer is closed and empty.
+    fn take_due(&self, now: Instant) -> (Vec<Vec<Finished>>, Option<Instant>, bool) {
+        let mut s = self.state();
+        let closed = s.closed;
+        let mut due = Vec::new();
+        let mut next: Option<Instant> = None;
+        let keys: Vec<u64> = s.steps.keys().copied().collect();
+        for step in keys {
+            let when = match s.steps.get(&step) {
+                Some(_) if closed => Some(Due::Ship),
+                Some(p) => Some(self.due(p, &s.served, now)),
+                None => None,
+            };
+            match when {
+                Some(Due::Ship) => {
+                    if let Some(p) = s.steps.remove(&step) {
+                        s.served = p.received;
+                        if !p.done.is_empty() {
+                            due.push(p.done);
+                        }
+                    }
+                }
+                Some(Due::Until(t)) => next = Some(next.map_or(t, |n| n.min(t))),
+                Some(Due::Wait) | None => {}
+            }
+        }
+        let finished = closed && s.steps.is_empty();
+        (due, next, finished)
+    }
+
+    fn due(&self, p: &Pending, served: &BTreeSet<u32>, now: Instant) -> Due {
+        if !p.received.is_subset(&p.settled) {
+            return Due::Wait;
+        }
+        let deadline = p.progress + self.wait;
+        if served.is_subset(&p.received) || now >= deadline {
+            Due::Ship
+        } else {
+            Due::Until(deadline)
+        }
+    }
+}
+
+/// Ships the gatherer's steps as their parts become due, until it is closed and empty.
+pub async fn run(shared: Arc<Shared>) {
+    let gather = shared.host.clone();
+    loop {
+        let (due, next, finished) = gather.take_due(Instant::now());
+        for ranks in due {
+            ship_step(&shared, ranks).await;
+        }
+        if finished {
+            return;
+        }
+        match next {
+            Some(t) => {
+                tokio::select! {
+                    () = gather.wake.notified() => {}
+                    () = tokio::time::sleep_until(t.into()) => {}
+                }
+            }
+            None => gather.wake.notified().await,
+        }
+    }
+}
+
+/// One step's finished ranks into the outbox: a part per box of their bricks.
+async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
+    ranks.sort_by_key(|f| f.product.vdi_header.rank);
+    let Some(bricks) = bricks_of(&ranks) else {
+        // Ranks that do not say where their bricks lie (or on different grids) ship alone;
+        // the viz-node names the problem.
+        for f in ranks {
+            crate::node::to_outbox(shared, f.product).await;
+        }
+        return;
+    };
+    let groups = box_groups(&bricks);
+    let mut slots: Vec<Option<Finished>> = ranks.into_iter().map(Some).collect();
+    for (members, brick) in groups {
+        let group: Vec<Finished> = members.iter().filter_map(|&i| slots[i].take()).collect();
+        if group.len() == 1 {
+            for f in group {
+                crate::node::to_outbox(shared, f.product).await;
+            }
+            continue;
+        }
+        let s = shared.clone();
+        let composed = tokio::task::spawn_blocking(move || {
+            let t = Instant::now();
+            let part = s.compute(|| compose_part(&group, brick));
+            (part, group, t.elapsed().as_secs_f64())
+        })
+        .await;
+        match composed {
+            Ok((Ok(part), group, secs)) => {
+                info!(
+                    step = part.vdi_header.step,
+                    ranks = ?part.vdi_header.covers,
+                    bytes = part.vdi.len(),
+                    secs,
+                    "composed the host's ranks into one part"
+                );
+                shared.stats.update(|c| {
+                    c.host_parts += 1;
+                    c.host_ranks += group.len() as u64;
+                    c.host_compose_secs += secs;
+                });
+                crate::node::to_outbox(shared, part).await;
+            }
+            Ok((Err(why), group, _)) => {
+                let h = &group[0].product.vdi_header;
+                warn!(step = h.step, error = %why, "the host's ranks could not be composed: they ship alone");
+                for f in group {
+                    crate::node::to_outbox(shared, f.product).await;
+                }
+            }
+            Err(e) => warn!(error = %e, "composing the host's ranks panicked; they are lost"),
+        }
+    }
+}
+
+/// The bricks of `ranks` (sorted by rank) when all state one on the same grid.
+fn bricks_of(ranks: &[Finished]) -> Option<Vec<Brick>> {
+    let global = ranks.first()?.product.vdi_header.global_dims;
+    ranks
+        .iter()
+        .map(|f| {
+            let h = &f.product.vdi_header;
+            let d = |v: &Option<pb::Dims3>| v.as_ref().map(|d| [d.x, d.y, d.z].map(|x| x as usize));
+            (h.global_dims == global).then_some(())?;
+            Some(Brick {
+                offset: d(&h.brick_offset)?,
+                dims: d(&h.brick_dims)?,
+            })
+        })
+        .collect()
+}
+
+/// Why ranks could not be composed into one part.
+#[derive(Debug, thiserror::Error)]
+pub enum PartError {
+    /// The sub-VDIs or frames differ ([`insitu_core::compose::ComposeError`]).
+    #[error("rank {rank}: {source}")]
+    Compose {
+        /// The part's first rank.
+        rank: u32,
+        /// What differs.
+        source: insitu_core::compose::ComposeError,
+    },
+    /// The ranks' reference frames are not alike (some missing, other views or sizes).
+    #[error("reference frames: {0}")]
+    Frames(String),
+    /// Encoding the part failed.
+    #[error(transparent)]
+    Codec(#[from] codec::CodecError),
+}
+
+/// `group` (ranks sorted, bricks forming `brick`) composed into one part: the VDI merged
+/// ([`compose_vdis`]), encoded in the first rank's codec with a provenance naming every rank,
+/// the frames composited per view ([`compose_frames`]); σ is the part's file, τ the slowest
+/// rank's, the spool entries and retries those of all.
+///
+/// # Errors
+/// [`PartError`] when the ranks were made differently or the part cannot be encoded.
+pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartError> {
+    let lead = &group[0].product.vdi_header;
+    let covers: Vec<u32> = group.iter().map(|f| f.product.vdi_header.rank).collect();
+    let vdis: Vec<&Vdi> = group.iter().map(|f| &f.vdi).collect();
+    let vdi = compose_vdis(&vdis).map_err(|source| PartError::Compose {
+        rank: lead.rank,
+        source,
+    })?;
+    let references = compose_references(group, &covers)?;
+    let global = lead
+        .global_dims
+        .as_ref()
+        .map(|d| [d.x, d.y, d.z].map(|x| x as usize));
+    let provenance = Provenance {
+        step: lead.step,
+        rank: lead.rank,
+        world_size: lead.world_size.max(1),
+        pm_version: lead.pm_version,
+        sim_time: if lead.sim_time.is_finite() {
+            lead.sim_time
+        } else {
+            0.0
+        },
+        placement: global.map(|g| (g, brick)),
+        covers: covers.clone(),
+    };
+    let codec = codec_from_pb(lead.codec)
+        .ok()
+        .flatten()
+        .unwrap_or(Codec::Zstd);
+    let t = Instant::now();
+    let file = codec::encode_with_provenance(&vdi, codec, Some(&provenance))?;
+    let tau_compress_secs = t.elapsed().as_secs_f64();
+    let dims = |d: [usize; 3]| pb::Dims3 {
+        x: d[0] as u32,
+        y: d[1] as u32,
+        z: d[2] as u32,
+    };
+    let slowest = group
+        .iter()
+        .map(|f| f.product.vdi_header.tau_secs)
+        .fold(0.0, f64::max);
+    let vdi_header = pb::VdiHeader {
+        total_bytes: file.len() as u64,
+        supersegments: vdi.supersegments().len() as u64,
+        tau_secs: slowest,
+        tau_compress_secs,
+        brick_offset: Some(dims(brick.offset)),
+        brick_dims: Some(dims(brick.dims)),
+        with_references: references.is_some(),
+        covers,
+        ..lead.clone()
+    };
+    Ok(Product {
+        vdi_header,
+        vdi: Bytes::from(file),
+        references,
+        spool: group
+            .iter()
+            .flat_map(|f| f.product.spool.iter().cloned())
+            .collect(),
+        limit_retries: group.iter().fold((0, 0.0), |(n, s), f| {
+            (n + f.product.limit_retries.0, s + f.product.limit_retries.1)
+        }),
+    })
+}
+
+/// The ranks' reference frames composited per view, as the part's (none when no rank has
+/// frames).
+///
+/// # Errors
+/// [`PartError::Frames`] when only some ranks have frames, or theirs differ in views, size,
+/// camera or opacity.
+fn compose_references(
+    group: &[Finished],
+    covers: &[u32],
+) -> Result<Option<(pb::ReferenceHeader, Bytes)>, PartError> {
+    let with: Vec<&(pb::ReferenceHeader, Bytes)> = group
+        .iter()
+        .filter_map(|f| f.product.references.as_ref())
+        .collect();
+    if with.is_empty() {
+        return Ok(None);
+    }
+    let (lead, _) = with[0];
+    let alike = |h: &pb::ReferenceHeader| {
+        h.width == lead.width
+            && h.height == lead.height
+            && h.camera == lead.camera
+            && h.view_angles_deg == lead.view_angles_deg
+            && h.opacity
+    };
+    if with.len() != group.len() || !with.iter().all(|(h, _)| alike(h)) {
+        return Err(PartError::Frames(format!(
+            "{} of {} ranks have frames with opacity of the same views",
+            with.iter().filter(|(h, _)| alike(h)).count(),
+            group.len()
+        )));
+    }
+    let camera: Camera = lead
+        .camera
+        .as_ref()
+        .ok_or_else(|| PartError::Frames("no camera".into()))
+        .and_then(|c| camera_from_pb(c).map_err(|e| PartError::Frames(e.message().into())))?;
+    let (w, h) = (lead.width, lead.height);
+    let per_view = w as usize * h as usize * 16;
+    let parsed: Vec<Vec<(Image, Vec<f32>)>> = with
+        .iter()
+        .map(|(_, bytes)| rgba_frames(bytes, (w, h), lead.view_angles_deg.len()))
+        .collect::<Result<_, _>>()?;
+    let mut out = Vec::with_capacity(per_view * lead.view_angles_deg.len());
+    for (v, &angle) in lead.view_angles_deg.iter().enumerate() {
+        let bricks: Vec<BrickFrame> = parsed
+            .iter()
+            .zip(group)
+            .map(|(frames, f)| BrickFrame {
+                image: &frames[v].0,
+                opacity: &frames[v].1,
+                world_box: f.vdi.meta().volume_box,
+            })
+            .collect();
+        let (image, opacity) = compose_frames(&camera.orbit_y(angle), &bricks).map_err(|source| {
+            PartError::Compose {
+                rank: covers[0],
+                source,
+            }
+        })?;
+        for (c, a) in image.pixels().iter().zip(&opacity) {
+            for x in [c[0], c[1], c[2], *a] {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+    }
+    let header = pb::ReferenceHeader {
+        total_bytes: out.len() as u64,
+        covers: covers.to_vec(),
+        ..lead.clone()
+    };
+    Ok(Some((header, Bytes::from(out))))
+}
+
+/// `views` frames of `w × h` RGBA little-endian f32 (as the worker writes them) as images and
+/// opacity planes.
+fn rgba_frames(
+    bytes: &[u8],
+    (w, h): (u32, u32),
+    views: usize,
+) -> Result<Vec<(Image, Vec<f32>)>, PartError> {
+    let per = w as usize * h as usize;
+    if bytes.len() != per * 16 * views {
+        return Err(PartError::Frames(format!(
+            "{} bytes for {views} views of {w}×{h} RGBA f32",
+            bytes.len()
+        )));
+    }
+    bytes
+        .chunks_exact(per * 16)
+        .map(|view| {
+            let values: Vec<f32> = view
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            let rgb = values.chunks_exact(4).map(|p| [p[0], p[1], p[2]]).collect();
+            let opacity = values.chunks_exact(4).map(|p| p[3]).collect();
+            let image = Image::from_pixels(w, h, rgb)
+                .ok_or_else(|| PartError::Frames(format!("a frame of {w}×{h}")))?;
+            Ok((image, opacity))
+        })
+        .collect()
+}
