@@ -19,11 +19,17 @@ fn decode_file(path: &Path) -> Vdi {
     decode(&std::fs::read(path).unwrap(), &DecodeLimits::default()).unwrap()
 }
 
-/// Replays 3 ocean steps at r = 128 with `split` into a fresh recording; returns it.
-fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
-    let rec = tmp.join(format!("rec-{split}"));
+/// Replays 3 ocean steps at r = 128 with `split` (every rank on one generator-node, which
+/// composes them into one part before shipping unless `one_level`) into a fresh recording;
+/// returns it.
+fn replay_split(split: &str, one_level: bool, tmp: &Path) -> std::path::PathBuf {
+    let rec = tmp.join(format!("rec-{split}-{}", if one_level { 1 } else { 2 }));
     let v = viz(&rec, "127.0.0.1:0", tmp);
-    let g = generator(&small_config(&v.addr, "block", 16), tmp, &[]);
+    let mut cfg = small_config(&v.addr, "block", 16);
+    if one_level {
+        cfg.push_str("[host]\ncompose = false\n");
+    }
+    let g = generator(&cfg, tmp, &[]);
     let series = ocean().unwrap();
     let out = Command::new(bin("insitu"))
         .args(["replay", "--series", series.to_str().unwrap()])
@@ -52,18 +58,21 @@ fn replay_split(split: &str, tmp: &Path) -> std::path::PathBuf {
         done,
         "--split {split}: steps were not all composed and scored"
     );
-    // Every rank's VDI and frames were decoded once, on receipt, and handed to the scorer
-    // or composer from memory.
+    // Every part's VDI and frames were decoded once, on receipt, and handed to the scorer
+    // or composer from memory: a part per rank, or one per step when the node composed its
+    // ranks (they tile the grid: one box).
     let ranks: u64 = split
         .split('x')
         .map(|n| n.parse::<u64>().unwrap())
         .product();
+    let parts = if one_level { ranks } else { 1 };
     let status = viz_status(&v.addr);
     assert_eq!(
         (status.decoded_reused, status.decoded_again),
-        (3 * ranks * 2, 0),
+        (3 * parts * 2, 0),
         "--split {split}"
     );
+    assert_eq!(index(&rec).len() as u64, 3 * parts, "--split {split}");
     v.terminate();
     rec
 }
@@ -74,10 +83,10 @@ fn composed_ocean_steps_render_and_score_like_the_whole_domain() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let whole = replay_split("1x1x1", tmp.path());
+    let whole = replay_split("1x1x1", false, tmp.path());
     let whole_entries = index(&whole);
     for split in ["2x2x1", "4x1x1", "1x1x3"] {
-        let rec = replay_split(split, tmp.path());
+        let rec = replay_split(split, true, tmp.path());
         for s in steps(&rec) {
             assert!(s.missing.is_empty() && s.error.is_none(), "{s:?}");
             let composed = decode_file(&rec.join(s.vdi.as_ref().unwrap()));
@@ -107,6 +116,55 @@ fn composed_ocean_steps_render_and_score_like_the_whole_domain() {
                 "{split} step {}: composed q {q_multi:.2} vs single-rank {q_one:.2}",
                 s.step
             );
+        }
+    }
+}
+
+/// Two-level composition: the node composes its 4 ranks into one part, the viz-node composes
+/// parts; the stored picture and q are those of one-level composition (the viz-node composing
+/// the 4 ranks itself), and the viz-node receives one part per step instead of four.
+#[test]
+fn hosts_composing_first_store_the_one_level_picture_and_q() {
+    if ocean().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    for split in ["2x2x1", "1x2x2"] {
+        let one = replay_split(split, true, tmp.path());
+        let two = replay_split(split, false, tmp.path());
+        let (parts_one, parts_two) = (index(&one), index(&two));
+        for (a, b) in steps(&one).iter().zip(steps(&two)) {
+            assert_eq!((a.step, &a.ranks, &b.ranks), (b.step, &vec![0, 1, 2, 3], &b.ranks));
+            assert!(b.missing.is_empty() && b.error.is_none(), "{b:?}");
+            // The parts that reached the viz-node: 4 VDIs of one rank, or 1 of all four.
+            let of = |parts: &[insitu_viz_node::store::Entry]| -> Vec<Vec<u32>> {
+                parts
+                    .iter()
+                    .filter(|e| e.step == a.step)
+                    .map(|e| e.ranks())
+                    .collect()
+            };
+            assert_eq!(of(&parts_one), [[0], [1], [2], [3]]);
+            assert_eq!(of(&parts_two), [[0, 1, 2, 3]]);
+            let va = decode_file(&one.join(a.vdi.as_ref().unwrap()));
+            let vb = decode_file(&two.join(b.vdi.as_ref().unwrap()));
+            let cam = va.meta().camera;
+            let (ia, ib) = (
+                render::render(&va, &cam, 128, 128, 0.99),
+                render::render(&vb, &cam, 128, 128, 0.99),
+            );
+            let same = psnr(&ia, &ib).unwrap();
+            let (qa, qb) = (
+                a.quality.as_ref().unwrap().q_db.0,
+                b.quality.as_ref().unwrap().q_db.0,
+            );
+            eprintln!(
+                "{split} step {}: two-level vs one-level {same:.1} dB at the generation view, q {qb:.3} vs {qa:.3} dB",
+                a.step
+            );
+            assert!(same >= 60.0, "{split} step {}: {same:.1} dB", a.step);
+            assert!((qa - qb).abs() <= 0.05, "{split} step {}: q {qb} vs {qa}", a.step);
+            assert_eq!(va.supersegments().len(), vb.supersegments().len());
         }
     }
 }
@@ -431,12 +489,18 @@ fn an_overlapping_rank_is_refused_without_leaving_a_row_behind() {
             clients[rank].flush(secs).await.unwrap();
         }
     });
+    // Ranks 2 and 3 share a plane: their node ships them as one part. Rank 0's brick is not
+    // a box with any other, so it ships alone.
     let entries = index(&rec);
-    let rows: Vec<(u32, u32, u32)> = entries
+    let rows: Vec<(u32, Vec<u32>, u32, u32)> = entries
         .iter()
-        .map(|e| (e.rank, e.world_size, e.resolution))
+        .map(|e| (e.rank, e.ranks(), e.world_size, e.resolution))
         .collect();
-    assert_eq!(rows, vec![(0, 4, 32), (2, 4, 32), (3, 4, 32)], "{rows:?}");
+    assert_eq!(
+        rows,
+        vec![(0, vec![0], 4, 32), (2, vec![2, 3], 4, 32)],
+        "{rows:?}"
+    );
     g.terminate();
     v.terminate();
 }

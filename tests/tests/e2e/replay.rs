@@ -109,11 +109,9 @@ fn bricks_over_two_and_four_ranks_are_stored_and_render() {
         let tmp = tempfile::tempdir().unwrap();
         let rec = tmp.path().join("rec");
         let v = viz(&rec, "127.0.0.1:0", tmp.path());
-        let g = generator(
-            &crate::common::small_config(&v.addr, "block", 16),
-            tmp.path(),
-            &[],
-        );
+        // Each rank's VDI shipped as made (its node does not compose them), to see each.
+        let cfg = crate::common::small_config(&v.addr, "block", 16) + "[host]\ncompose = false\n";
+        let g = generator(&cfg, tmp.path(), &[]);
         replay(&g, ranks, 3, 0);
         g.terminate();
         let entries = index(&rec);
