@@ -151,7 +151,11 @@ impl Gather {
         if s.alone.remove(&(step, rank)) {
             return Some(f);
         }
-        let Some(p) = s.steps.get_mut(&step).filter(|p| p.received.contains(&rank)) else {
+        let Some(p) = s
+            .steps
+            .get_mut(&step)
+            .filter(|p| p.received.contains(&rank))
+        else {
             return Some(f);
         };
         p.settled.insert(rank);
@@ -455,12 +459,13 @@ fn compose_references(
                 world_box: f.vdi.meta().volume_box,
             })
             .collect();
-        let (image, opacity) = compose_frames(&camera.orbit_y(angle), &bricks).map_err(|source| {
-            PartError::Compose {
-                rank: covers[0],
-                source,
-            }
-        })?;
+        let (image, opacity) =
+            compose_frames(&camera.orbit_y(angle), &bricks).map_err(|source| {
+                PartError::Compose {
+                    rank: covers[0],
+                    source,
+                }
+            })?;
         for (c, a) in image.pixels().iter().zip(&opacity) {
             for x in [c[0], c[1], c[2], *a] {
                 out.extend_from_slice(&x.to_le_bytes());

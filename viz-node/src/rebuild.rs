@@ -204,7 +204,11 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
             .placement
             .map(|(global_dims, brick)| Placement { global_dims, brick }),
         with_references: false,
-        covers: if p.covers.len() > 1 { p.covers } else { Vec::new() },
+        covers: if p.covers.len() > 1 {
+            p.covers
+        } else {
+            Vec::new()
+        },
     })
 }
 

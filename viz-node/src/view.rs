@@ -135,11 +135,13 @@ pub fn vdi_file(
     // A rank is shown by its own VDI, or by the part its host composed it into.
     let of_rank = |r: u32| {
         let own = ranks.iter().find(|e| e.rank == r);
-        let e = own.or_else(|| ranks.iter().find(|e| e.holds(r))).ok_or_else(|| {
-            missing(format!(
-                "step {step} has no rank {r} (stored ranks: {stored:?})"
-            ))
-        })?;
+        let e = own
+            .or_else(|| ranks.iter().find(|e| e.holds(r)))
+            .ok_or_else(|| {
+                missing(format!(
+                    "step {step} has no rank {r} (stored ranks: {stored:?})"
+                ))
+            })?;
         let name = e.vdi.clone();
         name.map(|name| VdiFile {
             name,

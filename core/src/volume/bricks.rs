@@ -203,8 +203,12 @@ pub fn check(
 /// The brick covering `a` and `b` when together they are one box: equal on two axes and
 /// sharing their boundary plane on the third (interiors disjoint, as [`check`] requires).
 pub fn merged(a: &Brick, b: &Brick) -> Option<Brick> {
+    (0..3).find_map(|axis| merged_along(a, b, axis))
+}
+
+/// [`merged`] when `a` and `b` meet across `axis`.
+fn merged_along(a: &Brick, b: &Brick, axis: usize) -> Option<Brick> {
     let same = |k: usize| a.offset[k] == b.offset[k] && a.dims[k] == b.dims[k];
-    let axis = (0..3).find(|&k| !same(k))?;
     if (0..3).any(|k| k != axis && !same(k)) {
         return None;
     }
@@ -223,13 +227,14 @@ pub fn merged(a: &Brick, b: &Brick) -> Option<Brick> {
     })
 }
 
-/// The bricks of one host (several ranks on one generator-node) gathered into boxes: two
-/// groups merge whenever their boxes together form one ([`merged`]), until no two do. Each
-/// group is `(indices into bricks, ascending; its box)`, groups ordered by their first
-/// index. Bricks whose union is a box merge into one group when they can be joined pairwise
-/// (any grid of `a × b × c` bricks, as [`grid_bricks`] cuts, can); a host whose bricks are
-/// not one box gets several groups. A box is what the next level of composition needs: ray
-/// entry order per pixel is exact for disjoint convex boxes (`core::compose`).
+/// The bricks of one host (several ranks on one generator-node) gathered into boxes: groups
+/// that together form one box ([`merged`]) are merged across x first, then y, then z, and
+/// again until no two merge. Each group is `(indices into bricks, ascending; its box)`,
+/// groups ordered by their first index. A grid of `a × b × c` bricks (as [`grid_bricks`]
+/// cuts) is one group, and a run of consecutive ranks of such a grid (MPI's block placement)
+/// at most five (the partial row and partial layer at either end, the whole layers between);
+/// a host whose bricks are not one box gets several groups. A box is what the next level of composition needs:
+/// ray entry order per pixel is exact for disjoint convex boxes (`core::compose`).
 ///
 /// Time `O(n³)` for `n` bricks (a host serves at most a few hundred ranks).
 pub fn box_groups(bricks: &[Brick]) -> Vec<(Vec<usize>, Brick)> {
@@ -238,19 +243,22 @@ pub fn box_groups(bricks: &[Brick]) -> Vec<(Vec<usize>, Brick)> {
         .enumerate()
         .map(|(i, b)| (vec![i], *b))
         .collect();
-    'merge: loop {
-        for i in 0..groups.len() {
-            for j in i + 1..groups.len() {
-                if let Some(b) = merged(&groups[i].1, &groups[j].1) {
-                    let (members, _) = groups.remove(j);
-                    groups[i].0.extend(members);
-                    groups[i].0.sort_unstable();
-                    groups[i].1 = b;
-                    continue 'merge;
-                }
+    loop {
+        let before = groups.len();
+        for axis in 0..3 {
+            while let Some((i, j, b)) = (0..groups.len()).find_map(|i| {
+                (i + 1..groups.len())
+                    .find_map(|j| merged_along(&groups[i].1, &groups[j].1, axis).map(|b| (i, j, b)))
+            }) {
+                let (members, _) = groups.remove(j);
+                groups[i].0.extend(members);
+                groups[i].0.sort_unstable();
+                groups[i].1 = b;
             }
         }
-        break;
+        if groups.len() == before {
+            break;
+        }
     }
     groups.sort_by_key(|(members, _)| members[0]);
     groups
@@ -403,11 +411,12 @@ mod tests {
                         let sum: usize = m.iter().map(|&i| cells(&host[i])).sum();
                         assert_eq!(cells(b), sum, "{split:?} {start}..{end}");
                     }
+                    // A run of consecutive ranks: a partial row, partial layer and whole
+                    // layers before it and after it, at most 5 boxes.
+                    assert!(groups.len() <= 5, "{split:?} {start}..{end}: {groups:?}");
                     // The groups' boxes are themselves a valid decomposition of that part.
-                    let boxes: Vec<(u32, Brick)> = groups
-                        .iter()
-                        .map(|(m, b)| (m[0] as u32, *b))
-                        .collect();
+                    let boxes: Vec<(u32, Brick)> =
+                        groups.iter().map(|(m, b)| (m[0] as u32, *b)).collect();
                     check(global, &boxes, false).unwrap();
                 }
             }

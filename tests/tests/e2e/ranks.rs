@@ -134,7 +134,10 @@ fn hosts_composing_first_store_the_one_level_picture_and_q() {
         let two = replay_split(split, false, tmp.path());
         let (parts_one, parts_two) = (index(&one), index(&two));
         for (a, b) in steps(&one).iter().zip(steps(&two)) {
-            assert_eq!((a.step, &a.ranks, &b.ranks), (b.step, &vec![0, 1, 2, 3], &b.ranks));
+            assert_eq!(
+                (a.step, &a.ranks, &b.ranks),
+                (b.step, &vec![0, 1, 2, 3], &b.ranks)
+            );
             assert!(b.missing.is_empty() && b.error.is_none(), "{b:?}");
             // The parts that reached the viz-node: 4 VDIs of one rank, or 1 of all four.
             let of = |parts: &[insitu_viz_node::store::Entry]| -> Vec<Vec<u32>> {
@@ -163,9 +166,140 @@ fn hosts_composing_first_store_the_one_level_picture_and_q() {
                 a.step
             );
             assert!(same >= 60.0, "{split} step {}: {same:.1} dB", a.step);
-            assert!((qa - qb).abs() <= 0.05, "{split} step {}: q {qb} vs {qa}", a.step);
+            assert!(
+                (qa - qb).abs() <= 0.05,
+                "{split} step {}: q {qb} vs {qa}",
+                a.step
+            );
             assert_eq!(va.supersegments().len(), vb.supersegments().len());
         }
+    }
+}
+
+/// Rank `rank`'s brick `b` of a 33³ grid of soft blobs, as a simulation would push it.
+fn blob_step(step: u64, rank: u32, world_size: u32, b: Brick) -> Step {
+    let value = |x: usize, y: usize, z: usize| {
+        let d2 = |c: [f32; 3], s: f32| {
+            let d = [x as f32 - c[0], y as f32 - c[1], z as f32 - c[2]];
+            (-(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (2.0 * s * s)).exp()
+        };
+        d2([12.0, 14.0, 10.0], 6.0) + 0.8 * d2([22.0, 20.0, 21.0], 7.0) + 0.02 * step as f32
+    };
+    let mut data = Vec::with_capacity(b.dims.iter().product());
+    for z in 0..b.dims[2] {
+        for y in 0..b.dims[1] {
+            for x in 0..b.dims[0] {
+                data.push(value(b.offset[0] + x, b.offset[1] + y, b.offset[2] + z));
+            }
+        }
+    }
+    let d = |v: [usize; 3]| v.map(|x| x as u32);
+    Step {
+        step,
+        sim_time: step as f64,
+        dtype: ScalarType::F32,
+        global_dims: [33; 3],
+        brick_offset: d(b.offset),
+        brick_dims: d(b.dims),
+        rank,
+        world_size,
+        spacing: [1.0; 3],
+        origin: [0.0; 3],
+        data: f32_bytes(&data),
+        fields: Vec::new(),
+    }
+}
+
+/// 8 ranks (2 × 2 × 2 bricks) over two generator-nodes, ranks 0–2 on one and 3–7 on the
+/// other: neither host's bricks form a box, so each ships two parts. The stored steps are
+/// those of one-level composition (each rank's VDI shipped alone): the same picture at the
+/// generation view and orbits of it, q within 0.05 dB; the viz-node receives 4 parts per step
+/// instead of 8 VDIs.
+#[test]
+fn two_hosts_whose_ranks_are_not_boxes_store_the_one_level_steps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bricks = insitu_core::volume::bricks::grid_bricks([33; 3], [2, 2, 2]).unwrap();
+    let run = |one_level: bool| {
+        let rec = tmp.path().join(format!("rec-{one_level}"));
+        let v = viz(&rec, "127.0.0.1:0", tmp.path());
+        let mut cfg = small_config(&v.addr, "block", 16)
+            .replace("reference_every = 0", "reference_every = 1")
+            .replace("resolution = 32", "resolution = 64");
+        if one_level {
+            cfg.push_str("[host]\ncompose = false\n");
+        }
+        let hosts = [
+            generator(&cfg, tmp.path(), &[]),
+            generator(&cfg, tmp.path(), &[]),
+        ];
+        rt().block_on(async {
+            let mut tasks = Vec::new();
+            for (rank, b) in bricks.iter().enumerate() {
+                let addr = hosts[usize::from(rank >= 3)].addr.clone();
+                let b = *b;
+                tasks.push(tokio::spawn(async move {
+                    let mut c = SimClient::connect(&addr, None).await.unwrap();
+                    for step in 0..2 {
+                        c.push_step(blob_step(step, rank as u32, 8, b))
+                            .await
+                            .unwrap();
+                    }
+                    c.flush(std::time::Duration::from_secs(120)).await.unwrap();
+                }));
+            }
+            for t in tasks {
+                t.await.unwrap();
+            }
+        });
+        let done = wait_until(60.0, || {
+            let s = steps(&rec);
+            s.len() == 2 && s.iter().all(|s| s.quality.is_some())
+        });
+        assert!(done, "{:?}", steps(&rec));
+        for h in hosts {
+            h.terminate();
+        }
+        v.terminate();
+        rec
+    };
+    let (one, two) = (run(true), run(false));
+    for (a, b) in steps(&one).iter().zip(steps(&two)) {
+        assert_eq!((a.step, &a.ranks), (b.step, &b.ranks));
+        assert!(b.missing.is_empty() && b.error.is_none(), "{b:?}");
+        let parts = |rec: &Path| -> Vec<Vec<u32>> {
+            index(rec)
+                .iter()
+                .filter(|e| e.step == a.step)
+                .map(|e| e.ranks())
+                .collect()
+        };
+        assert_eq!(parts(&one).len(), 8);
+        // Host 0: ranks 0, 1 share a y-z face, rank 2 sits above rank 0 alone; host 1: rank 3
+        // alone, ranks 4–7 the upper z layer.
+        assert_eq!(
+            parts(&two),
+            [vec![0, 1], vec![2], vec![3], vec![4, 5, 6, 7]]
+        );
+        let va = decode_file(&one.join(a.vdi.as_ref().unwrap()));
+        let vb = decode_file(&two.join(b.vdi.as_ref().unwrap()));
+        for angle in [0.0, 30.0, 150.0] {
+            let view = va.meta().camera.orbit_y(angle);
+            let q = psnr(
+                &render::render(&va, &view, 64, 64, 0.99),
+                &render::render(&vb, &view, 64, 64, 0.99),
+            )
+            .unwrap();
+            assert!(q >= 60.0, "step {} at {angle}°: {q:.1} dB", a.step);
+        }
+        let (qa, qb) = (
+            a.quality.as_ref().unwrap().q_db.0,
+            b.quality.as_ref().unwrap().q_db.0,
+        );
+        eprintln!(
+            "step {}: q two-level {qb:.3} dB, one-level {qa:.3} dB",
+            a.step
+        );
+        assert!((qa - qb).abs() <= 0.05, "step {}: q {qb} vs {qa}", a.step);
     }
 }
 
