@@ -153,6 +153,7 @@ pub fn compose_step(
         return Ok(None);
     }
     check_bricks(step, &ready, missing.is_empty())?;
+    let started = std::time::Instant::now();
     let vdis = ready
         .iter()
         .map(|e| load_vdi(rec, kept, e))
@@ -160,8 +161,11 @@ pub fn compose_step(
     let composed = compose_ranks(step, &ready, &vdis)?;
     let vdi_name = store_composed(rec, step, &ready, &composed)?;
     let with_frames = ready.iter().all(|e| e.with_references);
+    let mut compose_secs = started.elapsed().as_secs_f64();
     let (references, quality) = if with_frames {
+        let t = std::time::Instant::now();
         let refs = compose_references(rec, kept, &ready, &vdis)?;
+        compose_secs += t.elapsed().as_secs_f64();
         let name = composed_refs_name(step);
         write_atomic(rec.dir(), &name, &refs.to_file_bytes((step, None)))?;
         let q = score(backend, &composed, &refs, termination).map_err(|e| StepError::Rank {
@@ -179,6 +183,7 @@ pub fn compose_step(
         vdi: Some(vdi_name),
         references,
         quality,
+        compose_secs,
         ..entry
     }))
 }
@@ -270,6 +275,7 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
         codec: first.and_then(|e| e.codec),
         quality: None,
         error: None,
+        compose_secs: 0.0,
     }
 }
 

@@ -184,6 +184,11 @@ pub struct StepEntry {
     pub quality: Option<Quality>,
     /// Why it could not be composed.
     pub error: Option<String>,
+    /// Seconds this viz-node spent composing: the parts' VDIs merged, the result encoded and
+    /// written, their frames composited (scoring not included; a measurement, like τ: 0 when
+    /// not composed, or composed before it was kept).
+    #[serde(default)]
+    pub compose_secs: f64,
 }
 
 impl Entry {
