@@ -1254,7 +1254,12 @@ fn exported_rows(dir: &Path) -> serde_json::Value {
     for key in ["entries", "steps"] {
         for row in v[key].as_array_mut().unwrap() {
             let row = row.as_object_mut().unwrap();
-            for key in ["tau_secs", "tau_source", "tau_compress_secs", "compose_secs"] {
+            for key in [
+                "tau_secs",
+                "tau_source",
+                "tau_compress_secs",
+                "compose_secs",
+            ] {
                 row.remove(key);
             }
         }
@@ -1274,7 +1279,9 @@ fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
     let parts = before["entries"].as_array().unwrap();
     assert_eq!(parts.len(), 3, "{before}");
     assert!(
-        parts.iter().all(|p| p["covers"] == serde_json::json!([0, 1])),
+        parts
+            .iter()
+            .all(|p| p["covers"] == serde_json::json!([0, 1])),
         "{before}"
     );
     assert_eq!(before["steps"].as_array().unwrap().len(), 3, "{before}");
