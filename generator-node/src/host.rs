@@ -444,18 +444,27 @@ fn compose_references(
         .and_then(|c| camera_from_pb(c).map_err(|e| PartError::Frames(e.message().into())))?;
     let (w, h) = (lead.width, lead.height);
     let per_view = w as usize * h as usize * 16;
-    let parsed: Vec<Vec<(Image, Vec<f32>)>> = with
-        .iter()
-        .map(|(_, bytes)| rgba_frames(bytes, (w, h), lead.view_angles_deg.len()))
-        .collect::<Result<_, _>>()?;
-    let mut out = Vec::with_capacity(per_view * lead.view_angles_deg.len());
+    let views = lead.view_angles_deg.len();
+    if let Some((got, bytes)) = with.iter().find(|(_, b)| b.len() != per_view * views) {
+        return Err(PartError::Frames(format!(
+            "rank {}: {} bytes for {views} views of {w}×{h} RGBA f32",
+            got.rank,
+            bytes.len()
+        )));
+    }
+    let mut out = Vec::with_capacity(per_view * views);
+    // One view at a time: the ranks' frames of a view parsed, composited, written out.
     for (v, &angle) in lead.view_angles_deg.iter().enumerate() {
+        let parsed: Vec<(Image, Vec<f32>)> = with
+            .iter()
+            .map(|(_, bytes)| rgba_frame(&bytes[v * per_view..(v + 1) * per_view], (w, h)))
+            .collect::<Result<_, _>>()?;
         let bricks: Vec<BrickFrame> = parsed
             .iter()
             .zip(group)
-            .map(|(frames, f)| BrickFrame {
-                image: &frames[v].0,
-                opacity: &frames[v].1,
+            .map(|((image, opacity), f)| BrickFrame {
+                image,
+                opacity,
                 world_box: f.vdi.meta().volume_box,
             })
             .collect();
@@ -466,11 +475,7 @@ fn compose_references(
                     source,
                 }
             })?;
-        for (c, a) in image.pixels().iter().zip(&opacity) {
-            for x in [c[0], c[1], c[2], *a] {
-                out.extend_from_slice(&x.to_le_bytes());
-            }
-        }
+        out.extend(crate::work::rgba_f32_le(&image, &opacity));
     }
     let header = pb::ReferenceHeader {
         total_bytes: out.len() as u64,
@@ -480,32 +485,251 @@ fn compose_references(
     Ok(Some((header, Bytes::from(out))))
 }
 
-/// `views` frames of `w × h` RGBA little-endian f32 (as the worker writes them) as images and
-/// opacity planes.
-fn rgba_frames(
-    bytes: &[u8],
-    (w, h): (u32, u32),
-    views: usize,
-) -> Result<Vec<(Image, Vec<f32>)>, PartError> {
-    let per = w as usize * h as usize;
-    if bytes.len() != per * 16 * views {
-        return Err(PartError::Frames(format!(
-            "{} bytes for {views} views of {w}×{h} RGBA f32",
-            bytes.len()
-        )));
-    }
-    bytes
-        .chunks_exact(per * 16)
-        .map(|view| {
-            let values: Vec<f32> = view
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
-            let rgb = values.chunks_exact(4).map(|p| [p[0], p[1], p[2]]).collect();
-            let opacity = values.chunks_exact(4).map(|p| p[3]).collect();
-            let image = Image::from_pixels(w, h, rgb)
-                .ok_or_else(|| PartError::Frames(format!("a frame of {w}×{h}")))?;
-            Ok((image, opacity))
+/// One frame of `w × h` RGBA little-endian f32 (as the worker writes them; the caller checked
+/// the length) as an image and its opacity plane.
+fn rgba_frame(bytes: &[u8], (w, h): (u32, u32)) -> Result<(Image, Vec<f32>), PartError> {
+    let values: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let rgb = values.chunks_exact(4).map(|p| [p[0], p[1], p[2]]).collect();
+    let opacity = values.chunks_exact(4).map(|p| p[3]).collect();
+    let image = Image::from_pixels(w, h, rgb)
+        .ok_or_else(|| PartError::Frames(format!("a frame of {w}×{h}")))?;
+    Ok((image, opacity))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use insitu_core::volume::bricks::grid_bricks;
+    use insitu_core::{dvr, RaycastParams, Raycaster, TransferFunction, VdiParams, Volume};
+
+    const GLOBAL: [usize; 3] = [17, 13, 11];
+
+    fn whole() -> Volume {
+        Volume::from_fn(GLOBAL, |x, y, z| {
+            let d = [x as f32 - 7.0, y as f32 - 6.0, z as f32 - 5.0];
+            (-(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / 20.0).exp()
         })
-        .collect()
+        .unwrap()
+    }
+
+    /// Rank `rank`'s finished step over brick `b`, as the worker makes it (frames at 0° and
+    /// 90° with opacity when `frames`).
+    fn finished(step: u64, rank: u32, world: u32, b: Brick, frames: bool) -> Finished {
+        let whole = whole();
+        let tf = TransferFunction::default_for_range(0.0, 1.0);
+        let brick = whole.brick(&b).unwrap();
+        let rc = Raycaster::new(&brick, &tf, RaycastParams::default()).unwrap();
+        let camera = Camera::default_for_box(&whole.world_box());
+        let params = VdiParams {
+            resolution: 32,
+            gamma: 0.01,
+        };
+        let vdi = insitu_core::vdi::generate::generate(&rc, &camera, params, 1, "t").unwrap();
+        let file = codec::encode(&vdi, Codec::Zstd).unwrap();
+        let angles = vec![0.0, 90.0];
+        let references = frames.then(|| {
+            let bytes: Vec<u8> = angles
+                .iter()
+                .flat_map(|&a| {
+                    let (image, opacity) =
+                        dvr::render_with_opacity(&rc, &camera.orbit_y(a), 24, 24);
+                    crate::work::rgba_f32_le(&image, &opacity).collect::<Vec<u8>>()
+                })
+                .collect();
+            let header = pb::ReferenceHeader {
+                step,
+                rank,
+                width: 24,
+                height: 24,
+                camera: Some(insitu_proto::convert::camera_to_pb(&camera)),
+                view_angles_deg: angles.clone(),
+                total_bytes: bytes.len() as u64,
+                opacity: true,
+                covers: Vec::new(),
+            };
+            (header, Bytes::from(bytes))
+        });
+        let dims = |d: [usize; 3]| pb::Dims3 {
+            x: d[0] as u32,
+            y: d[1] as u32,
+            z: d[2] as u32,
+        };
+        Finished {
+            product: Product {
+                vdi_header: pb::VdiHeader {
+                    step,
+                    rank,
+                    world_size: world,
+                    resolution: 32,
+                    gamma: 0.01,
+                    codec: pb::Codec::Zstd as i32,
+                    total_bytes: file.len() as u64,
+                    tau_secs: 0.1 * f64::from(rank + 1),
+                    global_dims: Some(dims(GLOBAL)),
+                    brick_offset: Some(dims(b.offset)),
+                    brick_dims: Some(dims(b.dims)),
+                    with_references: frames,
+                    ..Default::default()
+                },
+                vdi: Bytes::from(file),
+                references,
+                spool: vec![(format!("s{step}r{rank}"), 10)],
+                limit_retries: (1, 0.5),
+            },
+            vdi,
+        }
+    }
+
+    /// A part is the composition of its ranks, VDI and frames, and says so: its header and
+    /// file name every rank and their box, σ is its file, τ the slowest rank's, and it
+    /// carries every rank's spool entry and retries.
+    #[test]
+    fn a_part_is_its_ranks_composed_and_names_them() {
+        let bricks = grid_bricks(GLOBAL, [2, 1, 2]).unwrap();
+        let group: Vec<Finished> = bricks
+            .iter()
+            .enumerate()
+            .map(|(k, b)| finished(3, k as u32, 4, *b, true))
+            .collect();
+        let whole_box = Brick {
+            offset: [0; 3],
+            dims: GLOBAL,
+        };
+        let part = compose_part(&group, whole_box).unwrap();
+        let h = &part.vdi_header;
+        assert_eq!((h.rank, h.covers.clone()), (0, vec![0, 1, 2, 3]));
+        assert_eq!(h.total_bytes, part.vdi.len() as u64);
+        assert!((h.tau_secs - 0.4).abs() < 1e-12);
+        assert_eq!(
+            h.brick_dims.as_ref().map(|d| [d.x, d.y, d.z]),
+            Some([17, 13, 11])
+        );
+        assert_eq!(part.spool.len(), 4);
+        assert_eq!(part.limit_retries.0, 4);
+        let (vdi, provenance) =
+            codec::decode_with_provenance(&part.vdi, &Default::default()).unwrap();
+        let vdis: Vec<&Vdi> = group.iter().map(|f| &f.vdi).collect();
+        assert_eq!(vdi, compose_vdis(&vdis).unwrap());
+        let p = provenance.unwrap();
+        assert_eq!(
+            (p.covers, p.placement),
+            (vec![0, 1, 2, 3], Some((GLOBAL, whole_box)))
+        );
+        // The frames: the ranks' composited per view, as the viz-node would.
+        let (rh, bytes) = part.references.as_ref().unwrap();
+        assert_eq!(
+            (rh.covers.clone(), rh.total_bytes),
+            (vec![0, 1, 2, 3], bytes.len() as u64)
+        );
+        let camera = camera_from_pb(rh.camera.as_ref().unwrap()).unwrap();
+        for (v, &angle) in rh.view_angles_deg.iter().enumerate() {
+            let per = 24 * 24 * 16;
+            let (got, got_opacity) = rgba_frame(&bytes[v * per..(v + 1) * per], (24, 24)).unwrap();
+            let frames: Vec<(Image, Vec<f32>)> = group
+                .iter()
+                .map(|f| {
+                    let b = &f.product.references.as_ref().unwrap().1;
+                    rgba_frame(&b[v * per..(v + 1) * per], (24, 24)).unwrap()
+                })
+                .collect();
+            let bf: Vec<BrickFrame> = frames
+                .iter()
+                .zip(&group)
+                .map(|((i, o), f)| BrickFrame {
+                    image: i,
+                    opacity: o,
+                    world_box: f.vdi.meta().volume_box,
+                })
+                .collect();
+            let (want, want_opacity) = compose_frames(&camera.orbit_y(angle), &bf).unwrap();
+            assert_eq!((got, got_opacity), (want, want_opacity), "view {v}");
+        }
+        // Ranks with frames beside ranks without cannot be one part.
+        let mixed = vec![
+            finished(3, 0, 4, bricks[0], true),
+            finished(3, 1, 4, bricks[1], false),
+        ];
+        let err = compose_part(&mixed, bricks[0]).unwrap_err();
+        assert!(err.to_string().contains("1 of 2 ranks"), "{err}");
+    }
+
+    fn gather(wait_secs: f64) -> Gather {
+        Gather::new(&HostConfig {
+            compose: true,
+            wait_secs,
+        })
+    }
+
+    fn ranks_of(due: &[Vec<Finished>]) -> Vec<Vec<u32>> {
+        due.iter()
+            .map(|s| s.iter().map(|f| f.product.vdi_header.rank).collect())
+            .collect()
+    }
+
+    /// A step's ranks ship once every rank received is finished or settled; a rank served at
+    /// the last step and not received is waited for until `wait_secs` after the last
+    /// progress; closing ships everything.
+    #[test]
+    fn a_step_ships_when_its_received_ranks_are_in_or_its_wait_is_over() {
+        let b = grid_bricks(GLOBAL, [2, 1, 1]).unwrap();
+        let g = gather(0.2);
+        let t0 = Instant::now();
+        g.received(0, 0, 2);
+        g.received(0, 1, 2);
+        assert!(g.finish(finished(0, 0, 2, b[0], false)).is_none());
+        let (due, next, _) = g.take_due(Instant::now());
+        assert!(due.is_empty() && next.is_none(), "rank 1 was received");
+        assert!(g.finish(finished(0, 1, 2, b[1], false)).is_none());
+        let (due, _, _) = g.take_due(Instant::now());
+        assert_eq!(ranks_of(&due), [[0, 1]]);
+        // Step 1: rank 1 served at step 0 but not received; rank 0 waits for it, then ships.
+        g.received(1, 0, 2);
+        assert!(g.finish(finished(1, 0, 2, b[0], false)).is_none());
+        let (due, next, _) = g.take_due(Instant::now());
+        assert!(due.is_empty());
+        let deadline = next.unwrap();
+        assert!(deadline > t0 && deadline <= Instant::now() + Duration::from_secs_f64(0.2));
+        let (due, _, _) = g.take_due(deadline);
+        assert_eq!(ranks_of(&due), [[0]]);
+        // Step 2: rank 1 dropped from the queue settles it without a VDI.
+        g.received(2, 0, 2);
+        g.received(2, 1, 2);
+        g.settled(2, 1);
+        assert!(g.finish(finished(2, 0, 2, b[0], false)).is_none());
+        let (due, _, _) = g.take_due(Instant::now());
+        assert_eq!(ranks_of(&due), [[0]]);
+        // Closing ships what waits.
+        g.received(3, 0, 2);
+        g.received(3, 1, 2);
+        assert!(g.finish(finished(3, 1, 2, b[1], false)).is_none());
+        g.close();
+        let (due, _, finished_all) = g.take_due(Instant::now());
+        assert_eq!((ranks_of(&due), finished_all), (vec![vec![1]], true));
+    }
+
+    /// What ships as it is: a world of one, a step from the spool, a rank never announced,
+    /// every rank with composition off.
+    #[test]
+    fn ranks_that_cannot_wait_for_their_host_pass_through() {
+        let b = grid_bricks(GLOBAL, [2, 1, 1]).unwrap();
+        let whole = Brick {
+            offset: [0; 3],
+            dims: GLOBAL,
+        };
+        let g = gather(1.0);
+        assert!(g.finish(finished(0, 0, 1, whole, false)).is_some());
+        g.received(1, 0, 2);
+        g.alone(1, 0);
+        assert!(g.finish(finished(1, 0, 2, b[0], false)).is_some());
+        assert!(g.finish(finished(1, 1, 2, b[1], false)).is_some());
+        let off = Gather::new(&HostConfig {
+            compose: false,
+            wait_secs: 1.0,
+        });
+        off.received(0, 0, 2);
+        assert!(off.finish(finished(0, 0, 2, b[0], false)).is_some());
+    }
 }

@@ -397,7 +397,7 @@ fn dims_to_pb(d: [usize; 3]) -> pb::Dims3 {
 }
 
 /// RGB and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel).
-fn rgba_f32_le<'a>(image: &'a Image, alpha: &'a [f32]) -> impl Iterator<Item = u8> + 'a {
+pub(crate) fn rgba_f32_le<'a>(image: &'a Image, alpha: &'a [f32]) -> impl Iterator<Item = u8> + 'a {
     image
         .pixels()
         .iter()

@@ -13,6 +13,11 @@
 //! last push returning to the composed step stored and scored. Per run: the peak RSS of each
 //! daemon, and the reduction in bytes into the viz-node.
 //!
+//! First it measures the constants of the scale model: bytes per supersegment, compose time
+//! per supersegment at each level (64 sub-VDIs of the field, one level and 8 hosts of 8), the
+//! viz-node's ingest of 1-rank VDIs over 8 streams (files written and fsync'd, index rows
+//! committed), the index's rows per second alone, and the disk's fsync'd write speed.
+//!
 //! `cargo bench -p insitu-e2e --bench scale`. Environment: `INSITU_SCALE` a comma list of
 //! RANKSxNODES runs (default `16x1,64x4,256x8,256x1`), `INSITU_SCALE_STEPS` steps per run (3),
 //! `INSITU_SCALE_R` the VDI resolution (256), `INSITU_SCALE_N` the grid side (256). The field
@@ -21,9 +26,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use insitu_client::{f32_bytes, ScalarType, SimClient, Step};
+use insitu_core::compose::compose_vdis;
+use insitu_core::vdi::codec::{encode, Codec};
+use insitu_core::vdi::generate::generate;
 use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::{GrayScott, GrayScottParams};
-use insitu_core::TransferFunction;
+use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Vdi, VdiParams, Volume};
 use insitu_e2e::{rt, start_viz, Daemon};
 use insitu_viz_node::store::{Entry, StepEntry};
 use std::path::{Path, PathBuf};
@@ -43,14 +51,15 @@ fn work_dir() -> PathBuf {
     d
 }
 
-/// `steps` fields of Gray–Scott `n³` (V), 500 steps in and 20 apart, cached on disk.
+/// `steps` fields of Gray–Scott `n³` (V), 2000 steps in (the pattern fills most of the grid)
+/// and 20 apart, cached on disk.
 fn fields(n: usize, steps: usize) -> Vec<Vec<f32>> {
-    let path = work_dir().join(format!("gray_scott_{n}x{n}x{n}x{steps}_float32.raw"));
+    let path = work_dir().join(format!("gray_scott_2000_{n}x{n}x{n}x{steps}_float32.raw"));
     let len = n * n * n;
     if !path.exists() {
         eprintln!("simulating Gray–Scott {n}³ (once) …");
         let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
-        sim.advance(500);
+        sim.advance(2000);
         let mut bytes = Vec::with_capacity(len * 4 * steps);
         for _ in 0..steps {
             bytes.extend(f32_bytes(&sim.v_volume().data()));
@@ -147,6 +156,16 @@ fn host_compose_secs(rt: &tokio::runtime::Runtime, addrs: &[String]) -> f64 {
     })
 }
 
+/// The runs' transfer function: the default ramp over the first step's range.
+fn tf_of(data: &[Vec<f32>]) -> TransferFunction {
+    let (lo, hi) = data[0]
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    TransferFunction::default_named(lo, hi).0
+}
+
 fn run(n: usize, r: u32, ranks: usize, nodes: usize, two_level: bool, data: &[Vec<f32>]) -> Run {
     let label = format!(
         "{ranks} ranks / {nodes} nodes, {}",
@@ -156,8 +175,7 @@ fn run(n: usize, r: u32, ranks: usize, nodes: usize, two_level: bool, data: &[Ve
     let dir = tempfile::tempdir_in(work_dir()).unwrap();
     let rec = dir.path().join("rec");
     let tf_path = dir.path().join("tf.json");
-    let (tf, _) = TransferFunction::default_named(0.0, 0.5);
-    std::fs::write(&tf_path, serde_json::to_string(&tf).unwrap()).unwrap();
+    std::fs::write(&tf_path, serde_json::to_string(&tf_of(data)).unwrap()).unwrap();
     let global = [n; 3];
     let split = split_ranks(ranks, global).unwrap();
     let bricks = grid_bricks(global, split).unwrap();
@@ -331,6 +349,172 @@ fn bytes_in(run: &Run) -> f64 {
         / run.steps.len() as f64
 }
 
+/// Sub-VDIs of `ranks` bricks of the `n³` field `f` at resolution `r` under `tf`.
+fn sub_vdis(f: &[f32], n: usize, r: u32, ranks: usize, tf: &TransferFunction) -> Vec<Vdi> {
+    let global = [n; 3];
+    let whole = Volume::new(global, glam::Vec3::ONE, f.to_vec()).unwrap();
+    let camera = Camera::default_for_box(&whole.world_box());
+    let params = VdiParams {
+        resolution: r,
+        gamma: 0.013,
+    };
+    grid_bricks(global, split_ranks(ranks, global).unwrap())
+        .unwrap()
+        .iter()
+        .map(|b| {
+            let brick = whole.brick(b).unwrap();
+            let rc = Raycaster::new(&brick, tf, RaycastParams::default()).unwrap();
+            generate(&rc, &camera, params, tf.identity_hash(), "scale").unwrap()
+        })
+        .collect()
+}
+
+/// The constants of the scale model (docs/scale.md), printed.
+fn constants(data: &[Vec<f32>], n: usize, r: u32) {
+    println!("\nconstants (Gray–Scott {n}³, r {r}, zstd)");
+    let parts = sub_vdis(&data[0], n, r, 64, &tf_of(data));
+    let refs: Vec<&Vdi> = parts.iter().collect();
+    let supersegments: usize = parts.iter().map(|v| v.supersegments().len()).sum();
+    let best_of = |mut work: Box<dyn FnMut() -> Vdi>| {
+        (0..5)
+            .map(|_| {
+                let t = Instant::now();
+                std::hint::black_box(work());
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let one = best_of(Box::new(|| compose_vdis(&refs).unwrap()));
+    let hosts: Vec<Vdi> = refs.chunks(8).map(|h| compose_vdis(h).unwrap()).collect();
+    let host = best_of(Box::new(|| compose_vdis(&refs[..8]).unwrap())) * 8.0;
+    let host_refs: Vec<&Vdi> = hosts.iter().collect();
+    let top = best_of(Box::new(|| compose_vdis(&host_refs).unwrap()));
+    let composed = compose_vdis(&refs).unwrap();
+    let file = encode(&composed, Codec::Zstd).unwrap();
+    let per_rank: usize = parts
+        .iter()
+        .map(|v| encode(v, Codec::Zstd).unwrap().len())
+        .sum();
+    let per_host: usize = hosts
+        .iter()
+        .map(|v| encode(v, Codec::Zstd).unwrap().len())
+        .sum();
+    let ns = |secs: f64| secs * 1e9 / supersegments as f64;
+    println!(
+        "  {supersegments} supersegments in 64 sub-VDIs: {:.2} B each in the composed file ({} B); the 64 files {} B, 8 host parts {} B",
+        file.len() as f64 / supersegments as f64,
+        file.len(),
+        per_rank,
+        per_host
+    );
+    println!(
+        "  compose, one level (64 parts): {:.1} ms, {:.1} ns per supersegment; hosts (8 × 8): {:.1} ms in all, {:.1} ns; viz-node over 8 host parts: {:.1} ms, {:.1} ns",
+        one * 1e3,
+        ns(one),
+        host * 1e3,
+        ns(host),
+        top * 1e3,
+        ns(top)
+    );
+    ingest();
+}
+
+/// The viz-node's ingest of 256 one-rank VDIs of about 1 MB over 8 streams, the index's rows
+/// per second alone, and the disk's fsync'd writes, printed.
+fn ingest() {
+    use insitu_proto::pb::viz_client::VizClient;
+    use insitu_proto::{chunk, pb, transport};
+    let dir = tempfile::tempdir_in(work_dir()).unwrap();
+    // About 1 MB: a 96³ blob field's VDI at r 512, stored uncompressed.
+    let v = Volume::from_fn([96; 3], |x, y, z| {
+        let d = [x, y, z].map(|c| c as f32 - 48.0);
+        (1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() / 40.0).max(0.0)
+    })
+    .unwrap();
+    let (tf, _) = TransferFunction::default_named(0.0, 1.0);
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+    let params = VdiParams {
+        resolution: 512,
+        gamma: 0.05,
+    };
+    let vdi = generate(
+        &rc,
+        &Camera::default_for_box(&v.world_box()),
+        params,
+        tf.identity_hash(),
+        "ingest",
+    )
+    .unwrap();
+    let file = bytes::Bytes::from(encode(&vdi, Codec::None).unwrap());
+    let (count, streams) = (256usize, 8usize);
+    let viz = start_viz(&dir.path().join("rec"), "127.0.0.1:0", &[], dir.path());
+    let rt = rt();
+    let secs = rt.block_on(async {
+        let channel = transport::connect(&transport::uri(&viz.addr))
+            .await
+            .unwrap();
+        let t = Instant::now();
+        let tasks: Vec<_> = (0..streams)
+            .map(|s| {
+                let mut c = VizClient::new(channel.clone())
+                    .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+                let file = file.clone();
+                tokio::spawn(async move {
+                    for step in (s..count).step_by(streams) {
+                        let header = pb::VdiHeader {
+                            step: step as u64,
+                            world_size: 1,
+                            resolution: 512,
+                            gamma: 0.05,
+                            codec: pb::Codec::None as i32,
+                            total_bytes: file.len() as u64,
+                            ..Default::default()
+                        };
+                        let msgs = chunk::split::<pb::VdiChunk>(header, file.clone());
+                        c.ship_vdi(tokio_stream::iter(msgs)).await.unwrap();
+                    }
+                })
+            })
+            .collect();
+        for t in tasks {
+            t.await.unwrap();
+        }
+        t.elapsed().as_secs_f64()
+    });
+    viz.terminate();
+    let bytes = (count * file.len()) as f64;
+    println!(
+        "  viz-node ingest: {count} VDIs of {:.2} MB over {streams} streams in {secs:.2} s: {:.2} GB/s, {:.0} rows/s",
+        file.len() as f64 / 1e6,
+        bytes / secs / 1e9,
+        count as f64 / secs
+    );
+    let db = insitu_viz_node::index::IndexDb::open(dir.path(), true).unwrap();
+    let rows = 2000u64;
+    let t = Instant::now();
+    for k in 0..rows {
+        db.put_entry(&Entry::empty(k, 0)).unwrap();
+    }
+    println!(
+        "  index alone: {:.0} rows/s (one committed transaction per row, synchronous = FULL)",
+        rows as f64 / t.elapsed().as_secs_f64()
+    );
+    let block = vec![7u8; 64 << 20];
+    let t = Instant::now();
+    for k in 0..4 {
+        insitu_core::file::write_atomic(
+            &dir.path().join(format!("block-{k}")),
+            &block,
+            insitu_core::file::Durability::PowerLoss,
+        )
+        .unwrap();
+    }
+    println!(
+        "  disk: 4 × 64 MiB written and fsync'd at {:.2} GB/s",
+        4.0 * block.len() as f64 / t.elapsed().as_secs_f64() / 1e9
+    );
+}
+
 fn main() {
     let n: usize = env_or("INSITU_SCALE_N", 256);
     let r: u32 = env_or("INSITU_SCALE_R", 256);
@@ -338,6 +522,7 @@ fn main() {
     let runs: String = env_or("INSITU_SCALE", "16x1,64x4,256x8,256x1".to_owned());
     insitu_e2e::ensure_built();
     let data = fields(n, steps);
+    constants(&data, n, r);
     println!("Gray–Scott {n}³, r {r}, {steps} steps per run, reference frames 2 views of 128² every step");
     for spec in runs.split(',') {
         let (ranks, nodes) = spec

@@ -305,7 +305,7 @@ fn two_hosts_whose_ranks_are_not_boxes_store_the_one_level_steps() {
 
 /// A step of `world_size` ranks over z-slabs of a 16×16×(9·world − …) grid: rank `k` owns
 /// z ∈ [8k, 8k + 8], all values `value(k)`.
-fn slab(step: u64, rank: u32, world_size: u32, value: f32) -> Step {
+pub(crate) fn slab(step: u64, rank: u32, world_size: u32, value: f32) -> Step {
     let nz = 8 * world_size + 1;
     Step {
         step,
