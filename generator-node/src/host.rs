@@ -8,9 +8,10 @@
 //! supersegments bit for bit, the frames within rounding).
 //!
 //! A step's parts ship once every rank of it that this node received is finished or settled
-//! without a VDI (dropped, failed), and every rank the node served at its previous step has
-//! been received, or `wait_secs` after the step's last progress when one has not: a rank that
-//! comes later ships alone, in a part of its own, and the viz-node composes whatever parts
+//! without a VDI (dropped, failed), and every rank the node served at its previous step (at
+//! its first step: every rank of the world) has been received, or `wait_secs` after the
+//! step's last progress when one has not: a rank that comes later ships alone, in a part of
+//! its own, and the viz-node composes whatever parts
 //! hold the world's ranks. Steps found in the spool after a restart ship rank by rank, so that
 //! a part the viz-node stored before the crash is acknowledged rank by rank, never refused as
 //! a second holder of its ranks. Ranks whose VDIs cannot be composed together (they differ in
@@ -65,6 +66,8 @@ struct State {
 }
 
 struct Pending {
+    /// Ranks in the step's world.
+    world_size: u32,
     /// Ranks received (or being received).
     received: BTreeSet<u32>,
     /// Ranks finished or settled without a VDI.
@@ -75,8 +78,9 @@ struct Pending {
 }
 
 impl Pending {
-    fn new(now: Instant) -> Self {
+    fn new(world_size: u32, now: Instant) -> Self {
         Self {
+            world_size,
             received: BTreeSet::new(),
             settled: BTreeSet::new(),
             done: Vec::new(),
@@ -117,7 +121,10 @@ impl Gather {
         }
         let now = Instant::now();
         let mut s = self.state();
-        let p = s.steps.entry(step).or_insert_with(|| Pending::new(now));
+        let p = s
+            .steps
+            .entry(step)
+            .or_insert_with(|| Pending::new(world_size, now));
         p.received.insert(rank);
         p.progress = now;
     }
@@ -207,8 +214,15 @@ impl Gather {
         if !p.received.is_subset(&p.settled) {
             return Due::Wait;
         }
+        // Before a step has shipped, the node does not know which ranks it serves: it waits
+        // for the whole world (a node serving fewer waits once, on its first step).
+        let all_in = if served.is_empty() {
+            p.received.len() >= p.world_size as usize
+        } else {
+            served.is_subset(&p.received)
+        };
         let deadline = p.progress + self.wait;
-        if served.is_subset(&p.received) || now >= deadline {
+        if all_in || now >= deadline {
             Due::Ship
         } else {
             Due::Until(deadline)
@@ -700,6 +714,14 @@ mod tests {
         g.settled(2, 1);
         assert!(g.finish(finished(2, 0, 2, b[0], false)).is_none());
         let (due, _, _) = g.take_due(Instant::now());
+        assert_eq!(ranks_of(&due), [[0]]);
+        // A node's first step waits for the whole world, then ships what it has.
+        let first = gather(0.2);
+        first.received(0, 0, 2);
+        assert!(first.finish(finished(0, 0, 2, b[0], false)).is_none());
+        let (due, next, _) = first.take_due(Instant::now());
+        assert!(due.is_empty() && next.is_some());
+        let (due, _, _) = first.take_due(next.unwrap());
         assert_eq!(ranks_of(&due), [[0]]);
         // Closing ships what waits.
         g.received(3, 0, 2);

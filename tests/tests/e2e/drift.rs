@@ -105,8 +105,7 @@ fn no_stored_step_exceeds_the_hard_limits() {
         "{summary}"
     );
     assert!(limited.steps.len() >= steps / 2, "{summary}");
-    assert!(
-        summary["limit_retries"].as_u64() >= Some(steps as u64 / 2),
-        "{summary}"
-    );
+    // The limits acted on at least half the steps: made again coarser, or refused.
+    let retries = summary["limit_retries"].as_u64().unwrap_or(0);
+    assert!(retries + failed >= steps as u64 / 2, "{summary}");
 }

@@ -784,6 +784,8 @@ fn a_host_killed_holding_composed_and_uncomposed_ranks_loses_nothing() {
     for p in &spooled {
         std::fs::copy(snapshot.join(p.file_name().unwrap()), p).unwrap();
     }
+    // Restarted with the default wait: its first step waits at most 2 s for the world.
+    let cfg = cfg.replace("wait_secs = 600\n", "");
     let g = crate::common::generator(&cfg, tmp.path(), &[]);
     push(&g.addr, vec![slab(2, 3, 4, 4.0)]);
     let s = crate::common::flush(&g.addr);

@@ -136,7 +136,9 @@ impl Recorded {
         let driver = start_driver()?;
         let tmp = tempfile::tempdir().unwrap();
         let (v, url) = viz_with_http(&tmp.path().join("rec"), tmp.path(), &[]);
-        let g = generator(&small_config(&v.addr, "block", 16), tmp.path(), &[]);
+        // Rank by rank (the node does not compose its ranks), so each brick can be selected.
+        let cfg = small_config(&v.addr, "block", 16) + "[host]\ncompose = false\n";
+        let g = generator(&cfg, tmp.path(), &[]);
         replay(&g, ranks, steps, sample_every);
         Some(Self {
             driver,
