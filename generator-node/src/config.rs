@@ -147,6 +147,10 @@ pub struct Config {
     /// The viz-node, `host:port` (`https://` with `tls.ca_file`); unset: VDIs are generated,
     /// counted and discarded.
     pub viz: Option<String>,
+    /// Further viz-nodes sharing the recording by step (docs/scale.md): with `n` in all
+    /// (`viz` first), step `s` goes to the `s mod n`-th, every rank and part of it to the
+    /// same one. The world's scene is agreed with `viz`.
+    pub viz_shards: Vec<String>,
     /// File holding the bearer token (else the `INSITU_TOKEN` environment variable, if set);
     /// used both to check callers and to call the viz-node.
     pub token_file: Option<PathBuf>,
@@ -235,6 +239,7 @@ impl Default for Config {
             insecure: false,
             tls: TlsFiles::default(),
             viz: None,
+            viz_shards: Vec::new(),
             token_file: None,
             max_step_bytes: 4 << 30,
             queue: QueueConfig {
@@ -377,6 +382,9 @@ impl Config {
         }
         if !(self.max_backoff_secs.is_finite() && self.max_backoff_secs > 0.0) {
             return Err(invalid("max_backoff_secs", "must be finite and > 0"));
+        }
+        if !self.viz_shards.is_empty() && self.viz.is_none() {
+            return Err(invalid("viz_shards", "needs viz, the first shard"));
         }
         if !(self.host.wait_secs.is_finite() && (0.0..=3600.0).contains(&self.host.wait_secs)) {
             return Err(invalid("host.wait_secs", "must be seconds in [0, 3600]"));

@@ -124,7 +124,7 @@ pub struct RunningNode {
     server: ServerTask,
     worker: JoinHandle<()>,
     host: JoinHandle<()>,
-    shipper: Option<JoinHandle<()>>,
+    shippers: Vec<JoinHandle<()>>,
     tuner: Option<JoinHandle<()>>,
     drain_timeout: Duration,
 }
@@ -148,6 +148,12 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         cfg.insecure,
     )?;
     let viz = security.peer_for("viz", cfg.viz.as_deref())?;
+    let mut viz_shards: Vec<insitu_proto::peer::Peer> = viz.iter().cloned().collect();
+    for addr in &cfg.viz_shards {
+        if let Some(p) = security.peer_for("viz", Some(addr))? {
+            viz_shards.push(p);
+        }
+    }
     let tuner_peer = security.peer_for("tuner", cfg.tuner.as_deref())?;
     let choice = cfg.backend;
     let backend = select_backend(choice).await?;
@@ -181,17 +187,22 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         stats,
         max_step_bytes: cfg.max_step_bytes,
         shipping: cfg.viz.is_some(),
-        outbox: Arc::new(BoundedQueue::new(
-            cfg.outbox.max_items,
-            cfg.outbox.max_bytes,
-            cfg.outbox.policy,
-        )),
+        outboxes: (0..viz_shards.len().max(1))
+            .map(|_| {
+                Arc::new(BoundedQueue::new(
+                    cfg.outbox.max_items,
+                    cfg.outbox.max_bytes,
+                    cfg.outbox.policy,
+                ))
+            })
+            .collect(),
         backend,
         lane: tokio::sync::Mutex::new(()),
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         refusals: Default::default(),
         composing: Default::default(),
         viz: viz.clone(),
+        viz_shards: viz_shards.clone(),
         begun: Default::default(),
         spool,
         epoch: new_epoch(),
@@ -205,10 +216,14 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let worker = tokio::spawn(worker(shared.clone()));
     let host = tokio::spawn(crate::host::run(shared.clone()).instrument(info_span!("host")));
     requeue(&shared, recovered);
-    let shipper = viz.map(|viz| {
-        let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
-        tokio::spawn(s.run(shared.clone()).instrument(info_span!("shipper")))
-    });
+    let shippers: Vec<_> = viz_shards
+        .into_iter()
+        .enumerate()
+        .map(|(k, viz)| {
+            let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
+            tokio::spawn(s.run(shared.clone(), k).instrument(info_span!("shipper", shard = k)))
+        })
+        .collect();
     let tuner = tuner.map(|(peer, tuning, summaries)| {
         let backoff = Duration::from_secs_f64(cfg.max_backoff_secs);
         let link =
@@ -225,7 +240,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         server,
         worker,
         host,
-        shipper,
+        shippers,
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
@@ -440,7 +455,8 @@ fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_s
 pub(crate) async fn to_outbox(shared: &Shared, product: work::Product) {
     let n = product.bytes();
     let ranks = product.ranks();
-    match shared.outbox.push(product, n).await {
+    let outbox = &shared.outboxes[shared.shard_of(product.vdi_header.step)];
+    match outbox.push(product, n).await {
         Ok(dropped) if !dropped.is_empty() => {
             for d in &dropped {
                 info!(
@@ -497,9 +513,11 @@ impl RunningNode {
             host.abort();
             let _ = host.await;
         }
-        self.shared.outbox.close();
+        for outbox in &self.shared.outboxes {
+            outbox.close();
+        }
         let mut shipper_done = true;
-        if let Some(mut shipper) = self.shipper {
+        for mut shipper in self.shippers {
             if tokio::time::timeout_at(deadline, &mut shipper)
                 .await
                 .is_err()

@@ -67,7 +67,10 @@ impl GeneratorService {
     /// has decided (a step not composed yet is asked again at the next flush). `None` when
     /// all composed, or the viz-node cannot say now.
     async fn composition_errors(&self, ranks: &[u32]) -> Option<String> {
-        let viz = self.0.viz.as_ref()?;
+        let shards = &self.0.viz_shards;
+        if shards.is_empty() {
+            return None;
+        }
         let asked: Vec<u64> = {
             let composing = self.0.composing.lock().unwrap_or_else(|e| e.into_inner());
             composing
@@ -79,7 +82,18 @@ impl GeneratorService {
         if asked.is_empty() {
             return None;
         }
-        let outcomes = crate::scene::step_outcomes(viz, asked).await.ok()?;
+        // Each step from the shard it went to.
+        let mut outcomes = Vec::new();
+        for (k, viz) in shards.iter().enumerate() {
+            let steps: Vec<u64> = asked
+                .iter()
+                .copied()
+                .filter(|&s| self.0.shard_of(s) == k)
+                .collect();
+            if !steps.is_empty() {
+                outcomes.extend(crate::scene::step_outcomes(viz, steps).await.ok()?);
+            }
+        }
         let mut errors = Vec::new();
         let mut composing = self.0.composing.lock().unwrap_or_else(|e| e.into_inner());
         for o in outcomes {

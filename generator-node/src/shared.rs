@@ -23,8 +23,9 @@ pub struct Shared {
     pub max_step_bytes: u64,
     /// Whether a viz-node is configured.
     pub shipping: bool,
-    /// Finished VDIs waiting to be shipped.
-    pub outbox: Arc<BoundedQueue<crate::work::Product>>,
+    /// Finished VDIs waiting to be shipped, one outbox per viz-node shard (one without
+    /// shards): step `s` waits in the `s mod n`-th.
+    pub outboxes: Vec<Arc<BoundedQueue<crate::work::Product>>>,
     /// Where VDIs and reference frames are made.
     pub backend: insitu_core::Backend,
     /// Production steps and the tuner's trials take turns on this lane.
@@ -33,8 +34,10 @@ pub struct Shared {
     pub tuning: Option<Arc<crate::tuning::Tuning>>,
     /// The viz-node's refusals per rank, until a flush of that rank's client reports them.
     pub refusals: crate::refusals::Refusals,
-    /// The viz-node, when VDIs are shipped (asked how composing steps came out).
+    /// The viz-node, when VDIs are shipped (where the world's scene is agreed).
     pub viz: Option<insitu_proto::peer::Peer>,
+    /// Every viz-node shard, `viz` first (asked how composing their steps came out).
+    pub viz_shards: Vec<insitu_proto::peer::Peer>,
     /// Steps of several ranks whose VDIs this node shipped, with those ranks, until a flush
     /// of each rank's client has heard how composing the step came out.
     pub composing:
@@ -83,7 +86,7 @@ impl Shared {
             queue_limit: self.queue.max_items() as u32,
             queue_bytes: self.queue.bytes(),
             queue_policy: crate::queue::policy_to_pb(self.queue.policy()) as i32,
-            outbox_depth: self.outbox.len() as u32,
+            outbox_depth: self.outboxes.iter().map(|o| o.len()).sum::<usize>() as u32,
             steps_received: c.received,
             steps_generated: c.generated,
             steps_shipped: c.shipped,
@@ -106,6 +109,12 @@ impl Shared {
             host_ranks: c.host_ranks,
             host_compose_secs: c.host_compose_secs,
         }
+    }
+
+    /// The shard (index into [`Self::outboxes`] and [`Self::viz_shards`]) that step `step`
+    /// goes to: `step mod n`.
+    pub fn shard_of(&self, step: u64) -> usize {
+        (step % self.outboxes.len().max(1) as u64) as usize
     }
 
     /// Removes settled steps' files (name, bytes) from the spool (no-op without one).

@@ -132,11 +132,13 @@ impl Shipper {
         }
     }
 
-    /// Ships items until the outbox is closed and empty; a settled item leaves the spool, and
-    /// a step of several ranks is kept for the flushes that will ask how composing it went.
-    pub async fn run(mut self, shared: Arc<crate::shared::Shared>) {
+    /// Ships the items of outbox `shard` until it is closed and empty; a settled item leaves
+    /// the spool, and a step of several ranks is kept for the flushes that will ask how
+    /// composing it went.
+    pub async fn run(mut self, shared: Arc<crate::shared::Shared>, shard: usize) {
         let stats = shared.stats.clone();
-        while let Some(p) = shared.outbox.pop().await {
+        let outbox = shared.outboxes[shard].clone();
+        while let Some(p) = outbox.pop().await {
             let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);
             let result = self.ship(&p, &stats).instrument(span).await;
             shared.unspool(&p.spool);

@@ -107,6 +107,9 @@ pub struct Config {
     /// The viz-node, `host:port`, whose quality reports are watched; unset: only σ and τ of
     /// production steps are watched.
     pub viz: Option<String>,
+    /// Further viz-nodes sharing the recording by step (docs/scale.md): their reports are
+    /// watched too (needs `viz`).
+    pub viz_shards: Vec<String>,
     /// The utility ν: `size:BYTES`, `time:SECS`, `size:BYTES,time:SECS` or `quality:DB`.
     /// For a world of ranks σ is a step's VDIs summed over ranks and τ the slowest rank's.
     pub utility: String,
@@ -143,6 +146,7 @@ impl Default for Config {
             token_file: None,
             state_dir: PathBuf::from("tuner-state"),
             viz: None,
+            viz_shards: Vec::new(),
             utility: "size:1MB".into(),
             strategy: Strategy::Adaptive,
             grid: GridConfig::default(),
@@ -208,6 +212,9 @@ impl Config {
             UtilitySpec::parse(&self.utility).map_err(|e| invalid("utility", e.to_string()))?;
         if !(0.0..0.5).contains(&self.headroom) {
             return Err(invalid("headroom", "must be in [0, 0.5)"));
+        }
+        if !self.viz_shards.is_empty() && self.viz.is_none() {
+            return Err(invalid("viz_shards", "needs viz, the first shard"));
         }
         let plan = spec.scaled(1.0 - self.headroom);
         let target = match self.strategy {

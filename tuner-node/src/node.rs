@@ -65,7 +65,10 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
         &cfg.tls,
         cfg.insecure,
     )?;
-    let viz = security.peer_for("viz", cfg.viz.as_deref())?;
+    let mut watched = Vec::new();
+    for addr in cfg.viz.iter().chain(&cfg.viz_shards) {
+        watched.extend(security.peer_for("viz", Some(addr))?);
+    }
     let state = match State::load(&cfg.state_dir)? {
         Some(s) => {
             info!(
@@ -96,7 +99,8 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
     let addr = listener.local_addr().map_err(listen)?;
     let (engine, events) = Engine::new(cfg, resolved, state, crate::tune::tune);
     let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
-    if let Some(viz) = viz {
+    // Every shard's reports: each step's q comes from the shard that stored it.
+    for viz in watched {
         tasks.push(tokio::spawn(watch(viz, engine.clone())));
     }
     let svc = tonic::service::interceptor::InterceptedService::new(
