@@ -221,7 +221,10 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         .enumerate()
         .map(|(k, viz)| {
             let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
-            tokio::spawn(s.run(shared.clone(), k).instrument(info_span!("shipper", shard = k)))
+            tokio::spawn(
+                s.run(shared.clone(), k)
+                    .instrument(info_span!("shipper", shard = k)),
+            )
         })
         .collect();
     let tuner = tuner.map(|(peer, tuning, summaries)| {

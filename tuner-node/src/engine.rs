@@ -71,6 +71,8 @@ pub struct Counters {
     pub corrections: u64,
     /// Tunings cut short for a newer characteristic step.
     pub tunings_superseded: u64,
+    /// Quality reports received (from every viz-node shard watched).
+    pub quality_reports: u64,
     /// Tunings that found no candidate within the budget on every characteristic step.
     pub tunings_infeasible: u64,
     /// Whether a tuning runs.
@@ -288,6 +290,7 @@ impl Engine {
             tunings_infeasible: c.tunings_infeasible,
             corrections: c.corrections,
             tunings_superseded: c.tunings_superseded,
+            quality_reports: c.quality_reports,
             sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
             tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
             q_target_db: match UtilitySpec::parse(&self.cfg.utility) {
@@ -840,7 +843,10 @@ impl Engine {
                     None => return,
                     Some(Event::Hello(conn, h)) => self.hello(conn, &h),
                     Some(Event::Summary(conn, s)) => l.summary(conn, s),
-                    Some(Event::Report(r)) => l.report(&r),
+                    Some(Event::Report(r)) => {
+                        self.counters().quality_reports += 1;
+                        l.report(&r);
+                    }
                     Some(Event::Gone(conn)) => {
                         if let Some(id) = self.hub.disconnect(conn) {
                             info!(node = %id, "node detached; its trials in flight fail, its held fields are gone");

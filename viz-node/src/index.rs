@@ -348,44 +348,49 @@ impl IndexDb {
     /// # Errors
     /// As [`Self::entries`].
     pub fn export_csv(&self) -> Result<String, StoreError> {
-        let mut out = String::from(
-            "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error\n",
-        );
-        let q = |q: Option<f64>| q.map_or_else(String::new, |q| q.to_string());
-        for e in self.entries()? {
-            out.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{},,{},\n",
-                e.step,
-                e.rank,
-                e.world_size,
-                e.pm_version,
-                e.resolution,
-                e.gamma,
-                e.sizing.sigma_bytes,
-                e.sizing.tau_secs,
-                q(e.quality.as_ref().map(|q| q.q_db.0)),
-                e.vdi.unwrap_or_default()
-            ));
-        }
-        for s in self.steps()? {
-            let missing: Vec<String> = s.missing.iter().map(u32::to_string).collect();
-            out.push_str(&format!(
-                "{},,{},{},{},{},{},{},{},{},{},{}\n",
-                s.step,
-                s.world_size,
-                s.pm_version,
-                s.resolution,
-                s.gamma,
-                s.sizing.sigma_bytes,
-                s.sizing.tau_secs,
-                q(s.quality.as_ref().map(|q| q.q_db.0)),
-                missing.join(" "),
-                s.vdi.unwrap_or_default(),
-                csv_field(s.error.as_deref().unwrap_or_default())
-            ));
-        }
-        Ok(out)
+        Ok(csv(&self.export()?))
     }
+}
+
+/// [`IndexDb::export_csv`] of rows read already (e.g. [`export_shards`]).
+pub fn csv(e: &Export) -> String {
+    let mut out = String::from(
+        "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error\n",
+    );
+    let q = |q: Option<f64>| q.map_or_else(String::new, |q| q.to_string());
+    for e in &e.entries {
+        out.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},,{},\n",
+            e.step,
+            e.rank,
+            e.world_size,
+            e.pm_version,
+            e.resolution,
+            e.gamma,
+            e.sizing.sigma_bytes,
+            e.sizing.tau_secs,
+            q(e.quality.as_ref().map(|q| q.q_db.0)),
+            e.vdi.as_deref().unwrap_or_default()
+        ));
+    }
+    for s in &e.steps {
+        let missing: Vec<String> = s.missing.iter().map(u32::to_string).collect();
+        out.push_str(&format!(
+            "{},,{},{},{},{},{},{},{},{},{},{}\n",
+            s.step,
+            s.world_size,
+            s.pm_version,
+            s.resolution,
+            s.gamma,
+            s.sizing.sigma_bytes,
+            s.sizing.tau_secs,
+            q(s.quality.as_ref().map(|q| q.q_db.0)),
+            missing.join(" "),
+            s.vdi.as_deref().unwrap_or_default(),
+            csv_field(s.error.as_deref().unwrap_or_default())
+        ));
+    }
+    out
 }
 
 /// `text` as one CSV field: quoted (quotes doubled) when it holds a comma, a quote or a line
@@ -404,8 +409,75 @@ fn csv_field(text: &str) -> String {
 /// # Errors
 /// [`StoreError::Corrupt`] when there is no index or it cannot be read.
 pub fn read(dir: &Path) -> Result<(Vec<Entry>, Vec<StepEntry>), StoreError> {
-    let db = IndexDb::open(dir, false)?;
-    Ok((db.entries()?, db.steps()?))
+    let shards = shards(dir);
+    if shards.is_empty() {
+        let db = IndexDb::open(dir, false)?;
+        return Ok((db.entries()?, db.steps()?));
+    }
+    let e = export_shards(&shards)?;
+    Ok((e.entries, e.steps))
+}
+
+/// Prefix of a shard's directory in a recording shared by step among viz-nodes.
+pub const SHARD_PREFIX: &str = "shard-";
+
+/// The shards of a recording shared by step among several viz-nodes (docs/scale.md): the
+/// subdirectories `shard-0`, `shard-1`, … of `dir` that hold an index, as (directory, its
+/// name), in shard order; empty when `dir` holds an index itself or no shard.
+pub fn shards(dir: &Path) -> Vec<(PathBuf, String)> {
+    if dir.join(INDEX_DB).exists() {
+        return Vec::new();
+    }
+    let Ok(read) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut found: Vec<(u64, PathBuf, String)> = read
+        .filter_map(|d| {
+            let d = d.ok()?;
+            let name = d.file_name().to_str()?.to_owned();
+            let k: u64 = name.strip_prefix(SHARD_PREFIX)?.parse().ok()?;
+            d.path()
+                .join(INDEX_DB)
+                .exists()
+                .then(|| (k, d.path(), name))
+        })
+        .collect();
+    found.sort_by_key(|(k, _, _)| *k);
+    found.into_iter().map(|(_, p, n)| (p, n)).collect()
+}
+
+/// The rows of every shard, their file names made relative to the shared recording
+/// (`shard-K/…`), sorted by step and rank.
+///
+/// # Errors
+/// [`StoreError`] naming the shard's index that cannot be read.
+pub fn export_shards(shards: &[(PathBuf, String)]) -> Result<Export, StoreError> {
+    let mut all = Export {
+        schema: SCHEMA_VERSION,
+        entries: Vec::new(),
+        steps: Vec::new(),
+    };
+    let under = |name: &mut Option<String>, shard: &str| {
+        if let Some(n) = name {
+            *n = format!("{shard}/{n}");
+        }
+    };
+    for (dir, shard) in shards {
+        let db = IndexDb::open(dir, false)?;
+        for mut e in db.entries()? {
+            under(&mut e.vdi, shard);
+            under(&mut e.references, shard);
+            all.entries.push(e);
+        }
+        for mut st in db.steps()? {
+            under(&mut st.vdi, shard);
+            under(&mut st.references, shard);
+            all.steps.push(st);
+        }
+    }
+    all.entries.sort_by_key(|e| (e.step, e.rank));
+    all.steps.sort_by_key(|st| st.step);
+    Ok(all)
 }
 
 #[cfg(test)]

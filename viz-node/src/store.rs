@@ -387,11 +387,31 @@ impl Recording {
     /// Opens the recording in `dir` for reading only: nothing is created, tidied or written
     /// beside it ([`IndexDb::open`] read-only; immutable when no viz-node is writing it), so a
     /// recording on read-only media or owned by another user opens. Storing into it fails.
+    /// A directory of shards (`shard-0`, `shard-1`, … each a viz-node's recording, docs/scale.md)
+    /// opens as one recording of all their steps.
     ///
     /// # Errors
     /// [`StoreError::Corrupt`] naming the index when there is none (no recording here) or it
     /// cannot be read.
     pub fn open_read_only(dir: &Path) -> Result<Self, StoreError> {
+        let shards = crate::index::shards(dir);
+        if let Some((first, _)) = shards.first() {
+            // A recording shared by step among viz-nodes: every shard's rows, their files
+            // named under the shard's directory; nothing is ever written through `db`.
+            let all = crate::index::export_shards(&shards)?;
+            return Ok(Self {
+                dir: dir.to_owned(),
+                index: Mutex::new(Index {
+                    db: IndexDb::open(first, false)?,
+                    entries: all
+                        .entries
+                        .into_iter()
+                        .map(|e| ((e.step, e.rank), e))
+                        .collect(),
+                    steps: all.steps.into_iter().map(|st| (st.step, st)).collect(),
+                }),
+            });
+        }
         if !crate::index::holds_index(dir).map_err(|e| with_recovery_advice(e, dir))? {
             return Err(StoreError::Corrupt {
                 path: dir.join(INDEX_DB),

@@ -103,11 +103,17 @@ pub fn run(a: Args) -> Result<()> {
     if a.cinema.is_some() || a.movie.is_some() {
         return render(&a);
     }
-    let db = IndexDb::open(&a.recording, false)
-        .with_context(|| format!("{} is not a recording", a.recording.display()))?;
+    // A recording shared by step among viz-nodes: every shard's rows (docs/scale.md).
+    let shards = insitu_viz_node::index::shards(&a.recording);
+    let e = if shards.is_empty() {
+        IndexDb::open(&a.recording, false)
+            .with_context(|| format!("{} is not a recording", a.recording.display()))?
+            .export()?
+    } else {
+        insitu_viz_node::index::export_shards(&shards)?
+    };
     let text = match a.format {
         Format::Json => {
-            let e = db.export()?;
             let adherence = a.budget.map(|(size, time)| {
                 let of = |b: Option<f64>, f: fn(&insitu_core::evaluate::Sizing) -> f64| {
                     b.map(|b| Adherence::of(step_values(&e, f), b).json())
@@ -131,7 +137,7 @@ pub fn run(a: Args) -> Result<()> {
                 adherence,
             })? + "\n"
         }
-        Format::Csv => with_ratios(&db.export_csv()?, a.budget),
+        Format::Csv => with_ratios(&insitu_viz_node::index::csv(&e), a.budget),
     };
     match &a.out {
         Some(path) => crate::output::write_atomic(path, text.as_bytes())?,

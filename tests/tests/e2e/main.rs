@@ -18,6 +18,7 @@ mod policies;
 mod python;
 mod ranks;
 mod replay;
+mod shards;
 mod slurm;
 mod tls;
 mod tuned;

@@ -96,7 +96,7 @@ async fn push_ocean(generator: &str, step: u64, t: usize) {
         .unwrap();
 }
 
-fn viz_with_http(rec: &Path, logs: &Path, extra: &[&str]) -> (Daemon, String) {
+pub(crate) fn viz_with_http(rec: &Path, logs: &Path, extra: &[&str]) -> (Daemon, String) {
     let mut args = vec!["--http", "127.0.0.1:0", "--backend", "cpu"];
     args.extend_from_slice(extra);
     let mut v = insitu_e2e::start_viz(rec, "127.0.0.1:0", &args, logs);
@@ -495,7 +495,7 @@ fn the_rank_selection_shows_one_brick_or_the_composed_step() {
 
 /// One HTTP/1.1 request on loopback (`Host: addr` unless `headers` name one); returns the
 /// status code and the body.
-fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
+pub(crate) fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) {
     request(addr, "GET", target, headers)
 }
 
