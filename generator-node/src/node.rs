@@ -209,7 +209,11 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
         pool: worker_pool(cfg.threads)?,
         scene,
-        host: Arc::new(crate::host::Gather::new(&cfg.host)),
+        // Without a viz-node nothing ships, so nothing is gathered either.
+        host: Arc::new(crate::host::Gather::new(&crate::config::HostConfig {
+            compose: cfg.host.compose && cfg.viz.is_some(),
+            ..cfg.host.clone()
+        })),
     });
     let (health, stop_server, server) = serve(&shared, &security, listener).await?;
     shared.save_run();
