@@ -41,10 +41,93 @@ use tracing::{info, warn};
 /// A rank's finished step: what ships (compressed VDI, frames, spool entries) and its VDI in
 /// memory, for composing.
 pub struct Finished {
-    /// As the worker made it.
+    /// As the worker made it (its frames taken out while they are packed).
     pub product: Product,
     /// The VDI `product.vdi` encodes.
     pub vdi: Vdi,
+    /// While the rank waits for its host's other ranks: its frames' header and each view's
+    /// RGBA bytes zstd-compressed (a brick's frame is mostly empty, so a waiting rank holds
+    /// a few kB instead of views × side² × 16 B).
+    packed: Option<(pb::ReferenceHeader, Vec<Vec<u8>>)>,
+}
+
+impl Finished {
+    /// A rank's product and the VDI it encodes.
+    pub fn new(product: Product, vdi: Vdi) -> Self {
+        Self {
+            product,
+            vdi,
+            packed: None,
+        }
+    }
+
+    /// Compresses the frames view by view while the rank waits (left as they are when a
+    /// view does not compress).
+    fn pack(&mut self) {
+        let Some((header, bytes)) = &self.product.references else {
+            return;
+        };
+        let views = header.view_angles_deg.len().max(1);
+        if bytes.len() % views != 0 {
+            return;
+        }
+        let packed: Option<Vec<Vec<u8>>> = bytes
+            .chunks(bytes.len() / views)
+            .map(|view| zstd::bulk::compress(view, 1).ok())
+            .collect();
+        if let (Some(views), Some((header, _))) = (packed, self.product.references.take()) {
+            self.packed = Some((header, views));
+        }
+    }
+
+    /// The product as it ships alone, its frames unpacked.
+    fn into_product(mut self) -> Product {
+        if let Some((header, views)) = self.packed.take() {
+            let per_view = header.total_bytes as usize / views.len().max(1);
+            let bytes: Option<Vec<u8>> = views
+                .iter()
+                .map(|v| zstd::bulk::decompress(v, per_view).ok())
+                .collect::<Option<Vec<_>>>()
+                .map(|v| v.concat());
+            // Compressed here from these very bytes: decompressing cannot fail but for
+            // memory; frames lost then, the VDI still ships (the viz-node scores without).
+            match bytes {
+                Some(b) => self.product.references = Some((header, Bytes::from(b))),
+                None => {
+                    warn!(
+                        step = header.step,
+                        rank = header.rank,
+                        "frames could not be unpacked; the VDI ships without them"
+                    );
+                    self.product.vdi_header.with_references = false;
+                }
+            }
+        }
+        self.product
+    }
+
+    /// The frames' header, packed or not.
+    fn frames_header(&self) -> Option<&pb::ReferenceHeader> {
+        self.packed
+            .as_ref()
+            .map(|(h, _)| h)
+            .or(self.product.references.as_ref().map(|(h, _)| h))
+    }
+
+    /// View `v`'s RGBA bytes (`per_view` of them), packed or not.
+    fn view(&self, v: usize, per_view: usize) -> Option<std::borrow::Cow<'_, [u8]>> {
+        match (&self.packed, &self.product.references) {
+            (Some((_, views)), _) => views
+                .get(v)
+                .and_then(|c| zstd::bulk::decompress(c, per_view).ok())
+                .filter(|b| b.len() == per_view)
+                .map(std::borrow::Cow::Owned),
+            (None, Some((_, bytes))) => bytes
+                .get(v * per_view..(v + 1) * per_view)
+                .map(std::borrow::Cow::Borrowed),
+            (None, None) => None,
+        }
+    }
 }
 
 /// The ranks of the steps in flight on this node, and their finished VDIs until they ship.
@@ -167,6 +250,8 @@ impl Gather {
         };
         p.settled.insert(rank);
         p.progress = Instant::now();
+        let mut f = f;
+        f.pack();
         p.done.push(f);
         drop(s);
         self.wake.notify_one();
@@ -260,7 +345,7 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
         // Ranks that do not say where their bricks lie (or on different grids) ship alone;
         // the viz-node names the problem.
         for f in ranks {
-            crate::node::to_outbox(shared, f.product).await;
+            crate::node::to_outbox(shared, f.into_product()).await;
         }
         return;
     };
@@ -270,7 +355,7 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
         let group: Vec<Finished> = members.iter().filter_map(|&i| slots[i].take()).collect();
         if group.len() == 1 {
             for f in group {
-                crate::node::to_outbox(shared, f.product).await;
+                crate::node::to_outbox(shared, f.into_product()).await;
             }
             continue;
         }
@@ -301,7 +386,7 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
                 let h = &group[0].product.vdi_header;
                 warn!(step = h.step, error = %why, "the host's ranks could not be composed: they ship alone");
                 for f in group {
-                    crate::node::to_outbox(shared, f.product).await;
+                    crate::node::to_outbox(shared, f.into_product()).await;
                 }
             }
             Err(e) => warn!(error = %e, "composing the host's ranks panicked; they are lost"),
@@ -429,14 +514,11 @@ fn compose_references(
     group: &[Finished],
     covers: &[u32],
 ) -> Result<Option<(pb::ReferenceHeader, Bytes)>, PartError> {
-    let with: Vec<&(pb::ReferenceHeader, Bytes)> = group
-        .iter()
-        .filter_map(|f| f.product.references.as_ref())
-        .collect();
-    if with.is_empty() {
+    let with: Vec<&pb::ReferenceHeader> =
+        group.iter().filter_map(Finished::frames_header).collect();
+    let Some(&lead) = with.first() else {
         return Ok(None);
-    }
-    let (lead, _) = with[0];
+    };
     let alike = |h: &pb::ReferenceHeader| {
         h.width == lead.width
             && h.height == lead.height
@@ -444,10 +526,10 @@ fn compose_references(
             && h.view_angles_deg == lead.view_angles_deg
             && h.opacity
     };
-    if with.len() != group.len() || !with.iter().all(|(h, _)| alike(h)) {
+    if with.len() != group.len() || !with.iter().all(|h| alike(h)) {
         return Err(PartError::Frames(format!(
             "{} of {} ranks have frames with opacity of the same views",
-            with.iter().filter(|(h, _)| alike(h)).count(),
+            with.iter().filter(|h| alike(h)).count(),
             group.len()
         )));
     }
@@ -459,19 +541,20 @@ fn compose_references(
     let (w, h) = (lead.width, lead.height);
     let per_view = w as usize * h as usize * 16;
     let views = lead.view_angles_deg.len();
-    if let Some((got, bytes)) = with.iter().find(|(_, b)| b.len() != per_view * views) {
-        return Err(PartError::Frames(format!(
-            "rank {}: {} bytes for {views} views of {w}×{h} RGBA f32",
-            got.rank,
-            bytes.len()
-        )));
-    }
     let mut out = Vec::with_capacity(per_view * views);
-    // One view at a time: the ranks' frames of a view parsed, composited, written out.
+    // One view at a time: the ranks' frames of a view unpacked, composited, written out.
     for (v, &angle) in lead.view_angles_deg.iter().enumerate() {
-        let parsed: Vec<(Image, Vec<f32>)> = with
+        let parsed: Vec<(Image, Vec<f32>)> = group
             .iter()
-            .map(|(_, bytes)| rgba_frame(&bytes[v * per_view..(v + 1) * per_view], (w, h)))
+            .map(|f| {
+                let bytes = f.view(v, per_view).ok_or_else(|| {
+                    PartError::Frames(format!(
+                        "rank {}: no {per_view} bytes for view {v} of {w}×{h} RGBA f32",
+                        f.product.vdi_header.rank
+                    ))
+                })?;
+                rgba_frame(&bytes, (w, h))
+            })
             .collect::<Result<_, _>>()?;
         let bricks: Vec<BrickFrame> = parsed
             .iter()
@@ -571,8 +654,8 @@ mod tests {
             y: d[1] as u32,
             z: d[2] as u32,
         };
-        Finished {
-            product: Product {
+        Finished::new(
+            Product {
                 vdi_header: pb::VdiHeader {
                     step,
                     rank,
@@ -594,7 +677,7 @@ mod tests {
                 limit_retries: (1, 0.5),
             },
             vdi,
-        }
+        )
     }
 
     /// A part is the composition of its ranks, VDI and frames, and says so: its header and
@@ -661,6 +744,29 @@ mod tests {
             let (want, want_opacity) = compose_frames(&camera.orbit_y(angle), &bf).unwrap();
             assert_eq!((got, got_opacity), (want, want_opacity), "view {v}");
         }
+        // Packed while they wait, the ranks make the same part, and a rank that ships alone
+        // gets its frames back byte for byte; a packed brick's frames are a fraction.
+        let mut packed: Vec<Finished> = bricks
+            .iter()
+            .enumerate()
+            .map(|(k, b)| finished(3, k as u32, 4, *b, true))
+            .collect();
+        for f in &mut packed {
+            let raw = f.product.references.as_ref().unwrap().1.len();
+            f.pack();
+            assert!(f.product.references.is_none());
+            let held: usize = f.packed.as_ref().unwrap().1.iter().map(Vec::len).sum();
+            assert!(held * 4 < raw, "{held} of {raw} bytes");
+        }
+        let again = compose_part(&packed, whole_box).unwrap();
+        assert_eq!(
+            (&again.vdi, &again.references),
+            (&part.vdi, &part.references)
+        );
+        let mut alone = finished(3, 0, 4, bricks[0], true);
+        let want = alone.product.references.clone();
+        alone.pack();
+        assert_eq!(alone.into_product().references, want);
         // Ranks with frames beside ranks without cannot be one part.
         let mixed = vec![
             finished(3, 0, 4, bricks[0], true),

@@ -418,7 +418,7 @@ async fn worker(shared: Arc<Shared>) {
                     continue;
                 }
                 // A rank of a world of several waits for its host's other ranks.
-                if let Some(f) = shared.host.finish(crate::host::Finished { product, vdi }) {
+                if let Some(f) = shared.host.finish(crate::host::Finished::new(product, vdi)) {
                     spare = Some(f.vdi);
                     to_outbox(&shared, f.product).await;
                 }
