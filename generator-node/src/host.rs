@@ -3,23 +3,25 @@
 //! gathered into boxes ([`box_groups`]), and each box's sub-VDIs and reference frames are
 //! composed with the code the viz-node uses ([`insitu_core::compose`]) into one part, a VDI
 //! whose header and file name the ranks it holds (`VdiHeader.covers`) and whose brick is
-//! their box. The viz-node composes the parts as it composes ranks: the bytes reaching it
-//! fall by the ranks per host, and the picture is the one-level picture (the sub-VDIs'
-//! supersegments bit for bit, the frames within rounding).
+//! their box. The viz-node composes the parts as it composes ranks: what reaches it per step
+//! falls by the ranks per host for frames, files and index rows (the supersegments are the
+//! step's content and stay), and the picture is the one-level picture (the composed VDI bit
+//! for bit, the frames within rounding).
 //!
 //! A step's parts ship once every rank of it that this node received is finished or settled
 //! without a VDI (dropped, failed), and every rank the node served at its previous step (at
 //! its first step: every rank of the world) has been received, or `wait_secs` after the
 //! step's last progress when one has not: a rank that comes later ships alone, in a part of
-//! its own, and the viz-node composes whatever parts
-//! hold the world's ranks. Steps found in the spool after a restart ship rank by rank, so that
-//! a part the viz-node stored before the crash is acknowledged rank by rank, never refused as
-//! a second holder of its ranks. Ranks whose VDIs cannot be composed together (they differ in
-//! camera, `P_M`, TF, frames) ship alone, with a warning.
+//! its own, and the viz-node composes whatever parts hold the world's ranks. Steps found in
+//! the spool after a restart ship rank by rank, so that a part the viz-node stored before the
+//! crash is acknowledged rank by rank, never refused as a second holder of its ranks. Ranks
+//! whose VDIs cannot be composed together (they differ in camera, `P_M`, TF, frames) ship
+//! alone, with a warning.
 //!
-//! Memory: a step's finished ranks are held until its parts ship; their VDIs together are
-//! the size of the host's part, so the node holds its queue, at most one host VDI per step in
-//! flight, and the outbox.
+//! Memory: a step's finished ranks wait until its parts ship, each holding its compressed
+//! VDI, its VDI in memory (with its r² list offsets, whatever the brick's size) and its
+//! frames zstd-compressed view by view; composing unpacks one view of the group's frames at
+//! a time.
 
 use crate::config::HostConfig;
 use crate::shared::Shared;
