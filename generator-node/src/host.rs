@@ -32,7 +32,7 @@ use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::{box_groups, Brick};
 use insitu_core::{Camera, Image, Vdi};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb};
+use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_from_pb, dims_to_pb};
 use insitu_proto::pb;
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::sync::{Arc, Mutex};
@@ -403,11 +403,10 @@ fn bricks_of(ranks: &[Finished]) -> Option<Vec<Brick>> {
         .iter()
         .map(|f| {
             let h = &f.product.vdi_header;
-            let d = |v: &Option<pb::Dims3>| v.as_ref().map(|d| [d.x, d.y, d.z].map(|x| x as usize));
             (h.global_dims == global).then_some(())?;
             Some(Brick {
-                offset: d(&h.brick_offset)?,
-                dims: d(&h.brick_dims)?,
+                offset: dims_from_pb(h.brick_offset.as_ref())?,
+                dims: dims_from_pb(h.brick_dims.as_ref())?,
             })
         })
         .collect()
@@ -448,10 +447,7 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         source,
     })?;
     let references = compose_references(group, &covers)?;
-    let global = lead
-        .global_dims
-        .as_ref()
-        .map(|d| [d.x, d.y, d.z].map(|x| x as usize));
+    let global = dims_from_pb(lead.global_dims.as_ref());
     let provenance = Provenance {
         step: lead.step,
         rank: lead.rank,
@@ -472,11 +468,6 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
     let t = Instant::now();
     let file = codec::encode_with_provenance(&vdi, codec, Some(&provenance))?;
     let tau_compress_secs = t.elapsed().as_secs_f64();
-    let dims = |d: [usize; 3]| pb::Dims3 {
-        x: d[0] as u32,
-        y: d[1] as u32,
-        z: d[2] as u32,
-    };
     let slowest = group
         .iter()
         .map(|f| f.product.vdi_header.tau_secs)
@@ -486,8 +477,8 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         supersegments: vdi.supersegments().len() as u64,
         tau_secs: slowest,
         tau_compress_secs,
-        brick_offset: Some(dims(brick.offset)),
-        brick_dims: Some(dims(brick.dims)),
+        brick_offset: Some(dims_to_pb(brick.offset)),
+        brick_dims: Some(dims_to_pb(brick.dims)),
         with_references: references.is_some(),
         covers,
         ..lead.clone()
@@ -651,11 +642,6 @@ mod tests {
             };
             (header, Bytes::from(bytes))
         });
-        let dims = |d: [usize; 3]| pb::Dims3 {
-            x: d[0] as u32,
-            y: d[1] as u32,
-            z: d[2] as u32,
-        };
         Finished::new(
             Product {
                 vdi_header: pb::VdiHeader {
@@ -667,9 +653,9 @@ mod tests {
                     codec: pb::Codec::Zstd as i32,
                     total_bytes: file.len() as u64,
                     tau_secs: 0.1 * f64::from(rank + 1),
-                    global_dims: Some(dims(GLOBAL)),
-                    brick_offset: Some(dims(b.offset)),
-                    brick_dims: Some(dims(b.dims)),
+                    global_dims: Some(dims_to_pb(GLOBAL)),
+                    brick_offset: Some(dims_to_pb(b.offset)),
+                    brick_dims: Some(dims_to_pb(b.dims)),
                     with_references: frames,
                     ..Default::default()
                 },

@@ -79,11 +79,7 @@ fn write_file(dir: &Path, name: &str, bytes: &[u8], durable: bool) -> Result<(),
 }
 
 fn header_of(raw: &RawStep) -> pb::StepHeader {
-    let d = |v: [usize; 3]| pb::Dims3 {
-        x: v[0] as u32,
-        y: v[1] as u32,
-        z: v[2] as u32,
-    };
+    let d = insitu_proto::convert::dims_to_pb;
     pb::StepHeader {
         step: raw.info.step,
         sim_time: raw.info.sim_time,

@@ -12,7 +12,7 @@ use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
-use insitu_proto::convert::{camera_to_pb, codec_to_pb};
+use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
 use std::time::Instant;
@@ -386,14 +386,6 @@ fn references(
         covers: Vec::new(),
     };
     Ok((header, Bytes::from(bytes)))
-}
-
-fn dims_to_pb(d: [usize; 3]) -> pb::Dims3 {
-    pb::Dims3 {
-        x: d[0] as u32,
-        y: d[1] as u32,
-        z: d[2] as u32,
-    }
 }
 
 /// RGB and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel).

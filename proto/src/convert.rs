@@ -9,6 +9,22 @@ use insitu_core::volume::ScalarType;
 use insitu_core::Camera;
 use tonic::Status;
 
+/// Grid dims or a voxel offset, `[x, y, z]`, on the wire (each < 2³², as every grid the
+/// nodes accept).
+pub fn dims_to_pb(d: [usize; 3]) -> pb::Dims3 {
+    pb::Dims3 {
+        x: d[0] as u32,
+        y: d[1] as u32,
+        z: d[2] as u32,
+    }
+}
+
+/// Dims or an offset from the wire, unchecked; an unset field is `None` (what a field means
+/// and which values it may take is for its reader to check).
+pub fn dims_from_pb(d: Option<&pb::Dims3>) -> Option<[usize; 3]> {
+    d.map(|d| [d.x, d.y, d.z].map(|x| x as usize))
+}
+
 /// A world-space vector.
 pub fn vec3_to_pb(v: Vec3) -> pb::Vec3 {
     pb::Vec3 {

@@ -658,7 +658,7 @@ fn store_references(
 /// # Errors
 /// `INVALID_ARGUMENT` when only part of it is set or it does not fit the grid.
 fn placement(h: &pb::VdiHeader) -> Result<Option<Placement>, Status> {
-    let d = |v: &Option<pb::Dims3>| v.as_ref().map(|d| [d.x, d.y, d.z].map(|x| x as usize));
+    let d = |v: &Option<pb::Dims3>| insitu_proto::convert::dims_from_pb(v.as_ref());
     match (d(&h.global_dims), d(&h.brick_offset), d(&h.brick_dims)) {
         (None, None, None) => Ok(None),
         (Some(global_dims), Some(offset), Some(dims)) => {
