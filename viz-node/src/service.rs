@@ -686,8 +686,7 @@ fn part_ranks(step: u64, rank: u32, world_size: u32, covers: &[u32]) -> Result<V
     if covers.is_empty() {
         return Ok(vec![rank]);
     }
-    let ascending = covers.windows(2).all(|w| w[0] < w[1]);
-    if covers[0] != rank || !ascending || covers.iter().any(|&r| r >= world_size.max(1)) {
+    if !insitu_core::vdi::provenance::covers_valid(rank, world_size.max(1), covers) {
         return Err(Status::invalid_argument(format!(
             "step {step} rank {rank}: covers {covers:?} must ascend from rank {rank} inside a world of {world_size}"
         )));

@@ -50,6 +50,16 @@ pub struct Provenance {
     pub covers: Vec<u32>,
 }
 
+/// Whether `covers` may name the ranks of a part whose first rank is `rank` in a world of
+/// `world_size`: empty (the rank alone), or strictly ascending from `rank`, each inside the
+/// world.
+pub fn covers_valid(rank: u32, world_size: u32, covers: &[u32]) -> bool {
+    covers.is_empty()
+        || (covers[0] == rank
+            && covers.windows(2).all(|w| w[0] < w[1])
+            && covers.iter().all(|&r| r < world_size))
+}
+
 impl Provenance {
     /// The ranks the VDI holds: [`Self::covers`], or `rank` alone.
     pub fn ranks(&self) -> Vec<u32> {
@@ -140,10 +150,7 @@ impl Provenance {
             for _ in 0..n {
                 covers.push(rd.u32("provenance covered rank")?);
             }
-            let ascending = covers.windows(2).all(|w| w[0] < w[1]);
-            let valid = covers.is_empty()
-                || (covers[0] == rank && ascending && covers.iter().all(|&r| r < world_size));
-            if !valid {
+            if !covers_valid(rank, world_size, &covers) {
                 return invalid(format!(
                     "covered ranks {covers:?} must ascend from rank {rank} inside a world of {world_size}"
                 ));
