@@ -29,7 +29,6 @@ use crate::work::Product;
 use bytes::Bytes;
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame};
 use insitu_core::vdi::codec::{self, Codec};
-use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::{box_groups, Brick};
 use insitu_core::{Camera, Image, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_from_pb, dims_to_pb};
@@ -426,9 +425,15 @@ pub enum PartError {
     /// The ranks' reference frames are not alike (some missing, other views or sizes).
     #[error("reference frames: {0}")]
     Frames(String),
-    /// Encoding the part failed.
+    /// Encoding the part (or reading a rank's file) failed.
     #[error(transparent)]
     Codec(#[from] codec::CodecError),
+    /// A rank's file says nowhere where in the run it comes from.
+    #[error("rank {rank}: its VDI file carries no provenance")]
+    NoProvenance {
+        /// The rank.
+        rank: u32,
+    },
 }
 
 /// `group` (ranks sorted, bricks forming `brick`) composed into one part: the VDI merged
@@ -447,20 +452,11 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         source,
     })?;
     let references = compose_references(group, &covers)?;
-    let global = dims_from_pb(lead.global_dims.as_ref());
-    let provenance = Provenance {
-        step: lead.step,
-        rank: lead.rank,
-        world_size: lead.world_size.max(1),
-        pm_version: lead.pm_version,
-        sim_time: if lead.sim_time.is_finite() {
-            lead.sim_time
-        } else {
-            0.0
-        },
-        placement: global.map(|g| (g, brick)),
-        covers: covers.clone(),
-    };
+    // The first rank's provenance (as the worker wrote it), its brick the part's box.
+    let mut provenance = codec::provenance(&group[0].product.vdi)?
+        .ok_or(PartError::NoProvenance { rank: lead.rank })?;
+    provenance.placement = provenance.placement.map(|(global, _)| (global, brick));
+    provenance.covers = covers.clone();
     let codec = codec_from_pb(lead.codec)
         .ok()
         .flatten()
@@ -618,7 +614,16 @@ mod tests {
             gamma: 0.01,
         };
         let vdi = insitu_core::vdi::generate::generate(&rc, &camera, params, 1, "t").unwrap();
-        let file = codec::encode(&vdi, Codec::Zstd).unwrap();
+        let provenance = insitu_core::vdi::provenance::Provenance {
+            step,
+            rank,
+            world_size: world,
+            pm_version: 0,
+            sim_time: step as f64,
+            placement: Some((GLOBAL, b)),
+            covers: Vec::new(),
+        };
+        let file = codec::encode_with_provenance(&vdi, Codec::Zstd, Some(&provenance)).unwrap();
         let angles = vec![0.0, 90.0];
         let references = frames.then(|| {
             let bytes: Vec<u8> = angles
