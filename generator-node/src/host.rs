@@ -62,9 +62,9 @@ impl Finished {
         }
     }
 
-    /// Compresses the frames view by view while the rank waits (left as they are when a
-    /// view does not compress).
-    fn pack(&mut self) {
+    /// Compresses the frames view by view for the wait (left as they are when a view does
+    /// not compress); done on the worker threads, for a rank whose node [`Gather::gathers`].
+    pub fn pack(&mut self) {
         let Some((header, bytes)) = &self.product.references else {
             return;
         };
@@ -82,7 +82,12 @@ impl Finished {
     }
 
     /// The product as it ships alone, its frames unpacked.
-    fn into_product(mut self) -> Product {
+    fn into_product(self) -> Product {
+        self.unpack().0
+    }
+
+    /// The product as it ships alone (its frames unpacked) and the VDI it encodes.
+    pub fn unpack(mut self) -> (Product, Vdi) {
         if let Some((header, views)) = self.packed.take() {
             let per_view = header.total_bytes as usize / views.len().max(1);
             let bytes: Option<Vec<u8>> = views
@@ -104,7 +109,7 @@ impl Finished {
                 }
             }
         }
-        self.product
+        (self.product, self.vdi)
     }
 
     /// The frames' header, packed or not.
@@ -198,9 +203,15 @@ impl Gather {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Whether this node gathers the ranks of a world of `world_size` (composition on, more
+    /// than one rank): a rank's frames are then packed before [`Self::finish`].
+    pub fn gathers(&self, world_size: u32) -> bool {
+        self.compose && world_size > 1
+    }
+
     /// Rank `rank` of `step`, of a world of `world_size`, is being received.
     pub fn received(&self, step: u64, rank: u32, world_size: u32) {
-        if !self.compose || world_size <= 1 {
+        if !self.gathers(world_size) {
             return;
         }
         let now = Instant::now();
@@ -231,11 +242,12 @@ impl Gather {
     }
 
     /// A finished rank: handed back when it ships as it is (a world of one, composition off,
-    /// a step from the spool, a rank never announced), else kept for its step's parts.
+    /// a step from the spool, a rank never announced; [`Finished::unpack`] it), else kept for
+    /// its step's parts.
     pub fn finish(&self, f: Finished) -> Option<Finished> {
         let h = &f.product.vdi_header;
         let (step, rank) = (h.step, h.rank);
-        if !self.compose || h.world_size <= 1 {
+        if !self.gathers(h.world_size) {
             return Some(f);
         }
         let mut s = self.state();
@@ -251,8 +263,6 @@ impl Gather {
         };
         p.settled.insert(rank);
         p.progress = Instant::now();
-        let mut f = f;
-        f.pack();
         p.done.push(f);
         drop(s);
         self.wake.notify_one();
@@ -345,19 +355,14 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
     let Some(bricks) = bricks_of(&ranks) else {
         // Ranks that do not say where their bricks lie (or on different grids) ship alone;
         // the viz-node names the problem.
-        for f in ranks {
-            crate::node::to_outbox(shared, f.into_product()).await;
-        }
-        return;
+        return ship_alone(shared, ranks).await;
     };
     let groups = box_groups(&bricks);
     let mut slots: Vec<Option<Finished>> = ranks.into_iter().map(Some).collect();
     for (members, brick) in groups {
         let group: Vec<Finished> = members.iter().filter_map(|&i| slots[i].take()).collect();
         if group.len() == 1 {
-            for f in group {
-                crate::node::to_outbox(shared, f.into_product()).await;
-            }
+            ship_alone(shared, group).await;
             continue;
         }
         let s = shared.clone();
@@ -386,12 +391,17 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
             Ok((Err(why), group, _)) => {
                 let h = &group[0].product.vdi_header;
                 warn!(step = h.step, error = %why, "the host's ranks could not be composed: they ship alone");
-                for f in group {
-                    crate::node::to_outbox(shared, f.into_product()).await;
-                }
+                ship_alone(shared, group).await;
             }
             Err(e) => warn!(error = %e, "composing the host's ranks panicked; they are lost"),
         }
+    }
+}
+
+/// Each of `ranks` into the outbox as it was made.
+async fn ship_alone(shared: &Arc<Shared>, ranks: Vec<Finished>) {
+    for f in ranks {
+        crate::node::to_outbox(shared, f.into_product()).await;
     }
 }
 

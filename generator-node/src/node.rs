@@ -394,33 +394,40 @@ async fn worker(shared: Arc<Shared>) {
                     s.spare_fields.put(raw.field);
                     None
                 };
-                Ok::<_, work::WorkError>((product, tf, vdi, for_tuner))
+                // A rank that will wait for its host's other ranks has its frames packed
+                // here, on the worker threads.
+                let mut finished = crate::host::Finished::new(product, vdi);
+                if s.host.gathers(raw_world_size) {
+                    finished.pack();
+                }
+                Ok::<_, work::WorkError>((finished, tf, for_tuner))
             })
         })
         .instrument(info_span!("step", step, rank))
         .await;
         drop(lane);
         match result {
-            Ok(Ok((product, tf, vdi, for_tuner))) => {
+            Ok(Ok((finished, tf, for_tuner))) => {
                 if let Some(t) = &shared.tuning {
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);
-                let (retries, retry_secs) = product.limit_retries;
+                let (retries, retry_secs) = finished.product.limit_retries;
                 shared.stats.update(|c| {
                     c.generated += 1;
                     c.limit_retries += u64::from(retries);
                     c.limit_retry_secs += retry_secs;
                 });
                 if !shared.shipping {
-                    spare = Some(vdi);
+                    spare = Some(finished.vdi);
                     shared.unspool(spooled.as_ref());
                     continue;
                 }
                 // A rank of a world of several waits for its host's other ranks.
-                if let Some(f) = shared.host.finish(crate::host::Finished::new(product, vdi)) {
-                    spare = Some(f.vdi);
-                    to_outbox(&shared, f.product).await;
+                if let Some(f) = shared.host.finish(finished) {
+                    let (product, vdi) = f.unpack();
+                    spare = Some(vdi);
+                    to_outbox(&shared, product).await;
                 }
             }
             Ok(Err(e)) => {
@@ -461,7 +468,7 @@ fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_s
 /// logged, counted (per rank) and taken out of the spool.
 pub(crate) async fn to_outbox(shared: &Shared, product: work::Product) {
     let n = product.bytes();
-    let ranks = product.ranks();
+    let ranks = product.ranks().len() as u64;
     let outbox = &shared.outboxes[shared.shard_of(product.vdi_header.step)];
     match outbox.push(product, n).await {
         Ok(dropped) if !dropped.is_empty() => {
@@ -473,7 +480,7 @@ pub(crate) async fn to_outbox(shared: &Shared, product: work::Product) {
                 );
                 shared.unspool(&d.spool);
             }
-            let n: u64 = dropped.iter().map(work::Product::ranks).sum();
+            let n: u64 = dropped.iter().map(|d| d.ranks().len() as u64).sum();
             shared.stats.update(|c| c.dropped_outbox += n);
         }
         Ok(_) => {}

@@ -142,12 +142,8 @@ impl Shipper {
             let span = info_span!("ship", step = p.vdi_header.step, rank = p.vdi_header.rank);
             let result = self.ship(&p, &stats).instrument(span).await;
             shared.unspool(&p.spool);
-            let ranks = p.ranks();
-            let held: Vec<u32> = if p.vdi_header.covers.is_empty() {
-                vec![p.vdi_header.rank]
-            } else {
-                p.vdi_header.covers.clone()
-            };
+            let held = p.ranks();
+            let ranks = held.len() as u64;
             match result {
                 Ok(()) => {
                     stats.update(|c| c.shipped += ranks);

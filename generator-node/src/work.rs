@@ -37,9 +37,14 @@ pub struct Product {
 }
 
 impl Product {
-    /// The ranks' steps this product settles: those of a host's part, else one.
-    pub fn ranks(&self) -> u64 {
-        self.vdi_header.covers.len().max(1) as u64
+    /// The ranks whose steps this product settles: those of a host's part, else its rank.
+    pub fn ranks(&self) -> Vec<u32> {
+        let h = &self.vdi_header;
+        if h.covers.is_empty() {
+            vec![h.rank]
+        } else {
+            h.covers.clone()
+        }
     }
 
     /// Bytes held (for the outbox's byte limit).
