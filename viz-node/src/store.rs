@@ -399,18 +399,8 @@ impl Recording {
             // A recording shared by step among viz-nodes: every shard's rows, their files
             // named under the shard's directory; nothing is ever written through `db`.
             let all = crate::index::export_shards(&shards)?;
-            return Ok(Self {
-                dir: dir.to_owned(),
-                index: Mutex::new(Index {
-                    db: IndexDb::open(first, false)?,
-                    entries: all
-                        .entries
-                        .into_iter()
-                        .map(|e| ((e.step, e.rank), e))
-                        .collect(),
-                    steps: all.steps.into_iter().map(|st| (st.step, st)).collect(),
-                }),
-            });
+            let db = IndexDb::open(first, false)?;
+            return Ok(Self::with_rows(dir, db, all.entries, all.steps));
         }
         if !crate::index::holds_index(dir).map_err(|e| with_recovery_advice(e, dir))? {
             return Err(StoreError::Corrupt {
@@ -424,16 +414,20 @@ impl Recording {
 
     /// The recording in `dir` over its opened index, its rows cached.
     fn over(dir: &Path, db: IndexDb) -> Result<Self, StoreError> {
-        let entries = db
-            .entries()?
-            .into_iter()
-            .map(|e| ((e.step, e.rank), e))
-            .collect();
-        let steps = db.steps()?.into_iter().map(|st| (st.step, st)).collect();
-        Ok(Self {
+        let (entries, steps) = (db.entries()?, db.steps()?);
+        Ok(Self::with_rows(dir, db, entries, steps))
+    }
+
+    /// The recording in `dir` over `db`, with `entries` and `steps` as its cached rows.
+    fn with_rows(dir: &Path, db: IndexDb, entries: Vec<Entry>, steps: Vec<StepEntry>) -> Self {
+        Self {
             dir: dir.to_owned(),
-            index: Mutex::new(Index { db, entries, steps }),
-        })
+            index: Mutex::new(Index {
+                db,
+                entries: entries.into_iter().map(|e| ((e.step, e.rank), e)).collect(),
+                steps: steps.into_iter().map(|st| (st.step, st)).collect(),
+            }),
+        }
     }
 
     /// Tidies what a crash left and says what is left to do: removes temporary files, lists
