@@ -101,7 +101,7 @@ fn main() {
     let times: Vec<f64> = (0..rounds)
         .map(|_| {
             let t = Instant::now();
-            compose_frames(&camera, &bf).expect("frames");
+            compose_frames(&camera, (r, r), &bf).expect("frames");
             t.elapsed().as_secs_f64()
         })
         .collect();

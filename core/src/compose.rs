@@ -19,6 +19,7 @@
 use crate::camera::Camera;
 use crate::image::Image;
 use crate::raycast::FrontToBack;
+use crate::vdi::window::VdiWindow;
 use crate::vdi::{Supersegment, Vdi, VdiMeta};
 use crate::volume::Aabb;
 use rayon::prelude::*;
@@ -78,10 +79,58 @@ pub fn union_box(boxes: impl IntoIterator<Item = Aabb>) -> Option<Aabb> {
     })
 }
 
-/// Composes the sub-VDIs of one step (one per rank, any order) into the VDI of the union of
-/// their boxes: per pixel, the ranks' lists ordered by their first supersegment's depth and
-/// concatenated (see the module docs for touching supersegments). The result's metadata is
-/// part 0's with the union box.
+/// What composing reads of a sub-VDI: its metadata and the list of each pixel. A [`Vdi`]
+/// and a [`VdiWindow`] (a sub-VDI cropped to its footprint) give the same lists, so they
+/// compose to the same VDI bit for bit.
+pub trait PixelLists: Sync {
+    /// Generation metadata.
+    fn meta(&self) -> &VdiMeta;
+    /// Supersegments in all.
+    fn supersegment_count(&self) -> usize;
+    /// Whether row `j` (from the top) holds no supersegment.
+    fn row_is_empty(&self, j: usize) -> bool;
+    /// The depth-ordered list of pixel `(i, j)`.
+    fn list(&self, i: usize, j: usize) -> &[Supersegment];
+}
+
+impl PixelLists for Vdi {
+    fn meta(&self) -> &VdiMeta {
+        Vdi::meta(self)
+    }
+    fn supersegment_count(&self) -> usize {
+        self.supersegments().len()
+    }
+    fn row_is_empty(&self, j: usize) -> bool {
+        let r = self.resolution() as usize;
+        self.offsets()[(j + 1) * r] == self.offsets()[j * r]
+    }
+    #[inline]
+    fn list(&self, i: usize, j: usize) -> &[Supersegment] {
+        let p = i + self.resolution() as usize * j;
+        &self.supersegments()[self.offsets()[p] as usize..self.offsets()[p + 1] as usize]
+    }
+}
+
+impl PixelLists for VdiWindow {
+    fn meta(&self) -> &VdiMeta {
+        VdiWindow::meta(self)
+    }
+    fn supersegment_count(&self) -> usize {
+        self.supersegments().len()
+    }
+    fn row_is_empty(&self, j: usize) -> bool {
+        VdiWindow::row_is_empty(self, j)
+    }
+    #[inline]
+    fn list(&self, i: usize, j: usize) -> &[Supersegment] {
+        VdiWindow::list(self, i, j)
+    }
+}
+
+/// Composes the sub-VDIs of one step (one per rank, any order; whole VDIs or windows,
+/// [`PixelLists`]) into the VDI of the union of their boxes: per pixel, the ranks' lists
+/// ordered by their first supersegment's depth and concatenated (see the module docs for
+/// touching supersegments). The result's metadata is part 0's with the union box.
 ///
 /// Time `O(r · parts + r · Σ_rows (parts with content in the row) + supersegments)`, rows in
 /// parallel: a rank whose VDI is empty (a transparent brick) costs `r` comparisons, and a rank
@@ -91,26 +140,26 @@ pub fn union_box(boxes: impl IntoIterator<Item = Aabb>) -> Option<Aabb> {
 /// [`ComposeError::Empty`] for no parts; [`ComposeError::Mismatch`] when a part differs from
 /// part 0 in camera, `P_M`, transfer function, step, termination or shading;
 /// [`ComposeError::TooLarge`] past `u32::MAX` supersegments.
-pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
+pub fn compose_vdis<L: PixelLists>(parts: &[&L]) -> Result<Vdi, ComposeError> {
     let first = parts.first().ok_or(ComposeError::Empty)?;
     for (part, v) in parts.iter().enumerate().skip(1) {
         if let Some(what) = mismatch(first.meta(), v.meta()) {
             return Err(ComposeError::Mismatch { part, what });
         }
     }
-    let total: u64 = parts.iter().map(|v| v.supersegments().len() as u64).sum();
+    let total: u64 = parts.iter().map(|v| v.supersegment_count() as u64).sum();
     if total > u64::from(u32::MAX) {
         return Err(ComposeError::TooLarge(total));
     }
-    let r = first.resolution() as usize;
+    let r = first.meta().params.resolution as usize;
     // The parts with anything in row j: a rank's brick covers a part of the image, and an
     // empty brick none, so the per-pixel work follows the content, not the number of ranks.
-    let row_parts: Vec<Vec<&Vdi>> = (0..r)
+    let row_parts: Vec<Vec<&L>> = (0..r)
         .map(|j| {
             parts
                 .iter()
                 .copied()
-                .filter(|v| v.offsets()[(j + 1) * r] > v.offsets()[j * r])
+                .filter(|v| !v.row_is_empty(j))
                 .collect()
         })
         .collect();
@@ -129,9 +178,10 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
         .filter(|(_, row)| !row.is_empty())
         .for_each_init(Vec::new, |order, (j, row)| {
             let mut at = 0;
-            for p in r * j..r * (j + 1) {
+            for i in 0..r {
+                let p = i + r * j;
                 if offsets[p] != offsets[p + 1] {
-                    at += compose_pixel(&row_parts[j], p, order, &mut row[at..]);
+                    at += compose_pixel(&row_parts[j], i, j, order, &mut row[at..]);
                 }
             }
         });
@@ -144,34 +194,35 @@ pub fn compose_vdis(parts: &[&Vdi]) -> Result<Vdi, ComposeError> {
 /// The composed VDI's list offsets (`r² + 1`, as [`Vdi::offsets`]): each pixel's list is
 /// the sum of its lists in the parts with content in its row (`row_parts[j]` for row `j`).
 /// The caller checked that the total fits a `u32`.
-fn composed_offsets(row_parts: &[Vec<&Vdi>], r: usize) -> Vec<u32> {
+fn composed_offsets<L: PixelLists>(row_parts: &[Vec<&L>], r: usize) -> Vec<u32> {
     let mut offsets = Vec::with_capacity(r * r + 1);
     offsets.push(0u32);
     let mut sum = 0u32;
     for (j, active) in row_parts.iter().enumerate() {
-        for p in r * j..r * (j + 1) {
-            sum += active.iter().map(|v| v.count(p)).sum::<u32>();
+        for i in 0..r {
+            sum += active
+                .iter()
+                .map(|v| v.list(i, j).len() as u32)
+                .sum::<u32>();
             offsets.push(sum);
         }
     }
     offsets
 }
 
-/// Writes pixel `p`'s composed list to the start of `out` and returns its length: the lists
-/// of `parts` at `p`, ordered by their first supersegment's depth (`order` is scratch) and
-/// concatenated, each supersegment that starts before the previous one's end moved to start
-/// there (see the module docs).
-fn compose_pixel<'v>(
-    parts: &[&'v Vdi],
-    p: usize,
+/// Writes pixel `(i, j)`'s composed list to the start of `out` and returns its length: the
+/// lists of `parts` there, ordered by their first supersegment's depth (`order` is scratch)
+/// and concatenated, each supersegment that starts before the previous one's end moved to
+/// start there (see the module docs).
+fn compose_pixel<'v, L: PixelLists>(
+    parts: &[&'v L],
+    i: usize,
+    j: usize,
     order: &mut Vec<&'v [Supersegment]>,
     out: &mut [Supersegment],
 ) -> usize {
     order.clear();
-    order.extend(parts.iter().filter_map(|v| {
-        let (a, b) = (v.offsets()[p] as usize, v.offsets()[p + 1] as usize);
-        (a < b).then(|| &v.supersegments()[a..b])
-    }));
+    order.extend(parts.iter().map(|v| v.list(i, j)).filter(|l| !l.is_empty()));
     order.sort_unstable_by(|a, b| a[0].z_start.total_cmp(&b[0].z_start));
     let mut prev_end = f32::NEG_INFINITY;
     let segments = order.iter().flat_map(|list| list.iter());
@@ -187,49 +238,96 @@ fn compose_pixel<'v>(
     order.iter().map(|list| list.len()).sum()
 }
 
-/// One brick's frame at one view: colour (premultiplied, black background), accumulated
-/// opacity per pixel (`width · height`, row-major from the top), and the brick's world box.
+/// One brick's frame at one view: colour (premultiplied, black background) and accumulated
+/// opacity per pixel (`image`'s `width · height`, row-major from the top) of the window of
+/// the frame whose top-left pixel is `origin` (the whole frame at `[0, 0]`; pixels outside
+/// the window are transparent), and the brick's world box.
 #[derive(Clone, Copy, Debug)]
 pub struct BrickFrame<'a> {
-    /// The brick's rendering.
+    /// The brick's rendering, or the window of it that holds every pixel it covers.
     pub image: &'a Image,
     /// Its accumulated opacity per pixel, in [0, 1].
     pub opacity: &'a [f32],
+    /// The window's top-left pixel in the frame, `[column, row]`.
+    pub origin: [u32; 2],
     /// The brick's world box.
     pub world_box: Aabb,
 }
 
 impl<'a> From<&'a (Image, Vec<f32>, Aabb)> for BrickFrame<'a> {
-    /// A brick's frame from its rendering with opacity ([`crate::dvr::render_with_opacity`])
-    /// and its world box.
+    /// A brick's whole frame from its rendering with opacity
+    /// ([`crate::dvr::render_with_opacity`]) and its world box.
     fn from((image, opacity, world_box): &'a (Image, Vec<f32>, Aabb)) -> Self {
         Self {
             image,
             opacity,
+            origin: [0, 0],
             world_box: *world_box,
         }
     }
 }
 
-/// Composites the frames of a step's bricks, all rendered from `camera` at the same size,
-/// into the frame of the whole domain and its opacity: per pixel, front to back in the order
-/// in which the pixel's ray enters the bricks' boxes (exact for disjoint convex boxes; see
-/// the module docs). Pixels whose ray misses a box take nothing from that brick.
+/// The window of a frame (`rgba`: `width · height` pixels of colour and opacity) that holds
+/// every pixel that is not transparent black, `(origin, image, opacity)`; an empty window at
+/// `[0, 0]` when every pixel is. Compositing the window is compositing the frame, bit for bit:
+/// a pixel of colour 0 and opacity 0 leaves the front-to-back sum as it was.
+pub fn frame_window(
+    (width, height): (u32, u32),
+    rgba: impl Fn(usize) -> [f32; 4],
+) -> ([u32; 2], Image, Vec<f32>) {
+    let (w, h) = (width as usize, height as usize);
+    let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
+    for j in 0..h {
+        for i in 0..w {
+            if rgba(i + w * j).iter().any(|&c| c != 0.0) {
+                (x0, x1) = (x0.min(i), x1.max(i + 1));
+                (y0, y1) = (y0.min(j), y1.max(j + 1));
+            }
+        }
+    }
+    if x1 <= x0 || y1 <= y0 {
+        return ([0, 0], Image::new(0, 0), Vec::new());
+    }
+    let (ww, wh) = (x1 - x0, y1 - y0);
+    let mut rgb = Vec::with_capacity(ww * wh);
+    let mut opacity = Vec::with_capacity(ww * wh);
+    for j in y0..y1 {
+        for i in x0..x1 {
+            let [r, g, b, a] = rgba(i + w * j);
+            rgb.push([r, g, b]);
+            opacity.push(a);
+        }
+    }
+    let image = Image::from_pixels(ww as u32, wh as u32, rgb).unwrap_or_else(|| Image::new(0, 0));
+    ([x0 as u32, y0 as u32], image, opacity)
+}
+
+/// Composites the frames of a step's bricks, all rendered from `camera` at `width × height`
+/// (whole or as windows, [`BrickFrame::origin`]), into the frame of the whole domain and its
+/// opacity: per pixel, front to back in the order in which the pixel's ray enters the
+/// bricks' boxes (exact for disjoint convex boxes; see the module docs). Pixels whose ray
+/// misses a box, or outside a brick's window, take nothing from that brick.
 ///
 /// # Errors
-/// [`ComposeError::Empty`] for no frames; [`ComposeError::Frame`] when sizes differ or an
-/// opacity plane does not have one value per pixel.
+/// [`ComposeError::Empty`] for no frames; [`ComposeError::Frame`] when a window does not lie
+/// inside the frame or an opacity plane does not have one value per pixel.
 pub fn compose_frames(
     camera: &Camera,
+    (w, h): (u32, u32),
     frames: &[BrickFrame],
 ) -> Result<(Image, Vec<f32>), ComposeError> {
-    let first = frames.first().ok_or(ComposeError::Empty)?;
-    let (w, h) = (first.image.width(), first.image.height());
+    if frames.is_empty() {
+        return Err(ComposeError::Empty);
+    }
     for (part, f) in frames.iter().enumerate() {
-        if f.image.width() != w || f.image.height() != h {
+        let [ox, oy] = f.origin;
+        let (fw, fh) = (f.image.width(), f.image.height());
+        if u64::from(ox) + u64::from(fw) > u64::from(w)
+            || u64::from(oy) + u64::from(fh) > u64::from(h)
+        {
             return Err(ComposeError::Frame {
                 part,
-                problem: format!("{}×{} beside {w}×{h}", f.image.width(), f.image.height()),
+                problem: format!("{fw}×{fh} at ({ox}, {oy}) outside {w}×{h}"),
             });
         }
         if f.opacity.len() != f.image.pixels().len() {
@@ -247,7 +345,6 @@ pub fn compose_frames(
     let pixels = crate::dvr::tiles(&frame, |i, j| {
         let ray = frame.pixel_ray(i, j);
         let inv = ray.dir.recip();
-        let p = i as usize + w as usize * j as usize;
         let mut order: Vec<(f32, usize)> = Vec::with_capacity(frames.len());
         for (k, f) in frames.iter().enumerate() {
             let (t0, t1) = f.world_box.intersect(ray.origin, inv);
@@ -260,7 +357,11 @@ pub fn compose_frames(
         let mut acc = FrontToBack::new(1.0);
         for &(_, k) in &order {
             let f = &frames[k];
-            acc.over(f.image.pixels()[p], f.opacity[p]);
+            let (x, y) = (i.wrapping_sub(f.origin[0]), j.wrapping_sub(f.origin[1]));
+            if x < f.image.width() && y < f.image.height() {
+                let p = x as usize + f.image.width() as usize * y as usize;
+                acc.over(f.image.pixels()[p], f.opacity[p]);
+            }
         }
         acc.finish()
     });

@@ -27,8 +27,10 @@ use crate::config::HostConfig;
 use crate::shared::Shared;
 use crate::work::Product;
 use bytes::Bytes;
-use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame};
+use insitu_core::compose::{compose_frames, compose_vdis, frame_window, BrickFrame, PixelLists};
 use insitu_core::vdi::codec::{self, Codec};
+use insitu_core::vdi::window::VdiWindow;
+use insitu_core::vdi::{Supersegment, VdiMeta};
 use insitu_core::volume::bricks::{box_groups, Brick};
 use insitu_core::{Camera, Image, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_from_pb, dims_to_pb};
@@ -39,17 +41,61 @@ use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 use tracing::{info, warn};
 
-/// A rank's finished step: what ships (compressed VDI, frames, spool entries) and its VDI in
+/// A rank's finished step: what ships (compressed VDI, frames, spool entries) and its lists in
 /// memory, for composing.
 pub struct Finished {
     /// As the worker made it (its frames taken out while they are packed).
     pub product: Product,
-    /// The VDI `product.vdi` encodes.
-    pub vdi: Vdi,
+    /// The lists `product.vdi` encodes.
+    lists: Lists,
     /// While the rank waits for its host's other ranks: its frames' header and each view's
     /// RGBA bytes zstd-compressed (a brick's frame is mostly empty, so a waiting rank holds
     /// a few kB instead of views × side² × 16 B).
     packed: Option<(pb::ReferenceHeader, Vec<Vec<u8>>)>,
+}
+
+/// A finished rank's lists: the VDI as the worker made it, or, while the rank waits for its
+/// host's other ranks, its window (the footprint's lists in buffers of their size).
+enum Lists {
+    Whole(Vdi),
+    Window(VdiWindow),
+}
+
+impl Lists {
+    fn into_whole(self) -> Option<Vdi> {
+        match self {
+            Lists::Whole(v) => Some(v),
+            Lists::Window(_) => None,
+        }
+    }
+}
+
+impl PixelLists for Lists {
+    fn meta(&self) -> &VdiMeta {
+        match self {
+            Lists::Whole(v) => v.meta(),
+            Lists::Window(w) => w.meta(),
+        }
+    }
+    fn supersegment_count(&self) -> usize {
+        match self {
+            Lists::Whole(v) => v.supersegments().len(),
+            Lists::Window(w) => w.supersegments().len(),
+        }
+    }
+    fn row_is_empty(&self, j: usize) -> bool {
+        match self {
+            Lists::Whole(v) => PixelLists::row_is_empty(v, j),
+            Lists::Window(w) => w.row_is_empty(j),
+        }
+    }
+    #[inline]
+    fn list(&self, i: usize, j: usize) -> &[Supersegment] {
+        match self {
+            Lists::Whole(v) => PixelLists::list(v, i, j),
+            Lists::Window(w) => w.list(i, j),
+        }
+    }
 }
 
 impl Finished {
@@ -57,14 +103,26 @@ impl Finished {
     pub fn new(product: Product, vdi: Vdi) -> Self {
         Self {
             product,
-            vdi,
+            lists: Lists::Whole(vdi),
             packed: None,
         }
     }
 
-    /// Compresses the frames view by view for the wait (left as they are when a view does
-    /// not compress); done on the worker threads, for a rank whose node [`Gather::gathers`].
-    pub fn pack(&mut self) {
+    /// Readies the rank for the wait, on the worker threads, for a rank whose node
+    /// [`Gather::gathers`]: its VDI cropped to its footprint ([`VdiWindow`]: a brick's lists
+    /// without `r²` offsets, in a buffer of their size) and its frames compressed view by view
+    /// (left as they are when a view does not compress). Returns the VDI as made, whose memory
+    /// the worker's next step reuses.
+    pub fn pack(&mut self) -> Option<Vdi> {
+        self.pack_frames();
+        let window = match &self.lists {
+            Lists::Whole(v) => Lists::Window(VdiWindow::crop(v)),
+            Lists::Window(_) => return None,
+        };
+        std::mem::replace(&mut self.lists, window).into_whole()
+    }
+
+    fn pack_frames(&mut self) {
         let Some((header, bytes)) = &self.product.references else {
             return;
         };
@@ -74,11 +132,22 @@ impl Finished {
         }
         let packed: Option<Vec<Vec<u8>>> = bytes
             .chunks(bytes.len() / views)
-            .map(|view| zstd::bulk::compress(view, 1).ok())
+            .map(|view| {
+                // zstd's buffer is sized for the worst case (the view's size): kept, it
+                // would hold that much memory per waiting rank.
+                let mut c = zstd::bulk::compress(view, 1).ok()?;
+                c.shrink_to_fit();
+                Some(c)
+            })
             .collect();
         if let (Some(views), Some((header, _))) = (packed, self.product.references.take()) {
             self.packed = Some((header, views));
         }
+    }
+
+    /// The VDI as the worker made it, unless it was packed (its memory, for the next step).
+    pub fn into_vdi(self) -> Option<Vdi> {
+        self.lists.into_whole()
     }
 
     /// The product as it ships alone, its frames unpacked.
@@ -86,8 +155,9 @@ impl Finished {
         self.unpack().0
     }
 
-    /// The product as it ships alone (its frames unpacked) and the VDI it encodes.
-    pub fn unpack(mut self) -> (Product, Vdi) {
+    /// The product as it ships alone (its frames unpacked) and the VDI it encodes, unless it
+    /// was packed (its memory, for the next step).
+    pub fn unpack(mut self) -> (Product, Option<Vdi>) {
         if let Some((header, views)) = self.packed.take() {
             let per_view = header.total_bytes as usize / views.len().max(1);
             let bytes: Option<Vec<u8>> = views
@@ -109,7 +179,7 @@ impl Finished {
                 }
             }
         }
-        (self.product, self.vdi)
+        (self.product, self.lists.into_whole())
     }
 
     /// The frames' header, packed or not.
@@ -456,8 +526,8 @@ pub enum PartError {
 pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartError> {
     let lead = &group[0].product.vdi_header;
     let covers: Vec<u32> = group.iter().map(|f| f.product.vdi_header.rank).collect();
-    let vdis: Vec<&Vdi> = group.iter().map(|f| &f.vdi).collect();
-    let vdi = compose_vdis(&vdis).map_err(|source| PartError::Compose {
+    let lists: Vec<&Lists> = group.iter().map(|f| &f.lists).collect();
+    let vdi = compose_vdis(&lists).map_err(|source| PartError::Compose {
         rank: lead.rank,
         source,
     })?;
@@ -541,9 +611,10 @@ fn compose_references(
     let per_view = w as usize * h as usize * 16;
     let views = lead.view_angles_deg.len();
     let mut out = Vec::with_capacity(per_view * views);
-    // One view at a time: the ranks' frames of a view unpacked, composited, written out.
+    // One view at a time: each rank's frame of the view unpacked and cut to the window its
+    // brick covers (the rest is transparent), the windows composited, the view written out.
     for (v, &angle) in lead.view_angles_deg.iter().enumerate() {
-        let parsed: Vec<(Image, Vec<f32>)> = group
+        let windows: Vec<([u32; 2], Image, Vec<f32>)> = group
             .iter()
             .map(|f| {
                 let bytes = f.view(v, per_view).ok_or_else(|| {
@@ -552,20 +623,21 @@ fn compose_references(
                         f.product.vdi_header.rank
                     ))
                 })?;
-                rgba_frame(&bytes, (w, h))
+                Ok(frame_window((w, h), |p| rgba_at(&bytes, p)))
             })
-            .collect::<Result<_, _>>()?;
-        let bricks: Vec<BrickFrame> = parsed
+            .collect::<Result<_, PartError>>()?;
+        let bricks: Vec<BrickFrame> = windows
             .iter()
             .zip(group)
-            .map(|((image, opacity), f)| BrickFrame {
+            .map(|((origin, image, opacity), f)| BrickFrame {
                 image,
                 opacity,
-                world_box: f.vdi.meta().volume_box,
+                origin: *origin,
+                world_box: f.lists.meta().volume_box,
             })
             .collect();
         let (image, opacity) =
-            compose_frames(&camera.orbit_y(angle), &bricks).map_err(|source| {
+            compose_frames(&camera.orbit_y(angle), (w, h), &bricks).map_err(|source| {
                 PartError::Compose {
                     rank: covers[0],
                     source,
@@ -581,18 +653,14 @@ fn compose_references(
     Ok(Some((header, Bytes::from(out))))
 }
 
-/// One frame of `w × h` RGBA little-endian f32 (as the worker writes them; the caller checked
-/// the length) as an image and its opacity plane.
-fn rgba_frame(bytes: &[u8], (w, h): (u32, u32)) -> Result<(Image, Vec<f32>), PartError> {
-    let values: Vec<f32> = bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    let rgb = values.chunks_exact(4).map(|p| [p[0], p[1], p[2]]).collect();
-    let opacity = values.chunks_exact(4).map(|p| p[3]).collect();
-    let image = Image::from_pixels(w, h, rgb)
-        .ok_or_else(|| PartError::Frames(format!("a frame of {w}×{h}")))?;
-    Ok((image, opacity))
+/// Pixel `p`'s RGBA of a frame of little-endian f32 (as the worker writes them; the caller
+/// checked the length).
+fn rgba_at(bytes: &[u8], p: usize) -> [f32; 4] {
+    let at = |k: usize| {
+        let o = 16 * p + 4 * k;
+        f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
+    };
+    [at(0), at(1), at(2), at(3)]
 }
 
 #[cfg(test)]
@@ -602,6 +670,14 @@ mod tests {
     use insitu_core::{dvr, RaycastParams, Raycaster, TransferFunction, VdiParams, Volume};
 
     const GLOBAL: [usize; 3] = [17, 13, 11];
+
+    /// A whole frame of `w × h` RGBA little-endian f32 as an image and its opacity plane.
+    fn rgba_frame(bytes: &[u8], (w, h): (u32, u32)) -> (Image, Vec<f32>) {
+        let px: Vec<[f32; 4]> = (0..(w * h) as usize).map(|p| rgba_at(bytes, p)).collect();
+        let rgb = px.iter().map(|p| [p[0], p[1], p[2]]).collect();
+        let opacity = px.iter().map(|p| p[3]).collect();
+        (Image::from_pixels(w, h, rgb).unwrap(), opacity)
+    }
 
     fn whole() -> Volume {
         Volume::from_fn(GLOBAL, |x, y, z| {
@@ -711,8 +787,8 @@ mod tests {
         assert_eq!(part.limit_retries.0, 4);
         let (vdi, provenance) =
             codec::decode_with_provenance(&part.vdi, &Default::default()).unwrap();
-        let vdis: Vec<&Vdi> = group.iter().map(|f| &f.vdi).collect();
-        assert_eq!(vdi, compose_vdis(&vdis).unwrap());
+        let lists: Vec<&Lists> = group.iter().map(|f| &f.lists).collect();
+        assert_eq!(vdi, compose_vdis(&lists).unwrap());
         let p = provenance.unwrap();
         assert_eq!(
             (p.covers, p.placement),
@@ -727,12 +803,12 @@ mod tests {
         let camera = camera_from_pb(rh.camera.as_ref().unwrap()).unwrap();
         for (v, &angle) in rh.view_angles_deg.iter().enumerate() {
             let per = 24 * 24 * 16;
-            let (got, got_opacity) = rgba_frame(&bytes[v * per..(v + 1) * per], (24, 24)).unwrap();
+            let (got, got_opacity) = rgba_frame(&bytes[v * per..(v + 1) * per], (24, 24));
             let frames: Vec<(Image, Vec<f32>)> = group
                 .iter()
                 .map(|f| {
                     let b = &f.product.references.as_ref().unwrap().1;
-                    rgba_frame(&b[v * per..(v + 1) * per], (24, 24)).unwrap()
+                    rgba_frame(&b[v * per..(v + 1) * per], (24, 24))
                 })
                 .collect();
             let bf: Vec<BrickFrame> = frames
@@ -741,10 +817,12 @@ mod tests {
                 .map(|((i, o), f)| BrickFrame {
                     image: i,
                     opacity: o,
-                    world_box: f.vdi.meta().volume_box,
+                    origin: [0, 0],
+                    world_box: f.lists.meta().volume_box,
                 })
                 .collect();
-            let (want, want_opacity) = compose_frames(&camera.orbit_y(angle), &bf).unwrap();
+            let (want, want_opacity) =
+                compose_frames(&camera.orbit_y(angle), (24, 24), &bf).unwrap();
             assert_eq!((got, got_opacity), (want, want_opacity), "view {v}");
         }
         // Packed while they wait, the ranks make the same part, and a rank that ships alone
@@ -756,10 +834,22 @@ mod tests {
             .collect();
         for f in &mut packed {
             let raw = f.product.references.as_ref().unwrap().1.len();
-            f.pack();
+            let made = f.pack().unwrap();
             assert!(f.product.references.is_none());
-            let held: usize = f.packed.as_ref().unwrap().1.iter().map(Vec::len).sum();
+            // What the packed views hold in memory (their buffers' capacity), not only
+            // what they say they hold.
+            let held: usize = f.packed.as_ref().unwrap().1.iter().map(Vec::capacity).sum();
             assert!(held * 4 < raw, "{held} of {raw} bytes");
+            // The lists wait as the brick's window: the same lists without r² offsets.
+            let Lists::Window(w) = &f.lists else {
+                panic!(
+                    "rank {} waits with its whole VDI",
+                    f.product.vdi_header.rank
+                )
+            };
+            assert_eq!(w.to_vdi(), made);
+            assert!(w.memory_bytes() < made.memory_bytes());
+            assert!(f.pack().is_none(), "packed twice");
         }
         let again = compose_part(&packed, whole_box).unwrap();
         assert_eq!(

@@ -397,17 +397,20 @@ async fn worker(shared: Arc<Shared>) {
                 // A rank that will wait for its host's other ranks has its frames packed
                 // here, on the worker threads.
                 let mut finished = crate::host::Finished::new(product, vdi);
-                if s.host.gathers(raw_world_size) {
-                    finished.pack();
-                }
-                Ok::<_, work::WorkError>((finished, tf, for_tuner))
+                let reusable = if s.host.gathers(raw_world_size) {
+                    finished.pack()
+                } else {
+                    None
+                };
+                Ok::<_, work::WorkError>((finished, tf, for_tuner, reusable))
             })
         })
         .instrument(info_span!("step", step, rank))
         .await;
         drop(lane);
         match result {
-            Ok(Ok((finished, tf, for_tuner))) => {
+            Ok(Ok((finished, tf, for_tuner, reusable))) => {
+                spare = reusable;
                 if let Some(t) = &shared.tuning {
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
@@ -419,14 +422,14 @@ async fn worker(shared: Arc<Shared>) {
                     c.limit_retry_secs += retry_secs;
                 });
                 if !shared.shipping {
-                    spare = Some(finished.vdi);
+                    spare = spare.or(finished.into_vdi());
                     shared.unspool(spooled.as_ref());
                     continue;
                 }
                 // A rank of a world of several waits for its host's other ranks.
                 if let Some(f) = shared.host.finish(finished) {
                     let (product, vdi) = f.unpack();
-                    spare = Some(vdi);
+                    spare = spare.or(vdi);
                     to_outbox(&shared, product).await;
                 }
             }

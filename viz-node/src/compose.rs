@@ -299,12 +299,17 @@ fn compose_references(
                 Some(BrickFrame {
                     image: r.frames.get(view)?,
                     opacity: r.opacity.as_ref()?.get(view)?,
+                    origin: [0, 0],
                     world_box: v.meta().volume_box,
                 })
             })
             .collect();
-        let (image, opacity) =
-            compose_frames(&first.camera.orbit_y(angle), &bricks).map_err(|e| StepError::Rank {
+        // The ranks' frames are all of the first's size (checked by `rank_references`).
+        let size = bricks
+            .first()
+            .map_or((0, 0), |b| (b.image.width(), b.image.height()));
+        let (image, opacity) = compose_frames(&first.camera.orbit_y(angle), size, &bricks)
+            .map_err(|e| StepError::Rank {
                 step: ready[0].step,
                 rank: ready[0].rank,
                 problem: format!("compositing reference frames: {e}"),

@@ -7,12 +7,14 @@
 //! - [`generate`]: `R(S_A, P_A, P_M) → M`, the merge of ray samples into supersegments.
 //! - [`render`]: `I(M, P_I) → O`, compositing the frusta along rays of a new camera.
 //! - [`codec`]: the versioned, compressed, validated file format whose size is σ.
+//! - [`window`]: a sub-VDI cropped to its footprint, as a host holds it until it composes.
 
 pub mod codec;
 pub mod generate;
 pub mod lod;
 pub mod provenance;
 pub mod render;
+pub mod window;
 
 use crate::camera::Camera;
 use crate::volume::Aabb;

@@ -2,9 +2,9 @@
 //! reproduce the VDI and the frame of the whole volume, for slab, pencil and grid splits and
 //! from every side (the order of the bricks changes with the view).
 
-use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
+use insitu_core::compose::{compose_frames, compose_vdis, frame_window, BrickFrame, ComposeError};
 use insitu_core::metrics::psnr;
-use insitu_core::vdi::{generate::generate, render::render, VdiParams};
+use insitu_core::vdi::{generate::generate, render::render, window::VdiWindow, VdiParams};
 use insitu_core::volume::bricks::{box_groups, grid_bricks, Brick};
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
 
@@ -58,6 +58,25 @@ fn composed_sub_vdis_render_like_the_whole_vdi() {
             .collect();
         let composed = compose_vdis(&parts.iter().collect::<Vec<_>>()).unwrap();
         assert_eq!(composed.meta().volume_box, whole.world_box());
+        // Cropped to their footprints (as a host holds its waiting ranks), the sub-VDIs are
+        // the same lists in less memory, and compose to the same VDI bit for bit.
+        let windows: Vec<VdiWindow> = parts.iter().map(VdiWindow::crop).collect();
+        for (w, p) in windows.iter().zip(&parts) {
+            assert_eq!(&w.to_vdi(), p, "{split:?}");
+            let (_, _, width, height) = w.rect();
+            assert_eq!(
+                w.memory_bytes(),
+                (width * height + 1) * 4 + std::mem::size_of_val(p.supersegments())
+            );
+        }
+        assert_eq!(
+            compose_vdis(&windows.iter().collect::<Vec<_>>()).unwrap(),
+            composed,
+            "{split:?}"
+        );
+        let held: usize = windows.iter().map(VdiWindow::memory_bytes).sum();
+        let whole_held: usize = parts.iter().map(Vdi::memory_bytes).sum();
+        assert!(held < whole_held, "{split:?}: {held} ≥ {whole_held} bytes");
         assert_eq!(
             composed.supersegments().len(),
             parts.iter().map(|p| p.supersegments().len()).sum::<usize>()
@@ -96,7 +115,34 @@ fn composed_brick_frames_match_the_whole_frame_from_every_side() {
             })
             .collect();
         let bf: Vec<BrickFrame> = frames.iter().map(BrickFrame::from).collect();
-        let (got, got_opacity) = compose_frames(&cam, &bf).unwrap();
+        let (got, got_opacity) = compose_frames(&cam, (R, R), &bf).unwrap();
+        // Each brick's frame cut to the window it covers composites to the same frame, bit
+        // for bit (as a host composites its ranks' frames).
+        let windows: Vec<_> = frames
+            .iter()
+            .map(|(image, opacity, _)| {
+                frame_window((R, R), |p| {
+                    let [r, g, b] = image.pixels()[p];
+                    [r, g, b, opacity[p]]
+                })
+            })
+            .collect();
+        let wf: Vec<BrickFrame> = windows
+            .iter()
+            .zip(&frames)
+            .map(|((origin, image, opacity), (_, _, world_box))| BrickFrame {
+                image,
+                opacity,
+                origin: *origin,
+                world_box: *world_box,
+            })
+            .collect();
+        assert!(wf.iter().all(|f| f.image.pixels().len() < (R * R) as usize));
+        assert_eq!(
+            compose_frames(&cam, (R, R), &wf).unwrap(),
+            (got.clone(), got_opacity.clone()),
+            "windows at {angle}°"
+        );
         let q = psnr(&got, &want).unwrap();
         assert!(q >= 45.0, "at {angle}°: {q:.1} dB");
         let worst = got_opacity
@@ -116,7 +162,7 @@ fn composed_brick_frames_match_the_whole_frame_from_every_side() {
                 ..*f
             })
             .collect();
-        let (wrong, _) = compose_frames(&cam, &reversed).unwrap();
+        let (wrong, _) = compose_frames(&cam, (R, R), &reversed).unwrap();
         assert!(
             psnr(&wrong, &want).unwrap() < q,
             "order must count at {angle}°"
@@ -176,17 +222,17 @@ fn hosts_composing_first_give_the_one_level_picture() {
         for (v, per_view) in views.iter().zip(&frames) {
             let cam = camera.orbit_y(*v);
             let all: Vec<BrickFrame> = per_view.iter().map(BrickFrame::from).collect();
-            let (want, want_opacity) = compose_frames(&cam, &all).unwrap();
+            let (want, want_opacity) = compose_frames(&cam, (R, R), &all).unwrap();
             let host_frames: Vec<(insitu_core::Image, Vec<f32>, _)> = parts
                 .iter()
                 .map(|(ranks, part)| {
                     let members: Vec<BrickFrame> = ranks.iter().map(|&k| all[k]).collect();
-                    let (i, o) = compose_frames(&cam, &members).unwrap();
+                    let (i, o) = compose_frames(&cam, (R, R), &members).unwrap();
                     (i, o, part.meta().volume_box)
                 })
                 .collect();
             let hf: Vec<BrickFrame> = host_frames.iter().map(BrickFrame::from).collect();
-            let (got, got_opacity) = compose_frames(&cam, &hf).unwrap();
+            let (got, got_opacity) = compose_frames(&cam, (R, R), &hf).unwrap();
             let q = psnr(&got, &want).unwrap();
             assert!(q >= 60.0, "hosts {hosts:?} at {v}°: {q:.1} dB");
             let worst = got_opacity
@@ -213,6 +259,17 @@ fn a_transparent_brick_adds_nothing_and_mismatches_are_refused() {
     let composed = compose_vdis(&[&whole_vdi, &empty]).unwrap();
     assert_eq!(composed.offsets(), whole_vdi.offsets());
     assert_eq!(composed.supersegments(), whole_vdi.supersegments());
+    // An empty VDI's window holds nothing, and is the empty VDI again.
+    let window = VdiWindow::crop(&empty);
+    assert_eq!((window.rect(), window.memory_bytes()), ((0, 0, 0, 0), 4));
+    assert_eq!(window.to_vdi(), empty);
+    let whole_window = VdiWindow::crop(&whole_vdi);
+    assert_eq!(
+        compose_vdis(&[&whole_window, &window])
+            .unwrap()
+            .supersegments(),
+        whole_vdi.supersegments()
+    );
 
     let other_camera = vdi_of(&whole, &camera.orbit_y(10.0));
     assert_eq!(
@@ -222,10 +279,55 @@ fn a_transparent_brick_adds_nothing_and_mismatches_are_refused() {
             what: "generation camera"
         })
     );
-    assert_eq!(compose_vdis(&[]), Err(ComposeError::Empty));
+    assert_eq!(compose_vdis::<Vdi>(&[]), Err(ComposeError::Empty));
     let b = Brick {
         offset: [0, 0, 0],
         dims: [4, 4, 4],
     };
     assert!(whole.brick(&b).is_ok());
+}
+
+/// A frame window must lie inside the frame and carry one opacity per pixel; an all-black
+/// frame's window is empty and adds nothing.
+#[test]
+fn frame_windows_outside_the_frame_are_refused() {
+    let camera = Camera::default_for_box(&field().world_box());
+    let image = insitu_core::Image::new(4, 4);
+    let opacity = vec![0.5; 16];
+    let world_box = field().world_box();
+    let at = |origin| BrickFrame {
+        image: &image,
+        opacity: &opacity,
+        origin,
+        world_box,
+    };
+    assert!(compose_frames(&camera, (8, 8), &[at([4, 4])]).is_ok());
+    for origin in [[5, 0], [0, 5], [u32::MAX, 0]] {
+        let err = compose_frames(&camera, (8, 8), &[at([4, 4]), at(origin)]).unwrap_err();
+        assert!(
+            matches!(&err, ComposeError::Frame { part: 1, problem } if problem.contains("outside 8×8")),
+            "{origin:?}: {err}"
+        );
+    }
+    let short = BrickFrame {
+        opacity: &opacity[..15],
+        ..at([0, 0])
+    };
+    assert!(matches!(
+        compose_frames(&camera, (8, 8), &[short]),
+        Err(ComposeError::Frame { part: 0, .. })
+    ));
+    let (origin, empty, planes) = frame_window((8, 8), |_| [0.0; 4]);
+    assert_eq!((origin, empty.pixels().len(), planes.len()), ([0, 0], 0, 0));
+    let (origin, one, planes) = frame_window((8, 8), |p| {
+        if p == 8 * 3 + 5 {
+            [0.0, 0.0, 0.0, 0.25]
+        } else {
+            [0.0; 4]
+        }
+    });
+    assert_eq!(
+        (origin, one.width(), one.height(), planes),
+        ([5, 3], 1, 1, vec![0.25])
+    );
 }
