@@ -268,9 +268,11 @@ impl<'a> From<&'a (Image, Vec<f32>, Aabb)> for BrickFrame<'a> {
 }
 
 /// The window of a frame (`rgba`: `width · height` pixels of colour and opacity) that holds
-/// every pixel that is not transparent black, `(origin, image, opacity)`; an empty window at
-/// `[0, 0]` when every pixel is. Compositing the window is compositing the frame, bit for bit:
-/// a pixel of colour 0 and opacity 0 leaves the front-to-back sum as it was.
+/// every pixel with a value whose bits are not all zero, `(origin, image, opacity)`; an empty
+/// window at `[0, 0]` when there is none. Outside the window every value is `+0.0`, so the
+/// frame can be rebuilt from the window byte for byte, and compositing the window is
+/// compositing the frame, bit for bit (a pixel of colour 0 and opacity 0 leaves the
+/// front-to-back sum as it was).
 pub fn frame_window(
     (width, height): (u32, u32),
     rgba: impl Fn(usize) -> [f32; 4],
@@ -279,7 +281,7 @@ pub fn frame_window(
     let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
     for j in 0..h {
         for i in 0..w {
-            if rgba(i + w * j).iter().any(|&c| c != 0.0) {
+            if rgba(i + w * j).iter().any(|&c| c.to_bits() != 0) {
                 (x0, x1) = (x0.min(i), x1.max(i + 1));
                 (y0, y1) = (y0.min(j), y1.max(j + 1));
             }

@@ -19,22 +19,27 @@
 //! alone, with a warning.
 //!
 //! Memory: a step's finished ranks wait until its parts ship, each holding its compressed
-//! VDI, its VDI in memory (with its r² list offsets, whatever the brick's size) and its
-//! frames zstd-compressed view by view; composing unpacks one view of the group's frames at
-//! a time.
+//! VDI, its lists cropped to its footprint ([`VdiWindow`]: no `r²` offsets, a buffer of their
+//! size) and its frames cut to their windows and compressed (`host::packed`); the VDI as the
+//! worker made it goes back to the worker, whose next step reuses its memory. So the ranks a
+//! node holds cost about one host VDI, whatever their number (docs/scale.md, "Memory").
+//! Composing unpacks one view of the group's frame windows at a time.
+
+mod packed;
 
 use crate::config::HostConfig;
 use crate::shared::Shared;
 use crate::work::Product;
 use bytes::Bytes;
-use insitu_core::compose::{compose_frames, compose_vdis, frame_window, BrickFrame, PixelLists};
+use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, PixelLists};
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::window::VdiWindow;
 use insitu_core::vdi::{Supersegment, VdiMeta};
 use insitu_core::volume::bricks::{box_groups, Brick};
-use insitu_core::{Camera, Image, Vdi};
+use insitu_core::{Camera, Vdi};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_from_pb, dims_to_pb};
 use insitu_proto::pb;
+use packed::PackedFrames;
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -48,10 +53,9 @@ pub struct Finished {
     pub product: Product,
     /// The lists `product.vdi` encodes.
     lists: Lists,
-    /// While the rank waits for its host's other ranks: its frames' header and each view's
-    /// RGBA bytes zstd-compressed (a brick's frame is mostly empty, so a waiting rank holds
-    /// a few kB instead of views × side² × 16 B).
-    packed: Option<(pb::ReferenceHeader, Vec<Vec<u8>>)>,
+    /// While the rank waits for its host's other ranks: its frames, each view cut to its
+    /// brick's window and compressed.
+    packed: Option<PackedFrames>,
 }
 
 /// A finished rank's lists: the VDI as the worker made it, or, while the rank waits for its
@@ -126,23 +130,23 @@ impl Finished {
         let Some((header, bytes)) = &self.product.references else {
             return;
         };
-        let views = header.view_angles_deg.len().max(1);
-        if bytes.len() % views != 0 {
-            return;
+        if let Some(packed) = PackedFrames::pack(header.clone(), bytes) {
+            self.product.references = None;
+            self.packed = Some(packed);
         }
-        let packed: Option<Vec<Vec<u8>>> = bytes
-            .chunks(bytes.len() / views)
-            .map(|view| {
-                // zstd's buffer is sized for the worst case (the view's size): kept, it
-                // would hold that much memory per waiting rank.
-                let mut c = zstd::bulk::compress(view, 1).ok()?;
-                c.shrink_to_fit();
-                Some(c)
-            })
-            .collect();
-        if let (Some(views), Some((header, _))) = (packed, self.product.references.take()) {
-            self.packed = Some((header, views));
-        }
+    }
+
+    /// Bytes the rank holds while it waits: its file, its lists and its frames.
+    pub fn held_bytes(&self) -> usize {
+        let lists = match &self.lists {
+            Lists::Whole(v) => v.memory_bytes(),
+            Lists::Window(w) => w.memory_bytes(),
+        };
+        let frames = self.packed.as_ref().map_or_else(
+            || self.product.references.as_ref().map_or(0, |(_, b)| b.len()),
+            PackedFrames::held_bytes,
+        );
+        self.product.vdi.len() + lists + frames
     }
 
     /// The VDI as the worker made it, unless it was packed (its memory, for the next step).
@@ -158,18 +162,11 @@ impl Finished {
     /// The product as it ships alone (its frames unpacked) and the VDI it encodes, unless it
     /// was packed (its memory, for the next step).
     pub fn unpack(mut self) -> (Product, Option<Vdi>) {
-        if let Some((header, views)) = self.packed.take() {
-            let per_view = header.total_bytes as usize / views.len().max(1);
-            let bytes: Option<Vec<u8>> = views
-                .iter()
-                .map(|v| zstd::bulk::decompress(v, per_view).ok())
-                .collect::<Option<Vec<_>>>()
-                .map(|v| v.concat());
-            // Compressed here from these very bytes: decompressing cannot fail but for
-            // memory; frames lost then, the VDI still ships (the viz-node scores without).
-            match bytes {
-                Some(b) => self.product.references = Some((header, Bytes::from(b))),
-                None => {
+        if let Some(packed) = self.packed.take() {
+            match packed.unpack() {
+                (header, Some(bytes)) => self.product.references = Some((header, bytes)),
+                // Frames lost, the VDI still ships (the viz-node scores without).
+                (header, None) => {
                     warn!(
                         step = header.step,
                         rank = header.rank,
@@ -184,23 +181,23 @@ impl Finished {
 
     /// The frames' header, packed or not.
     fn frames_header(&self) -> Option<&pb::ReferenceHeader> {
-        self.packed
+        self.packed.as_ref().map(PackedFrames::header).or(self
+            .product
+            .references
             .as_ref()
-            .map(|(h, _)| h)
-            .or(self.product.references.as_ref().map(|(h, _)| h))
+            .map(|(h, _)| h))
     }
 
-    /// View `v`'s RGBA bytes (`per_view` of them), packed or not.
-    fn view(&self, v: usize, per_view: usize) -> Option<std::borrow::Cow<'_, [u8]>> {
+    /// View `v`'s frame as a window (the whole frame when not packed), of `size` pixels.
+    fn window(&self, v: usize, size: (u32, u32)) -> Option<packed::Window> {
         match (&self.packed, &self.product.references) {
-            (Some((_, views)), _) => views
-                .get(v)
-                .and_then(|c| zstd::bulk::decompress(c, per_view).ok())
-                .filter(|b| b.len() == per_view)
-                .map(std::borrow::Cow::Owned),
-            (None, Some((_, bytes))) => bytes
-                .get(v * per_view..(v + 1) * per_view)
-                .map(std::borrow::Cow::Borrowed),
+            (Some(p), _) => p.window(v),
+            (None, Some((_, bytes))) => {
+                let per_view = size.0 as usize * size.1 as usize * 16;
+                let view = bytes.get(v * per_view..(v + 1) * per_view)?;
+                let (image, opacity) = packed::rgba_frame(view, size)?;
+                Some(([0, 0], image, opacity))
+            }
             (None, None) => None,
         }
     }
@@ -422,6 +419,7 @@ pub async fn run(shared: Arc<Shared>) {
 /// One step's finished ranks into the outbox: a part per box of their bricks.
 async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
     ranks.sort_by_key(|f| f.product.vdi_header.rank);
+    let held: usize = ranks.iter().map(Finished::held_bytes).sum();
     let Some(bricks) = bricks_of(&ranks) else {
         // Ranks that do not say where their bricks lie (or on different grids) ship alone;
         // the viz-node names the problem.
@@ -448,6 +446,7 @@ async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
                     step = part.vdi_header.step,
                     ranks = ?part.vdi_header.covers,
                     bytes = part.vdi.len(),
+                    held_while_waiting = held,
                     secs,
                     "composed the host's ranks into one part"
                 );
@@ -611,19 +610,18 @@ fn compose_references(
     let per_view = w as usize * h as usize * 16;
     let views = lead.view_angles_deg.len();
     let mut out = Vec::with_capacity(per_view * views);
-    // One view at a time: each rank's frame of the view unpacked and cut to the window its
-    // brick covers (the rest is transparent), the windows composited, the view written out.
+    // One view at a time: each rank's window of the view (the part of the frame its brick
+    // covers; packed ranks hold only that) unpacked, the windows composited, the view written.
     for (v, &angle) in lead.view_angles_deg.iter().enumerate() {
-        let windows: Vec<([u32; 2], Image, Vec<f32>)> = group
+        let windows: Vec<packed::Window> = group
             .iter()
             .map(|f| {
-                let bytes = f.view(v, per_view).ok_or_else(|| {
+                f.window(v, (w, h)).ok_or_else(|| {
                     PartError::Frames(format!(
-                        "rank {}: no {per_view} bytes for view {v} of {w}×{h} RGBA f32",
+                        "rank {}: no view {v} of {w}×{h} RGBA f32",
                         f.product.vdi_header.rank
                     ))
-                })?;
-                Ok(frame_window((w, h), |p| rgba_at(&bytes, p)))
+                })
             })
             .collect::<Result<_, PartError>>()?;
         let bricks: Vec<BrickFrame> = windows
@@ -653,30 +651,17 @@ fn compose_references(
     Ok(Some((header, Bytes::from(out))))
 }
 
-/// Pixel `p`'s RGBA of a frame of little-endian f32 (as the worker writes them; the caller
-/// checked the length).
-fn rgba_at(bytes: &[u8], p: usize) -> [f32; 4] {
-    let at = |k: usize| {
-        let o = 16 * p + 4 * k;
-        f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
-    };
-    [at(0), at(1), at(2), at(3)]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use insitu_core::volume::bricks::grid_bricks;
+    use insitu_core::Image;
     use insitu_core::{dvr, RaycastParams, Raycaster, TransferFunction, VdiParams, Volume};
 
     const GLOBAL: [usize; 3] = [17, 13, 11];
 
-    /// A whole frame of `w × h` RGBA little-endian f32 as an image and its opacity plane.
-    fn rgba_frame(bytes: &[u8], (w, h): (u32, u32)) -> (Image, Vec<f32>) {
-        let px: Vec<[f32; 4]> = (0..(w * h) as usize).map(|p| rgba_at(bytes, p)).collect();
-        let rgb = px.iter().map(|p| [p[0], p[1], p[2]]).collect();
-        let opacity = px.iter().map(|p| p[3]).collect();
-        (Image::from_pixels(w, h, rgb).unwrap(), opacity)
+    fn rgba_frame(bytes: &[u8], size: (u32, u32)) -> (Image, Vec<f32>) {
+        packed::rgba_frame(bytes, size).unwrap()
     }
 
     fn whole() -> Volume {
@@ -838,7 +823,7 @@ mod tests {
             assert!(f.product.references.is_none());
             // What the packed views hold in memory (their buffers' capacity), not only
             // what they say they hold.
-            let held: usize = f.packed.as_ref().unwrap().1.iter().map(Vec::capacity).sum();
+            let held = f.packed.as_ref().unwrap().held_bytes();
             assert!(held * 4 < raw, "{held} of {raw} bytes");
             // The lists wait as the brick's window: the same lists without r² offsets.
             let Lists::Window(w) = &f.lists else {
