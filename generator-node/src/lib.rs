@@ -26,6 +26,7 @@ pub mod ship;
 pub mod spare;
 pub mod spool;
 pub mod stats;
+pub mod trial_pool;
 pub mod tuner_link;
 pub mod tuning;
 pub mod work;

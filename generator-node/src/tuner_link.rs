@@ -218,7 +218,10 @@ async fn trials(
             tuning.since_trial.store(0, Ordering::Relaxed);
             let (s, t, r) = (shared.clone(), tuning.clone(), req);
             let result = tokio::task::spawn_blocking(move || {
-                s.compute(|| run_trial(&s, &t, rank, held, &r))
+                let (mut result, cpu) = t.pool.run(|| run_trial(&s, &t, rank, held, &r));
+                result.trial_cpu_secs = cpu;
+                s.stats.update(|c| c.trial_cpu_secs += cpu);
+                result
             })
             .await
             .unwrap_or_else(|e| pb::TrialResult {

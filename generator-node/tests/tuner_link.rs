@@ -218,6 +218,23 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (r.sigma_bytes, r.supersegments)
     );
     assert!(probe.view_mse.is_empty() && probe.ssim.is_none() && probe.tau_secs > 0.0);
+    // Each trial's CPU time is counted on the node, and the node's status sums them inside
+    // its process's CPU time.
+    let trials_cpu = r.trial_cpu_secs + again.trial_cpu_secs + probe.trial_cpu_secs;
+    assert!(
+        r.trial_cpu_secs > 0.0 && again.trial_cpu_secs > 0.0 && probe.trial_cpu_secs > 0.0,
+        "{} {} {}",
+        r.trial_cpu_secs,
+        again.trial_cpu_secs,
+        probe.trial_cpu_secs
+    );
+    let status = client.status().await.unwrap();
+    assert!(
+        (status.trial_cpu_secs - trials_cpu).abs() < 1e-9 && status.cpu_secs > trials_cpu,
+        "status {} of {} s, trials {trials_cpu}",
+        status.trial_cpu_secs,
+        status.cpu_secs
+    );
 
     // A burst beyond the node's trial backlog: every trial gets exactly one answer, a result
     // or a refusal that says the backlog is full (none is queued without bound or lost).

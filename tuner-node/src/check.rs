@@ -61,6 +61,7 @@ pub fn check_trial_result(r: &pb::TrialResult, asked: &pb::TrialRequest) -> Resu
         ("tau_render_secs", r.tau_render_secs),
         ("trial_secs", r.trial_secs),
         ("reference_secs", r.reference_secs),
+        ("trial_cpu_secs", r.trial_cpu_secs),
     ] {
         seconds(&what, field, v)?;
     }
@@ -181,6 +182,7 @@ mod tests {
         bad(|r| r.sigma_bytes = 0, "sigma_bytes");
         bad(|r| r.tau_secs = f64::NAN, "tau_secs NaN");
         bad(|r| r.trial_secs = -1.0, "trial_secs");
+        bad(|r| r.trial_cpu_secs = f64::NAN, "trial_cpu_secs");
         bad(|r| r.tau_render_secs = f64::INFINITY, "tau_render_secs");
         bad(|r| r.view_mse[1] = f64::NAN, "view_mse NaN");
         bad(|r| r.view_mse[0] = -1.0, "view_mse -1");

@@ -154,6 +154,7 @@ impl StepOracle {
             k.trials_run += 1;
             k.size_probes += u64::from(size_only);
             k.trial_secs += secs;
+            k.trial_cpu_secs += results.iter().map(|r| r.trial_cpu_secs).sum::<f64>();
         }
         self.generations += 1;
         self.generation_secs += results.iter().map(|r| r.tau_secs).fold(0.0, f64::max);
