@@ -296,10 +296,16 @@ fn report(name: &str, with: &Outcome, without: &Outcome) {
         100.0 * (with.cpu - without.cpu) / with.cpu
     );
     println!(
-        "trials' CPU time, counted on the node (trial pool): {:.1} s = {:.1} % of the run's CPU time, {:.1} % of the generator-node's (aim ≤ 10 %)",
+        "trials' CPU time, counted on the node (trial pool): {:.1} s = {:.1} % of the run's CPU time, {:.1} % of the generator-node's (aim ≤ 10 %); size probes {:.1} s ({} of them, {:.0} ms each), full trials with their references {:.1} s ({}, {:.0} ms each)",
         s.trial_cpu_secs,
         100.0 * s.trial_cpu_secs / with.cpu,
-        100.0 * s.trial_cpu_secs / with.node_cpu
+        100.0 * s.trial_cpu_secs / with.node_cpu,
+        s.size_probe_cpu_secs,
+        s.size_probes,
+        1e3 * s.size_probe_cpu_secs / s.size_probes.max(1) as f64,
+        s.trial_cpu_secs - s.size_probe_cpu_secs,
+        s.trials_run - s.size_probes,
+        1e3 * (s.trial_cpu_secs - s.size_probe_cpu_secs) / (s.trials_run - s.size_probes).max(1) as f64,
     );
     println!(
         "trials: {} run, {} of them size probes, {} failed ({:.1} s node wall clock = {:.1} % of the {:.1} s run), {} answered from earlier trials, {} tunings, {} decisions",

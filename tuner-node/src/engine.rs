@@ -65,6 +65,8 @@ pub struct Counters {
     pub trial_secs: f64,
     /// CPU seconds of the trials run, as the nodes counted them, summed over ranks.
     pub trial_cpu_secs: f64,
+    /// Of `trial_cpu_secs`, the size probes'.
+    pub size_probe_cpu_secs: f64,
     /// Tunings started.
     pub retunes: u64,
     /// Decisions made by this process (tunings' and corrections).
@@ -294,6 +296,7 @@ impl Engine {
             tunings_superseded: c.tunings_superseded,
             quality_reports: c.quality_reports,
             trial_cpu_secs: c.trial_cpu_secs,
+            size_probe_cpu_secs: c.size_probe_cpu_secs,
             sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
             tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
             q_target_db: match UtilitySpec::parse(&self.cfg.utility) {

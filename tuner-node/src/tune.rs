@@ -154,7 +154,11 @@ impl StepOracle {
             k.trials_run += 1;
             k.size_probes += u64::from(size_only);
             k.trial_secs += secs;
-            k.trial_cpu_secs += results.iter().map(|r| r.trial_cpu_secs).sum::<f64>();
+            let cpu = results.iter().map(|r| r.trial_cpu_secs).sum::<f64>();
+            k.trial_cpu_secs += cpu;
+            if size_only {
+                k.size_probe_cpu_secs += cpu;
+            }
         }
         self.generations += 1;
         self.generation_secs += results.iter().map(|r| r.tau_secs).fold(0.0, f64::max);

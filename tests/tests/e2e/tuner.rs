@@ -71,6 +71,20 @@ fn a_tuned_ocean_replay_meets_the_size_budget() {
     let (rec, st, t, g) = (&o.rec, &o.st, &o.t, &o.g);
     let s = tuner_status(&t.addr);
     assert!(s.pm_version >= 1, "the tuner pushed no P_M: {s:?}");
+    // The trials' CPU time is counted on the node, and what the tuner heard of it is the
+    // node's count (all trials answered; the node counts any it ran after, too).
+    let node = status(&g.addr);
+    assert!(
+        s.trial_cpu_secs > 0.0
+            && s.size_probe_cpu_secs <= s.trial_cpu_secs
+            && s.trial_cpu_secs <= node.trial_cpu_secs + 1e-6
+            && node.trial_cpu_secs < node.cpu_secs,
+        "tuner {} s ({} s size probes), node {} s of {} s",
+        s.trial_cpu_secs,
+        s.size_probe_cpu_secs,
+        node.trial_cpu_secs,
+        node.cpu_secs
+    );
     let d = decision(&t.addr, 1).unwrap();
     assert!(d.characteristic_steps.contains(&0), "{d:?}");
     assert!(d.predicted_sigma_bytes < 60_000, "{d:?}");
