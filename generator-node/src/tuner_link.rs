@@ -7,7 +7,8 @@
 //! compute lane, and a trial starts only when no production step waits in the queue, or, when
 //! production alone keeps the node busy (exactly when a cheaper P_M is most needed), after
 //! `trial_interleave` production steps since the last trial. So a step waits for one trial at
-//! most, and under load trials take at most one turn in `trial_interleave + 1`. Production
+//! most, and under load trials take at most one turn in `trial_interleave + 1`. A trial runs on
+//! the trial pool ([`crate::trial_pool`]), which counts its CPU time. Production
 //! VDIs keep the P_M in force until a decision arrives; it applies from its `from_step`, or
 //! from the node's first step not begun if that is later ([`apply_decision`]). Each summary
 //! says which step the node has not begun yet, so that the tuner can name the next one.
