@@ -13,7 +13,8 @@
 //!
 //! Two runs each: the ocean series (12 steps, one per `INSITU_BENCH_STEP_SECS`, default 1 s,
 //! as a simulation's step time) and Gray–Scott 128³ after `INSITU_BENCH_GS_WARMUP` steps
-//! (default 1500; a push every 20 simulation steps, F/k switched half-way). `cargo bench -p insitu-e2e --bench tuning`.
+//! (default 1500; a push every 20 simulation steps, F/k switched half-way). `cargo bench -p insitu-e2e --bench tuning`;
+//! `INSITU_BENCH_TRIAL_BURST` sets the tuner's `trials.burst_secs` (default 15).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -95,9 +96,17 @@ fn run(
     let tuner = utility.map(|u| {
         let state = tmp.join("tuner-state");
         let _ = std::fs::remove_dir_all(&state);
+        // The trials' budget's burst (the knob that trades the first decision's latency for
+        // the trials' CPU time): `INSITU_BENCH_TRIAL_BURST` seconds, else the tuner's default.
+        let config = tmp.join("tuner.toml");
+        let burst = std::env::var("INSITU_BENCH_TRIAL_BURST").ok();
+        let trials = burst.map_or(String::new(), |b| format!("[trials]\nburst_secs = {b}\n"));
+        std::fs::write(&config, trials).unwrap();
         start(
             "tuner-node",
             &[
+                "--config",
+                config.to_str().unwrap(),
                 "--listen",
                 "127.0.0.1:0",
                 "--viz",
@@ -383,6 +392,31 @@ fn report(name: &str, with: &Outcome, without: &Outcome) {
             .collect()
     };
     println!("σ per step with the tuner: {}", sizes(with).join(" "));
+    // What the trials bought: the budget kept, and q, on the steps made after a decision.
+    let decided: Vec<&pb::QualityReport> =
+        with.stored.values().filter(|r| r.pm_version >= 1).collect();
+    let target = s.sigma_target_bytes as f64;
+    if !decided.is_empty() && target > 0.0 {
+        let within = decided
+            .iter()
+            .filter(|r| r.sigma_bytes as f64 <= target)
+            .count();
+        let worst = decided
+            .iter()
+            .map(|r| r.sigma_bytes as f64 / target)
+            .fold(0.0, f64::max);
+        let q: Vec<f64> = decided
+            .iter()
+            .filter_map(|r| r.q_db)
+            .filter(|q| q.is_finite())
+            .collect();
+        println!(
+            "after the first decision: σ within the budget on {within} of {} steps (worst {worst:.2}×), median q {:.2} dB over {} scored steps",
+            decided.len(),
+            median(&q),
+            q.len()
+        );
+    }
 }
 
 fn main() {
