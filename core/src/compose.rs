@@ -106,8 +106,7 @@ impl PixelLists for Vdi {
     }
     #[inline]
     fn list(&self, i: usize, j: usize) -> &[Supersegment] {
-        let p = i + self.resolution() as usize * j;
-        &self.supersegments()[self.offsets()[p] as usize..self.offsets()[p + 1] as usize]
+        self.pixel(i as u32, j as u32)
     }
 }
 

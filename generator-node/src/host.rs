@@ -114,9 +114,9 @@ impl Finished {
 
     /// Readies the rank for the wait, on the worker threads, for a rank whose node
     /// [`Gather::gathers`]: its VDI cropped to its footprint ([`VdiWindow`]: a brick's lists
-    /// without `r²` offsets, in a buffer of their size) and its frames compressed view by view
-    /// (left as they are when a view does not compress). Returns the VDI as made, whose memory
-    /// the worker's next step reuses.
+    /// without `r²` offsets, in a buffer of their size) and its frames cut to their windows
+    /// and compressed (left as they are when they are not whole views). Returns the VDI as
+    /// made, whose memory the worker's next step reuses; `None` when already packed.
     pub fn pack(&mut self) -> Option<Vdi> {
         self.pack_frames();
         let window = match &self.lists {
