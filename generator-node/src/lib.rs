@@ -12,6 +12,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod config;
+pub mod cpu;
 pub mod hold;
 pub mod host;
 pub mod ingest;
@@ -26,7 +27,6 @@ pub mod ship;
 pub mod spare;
 pub mod spool;
 pub mod stats;
-pub mod trial_pool;
 pub mod tuner_link;
 pub mod tuning;
 pub mod work;

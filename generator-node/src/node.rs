@@ -102,7 +102,7 @@ pub enum StartError {
         /// Why.
         source: std::io::Error,
     },
-    /// The worker pool of `threads`, or the trial pool beside it.
+    /// The worker pool of `threads`.
     #[error("threads = {threads}: cannot start the worker threads: {source}")]
     Threads {
         /// The count configured.
@@ -168,22 +168,11 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let addr = listener.local_addr().map_err(listen)?;
     let stats = Arc::new(Stats::default());
     // With a tuner: the node's side of the link, and the channel of step summaries to it.
-    let tuner = match tuner_peer {
-        Some(peer) => {
-            let (t, rx) = crate::tuning::Tuning::new(
-                cfg.hold_bytes,
-                cfg.trial_interleave,
-                cfg.threads,
-                stats.clone(),
-            )
-            .map_err(|source| StartError::Threads {
-                threads: cfg.threads,
-                source,
-            })?;
-            Some((peer, Arc::new(t), rx))
-        }
-        None => None,
-    };
+    let tuner = tuner_peer.map(|peer| {
+        let (t, rx) =
+            crate::tuning::Tuning::new(cfg.hold_bytes, cfg.trial_interleave, stats.clone());
+        (peer, Arc::new(t), rx)
+    });
     let scene = match (&viz, tf_configured) {
         (Some(viz), false) => Some(Arc::new(crate::scene::SceneLink::new(
             viz.clone(),

@@ -108,7 +108,7 @@ impl Shared {
             host_parts: c.host_parts,
             host_ranks: c.host_ranks,
             host_compose_secs: c.host_compose_secs,
-            cpu_secs: crate::trial_pool::process_cpu_secs(),
+            cpu_secs: crate::cpu::process_cpu_secs(),
             trial_cpu_secs: c.trial_cpu_secs,
         }
     }

@@ -35,7 +35,7 @@ pub struct Counters {
     pub host_ranks: u64,
     /// Seconds spent composing and encoding them.
     pub host_compose_secs: f64,
-    /// CPU seconds of the trials run (`crate::trial_pool`).
+    /// CPU seconds of the trials run (`crate::cpu`).
     pub trial_cpu_secs: f64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,

@@ -7,8 +7,8 @@
 //! compute lane, and a trial starts only when no production step waits in the queue, or, when
 //! production alone keeps the node busy (exactly when a cheaper P_M is most needed), after
 //! `trial_interleave` production steps since the last trial. So a step waits for one trial at
-//! most, and under load trials take at most one turn in `trial_interleave + 1`. A trial runs on
-//! the trial pool ([`crate::trial_pool`]), which counts its CPU time. Production
+//! most, and under load trials take at most one turn in `trial_interleave + 1`. A trial's CPU
+//! time is counted on the compute pool while it holds the lane ([`crate::cpu`]). Production
 //! VDIs keep the P_M in force until a decision arrives; it applies from its `from_step`, or
 //! from the node's first step not begun if that is later ([`apply_decision`]). Each summary
 //! says which step the node has not begun yet, so that the tuner can name the next one.
@@ -219,7 +219,9 @@ async fn trials(
             tuning.since_trial.store(0, Ordering::Relaxed);
             let (s, t, r) = (shared.clone(), tuning.clone(), req);
             let result = tokio::task::spawn_blocking(move || {
-                let (mut result, cpu) = t.pool.run(|| run_trial(&s, &t, rank, held, &r));
+                let (mut result, cpu) = crate::cpu::on_pool_counted(s.pool.as_deref(), || {
+                    run_trial(&s, &t, rank, held, &r)
+                });
                 result.trial_cpu_secs = cpu;
                 s.stats.update(|c| c.trial_cpu_secs += cpu);
                 result

@@ -4,7 +4,6 @@
 
 use crate::hold::{HeldStep, Holds};
 use crate::stats::Stats;
-use crate::trial_pool::TrialPool;
 use insitu_proto::pb;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -32,24 +31,17 @@ pub struct Tuning {
     /// the last step's: a trial's τ is then what production pays
     /// ([`insitu_core::evaluate::generate_encoded`]). Trials run one at a time.
     pub(crate) spare: Mutex<Option<insitu_core::vdi::Vdi>>,
-    /// Where trials run, their CPU time counted.
-    pub(crate) pool: TrialPool,
 }
 
 impl Tuning {
     /// The state and the receiving end of the summaries (for [`crate::tuner_link::Link::run`]).
-    ///
-    /// # Errors
-    /// The trial pool's `threads` threads could not be started.
     pub fn new(
         hold_bytes: u64,
         interleave: u64,
-        threads: usize,
         stats: Arc<Stats>,
-    ) -> Result<(Self, mpsc::Receiver<pb::StepSummary>), rayon::ThreadPoolBuildError> {
-        let pool = TrialPool::new(threads)?;
+    ) -> (Self, mpsc::Receiver<pb::StepSummary>) {
         let (summaries, rx) = mpsc::channel(SUMMARY_BACKLOG);
-        Ok((
+        (
             Self {
                 holds: Holds::new(hold_bytes),
                 summaries,
@@ -58,10 +50,9 @@ impl Tuning {
                 since_trial: AtomicU64::new(0),
                 interleave,
                 spare: Mutex::new(None),
-                pool,
             },
             rx,
-        ))
+        )
     }
 
     /// Whether the stream to the tuner is up.

@@ -2,7 +2,7 @@
 //! as real processes on loopback and the simulation in this process:
 //!
 //! - the trials' CPU time as a share of the run, counted where it is spent: the CPU time of
-//!   the generator-node's trial pool (`TunerStatus.trial_cpu_secs`, the sum of the nodes'
+//!   the generator-node's compute pool while trials hold its lane (`TunerStatus.trial_cpu_secs`, the sum of the nodes'
 //!   `TrialResult.trial_cpu_secs`) over the CPU time (user + system, from `/proc`) of the
 //!   simulation and all daemons, and over the generator-node's; beside it, for context, the
 //!   difference from the same run without a tuner (which also differs in what the P_M made);
@@ -305,7 +305,7 @@ fn report(name: &str, with: &Outcome, without: &Outcome) {
         100.0 * (with.cpu - without.cpu) / with.cpu
     );
     println!(
-        "trials' CPU time, counted on the node (trial pool): {:.1} s = {:.1} % of the run's CPU time, {:.1} % of the generator-node's (aim ≤ 10 %); size probes {:.1} s ({} of them, {:.0} ms each), full trials with their references {:.1} s ({}, {:.0} ms each)",
+        "trials' CPU time, counted on the node: {:.1} s = {:.1} % of the run's CPU time, {:.1} % of the generator-node's (aim ≤ 10 %); size probes {:.1} s ({} of them, {:.0} ms each), full trials with their references {:.1} s ({}, {:.0} ms each)",
         s.trial_cpu_secs,
         100.0 * s.trial_cpu_secs / with.cpu,
         100.0 * s.trial_cpu_secs / with.node_cpu,
