@@ -16,15 +16,17 @@ pub fn pool_cpu_secs(pool: Option<&rayon::ThreadPool>) -> f64 {
 }
 
 /// Runs `f` on `pool` ([`crate::work::on_pool`]) and returns its result and the CPU seconds
-/// the pool's threads spent meanwhile: `f`'s CPU time when nothing else runs on the pool
-/// (anything that does is counted with it).
+/// the pool's threads and the calling thread spent meanwhile (on rayon's global pool `f`
+/// itself runs on the calling thread, its parallel loops on the pool's): `f`'s CPU time when
+/// nothing else runs on the pool (anything that does is counted with it).
 pub fn on_pool_counted<R: Send>(
     pool: Option<&rayon::ThreadPool>,
     f: impl FnOnce() -> R + Send,
 ) -> (R, f64) {
     let before = pool_cpu_secs(pool);
+    let caller = ThreadTime::now();
     let out = crate::work::on_pool(pool, f);
-    let spent = pool_cpu_secs(pool) - before;
+    let spent = caller.elapsed().as_secs_f64() + pool_cpu_secs(pool) - before;
     (out, spent.max(0.0))
 }
 
@@ -39,8 +41,9 @@ mod tests {
     use rayon::prelude::*;
 
     /// The CPU time counted on a pool is the work run on it: a parallel loop on the pool is
-    /// counted (against the CPU time each of its jobs measured on its own thread), and work
-    /// off the pool, on the calling thread, is not (other tests run beside this one, so the
+    /// counted (against the CPU time each of its jobs measured on its own thread), so is `f`'s
+    /// serial work on rayon's global pool (where it runs on the caller), and work before and
+    /// after, on the calling thread, is not (other tests run beside this one, so the
     /// process's CPU time is no reference).
     #[test]
     fn a_pool_counts_the_cpu_time_of_its_own_work() {
@@ -62,6 +65,16 @@ mod tests {
         assert!(
             on_pool >= 0.95 * jobs && on_pool <= 1.5 * jobs + 0.05,
             "{on_pool} s counted for {jobs} s of jobs"
+        );
+        // On rayon's global pool `f` runs on the calling thread: its serial work counts too.
+        let (serial, counted) = on_pool_counted(None, || {
+            let t = ThreadTime::now();
+            std::hint::black_box(spin(10_000_000));
+            t.elapsed().as_secs_f64()
+        });
+        assert!(
+            counted >= 0.95 * serial,
+            "{counted} s counted for {serial} s of serial work on the caller"
         );
         let t = ThreadTime::now();
         let off = std::hint::black_box(spin(20_000_000));
