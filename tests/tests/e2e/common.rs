@@ -14,10 +14,15 @@ pub use insitu_e2e::free_port;
 
 /// The standard output of `insitu replay` (`out`), once it has succeeded.
 pub fn replayed(out: Output) -> String {
+    succeeded("replay", out)
+}
+
+/// The standard output of the command `what` (`out`), once it has succeeded.
+pub fn succeeded(what: &str, out: Output) -> String {
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
         out.status.success(),
-        "replay failed: {}\n{text}",
+        "{what} failed: {}\n{text}",
         String::from_utf8_lossy(&out.stderr)
     );
     text

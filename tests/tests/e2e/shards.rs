@@ -2,7 +2,7 @@
 //! step s to shard s mod 2, each shard composes and scores its steps, the tuner watches both,
 //! and `insitu view`, `insitu export` and a read-only viewer over the recording see every step.
 
-use crate::common::{generator, small_config};
+use crate::common::{generator, small_config, succeeded};
 use crate::ranks::slab;
 use crate::viewer::{http, viz_with_http};
 use insitu_e2e::{bin, rt, wait_until, Daemon};
@@ -101,22 +101,13 @@ fn two_viz_nodes_share_a_recording_by_step() {
         .args(["--size", "48"])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded("insitu view", out);
     assert!(tmp.path().join("s3.png").exists());
     let out = Command::new(bin("insitu"))
         .args(["export", "--recording", rec.to_str().unwrap()])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let export: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let export: serde_json::Value = serde_json::from_str(&succeeded("insitu export", out)).unwrap();
     assert_eq!(export["steps"].as_array().unwrap().len(), 4);
     g.terminate();
     t.terminate();
