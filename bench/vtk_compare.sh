@@ -7,9 +7,10 @@
 #   bench/vtk_compare.sh --runs 9              # the same, 9 runs
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --angle 10 --size 512 --runs 7
 #   bench/vtk_compare.sh --volume V.raw --tf T.json --vdi 256 --vdi 768   # VDI renders too
-#   bench/vtk_compare.sh --suite --runs 7      # the ten views of the table of docs/performance.md (the five
-#                                              # shared volumes at 30° and 10°; the ocean's first
-#                                              # time step), then the table
+#   bench/vtk_compare.sh --suite --runs 7      # the twelve views of the table of docs/performance.md (the five
+#                                              # shared volumes at 30° and 10°, the ocean's first
+#                                              # time step; and the low-opacity deep scan that
+#                                              # bench/make_deep_scan.py makes from the stent), then the table
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=bench/.venv
@@ -26,15 +27,17 @@ args=("$@")
 if [ "${1:-}" = "--suite" ]; then
   # Each view in turn (its own VTK window and insitu processes), each adding its row.
   table=$(mktemp)
+  deep=$("$venv/bin/python" bench/make_deep_scan.py "$data" bench/.data)
   for angle in 30 10; do
-    for v in "teapot_256x256x178_uint8.raw teapot.json" "hydrogen_64x64x64_float32.raw hydrogen.json" \
-             "neghip_66x66x66_uint8.raw" "stent_128x128x256_int16.raw" \
-             "ocean_temp_ts_180x90x19x12_float32.raw"; do
+    for v in "$data/teapot_256x256x178_uint8.raw $tfs/teapot.json" \
+             "$data/hydrogen_64x64x64_float32.raw $tfs/hydrogen.json" \
+             "$data/neghip_66x66x66_uint8.raw" "$data/stent_128x128x256_int16.raw" \
+             "$data/ocean_temp_ts_180x90x19x12_float32.raw" "$deep bench/deep_scan.json"; do
       set -- $v
       tf=()
-      [ -n "${2:-}" ] && tf=(--tf "$tfs/$2")
+      [ -n "${2:-}" ] && tf=(--tf "$2")
       "$venv/bin/python" bench/vtk_compare.py --insitu target/release/insitu \
-        --volume "$data/$1" "${tf[@]}" --angle "$angle" --row "$table" "${args[@]:1}"
+        --volume "$1" "${tf[@]}" --angle "$angle" --row "$table" "${args[@]:1}"
     done
   done
   echo
