@@ -18,6 +18,11 @@
 //! `push_step` returns once the node has the whole step in its queue (with the node's `block`
 //! policy, once there is room), never after generation. Errors say whether the node was
 //! unreachable or refused the step; the simulation decides whether to go on.
+//!
+//! A client on the node's own host pushes through shared memory on its own ([`shm`]: the
+//! payload written into a file of the node's `/dev/shm`, only the header sent), and streams
+//! otherwise; [`SimClient::shared_memory`] says which, `INSITU_SHARED_MEMORY=0` keeps to
+//! streaming.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
@@ -27,6 +32,8 @@ use insitu_proto::{chunk, pb, transport};
 use std::time::Duration;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
+
+pub mod shm;
 
 pub use bytes::Bytes;
 pub use insitu_proto::auth::Token as BearerToken;
@@ -349,6 +356,8 @@ pub struct SimClient {
     inner: GeneratorClient<InterceptedService<Channel, AttachToken>>,
     /// The ranks this client pushed steps for: a flush reports their refusals only.
     ranks: std::collections::BTreeSet<u32>,
+    /// Whether steps go through shared memory ([`shm`]).
+    shm: shm::SharedMemory,
 }
 
 impl SimClient {
@@ -386,21 +395,93 @@ impl SimClient {
                 .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
                 .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
             ranks: Default::default(),
+            shm: Default::default(),
         })
     }
 
-    /// Hands `step` to the node; returns once it is queued there (see the crate docs).
+    /// Hands `step` to the node; returns once it is queued there (see the crate docs):
+    /// through shared memory where the node shares this host ([`shm`]), else streamed.
     ///
     /// # Errors
     /// [`ClientError::InvalidStep`] before sending; [`ClientError::Refused`] from the node.
     pub async fn push_step(&mut self, step: Step) -> Result<PushReply, ClientError> {
-        let msgs = chunk::split_parts::<pb::StepChunk>(step.header()?, step.payload());
+        let header = step.header()?;
         self.ranks.insert(step.rank);
+        let payload = step.payload();
+        if let Some(reply) = self.push_shared(&header, &payload).await? {
+            return Ok(reply);
+        }
+        let msgs = chunk::split_parts::<pb::StepChunk>(header, payload);
         Ok(self
             .inner
             .push_step(tokio_stream::iter(msgs))
             .await?
             .into_inner())
+    }
+
+    /// Whether this client's steps go through shared memory: `Some(true)` after a push that
+    /// did, `Some(false)` once it streams (another host, or shared memory failed once), `None`
+    /// before the first push.
+    pub fn shared_memory(&self) -> Option<bool> {
+        match self.shm {
+            shm::SharedMemory::Unknown => None,
+            shm::SharedMemory::Off => Some(false),
+            shm::SharedMemory::On { .. } => Some(true),
+        }
+    }
+
+    /// Allows shared memory for the next pushes (found out again at the next one), or keeps
+    /// this client to streaming.
+    pub fn set_shared_memory(&mut self, allowed: bool) {
+        self.shm = if allowed {
+            shm::SharedMemory::Unknown
+        } else {
+            shm::SharedMemory::Off
+        };
+    }
+
+    /// The push through shared memory, when this client uses it: the payload written into its
+    /// file (on the blocking pool), the header and path sent. `None` when the step is to be
+    /// streamed: shared memory off, or failing now (then off for good: no room for the file,
+    /// or a node that cannot read it).
+    async fn push_shared(
+        &mut self,
+        header: &pb::StepHeader,
+        payload: &[Bytes],
+    ) -> Result<Option<PushReply>, ClientError> {
+        if matches!(self.shm, shm::SharedMemory::Unknown) {
+            let status = self.status().await?;
+            self.shm = shm::SharedMemory::for_node(&status);
+        }
+        let shm::SharedMemory::On { dir, segment } = &mut self.shm else {
+            return Ok(None);
+        };
+        let (dir, held, parts) = (dir.clone(), segment.take(), payload.to_vec());
+        let written = tokio::task::spawn_blocking(move || {
+            let mut s = match held {
+                Some(s) => s,
+                None => shm::Segment::create(&dir)?,
+            };
+            s.write(&parts).map(|()| s)
+        })
+        .await;
+        let Ok(Ok(written)) = written else {
+            self.shm = shm::SharedMemory::Off;
+            return Ok(None);
+        };
+        let request = pb::SharedStep {
+            header: Some(header.clone()),
+            path: written.path().display().to_string(),
+        };
+        *segment = Some(written);
+        match self.inner.push_shared(request).await {
+            Ok(reply) => Ok(Some(reply.into_inner())),
+            Err(s) if matches!(s.code(), Code::FailedPrecondition | Code::Unimplemented) => {
+                self.shm = shm::SharedMemory::Off;
+                Ok(None)
+            }
+            Err(s) => Err(s.into()),
+        }
     }
 
     /// Sets `P_M` and the rest of the generation config for the steps that follow.

@@ -185,6 +185,11 @@ pub struct Config {
     pub spool: Option<SpoolConfig>,
     /// Two-level composition of this node's ranks before shipping.
     pub host: HostConfig,
+    /// Where simulations on this host may put a step's payload instead of streaming it
+    /// (`PushShared`, `crate::shm`): a tmpfs directory; unset or not a directory: steps are
+    /// streamed only. Clients use it on their own: one on the same host (the same Linux boot
+    /// id) that can write there sends its steps that way.
+    pub shared_memory_dir: Option<PathBuf>,
 }
 
 /// `[host]`: the ranks of one step that this node serves are composed into box-shaped parts
@@ -262,6 +267,7 @@ impl Default for Config {
             generation: GenerationConfig::default(),
             spool: None,
             host: HostConfig::default(),
+            shared_memory_dir: Some(PathBuf::from("/dev/shm")),
         }
     }
 }

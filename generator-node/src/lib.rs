@@ -24,6 +24,7 @@ pub mod service;
 pub mod settings;
 pub mod shared;
 pub mod ship;
+pub mod shm;
 pub mod spare;
 pub mod spool;
 pub mod stats;

@@ -207,6 +207,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         spool,
         epoch: new_epoch(),
         spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
+        shared_memory: shared_memory(cfg.shared_memory_dir.as_deref()),
         pool: worker_pool(cfg.threads)?,
         scene,
         // Without a viz-node nothing ships, so nothing is gathered either.
@@ -298,6 +299,22 @@ fn open_spool(
         info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
     }
     Ok((Some(Arc::new(spool)), steps))
+}
+
+/// Shared-memory pushes from `dir`, where it can take them (logged either way); `None` when
+/// unset or unusable: a node that cannot take them still takes every streamed step.
+fn shared_memory(dir: Option<&std::path::Path>) -> Option<crate::shm::SharedMemory> {
+    let dir = dir?;
+    match crate::shm::SharedMemory::new(dir) {
+        Ok(m) => {
+            info!(dir = %m.dir().display(), "taking steps pushed through shared memory from this host");
+            Some(m)
+        }
+        Err(problem) => {
+            info!(%problem, "no shared-memory pushes: steps are streamed only");
+            None
+        }
+    }
 }
 
 /// The worker pool of `threads` (0: none of its own, rayon's global pool, one per core).

@@ -44,6 +44,66 @@ impl GeneratorService {
         info.with_field(field)
     }
 
+    /// A step whose payload lies in a shared-memory file ([`crate::shm`]): the header checked
+    /// as a stream's, the file opened and checked, its payload read into the field on the
+    /// blocking pool.
+    ///
+    /// # Errors
+    /// `FAILED_PRECONDITION` when the node takes no shared-memory pushes or the file cannot be
+    /// used; as [`Self::receive`] otherwise.
+    async fn receive_shared(&self, step: pb::SharedStep) -> Result<RawStep, Status> {
+        let Some(shm) = self.0.shared_memory.clone() else {
+            return Err(Status::failed_precondition(
+                "this generator-node takes no shared-memory pushes (shared_memory_dir); stream the step",
+            ));
+        };
+        let header = step
+            .header
+            .ok_or_else(|| Status::invalid_argument("shared step without a header"))?;
+        let total = header.total_bytes;
+        if total > self.0.max_step_bytes {
+            return Err(chunk::ChunkError::TooLarge {
+                what: "field data",
+                declared: total,
+                limit: self.0.max_step_bytes,
+            }
+            .into());
+        }
+        let wanted = self
+            .0
+            .generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .field
+            .clone();
+        let (info, mut window) = check_step(&header, wanted.as_deref())?;
+        let file = shm.open(&step.path, total)?;
+        let mut field = info.assembler(self.0.spare_fields.take());
+        let field = tokio::task::spawn_blocking(move || {
+            crate::shm::read_payload(file, total, &mut window, &mut field).map(|()| field)
+        })
+        .await
+        .map_err(|e| Status::internal(format!("reading the shared-memory file: {e}")))??;
+        info.with_field(field)
+    }
+
+    /// Spools, announces and queues a received step, and the reply to its push.
+    ///
+    /// # Errors
+    /// As [`Self::spool`] and [`Self::enqueue`].
+    async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
+        self.spool(&mut raw).await?;
+        self.propose_scene(&raw);
+        let (dropped, received) = self.enqueue(raw).await?;
+        let s = &self.0;
+        Ok(Response::new(pb::PushReply {
+            queue_depth: s.queue.len() as u32,
+            dropped_by_push: dropped,
+            steps_received: received,
+            epoch: s.epoch,
+        }))
+    }
+
     /// With a spool: `raw` on disk (fsync'd when durable) before it is acknowledged, and its
     /// spool name recorded in it.
     ///
@@ -180,17 +240,17 @@ impl Generator for GeneratorService {
         &self,
         request: Request<Streaming<pb::StepChunk>>,
     ) -> Result<Response<pb::PushReply>, Status> {
-        let mut raw = self.receive(request.into_inner()).await?;
-        self.spool(&mut raw).await?;
-        self.propose_scene(&raw);
-        let (dropped, received) = self.enqueue(raw).await?;
-        let s = &self.0;
-        Ok(Response::new(pb::PushReply {
-            queue_depth: s.queue.len() as u32,
-            dropped_by_push: dropped,
-            steps_received: received,
-            epoch: s.epoch,
-        }))
+        let raw = self.receive(request.into_inner()).await?;
+        self.accept(raw).await
+    }
+
+    async fn push_shared(
+        &self,
+        request: Request<pb::SharedStep>,
+    ) -> Result<Response<pb::PushReply>, Status> {
+        let raw = self.receive_shared(request.into_inner()).await?;
+        self.0.stats.update(|c| c.shared_pushes += 1);
+        self.accept(raw).await
     }
 
     async fn set_config(

@@ -58,6 +58,8 @@ pub struct Shared {
     /// their memory (beyond what the queue counts: one, and a second within the queue's
     /// `max_bytes`; see [`crate::spare`]).
     pub spare_fields: crate::spare::SpareFields,
+    /// Where steps pushed through shared memory are read from; `None`: streamed only.
+    pub shared_memory: Option<crate::shm::SharedMemory>,
     /// The ranks of steps in flight, composed into the host's parts before they ship.
     pub host: Arc<crate::host::Gather>,
 }
@@ -110,6 +112,17 @@ impl Shared {
             host_compose_secs: c.host_compose_secs,
             cpu_secs: crate::cpu::process_cpu_secs(),
             trial_cpu_secs: c.trial_cpu_secs,
+            shared_memory_dir: self
+                .shared_memory
+                .as_ref()
+                .map(|m| m.dir().display().to_string())
+                .unwrap_or_default(),
+            host_id: self
+                .shared_memory
+                .as_ref()
+                .map(|m| m.host_id().to_owned())
+                .unwrap_or_default(),
+            shared_pushes: c.shared_pushes,
         }
     }
 

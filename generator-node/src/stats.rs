@@ -37,6 +37,8 @@ pub struct Counters {
     pub host_compose_secs: f64,
     /// CPU seconds of the trials run (`crate::cpu`).
     pub trial_cpu_secs: f64,
+    /// Steps received through shared memory (`crate::shm`).
+    pub shared_pushes: u64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.
