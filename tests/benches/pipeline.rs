@@ -56,26 +56,31 @@ fn ingest(tmp: &std::path::Path) {
     let field: Vec<f32> = (0..n * n * n).map(|i| (i % 977) as f32).collect();
     let step = Step::whole_f32(0, 0.0, [n; 3], &field);
     let bytes = step.data.len() as f64;
-    let (secs, pushes) = rt().block_on(async {
-        let mut c = SimClient::connect(&g.addr, None).await.unwrap();
-        c.push_step(step.clone()).await.unwrap();
-        let t = Instant::now();
-        let pushes = 16;
-        for k in 0..pushes {
-            let mut s = step.clone();
-            s.step = k + 1;
-            c.push_step(s).await.unwrap();
-        }
-        (t.elapsed().as_secs_f64(), pushes)
-    });
-    println!(
-        "ingest: {pushes} pushes of {:.0} MiB in {secs:.2} s = {:.2} GB/s; generator-node RSS {:.0} MiB, peak {:.0} MiB, {} page faults",
-        bytes / (1 << 20) as f64,
-        pushes as f64 * bytes / secs / 1e9,
-        g.rss_mib(),
-        g.peak_rss_mib(),
-        g.minor_faults()
-    );
+    // Streamed (as from another host), then through shared memory (the default on one host).
+    for shared_memory in [false, true] {
+        let (secs, pushes) = rt().block_on(async {
+            let mut c = SimClient::connect(&g.addr, None).await.unwrap();
+            c.set_shared_memory(shared_memory);
+            c.push_step(step.clone()).await.unwrap();
+            let t = Instant::now();
+            let pushes = 16;
+            for k in 0..pushes {
+                let mut s = step.clone();
+                s.step = k + 1;
+                c.push_step(s).await.unwrap();
+            }
+            (t.elapsed().as_secs_f64(), pushes)
+        });
+        println!(
+            "ingest ({}): {pushes} pushes of {:.0} MiB in {secs:.2} s = {:.2} GB/s; generator-node RSS {:.0} MiB, peak {:.0} MiB, {} page faults",
+            if shared_memory { "shared memory" } else { "streamed" },
+            bytes / (1 << 20) as f64,
+            pushes as f64 * bytes / secs / 1e9,
+            g.rss_mib(),
+            g.peak_rss_mib(),
+            g.minor_faults()
+        );
+    }
     g.terminate();
 }
 
@@ -158,62 +163,53 @@ fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
 /// alternate the two (alone, attached, alone, …) so that whatever else the machine does
 /// falls on both: each round's ratio is taken against the run alone just before it, and the
 /// median ratio and its range over the rounds are printed. The node runs at its default
-/// settings (threads = 0: rayon's pool over every core, which the simulation shares) and with
-/// one thread, and once more with each push sent by a task while the simulation goes on; it
-/// stays up between rounds (idle, it costs nothing).
+/// settings (threads = 0: rayon's pool over every core, which the simulation shares), the
+/// client pushing through shared memory (the default on one host); then with the client kept
+/// to streaming, as from another host; then the node on one thread. It stays up between
+/// rounds (idle, it costs nothing).
 fn simulation_overhead(tmp: &std::path::Path) {
     let rounds = overhead_rounds();
     for (n, steps, every) in [(128usize, 200u64, 10u64), (256, 60, 10)] {
-        // `background`: each push is sent by a task of its own (a clone of the client) while
-        // the simulation goes on, and awaited before the next push and at the end: what a
-        // push that returns before the transfer ends would give.
-        let run = |addr: Option<&str>, background: bool| {
+        let run = |addr: Option<&str>, shared_memory: bool| {
             rt().block_on(async {
                 let mut client = match addr {
-                    Some(a) => Some(SimClient::connect(a, None).await.unwrap()),
+                    Some(a) => {
+                        let mut c = SimClient::connect(a, None).await.unwrap();
+                        c.set_shared_memory(shared_memory);
+                        Some(c)
+                    }
                     None => None,
                 };
                 let mut sim = GrayScott::new(n, GrayScottParams::default()).unwrap();
                 sim.advance(20);
                 let t = Instant::now();
-                // The simulation's own part of a push: the copy out of its field and the call
-                // (in the background, the wait for the previous push).
+                // The simulation's own part of a push: the copy out of its field and the call.
                 let mut pushing = Duration::ZERO;
-                let mut in_flight: Option<tokio::task::JoinHandle<()>> = None;
                 for k in 1..=steps {
                     sim.advance(1);
                     if k % every == 0 {
                         if let Some(c) = client.as_mut() {
                             let p = Instant::now();
-                            if let Some(h) = in_flight.take() {
-                                h.await.unwrap();
-                            }
                             // One copy out of the simulation's buffer, sent as it is.
                             let field = sim.v_volume().data().to_vec();
                             let step = Step::whole_f32_owned(k, k as f64, [n as u32; 3], field);
-                            if background {
-                                let mut c = c.clone();
-                                in_flight = Some(tokio::spawn(async move {
-                                    c.push_step(step).await.unwrap();
-                                }));
-                            } else {
-                                c.push_step(step).await.unwrap();
-                            }
+                            c.push_step(step).await.unwrap();
                             pushing += p.elapsed();
                         }
                     }
                 }
-                if let Some(h) = in_flight.take() {
-                    h.await.unwrap();
-                }
                 let secs = t.elapsed().as_secs_f64();
                 if let Some(c) = client.as_mut() {
+                    assert_eq!(
+                        c.shared_memory(),
+                        Some(shared_memory && insitu_client::shm::host_id().is_some())
+                    );
                     c.flush(Duration::from_secs(600)).await.unwrap();
                 }
                 (secs / steps as f64, pushing.as_secs_f64() / steps as f64)
             })
         };
-        for (threads, background) in [("0", false), ("1", false), ("0", true)] {
+        for (threads, shared_memory) in [("0", true), ("0", false), ("1", true)] {
             let g = generator(
                 tmp,
                 &[
@@ -230,8 +226,8 @@ fn simulation_overhead(tmp: &std::path::Path) {
             let (mut alone, mut with, mut ratios, mut added, mut pushes) =
                 (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for _ in 0..rounds {
-                let (a, _) = run(None, false);
-                let (w, p) = run(Some(&g.addr), background);
+                let (a, _) = run(None, shared_memory);
+                let (w, p) = run(Some(&g.addr), shared_memory);
                 alone.push(a);
                 with.push(w);
                 ratios.push(w / a);
@@ -245,10 +241,10 @@ fn simulation_overhead(tmp: &std::path::Path) {
                 "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps: median {:.2} ms alone, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}{}); ratio median {r:.3}× (range {lo:.3}–{hi:.3}×); added per step (median over rounds) {:.2} ms, the simulation's own copy and push calls {:.2} ms per step",
                 a * 1e3,
                 w * 1e3,
-                if background {
-                    ", each push sent in the background"
+                if shared_memory {
+                    ", pushed through shared memory"
                 } else {
-                    ""
+                    ", streamed"
                 },
                 added * 1e3,
                 pushing * 1e3,
