@@ -19,10 +19,15 @@ if [ ! -x "$venv/bin/python" ]; then
   "$venv/bin/pip" install --quiet vtk numpy pillow
 fi
 cargo build --release --quiet -p insitu-cli
-# The volumes as the tests find them (docs/data.md): $INSITU_DATA_DIR, data/, ../shared/data.
-first_dir() { for d in "$@"; do [ -n "$d" ] && [ -d "$d" ] && { echo "$d"; return; }; done; echo "$2"; }
-data=$(first_dir "${INSITU_DATA_DIR:-}" data ../shared/data)
-tfs=$(first_dir "${INSITU_TF_DIR:-}" data/tf ../shared/tf)
+# The volumes as the tests find them (docs/data.md): $INSITU_DATA_DIR, data/, ../shared/data,
+# the first that holds the file named first (data/ may hold only the test fixtures).
+first_dir() {
+  local file=$1; shift
+  for d in "$@"; do [ -n "$d" ] && [ -e "$d/$file" ] && { echo "$d"; return; }; done
+  echo "$2"
+}
+data=$(first_dir teapot_256x256x178_uint8.raw "${INSITU_DATA_DIR:-}" data ../shared/data)
+tfs=$(first_dir teapot.json "${INSITU_TF_DIR:-}" data/tf ../shared/tf)
 args=("$@")
 if [ "${1:-}" = "--suite" ]; then
   # Each view in turn (its own VTK window and insitu processes), each adding its row.

@@ -1,14 +1,16 @@
 //! Pipeline benchmarks, with the daemons as real processes on loopback:
 //!
 //! 1. ingest: field data pushed through the client (a push returns once the step is queued),
-//!    GB/s, for 64 MiB steps, with the Rust client, the C client
+//!    GB/s, for 64 MiB steps, with the Rust client (streamed, then through shared memory), the
+//!    C client
 //!    (`client-c/bench/push_throughput.c`, compiled with `cc` against `libinsitu.a`), the
 //!    Fortran module (`client-c/fortran/bench/push_throughput.f90`, gfortran) and the Python
 //!    package (`python/bench/push_throughput.py`, which also pushes a 1 GiB array once and
 //!    reports how much the process's peak RSS grew: the zero-copy check);
 //! 2. the simulation's time per step with a generator-node attached versus without
-//!    (Gray–Scott 128³ and 256³, pushing every 10th step), in alternating rounds
-//!    (`INSITU_OVERHEAD_ROUNDS`, default 5): the median ratio and its range;
+//!    (Gray–Scott 128³ and 256³, `INSITU_OVERHEAD_SIZES`, pushing every 10th step through
+//!    shared memory, streamed, and through shared memory to a node on one thread), in
+//!    alternating rounds (`INSITU_OVERHEAD_ROUNDS`, default 5): the median ratio and its range;
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
@@ -153,6 +155,22 @@ fn overhead_rounds() -> usize {
         .unwrap_or(5)
 }
 
+/// Grid sides of [`simulation_overhead`] (`INSITU_OVERHEAD_SIZES`, comma-separated, default
+/// `128,256`).
+fn overhead_sizes() -> Vec<usize> {
+    let sizes: Vec<usize> = std::env::var("INSITU_OVERHEAD_SIZES")
+        .unwrap_or_default()
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .filter(|&n| n >= 16)
+        .collect();
+    if sizes.is_empty() {
+        vec![128, 256]
+    } else {
+        sizes
+    }
+}
+
 /// Median, lowest and highest of `v` (not empty).
 fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
     v.sort_by(f64::total_cmp);
@@ -169,7 +187,10 @@ fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
 /// rounds (idle, it costs nothing).
 fn simulation_overhead(tmp: &std::path::Path) {
     let rounds = overhead_rounds();
-    for (n, steps, every) in [(128usize, 200u64, 10u64), (256, 60, 10)] {
+    for n in overhead_sizes() {
+        // About 4 s of simulation per round whatever the size (a step of 256³ takes ~10× one
+        // of 128³), a push every 10th step.
+        let (steps, every) = if n >= 256 { (60u64, 10u64) } else { (200, 10) };
         let run = |addr: Option<&str>, shared_memory: bool| {
             rt().block_on(async {
                 let mut client = match addr {
