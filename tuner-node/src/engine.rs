@@ -596,11 +596,20 @@ impl Loop {
         if !ctl.active() {
             return;
         }
+        // What the decision the step was made under planned for it.
+        let planned_sigma_bytes = e
+            .state()
+            .decisions
+            .iter()
+            .rev()
+            .find(|d| d.pm_version == p.pm_version && d.candidate == p.candidate)
+            .map(|d| d.predicted.sizing.sigma_bytes as f64);
         ctl.observe(Observation {
             step,
             candidate: p.candidate,
             sigma_bytes: p.sigma_bytes,
             tau_secs: p.tau_secs,
+            planned_sigma_bytes,
         });
         let at = e.decision_start();
         let (tuned, current, surface, next) = {
@@ -618,10 +627,16 @@ impl Loop {
         let Some(plan) = ctl.correct(&surface, tuned.ceiling(), current, at) else {
             return;
         };
+        let miss = ctl.miss();
         drop(ctl);
         let k = plan.forecast;
+        let allowance = if miss >= 1.005 {
+            format!(", planned {miss:.2}× below the budget for the model's last miss")
+        } else {
+            String::new()
+        };
         let reason = format!(
-            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}",
+            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}{allowance}",
             k.sigma_now,
             k.sigma,
             (plan.sigma_bytes / 1e3).round(),

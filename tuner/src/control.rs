@@ -206,6 +206,8 @@ pub struct Observation {
     pub sigma_bytes: u64,
     /// τ of the step (its slowest rank), seconds.
     pub tau_secs: f64,
+    /// σ the decision it was made under planned for it (its prediction), bytes, when known.
+    pub planned_sigma_bytes: Option<f64>,
 }
 
 /// The ratio of measured to modelled σ (and τ) expected at a step.
@@ -257,6 +259,12 @@ pub struct Controller {
     pub hysteresis: f64,
     grid: ParamGrid,
     window: VecDeque<Observation>,
+    /// The model's miss (≥ 1): after a step over the σ budget, its σ over what its decision
+    /// planned for it. Plans are made for the budget divided by it, so the next `P_M` allows
+    /// for the error the model has just shown (the forecast's ratio carries what one
+    /// candidate measured to the others; where the data changed character, it carries that
+    /// badly); each step within the budget halves its excess.
+    miss: f64,
     /// The last production step made with each candidate (by r and γ's bits) within
     /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
     /// like today's, whatever the surface says of it.
@@ -276,8 +284,14 @@ impl Controller {
             hysteresis: 0.1,
             grid,
             window: VecDeque::with_capacity(WINDOW),
+            miss: 1.0,
             seen: BTreeMap::new(),
         }
+    }
+
+    /// The model's miss that plans allow for now (1: none; see the field's doc).
+    pub fn miss(&self) -> f64 {
+        self.miss
     }
 
     /// Whether there is a budget to keep.
@@ -290,6 +304,14 @@ impl Controller {
     pub fn observe(&mut self, o: Observation) {
         if self.window.back().is_some_and(|b| o.step <= b.step) {
             return;
+        }
+        if let Some(target) = self.sigma_target {
+            let sigma = o.sigma_bytes as f64;
+            let planned = o.planned_sigma_bytes.filter(|p| p.is_finite() && *p > 0.0);
+            self.miss = match planned {
+                Some(p) if sigma > target => (sigma / p).clamp(1.0, MAX_GROWTH),
+                _ => 1.0 + (self.miss - 1.0) / 2.0,
+            };
         }
         if self.window.len() == WINDOW {
             self.window.pop_front();
@@ -399,7 +421,9 @@ impl Controller {
             .map_or(f64::INFINITY, |s| s * self.sigma_ratio(surface, f, c));
         let tau = surface.tau(c).map_or(f64::NAN, |t| t * f.tau);
         let plan = |t: f64| (1.0 - self.headroom) * t * margin;
-        let ok = self.sigma_target.is_none_or(|t| sigma <= plan(t))
+        let ok = self
+            .sigma_target
+            .is_none_or(|t| sigma <= plan(t) / self.miss)
             && self
                 .tau_target
                 .is_none_or(|t| tau.is_nan() || tau <= plan(t));
@@ -567,6 +591,7 @@ mod tests {
 
     fn observed(ctl: &mut Controller, step: u64, at: Candidate, k: f64) {
         ctl.observe(Observation {
+            planned_sigma_bytes: None,
             step,
             candidate: at,
             sigma_bytes: (law(at) * k) as u64,
@@ -589,6 +614,48 @@ mod tests {
             (f.sigma - 1.0).abs() < 1e-6 && f.sigma_growth_per_step == 1.0,
             "{f:?}"
         );
+    }
+
+    /// A step over the budget makes the next plans allow for how far it exceeded what its
+    /// decision planned (the model's miss); each step within the budget halves the excess;
+    /// steps within the budget (still data) never set one, and a step without a known plan
+    /// does not either.
+    #[test]
+    fn a_step_over_the_budget_tightens_the_plans_until_steps_land_within_it() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
+        let tuned = c(256, g(2));
+        let step = |step, sigma_bytes, planned| Observation {
+            step,
+            candidate: tuned,
+            sigma_bytes,
+            tau_secs: 0.1,
+            planned_sigma_bytes: planned,
+        };
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let mut blind = Controller::new((Some(1_120_000), None), 0.05, grid());
+        for k in 0..3 {
+            ctl.observe(step(k, 1_000_000, Some(1_000_000.0)));
+            blind.observe(step(k, 1_000_000, None));
+            assert_eq!((ctl.miss(), blind.miss()), (1.0, 1.0));
+        }
+        // Planned at 1.0 MB (the model, law(tuned) = 1 MB), made 1.5 MB: a miss of 1.5.
+        ctl.observe(step(3, 1_500_000, Some(1_000_000.0)));
+        blind.observe(step(3, 1_500_000, None));
+        assert!((ctl.miss() - 1.5).abs() < 1e-9, "{}", ctl.miss());
+        assert_eq!(blind.miss(), 1.0, "no plan known: no miss");
+        let plan = 0.95 * 1_120_000.0;
+        let tight = ctl.correct(&s, tuned, tuned, 4).unwrap();
+        let loose = blind.correct(&s, tuned, tuned, 4).unwrap();
+        assert!(tight.sigma_bytes <= plan / 1.5, "{tight:?}");
+        assert!(
+            loose.sigma_bytes > plan / 1.5 && loose.sigma_bytes <= plan,
+            "{loose:?}"
+        );
+        // Within the budget again: 1.25, then 1.125.
+        ctl.observe(step(4, 700_000, Some(700_000.0)));
+        assert!((ctl.miss() - 1.25).abs() < 1e-9);
+        ctl.observe(step(5, 700_000, None));
+        assert!((ctl.miss() - 1.125).abs() < 1e-9);
     }
 
     #[test]
@@ -666,6 +733,7 @@ mod tests {
         let tuned = c(256, g(2));
         for (step, t) in [(0, 0.08), (1, 0.12), (2, 0.09)] {
             ctl.observe(Observation {
+                planned_sigma_bytes: None,
                 step,
                 candidate: tuned,
                 sigma_bytes: 1000,
