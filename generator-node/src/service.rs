@@ -23,14 +23,7 @@ impl GeneratorService {
     /// The stream's rules broken ([`chunk::receive_into`]: a bad header, a step over
     /// `max_step_bytes`, chunks that do not fill it), or a transport error, as a status.
     async fn receive(&self, mut stream: Streaming<pb::StepChunk>) -> Result<RawStep, Status> {
-        // The field the scene renders; a step's other fields are skipped as they arrive.
-        let wanted = self
-            .0
-            .generation
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .field
-            .clone();
+        let wanted = self.wanted_field();
         let (_, (info, _, field)) = chunk::receive_into(
             &mut stream,
             self.0.max_step_bytes,
@@ -42,6 +35,17 @@ impl GeneratorService {
         )
         .await?;
         info.with_field(field)
+    }
+
+    /// The field the scene renders, by name (`None`: each step's first); a step's other
+    /// fields are passed over as they arrive.
+    fn wanted_field(&self) -> Option<String> {
+        self.0
+            .generation
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .field
+            .clone()
     }
 
     /// A step whose payload lies in a shared-memory file ([`crate::shm`]): the header checked
@@ -69,14 +73,7 @@ impl GeneratorService {
             }
             .into());
         }
-        let wanted = self
-            .0
-            .generation
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .field
-            .clone();
-        let (info, mut window) = check_step(&header, wanted.as_deref())?;
+        let (info, mut window) = check_step(&header, self.wanted_field().as_deref())?;
         let file = shm.open(&step.path, total)?;
         let mut field = info.assembler(self.0.spare_fields.take());
         let field = tokio::task::spawn_blocking(move || {
