@@ -443,15 +443,19 @@ impl SimClient {
     /// The push through shared memory, when this client uses it: the payload written into its
     /// file (on the blocking pool), the header and path sent. `None` when the step is to be
     /// streamed: shared memory off, or failing now (then off for good: no room for the file,
-    /// or a node that cannot read it).
+    /// a node that cannot read it or cannot say where it would).
     async fn push_shared(
         &mut self,
         header: &pb::StepHeader,
         payload: &[Bytes],
     ) -> Result<Option<PushReply>, ClientError> {
         if matches!(self.shm, shm::SharedMemory::Unknown) {
-            let status = self.status().await?;
-            self.shm = shm::SharedMemory::for_node(&status);
+            // A node that does not answer the question is streamed to: the push itself then
+            // says whatever is wrong.
+            self.shm = match self.status().await {
+                Ok(status) => shm::SharedMemory::for_node(&status),
+                Err(_) => shm::SharedMemory::Off,
+            };
         }
         let shm::SharedMemory::On { dir, segment } = &mut self.shm else {
             return Ok(None);
