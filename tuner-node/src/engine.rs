@@ -344,6 +344,10 @@ impl Engine {
 }
 
 /// A step whose summaries are coming in.
+/// What a correction's reason ends with when no candidate meets the plan under the forecast
+/// and the coarsest is pushed (its step is expected to overshoot).
+const INFEASIBLE: &str = "; no candidate meets the plan under this forecast: the coarsest";
+
 struct Pending {
     world_size: u32,
     counts: [u64; BINS],
@@ -630,11 +634,14 @@ impl Loop {
         let miss = ctl.miss();
         drop(ctl);
         let k = plan.forecast;
-        let allowance = if miss >= 1.005 {
+        let mut allowance = if miss >= 1.005 {
             format!(", planned {miss:.2}× below the budget for the model's last miss")
         } else {
             String::new()
         };
+        if !plan.feasible {
+            allowance.push_str(INFEASIBLE);
+        }
         let reason = format!(
             "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}{allowance}",
             k.sigma_now,
