@@ -15,6 +15,8 @@
 
 use bytes::Bytes;
 use insitu_proto::pb;
+pub use insitu_proto::shared_memory::host_id;
+use insitu_proto::shared_memory::FILE_PREFIX;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -81,14 +83,6 @@ fn disabled_by_env() -> bool {
     })
 }
 
-/// This boot of this host, as the node reports its own (Linux's boot id); `None` elsewhere,
-/// where steps are always streamed.
-pub fn host_id() -> Option<String> {
-    let id = std::fs::read_to_string("/proc/sys/kernel/random/boot_id").ok()?;
-    let id = id.trim();
-    (!id.is_empty()).then(|| id.to_owned())
-}
-
 /// Files made by this process so far (part of each new file's name).
 static MADE: AtomicU64 = AtomicU64::new(0);
 
@@ -107,7 +101,7 @@ impl Segment {
         let pid = std::process::id();
         loop {
             let n = MADE.fetch_add(1, Ordering::Relaxed);
-            let path = dir.join(format!("insitu-{pid}-{n}"));
+            let path = dir.join(format!("{FILE_PREFIX}{pid}-{n}"));
             let mut options = std::fs::OpenOptions::new();
             options.read(true).write(true).create_new(true);
             #[cfg(unix)]

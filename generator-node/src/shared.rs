@@ -83,6 +83,12 @@ impl Shared {
     pub fn status(&self) -> pb::GeneratorStatus {
         let c = self.stats.get();
         let g = self.generation();
+        let (shared_memory_dir, host_id) = self
+            .shared_memory
+            .as_ref()
+            .map_or_else(Default::default, |m| {
+                (m.dir().display().to_string(), m.host_id().to_owned())
+            });
         pb::GeneratorStatus {
             queue_depth: self.queue.len() as u32,
             queue_limit: self.queue.max_items() as u32,
@@ -112,16 +118,8 @@ impl Shared {
             host_compose_secs: c.host_compose_secs,
             cpu_secs: crate::cpu::process_cpu_secs(),
             trial_cpu_secs: c.trial_cpu_secs,
-            shared_memory_dir: self
-                .shared_memory
-                .as_ref()
-                .map(|m| m.dir().display().to_string())
-                .unwrap_or_default(),
-            host_id: self
-                .shared_memory
-                .as_ref()
-                .map(|m| m.host_id().to_owned())
-                .unwrap_or_default(),
+            shared_memory_dir,
+            host_id,
             shared_pushes: c.shared_pushes,
         }
     }

@@ -13,13 +13,11 @@
 
 use crate::ingest::FieldWindow;
 use insitu_core::volume::FieldAssembler;
+use insitu_proto::shared_memory::{host_id, FILE_PREFIX};
 use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use tonic::Status;
-
-/// The prefix every shared-memory file's name must carry.
-pub const FILE_PREFIX: &str = "insitu-";
 
 /// Bytes read from the file at a time.
 const PIECE: usize = 4 << 20;
@@ -135,15 +133,6 @@ pub fn read_payload(
         left -= n as u64;
     }
     Ok(())
-}
-
-/// This boot of this host: Linux's boot id, which every process of one boot reads the same
-/// (containers that share the host's kernel included; whether they share the directory too,
-/// the client finds out from its first push).
-pub fn host_id() -> Option<String> {
-    let id = std::fs::read_to_string("/proc/sys/kernel/random/boot_id").ok()?;
-    let id = id.trim();
-    (!id.is_empty()).then(|| id.to_owned())
 }
 
 #[cfg(unix)]

@@ -27,6 +27,7 @@ pub mod daemon;
 pub mod health;
 pub mod peer;
 pub mod security;
+pub mod shared_memory;
 pub mod tls;
 pub mod transport;
 

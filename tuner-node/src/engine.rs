@@ -634,16 +634,16 @@ impl Loop {
         let miss = ctl.miss();
         drop(ctl);
         let k = plan.forecast;
-        let mut allowance = if miss >= 1.005 {
+        let mut notes = if miss >= 1.005 {
             format!(", planned {miss:.2}× below the budget for the model's last miss")
         } else {
             String::new()
         };
         if !plan.feasible {
-            allowance.push_str(INFEASIBLE);
+            notes.push_str(INFEASIBLE);
         }
         let reason = format!(
-            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}{allowance}",
+            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}{notes}",
             k.sigma_now,
             k.sigma,
             (plan.sigma_bytes / 1e3).round(),
