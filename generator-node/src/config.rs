@@ -299,11 +299,14 @@ pub struct Generation {
     pub field: Option<String>,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
     pub pm_version: u64,
-    /// The `P_M` and version in force before the last decision, for the steps before
-    /// `from_step` (a decision applies from a step boundary, the same for every rank of a
-    /// step, so that the viz-node can compose it); `None` without one.
-    pub previous: Option<(VdiParams, u64)>,
-    /// The first step made with `params` when `previous` is set.
+    /// The steered scene version `tf`, `field` and `camera` stand for (docs/steering.md;
+    /// 0: the config's, the world's agreed default or an operator's).
+    pub scene_version: u64,
+    /// The settings in force before the last decision (its `P_M` and scene), for the steps
+    /// before `from_step` (a decision applies from a step boundary, the same for every rank
+    /// of a step, so that the viz-node can compose it); `None` without one.
+    pub previous: Option<Box<Generation>>,
+    /// The first step made with these settings when `previous` is set.
     pub from_step: u64,
 }
 
@@ -311,12 +314,40 @@ impl Generation {
     /// The settings step `step` is made with: `params` from `from_step` on, the previous
     /// `P_M` and version before it.
     pub fn for_step(mut self, step: u64) -> Self {
-        if let Some((params, version)) = self.previous.take() {
-            if step < self.from_step {
-                (self.params, self.pm_version) = (params, version);
-            }
+        match self.previous.take() {
+            Some(previous) if step < self.from_step => *previous,
+            _ => self,
         }
-        self
+    }
+
+    /// As [`Self::for_step`], for a step that holds the field named `held` (the one kept at
+    /// receipt): a step received before a decision that changes the field reached this node
+    /// holds the old field, and is made with the settings it was received under (logged), so
+    /// that its VDI says truly which scene it shows.
+    pub fn for_step_holding(self, step: u64, held: Option<&str>) -> Self {
+        let stale = step >= self.from_step
+            && matches!((self.field.as_deref(), held), (Some(f), Some(h)) if f != h);
+        match self.previous {
+            Some(previous) if stale && previous.field.as_deref() == held => {
+                tracing::warn!(
+                    step,
+                    held,
+                    field = self.field.as_deref(),
+                    "a step received before the change of field reached this node is made with the scene it was received under"
+                );
+                *previous
+            }
+            _ => self.for_step(step),
+        }
+    }
+
+    /// The field step `step` is rendered from (as [`Self::for_step`] would say, without the
+    /// copy): what a push keeps of a step that carries several.
+    pub fn field_for(&self, step: u64) -> Option<&str> {
+        match &self.previous {
+            Some(previous) if step < self.from_step => previous.field.as_deref(),
+            _ => self.field.as_deref(),
+        }
     }
 
     /// The camera `P_A` of a step: the configured one, else the default for the whole
@@ -473,6 +504,7 @@ impl GenerationConfig {
             time_max: self.time_max,
             field: self.field.clone(),
             pm_version: 0,
+            scene_version: 0,
             previous: None,
             from_step: 0,
         })

@@ -693,6 +693,7 @@ mod tests {
             sim_time: step as f64,
             placement: Some((GLOBAL, b)),
             covers: Vec::new(),
+            scene_version: 0,
         };
         let file = codec::encode_with_provenance(&vdi, Codec::Zstd, Some(&provenance)).unwrap();
         let angles = vec![0.0, 90.0];

@@ -46,6 +46,11 @@ pub struct RawStep {
     pub field: Volume,
     /// Its file in the spool, when the node has one (removed once the step is settled).
     pub spool: Option<String>,
+    /// The step's named fields as pushed (empty: one unnamed field, or a step read back from
+    /// the spool, which keeps only the field kept).
+    pub fields: Vec<String>,
+    /// The name of the field kept (`None`: unnamed, or not known).
+    pub field_name: Option<String>,
 }
 
 fn dims(d: Option<&pb::Dims3>, name: &str, min: u32) -> Result<[usize; 3], Status> {
@@ -325,6 +330,8 @@ impl StepInfo {
             info: self,
             field,
             spool: None,
+            fields: Vec::new(),
+            field_name: None,
         })
     }
 
@@ -341,6 +348,16 @@ impl StepInfo {
 }
 
 impl RawStep {
+    /// The step with the names of its header's fields, `wanted` the one kept (else the first).
+    #[must_use]
+    pub fn named(mut self, h: &pb::StepHeader, wanted: Option<&str>) -> Self {
+        self.fields = h.fields.iter().map(|f| f.name.clone()).collect();
+        self.field_name = wanted
+            .map(str::to_owned)
+            .or_else(|| self.fields.first().cloned());
+        self
+    }
+
     /// Bytes the field holds in memory (what the queue and the spool count).
     pub fn bytes(&self) -> u64 {
         self.field.storage_bytes() as u64

@@ -386,7 +386,9 @@ async fn worker(shared: Arc<Shared>) {
         let spooled = raw.spooled();
         // Begun before the snapshot: a decision applied in between takes effect after it.
         shared.begun.fetch_max(step + 1, Ordering::SeqCst);
-        let mut gen = shared.generation().for_step(step);
+        let mut gen = shared
+            .generation()
+            .for_step_holding(step, raw.field_name.as_deref());
         if gen.tf.is_none() {
             if let Some(scene) = &shared.scene {
                 // The first step of a run with no TF configured: wait for the world's.

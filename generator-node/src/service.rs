@@ -23,29 +23,29 @@ impl GeneratorService {
     /// The stream's rules broken ([`chunk::receive_into`]: a bad header, a step over
     /// `max_step_bytes`, chunks that do not fill it), or a transport error, as a status.
     async fn receive(&self, mut stream: Streaming<pb::StepChunk>) -> Result<RawStep, Status> {
-        let wanted = self.wanted_field();
-        let (_, (info, _, field)) = chunk::receive_into(
+        let (header, (info, _, field)) = chunk::receive_into(
             &mut stream,
             self.0.max_step_bytes,
             |h: &pb::StepHeader| {
-                let (info, window) = check_step(h, wanted.as_deref())?;
+                let (info, window) = check_step(h, self.wanted_field(h.step).as_deref())?;
                 Ok((info, window, info.assembler(self.0.spare_fields.take())))
             },
             |(_, window, field), bytes| field.push(window.take(bytes)),
         )
         .await?;
-        info.with_field(field)
+        let wanted = self.wanted_field(header.step);
+        Ok(info.with_field(field)?.named(&header, wanted.as_deref()))
     }
 
-    /// The field the scene renders, by name (`None`: each step's first); a step's other
-    /// fields are passed over as they arrive.
-    fn wanted_field(&self) -> Option<String> {
+    /// The field the scene in force for `step` renders, by name (`None`: each step's first);
+    /// a step's other fields are passed over as they arrive.
+    fn wanted_field(&self, step: u64) -> Option<String> {
         self.0
             .generation
             .read()
             .unwrap_or_else(|e| e.into_inner())
-            .field
-            .clone()
+            .field_for(step)
+            .map(str::to_owned)
     }
 
     /// A step whose payload lies in a shared-memory file ([`crate::shm`]): the header checked
@@ -73,7 +73,8 @@ impl GeneratorService {
             }
             .into());
         }
-        let (info, mut window) = check_step(&header, self.wanted_field().as_deref())?;
+        let wanted = self.wanted_field(header.step);
+        let (info, mut window) = check_step(&header, wanted.as_deref())?;
         let file = shm.open(&step.path, total)?;
         let mut field = info.assembler(self.0.spare_fields.take());
         let field = tokio::task::spawn_blocking(move || {
@@ -81,7 +82,7 @@ impl GeneratorService {
         })
         .await
         .map_err(|e| Status::internal(format!("reading the shared-memory file: {e}")))??;
-        info.with_field(field)
+        Ok(info.with_field(field)?.named(&header, wanted.as_deref()))
     }
 
     /// Spools, announces and queues a received step, and the reply to its push.

@@ -29,6 +29,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         reference_every: u32::try_from(g.reference_every).ok(),
         reference_size: Some(g.reference_size),
         field: Some(g.field.clone().unwrap_or_default()),
+        scene_version: Some(g.scene_version),
     }
 }
 
@@ -40,8 +41,10 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     let bad =
         |field: &str, e: &dyn std::fmt::Display| Status::invalid_argument(format!("{field}: {e}"));
     let mut next = g.clone();
-    // An operator's P_M is not a tuner's decision, and applies from the next step.
+    // An operator's P_M is not a tuner's decision, and applies from the next step; an
+    // operator's scene is not a steered one (a node's own record of its run says which).
     next.pm_version = 0;
+    next.scene_version = c.scene_version.unwrap_or(0);
     next.previous = None;
     next.params = VdiParams {
         resolution: c.resolution,

@@ -12,7 +12,7 @@ use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
-use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb};
+use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb, vec3_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
 use std::time::Instant;
@@ -250,7 +250,7 @@ pub fn run(
             });
         }
         let t = Instant::now();
-        let provenance = provenance(info, gen.pm_version);
+        let provenance = provenance(info, gen.pm_version, gen.scene_version);
         let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
             codec::encode_with_provenance(&generated.value, gen.codec, Some(&provenance))
         })?;
@@ -312,6 +312,7 @@ pub fn run(
             brick_dims: Some(dims_to_pb(info.brick_dims)),
             with_references: references.is_some(),
             covers: Vec::new(),
+            scene_version: gen.scene_version,
         },
         vdi: Bytes::from(file),
         references,
@@ -322,8 +323,9 @@ pub fn run(
 }
 
 /// Where the VDI of `info`'s step and rank comes from, as its file carries it.
-fn provenance(info: &StepInfo, pm_version: u64) -> Provenance {
+fn provenance(info: &StepInfo, pm_version: u64, scene_version: u64) -> Provenance {
     Provenance {
+        scene_version,
         step: info.step,
         rank: info.rank,
         world_size: info.world_size.max(1),
@@ -413,6 +415,7 @@ pub fn for_tuner(
     product: &Product,
 ) -> (pb::StepSummary, crate::hold::HeldStep) {
     let [lo, hi] = tf.0.domain;
+    let domain = raw.info.global_box();
     let volume = raw.field;
     let h = insitu_core::volume::histogram(&volume.data(), lo, hi);
     let (min, max) = h
@@ -439,6 +442,10 @@ pub fn for_tuner(
         sampled: product.references.is_some(),
         // Set when it is sent (`Tuning::after_step`).
         begun: 0,
+        scene_version: gen.scene_version,
+        fields: raw.fields.clone(),
+        box_min: Some(vec3_to_pb(domain.min)),
+        box_max: Some(vec3_to_pb(domain.max)),
     };
     let held = crate::hold::HeldStep {
         camera: gen.camera_for(&raw.info),

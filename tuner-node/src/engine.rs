@@ -10,7 +10,8 @@
 
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
-use crate::state::{decision_pb, Decision, State};
+use crate::state::{Decision, State};
+use crate::steer::{Domain, Standing, SteerRecord};
 use crate::trigger::{Cause, Trigger};
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
@@ -24,7 +25,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tracing::{info, warn};
 
@@ -46,6 +47,11 @@ pub enum Event {
     Report(pb::QualityReport),
     /// A node's stream ended.
     Gone(u64),
+    /// A steering request and where its answer goes (docs/steering.md).
+    Steer(
+        pb::SteerRequest,
+        oneshot::Sender<Result<pb::SteerReply, tonic::Status>>,
+    ),
 }
 
 /// Counters (for the status).
@@ -86,7 +92,8 @@ pub struct Counters {
 /// The engine's shared part (the service, the search and the engine task use it).
 pub struct Engine {
     pub(crate) cfg: Config,
-    pub(crate) resolved: Resolved,
+    /// The configuration resolved with the utility in force (steering may replace it).
+    resolved: std::sync::RwLock<Arc<Resolved>>,
     /// Persisted state.
     pub state: Mutex<State>,
     /// Connected nodes.
@@ -181,6 +188,15 @@ impl Engine {
         let process = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_millis() as u64);
+        // A utility steered before a restart stays in force.
+        let resolved = match state.utility.as_deref().map(|u| resolve_with(&cfg, u)) {
+            Some(Ok(r)) => r,
+            Some(Err(e)) => {
+                warn!(error = %e, "the steered utility in the state no longer resolves; using the configured one");
+                resolved
+            }
+            None => resolved,
+        };
         (
             Arc::new(Self {
                 state: Mutex::new(state),
@@ -202,7 +218,7 @@ impl Engine {
                 events,
                 tuning,
                 cfg,
-                resolved,
+                resolved: std::sync::RwLock::new(Arc::new(resolved)),
             }),
             rx,
         )
@@ -223,6 +239,14 @@ impl Engine {
         self.counters.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// The configuration resolved with the utility in force.
+    pub(crate) fn resolved(&self) -> Arc<Resolved> {
+        self.resolved
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
     pub(crate) fn control(&self) -> std::sync::MutexGuard<'_, Controller> {
         self.control.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -237,19 +261,20 @@ impl Engine {
 
     /// Records `d` as the decision in force (persisted), counts it and pushes it to every
     /// node and subscriber.
-    pub(crate) fn publish(&self, d: Decision) {
-        {
+    pub(crate) fn publish(&self, mut d: Decision) {
+        let m = {
             let mut s = self.state();
+            d.scene_version = s.scene.version;
             s.decisions.push(d.clone());
             self.save(&s);
-        }
+            s.message(&d)
+        };
         {
             let mut c = self.counters();
             c.decisions += 1;
             c.corrections += u64::from(d.corrects.is_some());
         }
-        let m = decision_pb(&d);
-        info!(pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, forecast = ?d.forecast_ratio, trials = d.trials, trial_secs = d.trial_secs, reason = %d.reason, "new P_M");
+        info!(scene_version = d.scene_version, pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, forecast = ?d.forecast_ratio, trials = d.trials, trial_secs = d.trial_secs, reason = %d.reason, "new P_M");
         self.hub.broadcast(&Down::Decision(m.clone()));
         let _ = self.decisions.send(m);
     }
@@ -261,7 +286,7 @@ impl Engine {
 
     /// The utility's description.
     pub fn utility(&self) -> String {
-        self.resolved.utility.describe()
+        self.resolved().utility.describe()
     }
 
     pub(crate) fn save(&self, s: &State) {
@@ -275,6 +300,8 @@ impl Engine {
         let s = self.state();
         let c = self.counters();
         let cur = s.current();
+        let budgets = self.resolved().budgets;
+        let spec = s.utility.as_deref().unwrap_or(&self.cfg.utility);
         pb::TunerStatus {
             pm_version: cur.map_or(0, |d| d.pm_version),
             resolution: cur.map_or(0, |d| d.candidate.r),
@@ -297,27 +324,30 @@ impl Engine {
             quality_reports: c.quality_reports,
             trial_cpu_secs: c.trial_cpu_secs,
             size_probe_cpu_secs: c.size_probe_cpu_secs,
-            sigma_target_bytes: self.resolved.budgets.0.unwrap_or(0),
-            tau_target_secs: self.resolved.budgets.1.unwrap_or(0.0),
-            q_target_db: match UtilitySpec::parse(&self.cfg.utility) {
+            sigma_target_bytes: budgets.0.unwrap_or(0),
+            tau_target_secs: budgets.1.unwrap_or(0.0),
+            q_target_db: match UtilitySpec::parse(spec) {
                 Ok(UtilitySpec::Quality(q)) => q,
                 _ => 0.0,
             },
+            scene: Some(s.scene.to_pb()),
+            steering: s.steering.iter().map(SteerRecord::to_pb).collect(),
         }
     }
 
     /// The current decision, as a message.
     pub fn current(&self) -> Option<pb::PmDecision> {
-        self.state().current().map(decision_pb)
+        let s = self.state();
+        s.current().map(|d| s.message(d))
     }
 
     /// A decision by version.
     pub fn decision(&self, version: u64) -> Option<pb::PmDecision> {
-        self.state()
-            .decisions
+        let s = self.state();
+        s.decisions
             .iter()
             .find(|d| d.pm_version == version)
-            .map(decision_pb)
+            .map(|d| s.message(d))
     }
 
     fn hello(&self, conn: u64, h: &pb::NodeHello) {
@@ -334,7 +364,7 @@ impl Engine {
                 s.highest_seen = h.pm_version;
                 self.save(&s);
             }
-            s.current().map(decision_pb)
+            s.current().map(|d| s.message(d))
         };
         info!(node = %h.node_id, pm_version = h.pm_version, r = h.resolution, gamma = h.gamma, held = h.held.len(), "node attached");
         if let Some(d) = current.filter(|d| d.pm_version > h.pm_version) {
@@ -355,6 +385,8 @@ struct Pending {
     sigma_bytes: u64,
     tau_secs: f64,
     pm_version: u64,
+    /// The steered scene version they were made with.
+    scene_version: u64,
     /// The `P_M` the production VDIs were made with (the first rank's).
     candidate: Candidate,
     sampled: bool,
@@ -394,6 +426,8 @@ struct Loop {
     /// Whether the last tuning was cut short for a newer step (the next one is not: a field
     /// that changes character at every step would otherwise never be tuned for).
     cut_last: bool,
+    /// The domain as the newest summary describes it (what steering is checked against).
+    domain: Domain,
 }
 
 /// How a production step broke the budget.
@@ -429,6 +463,7 @@ impl Loop {
     fn summary(&mut self, conn: u64, s: pb::StepSummary) {
         let e = self.engine.clone();
         e.counters().summaries += 1;
+        self.domain.saw(&s);
         if s.held {
             e.hub.held(conn, s.step, s.rank);
         }
@@ -445,6 +480,7 @@ impl Loop {
             sigma_bytes: 0,
             tau_secs: 0.0,
             pm_version: s.pm_version,
+            scene_version: s.scene_version,
             candidate: Candidate {
                 r: s.resolution,
                 gamma: s.gamma,
@@ -483,7 +519,7 @@ impl Loop {
 
     /// σ and τ of a production step against the budget (σ summed over ranks, τ the slowest).
     fn over_budget(&self, p: &Pending) -> Option<Break> {
-        let (size, time) = self.engine.resolved.budgets;
+        let (size, time) = self.engine.resolved().budgets;
         if let Some(t) = size.filter(|&t| p.sigma_bytes >= t) {
             return Some(Break::Size(format!(
                 "σ {} B ≥ σ_target {t} B",
@@ -621,6 +657,10 @@ impl Loop {
             let (Some(t), Some(c)) = (s.tuned(), s.current()) else {
                 return;
             };
+            if t.scene_version != s.scene.version {
+                // Tuned under an earlier scene: its measurements say nothing of this one.
+                return;
+            }
             (
                 t.clone(),
                 c.candidate,
@@ -665,11 +705,17 @@ impl Loop {
             corrects: Some(tuned.pm_version),
             tuned: None,
             forecast_ratio: Some(k.sigma),
+            scene_version: 0,
+            steered: false,
         });
     }
 
     fn complete(&mut self, step: u64, p: Pending) {
         let e = self.engine.clone();
+        if !self.under_scene_in_force(step, &p) {
+            e.hub.hold(step, false);
+            return;
+        }
         let Ok(h) = normalise(&p.counts) else { return };
         self.recent.push_back((step, h));
         if self.recent.len() > STALE_STEPS as usize {
@@ -743,7 +789,11 @@ impl Loop {
         };
         let q = psnr_from_mse(a.mses.iter().sum::<f64>());
         let e = self.engine.clone();
-        let predicted = e.state().current().map(|d| d.predicted.q());
+        let predicted = e
+            .state()
+            .current()
+            .filter(|d| !d.steered)
+            .map(|d| d.predicted.q());
         if let (Some(v), Some(pq)) = (self.unforced_version(), predicted) {
             if v == a.pm_version && q < pq - e.cfg.q_margin_db {
                 let h = self.recent.iter().find(|(s, _)| *s == r.step).map(|x| x.1);
@@ -758,6 +808,206 @@ impl Loop {
             }
         }
         e.hub.hold(r.step, false);
+    }
+}
+
+impl Loop {
+    /// Whether production step `step` was made under the steered scene in force (its
+    /// histogram and σ then say something of it); the first such step of a pending change
+    /// marks the change applied (docs/steering.md).
+    fn under_scene_in_force(&mut self, step: u64, p: &Pending) -> bool {
+        let e = self.engine.clone();
+        let mut s = e.state();
+        if p.scene_version < s.scene.version {
+            return false;
+        }
+        let mut changed = false;
+        for r in &mut s.steering {
+            if r.standing == Standing::Pending && r.scene_version <= p.scene_version {
+                r.standing = Standing::Applied;
+                changed = true;
+                info!(
+                    scene_version = r.scene_version,
+                    step, "steered scene applied"
+                );
+            }
+        }
+        if changed {
+            e.save(&s);
+        }
+        true
+    }
+
+    /// A steering request (docs/steering.md): checked; a utility change re-tunes over the
+    /// characteristic steps; a scene change becomes the next scene version, pushed at once in
+    /// a decision of the `P_M` in force, supersedes a change not applied yet, and starts the
+    /// tuner afresh for the new scene (the old scene's characteristic steps released, a
+    /// running tuning cut short, the controller reset): the first step made under it is
+    /// characteristic.
+    fn steer(&mut self, req: pb::SteerRequest) -> Result<pb::SteerReply, tonic::Status> {
+        let e = self.engine.clone();
+        let scene = e.state().scene.clone();
+        let change = crate::steer::check(&req, &scene, &self.domain)
+            .map_err(tonic::Status::invalid_argument)?;
+        let resolved = change
+            .utility
+            .as_deref()
+            .map(|u| resolve_with(&e.cfg, u))
+            .transpose()
+            .map_err(|err| tonic::Status::invalid_argument(format!("utility: {err}")))?;
+        let carrier = {
+            let s = e.state();
+            s.current()
+                .map(|d| d.candidate)
+                .or(*e.reported.lock().unwrap_or_else(|p| p.into_inner()))
+        };
+        if change.scene.is_some() && carrier.is_none() {
+            return Err(tonic::Status::failed_precondition(
+                "no generator-node has attached yet: a scene change travels in a decision, and there is no P_M to carry it",
+            ));
+        }
+        let at = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let newest = self.recent.back().map_or(0, |(s, _)| *s);
+        if let (Some(u), Some(r)) = (change.utility.clone(), resolved) {
+            *e.control() = Controller::new(r.budgets, e.cfg.headroom, r.grid.clone());
+            *e.resolved.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(r);
+            let mut s = e.state();
+            s.utility = Some(u.clone());
+            s.steering.push(SteerRecord {
+                scene_version: 0,
+                pm_version: 0,
+                from_step: 0,
+                standing: Standing::Applied,
+                change: format!("utility {u}"),
+                who: req.who.clone(),
+                at_unix_secs: at,
+            });
+            // The decision in force was found best for the old utility.
+            s.validated.clear();
+            e.save(&s);
+            let retune = !s.tracker.steps.is_empty() && change.scene.is_none();
+            drop(s);
+            info!(utility = %e.utility(), who = %req.who, "utility steered");
+            if retune {
+                self.mark_dirty(Trigger {
+                    step: newest,
+                    cause: Cause::Steered {
+                        what: format!("utility {u}"),
+                    },
+                });
+            }
+        }
+        let Some((mut next, candidate)) = change.scene.zip(carrier) else {
+            return Ok(pb::SteerReply {
+                scene_version: scene.version,
+                utility: e.utility(),
+                ..Default::default()
+            });
+        };
+        let from_step = e.decision_start();
+        let (version, superseded, released) = {
+            let mut s = e.state();
+            next.version = s.scene.version + 1;
+            let mut superseded = Vec::new();
+            for r in &mut s.steering {
+                if r.standing == Standing::Pending && r.scene_version > 0 {
+                    r.standing = Standing::Superseded;
+                    superseded.push(r.scene_version);
+                }
+            }
+            s.scene = next.clone();
+            s.scenes.push(next);
+            // The old scene's characteristic steps and validation say nothing of the new one.
+            let released = s.tracker.step_indices();
+            for step in &released {
+                s.forget(*step);
+            }
+            s.validated.clear();
+            e.save(&s);
+            (s.scene.version, superseded, released)
+        };
+        for step in released {
+            self.release_evicted(step);
+        }
+        self.dirty = None;
+        self.recent.clear();
+        if e.counters().tuning {
+            e.superseded.store(true, Ordering::SeqCst);
+        }
+        {
+            let r = e.resolved();
+            *e.control() = Controller::new(r.budgets, e.cfg.headroom, r.grid.clone());
+        }
+        let pm_version = e.state().next_version();
+        let who = if req.who.is_empty() {
+            String::new()
+        } else {
+            format!(" by {}", req.who)
+        };
+        e.publish(Decision {
+            pm_version,
+            candidate,
+            old: Some(candidate),
+            characteristic_steps: Vec::new(),
+            predicted: unmeasured(candidate),
+            reason: format!("scene {version} steered{who}: {}", change.words),
+            trigger_step: newest,
+            trials: 0,
+            trial_secs: 0.0,
+            utility: e.utility(),
+            from_step,
+            corrects: None,
+            tuned: None,
+            forecast_ratio: None,
+            scene_version: version,
+            steered: true,
+        });
+        {
+            let mut s = e.state();
+            s.steering.push(SteerRecord {
+                scene_version: version,
+                pm_version,
+                from_step,
+                standing: Standing::Pending,
+                change: change.words.clone(),
+                who: req.who.clone(),
+                at_unix_secs: at,
+            });
+            e.save(&s);
+        }
+        info!(scene_version = version, pm_version, from_step, superseded = ?superseded, change = %change.words, "scene steered");
+        Ok(pb::SteerReply {
+            scene_version: version,
+            pm_version,
+            from_step,
+            utility: e.utility(),
+            superseded,
+        })
+    }
+}
+
+/// `cfg` resolved with `utility` in place of its own.
+///
+/// # Errors
+/// The configuration's error naming the utility.
+fn resolve_with(cfg: &Config, utility: &str) -> Result<Resolved, crate::config::ConfigError> {
+    let mut c = cfg.clone();
+    utility.clone_into(&mut c.utility);
+    c.resolve()
+}
+
+/// A candidate with nothing measured of it (a steering decision's prediction: σ and τ 0, q NaN).
+fn unmeasured(c: Candidate) -> insitu_tuner::Measurement {
+    insitu_tuner::Measurement {
+        r: c.r,
+        gamma: c.gamma,
+        sizing: insitu_core::evaluate::Sizing::default(),
+        tau_render_secs: 0.0,
+        q_db: insitu_core::metrics::Db(f64::NAN),
+        view_q_db: Vec::new(),
+        ssim: None,
     }
 }
 
@@ -853,6 +1103,7 @@ impl Engine {
             deferred: Vec::new(),
             slow: (0, 0),
             cut_last: false,
+            domain: Domain::default(),
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
@@ -874,6 +1125,9 @@ impl Engine {
                     Some(Event::Report(r)) => {
                         self.counters().quality_reports += 1;
                         l.report(&r);
+                    }
+                    Some(Event::Steer(req, answer)) => {
+                        let _ = answer.send(l.steer(req));
                     }
                     Some(Event::Gone(conn)) => {
                         if let Some(id) = self.hub.disconnect(conn) {
@@ -977,6 +1231,8 @@ mod tests {
             corrects: None,
             tuned: None,
             forecast_ratio: None,
+            scene_version: 0,
+            steered: false,
         });
         state.validated = vec![0];
         let (engine, _rx) = Engine::new(cfg, resolved, state, |_, _| true);
@@ -989,6 +1245,7 @@ mod tests {
             deferred: Vec::new(),
             slow: (0, 0),
             cut_last: false,
+            domain: Domain::default(),
         }
     }
 
@@ -1132,6 +1389,159 @@ mod tests {
         assert!(k >= (sigma as u64) as f64 / 900.0 - 1e-9, "forecast {k}");
         assert!(d.predicted.sizing.sigma_bytes < 950, "{d:?}");
         assert!(d.reason.contains("correction after step"), "{}", d.reason);
+    }
+
+    const STEERED_TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
+
+    fn named(mut s: pb::StepSummary, scene_version: u64) -> pb::StepSummary {
+        s.scene_version = scene_version;
+        s.fields = vec!["u".into(), "v".into()];
+        s
+    }
+
+    #[test]
+    fn a_steered_scene_is_versioned_pushed_and_tuned_for_afresh_and_a_later_change_supersedes_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        let mut decisions = l.engine.subscribe();
+        l.summary(1, named(summary(1, 3, 900, 1), 0));
+        assert_eq!(l.engine.state().tracker.step_indices(), [0]);
+        let reply = l
+            .steer(pb::SteerRequest {
+                tf_json: Some(STEERED_TF.into()),
+                tf_name: Some("warm".into()),
+                who: "test".into(),
+                ..Default::default()
+            })
+            .unwrap();
+        assert_eq!((reply.scene_version, reply.pm_version), (1, 2));
+        assert_eq!(
+            reply.from_step, 3,
+            "two strides past the newest step (no node said `begun`)"
+        );
+        // Pushed: the P_M in force, carrying the scene.
+        let m = decisions.try_recv().unwrap();
+        assert_eq!((m.pm_version, m.resolution, m.from_step), (2, 64, 3));
+        let scene = m.scene.unwrap();
+        assert_eq!(scene.version, 1);
+        assert_eq!(scene.tf_name.as_deref(), Some("warm"));
+        assert!(m.reason.contains("scene 1 steered by test"), "{}", m.reason);
+        {
+            let s = l.engine.state();
+            assert!(
+                s.tracker.steps.is_empty(),
+                "the old scene's steps are let go"
+            );
+            assert_eq!(s.steering.last().unwrap().standing, Standing::Pending);
+            // Persisted: a restarted tuner carries the scene on.
+            let back = State::load(dir.path()).unwrap().unwrap();
+            assert_eq!(back.scene, s.scene);
+        }
+        assert_eq!(l.engine.current().unwrap().scene.unwrap().version, 1);
+        // Still under the old scene: neither characteristic nor a trigger.
+        l.summary(1, named(summary(2, 40, 5000, 1), 0));
+        assert!(l.dirty.is_none() && l.engine.state().tracker.steps.is_empty());
+        // A second change before any step was made with the first supersedes it.
+        let reply = l
+            .steer(pb::SteerRequest {
+                field: Some("v".into()),
+                ..Default::default()
+            })
+            .unwrap();
+        assert_eq!((reply.scene_version, reply.superseded), (2, vec![1]));
+        let scene = decisions.try_recv().unwrap().scene.unwrap();
+        assert_eq!(
+            (
+                scene.version,
+                scene.field.as_deref(),
+                scene.tf_name.as_deref()
+            ),
+            (2, Some("v"), Some("warm")),
+            "cumulative: the transfer function stays"
+        );
+        // The first step under the new scene applies it and starts the tuning for it.
+        l.summary(1, named(summary(4, 10, 700, 3), 2));
+        let cause = &l.dirty.as_ref().unwrap().cause;
+        assert_eq!(*cause, Cause::First);
+        let st = l.engine.status();
+        let standings: Vec<&str> = st.steering.iter().map(|r| r.state.as_str()).collect();
+        assert_eq!(standings, ["superseded", "applied"]);
+        assert_eq!(st.scene.unwrap().version, 2);
+    }
+
+    #[test]
+    fn steering_refuses_what_it_cannot_apply_and_changes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        l.summary(1, named(summary(1, 3, 900, 1), 0));
+        let before = l.engine.state().clone();
+        let refused = |l: &mut Loop, req: pb::SteerRequest| l.steer(req).unwrap_err();
+        let e = refused(
+            &mut l,
+            pb::SteerRequest {
+                field: Some("w".into()),
+                ..Default::default()
+            },
+        );
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        assert!(
+            e.message().contains("\"w\" is not one of"),
+            "{}",
+            e.message()
+        );
+        let e = refused(
+            &mut l,
+            pb::SteerRequest {
+                utility: Some("size:lots".into()),
+                ..Default::default()
+            },
+        );
+        assert!(e.message().starts_with("utility:"), "{}", e.message());
+        assert_eq!(*l.engine.state(), before);
+        // No node ever attached and no decision: no P_M to carry a scene.
+        l.engine.state().decisions.clear();
+        let e = refused(
+            &mut l,
+            pb::SteerRequest {
+                tf_json: Some(STEERED_TF.into()),
+                ..Default::default()
+            },
+        );
+        assert_eq!(e.code(), tonic::Code::FailedPrecondition);
+    }
+
+    #[test]
+    fn a_steered_utility_sets_the_budget_and_re_tunes_over_the_characteristic_steps() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        let reply = l
+            .steer(pb::SteerRequest {
+                utility: Some("size:2kB".into()),
+                ..Default::default()
+            })
+            .unwrap();
+        assert_eq!((reply.scene_version, reply.pm_version), (0, 0));
+        assert!(
+            reply.utility.contains("2.0 kB") || reply.utility.contains("2000"),
+            "{}",
+            reply.utility
+        );
+        assert_eq!(l.engine.status().sigma_target_bytes, 2000);
+        assert!(matches!(
+            l.dirty.as_ref().unwrap().cause,
+            Cause::Steered { .. }
+        ));
+        // A restarted tuner keeps it.
+        let state = State::load(dir.path()).unwrap().unwrap();
+        assert_eq!(state.utility.as_deref(), Some("size:2kB"));
+        let cfg = Config {
+            state_dir: dir.path().to_owned(),
+            utility: "size:1000".into(),
+            ..Default::default()
+        };
+        let resolved = cfg.resolve().unwrap();
+        let (engine, _rx) = Engine::new(cfg, resolved, state, |_, _| true);
+        assert_eq!(engine.status().sigma_target_bytes, 2000);
     }
 
     #[test]

@@ -20,6 +20,7 @@ pub mod hub;
 pub mod node;
 pub mod service;
 pub mod state;
+pub mod steer;
 pub mod trigger;
 mod tune;
 

@@ -117,4 +117,20 @@ impl Tuner for TunerService {
         let rest = BroadcastStream::new(rx).filter_map(|r| r.ok().map(Ok));
         Ok(Response::new(Box::pin(first.chain(rest))))
     }
+
+    async fn steer(
+        &self,
+        request: Request<pb::SteerRequest>,
+    ) -> Result<Response<pb::SteerReply>, Status> {
+        let mut req = request.into_inner();
+        if req.who.is_empty() {
+            req.who = "a gRPC client".into();
+        }
+        // Taken in order with the nodes' summaries by the engine's task.
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        self.0.event(Event::Steer(req, tx)).await;
+        rx.await
+            .map_err(|_| Status::unavailable("the tuner is stopping"))?
+            .map(Response::new)
+    }
 }

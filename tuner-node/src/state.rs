@@ -5,6 +5,7 @@
 //! never half of one. A restarted tuner resumes from it: finished trials are not run again and
 //! versions continue.
 
+use crate::steer::{SceneState, SteerRecord};
 use insitu_core::evaluate::Sizing;
 use insitu_proto::pb;
 use insitu_tuner::control::{Point, Surface};
@@ -110,6 +111,14 @@ pub struct Decision {
     /// when no production step had been measured.
     #[serde(default)]
     pub forecast_ratio: Option<f64>,
+    /// The steered scene version in force with it (0: the configured scene; set when it is
+    /// published).
+    #[serde(default)]
+    pub scene_version: u64,
+    /// A decision that carries a scene change (the `P_M` in force, unchanged): neither a
+    /// tuning's nor a correction.
+    #[serde(default)]
+    pub steered: bool,
 }
 
 impl Decision {
@@ -143,6 +152,18 @@ pub struct State {
     /// production steps are watched against the budget; when they differ, a tuning is due.
     #[serde(default)]
     pub validated: Vec<u64>,
+    /// The steered scene in force (version 0: never steered).
+    #[serde(default)]
+    pub scene: SceneState,
+    /// Every steered scene, oldest first (what each decision's `scene_version` stands for).
+    #[serde(default)]
+    pub scenes: Vec<SceneState>,
+    /// Every steering change, oldest first.
+    #[serde(default)]
+    pub steering: Vec<SteerRecord>,
+    /// The utility as last steered (`None`: the configured one).
+    #[serde(default)]
+    pub utility: Option<String>,
 }
 
 impl State {
@@ -167,7 +188,22 @@ impl State {
             decisions: Vec::new(),
             highest_seen: 0,
             validated: Vec::new(),
+            scene: SceneState::default(),
+            scenes: Vec::new(),
+            steering: Vec::new(),
+            utility: None,
         }
+    }
+
+    /// A decision as pushed, with the steered scene it carries.
+    pub fn message(&self, d: &Decision) -> pb::PmDecision {
+        let mut m = decision_pb(d);
+        m.scene = self
+            .scenes
+            .iter()
+            .find(|s| s.version == d.scene_version)
+            .map(SceneState::to_pb);
+        m
     }
 
     /// The decision in force.
@@ -175,9 +211,12 @@ impl State {
         self.decisions.last()
     }
 
-    /// The newest decision a tuning made (corrections between tunings left out).
+    /// The newest decision a tuning made (corrections between tunings and steering left out).
     pub fn tuned(&self) -> Option<&Decision> {
-        self.decisions.iter().rev().find(|d| d.corrects.is_none())
+        self.decisions
+            .iter()
+            .rev()
+            .find(|d| d.corrects.is_none() && !d.steered)
     }
 
     /// The candidate a decision version stands for (`None`: unknown or version 0).
@@ -365,8 +404,8 @@ impl State {
     }
 }
 
-/// A decision as a wire message.
-pub fn decision_pb(d: &Decision) -> pb::PmDecision {
+/// A decision as a wire message, without its scene (see [`State::message`]).
+fn decision_pb(d: &Decision) -> pb::PmDecision {
     pb::PmDecision {
         pm_version: d.pm_version,
         resolution: d.candidate.r,
@@ -385,6 +424,7 @@ pub fn decision_pb(d: &Decision) -> pb::PmDecision {
         from_step: d.from_step,
         corrects_version: d.corrects.unwrap_or(0),
         forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
+        scene: None,
     }
 }
 

@@ -37,6 +37,11 @@ pub enum Cause {
     },
     /// A restarted tuner resumes the tuning it had under way.
     Resume,
+    /// An operator steered the run (docs/steering.md); `what` says what changed.
+    Steered {
+        /// E.g. `utility size:1MB`.
+        what: String,
+    },
 }
 
 impl fmt::Display for Trigger {
@@ -58,6 +63,7 @@ impl fmt::Display for Trigger {
                 write!(f, "characteristic step(s) {steps:?} lost with their node")
             }
             Cause::Resume => write!(f, "resuming the tuning of a restarted tuner"),
+            Cause::Steered { what } => write!(f, "steered ({what}) at step {step}"),
         }
     }
 }

@@ -247,9 +247,13 @@ impl Oracle for StepOracle {
 /// Returns whether the search finished (a decision, P_M unchanged, or none feasible); `false`
 /// when a trial failed it.
 pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
-    let (steps, world_sizes) = {
+    let (steps, world_sizes, scene) = {
         let s = engine.state();
-        (s.tracker.step_indices(), s.world_sizes.clone())
+        (
+            s.tracker.step_indices(),
+            s.world_sizes.clone(),
+            s.scene.version,
+        )
     };
     if steps.is_empty() {
         // Every characteristic step left with its node: nothing to tune on until a new one.
@@ -270,6 +274,10 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
         return true;
     };
+    if engine.state().scene.version != scene {
+        info!(steps = ?steps, "the scene was steered during the tuning: its outcome is dropped, the new scene is tuned for");
+        return true;
+    }
     decide(
         engine,
         trigger,
@@ -302,7 +310,7 @@ fn search(
         })
         .collect();
     let mut oracle = WorstCase::new(oracles);
-    let r = &engine.resolved;
+    let r = engine.resolved();
     // Size probes start at the P_M in force: the answer is most often near it.
     let in_force = engine.state().current().map(|d| d.candidate);
     match r.target {
@@ -357,7 +365,8 @@ fn decide(
         .map(|d| d.candidate)
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     let pushed = plan.map_or(best.candidate(), |p| p.candidate);
-    if old == Some(pushed) && s.current().is_some() {
+    // After a steered scene the decision in force predicts nothing: the tuning's is pushed.
+    if old == Some(pushed) && s.current().is_some_and(|d| !d.steered) {
         info!(r = pushed.r, gamma = pushed.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
         s.validated = steps;
         engine.save(&s);
@@ -397,6 +406,8 @@ fn decide(
         corrects: None,
         tuned,
         forecast_ratio: forecast,
+        scene_version: 0,
+        steered: false,
     };
     s.validated = d.characteristic_steps.clone();
     drop(s);

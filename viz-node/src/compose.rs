@@ -194,6 +194,20 @@ pub fn compose_step(
 /// [`StepError::Scene`] naming the first rank and the one whose scene differs;
 /// [`StepError::Rank`] for any other failure.
 fn compose_ranks(step: u64, ready: &[&Entry], vdis: &[Arc<Vdi>]) -> Result<Vdi, StepError> {
+    if let Some(e) = ready
+        .iter()
+        .find(|e| e.scene_version != ready[0].scene_version)
+    {
+        return Err(StepError::Scene {
+            step,
+            first: ready[0].rank,
+            rank: e.rank,
+            what: format!(
+                "steered scene version ({} against {})",
+                e.scene_version, ready[0].scene_version
+            ),
+        });
+    }
     compose_vdis(&vdis.iter().map(|v| &**v).collect::<Vec<_>>()).map_err(|e| match e {
         ComposeError::Mismatch { part, what } => StepError::Scene {
             step,
@@ -230,6 +244,7 @@ fn store_composed(
         pm_version: ready[0].pm_version,
         sim_time: ready[0].sim_time,
         covers: Vec::new(),
+        scene_version: ready[0].scene_version,
         placement: ready[0]
             .placement
             .filter(|p| p.global_dims.iter().all(|&n| n >= 1))
@@ -272,6 +287,7 @@ pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32
         resolution: first.map_or(0, |e| e.resolution),
         gamma: first.map_or(0.0, |e| e.gamma),
         pm_version: first.map_or(0, |e| e.pm_version),
+        scene_version: first.map_or(0, |e| e.scene_version),
         codec: first.and_then(|e| e.codec),
         quality: None,
         error: None,

@@ -364,6 +364,7 @@ mod tests {
                 sim_time: 0.0,
                 placement: None,
                 covers: Vec::new(),
+                scene_version: 0,
             };
             let bytes =
                 codec::encode_with_provenance(&vdi, codec::Codec::None, Some(&provenance)).unwrap();

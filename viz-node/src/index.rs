@@ -342,7 +342,7 @@ impl IndexDb {
     }
 
     /// The index as CSV, one line per (step, rank) and one per composed step (`rank` empty):
-    /// `step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error`
+    /// `step,rank,world_size,pm_version,scene_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error`
     /// (`error`: why a step of several ranks could not be composed, quoted as CSV quotes).
     ///
     /// # Errors
@@ -355,16 +355,17 @@ impl IndexDb {
 /// [`IndexDb::export_csv`] of rows read already (e.g. [`export_shards`]).
 pub fn csv(e: &Export) -> String {
     let mut out = String::from(
-        "step,rank,world_size,pm_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error\n",
+        "step,rank,world_size,pm_version,scene_version,r,gamma,sigma_bytes,tau_secs,q_db,missing,vdi,error\n",
     );
     let q = |q: Option<f64>| q.map_or_else(String::new, |q| q.to_string());
     for e in &e.entries {
         out.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},,{},\n",
+            "{},{},{},{},{},{},{},{},{},{},,{},\n",
             e.step,
             e.rank,
             e.world_size,
             e.pm_version,
+            e.scene_version,
             e.resolution,
             e.gamma,
             e.sizing.sigma_bytes,
@@ -376,10 +377,11 @@ pub fn csv(e: &Export) -> String {
     for s in &e.steps {
         let missing: Vec<String> = s.missing.iter().map(u32::to_string).collect();
         out.push_str(&format!(
-            "{},,{},{},{},{},{},{},{},{},{},{}\n",
+            "{},,{},{},{},{},{},{},{},{},{},{},{}\n",
             s.step,
             s.world_size,
             s.pm_version,
+            s.scene_version,
             s.resolution,
             s.gamma,
             s.sizing.sigma_bytes,

@@ -209,6 +209,7 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
         } else {
             Vec::new()
         },
+        scene_version: p.scene_version,
     })
 }
 
@@ -247,6 +248,7 @@ mod tests {
             sim_time: step as f64 * 0.5,
             placement: Some(([15, 8, 8], brick)),
             covers: Vec::new(),
+            scene_version: 2,
         };
         let bytes = codec::encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();
         let row = Entry {
@@ -270,6 +272,7 @@ mod tests {
                 brick,
             }),
             with_references: refs,
+            scene_version: 2,
             ..Entry::empty(step, rank)
         };
         let (mut e, _) = rec.store_vdi(row, &bytes).unwrap();

@@ -119,6 +119,10 @@ pub struct Entry {
     /// first; the placement is their box). Empty: `rank` alone.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub covers: Vec<u32>,
+    /// The steered scene version the VDI was made with (docs/steering.md; 0: the configured
+    /// scene).
+    #[serde(default)]
+    pub scene_version: u64,
 }
 
 impl Entry {
@@ -177,6 +181,9 @@ pub struct StepEntry {
     pub gamma: f32,
     /// P_M version.
     pub pm_version: u64,
+    /// The steered scene version of the ranks.
+    #[serde(default)]
+    pub scene_version: u64,
     /// Codec of the ranks' files (the composed file uses it too; as in [`Entry`]).
     #[serde(with = "codec_name")]
     pub codec: Option<Codec>,
@@ -212,6 +219,7 @@ impl Entry {
             placement: None,
             with_references: false,
             covers: Vec::new(),
+            scene_version: 0,
         }
     }
 }

@@ -113,6 +113,7 @@ pub fn step_report(s: &StepEntry) -> pb::QualityReport {
         codec: s.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
         path: s.vdi.clone().unwrap_or_default(),
         pm_version: s.pm_version,
+        scene_version: s.scene_version,
         world_size: s.world_size,
         composed: true,
         missing_ranks: s.missing.clone(),
@@ -131,6 +132,7 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         codec: e.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
         path: e.vdi.clone().unwrap_or_default(),
         pm_version: e.pm_version,
+        scene_version: e.scene_version,
         world_size: e.world_size,
         ..measured(&e.sizing, e.quality.as_ref())
     }
@@ -422,6 +424,7 @@ fn store_vdi(
         placement,
         with_references: h.with_references,
         covers: if ranks.len() > 1 { ranks } else { Vec::new() },
+        scene_version: h.scene_version,
     };
     let (entry, new) = s.recording.store_vdi(meta, bytes).map_err(store_status)?;
     let read_next = h.with_references || h.world_size > 1;
@@ -466,6 +469,12 @@ fn check_provenance(
             p.pm_version != h.pm_version,
             p.pm_version.to_string(),
             h.pm_version.to_string(),
+        ),
+        (
+            "scene version",
+            p.scene_version != h.scene_version,
+            p.scene_version.to_string(),
+            h.scene_version.to_string(),
         ),
         (
             "brick",

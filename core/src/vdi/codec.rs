@@ -48,7 +48,7 @@ const FORMAT_VERSION_PARTS: u16 = 2;
 /// The version before parts (the body one stream), still read.
 const FORMAT_VERSION_SINGLE: u16 = 1;
 /// Longest provenance block read, bytes (this version writes [`super::provenance::LEN`] plus
-/// 4 bytes per rank a host composed into the VDI, and 4: room for 16 000 ranks in one part).
+/// 4 bytes per rank a host composed into the VDI, 4 and 8: room for 16 000 ranks in one part).
 const MAX_PROVENANCE: usize = 65_536;
 /// Payload bytes per bzip2 part: two blocks at bzip2's best compression (900 k each). σ stays
 /// that of one stream within 0.2 % (teapot, r = 256 and 768: 2 139 358 against 2 143 794 bytes,

@@ -15,6 +15,7 @@
 //! 33      72    global dims, brick offset, brick dims (3 × u64 each)
 //! 105      4    n: ranks the VDI holds when a host composed several (u32; 0: the rank alone)
 //! 109     4n    those ranks, ascending, the first being `rank` (u32 each)
+//! 109+4n  8     the steered scene version (u64; 0: the configured scene; absent: 0)
 //! ```
 //!
 //! A block of a host's composed part ([`Provenance::covers`]) names every rank it holds, and
@@ -48,6 +49,9 @@ pub struct Provenance {
     /// The ranks the VDI holds when a generator-node composed several of its ranks into one
     /// part (ascending, `rank` first); empty: `rank` alone.
     pub covers: Vec<u32>,
+    /// The steered scene version the VDI was made with (docs/steering.md; 0: the scene the
+    /// nodes were configured with).
+    pub scene_version: u64,
 }
 
 /// Whether `covers` may name the ranks of a part whose first rank is `rank` in a world of
@@ -70,9 +74,9 @@ impl Provenance {
         }
     }
 
-    /// The block as the file holds it ([`LEN`] + 4 + 4 · covered ranks bytes).
+    /// The block as the file holds it ([`LEN`] + 4 + 4 · covered ranks + 8 bytes).
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(LEN + 4 + 4 * self.covers.len());
+        let mut out = Vec::with_capacity(LEN + 12 + 4 * self.covers.len());
         out.extend_from_slice(&self.step.to_le_bytes());
         out.extend_from_slice(&self.rank.to_le_bytes());
         out.extend_from_slice(&self.world_size.to_le_bytes());
@@ -93,6 +97,7 @@ impl Provenance {
         for r in &self.covers {
             out.extend_from_slice(&r.to_le_bytes());
         }
+        out.extend_from_slice(&self.scene_version.to_le_bytes());
         out
     }
 
@@ -142,6 +147,7 @@ impl Provenance {
             other => return invalid(format!("placement flag {other} is not 0 or 1")),
         };
         let mut covers = Vec::new();
+        let mut scene_version = 0;
         if rd.remaining() > 0 {
             let n = rd.u32("provenance covered ranks")?;
             if n > world_size {
@@ -155,6 +161,9 @@ impl Provenance {
                     "covered ranks {covers:?} must ascend from rank {rank} inside a world of {world_size}"
                 ));
             }
+            if rd.remaining() > 0 {
+                scene_version = rd.u64("provenance scene version")?;
+            }
         }
         Ok(Self {
             step,
@@ -164,6 +173,7 @@ impl Provenance {
             sim_time,
             placement,
             covers,
+            scene_version,
         })
     }
 }
@@ -187,6 +197,7 @@ mod tests {
                 },
             )),
             covers: vec![3, 5],
+            scene_version: 2,
         }
     }
 
@@ -194,7 +205,7 @@ mod tests {
     fn a_block_reads_back_as_written_and_may_grow() {
         let p = sample();
         let bytes = p.to_bytes();
-        assert_eq!(bytes.len(), LEN + 4 + 8);
+        assert_eq!(bytes.len(), LEN + 4 + 8 + 8);
         assert_eq!(Provenance::from_bytes(&bytes).unwrap(), p);
         assert_eq!(p.ranks(), [3, 5]);
         let mut longer = bytes.clone();
@@ -203,6 +214,10 @@ mod tests {
         // A block written before hosts composed: its rank alone.
         let alone = Provenance::from_bytes(&bytes[..LEN]).unwrap();
         assert_eq!((alone.covers.len(), alone.ranks()), (0, vec![3]));
+        // One written before scenes were steered: the configured scene.
+        let unsteered = Provenance::from_bytes(&bytes[..LEN + 4 + 8]).unwrap();
+        assert_eq!(unsteered.scene_version, 0);
+        assert_eq!(unsteered.covers, p.covers);
         let unplaced = Provenance {
             placement: None,
             ..p.clone()
@@ -216,7 +231,7 @@ mod tests {
     #[test]
     fn impossible_blocks_are_refused_with_the_reason() {
         let bytes = sample().to_bytes();
-        for cut in [LEN - 1, LEN + 2, LEN + 6] {
+        for cut in [LEN - 1, LEN + 2, LEN + 6, LEN + 4 + 8 + 3] {
             assert!(matches!(
                 Provenance::from_bytes(&bytes[..cut]),
                 Err(CodecError::Truncated { .. })

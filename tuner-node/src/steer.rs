@@ -1,0 +1,449 @@
+//! Steering (docs/steering.md): what an operator may change while the run goes on — the
+//! transfer function, the rendered field, the generation camera (the *scene*) and the
+//! tuner's utility — checked here, before anything changes.
+//!
+//! A scene change is versioned as `P_M` is: the engine gives it the next scene version and
+//! pushes it in a decision of its own (the `P_M` in force, `PmDecision.scene`), so it applies
+//! from that decision's `from_step` on every node and rank alike, survives restarts of every
+//! daemon (the tuner's state keeps it; every later decision carries it), and each stored step
+//! names the scene it was made with. The scene is cumulative: a part never steered stays each
+//! node's own (its config, or the default the world agreed).
+
+use insitu_core::volume::Aabb;
+use insitu_core::TransferFunction;
+use insitu_proto::convert::{camera_from_pb, camera_to_pb};
+use insitu_proto::pb;
+use serde::{Deserialize, Serialize};
+
+/// Largest transfer function accepted, bytes (as a node accepts in `SetConfig`).
+pub const MAX_TF_JSON: usize = 1 << 20;
+
+/// A generation camera as persisted: eye, target and up (world units) and the vertical field
+/// of view (degrees).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraSpec {
+    /// Eye position.
+    pub eye: [f32; 3],
+    /// Point looked at.
+    pub target: [f32; 3],
+    /// Up hint.
+    pub up: [f32; 3],
+    /// Vertical field of view, degrees.
+    pub fov_y_deg: f32,
+}
+
+impl CameraSpec {
+    fn of(c: &insitu_core::Camera) -> Self {
+        Self {
+            eye: c.eye.to_array(),
+            target: c.target.to_array(),
+            up: c.up.to_array(),
+            fov_y_deg: c.fov_y_deg,
+        }
+    }
+
+    fn camera(&self) -> insitu_core::Camera {
+        insitu_core::Camera {
+            eye: self.eye.into(),
+            target: self.target.into(),
+            up: self.up.into(),
+            fov_y_deg: self.fov_y_deg,
+        }
+    }
+}
+
+/// The steered scene, cumulative over the run (`pb::Scene`): `None` parts are each node's own.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SceneState {
+    /// Version (0: never steered, the configured scene).
+    pub version: u64,
+    /// Transfer function (docs/conventions.md format).
+    pub tf_json: Option<String>,
+    /// Its name in VDI metadata.
+    pub tf_name: Option<String>,
+    /// The field rendered, by name.
+    pub field: Option<String>,
+    /// The generation camera.
+    pub camera: Option<CameraSpec>,
+}
+
+impl SceneState {
+    /// As carried by decisions and the status.
+    pub fn to_pb(&self) -> pb::Scene {
+        pb::Scene {
+            version: self.version,
+            tf_json: self.tf_json.clone(),
+            tf_name: self.tf_name.clone(),
+            field: self.field.clone(),
+            camera: self.camera.as_ref().map(|c| camera_to_pb(&c.camera())),
+        }
+    }
+}
+
+/// Where a steering change stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Standing {
+    /// Decided; no step made with it yet.
+    Pending,
+    /// A production step was made with it (a utility change: in force at once).
+    Applied,
+    /// A later change came before any step was made with it: never applied.
+    Superseded,
+}
+
+impl Standing {
+    fn word(self) -> &'static str {
+        match self {
+            Self::Pending => "pending",
+            Self::Applied => "applied",
+            Self::Superseded => "superseded",
+        }
+    }
+}
+
+/// One steering change, as recorded in the tuner's state.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SteerRecord {
+    /// The scene version it made (0: a utility change).
+    pub scene_version: u64,
+    /// The decision that carried it (0: a utility change).
+    pub pm_version: u64,
+    /// The first step made with it (0: a utility change).
+    pub from_step: u64,
+    /// Where it stands.
+    pub standing: Standing,
+    /// What changed, in words.
+    pub change: String,
+    /// Who asked.
+    pub who: String,
+    /// When, seconds since the Unix epoch.
+    pub at_unix_secs: f64,
+}
+
+impl SteerRecord {
+    /// As in the status.
+    pub fn to_pb(&self) -> pb::SteeringRecord {
+        pb::SteeringRecord {
+            scene_version: self.scene_version,
+            pm_version: self.pm_version,
+            from_step: self.from_step,
+            state: self.standing.word().into(),
+            change: self.change.clone(),
+            who: self.who.clone(),
+            at_unix_secs: self.at_unix_secs,
+        }
+    }
+}
+
+/// What the newest summarised step says about the domain: its named fields and its box
+/// (what a steered field and camera are checked against).
+#[derive(Clone, Debug, Default)]
+pub struct Domain {
+    /// Whether a step was seen at all.
+    pub seen: bool,
+    /// The step's named fields (empty: one unnamed field).
+    pub fields: Vec<String>,
+    /// The whole domain's box, when the nodes report it.
+    pub bounds: Option<Aabb>,
+}
+
+impl Domain {
+    /// Learns from a step summary.
+    pub fn saw(&mut self, s: &pb::StepSummary) {
+        self.seen = true;
+        self.fields.clone_from(&s.fields);
+        let v = |v: &Option<pb::Vec3>| v.as_ref().map(|v| glam::Vec3::new(v.x, v.y, v.z));
+        if let (Some(min), Some(max)) = (v(&s.box_min), v(&s.box_max)) {
+            if min.is_finite() && max.is_finite() && min.cmple(max).all() {
+                self.bounds = Some(Aabb { min, max });
+            }
+        }
+    }
+}
+
+/// A checked steering request.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Change {
+    /// The scene after it (version not yet given), when the scene changes.
+    pub scene: Option<SceneState>,
+    /// The new utility, when it changes.
+    pub utility: Option<String>,
+    /// What changes, in words (e.g. `transfer function "warm"; field "v"`).
+    pub words: String,
+}
+
+/// Checks `req` against the scene in force and what the steps say about the domain; nothing
+/// changes here. The utility is only checked for presence: the engine resolves it (and
+/// refuses it) with the rest of its configuration.
+///
+/// # Errors
+/// A message naming the bad part and why: a transfer function over [`MAX_TF_JSON`] or that
+/// does not parse, a field the steps do not carry (or before any step named its fields), a
+/// degenerate camera or one whose eye lies inside the domain's box, an empty utility, or a
+/// request that changes nothing.
+pub fn check(
+    req: &pb::SteerRequest,
+    scene: &SceneState,
+    domain: &Domain,
+) -> Result<Change, String> {
+    let mut next = scene.clone();
+    let mut words = Vec::new();
+    if let Some(json) = &req.tf_json {
+        if json.len() > MAX_TF_JSON {
+            return Err(format!(
+                "tf_json: {} bytes exceeds the limit of {MAX_TF_JSON}",
+                json.len()
+            ));
+        }
+        let name = req
+            .tf_name
+            .clone()
+            .filter(|n| !n.trim().is_empty())
+            .unwrap_or_else(|| "steered".into());
+        TransferFunction::from_json(json, &name).map_err(|e| format!("tf_json: {e}"))?;
+        words.push(format!("transfer function \"{name}\""));
+        next.tf_json = Some(json.clone());
+        next.tf_name = Some(name);
+    } else if req.tf_name.is_some() {
+        return Err("tf_name without tf_json: name the transfer function you send".into());
+    }
+    if let Some(field) = &req.field {
+        check_field(field, domain)?;
+        words.push(format!("field \"{field}\""));
+        next.field = Some(field.clone());
+    }
+    if let Some(c) = &req.camera {
+        let cam = camera_from_pb(c).map_err(|e| e.message().to_owned())?;
+        if let Some(b) = domain.bounds {
+            if cam.eye.cmpge(b.min).all() && cam.eye.cmple(b.max).all() {
+                return Err(format!(
+                    "camera: the eye {:?} lies inside the domain's box {:?}–{:?}; a generation camera sees the domain from outside",
+                    cam.eye.to_array(),
+                    b.min.to_array(),
+                    b.max.to_array()
+                ));
+            }
+        }
+        words.push(format!(
+            "generation camera at {:?} looking at {:?}",
+            cam.eye.to_array(),
+            cam.target.to_array()
+        ));
+        next.camera = Some(CameraSpec::of(&cam));
+    }
+    let utility = match &req.utility {
+        Some(u) if u.trim().is_empty() => return Err("utility: empty".into()),
+        Some(u) => {
+            words.push(format!("utility {u}"));
+            Some(u.trim().to_owned())
+        }
+        None => None,
+    };
+    if words.is_empty() {
+        return Err(
+            "nothing to change: give a transfer function, a field, a camera or a utility".into(),
+        );
+    }
+    let scene_changes = next != *scene;
+    Ok(Change {
+        scene: scene_changes.then_some(next),
+        utility,
+        words: words.join("; "),
+    })
+}
+
+fn check_field(field: &str, domain: &Domain) -> Result<(), String> {
+    if !domain.seen {
+        return Err(format!(
+            "field \"{field}\": no step has been made yet, so the steps' fields are not known"
+        ));
+    }
+    if domain.fields.is_empty() {
+        return Err(format!(
+            "field \"{field}\": the steps carry one unnamed field, there is none to choose"
+        ));
+    }
+    if !domain.fields.iter().any(|f| f == field) {
+        return Err(format!(
+            "field \"{field}\" is not one of the steps' fields ({})",
+            domain.fields.join(", ")
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
+
+    fn domain() -> Domain {
+        Domain {
+            seen: true,
+            fields: vec!["u".into(), "v".into()],
+            bounds: Some(Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::splat(10.0),
+            }),
+        }
+    }
+
+    fn camera(eye: [f32; 3]) -> pb::Camera {
+        let v = |a: [f32; 3]| {
+            Some(pb::Vec3 {
+                x: a[0],
+                y: a[1],
+                z: a[2],
+            })
+        };
+        pb::Camera {
+            eye: v(eye),
+            target: v([5.0, 5.0, 5.0]),
+            up: v([0.0, 1.0, 0.0]),
+            fov_y_deg: 30.0,
+        }
+    }
+
+    #[test]
+    fn each_part_changes_the_scene_it_names_and_keeps_the_rest() {
+        let mut scene = SceneState {
+            version: 3,
+            field: Some("u".into()),
+            ..SceneState::default()
+        };
+        let c = check(
+            &pb::SteerRequest {
+                tf_json: Some(TF.into()),
+                tf_name: Some("warm".into()),
+                camera: Some(camera([5.0, 5.0, 40.0])),
+                ..Default::default()
+            },
+            &scene,
+            &domain(),
+        )
+        .unwrap();
+        let next = c.scene.unwrap();
+        assert_eq!(next.tf_json.as_deref(), Some(TF));
+        assert_eq!(next.tf_name.as_deref(), Some("warm"));
+        assert_eq!(next.field.as_deref(), Some("u"), "the field stays");
+        assert_eq!(next.camera.unwrap().eye, [5.0, 5.0, 40.0]);
+        assert_eq!(next.version, 3, "the engine gives the version");
+        assert!(c.words.contains("\"warm\"") && c.words.contains("camera"));
+        assert_eq!(c.utility, None);
+        // The same field again changes nothing in the scene: a utility-only change is not a
+        // scene change.
+        scene.field = Some("v".into());
+        let c = check(
+            &pb::SteerRequest {
+                field: Some("v".into()),
+                utility: Some("size:1MB".into()),
+                ..Default::default()
+            },
+            &scene,
+            &domain(),
+        )
+        .unwrap();
+        assert_eq!(c.scene, None);
+        assert_eq!(c.utility.as_deref(), Some("size:1MB"));
+    }
+
+    #[test]
+    fn bad_parts_are_refused_with_their_name() {
+        let scene = SceneState::default();
+        let refused = |req: pb::SteerRequest, d: &Domain| check(&req, &scene, d).unwrap_err();
+        let d = domain();
+        let e = refused(
+            pb::SteerRequest {
+                tf_json: Some("{not json".into()),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert!(e.starts_with("tf_json:"), "{e}");
+        let e = refused(
+            pb::SteerRequest {
+                field: Some("w".into()),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert!(
+            e.contains("\"w\" is not one of the steps' fields (u, v)"),
+            "{e}"
+        );
+        let e = refused(
+            pb::SteerRequest {
+                field: Some("u".into()),
+                ..Default::default()
+            },
+            &Domain::default(),
+        );
+        assert!(e.contains("no step has been made yet"), "{e}");
+        let one = Domain {
+            fields: Vec::new(),
+            ..domain()
+        };
+        let e = refused(
+            pb::SteerRequest {
+                field: Some("u".into()),
+                ..Default::default()
+            },
+            &one,
+        );
+        assert!(e.contains("one unnamed field"), "{e}");
+        let e = refused(
+            pb::SteerRequest {
+                camera: Some(camera([5.0, 5.0, 9.0])),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert!(e.contains("inside the domain's box"), "{e}");
+        let e = refused(
+            pb::SteerRequest {
+                camera: Some(camera([f32::NAN, 5.0, 40.0])),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert!(e.contains("degenerate"), "{e}");
+        let e = refused(
+            pb::SteerRequest {
+                tf_name: Some("x".into()),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert!(e.contains("tf_name without tf_json"), "{e}");
+        let e = refused(pb::SteerRequest::default(), &d);
+        assert!(e.starts_with("nothing to change"), "{e}");
+        let e = refused(
+            pb::SteerRequest {
+                utility: Some("  ".into()),
+                ..Default::default()
+            },
+            &d,
+        );
+        assert_eq!(e, "utility: empty");
+    }
+
+    #[test]
+    fn a_camera_on_the_box_s_surface_is_inside_and_one_just_outside_is_not() {
+        let scene = SceneState::default();
+        let req = |eye| pb::SteerRequest {
+            camera: Some(camera(eye)),
+            ..Default::default()
+        };
+        assert!(check(&req([10.0, 5.0, 5.0]), &scene, &domain()).is_err());
+        assert!(check(&req([10.001, 5.0, 5.0]), &scene, &domain()).is_ok());
+        // Without a box reported (older nodes), only the camera's own validity is checked.
+        let no_box = Domain {
+            bounds: None,
+            ..domain()
+        };
+        assert!(check(&req([5.0, 5.0, 9.0]), &scene, &no_box).is_ok());
+    }
+}
