@@ -103,3 +103,183 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     }
     Ok(next)
 }
+
+/// The settings after a tuner's decision `d`, given the first step no rank of which the node
+/// has begun (`begun`): `P_M` and version from `d`, and the steered scene it carries when its
+/// version differs from `g`'s (its parts replace `g`'s; the rest stay). They apply from
+/// `d.from_step` or `begun`, whichever is later; the settings before stay for the steps
+/// before (`Generation::previous`), unless an earlier decision is not in force yet, whose
+/// settings-before then stay until this one.
+///
+/// # Errors
+/// A message naming the problem: not newer than the version applied, a bad `P_M`, or a
+/// scene whose transfer function, field name or camera is bad; `g` is left as it was.
+pub fn decided(g: &Generation, d: &pb::PmDecision, begun: u64) -> Result<Generation, String> {
+    if d.pm_version <= g.pm_version {
+        return Err(format!(
+            "decision version {} is not newer than the applied version {}",
+            d.pm_version, g.pm_version
+        ));
+    }
+    let params = VdiParams {
+        resolution: d.resolution,
+        gamma: d.gamma,
+    };
+    params
+        .validate()
+        .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
+    let mut next = match d.scene.as_ref().filter(|s| s.version != g.scene_version) {
+        Some(s) => steered(g, s).map_err(|e| format!("decision version {}: {e}", d.pm_version))?,
+        None => g.clone(),
+    };
+    let from_step = d.from_step.max(begun);
+    if g.previous.is_some() && begun < g.from_step {
+        // An earlier decision not yet in force: the settings before it stay until this one.
+        next.from_step = g.from_step.max(from_step);
+    } else {
+        let mut before = g.clone();
+        before.previous = None;
+        next.previous = Some(Box::new(before));
+        next.from_step = from_step;
+    }
+    next.params = params;
+    next.pm_version = d.pm_version;
+    Ok(next)
+}
+
+/// `g` under the steered scene `s`.
+///
+/// # Errors
+/// A transfer function that does not parse, a bad field name or a degenerate camera, named.
+fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
+    let mut next = g.clone();
+    next.scene_version = s.version;
+    if let Some(json) = &s.tf_json {
+        if json.len() > MAX_TF_JSON {
+            return Err(format!(
+                "scene {}: transfer function of {} bytes exceeds {MAX_TF_JSON}",
+                s.version,
+                json.len()
+            ));
+        }
+        let name = s.tf_name.clone().unwrap_or_else(|| "steered".into());
+        let tf = TransferFunction::from_json(json, &name)
+            .map_err(|e| format!("scene {}: transfer function: {e}", s.version))?;
+        next.tf = Some((tf, name));
+    }
+    if let Some(f) = &s.field {
+        crate::ingest::check_field_name(f)
+            .map_err(|e| format!("scene {}: field: {e}", s.version))?;
+        next.field = Some(f.clone());
+    }
+    if let Some(c) = &s.camera {
+        next.camera = Some(
+            camera_from_pb(c).map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
+        );
+    }
+    Ok(next)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::GenerationConfig;
+
+    const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
+
+    fn configured() -> Generation {
+        let mut g = GenerationConfig {
+            field: Some("u".into()),
+            ..Default::default()
+        }
+        .resolve()
+        .unwrap();
+        g.tf = Some((TransferFunction::from_json(TF, "own").unwrap(), "own".into()));
+        g
+    }
+
+    fn decision(version: u64, from_step: u64, scene: Option<pb::Scene>) -> pb::PmDecision {
+        pb::PmDecision {
+            pm_version: version,
+            resolution: 128,
+            gamma: 0.02,
+            from_step,
+            scene,
+            ..Default::default()
+        }
+    }
+
+    fn scene(version: u64, field: &str) -> pb::Scene {
+        pb::Scene {
+            version,
+            tf_json: Some(TF.replace("0.8]", "0.2]")),
+            tf_name: Some("steered".into()),
+            field: Some(field.into()),
+            camera: None,
+        }
+    }
+
+    #[test]
+    fn a_steered_scene_applies_from_its_step_and_the_steps_before_keep_the_old_one() {
+        let g = configured();
+        let next = decided(&g, &decision(1, 10, Some(scene(1, "v"))), 4).unwrap();
+        let before = next.clone().for_step(9);
+        let after = next.clone().for_step(10);
+        assert_eq!((before.scene_version, before.pm_version), (0, 0));
+        assert_eq!(before.field.as_deref(), Some("u"));
+        assert_eq!(before.tf.as_ref().unwrap().1, "own");
+        assert_eq!((after.scene_version, after.pm_version), (1, 1));
+        assert_eq!(after.field.as_deref(), Some("v"));
+        assert_eq!(after.tf.as_ref().unwrap().1, "steered");
+        assert_eq!(after.camera, g.camera, "a part not steered stays the node's own");
+        assert_eq!(next.field_for(9), Some("u"));
+        assert_eq!(next.field_for(10), Some("v"));
+        // A step begun already: from the first one not begun.
+        let late = decided(&g, &decision(1, 10, Some(scene(1, "v"))), 12).unwrap();
+        assert_eq!(late.from_step, 12);
+        // The same scene again (a P_M correction, or a restarted node's record): P_M only.
+        let corrected = decided(&after, &decision(2, 20, Some(scene(1, "u"))), 15).unwrap();
+        assert_eq!(corrected.field.as_deref(), Some("v"), "scene 1 is in force already");
+        assert_eq!(corrected.params.resolution, 128);
+    }
+
+    #[test]
+    fn a_step_that_holds_the_old_field_is_made_with_the_scene_it_was_received_under() {
+        let next = decided(&configured(), &decision(1, 10, Some(scene(1, "v"))), 4).unwrap();
+        let held_old = next.clone().for_step_holding(11, Some("u"));
+        assert_eq!((held_old.scene_version, held_old.field.as_deref()), (0, Some("u")));
+        let held_new = next.clone().for_step_holding(11, Some("v"));
+        assert_eq!(held_new.scene_version, 1);
+        // Unnamed or unknown (read back from the spool): the scene in force for the step.
+        assert_eq!(next.for_step_holding(11, None).scene_version, 1);
+    }
+
+    #[test]
+    fn a_bad_scene_is_refused_and_nothing_changes() {
+        let g = configured();
+        let mut bad = scene(1, "v");
+        bad.tf_json = Some("{".into());
+        let e = decided(&g, &decision(1, 0, Some(bad)), 0).unwrap_err();
+        assert!(e.contains("scene 1: transfer function"), "{e}");
+        let e = decided(&g, &decision(1, 0, Some(scene(1, "a\nb"))), 0).unwrap_err();
+        assert!(e.contains("scene 1: field"), "{e}");
+        let old = decided(&g, &decision(3, 0, None), 0).unwrap();
+        let e = decided(&old, &decision(3, 0, None), 0).unwrap_err();
+        assert!(e.contains("not newer"), "{e}");
+    }
+
+    #[test]
+    fn the_scene_version_survives_the_spool_s_record() {
+        let next = decided(&configured(), &decision(1, 0, Some(scene(1, "v"))), 0)
+            .unwrap()
+            .for_step(0);
+        let back = apply_config(&configured(), &to_pb(&next)).unwrap();
+        assert_eq!(back.scene_version, 1);
+        assert_eq!(back.field.as_deref(), Some("v"));
+        assert_eq!(back.tf.as_ref().unwrap().1, "steered");
+        // An operator's config carries none: the configured scene.
+        let mut operator = to_pb(&next);
+        operator.scene_version = None;
+        assert_eq!(apply_config(&next, &operator).unwrap().scene_version, 0);
+    }
+}

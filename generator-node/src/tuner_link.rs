@@ -13,12 +13,11 @@
 //! from the node's first step not begun if that is later ([`apply_decision`]). Each summary
 //! says which step the node has not begun yet, so that the tuner can name the next one.
 
-use crate::config::Generation;
 use crate::hold::HeldStep;
 use crate::shared::Shared;
 use crate::tuning::Tuning;
 use insitu_core::evaluate::{evaluate, generate_encoded, render_references};
-use insitu_core::{Raycaster, TransferFunction, VdiParams};
+use insitu_core::{Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
 use insitu_proto::pb::tuner_client::TunerClient;
@@ -31,92 +30,33 @@ use tokio::sync::mpsc::{self, error::TrySendError};
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{info, warn};
 
-/// Applies a tuner's decision to the node's settings, from its `from_step` or the first step
-/// no rank of which this node has begun, whichever is later: every rank of a step keeps the
-/// `P_M` its first rank was made with, and nodes agree on the step (see `PmDecision`).
+/// Applies a tuner's decision to the node's settings ([`crate::settings::decided`]), from its
+/// `from_step` or the first step no rank of which this node has begun, whichever is later:
+/// every rank of a step keeps the `P_M` and scene its first rank was made with, and nodes
+/// agree on the step (see `PmDecision`).
 ///
 /// # Errors
-/// A message naming the problem: not newer than the version applied, or a bad `P_M`.
+/// As [`crate::settings::decided`].
 pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String> {
     let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
-    if d.pm_version <= g.pm_version {
-        return Err(format!(
-            "decision version {} is not newer than the applied version {}",
-            d.pm_version, g.pm_version
-        ));
-    }
-    let params = VdiParams {
-        resolution: d.resolution,
-        gamma: d.gamma,
-    };
-    params
-        .validate()
-        .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
-    // A steered scene it carries, checked before anything changes.
-    let scene = d
-        .scene
-        .as_ref()
-        .filter(|s| s.version != g.scene_version)
-        .map(|s| steered(&g, s))
-        .transpose()
-        .map_err(|e| format!("decision version {}: {e}", d.pm_version))?;
     let begun = shared.begun.load(Ordering::SeqCst);
-    let from_step = d.from_step.max(begun);
-    if g.previous.is_some() && begun < g.from_step {
-        // An earlier decision not yet in force: the settings before it stay until this one.
-        g.from_step = g.from_step.max(from_step);
-    } else {
-        let mut before = g.clone();
-        before.previous = None;
-        g.previous = Some(Box::new(before));
-        g.from_step = from_step;
-    }
-    if let Some(s) = scene {
-        info!(scene_version = s.scene_version, from_step = g.from_step, tf = ?s.tf.as_ref().map(|t| &t.1), field = ?s.field, "applying the steered scene");
-        (g.tf, g.field, g.camera, g.scene_version) = (s.tf, s.field, s.camera, s.scene_version);
+    let next = crate::settings::decided(&g, d, begun)?;
+    if next.scene_version != g.scene_version {
+        info!(scene_version = next.scene_version, from_step = next.from_step, tf = ?next.tf.as_ref().map(|t| &t.1), field = ?next.field, "applying the steered scene");
     }
     info!(
         pm_version = d.pm_version,
-        from_step = g.from_step,
-        r = params.resolution,
-        gamma = params.gamma,
+        from_step = next.from_step,
+        r = next.params.resolution,
+        gamma = next.params.gamma,
         old_r = g.params.resolution,
         old_gamma = g.params.gamma,
         "applying the tuner's P_M"
     );
-    g.params = params;
-    g.pm_version = d.pm_version;
+    *g = next;
     drop(g);
     shared.save_run();
     Ok(())
-}
-
-/// The settings `g` under the steered scene `s` (its parts set replace `g`'s; the rest stay).
-///
-/// # Errors
-/// A transfer function that does not parse, a bad field name or a degenerate camera, named.
-fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
-    let mut next = g.clone();
-    next.previous = None;
-    next.scene_version = s.version;
-    if let Some(json) = &s.tf_json {
-        let name = s.tf_name.clone().unwrap_or_else(|| "steered".into());
-        let tf = TransferFunction::from_json(json, &name)
-            .map_err(|e| format!("scene {}: transfer function: {e}", s.version))?;
-        next.tf = Some((tf, name));
-    }
-    if let Some(f) = &s.field {
-        crate::ingest::check_field_name(f)
-            .map_err(|e| format!("scene {}: field: {e}", s.version))?;
-        next.field = Some(f.clone());
-    }
-    if let Some(c) = &s.camera {
-        next.camera = Some(
-            insitu_proto::convert::camera_from_pb(c)
-                .map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
-        );
-    }
-    Ok(next)
 }
 
 /// Measures one candidate on one held rank of a step (Alg. 1, lines 11–18, with the same
