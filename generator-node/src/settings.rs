@@ -174,7 +174,8 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
     }
     if let Some(c) = &s.camera {
         next.camera = Some(
-            camera_from_pb(c).map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
+            camera_from_pb(c)
+                .map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
         );
     }
     Ok(next)
@@ -194,7 +195,10 @@ mod tests {
         }
         .resolve()
         .unwrap();
-        g.tf = Some((TransferFunction::from_json(TF, "own").unwrap(), "own".into()));
+        g.tf = Some((
+            TransferFunction::from_json(TF, "own").unwrap(),
+            "own".into(),
+        ));
         g
     }
 
@@ -231,7 +235,10 @@ mod tests {
         assert_eq!((after.scene_version, after.pm_version), (1, 1));
         assert_eq!(after.field.as_deref(), Some("v"));
         assert_eq!(after.tf.as_ref().unwrap().1, "steered");
-        assert_eq!(after.camera, g.camera, "a part not steered stays the node's own");
+        assert_eq!(
+            after.camera, g.camera,
+            "a part not steered stays the node's own"
+        );
         assert_eq!(next.field_for(9), Some("u"));
         assert_eq!(next.field_for(10), Some("v"));
         // A step begun already: from the first one not begun.
@@ -239,7 +246,11 @@ mod tests {
         assert_eq!(late.from_step, 12);
         // The same scene again (a P_M correction, or a restarted node's record): P_M only.
         let corrected = decided(&after, &decision(2, 20, Some(scene(1, "u"))), 15).unwrap();
-        assert_eq!(corrected.field.as_deref(), Some("v"), "scene 1 is in force already");
+        assert_eq!(
+            corrected.field.as_deref(),
+            Some("v"),
+            "scene 1 is in force already"
+        );
         assert_eq!(corrected.params.resolution, 128);
     }
 
@@ -247,7 +258,10 @@ mod tests {
     fn a_step_that_holds_the_old_field_is_made_with_the_scene_it_was_received_under() {
         let next = decided(&configured(), &decision(1, 10, Some(scene(1, "v"))), 4).unwrap();
         let held_old = next.clone().for_step_holding(11, Some("u"));
-        assert_eq!((held_old.scene_version, held_old.field.as_deref()), (0, Some("u")));
+        assert_eq!(
+            (held_old.scene_version, held_old.field.as_deref()),
+            (0, Some("u"))
+        );
         let held_new = next.clone().for_step_holding(11, Some("v"));
         assert_eq!(held_new.scene_version, 1);
         // Unnamed or unknown (read back from the spool): the scene in force for the step.

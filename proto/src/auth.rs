@@ -74,6 +74,15 @@ impl Token {
     /// # Errors
     /// [`AuthError`] when the file cannot be read or the token is malformed.
     pub fn load(file: Option<&Path>) -> Result<Option<Self>, AuthError> {
+        Self::load_or_env(file, TOKEN_ENV)
+    }
+
+    /// The token from `file` if given, else from the environment variable `env` if set, else
+    /// none (e.g. a viz-node's steering token, docs/steering.md).
+    ///
+    /// # Errors
+    /// [`AuthError`] when the file cannot be read or the token is malformed.
+    pub fn load_or_env(file: Option<&Path>, env: &str) -> Result<Option<Self>, AuthError> {
         if let Some(path) = file {
             let s = std::fs::read_to_string(path).map_err(|source| AuthError::Read {
                 path: path.to_owned(),
@@ -81,8 +90,8 @@ impl Token {
             })?;
             return Self::new(&s, &path.display().to_string()).map(Some);
         }
-        match std::env::var(TOKEN_ENV) {
-            Ok(s) => Self::new(&s, TOKEN_ENV).map(Some),
+        match std::env::var(env) {
+            Ok(s) => Self::new(&s, env).map(Some),
             Err(_) => Ok(None),
         }
     }

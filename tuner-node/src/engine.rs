@@ -114,6 +114,8 @@ pub struct Engine {
     /// Set when a newer characteristic step overtakes the running tuning: it gives up at its
     /// next trial, and the tuning over the newer set starts (its trials so far are kept).
     pub(crate) superseded: AtomicBool,
+    /// The domain as the newest summary describes it (what steering is checked against).
+    domain: Mutex<Domain>,
     events: mpsc::Sender<Event>,
     /// What runs one tuning ([`crate::tune::tune`] in the daemon; the node wires it in).
     tuning: TuningFn,
@@ -215,6 +217,7 @@ impl Engine {
                     resolved.grid.clone(),
                 )),
                 superseded: AtomicBool::new(false),
+                domain: Mutex::new(Domain::default()),
                 events,
                 tuning,
                 cfg,
@@ -245,6 +248,10 @@ impl Engine {
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .clone()
+    }
+
+    pub(crate) fn domain(&self) -> std::sync::MutexGuard<'_, Domain> {
+        self.domain.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     pub(crate) fn control(&self) -> std::sync::MutexGuard<'_, Controller> {
@@ -332,6 +339,7 @@ impl Engine {
             },
             scene: Some(s.scene.to_pb()),
             steering: s.steering.iter().map(SteerRecord::to_pb).collect(),
+            fields: self.domain().fields.clone(),
         }
     }
 
@@ -426,8 +434,6 @@ struct Loop {
     /// Whether the last tuning was cut short for a newer step (the next one is not: a field
     /// that changes character at every step would otherwise never be tuned for).
     cut_last: bool,
-    /// The domain as the newest summary describes it (what steering is checked against).
-    domain: Domain,
 }
 
 /// How a production step broke the budget.
@@ -463,7 +469,7 @@ impl Loop {
     fn summary(&mut self, conn: u64, s: pb::StepSummary) {
         let e = self.engine.clone();
         e.counters().summaries += 1;
-        self.domain.saw(&s);
+        e.domain().saw(&s);
         if s.held {
             e.hub.held(conn, s.step, s.rank);
         }
@@ -847,7 +853,7 @@ impl Loop {
     fn steer(&mut self, req: pb::SteerRequest) -> Result<pb::SteerReply, tonic::Status> {
         let e = self.engine.clone();
         let scene = e.state().scene.clone();
-        let change = crate::steer::check(&req, &scene, &self.domain)
+        let change = crate::steer::check(&req, &scene, &e.domain())
             .map_err(tonic::Status::invalid_argument)?;
         let resolved = change
             .utility
@@ -1103,7 +1109,6 @@ impl Engine {
             deferred: Vec::new(),
             slow: (0, 0),
             cut_last: false,
-            domain: Domain::default(),
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
@@ -1245,7 +1250,6 @@ mod tests {
             deferred: Vec::new(),
             slow: (0, 0),
             cut_last: false,
-            domain: Domain::default(),
         }
     }
 

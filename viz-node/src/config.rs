@@ -69,6 +69,11 @@ pub struct Config {
     /// The tuner-node, `host:port`, whose budget the viewer's charts draw (dialled with the
     /// token and `[tls]` as any peer); unset: no budget lines.
     pub tuner: Option<String>,
+    /// File holding the steering token (else `INSITU_STEER_TOKEN`, if set): what a page or
+    /// script presents to steer the run through the tuner (`POST /api/steer`,
+    /// docs/steering.md); it also lets its holder view. The viewing token alone cannot steer.
+    /// Unset: steering is off. Needs `tuner`.
+    pub steer_token_file: Option<PathBuf>,
     /// Seconds a step of several ranks waits for its last rank after its first arrived; then
     /// it is composed without the missing ranks and marked partial. Also how long the world's
     /// default TF waits for a rank's range before it is fixed without it.
@@ -100,6 +105,7 @@ impl Default for Config {
             http_header_timeout_secs: crate::http::conn::DEFAULT_HEADER_SECS,
             http_idle_secs: crate::http::conn::DEFAULT_IDLE_SECS,
             tuner: None,
+            steer_token_file: None,
         }
     }
 }

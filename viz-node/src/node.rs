@@ -27,6 +27,9 @@ use tokio_stream::wrappers::TcpListenerStream;
 use tonic::service::interceptor::InterceptedService;
 use tracing::info;
 
+/// The environment variable that holds the steering token when `steer_token_file` is unset.
+pub const STEER_TOKEN_ENV: &str = "INSITU_STEER_TOKEN";
+
 /// Why a viz-node did not start; each names the input at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
@@ -68,6 +71,9 @@ pub enum StartError {
     /// The web viewer's HTTPS configuration.
     #[error("http_listen: {0}")]
     Https(#[from] HttpsError),
+    /// The steering token (`steer_token_file` or [`STEER_TOKEN_ENV`]).
+    #[error("steer_token_file: {0}")]
+    SteerToken(AuthError),
     /// The web viewer's address without the token or TLS it needs off loopback.
     #[error("http_listen {addr}: {source}")]
     HttpBind {
@@ -215,13 +221,24 @@ async fn start_http(
     check_bind(at, security.token(), tls.is_some(), cfg.insecure)
         .map_err(|source| StartError::HttpBind { addr: at, source })?;
     let (listener, addr) = bind("http_listen", at).await?;
-    let http = Arc::new(Http::new(
-        shared,
-        security.token().cloned(),
-        cfg.render_concurrency,
-        &cfg.http_hosts,
-        cfg.http_timeouts().idle,
-    ));
+    let steer_token =
+        insitu_proto::auth::Token::load_or_env(cfg.steer_token_file.as_deref(), STEER_TOKEN_ENV)
+            .map_err(StartError::SteerToken)?;
+    if steer_token.is_some() && cfg.tuner.is_none() {
+        tracing::warn!(
+            "a steering token is configured but no tuner-node (`tuner`): steering is off"
+        );
+    }
+    let http = Arc::new(
+        Http::new(
+            shared,
+            security.token().cloned(),
+            cfg.render_concurrency,
+            &cfg.http_hosts,
+            cfg.http_timeouts().idle,
+        )
+        .steering(steer_token),
+    );
     if let Some(peer) = security.peer_for("tuner", cfg.tuner.as_deref())? {
         http.watch_tuner(peer);
     }

@@ -6,6 +6,8 @@
 //! - `GET /api/live`: a WebSocket of camera requests in and frames out ([`live`]); the server
 //!   renders only each client's latest request.
 //! - `GET /api/movie`: the stored steps as an MP4 download, encoded by `ffmpeg` ([`movie`]).
+//! - `GET /api/scene`, `POST /api/steer`: the steered scene and steering ([`steer`]; the
+//!   steering token only).
 //!
 //! The gRPC side's rules hold: loopback by default; off loopback a token and TLS (the
 //! viz-node's `[tls]` certificate: HTTPS, [`tls`]) unless `insecure`; with a token configured
@@ -21,6 +23,7 @@ pub mod live;
 pub mod movie;
 pub mod numbers;
 pub mod origin;
+pub mod steer;
 pub mod tls;
 
 use crate::service::Shared;
@@ -54,6 +57,9 @@ pub struct Http {
     /// The viz-node's state (recording, backend, reports).
     pub shared: Arc<Shared>,
     token: Option<Token>,
+    /// The steering token ([`steer`]): it steers, and views as `token` does; `None`:
+    /// steering is off.
+    steer_token: Option<Token>,
     /// The `Host` and `Origin` answered to ([`origin`]).
     allowed: origin::Allowed,
     /// Renders at once over all HTTP clients.
@@ -92,6 +98,7 @@ impl Http {
         Self {
             shared,
             token,
+            steer_token: None,
             allowed: origin::Allowed::new(hosts),
             renders: lanes::Lane::new(render_concurrency, lanes::WAITING),
             large: lanes::Lane::new(1, lanes::LARGE_WAITING),
@@ -106,6 +113,18 @@ impl Http {
         }
     }
 
+    /// Lets the holder of `token` steer the run ([`steer`]).
+    #[must_use]
+    pub fn steering(mut self, token: Option<Token>) -> Self {
+        self.steer_token = token;
+        self
+    }
+
+    /// The tuner, when one is configured.
+    pub fn tuner_peer(&self) -> Option<Peer> {
+        self.tuner.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
     /// Draws the budget of the tuner at `peer` in the charts.
     pub fn watch_tuner(&self, peer: Peer) {
         *self.tuner.lock().unwrap_or_else(|e| e.into_inner()) = Some(peer);
@@ -116,7 +135,7 @@ impl Http {
     /// never waits long on it); while the tuner cannot be reached, the last one read; null
     /// without a tuner.
     pub async fn budget(&self) -> serde_json::Value {
-        let Some(peer) = self.tuner.lock().unwrap_or_else(|e| e.into_inner()).clone() else {
+        let Some(peer) = self.tuner_peer() else {
             return serde_json::Value::Null;
         };
         let mut cached = self.budget.lock().await;
@@ -184,6 +203,8 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/stats", get(api::stats))
         .route("/api/movie", get(movie::movie).head(no_head))
         .route("/api/live", get(live::upgrade))
+        .route("/api/scene", get(steer::scene))
+        .route("/api/steer", axum::routing::post(steer::steer))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
         .layer(axum::middleware::from_fn_with_state(
             http.clone(),
@@ -317,6 +338,9 @@ async fn require_token(State(http): State<Arc<Http>>, req: Request, next: Next) 
     let Some(token) = &http.token else {
         return next.run(req).await;
     };
+    // The steering token views too.
+    let matches =
+        |t: &str| token.matches(t) || http.steer_token.as_ref().is_some_and(|s| s.matches(t));
     let bearer = req
         .headers()
         .get(header::AUTHORIZATION)
@@ -325,7 +349,7 @@ async fn require_token(State(http): State<Arc<Http>>, req: Request, next: Next) 
     let query = req.uri().query().and_then(|q| {
         form_urlencoded::parse(q.as_bytes()).find_map(|(k, v)| (k == "token").then_some(v))
     });
-    let ok = bearer.is_some_and(|t| token.matches(t)) || query.is_some_and(|t| token.matches(&t));
+    let ok = bearer.is_some_and(matches) || query.is_some_and(|t| matches(&t));
     if ok {
         next.run(req).await
     } else {

@@ -1,0 +1,323 @@
+//! Steering from the page and from scripts (docs/steering.md): one JSON API in front of the
+//! tuner's `Steer`.
+//!
+//! - `GET /api/scene`: the steered scene in force, every steering change with its standing
+//!   (pending, applied, superseded), the fields the newest step carries, the utility, and
+//!   whether this viz-node steers at all.
+//! - `POST /api/steer`: a change, `{"tf": {…}, "tf_name": "…", "field": "…", "camera": {…},
+//!   "utility": "…"}` (any of them). A camera is either explicit, `{"eye": [x, y, z],
+//!   "target": [x, y, z], "up": [x, y, z], "fov_y_deg": 30}` (world units; `up` and the field
+//!   of view optional), or a view of a stored step as the page orbits it, `{"step": s,
+//!   "angle": a, "elevation": e, "zoom": z}` ("generate from here": that step's generation
+//!   camera orbited so). The answer is the tuner's: the scene version, the decision that
+//!   carries it, the first step made with it, the versions it superseded.
+//!
+//! Only the steering token steers (`Authorization: Bearer <steering token>`); the viewing
+//! token gets 403. Without a steering token configured, or without a tuner, steering is off
+//! and says so.
+
+use super::{error, Http};
+use crate::view::View;
+use axum::extract::State;
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use insitu_core::Camera;
+use insitu_proto::convert::camera_to_pb;
+use insitu_proto::pb;
+use insitu_proto::pb::tuner_client::TunerClient;
+use serde::Deserialize;
+use serde_json::json;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How long a steering request waits for the tuner.
+const TUNER_WAIT: Duration = Duration::from_secs(10);
+
+/// A steering request's body.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SteerBody {
+    /// Transfer function (docs/conventions.md format), as a JSON object.
+    tf: Option<serde_json::Value>,
+    /// Its name.
+    tf_name: Option<String>,
+    /// The field to render.
+    field: Option<String>,
+    /// The generation camera.
+    camera: Option<CameraBody>,
+    /// The tuner's utility, e.g. `size:1MB`.
+    utility: Option<String>,
+}
+
+/// A camera as a steering request gives it.
+#[derive(Debug, Deserialize)]
+#[serde(untagged, deny_unknown_fields)]
+enum CameraBody {
+    /// World coordinates.
+    Explicit {
+        eye: [f32; 3],
+        target: [f32; 3],
+        #[serde(default = "y_up")]
+        up: [f32; 3],
+        #[serde(default = "thirty")]
+        fov_y_deg: f32,
+    },
+    /// A stored step's generation camera orbited as the page shows it.
+    View {
+        step: Option<u64>,
+        #[serde(default)]
+        angle: f32,
+        #[serde(default)]
+        elevation: f32,
+        #[serde(default = "one")]
+        zoom: f32,
+    },
+}
+
+fn y_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+fn thirty() -> f32 {
+    30.0
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+/// `GET /api/scene`.
+pub async fn scene(State(http): State<Arc<Http>>) -> Response {
+    let Some(peer) = http.tuner_peer() else {
+        return Json(json!({"steering": false, "why": "no tuner-node is configured (`tuner`)"}))
+            .into_response();
+    };
+    let status = async {
+        let channel = peer.connect().await.map_err(|e| e.to_string())?;
+        let mut c = TunerClient::with_interceptor(channel, peer.auth());
+        c.get_status(pb::StatusRequest {})
+            .await
+            .map(tonic::Response::into_inner)
+            .map_err(|e| e.message().to_owned())
+    };
+    let s = match tokio::time::timeout(TUNER_WAIT, status).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => return error(StatusCode::BAD_GATEWAY, format!("the tuner-node: {e}")),
+        Err(_) => {
+            return error(
+                StatusCode::GATEWAY_TIMEOUT,
+                "the tuner-node did not answer".into(),
+            )
+        }
+    };
+    let scene = s.scene.unwrap_or_default();
+    let tf: Option<serde_json::Value> = scene
+        .tf_json
+        .as_deref()
+        .and_then(|t| serde_json::from_str(t).ok());
+    let steering: Vec<serde_json::Value> = s
+        .steering
+        .iter()
+        .map(|r| {
+            json!({"scene_version": r.scene_version, "pm_version": r.pm_version,
+                   "from_step": r.from_step, "state": r.state, "change": r.change,
+                   "who": r.who, "at_unix_secs": r.at_unix_secs})
+        })
+        .collect();
+    Json(json!({
+        "steering": http.steer_token.is_some(),
+        "why": if http.steer_token.is_some() { "" } else { "no steering token is configured (`steer_token_file`)" },
+        "scene": {
+            "version": scene.version,
+            "tf": tf,
+            "tf_name": scene.tf_name,
+            "field": scene.field,
+            "camera": scene.camera.as_ref().map(camera_json),
+        },
+        "history": steering,
+        "fields": s.fields,
+        "utility": s.utility,
+        "pm_version": s.pm_version,
+    }))
+    .into_response()
+}
+
+fn camera_json(c: &pb::Camera) -> serde_json::Value {
+    let v = |v: &Option<pb::Vec3>| v.as_ref().map(|v| [v.x, v.y, v.z]);
+    json!({"eye": v(&c.eye), "target": v(&c.target), "up": v(&c.up), "fov_y_deg": c.fov_y_deg})
+}
+
+/// `POST /api/steer`.
+pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: String) -> Response {
+    let Some(token) = &http.steer_token else {
+        return error(
+            StatusCode::FORBIDDEN,
+            "steering is off on this viz-node: start it with a steering token (`steer_token_file` or INSITU_STEER_TOKEN)".into(),
+        );
+    };
+    let bearer = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(insitu_proto::auth::bearer);
+    if !bearer.is_some_and(|t| token.matches(t)) {
+        return error(
+            StatusCode::FORBIDDEN,
+            "this request may view but not steer: send `Authorization: Bearer <steering token>`"
+                .into(),
+        );
+    }
+    let Some(peer) = http.tuner_peer() else {
+        return error(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "steering needs a tuner-node: set `tuner` in the viz-node's config".into(),
+        );
+    };
+    let b: SteerBody = match serde_json::from_str(&body) {
+        Ok(b) => b,
+        Err(e) => {
+            return error(
+                StatusCode::BAD_REQUEST,
+                format!("malformed steering request: {e}"),
+            )
+        }
+    };
+    let request = match request(&http, b).await {
+        Ok(r) => r,
+        Err(e) => return error(StatusCode::BAD_REQUEST, e),
+    };
+    let call = async {
+        let channel = peer.connect().await.map_err(|e| {
+            tonic::Status::unavailable(format!(
+                "tuner-node {}: {}",
+                peer.uri(),
+                insitu_proto::peer::error_chain(&e)
+            ))
+        })?;
+        let mut c = TunerClient::with_interceptor(channel, peer.auth());
+        c.steer(request).await.map(tonic::Response::into_inner)
+    };
+    match tokio::time::timeout(TUNER_WAIT, call).await {
+        Ok(Ok(r)) => Json(json!({
+            "scene_version": r.scene_version,
+            "pm_version": r.pm_version,
+            "from_step": r.from_step,
+            "utility": r.utility,
+            "superseded": r.superseded,
+        }))
+        .into_response(),
+        Ok(Err(s)) => {
+            let status = match s.code() {
+                tonic::Code::InvalidArgument => StatusCode::BAD_REQUEST,
+                tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
+                _ => StatusCode::BAD_GATEWAY,
+            };
+            error(status, s.message().to_owned())
+        }
+        Err(_) => error(
+            StatusCode::GATEWAY_TIMEOUT,
+            "the tuner-node did not answer the steering request".into(),
+        ),
+    }
+}
+
+/// The tuner's request for `b`: the transfer function as JSON text, a view's camera made
+/// from its step's generation camera.
+///
+/// # Errors
+/// A message naming the bad part (a view of a step not stored, a bad view).
+async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, String> {
+    let camera = match b.camera {
+        None => None,
+        Some(CameraBody::Explicit {
+            eye,
+            target,
+            up,
+            fov_y_deg,
+        }) => Some(Camera {
+            eye: eye.into(),
+            target: target.into(),
+            up: up.into(),
+            fov_y_deg,
+        }),
+        Some(CameraBody::View {
+            step,
+            angle,
+            elevation,
+            zoom,
+        }) => Some(view_camera(http, step, angle, elevation, zoom).await?),
+    };
+    Ok(pb::SteerRequest {
+        tf_json: b.tf.map(|v| v.to_string()),
+        tf_name: b.tf_name,
+        field: b.field,
+        camera: camera.as_ref().map(camera_to_pb),
+        utility: b.utility,
+        who: "the viewer's steering API".into(),
+    })
+}
+
+/// The generation camera of `step` (none: the newest stored) orbited by the page's view.
+async fn view_camera(
+    http: &Arc<Http>,
+    step: Option<u64>,
+    angle: f32,
+    elevation: f32,
+    zoom: f32,
+) -> Result<Camera, String> {
+    let view = View {
+        angle_deg: angle,
+        elevation_deg: elevation,
+        zoom,
+        ..View::default()
+    };
+    view.check(u64::MAX).map_err(|e| format!("camera: {e}"))?;
+    let rec = &http.shared.recording;
+    let step = step
+        .or_else(|| rec.latest_step())
+        .ok_or("camera: the recording holds no step yet to take a view from")?;
+    let file = crate::view::vdi_file(step, None, &rec.ranks_of(step), rec.step(step).as_ref())
+        .map_err(|e| format!("camera: {e}"))?;
+    let h = http.clone();
+    let generation = tokio::task::spawn_blocking(move || h.vdi(&file).map(|v| v.meta().camera))
+        .await
+        .map_err(|e| format!("camera: {e}"))?
+        .map_err(|e| format!("camera: {e}"))?;
+    Ok(view.camera(&generation))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_camera_is_explicit_or_a_view_and_nothing_else() {
+        let b: SteerBody =
+            serde_json::from_str(r#"{"camera": {"eye": [0, 0, 9], "target": [0, 0, 0]}}"#).unwrap();
+        assert!(matches!(
+            b.camera,
+            Some(CameraBody::Explicit {
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: 30.0,
+                ..
+            })
+        ));
+        let b: SteerBody = serde_json::from_str(r#"{"camera": {"step": 3, "angle": 40}}"#).unwrap();
+        assert!(matches!(
+            b.camera,
+            Some(CameraBody::View {
+                step: Some(3),
+                zoom: 1.0,
+                ..
+            })
+        ));
+        for bad in [
+            r#"{"camera": {"eye": [0, 0]}}"#,
+            r#"{"camera": {"angle": 1, "eye": [0, 0, 9]}}"#,
+            r#"{"colour": "red"}"#,
+            r#"{"tf": "#,
+        ] {
+            assert!(serde_json::from_str::<SteerBody>(bad).is_err(), "{bad}");
+        }
+    }
+}
