@@ -49,6 +49,9 @@ enum Command {
     Replay(cmd::replay::Args),
     /// Whether a daemon serves (gRPC health check); --wait SECS waits for it. Exit 0: SERVING.
     Health(cmd::health::Args),
+    /// Steer a running run through its viz-node: transfer function, field, generation camera
+    /// or the tuner's utility, from the next steps on (docs/steering.md).
+    Steer(cmd::steer::Args),
     /// A recording's index (steps, ranks, σ, τ, q, P_M versions) as JSON or CSV.
     Export(cmd::export::Args),
     /// Rebuild a recording's missing, emptied or damaged index from its files (every VDI and
@@ -98,6 +101,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => cmd::export::run(a),
         Command::Recover(a) => cmd::recover::run(a),
         Command::Health(a) => cmd::health::run(a),
+        Command::Steer(a) => cmd::steer::run(a),
         Command::Study(a) => cmd::study::run(a),
         Command::Tune(a) => cmd::tune::run(a),
         Command::Series(a) => cmd::series::run(a),

@@ -12,6 +12,7 @@ pub mod recover;
 pub mod render;
 pub mod replay;
 pub mod series;
+pub mod steer;
 pub mod stored;
 pub mod study;
 pub mod tune;

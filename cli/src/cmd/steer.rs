@@ -1,0 +1,215 @@
+//! `insitu steer`: changes the running scene (transfer function, field, generation camera) or
+//! the tuner's utility through a viz-node's steering API (`POST /api/steer`,
+//! docs/steering.md), or shows the scene in force and the steering history (`--show`).
+
+use anyhow::{bail, Context, Result};
+use bytes::Bytes;
+use http_body_util::{BodyExt, Full};
+use hyper_util::client::legacy::Client;
+use hyper_util::rt::TokioExecutor;
+use serde_json::{json, Value};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// The environment variable holding the steering token when `--token-file` is not given.
+const STEER_TOKEN_ENV: &str = "INSITU_STEER_TOKEN";
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The viz-node's web viewer: `host:port` or `http://host:port` (plain HTTP, e.g. through
+    /// an SSH tunnel; for an HTTPS viewer use curl, docs/steering.md).
+    #[arg(long)]
+    viz: String,
+    /// Transfer function file (docs/conventions.md format) to make the VDIs with from now on.
+    #[arg(long)]
+    tf: Option<PathBuf>,
+    /// Its name in the VDIs' metadata (default: the file's stem).
+    #[arg(long, requires = "tf")]
+    tf_name: Option<String>,
+    /// The field to render, by name (one the steps carry).
+    #[arg(long)]
+    field: Option<String>,
+    /// The generation camera: `EX,EY,EZ:TX,TY,TZ` (eye and target, world units; +y up, 30°
+    /// field of view), or `view:ANGLE,ELEVATION[,ZOOM]` (the newest stored step's generation
+    /// camera orbited as the viewer orbits it: "generate from here").
+    #[arg(long)]
+    camera: Option<String>,
+    /// The tuner's utility, e.g. `size:1MB`, `time:0.5s`, `quality:40dB`.
+    #[arg(long)]
+    utility: Option<String>,
+    /// File holding the steering token (else INSITU_STEER_TOKEN).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Print the scene in force and the steering history; change nothing.
+    #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility"])]
+    show: bool,
+}
+
+/// Sends the change and prints the tuner's answer (scene version, decision, first step made
+/// with it, versions superseded) as JSON; or, with `--show`, the scene.
+pub fn run(a: Args) -> Result<()> {
+    let base = base_url(&a.viz)?;
+    let token = token(a.token_file.as_ref())?;
+    let (method, path, body) = if a.show {
+        ("GET", "/api/scene", None)
+    } else {
+        ("POST", "/api/steer", Some(body(&a)?))
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let (status, text) = rt.block_on(call(method, &format!("{base}{path}"), token, body))?;
+    let v: Value = serde_json::from_str(&text)
+        .with_context(|| format!("{base}{path} answered {status} with {text:?}"))?;
+    if !(200..300).contains(&status) {
+        let why = v["error"].as_str().unwrap_or(&text);
+        bail!("{base}{path}: {status}: {why}");
+    }
+    println!("{}", serde_json::to_string_pretty(&v)?);
+    Ok(())
+}
+
+/// `http://host:port` from `host:port` or the URL itself.
+fn base_url(viz: &str) -> Result<String> {
+    if viz.starts_with("https://") {
+        bail!("--viz {viz}: `insitu steer` speaks plain HTTP; steer an HTTPS viewer with curl (docs/steering.md)");
+    }
+    let url = if viz.starts_with("http://") {
+        viz.trim_end_matches('/').to_owned()
+    } else {
+        format!("http://{viz}")
+    };
+    url.parse::<hyper::Uri>()
+        .with_context(|| format!("--viz {viz}: not host:port or http://host:port"))?;
+    Ok(url)
+}
+
+fn token(file: Option<&PathBuf>) -> Result<Option<String>> {
+    let raw = match file {
+        Some(f) => Some(
+            std::fs::read_to_string(f).with_context(|| format!("--token-file {}", f.display()))?,
+        ),
+        None => std::env::var(STEER_TOKEN_ENV).ok(),
+    };
+    Ok(raw.map(|t| t.trim().to_owned()).filter(|t| !t.is_empty()))
+}
+
+/// The request's JSON body.
+fn body(a: &Args) -> Result<Value> {
+    let mut b = serde_json::Map::new();
+    if let Some(path) = &a.tf {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("--tf {}", path.display()))?;
+        let tf: Value = serde_json::from_str(&text)
+            .with_context(|| format!("--tf {}: not JSON", path.display()))?;
+        b.insert("tf".into(), tf);
+        let name = a
+            .tf_name
+            .clone()
+            .or_else(|| path.file_stem().map(|s| s.to_string_lossy().into_owned()));
+        if let Some(name) = name {
+            b.insert("tf_name".into(), name.into());
+        }
+    }
+    if let Some(f) = &a.field {
+        b.insert("field".into(), f.clone().into());
+    }
+    if let Some(c) = &a.camera {
+        b.insert("camera".into(), camera(c)?);
+    }
+    if let Some(u) = &a.utility {
+        b.insert("utility".into(), u.clone().into());
+    }
+    if b.is_empty() {
+        bail!("nothing to steer: give --tf, --field, --camera or --utility (or --show)");
+    }
+    Ok(Value::Object(b))
+}
+
+/// `--camera` as the API takes it.
+fn camera(s: &str) -> Result<Value> {
+    let numbers = |t: &str| -> Result<Vec<f32>> {
+        t.split(',')
+            .map(|x| {
+                x.trim()
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .with_context(|| format!("--camera {s}: {x:?} is not a finite number"))
+            })
+            .collect()
+    };
+    if let Some(view) = s.strip_prefix("view:") {
+        let v = numbers(view)?;
+        return match v[..] {
+            [angle, elevation] => Ok(json!({"angle": angle, "elevation": elevation})),
+            [angle, elevation, zoom] => {
+                Ok(json!({"angle": angle, "elevation": elevation, "zoom": zoom}))
+            }
+            _ => bail!("--camera {s}: view:ANGLE,ELEVATION[,ZOOM]"),
+        };
+    }
+    let Some((eye, target)) = s.split_once(':') else {
+        bail!("--camera {s}: EX,EY,EZ:TX,TY,TZ or view:ANGLE,ELEVATION[,ZOOM]");
+    };
+    match (&numbers(eye)?[..], &numbers(target)?[..]) {
+        (&[ex, ey, ez], &[tx, ty, tz]) => Ok(json!({"eye": [ex, ey, ez], "target": [tx, ty, tz]})),
+        _ => bail!("--camera {s}: eye and target take three numbers each"),
+    }
+}
+
+/// One HTTP request; the status and the body's text.
+async fn call(
+    method: &str,
+    url: &str,
+    token: Option<String>,
+    body: Option<Value>,
+) -> Result<(u16, String)> {
+    let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
+    let mut req = hyper::Request::builder()
+        .method(method)
+        .uri(url)
+        .header("content-type", "application/json");
+    if let Some(t) = token {
+        req = req.header("authorization", format!("Bearer {t}"));
+    }
+    let bytes = body.map_or_else(Bytes::new, |b| Bytes::from(b.to_string()));
+    let req = req.body(Full::new(bytes))?;
+    let reply = tokio::time::timeout(Duration::from_secs(30), client.request(req))
+        .await
+        .with_context(|| format!("{url}: no answer within 30 s"))?
+        .with_context(|| format!("{url}: cannot reach the viz-node's viewer"))?;
+    let status = reply.status().as_u16();
+    let text = reply.into_body().collect().await?.to_bytes();
+    Ok((status, String::from_utf8_lossy(&text).into_owned()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cameras_parse_as_the_api_takes_them_and_bad_ones_are_named() {
+        assert_eq!(
+            camera("1,2,30:1,2,3").unwrap(),
+            json!({"eye": [1.0, 2.0, 30.0], "target": [1.0, 2.0, 3.0]})
+        );
+        assert_eq!(
+            camera("view:45,10").unwrap(),
+            json!({"angle": 45.0, "elevation": 10.0})
+        );
+        assert_eq!(camera("view:0,0,1.5").unwrap()["zoom"], json!(1.5));
+        for bad in [
+            "1,2:3,4,5",
+            "view:1",
+            "1,2,3",
+            "a,b,c:1,2,3",
+            "1,2,nan:0,0,0",
+        ] {
+            let e = camera(bad).unwrap_err().to_string();
+            assert!(e.contains("--camera"), "{bad}: {e}");
+        }
+        assert_eq!(base_url("127.0.0.1:8080").unwrap(), "http://127.0.0.1:8080");
+        assert!(base_url("https://x:1").is_err());
+    }
+}
