@@ -67,6 +67,13 @@ impl Tuner for Scripted {
     ) -> Result<Response<Self::WatchDecisionsStream>, Status> {
         Err(Status::unimplemented("scripted"))
     }
+
+    async fn steer(
+        &self,
+        _: Request<pb::SteerRequest>,
+    ) -> Result<Response<pb::SteerReply>, Status> {
+        Err(Status::unimplemented("scripted"))
+    }
 }
 
 fn field(n: usize, t: u64) -> Vec<f32> {

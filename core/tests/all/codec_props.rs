@@ -352,6 +352,7 @@ fn provenance_travels_in_the_file_and_older_files_still_read() {
             },
         )),
         covers: vec![],
+        scene_version: 3,
     };
     let limits = DecodeLimits::default();
     let with = encode_with_provenance(&vdi, Codec::Zstd, Some(&p)).unwrap();

@@ -20,6 +20,7 @@ mod ranks;
 mod replay;
 mod shards;
 mod slurm;
+mod steering;
 mod tls;
 mod tuned;
 mod tuner;

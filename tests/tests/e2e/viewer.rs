@@ -501,6 +501,19 @@ pub(crate) fn http(addr: &str, target: &str, headers: &[&str]) -> (u16, String) 
 
 /// [`http`] with another method.
 fn request(addr: &str, method: &str, target: &str, headers: &[&str]) -> (u16, String) {
+    send(addr, method, target, headers, "")
+}
+
+/// A POST of the JSON `body`; the status code and the body of the answer.
+pub(crate) fn post(addr: &str, target: &str, headers: &[&str], body: &str) -> (u16, String) {
+    let length = format!("Content-Length: {}", body.len());
+    let mut all = vec!["Content-Type: application/json", length.as_str()];
+    all.extend_from_slice(headers);
+    send(addr, "POST", target, &all, body)
+}
+
+/// One request with `body` after its head.
+fn send(addr: &str, method: &str, target: &str, headers: &[&str], body: &str) -> (u16, String) {
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
     let mut req = format!("{method} {target} HTTP/1.1\r\n");
@@ -515,6 +528,7 @@ fn request(addr: &str, method: &str, target: &str, headers: &[&str]) -> (u16, St
         req.push_str("\r\n");
     }
     req.push_str("\r\n");
+    req.push_str(body);
     s.write_all(req.as_bytes()).unwrap();
     // To the end of the response (its content-length; an upgraded socket stays open, so
     // there it is the head alone).
@@ -968,6 +982,47 @@ fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_err
     }
     let (code, _) = http(&addr, "/api/stats", &[bearer]);
     assert_eq!(code, 200);
+    // Steering is off without a steering token: the viewing token cannot steer.
+    let (code, body) = post(&addr, "/api/steer", &[bearer], r#"{"field":"v"}"#);
+    assert!(
+        code == 403 && body.contains("steering is off"),
+        "{code} {body}"
+    );
+    v.terminate();
+    // With one: the viewing token still cannot; the steering token views too; without a
+    // tuner-node there is no one to decide.
+    let steer_file = tmp.path().join("steer-token");
+    std::fs::write(&steer_file, "steer-s3cret\n").unwrap();
+    let mut toml = std::fs::read_to_string(&cfg).unwrap();
+    toml.push_str(&format!(
+        "steer_token_file = {:?}\n",
+        steer_file.display().to_string()
+    ));
+    std::fs::write(&cfg, toml).unwrap();
+    let mut v = Daemon::start(
+        "viz-node",
+        &["--config", cfg.to_str().unwrap()],
+        &[],
+        tmp.path(),
+    );
+    let line = v.read_line();
+    let port = line.rsplit(':').next().unwrap().trim_end_matches('/');
+    let addr = format!("127.0.0.1:{port}");
+    let (code, body) = post(&addr, "/api/steer", &[], r#"{"field":"v"}"#);
+    assert_eq!(code, 401, "no token: {body}");
+    let (code, body) = post(&addr, "/api/steer", &[bearer], r#"{"field":"v"}"#);
+    assert!(
+        code == 403 && body.contains("may view but not steer"),
+        "{code} {body}"
+    );
+    let steerer = "Authorization: Bearer steer-s3cret";
+    let (code, _) = http(&addr, "/api/steps", &[steerer]);
+    assert_eq!(code, 200, "the steering token views");
+    let (code, body) = post(&addr, "/api/steer", &[steerer], r#"{"field":"v"}"#);
+    assert!(
+        code == 503 && body.contains("needs a tuner-node"),
+        "{code} {body}"
+    );
 }
 
 /// `insitu demo --keep-serving` (docs/viewer.md): once the run's summary is out, its
