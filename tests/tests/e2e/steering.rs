@@ -74,43 +74,83 @@ fn difference(a: &Image, b: &Image) -> f64 {
         / (3 * a.len()) as f64
 }
 
+/// A viz-node with a steering token and its viewer, a tuner-node and a generator-node.
+struct Run {
+    g: Daemon,
+    t: Daemon,
+    v: Daemon,
+    /// The viewer's `host:port`.
+    http: String,
+    tuner: String,
+    viz: String,
+    rec: std::path::PathBuf,
+    /// Last: removed after the daemons are gone.
+    tmp: tempfile::TempDir,
+}
+
+impl Run {
+    fn start() -> Self {
+        let tmp = tempfile::tempdir().unwrap();
+        let (logs, rec) = (tmp.path(), tmp.path().join("rec"));
+        let viz = format!("127.0.0.1:{}", free_port());
+        let tuner_addr = format!("127.0.0.1:{}", free_port());
+        let mut v = Daemon::start(
+            "viz-node",
+            &[
+                "--listen",
+                &viz,
+                "--recording-dir",
+                rec.to_str().unwrap(),
+                "--http",
+                "127.0.0.1:0",
+                "--tuner",
+                &tuner_addr,
+            ],
+            &[("INSITU_STEER_TOKEN", STEER_TOKEN)],
+            logs,
+        );
+        let web = v.read_line();
+        let http = web
+            .trim()
+            .rsplit("//")
+            .next()
+            .unwrap()
+            .trim_end_matches('/')
+            .to_owned();
+        let t = tuner(&logs.join("state"), &tuner_addr, &viz, "size:10MB", logs);
+        let g = tuned_generator(&viz, &tuner_addr, logs);
+        Self {
+            g,
+            t,
+            v,
+            http,
+            tuner: tuner_addr,
+            viz,
+            rec,
+            tmp,
+        }
+    }
+
+    fn stop(self) {
+        self.g.terminate();
+        self.t.terminate();
+        self.v.terminate();
+    }
+}
+
 #[test]
 fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_across_a_restart() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (logs, rec) = (tmp.path(), tmp.path().join("rec"));
-    let viz_addr = format!("127.0.0.1:{}", free_port());
-    let tuner_addr = format!("127.0.0.1:{}", free_port());
-    let mut v = Daemon::start(
-        "viz-node",
-        &[
-            "--listen",
-            &viz_addr,
-            "--recording-dir",
-            rec.to_str().unwrap(),
-            "--http",
-            "127.0.0.1:0",
-            "--tuner",
-            &tuner_addr,
-        ],
-        &[("INSITU_STEER_TOKEN", STEER_TOKEN)],
-        logs,
-    );
-    let web = v.read_line();
-    let http_addr = web
-        .trim()
-        .rsplit("//")
-        .next()
-        .unwrap()
-        .trim_end_matches('/')
-        .to_owned();
-    let t = tuner(
-        &tmp.path().join("state"),
-        &tuner_addr,
-        &viz_addr,
-        "size:10MB",
-        logs,
-    );
-    let g = tuned_generator(&viz_addr, &tuner_addr, logs);
+    let Run {
+        g,
+        t,
+        v,
+        http: http_addr,
+        tuner: tuner_addr,
+        viz: viz_addr,
+        rec,
+        tmp,
+    } = Run::start();
+    let logs = tmp.path();
     push_two_fields(&g.addr, 0..4);
     flush(&g.addr);
     assert!(wait_until(20.0, || tuner_status(&tuner_addr).summaries >= 4));
@@ -266,4 +306,191 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
     g.terminate();
     t.terminate();
     v.terminate();
+}
+
+/// The page's steering panel in Debian's Chromium, with real mouse and keyboard events: the
+/// steering token typed in, the middle opacity point of the transfer-function editor dragged
+/// up, applied; the steps from the switch step on are made with the new transfer function (the
+/// page renders such a step as the VDI renders here, within 40 dB), the earlier ones keep the
+/// old; then "generate from here" after orbiting the view moves the generation camera.
+#[test]
+fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view() {
+    use crate::viewer::{image_of, screenshot, wait_frame};
+    use fantoccini::actions::{InputSource, MouseActions, PointerAction, MOUSE_BUTTON_LEFT};
+    use fantoccini::Locator;
+    use insitu_core::metrics::{mse, psnr_from_mse};
+    use insitu_e2e::browser::{artefacts, browser, js, start_driver};
+    use std::time::Duration;
+
+    let Some(driver) = start_driver() else {
+        return;
+    };
+    let run = Run::start();
+    let (g, rec) = (&run.g, &run.rec);
+    push_two_fields(&g.addr, 0..4);
+    flush(&g.addr);
+    assert!(wait_until(20.0, || tuner_status(&run.tuner).summaries >= 4));
+    let shots = artefacts();
+    let reply = rt().block_on(async {
+        let c = browser(&driver, &run.tmp.path().join("profile")).await;
+        c.goto(&format!("http://{}/", run.http)).await.unwrap();
+        wait_frame(&c, 30.0, |d| d["kind"] == "still").await;
+        let shown = js(
+            &c,
+            "for (let i = 0; i < 200; i++) { if (!document.getElementById('steer').hidden && document.getElementById('tf-map').options.length) { done(true); return; } await new Promise(r => setTimeout(r, 50)); } done(false);",
+        )
+        .await;
+        assert_eq!(shown, true, "the steering panel did not show");
+        // The token, typed.
+        c.find(Locator::Id("steer-token"))
+            .await
+            .unwrap()
+            .send_keys(STEER_TOKEN)
+            .await
+            .unwrap();
+        // The middle point (x 0.5, opacity 0.05) dragged up to about 0.9. The canvas is
+        // 360 × 130 CSS pixels; WebDriver's offsets are from its centre.
+        let editor = c.find(Locator::Id("tf-editor")).await.unwrap();
+        let before: Value =
+            serde_json::from_str(&editor.attr("data-points").await.unwrap().unwrap()).unwrap();
+        let y0 = (130.0 - 14.0 - 6.0) * (1.0 - 0.05) + 3.0 - 65.0;
+        let mouse = MouseActions::new("mouse".into())
+            .then(PointerAction::MoveToElement {
+                element: editor.clone(),
+                duration: None,
+                x: 0.0,
+                y: y0,
+            })
+            .then(PointerAction::Down {
+                button: MOUSE_BUTTON_LEFT,
+            })
+            .then(PointerAction::MoveBy {
+                duration: Some(Duration::from_millis(300)),
+                x: 0.0,
+                y: -95.0,
+            })
+            .then(PointerAction::Up {
+                button: MOUSE_BUTTON_LEFT,
+            });
+        c.perform_actions(mouse).await.unwrap();
+        let after: Value =
+            serde_json::from_str(&editor.attr("data-points").await.unwrap().unwrap()).unwrap();
+        assert!(
+            after[1][1].as_f64().unwrap() > 0.8 && before[1][1].as_f64().unwrap() < 0.1,
+            "the drag did not raise the middle point: {before} → {after}"
+        );
+        screenshot(&c, &shots, "steering.png").await;
+        c.find(Locator::Id("tf-apply"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        let reply = js(
+            &c,
+            "for (let i = 0; i < 200; i++) { const r = document.getElementById('steer').dataset.reply; if (r) { done(JSON.parse(r)); return; } await new Promise(r => setTimeout(r, 50)); } done(document.getElementById('steer-status').textContent);",
+        )
+        .await;
+        assert_eq!(reply["scene_version"], 1, "{reply}");
+        c.close().await.unwrap();
+        reply
+    });
+    let from = reply["from_step"].as_u64().unwrap();
+    let version = reply["pm_version"].as_u64().unwrap();
+    assert!(wait_until(30.0, || status(&g.addr).pm_version >= version));
+    push_two_fields(&g.addr, 4..from + 9);
+    flush(&g.addr);
+    let rows = index(rec);
+    for e in &rows {
+        let steered = e.step >= from;
+        assert_eq!(e.scene_version, u64::from(steered), "step {}", e.step);
+        assert_eq!(
+            e.tf_name.ends_with("(steered)"),
+            steered,
+            "step {}: {}",
+            e.step,
+            e.tf_name
+        );
+    }
+    let camera = load_vdi(rec, &rows[0]).meta().camera;
+    let changed = difference(
+        &render_at(rec, from - 1, &camera),
+        &render_at(rec, from + 7, &camera),
+    );
+    assert!(changed > 0.01, "the dragged opacity shows: {changed}");
+    // The page shows a steered step as the VDI renders it here.
+    let shown_step = from + 7;
+    let generated = rt().block_on(async {
+        let c = browser(&driver, &run.tmp.path().join("profile2")).await;
+        c.goto(&format!("http://{}/", run.http)).await.unwrap();
+        wait_frame(&c, 30.0, |d| d["kind"] == "still").await;
+        let page = image_of(
+            &c,
+            &format!("/api/render?step={shown_step}&size=128&format=png"),
+        )
+        .await;
+        let e = index(rec).into_iter().find(|e| e.step == shown_step).unwrap();
+        let vdi = load_vdi(rec, &e);
+        let here = render(&vdi, &vdi.meta().camera, 128, 128, 0.99);
+        let q = psnr_from_mse(mse(&page, &here).unwrap());
+        assert!(q >= 40.0, "the page's frame of step {shown_step} is {q:.1} dB from the VDI's");
+        // "Generate from here": orbit the view by dragging, then ask.
+        c.find(Locator::Id("steer-token"))
+            .await
+            .unwrap()
+            .send_keys(STEER_TOKEN)
+            .await
+            .unwrap();
+        let frame = c.find(Locator::Id("frame")).await.unwrap();
+        let drag = MouseActions::new("mouse".into())
+            .then(PointerAction::MoveToElement {
+                element: frame,
+                duration: None,
+                x: 0.0,
+                y: 0.0,
+            })
+            .then(PointerAction::Down {
+                button: MOUSE_BUTTON_LEFT,
+            })
+            .then(PointerAction::MoveBy {
+                duration: Some(Duration::from_millis(300)),
+                x: -120.0,
+                y: 0.0,
+            })
+            .then(PointerAction::Up {
+                button: MOUSE_BUTTON_LEFT,
+            });
+        c.perform_actions(drag).await.unwrap();
+        let shown = wait_frame(&c, 20.0, |d| d["kind"] == "still" && d["angle"] != "0").await;
+        let angle: f32 = shown["angle"].as_str().unwrap().parse().unwrap();
+        c.find(Locator::Id("generate-here"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        let reply = js(
+            &c,
+            "for (let i = 0; i < 200; i++) { const r = JSON.parse(document.getElementById('steer').dataset.reply || '{}'); if (r.scene_version === 2) { done(r); return; } await new Promise(r => setTimeout(r, 50)); } done(document.getElementById('steer-status').textContent);",
+        )
+        .await;
+        assert_eq!(reply["scene_version"], 2, "{reply}");
+        c.close().await.unwrap();
+        (angle, reply)
+    });
+    let (angle, reply) = generated;
+    let version = reply["pm_version"].as_u64().unwrap();
+    let from2 = reply["from_step"].as_u64().unwrap();
+    assert!(wait_until(30.0, || status(&g.addr).pm_version >= version));
+    push_two_fields(&g.addr, from + 9..from2 + 2);
+    flush(&g.addr);
+    let last = index(rec).into_iter().max_by_key(|e| e.step).unwrap();
+    assert_eq!(last.scene_version, 2);
+    let moved = load_vdi(rec, &last).meta().camera;
+    let expected = camera.orbit(angle, 0.0, 1.0);
+    assert!(
+        (moved.eye - expected.eye).length() < 1e-2 * expected.eye.length().max(1.0),
+        "generated from the page's view at {angle}°: {moved:?} against {expected:?}"
+    );
+    run.stop();
 }

@@ -21,7 +21,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Polls `attr` of `#frame` until `pred` holds, within `secs`.
-async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Value {
+pub(crate) async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Value {
     let t = Instant::now();
     loop {
         let v = c
@@ -44,7 +44,7 @@ async fn wait_frame(c: &Client, secs: f64, pred: impl Fn(&Value) -> bool) -> Val
 
 /// The image bytes behind `#frame` or `#reference`, or those of `url` fetched by the page,
 /// decoded.
-async fn image_of(c: &Client, what: &str) -> Image {
+pub(crate) async fn image_of(c: &Client, what: &str) -> Image {
     let src = if what == "frame" || what == "reference" {
         format!("document.getElementById('{what}').src")
     } else {
@@ -197,7 +197,7 @@ async fn chart_points(c: &Client, id: &str) -> Option<String> {
 }
 
 /// The page as it looks now, kept as `name` among the test's artefacts.
-async fn screenshot(c: &Client, shots: &Path, name: &str) {
+pub(crate) async fn screenshot(c: &Client, shots: &Path, name: &str) {
     std::fs::write(shots.join(name), c.screenshot().await.unwrap()).unwrap();
 }
 

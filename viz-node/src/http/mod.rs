@@ -204,6 +204,7 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/movie", get(movie::movie).head(no_head))
         .route("/api/live", get(live::upgrade))
         .route("/api/scene", get(steer::scene))
+        .route("/api/colormaps", get(steer::colormaps))
         .route("/api/steer", axum::routing::post(steer::steer))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
         .layer(axum::middleware::from_fn_with_state(

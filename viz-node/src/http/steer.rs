@@ -4,6 +4,8 @@
 //! - `GET /api/scene`: the steered scene in force, every steering change with its standing
 //!   (pending, applied, superseded), the fields the newest step carries, the utility, and
 //!   whether this viz-node steers at all.
+//! - `GET /api/colormaps`: the colour maps the page's transfer-function editor offers
+//!   (`colorous`), each sampled at [`COLORMAP_SAMPLES`] even steps as `[r, g, b]` in [0, 1].
 //! - `POST /api/steer`: a change, `{"tf": {…}, "tf_name": "…", "field": "…", "camera": {…},
 //!   "utility": "…"}` (any of them). A camera is either explicit, `{"eye": [x, y, z],
 //!   "target": [x, y, z], "up": [x, y, z], "fov_y_deg": 30}` (world units; `up` and the field
@@ -30,6 +32,36 @@ use serde::Deserialize;
 use serde_json::json;
 use std::sync::Arc;
 use std::time::Duration;
+
+/// Colours per colour map sent to the page (it interpolates between them).
+pub const COLORMAP_SAMPLES: usize = 33;
+
+/// The colour maps offered, by name: perceptually uniform ones first, then diverging and grey.
+const COLORMAPS: [(&str, colorous::Gradient); 8] = [
+    ("viridis", colorous::VIRIDIS),
+    ("inferno", colorous::INFERNO),
+    ("magma", colorous::MAGMA),
+    ("plasma", colorous::PLASMA),
+    ("cividis", colorous::CIVIDIS),
+    ("turbo", colorous::TURBO),
+    ("red-blue", colorous::RED_BLUE),
+    ("greys", colorous::GREYS),
+];
+
+/// `GET /api/colormaps`, in the order offered.
+pub async fn colormaps() -> Response {
+    let mut maps = serde_json::Map::new();
+    for (name, g) in COLORMAPS {
+        let colours: Vec<[f64; 3]> = (0..COLORMAP_SAMPLES)
+            .map(|i| {
+                let c = g.eval_continuous(i as f64 / (COLORMAP_SAMPLES - 1) as f64);
+                [c.r, c.g, c.b].map(|v| (f64::from(v) / 255.0 * 1e4).round() / 1e4)
+            })
+            .collect();
+        maps.insert(name.into(), json!(colours));
+    }
+    Json(serde_json::Value::Object(maps)).into_response()
+}
 
 /// How long a steering request waits for the tuner.
 const TUNER_WAIT: Duration = Duration::from_secs(10);
@@ -138,6 +170,7 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
         "history": steering,
         "fields": s.fields,
         "utility": s.utility,
+        "configured_tf": http.shared.scene.agreed().map(|a| a.tf),
         "pm_version": s.pm_version,
     }))
     .into_response()
@@ -289,6 +322,35 @@ async fn view_camera(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test]
+    async fn every_colour_map_runs_from_its_first_colour_to_its_last_in_range() {
+        let r = colormaps().await;
+        let bytes = axum::body::to_bytes(r.into_body(), 1 << 20).await.unwrap();
+        let maps: serde_json::Map<String, serde_json::Value> =
+            serde_json::from_slice(&bytes).unwrap();
+        assert_eq!(maps.len(), COLORMAPS.len());
+        let viridis = maps["viridis"].as_array().unwrap();
+        assert_eq!(viridis.len(), COLORMAP_SAMPLES);
+        // viridis runs from dark purple (#440154) to yellow (#fde725).
+        let first: Vec<f64> = serde_json::from_value(viridis[0].clone()).unwrap();
+        let last: Vec<f64> = serde_json::from_value(viridis[COLORMAP_SAMPLES - 1].clone()).unwrap();
+        assert!(
+            (first[0] - 68.0 / 255.0).abs() < 0.01 && (first[2] - 84.0 / 255.0).abs() < 0.01,
+            "{first:?}"
+        );
+        assert!(
+            (last[0] - 253.0 / 255.0).abs() < 0.02 && (last[1] - 231.0 / 255.0).abs() < 0.02,
+            "{last:?}"
+        );
+        for colours in maps.values() {
+            for c in colours.as_array().unwrap() {
+                for v in c.as_array().unwrap() {
+                    assert!((0.0..=1.0).contains(&v.as_f64().unwrap()));
+                }
+            }
+        }
+    }
 
     #[test]
     fn a_camera_is_explicit_or_a_view_and_nothing_else() {

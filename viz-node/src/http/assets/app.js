@@ -353,3 +353,204 @@ refresh();
 // For scripts driving the page (and the browser test): drop the live socket as a network
 // failure would; the page reconnects on its own and asks for the current camera again.
 window.insituViewer = { dropConnection: () => socket && socket.close() };
+
+// ---- Steering (docs/steering.md): the transfer function, the field, the generation camera
+// and the budget, sent to `api/steer` with the steering token (typed here, sent as a header,
+// never put into a URL). The panel shows only where the viz-node steers.
+
+const tf = {
+  map: null, // the colour map's name (api/colormaps)
+  maps: {}, // name → colours sampled evenly over [0, 1]
+  lo: 0,
+  hi: 1,
+  // Opacity control points [x in [0, 1], opacity per voxel], x ascending; the ends stay.
+  points: [[0, 0], [0.5, 0.05], [1, 0.6]],
+};
+let tfDrag = null; // index of the point being dragged
+
+function mapColour(x) {
+  const c = tf.maps[tf.map] || [[0, 0, 0], [1, 1, 1]];
+  const f = Math.max(0, Math.min(1, x)) * (c.length - 1);
+  const i = Math.min(c.length - 2, Math.floor(f));
+  const t = f - i;
+  return c[i].map((v, k) => v + (c[i + 1][k] - v) * t);
+}
+
+function opacityAt(x) {
+  const p = tf.points;
+  for (let i = 1; i < p.length; i++) {
+    if (x <= p[i][0]) {
+      const t = p[i][0] > p[i - 1][0] ? (x - p[i - 1][0]) / (p[i][0] - p[i - 1][0]) : 0;
+      return p[i - 1][1] + (p[i][1] - p[i - 1][1]) * t;
+    }
+  }
+  return p[p.length - 1][1];
+}
+
+// The transfer function as the nodes take it: `[x, r, g, b, a]` points at every control point
+// and at 17 even steps (the colours between follow the map).
+function tfJson() {
+  const xs = new Set(tf.points.map((p) => p[0]));
+  for (let i = 0; i <= 16; i++) xs.add(i / 16);
+  const points = [...xs].sort((a, b) => a - b).map((x) => {
+    const [r, g, b] = mapColour(x);
+    return [x, r, g, b, opacityAt(x)].map((v) => Math.round(v * 1e4) / 1e4);
+  });
+  return { domain: [tf.lo, tf.hi], points };
+}
+
+function drawTf() {
+  const cv = $("tf-editor");
+  const g = cv.getContext("2d");
+  const { width: w, height: h } = cv;
+  const strip = 14;
+  g.clearRect(0, 0, w, h);
+  for (let px = 0; px < w; px++) {
+    const [r, gg, b] = mapColour(px / (w - 1));
+    g.fillStyle = `rgb(${r * 255},${gg * 255},${b * 255})`;
+    g.fillRect(px, h - strip, 1, strip);
+  }
+  const y = (a) => (h - strip - 6) * (1 - a) + 3;
+  g.strokeStyle = "#eee";
+  g.beginPath();
+  tf.points.forEach(([x, a], i) => (i ? g.lineTo(x * (w - 1), y(a)) : g.moveTo(x * (w - 1), y(a))));
+  g.stroke();
+  g.fillStyle = "#e94";
+  for (const [x, a] of tf.points) {
+    g.beginPath();
+    g.arc(x * (w - 1), y(a), 5, 0, 2 * Math.PI);
+    g.fill();
+  }
+  cv.dataset.points = JSON.stringify(tf.points);
+}
+
+function tfPoint(e) {
+  const cv = $("tf-editor");
+  const r = cv.getBoundingClientRect();
+  const x = Math.max(0, Math.min(1, (e.clientX - r.left) / r.width));
+  const strip = 14 * (r.height / cv.height);
+  const a = Math.max(0, Math.min(1, 1 - (e.clientY - r.top - 3) / (r.height - strip - 6)));
+  return [x, a];
+}
+
+function nearestPoint(x, a) {
+  let best = -1;
+  let bestD = 0.05;
+  tf.points.forEach(([px, pa], i) => {
+    const d = Math.hypot(px - x, (pa - a) * 0.5);
+    if (d < bestD) [best, bestD] = [i, d];
+  });
+  return best;
+}
+
+function steerStatus(text, error) {
+  const el = $("steer-status");
+  el.textContent = text;
+  el.className = error ? "legend error" : "legend";
+}
+
+async function steer(body) {
+  const token = $("steer-token").value.trim();
+  const r = await fetch(withToken("api/steer"), {
+    method: "POST",
+    headers: { "content-type": "application/json", ...(token ? { authorization: `Bearer ${token}` } : {}) },
+    body: JSON.stringify(body),
+  });
+  const reply = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
+  if (!r.ok) {
+    steerStatus(`refused: ${reply.error}`, true);
+    return null;
+  }
+  steerStatus(
+    reply.pm_version
+      ? `scene ${reply.scene_version} from step ${reply.from_step} (decision ${reply.pm_version})` +
+        (reply.superseded.length ? `; superseded ${reply.superseded.join(", ")}` : "")
+      : `utility ${reply.utility}`,
+    false,
+  );
+  $("steer").dataset.reply = JSON.stringify(reply);
+  loadScene();
+  return reply;
+}
+
+async function loadScene() {
+  const s = await getJson("api/scene").catch(() => null);
+  if (!s || !s.steering) return;
+  $("steer").hidden = false;
+  const sc = s.scene;
+  $("steer-scene").textContent =
+    `scene ${sc.version}` + (sc.tf_name ? `, ${sc.tf_name}` : "") + (sc.field ? `, field ${sc.field}` : "") +
+    `; ${s.utility}`;
+  const field = $("steer-field");
+  const names = s.fields || [];
+  if (field.options.length !== names.length) {
+    field.replaceChildren(...names.map((n) => new Option(n, n)));
+  }
+  if (sc.field) field.value = sc.field;
+  field.disabled = names.length === 0;
+  $("field-apply").disabled = names.length === 0;
+}
+
+async function wireSteering() {
+  const maps = await getJson("api/colormaps").catch(() => null);
+  if (maps) {
+    tf.maps = maps;
+    $("tf-map").replaceChildren(...Object.keys(maps).map((n) => new Option(n, n)));
+    tf.map = maps.viridis ? "viridis" : Object.keys(maps)[0];
+    $("tf-map").value = tf.map;
+  }
+  const s = await getJson("api/scene").catch(() => null);
+  const domain = s?.scene?.tf?.domain || s?.configured_tf?.domain;
+  if (domain) [tf.lo, tf.hi] = domain;
+  $("tf-lo").value = Number(tf.lo.toPrecision(4));
+  $("tf-hi").value = Number(tf.hi.toPrecision(4));
+  $("tf-map").onchange = () => { tf.map = $("tf-map").value; drawTf(); };
+  $("tf-lo").onchange = () => { tf.lo = Number($("tf-lo").value); };
+  $("tf-hi").onchange = () => { tf.hi = Number($("tf-hi").value); };
+  const cv = $("tf-editor");
+  cv.addEventListener("pointerdown", (e) => {
+    const [x, a] = tfPoint(e);
+    const i = nearestPoint(x, a);
+    if (e.shiftKey) {
+      if (i > 0 && i < tf.points.length - 1) tf.points.splice(i, 1);
+      drawTf();
+      return;
+    }
+    if (i >= 0) {
+      tfDrag = i;
+      cv.setPointerCapture(e.pointerId);
+    }
+  });
+  cv.addEventListener("pointermove", (e) => {
+    if (tfDrag === null) return;
+    const [x, a] = tfPoint(e);
+    const p = tf.points;
+    const last = p.length - 1;
+    // The ends keep their x; the others stay between their neighbours.
+    const px = tfDrag === 0 ? 0 : tfDrag === last ? 1 : Math.min(p[tfDrag + 1][0] - 1e-3, Math.max(p[tfDrag - 1][0] + 1e-3, x));
+    p[tfDrag] = [px, a];
+    drawTf();
+  });
+  const end = () => { tfDrag = null; };
+  cv.addEventListener("pointerup", end);
+  cv.addEventListener("pointercancel", end);
+  cv.addEventListener("dblclick", (e) => {
+    const [x, a] = tfPoint(e);
+    if (nearestPoint(x, a) >= 0) return;
+    tf.points.push([x, a]);
+    tf.points.sort((p, q) => p[0] - q[0]);
+    drawTf();
+  });
+  $("tf-apply").onclick = () => {
+    if (!(tf.hi > tf.lo)) return steerStatus("the range's upper end must exceed its lower", true);
+    return steer({ tf: tfJson(), tf_name: `${tf.map} (steered)` });
+  };
+  $("field-apply").onclick = () => steer({ field: $("steer-field").value });
+  $("generate-here").onclick = () =>
+    steer({ camera: { step: shownStep, angle: view.angle, elevation: view.elevation, zoom: view.zoom } });
+  $("utility-apply").onclick = () => steer({ utility: $("steer-utility").value.trim() });
+  drawTf();
+  loadScene();
+}
+
+wireSteering();
