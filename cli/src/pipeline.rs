@@ -102,6 +102,17 @@ impl PipelineArgs {
 
 /// A P_M change as text.
 pub fn decision_line(d: &pb::PmDecision) -> String {
+    if d.steered {
+        return format!(
+            "scene {} from step {} (P_M v{}, r {} γ {:.4} kept): {}",
+            d.scene.as_ref().map_or(0, |s| s.version),
+            d.from_step,
+            d.pm_version,
+            d.resolution,
+            d.gamma,
+            d.reason
+        );
+    }
     let old = if d.old_resolution == 0 {
         "the configured P_M".to_owned()
     } else {
@@ -149,6 +160,8 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "utility": d.utility,
         "corrects_version": (d.corrects_version > 0).then_some(d.corrects_version),
         "forecast_ratio": (d.forecast_ratio > 0.0).then_some(d.forecast_ratio),
+        "scene_version": d.scene.as_ref().map_or(0, |s| s.version),
+        "steered": d.steered,
     })
 }
 

@@ -425,6 +425,7 @@ fn decision_pb(d: &Decision) -> pb::PmDecision {
         corrects_version: d.corrects.unwrap_or(0),
         forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
         scene: None,
+        steered: d.steered,
     }
 }
 

@@ -224,11 +224,6 @@ async fn start_http(
     let steer_token =
         insitu_proto::auth::Token::load_or_env(cfg.steer_token_file.as_deref(), STEER_TOKEN_ENV)
             .map_err(StartError::SteerToken)?;
-    if steer_token.is_some() && cfg.tuner.is_none() {
-        tracing::warn!(
-            "a steering token is configured but no tuner-node (`tuner`): steering is off"
-        );
-    }
     let http = Arc::new(
         Http::new(
             shared,
