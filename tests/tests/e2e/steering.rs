@@ -308,6 +308,29 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
     v.terminate();
 }
 
+/// Types the steering token into the page's panel (real key events).
+async fn type_token(c: &fantoccini::Client) {
+    c.find(fantoccini::Locator::Id("steer-token"))
+        .await
+        .unwrap()
+        .send_keys(STEER_TOKEN)
+        .await
+        .unwrap();
+}
+
+/// Clicks the panel's button `id` and returns the tuner's answer the page shows once it names
+/// scene `version`.
+async fn apply(c: &fantoccini::Client, id: &str, version: u64) -> Value {
+    crate::viewer::click(c, id).await;
+    let reply = insitu_e2e::browser::js(
+        c,
+        &format!("for (let i = 0; i < 200; i++) {{ const r = JSON.parse(document.getElementById('steer').dataset.reply || '{{}}'); if (r.scene_version === {version}) {{ done(r); return; }} await new Promise(r => setTimeout(r, 50)); }} done(document.getElementById('steer-status').textContent);"),
+    )
+    .await;
+    assert_eq!(reply["scene_version"], version, "{reply}");
+    reply
+}
+
 /// The page's steering panel in Debian's Chromium, with real mouse and keyboard events: the
 /// steering token typed in, the middle opacity point of the transfer-function editor dragged
 /// up, applied; the steps from the switch step on are made with the new transfer function (the
@@ -315,12 +338,10 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
 /// old; then "generate from here" after orbiting the view moves the generation camera.
 #[test]
 fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view() {
-    use crate::viewer::{image_of, screenshot, wait_frame};
-    use fantoccini::actions::{InputSource, MouseActions, PointerAction, MOUSE_BUTTON_LEFT};
+    use crate::viewer::{drag, image_of, screenshot, wait_frame};
     use fantoccini::Locator;
     use insitu_core::metrics::{mse, psnr_from_mse};
     use insitu_e2e::browser::{artefacts, browser, js, start_driver};
-    use std::time::Duration;
 
     let Some(driver) = start_driver() else {
         return;
@@ -342,37 +363,14 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
         .await;
         assert_eq!(shown, true, "the steering panel did not show");
         // The token, typed.
-        c.find(Locator::Id("steer-token"))
-            .await
-            .unwrap()
-            .send_keys(STEER_TOKEN)
-            .await
-            .unwrap();
+        type_token(&c).await;
         // The middle point (x 0.5, opacity 0.05) dragged up to about 0.9. The canvas is
         // 360 × 130 CSS pixels; WebDriver's offsets are from its centre.
         let editor = c.find(Locator::Id("tf-editor")).await.unwrap();
         let before: Value =
             serde_json::from_str(&editor.attr("data-points").await.unwrap().unwrap()).unwrap();
         let y0 = (130.0 - 14.0 - 6.0) * (1.0 - 0.05) + 3.0 - 65.0;
-        let mouse = MouseActions::new("mouse".into())
-            .then(PointerAction::MoveToElement {
-                element: editor.clone(),
-                duration: None,
-                x: 0.0,
-                y: y0,
-            })
-            .then(PointerAction::Down {
-                button: MOUSE_BUTTON_LEFT,
-            })
-            .then(PointerAction::MoveBy {
-                duration: Some(Duration::from_millis(300)),
-                x: 0.0,
-                y: -95.0,
-            })
-            .then(PointerAction::Up {
-                button: MOUSE_BUTTON_LEFT,
-            });
-        c.perform_actions(mouse).await.unwrap();
+        drag(&c, "tf-editor", (0.0, y0), (0.0, -95.0)).await;
         let after: Value =
             serde_json::from_str(&editor.attr("data-points").await.unwrap().unwrap()).unwrap();
         assert!(
@@ -380,18 +378,7 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
             "the drag did not raise the middle point: {before} → {after}"
         );
         screenshot(&c, &shots, "steering.png").await;
-        c.find(Locator::Id("tf-apply"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
-        let reply = js(
-            &c,
-            "for (let i = 0; i < 200; i++) { const r = document.getElementById('steer').dataset.reply; if (r) { done(JSON.parse(r)); return; } await new Promise(r => setTimeout(r, 50)); } done(document.getElementById('steer-status').textContent);",
-        )
-        .await;
-        assert_eq!(reply["scene_version"], 1, "{reply}");
+        let reply = apply(&c, "tf-apply", 1).await;
         c.close().await.unwrap();
         reply
     });
@@ -429,52 +416,23 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
             &format!("/api/render?step={shown_step}&size=128&format=png"),
         )
         .await;
-        let e = index(rec).into_iter().find(|e| e.step == shown_step).unwrap();
+        let e = index(rec)
+            .into_iter()
+            .find(|e| e.step == shown_step)
+            .unwrap();
         let vdi = load_vdi(rec, &e);
         let here = render(&vdi, &vdi.meta().camera, 128, 128, 0.99);
         let q = psnr_from_mse(mse(&page, &here).unwrap());
-        assert!(q >= 40.0, "the page's frame of step {shown_step} is {q:.1} dB from the VDI's");
+        assert!(
+            q >= 40.0,
+            "the page's frame of step {shown_step} is {q:.1} dB from the VDI's"
+        );
         // "Generate from here": orbit the view by dragging, then ask.
-        c.find(Locator::Id("steer-token"))
-            .await
-            .unwrap()
-            .send_keys(STEER_TOKEN)
-            .await
-            .unwrap();
-        let frame = c.find(Locator::Id("frame")).await.unwrap();
-        let drag = MouseActions::new("mouse".into())
-            .then(PointerAction::MoveToElement {
-                element: frame,
-                duration: None,
-                x: 0.0,
-                y: 0.0,
-            })
-            .then(PointerAction::Down {
-                button: MOUSE_BUTTON_LEFT,
-            })
-            .then(PointerAction::MoveBy {
-                duration: Some(Duration::from_millis(300)),
-                x: -120.0,
-                y: 0.0,
-            })
-            .then(PointerAction::Up {
-                button: MOUSE_BUTTON_LEFT,
-            });
-        c.perform_actions(drag).await.unwrap();
+        type_token(&c).await;
+        drag(&c, "frame", (0.0, 0.0), (-120.0, 0.0)).await;
         let shown = wait_frame(&c, 20.0, |d| d["kind"] == "still" && d["angle"] != "0").await;
         let angle: f32 = shown["angle"].as_str().unwrap().parse().unwrap();
-        c.find(Locator::Id("generate-here"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
-        let reply = js(
-            &c,
-            "for (let i = 0; i < 200; i++) { const r = JSON.parse(document.getElementById('steer').dataset.reply || '{}'); if (r.scene_version === 2) { done(r); return; } await new Promise(r => setTimeout(r, 50)); } done(document.getElementById('steer-status').textContent);",
-        )
-        .await;
-        assert_eq!(reply["scene_version"], 2, "{reply}");
+        let reply = apply(&c, "generate-here", 2).await;
         c.close().await.unwrap();
         (angle, reply)
     });

@@ -176,8 +176,33 @@ fn the_page_orbits_moves_in_time_follows_new_steps_and_matches_the_api() {
     r.generator.terminate();
 }
 
+/// A real mouse drag on the element with id `id`: pressed at `at` (CSS pixels from its
+/// centre), moved by `by` over 300 ms, released.
+pub(crate) async fn drag(c: &Client, id: &str, at: (f64, f64), by: (f64, f64)) {
+    let element = c.find(Locator::Id(id)).await.unwrap();
+    let mouse = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element,
+            duration: None,
+            x: at.0,
+            y: at.1,
+        })
+        .then(PointerAction::Down {
+            button: MOUSE_BUTTON_LEFT,
+        })
+        .then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(300)),
+            x: by.0,
+            y: by.1,
+        })
+        .then(PointerAction::Up {
+            button: MOUSE_BUTTON_LEFT,
+        });
+    c.perform_actions(mouse).await.unwrap();
+}
+
 /// Clicks the element with id `id`.
-async fn click(c: &Client, id: &str) {
+pub(crate) async fn click(c: &Client, id: &str) {
     c.find(Locator::Id(id))
         .await
         .unwrap()
@@ -225,26 +250,7 @@ async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
 /// Dragging orbits: the frame changes, and its still matches the API's render of that
 /// camera.
 async fn orbit_matches_the_api(c: &Client, img0: &Image, shots: &Path) {
-    let frame = c.find(Locator::Id("frame")).await.unwrap();
-    let mouse = MouseActions::new("mouse".into())
-        .then(PointerAction::MoveToElement {
-            element: frame.clone(),
-            duration: None,
-            x: 0.0,
-            y: 0.0,
-        })
-        .then(PointerAction::Down {
-            button: MOUSE_BUTTON_LEFT,
-        })
-        .then(PointerAction::MoveBy {
-            duration: Some(Duration::from_millis(300)),
-            x: -120.0,
-            y: 40.0,
-        })
-        .then(PointerAction::Up {
-            button: MOUSE_BUTTON_LEFT,
-        });
-    c.perform_actions(mouse).await.unwrap();
+    drag(c, "frame", (0.0, 0.0), (-120.0, 40.0)).await;
     let after = wait_frame(c, 20.0, |d| {
         d["kind"] == "still" && d["angle"] != "0" && d["elevation"] != "0"
     })
