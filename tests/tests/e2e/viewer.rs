@@ -905,6 +905,15 @@ fn hosts_config(dir: &Path) -> String {
     path.to_string_lossy().into_owned()
 }
 
+/// A viz-node started with the config file `cfg`, and its viewer's `127.0.0.1:port`.
+fn viewer_of(cfg: &Path, logs: &Path) -> (Daemon, String) {
+    let mut v = Daemon::start("viz-node", &["--config", cfg.to_str().unwrap()], &[], logs);
+    let line = v.read_line();
+    let port = line.rsplit(':').next().unwrap().trim_end_matches('/');
+    let addr = format!("127.0.0.1:{port}");
+    (v, addr)
+}
+
 #[test]
 fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_errors() {
     let tmp = tempfile::tempdir().unwrap();
@@ -935,15 +944,7 @@ fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_err
     let mut toml = std::fs::read_to_string(&cfg).unwrap();
     toml.push_str("insecure = true\n");
     std::fs::write(&cfg, toml).unwrap();
-    let mut v = Daemon::start(
-        "viz-node",
-        &["--config", cfg.to_str().unwrap()],
-        &[],
-        tmp.path(),
-    );
-    let line = v.read_line();
-    let port = line.rsplit(':').next().unwrap().trim_end_matches('/');
-    let addr = format!("127.0.0.1:{port}");
+    let (v, addr) = viewer_of(&cfg, tmp.path());
     let ws = [
         "Upgrade: websocket",
         "Connection: Upgrade",
@@ -1005,15 +1006,7 @@ fn a_token_guards_the_page_the_api_and_the_socket_and_bad_requests_get_clear_err
         steer_file.display().to_string()
     ));
     std::fs::write(&cfg, toml).unwrap();
-    let mut v = Daemon::start(
-        "viz-node",
-        &["--config", cfg.to_str().unwrap()],
-        &[],
-        tmp.path(),
-    );
-    let line = v.read_line();
-    let port = line.rsplit(':').next().unwrap().trim_end_matches('/');
-    let addr = format!("127.0.0.1:{port}");
+    let (_v, addr) = viewer_of(&cfg, tmp.path());
     let (code, body) = post(&addr, "/api/steer", &[], r#"{"field":"v"}"#);
     assert_eq!(code, 401, "no token: {body}");
     let (code, body) = post(&addr, "/api/steer", &[bearer], r#"{"field":"v"}"#);
