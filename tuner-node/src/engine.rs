@@ -309,6 +309,7 @@ impl Engine {
         let cur = s.current();
         let budgets = self.resolved().budgets;
         let spec = s.utility.as_deref().unwrap_or(&self.cfg.utility);
+        let hist = self.domain().histogram.clone();
         pb::TunerStatus {
             pm_version: cur.map_or(0, |d| d.pm_version),
             resolution: cur.map_or(0, |d| d.candidate.r),
@@ -340,6 +341,10 @@ impl Engine {
             scene: Some(s.scene.to_pb()),
             steering: s.steering.iter().map(SteerRecord::to_pb).collect(),
             fields: self.domain().fields.clone(),
+            histogram_step: hist.as_ref().map_or(0, |h| h.0),
+            histogram: hist.as_ref().map(|h| h.1.clone()).unwrap_or_default(),
+            histogram_lo: hist.as_ref().map_or(0.0, |h| h.2),
+            histogram_hi: hist.as_ref().map_or(0.0, |h| h.3),
         }
     }
 
@@ -395,6 +400,8 @@ struct Pending {
     pm_version: u64,
     /// The steered scene version they were made with.
     scene_version: u64,
+    /// The range the counts cover (the transfer function's domain).
+    range: (f64, f64),
     /// The `P_M` the production VDIs were made with (the first rank's).
     candidate: Candidate,
     sampled: bool,
@@ -487,6 +494,7 @@ impl Loop {
             tau_secs: 0.0,
             pm_version: s.pm_version,
             scene_version: s.scene_version,
+            range: (s.range_lo, s.range_hi),
             candidate: Candidate {
                 r: s.resolution,
                 gamma: s.gamma,
@@ -718,6 +726,7 @@ impl Loop {
 
     fn complete(&mut self, step: u64, p: Pending) {
         let e = self.engine.clone();
+        e.domain().histogram = Some((step, p.counts.to_vec(), p.range.0, p.range.1));
         if !self.under_scene_in_force(step, &p) {
             e.hub.hold(step, false);
             return;

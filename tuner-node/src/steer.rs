@@ -146,6 +146,9 @@ pub struct Domain {
     pub fields: Vec<String>,
     /// The whole domain's box, when the nodes report it.
     pub bounds: Option<Aabb>,
+    /// The newest step whose ranks were all summarised: step, bin counts summed over its
+    /// ranks, and the range they cover (what the viewer's editor draws under the curve).
+    pub histogram: Option<(u64, Vec<u64>, f64, f64)>,
 }
 
 impl Domain {
@@ -288,6 +291,7 @@ mod tests {
                 min: Vec3::ZERO,
                 max: Vec3::splat(10.0),
             }),
+            histogram: None,
         }
     }
 

@@ -162,6 +162,12 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
     assert_eq!(scene["steering"], true, "{scene}");
     assert_eq!(scene["scene"]["version"], 0, "{scene}");
     assert_eq!(scene["fields"], serde_json::json!(["u", "v"]), "{scene}");
+    // The newest step's histogram for the editor: 64 bins holding every voxel of the 16³ step.
+    let counts = scene["histogram"]["counts"].as_array().unwrap();
+    assert_eq!(counts.len(), 64, "{scene}");
+    let voxels: u64 = counts.iter().map(|c| c.as_u64().unwrap()).sum();
+    assert_eq!(voxels, 16 * 16 * 16);
+    assert_eq!(scene["histogram"]["step"], 3, "{scene}");
 
     // Bad requests change nothing, and say what is wrong.
     for (body, code, says) in [
@@ -362,6 +368,12 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
         )
         .await;
         assert_eq!(shown, true, "the steering panel did not show");
+        let bins = js(
+            &c,
+            "for (let i = 0; i < 200; i++) { const b = document.getElementById('tf-editor').dataset.histogram; if (b && b !== '0') { done(b); return; } await new Promise(r => setTimeout(r, 50)); } done('0');",
+        )
+        .await;
+        assert_eq!(bins, "64", "the editor draws the newest step's histogram");
         // The token, typed.
         type_token(&c).await;
         // The middle point (x 0.5, opacity 0.05) dragged up to about 0.9. The canvas is

@@ -171,6 +171,12 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
         "fields": s.fields,
         "utility": s.utility,
         "configured_tf": http.shared.scene.agreed().map(|a| a.tf),
+        "histogram": (!s.histogram.is_empty()).then(|| json!({
+            "step": s.histogram_step,
+            "lo": s.histogram_lo,
+            "hi": s.histogram_hi,
+            "counts": s.histogram,
+        })),
         "pm_version": s.pm_version,
     }))
     .into_response()

@@ -365,6 +365,7 @@ const tf = {
   hi: 1,
   // Opacity control points [x in [0, 1], opacity per voxel], x ascending; the ends stay.
   points: [[0, 0], [0.5, 0.05], [1, 0.6]],
+  histogram: null, // the newest step's {lo, hi, counts} (api/scene)
 };
 let tfDrag = null; // index of the point being dragged
 
@@ -411,6 +412,22 @@ function drawTf() {
     g.fillRect(px, h - strip, 1, strip);
   }
   const y = (a) => (h - strip - 6) * (1 - a) + 3;
+  // The newest step's histogram under the curve (log counts), placed by value on the range.
+  const hist = tf.histogram;
+  if (hist && hist.hi > hist.lo && tf.hi > tf.lo) {
+    const n = hist.counts.length;
+    const top = Math.log1p(Math.max(...hist.counts)) || 1;
+    g.fillStyle = "#3a3a3a";
+    hist.counts.forEach((c, i) => {
+      const v0 = hist.lo + ((hist.hi - hist.lo) * i) / n;
+      const v1 = hist.lo + ((hist.hi - hist.lo) * (i + 1)) / n;
+      const x0 = ((v0 - tf.lo) / (tf.hi - tf.lo)) * (w - 1);
+      const x1 = ((v1 - tf.lo) / (tf.hi - tf.lo)) * (w - 1);
+      const bar = (Math.log1p(c) / top) * (h - strip - 6);
+      g.fillRect(x0, h - strip - bar, Math.max(1, x1 - x0), bar);
+    });
+  }
+  cv.dataset.histogram = hist ? String(hist.counts.length) : "0";
   g.strokeStyle = "#eee";
   g.beginPath();
   tf.points.forEach(([x, a], i) => (i ? g.lineTo(x * (w - 1), y(a)) : g.moveTo(x * (w - 1), y(a))));
@@ -487,6 +504,10 @@ async function loadScene() {
     field.replaceChildren(...names.map((n) => new Option(n, n)));
   }
   if (sc.field) field.value = sc.field;
+  if (s.histogram) {
+    tf.histogram = s.histogram;
+    drawTf();
+  }
   field.disabled = names.length === 0;
   $("field-apply").disabled = names.length === 0;
 }
@@ -505,8 +526,8 @@ async function wireSteering() {
   $("tf-lo").value = Number(tf.lo.toPrecision(4));
   $("tf-hi").value = Number(tf.hi.toPrecision(4));
   $("tf-map").onchange = () => { tf.map = $("tf-map").value; drawTf(); };
-  $("tf-lo").onchange = () => { tf.lo = Number($("tf-lo").value); };
-  $("tf-hi").onchange = () => { tf.hi = Number($("tf-hi").value); };
+  $("tf-lo").onchange = () => { tf.lo = Number($("tf-lo").value); drawTf(); };
+  $("tf-hi").onchange = () => { tf.hi = Number($("tf-hi").value); drawTf(); };
   const cv = $("tf-editor");
   cv.addEventListener("pointerdown", (e) => {
     const [x, a] = tfPoint(e);
