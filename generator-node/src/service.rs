@@ -23,17 +23,23 @@ impl GeneratorService {
     /// The stream's rules broken ([`chunk::receive_into`]: a bad header, a step over
     /// `max_step_bytes`, chunks that do not fill it), or a transport error, as a status.
     async fn receive(&self, mut stream: Streaming<pb::StepChunk>) -> Result<RawStep, Status> {
-        let (header, (info, _, field)) = chunk::receive_into(
+        // The field chosen once, from the header: the one kept is the one the step names.
+        let (header, (info, _, field, wanted)) = chunk::receive_into(
             &mut stream,
             self.0.max_step_bytes,
             |h: &pb::StepHeader| {
-                let (info, window) = check_step(h, self.wanted_field(h.step).as_deref())?;
-                Ok((info, window, info.assembler(self.0.spare_fields.take())))
+                let wanted = self.wanted_field(h.step);
+                let (info, window) = check_step(h, wanted.as_deref())?;
+                Ok((
+                    info,
+                    window,
+                    info.assembler(self.0.spare_fields.take()),
+                    wanted,
+                ))
             },
-            |(_, window, field), bytes| field.push(window.take(bytes)),
+            |(_, window, field, _), bytes| field.push(window.take(bytes)),
         )
         .await?;
-        let wanted = self.wanted_field(header.step);
         Ok(info.with_field(field)?.named(&header, wanted.as_deref()))
     }
 

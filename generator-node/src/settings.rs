@@ -3,13 +3,10 @@
 
 use crate::config::Generation;
 use insitu_core::raycast::RaycastParams;
-use insitu_core::{TransferFunction, VdiParams};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb};
+use insitu_core::VdiParams;
+use insitu_proto::convert::{camera_from_pb, codec_from_pb, tf_from_json};
 use insitu_proto::pb;
 use tonic::Status;
-
-/// Largest transfer function accepted over the wire, bytes.
-pub const MAX_TF_JSON: usize = 1 << 20;
 
 /// The settings as a `GenerationConfig` (what [`apply_config`] reads back).
 pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
@@ -65,14 +62,8 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
         next.codec = codec;
     }
     if let Some(json) = &c.tf_json {
-        if json.len() > MAX_TF_JSON {
-            return Err(bad(
-                "tf_json",
-                &format!("{} bytes exceeds {MAX_TF_JSON}", json.len()),
-            ));
-        }
         let name = c.tf_name.clone().unwrap_or_else(|| "pushed".into());
-        let tf = TransferFunction::from_json(json, &name).map_err(|e| bad("tf_json", &e))?;
+        let tf = tf_from_json(json, &name).map_err(|e| bad("tf_json", &e))?;
         next.tf = Some((tf, name));
     }
     if let Some(cam) = &c.camera {
@@ -155,15 +146,8 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
     let mut next = g.clone();
     next.scene_version = s.version;
     if let Some(json) = &s.tf_json {
-        if json.len() > MAX_TF_JSON {
-            return Err(format!(
-                "scene {}: transfer function of {} bytes exceeds {MAX_TF_JSON}",
-                s.version,
-                json.len()
-            ));
-        }
         let name = s.tf_name.clone().unwrap_or_else(|| "steered".into());
-        let tf = TransferFunction::from_json(json, &name)
+        let tf = tf_from_json(json, &name)
             .map_err(|e| format!("scene {}: transfer function: {e}", s.version))?;
         next.tf = Some((tf, name));
     }
@@ -185,6 +169,7 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
 mod tests {
     use super::*;
     use crate::config::GenerationConfig;
+    use insitu_core::TransferFunction;
 
     const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
 

@@ -6,8 +6,27 @@ use glam::Vec3;
 use insitu_core::backend::TimeSource;
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::ScalarType;
-use insitu_core::Camera;
+use insitu_core::{Camera, TransferFunction};
 use tonic::Status;
+
+/// Largest transfer function taken over the wire (`GenerationConfig.tf_json`, a steered
+/// `Scene`'s, `SteerRequest.tf_json`), bytes.
+pub const MAX_TF_JSON: usize = 1 << 20;
+
+/// A transfer function from the wire: at most [`MAX_TF_JSON`] bytes of JSON
+/// (docs/conventions.md format), named `name`.
+///
+/// # Errors
+/// A message saying it is too long, or why it does not parse or is invalid.
+pub fn tf_from_json(json: &str, name: &str) -> Result<TransferFunction, String> {
+    if json.len() > MAX_TF_JSON {
+        return Err(format!(
+            "{} bytes exceeds the limit of {MAX_TF_JSON}",
+            json.len()
+        ));
+    }
+    TransferFunction::from_json(json, name).map_err(|e| e.to_string())
+}
 
 /// Grid dims or a voxel offset, `[x, y, z]`, on the wire (each < 2³², as every grid the
 /// nodes accept).

@@ -11,7 +11,7 @@
 use crate::config::{Config, Resolved};
 use crate::hub::Hub;
 use crate::state::{Decision, State};
-use crate::steer::{Domain, Standing, SteerRecord};
+use crate::steer::{Domain, Standing, SteerRecord, StepHistogram};
 use crate::trigger::{Cause, Trigger};
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse};
 use insitu_proto::pb;
@@ -250,6 +250,13 @@ impl Engine {
             .clone()
     }
 
+    /// The controller between tunings afresh for the utility in force (after steering: what
+    /// it learnt was for another budget or scene).
+    fn restart_control(&self) {
+        let r = self.resolved();
+        *self.control() = Controller::new(r.budgets, self.cfg.headroom, r.grid.clone());
+    }
+
     pub(crate) fn domain(&self) -> std::sync::MutexGuard<'_, Domain> {
         self.domain.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -271,7 +278,7 @@ impl Engine {
     pub(crate) fn publish(&self, mut d: Decision) {
         let m = {
             let mut s = self.state();
-            d.scene_version = s.scene.version;
+            d.scene_version = s.scene_version();
             s.decisions.push(d.clone());
             self.save(&s);
             s.message(&d)
@@ -309,7 +316,10 @@ impl Engine {
         let cur = s.current();
         let budgets = self.resolved().budgets;
         let spec = s.utility.as_deref().unwrap_or(&self.cfg.utility);
-        let hist = self.domain().histogram.clone();
+        let (fields, hist) = {
+            let d = self.domain();
+            (d.fields.clone(), d.histogram.clone().unwrap_or_default())
+        };
         pb::TunerStatus {
             pm_version: cur.map_or(0, |d| d.pm_version),
             resolution: cur.map_or(0, |d| d.candidate.r),
@@ -338,13 +348,13 @@ impl Engine {
                 Ok(UtilitySpec::Quality(q)) => q,
                 _ => 0.0,
             },
-            scene: Some(s.scene.to_pb()),
+            scene: Some(s.scene().to_pb()),
             steering: s.steering.iter().map(SteerRecord::to_pb).collect(),
-            fields: self.domain().fields.clone(),
-            histogram_step: hist.as_ref().map_or(0, |h| h.0),
-            histogram: hist.as_ref().map(|h| h.1.clone()).unwrap_or_default(),
-            histogram_lo: hist.as_ref().map_or(0.0, |h| h.2),
-            histogram_hi: hist.as_ref().map_or(0.0, |h| h.3),
+            fields,
+            histogram_step: hist.step,
+            histogram: hist.counts,
+            histogram_lo: hist.lo,
+            histogram_hi: hist.hi,
         }
     }
 
@@ -386,11 +396,11 @@ impl Engine {
     }
 }
 
-/// A step whose summaries are coming in.
 /// What a correction's reason ends with when no candidate meets the plan under the forecast
 /// and the coarsest is pushed (its step is expected to overshoot).
 const INFEASIBLE: &str = "; no candidate meets the plan under this forecast: the coarsest";
 
+/// A step whose summaries are coming in.
 struct Pending {
     world_size: u32,
     counts: [u64; BINS],
@@ -671,7 +681,7 @@ impl Loop {
             let (Some(t), Some(c)) = (s.tuned(), s.current()) else {
                 return;
             };
-            if t.scene_version != s.scene.version {
+            if t.scene_version != s.scene_version() {
                 // Tuned under an earlier scene: its measurements say nothing of this one.
                 return;
             }
@@ -726,7 +736,12 @@ impl Loop {
 
     fn complete(&mut self, step: u64, p: Pending) {
         let e = self.engine.clone();
-        e.domain().histogram = Some((step, p.counts.to_vec(), p.range.0, p.range.1));
+        e.domain().histogram = Some(StepHistogram {
+            step,
+            counts: p.counts.to_vec(),
+            lo: p.range.0,
+            hi: p.range.1,
+        });
         if !self.under_scene_in_force(step, &p) {
             e.hub.hold(step, false);
             return;
@@ -833,7 +848,7 @@ impl Loop {
     fn under_scene_in_force(&mut self, step: u64, p: &Pending) -> bool {
         let e = self.engine.clone();
         let mut s = e.state();
-        if p.scene_version < s.scene.version {
+        if p.scene_version < s.scene_version() {
             return false;
         }
         let mut changed = false;
@@ -861,7 +876,7 @@ impl Loop {
     /// characteristic.
     fn steer(&mut self, req: pb::SteerRequest) -> Result<pb::SteerReply, tonic::Status> {
         let e = self.engine.clone();
-        let scene = e.state().scene.clone();
+        let scene = e.state().scene();
         let change = crate::steer::check(&req, &scene, &e.domain())
             .map_err(tonic::Status::invalid_argument)?;
         let resolved = change
@@ -886,8 +901,8 @@ impl Loop {
             .map_or(0.0, |d| d.as_secs_f64());
         let newest = self.recent.back().map_or(0, |(s, _)| *s);
         if let (Some(u), Some(r)) = (change.utility.clone(), resolved) {
-            *e.control() = Controller::new(r.budgets, e.cfg.headroom, r.grid.clone());
             *e.resolved.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(r);
+            e.restart_control();
             let mut s = e.state();
             s.utility = Some(u.clone());
             s.steering.push(SteerRecord {
@@ -922,9 +937,11 @@ impl Loop {
             });
         };
         let from_step = e.decision_start();
-        let (version, superseded, released) = {
+        let (version, pm_version, superseded, released) = {
             let mut s = e.state();
-            next.version = s.scene.version + 1;
+            next.version = s.scene_version() + 1;
+            let version = next.version;
+            let pm_version = s.next_version();
             let mut superseded = Vec::new();
             for r in &mut s.steering {
                 if r.standing == Standing::Pending && r.scene_version > 0 {
@@ -932,16 +949,24 @@ impl Loop {
                     superseded.push(r.scene_version);
                 }
             }
-            s.scene = next.clone();
             s.scenes.push(next);
+            s.steering.push(SteerRecord {
+                scene_version: version,
+                pm_version,
+                from_step,
+                standing: Standing::Pending,
+                change: change.words.clone(),
+                who: req.who.clone(),
+                at_unix_secs: at,
+            });
             // The old scene's characteristic steps and validation say nothing of the new one.
             let released = s.tracker.step_indices();
             for step in &released {
                 s.forget(*step);
             }
             s.validated.clear();
-            e.save(&s);
-            (s.scene.version, superseded, released)
+            // Saved with the decision (`publish`).
+            (version, pm_version, superseded, released)
         };
         for step in released {
             self.release_evicted(step);
@@ -951,11 +976,7 @@ impl Loop {
         if e.counters().tuning {
             e.superseded.store(true, Ordering::SeqCst);
         }
-        {
-            let r = e.resolved();
-            *e.control() = Controller::new(r.budgets, e.cfg.headroom, r.grid.clone());
-        }
-        let pm_version = e.state().next_version();
+        e.restart_control();
         let who = if req.who.is_empty() {
             String::new()
         } else {
@@ -979,19 +1000,6 @@ impl Loop {
             scene_version: version,
             steered: true,
         });
-        {
-            let mut s = e.state();
-            s.steering.push(SteerRecord {
-                scene_version: version,
-                pm_version,
-                from_step,
-                standing: Standing::Pending,
-                change: change.words.clone(),
-                who: req.who.clone(),
-                at_unix_secs: at,
-            });
-            e.save(&s);
-        }
         info!(scene_version = version, pm_version, from_step, superseded = ?superseded, change = %change.words, "scene steered");
         Ok(pb::SteerReply {
             scene_version: version,
@@ -1448,7 +1456,7 @@ mod tests {
             assert_eq!(s.steering.last().unwrap().standing, Standing::Pending);
             // Persisted: a restarted tuner carries the scene on.
             let back = State::load(dir.path()).unwrap().unwrap();
-            assert_eq!(back.scene, s.scene);
+            assert_eq!(back.scene(), s.scene());
         }
         assert_eq!(l.engine.current().unwrap().scene.unwrap().version, 1);
         // Still under the old scene: neither characteristic nor a trigger.

@@ -152,10 +152,8 @@ pub struct State {
     /// production steps are watched against the budget; when they differ, a tuning is due.
     #[serde(default)]
     pub validated: Vec<u64>,
-    /// The steered scene in force (version 0: never steered).
-    #[serde(default)]
-    pub scene: SceneState,
-    /// Every steered scene, oldest first (what each decision's `scene_version` stands for).
+    /// Every steered scene, oldest first (what each decision's `scene_version` stands for;
+    /// the last is in force).
     #[serde(default)]
     pub scenes: Vec<SceneState>,
     /// Every steering change, oldest first.
@@ -188,11 +186,20 @@ impl State {
             decisions: Vec::new(),
             highest_seen: 0,
             validated: Vec::new(),
-            scene: SceneState::default(),
             scenes: Vec::new(),
             steering: Vec::new(),
             utility: None,
         }
+    }
+
+    /// The steered scene in force (version 0, nothing set: never steered).
+    pub fn scene(&self) -> SceneState {
+        self.scenes.last().cloned().unwrap_or_default()
+    }
+
+    /// The version of the steered scene in force (0: never steered).
+    pub fn scene_version(&self) -> u64 {
+        self.scenes.last().map_or(0, |s| s.version)
     }
 
     /// A decision as pushed, with the steered scene it carries.

@@ -10,13 +10,9 @@
 //! node's own (its config, or the default the world agreed).
 
 use insitu_core::volume::Aabb;
-use insitu_core::TransferFunction;
-use insitu_proto::convert::{camera_from_pb, camera_to_pb};
+use insitu_proto::convert::{camera_from_pb, camera_to_pb, tf_from_json, vec3_from_pb};
 use insitu_proto::pb;
 use serde::{Deserialize, Serialize};
-
-/// Largest transfer function accepted, bytes (as a node accepts in `SetConfig`).
-pub const MAX_TF_JSON: usize = 1 << 20;
 
 /// A generation camera as persisted: eye, target and up (world units) and the vertical field
 /// of view (degrees).
@@ -146,9 +142,23 @@ pub struct Domain {
     pub fields: Vec<String>,
     /// The whole domain's box, when the nodes report it.
     pub bounds: Option<Aabb>,
-    /// The newest step whose ranks were all summarised: step, bin counts summed over its
-    /// ranks, and the range they cover (what the viewer's editor draws under the curve).
-    pub histogram: Option<(u64, Vec<u64>, f64, f64)>,
+    /// The newest step whose ranks were all summarised (what the viewer's editor draws
+    /// under the curve).
+    pub histogram: Option<StepHistogram>,
+}
+
+/// One step's bin counts, summed over its ranks, and the value range they cover (the
+/// transfer function's domain it was made with).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepHistogram {
+    /// Step index.
+    pub step: u64,
+    /// Counts per equal-width bin.
+    pub counts: Vec<u64>,
+    /// The range's ends.
+    pub lo: f64,
+    /// Upper end.
+    pub hi: f64,
 }
 
 impl Domain {
@@ -156,8 +166,10 @@ impl Domain {
     pub fn saw(&mut self, s: &pb::StepSummary) {
         self.seen = true;
         self.fields.clone_from(&s.fields);
-        let v = |v: &Option<pb::Vec3>| v.as_ref().map(|v| glam::Vec3::new(v.x, v.y, v.z));
-        if let (Some(min), Some(max)) = (v(&s.box_min), v(&s.box_max)) {
+        if let (Some(min), Some(max)) = (
+            vec3_from_pb(s.box_min.as_ref()),
+            vec3_from_pb(s.box_max.as_ref()),
+        ) {
             if min.is_finite() && max.is_finite() && min.cmple(max).all() {
                 self.bounds = Some(Aabb { min, max });
             }
@@ -181,7 +193,8 @@ pub struct Change {
 /// refuses it) with the rest of its configuration.
 ///
 /// # Errors
-/// A message naming the bad part and why: a transfer function over [`MAX_TF_JSON`] or that
+/// A message naming the bad part and why: a transfer function over
+/// [`insitu_proto::convert::MAX_TF_JSON`] or that
 /// does not parse, a field the steps do not carry (or before any step named its fields), a
 /// degenerate camera or one whose eye lies inside the domain's box, an empty utility, or a
 /// request that changes nothing.
@@ -193,18 +206,12 @@ pub fn check(
     let mut next = scene.clone();
     let mut words = Vec::new();
     if let Some(json) = &req.tf_json {
-        if json.len() > MAX_TF_JSON {
-            return Err(format!(
-                "tf_json: {} bytes exceeds the limit of {MAX_TF_JSON}",
-                json.len()
-            ));
-        }
         let name = req
             .tf_name
             .clone()
             .filter(|n| !n.trim().is_empty())
             .unwrap_or_else(|| "steered".into());
-        TransferFunction::from_json(json, &name).map_err(|e| format!("tf_json: {e}"))?;
+        tf_from_json(json, &name).map_err(|e| format!("tf_json: {e}"))?;
         words.push(format!("transfer function \"{name}\""));
         next.tf_json = Some(json.clone());
         next.tf_name = Some(name);

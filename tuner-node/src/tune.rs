@@ -252,7 +252,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         (
             s.tracker.step_indices(),
             s.world_sizes.clone(),
-            s.scene.version,
+            s.scene_version(),
         )
     };
     if steps.is_empty() {
@@ -274,7 +274,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
         return true;
     };
-    if engine.state().scene.version != scene {
+    if engine.state().scene_version() != scene {
         info!(steps = ?steps, "the scene was steered during the tuning: its outcome is dropped, the new scene is tuned for");
         return true;
     }

@@ -38,7 +38,6 @@ use axum::{Json, Router};
 use insitu_core::Vdi;
 use insitu_proto::auth::Token;
 use insitu_proto::pb;
-use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::peer::Peer;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -145,8 +144,7 @@ impl Http {
             }
         }
         let ask = async {
-            let channel = peer.connect().await.ok()?;
-            let mut c = TunerClient::with_interceptor(channel, peer.auth());
+            let mut c = steer::tuner_client(&peer).await.ok()?;
             c.get_status(pb::StatusRequest {}).await.ok()
         };
         let v = match tokio::time::timeout(Duration::from_secs(1), ask).await {

@@ -25,13 +25,17 @@ use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use insitu_core::Camera;
+use insitu_proto::auth::AttachToken;
 use insitu_proto::convert::camera_to_pb;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_client::TunerClient;
+use insitu_proto::peer::Peer;
 use serde::Deserialize;
 use serde_json::json;
 use std::sync::Arc;
 use std::time::Duration;
+use tonic::codegen::InterceptedService;
+use tonic::transport::Channel;
 
 /// Colours per colour map sent to the page (it interpolates between them).
 pub const COLORMAP_SAMPLES: usize = 33;
@@ -126,9 +130,9 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
             .into_response();
     };
     let status = async {
-        let channel = peer.connect().await.map_err(|e| e.to_string())?;
-        let mut c = TunerClient::with_interceptor(channel, peer.auth());
-        c.get_status(pb::StatusRequest {})
+        tuner_client(&peer)
+            .await?
+            .get_status(pb::StatusRequest {})
             .await
             .map(tonic::Response::into_inner)
             .map_err(|e| e.message().to_owned())
@@ -182,6 +186,23 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
     .into_response()
 }
 
+/// A client of the tuner-node at `peer` (its token attached).
+///
+/// # Errors
+/// Why it cannot be reached, naming it.
+pub async fn tuner_client(
+    peer: &Peer,
+) -> Result<TunerClient<InterceptedService<Channel, AttachToken>>, String> {
+    let channel = peer.connect().await.map_err(|e| {
+        format!(
+            "tuner-node {}: {}",
+            peer.uri(),
+            insitu_proto::peer::error_chain(&e)
+        )
+    })?;
+    Ok(TunerClient::with_interceptor(channel, peer.auth()))
+}
+
 fn camera_json(c: &pb::Camera) -> serde_json::Value {
     let v = |v: &Option<pb::Vec3>| v.as_ref().map(|v| [v.x, v.y, v.z]);
     json!({"eye": v(&c.eye), "target": v(&c.target), "up": v(&c.up), "fov_y_deg": c.fov_y_deg})
@@ -226,15 +247,12 @@ pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: Stri
         Err(e) => return error(StatusCode::BAD_REQUEST, e),
     };
     let call = async {
-        let channel = peer.connect().await.map_err(|e| {
-            tonic::Status::unavailable(format!(
-                "tuner-node {}: {}",
-                peer.uri(),
-                insitu_proto::peer::error_chain(&e)
-            ))
-        })?;
-        let mut c = TunerClient::with_interceptor(channel, peer.auth());
-        c.steer(request).await.map(tonic::Response::into_inner)
+        tuner_client(&peer)
+            .await
+            .map_err(tonic::Status::unavailable)?
+            .steer(request)
+            .await
+            .map(tonic::Response::into_inner)
     };
     match tokio::time::timeout(TUNER_WAIT, call).await {
         Ok(Ok(r)) => Json(json!({
