@@ -303,6 +303,38 @@ pub fn frame_window(
     ([x0 as u32, y0 as u32], image, opacity)
 }
 
+/// A frame's colour and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel):
+/// how brick frames travel between nodes ([`frame_from_le_bytes`] reads them back).
+pub fn frame_to_le_bytes<'a>(
+    image: &'a Image,
+    opacity: &'a [f32],
+) -> impl Iterator<Item = u8> + 'a {
+    image
+        .pixels()
+        .iter()
+        .zip(opacity)
+        .flat_map(|(c, a)| [c[0], c[1], c[2], *a])
+        .flat_map(f32::to_le_bytes)
+}
+
+/// A `w × h` frame of little-endian f32 RGBA ([`frame_to_le_bytes`]) as an image and its
+/// opacity plane; `None` when the bytes are not that many pixels.
+pub fn frame_from_le_bytes(bytes: &[u8], (w, h): (u32, u32)) -> Option<(Image, Vec<f32>)> {
+    if bytes.len() != w as usize * h as usize * 16 {
+        return None;
+    }
+    let (rgb, opacity) = bytes
+        .chunks_exact(16)
+        .map(|px| {
+            let at = |k: usize| {
+                f32::from_le_bytes([px[4 * k], px[4 * k + 1], px[4 * k + 2], px[4 * k + 3]])
+            };
+            ([at(0), at(1), at(2)], at(3))
+        })
+        .unzip();
+    Some((Image::from_pixels(w, h, rgb)?, opacity))
+}
+
 /// Composites the frames of a step's bricks, all rendered from `camera` at `width × height`
 /// (whole or as windows, [`BrickFrame::origin`]), into the frame of the whole domain and its
 /// opacity: per pixel, front to back in the order in which the pixel's ray enters the

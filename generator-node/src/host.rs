@@ -31,7 +31,9 @@ use crate::config::HostConfig;
 use crate::shared::Shared;
 use crate::work::Product;
 use bytes::Bytes;
-use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, PixelLists};
+use insitu_core::compose::{
+    compose_frames, compose_vdis, frame_from_le_bytes, frame_to_le_bytes, BrickFrame, PixelLists,
+};
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::window::VdiWindow;
 use insitu_core::vdi::{Supersegment, VdiMeta};
@@ -195,7 +197,7 @@ impl Finished {
             (None, Some((_, bytes))) => {
                 let per_view = size.0 as usize * size.1 as usize * 16;
                 let view = bytes.get(v * per_view..(v + 1) * per_view)?;
-                let (image, opacity) = packed::rgba_frame(view, size)?;
+                let (image, opacity) = frame_from_le_bytes(view, size)?;
                 Some(([0, 0], image, opacity))
             }
             (None, None) => None,
@@ -641,7 +643,7 @@ fn compose_references(
                     source,
                 }
             })?;
-        out.extend(crate::work::rgba_f32_le(&image, &opacity));
+        out.extend(frame_to_le_bytes(&image, &opacity));
     }
     let header = pb::ReferenceHeader {
         total_bytes: out.len() as u64,
@@ -661,7 +663,7 @@ mod tests {
     const GLOBAL: [usize; 3] = [17, 13, 11];
 
     fn rgba_frame(bytes: &[u8], size: (u32, u32)) -> (Image, Vec<f32>) {
-        packed::rgba_frame(bytes, size).unwrap()
+        frame_from_le_bytes(bytes, size).unwrap()
     }
 
     fn whole() -> Volume {
@@ -703,7 +705,7 @@ mod tests {
                 .flat_map(|&a| {
                     let (image, opacity) =
                         dvr::render_with_opacity(&rc, &camera.orbit_y(a), 24, 24);
-                    crate::work::rgba_f32_le(&image, &opacity).collect::<Vec<u8>>()
+                    frame_to_le_bytes(&image, &opacity).collect::<Vec<u8>>()
                 })
                 .collect();
             let header = pb::ReferenceHeader {

@@ -2,7 +2,7 @@
 //! recorded in the spool, read into [`Generation`] (all or nothing) and written back.
 
 use crate::config::Generation;
-use insitu_core::raycast::RaycastParams;
+use insitu_core::raycast::{RaycastParams, Shading};
 use insitu_core::VdiParams;
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, tf_from_json};
 use insitu_proto::pb;
@@ -27,6 +27,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         reference_size: Some(g.reference_size),
         field: Some(g.field.clone().unwrap_or_default()),
         scene_version: Some(g.scene_version),
+        shading: Some(g.raycast.shading.is_some()),
     }
 }
 
@@ -53,6 +54,7 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     next.raycast = RaycastParams {
         step: c.step.unwrap_or(g.raycast.step),
         termination: c.termination.unwrap_or(g.raycast.termination),
+        shading: shading(c.shading, g.raycast.shading),
         ..g.raycast
     };
     next.raycast
@@ -162,7 +164,24 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
                 .map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
         );
     }
+    next.raycast = RaycastParams {
+        step: s.step.unwrap_or(g.raycast.step),
+        shading: shading(s.shading, g.raycast.shading),
+        ..g.raycast
+    };
+    next.raycast
+        .validate()
+        .map_err(|e| format!("scene {}: sample distance: {e}", s.version))?;
     Ok(next)
+}
+
+/// Shading as asked (`Some(on)`), else as it was.
+fn shading(asked: Option<bool>, was: Option<Shading>) -> Option<Shading> {
+    match asked {
+        Some(true) => Some(was.unwrap_or_default()),
+        Some(false) => None,
+        None => was,
+    }
 }
 
 #[cfg(test)]
@@ -205,6 +224,8 @@ mod tests {
             tf_name: Some("steered".into()),
             field: Some(field.into()),
             camera: None,
+            step: None,
+            shading: None,
         }
     }
 
@@ -251,6 +272,39 @@ mod tests {
         assert_eq!(held_new.scene_version, 1);
         // Unnamed or unknown (read back from the spool): the scene in force for the step.
         assert_eq!(next.for_step_holding(11, None).scene_version, 1);
+    }
+
+    #[test]
+    fn a_steered_sample_distance_and_shading_apply_from_the_switch_and_survive_the_spool() {
+        let g = configured();
+        assert!(
+            g.raycast.shading.is_none(),
+            "emission–absorption by default"
+        );
+        let mut s = scene(1, "u");
+        s.step = Some(0.25);
+        s.shading = Some(true);
+        let next = decided(&g, &decision(1, 10, Some(s)), 0).unwrap();
+        let before = next.clone().for_step(9);
+        let after = next.clone().for_step(10);
+        assert_eq!(before.raycast, g.raycast);
+        assert_eq!(after.raycast.step, 0.25);
+        assert!(after.raycast.shading.is_some());
+        assert_eq!(after.raycast.termination, g.raycast.termination);
+        let back = apply_config(&configured(), &to_pb(&after)).unwrap();
+        assert_eq!(back.raycast, after.raycast);
+        // Shading off again; the step kept.
+        let mut off = scene(2, "u");
+        off.shading = Some(false);
+        let later = decided(&after, &decision(2, 20, Some(off)), 0)
+            .unwrap()
+            .for_step(20);
+        assert!(later.raycast.shading.is_none());
+        assert_eq!(later.raycast.step, 0.25);
+        let mut bad = scene(3, "u");
+        bad.step = Some(-1.0);
+        let e = decided(&later, &decision(3, 30, Some(bad)), 0).unwrap_err();
+        assert!(e.contains("scene 3: sample distance"), "{e}");
     }
 
     #[test]

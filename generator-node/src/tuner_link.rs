@@ -225,15 +225,29 @@ async fn trials(
 /// Acts on one message from the tuner (of stream `epoch`) and returns the reply it needs now:
 /// a hold answered; a trial queued for the worker, or refused at once when more than
 /// `TRIAL_BACKLOG` wait (the tuner fails that trial) instead of queued without bound; a
-/// decision applied or refused, and acknowledged either way.
+/// decision applied or refused, and acknowledged either way; a preview rendered
+/// ([`crate::preview`]), its frames sent to `previews`.
 fn answer(
     shared: &Arc<Shared>,
-    tuning: &Tuning,
+    tuning: &Arc<Tuning>,
     trial_tx: &mpsc::Sender<(u64, pb::TrialRequest)>,
+    previews: &mpsc::Sender<pb::PreviewFrame>,
     epoch: u64,
     m: Option<Down>,
 ) -> Option<Up> {
     match m? {
+        Down::Preview(p) => {
+            // Interactive and rare: rendered at once beside production, not queued behind it.
+            let (tuning, tx) = (tuning.clone(), previews.clone());
+            tokio::task::spawn_blocking(move || {
+                for f in crate::preview::render(&tuning.holds, &p) {
+                    if tx.blocking_send(f).is_err() {
+                        break;
+                    }
+                }
+            });
+            None
+        }
         Down::Hold(h) => {
             tuning.holds.answer(h.step, h.keep);
             None
@@ -380,6 +394,7 @@ impl Link {
         tuning.set_connected(true);
         info!(uri = %self.peer.uri(), "connected to the tuner");
         let closed = |_| "tuner stream closed".to_owned();
+        let (previews, mut preview_rx) = mpsc::channel(16);
         loop {
             tokio::select! {
                 s = summaries.recv() => match s {
@@ -391,9 +406,10 @@ impl Link {
                         out.send(send(Up::Trial(r))).await.map_err(closed)?;
                     }
                 }
+                Some(f) = preview_rx.recv() => out.send(send(Up::Preview(f))).await.map_err(closed)?,
                 m = incoming.message() => {
                     let m = m.map_err(|e| e.message().to_owned())?.ok_or("the tuner ended the stream")?;
-                    if let Some(reply) = answer(shared, tuning, trial_tx, epoch, m.msg) {
+                    if let Some(reply) = answer(shared, tuning, trial_tx, &previews, epoch, m.msg) {
                         out.send(send(reply)).await.map_err(closed)?;
                     }
                 }

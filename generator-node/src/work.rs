@@ -6,6 +6,7 @@ use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
 use insitu_core::backend::{Attempt, BackendError, Scene};
+use insitu_core::compose::frame_to_le_bytes;
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
 use insitu_core::vdi::generate::Progress;
@@ -372,7 +373,7 @@ fn references(
         Ok(if opacity {
             render_references_with_opacity(scene, camera, views, size)
                 .iter()
-                .flat_map(|(image, alpha)| rgba_f32_le(image, alpha))
+                .flat_map(|(image, alpha)| frame_to_le_bytes(image, alpha))
                 .collect()
         } else {
             render_references(scene, camera, views, size)?
@@ -393,16 +394,6 @@ fn references(
         covers: Vec::new(),
     };
     Ok((header, Bytes::from(bytes)))
-}
-
-/// RGB and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel).
-pub(crate) fn rgba_f32_le<'a>(image: &'a Image, alpha: &'a [f32]) -> impl Iterator<Item = u8> + 'a {
-    image
-        .pixels()
-        .iter()
-        .zip(alpha)
-        .flat_map(|(c, a)| [c[0], c[1], c[2], *a])
-        .flat_map(f32::to_le_bytes)
 }
 
 /// The tuner's view of a finished production step: its summary (64-bin histogram over the

@@ -2,9 +2,10 @@
 
 //! The generator-node's side of the tuner stream, against a scripted tuner on loopback: the
 //! node dials out and says hello, summarises every step (64 bins over the TF's domain), runs a
-//! trial on a claimed step with the viz-node's scoring, refuses politely a trial on a step it
-//! does not hold and a decision that is not newer than its own, and applies a good decision
-//! from the next step, stamping its version.
+//! trial on a claimed step with the viz-node's scoring, renders a preview of another transfer
+//! function on it, refuses politely a trial on a step it does not hold and a decision that is
+//! not newer than its own, and applies a good decision from the next step, stamping its
+//! version.
 
 use insitu_generator_node::{start, Config};
 use insitu_proto::pb::node_message::Msg as Up;
@@ -72,6 +73,13 @@ impl Tuner for Scripted {
         &self,
         _: Request<pb::SteerRequest>,
     ) -> Result<Response<pb::SteerReply>, Status> {
+        Err(Status::unimplemented("scripted"))
+    }
+
+    async fn preview(
+        &self,
+        _: Request<pb::PreviewRequest>,
+    ) -> Result<Response<pb::PreviewReply>, Status> {
         Err(Status::unimplemented("scripted"))
     }
 }
@@ -205,6 +213,32 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         "references are rendered once per step"
     );
     assert_eq!(again.view_mse, r.view_mse, "trials are deterministic");
+    // A preview of another transfer function on the claimed step: its window, answered on
+    // the stream; one of a step not held, refused with why.
+    let preview = |id, step| {
+        Down::Preview(pb::PreviewRequest {
+            preview_id: id,
+            step: Some(step),
+            tf_json: r#"{"domain":[0,1],"points":[[0,0,0,1,0],[1,0,0,1,0.9]]}"#.into(),
+            camera: None,
+            size: 32,
+        })
+    };
+    send(&down, preview(8, 0));
+    let Up::Preview(f) = next(&mut up).await else {
+        panic!("expected a preview frame")
+    };
+    assert!(f.error.is_empty(), "{}", f.error);
+    assert_eq!((f.preview_id, f.step, f.rank), (8, 0, 0));
+    assert!(f.width > 0 && f.width <= 32 && !f.rgba_zstd.is_empty());
+    send(&down, preview(9, 77));
+    let Up::Preview(f) = next(&mut up).await else {
+        panic!("expected a preview frame")
+    };
+    assert_eq!(
+        (f.preview_id, f.error.as_str()),
+        (9, "step 77 is not held here")
+    );
     // A size probe: the same σ and supersegments, no views and no scoring.
     send(
         &down,

@@ -387,10 +387,22 @@ impl Engine {
                 s.highest_seen = h.pm_version;
                 self.save(&s);
             }
-            s.current().map(|d| s.message(d))
+            let before = s.decisions.len().checked_sub(2).map(|i| {
+                let mut m = s.message(&s.decisions[i]);
+                m.from_step = 0;
+                m
+            });
+            (before, s.current().map(|d| s.message(d)))
         };
         info!(node = %h.node_id, pm_version = h.pm_version, r = h.resolution, gamma = h.gamma, held = h.held.len(), "node attached");
+        let (before, current) = current;
         if let Some(d) = current.filter(|d| d.pm_version > h.pm_version) {
+            // A node that holds neither (a restart): the decision before first, in force for
+            // every step before the current one's switch, so that a step it receives late is
+            // made with the P_M and scene its other ranks were made with.
+            if let Some(b) = before.filter(|b| b.pm_version > h.pm_version && d.from_step > 0) {
+                self.hub.send(conn, Down::Decision(b));
+            }
             self.hub.send(conn, Down::Decision(d));
         }
     }
@@ -1488,6 +1500,46 @@ mod tests {
         let standings: Vec<&str> = st.steering.iter().map(|r| r.state.as_str()).collect();
         assert_eq!(standings, ["superseded", "applied"]);
         assert_eq!(st.scene.unwrap().version, 2);
+    }
+
+    #[test]
+    fn a_node_that_attaches_after_a_change_gets_the_decision_before_it_for_the_steps_before_its_switch(
+    ) {
+        use insitu_proto::pb::tuner_message::Msg as Down;
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        l.summary(1, named(summary(1, 3, 900, 1), 0));
+        let reply = l
+            .steer(pb::SteerRequest {
+                field: Some("v".into()),
+                ..Default::default()
+            })
+            .unwrap();
+        assert!(reply.from_step > 0);
+        let attach = |pm_version: u64| {
+            let (tx, mut rx) = tokio::sync::mpsc::channel(16);
+            let conn = l.engine.hub.connect("n", tx);
+            l.engine.hello(
+                conn,
+                &pb::NodeHello {
+                    pm_version,
+                    ..Default::default()
+                },
+            );
+            std::iter::from_fn(|| rx.try_recv().ok())
+                .filter_map(|m| match m.ok()?.msg {
+                    Some(Down::Decision(d)) => Some(d),
+                    _ => None,
+                })
+                .map(|d| (d.pm_version, d.from_step, d.scene.map(|s| s.version)))
+                .collect::<Vec<_>>()
+        };
+        // A restarted node: v1 for every step before the switch (no scene: the node's own),
+        // then the steered v2 from its step.
+        assert_eq!(attach(0), [(1, 0, None), (2, reply.from_step, Some(1))]);
+        // A node that reconnects holding v1 needs only v2; one holding v2, nothing.
+        assert_eq!(attach(1), [(2, reply.from_step, Some(1))]);
+        assert_eq!(attach(2), []);
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! The connected generator-nodes: their streams, which (step, rank) fields each holds, and the
-//! trials in flight. A node's disconnection fails its trials at once (their data is gone with
+//! trials and previews in flight. A node's disconnection fails its trials at once (their data is gone with
 //! it) instead of letting them run into the timeout.
 
 use crate::check::check_trial_result;
@@ -58,6 +58,16 @@ struct Pending {
     reply: oneshot::Sender<TrialReply>,
 }
 
+/// What a finished preview sends back: every rank's frame, or why it failed.
+pub type PreviewReply = Result<Vec<pb::PreviewFrame>, String>;
+
+struct PendingPreview {
+    /// rank → the connection asked for it.
+    ranks: BTreeMap<u32, u64>,
+    frames: Vec<pb::PreviewFrame>,
+    reply: oneshot::Sender<PreviewReply>,
+}
+
 #[derive(Default)]
 struct Inner {
     nodes: HashMap<u64, Node>,
@@ -65,6 +75,7 @@ struct Inner {
     /// step → rank → connection holding it.
     holders: BTreeMap<u64, BTreeMap<u32, u64>>,
     pending: HashMap<u64, Pending>,
+    previews: HashMap<u64, PendingPreview>,
 }
 
 /// The registry.
@@ -118,6 +129,20 @@ impl Hub {
                     message: format!("node {} disconnected during trial {id}", node.id),
                     step_lost: true,
                 }));
+            }
+        }
+        let lost: Vec<u64> = i
+            .previews
+            .iter()
+            .filter(|(_, p)| p.ranks.values().any(|&c| c == conn))
+            .map(|(&id, _)| id)
+            .collect();
+        for id in lost {
+            if let Some(p) = i.previews.remove(&id) {
+                let _ = p.reply.send(Err(format!(
+                    "node {} disconnected during the preview",
+                    node.id
+                )));
             }
         }
         Some(node.id)
@@ -280,6 +305,102 @@ impl Hub {
             }
         }
         Ok(())
+    }
+
+    /// The newest step every one of whose `world_size` ranks a connected node holds.
+    pub fn newest_whole(&self, world_size: u32) -> Option<u64> {
+        self.inner()
+            .holders
+            .iter()
+            .rev()
+            .find(|(_, r)| r.len() >= world_size as usize)
+            .map(|(&step, _)| step)
+    }
+
+    /// Asks the nodes holding `req.step` (all `world_size` ranks of it) to render the
+    /// preview `req` (its `preview_id` is given here).
+    ///
+    /// # Errors
+    /// [`NotHeld`] when some rank is held by no connected node.
+    pub fn request_preview(
+        &self,
+        mut req: pb::PreviewRequest,
+        world_size: u32,
+    ) -> Result<(u64, oneshot::Receiver<PreviewReply>), NotHeld> {
+        let step = req.step.unwrap_or_default();
+        let mut i = self.inner();
+        let ranks = i.holders.get(&step).cloned().unwrap_or_default();
+        if ranks.len() < world_size as usize {
+            return Err(NotHeld::Ranks {
+                step,
+                held: ranks.len(),
+                world_size,
+            });
+        }
+        let id = self.next_trial.fetch_add(1, Ordering::Relaxed) + 1;
+        req.preview_id = id;
+        let conns: BTreeSet<u64> = ranks.values().copied().collect();
+        for conn in &conns {
+            if let Some(n) = i.nodes.get(conn) {
+                let _ = n.tx.try_send(msg(Down::Preview(req.clone())));
+            }
+        }
+        let (reply, rx) = oneshot::channel();
+        i.previews.insert(
+            id,
+            PendingPreview {
+                ranks,
+                frames: Vec::new(),
+                reply,
+            },
+        );
+        Ok((id, rx))
+    }
+
+    /// A rank's preview frame from `conn`; the preview completes when every rank has
+    /// answered, or fails at the first error, a rank not asked of `conn` or answered twice.
+    ///
+    /// # Errors
+    /// A message for the node when the preview is unknown (finished or abandoned) or the
+    /// frame answers what was not asked.
+    pub fn preview_frame(&self, conn: u64, f: pb::PreviewFrame) -> Result<(), String> {
+        let mut i = self.inner();
+        let id = f.preview_id;
+        let Some(p) = i.previews.get_mut(&id) else {
+            return Err(format!(
+                "preview {id} is unknown (finished, or abandoned after a timeout)"
+            ));
+        };
+        let problem = if !f.error.is_empty() {
+            Some(format!("step {} rank {}: {}", f.step, f.rank, f.error))
+        } else if p.ranks.get(&f.rank) != Some(&conn) {
+            Some(format!(
+                "preview {id}: rank {} was not asked of this node",
+                f.rank
+            ))
+        } else if p.frames.iter().any(|x| x.rank == f.rank) {
+            Some(format!("preview {id}: rank {} answered twice", f.rank))
+        } else {
+            None
+        };
+        if let Some(problem) = problem {
+            if let Some(p) = i.previews.remove(&id) {
+                let _ = p.reply.send(Err(problem));
+            }
+            return Ok(());
+        }
+        p.frames.push(f);
+        if p.frames.len() >= p.ranks.len() {
+            if let Some(p) = i.previews.remove(&id) {
+                let _ = p.reply.send(Ok(p.frames));
+            }
+        }
+        Ok(())
+    }
+
+    /// Gives up on a preview (timeout); a late frame is then refused as unknown.
+    pub fn abandon_preview(&self, id: u64) {
+        self.inner().previews.remove(&id);
     }
 
     /// Gives up on a trial (timeout); a late result is then refused as unknown.

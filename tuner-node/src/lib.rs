@@ -18,6 +18,7 @@ pub mod config;
 pub mod engine;
 pub mod hub;
 pub mod node;
+pub mod preview;
 pub mod service;
 pub mod state;
 pub mod steer;

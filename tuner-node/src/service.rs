@@ -1,4 +1,5 @@
-//! The `Tuner` gRPC service: the generator-nodes' `Attach` streams, status and decisions.
+//! The `Tuner` gRPC service: the generator-nodes' `Attach` streams, status, decisions,
+//! steering and previews.
 
 use crate::check::check_summary;
 use crate::engine::{Engine, Event};
@@ -68,6 +69,11 @@ impl Tuner for TunerService {
                             refuse(problem);
                         }
                     }
+                    Some(Up::Preview(f)) => {
+                        if let Err(problem) = e.hub.preview_frame(conn, f) {
+                            refuse(problem);
+                        }
+                    }
                     Some(Up::Ack(a)) if !a.error.is_empty() => {
                         warn!(pm_version = a.pm_version, error = %a.error, "a node refused a decision");
                     }
@@ -131,6 +137,15 @@ impl Tuner for TunerService {
         self.0.event(Event::Steer(req, tx)).await;
         rx.await
             .map_err(|_| Status::unavailable("the tuner is stopping"))?
+            .map(Response::new)
+    }
+
+    async fn preview(
+        &self,
+        request: Request<pb::PreviewRequest>,
+    ) -> Result<Response<pb::PreviewReply>, Status> {
+        crate::preview::preview(&self.0, request.into_inner())
+            .await
             .map(Response::new)
     }
 }

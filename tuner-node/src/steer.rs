@@ -61,6 +61,12 @@ pub struct SceneState {
     pub field: Option<String>,
     /// The generation camera.
     pub camera: Option<CameraSpec>,
+    /// The ray-casting sample distance, world units.
+    #[serde(default)]
+    pub step: Option<f32>,
+    /// Gradient shading on.
+    #[serde(default)]
+    pub shading: Option<bool>,
 }
 
 impl SceneState {
@@ -72,6 +78,8 @@ impl SceneState {
             tf_name: self.tf_name.clone(),
             field: self.field.clone(),
             camera: self.camera.as_ref().map(|c| camera_to_pb(&c.camera())),
+            step: self.step,
+            shading: self.shading,
         }
     }
 }
@@ -142,6 +150,8 @@ pub struct Domain {
     pub fields: Vec<String>,
     /// The whole domain's box, when the nodes report it.
     pub bounds: Option<Aabb>,
+    /// Ranks of the newest step (what a preview waits for).
+    pub world_size: u32,
     /// The newest step whose ranks were all summarised (what the viewer's editor draws
     /// under the curve).
     pub histogram: Option<StepHistogram>,
@@ -165,6 +175,7 @@ impl Domain {
     /// Learns from a step summary.
     pub fn saw(&mut self, s: &pb::StepSummary) {
         self.seen = true;
+        self.world_size = s.world_size.max(1);
         self.fields.clone_from(&s.fields);
         if let (Some(min), Some(max)) = (
             vec3_from_pb(s.box_min.as_ref()),
@@ -176,6 +187,10 @@ impl Domain {
         }
     }
 }
+
+/// The most samples a steered sample distance may take along the domain's diagonal (a
+/// guard against a typo that would stall every node: 65 536 samples per ray).
+pub const MAX_SAMPLES_PER_RAY: f32 = 65_536.0;
 
 /// A checked steering request.
 #[derive(Clone, Debug, PartialEq)]
@@ -196,8 +211,9 @@ pub struct Change {
 /// A message naming the bad part and why: a transfer function over
 /// [`insitu_proto::convert::MAX_TF_JSON`] or that
 /// does not parse, a field the steps do not carry (or before any step named its fields), a
-/// degenerate camera or one whose eye lies inside the domain's box, an empty utility, or a
-/// request that changes nothing.
+/// degenerate camera or one whose eye lies inside the domain's box, a sample distance not
+/// finite and > 0, longer than the domain's diagonal or taking more than
+/// [`MAX_SAMPLES_PER_RAY`] along it, an empty utility, or a request that changes nothing.
 pub fn check(
     req: &pb::SteerRequest,
     scene: &SceneState,
@@ -242,6 +258,32 @@ pub fn check(
         ));
         next.camera = Some(CameraSpec::of(&cam));
     }
+    if let Some(step) = req.step {
+        if !(step.is_finite() && step > 0.0) {
+            return Err(format!(
+                "step: the sample distance {step} is not a finite length > 0"
+            ));
+        }
+        if let Some(b) = domain.bounds {
+            let diagonal = (b.max - b.min).length();
+            if step > diagonal {
+                return Err(format!(
+                    "step: the sample distance {step} is longer than the domain's diagonal {diagonal}; rays would take at most one sample"
+                ));
+            }
+            if step * MAX_SAMPLES_PER_RAY < diagonal {
+                return Err(format!(
+                    "step: the sample distance {step} would take more than {MAX_SAMPLES_PER_RAY} samples along the domain's diagonal {diagonal}"
+                ));
+            }
+        }
+        words.push(format!("sample distance {step}"));
+        next.step = Some(step);
+    }
+    if let Some(on) = req.shading {
+        words.push(format!("shading {}", if on { "on" } else { "off" }));
+        next.shading = Some(on);
+    }
     let utility = match &req.utility {
         Some(u) if u.trim().is_empty() => return Err("utility: empty".into()),
         Some(u) => {
@@ -252,7 +294,7 @@ pub fn check(
     };
     if words.is_empty() {
         return Err(
-            "nothing to change: give a transfer function, a field, a camera or a utility".into(),
+            "nothing to change: give a transfer function, a field, a camera, a sample distance, shading or a utility".into(),
         );
     }
     let scene_changes = next != *scene;
@@ -298,6 +340,7 @@ mod tests {
                 min: Vec3::ZERO,
                 max: Vec3::splat(10.0),
             }),
+            world_size: 1,
             histogram: None,
         }
     }
@@ -359,6 +402,41 @@ mod tests {
         .unwrap();
         assert_eq!(c.scene, None);
         assert_eq!(c.utility.as_deref(), Some("size:1MB"));
+    }
+
+    #[test]
+    fn sample_distance_and_shading_are_scene_parts() {
+        let scene = SceneState {
+            version: 2,
+            shading: Some(false),
+            ..SceneState::default()
+        };
+        let c = check(
+            &pb::SteerRequest {
+                step: Some(0.25),
+                shading: Some(true),
+                ..Default::default()
+            },
+            &scene,
+            &domain(),
+        )
+        .unwrap();
+        let next = c.scene.unwrap();
+        assert_eq!((next.step, next.shading), (Some(0.25), Some(true)));
+        assert_eq!(c.words, "sample distance 0.25; shading on");
+        let pb = next.to_pb();
+        assert_eq!((pb.step, pb.shading), (Some(0.25), Some(true)));
+        // Shading off again when it is off is no scene change.
+        let c = check(
+            &pb::SteerRequest {
+                shading: Some(false),
+                ..Default::default()
+            },
+            &scene,
+            &domain(),
+        )
+        .unwrap();
+        assert_eq!(c.scene, None);
     }
 
     #[test]
@@ -431,6 +509,24 @@ mod tests {
         assert!(e.contains("tf_name without tf_json"), "{e}");
         let e = refused(pb::SteerRequest::default(), &d);
         assert!(e.starts_with("nothing to change"), "{e}");
+        // The box's diagonal is 10·√3 ≈ 17.3.
+        for (step, why) in [
+            (0.0, "not a finite length > 0"),
+            (-1.0, "not a finite length > 0"),
+            (f32::NAN, "not a finite length > 0"),
+            (f32::INFINITY, "not a finite length > 0"),
+            (18.0, "longer than the domain's diagonal"),
+            (1e-4, "more than 65536 samples"),
+        ] {
+            let e = refused(
+                pb::SteerRequest {
+                    step: Some(step),
+                    ..Default::default()
+                },
+                &d,
+            );
+            assert!(e.starts_with("step:") && e.contains(why), "{step}: {e}");
+        }
         let e = refused(
             pb::SteerRequest {
                 utility: Some("  ".into()),

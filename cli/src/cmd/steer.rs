@@ -1,5 +1,5 @@
-//! `insitu steer`: changes the running scene (transfer function, field, generation camera) or
-//! the tuner's utility through a viz-node's steering API (`POST /api/steer`,
+//! `insitu steer`: changes the running scene (transfer function, field, generation camera,
+//! sample distance, shading) or the tuner's utility through a viz-node's steering API (`POST /api/steer`,
 //! docs/steering.md), or shows the scene in force and the steering history (`--show`).
 
 use anyhow::{bail, Context, Result};
@@ -7,12 +7,10 @@ use bytes::Bytes;
 use http_body_util::{BodyExt, Full};
 use hyper_util::client::legacy::Client;
 use hyper_util::rt::TokioExecutor;
+use insitu_viz_node::node::STEER_TOKEN_ENV;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Duration;
-
-/// The environment variable holding the steering token when `--token-file` is not given.
-const STEER_TOKEN_ENV: &str = "INSITU_STEER_TOKEN";
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -37,11 +35,17 @@ pub struct Args {
     /// The tuner's utility, e.g. `size:1MB`, `time:0.5s`, `quality:40dB`.
     #[arg(long)]
     utility: Option<String>,
+    /// The ray-casting sample distance, world units (finer: better q, longer τ).
+    #[arg(long)]
+    step: Option<f32>,
+    /// Gradient shading `on` or `off` (off: emission–absorption only).
+    #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
+    shading: Option<bool>,
     /// File holding the steering token (else INSITU_STEER_TOKEN).
     #[arg(long)]
     token_file: Option<PathBuf>,
     /// Print the scene in force and the steering history; change nothing.
-    #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility"])]
+    #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility", "step", "shading"])]
     show: bool,
 }
 
@@ -120,8 +124,14 @@ fn body(a: &Args) -> Result<Value> {
     if let Some(u) = &a.utility {
         b.insert("utility".into(), u.clone().into());
     }
+    if let Some(step) = a.step {
+        b.insert("step".into(), step.into());
+    }
+    if let Some(on) = a.shading {
+        b.insert("shading".into(), on.into());
+    }
     if b.is_empty() {
-        bail!("nothing to steer: give --tf, --field, --camera or --utility (or --show)");
+        bail!("nothing to steer: give --tf, --field, --camera, --step, --shading or --utility (or --show)");
     }
     Ok(Value::Object(b))
 }

@@ -4,7 +4,7 @@
 //! views × side² × 16 B, and composing decompresses only the windows.
 
 use bytes::Bytes;
-use insitu_core::compose::frame_window;
+use insitu_core::compose::{frame_from_le_bytes, frame_to_le_bytes, frame_window};
 use insitu_core::Image;
 use insitu_proto::pb;
 
@@ -39,7 +39,7 @@ impl PackedFrames {
             .chunks_exact(per_view)
             .map(|view| {
                 let (origin, image, opacity) = frame_window((w, h), |p| rgba_at(view, p));
-                let raw: Vec<u8> = crate::work::rgba_f32_le(&image, &opacity).collect();
+                let raw: Vec<u8> = frame_to_le_bytes(&image, &opacity).collect();
                 // zstd's buffer is sized for the worst case: kept, it would hold that much
                 // memory per waiting rank.
                 let mut zstd = zstd::bulk::compress(&raw, 1).ok()?;
@@ -68,7 +68,7 @@ impl PackedFrames {
     pub fn window(&self, v: usize) -> Option<Window> {
         let view = self.views.get(v)?;
         let bytes = self.raw(view)?;
-        let (image, opacity) = rgba_frame(&bytes, view.size)?;
+        let (image, opacity) = frame_from_le_bytes(&bytes, view.size)?;
         Some((view.origin, image, opacity))
     }
 
@@ -107,23 +107,6 @@ fn rgba_at(bytes: &[u8], p: usize) -> [f32; 4] {
         f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
     };
     [at(0), at(1), at(2), at(3)]
-}
-
-/// A frame of `w × h` RGBA little-endian f32 as an image and its opacity plane; `None` when
-/// the bytes are not that many pixels.
-pub fn rgba_frame(bytes: &[u8], (w, h): (u32, u32)) -> Option<(Image, Vec<f32>)> {
-    if bytes.len() != w as usize * h as usize * 16 {
-        return None;
-    }
-    let pixels = bytes.len() / 16;
-    let rgb = (0..pixels)
-        .map(|p| {
-            let [r, g, b, _] = rgba_at(bytes, p);
-            [r, g, b]
-        })
-        .collect();
-    let opacity = (0..pixels).map(|p| rgba_at(bytes, p)[3]).collect();
-    Some((Image::from_pixels(w, h, rgb)?, opacity))
 }
 
 #[cfg(test)]

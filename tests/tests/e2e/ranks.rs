@@ -177,7 +177,7 @@ fn hosts_composing_first_store_the_one_level_picture_and_q() {
 }
 
 /// Rank `rank`'s brick `b` of a 33³ grid of soft blobs, as a simulation would push it.
-fn blob_step(step: u64, rank: u32, world_size: u32, b: Brick) -> Step {
+pub(crate) fn blob_step(step: u64, rank: u32, world_size: u32, b: Brick) -> Step {
     let value = |x: usize, y: usize, z: usize| {
         let d2 = |c: [f32; 3], s: f32| {
             let d = [x as f32 - c[0], y as f32 - c[1], z as f32 - c[2]];

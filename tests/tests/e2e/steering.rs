@@ -1,15 +1,18 @@
 //! Steering (docs/steering.md) with every daemon a real process on 127.0.0.1: a viz-node
-//! with a steering token in front of a tuner-node and a generator-node; the transfer function,
-//! the field and the generation camera changed through the viewer's JSON API and the CLI,
-//! applied from the step the tuner names, recorded with each step, kept by a generator-node
-//! restarted after the change; bad requests refused with nothing changed.
+//! with a steering token in front of a tuner-node and one or two generator-nodes; the
+//! transfer function, the field, the generation camera, the sample distance and shading
+//! changed through the viewer's JSON API, the CLI and the page, applied from the step the
+//! tuner names on every rank, recorded with each step, kept by a generator-node restarted
+//! after the change; bad requests refused with nothing changed.
 
-use crate::common::{field, flush, free_port, index, load_vdi, status};
+use crate::common::{field, flush, free_port, index, load_vdi, status, steps};
+use crate::ranks::blob_step;
 use crate::tuned::{tuned_generator, tuner, tuner_status};
 use crate::viewer::{http, post};
 use insitu_client::{Field, SimClient, Step};
+use insitu_core::metrics::psnr;
 use insitu_core::vdi::render::render;
-use insitu_core::{Camera, Image};
+use insitu_core::{Camera, Image, RaycastParams, Raycaster, TransferFunction, Volume};
 
 use insitu_e2e::{bin, rt, wait_until, Daemon};
 use serde_json::Value;
@@ -61,6 +64,14 @@ fn steered(http_addr: &str, gen: &str, body: &str) -> Value {
 fn render_at(rec: &Path, step: u64, camera: &Camera) -> Image {
     let e = index(rec).into_iter().find(|e| e.step == step).unwrap();
     render(&load_vdi(rec, &e), camera, 64, 64, 0.99)
+}
+
+/// [`render_at`] of a composed step (every rank).
+fn render_composed(rec: &Path, step: u64, camera: &Camera) -> Image {
+    let s = steps(rec).into_iter().find(|s| s.step == step).unwrap();
+    let bytes = std::fs::read(rec.join(s.vdi.unwrap())).unwrap();
+    let vdi = insitu_core::vdi::codec::decode(&bytes, &Default::default()).unwrap();
+    render(&vdi, camera, 64, 64, 0.99)
 }
 
 /// Mean absolute difference per channel.
@@ -314,6 +325,218 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
     v.terminate();
 }
 
+/// `POST /api/preview` with the steering token: the step rendered, the ranks composed and
+/// the picture.
+fn preview(addr: &str, body: &str) -> (u64, u32, Image) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(60)))
+        .unwrap();
+    write!(
+        s,
+        "POST /api/preview HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nAuthorization: Bearer {STEER_TOKEN}\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).unwrap();
+    let split = out.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let (head, png) = (String::from_utf8_lossy(&out[..split]), &out[split + 4..]);
+    assert!(
+        head.starts_with("HTTP/1.1 200"),
+        "{head}\n{}",
+        String::from_utf8_lossy(png)
+    );
+    let header = |name: &str| -> String {
+        head.lines()
+            .find_map(|l| {
+                let (k, v) = l.split_once(':')?;
+                k.eq_ignore_ascii_case(name).then(|| v.trim().to_owned())
+            })
+            .unwrap_or_else(|| panic!("no {name} in {head}"))
+    };
+    let rgb = image::load_from_memory(png).unwrap().to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let px = rgb
+        .pixels()
+        .map(|p| p.0.map(|v| f32::from(v) / 255.0))
+        .collect();
+    (
+        header("x-insitu-step").parse().unwrap(),
+        header("x-insitu-ranks").parse().unwrap(),
+        Image::from_pixels(w, h, px).unwrap(),
+    )
+}
+
+/// The reference DVR of `volume` with the transfer function `tf_json` at `camera` (64²),
+/// sampled as the VDI `like` was made.
+fn dvr_like(
+    volume: &Volume,
+    tf_json: &str,
+    like: &insitu_core::vdi::VdiMeta,
+    camera: &Camera,
+) -> Image {
+    let tf = TransferFunction::from_json(tf_json, "reference").unwrap();
+    let params = RaycastParams {
+        step: like.step,
+        termination: like.termination,
+        ..RaycastParams::default()
+    };
+    insitu_core::dvr::render(
+        &Raycaster::new(volume, &tf, params).unwrap(),
+        camera,
+        64,
+        64,
+    )
+}
+
+/// Pushes steps `range` of the 33³ blobs from 4 ranks (2 × 2 × 1 bricks), ranks 0–1 to the
+/// generator-node at `hosts[0]` and 2–3 to `hosts[1]`, each rank from its own client, and
+/// flushes them.
+fn push_four_ranks(hosts: [&str; 2], range: std::ops::Range<u64>) {
+    let bricks = insitu_core::volume::bricks::grid_bricks([33; 3], [2, 2, 1]).unwrap();
+    rt().block_on(async {
+        let mut tasks = Vec::new();
+        for (rank, b) in bricks.into_iter().enumerate() {
+            let (addr, range) = (hosts[rank / 2].to_owned(), range.clone());
+            tasks.push(tokio::spawn(async move {
+                let mut c = SimClient::connect(&addr, None).await.unwrap();
+                for step in range {
+                    c.push_step(blob_step(step, rank as u32, 4, b))
+                        .await
+                        .unwrap();
+                }
+                c.flush(std::time::Duration::from_secs(120)).await.unwrap();
+            }));
+        }
+        for t in tasks {
+            t.await.unwrap();
+        }
+    });
+}
+
+/// Waits until steps `0..end` are stored whole (every rank composed) and returns them.
+fn whole_steps(rec: &Path, end: u64) -> Vec<insitu_viz_node::rows::StepEntry> {
+    let whole = |s: &insitu_viz_node::rows::StepEntry| {
+        s.missing.is_empty() && s.error.is_none() && s.vdi.is_some()
+    };
+    let done = wait_until(60.0, || {
+        let s = steps(rec);
+        (0..end).all(|k| s.iter().any(|e| e.step == k && whole(e)))
+    });
+    assert!(done, "steps 0..{end} not all whole: {:?}", steps(rec));
+    steps(rec)
+}
+
+/// 4 ranks on two generator-nodes (ranks 0–1 on one, 2–3 on the other): every rank switches
+/// to a steered transfer function at the step the tuner names, so every step composes, and a
+/// node killed after a second change (sample distance and shading) and restarted makes each
+/// of its ranks' steps with the scene in force for that step, those received before the
+/// switch included.
+#[test]
+fn four_ranks_on_two_nodes_switch_at_one_step_and_a_restarted_node_keeps_each_step_s_scene() {
+    let run = Run::start();
+    let (logs, rec) = (run.tmp.path(), &run.rec);
+    let h2 = tuned_generator(&run.viz, &run.tuner, logs);
+    push_four_ranks([&run.g.addr, &h2.addr], 0..3);
+    whole_steps(rec, 3);
+    assert!(wait_until(20.0, || tuner_status(&run.tuner).summaries >= 12));
+
+    // A preview of the red transfer function before it is applied: the bricks of both nodes
+    // composed are the whole field's DVR with it, unlike what is stored.
+    let body = r#"{"eye": [16, 12, 95], "target": [16, 16, 16]}"#;
+    let (step, ranks, shown) = preview(
+        &run.http,
+        &format!(r#"{{"tf": {RED}, "camera": {body}, "size": 64}}"#),
+    );
+    assert_eq!(ranks, 4);
+    let whole = blob_step(
+        step,
+        0,
+        1,
+        insitu_core::volume::bricks::Brick {
+            offset: [0; 3],
+            dims: [33; 3],
+        },
+    );
+    let data: Vec<f32> = whole
+        .data
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let volume = Volume::new([33; 3], glam::Vec3::ONE, data).unwrap();
+    let camera = Camera {
+        eye: glam::Vec3::new(16.0, 12.0, 95.0),
+        target: glam::Vec3::splat(16.0),
+        up: glam::Vec3::Y,
+        fov_y_deg: 30.0,
+    };
+    let stored = index(rec).into_iter().find(|e| e.step == step).unwrap();
+    let meta = load_vdi(rec, &stored).meta().clone();
+    let q = psnr(&shown, &dvr_like(&volume, RED, &meta, &camera)).unwrap();
+    let unlike = difference(&shown, &render_composed(rec, step, &camera));
+    eprintln!("preview of step {step}: {q:.1} dB from the whole field's DVR with it; mean difference {unlike:.3} from the stored VDI");
+    assert!(
+        q >= 40.0,
+        "the preview is {q:.1} dB from the whole field's DVR"
+    );
+    assert!(
+        unlike > 0.01,
+        "the preview shows the stored TF: {unlike:.3}"
+    );
+    assert_eq!(
+        tuner_status(&run.tuner).scene.unwrap().version,
+        0,
+        "nothing steered"
+    );
+
+    let body = format!(r#"{{"tf": {RED}, "tf_name": "red"}}"#);
+    let reply = steered(&run.http, &run.g.addr, &body);
+    let version = reply["pm_version"].as_u64().unwrap();
+    assert!(wait_until(30.0, || status(&h2.addr).pm_version >= version));
+    let from = reply["from_step"].as_u64().unwrap();
+    push_four_ranks([&run.g.addr, &h2.addr], 3..from + 3);
+    for s in whole_steps(rec, from + 3) {
+        let steered = s.step >= from;
+        assert_eq!(s.scene_version, u64::from(steered), "step {}", s.step);
+        assert_eq!(s.ranks, [0, 1, 2, 3], "step {}", s.step);
+    }
+    for e in index(rec) {
+        assert_eq!(e.tf_name == "red", e.step >= from, "step {}", e.step);
+    }
+
+    // Sample distance and shading; the second node killed before any step is made with them.
+    let reply = steered(&run.http, &run.g.addr, r#"{"step": 0.25, "shading": true}"#);
+    assert_eq!(reply["scene_version"], 2, "{reply}");
+    let from2 = reply["from_step"].as_u64().unwrap();
+    assert!(from2 > from + 3, "{reply}");
+    h2.kill();
+    let h2 = tuned_generator(&run.viz, &run.tuner, logs);
+    let current = tuner_status(&run.tuner).pm_version;
+    assert!(wait_until(30.0, || status(&h2.addr).pm_version >= current));
+    push_four_ranks([&run.g.addr, &h2.addr], from + 3..from2 + 2);
+    for s in whole_steps(rec, from2 + 2)
+        .into_iter()
+        .filter(|s| s.step >= from)
+    {
+        let version = if s.step >= from2 { 2 } else { 1 };
+        assert_eq!(s.scene_version, version, "step {}", s.step);
+    }
+    for e in index(rec).into_iter().filter(|e| e.step >= from) {
+        let meta = load_vdi(rec, &e).meta().clone();
+        let steered = e.step >= from2;
+        assert_eq!(
+            (meta.shaded, meta.step == 0.25, meta.tf_name.as_str()),
+            (steered, steered, "red"),
+            "step {} ranks {:?}",
+            e.step,
+            e.ranks()
+        );
+    }
+    h2.terminate();
+    run.stop();
+}
+
 /// Types the steering token into the page's panel (real key events).
 async fn type_token(c: &fantoccini::Client) {
     c.find(fantoccini::Locator::Id("steer-token"))
@@ -339,9 +562,10 @@ async fn apply(c: &fantoccini::Client, id: &str, version: u64) -> Value {
 
 /// The page's steering panel in Debian's Chromium, with real mouse and keyboard events: the
 /// steering token typed in, the middle opacity point of the transfer-function editor dragged
-/// up, applied; the steps from the switch step on are made with the new transfer function (the
-/// page renders such a step as the VDI renders here, within 40 dB), the earlier ones keep the
-/// old; then "generate from here" after orbiting the view moves the generation camera.
+/// up, previewed (nothing steered), applied; the steps from the switch step on are made with
+/// the new transfer function (the page renders such a step as the VDI renders here, within
+/// 40 dB), the earlier ones keep the old; then "generate from here" after orbiting the view
+/// moves the generation camera, and q at that view rises.
 #[test]
 fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view() {
     use crate::viewer::{drag, image_of, screenshot, wait_frame};
@@ -389,6 +613,16 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
             after[1][1].as_f64().unwrap() > 0.8 && before[1][1].as_f64().unwrap() < 0.1,
             "the drag did not raise the middle point: {before} → {after}"
         );
+        // The preview: the nodes' DVR of the newest held step with the dragged curve, nothing
+        // applied.
+        crate::viewer::click(&c, "tf-preview").await;
+        let previewed = js(
+            &c,
+            "for (let i = 0; i < 400; i++) { const f = document.getElementById('tf-preview-figure'); const img = document.getElementById('tf-preview-image'); if (!f.hidden && img.complete && img.naturalWidth) { done({step: f.dataset.step, width: img.naturalWidth}); return; } await new Promise(r => setTimeout(r, 50)); } done(document.getElementById('steer-status').textContent);",
+        )
+        .await;
+        assert_eq!(previewed["width"], 256, "no preview: {previewed}");
+        assert_eq!(tuner_status(&run.tuner).scene.unwrap().version, 0, "a preview steers nothing");
         screenshot(&c, &shots, "steering.png").await;
         let reply = apply(&c, "tf-apply", 1).await;
         c.close().await.unwrap();
@@ -461,6 +695,37 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
     assert!(
         (moved.eye - expected.eye).length() < 1e-2 * expected.eye.length().max(1.0),
         "generated from the page's view at {angle}°: {moved:?} against {expected:?}"
+    );
+    // q at the new view rises: the same data (the blob repeats every 8 steps) generated from
+    // the old view before the switch and from the new one after it, each rendered at the new
+    // view and scored against the field's DVR there with the steered transfer function.
+    let (_, scene) = http(&run.http, "/api/scene", &[]);
+    let scene: Value = serde_json::from_str(&scene).unwrap();
+    let tf_json = scene["scene"]["tf"].to_string();
+    let q_at = |step: u64| {
+        let e = index(rec).into_iter().find(|e| e.step == step).unwrap();
+        let vdi = load_vdi(rec, &e);
+        let b = vdi.meta().volume_box;
+        let volume = Volume::new([16; 3], (b.max - b.min) / 15.0, field(16, step))
+            .unwrap()
+            .with_origin(b.min)
+            .unwrap();
+        let reference = dvr_like(&volume, &tf_json, vdi.meta(), &moved);
+        psnr(&render(&vdi, &moved, 64, 64, 0.99), &reference).unwrap()
+    };
+    let earlier = last.step - 8;
+    assert!(
+        (from..from2).contains(&earlier),
+        "{earlier}: {from}..{from2}"
+    );
+    let (before, after) = (q_at(earlier), q_at(last.step));
+    eprintln!(
+        "q at the view generated from: step {earlier} (old camera) {before:.2} dB, step {} (new) {after:.2} dB",
+        last.step
+    );
+    assert!(
+        after > before + 1.0,
+        "q at the new view did not rise: {before:.2} → {after:.2} dB"
     );
     run.stop();
 }

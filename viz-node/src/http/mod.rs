@@ -23,6 +23,7 @@ pub mod live;
 pub mod movie;
 pub mod numbers;
 pub mod origin;
+pub mod preview;
 pub mod steer;
 pub mod tls;
 
@@ -204,6 +205,7 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/scene", get(steer::scene))
         .route("/api/colormaps", get(steer::colormaps))
         .route("/api/steer", axum::routing::post(steer::steer))
+        .route("/api/preview", axum::routing::post(preview::preview))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
         .layer(axum::middleware::from_fn_with_state(
             http.clone(),

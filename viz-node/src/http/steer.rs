@@ -7,7 +7,8 @@
 //! - `GET /api/colormaps`: the colour maps the page's transfer-function editor offers
 //!   (`colorous`), each sampled at [`COLORMAP_SAMPLES`] even steps as `[r, g, b]` in [0, 1].
 //! - `POST /api/steer`: a change, `{"tf": {…}, "tf_name": "…", "field": "…", "camera": {…},
-//!   "utility": "…"}` (any of them). A camera is either explicit, `{"eye": [x, y, z],
+//!   "step": 0.5, "shading": true, "utility": "…"}` (any of them; `step` is the ray-casting
+//!   sample distance in world units). A camera is either explicit, `{"eye": [x, y, z],
 //!   "target": [x, y, z], "up": [x, y, z], "fov_y_deg": 30}` (world units; `up` and the field
 //!   of view optional), or a view of a stored step as the page orbits it, `{"step": s,
 //!   "angle": a, "elevation": e, "zoom": z}` ("generate from here": that step's generation
@@ -68,7 +69,7 @@ pub async fn colormaps() -> Response {
 }
 
 /// How long a steering request waits for the tuner.
-const TUNER_WAIT: Duration = Duration::from_secs(10);
+pub(super) const TUNER_WAIT: Duration = Duration::from_secs(10);
 
 /// A steering request's body.
 #[derive(Debug, Deserialize)]
@@ -84,12 +85,16 @@ pub struct SteerBody {
     camera: Option<CameraBody>,
     /// The tuner's utility, e.g. `size:1MB`.
     utility: Option<String>,
+    /// The ray-casting sample distance, world units.
+    step: Option<f32>,
+    /// Gradient shading on or off.
+    shading: Option<bool>,
 }
 
 /// A camera as a steering request gives it.
 #[derive(Debug, Deserialize)]
 #[serde(untagged, deny_unknown_fields)]
-enum CameraBody {
+pub(super) enum CameraBody {
     /// World coordinates.
     Explicit {
         eye: [f32; 3],
@@ -170,6 +175,8 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
             "tf_name": scene.tf_name,
             "field": scene.field,
             "camera": scene.camera.as_ref().map(camera_json),
+            "step": scene.step,
+            "shading": scene.shading,
         },
         "history": steering,
         "fields": s.fields,
@@ -210,28 +217,9 @@ fn camera_json(c: &pb::Camera) -> serde_json::Value {
 
 /// `POST /api/steer`.
 pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: String) -> Response {
-    let Some(token) = &http.steer_token else {
-        return error(
-            StatusCode::FORBIDDEN,
-            "steering is off on this viz-node: start it with a steering token (`steer_token_file` or INSITU_STEER_TOKEN)".into(),
-        );
-    };
-    let bearer = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(insitu_proto::auth::bearer);
-    if !bearer.is_some_and(|t| token.matches(t)) {
-        return error(
-            StatusCode::FORBIDDEN,
-            "this request may view but not steer: send `Authorization: Bearer <steering token>`"
-                .into(),
-        );
-    }
-    let Some(peer) = http.tuner_peer() else {
-        return error(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "steering needs a tuner-node: set `tuner` in the viz-node's config".into(),
-        );
+    let peer = match steering_peer(&http, &headers) {
+        Ok(p) => p,
+        Err(r) => return r,
     };
     let b: SteerBody = match serde_json::from_str(&body) {
         Ok(b) => b,
@@ -263,19 +251,55 @@ pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: Stri
             "superseded": r.superseded,
         }))
         .into_response(),
-        Ok(Err(s)) => {
-            let status = match s.code() {
-                tonic::Code::InvalidArgument => StatusCode::BAD_REQUEST,
-                tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
-                _ => StatusCode::BAD_GATEWAY,
-            };
-            error(status, s.message().to_owned())
-        }
+        Ok(Err(s)) => tuner_refused(&s),
         Err(_) => error(
             StatusCode::GATEWAY_TIMEOUT,
             "the tuner-node did not answer the steering request".into(),
         ),
     }
+}
+
+/// The tuner to steer through, when the request presents the steering token.
+///
+/// # Errors
+/// The answer to send instead: 403 when steering is off or the request lacks the steering
+/// token, 503 without a tuner.
+pub(super) fn steering_peer(http: &Http, headers: &HeaderMap) -> Result<Peer, Response> {
+    let Some(token) = &http.steer_token else {
+        return Err(error(
+            StatusCode::FORBIDDEN,
+            "steering is off on this viz-node: start it with a steering token (`steer_token_file` or INSITU_STEER_TOKEN)".into(),
+        ));
+    };
+    let bearer = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(insitu_proto::auth::bearer);
+    if !bearer.is_some_and(|t| token.matches(t)) {
+        return Err(error(
+            StatusCode::FORBIDDEN,
+            "this request may view but not steer: send `Authorization: Bearer <steering token>`"
+                .into(),
+        ));
+    }
+    http.tuner_peer().ok_or_else(|| {
+        error(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "steering needs a tuner-node: set `tuner` in the viz-node's config".into(),
+        )
+    })
+}
+
+/// The tuner's refusal as an HTTP answer: a bad request 400, a state that does not allow it
+/// 409, the deadline 504, the rest 502.
+pub(super) fn tuner_refused(s: &tonic::Status) -> Response {
+    let status = match s.code() {
+        tonic::Code::InvalidArgument => StatusCode::BAD_REQUEST,
+        tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
+        tonic::Code::DeadlineExceeded => StatusCode::GATEWAY_TIMEOUT,
+        _ => StatusCode::BAD_GATEWAY,
+    };
+    error(status, s.message().to_owned())
 }
 
 /// The tuner's request for `b`: the transfer function as JSON text, a view's camera made
@@ -286,23 +310,7 @@ pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: Stri
 async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, String> {
     let camera = match b.camera {
         None => None,
-        Some(CameraBody::Explicit {
-            eye,
-            target,
-            up,
-            fov_y_deg,
-        }) => Some(Camera {
-            eye: eye.into(),
-            target: target.into(),
-            up: up.into(),
-            fov_y_deg,
-        }),
-        Some(CameraBody::View {
-            step,
-            angle,
-            elevation,
-            zoom,
-        }) => Some(view_camera(http, step, angle, elevation, zoom).await?),
+        Some(c) => Some(c.camera(http).await?),
     };
     Ok(pb::SteerRequest {
         tf_json: b.tf.map(|v| v.to_string()),
@@ -310,8 +318,38 @@ async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, Str
         field: b.field,
         camera: camera.as_ref().map(camera_to_pb),
         utility: b.utility,
+        step: b.step,
+        shading: b.shading,
         who: "the viewer's steering API".into(),
     })
+}
+
+impl CameraBody {
+    /// The camera it stands for: as given, or made from its step's generation camera.
+    ///
+    /// # Errors
+    /// A message naming the bad part (a view of a step not stored, a bad view).
+    pub(super) async fn camera(self, http: &Arc<Http>) -> Result<Camera, String> {
+        match self {
+            Self::Explicit {
+                eye,
+                target,
+                up,
+                fov_y_deg,
+            } => Ok(Camera {
+                eye: eye.into(),
+                target: target.into(),
+                up: up.into(),
+                fov_y_deg,
+            }),
+            Self::View {
+                step,
+                angle,
+                elevation,
+                zoom,
+            } => view_camera(http, step, angle, elevation, zoom).await,
+        }
+    }
 }
 
 /// The generation camera of `step` (none: the newest stored) orbited by the page's view.

@@ -466,13 +466,43 @@ function steerStatus(text, error) {
   el.className = error ? "legend error" : "legend";
 }
 
-async function steer(body) {
+function steerPost(path, body) {
   const token = $("steer-token").value.trim();
-  const r = await fetch(withToken("api/steer"), {
+  return fetch(withToken(path), {
     method: "POST",
     headers: { "content-type": "application/json", ...(token ? { authorization: `Bearer ${token}` } : {}) },
     body: JSON.stringify(body),
   });
+}
+
+/** The view on screen as the steering API takes a camera. */
+function shownView() {
+  return { step: shownStep, angle: view.angle, elevation: view.elevation, zoom: view.zoom };
+}
+
+/** The edited transfer function rendered on the newest held step by the nodes, not applied. */
+async function previewTf() {
+  if (!(tf.hi > tf.lo)) return steerStatus("the range's upper end must exceed its lower", true);
+  const r = await steerPost("api/preview", { tf: tfJson(), camera: shownView(), size: 256 });
+  if (!r.ok) {
+    const reply = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
+    return steerStatus(`no preview: ${reply.error}`, true);
+  }
+  const img = $("tf-preview-image");
+  URL.revokeObjectURL(img.src);
+  img.src = URL.createObjectURL(await r.blob());
+  await img.decode().catch(() => {});
+  const h = (k) => r.headers.get(`x-insitu-${k}`);
+  $("tf-preview-caption").textContent =
+    `preview: step ${h("step")}, ${h("ranks")} rank(s), rendered in ${Number(h("render-secs")).toFixed(2)} s`;
+  const fig = $("tf-preview-figure");
+  fig.hidden = false;
+  fig.dataset.step = h("step");
+  steerStatus("previewed; not applied", false);
+}
+
+async function steer(body) {
+  const r = await steerPost("api/steer", body);
   const reply = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
   if (!r.ok) {
     steerStatus(`refused: ${reply.error}`, true);
@@ -497,6 +527,7 @@ async function loadScene() {
   const sc = s.scene;
   $("steer-scene").textContent =
     `scene ${sc.version}` + (sc.tf_name ? `, ${sc.tf_name}` : "") + (sc.field ? `, field ${sc.field}` : "") +
+    (sc.step != null ? `, sample distance ${sc.step}` : "") + (sc.shading ? ", shaded" : "") +
     `; ${s.utility}`;
   const field = $("steer-field");
   const names = s.fields || [];
@@ -504,6 +535,8 @@ async function loadScene() {
     field.replaceChildren(...names.map((n) => new Option(n, n)));
   }
   if (sc.field) field.value = sc.field;
+  if (sc.step != null && document.activeElement !== $("steer-step")) $("steer-step").value = sc.step;
+  if (sc.shading != null) $("steer-shading").checked = sc.shading;
   if (s.histogram) {
     tf.histogram = s.histogram;
     drawTf();
@@ -567,9 +600,15 @@ async function wireSteering() {
     return steer({ tf: tfJson(), tf_name: `${tf.map} (steered)` });
   };
   $("field-apply").onclick = () => steer({ field: $("steer-field").value });
-  $("generate-here").onclick = () =>
-    steer({ camera: { step: shownStep, angle: view.angle, elevation: view.elevation, zoom: view.zoom } });
+  $("tf-preview").onclick = previewTf;
+  $("generate-here").onclick = () => steer({ camera: shownView() });
   $("utility-apply").onclick = () => steer({ utility: $("steer-utility").value.trim() });
+  $("sampling-apply").onclick = () => {
+    const body = { shading: $("steer-shading").checked };
+    const step = $("steer-step").value.trim();
+    if (step !== "") body.step = Number(step);
+    return steer(body);
+  };
   drawTf();
   loadScene();
 }
