@@ -43,7 +43,7 @@ pub struct PreviewBody {
 pub async fn preview(State(http): State<Arc<Http>>, headers: HeaderMap, body: String) -> Response {
     let peer = match steering_peer(&http, &headers) {
         Ok(p) => p,
-        Err(r) => return r,
+        Err((status, why)) => return error(status, why),
     };
     let b: PreviewBody = match serde_json::from_str(&body) {
         Ok(b) => b,

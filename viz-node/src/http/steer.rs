@@ -219,7 +219,7 @@ fn camera_json(c: &pb::Camera) -> serde_json::Value {
 pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: String) -> Response {
     let peer = match steering_peer(&http, &headers) {
         Ok(p) => p,
-        Err(r) => return r,
+        Err((status, why)) => return error(status, why),
     };
     let b: SteerBody = match serde_json::from_str(&body) {
         Ok(b) => b,
@@ -262,11 +262,14 @@ pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: Stri
 /// The tuner to steer through, when the request presents the steering token.
 ///
 /// # Errors
-/// The answer to send instead: 403 when steering is off or the request lacks the steering
-/// token, 503 without a tuner.
-pub(super) fn steering_peer(http: &Http, headers: &HeaderMap) -> Result<Peer, Response> {
+/// The status and message to answer instead: 403 when steering is off or the request lacks
+/// the steering token, 503 without a tuner.
+pub(super) fn steering_peer(
+    http: &Http,
+    headers: &HeaderMap,
+) -> Result<Peer, (StatusCode, String)> {
     let Some(token) = &http.steer_token else {
-        return Err(error(
+        return Err((
             StatusCode::FORBIDDEN,
             "steering is off on this viz-node: start it with a steering token (`steer_token_file` or INSITU_STEER_TOKEN)".into(),
         ));
@@ -276,14 +279,14 @@ pub(super) fn steering_peer(http: &Http, headers: &HeaderMap) -> Result<Peer, Re
         .and_then(|v| v.to_str().ok())
         .and_then(insitu_proto::auth::bearer);
     if !bearer.is_some_and(|t| token.matches(t)) {
-        return Err(error(
+        return Err((
             StatusCode::FORBIDDEN,
             "this request may view but not steer: send `Authorization: Bearer <steering token>`"
                 .into(),
         ));
     }
     http.tuner_peer().ok_or_else(|| {
-        error(
+        (
             StatusCode::SERVICE_UNAVAILABLE,
             "steering needs a tuner-node: set `tuner` in the viz-node's config".into(),
         )
