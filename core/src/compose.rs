@@ -303,6 +303,14 @@ pub fn frame_window(
     ([x0 as u32, y0 as u32], image, opacity)
 }
 
+/// [`frame_window`] of a frame rendered with its opacity ([`crate::dvr::render_with_opacity`]).
+pub fn window_of(image: &Image, opacity: &[f32]) -> ([u32; 2], Image, Vec<f32>) {
+    frame_window((image.width(), image.height()), |p| {
+        let [r, g, b] = image.pixels()[p];
+        [r, g, b, opacity[p]]
+    })
+}
+
 /// A frame's colour and opacity as little-endian f32 RGBA, row-major (16 bytes per pixel):
 /// how brick frames travel between nodes ([`frame_from_le_bytes`] reads them back).
 pub fn frame_to_le_bytes<'a>(

@@ -5,7 +5,7 @@
 //! ([`insitu_core::compose::compose_frames`]). Nothing held changes.
 
 use crate::hold::Holds;
-use insitu_core::compose::{frame_to_le_bytes, frame_window};
+use insitu_core::compose::{frame_to_le_bytes, window_of};
 use insitu_core::{dvr, Raycaster};
 use insitu_proto::convert::{camera_from_pb, camera_to_pb, tf_from_json, vec3_to_pb};
 use insitu_proto::pb;
@@ -60,10 +60,7 @@ pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> 
                 Err(e) => return refused(rank, e.to_string()),
             };
             let (image, opacity) = dvr::render_with_opacity(&rc, &camera, size, size);
-            let (origin, window, alpha) = frame_window((size, size), |p| {
-                let [r, g, b] = image.pixels()[p];
-                [r, g, b, opacity[p]]
-            });
+            let (origin, window, alpha) = window_of(&image, &opacity);
             let raw: Vec<u8> = frame_to_le_bytes(&window, &alpha).collect();
             let Ok(rgba_zstd) = zstd::bulk::compress(&raw, 1) else {
                 return refused(rank, "the frame did not compress".into());

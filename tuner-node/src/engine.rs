@@ -381,7 +381,7 @@ impl Engine {
             r: h.resolution,
             gamma: h.gamma,
         });
-        let current = {
+        let (before, current) = {
             let mut s = self.state();
             if h.pm_version > s.highest_seen {
                 s.highest_seen = h.pm_version;
@@ -395,7 +395,6 @@ impl Engine {
             (before, s.current().map(|d| s.message(d)))
         };
         info!(node = %h.node_id, pm_version = h.pm_version, r = h.resolution, gamma = h.gamma, held = h.held.len(), "node attached");
-        let (before, current) = current;
         if let Some(d) = current.filter(|d| d.pm_version > h.pm_version) {
             // A node that holds neither (a restart): the decision before first, in force for
             // every step before the current one's switch, so that a step it receives late is

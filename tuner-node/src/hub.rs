@@ -78,6 +78,24 @@ struct Inner {
     previews: HashMap<u64, PendingPreview>,
 }
 
+impl Inner {
+    /// rank → connection for every rank of `step`.
+    ///
+    /// # Errors
+    /// [`NotHeld`] when some of its `world_size` ranks are held by no connected node.
+    fn held_whole(&self, step: u64, world_size: u32) -> Result<BTreeMap<u32, u64>, NotHeld> {
+        let ranks = self.holders.get(&step).cloned().unwrap_or_default();
+        if ranks.len() < world_size as usize {
+            return Err(NotHeld::Ranks {
+                step,
+                held: ranks.len(),
+                world_size,
+            });
+        }
+        Ok(ranks)
+    }
+}
+
 /// The registry.
 #[derive(Default)]
 pub struct Hub {
@@ -207,14 +225,7 @@ impl Hub {
         size_only: bool,
     ) -> Result<(u64, oneshot::Receiver<TrialReply>), NotHeld> {
         let mut i = self.inner();
-        let ranks = i.holders.get(&step).cloned().unwrap_or_default();
-        if ranks.len() < world_size as usize {
-            return Err(NotHeld::Ranks {
-                step,
-                held: ranks.len(),
-                world_size,
-            });
-        }
+        let ranks = i.held_whole(step, world_size)?;
         let id = self.next_trial.fetch_add(1, Ordering::Relaxed) + 1;
         let conns: BTreeSet<u64> = ranks.values().copied().collect();
         let req = pb::TrialRequest {
@@ -329,14 +340,7 @@ impl Hub {
     ) -> Result<(u64, oneshot::Receiver<PreviewReply>), NotHeld> {
         let step = req.step.unwrap_or_default();
         let mut i = self.inner();
-        let ranks = i.holders.get(&step).cloned().unwrap_or_default();
-        if ranks.len() < world_size as usize {
-            return Err(NotHeld::Ranks {
-                step,
-                held: ranks.len(),
-                world_size,
-            });
-        }
+        let ranks = i.held_whole(step, world_size)?;
         let id = self.next_trial.fetch_add(1, Ordering::Relaxed) + 1;
         req.preview_id = id;
         let conns: BTreeSet<u64> = ranks.values().copied().collect();

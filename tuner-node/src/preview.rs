@@ -148,7 +148,7 @@ pub fn compose(frames: &[pb::PreviewFrame], size: u32) -> Result<Image, String> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insitu_core::compose::{frame_to_le_bytes, frame_window};
+    use insitu_core::compose::{frame_to_le_bytes, window_of};
     use insitu_core::raycast::RaycastParams;
     use insitu_core::volume::bricks::grid_bricks;
     use insitu_core::{dvr, Raycaster, TransferFunction, Volume};
@@ -195,10 +195,7 @@ mod tests {
         let tf = TransferFunction::from_json(TF, "t").unwrap();
         let rc = Raycaster::new(v, &tf, RaycastParams::default()).unwrap();
         let (image, opacity) = dvr::render_with_opacity(&rc, camera, size, size);
-        let (origin, window, alpha) = frame_window((size, size), |p| {
-            let [r, g, b] = image.pixels()[p];
-            [r, g, b, opacity[p]]
-        });
+        let (origin, window, alpha) = window_of(&image, &opacity);
         let raw: Vec<u8> = frame_to_le_bytes(&window, &alpha).collect();
         let b = v.world_box();
         pb::PreviewFrame {
