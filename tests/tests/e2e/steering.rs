@@ -215,6 +215,38 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
     }
     let (code, _) = post(&http_addr, "/api/steer", &[], r#"{"field": "v"}"#);
     assert_eq!(code, 403, "no steering token");
+    // Bad previews, likewise.
+    let auth = format!("Authorization: Bearer {STEER_TOKEN}");
+    for (body, code, says) in [
+        ("{}", 400, "malformed preview request"),
+        (
+            &format!(r#"{{"tf": {RED}, "size": 4}}"#) as &str,
+            400,
+            "size 4 is not in 16..=512",
+        ),
+        (
+            r#"{"tf": {"domain": [1, 0], "points": []}}"#,
+            400,
+            "tf_json",
+        ),
+        (
+            &format!(r#"{{"tf": {RED}, "step": 9999}}"#),
+            409,
+            "step 9999: 0 of 1 ranks are held",
+        ),
+        (
+            &format!(r#"{{"tf": {RED}, "camera": {{"eye": [1, 1, 1], "target": [1, 1, 1]}}}}"#),
+            400,
+            "degenerate",
+        ),
+    ] {
+        let (got, text) = post(&http_addr, "/api/preview", &[&auth], body);
+        assert_eq!(got, code, "{body}: {text}");
+        assert!(text.contains(says), "{body}: {text}");
+    }
+    let body = format!(r#"{{"tf": {RED}}}"#);
+    let (code, _) = post(&http_addr, "/api/preview", &[], &body);
+    assert_eq!(code, 403, "a preview without the steering token");
     assert_eq!(tuner_status(&tuner_addr).scene.unwrap().version, 0);
 
     // A transfer function through the API: one scene version, from one step on.
