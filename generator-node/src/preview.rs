@@ -5,35 +5,29 @@
 //! ([`insitu_core::compose::compose_frames`]). Nothing held changes.
 
 use crate::hold::Holds;
-use insitu_core::compose::{frame_to_le_bytes, window_of};
+use insitu_core::compose::window_of;
 use insitu_core::{dvr, Raycaster};
-use insitu_proto::convert::{camera_from_pb, camera_to_pb, tf_from_json, vec3_to_pb};
+use insitu_proto::convert::{camera_from_pb, preview_frame_to_pb, preview_size, tf_from_json};
 use insitu_proto::pb;
 use std::time::Instant;
-
-/// The largest preview side, pixels (a brick's window of f32 RGBA stays within a gRPC
-/// message once compressed).
-pub const MAX_SIZE: u32 = 512;
-
-/// The side when the request leaves it unset, pixels.
-pub const DEFAULT_SIZE: u32 = 256;
 
 /// The frames of `req.step`'s ranks held here, one per rank; one frame with `error` set
 /// when the request is bad or no rank of the step is held here, or per rank when its
 /// rendering fails.
 pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> {
-    let step = req.step.unwrap_or_default();
     let refused = |rank: u32, error: String| pb::PreviewFrame {
         preview_id: req.preview_id,
-        step,
+        step: req.step.unwrap_or_default(),
         rank,
         error,
         ..Default::default()
     };
-    let size = match req.size {
-        0 => DEFAULT_SIZE,
-        s if (16..=MAX_SIZE).contains(&s) => s,
-        s => return vec![refused(0, format!("size {s} is not in 16..={MAX_SIZE}"))],
+    let Some(step) = req.step else {
+        return vec![refused(0, "no step named".into())];
+    };
+    let size = match preview_size(req.size) {
+        Ok(s) => s,
+        Err(e) => return vec![refused(0, e)],
     };
     let tf = match tf_from_json(&req.tf_json, "preview") {
         Ok(tf) => tf,
@@ -42,9 +36,6 @@ pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> 
     let asked = match req.camera.as_ref().map(camera_from_pb).transpose() {
         Ok(c) => c,
         Err(e) => return vec![refused(0, format!("camera: {}", e.message()))],
-    };
-    let Some(step) = req.step else {
-        return vec![refused(0, "no step named".into())];
     };
     let ranks = holds.ranks(step);
     if ranks.is_empty() {
@@ -60,26 +51,16 @@ pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> 
                 Err(e) => return refused(rank, e.to_string()),
             };
             let (image, opacity) = dvr::render_with_opacity(&rc, &camera, size, size);
-            let (origin, window, alpha) = window_of(&image, &opacity);
-            let raw: Vec<u8> = frame_to_le_bytes(&window, &alpha).collect();
-            let Ok(rgba_zstd) = zstd::bulk::compress(&raw, 1) else {
-                return refused(rank, "the frame did not compress".into());
-            };
-            let b = held.volume.world_box();
-            pb::PreviewFrame {
-                preview_id: req.preview_id,
-                step,
-                rank,
-                box_min: Some(vec3_to_pb(b.min)),
-                box_max: Some(vec3_to_pb(b.max)),
-                origin_x: origin[0],
-                origin_y: origin[1],
-                width: window.width(),
-                height: window.height(),
-                rgba_zstd: rgba_zstd.into(),
-                render_secs: t0.elapsed().as_secs_f64(),
-                error: String::new(),
-                camera: Some(camera_to_pb(&camera)),
+            let window = window_of(&image, &opacity);
+            match preview_frame_to_pb(&window, held.volume.world_box(), &camera) {
+                Ok(f) => pb::PreviewFrame {
+                    preview_id: req.preview_id,
+                    step,
+                    rank,
+                    render_secs: t0.elapsed().as_secs_f64(),
+                    ..f
+                },
+                Err(e) => refused(rank, e),
             }
         })
         .collect()
@@ -136,16 +117,15 @@ mod tests {
         let f = &frames[0];
         assert!(f.error.is_empty(), "{}", f.error);
         assert_eq!((f.preview_id, f.step, f.rank), (7, 4, 0));
-        let raw = zstd::bulk::decompress(&f.rgba_zstd, 1 << 20).unwrap();
-        let (window, alpha) =
-            insitu_core::compose::frame_from_le_bytes(&raw, (f.width, f.height)).unwrap();
+        let ([ox, oy], window, alpha, _) =
+            insitu_proto::convert::preview_window_from_pb(f, 32).unwrap();
         // The same as rendering the held field with that TF here, pixel for pixel.
         let ranks = holds.ranks(4);
         let held = &ranks[0].1;
         let tf = TransferFunction::from_json(TF, "x").unwrap();
         let rc = Raycaster::new(&held.volume, &tf, held.raycast).unwrap();
         let (image, opacity) = dvr::render_with_opacity(&rc, &held.camera, 32, 32);
-        let (ox, oy) = (f.origin_x as usize, f.origin_y as usize);
+        let (ox, oy) = (ox as usize, oy as usize);
         for j in 0..f.height as usize {
             for i in 0..f.width as usize {
                 let p = (oy + j) * 32 + ox + i;

@@ -4,9 +4,10 @@
 use crate::pb;
 use glam::Vec3;
 use insitu_core::backend::TimeSource;
+use insitu_core::compose::{frame_from_le_bytes, frame_to_le_bytes};
 use insitu_core::vdi::codec::Codec;
-use insitu_core::volume::ScalarType;
-use insitu_core::{Camera, TransferFunction};
+use insitu_core::volume::{Aabb, ScalarType};
+use insitu_core::{Camera, Image, TransferFunction};
 use tonic::Status;
 
 /// Largest transfer function taken over the wire (`GenerationConfig.tf_json`, a steered
@@ -26,6 +27,84 @@ pub fn tf_from_json(json: &str, name: &str) -> Result<TransferFunction, String> 
         ));
     }
     TransferFunction::from_json(json, name).map_err(|e| e.to_string())
+}
+
+/// The largest preview side, pixels (a brick's window of f32 RGBA stays within a gRPC message
+/// once compressed).
+pub const PREVIEW_MAX_SIZE: u32 = 512;
+
+/// The preview side when a request leaves it unset (0), pixels.
+pub const PREVIEW_DEFAULT_SIZE: u32 = 256;
+
+/// A preview's side from `PreviewRequest.size`: 0 → [`PREVIEW_DEFAULT_SIZE`].
+///
+/// # Errors
+/// A message naming a side outside 16..=[`PREVIEW_MAX_SIZE`].
+pub fn preview_size(size: u32) -> Result<u32, String> {
+    match size {
+        0 => Ok(PREVIEW_DEFAULT_SIZE),
+        s if (16..=PREVIEW_MAX_SIZE).contains(&s) => Ok(s),
+        s => Err(format!("size {s} is not in 16..={PREVIEW_MAX_SIZE}")),
+    }
+}
+
+/// A brick's window of a preview frame on the wire (`origin`, colour and opacity, as
+/// [`insitu_core::compose::frame_window`] cuts it): its RGBA as little-endian f32
+/// ([`frame_to_le_bytes`]), zstd-compressed, with the brick's world box and the camera it was
+/// rendered from. Ids, step, rank and timing are the caller's to set.
+///
+/// # Errors
+/// A message when the window does not compress.
+pub fn preview_frame_to_pb(
+    (origin, image, opacity): &([u32; 2], Image, Vec<f32>),
+    world_box: Aabb,
+    camera: &Camera,
+) -> Result<pb::PreviewFrame, String> {
+    let raw: Vec<u8> = frame_to_le_bytes(image, opacity).collect();
+    let rgba_zstd =
+        zstd::bulk::compress(&raw, 1).map_err(|e| format!("the frame did not compress: {e}"))?;
+    Ok(pb::PreviewFrame {
+        box_min: Some(vec3_to_pb(world_box.min)),
+        box_max: Some(vec3_to_pb(world_box.max)),
+        origin_x: origin[0],
+        origin_y: origin[1],
+        width: image.width(),
+        height: image.height(),
+        rgba_zstd: rgba_zstd.into(),
+        camera: Some(camera_to_pb(camera)),
+        ..Default::default()
+    })
+}
+
+/// A preview frame's window back from the wire: `(origin, image, opacity, world box)`, read
+/// only up to `size × size` pixels.
+///
+/// # Errors
+/// A message naming the rank whose frame does not decompress, does not hold its window's
+/// pixels, or lacks its box.
+pub fn preview_window_from_pb(
+    f: &pb::PreviewFrame,
+    size: u32,
+) -> Result<([u32; 2], Image, Vec<f32>, Aabb), String> {
+    let rank = f.rank;
+    let limit = size as usize * size as usize * 16;
+    let raw = zstd::bulk::decompress(&f.rgba_zstd, limit)
+        .map_err(|e| format!("rank {rank}: the frame does not decompress: {e}"))?;
+    let (image, opacity) = frame_from_le_bytes(&raw, (f.width, f.height)).ok_or_else(|| {
+        format!(
+            "rank {rank}: {} bytes are not a {}×{} window",
+            raw.len(),
+            f.width,
+            f.height
+        )
+    })?;
+    let (Some(min), Some(max)) = (
+        vec3_from_pb(f.box_min.as_ref()),
+        vec3_from_pb(f.box_max.as_ref()),
+    ) else {
+        return Err(format!("rank {rank}: no box"));
+    };
+    Ok(([f.origin_x, f.origin_y], image, opacity, Aabb { min, max }))
 }
 
 /// Grid dims or a voxel offset, `[x, y, z]`, on the wire (each < 2³², as every grid the

@@ -79,6 +79,16 @@ struct Inner {
 }
 
 impl Inner {
+    /// Sends `m` to each connection of `conns` still connected (a full or closed stream
+    /// drops it: the node is leaving).
+    fn send_to(&self, conns: &BTreeSet<u64>, m: &Down) {
+        for c in conns {
+            if let Some(n) = self.nodes.get(c) {
+                let _ = n.tx.try_send(msg(m.clone()));
+            }
+        }
+    }
+
     /// rank → connection for every rank of `step`.
     ///
     /// # Errors
@@ -202,12 +212,7 @@ impl Hub {
             .get(&step)
             .map(|r| r.values().copied().collect())
             .unwrap_or_default();
-        for c in conns {
-            if let Some(n) = i.nodes.get(&c) {
-                let _ =
-                    n.tx.try_send(msg(Down::Hold(pb::HoldRequest { step, keep })));
-            }
-        }
+        i.send_to(&conns, &Down::Hold(pb::HoldRequest { step, keep }));
         if !keep {
             i.holders.remove(&step);
         }
@@ -235,11 +240,7 @@ impl Hub {
             gamma: c.gamma,
             size_only,
         };
-        for conn in &conns {
-            if let Some(n) = i.nodes.get(conn) {
-                let _ = n.tx.try_send(msg(Down::Trial(req)));
-            }
-        }
+        i.send_to(&conns, &Down::Trial(req));
         let (reply, rx) = oneshot::channel();
         i.pending.insert(
             id,
@@ -344,11 +345,7 @@ impl Hub {
         let id = self.next_trial.fetch_add(1, Ordering::Relaxed) + 1;
         req.preview_id = id;
         let conns: BTreeSet<u64> = ranks.values().copied().collect();
-        for conn in &conns {
-            if let Some(n) = i.nodes.get(conn) {
-                let _ = n.tx.try_send(msg(Down::Preview(req.clone())));
-            }
-        }
+        i.send_to(&conns, &Down::Preview(req));
         let (reply, rx) = oneshot::channel();
         i.previews.insert(
             id,

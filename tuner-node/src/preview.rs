@@ -6,19 +6,14 @@
 
 use crate::engine::Engine;
 use crate::hub::PreviewReply;
-use insitu_core::compose::{compose_frames, frame_from_le_bytes, BrickFrame};
-use insitu_core::volume::Aabb;
+use insitu_core::compose::{compose_frames, BrickFrame};
 use insitu_core::{Camera, Image};
-use insitu_proto::convert::{camera_from_pb, tf_from_json, vec3_from_pb, MAX_TF_JSON};
+use insitu_proto::convert::{
+    camera_from_pb, preview_size, preview_window_from_pb, tf_from_json, MAX_TF_JSON,
+};
 use insitu_proto::pb;
 use std::time::{Duration, Instant};
 use tonic::Status;
-
-/// The side when a request leaves it unset, pixels.
-pub const DEFAULT_SIZE: u32 = 256;
-
-/// The largest side, pixels.
-pub const MAX_SIZE: u32 = 512;
 
 /// How long the nodes get to answer.
 pub const TIMEOUT: Duration = Duration::from_secs(30);
@@ -33,15 +28,7 @@ pub const TIMEOUT: Duration = Duration::from_secs(30);
 /// after [`TIMEOUT`]; `INTERNAL` when the frames do not compose.
 pub async fn preview(e: &Engine, mut req: pb::PreviewRequest) -> Result<pb::PreviewReply, Status> {
     let t0 = Instant::now();
-    let size = match req.size {
-        0 => DEFAULT_SIZE,
-        s if (16..=MAX_SIZE).contains(&s) => s,
-        s => {
-            return Err(Status::invalid_argument(format!(
-                "size {s} is not in 16..={MAX_SIZE}"
-            )))
-        }
-    };
+    let size = preview_size(req.size).map_err(Status::invalid_argument)?;
     if req.tf_json.len() > MAX_TF_JSON {
         return Err(Status::invalid_argument(format!(
             "tf_json: {} bytes, more than {MAX_TF_JSON}",
@@ -109,31 +96,13 @@ pub fn compose(frames: &[pb::PreviewFrame], size: u32) -> Result<Image, String> 
         .and_then(|f| f.camera.as_ref())
         .ok_or("no frame carries the camera")?;
     let camera: Camera = camera_from_pb(camera).map_err(|e| e.message().to_owned())?;
-    let limit = size as usize * size as usize * 16;
-    let mut windows = Vec::with_capacity(frames.len());
-    for f in frames {
-        let rank = f.rank;
-        let raw = zstd::bulk::decompress(&f.rgba_zstd, limit)
-            .map_err(|e| format!("rank {rank}: the frame does not decompress: {e}"))?;
-        let (image, opacity) = frame_from_le_bytes(&raw, (f.width, f.height)).ok_or_else(|| {
-            format!(
-                "rank {rank}: {} bytes are not a {}×{} window",
-                raw.len(),
-                f.width,
-                f.height
-            )
-        })?;
-        let (Some(min), Some(max)) = (
-            vec3_from_pb(f.box_min.as_ref()),
-            vec3_from_pb(f.box_max.as_ref()),
-        ) else {
-            return Err(format!("rank {rank}: no box"));
-        };
-        windows.push((image, opacity, [f.origin_x, f.origin_y], Aabb { min, max }));
-    }
+    let windows = frames
+        .iter()
+        .map(|f| preview_window_from_pb(f, size))
+        .collect::<Result<Vec<_>, _>>()?;
     let bricks: Vec<BrickFrame> = windows
         .iter()
-        .map(|(image, opacity, origin, world_box)| BrickFrame {
+        .map(|(origin, image, opacity, world_box)| BrickFrame {
             image,
             opacity,
             origin: *origin,
@@ -148,11 +117,11 @@ pub fn compose(frames: &[pb::PreviewFrame], size: u32) -> Result<Image, String> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use insitu_core::compose::{frame_to_le_bytes, window_of};
+    use insitu_core::compose::window_of;
     use insitu_core::raycast::RaycastParams;
     use insitu_core::volume::bricks::grid_bricks;
     use insitu_core::{dvr, Raycaster, TransferFunction, Volume};
-    use insitu_proto::convert::{camera_to_pb, vec3_to_pb};
+    use insitu_proto::convert::preview_frame_to_pb;
 
     const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,1,0],[0.5,0,1,0,0.3],[1,1,0,0,0.9]]}"#;
 
@@ -195,20 +164,9 @@ mod tests {
         let tf = TransferFunction::from_json(TF, "t").unwrap();
         let rc = Raycaster::new(v, &tf, RaycastParams::default()).unwrap();
         let (image, opacity) = dvr::render_with_opacity(&rc, camera, size, size);
-        let (origin, window, alpha) = window_of(&image, &opacity);
-        let raw: Vec<u8> = frame_to_le_bytes(&window, &alpha).collect();
-        let b = v.world_box();
         pb::PreviewFrame {
             rank,
-            box_min: Some(vec3_to_pb(b.min)),
-            box_max: Some(vec3_to_pb(b.max)),
-            origin_x: origin[0],
-            origin_y: origin[1],
-            width: window.width(),
-            height: window.height(),
-            rgba_zstd: zstd::bulk::compress(&raw, 1).unwrap().into(),
-            camera: Some(camera_to_pb(camera)),
-            ..Default::default()
+            ..preview_frame_to_pb(&window_of(&image, &opacity), v.world_box(), camera).unwrap()
         }
     }
 

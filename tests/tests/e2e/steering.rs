@@ -570,6 +570,19 @@ fn four_ranks_on_two_nodes_switch_at_one_step_and_a_restarted_node_keeps_each_st
     run.stop();
 }
 
+/// The viewer's page of `run` in a browser with its own profile `profile`, once it shows a
+/// still frame.
+async fn open_page(
+    driver: &insitu_e2e::browser::Driver,
+    run: &Run,
+    profile: &str,
+) -> fantoccini::Client {
+    let c = insitu_e2e::browser::browser(driver, &run.tmp.path().join(profile)).await;
+    c.goto(&format!("http://{}/", run.http)).await.unwrap();
+    crate::viewer::wait_frame(&c, 30.0, |d| d["kind"] == "still").await;
+    c
+}
+
 /// Types the steering token into the page's panel (real key events).
 async fn type_token(c: &fantoccini::Client) {
     c.find(fantoccini::Locator::Id("steer-token"))
@@ -604,7 +617,7 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
     use crate::viewer::{drag, image_of, screenshot, wait_frame};
     use fantoccini::Locator;
     use insitu_core::metrics::{mse, psnr_from_mse};
-    use insitu_e2e::browser::{artefacts, browser, js, start_driver};
+    use insitu_e2e::browser::{artefacts, js, start_driver};
 
     let Some(driver) = start_driver() else {
         return;
@@ -616,9 +629,7 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
     assert!(wait_until(20.0, || tuner_status(&run.tuner).summaries >= 4));
     let shots = artefacts();
     let reply = rt().block_on(async {
-        let c = browser(&driver, &run.tmp.path().join("profile")).await;
-        c.goto(&format!("http://{}/", run.http)).await.unwrap();
-        wait_frame(&c, 30.0, |d| d["kind"] == "still").await;
+        let c = open_page(&driver, &run, "profile").await;
         let shown = js(
             &c,
             "for (let i = 0; i < 200; i++) { if (!document.getElementById('steer').hidden && document.getElementById('tf-map').options.length) { done(true); return; } await new Promise(r => setTimeout(r, 50)); } done(false);",
@@ -692,9 +703,7 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
     // The page shows a steered step as the VDI renders it here.
     let shown_step = from + 7;
     let generated = rt().block_on(async {
-        let c = browser(&driver, &run.tmp.path().join("profile2")).await;
-        c.goto(&format!("http://{}/", run.http)).await.unwrap();
-        wait_frame(&c, 30.0, |d| d["kind"] == "still").await;
+        let c = open_page(&driver, &run, "profile2").await;
         let page = image_of(
             &c,
             &format!("/api/render?step={shown_step}&size=128&format=png"),
