@@ -522,7 +522,9 @@ impl LocalNodes {
         pushed: u64,
         started: Instant,
     ) {
-        let seen = printer.finish(status.steps_shipped).await;
+        // A host's part (ranks composed on their node) is one stored VDI for all its ranks.
+        let stored = status.steps_shipped.saturating_sub(status.host_ranks) + status.host_parts;
+        let seen = printer.finish(stored).await;
         let tuner = self.tuner.as_ref().map(|t| t.engine().status());
         let summary = self.generator.shutdown().await;
         let run = Run {
