@@ -1,0 +1,119 @@
+//! Where a tuner's size probe spends its time: the generator-node measures a candidate `P_M` on
+//! a held step by preparing a ray-caster for the step, generating the VDI into the tuning's
+//! spare VDI, and encoding it (σ is the file's length). Timed here piece by piece, as a probe
+//! runs them, on the two runs of the tuning bench: Gray–Scott 128³ after 1500 steps (the
+//! demo's settings, zstd) and the ocean's first step (bzip2).
+//!
+//! - *ray-caster*: `Raycaster::new` (classification table, macro cells) and `prepare` (the
+//!   occupancy bits), paid by every probe unless the node keeps the held step's ray-caster;
+//! - *generation after another r*: into a spare last used at another resolution, so its room is
+//!   estimated again (as the search's probes alternate resolutions);
+//! - *generation, same r*: into a spare of this resolution (no estimate);
+//! - *encoding*: the codec, which is σ.
+//!
+//! Medians of `INSITU_BENCH_ROUNDS` (default 9). Run: `cargo bench -p insitu-core --bench probe`.
+
+#![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
+
+use insitu_core::vdi::codec::{encode, Codec};
+use insitu_core::vdi::generate::{generate, generate_into};
+use insitu_core::vdi::VdiParams;
+use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
+use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
+use std::hint::black_box;
+use std::time::Instant;
+
+fn median_ms(rounds: usize, mut f: impl FnMut()) -> f64 {
+    let mut v: Vec<f64> = (0..rounds)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Times the pieces of a probe of each `(r, γ)` of `candidates` on `volume`.
+fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], rounds: usize) {
+    let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
+    let tf = TransferFunction::default_for_range(lo, hi);
+    let camera = Camera::default_for_box(&volume.world_box());
+    let rp = RaycastParams::default();
+    println!("{name}, {codec:?}, medians of {rounds} (ms)");
+    println!("| r | γ | ray-caster | generation after another r | generation, same r | encoding | probe as run | σ kB |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for &(r, gamma) in candidates {
+        let params = VdiParams {
+            resolution: r,
+            gamma,
+        };
+        let other = VdiParams {
+            resolution: r / 2,
+            gamma,
+        };
+        let setup = median_ms(rounds, || {
+            let rc = Raycaster::new(volume, &tf, rp).expect("valid params");
+            rc.prepare((r as usize).pow(2));
+            black_box(&rc);
+        });
+        let rc = Raycaster::new(volume, &tf, rp).expect("valid params");
+        let mut spare = generate(&rc, &camera, other, 0, "").expect("valid");
+        let mut after_other = Vec::new();
+        for _ in 0..rounds {
+            generate_into(&rc, &camera, other, 0, "", &mut spare).expect("valid");
+            let t = Instant::now();
+            generate_into(&rc, &camera, params, 0, "", &mut spare).expect("valid");
+            after_other.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        after_other.sort_by(f64::total_cmp);
+        let after_other = after_other[rounds / 2];
+        let same = median_ms(rounds, || {
+            generate_into(&rc, &camera, params, 0, "", &mut spare).expect("valid")
+        });
+        let mut sigma = 0;
+        let encoding = median_ms(rounds, || {
+            sigma = encode(&spare, codec).expect("encodes").len();
+        });
+        println!(
+            "| {r} | {gamma} | {setup:.1} | {after_other:.1} | {same:.1} | {encoding:.1} | {:.1} | {:.0} |",
+            setup + after_other + encoding,
+            sigma as f64 / 1e3
+        );
+    }
+}
+
+fn main() {
+    let rounds: usize = std::env::var("INSITU_BENCH_ROUNDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(9);
+    println!("{} threads", rayon::current_num_threads());
+    let mut sim = GrayScott::new(128, GrayScottParams::default()).expect("grid size");
+    sim.advance(1500);
+    let gs = sim.v_volume();
+    probe(
+        "Gray–Scott 128³ after 1500 steps",
+        &gs,
+        Codec::Zstd,
+        &[(256, 0.04), (192, 0.03), (128, 0.01)],
+        rounds,
+    );
+    let file = "ocean_temp_ts_180x90x19x12_float32.raw";
+    let Some(path) = insitu_testenv::data_file(file) else {
+        eprintln!("ocean skipped: needs {file} (docs/data.md)");
+        return;
+    };
+    let ocean = RawFormat::from_file_name(&path)
+        .and_then(|f| f.load(&path, 0, glam::Vec3::ONE))
+        .expect("the ocean's first step");
+    probe(
+        "ocean 180×90×19, first step",
+        &ocean,
+        Codec::Bzip2,
+        &[(256, 0.02), (192, 0.01), (128, 0.005)],
+        rounds,
+    );
+}
