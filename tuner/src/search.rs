@@ -31,9 +31,11 @@
 //! (close to a power of γ), so the γ where it crosses the budget is interpolated instead of
 //! halved: between the nearest γ probed over the budget and the nearest under it, linearly in
 //! (ln γ, ln σ) — regula falsi on the grid, with a halving step after any guess that did not
-//! halve the bracket, so no search takes more than twice the bisection's probes. The answer is
-//! the bisection's (the smallest γ under the budget, as σ is monotone); the probes are fewer.
-//! σ of each probe is kept for the search, so no candidate is probed twice.
+//! halve the bracket, so a narrowing takes at most twice the bisection's probes — and a
+//! resolution's first probe is predicted from the nearest resolution already probed, its σ
+//! scaled by the ratio of the two r squared. The answer is the bisection's (the smallest γ under
+//! the budget, as σ is monotone); the probes are fewer. σ of each probe is kept for the search,
+//! so no candidate is probed twice.
 
 use crate::grid::{Candidate, ParamGrid};
 use crate::measure::Measurement;
