@@ -23,9 +23,11 @@ use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 use std::hint::black_box;
 use std::time::Instant;
 
-fn median_ms(rounds: usize, mut f: impl FnMut()) -> f64 {
+/// Median milliseconds of `f` over `rounds` runs, `before` run untimed ahead of each.
+fn median_ms(rounds: usize, mut before: impl FnMut(), mut f: impl FnMut()) -> f64 {
     let mut v: Vec<f64> = (0..rounds)
         .map(|_| {
+            before();
             let t = Instant::now();
             f();
             t.elapsed().as_secs_f64() * 1e3
@@ -53,29 +55,29 @@ fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], r
             resolution: r / 2,
             gamma,
         };
-        let setup = median_ms(rounds, || {
-            let rc = Raycaster::new(volume, &tf, rp).expect("valid params");
-            rc.prepare((r as usize).pow(2));
-            black_box(&rc);
-        });
+        let setup = median_ms(
+            rounds,
+            || {},
+            || {
+                let rc = Raycaster::new(volume, &tf, rp).expect("valid params");
+                rc.prepare((r as usize).pow(2));
+                black_box(&rc);
+            },
+        );
         let rc = Raycaster::new(volume, &tf, rp).expect("valid params");
-        let mut spare = generate(&rc, &camera, other, 0, "").expect("valid");
-        let mut after_other = Vec::new();
-        for _ in 0..rounds {
-            generate_into(&rc, &camera, other, 0, "", &mut spare).expect("valid");
-            let t = Instant::now();
-            generate_into(&rc, &camera, params, 0, "", &mut spare).expect("valid");
-            after_other.push(t.elapsed().as_secs_f64() * 1e3);
-        }
-        after_other.sort_by(f64::total_cmp);
-        let after_other = after_other[rounds / 2];
-        let same = median_ms(rounds, || {
-            generate_into(&rc, &camera, params, 0, "", &mut spare).expect("valid")
-        });
+        let spare = std::cell::RefCell::new(generate(&rc, &camera, other, 0, "").expect("valid"));
+        let into = |p: VdiParams| {
+            generate_into(&rc, &camera, p, 0, "", &mut spare.borrow_mut()).expect("valid")
+        };
+        let after_other = median_ms(rounds, || into(other), || into(params));
+        let same = median_ms(rounds, || {}, || into(params));
+        let spare = spare.into_inner();
         let mut sigma = 0;
-        let encoding = median_ms(rounds, || {
-            sigma = encode(&spare, codec).expect("encodes").len();
-        });
+        let encoding = median_ms(
+            rounds,
+            || {},
+            || sigma = encode(&spare, codec).expect("encodes").len(),
+        );
         println!(
             "| {r} | {gamma} | {setup:.1} | {after_other:.1} | {same:.1} | {encoding:.1} | {:.1} | {:.0} |",
             setup + after_other + encoding,

@@ -42,6 +42,7 @@ use crate::measure::Measurement;
 use crate::study::{Oracle, StudyError};
 use crate::utility::{best, Utility, UtilitySpec};
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::time::Instant;
 
 /// What a search found and what it cost.
@@ -101,6 +102,9 @@ pub fn grid_search(
     Ok(outcome(found, oracle, g0, s0, t))
 }
 
+/// σ of a search's size probes by (resolution index, γ index).
+type ProbedSigma = BTreeMap<(usize, usize), u64>;
+
 struct Adaptive<'o> {
     oracle: &'o mut dyn Oracle,
     grid: &'o ParamGrid,
@@ -113,7 +117,7 @@ struct Adaptive<'o> {
     first: Option<(usize, usize)>,
     /// Under a size budget alone, σ of every probe by (resolution index, γ index): a probe
     /// is not run twice.
-    sigma: Option<BTreeMap<(usize, usize), u64>>,
+    sigma: Option<ProbedSigma>,
     /// Whether the γ axis is searched by interpolation of those σ ([`Adaptive::guess`]).
     interpolate: bool,
 }
@@ -156,32 +160,46 @@ impl Adaptive<'_> {
             && tau_target.is_none_or(|t| s.tau_secs < t))
     }
 
+    /// σ of this search's probes and the size budget, where the γ axis is interpolated.
+    fn interpolation(&self) -> Option<(&ProbedSigma, f64)> {
+        let known = self.sigma.as_ref().filter(|_| self.interpolate)?;
+        Some((known, self.target.budgets().0? as f64))
+    }
+
+    fn ln_gamma(&self, k: usize) -> f64 {
+        f64::from(self.grid.gammas[k].max(1e-9)).ln()
+    }
+
+    /// ln γ where σ crosses `budget` on the line in (ln γ, ln σ) through the probes at γ
+    /// indices `ka` (σ `sa`, over the budget) and `kb` (σ `sb`, under it); `None` unless
+    /// `sa > sb > 0`.
+    fn crossing(&self, (ka, sa): (usize, f64), (kb, sb): (usize, f64), budget: f64) -> Option<f64> {
+        if !(sa > sb && sb > 0.0) {
+            return None;
+        }
+        let at = (sa.ln() - budget.ln()) / (sa.ln() - sb.ln());
+        Some(self.ln_gamma(ka) + at * (self.ln_gamma(kb) - self.ln_gamma(ka)))
+    }
+
+    /// The first γ index of `range` at or past ln γ = `x`.
+    fn first_past(&self, mut range: Range<usize>, x: f64) -> Option<usize> {
+        range.find(|&k| self.ln_gamma(k) >= x)
+    }
+
     /// Under a size budget alone, the γ index in `lo..hi` to probe next at resolution `ri`:
     /// where σ crosses the budget between the largest γ index probed at or below `lo` (over
     /// the budget) and `hi` (probed, under it), interpolated linearly in (ln γ, ln σ), rounded
     /// up to the grid (the first γ at or past the crossing). `None` without both probes.
     fn guess(&self, ri: usize, lo: usize, hi: usize) -> Option<usize> {
-        let known = self.sigma.as_ref().filter(|_| self.interpolate)?;
-        let budget = self.target.budgets().0? as f64;
-        let over = |s: u64| s as f64 >= budget;
+        let (known, budget) = self.interpolation()?;
         let (ka, sa) = known
             .range((ri, 0)..=(ri, lo))
             .next_back()
-            .map(|(&(_, k), &s)| (k, s))
-            .filter(|&(_, s)| over(s))?;
-        let sb = *known.get(&(ri, hi)).filter(|&&s| !over(s) && s > 0)?;
-        let ln_gamma = |k: usize| f64::from(self.grid.gammas[k].max(1e-9)).ln();
-        let (sa, sb) = ((sa.max(1) as f64).ln(), (sb as f64).ln());
-        if sa <= sb {
-            return None;
-        }
-        let at = (sa - budget.ln()) / (sa - sb);
-        let crossing = ln_gamma(ka) + at * (ln_gamma(hi) - ln_gamma(ka));
-        Some(
-            (lo..hi)
-                .find(|&k| ln_gamma(k) >= crossing)
-                .unwrap_or(hi - 1),
-        )
+            .map(|(&(_, k), &s)| (k, s as f64))
+            .filter(|&(_, s)| s >= budget)?;
+        let sb = *known.get(&(ri, hi))? as f64;
+        let x = self.crossing((ka, sa), (hi, sb), budget)?;
+        Some(self.first_past(lo..hi, x).unwrap_or(hi - 1))
     }
 
     /// Under a size budget alone, the γ index in `lo..=hi` where σ at resolution `ri` is
@@ -189,8 +207,7 @@ impl Adaptive<'_> {
     /// the ratio of the two resolutions squared (σ grows with the r² rays), interpolated as in
     /// [`Adaptive::guess`]. `None` when that resolution's probes do not straddle the budget.
     fn predict(&self, ri: usize, lo: usize, hi: usize) -> Option<usize> {
-        let known = self.sigma.as_ref().filter(|_| self.interpolate)?;
-        let budget = self.target.budgets().0? as f64;
+        let (known, budget) = self.interpolation()?;
         let rj = known
             .keys()
             .map(|&(r, _)| r)
@@ -201,17 +218,10 @@ impl Adaptive<'_> {
             .range((rj, 0)..=(rj, usize::MAX))
             .map(|(&(_, k), &s)| (k, s as f64 * scale))
             .collect();
-        let (ka, sa) = probes.iter().copied().rfind(|p| p.1 >= budget)?;
-        let (kb, sb) = probes.iter().copied().find(|p| p.1 < budget && p.0 > ka)?;
-        if sb <= 0.0 {
-            return None;
-        }
-        let ln_gamma = |k: usize| f64::from(self.grid.gammas[k].max(1e-9)).ln();
-        let at = (sa.ln() - budget.ln()) / (sa.ln() - sb.ln());
-        let crossing = ln_gamma(ka) + at * (ln_gamma(kb) - ln_gamma(ka));
-        let k = (0..self.grid.gammas.len())
-            .find(|&k| ln_gamma(k) >= crossing)
-            .unwrap_or(kb);
+        let a = probes.iter().copied().rfind(|p| p.1 >= budget)?;
+        let b = probes.iter().copied().find(|p| p.1 < budget && p.0 > a.0)?;
+        let x = self.crossing(a, b, budget)?;
+        let k = self.first_past(0..self.grid.gammas.len(), x).unwrap_or(b.0);
         Some(k.clamp(lo, hi))
     }
 
