@@ -309,10 +309,16 @@ fn search(
             }) as Box<dyn Oracle>
         })
         .collect();
-    let mut oracle = WorstCase::new(oracles);
     let r = engine.resolved();
-    // Size probes start at the P_M in force: the answer is most often near it.
-    let in_force = engine.state().current().map(|d| d.candidate);
+    let mut oracle =
+        WorstCase::new(oracles).with_sigma_budget(r.target.and_then(|t| t.budgets().0));
+    // Size probes start at the P_M in force (before the first decision, the one the nodes
+    // reported): the answer is most often near it.
+    let in_force = engine
+        .state()
+        .current()
+        .map(|d| d.candidate)
+        .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     match r.target {
         Some(t) => adaptive_search_near(&mut oracle, &r.grid, t, in_force),
         None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),

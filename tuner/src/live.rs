@@ -256,12 +256,32 @@ pub fn combine_ranks(ranks: &[Measurement]) -> Result<Measurement, LiveError> {
 /// its [`worst_case`] over them (see the module docs). Generations and their seconds add up.
 pub struct WorstCase<'o> {
     steps: Vec<Box<dyn Oracle + 'o>>,
+    /// σ_target, bytes: a size probe that breaks it on one step is not run on the others.
+    sigma_budget: Option<u64>,
+    /// σ of each step at the last size probe that reached it (bytes; 0 before any).
+    last_sigma: Vec<u64>,
 }
 
 impl<'o> WorstCase<'o> {
     /// Over one oracle per characteristic step.
     pub fn new(steps: Vec<Box<dyn Oracle + 'o>>) -> Self {
-        Self { steps }
+        let n = steps.len();
+        Self {
+            steps,
+            sigma_budget: None,
+            last_sigma: vec![0; n],
+        }
+    }
+
+    /// The same, for a search under σ_target `budget` (bytes): a size probe visits the steps
+    /// largest σ first (as the last probe found them) and stops at the first step whose σ
+    /// reaches the budget. The candidate is then infeasible whatever the other steps give, and
+    /// the σ returned is that step's (a lower bound of the worst case, at or over the budget).
+    /// On drifting data the newest characteristic step is usually the largest by far, so a
+    /// re-tune's probes over the budget cost one step instead of all of them.
+    pub fn with_sigma_budget(mut self, budget: Option<u64>) -> Self {
+        self.sigma_budget = budget;
+        self
     }
 }
 
@@ -275,13 +295,23 @@ impl Oracle for WorstCase<'_> {
         worst_case(&ms).map_err(|e| StudyError::Invalid(e.to_string()))
     }
 
-    /// The largest σ and τ over the steps (as [`worst_case`] takes them).
+    /// The largest σ and τ over the steps (as [`worst_case`] takes them); under a σ budget,
+    /// up to the first step that breaks it ([`WorstCase::with_sigma_budget`]).
     fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
-        let all = self
-            .steps
-            .iter_mut()
-            .map(|o| o.measure_sizing(c))
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut order: Vec<usize> = (0..self.steps.len()).collect();
+        if self.sigma_budget.is_some() {
+            order.sort_by_key(|&i| std::cmp::Reverse(self.last_sigma[i]));
+        }
+        let mut all = Vec::with_capacity(order.len());
+        for i in order {
+            let s = self.steps[i].measure_sizing(c)?;
+            self.last_sigma[i] = s.sigma_bytes;
+            let over = self.sigma_budget.is_some_and(|b| s.sigma_bytes >= b);
+            all.push(s);
+            if over {
+                break;
+            }
+        }
         Ok(Sizing::worst(&all))
     }
 
@@ -298,7 +328,7 @@ impl Oracle for WorstCase<'_> {
 mod tests {
     use super::*;
     use crate::grid::ParamGrid;
-    use crate::search::{adaptive_search, grid_search};
+    use crate::search::{adaptive_search, adaptive_search_near, grid_search};
     use crate::series::{characteristic_steps, conservative, histograms};
     use crate::study::TableOracle;
     use crate::utility::UtilitySpec;
@@ -462,6 +492,27 @@ mod tests {
                 "{}",
                 adaptive.generations
             );
+            // Under a size budget, probes over it on the largest step skip the others: the
+            // same answer, fewer generations, from scratch and from a P_M in force.
+            if let (Some(b), None) = target.budgets() {
+                let near = Some(Candidate {
+                    r: 128,
+                    gamma: 0.041,
+                });
+                for near in [None, near] {
+                    let mut all = WorstCase::new(oracles(&tables));
+                    let plain = adaptive_search_near(&mut all, &grid, target, near).unwrap();
+                    let mut all = WorstCase::new(oracles(&tables)).with_sigma_budget(Some(b));
+                    let cut = adaptive_search_near(&mut all, &grid, target, near).unwrap();
+                    assert_eq!(cut.value, worst, "{target:?} from {near:?}");
+                    assert!(
+                        cut.generations < plain.generations,
+                        "{target:?} from {near:?}: {} generations with the budget, {} without",
+                        cut.generations,
+                        plain.generations
+                    );
+                }
+            }
         }
     }
 

@@ -8,7 +8,10 @@
 //! bisection over the γ axis (≈ log₂ of its length measurements). The best r is then found
 //! by probing about five resolutions spread over the r axis and climbing to better
 //! neighbours; resolutions above the first one where even the largest γ misses the budget are
-//! skipped. For a quality target it is the mirror
+//! skipped. Started from the `P_M` in force (a live tuning), the search walks instead from
+//! its resolution outwards in both directions at doubling strides while the answers improve,
+//! then climbs from the best: the answer is usually near the `P_M` in force, and the
+//! resolutions far above it are the dearest to measure. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
 //!
 //! A time budget (Eq. 2) has the size budget's shape: τ rises with r (r² rays) and falls a
@@ -396,8 +399,7 @@ impl Adaptive<'_> {
         }
         let n = self.grid.rs.len();
         if let Some((ri, _)) = self.first {
-            // Answered first; the spread below takes it from `per_r`.
-            self.best_at(ri)?;
+            return self.gallop_r(ri);
         }
         let stride = (n / 5).max(1);
         let mut probes: Vec<usize> = (0..n).step_by(stride).collect();
@@ -414,10 +416,58 @@ impl Adaptive<'_> {
                 None => {}
             }
         }
-        let Some((mut at, mut value)) = best else {
-            return Ok(None);
-        };
-        // Climb to better neighbours.
+        match best {
+            Some((at, value)) => self.climb_from(at, value),
+            None => Ok(None),
+        }
+    }
+
+    /// From the resolution of the `P_M` in force (`start`) along the r axis: in each
+    /// direction at doubling strides (1, 2, 4, … resolutions) while each is better than the
+    /// best so far (upwards also ending at the first resolution that cannot meet a budget:
+    /// σ and τ rise with r), then by single resolutions to better neighbours of the best
+    /// ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the `P_M` in
+    /// force, and the resolutions far above it are the dearest to measure (a full trial at
+    /// r = 512 costs about five at r = 192), so the spread over the whole axis is not paid.
+    fn gallop_r(&mut self, start: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
+        let last = self.grid.rs.len() - 1;
+        let budgets = !matches!(self.target, UtilitySpec::Quality(_));
+        let mut best = self.best_at(start)?.map(|(_, v)| (start, v));
+        for up in [true, false] {
+            let (mut at, mut stride) = (start, 1);
+            loop {
+                let next = if up {
+                    (at + stride).min(last)
+                } else {
+                    at.saturating_sub(stride)
+                };
+                if next == at {
+                    break;
+                }
+                match self.best_at(next)? {
+                    Some((_, v)) if best.is_none_or(|(_, b)| v < b) => best = Some((next, v)),
+                    // Below a resolution that met nothing, keep walking down until one does.
+                    None if !up && best.is_none() => {}
+                    None if up && budgets => break,
+                    _ => break,
+                }
+                (at, stride) = (next, stride * 2);
+            }
+        }
+        match best {
+            Some((at, value)) => self.climb_from(at, value),
+            None => Ok(None),
+        }
+    }
+
+    /// From resolution `at` (ν `value`), to a better neighbour while there is one; the best
+    /// resolution's answer.
+    fn climb_from(
+        &mut self,
+        mut at: usize,
+        mut value: f64,
+    ) -> Result<Option<(Measurement, f64)>, StudyError> {
+        let n = self.grid.rs.len();
         loop {
             let mut moved = false;
             for ri in [at.wrapping_sub(1), at + 1] {
@@ -478,11 +528,15 @@ pub fn adaptive_search(
     adaptive_search_near(oracle, grid, target, None)
 }
 
-/// [`adaptive_search`] that, under a size budget, probes first near `near` (the `P_M` in
-/// force, whose σ the production steps have measured): the grid's resolution nearest its r is
-/// searched first, from the γ nearest its own (on a log scale), then the others as usual.
-/// The answer is the one [`adaptive_search`] finds; on a re-tune it usually costs fewer
-/// probes, since the answer is usually near the `P_M` in force.
+/// [`adaptive_search`] that, under a size budget, starts from `near` (the `P_M` in force,
+/// whose σ the production steps have measured): the grid's resolution nearest its r is
+/// searched first, from the γ nearest its own (on a log scale), then the resolutions
+/// outwards from it in both directions at doubling strides while they improve, and the best
+/// one's neighbours (instead of a spread over the whole r axis). Where q at each
+/// resolution's answer rises to one peak and falls beyond it (the paper's Fig. 7), the
+/// answer is the one [`adaptive_search`] finds; it costs fewer probes and far fewer full
+/// trials, since the answer is usually near the `P_M` in force and the resolutions far above
+/// it are the dearest to measure.
 ///
 /// # Errors
 /// As [`adaptive_search`].
