@@ -422,16 +422,15 @@ impl Adaptive<'_> {
         }
     }
 
-    /// From the resolution of the `P_M` in force (`start`) along the r axis: in each
-    /// direction at doubling strides (1, 2, 4, … resolutions) while each is better than the
-    /// best so far (upwards also ending at the first resolution that cannot meet a budget:
-    /// σ and τ rise with r), then by single resolutions to better neighbours of the best
-    /// ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the `P_M` in
+    /// Under a size budget, from the resolution of the `P_M` in force (`start`) along the r
+    /// axis: in each direction at doubling strides (1, 2, 4, … resolutions) while each is
+    /// better than the best so far (upwards also ending at the first resolution that cannot
+    /// meet the budget: σ rises with r), then by single resolutions to better neighbours of
+    /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the `P_M` in
     /// force, and the resolutions far above it are the dearest to measure (a full trial at
     /// r = 512 costs about five at r = 192), so the spread over the whole axis is not paid.
     fn gallop_r(&mut self, start: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
         let last = self.grid.rs.len() - 1;
-        let budgets = !matches!(self.target, UtilitySpec::Quality(_));
         let mut best = self.best_at(start)?.map(|(_, v)| (start, v));
         for up in [true, false] {
             let (mut at, mut stride) = (start, 1);
@@ -446,9 +445,9 @@ impl Adaptive<'_> {
                 }
                 match self.best_at(next)? {
                     Some((_, v)) if best.is_none_or(|(_, b)| v < b) => best = Some((next, v)),
-                    // Below a resolution that met nothing, keep walking down until one does.
+                    // Below a resolution that met nothing, keep walking down until one does
+                    // (upwards, no larger r meets a budget this one misses).
                     None if !up && best.is_none() => {}
-                    None if up && budgets => break,
                     _ => break,
                 }
                 (at, stride) = (next, stride * 2);
