@@ -349,8 +349,9 @@ fn say_why_it_stopped(engine: &Engine, e: &StudyError) {
 /// decision, persisted and pushed to every node, when it differs from the P_M in force;
 /// else as a re-validation of the P_M in force on `steps`. The decision is chosen for the
 /// step it will apply from: when the production steps measured so far forecast that `best`
-/// would miss the budget there, the controller's coarser candidate is pushed instead (and
-/// `best` kept as the finest the corrections may return to).
+/// would miss the budget there, the controller's coarser candidate is pushed instead, and
+/// when they leave room for a finer γ at `best`'s resolution, that one (`best` kept as the
+/// corrections' ceiling on r).
 fn decide(
     engine: &Engine,
     trigger: &Trigger,
@@ -382,11 +383,13 @@ fn decide(
         None => (best, trigger.to_string(), None, None),
         Some(p) => {
             let q = crate::engine::q_on(&s, &steps, p.candidate);
+            let finer = p.candidate.r == best.r && p.candidate.gamma < best.gamma;
             let reason = format!(
-                "{trigger}; tuned r {} γ {} (q {:.2} dB), coarsened for production σ forecast {:.2}× the measured by step {from_step}",
+                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {from_step}",
                 best.r,
                 best.gamma,
                 best.q(),
+                if finer { "refined" } else { "coarsened" },
                 p.forecast.sigma
             );
             (

@@ -430,9 +430,9 @@ impl Controller {
         (sigma, tau, ok)
     }
 
-    /// The `P_M` for step `at`: the finest candidate no finer than `tuned` whose forecast
-    /// meets the plan, searched from `tuned`'s resolution down (γ at least `tuned`'s at that
-    /// resolution, at most [`GAMMA_SPAN`] times it; below it any γ of the grid), else the
+    /// The `P_M` for step `at`: the finest candidate at a resolution no finer than `tuned`'s
+    /// whose forecast meets the plan, searched from `tuned`'s resolution down (γ from the
+    /// finest measured at that resolution up to [`GAMMA_SPAN`] times `tuned`'s), else the
     /// smallest γ that meets the plan at any lower resolution, else the coarsest candidate.
     /// `None` before there is a forecast.
     pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
@@ -471,11 +471,12 @@ impl Controller {
         let found = rs
             .iter()
             .find_map(|&r| {
-                // At a lower resolution the finest γ measured there (or where its σ is
-                // modelled from), not an extrapolation below it.
+                // The finest γ measured at the resolution (or where its σ is modelled from),
+                // not an extrapolation below it. At the tuned resolution too: there q only
+                // rises as γ falls (Sec. 6.1), so a γ finer than the tuned one that the
+                // forecast lets through is better on the data as it is now.
                 let floor = surface.gamma_floor(r).map_or(0.0, |g| g * (1.0 - 1e-6));
-                let lo = if r == tuned.r { tuned.gamma } else { floor };
-                first_fit(r, lo, span.max(lo))
+                first_fit(r, floor, span.max(floor))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
         Some(match found {
@@ -705,8 +706,8 @@ mod tests {
     }
 
     #[test]
-    fn a_shrinking_field_steps_back_only_past_the_hysteresis_and_never_past_the_tuned_pm() {
-        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+    fn a_shrinking_field_steps_back_only_past_the_hysteresis_and_never_past_the_tuned_resolution() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(192, g(1))]);
         let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
         let tuned = c(256, g(2));
         let current = c(256, g(4));
@@ -714,10 +715,18 @@ mod tests {
         // the 1.064 MB plan but not by the hysteresis: stay.
         observed(&mut ctl, 0, current, 1.05);
         assert_eq!(ctl.correct(&s, tuned, current, 10), None);
-        // k = 0.5: the tuned γ fits with room; back to it, not finer.
+        // k = 0.5: the tuned γ fits with room; back to it, and no finer, as γ 0.01 is the
+        // finest measured at r 256.
         observed(&mut ctl, 10, current, 0.5);
         let p = ctl.correct(&s, tuned, current, 20).unwrap();
         assert_eq!(p.candidate, tuned);
+        // With γ 0.005 measured at r 256 too, and k = 0.4: the finer γ fits (0.4 × 2 MB), at
+        // the tuned resolution, not a finer one.
+        let s = surface_of(&[c(256, g(1)), c(256, g(2)), c(256, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        observed(&mut ctl, 0, current, 0.4);
+        let p = ctl.correct(&s, tuned, current, 10).unwrap();
+        assert_eq!(p.candidate, c(256, g(1)), "{p:?}");
     }
 
     #[test]
