@@ -432,7 +432,13 @@ impl Adaptive<'_> {
     fn gallop_r(&mut self, start: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
         let last = self.grid.rs.len() - 1;
         let mut best = self.best_at(start)?.map(|(_, v)| (start, v));
-        for up in [true, false] {
+        // No larger r meets a budget that `start` misses at every γ.
+        let directions: &[bool] = if best.is_some() {
+            &[true, false]
+        } else {
+            &[false]
+        };
+        for &up in directions {
             let (mut at, mut stride) = (start, 1);
             loop {
                 let next = if up {
@@ -622,6 +628,8 @@ mod tests {
         exponent: f64,
         bumps: f64,
         generations: u64,
+        /// Every candidate probed or measured, in order.
+        asked: Vec<Candidate>,
     }
 
     impl Model {
@@ -630,6 +638,7 @@ mod tests {
                 exponent,
                 bumps,
                 generations: 0,
+                asked: Vec::new(),
             }
         }
     }
@@ -650,6 +659,7 @@ mod tests {
 
         fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
             self.generations += 1;
+            self.asked.push(c);
             let (r, gamma) = (f64::from(c.r), f64::from(c.gamma));
             let per_pixel = 4.0 + 1.2 * gamma.powf(-self.exponent);
             let bumps = 1.0 + self.bumps * (40.0 * gamma + r / 50.0).sin();
@@ -713,5 +723,31 @@ mod tests {
                 "bumps {bumps}: {interpolated} probes interpolating, {bisected} bisecting"
             );
         }
+    }
+
+    /// From a `P_M` in force at a resolution that misses the budget at every γ (σ rises with
+    /// r), the search walks down only: no larger resolution is probed, and the answer is the
+    /// plain search's.
+    #[test]
+    fn a_search_from_a_resolution_that_cannot_meet_the_budget_probes_no_larger_one() {
+        let grid = ParamGrid::parse("128:768:32", "0.001:0.26:0.004").unwrap();
+        // σ(r, 0.257) = 0.6 r² (4 + 1.2 · 0.257^−0.8) ≈ 4.5 r²: r 416 meets 800 kB, r 448 not.
+        let spec = UtilitySpec::Size(800_000);
+        let near = Candidate {
+            r: 512,
+            gamma: 0.013,
+        };
+        let mut from_near = Model::new(0.8, 0.0);
+        let mut plain = Model::new(0.8, 0.0);
+        let a = adaptive(&mut from_near, &grid, spec, Some(near), true).unwrap();
+        let b = adaptive(&mut plain, &grid, spec, None, true).unwrap();
+        let answer = |o: &Outcome| o.best.as_ref().map(Measurement::candidate);
+        assert_eq!(answer(&a), answer(&b));
+        assert!(answer(&a).is_some_and(|c| c.r <= 416), "{:?}", answer(&a));
+        assert!(
+            from_near.asked.iter().all(|c| c.r <= near.r),
+            "{:?}",
+            from_near.asked
+        );
     }
 }
