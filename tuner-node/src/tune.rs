@@ -311,7 +311,7 @@ fn search(
         .collect();
     let r = engine.resolved();
     let mut oracle =
-        WorstCase::new(oracles).with_sigma_budget(r.target.and_then(|t| t.budgets().0));
+        WorstCase::new(oracles).with_budgets(r.target.map_or((None, None), |t| t.budgets()));
     // Size probes start at the P_M in force (before the first decision, the one the nodes
     // reported): the answer is most often near it.
     let in_force = engine

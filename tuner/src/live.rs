@@ -256,10 +256,12 @@ pub fn combine_ranks(ranks: &[Measurement]) -> Result<Measurement, LiveError> {
 /// its [`worst_case`] over them (see the module docs). Generations and their seconds add up.
 pub struct WorstCase<'o> {
     steps: Vec<Box<dyn Oracle + 'o>>,
-    /// σ_target, bytes: a size probe that breaks it on one step is not run on the others.
-    sigma_budget: Option<u64>,
-    /// σ of each step at the last size probe that reached it (bytes; 0 before any).
-    last_sigma: Vec<u64>,
+    /// σ_target (bytes) and τ_target (seconds): a size probe that breaks either on one step is
+    /// not run on the others.
+    budgets: (Option<u64>, Option<f64>),
+    /// σ (bytes) and τ (seconds) of each step at the last size probe that reached it (0
+    /// before any).
+    last: Vec<(u64, f64)>,
 }
 
 impl<'o> WorstCase<'o> {
@@ -268,19 +270,20 @@ impl<'o> WorstCase<'o> {
         let n = steps.len();
         Self {
             steps,
-            sigma_budget: None,
-            last_sigma: vec![0; n],
+            budgets: (None, None),
+            last: vec![(0, 0.0); n],
         }
     }
 
-    /// The same, for a search under σ_target `budget` (bytes): a size probe visits the steps
-    /// largest σ first (as the last probe found them) and stops at the first step whose σ
-    /// reaches the budget. The candidate is then infeasible whatever the other steps give, and
-    /// the σ returned is that step's (a lower bound of the worst case, at or over the budget).
-    /// On drifting data the newest characteristic step is usually the largest by far, so a
-    /// re-tune's probes over the budget cost one step instead of all of them.
-    pub fn with_sigma_budget(mut self, budget: Option<u64>) -> Self {
-        self.sigma_budget = budget;
+    /// The same, for a search under σ_target `size` (bytes) and/or τ_target `time` (seconds):
+    /// a size probe visits the steps largest σ first (under a size budget, else largest τ
+    /// first; as the last probe found them) and stops at the first step whose σ or τ reaches
+    /// its budget. The candidate is then infeasible whatever the other steps give, and the σ
+    /// and τ returned are those measured so far (lower bounds of the worst case, one at or over
+    /// its budget). On drifting data the newest characteristic step is usually the largest by
+    /// far, so a re-tune's probes over the budget cost one step instead of all of them.
+    pub fn with_budgets(mut self, (size, time): (Option<u64>, Option<f64>)) -> Self {
+        self.budgets = (size, time);
         self
     }
 }
@@ -295,18 +298,22 @@ impl Oracle for WorstCase<'_> {
         worst_case(&ms).map_err(|e| StudyError::Invalid(e.to_string()))
     }
 
-    /// The largest σ and τ over the steps (as [`worst_case`] takes them); under a σ budget,
-    /// up to the first step that breaks it ([`WorstCase::with_sigma_budget`]).
+    /// The largest σ and τ over the steps (as [`worst_case`] takes them); under a budget, up
+    /// to the first step that breaks it ([`WorstCase::with_budgets`]).
     fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
+        let (size, time) = self.budgets;
         let mut order: Vec<usize> = (0..self.steps.len()).collect();
-        if self.sigma_budget.is_some() {
-            order.sort_by_key(|&i| std::cmp::Reverse(self.last_sigma[i]));
+        if size.is_some() {
+            order.sort_by_key(|&i| std::cmp::Reverse(self.last[i].0));
+        } else if time.is_some() {
+            order.sort_by(|&a, &b| self.last[b].1.total_cmp(&self.last[a].1));
         }
         let mut all = Vec::with_capacity(order.len());
         for i in order {
             let s = self.steps[i].measure_sizing(c)?;
-            self.last_sigma[i] = s.sigma_bytes;
-            let over = self.sigma_budget.is_some_and(|b| s.sigma_bytes >= b);
+            self.last[i] = (s.sigma_bytes, s.tau_secs);
+            let over =
+                size.is_some_and(|b| s.sigma_bytes >= b) || time.is_some_and(|b| s.tau_secs >= b);
             all.push(s);
             if over {
                 break;
@@ -492,9 +499,9 @@ mod tests {
                 "{}",
                 adaptive.generations
             );
-            // Under a size budget, probes over it on the largest step skip the others: the
-            // same answer, fewer generations, from scratch and from a P_M in force.
-            if let (Some(b), None) = target.budgets() {
+            // Under budgets, probes over them on one step skip the others: the same answer,
+            // fewer generations, from scratch and (size budgets) from a P_M in force.
+            if !matches!(target, UtilitySpec::Quality(_)) {
                 let near = Some(Candidate {
                     r: 128,
                     gamma: 0.041,
@@ -502,7 +509,7 @@ mod tests {
                 for near in [None, near] {
                     let mut all = WorstCase::new(oracles(&tables));
                     let plain = adaptive_search_near(&mut all, &grid, target, near).unwrap();
-                    let mut all = WorstCase::new(oracles(&tables)).with_sigma_budget(Some(b));
+                    let mut all = WorstCase::new(oracles(&tables)).with_budgets(target.budgets());
                     let cut = adaptive_search_near(&mut all, &grid, target, near).unwrap();
                     assert_eq!(cut.value, worst, "{target:?} from {near:?}");
                     assert!(
