@@ -416,19 +416,17 @@ impl Adaptive<'_> {
                 None => {}
             }
         }
-        match best {
-            Some((at, value)) => self.climb_from(at, value),
-            None => Ok(None),
-        }
+        self.climb_from(best)
     }
 
     /// Under a size budget, from the resolution of the `P_M` in force (`start`) along the r
     /// axis: in each direction at doubling strides (1, 2, 4, … resolutions) while each is
     /// better than the best so far (upwards also ending at the first resolution that cannot
     /// meet the budget: σ rises with r), then by single resolutions to better neighbours of
-    /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the `P_M` in
-    /// force, and the resolutions far above it are the dearest to measure (a full trial at
-    /// r = 512 costs about five at r = 192), so the spread over the whole axis is not paid.
+    /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
+    /// `P_M` in force, and the resolutions far above it are the dearest to measure (a full
+    /// trial at r = 512 costs about five at r = 192), so the spread over the whole axis is not
+    /// paid.
     fn gallop_r(&mut self, start: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
         let last = self.grid.rs.len() - 1;
         let mut best = self.best_at(start)?.map(|(_, v)| (start, v));
@@ -459,19 +457,19 @@ impl Adaptive<'_> {
                 (at, stride) = (next, stride * 2);
             }
         }
-        match best {
-            Some((at, value)) => self.climb_from(at, value),
-            None => Ok(None),
-        }
+        self.climb_from(best)
     }
 
-    /// From resolution `at` (ν `value`), to a better neighbour while there is one; the best
+    /// From the best resolution so far (its index and ν; `None`: no resolution met the
+    /// target, and no answer), to a better neighbour while there is one; the best
     /// resolution's answer.
     fn climb_from(
         &mut self,
-        mut at: usize,
-        mut value: f64,
+        best: Option<(usize, f64)>,
     ) -> Result<Option<(Measurement, f64)>, StudyError> {
+        let Some((mut at, mut value)) = best else {
+            return Ok(None);
+        };
         let n = self.grid.rs.len();
         loop {
             let mut moved = false;
