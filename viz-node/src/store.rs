@@ -437,21 +437,11 @@ impl Recording {
     /// # Errors
     /// [`StoreError::Io`] when the directory cannot be read.
     pub fn recover(&self) -> Result<Recovery, StoreError> {
-        let mut r = Recovery::default();
+        let mut r = self.left_to_do();
         let index = self.lock();
         let mut named = std::collections::HashSet::new();
         for e in index.entries.values() {
             named.extend(e.vdi.iter().chain(&e.references).cloned());
-            if e.world_size <= 1 && e.vdi.is_some() && e.references.is_some() && e.quality.is_none()
-            {
-                r.unscored.push((e.step, e.rank));
-            }
-            if e.world_size > 1
-                && !index.steps.contains_key(&e.step)
-                && r.uncomposed.last() != Some(&e.step)
-            {
-                r.uncomposed.push(e.step);
-            }
         }
         for st in index.steps.values() {
             named.extend(st.vdi.iter().chain(&st.references).cloned());
@@ -476,6 +466,27 @@ impl Recording {
         r.files_without_rows.sort();
         r.rows_without_files.sort();
         Ok(r)
+    }
+
+    /// The steps stored but not yet scored or composed (`unscored`, `uncomposed`; the other
+    /// fields empty), read from the index alone: unlike [`Recording::recover`] it touches no
+    /// file, so it may be polled while a viz-node writes to the recording.
+    pub fn left_to_do(&self) -> Recovery {
+        let mut r = Recovery::default();
+        let index = self.lock();
+        for e in index.entries.values() {
+            if e.world_size <= 1 && e.vdi.is_some() && e.references.is_some() && e.quality.is_none()
+            {
+                r.unscored.push((e.step, e.rank));
+            }
+            if e.world_size > 1
+                && !index.steps.contains_key(&e.step)
+                && r.uncomposed.last() != Some(&e.step)
+            {
+                r.uncomposed.push(e.step);
+            }
+        }
+        r
     }
 
     /// The whole index (see [`IndexDb::export`]).
@@ -770,7 +781,16 @@ mod tests {
         std::fs::remove_file(dir.path().join(vdi_name(2, 0))).unwrap();
         drop(rec);
         let rec = Recording::open(dir.path()).unwrap();
+        // What is left to do is read without touching a file (a write in flight keeps its
+        // temporary file); the same as `recover` finds.
+        let todo = rec.left_to_do();
+        assert!(dir.path().join(".tmp-abc").exists());
         let r = rec.recover().unwrap();
+        assert_eq!(
+            (&todo.unscored, &todo.uncomposed),
+            (&r.unscored, &r.uncomposed)
+        );
+        assert!(todo.temp_removed.is_empty() && todo.files_without_rows.is_empty());
         assert_eq!(r.temp_removed, [".tmp-abc"]);
         assert_eq!(r.files_without_rows, [vdi_name(9, 0)]);
         assert_eq!(r.rows_without_files, [vdi_name(2, 0)]);

@@ -73,8 +73,10 @@ async fn score(a: &Args, todo: insitu_viz_node::store::Recovery) -> Result<()> {
     })
     .await
     .context("starting a viz-node on the recording")?;
+    // Polled with the read-only query: `recover` removes temporary files, which would be
+    // the viz-node's compositions in flight.
     let left = loop {
-        let r = viz.shared().recording.recover()?;
+        let r = viz.shared().recording.left_to_do();
         let left = r.unscored.len() + r.uncomposed.len();
         if left == 0 || t0.elapsed().as_secs_f64() > a.timeout {
             break left;
