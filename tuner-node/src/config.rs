@@ -69,7 +69,9 @@ pub struct TrialConfig {
     /// wall clock on the nodes) may use `burst_secs + share × seconds since start`; beyond
     /// that the next trial waits.
     pub share: f64,
-    /// Trial seconds allowed before the share applies (lets the first tuning run at once).
+    /// Trial seconds allowed before the share applies: it lets the first tuning run at once,
+    /// and what that tuning leaves of it lapses when it decides (re-tunes are paced by the
+    /// share alone, so trials stay near `share` of a run that amortises the first tuning).
     pub burst_secs: f64,
     /// How long a trial waits for a node that holds its step to (re)connect, seconds.
     pub hold_wait_secs: f64,

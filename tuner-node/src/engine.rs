@@ -69,6 +69,9 @@ pub struct Counters {
     pub trials_failed: u64,
     /// Node seconds of the trials run.
     pub trial_secs: f64,
+    /// `trial_secs` when the first tuning decided: from then on the burst is what that
+    /// tuning used of it, the rest lapses (see `TrialConfig::burst_secs`).
+    pub burst_used: Option<f64>,
     /// CPU seconds of the trials run, as the nodes counted them, summed over ranks.
     pub trial_cpu_secs: f64,
     /// Of `trial_cpu_secs`, the size probes'.

@@ -5,6 +5,7 @@
 //! up on timeout), combines the ranks' results and persists them. The winner is pushed as the
 //! next decision when it differs from the P_M in force.
 
+use crate::config::TrialConfig;
 use crate::engine::Engine;
 use crate::state::{Decision, SizeProbe, Trial};
 use crate::trigger::Trigger;
@@ -46,6 +47,13 @@ fn measurement(r: &pb::TrialResult) -> Measurement {
     }
 }
 
+/// Node seconds of trials allowed `elapsed` seconds after the start: the burst (until the first
+/// tuning decides, then what it used of it, `burst_used`) plus the share of the wall clock.
+fn allowance(t: &TrialConfig, burst_used: Option<f64>, elapsed: f64) -> f64 {
+    let burst = burst_used.map_or(t.burst_secs, |b| b.clamp(0.0, t.burst_secs));
+    burst + t.share * elapsed
+}
+
 /// The measurements of one characteristic step, through the nodes that hold it.
 struct StepOracle {
     engine: Arc<Engine>,
@@ -56,12 +64,16 @@ struct StepOracle {
 }
 
 impl StepOracle {
-    /// Waits until the trials may spend more (the share of the wall clock, after the burst).
+    /// Waits until the trials may spend more (the share of the wall clock, after the burst,
+    /// which after the first tuning's decision is what that tuning used).
     fn pace(&self) {
         let t = &self.engine.cfg.trials;
         while !self.engine.stopping.load(Ordering::Relaxed) {
-            let spent = self.engine.counters().trial_secs;
-            let allowed = t.burst_secs + t.share * self.engine.started.elapsed().as_secs_f64();
+            let (spent, burst_used) = {
+                let c = self.engine.counters();
+                (c.trial_secs, c.burst_used)
+            };
+            let allowed = allowance(t, burst_used, self.engine.started.elapsed().as_secs_f64());
             if spent <= allowed {
                 return;
             }
@@ -286,6 +298,8 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         outcome.generations,
         trial_secs,
     );
+    let mut c = engine.counters();
+    c.burst_used = c.burst_used.or(Some(c.trial_secs));
     true
 }
 
@@ -478,5 +492,26 @@ mod tests {
             "{s:?}"
         );
         assert!(s.trials_reused > 0, "{s:?}");
+        assert_eq!(
+            engine.counters().burst_used,
+            None,
+            "no decision: the burst stays for the next tuning"
+        );
+    }
+
+    /// Before the first decision trials may use the whole burst; after it, what the first
+    /// tuning used of it and the share of the wall clock, never more than before.
+    #[test]
+    fn the_burst_left_by_the_first_tuning_lapses() {
+        let t = TrialConfig {
+            share: 0.1,
+            burst_secs: 15.0,
+            ..TrialConfig::default()
+        };
+        assert_eq!(allowance(&t, None, 0.0), 15.0);
+        assert!((allowance(&t, None, 60.0) - 21.0).abs() < 1e-12);
+        assert!((allowance(&t, Some(1.5), 60.0) - 7.5).abs() < 1e-12);
+        assert!((allowance(&t, Some(40.0), 60.0) - 21.0).abs() < 1e-12);
+        assert!((allowance(&t, Some(-1.0), 10.0) - 1.0).abs() < 1e-12);
     }
 }

@@ -19,7 +19,7 @@
 //! - [`Controller::choose`]: the finest candidate, not finer than the tuned one, whose σ and τ
 //!   scaled by the forecast meet the plan `(1 − headroom) × budget`: the tuned resolution with
 //!   γ stepped up, and a lower resolution when γ alone would need more than
-//!   [`GAMMA_SPAN`] times the tuned γ. [`Controller::correct`] says when that warrants a
+//!   [`gamma_span`] times the tuned γ. [`Controller::correct`] says when that warrants a
 //!   change: at once when the `P_M` in force misses the plan, back towards the tuned one only
 //!   when the finer candidate clears the plan by the hysteresis (so steps that hover near the
 //!   budget do not flip the `P_M` back and forth, and still data changes nothing).
@@ -31,10 +31,26 @@ use std::collections::{BTreeMap, VecDeque};
 pub const WINDOW: usize = 8;
 
 /// How far γ may be raised above the tuned γ at a resolution before a lower resolution is
-/// preferred. On drifting Gray–Scott 128³ the best `P_M` per step in hindsight kept γ near the
-/// tuned one and lowered r (r 192, γ 0.033 where the tuned r 256 would need γ 0.065 for the
-/// same σ: 2.1 dB more q), so γ absorbs only what lies between two resolutions of the grid.
+/// preferred, for a grid with one resolution (see [`gamma_span`]).
 pub const GAMMA_SPAN: f32 = 1.3;
+
+/// How far γ may be raised above the tuned γ at resolution `r` of `rs` (ascending) before the
+/// next lower resolution is preferred: the factor by which r would fall to it (for the lowest,
+/// the factor from it to the next higher; [`GAMMA_SPAN`] for a grid of one). γ absorbs what lies
+/// between two resolutions, and no more: on drifting Gray–Scott 128³ the best `P_M` per step in
+/// hindsight kept γ near the tuned one and lowered r (r 192, γ 0.033 where the tuned r 256 would
+/// need γ 0.065 for the same σ: 2.1 dB more q; the span from 256 to 192 is 1.33); after the F/k
+/// switch it raised γ at r 128 to 0.073 (1.8× the tuned 0.041) rather than halve r to 64, which
+/// cost 5 dB (the span from 128 to 64 is 2).
+pub fn gamma_span(rs: &[u32], r: u32) -> f32 {
+    let below = rs.iter().copied().filter(|&x| x < r).max();
+    let above = rs.iter().copied().filter(|&x| x > r).min();
+    match (below, above) {
+        (Some(b), _) if b > 0 => r as f32 / b as f32,
+        (_, Some(a)) if r > 0 => a as f32 / r as f32,
+        _ => GAMMA_SPAN,
+    }
+}
 
 /// The most growth a forecast extrapolates (a factor on σ).
 pub const MAX_GROWTH: f64 = 4.0;
@@ -432,7 +448,7 @@ impl Controller {
 
     /// The `P_M` for step `at`: the finest candidate at a resolution no finer than `tuned`'s
     /// whose forecast meets the plan, searched from `tuned`'s resolution down (γ from the
-    /// finest measured at that resolution up to [`GAMMA_SPAN`] times `tuned`'s), else the
+    /// finest measured at that resolution up to [`gamma_span`] times `tuned`'s), else the
     /// smallest γ that meets the plan at any lower resolution, else the coarsest candidate.
     /// `None` before there is a forecast.
     pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
@@ -467,7 +483,7 @@ impl Controller {
         // At least the grid's next γ above the tuned one (a coarse γ axis would otherwise
         // leave nothing within the span).
         let next = self.grid.gammas.iter().copied().find(|&g| g > tuned.gamma);
-        let span = (tuned.gamma * GAMMA_SPAN).max(next.unwrap_or(0.0));
+        let span = |r: u32| (tuned.gamma * gamma_span(&self.grid.rs, r)).max(next.unwrap_or(0.0));
         let found = rs
             .iter()
             .find_map(|&r| {
@@ -476,7 +492,7 @@ impl Controller {
                 // rises as γ falls (Sec. 6.1), so a γ finer than the tuned one that the
                 // forecast lets through is better on the data as it is now.
                 let floor = surface.gamma_floor(r).map_or(0.0, |g| g * (1.0 - 1e-6));
-                first_fit(r, floor, span.max(floor))
+                first_fit(r, floor, span(r).max(floor))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
         Some(match found {
@@ -703,6 +719,26 @@ mod tests {
         observed(&mut ctl, 10, tuned, 1e6);
         let p = ctl.correct(&s, tuned, tuned, 20).unwrap();
         assert_eq!((p.candidate, p.feasible), (c(64, g(40)), false));
+    }
+
+    /// γ may rise by the factor r would fall to the next lower resolution: at r 128 of
+    /// 64…256 that is 2, so a field grown 25× keeps r 128 with γ 1.5× the tuned one instead
+    /// of halving r (a span of 1.3 everywhere, as before, chose r 64 at γ 0.015).
+    #[test]
+    fn gamma_absorbs_what_lies_between_a_resolution_and_the_next_lower() {
+        let rs = grid().rs;
+        let spans = rs.iter().map(|&r| gamma_span(&rs, r)).collect::<Vec<_>>();
+        assert_eq!(spans, [2.0, 2.0, 1.5, 256.0 / 192.0]);
+        assert_eq!(gamma_span(&[256], 256), GAMMA_SPAN);
+        let s = surface_of(&[c(256, g(2)), c(256, g(8)), c(128, g(4)), c(64, g(2))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, g(8));
+        // k = 25 against a 1.064 MB plan: r 256 (γ ≤ 0.053) and r 192 (γ ≤ 0.06) miss it;
+        // r 128 meets it from γ 0.0587 (≤ 0.08).
+        observed(&mut ctl, 0, tuned, 25.0);
+        let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
+        assert_eq!(p.candidate, c(128, g(12)), "{p:?}");
+        assert!(p.feasible && p.sigma_bytes <= 1_064_000.0, "{p:?}");
     }
 
     #[test]
