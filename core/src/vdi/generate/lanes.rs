@@ -265,6 +265,10 @@ unsafe fn merge_avx2(
                 _mm256_mul_ps(d[2], d[2]),
             )
         };
+        // `Vec3A::clamp(ZERO, ONE)` as glam computes it: `min_ps(max_ps(v, 0), 1)` (a NaN
+        // gives 0).
+        let clamp_unit_glam = |v: __m256| _mm256_min_ps(_mm256_max_ps(v, zero), one);
+        let z = load(z_per_t);
         let longest = n.iter().copied().max().unwrap_or(0).min(positions.len());
         for (p, s) in positions[..longest].iter().enumerate() {
             let active =
@@ -300,20 +304,33 @@ unsafe fn merge_avx2(
             let accept = _mm256_and_ps(live, ok);
             let close = _mm256_movemask_ps(_mm256_andnot_ps(ok, live)) as u32;
             if close != 0 {
-                // The lanes that close their supersegment leave the vector registers here.
-                let mut held = OpenLanes::default();
-                _mm256_storeu_ps(held.t_start.as_mut_ptr(), t_start);
-                _mm256_storeu_ps(held.t_end.as_mut_ptr(), t_end);
-                for (held, color) in held.color.iter_mut().zip(color) {
-                    _mm256_storeu_ps(held.as_mut_ptr(), color);
+                // [`Open::close`] in every lane at once; the lanes that close their
+                // supersegment take theirs out of the vector registers here.
+                let inv = recip_floored(total);
+                let closed = [
+                    _mm256_mul_ps(t_start, z),
+                    _mm256_mul_ps(t_end, z),
+                    clamp_unit_glam(_mm256_mul_ps(color[0], inv)),
+                    clamp_unit_glam(_mm256_mul_ps(color[1], inv)),
+                    clamp_unit_glam(_mm256_mul_ps(color[2], inv)),
+                    // `f32::clamp(0, 1)`: a NaN stays NaN (`max_ps` and `min_ps` return
+                    // their second operand when either is NaN).
+                    _mm256_min_ps(one, _mm256_max_ps(zero, unit)),
+                ];
+                let mut held = [[0.0f32; LANES]; 6];
+                for (held, v) in held.iter_mut().zip(closed) {
+                    _mm256_storeu_ps(held.as_mut_ptr(), v);
                 }
-                _mm256_storeu_ps(held.total.as_mut_ptr(), total);
-                _mm256_storeu_ps(held.unit.as_mut_ptr(), unit);
                 let mut bits = close;
                 while bits != 0 {
                     let l = bits.trailing_zeros() as usize;
                     bits &= bits - 1;
-                    out[l].push(held.lane(l).close(z_per_t[l]));
+                    out[l].push(Supersegment {
+                        z_start: held[0][l],
+                        z_end: held[1][l],
+                        color: [held[2][l], held[3][l], held[4][l]],
+                        alpha: held[5][l],
+                    });
                 }
             }
             // Merged ([`Open::merge`]) where accepted.
