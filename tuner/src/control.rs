@@ -723,7 +723,7 @@ mod tests {
 
     /// γ may rise by the factor r would fall to the next lower resolution: at r 128 of
     /// 64…256 that is 2, so a field grown 25× keeps r 128 with γ 1.5× the tuned one instead
-    /// of halving r (a span of 1.3 everywhere, as before, chose r 64 at γ 0.015).
+    /// of halving r (a span of 1.3 at every resolution would choose r 64 at γ 0.015).
     #[test]
     fn gamma_absorbs_what_lies_between_a_resolution_and_the_next_lower() {
         let rs = grid().rs;
