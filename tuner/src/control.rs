@@ -65,9 +65,6 @@ const DEFAULT_SIGMA_SLOPE: f64 = -1.0;
 /// step's ratio and is corrected there).
 const SIGMA_SLOPE: (f64, f64, f64) = (-4.0, 0.0, -0.5);
 
-/// Slope bounds of ln τ over ln γ (τ falls a little as γ grows; flat beyond the measured).
-const TAU_SLOPE: (f64, f64, f64) = (-1.0, 0.0, 0.0);
-
 /// One measured candidate: its σ (bytes) and τ (seconds), worst case over the characteristic
 /// steps (σ summed over a step's ranks, τ of its slowest rank).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -127,9 +124,19 @@ impl Surface {
             .map(|p| p.0.exp() as f32)
     }
 
-    /// τ of `c`, seconds; `None` when no τ was measured.
+    /// τ of `c`, seconds: the largest τ measured at the resolution nearest `c`'s (in ln r),
+    /// whatever the γ, scaled by `(r / r_measured)²`; `None` when no τ was measured. τ falls
+    /// only a little as γ grows (fewer supersegments to close and write), less than two
+    /// timings of one candidate differ on a busy machine, so a curve through the timings at
+    /// one r would have the controller raise γ — losing q — to chase a fast timing; it
+    /// steps r for τ instead and keeps the finest γ there.
     pub fn tau(&self, c: Candidate) -> Option<f64> {
-        predict(&self.tau, c, TAU_SLOPE, 0.0)
+        if c.r == 0 {
+            return None;
+        }
+        let (r0, curve) = nearest(&self.tau, c.r)?;
+        let slowest = curve.iter().map(|p| p.1).reduce(f64::max)?;
+        Some((slowest + 2.0 * (f64::from(c.r).ln() - f64::from(r0).ln())).exp())
     }
 }
 
@@ -791,6 +798,41 @@ mod tests {
         // finest γ measured (0.01; nothing below it is extrapolated).
         assert_eq!(p.candidate, c(192, g(2)));
         assert!((p.tau_secs - 1.2 * tau(192)).abs() < 1e-9);
+    }
+
+    /// Timings at one r that differ by noise (a fast one at a coarser γ) do not make the
+    /// controller raise γ: τ at a resolution is its slowest timing, whatever the γ, so the
+    /// time budget is kept by r and the finest γ stays.
+    #[test]
+    fn a_fast_timing_at_a_coarse_gamma_is_not_chased() {
+        let point = |r: u32, gamma: f32, tau_secs: f64| Point {
+            candidate: c(r, gamma),
+            sigma_bytes: 1e3,
+            tau_secs,
+        };
+        // r 256: 0.12 s at γ 0.04, 0.07 s at γ 0.05 (the same work, timed on a busy core).
+        let s = Surface::new([
+            point(256, g(8), 0.12),
+            point(256, g(10), 0.07),
+            point(128, g(8), 0.03),
+        ]);
+        for gamma in [g(1), g(8), g(9), g(10), g(40)] {
+            assert!((s.tau(c(256, gamma)).unwrap() - 0.12).abs() < 1e-12);
+        }
+        assert!((s.tau(c(192, g(8))).unwrap() - 0.0675).abs() < 1e-12);
+        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let tuned = c(256, g(8));
+        ctl.observe(Observation {
+            planned_sigma_bytes: None,
+            step: 0,
+            candidate: tuned,
+            sigma_bytes: 1000,
+            tau_secs: 0.12,
+        });
+        // r 256 misses the 0.095 s plan at every γ (a curve through the two timings would
+        // have taken γ 0.045 there, 0.090 s); r 192 meets it at the finest γ measured.
+        let p = ctl.correct(&s, tuned, tuned, 1).unwrap();
+        assert_eq!(p.candidate, c(192, g(8)), "{p:?}");
     }
 
     #[test]
