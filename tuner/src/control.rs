@@ -411,20 +411,32 @@ impl Controller {
         })
     }
 
-    /// σ and τ of `c` forecast with `f`, and whether they meet the plan scaled by `margin`
-    /// (1: the plan itself).
-    /// The ratio forecast at `c`: the window's, or the one `c` itself measured when it was last
-    /// made (within [`MEMORY`] steps) if that was larger. The surface can be off at one
-    /// candidate (measured on other steps, interpolated), and a `P_M` that overshot on its own
-    /// step is not taken back on the strength of other candidates' ratios.
-    fn sigma_ratio(&self, surface: &Surface, f: &Forecast, c: Candidate) -> f64 {
-        let own = self
+    /// The ratios of σ and τ forecast at `c`: the window's, or where larger the ones measured
+    /// when `c` itself was last made (for τ: any candidate at `c`'s resolution, τ being one
+    /// whatever the γ), within [`MEMORY`] steps. The surface can be off at one candidate
+    /// (measured on other steps, interpolated, or for τ scaled by r² from a resolution whose
+    /// fixed costs dominate its timing), and a `P_M` that overshot on its own step is not
+    /// taken back on the strength of other candidates' ratios.
+    fn ratios(&self, surface: &Surface, f: &Forecast, c: Candidate) -> (f64, f64) {
+        let recent = self
             .seen
-            .get(&(c.r, c.gamma.to_bits()))
-            .filter(|o| f.newest.saturating_sub(o.step) <= MEMORY * self.stride())
-            .and_then(|o| Some(o.sigma_bytes as f64 / surface.sigma(c)?))
-            .filter(|k| k.is_finite());
-        own.map_or(f.sigma, |k| k.max(f.sigma))
+            .values()
+            .filter(|o| f.newest.saturating_sub(o.step) <= MEMORY * self.stride());
+        let ratio = |measured: f64, modelled: Option<f64>| {
+            modelled.map(|m| measured / m).filter(|k| k.is_finite())
+        };
+        let own_sigma = recent
+            .clone()
+            .find(|o| o.candidate == c)
+            .and_then(|o| ratio(o.sigma_bytes as f64, surface.sigma(c)));
+        let own_tau = recent
+            .filter(|o| o.candidate.r == c.r)
+            .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)))
+            .reduce(f64::max);
+        (
+            own_sigma.map_or(f.sigma, |k| k.max(f.sigma)),
+            own_tau.map_or(f.tau, |k| k.max(f.tau)),
+        )
     }
 
     /// The smallest gap between consecutive steps of the window (1 when unknown).
@@ -438,19 +450,33 @@ impl Controller {
             .max(1)
     }
 
-    fn fits(&self, surface: &Surface, f: &Forecast, c: Candidate, margin: f64) -> (f64, f64, bool) {
-        let sigma = surface
-            .sigma(c)
-            .map_or(f64::INFINITY, |s| s * self.sigma_ratio(surface, f, c));
-        let tau = surface.tau(c).map_or(f64::NAN, |t| t * f.tau);
+    /// σ and τ of `c` forecast with `f`, and its load: the larger of σ and τ over their plans
+    /// scaled by `margin` (1: the plan itself); `c` meets the plan when the load is ≤ 1.
+    fn forecast_at(
+        &self,
+        surface: &Surface,
+        f: &Forecast,
+        c: Candidate,
+        margin: f64,
+    ) -> (f64, f64, f64) {
+        let (k_sigma, k_tau) = self.ratios(surface, f, c);
+        let sigma = surface.sigma(c).map_or(f64::INFINITY, |s| s * k_sigma);
+        let tau = surface.tau(c).map_or(f64::NAN, |t| t * k_tau);
         let plan = |t: f64| (1.0 - self.headroom) * t * margin;
-        let ok = self
+        let sigma_load = self
             .sigma_target
-            .is_none_or(|t| sigma <= plan(t) / self.miss)
-            && self
-                .tau_target
-                .is_none_or(|t| tau.is_nan() || tau <= plan(t));
-        (sigma, tau, ok)
+            .map_or(0.0, |t| sigma / (plan(t) / self.miss));
+        let tau_load = match self.tau_target {
+            Some(t) if !tau.is_nan() => tau / plan(t),
+            _ => 0.0,
+        };
+        (sigma, tau, sigma_load.max(tau_load))
+    }
+
+    /// σ and τ of `c` forecast with `f`, and whether they meet the plan scaled by `margin`.
+    fn fits(&self, surface: &Surface, f: &Forecast, c: Candidate, margin: f64) -> (f64, f64, bool) {
+        let (sigma, tau, load) = self.forecast_at(surface, f, c, margin);
+        (sigma, tau, load <= 1.0)
     }
 
     /// The `P_M` for step `at`: the finest candidate at a resolution no finer than `tuned`'s
@@ -502,15 +528,32 @@ impl Controller {
                 first_fit(r, floor, span(r).max(floor))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
-        Some(match found {
-            Some(c) => plan(c, true),
-            None => plan(
+        // Nothing meets the plan: the candidate forecast nearest it (the smallest load), the
+        // finest γ of equal ones. Under a size budget that is the coarsest candidate (σ falls
+        // with r and γ); under a time budget the lowest r at its finest γ (τ at a resolution is
+        // one whatever the γ, so a coarser γ would lose q for nothing).
+        let nearest = || {
+            let mut best: Option<(Candidate, f64)> = None;
+            for &r in rs.iter().rev() {
+                for &gamma in &self.grid.gammas {
+                    let c = Candidate { r, gamma };
+                    let load = self.forecast_at(surface, &f, c, 1.0).2;
+                    if best.is_none_or(|(_, b)| load < b) {
+                        best = Some((c, load));
+                    }
+                }
+            }
+            best.map_or(
                 Candidate {
                     r: self.grid.rs.first().copied().unwrap_or(tuned.r),
                     gamma: self.grid.gammas.last().copied().unwrap_or(tuned.gamma),
                 },
-                false,
-            ),
+                |(c, _)| c,
+            )
+        };
+        Some(match found {
+            Some(c) => plan(c, true),
+            None => plan(nearest(), false),
         })
     }
 
@@ -833,6 +876,45 @@ mod tests {
         // have taken γ 0.045 there, 0.090 s); r 192 meets it at the finest γ measured.
         let p = ctl.correct(&s, tuned, tuned, 1).unwrap();
         assert_eq!(p.candidate, c(192, g(8)), "{p:?}");
+    }
+
+    /// Under a time budget: a resolution whose own step was slow is not taken back on the
+    /// ratios of faster steps at another (fixed costs dominate a small r's timing, so its
+    /// ratio says little of a large r's); and when no candidate meets the plan, the lowest r
+    /// at its finest γ, not the coarsest γ.
+    #[test]
+    fn a_time_budget_keeps_a_slow_resolutions_own_timing_and_its_fallback_keeps_gamma() {
+        let point = |r: u32, tau_secs: f64| Point {
+            candidate: c(r, g(2)),
+            sigma_bytes: 1e3,
+            tau_secs,
+        };
+        let s = Surface::new([point(256, 0.05), point(128, 0.03)]);
+        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let tuned = c(256, g(2));
+        let at = |ctl: &mut Controller, step: u64, candidate: Candidate, tau_secs: f64| {
+            ctl.observe(Observation {
+                planned_sigma_bytes: None,
+                step,
+                candidate,
+                sigma_bytes: 1000,
+                tau_secs,
+            })
+        };
+        at(&mut ctl, 0, tuned, 0.12);
+        let p = ctl.correct(&s, tuned, tuned, 1).unwrap();
+        assert_eq!(p.candidate, c(192, g(2)), "{p:?}");
+        // Eight fast steps at r 192 push step 0 out of the window (k 0.7 there): r 256 would
+        // forecast 0.036 s on their ratio, but its own step took 0.12 s.
+        for step in 1..=8 {
+            at(&mut ctl, step, c(192, g(2)), 0.02);
+        }
+        assert!(ctl.observations().all(|o| o.candidate.r == 192));
+        assert_eq!(ctl.correct(&s, tuned, c(192, g(2)), 9), None);
+        // A step so slow that nothing meets the plan: r 64 at the finest γ of the grid.
+        at(&mut ctl, 9, c(192, g(2)), 10.0);
+        let p = ctl.correct(&s, tuned, c(192, g(2)), 10).unwrap();
+        assert_eq!((p.candidate, p.feasible), (c(64, g(1)), false), "{p:?}");
     }
 
     #[test]
