@@ -262,8 +262,8 @@ pub struct Plan {
     pub tau_secs: f64,
     /// The forecast behind it.
     pub forecast: Forecast,
-    /// Whether it meets the plan (`false`: the coarsest candidate was the best that could be
-    /// done).
+    /// Whether it meets the plan (`false`: the candidate forecast nearest it was the best that
+    /// could be done).
     pub feasible: bool,
 }
 
@@ -482,7 +482,8 @@ impl Controller {
     /// The `P_M` for step `at`: the finest candidate at a resolution no finer than `tuned`'s
     /// whose forecast meets the plan, searched from `tuned`'s resolution down (γ from the
     /// finest measured at that resolution up to [`gamma_span`] times `tuned`'s), else the
-    /// smallest γ that meets the plan at any lower resolution, else the coarsest candidate.
+    /// smallest γ that meets the plan at any lower resolution, else the candidate forecast
+    /// nearest the plan (the finest γ of equal ones).
     /// `None` before there is a forecast.
     pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
         let f = self.forecast(surface, at)?;
