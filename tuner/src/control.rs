@@ -84,7 +84,8 @@ type Curve = Vec<(f64, f64)>;
 #[derive(Clone, Debug, Default)]
 pub struct Surface {
     sigma: BTreeMap<u32, Curve>,
-    tau: BTreeMap<u32, Curve>,
+    /// ln τ of the slowest timing at each resolution (see [`Surface::tau`]).
+    tau: BTreeMap<u32, f64>,
 }
 
 impl Surface {
@@ -97,10 +98,13 @@ impl Surface {
             if !(r > 0 && g > 0.0 && g.is_finite()) {
                 continue;
             }
-            for (curves, v) in [(&mut s.sigma, p.sigma_bytes), (&mut s.tau, p.tau_secs)] {
-                if v > 0.0 && v.is_finite() {
-                    insert(curves.entry(r).or_default(), g.ln(), v.ln());
-                }
+            let valid = |v: f64| v > 0.0 && v.is_finite();
+            if valid(p.sigma_bytes) {
+                insert(s.sigma.entry(r).or_default(), g.ln(), p.sigma_bytes.ln());
+            }
+            if valid(p.tau_secs) {
+                let slowest = s.tau.entry(r).or_insert(f64::NEG_INFINITY);
+                *slowest = slowest.max(p.tau_secs.ln());
             }
         }
         s
@@ -134,8 +138,7 @@ impl Surface {
         if c.r == 0 {
             return None;
         }
-        let (r0, curve) = nearest(&self.tau, c.r)?;
-        let slowest = curve.iter().map(|p| p.1).reduce(f64::max)?;
+        let (r0, &slowest) = nearest(&self.tau, c.r)?;
         Some((slowest + 2.0 * (f64::from(c.r).ln() - f64::from(r0).ln())).exp())
     }
 }
@@ -166,14 +169,13 @@ fn pooled_slope(curves: &BTreeMap<u32, Curve>, bounds: (f64, f64, f64), default:
     }
 }
 
-/// The measured resolution nearest `r` (in ln r) and its curve.
-fn nearest(curves: &BTreeMap<u32, Curve>, r: u32) -> Option<(u32, &Curve)> {
+/// The measured resolution nearest `r` (in ln r) and what was measured there.
+fn nearest<V>(by_r: &BTreeMap<u32, V>, r: u32) -> Option<(u32, &V)> {
     let lr = f64::from(r.max(1)).ln();
     let dist = |x: u32| (f64::from(x).ln() - lr).abs();
-    curves
-        .iter()
+    by_r.iter()
         .min_by(|a, b| dist(*a.0).total_cmp(&dist(*b.0)))
-        .map(|(&r, c)| (r, c))
+        .map(|(&r, v)| (r, v))
 }
 
 /// A value at `c`: interpolated on the curve of the nearest measured resolution (in ln r),
@@ -418,19 +420,21 @@ impl Controller {
     /// fixed costs dominate its timing), and a `P_M` that overshot on its own step is not
     /// taken back on the strength of other candidates' ratios.
     fn ratios(&self, surface: &Surface, f: &Forecast, c: Candidate) -> (f64, f64) {
-        let recent = self
-            .seen
-            .values()
-            .filter(|o| f.newest.saturating_sub(o.step) <= MEMORY * self.stride());
+        let memory = MEMORY * self.stride();
+        let recent = |o: &&Observation| f.newest.saturating_sub(o.step) <= memory;
         let ratio = |measured: f64, modelled: Option<f64>| {
             modelled.map(|m| measured / m).filter(|k| k.is_finite())
         };
-        let own_sigma = recent
-            .clone()
-            .find(|o| o.candidate == c)
+        let own_sigma = self
+            .seen
+            .get(&(c.r, c.gamma.to_bits()))
+            .filter(recent)
             .and_then(|o| ratio(o.sigma_bytes as f64, surface.sigma(c)));
-        let own_tau = recent
-            .filter(|o| o.candidate.r == c.r)
+        let own_tau = self
+            .seen
+            .range((c.r, 0)..=(c.r, u32::MAX))
+            .map(|(_, o)| o)
+            .filter(recent)
             .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)))
             .reduce(f64::max);
         (
