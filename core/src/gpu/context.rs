@@ -1,7 +1,15 @@
 //! The wgpu device: adapter selection, limits, error capture, submission with GPU timestamps,
-//! buffer upload and read-back.
+//! buffer upload and read-back, and the buffers kept between calls.
+//!
+//! What a call costs besides its kernels is the host's side of the transfers, and on a
+//! discrete GPU that dominates unless buffers are reused and bytes are copied once: the
+//! kernels' scratch buffers (per-ray slots, counts, image bands) and the read-back buffer are
+//! kept for the next call instead of being allocated (and zeroed) again, and read-back data
+//! goes from the mapped buffer straight into its destination.
 
 use super::GpuError;
+use std::borrow::Cow;
+use std::num::NonZeroU64;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use wgpu::util::DeviceExt;
@@ -13,6 +21,13 @@ const MIN_BUFFER: usize = 32;
 /// or lost device must not hang the caller).
 pub const SUBMISSION_TIMEOUT: Duration = Duration::from_secs(300);
 
+/// Largest read-back buffer kept for the next read, bytes (a larger one is freed after use).
+const STAGING_KEPT: u64 = 256 << 20;
+
+/// Most bytes of scratch buffers kept for the next kernels; a buffer returned beyond it is
+/// freed, the smallest first.
+const SCRATCH_KEPT: u64 = 1 << 30;
+
 /// An opened GPU: adapter, device, queue, the limits granted and the compiled kernels.
 pub struct Gpu {
     pub(super) device: wgpu::Device,
@@ -23,6 +38,10 @@ pub struct Gpu {
     timestamps: bool,
     /// First asynchronous failure (device lost, uncaptured error), reported by the next call.
     failure: Arc<Mutex<Option<String>>>,
+    /// The read-back buffer (MAP_READ | COPY_DST) kept from the last read.
+    staging: Mutex<Option<wgpu::Buffer>>,
+    /// Scratch storage buffers (STORAGE | COPY_SRC) not in use, kept for the next kernels.
+    scratch: Mutex<Vec<wgpu::Buffer>>,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -94,6 +113,8 @@ impl Gpu {
             info,
             timestamps,
             failure,
+            staging: Mutex::new(None),
+            scratch: Mutex::new(Vec::new()),
         })
     }
 
@@ -208,15 +229,32 @@ impl Gpu {
         self.buffer_init(label, u.bytes(), wgpu::BufferUsages::UNIFORM)
     }
 
-    /// An uninitialised storage buffer of `size` bytes (at least [`MIN_BUFFER`]) that can be
-    /// copied from.
-    pub(super) fn storage(&self, label: &str, size: u64) -> wgpu::Buffer {
-        self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: size.max(MIN_BUFFER as u64).next_multiple_of(4),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        })
+    /// A scratch storage buffer (usage STORAGE | COPY_SRC) of at least `size` bytes (and at
+    /// least [`MIN_BUFFER`]), taken from those kept from earlier calls when one is large
+    /// enough; its contents are undefined. It goes back to be kept when dropped. Bind it with
+    /// [`Scratch::binding`], which is exactly `size` bytes long, so that kernels' bounds are
+    /// the requested size whatever buffer lies under it.
+    pub(super) fn scratch(&self, label: &str, size: u64) -> Scratch<'_> {
+        let size = size.max(MIN_BUFFER as u64).next_multiple_of(4);
+        let kept = self.scratch.lock().ok().and_then(|mut pool| {
+            let best = (0..pool.len())
+                .filter(|&i| pool[i].size() >= size)
+                .min_by_key(|&i| pool[i].size())?;
+            Some(pool.swap_remove(best))
+        });
+        let buffer = kept.unwrap_or_else(|| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        });
+        Scratch {
+            gpu: self,
+            buffer: Some(buffer),
+            size,
+        }
     }
 
     /// A bind group of `layout` whose binding `i` is `resources[i]`.
@@ -301,13 +339,15 @@ impl Gpu {
         match &query {
             None => Ok(None),
             Some((_, resolve)) => {
-                let bytes = self.read(resolve, 16)?;
-                let t = |k: usize| {
-                    let mut b = [0u8; 8];
-                    b.copy_from_slice(&bytes[8 * k..8 * k + 8]);
-                    u64::from_le_bytes(b)
-                };
-                let ticks = t(1).saturating_sub(t(0));
+                let mut stamps = [0u64; 2];
+                self.read_with(resolve, 16, |b| {
+                    for (t, w) in stamps.iter_mut().zip(b.chunks_exact(8)) {
+                        let mut le = [0u8; 8];
+                        le.copy_from_slice(w);
+                        *t = u64::from_le_bytes(le);
+                    }
+                })?;
+                let ticks = stamps[1].saturating_sub(stamps[0]);
                 let period_ns = f64::from(self.queue.get_timestamp_period());
                 Ok(Some(ticks as f64 * period_ns * 1e-9))
             }
@@ -329,18 +369,36 @@ impl Gpu {
         }
     }
 
-    /// Copies the first `size` bytes of `buffer` (usage COPY_SRC) to the host.
-    pub(super) fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
+    /// Copies the first `size` bytes of `buffer` (usage COPY_SRC) into a read-back buffer and
+    /// hands them to `consume` while it is mapped, so that they are copied once, into their
+    /// destination. The read-back buffer is kept for the next read.
+    ///
+    /// # Errors
+    /// Validation, out-of-memory, device loss, a wait past [`SUBMISSION_TIMEOUT`], or a
+    /// mapping that fails or never completes.
+    pub(super) fn read_with<T>(
+        &self,
+        buffer: &wgpu::Buffer,
+        size: u64,
+        consume: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
         if size == 0 {
-            return Ok(Vec::new());
+            return Ok(consume(&[]));
         }
         let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let kept = self
+            .staging
+            .lock()
+            .ok()
+            .and_then(|mut s| s.take_if(|b| b.size() >= padded));
         let staging = self.scoped("read-back", || {
-            let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("read-back"),
-                size: padded,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
+            let staging = kept.unwrap_or_else(|| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("read-back"),
+                    size: padded,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
             });
             let mut encoder = self
                 .device
@@ -351,7 +409,7 @@ impl Gpu {
         })?;
         // One message: the mapping callback never waits on it.
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        staging.map_async(wgpu::MapMode::Read, ..padded, move |r| {
             let _ = tx.send(r);
         });
         self.wait("read-back")?;
@@ -360,13 +418,62 @@ impl Gpu {
             Ok(Err(e)) => return Err(GpuError::Lost(format!("read-back mapping: {e}"))),
             Err(_) => return Err(GpuError::Lost("read-back mapping never completed".into())),
         }
-        let view = staging
-            .get_mapped_range(..)
-            .map_err(|e| GpuError::Lost(format!("read-back view: {e}")))?;
-        let out = view[..size as usize].to_vec();
-        drop(view);
+        let out = {
+            let view = staging
+                .get_mapped_range(..padded)
+                .map_err(|e| GpuError::Lost(format!("read-back view: {e}")))?;
+            consume(&view[..size as usize])
+        };
         staging.unmap();
+        if staging.size() <= STAGING_KEPT {
+            if let Ok(mut s) = self.staging.lock() {
+                if s.as_ref().is_none_or(|b| b.size() < staging.size()) {
+                    *s = Some(staging);
+                }
+            }
+        }
         Ok(out)
+    }
+}
+
+/// A scratch storage buffer lent by [`Gpu::scratch`], given back to be kept when dropped.
+pub(super) struct Scratch<'g> {
+    gpu: &'g Gpu,
+    /// `Some` until dropped.
+    buffer: Option<wgpu::Buffer>,
+    /// The size asked for, bytes: the length of [`Self::binding`].
+    size: u64,
+}
+
+impl Scratch<'_> {
+    /// The buffer under it (at least the size asked for).
+    pub(super) fn buffer(&self) -> &wgpu::Buffer {
+        // Invariant: `buffer` is only taken in `drop`.
+        self.buffer.as_ref().unwrap_or_else(|| unreachable!())
+    }
+
+    /// The first `size` bytes of the buffer, as a binding.
+    pub(super) fn binding(&self) -> wgpu::BindingResource<'_> {
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: self.buffer(),
+            offset: 0,
+            size: NonZeroU64::new(self.size),
+        })
+    }
+}
+
+impl Drop for Scratch<'_> {
+    fn drop(&mut self) {
+        let (Some(buffer), Ok(mut pool)) = (self.buffer.take(), self.gpu.scratch.lock()) else {
+            return;
+        };
+        pool.push(buffer);
+        pool.sort_unstable_by_key(|b| std::cmp::Reverse(b.size()));
+        let mut total = 0;
+        pool.retain(|b| {
+            total += b.size();
+            total <= SCRATCH_KEPT
+        });
     }
 }
 
@@ -403,28 +510,39 @@ impl Uniform {
     }
 }
 
-/// `f32` values as little-endian bytes.
-pub(super) fn f32_bytes(values: impl IntoIterator<Item = f32>) -> Vec<u8> {
-    values.into_iter().flat_map(f32::to_le_bytes).collect()
+/// `values` as the little-endian bytes the kernels read: borrowed on a little-endian host.
+/// `T` is made of 4-byte words (`u32`, `f32` and arrays or structs of them).
+pub(super) fn le_bytes<T: bytemuck::Pod>(values: &[T]) -> Cow<'_, [u8]> {
+    let bytes: &[u8] = bytemuck::cast_slice(values);
+    if cfg!(target_endian = "little") {
+        Cow::Borrowed(bytes)
+    } else {
+        let mut owned = bytes.to_vec();
+        owned.chunks_exact_mut(4).for_each(<[u8]>::reverse);
+        Cow::Owned(owned)
+    }
 }
 
-/// `u32` values as little-endian bytes.
-pub(super) fn u32_bytes(values: impl IntoIterator<Item = u32>) -> Vec<u8> {
-    values.into_iter().flat_map(u32::to_le_bytes).collect()
+/// Fills `out` from the little-endian bytes the kernels wrote (`bytes.len()` equal to
+/// `out`'s size in bytes): one copy on a little-endian host. `T` as for [`le_bytes`].
+pub(super) fn copy_from_le<T: bytemuck::Pod>(bytes: &[u8], out: &mut [T]) {
+    let dst: &mut [u8] = bytemuck::cast_slice_mut(out);
+    dst.copy_from_slice(bytes);
+    if cfg!(target_endian = "big") {
+        dst.chunks_exact_mut(4).for_each(<[u8]>::reverse);
+    }
 }
 
-/// Little-endian bytes back to `f32` values.
-pub(super) fn to_f32s(bytes: &[u8]) -> Vec<f32> {
-    bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect()
-}
-
-/// Little-endian bytes back to `u32` values.
-pub(super) fn to_u32s(bytes: &[u8]) -> Vec<u32> {
-    bytes
-        .chunks_exact(4)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect()
+/// Appends to `out` the values of the little-endian bytes the kernels wrote (a whole number
+/// of `T`): one copy on a little-endian host when `bytes` is aligned for `T` (mapped ranges
+/// are), without first filling `out` with zeros. `T` as for [`le_bytes`].
+pub(super) fn extend_from_le<T: bytemuck::Pod>(bytes: &[u8], out: &mut Vec<T>) {
+    match bytemuck::try_cast_slice::<u8, T>(bytes) {
+        Ok(values) if cfg!(target_endian = "little") => out.extend_from_slice(values),
+        _ => {
+            let start = out.len();
+            out.resize(start + bytes.len() / std::mem::size_of::<T>(), T::zeroed());
+            copy_from_le(bytes, &mut out[start..]);
+        }
+    }
 }

@@ -1,6 +1,6 @@
 //! A volume and transfer function uploaded to the GPU: reference DVR and VDI generation.
 
-use super::context::{f32_bytes, to_f32s, to_u32s, u32_bytes, Uniform};
+use super::context::{copy_from_le, extend_from_le, le_bytes, Scratch, Uniform};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -9,9 +9,15 @@ use crate::vdi::{generate::meta_for, Supersegment, Vdi, VdiParams};
 
 /// Bytes of one supersegment on the GPU (six `f32`, the layout of [`Supersegment`]).
 pub(super) const SEGMENT_BYTES: u64 = 24;
+// Read back and uploaded as they lie in memory (`le_bytes`, `copy_from_le`).
+const _: () = assert!(std::mem::size_of::<Supersegment>() == SEGMENT_BYTES as usize);
 /// Per-ray supersegment budget of the first generation pass; a band whose rays need more is
 /// run again with the next power of two above the largest count.
 pub const INITIAL_BUDGET: u32 = 16;
+/// Most bytes of per-ray slots in one generation band. A larger per-ray budget makes more,
+/// shorter bands rather than a larger buffer: the slots stay within what the device keeps
+/// between calls, and the memory a generation holds does not grow with its longest list.
+const SLOTS_PER_BAND: u64 = 512 << 20;
 /// Largest κ stored in the classification texture: `a = 1` has κ = ∞, which WGSL may not
 /// represent; `e^(−1e30·ℓ)` is 0 for any step, so the opacity is still exactly 1.
 const KAPPA_MAX: f32 = 1e30;
@@ -130,7 +136,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 wgpu::TextureDimension::D3,
                 wgpu::TextureFormat::R32Float,
                 4,
-                &f32_bytes(volume.data().iter().copied()),
+                &le_bytes(&volume.data()),
             );
             let lut_size = wgpu::Extent3d {
                 width: entries.len() as u32,
@@ -145,7 +151,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                     wgpu::TextureDimension::D1,
                     wgpu::TextureFormat::Rgba32Float,
                     16,
-                    &f32_bytes(entries.iter().flat_map(texel)),
+                    &le_bytes(&entries.iter().map(texel).collect::<Vec<_>>()),
                 )
             };
             let color_view = lut_texture("tf colour", |e| {
@@ -156,7 +162,13 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             });
             let macro_cells = gpu.buffer_init(
                 "macro cells",
-                &u32_bytes(grid.visibility().iter().map(|&v| u32::from(v))),
+                &le_bytes(
+                    &grid
+                        .visibility()
+                        .iter()
+                        .map(|&v| u32::from(v))
+                        .collect::<Vec<_>>(),
+                ),
                 wgpu::BufferUsages::STORAGE,
             );
             Ok(Self {
@@ -270,7 +282,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             let out_group = self.gpu.bind_group(
                 "dvr out",
                 &self.gpu.kernels.dvr_out_layout,
-                &[out.as_entire_binding()],
+                &[out.binding()],
             );
             self.gpu.dispatch(
                 "dvr",
@@ -312,16 +324,17 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let mut row0 = 0;
         while row0 < r {
             let per_ray = u64::from(budget) * SEGMENT_BYTES;
-            let rows = band_rows(self.gpu, r, per_ray, "VDI row of per-ray budgets")?;
+            let rows = band_rows(self.gpu, r, per_ray, "VDI row of per-ray budgets")?
+                .min((SLOTS_PER_BAND / (u64::from(r) * per_ray)).max(1) as u32);
             let n = rows.min(r - row0);
             let rays = u64::from(r) * u64::from(n);
-            let slots = self.gpu.storage("vdi slots", rays * per_ray);
-            let counts_buf = self.gpu.storage("vdi counts", rays * 4);
+            let slots = self.gpu.scratch("vdi slots", rays * per_ray);
+            let counts_buf = self.gpu.scratch("vdi counts", rays * 4);
             let scene = self.scene_group(&self.params(camera, r, r, row0, (params.gamma, budget)));
             let out_group = self.gpu.bind_group(
                 "generate out",
                 &self.gpu.kernels.generate_out_layout,
-                &[slots.as_entire_binding(), counts_buf.as_entire_binding()],
+                &[slots.binding(), counts_buf.binding()],
             );
             let t = self.gpu.dispatch(
                 "generate",
@@ -330,7 +343,10 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 [r.div_ceil(8), n.div_ceil(8), 1],
             )?;
             add_time(&mut kernel_s, t);
-            let counts = to_u32s(&self.gpu.read(&counts_buf, rays * 4)?);
+            let mut counts = vec![0u32; rays as usize];
+            self.gpu.read_with(counts_buf.buffer(), rays * 4, |b| {
+                copy_from_le(b, &mut counts)
+            })?;
             let most = counts.iter().copied().max().unwrap_or(0);
             if most > budget {
                 budget = most.checked_next_power_of_two().unwrap_or(most);
@@ -357,9 +373,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             }
             offsets.extend(local[1..].iter().map(|&o| base as u32 + o));
             if acc > 0 {
-                let (packed, t) = self.compact(&slots, &local, rays, budget, acc)?;
+                let t = self.compact(&slots, &local, rays, budget, &mut supersegments)?;
                 add_time(&mut kernel_s, t);
-                supersegments.extend(packed);
             }
             row0 += n;
         }
@@ -376,15 +391,17 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         })
     }
 
-    /// Packs a band's slots into `total` contiguous supersegments.
+    /// Packs a band's slots into contiguous supersegments (as many as the last of
+    /// `local_offsets`) appended to `out`; returns the kernel time.
     fn compact(
         &self,
-        slots: &wgpu::Buffer,
+        slots: &Scratch,
         local_offsets: &[u32],
         rays: u64,
         budget: u32,
-        total: u64,
-    ) -> Result<(Vec<Supersegment>, Option<f64>), GpuError> {
+        out: &mut Vec<Supersegment>,
+    ) -> Result<Option<f64>, GpuError> {
+        let total = u64::from(local_offsets.last().copied().unwrap_or(0));
         let gpu = self.gpu;
         let groups = rays.div_ceil(64);
         let max_x = u64::from(gpu.limits.max_compute_workgroups_per_dimension);
@@ -394,19 +411,19 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let params = gpu.uniform("compact params", &uniform);
         let offsets = gpu.buffer_init(
             "compact offsets",
-            &u32_bytes(local_offsets.iter().copied()),
+            &le_bytes(local_offsets),
             wgpu::BufferUsages::STORAGE,
         );
         let bytes = total * SEGMENT_BYTES;
-        let packed = gpu.storage("vdi packed", bytes);
+        let packed = gpu.scratch("vdi packed", bytes);
         let group = gpu.bind_group(
             "compact",
             &gpu.kernels.compact_layout,
             &[
                 params.as_entire_binding(),
-                slots.as_entire_binding(),
+                slots.binding(),
                 offsets.as_entire_binding(),
-                packed.as_entire_binding(),
+                packed.binding(),
             ],
         );
         let t = gpu.dispatch(
@@ -415,17 +432,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             &[&group],
             [gx as u32, gy as u32, 1],
         )?;
-        let values = to_f32s(&gpu.read(&packed, bytes)?);
-        let segs = values
-            .chunks_exact(6)
-            .map(|v| Supersegment {
-                z_start: v[0],
-                z_end: v[1],
-                color: [v[2], v[3], v[4]],
-                alpha: v[5],
-            })
-            .collect();
-        Ok((segs, t))
+        gpu.read_with(packed.buffer(), bytes, |b| extend_from_le(b, out))?;
+        Ok(t)
     }
 }
 
@@ -437,7 +445,7 @@ pub(super) fn image_in_bands(
     width: u32,
     height: u32,
     what: &str,
-    mut run: impl FnMut(u32, u32, &wgpu::Buffer) -> Result<Option<f64>, GpuError>,
+    mut run: impl FnMut(u32, u32, &Scratch) -> Result<Option<f64>, GpuError>,
 ) -> Result<KernelRun<Image>, GpuError> {
     let rows = band_rows(gpu, width, 12, &format!("{what} image row"))?;
     let mut image = Image::new(width, height);
@@ -446,16 +454,11 @@ pub(super) fn image_in_bands(
     while row0 < height {
         let n = rows.min(height - row0);
         let bytes = u64::from(width) * u64::from(n) * 12;
-        let out = gpu.storage(what, bytes);
+        let out = gpu.scratch(what, bytes);
         add_time(&mut kernel_s, run(row0, n, &out)?);
-        let values = to_f32s(&gpu.read(&out, bytes)?);
         let start = (row0 * width) as usize;
-        for (p, rgb) in image.pixels_mut()[start..]
-            .iter_mut()
-            .zip(values.chunks_exact(3))
-        {
-            *p = [rgb[0], rgb[1], rgb[2]];
-        }
+        let band = &mut image.pixels_mut()[start..start + (width * n) as usize];
+        gpu.read_with(out.buffer(), bytes, |b| copy_from_le(b, band))?;
         row0 += n;
     }
     Ok(KernelRun {

@@ -1,6 +1,6 @@
 //! A VDI uploaded to the GPU and rendered from new cameras.
 
-use super::context::{f32_bytes, u32_bytes, Uniform};
+use super::context::{le_bytes, Uniform};
 use super::scene::{image_in_bands, KernelRun, SEGMENT_BYTES};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
@@ -35,21 +35,17 @@ impl<'g> GpuVdi<'g> {
         gpu.scoped("uploading the VDI", || {
             let offsets = gpu.buffer_init(
                 "vdi offsets",
-                &u32_bytes(vdi.offsets().iter().copied()),
+                &le_bytes(vdi.offsets()),
                 wgpu::BufferUsages::STORAGE,
             );
             let segments = gpu.buffer_init(
                 "vdi supersegments",
-                &f32_bytes(vdi.supersegments().iter().flat_map(|s| {
-                    [
-                        s.z_start, s.z_end, s.color[0], s.color[1], s.color[2], s.alpha,
-                    ]
-                })),
+                &le_bytes(vdi.supersegments()),
                 wgpu::BufferUsages::STORAGE,
             );
             let tile_depth = gpu.buffer_init(
                 "vdi tile depths",
-                &f32_bytes(tile_depth_ranges(vdi).into_iter().flatten()),
+                &le_bytes(&tile_depth_ranges(vdi)),
                 wgpu::BufferUsages::STORAGE,
             );
             let meta = vdi.meta();
@@ -98,7 +94,7 @@ impl<'g> GpuVdi<'g> {
                     params.as_entire_binding(),
                     self.offsets.as_entire_binding(),
                     self.segments.as_entire_binding(),
-                    out.as_entire_binding(),
+                    out.binding(),
                     self.tile_depth.as_entire_binding(),
                 ],
             );

@@ -276,3 +276,59 @@ fn vdis_cross_between_backends_through_the_codec() {
         assert!(q >= 45.0, "{codec}: {q} dB");
     }
 }
+
+/// Scratch and read-back buffers are kept between calls: results after larger calls (whose
+/// buffers are reused, larger than asked for and holding their data) equal those of the
+/// first calls on a fresh device, bit for bit.
+#[test]
+fn kept_buffers_leave_no_trace_in_later_results() {
+    if gpu().is_none() {
+        return;
+    }
+    let fresh = Gpu::new(true).unwrap();
+    let v = Volume::from_fn([20, 18, 22], |x, y, z| {
+        ((x * 7 + y * 3 + z * 5) % 13) as f32 / 12.0
+    })
+    .unwrap();
+    let tf = TransferFunction::default_for_range(0.0, 1.0);
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
+    let cam = Camera::default_for_box(&v.world_box()).orbit_y(20.0);
+    let view = cam.orbit_y(30.0);
+    let scene = GpuScene::new(&fresh, &rc).unwrap();
+    let small = VdiParams {
+        resolution: 24,
+        gamma: 0.02,
+    };
+    let run = |params: VdiParams, size: u32| {
+        let vdi = scene.generate(&cam, params, 0, "t").unwrap().value;
+        let dvr = scene.dvr(&cam, size, size).unwrap().value;
+        let render = GpuVdi::new(&fresh, &vdi)
+            .unwrap()
+            .render(&view, size, size, 0.99)
+            .unwrap()
+            .value;
+        (vdi, dvr, render)
+    };
+    let first = run(small, 20);
+    // γ = 0: many more supersegments and a larger per-ray budget; larger images.
+    let large = run(
+        VdiParams {
+            resolution: 64,
+            gamma: 0.0,
+        },
+        72,
+    );
+    assert!(large.0.supersegments().len() > 4 * first.0.supersegments().len());
+    let again = run(small, 20);
+    assert_eq!(again.0, first.0, "VDI after a larger generation");
+    assert_eq!(again.1.pixels(), first.1.pixels(), "DVR after a larger one");
+    assert_eq!(
+        again.2.pixels(),
+        first.2.pixels(),
+        "render after a larger one"
+    );
+    assert!(
+        first.1.pixels().iter().flatten().any(|&c| c > 0.0),
+        "the DVR shows something"
+    );
+}
