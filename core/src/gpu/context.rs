@@ -24,8 +24,8 @@ pub const SUBMISSION_TIMEOUT: Duration = Duration::from_secs(300);
 /// Largest read-back buffer kept for the next read, bytes (a larger one is freed after use).
 const STAGING_KEPT: u64 = 256 << 20;
 
-/// Most bytes of scratch buffers kept for the next kernels; a buffer returned beyond it is
-/// freed, the smallest first.
+/// Most bytes of scratch buffers kept for the next kernels: the largest are kept while they
+/// fit under it, the others freed.
 const SCRATCH_KEPT: u64 = 1 << 30;
 
 /// An opened GPU: adapter, device, queue, the limits granted and the compiled kernels.
@@ -471,8 +471,11 @@ impl Drop for Scratch<'_> {
         pool.sort_unstable_by_key(|b| std::cmp::Reverse(b.size()));
         let mut total = 0;
         pool.retain(|b| {
-            total += b.size();
-            total <= SCRATCH_KEPT
+            let keep = total + b.size() <= SCRATCH_KEPT;
+            if keep {
+                total += b.size();
+            }
+            keep
         });
     }
 }
