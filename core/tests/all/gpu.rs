@@ -138,17 +138,23 @@ fn gpu_matches_cpu_on_real_data() {
     }
 }
 
-#[test]
-fn bands_and_budget_overflow_give_the_same_result_as_one_pass() {
-    let Some(shared) = gpu() else { return };
-    // γ = 0 closes a supersegment at every sample: ~40 per ray, over the first budget (16).
+/// A 20×18×22 volume of diagonal stripes (a new value at nearly every sample), a ramp over
+/// its range, and a camera 20° round from the default.
+fn striped() -> (Volume, TransferFunction, Camera) {
     let v = Volume::from_fn([20, 18, 22], |x, y, z| {
         ((x * 7 + y * 3 + z * 5) % 13) as f32 / 12.0
     })
     .unwrap();
-    let tf = TransferFunction::default_for_range(0.0, 1.0);
-    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     let cam = Camera::default_for_box(&v.world_box()).orbit_y(20.0);
+    (v, TransferFunction::default_for_range(0.0, 1.0), cam)
+}
+
+#[test]
+fn bands_and_budget_overflow_give_the_same_result_as_one_pass() {
+    let Some(shared) = gpu() else { return };
+    // γ = 0 closes a supersegment at every sample: ~40 per ray, over the first budget (16).
+    let (v, tf, cam) = striped();
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     let params = VdiParams {
         resolution: 40,
         gamma: 0.0,
@@ -286,13 +292,8 @@ fn kept_buffers_leave_no_trace_in_later_results() {
         return;
     }
     let fresh = Gpu::new(true).unwrap();
-    let v = Volume::from_fn([20, 18, 22], |x, y, z| {
-        ((x * 7 + y * 3 + z * 5) % 13) as f32 / 12.0
-    })
-    .unwrap();
-    let tf = TransferFunction::default_for_range(0.0, 1.0);
+    let (v, tf, cam) = striped();
     let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
-    let cam = Camera::default_for_box(&v.world_box()).orbit_y(20.0);
     let view = cam.orbit_y(30.0);
     let scene = GpuScene::new(&fresh, &rc).unwrap();
     let small = VdiParams {
