@@ -343,9 +343,9 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 [r.div_ceil(8), n.div_ceil(8), 1],
             )?;
             add_time(&mut kernel_s, t);
-            let mut counts = vec![0u32; rays as usize];
+            let mut counts = Vec::with_capacity(rays as usize);
             self.gpu.read_with(counts_buf.buffer(), rays * 4, |b| {
-                copy_from_le(b, &mut counts)
+                extend_from_le(b, &mut counts)
             })?;
             let most = counts.iter().copied().max().unwrap_or(0);
             if most > budget {
