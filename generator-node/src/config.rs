@@ -170,6 +170,11 @@ pub struct Config {
     /// CPU threads for generation, reference frames and trials (0: one per core). Fewer
     /// leave cores to the simulation on the same node.
     pub threads: usize,
+    /// Nice level of those threads, 0–19 (Linux; 0: the process's own priority). Above 0
+    /// the simulation on the same cores runs first and the node takes the time it leaves; a
+    /// simulation that keeps every core busy then delays the VDIs (docs/performance.md, "The
+    /// simulation's share").
+    pub nice: i32,
     /// The tuner service, `host:port`; unset: `P_M` stays as configured (or as pushed with
     /// SetConfig). The node dials out to it and reconnects with back-off.
     pub tuner: Option<String>,
@@ -261,6 +266,7 @@ impl Default for Config {
             max_backoff_secs: 5.0,
             backend: BackendChoice::Auto,
             threads: 0,
+            nice: 10,
             tuner: None,
             hold_bytes: 1 << 30,
             trial_interleave: 1,
@@ -423,6 +429,12 @@ impl Config {
         if !self.viz_shards.is_empty() && self.viz.is_none() {
             return Err(invalid("viz_shards", "needs viz, the first shard"));
         }
+        if !(0..=19).contains(&self.nice) {
+            return Err(invalid(
+                "nice",
+                format!("{} is not a nice level in 0–19", self.nice),
+            ));
+        }
         if !(self.host.wait_secs.is_finite() && (0.0..=3600.0).contains(&self.host.wait_secs)) {
             return Err(invalid("host.wait_secs", "must be seconds in [0, 3600]"));
         }
@@ -538,6 +550,8 @@ mod tests {
                 .contains("drop-newest")
         );
         assert!(bad("listen = \"nowhere\"").contains("listen"));
+        assert!(bad("nice = -5").contains("nice"));
+        assert!(bad("nice = 20").contains("nice"));
         assert!(bad("colour = 3").contains("colour"));
         assert!(bad("[generation]\ntf = \"/no/such/tf.json\"").contains("generation.tf"));
     }

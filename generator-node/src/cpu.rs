@@ -5,28 +5,23 @@
 
 use cpu_time::{ProcessTime, ThreadTime};
 
-/// CPU seconds, summed, that the threads of `pool` (rayon's global pool when `None`, as
-/// [`crate::work::on_pool`] runs on it) have spent since they started.
-pub fn pool_cpu_secs(pool: Option<&rayon::ThreadPool>) -> f64 {
-    let own = |_: rayon::BroadcastContext<'_>| ThreadTime::now().as_duration().as_secs_f64();
-    match pool {
-        Some(p) => p.broadcast(own).iter().sum(),
-        None => rayon::broadcast(own).iter().sum(),
-    }
+/// CPU seconds, summed, that the threads of `pool` have spent since they started.
+pub fn pool_cpu_secs(pool: &rayon::ThreadPool) -> f64 {
+    pool.broadcast(|_| ThreadTime::now().as_duration().as_secs_f64())
+        .iter()
+        .sum()
 }
 
-/// Runs `f` on `pool` ([`crate::work::on_pool`]) and returns its result and the CPU seconds
-/// the pool's threads and the calling thread spent meanwhile (on rayon's global pool `f`
-/// itself runs on the calling thread, its parallel loops on the pool's): `f`'s CPU time when
-/// nothing else runs on the pool (anything that does is counted with it).
+/// Runs `f` on `pool` (`f` itself and its parallel loops) and returns its result and the CPU
+/// seconds the pool's threads spent meanwhile: `f`'s CPU time when nothing else runs on the
+/// pool (anything that does is counted with it).
 pub fn on_pool_counted<R: Send>(
-    pool: Option<&rayon::ThreadPool>,
+    pool: &rayon::ThreadPool,
     f: impl FnOnce() -> R + Send,
 ) -> (R, f64) {
     let before = pool_cpu_secs(pool);
-    let caller = ThreadTime::now();
-    let out = crate::work::on_pool(pool, f);
-    let spent = caller.elapsed().as_secs_f64() + pool_cpu_secs(pool) - before;
+    let out = pool.install(f);
+    let spent = pool_cpu_secs(pool) - before;
     (out, spent.max(0.0))
 }
 
@@ -42,8 +37,8 @@ mod tests {
 
     /// The CPU time counted on a pool is the work run on it: a parallel loop on the pool is
     /// counted (against the CPU time each of its jobs measured on its own thread), so is `f`'s
-    /// serial work on rayon's global pool (where it runs on the caller), and work before and
-    /// after, on the calling thread, is not (other tests run beside this one, so the
+    /// serial work (which runs on one of the pool's threads), and work before and after, on
+    /// the calling thread, is not (other tests run beside this one, so the
     /// process's CPU time is no reference).
     #[test]
     fn a_pool_counts_the_cpu_time_of_its_own_work() {
@@ -52,7 +47,7 @@ mod tests {
             .build()
             .unwrap();
         let spin = |n: u64| (0..n).fold(0u64, |a, i| a.wrapping_mul(31).wrapping_add(i ^ a));
-        let (jobs, on_pool) = on_pool_counted(Some(&pool), || {
+        let (jobs, on_pool) = on_pool_counted(&pool, || {
             (0..64u64)
                 .into_par_iter()
                 .map(|k| {
@@ -66,20 +61,20 @@ mod tests {
             on_pool >= 0.95 * jobs && on_pool <= 1.5 * jobs + 0.05,
             "{on_pool} s counted for {jobs} s of jobs"
         );
-        // On rayon's global pool `f` runs on the calling thread: its serial work counts too.
-        let (serial, counted) = on_pool_counted(None, || {
+        // `f` itself runs on one of the pool's threads: its serial work counts too.
+        let (serial, counted) = on_pool_counted(&pool, || {
             let t = ThreadTime::now();
             std::hint::black_box(spin(10_000_000));
             t.elapsed().as_secs_f64()
         });
         assert!(
             counted >= 0.95 * serial,
-            "{counted} s counted for {serial} s of serial work on the caller"
+            "{counted} s counted for {serial} s of serial work in `f`"
         );
         let t = ThreadTime::now();
         let off = std::hint::black_box(spin(20_000_000));
         let off_secs = t.elapsed().as_secs_f64();
-        let (_, idle) = on_pool_counted(Some(&pool), || off);
+        let (_, idle) = on_pool_counted(&pool, || off);
         assert!(
             idle < 0.5 * off_secs + 0.005,
             "{idle} s counted for work off the pool ({off_secs} s)"

@@ -17,6 +17,7 @@ pub mod hold;
 pub mod host;
 pub mod ingest;
 pub mod node;
+pub mod pool;
 pub mod preview;
 pub mod queue;
 pub mod refusals;

@@ -57,6 +57,9 @@ struct Args {
     /// CPU threads for generation, references and trials (0: one per core).
     #[arg(long)]
     threads: Option<usize>,
+    /// Nice level of those threads, 0–19 (0: the process's own priority).
+    #[arg(long)]
+    nice: Option<i32>,
 }
 
 fn config(a: Args) -> Result<Config> {
@@ -75,6 +78,9 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.threads {
         c.threads = v;
+    }
+    if let Some(v) = a.nice {
+        c.nice = v;
     }
     if let Some(v) = a.queue_steps {
         c.queue.max_items = v;

@@ -208,7 +208,12 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         epoch: new_epoch(),
         spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
         shared_memory: shared_memory(cfg.shared_memory_dir.as_deref()),
-        pool: worker_pool(cfg.threads)?,
+        pool: crate::pool::worker_pool(cfg.threads, cfg.nice).map_err(|source| {
+            StartError::Threads {
+                threads: cfg.threads,
+                source,
+            }
+        })?,
         scene,
         // Without a viz-node nothing ships, so nothing is gathered either.
         host: Arc::new(crate::host::Gather::new(&crate::config::HostConfig {
@@ -315,19 +320,6 @@ fn shared_memory(dir: Option<&std::path::Path>) -> Option<crate::shm::SharedMemo
             None
         }
     }
-}
-
-/// The worker pool of `threads` (0: none of its own, rayon's global pool, one per core).
-fn worker_pool(threads: usize) -> Result<Option<Arc<rayon::ThreadPool>>, StartError> {
-    if threads == 0 {
-        return Ok(None);
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .thread_name(|i| format!("generate-{i}"))
-        .build()
-        .map(|pool| Some(Arc::new(pool)))
-        .map_err(|source| StartError::Threads { threads, source })
 }
 
 /// [`insitu_core::Backend::select`] off the runtime (a GPU's set-up blocks).

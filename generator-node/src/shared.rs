@@ -52,8 +52,8 @@ pub struct Shared {
     /// Where the world's default transfer function is agreed (the viz-node), when one is
     /// configured and the config names no transfer function.
     pub scene: Option<Arc<crate::scene::SceneLink>>,
-    /// The node's own worker threads (`threads` in the config); `None`: rayon's global pool.
-    pub pool: Option<Arc<rayon::ThreadPool>>,
+    /// The node's worker threads (`threads` and `nice` in the config, [`crate::pool`]).
+    pub pool: Arc<rayon::ThreadPool>,
     /// Fields of settled steps (generated or dropped): the next pushes are received into
     /// their memory (beyond what the queue counts: one, and a second within the queue's
     /// `max_bytes`; see [`crate::spare`]).
@@ -65,10 +65,10 @@ pub struct Shared {
 }
 
 impl Shared {
-    /// Runs CPU work (generation, reference frames, trials) on the node's worker threads
-    /// ([`crate::work::on_pool`]).
+    /// Runs CPU work (generation, reference frames, trials) on the node's worker threads:
+    /// `f` itself and every rayon loop inside it.
     pub fn compute<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
-        crate::work::on_pool(self.pool.as_deref(), f)
+        self.pool.install(f)
     }
 
     /// A snapshot of the current settings.

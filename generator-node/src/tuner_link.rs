@@ -202,9 +202,8 @@ async fn trials(
             tuning.since_trial.store(0, Ordering::Relaxed);
             let (s, t, r) = (shared.clone(), tuning.clone(), req);
             let result = tokio::task::spawn_blocking(move || {
-                let (mut result, cpu) = crate::cpu::on_pool_counted(s.pool.as_deref(), || {
-                    run_trial(&s, &t, rank, held, &r)
-                });
+                let (mut result, cpu) =
+                    crate::cpu::on_pool_counted(&s.pool, || run_trial(&s, &t, rank, held, &r));
                 result.trial_cpu_secs = cpu;
                 s.stats.update(|c| c.trial_cpu_secs += cpu);
                 result

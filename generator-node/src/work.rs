@@ -451,15 +451,6 @@ pub fn for_tuner(
     (summary, held)
 }
 
-/// Runs `f` on `pool` when there is one (every rayon loop inside uses its threads), else on
-/// rayon's global pool (one thread per core). The `threads` key of the config sets the pool.
-pub fn on_pool<R: Send>(pool: Option<&rayon::ThreadPool>, f: impl FnOnce() -> R + Send) -> R {
-    match pool {
-        Some(p) => p.install(f),
-        None => f(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -719,23 +710,5 @@ mod tests {
             ..top
         };
         assert_eq!(coarser(tiny, 4.0, true), None);
-    }
-
-    #[test]
-    fn work_runs_on_the_configured_threads() {
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        assert_eq!(on_pool(Some(&one), rayon::current_num_threads), 1);
-        let three = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
-        assert_eq!(on_pool(Some(&three), rayon::current_num_threads), 3);
-        assert_eq!(
-            on_pool(None, rayon::current_num_threads),
-            rayon::current_num_threads()
-        );
     }
 }

@@ -9,8 +9,9 @@
 //!    reports how much the process's peak RSS grew: the zero-copy check);
 //! 2. the simulation's time per step with a generator-node attached versus without
 //!    (Gray–Scott 128³ and 256³, `INSITU_OVERHEAD_SIZES`, pushing every 10th step through
-//!    shared memory, streamed, and through shared memory to a node on one thread), in
-//!    alternating rounds (`INSITU_OVERHEAD_ROUNDS`, default 5): the median ratio and its range;
+//!    shared memory, streamed, through shared memory to a node on one thread, and to a node at
+//!    the simulation's priority), in alternating rounds (`INSITU_OVERHEAD_ROUNDS`, default 5):
+//!    the median ratio and its range, and the node's lag behind the simulation;
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
@@ -180,17 +181,21 @@ fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
 /// The simulation's time per step alone and with a generator-node attached, in rounds that
 /// alternate the two (alone, attached, alone, …) so that whatever else the machine does
 /// falls on both: each round's ratio is taken against the run alone just before it, and the
-/// median ratio and its range over the rounds are printed. The node runs at its default
-/// settings (threads = 0: rayon's pool over every core, which the simulation shares), the
-/// client pushing through shared memory (the default on one host); then with the client kept
-/// to streaming, as from another host; then the node on one thread. It stays up between
-/// rounds (idle, it costs nothing).
+/// median ratio and its range over the rounds are printed. Four nodes stay up (idle, they cost
+/// nothing) and take turns within each round: the default settings (threads = 0: a pool over
+/// every core, which the simulation shares; nice 10), the client pushing through shared memory
+/// (the default on one host); the same with the client kept to streaming, as from another
+/// host; the node on one thread; and the node at the simulation's own priority (nice 0). What
+/// a lower priority costs is the node's lag: how long the last push's VDI took to come after
+/// the simulation's last step (the flush), and the steps the queue dropped.
 fn simulation_overhead(tmp: &std::path::Path) {
     let rounds = overhead_rounds();
     for n in overhead_sizes() {
         // About 4 s of simulation per round whatever the size (a step of 256³ takes ~10× one
         // of 128³), a push every 10th step.
         let (steps, every) = if n >= 256 { (60u64, 10u64) } else { (200, 10) };
+        // Seconds per step, the simulation's own push calls per step, the flush's wait and
+        // the node's dropped steps so far.
         let run = |addr: Option<&str>, shared_memory: bool| {
             rt().block_on(async {
                 let mut client = match addr {
@@ -220,18 +225,61 @@ fn simulation_overhead(tmp: &std::path::Path) {
                     }
                 }
                 let secs = t.elapsed().as_secs_f64();
+                let (mut lag, mut dropped) = (0.0, 0);
                 if let Some(c) = client.as_mut() {
                     assert_eq!(
                         c.shared_memory(),
                         Some(shared_memory && insitu_client::shm::host_id().is_some())
                     );
-                    c.flush(Duration::from_secs(600)).await.unwrap();
+                    let f = Instant::now();
+                    let status = c.flush(Duration::from_secs(600)).await.unwrap();
+                    lag = f.elapsed().as_secs_f64();
+                    dropped = status.dropped_queue;
                 }
-                (secs / steps as f64, pushing.as_secs_f64() / steps as f64)
+                (
+                    secs / steps as f64,
+                    pushing.as_secs_f64() / steps as f64,
+                    lag,
+                    dropped,
+                )
             })
         };
-        for (threads, shared_memory) in [("0", true), ("0", false), ("1", true)] {
-            let g = generator(
+        struct Setting {
+            label: &'static str,
+            node: Daemon,
+            shared_memory: bool,
+            alone: Vec<f64>,
+            with: Vec<f64>,
+            ratios: Vec<f64>,
+            pushes: Vec<f64>,
+            lags: Vec<f64>,
+            dropped: u64,
+        }
+        let mut settings: Vec<Setting> = [
+            (
+                "default settings (threads = 0, nice 10), pushed through shared memory",
+                "0",
+                "10",
+                true,
+            ),
+            ("threads = 0, nice 10, streamed", "0", "10", false),
+            (
+                "threads = 1, nice 10, pushed through shared memory",
+                "1",
+                "10",
+                true,
+            ),
+            (
+                "threads = 0, nice 0 (the simulation's priority), pushed through shared memory",
+                "0",
+                "0",
+                true,
+            ),
+        ]
+        .into_iter()
+        .map(|(label, threads, nice, shared_memory)| Setting {
+            label,
+            node: generator(
                 tmp,
                 &[
                     "--resolution",
@@ -242,33 +290,47 @@ fn simulation_overhead(tmp: &std::path::Path) {
                     "zstd",
                     "--threads",
                     threads,
+                    "--nice",
+                    nice,
                 ],
-            );
-            let (mut alone, mut with, mut ratios, mut added, mut pushes) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            for _ in 0..rounds {
-                let (a, _) = run(None, shared_memory);
-                let (w, p) = run(Some(&g.addr), shared_memory);
-                alone.push(a);
-                with.push(w);
-                ratios.push(w / a);
-                added.push(w - a);
-                pushes.push(p);
+            ),
+            shared_memory,
+            alone: Vec::new(),
+            with: Vec::new(),
+            ratios: Vec::new(),
+            pushes: Vec::new(),
+            lags: Vec::new(),
+            dropped: 0,
+        })
+        .collect();
+        for _ in 0..rounds {
+            for s in &mut settings {
+                let (a, ..) = run(None, s.shared_memory);
+                let (w, p, lag, dropped) = run(Some(&s.node.addr), s.shared_memory);
+                s.alone.push(a);
+                s.with.push(w);
+                s.ratios.push(w / a);
+                s.pushes.push(p);
+                s.lags.push(lag);
+                s.dropped = dropped;
             }
-            g.terminate();
-            let (a, w, (r, lo, hi)) = (spread(alone).0, spread(with).0, spread(ratios));
-            let (added, pushing) = (spread(added).0, spread(pushes).0);
+        }
+        for s in settings {
+            s.node.terminate();
+            let added: Vec<f64> = s.with.iter().zip(&s.alone).map(|(w, a)| w - a).collect();
+            let (a, w, (r, lo, hi)) = (spread(s.alone).0, spread(s.with).0, spread(s.ratios));
+            let (added, pushing, (lag, _, lag_max)) =
+                (spread(added).0, spread(s.pushes).0, spread(s.lags));
             println!(
-                "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps: median {:.2} ms alone, {:.2} ms with a generator-node (r = 256, zstd, threads = {threads}{}); ratio median {r:.3}× (range {lo:.3}–{hi:.3}×); added per step (median over rounds) {:.2} ms, the simulation's own copy and push calls {:.2} ms per step",
+                "simulation step, Gray–Scott {n}³, push every {every}th, {rounds} alternating rounds of {steps} steps, generator-node at r = 256, zstd, {}: median {:.2} ms alone, {:.2} ms with the node; ratio median {r:.3}× (range {lo:.3}–{hi:.3}×, aim ≤ 1.05×); added per step (median over rounds) {:.2} ms, the simulation's own copy and push calls {:.2} ms per step; the node's lag after the last step (flush) median {:.0} ms, max {:.0} ms; steps dropped {}",
+                s.label,
                 a * 1e3,
                 w * 1e3,
-                if shared_memory {
-                    ", pushed through shared memory"
-                } else {
-                    ", streamed"
-                },
                 added * 1e3,
                 pushing * 1e3,
+                lag * 1e3,
+                lag_max * 1e3,
+                s.dropped,
             );
         }
     }
