@@ -170,10 +170,11 @@ pub struct Config {
     /// CPU threads for generation, reference frames and trials (0: one per core). Fewer
     /// leave cores to the simulation on the same node.
     pub threads: usize,
-    /// Nice level of those threads, 0–19 (Linux; 0: the process's own priority). Above 0
-    /// the simulation on the same cores runs first and the node takes the time it leaves; a
-    /// simulation that keeps every core busy then delays the VDIs (docs/performance.md, "The
-    /// simulation's share").
+    /// Nice level of those threads, 0–19 (Linux; 0, the default: the process's own
+    /// priority). Above 0 a simulation on the same cores runs first and the node takes the
+    /// time it leaves: a simulation that keeps every core busy then delays the VDIs, and τ
+    /// (wall clock on the CPU) counts the waits, which a `time:` budget then pays for
+    /// (docs/performance.md, "The simulation's share").
     pub nice: i32,
     /// The tuner service, `host:port`; unset: `P_M` stays as configured (or as pushed with
     /// SetConfig). The node dials out to it and reconnects with back-off.
@@ -266,7 +267,7 @@ impl Default for Config {
             max_backoff_secs: 5.0,
             backend: BackendChoice::Auto,
             threads: 0,
-            nice: 10,
+            nice: 0,
             tuner: None,
             hold_bytes: 1 << 30,
             trial_interleave: 1,

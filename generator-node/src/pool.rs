@@ -1,9 +1,9 @@
 //! The node's worker threads: generation, reference frames, host composition and trials run
-//! on one rayon pool of `threads` (0: one per core) at a lower CPU priority than the
-//! simulation beside it (`nice`, docs/performance.md, "The simulation's share"). A node on the
-//! simulation's cores then takes the time the simulation leaves idle first; the price is the
-//! VDIs' latency while the simulation keeps every core busy. The threads that receive steps
-//! (the simulation waits on them) keep the process's priority.
+//! on one rayon pool of `threads` (0: one per core), optionally at a lower CPU priority than
+//! the simulation beside it (`nice`, docs/performance.md, "The simulation's share"). A node
+//! on the simulation's cores then takes the time the simulation leaves idle; the price is the
+//! VDIs' latency, and τ's waits, while the simulation keeps every core busy. The threads that
+//! receive steps (the simulation waits on them) keep the process's priority.
 
 use std::sync::Arc;
 
