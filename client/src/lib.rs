@@ -184,6 +184,24 @@ impl Step {
         Self::whole(step, sim_time, ScalarType::F32, dims, f32_vec_bytes(field))
     }
 
+    /// [`Self::whole_f32`] sending the vector `field` holds, without a copy, while the
+    /// simulation keeps its own handle: once the push has returned the client holds no
+    /// reference to it, so `Arc::get_mut` gives the buffer back for the next step's copy
+    /// (memory reused push after push, no fresh page faulted in for each).
+    pub fn whole_f32_shared(
+        step: u64,
+        sim_time: f64,
+        dims: [u32; 3],
+        field: std::sync::Arc<Vec<f32>>,
+    ) -> Self {
+        let data = if cfg!(target_endian = "little") {
+            Bytes::from_owner(F32Shared(field))
+        } else {
+            f32_bytes(&field)
+        };
+        Self::whole(step, sim_time, ScalarType::F32, dims, data)
+    }
+
     /// A whole single-rank `u8` field (x fastest), unit spacing.
     pub fn whole_u8(step: u64, sim_time: f64, dims: [u32; 3], field: impl Into<Bytes>) -> Self {
         Self::whole(step, sim_time, ScalarType::U8, dims, field.into())
@@ -336,6 +354,15 @@ struct F32Vec(Vec<f32>);
 impl AsRef<[u8]> for F32Vec {
     fn as_ref(&self) -> &[u8] {
         bytemuck::cast_slice(&self.0)
+    }
+}
+
+/// A simulation's shared f32 buffer seen as its bytes (little-endian machines).
+struct F32Shared(std::sync::Arc<Vec<f32>>);
+
+impl AsRef<[u8]> for F32Shared {
+    fn as_ref(&self) -> &[u8] {
+        bytemuck::cast_slice(self.0.as_slice())
     }
 }
 
@@ -543,16 +570,19 @@ mod tests {
     /// and signed zeros bit for bit; the owned one shares the vector's memory.
     #[test]
     fn f32_fields_become_their_little_endian_bytes() {
-        let values = vec![
-            0.0f32,
-            -0.0,
-            1.5,
-            -3.25e-38,
-            f32::MAX,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::from_bits(0x7fc0_0001),
-        ];
+        let values_again = || {
+            vec![
+                0.0f32,
+                -0.0,
+                1.5,
+                -3.25e-38,
+                f32::MAX,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                f32::from_bits(0x7fc0_0001),
+            ]
+        };
+        let values = values_again();
         let expected: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         assert_eq!(&f32_bytes(&values)[..], &expected[..]);
         let at = values.as_ptr() as usize;
@@ -563,6 +593,18 @@ mod tests {
         }
         let step = Step::whole_f32_owned(3, 0.5, [2, 2, 2], vec![1.0; 8]);
         assert_eq!(step.data.len(), 32);
+        // Shared: the same bytes in the simulation's own buffer, which it gets back whole
+        // once the step is gone.
+        let mut shared = std::sync::Arc::new(values_again());
+        let at = shared.as_ptr() as usize;
+        let step = Step::whole_f32_shared(4, 0.5, [2, 2, 2], shared.clone());
+        assert_eq!(&step.data[..], &expected[..]);
+        if cfg!(target_endian = "little") {
+            assert_eq!(step.data.as_ptr() as usize, at, "copied");
+        }
+        assert!(std::sync::Arc::get_mut(&mut shared).is_none(), "in use");
+        drop(step);
+        assert!(std::sync::Arc::get_mut(&mut shared).is_some(), "given back");
     }
 
     #[test]

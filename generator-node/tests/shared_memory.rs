@@ -53,13 +53,24 @@ async fn a_client_on_the_node_s_host_pushes_through_shared_memory() {
         None,
         "not known before the first push"
     );
+    // The simulation's buffer, reused push after push: the client lets go of it each time.
+    let mut staging = std::sync::Arc::new(Vec::new());
     for k in 0..3 {
         let n = if k == 2 { 10 } else { 12 }; // a smaller step over a larger one
+        let buffer = std::sync::Arc::get_mut(&mut staging).expect("the last push let go");
+        buffer.clear();
+        buffer.extend(field(n, k));
         client
-            .push_step(Step::whole_f32(k, 0.0, [n as u32; 3], &field(n, k)))
+            .push_step(Step::whole_f32_shared(
+                k,
+                0.0,
+                [n as u32; 3],
+                staging.clone(),
+            ))
             .await
             .unwrap();
     }
+    assert!(std::sync::Arc::get_mut(&mut staging).is_some());
     assert_eq!(client.shared_memory(), Some(true));
     assert_eq!(files(dir.path()).len(), 1, "one file, written over");
     let status = client.flush(Duration::from_secs(60)).await.unwrap();
@@ -78,10 +89,15 @@ async fn a_client_on_the_node_s_host_pushes_through_shared_memory() {
     // A client kept to streaming streams.
     let mut streaming = SimClient::connect(&addr, None).await.unwrap();
     streaming.set_shared_memory(false);
+    let mut staging = std::sync::Arc::new(field(12, 3));
     streaming
-        .push_step(Step::whole_f32(3, 0.0, [12; 3], &field(12, 3)))
+        .push_step(Step::whole_f32_shared(3, 0.0, [12; 3], staging.clone()))
         .await
         .unwrap();
+    assert!(
+        std::sync::Arc::get_mut(&mut staging).is_some(),
+        "a streamed push lets go of the buffer too"
+    );
     assert_eq!(streaming.shared_memory(), Some(false));
     let status = streaming.flush(Duration::from_secs(60)).await.unwrap();
     assert_eq!((status.steps_received, status.shared_pushes), (4, 3));
