@@ -10,8 +10,8 @@
 //! 2. the simulation's time per step with a generator-node attached versus without
 //!    (Gray–Scott 128³ and 256³, `INSITU_OVERHEAD_SIZES`, pushing every 10th step through
 //!    shared memory, streamed, through shared memory to a node on one thread, and to a node
-//!    below the simulation's priority), in alternating rounds (`INSITU_OVERHEAD_ROUNDS`, default 5):
-//!    the median ratio and its range, and the node's lag behind the simulation;
+//!    below the simulation's priority), in alternating rounds (`INSITU_OVERHEAD_ROUNDS`,
+//!    default 5): the median ratio and its range, and the node's lag behind the simulation;
 //! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
@@ -206,8 +206,8 @@ fn copied_out(sim: &GrayScott, k: u64, staging: &mut Arc<Vec<f32>>) -> Step {
 fn simulation_overhead(tmp: &std::path::Path) {
     let rounds = overhead_rounds();
     for n in overhead_sizes() {
-        // About 4 s of simulation per round whatever the size (a step of 256³ takes ~10× one
-        // of 128³), a push every 10th step.
+        // A push every 10th step; a run of 200 steps at 128³, 60 at 256³ (a step of 256³
+        // takes about 10× one of 128³: 6 s and 18 s a run on two cores).
         let (steps, every) = if n >= 256 { (60u64, 10u64) } else { (200, 10) };
         // Seconds per step, the simulation's own push calls per step, the flush's wait, the
         // node's dropped steps so far and the first (set-up) push's seconds.
