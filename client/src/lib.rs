@@ -29,6 +29,7 @@
 use insitu_proto::auth::{AttachToken, Token};
 use insitu_proto::pb::generator_client::GeneratorClient;
 use insitu_proto::{chunk, pb, transport};
+use std::borrow::Borrow;
 use std::time::Duration;
 use tonic::codegen::InterceptedService;
 use tonic::transport::Channel;
@@ -194,12 +195,13 @@ impl Step {
         dims: [u32; 3],
         field: std::sync::Arc<Vec<f32>>,
     ) -> Self {
-        let data = if cfg!(target_endian = "little") {
-            Bytes::from_owner(F32Shared(field))
-        } else {
-            f32_bytes(&field)
-        };
-        Self::whole(step, sim_time, ScalarType::F32, dims, data)
+        Self::whole(
+            step,
+            sim_time,
+            ScalarType::F32,
+            dims,
+            f32_owner_bytes(field),
+        )
     }
 
     /// A whole single-rank `u8` field (x fastest), unit spacing.
@@ -348,21 +350,24 @@ pub fn f32_bytes(field: &[f32]) -> Bytes {
     }
 }
 
-/// A `Vec<f32>` seen as its bytes (the buffer of [`f32_vec_bytes`]).
-struct F32Vec(Vec<f32>);
+/// A `Vec<f32>`, owned or shared, seen as its bytes (the buffer of [`f32_vec_bytes`] and
+/// [`Step::whole_f32_shared`]).
+struct F32Bytes<T>(T);
 
-impl AsRef<[u8]> for F32Vec {
+impl<T: Borrow<Vec<f32>>> AsRef<[u8]> for F32Bytes<T> {
     fn as_ref(&self) -> &[u8] {
-        bytemuck::cast_slice(&self.0)
+        bytemuck::cast_slice(self.0.borrow().as_slice())
     }
 }
 
-/// A simulation's shared f32 buffer seen as its bytes (little-endian machines).
-struct F32Shared(std::sync::Arc<Vec<f32>>);
-
-impl AsRef<[u8]> for F32Shared {
-    fn as_ref(&self) -> &[u8] {
-        bytemuck::cast_slice(self.0.as_slice())
+/// `field` as little-endian bytes without a copy on a little-endian machine: the vector
+/// becomes the buffer the step's chunks are cut from, freed (or, shared, given back) when the
+/// last is sent. On a big-endian machine, converted as [`f32_bytes`] does.
+fn f32_owner_bytes<T: Borrow<Vec<f32>> + Send + 'static>(field: T) -> Bytes {
+    if cfg!(target_endian = "little") {
+        Bytes::from_owner(F32Bytes(field))
+    } else {
+        f32_bytes(field.borrow())
     }
 }
 
@@ -370,11 +375,7 @@ impl AsRef<[u8]> for F32Shared {
 /// becomes the buffer the step's chunks are cut from, freed when the last is sent. On a
 /// big-endian machine, converted as [`f32_bytes`] does.
 pub fn f32_vec_bytes(field: Vec<f32>) -> Bytes {
-    if cfg!(target_endian = "little") {
-        Bytes::from_owner(F32Vec(field))
-    } else {
-        f32_bytes(&field)
-    }
+    f32_owner_bytes(field)
 }
 
 /// A connection to one generator-node.

@@ -9,6 +9,7 @@ use insitu_generator_node::{start, Config, RunningNode};
 use insitu_proto::pb;
 use insitu_proto::pb::generator_client::GeneratorClient;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Duration;
 
 async fn node(shared_memory_dir: Option<&Path>) -> RunningNode {
@@ -54,10 +55,10 @@ async fn a_client_on_the_node_s_host_pushes_through_shared_memory() {
         "not known before the first push"
     );
     // The simulation's buffer, reused push after push: the client lets go of it each time.
-    let mut staging = std::sync::Arc::new(Vec::new());
+    let mut staging = Arc::new(Vec::new());
     for k in 0..3 {
         let n = if k == 2 { 10 } else { 12 }; // a smaller step over a larger one
-        let buffer = std::sync::Arc::get_mut(&mut staging).expect("the last push let go");
+        let buffer = Arc::get_mut(&mut staging).expect("the last push let go");
         buffer.clear();
         buffer.extend(field(n, k));
         client
@@ -70,7 +71,7 @@ async fn a_client_on_the_node_s_host_pushes_through_shared_memory() {
             .await
             .unwrap();
     }
-    assert!(std::sync::Arc::get_mut(&mut staging).is_some());
+    assert!(Arc::get_mut(&mut staging).is_some());
     assert_eq!(client.shared_memory(), Some(true));
     assert_eq!(files(dir.path()).len(), 1, "one file, written over");
     let status = client.flush(Duration::from_secs(60)).await.unwrap();
@@ -89,13 +90,13 @@ async fn a_client_on_the_node_s_host_pushes_through_shared_memory() {
     // A client kept to streaming streams.
     let mut streaming = SimClient::connect(&addr, None).await.unwrap();
     streaming.set_shared_memory(false);
-    let mut staging = std::sync::Arc::new(field(12, 3));
+    let mut staging = Arc::new(field(12, 3));
     streaming
         .push_step(Step::whole_f32_shared(3, 0.0, [12; 3], staging.clone()))
         .await
         .unwrap();
     assert!(
-        std::sync::Arc::get_mut(&mut staging).is_some(),
+        Arc::get_mut(&mut staging).is_some(),
         "a streamed push lets go of the buffer too"
     );
     assert_eq!(streaming.shared_memory(), Some(false));

@@ -180,15 +180,10 @@ fn spread(mut v: Vec<f64>) -> (f64, f64, f64) {
 }
 
 /// Step `k` of `sim`: its field V copied, as f32, into the simulation's staging buffer
-/// (memory kept between pushes, given back by the client once a push returns; a fresh one
-/// only if it were not) and sent from there without another copy.
+/// (memory kept between pushes, given back by the client once a push returns) and sent from
+/// there without another copy.
 fn copied_out(sim: &GrayScott, k: u64, staging: &mut Arc<Vec<f32>>) -> Step {
-    if Arc::get_mut(staging).is_none() {
-        *staging = Arc::new(Vec::new());
-    }
-    if let Some(buffer) = Arc::get_mut(staging) {
-        sim.copy_v_into(buffer);
-    }
+    sim.copy_v_into(Arc::make_mut(staging));
     let n = sim.size() as u32;
     Step::whole_f32_shared(k, k as f64, [n; 3], staging.clone())
 }
@@ -278,7 +273,6 @@ fn simulation_overhead(tmp: &std::path::Path) {
             shared_memory: bool,
             alone: Vec<f64>,
             with: Vec<f64>,
-            ratios: Vec<f64>,
             pushes: Vec<f64>,
             lags: Vec<f64>,
             firsts: Vec<f64>,
@@ -326,7 +320,6 @@ fn simulation_overhead(tmp: &std::path::Path) {
             shared_memory,
             alone: Vec::new(),
             with: Vec::new(),
-            ratios: Vec::new(),
             pushes: Vec::new(),
             lags: Vec::new(),
             firsts: Vec::new(),
@@ -339,7 +332,6 @@ fn simulation_overhead(tmp: &std::path::Path) {
                 let (w, p, lag, dropped, first) = run(Some(&s.node.addr), s.shared_memory);
                 s.alone.push(a);
                 s.with.push(w);
-                s.ratios.push(w / a);
                 s.pushes.push(p);
                 s.lags.push(lag);
                 s.firsts.push(first);
@@ -349,7 +341,8 @@ fn simulation_overhead(tmp: &std::path::Path) {
         for s in settings {
             s.node.terminate();
             let added: Vec<f64> = s.with.iter().zip(&s.alone).map(|(w, a)| w - a).collect();
-            let (a, w, (r, lo, hi)) = (spread(s.alone).0, spread(s.with).0, spread(s.ratios));
+            let ratios: Vec<f64> = s.with.iter().zip(&s.alone).map(|(w, a)| w / a).collect();
+            let (a, w, (r, lo, hi)) = (spread(s.alone).0, spread(s.with).0, spread(ratios));
             let (added, pushing, (lag, _, lag_max), first) = (
                 spread(added).0,
                 spread(s.pushes).0,

@@ -224,7 +224,8 @@ impl GrayScott {
 
     /// The field V as a volume with unit spacing.
     pub fn v_volume(&self) -> Volume {
-        let data = self.v.iter().map(|&x| x as f32).collect();
+        let mut data = Vec::new();
+        self.copy_v_into(&mut data);
         // n ≥ 12 and the length is n³ by construction, so this cannot fail; fall back to a
         // 1-voxel volume rather than panic if that ever changes.
         Volume::new([self.n; 3], Vec3::ONE, data).unwrap_or_else(|_| Volume {
