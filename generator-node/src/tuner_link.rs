@@ -83,6 +83,18 @@ fn run_trial(
         out.error = e;
     }
     out.trial_secs = t.elapsed().as_secs_f64();
+    tracing::debug!(
+        step = out.step,
+        rank,
+        r = out.resolution,
+        gamma = out.gamma,
+        size_only = req.size_only,
+        sigma = out.sigma_bytes,
+        tau = out.tau_secs,
+        trial_secs = out.trial_secs,
+        error = %out.error,
+        "trial measured"
+    );
     out
 }
 

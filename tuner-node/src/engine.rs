@@ -1384,6 +1384,7 @@ mod tests {
                 },
                 trial_secs: 0.01,
                 run_by: 0,
+                production: false,
             });
         }
         l

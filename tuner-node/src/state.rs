@@ -71,6 +71,10 @@ pub struct SizeProbe {
     pub trial_secs: f64,
     /// The tuner process that ran it.
     pub run_by: u64,
+    /// A production step's own measurement, not a trial's ([`State::add_production`]): its σ
+    /// is what a trial would measure, its τ is not (see [`State::surface`]).
+    #[serde(default)]
+    pub production: bool,
 }
 
 /// A decision, as pushed.
@@ -316,6 +320,7 @@ impl State {
                 sizing,
                 trial_secs: 0.0,
                 run_by,
+                production: true,
             });
         }
     }
@@ -323,6 +328,15 @@ impl State {
     /// The σ/τ surface measured on `steps` (size probes and trials): each candidate's worst
     /// case over the steps, from the candidates measured on all of them (on any of them when
     /// none was).
+    ///
+    /// τ comes from the trials alone. A trial is timed on a node that has just run another
+    /// (one after another, its threads awake and its caches warm); a production step after
+    /// the node waited for the step (at 64³ on a 2-core VM, a generation after 0.5–1 s idle
+    /// takes 1.6–2.2× as long as the same one back to back). Mixed into one surface, a
+    /// production τ at one resolution beside trials' τ at the others would make the others
+    /// look faster than production will find them; kept out, the controller's τ ratio
+    /// (production τ over the trials' τ at its `P_M`) carries that difference to every
+    /// candidate, the first decision included.
     pub fn surface(&self, steps: &[u64]) -> Surface {
         // By candidate (r, γ's bits): the candidate, its worst σ and τ, the steps measured.
         type Worst = (Candidate, f64, f64, Vec<u64>);
@@ -330,7 +344,17 @@ impl State {
         let measured = self
             .size_probes
             .iter()
-            .map(|p| (p.step, p.candidate, p.sizing))
+            .map(|p| {
+                let sizing = if p.production {
+                    Sizing {
+                        tau_secs: 0.0,
+                        ..p.sizing
+                    }
+                } else {
+                    p.sizing
+                };
+                (p.step, p.candidate, sizing)
+            })
             .chain(
                 self.trials
                     .iter()
@@ -485,6 +509,70 @@ mod tests {
         assert!(e.contains(STATE_FILE) && e.contains("not valid"), "{e}");
     }
 
+    /// A production step gives the surface its σ but not its τ, so the controller sees how much
+    /// slower production is than the trials (here 1.5×) and a decision allows for it: the
+    /// tuned r 448, whose trials' τ fits a 10 ms budget, forecasts 12 ms in production, and the
+    /// finest resolution that fits is chosen instead: r 384 (τ from r 448's by r², 8.8 ms).
+    #[test]
+    fn production_tau_reaches_the_plan_as_a_ratio_not_through_the_surface() {
+        use insitu_tuner::control::{Controller, Observation};
+        use insitu_tuner::ParamGrid;
+        let mut s = State::new(Tracker::new(0.1, 4));
+        let c = |r, gamma| Candidate { r, gamma };
+        let probe = |candidate: Candidate, sigma_bytes: u64, tau_secs: f64, production| SizeProbe {
+            step: 0,
+            candidate,
+            sizing: Sizing {
+                sigma_bytes,
+                tau_secs,
+                ..Sizing::default()
+            },
+            trial_secs: if production { 0.0 } else { tau_secs },
+            run_by: 1,
+            production,
+        };
+        // Trials at r 256, 320, 448 (τ ∝ r² from 3 ms); the run's first P_M made step 0 in
+        // 4.5 ms at r 256.
+        for (r, tau) in [(256, 0.003), (320, 0.0047), (448, 0.008)] {
+            s.size_probes
+                .push(probe(c(r, 0.001), u64::from(r) * 1000, tau, false));
+        }
+        let first = c(256, 0.013);
+        s.add_production(
+            0,
+            first,
+            Sizing {
+                sigma_bytes: 100_000,
+                tau_secs: 0.0045,
+                ..Sizing::default()
+            },
+            1,
+        );
+        let surface = s.surface(&[0]);
+        assert!((surface.tau(c(256, 0.013)).unwrap() - 0.003).abs() < 1e-12);
+        assert!((surface.sigma(first).unwrap() - 100_000.0).abs() < 1e-6);
+        let grid = ParamGrid {
+            rs: vec![256, 320, 384, 448],
+            gammas: vec![0.001, 0.013],
+        };
+        let mut ctl = Controller::new((None, Some(0.01)), 0.05, grid);
+        ctl.observe(Observation {
+            step: 0,
+            candidate: first,
+            sigma_bytes: 100_000,
+            tau_secs: 0.0045,
+            planned_sigma_bytes: None,
+        });
+        let plan = ctl.choose(&surface, c(448, 0.001), 2).unwrap();
+        assert!(
+            (plan.forecast.tau - 1.5).abs() < 1e-9,
+            "{:?}",
+            plan.forecast
+        );
+        assert_eq!(plan.candidate, c(384, 0.001), "{plan:?}");
+        assert!(plan.feasible && plan.tau_secs <= 0.0095, "{plan:?}");
+    }
+
     /// A trial's τ is the faster of its own timing and an earlier size probe's of the same
     /// candidate on the same step; σ and q are the trial's, other steps and candidates unused.
     #[test]
@@ -502,6 +590,7 @@ mod tests {
             sizing: sizing(tau),
             trial_secs: tau,
             run_by: 1,
+            production: false,
         };
         s.size_probes.push(probe(3, c, 0.012));
         s.size_probes.push(probe(4, c, 0.001));

@@ -230,6 +230,7 @@ impl Oracle for StepOracle {
             sizing: Sizing::of_ranks(&results.iter().map(sizing).collect::<Vec<_>>()),
             trial_secs: secs,
             run_by: e.process,
+            production: false,
         };
         info!(
             step = self.step,
@@ -472,6 +473,7 @@ mod tests {
                 },
                 trial_secs: 0.01,
                 run_by: 0,
+                production: false,
             });
         }
         let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
