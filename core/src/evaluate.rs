@@ -275,8 +275,93 @@ pub fn evaluate(
     let t = Instant::now();
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
     let tau_decode_secs = t.elapsed().as_secs_f64();
+    scored(
+        scene,
+        camera,
+        (params, codec_kind),
+        (size, tau_decode_secs),
+        &decoded,
+        angles,
+        references,
+    )
+}
+
+/// [`evaluate`] of a candidate whose σ was measured moments before on the same data: a size
+/// probe of the same `P_M` on the same step, whose [`Sizing`] is `known`. The VDI is generated
+/// and rendered but not encoded and decoded again: the codec is lossless (a file decodes to
+/// the VDI it was made from, bit for bit: the codec's round-trip property), so the renders,
+/// MSE and q are [`evaluate`]'s, without the codec's time (with bzip2 most of a full trial:
+/// see docs/performance.md, "The tuner's cost"). The result carries `known`'s σ and
+/// compression time with this generation's τ, and `tau_decode_secs` 0. A VDI that does not
+/// hold `known.supersegments` supersegments (not the data or the `P_M` `known` was measured
+/// on) is encoded after all, and its own σ reported.
+///
+/// # Errors
+/// As [`evaluate`].
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_sized(
+    scene: &Scene,
+    camera: &Camera,
+    params: VdiParams,
+    codec_kind: Codec,
+    angles: &[f32],
+    references: &[Image],
+    tf: (u64, &str),
+    spare: &mut Option<Vdi>,
+    known: Sizing,
+) -> Result<(Evaluation, Vec<Image>), EvalError> {
+    if references.len() != angles.len() {
+        return Err(EvalError::ReferenceCount {
+            references: references.len(),
+            views: angles.len(),
+        });
+    }
+    let generated = scene.generate_reusing(camera, params, tf.0, tf.1, spare.take())?;
+    let vdi = generated.value;
+    let supersegments = vdi.supersegments().len() as u64;
+    let sizing = if supersegments == known.supersegments {
+        Sizing {
+            tau_secs: generated.seconds,
+            tau_source: generated.source,
+            ..known
+        }
+    } else {
+        let t = Instant::now();
+        let bytes = codec::encode(&vdi, codec_kind)?;
+        Sizing {
+            sigma_bytes: bytes.len() as u64,
+            supersegments,
+            tau_secs: generated.seconds,
+            tau_source: generated.source,
+            tau_compress_secs: t.elapsed().as_secs_f64(),
+        }
+    };
+    let result = scored(
+        scene,
+        camera,
+        (params, codec_kind),
+        (sizing, 0.0),
+        &vdi,
+        angles,
+        references,
+    );
+    *spare = Some(vdi);
+    result
+}
+
+/// The scoring shared by [`evaluate`] and [`evaluate_sized`]: `vdi` rendered at each angle
+/// and compared with `references`, with the sizing and decoding time measured before.
+fn scored(
+    scene: &Scene,
+    camera: &Camera,
+    (params, codec): (VdiParams, Codec),
+    (sizing, tau_decode_secs): (Sizing, f64),
+    vdi: &Vdi,
+    angles: &[f32],
+    references: &[Image],
+) -> Result<(Evaluation, Vec<Image>), EvalError> {
     let (views, images, render_secs) = score_views(
-        &scene.prepare_vdi(&decoded)?,
+        &scene.prepare_vdi(vdi)?,
         camera,
         angles,
         references,
@@ -287,8 +372,8 @@ pub fn evaluate(
     Ok((
         Evaluation {
             params,
-            codec: codec_kind,
-            sizing: size,
+            codec,
+            sizing,
             tau_decode_secs,
             tau_render_secs,
             q_db: metrics::pooled_psnr(&mses),
@@ -355,6 +440,90 @@ mod tests {
                 Some((params.resolution, fresh_size.supersegments as usize))
             );
         }
+    }
+
+    /// A candidate whose σ a size probe measured is scored from the VDI itself, without
+    /// encoding it again: the same views, MSE and q as the full evaluation (from the decoded
+    /// file), with the probe's σ; a probe of other data (its supersegment count differs) is not
+    /// trusted, and σ is measured.
+    #[test]
+    fn a_sized_candidate_scores_as_the_full_evaluation_without_the_codec() {
+        use crate::raycast::{RaycastParams, Raycaster};
+        use crate::tf::TransferFunction;
+        use crate::volume::Volume;
+        let volume = Volume::from_fn([24, 20, 18], |x, y, z| {
+            let d = ((x as f32 - 11.5).powi(2) + (y as f32 - 9.5).powi(2)).sqrt();
+            (1.0 - d / 10.0).max(0.0) * (0.6 + 0.4 * (z as f32 * 0.7).sin())
+        })
+        .unwrap();
+        let tf = TransferFunction::default_for_range(0.0, 1.0);
+        let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
+        let scene = Scene::Cpu(&rc);
+        let camera = Camera::default_for_box(&volume.world_box());
+        let tf = (tf.identity_hash(), "ramp");
+        let angles = [0.0, 40.0, 160.0];
+        let refs = render_references(&scene, &camera, &angles, 32).unwrap();
+        let params = VdiParams {
+            resolution: 36,
+            gamma: 0.01,
+        };
+        let mut spare = None;
+        let (_, probe) =
+            generate_encoded(&scene, &camera, params, Codec::Bzip2, tf, &mut spare).unwrap();
+        let (full, full_images) = evaluate(
+            &scene,
+            &camera,
+            params,
+            Codec::Bzip2,
+            &angles,
+            &refs,
+            tf,
+            &mut spare,
+        )
+        .unwrap();
+        let (sized, sized_images) = evaluate_sized(
+            &scene,
+            &camera,
+            params,
+            Codec::Bzip2,
+            &angles,
+            &refs,
+            tf,
+            &mut spare,
+            probe,
+        )
+        .unwrap();
+        assert!(probe.supersegments > 0, "an empty VDI tests nothing");
+        assert_eq!(sized_images, full_images);
+        let mse = |e: &Evaluation| e.views.iter().map(|v| v.mse.to_bits()).collect::<Vec<_>>();
+        assert_eq!(mse(&sized), mse(&full));
+        assert_eq!(sized.q_db.to_bits(), full.q_db.to_bits());
+        assert_eq!(
+            (sized.sizing.sigma_bytes, sized.sizing.supersegments),
+            (full.sizing.sigma_bytes, full.sizing.supersegments)
+        );
+        assert_eq!(sized.sizing.tau_compress_secs, probe.tau_compress_secs);
+        assert_eq!(sized.tau_decode_secs, 0.0);
+        // A probe that does not describe this VDI: σ is measured, not copied.
+        let stale = Sizing {
+            sigma_bytes: 1,
+            supersegments: probe.supersegments + 1,
+            ..probe
+        };
+        let (measured, _) = evaluate_sized(
+            &scene,
+            &camera,
+            params,
+            Codec::Bzip2,
+            &angles,
+            &refs,
+            tf,
+            &mut spare,
+            stale,
+        )
+        .unwrap();
+        assert_eq!(measured.sizing.sigma_bytes, full.sizing.sigma_bytes);
+        assert_eq!(measured.sizing.supersegments, full.sizing.supersegments);
     }
 
     #[test]

@@ -6,7 +6,9 @@
 //! the node. When claimed fields alone leave no room, the step is not held and its summary says
 //! so (`held = false`): the tuner is refused politely rather than the node growing.
 
+use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::Codec;
+use insitu_core::vdi::VdiParams;
 use insitu_core::{raycast::RaycastParams, Camera, Image, TransferFunction, Volume};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -31,6 +33,10 @@ pub struct HeldStep {
     pub reference_size: u32,
     /// Reference frames by side, rendered on the first trial that needs them.
     pub references: BTreeMap<u32, Arc<Vec<Image>>>,
+    /// σ and τ of the candidates size-probed on this step, by r and γ's bits: a full trial of
+    /// one of them need not encode its VDI again
+    /// ([`insitu_core::evaluate::evaluate_sized`]).
+    pub sizes: BTreeMap<(u32, u32), Sizing>,
 }
 
 impl HeldStep {
@@ -128,6 +134,14 @@ impl Holds {
         }
     }
 
+    /// Keeps the sizing a size probe of `params` measured on `index`.
+    pub fn set_sizing(&self, index: Key, params: VdiParams, sizing: Sizing) {
+        if let Some(s) = self.slots().get_mut(&index) {
+            let key = (params.resolution, params.gamma.to_bits());
+            s.step.sizes.insert(key, sizing);
+        }
+    }
+
     /// The claimed steps (told to a tuner on reconnect); pending ones are released, since no
     /// one will answer their summaries.
     pub fn claimed_after_reconnect(&self) -> Vec<Key> {
@@ -160,6 +174,7 @@ mod tests {
             view_angles_deg: vec![0.0],
             reference_size: 8,
             references: BTreeMap::new(),
+            sizes: BTreeMap::new(),
         }
     }
 

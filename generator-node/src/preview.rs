@@ -94,6 +94,7 @@ mod tests {
             view_angles_deg: vec![0.0],
             reference_size: 0,
             references: BTreeMap::new(),
+            sizes: BTreeMap::new(),
         };
         assert!(holds.offer((4, 0), step));
         holds

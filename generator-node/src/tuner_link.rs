@@ -16,7 +16,7 @@
 use crate::hold::HeldStep;
 use crate::shared::Shared;
 use crate::tuning::Tuning;
-use insitu_core::evaluate::{evaluate, generate_encoded, render_references};
+use insitu_core::evaluate::{evaluate, evaluate_sized, generate_encoded, render_references};
 use insitu_core::{Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
@@ -123,15 +123,25 @@ fn measure(
     let tf = (h.tf.0.identity_hash(), h.tf.1.as_str());
     let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());
     let size = if req.size_only {
-        generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare)
+        let size = generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare)
             .map_err(|e| e.to_string())?
-            .1
+            .1;
+        tuning.holds.set_sizing((req.step, rank), params, size);
+        size
     } else {
         let refs = references(tuning, &scene, (req.step, rank), h, req.resolution, out)?;
         let views = &h.view_angles_deg;
-        let (e, _) = evaluate(
-            &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare,
-        )
+        // A candidate probed on this step already: its σ is known, so its VDI is scored
+        // without being encoded and decoded again (the codec is lossless).
+        let known = h.sizes.get(&(params.resolution, params.gamma.to_bits()));
+        let (e, _) = match known {
+            Some(&known) => evaluate_sized(
+                &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare, known,
+            ),
+            None => evaluate(
+                &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare,
+            ),
+        }
         .map_err(|e| e.to_string())?;
         out.tau_render_secs = e.tau_render_secs;
         out.view_mse = e.views.iter().map(|v| v.mse).collect();

@@ -447,6 +447,7 @@ pub fn for_tuner(
         view_angles_deg: gen.view_angles_deg.clone(),
         reference_size: gen.reference_size,
         references: Default::default(),
+        sizes: Default::default(),
     };
     (summary, held)
 }

@@ -259,9 +259,23 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (r.sigma_bytes, r.supersegments)
     );
     assert!(probe.view_mse.is_empty() && probe.ssim.is_none() && probe.tau_secs > 0.0);
+    // A full trial of the probed candidate: scored as before, its σ the probe's, its VDI not
+    // encoded again (the compression time is the probe's).
+    send(&down, trial(6, 0, 24));
+    let Up::Trial(sized) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(sized.error.is_empty(), "{}", sized.error);
+    assert_eq!(sized.view_mse, r.view_mse, "scored as the full trial");
+    assert_eq!(
+        (sized.sigma_bytes, sized.supersegments),
+        (probe.sigma_bytes, probe.supersegments)
+    );
+    assert_eq!(sized.tau_compress_secs, probe.tau_compress_secs);
     // Each trial's CPU time is counted on the node, and the node's status sums them inside
     // its process's CPU time.
-    let trials_cpu = r.trial_cpu_secs + again.trial_cpu_secs + probe.trial_cpu_secs;
+    let trials_cpu =
+        r.trial_cpu_secs + again.trial_cpu_secs + probe.trial_cpu_secs + sized.trial_cpu_secs;
     assert!(
         r.trial_cpu_secs > 0.0 && again.trial_cpu_secs > 0.0 && probe.trial_cpu_secs > 0.0,
         "{} {} {}",
