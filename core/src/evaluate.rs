@@ -386,6 +386,9 @@ fn scored(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::raycast::{RaycastParams, Raycaster};
+    use crate::tf::TransferFunction;
+    use crate::volume::Volume;
 
     fn sizing(sigma_bytes: u64, supersegments: u64, tau_secs: f64, compress: f64) -> Sizing {
         Sizing {
@@ -397,20 +400,23 @@ mod tests {
         }
     }
 
-    /// A spare VDI changes where the VDI is built, never what it holds: generating into the
-    /// VDI of another `P_M` (larger, then smaller) gives the file generated afresh, byte for
-    /// byte, and leaves the new VDI as the next spare.
-    #[test]
-    fn generating_into_a_spare_gives_the_file_generated_afresh() {
-        use crate::raycast::{RaycastParams, Raycaster};
-        use crate::tf::TransferFunction;
-        use crate::volume::Volume;
+    /// A 20×18×16 field (a soft cylinder whose density rises and falls along z) and the ramp
+    /// over its range: a few hundred supersegments at the resolutions the tests use.
+    fn small_scene() -> (Volume, TransferFunction) {
         let volume = Volume::from_fn([20, 18, 16], |x, y, z| {
             let d = ((x as f32 - 9.5).powi(2) + (y as f32 - 8.5).powi(2)).sqrt();
             (1.0 - d / 9.0).max(0.0) * (0.6 + 0.4 * (z as f32 * 0.5).sin())
         })
         .unwrap();
-        let tf = TransferFunction::default_for_range(0.0, 1.0);
+        (volume, TransferFunction::default_for_range(0.0, 1.0))
+    }
+
+    /// A spare VDI changes where the VDI is built, never what it holds: generating into the
+    /// VDI of another `P_M` (larger, then smaller) gives the file generated afresh, byte for
+    /// byte, and leaves the new VDI as the next spare.
+    #[test]
+    fn generating_into_a_spare_gives_the_file_generated_afresh() {
+        let (volume, tf) = small_scene();
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let scene = Scene::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
@@ -448,15 +454,7 @@ mod tests {
     /// trusted, and σ is measured.
     #[test]
     fn a_sized_candidate_scores_as_the_full_evaluation_without_the_codec() {
-        use crate::raycast::{RaycastParams, Raycaster};
-        use crate::tf::TransferFunction;
-        use crate::volume::Volume;
-        let volume = Volume::from_fn([24, 20, 18], |x, y, z| {
-            let d = ((x as f32 - 11.5).powi(2) + (y as f32 - 9.5).powi(2)).sqrt();
-            (1.0 - d / 10.0).max(0.0) * (0.6 + 0.4 * (z as f32 * 0.7).sin())
-        })
-        .unwrap();
-        let tf = TransferFunction::default_for_range(0.0, 1.0);
+        let (volume, tf) = small_scene();
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let scene = Scene::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box());
