@@ -118,12 +118,7 @@ pub fn score_views(
     references: &[Image],
     termination: f32,
 ) -> Result<(Vec<ViewScore>, Vec<Image>, f64), EvalError> {
-    if references.len() != angles.len() {
-        return Err(EvalError::ReferenceCount {
-            references: references.len(),
-            views: angles.len(),
-        });
-    }
+    one_reference_per_view(angles, references)?;
     let mut views = Vec::with_capacity(angles.len());
     let mut images = Vec::with_capacity(angles.len());
     let mut render_secs = 0.0;
@@ -265,12 +260,7 @@ pub fn evaluate(
     tf: (u64, &str),
     spare: &mut Option<Vdi>,
 ) -> Result<(Evaluation, Vec<Image>), EvalError> {
-    if references.len() != angles.len() {
-        return Err(EvalError::ReferenceCount {
-            references: references.len(),
-            views: angles.len(),
-        });
-    }
+    one_reference_per_view(angles, references)?;
     let (bytes, size) = generate_encoded(scene, camera, params, codec_kind, tf, spare)?;
     let t = Instant::now();
     let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
@@ -290,8 +280,9 @@ pub fn evaluate(
 /// probe of the same `P_M` on the same step, whose [`Sizing`] is `known`. The VDI is generated
 /// and rendered but not encoded and decoded again: the codec is lossless (a file decodes to
 /// the VDI it was made from, bit for bit: the codec's round-trip property), so the renders,
-/// MSE and q are [`evaluate`]'s, without the codec's time (with bzip2 most of a full trial:
-/// see docs/performance.md, "The tuner's cost"). The result carries `known`'s σ and
+/// MSE and q are [`evaluate`]'s, without the codec's time (with bzip2 30–60 ms of a 190–220 ms
+/// trial on the ocean, more on a larger VDI: docs/performance.md, "The tuner's cost"). The
+/// result carries `known`'s σ and
 /// compression time with this generation's τ, and `tau_decode_secs` 0. A VDI that does not
 /// hold `known.supersegments` supersegments (not the data or the `P_M` `known` was measured
 /// on) is encoded after all, and its own σ reported.
@@ -310,12 +301,7 @@ pub fn evaluate_sized(
     spare: &mut Option<Vdi>,
     known: Sizing,
 ) -> Result<(Evaluation, Vec<Image>), EvalError> {
-    if references.len() != angles.len() {
-        return Err(EvalError::ReferenceCount {
-            references: references.len(),
-            views: angles.len(),
-        });
-    }
+    one_reference_per_view(angles, references)?;
     let generated = scene.generate_reusing(camera, params, tf.0, tf.1, spare.take())?;
     let vdi = generated.value;
     let supersegments = vdi.supersegments().len() as u64;
@@ -347,6 +333,19 @@ pub fn evaluate_sized(
     );
     *spare = Some(vdi);
     result
+}
+
+/// [`EvalError::ReferenceCount`] unless there is one reference per view angle (checked before
+/// anything is generated or rendered).
+fn one_reference_per_view(angles: &[f32], references: &[Image]) -> Result<(), EvalError> {
+    if references.len() == angles.len() {
+        Ok(())
+    } else {
+        Err(EvalError::ReferenceCount {
+            references: references.len(),
+            views: angles.len(),
+        })
+    }
 }
 
 /// The scoring shared by [`evaluate`] and [`evaluate_sized`]: `vdi` rendered at each angle
