@@ -4,7 +4,7 @@
 //! Reference images depend only on the scene and the views, so they are rendered once
 //! ([`render_references`]) and reused across candidates ([`evaluate`]).
 
-use crate::backend::{BackendError, Scene, SceneVdi, TimeSource};
+use crate::backend::{BackendError, Scene, SceneVdi, TimeSource, Timed};
 use crate::camera::Camera;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
@@ -227,6 +227,14 @@ pub fn generate_encoded(
     spare: &mut Option<Vdi>,
 ) -> Result<(Vec<u8>, Sizing), EvalError> {
     let generated = scene.generate_reusing(camera, params, tf_hash, tf_name, spare.take())?;
+    let encoded = encoded(&generated, codec_kind);
+    *spare = Some(generated.value);
+    encoded
+}
+
+/// The file of a generated VDI and its sizing: σ its length, τ the generation's, and the
+/// encoding's own time.
+fn encoded(generated: &Timed<Vdi>, codec_kind: Codec) -> Result<(Vec<u8>, Sizing), EvalError> {
     let t = Instant::now();
     let bytes = codec::encode(&generated.value, codec_kind)?;
     let size = Sizing {
@@ -236,7 +244,6 @@ pub fn generate_encoded(
         tau_source: generated.source,
         tau_compress_secs: t.elapsed().as_secs_f64(),
     };
-    *spare = Some(generated.value);
     Ok((bytes, size))
 }
 
@@ -282,10 +289,9 @@ pub fn evaluate(
 /// the VDI it was made from, bit for bit: the codec's round-trip property), so the renders,
 /// MSE and q are [`evaluate`]'s, without the codec's time (with bzip2 30–60 ms of a 190–220 ms
 /// trial on the ocean, more on a larger VDI: docs/performance.md, "The tuner's cost"). The
-/// result carries `known`'s σ and
-/// compression time with this generation's τ, and `tau_decode_secs` 0. A VDI that does not
-/// hold `known.supersegments` supersegments (not the data or the `P_M` `known` was measured
-/// on) is encoded after all, and its own σ reported.
+/// result carries `known`'s σ and compression time with this generation's τ, and
+/// `tau_decode_secs` 0. A VDI that does not hold `known.supersegments` supersegments (not the
+/// data or the `P_M` `known` was measured on) is encoded after all, and its own σ reported.
 ///
 /// # Errors
 /// As [`evaluate`].
@@ -303,35 +309,28 @@ pub fn evaluate_sized(
 ) -> Result<(Evaluation, Vec<Image>), EvalError> {
     one_reference_per_view(angles, references)?;
     let generated = scene.generate_reusing(camera, params, tf.0, tf.1, spare.take())?;
-    let vdi = generated.value;
-    let supersegments = vdi.supersegments().len() as u64;
-    let sizing = if supersegments == known.supersegments {
-        Sizing {
+    let sized = generated.value.supersegments().len() as u64 == known.supersegments;
+    let result = if sized {
+        Ok(Sizing {
             tau_secs: generated.seconds,
             tau_source: generated.source,
             ..known
-        }
+        })
     } else {
-        let t = Instant::now();
-        let bytes = codec::encode(&vdi, codec_kind)?;
-        Sizing {
-            sigma_bytes: bytes.len() as u64,
-            supersegments,
-            tau_secs: generated.seconds,
-            tau_source: generated.source,
-            tau_compress_secs: t.elapsed().as_secs_f64(),
-        }
-    };
-    let result = scored(
-        scene,
-        camera,
-        (params, codec_kind),
-        (sizing, 0.0),
-        &vdi,
-        angles,
-        references,
-    );
-    *spare = Some(vdi);
+        encoded(&generated, codec_kind).map(|(_, size)| size)
+    }
+    .and_then(|sizing| {
+        scored(
+            scene,
+            camera,
+            (params, codec_kind),
+            (sizing, 0.0),
+            &generated.value,
+            angles,
+            references,
+        )
+    });
+    *spare = Some(generated.value);
     result
 }
 
