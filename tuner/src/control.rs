@@ -15,7 +15,8 @@
 //!   production steps (the median slope between consecutive steps of one `P_M`, or of any
 //!   while none repeats, so that an error of the surface at one candidate, a jump between two
 //!   steps, does not read as growth; only growth is extrapolated, a shrinking field keeps its
-//!   latest k).
+//!   latest k). For τ, the slowest step of the window carried forward by τ's own growth (a
+//!   Theil–Sen slope, no more than σ's: timings are noisy, σ is not).
 //! - [`Controller::choose`]: the finest candidate, not finer than the tuned one, whose σ and τ
 //!   scaled by the forecast meet the plan `(1 − headroom) × budget`: the tuned resolution with
 //!   γ stepped up, and a lower resolution when γ alone would need more than
@@ -244,11 +245,18 @@ pub struct Forecast {
     pub sigma: f64,
     /// Growth of σ per unit of step index (a factor; 1 when none was seen).
     pub sigma_growth_per_step: f64,
-    /// k of τ: the largest of the window. τ is a timing: production steps share the node
-    /// with the simulation and the scorer, and at one `P_M` they spread ±50 % on a busy
-    /// machine, so a budget kept on most steps must be planned for the slow ones; its trend
-    /// is noise more than drift.
+    /// k of τ forecast for the step planned for: the largest of the window's, each carried
+    /// forward by `tau_growth_per_step` over the steps between. τ is a timing: production
+    /// steps share the node with the simulation and the scorer, and at one `P_M` they spread
+    /// ±50 % on a busy machine, so a budget kept on most steps must be planned for the slow
+    /// ones, as the data has grown by then.
     pub tau: f64,
+    /// Growth of τ per unit of step index (a factor, 1 when none was seen): the Theil–Sen
+    /// slope of ln k_τ over the window's pairs of steps at one resolution, no more than σ's
+    /// growth. A drifting field that needs more work per ray needs more supersegments too, so
+    /// σ, which has no timing noise, bounds it; on still data σ does not grow, and the noise
+    /// of the timings is not read as growth.
+    pub tau_growth_per_step: f64,
     /// The newest production step.
     pub newest: u64,
 }
@@ -396,19 +404,29 @@ impl Controller {
             .max(0.0);
         let ahead = at.saturating_sub(newest) as f64;
         let grown = (slope * ahead).min(MAX_GROWTH.ln());
-        let tau = self
+        // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
+        // largest (the slowest step, grown as the data has grown since).
+        let taus: Vec<(u64, u32, f64)> = self
             .window
             .iter()
             .filter_map(|o| {
                 let k = o.tau_secs / surface.tau(o.candidate)?;
-                (k.is_finite() && k > 0.0).then_some(k)
+                (k.is_finite() && k > 0.0).then_some((o.step, o.candidate.r, k.ln()))
             })
-            .fold(None, |m: Option<f64>, k| Some(m.map_or(k, |m| m.max(k))));
+            .collect();
+        let tau_slope = tau_growth(&taus).max(0.0).min(slope);
+        let tau = taus
+            .iter()
+            .map(|&(step, _, k)| {
+                k + (tau_slope * at.saturating_sub(step) as f64).min(MAX_GROWTH.ln())
+            })
+            .reduce(f64::max);
         Some(Forecast {
             sigma_now: now.exp(),
             sigma: (now + grown).exp(),
             sigma_growth_per_step: slope.exp(),
-            tau: tau.unwrap_or(1.0),
+            tau: tau.map_or(1.0, f64::exp),
+            tau_growth_per_step: tau_slope.exp(),
             newest,
         })
     }
@@ -587,6 +605,31 @@ impl Controller {
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
             .2;
         (finer && clears).then_some(p)
+    }
+}
+
+/// The Theil–Sen slope of `ln k` over the step index: the median of the slopes between every
+/// two observations `(step, r, ln k)` at one resolution and different steps (τ at a resolution
+/// is one whatever the γ, and across resolutions the surface's r² law is a model, not a
+/// measurement); 0 without such a pair. The median of all pairs, rather than of consecutive
+/// ones, spans several steps per slope, so ±50 % of timing noise moves it far less.
+fn tau_growth(taus: &[(u64, u32, f64)]) -> f64 {
+    let mut slopes: Vec<f64> = taus
+        .iter()
+        .enumerate()
+        .flat_map(|(i, a)| taus[i + 1..].iter().map(move |b| (a, b)))
+        .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
+        .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
+        .collect();
+    if slopes.is_empty() {
+        return 0.0;
+    }
+    slopes.sort_by(f64::total_cmp);
+    let n = slopes.len();
+    if n % 2 == 1 {
+        slopes[n / 2]
+    } else {
+        (slopes[n / 2 - 1] + slopes[n / 2]) / 2.0
     }
 }
 
@@ -846,6 +889,61 @@ mod tests {
         // finest γ measured (0.01; nothing below it is extrapolated).
         assert_eq!(p.candidate, c(192, g(2)));
         assert!((p.tau_secs - 1.2 * tau(192)).abs() < 1e-9);
+    }
+
+    /// τ grows with the data, as far as σ shows it grows: the slowest step of the window is
+    /// carried forward to the step planned for by τ's own trend (the Theil–Sen slope over the
+    /// window), bounded by σ's growth; on still data a run of slower timings is noise and
+    /// is not extrapolated.
+    #[test]
+    fn a_time_budget_forecasts_growth_that_sigma_confirms_and_no_more() {
+        let tuned = c(256, g(2));
+        let s = Surface::new([Point {
+            candidate: tuned,
+            sigma_bytes: law(tuned),
+            tau_secs: 0.05,
+        }]);
+        let run = |sigma_growth: f64, tau_of: &dyn Fn(u64) -> f64| {
+            let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+            for step in 0..6 {
+                ctl.observe(Observation {
+                    planned_sigma_bytes: None,
+                    step,
+                    candidate: tuned,
+                    sigma_bytes: (law(tuned) * sigma_growth.powi(step as i32)) as u64,
+                    tau_secs: tau_of(step),
+                });
+            }
+            ctl.forecast(&s, 8).unwrap()
+        };
+        // σ grows 10 % a step, τ 5 %: τ's own growth, from the newest step (k 1.05⁵) three
+        // steps on.
+        let f = run(1.1, &|step| 0.05 * 1.05f64.powi(step as i32));
+        assert!((f.tau_growth_per_step - 1.05).abs() < 1e-9, "{f:?}");
+        assert!((f.tau - 1.05f64.powi(8)).abs() < 1e-9, "{f:?}");
+        // The same with ±20 % of noise on τ: the slowest step, grown to step 8.
+        let noise = [1.0, 1.2, 0.85, 1.15, 0.8, 1.0];
+        let f = run(1.1, &|step| {
+            0.05 * 1.05f64.powi(step as i32) * noise[step as usize]
+        });
+        assert!((1.0..1.1).contains(&f.tau_growth_per_step), "growth {f:?}");
+        let slowest = (0..6u64)
+            .map(|i| {
+                1.05f64.powi(i as i32)
+                    * noise[i as usize]
+                    * f.tau_growth_per_step.powi(8 - i as i32)
+            })
+            .fold(0.0, f64::max);
+        assert!((f.tau - slowest).abs() < 1e-9, "{f:?} vs {slowest}");
+        // τ growing 20 % a step where σ grows 10 %: no more than σ's growth.
+        let f = run(1.1, &|step| 0.05 * 1.2f64.powi(step as i32));
+        assert!((f.tau_growth_per_step - 1.1).abs() < 1e-6, "{f:?}");
+        // Still data (σ constant) with timings that happen to rise: no growth, the slowest.
+        let f = run(1.0, &|step| {
+            [0.04, 0.045, 0.05, 0.055, 0.06, 0.065][step as usize]
+        });
+        assert_eq!(f.tau_growth_per_step, 1.0, "{f:?}");
+        assert!((f.tau - 0.065 / 0.05).abs() < 1e-9, "{f:?}");
     }
 
     /// Timings at one r that differ by noise (a fast one at a coarser γ) do not make the
