@@ -21,10 +21,12 @@
 //! a time budget tries every one from the smallest up, until two in a row miss at every γ,
 //! instead of climbing: τ is a timing, and a resolution near the budget may come out worse or
 //! infeasible by noise alone, which would stop a climb, and q need not be unimodal in r. At
-//! each r, γ is probed upwards from the smallest at growing strides rather than bisected over
-//! the whole axis: near the budget each probe falls either side of it by chance, and a
-//! bisection would settle anywhere on the axis, where galloping stops at the first γ that met
-//! it, near the smallest, where q is best. Both budgets at once need both met.
+//! each r the smallest γ is probed first, then (where it missed) the largest: a resolution
+//! that misses there too is done in two probes. Otherwise γ is probed upwards from the
+//! smallest at growing strides rather than bisected over the whole axis: near the budget
+//! each probe falls either side of it by chance, and a bisection would settle anywhere on
+//! the axis, where galloping stops at the first γ that met it, near the smallest, where q is
+//! best. Both budgets at once need both met.
 //!
 //! Under budgets the probes ask the oracle for σ and τ alone ([`Oracle::measure_sizing`]: a
 //! generation and an encoding, no rendering or scoring); only each resolution's answer is
@@ -372,25 +374,30 @@ impl Adaptive<'_> {
         Ok(lo)
     }
 
-    /// The smallest feasible γ index at resolution `ri` under a time budget: probes from
-    /// the smallest γ up at growing strides (0, 1, 3, 7, …, then the largest), then a
-    /// bisection of the last gap. Timings near the budget fall either side of it by noise,
-    /// so a bisection of the whole axis would settle anywhere; galloping stops at the first
-    /// γ that met it, near the smallest, where q is best. The neighbours' answers are not
-    /// trusted as a bracket: they are as noisy.
+    /// The smallest feasible γ index at resolution `ri` under a time budget: the smallest γ,
+    /// and where it misses the largest; where that meets the budget, probes from the
+    /// smallest up at growing strides (1, 3, 7, …) and a bisection of the last gap. τ falls
+    /// only a little as γ grows, so where the largest γ misses every γ does (within the
+    /// timing's noise): the resolution costs two probes, not a gallop over the axis that
+    /// would stop at a timing that fell under the budget by chance. Timings near the budget
+    /// fall either side of it by noise, so a bisection of the whole axis would settle
+    /// anywhere; galloping stops at the first γ that met it, near the smallest, where q is
+    /// best. The neighbours' answers are not trusted as a bracket: they are as noisy.
     fn gallop(&mut self, ri: usize) -> Result<Option<usize>, StudyError> {
-        let n = self.grid.gammas.len();
-        let (mut missed, mut k, mut stride) = (None, 0, 1);
-        while !self.probe(ri, k)? {
-            if k == n - 1 {
-                return Ok(None);
-            }
-            missed = Some(k);
-            k = (k + stride).min(n - 1);
+        let last = self.grid.gammas.len() - 1;
+        if self.probe(ri, 0)? {
+            return Ok(Some(0));
+        }
+        if last == 0 || !self.probe(ri, last)? {
+            return Ok(None);
+        }
+        let (mut missed, mut k, mut stride) = (0, 1, 2);
+        while k < last && !self.probe(ri, k)? {
+            missed = k;
+            k = (k + stride).min(last);
             stride *= 2;
         }
-        self.narrow(ri, missed.map_or(0, |m| m + 1), k, |k| k)
-            .map(Some)
+        self.narrow(ri, missed + 1, k, |k| k).map(Some)
     }
 
     fn run(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
@@ -625,6 +632,9 @@ mod tests {
     struct Model {
         exponent: f64,
         bumps: f64,
+        /// τ = `tau_scale` · r² · (1.1 − γ) seconds: r² rays, a little less work as γ grows
+        /// (0: no τ).
+        tau_scale: f64,
         generations: u64,
         /// Every candidate probed or measured, in order.
         asked: Vec<Candidate>,
@@ -635,6 +645,7 @@ mod tests {
             Self {
                 exponent,
                 bumps,
+                tau_scale: 0.0,
                 generations: 0,
                 asked: Vec::new(),
             }
@@ -663,6 +674,7 @@ mod tests {
             let bumps = 1.0 + self.bumps * (40.0 * gamma + r / 50.0).sin();
             Ok(Sizing {
                 sigma_bytes: (0.6 * r * r * per_pixel * bumps) as u64,
+                tau_secs: self.tau_scale * r * r * (1.1 - gamma),
                 ..Sizing::default()
             })
         }
@@ -747,5 +759,52 @@ mod tests {
             "{:?}",
             from_near.asked
         );
+    }
+
+    /// Under a time budget: a resolution that misses at its smallest and its largest γ costs
+    /// those two probes, the sweep stops after two such in a row, and the answer is the
+    /// exhaustive grid's — also where τ crosses the budget inside a resolution's γ axis.
+    #[test]
+    fn a_time_budget_spends_two_probes_on_a_resolution_that_cannot_meet_it() {
+        let grid = ParamGrid::parse("64:512:64", "0.001:0.26:0.008").unwrap();
+        // τ(r, γ) = 1e-3 (r/64)² (1.1 − γ): at 20 ms r 256 meets at every γ, r 320 and up at
+        // none; at 24 ms r 320 meets from γ ≈ 0.14 up.
+        for (budget, crossing) in [(0.02, None), (0.024, Some(320))] {
+            let mut model = Model::new(0.8, 0.0);
+            model.tau_scale = 1e-3 / (64.0 * 64.0);
+            let spec = UtilitySpec::Time(budget);
+            let found = adaptive_search(&mut model, &grid, spec).unwrap();
+            let mut all = Model::new(0.8, 0.0);
+            all.tau_scale = model.tau_scale;
+            let u = spec.utility();
+            let exhaustive = grid_search(&mut all, &grid, u.as_ref()).unwrap();
+            let answer = |o: &Outcome| o.best.as_ref().map(Measurement::candidate);
+            assert_eq!(answer(&found), answer(&exhaustive), "{budget}");
+            let probes_at = |r: u32| model.asked.iter().filter(|c| c.r == r).count();
+            // Missing everywhere: the smallest and the largest γ, nothing else; the sweep
+            // stops after two such resolutions.
+            let missed = if crossing.is_some() {
+                [384, 448]
+            } else {
+                [320, 384]
+            };
+            for r in missed {
+                assert_eq!(probes_at(r), 2, "{budget}: r {r}: {:?}", model.asked);
+            }
+            assert_eq!(probes_at(missed[1] + 64), 0, "{budget}: {:?}", model.asked);
+            if let Some(r) = crossing {
+                let first = *grid
+                    .gammas
+                    .iter()
+                    .find(|&&g| model.tau_scale * f64::from(r * r) * (1.1 - f64::from(g)) < budget)
+                    .unwrap();
+                // The first γ that meets the budget, probed and then measured in full.
+                assert!(
+                    model.asked.contains(&Candidate { r, gamma: first }),
+                    "{:?}",
+                    model.asked
+                );
+            }
+        }
     }
 }
