@@ -259,6 +259,8 @@ pub struct Forecast {
     pub tau_growth_per_step: f64,
     /// The newest production step.
     pub newest: u64,
+    /// The step planned for.
+    pub at: u64,
 }
 
 /// What [`Controller::choose`] found for a step.
@@ -428,12 +430,14 @@ impl Controller {
             tau: tau.map_or(1.0, f64::exp),
             tau_growth_per_step: tau_slope.exp(),
             newest,
+            at,
         })
     }
 
     /// The ratios of σ and τ forecast at `c`: the window's, or where larger the ones measured
     /// when `c` itself was last made (for τ: any candidate at `c`'s resolution, τ being one
-    /// whatever the γ), within [`MEMORY`] steps. The surface can be off at one candidate
+    /// whatever the γ, grown by the forecast's τ growth since), within [`MEMORY`] steps. The
+    /// surface can be off at one candidate
     /// (measured on other steps, interpolated, or for τ scaled by r² from a resolution whose
     /// fixed costs dominate its timing), and a `P_M` that overshot on its own step is not
     /// taken back on the strength of other candidates' ratios.
@@ -448,12 +452,21 @@ impl Controller {
             .get(&(c.r, c.gamma.to_bits()))
             .filter(recent)
             .and_then(|o| ratio(o.sigma_bytes as f64, surface.sigma(c)));
+        // τ measured at `c`'s resolution steps ago, grown as the window's τ has grown since:
+        // a resolution left for a coarser one while the field grew is not taken back on the
+        // timing it had then.
+        let grown = |o: &Observation| {
+            let steps = f.at.saturating_sub(o.step) as f64;
+            (f.tau_growth_per_step.ln() * steps)
+                .min(MAX_GROWTH.ln())
+                .exp()
+        };
         let own_tau = self
             .seen
             .range((c.r, 0)..=(c.r, u32::MAX))
             .map(|(_, o)| o)
             .filter(recent)
-            .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)))
+            .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)).map(|k| k * grown(o)))
             .reduce(f64::max);
         (
             own_sigma.map_or(f.sigma, |k| k.max(f.sigma)),
@@ -944,6 +957,46 @@ mod tests {
         });
         assert_eq!(f.tau_growth_per_step, 1.0, "{f:?}");
         assert!((f.tau - 0.065 / 0.05).abs() < 1e-9, "{f:?}");
+    }
+
+    /// A resolution left for a coarser one is taken back only when its own timing, grown as
+    /// τ has grown since, clears the plan: on a growing field the timing it had steps ago
+    /// says too little; on still data the same timing takes it back.
+    #[test]
+    fn a_resolution_left_while_the_field_grew_is_not_taken_back_on_its_old_timing() {
+        let (fine, coarse) = (c(128, g(2)), c(64, g(2)));
+        let s = Surface::new(
+            [(fine, 0.05), (coarse, 0.02)].map(|(candidate, tau_secs)| Point {
+                candidate,
+                sigma_bytes: law(candidate),
+                tau_secs,
+            }),
+        );
+        let run = |growth: f64| {
+            let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+            // r 128 at step 0 (k 1.6), then ten steps at r 64 (k 0.5, growing by `growth`
+            // a step, σ by 1.5 times as much): step 0 has left the window of 8.
+            let at = |step: u64, candidate: Candidate, tau_secs: f64, sigma: f64| Observation {
+                planned_sigma_bytes: None,
+                step,
+                candidate,
+                sigma_bytes: (law(candidate) * sigma) as u64,
+                tau_secs,
+            };
+            ctl.observe(at(0, fine, 0.08, 1.0));
+            for step in 1..=10u64 {
+                let grown = growth.powi(step as i32);
+                let sigma = (1.0 + 1.5 * (growth - 1.0)).powi(step as i32);
+                ctl.observe(at(step, coarse, 0.01 * grown, sigma));
+            }
+            ctl.correct(&s, fine, coarse, 12)
+        };
+        // Growing 10 % a step: r 128's k of 1.6 is 5.0 by step 12, 0.25 s against a 0.095 s
+        // plan; the window's r 64 steps alone would put it at 0.079 s.
+        assert_eq!(run(1.1), None);
+        // Still: 0.08 s clears the plan by the hysteresis (0.0855 s), and r 128 comes back.
+        let back = run(1.0).expect("r 128 comes back on still data");
+        assert_eq!(back.candidate.r, 128, "{back:?}");
     }
 
     /// Timings at one r that differ by noise (a fast one at a coarser γ) do not make the
