@@ -437,10 +437,9 @@ impl Controller {
     /// The ratios of σ and τ forecast at `c`: the window's, or where larger the ones measured
     /// when `c` itself was last made (for τ: any candidate at `c`'s resolution, τ being one
     /// whatever the γ, grown by the forecast's τ growth since), within [`MEMORY`] steps. The
-    /// surface can be off at one candidate
-    /// (measured on other steps, interpolated, or for τ scaled by r² from a resolution whose
-    /// fixed costs dominate its timing), and a `P_M` that overshot on its own step is not
-    /// taken back on the strength of other candidates' ratios.
+    /// surface can be off at one candidate (measured on other steps, interpolated, or for τ
+    /// scaled by r² from a resolution whose fixed costs dominate its timing), and a `P_M` that
+    /// overshot on its own step is not taken back on the strength of other candidates' ratios.
     fn ratios(&self, surface: &Surface, f: &Forecast, c: Candidate) -> (f64, f64) {
         let memory = MEMORY * self.stride();
         let recent = |o: &&Observation| f.newest.saturating_sub(o.step) <= memory;
