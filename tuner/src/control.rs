@@ -398,14 +398,8 @@ impl Controller {
         if slopes.is_empty() {
             slopes = slope(false);
         }
-        slopes.sort_by(f64::total_cmp);
-        let slope = slopes
-            .get(slopes.len() / 2)
-            .copied()
-            .unwrap_or(0.0)
-            .max(0.0);
-        let ahead = at.saturating_sub(newest) as f64;
-        let grown = (slope * ahead).min(MAX_GROWTH.ln());
+        let slope = median(slopes).max(0.0);
+        let grown = growth(slope, newest, at);
         // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
         // largest (the slowest step, grown as the data has grown since).
         let taus: Vec<(u64, u32, f64)> = self
@@ -419,9 +413,7 @@ impl Controller {
         let tau_slope = tau_growth(&taus).max(0.0).min(slope);
         let tau = taus
             .iter()
-            .map(|&(step, _, k)| {
-                k + (tau_slope * at.saturating_sub(step) as f64).min(MAX_GROWTH.ln())
-            })
+            .map(|&(step, _, k)| k + growth(tau_slope, step, at))
             .reduce(f64::max);
         Some(Forecast {
             sigma_now: now.exp(),
@@ -454,12 +446,7 @@ impl Controller {
         // τ measured at `c`'s resolution steps ago, grown as the window's τ has grown since:
         // a resolution left for a coarser one while the field grew is not taken back on the
         // timing it had then.
-        let grown = |o: &Observation| {
-            let steps = f.at.saturating_sub(o.step) as f64;
-            (f.tau_growth_per_step.ln() * steps)
-                .min(MAX_GROWTH.ln())
-                .exp()
-        };
+        let grown = |o: &Observation| growth(f.tau_growth_per_step.ln(), o.step, f.at).exp();
         let own_tau = self
             .seen
             .range((c.r, 0)..=(c.r, u32::MAX))
@@ -626,23 +613,26 @@ impl Controller {
 /// measurement); 0 without such a pair. The median of all pairs, rather than of consecutive
 /// ones, spans several steps per slope, so ±50 % of timing noise moves it far less.
 fn tau_growth(taus: &[(u64, u32, f64)]) -> f64 {
-    let mut slopes: Vec<f64> = taus
-        .iter()
-        .enumerate()
-        .flat_map(|(i, a)| taus[i + 1..].iter().map(move |b| (a, b)))
-        .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
-        .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
-        .collect();
-    if slopes.is_empty() {
-        return 0.0;
-    }
+    median(
+        taus.iter()
+            .enumerate()
+            .flat_map(|(i, a)| taus[i + 1..].iter().map(move |b| (a, b)))
+            .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
+            .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
+            .collect(),
+    )
+}
+
+/// The median of `slopes` (the upper one of an even count); 0 for none.
+fn median(mut slopes: Vec<f64>) -> f64 {
     slopes.sort_by(f64::total_cmp);
-    let n = slopes.len();
-    if n % 2 == 1 {
-        slopes[n / 2]
-    } else {
-        (slopes[n / 2 - 1] + slopes[n / 2]) / 2.0
-    }
+    slopes.get(slopes.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// The growth of `ln k` at `slope` per step from step `from` to step `to` (none backwards),
+/// at most [`MAX_GROWTH`].
+fn growth(slope: f64, from: u64, to: u64) -> f64 {
+    (slope * to.saturating_sub(from) as f64).min(MAX_GROWTH.ln())
 }
 
 #[cfg(test)]
