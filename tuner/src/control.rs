@@ -428,7 +428,7 @@ impl Controller {
 
     /// The ratios of σ and τ forecast at `c`: the window's, or where larger the ones measured
     /// when `c` itself was last made (for τ: any candidate at `c`'s resolution, τ being one
-    /// whatever the γ, grown by the forecast's τ growth since), within [`MEMORY`] steps. The
+    /// whatever the γ, grown by the forecast's σ growth since), within [`MEMORY`] steps. The
     /// surface can be off at one candidate (measured on other steps, interpolated, or for τ
     /// scaled by r² from a resolution whose fixed costs dominate its timing), and a `P_M` that
     /// overshot on its own step is not taken back on the strength of other candidates' ratios.
@@ -443,10 +443,13 @@ impl Controller {
             .get(&(c.r, c.gamma.to_bits()))
             .filter(recent)
             .and_then(|o| ratio(o.sigma_bytes as f64, surface.sigma(c)));
-        // τ measured at `c`'s resolution steps ago, grown as the window's τ has grown since:
-        // a resolution left for a coarser one while the field grew is not taken back on the
-        // timing it had then.
-        let grown = |o: &Observation| growth(f.tau_growth_per_step.ln(), o.step, f.at).exp();
+        // τ measured at `c`'s resolution steps ago, grown as σ has grown since: a resolution
+        // left for a coarser one while the field grew is not taken back on the timing it had
+        // then. σ's growth, not τ's: the window's τ growth is measured at the resolutions the
+        // window used, over its few steps, and is noise-bound there (a flat run of fast r 64
+        // steps while σ grew 8 % a step); carried over the longer gap to another resolution,
+        // the bound σ sets on it is the safe reading. On still data σ does not grow either.
+        let grown = |o: &Observation| growth(f.sigma_growth_per_step.ln(), o.step, f.at).exp();
         let own_tau = self
             .seen
             .range((c.r, 0)..=(c.r, u32::MAX))
@@ -949,8 +952,9 @@ mod tests {
     }
 
     /// A resolution left for a coarser one is taken back only when its own timing, grown as
-    /// τ has grown since, clears the plan: on a growing field the timing it had steps ago
-    /// says too little; on still data the same timing takes it back.
+    /// σ has grown since, clears the plan: on a growing field the timing it had steps ago
+    /// says too little, also when the window's timings do not show the growth; on still data
+    /// the same timing takes it back.
     #[test]
     fn a_resolution_left_while_the_field_grew_is_not_taken_back_on_its_old_timing() {
         let (fine, coarse) = (c(128, g(2)), c(64, g(2)));
@@ -961,10 +965,10 @@ mod tests {
                 tau_secs,
             }),
         );
-        let run = |growth: f64| {
+        let run = |tau_growth: f64, sigma_growth: f64| {
             let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
-            // r 128 at step 0 (k 1.6), then ten steps at r 64 (k 0.5, growing by `growth`
-            // a step, σ by 1.5 times as much): step 0 has left the window of 8.
+            // r 128 at step 0 (k 1.6), then ten steps at r 64 (k 0.5, τ growing by
+            // `tau_growth` a step, σ by `sigma_growth`): step 0 has left the window of 8.
             let at = |step: u64, candidate: Candidate, tau_secs: f64, sigma: f64| Observation {
                 planned_sigma_bytes: None,
                 step,
@@ -974,17 +978,19 @@ mod tests {
             };
             ctl.observe(at(0, fine, 0.08, 1.0));
             for step in 1..=10u64 {
-                let grown = growth.powi(step as i32);
-                let sigma = (1.0 + 1.5 * (growth - 1.0)).powi(step as i32);
-                ctl.observe(at(step, coarse, 0.01 * grown, sigma));
+                let tau = 0.01 * tau_growth.powi(step as i32);
+                ctl.observe(at(step, coarse, tau, sigma_growth.powi(step as i32)));
             }
             ctl.correct(&s, fine, coarse, 12)
         };
-        // Growing 10 % a step: r 128's k of 1.6 is 5.0 by step 12, 0.25 s against a 0.095 s
-        // plan; the window's r 64 steps alone would put it at 0.079 s.
-        assert_eq!(run(1.1), None);
+        // Growing 10 % a step in τ, 15 % in σ: r 128's k of 1.6 is 8.6 by step 12, 0.43 s
+        // against a 0.095 s plan; the window's r 64 steps alone would put it at 0.079 s.
+        assert_eq!(run(1.1, 1.15), None);
+        // Timings flat at r 64 while σ grows 8 % a step: the window shows no τ growth, but
+        // r 128's old timing is carried forward as σ grew (0.08 s × 2.5), not taken as it was.
+        assert_eq!(run(1.0, 1.08), None);
         // Still: 0.08 s clears the plan by the hysteresis (0.0855 s), and r 128 comes back.
-        let back = run(1.0).expect("r 128 comes back on still data");
+        let back = run(1.0, 1.0).expect("r 128 comes back on still data");
         assert_eq!(back.candidate.r, 128, "{back:?}");
     }
 
