@@ -428,7 +428,8 @@ impl Controller {
 
     /// The ratios of σ and τ forecast at `c`: the window's, or where larger the ones measured
     /// when `c` itself was last made (for τ: any candidate at `c`'s resolution, τ being one
-    /// whatever the γ, grown by the forecast's σ growth since), within [`MEMORY`] steps. The
+    /// whatever the γ, or where production has not made that resolution, at the nearest finer
+    /// one it has; grown by the forecast's σ growth since), within [`MEMORY`] steps. The
     /// surface can be off at one candidate (measured on other steps, interpolated, or for τ
     /// scaled by r² from a resolution whose fixed costs dominate its timing), and a `P_M` that
     /// overshot on its own step is not taken back on the strength of other candidates' ratios.
@@ -450,13 +451,27 @@ impl Controller {
         // steps while σ grew 8 % a step); carried over the longer gap to another resolution,
         // the bound σ sets on it is the safe reading. On still data σ does not grow either.
         let grown = |o: &Observation| growth(f.sigma_growth_per_step.ln(), o.step, f.at).exp();
-        let own_tau = self
+        // A resolution production has not timed takes the ratio of the nearest finer one it
+        // has: production's slowdown against the trials grows with a generation's work (a
+        // step's volume is read cold where the trials find it in cache), so a finer
+        // resolution's ratio bounds a coarser one's, and a step up is not taken on the ratio of
+        // a coarser resolution's fast steps (on Gray–Scott 128³ under `time:0.03`, r 64 steps
+        // of 3–5 ms put r 192 at 22 ms; it took 39 ms).
+        let timed = self
             .seen
-            .range((c.r, 0)..=(c.r, u32::MAX))
+            .range((c.r, 0)..)
             .map(|(_, o)| o)
             .filter(recent)
-            .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)).map(|k| k * grown(o)))
-            .reduce(f64::max);
+            .map(|o| o.candidate.r)
+            .min();
+        let own_tau = timed.and_then(|r| {
+            self.seen
+                .range((r, 0)..=(r, u32::MAX))
+                .map(|(_, o)| o)
+                .filter(recent)
+                .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)).map(|k| k * grown(o)))
+                .reduce(f64::max)
+        });
         (
             own_sigma.map_or(f.sigma, |k| k.max(f.sigma)),
             own_tau.map_or(f.tau, |k| k.max(f.tau)),
@@ -992,6 +1007,45 @@ mod tests {
         // Still: 0.08 s clears the plan by the hysteresis (0.0855 s), and r 128 comes back.
         let back = run(1.0, 1.0).expect("r 128 comes back on still data");
         assert_eq!(back.candidate.r, 128, "{back:?}");
+    }
+
+    /// Production at a fine resolution ran slower against its trials than production at a
+    /// coarse one: a resolution between them, which production has not timed, is forecast with
+    /// the finer one's ratio, not taken up to on the coarse one's fast steps.
+    #[test]
+    fn a_resolution_production_has_not_timed_takes_the_ratio_of_a_finer_one() {
+        let (fine, mid, coarse) = (c(256, g(2)), c(128, g(2)), c(64, g(2)));
+        let s = Surface::new([(fine, 0.04), (mid, 0.02), (coarse, 0.01)].map(
+            |(candidate, tau_secs)| Point {
+                candidate,
+                sigma_bytes: law(candidate),
+                tau_secs,
+            },
+        ));
+        let run = |fine_tau: f64| {
+            let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+            let at = |step: u64, candidate: Candidate, tau_secs: f64| Observation {
+                planned_sigma_bytes: None,
+                step,
+                candidate,
+                sigma_bytes: law(candidate) as u64,
+                tau_secs,
+            };
+            // r 256 at step 0, then ten still steps at r 64 at 0.6 of its trials' τ.
+            ctl.observe(at(0, fine, fine_tau));
+            for step in 1..=10u64 {
+                ctl.observe(at(step, coarse, 0.006));
+            }
+            ctl.correct(&s, fine, coarse, 11)
+        };
+        // r 256 took 5× its trials: r 128 (trials 0.02 s) is forecast at 0.1 s and r 192 at
+        // 0.11 s, over the 0.095 s plan, where r 64's ratio of 0.6 would put them at 0.012 s
+        // and 0.014 s; r 64, timed by production itself, keeps its own ratio and stays.
+        assert_eq!(run(0.2), None);
+        // r 256 took 3× its trials: r 192 (0.0225 s by r² from r 128's trials) at 0.0675 s
+        // clears the plan by the hysteresis, and is taken up to (r 256 at 0.12 s is not).
+        let up = run(0.12).expect("a finer resolution is taken up to");
+        assert_eq!(up.candidate.r, 192, "{up:?}");
     }
 
     /// Timings at one r that differ by noise (a fast one at a coarser γ) do not make the
