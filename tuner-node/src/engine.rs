@@ -410,9 +410,11 @@ impl Engine {
     }
 }
 
-/// What a correction's reason ends with when no candidate meets the plan under the forecast
-/// and the coarsest is pushed (its step is expected to overshoot).
-const INFEASIBLE: &str = "; no candidate meets the plan under this forecast: the coarsest";
+/// What the reason of a correction, or of a tuning's answer chosen for when it lands, ends
+/// with when no candidate meets the plan under the forecast and the coarsest is pushed (its
+/// step is expected to overshoot).
+pub(crate) const INFEASIBLE: &str =
+    "; no candidate meets the plan under this forecast: the coarsest";
 
 /// A step whose summaries are coming in.
 struct Pending {

@@ -400,12 +400,13 @@ fn decide(
             let q = crate::engine::q_on(&s, &steps, p.candidate);
             let finer = p.candidate.r == best.r && p.candidate.gamma < best.gamma;
             let reason = format!(
-                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {from_step}",
+                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {from_step}{}",
                 best.r,
                 best.gamma,
                 best.q(),
                 if finer { "refined" } else { "coarsened" },
-                p.forecast.sigma
+                p.forecast.sigma,
+                if p.feasible { "" } else { crate::engine::INFEASIBLE }
             );
             (
                 crate::engine::planned(p, q),
@@ -444,6 +445,7 @@ mod tests {
     use crate::config::{Config, GridConfig};
     use crate::state::State;
     use crate::trigger::Cause;
+    use insitu_tuner::control::Observation;
 
     /// A budget no candidate meets ends the tuning without a decision, counted in the status
     /// (and warned of in the log); the trials were persisted ones, so no node is asked.
@@ -498,6 +500,86 @@ mod tests {
             engine.counters().burst_used,
             None,
             "no decision: the burst stays for the next tuning"
+        );
+    }
+
+    /// A tuning's answer that the production steps since forecast no candidate can replace
+    /// within the budget is pushed as the coarsest, and its reason says so, as a correction's
+    /// does (its step is expected to overshoot).
+    #[test]
+    fn a_tuning_that_no_candidate_can_land_within_the_budget_says_so() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = Config {
+            state_dir: dir.path().to_owned(),
+            viz: Some("127.0.0.1:1".into()),
+            utility: "size:10000".into(),
+            grid: GridConfig {
+                r: "64,128".into(),
+                gamma: "0.01,0.02,0.04".into(),
+            },
+            ..Default::default()
+        };
+        let resolved = cfg.resolve().unwrap();
+        let mut state = State::with_step_zero();
+        // σ on step 0: r² / 2 bytes at γ 0.01, halving with each doubling of γ (512–8192
+        // bytes): every candidate within the 9500-byte plan.
+        let sigma =
+            |c: Candidate| (f64::from(c.r).powi(2) / 2.0 * 0.01 / f64::from(c.gamma)) as u64;
+        for candidate in resolved.grid.candidates() {
+            state.size_probes.push(SizeProbe {
+                step: 0,
+                candidate,
+                sizing: Sizing {
+                    sigma_bytes: sigma(candidate),
+                    tau_secs: 0.01,
+                    ..Sizing::default()
+                },
+                trial_secs: 0.01,
+                run_by: 0,
+                production: false,
+            });
+        }
+        let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
+        let best = Candidate {
+            r: 128,
+            gamma: 0.01,
+        };
+        // Production at the tuned candidate came out 100× its σ on step 0: even r 64 at
+        // γ 0.04 is forecast at 51 kB.
+        for step in 1..=2 {
+            engine.control().observe(Observation {
+                step,
+                candidate: best,
+                sigma_bytes: 100 * sigma(best),
+                tau_secs: 0.01,
+                planned_sigma_bytes: None,
+            });
+        }
+        let trigger = Trigger {
+            step: 0,
+            cause: Cause::First,
+        };
+        let measured = Measurement {
+            r: best.r,
+            gamma: best.gamma,
+            sizing: Sizing {
+                sigma_bytes: sigma(best),
+                tau_secs: 0.01,
+                ..Sizing::default()
+            },
+            tau_render_secs: 0.0,
+            q_db: Db(40.0),
+            view_q_db: Vec::new(),
+            ssim: None,
+        };
+        decide(&engine, &trigger, vec![0], measured, 1, 0.01);
+        let d = engine
+            .decision(1)
+            .expect("the tuning's decision is published");
+        assert_eq!((d.resolution, d.gamma), (64, 0.04), "{d:?}");
+        assert!(
+            d.reason.contains("coarsened") && d.reason.ends_with(crate::engine::INFEASIBLE),
+            "{d:?}"
         );
     }
 

@@ -1042,7 +1042,7 @@ mod tests {
         // 0.11 s, over the 0.095 s plan, where r 64's ratio of 0.6 would put them at 0.012 s
         // and 0.014 s; r 64, timed by production itself, keeps its own ratio and stays.
         assert_eq!(run(0.2), None);
-        // r 256 took 3× its trials: r 192 (0.0225 s by r² from r 128's trials) at 0.0675 s
+        // r 256 took 3× its trials: r 192 (0.0225 s by r² from r 256's trials) at 0.0675 s
         // clears the plan by the hysteresis, and is taken up to (r 256 at 0.12 s is not).
         let up = run(0.12).expect("a finer resolution is taken up to");
         assert_eq!(up.candidate.r, 192, "{up:?}");
