@@ -447,15 +447,22 @@ mod tests {
     use crate::trigger::Cause;
     use insitu_tuner::control::Observation;
 
-    /// A budget no candidate meets ends the tuning without a decision, counted in the status
-    /// (and warned of in the log); the trials were persisted ones, so no node is asked.
-    #[test]
-    fn a_tuning_without_a_feasible_candidate_keeps_the_p_m_and_says_so() {
+    /// An engine under `utility` over the grid r 64, 128 × γ 0.01, 0.02, 0.04, whose state
+    /// holds a size probe of every candidate on step 0 with σ `sigma(candidate)` (τ 10 ms),
+    /// with its state directory and its event channel (held for the engine's life).
+    fn probed(
+        utility: &str,
+        sigma: impl Fn(Candidate) -> u64,
+    ) -> (
+        tempfile::TempDir,
+        Arc<Engine>,
+        tokio::sync::mpsc::Receiver<crate::engine::Event>,
+    ) {
         let dir = tempfile::tempdir().unwrap();
         let cfg = Config {
             state_dir: dir.path().to_owned(),
             viz: Some("127.0.0.1:1".into()),
-            utility: "size:1000".into(),
+            utility: utility.into(),
             grid: GridConfig {
                 r: "64,128".into(),
                 gamma: "0.01,0.02,0.04".into(),
@@ -469,7 +476,7 @@ mod tests {
                 step: 0,
                 candidate,
                 sizing: Sizing {
-                    sigma_bytes: 5000 + u64::from(candidate.r),
+                    sigma_bytes: sigma(candidate),
                     tau_secs: 0.01,
                     ..Sizing::default()
                 },
@@ -478,7 +485,15 @@ mod tests {
                 production: false,
             });
         }
-        let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
+        let (engine, rx) = Engine::new(cfg, resolved, state, tune);
+        (dir, engine, rx)
+    }
+
+    /// A budget no candidate meets ends the tuning without a decision, counted in the status
+    /// (and warned of in the log); the trials were persisted ones, so no node is asked.
+    #[test]
+    fn a_tuning_without_a_feasible_candidate_keeps_the_p_m_and_says_so() {
+        let (_dir, engine, _rx) = probed("size:1000", |c| 5000 + u64::from(c.r));
         let trigger = Trigger {
             step: 0,
             cause: Cause::First,
@@ -508,38 +523,11 @@ mod tests {
     /// does (its step is expected to overshoot).
     #[test]
     fn a_tuning_that_no_candidate_can_land_within_the_budget_says_so() {
-        let dir = tempfile::tempdir().unwrap();
-        let cfg = Config {
-            state_dir: dir.path().to_owned(),
-            viz: Some("127.0.0.1:1".into()),
-            utility: "size:10000".into(),
-            grid: GridConfig {
-                r: "64,128".into(),
-                gamma: "0.01,0.02,0.04".into(),
-            },
-            ..Default::default()
-        };
-        let resolved = cfg.resolve().unwrap();
-        let mut state = State::with_step_zero();
         // σ on step 0: r² / 2 bytes at γ 0.01, halving with each doubling of γ (512–8192
         // bytes): every candidate within the 9500-byte plan.
         let sigma =
             |c: Candidate| (f64::from(c.r).powi(2) / 2.0 * 0.01 / f64::from(c.gamma)) as u64;
-        for candidate in resolved.grid.candidates() {
-            state.size_probes.push(SizeProbe {
-                step: 0,
-                candidate,
-                sizing: Sizing {
-                    sigma_bytes: sigma(candidate),
-                    tau_secs: 0.01,
-                    ..Sizing::default()
-                },
-                trial_secs: 0.01,
-                run_by: 0,
-                production: false,
-            });
-        }
-        let (engine, _rx) = Engine::new(cfg, resolved, state, tune);
+        let (_dir, engine, _rx) = probed("size:10000", sigma);
         let best = Candidate {
             r: 128,
             gamma: 0.01,
