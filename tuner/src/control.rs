@@ -452,11 +452,11 @@ impl Controller {
         // the bound σ sets on it is the safe reading. On still data σ does not grow either.
         let grown = |o: &Observation| growth(f.sigma_growth_per_step.ln(), o.step, f.at).exp();
         // A resolution production has not timed takes the ratio of the nearest finer one it
-        // has: production's slowdown against the trials grows with a generation's work (a
-        // step's volume is read cold where the trials find it in cache), so a finer
-        // resolution's ratio bounds a coarser one's, and a step up is not taken on the ratio of
-        // a coarser resolution's fast steps (on Gray–Scott 128³ under `time:0.03`, r 64 steps
-        // of 3–5 ms put r 192 at 22 ms; it took 39 ms).
+        // has: production's slowdown against the trials grew with a generation's work in the
+        // runs measured (likely a step's volume read cold where the trials find it in cache),
+        // so a finer resolution's ratio bounds a coarser one's, and a step up is not taken on
+        // the ratio of a coarser resolution's fast steps (on Gray–Scott 128³ under
+        // `time:0.03`, r 64 steps of 3–5 ms put r 192 at 22 ms; it took 39 ms).
         let timed = self
             .seen
             .range((c.r, 0)..)
