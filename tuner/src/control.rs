@@ -457,21 +457,18 @@ impl Controller {
         // so a finer resolution's ratio bounds a coarser one's, and a step up is not taken on
         // the ratio of a coarser resolution's fast steps (on Gray–Scott 128³ under
         // `time:0.03`, r 64 steps of 3–5 ms put r 192 at 22 ms; it took 39 ms).
-        let timed = self
+        // `seen` is ordered by r: the first recent entry from `c.r` up is the nearest timed.
+        let mut timed = self
             .seen
             .range((c.r, 0)..)
             .map(|(_, o)| o)
             .filter(recent)
-            .map(|o| o.candidate.r)
-            .min();
-        let own_tau = timed.and_then(|r| {
-            self.seen
-                .range((r, 0)..=(r, u32::MAX))
-                .map(|(_, o)| o)
-                .filter(recent)
-                .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)).map(|k| k * grown(o)))
-                .reduce(f64::max)
-        });
+            .peekable();
+        let nearest = timed.peek().map(|o| o.candidate.r);
+        let own_tau = timed
+            .take_while(|o| Some(o.candidate.r) == nearest)
+            .filter_map(|o| ratio(o.tau_secs, surface.tau(o.candidate)).map(|k| k * grown(o)))
+            .reduce(f64::max);
         (
             own_sigma.map_or(f.sigma, |k| k.max(f.sigma)),
             own_tau.map_or(f.tau, |k| k.max(f.tau)),
