@@ -45,6 +45,7 @@ fn main() {
     let params = VdiParams {
         resolution: r,
         gamma: 0.01,
+        precision: Default::default(),
     };
     println!(
         "Gray–Scott {n}³ after {steps} steps ({:.1} s), r = {r}, γ = 0.01, {} threads",

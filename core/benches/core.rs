@@ -50,6 +50,7 @@ fn benches(c: &mut Criterion) {
         let p = VdiParams {
             resolution: r,
             gamma: 0.013,
+            precision: Default::default(),
         };
         g.bench_function(format!("generate_r{r}"), |b| {
             b.iter(|| black_box(generate(&rc, &cam, p, 0, "teapot").expect("valid")))
@@ -70,6 +71,7 @@ fn benches(c: &mut Criterion) {
         VdiParams {
             resolution: 768,
             gamma: 0.013,
+            precision: Default::default(),
         },
         0,
         "teapot",
@@ -84,6 +86,7 @@ fn benches(c: &mut Criterion) {
         VdiParams {
             resolution: 256,
             gamma: 0.013,
+            precision: Default::default(),
         },
         0,
         "teapot",

@@ -74,6 +74,7 @@ fn bench_scene(
         let p = VdiParams {
             resolution: r,
             gamma: 0.013,
+            precision: Default::default(),
         };
         row(
             &format!("{name} generate r={r}"),

@@ -170,6 +170,7 @@ fn main() {
         let params = VdiParams {
             resolution: SIZE,
             gamma,
+            precision: Default::default(),
         };
         let fresh = || generate(&rc, &cam, params, 0, "teapot").expect("valid");
         let mut spare = fresh();

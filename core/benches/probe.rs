@@ -50,10 +50,12 @@ fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], r
         let params = VdiParams {
             resolution: r,
             gamma,
+            precision: Default::default(),
         };
         let other = VdiParams {
             resolution: r / 2,
             gamma,
+            precision: Default::default(),
         };
         let setup = median_ms(
             rounds,

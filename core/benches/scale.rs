@@ -98,6 +98,7 @@ fn run(n: usize, bytes: bool) {
     let vp = VdiParams {
         resolution: SIZE,
         gamma: 0.013,
+        precision: Default::default(),
     };
     let time = |f: &mut dyn FnMut()| {
         f();

@@ -419,7 +419,11 @@ mod tests {
         let scene = Scene::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
         let tf = (tf.identity_hash(), "ramp");
-        let at = |resolution, gamma| VdiParams { resolution, gamma };
+        let at = |resolution, gamma| VdiParams {
+            resolution,
+            gamma,
+            precision: Default::default(),
+        };
         let mut spare = None;
         for params in [at(40, 0.01), at(24, 0.05), at(48, 0.002)] {
             let (fresh, fresh_size) =
@@ -462,6 +466,7 @@ mod tests {
         let params = VdiParams {
             resolution: 36,
             gamma: 0.01,
+            precision: Default::default(),
         };
         let mut spare = None;
         let (_, probe) =

@@ -17,7 +17,7 @@
 //! let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
 //! let camera = Camera::default_for_box(&volume.world_box());
 //! let reference = dvr::render(&rc, &camera, 32, 32);
-//! let params = vdi::VdiParams { resolution: 32, gamma: 0.01 };
+//! let params = vdi::VdiParams { resolution: 32, gamma: 0.01, precision: Default::default()  };
 //! let m = vdi::generate::generate(&rc, &camera, params, tf.identity_hash(), "ramp").unwrap();
 //! let bytes = vdi::codec::encode(&m, vdi::codec::Codec::Zstd).unwrap(); // σ = bytes.len()
 //! let image = vdi::render::render(&m, &camera, 32, 32, 0.99);
@@ -51,5 +51,5 @@ pub use camera::{Camera, Ray};
 pub use image::Image;
 pub use raycast::{RaycastParams, Raycaster, Shading};
 pub use tf::TransferFunction;
-pub use vdi::{Supersegment, Vdi, VdiParams};
+pub use vdi::{Precision, Supersegment, Vdi, VdiParams};
 pub use volume::Volume;

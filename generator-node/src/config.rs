@@ -453,6 +453,7 @@ impl GenerationConfig {
         let params = VdiParams {
             resolution: self.resolution,
             gamma: self.gamma,
+            precision: Default::default(),
         };
         params
             .validate()

@@ -685,6 +685,7 @@ mod tests {
         let params = VdiParams {
             resolution: 32,
             gamma: 0.01,
+            precision: Default::default(),
         };
         let vdi = insitu_core::vdi::generate::generate(&rc, &camera, params, 1, "t").unwrap();
         let provenance = insitu_core::vdi::provenance::Provenance {

@@ -47,6 +47,7 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     next.params = VdiParams {
         resolution: c.resolution,
         gamma: c.gamma,
+        precision: Default::default(),
     };
     next.params
         .validate()
@@ -117,6 +118,7 @@ pub fn decided(g: &Generation, d: &pb::PmDecision, begun: u64) -> Result<Generat
     let params = VdiParams {
         resolution: d.resolution,
         gamma: d.gamma,
+        precision: Default::default(),
     };
     params
         .validate()

@@ -119,6 +119,7 @@ fn measure(
     let params = VdiParams {
         resolution: req.resolution,
         gamma: req.gamma,
+        precision: Default::default(),
     };
     let tf = (h.tf.0.identity_hash(), h.tf.1.as_str());
     let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());

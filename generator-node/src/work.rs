@@ -652,6 +652,7 @@ mod tests {
         let p = VdiParams {
             resolution: 256,
             gamma: 0.01,
+            precision: Default::default(),
         };
         // Whole: 1 s; 0.6 of 0.6 s left is 0.36 of the rays: r × 0.6.
         let next = faster(p, at(0.25, 0.25), 0.6, true).unwrap();
@@ -691,6 +692,7 @@ mod tests {
         let p = VdiParams {
             resolution: 256,
             gamma: 0.01,
+            precision: Default::default(),
         };
         let raised = |over| coarser(p, over, true).unwrap().gamma;
         assert!(

@@ -263,6 +263,7 @@ pub fn generate_vdi(
     let params = VdiParams {
         resolution: r,
         gamma,
+        precision: Default::default(),
     };
     params.validate().map_err(bad)?;
     let cam = Camera::default_for_box(&v.world_box());
@@ -301,6 +302,7 @@ pub fn evaluate<'py>(
     let params = VdiParams {
         resolution: r,
         gamma,
+        precision: Default::default(),
     };
     params.validate().map_err(bad)?;
     let s = self::size(size)?;

@@ -183,6 +183,7 @@ fn hindsight(
             let p = VdiParams {
                 resolution: r,
                 gamma: g,
+                precision: Default::default(),
             };
             let (_, s) = generate_encoded(&scene, &camera, p, Codec::Zstd, tfid, spare).unwrap();
             (s.sigma_bytes as f64) < budget
@@ -204,6 +205,7 @@ fn hindsight(
         let p = VdiParams {
             resolution: r,
             gamma: grid.gammas[lo],
+            precision: Default::default(),
         };
         let (e, _) = evaluate(
             &scene,

@@ -357,6 +357,7 @@ fn sub_vdis(f: &[f32], n: usize, r: u32, ranks: usize, tf: &TransferFunction) ->
     let params = VdiParams {
         resolution: r,
         gamma: 0.013,
+        precision: Default::default(),
     };
     grid_bricks(global, split_ranks(ranks, global).unwrap())
         .unwrap()
@@ -449,6 +450,7 @@ fn ingest() {
     let params = VdiParams {
         resolution: 512,
         gamma: 0.05,
+        precision: Default::default(),
     };
     let vdi = generate(
         &rc,

@@ -284,6 +284,7 @@ fn codec_rows(s: &Sweep, rc: &Raycaster) -> Result<Vec<AccuracyRow>, AccuracyErr
     let params = VdiParams {
         resolution: pm.r,
         gamma: pm.gamma,
+        precision: Default::default(),
     };
     let vdi = s
         .backend

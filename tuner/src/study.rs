@@ -223,6 +223,7 @@ impl Oracle for Study<'_> {
             VdiParams {
                 resolution: c.r,
                 gamma: c.gamma,
+                precision: Default::default(),
             },
             s.codec,
             &s.view_angles,

@@ -354,6 +354,7 @@ mod tests {
             let params = VdiParams {
                 resolution: 32,
                 gamma: 0.01,
+                precision: Default::default(),
             };
             let vdi = insitu_core::vdi::generate::generate(&rc, &cam, params, 0, "ramp").unwrap();
             let provenance = insitu_core::vdi::provenance::Provenance {
@@ -444,6 +445,7 @@ mod tests {
         let params = VdiParams {
             resolution: 16,
             gamma: 0.01,
+            precision: Default::default(),
         };
         let vdi = generate(&rc, &camera, params, 0, "").unwrap();
         let dir = tempfile::tempdir().unwrap();

@@ -234,6 +234,7 @@ mod tests {
         let params = VdiParams {
             resolution: 16,
             gamma: 0.02,
+            precision: Default::default(),
         };
         let vdi = insitu_core::vdi::generate::generate(&rc, &camera, params, 7, "ramp").unwrap();
         let brick = Brick {
@@ -384,6 +385,7 @@ mod tests {
         let params = VdiParams {
             resolution: 8,
             gamma: 0.1,
+            precision: Default::default(),
         };
         let old = insitu_core::vdi::generate::generate(&rc, &cam, params, 0, "x").unwrap();
         std::fs::write(

@@ -83,6 +83,7 @@ impl PmArgs {
         let p = insitu_core::VdiParams {
             resolution: self.r,
             gamma: self.gamma,
+            precision: Default::default(),
         };
         p.validate()?;
         Ok(p)

@@ -644,7 +644,11 @@ mod tests {
         let cam = Camera::default_for_box(&volume.world_box());
         for (angle, resolution, gamma) in [(0.0, 256, 0.01), (35.0, 320, 0.002), (90.0, 256, 0.05)]
         {
-            let params = VdiParams { resolution, gamma };
+            let params = VdiParams {
+                resolution,
+                gamma,
+                precision: Default::default(),
+            };
             let camera = cam.orbit_y(angle);
             let n = generate(&rc, &camera, params, 0, "")
                 .unwrap()
@@ -663,7 +667,8 @@ mod tests {
                 &cam,
                 VdiParams {
                     resolution: 128,
-                    gamma: 0.01
+                    gamma: 0.01,
+                    precision: Default::default()
                 }
             ),
             0,
@@ -680,7 +685,11 @@ mod tests {
         let tf = TransferFunction::default_for_range(0.0, 1.0);
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let cam = Camera::default_for_box(&volume.world_box());
-        let p = |resolution, gamma| VdiParams { resolution, gamma };
+        let p = |resolution, gamma| VdiParams {
+            resolution,
+            gamma,
+            precision: Default::default(),
+        };
         let mut vdi = generate(&rc, &cam.orbit_y(40.0), p(48, 0.001), 1, "first").unwrap();
         // Shrinking (truncation), growing within the capacity (zeroed extension), growing
         // beyond it (a new array), and another camera; then at r = 256 (where a fresh VDI's
@@ -719,6 +728,7 @@ mod tests {
         let params = VdiParams {
             resolution: 96,
             gamma: 0.01,
+            precision: Default::default(),
         };
         let whole = generate(&rc, &cam, params, 3, "t").unwrap();
         let seen = std::sync::Mutex::new(Vec::new());

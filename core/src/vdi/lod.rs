@@ -220,6 +220,7 @@ mod tests {
             params: VdiParams {
                 resolution: r,
                 gamma,
+                precision: Default::default(),
             },
             step: 0.2,
             termination: 0.99,

@@ -44,13 +44,127 @@ impl Supersegment {
     }
 }
 
-/// Generation parameters `P_M = (r, γ)` (Sec. 5.2).
+/// Generation parameters `P_M = (r, γ, precision)`: the paper's two (Sec. 5.2) and the
+/// precision its file stores the supersegments at ([`codec`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VdiParams {
     /// Resolution: `r × r` rays.
     pub resolution: u32,
     /// Interrupt threshold γ on `‖â·ĉ − a·c‖₂`.
     pub gamma: f32,
+    /// How the file stores the supersegments' numbers; generation ignores it.
+    pub precision: Precision,
+}
+
+/// How a VDI file stores its supersegments' depths, colours and opacities: the third
+/// parameter of `P_M`, trading σ for error bounds stated in world and colour units
+/// ([`codec`], docs/conventions.md "The VDI file").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Precision {
+    /// 32-bit floats, lossless (format version 3): the paper's σ.
+    #[default]
+    Float32,
+    /// Colour and opacity to `bits` bits (an error of at most `0.5 / (2^bits − 1)` colour
+    /// units), depths to a power-of-two fraction of the ray-casting step (format version 4;
+    /// [`codec::quantized`]). `bits` in [`Precision::MIN_BITS`]`..=`[`Precision::MAX_BITS`].
+    Bits(u8),
+}
+
+impl Precision {
+    /// Fewest colour bits.
+    pub const MIN_BITS: u8 = 4;
+    /// Most colour bits.
+    pub const MAX_BITS: u8 = 16;
+
+    /// Lower-case name: `f32`, or the bit count (`10`).
+    pub fn name(self) -> String {
+        match self {
+            Self::Float32 => "f32".to_owned(),
+            Self::Bits(b) => b.to_string(),
+        }
+    }
+
+    /// The largest error a stored colour or opacity may have, colour units (0 for `Float32`).
+    pub fn color_bound(self) -> f32 {
+        match self {
+            Self::Float32 => 0.0,
+            Self::Bits(b) => 0.5 / ((1u32 << b) - 1) as f32,
+        }
+    }
+
+    /// The bit count on the wire and in configs: 0 for `Float32`.
+    pub fn bits(self) -> u32 {
+        match self {
+            Self::Float32 => 0,
+            Self::Bits(b) => u32::from(b),
+        }
+    }
+
+    /// From [`Precision::bits`]: 0 is `Float32`.
+    ///
+    /// # Errors
+    /// [`VdiParamError::Precision`] for a count outside the range.
+    pub fn from_bits(bits: u32) -> Result<Self, VdiParamError> {
+        match bits {
+            0 => Ok(Self::Float32),
+            b if (u32::from(Self::MIN_BITS)..=u32::from(Self::MAX_BITS)).contains(&b) => {
+                Ok(Self::Bits(b as u8))
+            }
+            b => Err(VdiParamError::Precision(b.to_string())),
+        }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Float32 => f.write_str("f32"),
+            Self::Bits(b) => write!(f, "{b}-bit"),
+        }
+    }
+}
+
+impl std::str::FromStr for Precision {
+    type Err = VdiParamError;
+    /// `f32` (or `float`), or a bit count in 4..=16 (`10`, `10-bit`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.trim().to_ascii_lowercase();
+        if t == "f32" || t == "float" || t == "float32" {
+            return Ok(Self::Float32);
+        }
+        t.trim_end_matches("-bit")
+            .trim_end_matches("bit")
+            .parse::<u32>()
+            .ok()
+            .filter(|&b| b != 0)
+            .map_or_else(
+                || Err(VdiParamError::Precision(s.to_owned())),
+                Self::from_bits,
+            )
+            .map_err(|_| VdiParamError::Precision(s.to_owned()))
+    }
+}
+
+impl serde::Serialize for Precision {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.name())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Precision {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Bits(u32),
+            Name(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Bits(b) => Precision::from_bits(b),
+            Raw::Name(n) => n.parse(),
+        }
+        .map_err(serde::de::Error::custom)
+    }
 }
 
 /// Largest accepted resolution `r`.
@@ -68,6 +182,9 @@ pub enum VdiParamError {
     /// The generation camera is degenerate.
     #[error("generation camera is degenerate: {0:?}")]
     Camera(Camera),
+    /// A precision that is neither `f32` nor a bit count in 4..=16.
+    #[error("precision {0:?} must be f32 or a bit count in 4..=16")]
+    Precision(String),
 }
 
 impl VdiParams {
@@ -81,6 +198,9 @@ impl VdiParams {
         }
         if !(self.gamma.is_finite() && self.gamma >= 0.0) {
             return Err(VdiParamError::Gamma(self.gamma));
+        }
+        if let Precision::Bits(b) = self.precision {
+            Precision::from_bits(u32::from(b))?;
         }
         Ok(())
     }

@@ -141,6 +141,7 @@ fn check(case: &Case, steps: &[f32], name: &str) {
             VdiParams {
                 resolution: SIZE,
                 gamma: 0.01,
+                precision: Default::default(),
             },
             0,
             name,
@@ -161,6 +162,7 @@ fn check(case: &Case, steps: &[f32], name: &str) {
             VdiParams {
                 resolution: 8 * SIZE,
                 gamma: 0.001,
+                precision: Default::default(),
             },
             0,
             name,
@@ -225,6 +227,7 @@ fn generation_without_early_termination_keeps_what_is_hidden() {
     let vp = VdiParams {
         resolution: SIZE,
         gamma: 0.01,
+        precision: Default::default(),
     };
     let mut q = Vec::new();
     for generation_termination in [Some(0.99), None] {

@@ -47,6 +47,7 @@ fn arb_vdi() -> impl Strategy<Value = Vdi> {
                 params: VdiParams {
                     resolution: r,
                     gamma,
+                    precision: Default::default(),
                 },
                 step: 0.5,
                 termination: 0.99,
@@ -187,6 +188,7 @@ fn meta(resolution: u32, tf_hash: u64, tf_name: &str) -> VdiMeta {
         params: VdiParams {
             resolution,
             gamma: 0.01,
+            precision: Default::default(),
         },
         step: 0.5,
         termination: 0.99,

@@ -34,6 +34,7 @@ fn vdi_of(v: &Volume, camera: &Camera) -> Vdi {
     let params = VdiParams {
         resolution: R,
         gamma: 0.01,
+        precision: Default::default(),
     };
     generate(&rc, camera, params, tf().identity_hash(), "test").unwrap()
 }

@@ -88,6 +88,7 @@ fn gpu_matches_cpu_on_real_data() {
         let params = VdiParams {
             resolution: size_u,
             gamma: 0.013,
+            precision: Default::default(),
         };
         let cpu_vdi = generate(&rc, &cam, params, 0, name).unwrap();
         let gpu_vdi = scene.generate(&cam, params, 0, name).unwrap().value;
@@ -158,6 +159,7 @@ fn bands_and_budget_overflow_give_the_same_result_as_one_pass() {
     let params = VdiParams {
         resolution: 40,
         gamma: 0.0,
+        precision: Default::default(),
     };
     let whole = GpuScene::new(shared, &rc).unwrap();
     let reference_vdi = whole.generate(&cam, params, 0, "t").unwrap().value;
@@ -203,6 +205,7 @@ fn bands_and_budget_overflow_give_the_same_result_as_one_pass() {
             VdiParams {
                 resolution: 4,
                 gamma: 0.26,
+                precision: Default::default(),
             },
             0,
             "t",
@@ -258,6 +261,7 @@ fn vdis_cross_between_backends_through_the_codec() {
     let params = VdiParams {
         resolution: 48,
         gamma: 0.01,
+        precision: Default::default(),
     };
     let gpu_vdi = GpuScene::new(gpu, &rc)
         .unwrap()
@@ -299,6 +303,7 @@ fn kept_buffers_leave_no_trace_in_later_results() {
     let small = VdiParams {
         resolution: 24,
         gamma: 0.02,
+        precision: Default::default(),
     };
     let run = |params: VdiParams, size: u32| {
         let vdi = scene.generate(&cam, params, 0, "t").unwrap().value;
@@ -316,6 +321,7 @@ fn kept_buffers_leave_no_trace_in_later_results() {
         VdiParams {
             resolution: 64,
             gamma: 0.0,
+            precision: Default::default(),
         },
         72,
     );

@@ -69,6 +69,7 @@ fn blob() -> Volume {
 const VP: VdiParams = VdiParams {
     resolution: 24,
     gamma: 0.01,
+    precision: insitu_core::Precision::Float32,
 };
 
 #[test]
@@ -183,6 +184,7 @@ fn extreme_gamma_and_resolution() {
             VdiParams {
                 resolution: 24,
                 gamma,
+                precision: Default::default(),
             },
             None,
             "gamma",
@@ -195,6 +197,7 @@ fn extreme_gamma_and_resolution() {
         VdiParams {
             resolution: 1,
             gamma: 0.01,
+            precision: Default::default(),
         },
         None,
         "r = 1",
@@ -209,6 +212,7 @@ fn extreme_gamma_and_resolution() {
         VdiParams {
             resolution: 16,
             gamma: 10.0,
+            precision: Default::default(),
         },
         0,
         "",

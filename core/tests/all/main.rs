@@ -4,6 +4,7 @@
 
 mod analytic;
 mod codec_props;
+mod codec_quantized;
 mod common;
 mod compose;
 #[cfg(feature = "gpu")]

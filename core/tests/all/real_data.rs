@@ -27,6 +27,7 @@ fn vdi_at_generation_view_reproduces_dvr() {
                 VdiParams {
                     resolution: SIZE,
                     gamma,
+                    precision: Default::default(),
                 },
                 0,
                 name,
@@ -58,6 +59,7 @@ fn teapot_quality_falls_smoothly_off_view() {
     let params = VdiParams {
         resolution: 256,
         gamma: 0.013,
+        precision: Default::default(),
     };
     let (eval, images) = evaluate(
         &scene,
@@ -113,6 +115,7 @@ fn empty_space_skipping_leaves_images_and_vdis_unchanged() {
             let p = VdiParams {
                 resolution: 80,
                 gamma: 0.01,
+                precision: Default::default(),
             };
             assert_eq!(
                 generate(&with, &cam, p, 0, "").unwrap(),
@@ -158,6 +161,7 @@ fn simd_and_scalar_paths_agree_bit_for_bit() {
                 Some(VdiParams {
                     resolution: 96,
                     gamma: 0.013,
+                    precision: Default::default(),
                 }),
                 name,
             );
@@ -189,6 +193,7 @@ fn native_types_march_like_f32() {
         let vp = VdiParams {
             resolution: 96,
             gamma: 0.013,
+            precision: Default::default(),
         };
         let native = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let float = Raycaster::new(&as_f32, &tf, RaycastParams::default()).unwrap();
@@ -228,6 +233,7 @@ fn lod_levels_stay_close_to_the_full_vdi() {
         let params = VdiParams {
             resolution: 256,
             gamma: 0.013,
+            precision: Default::default(),
         };
         let full = generate(&rc, &cam, params, tf.identity_hash(), name).unwrap();
         let half = full.half().unwrap();

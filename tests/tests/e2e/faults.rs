@@ -27,6 +27,7 @@ pub(crate) fn vdi_and_refs(gamma: f32) -> (Vec<u8>, References) {
     let params = VdiParams {
         resolution: 24,
         gamma,
+        precision: Default::default(),
     };
     let vdi = generate(&rc, &camera, params, tf.identity_hash(), "blob").unwrap();
     let backend = Backend::Cpu;

@@ -53,6 +53,7 @@ fn four_mpi_ranks_make_one_picture_per_step_like_one_process() {
     let params = VdiParams {
         resolution: R,
         gamma: 0.01,
+        precision: Default::default(),
     };
     let one = generate(&rc, &camera, params, agreed.tf.identity_hash(), "one").unwrap();
     assert_eq!(composed.meta().camera, camera);

@@ -465,6 +465,7 @@ fn vdi_chunks(
     let params = VdiParams {
         resolution: 16,
         gamma: 0.01,
+        precision: Default::default(),
     };
     let vdi = generate(&rc, &cam, params, tf.identity_hash(), "t").unwrap();
     let file = encode(&vdi, Codec::Zstd).unwrap();

@@ -490,7 +490,11 @@ mod tests {
                 [(0.0, 21, 0.01), (37.0, 32, 0.002), (180.0, 19, 0.05)]
             {
                 let camera = cam.orbit_y(angle);
-                let p = VdiParams { resolution, gamma };
+                let p = VdiParams {
+                    resolution,
+                    gamma,
+                    precision: Default::default(),
+                };
                 let lanes = generate(&rc, &camera, p, 0, "").unwrap();
                 let reference = generate(&scalar, &camera, p, 0, "").unwrap();
                 assert_eq!(lanes, reference, "{angle}°, r = {resolution}, step {step}");

@@ -969,6 +969,7 @@ mod tests {
             VdiParams {
                 resolution: 96,
                 gamma: 0.01,
+                precision: Default::default(),
             },
             0,
             "t",

@@ -31,8 +31,10 @@
 //! counts agree with lengths, and that every number is finite and in range, so a decoded
 //! [`Vdi`] is safe to render.
 
+pub mod quantized;
+
 use super::provenance::Provenance;
-use super::{Supersegment, Vdi, VdiMeta, VdiParams, MAX_RESOLUTION};
+use super::{Precision, Supersegment, Vdi, VdiMeta, VdiParams, MAX_RESOLUTION};
 use crate::camera::Camera;
 use crate::volume::Aabb;
 use glam::Vec3;
@@ -41,8 +43,11 @@ use std::io::Read;
 
 /// File magic.
 pub const MAGIC: [u8; 8] = [0x89, b'V', b'D', b'I', 0x0d, 0x0a, 0x1a, 0x0a];
-/// Current format version.
-pub const FORMAT_VERSION: u16 = 3;
+/// Current format version: quantised supersegments ([`quantized`]), written for
+/// [`Precision::Bits`].
+pub const FORMAT_VERSION: u16 = 4;
+/// The version of 32-bit float planes, written for [`Precision::Float32`].
+pub const FORMAT_VERSION_FLOAT: u16 = 3;
 /// The version before provenance, still read.
 const FORMAT_VERSION_PARTS: u16 = 2;
 /// The version before parts (the body one stream), still read.
@@ -150,7 +155,9 @@ pub enum CodecError {
     #[error("not a VDI file (bad magic)")]
     BadMagic,
     /// A version this build does not read.
-    #[error("VDI format version {0} is not supported (this build reads version {FORMAT_VERSION})")]
+    #[error(
+        "VDI format version {0} is not supported (this build reads versions 1 to {FORMAT_VERSION})"
+    )]
     UnsupportedVersion(u16),
     /// Unknown codec byte.
     #[error("unknown VDI codec id {0}")]
@@ -215,43 +222,59 @@ pub fn encode_with_provenance(
     provenance: Option<&Provenance>,
 ) -> Result<Vec<u8>, CodecError> {
     let block = provenance.map(Provenance::to_bytes).unwrap_or_default();
+    let (version, parts) = match vdi.meta().params.precision {
+        Precision::Float32 => (FORMAT_VERSION_FLOAT, float_parts(vdi, codec)?),
+        Precision::Bits(bits) => (FORMAT_VERSION, quantized::encode_parts(vdi, bits, codec)?),
+    };
+    Ok(assemble(version, codec, &block, &parts))
+}
+
+/// The version 3 payload ([`payload`]) in consecutive pieces, each compressed on its own, in
+/// parallel: `(compressed bytes, payload bytes)` per part.
+fn float_parts(vdi: &Vdi, codec: Codec) -> Result<Vec<(Vec<u8>, u64)>, CodecError> {
     let payload = payload(vdi);
     let part = match codec {
         Codec::Bzip2 => BZIP2_PART,
         Codec::Zstd => ZSTD_PART,
         Codec::None => payload.len().max(1),
     };
-    let parts: Vec<Vec<u8>> = payload
+    payload
         .par_chunks(part)
-        .map(|piece| compress(codec, piece))
-        .collect::<Result<_, _>>()?;
+        .map(|piece| Ok((compress(codec, piece)?, piece.len() as u64)))
+        .collect()
+}
+
+/// A whole file: the header, then the body (the provenance block, the part table and the
+/// parts), under one checksum.
+fn assemble(version: u16, codec: Codec, block: &[u8], parts: &[(Vec<u8>, u64)]) -> Vec<u8> {
     let table = 4 + block.len() + 4 + 16 * parts.len();
-    let mut body = Vec::with_capacity(table + parts.iter().map(Vec::len).sum::<usize>());
+    let mut body = Vec::with_capacity(table + parts.iter().map(|p| p.0.len()).sum::<usize>());
     body.extend_from_slice(&(block.len() as u32).to_le_bytes());
-    body.extend_from_slice(&block);
+    body.extend_from_slice(block);
     body.extend_from_slice(&(parts.len() as u32).to_le_bytes());
-    for (compressed, piece) in parts.iter().zip(payload.chunks(part)) {
+    for (compressed, len) in parts {
         body.extend_from_slice(&(compressed.len() as u64).to_le_bytes());
-        body.extend_from_slice(&(piece.len() as u64).to_le_bytes());
+        body.extend_from_slice(&len.to_le_bytes());
     }
-    for compressed in &parts {
+    for (compressed, _) in parts {
         body.extend_from_slice(compressed);
     }
+    let payload_len: u64 = parts.iter().map(|p| p.1).sum();
     let mut out = Vec::with_capacity(HEADER_LEN + body.len());
     out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&version.to_le_bytes());
     out.push(codec.id());
     out.push(0);
-    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&payload_len.to_le_bytes());
     out.extend_from_slice(&(body.len() as u64).to_le_bytes());
     let crc = checksum(&out, &body);
     out.extend_from_slice(&crc.to_le_bytes());
     out.extend_from_slice(&body);
-    Ok(out)
+    out
 }
 
 /// One part of the payload compressed with `codec`.
-fn compress(codec: Codec, piece: &[u8]) -> Result<Vec<u8>, CodecError> {
+pub(super) fn compress(codec: Codec, piece: &[u8]) -> Result<Vec<u8>, CodecError> {
     let err = |source| CodecError::Compress { codec, source };
     Ok(match codec {
         Codec::None => piece.to_vec(),
@@ -273,28 +296,13 @@ fn checksum(header: &[u8], body: &[u8]) -> u32 {
     h.finalize()
 }
 
+/// The version 3 payload: the metadata ([`write_meta`]), the supersegment count, the
+/// per-pixel counts and the six float planes.
 fn payload(vdi: &Vdi) -> Vec<u8> {
-    let m = vdi.meta();
     let segs = vdi.supersegments();
     let r = vdi.resolution() as usize;
-    let name = truncate_utf8(&m.tf_name, MAX_TF_NAME);
-    let mut out = Vec::with_capacity(128 + name.len() + 4 * r * r + 24 * segs.len());
-    let f = |out: &mut Vec<u8>, v: f32| out.extend_from_slice(&v.to_le_bytes());
-    out.extend_from_slice(&m.params.resolution.to_le_bytes());
-    f(&mut out, m.params.gamma);
-    f(&mut out, m.step);
-    f(&mut out, m.termination);
-    out.push(u8::from(m.shaded));
-    for v in [m.camera.eye, m.camera.target, m.camera.up] {
-        v.to_array().into_iter().for_each(|c| f(&mut out, c));
-    }
-    f(&mut out, m.camera.fov_y_deg);
-    for v in [m.volume_box.min, m.volume_box.max] {
-        v.to_array().into_iter().for_each(|c| f(&mut out, c));
-    }
-    out.extend_from_slice(&m.tf_hash.to_le_bytes());
-    out.extend_from_slice(&(name.len() as u16).to_le_bytes());
-    out.extend_from_slice(name.as_bytes());
+    let mut out = Vec::with_capacity(128 + MAX_TF_NAME + 4 * r * r + 24 * segs.len());
+    write_meta(&mut out, vdi.meta());
     out.extend_from_slice(&(segs.len() as u64).to_le_bytes());
     for w in vdi.offsets().windows(2) {
         out.extend_from_slice(&(w[1] - w[0]).to_le_bytes());
@@ -308,9 +316,32 @@ fn payload(vdi: &Vdi) -> Vec<u8> {
         |s| s.alpha,
     ];
     for get in planes {
-        segs.iter().for_each(|s| f(&mut out, get(s)));
+        segs.iter()
+            .for_each(|s| out.extend_from_slice(&get(s).to_le_bytes()));
     }
     out
+}
+
+/// The metadata every version's payload starts with: `r`, γ, the ray-casting step and
+/// termination, shading, camera, volume box, TF hash and name ([`read_meta`] reads it).
+pub(super) fn write_meta(out: &mut Vec<u8>, m: &VdiMeta) {
+    let name = truncate_utf8(&m.tf_name, MAX_TF_NAME);
+    let f = |out: &mut Vec<u8>, v: f32| out.extend_from_slice(&v.to_le_bytes());
+    out.extend_from_slice(&m.params.resolution.to_le_bytes());
+    f(out, m.params.gamma);
+    f(out, m.step);
+    f(out, m.termination);
+    out.push(u8::from(m.shaded));
+    for v in [m.camera.eye, m.camera.target, m.camera.up] {
+        v.to_array().into_iter().for_each(|c| f(out, c));
+    }
+    f(out, m.camera.fov_y_deg);
+    for v in [m.volume_box.min, m.volume_box.max] {
+        v.to_array().into_iter().for_each(|c| f(out, c));
+    }
+    out.extend_from_slice(&m.tf_hash.to_le_bytes());
+    out.extend_from_slice(&(name.len() as u16).to_le_bytes());
+    out.extend_from_slice(name.as_bytes());
 }
 
 fn truncate_utf8(s: &str, max: usize) -> &str {
@@ -355,15 +386,19 @@ pub fn decode_with_provenance(
             computed,
         });
     }
-    let payload = if file.version == FORMAT_VERSION_SINGLE {
-        decompress(
+    let payload = match file.version {
+        FORMAT_VERSION => {
+            let parts = part_table(file.parts, file.payload_len)?;
+            let vdi = quantized::decode_parts(file.codec, &parts, limits)?;
+            return Ok((vdi, file.provenance));
+        }
+        FORMAT_VERSION_SINGLE => decompress(
             file.codec,
             file.parts,
             file.payload_len,
             ("the body", "the header"),
-        )?
-    } else {
-        decompress_parts(file.codec, file.parts, file.payload_len)?
+        )?,
+        _ => decompress_parts(file.codec, file.parts, file.payload_len)?,
     };
     Ok((parse_payload(&payload)?, file.provenance))
 }
@@ -405,7 +440,14 @@ impl<'a> File<'a> {
             return Err(CodecError::BadMagic);
         }
         let version = hdr.u16("version")?;
-        if ![FORMAT_VERSION, FORMAT_VERSION_PARTS, FORMAT_VERSION_SINGLE].contains(&version) {
+        if ![
+            FORMAT_VERSION,
+            FORMAT_VERSION_FLOAT,
+            FORMAT_VERSION_PARTS,
+            FORMAT_VERSION_SINGLE,
+        ]
+        .contains(&version)
+        {
             return Err(CodecError::UnsupportedVersion(version));
         }
         let codec_id = hdr.u8("codec")?;
@@ -424,7 +466,7 @@ impl<'a> File<'a> {
             )));
         }
         let mut rd = Reader::new(body);
-        let provenance = if version == FORMAT_VERSION {
+        let provenance = if version >= FORMAT_VERSION_FLOAT {
             let len = rd.u32("provenance length")? as usize;
             if len > MAX_PROVENANCE {
                 return Err(CodecError::Invalid(format!(
@@ -450,10 +492,9 @@ impl<'a> File<'a> {
     }
 }
 
-/// The payload of a version 2 or 3 body: its part table checked against the body and the
-/// header's payload length, then the parts decompressed in parallel, each to exactly its
-/// stated length.
-fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u8>, CodecError> {
+/// The part table of a version 2–4 body checked against the body and the header's payload
+/// length: each part's compressed bytes and its stated decompressed length.
+pub(super) fn part_table(body: &[u8], payload_len: u64) -> Result<Vec<(&[u8], u64)>, CodecError> {
     let mut rd = Reader::new(body);
     let count = rd.u32("part count")? as usize;
     // At least a byte a part and 16 table bytes each: a count beyond what the body holds is
@@ -484,16 +525,30 @@ fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u
             data.len()
         )));
     }
-    // Each part's compressed bytes and its piece of the payload (the lengths fit: they sum to
-    // the body's and the payload's, both in memory or under the limits).
-    let mut out = vec![0u8; payload_len as usize];
-    let mut jobs = Vec::with_capacity(count);
-    let (mut data, mut rest) = (data, &mut out[..]);
+    // The compressed lengths sum to the body's, so each split fits.
+    let mut parts = Vec::with_capacity(count);
+    let mut data = data;
     for &(compressed, len) in &table {
         let (input, more) = data.split_at(compressed as usize);
+        parts.push((input, len));
+        data = more;
+    }
+    Ok(parts)
+}
+
+/// The payload of a version 2 or 3 body: the parts decompressed in parallel, each to exactly
+/// its stated length, back to back.
+fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u8>, CodecError> {
+    let parts = part_table(body, payload_len)?;
+    let count = parts.len();
+    // Each part's piece of the payload (the lengths sum to the payload's, under the limits).
+    let mut out = vec![0u8; payload_len as usize];
+    let mut jobs = Vec::with_capacity(count);
+    let mut rest = &mut out[..];
+    for &(input, len) in &parts {
         let (piece, tail) = std::mem::take(&mut rest).split_at_mut(len as usize);
         jobs.push((input, piece));
-        (data, rest) = (more, tail);
+        rest = tail;
     }
     jobs.into_par_iter()
         .enumerate()
@@ -508,7 +563,7 @@ fn decompress_parts(codec: Codec, body: &[u8], payload_len: u64) -> Result<Vec<u
 
 /// Decompresses at most `expected + 1` bytes, growing the buffer only as data arrives; an
 /// error names `what` was decompressed and what `stated` the length.
-fn decompress(
+pub(super) fn decompress(
     codec: Codec,
     body: &[u8],
     expected: u64,
@@ -567,7 +622,7 @@ fn parse_payload(p: &[u8]) -> Result<Vdi, CodecError> {
 
 /// The metadata: `P_M`, the ray-casting step and termination, shading, camera, volume box,
 /// TF hash and name, each checked for range.
-fn read_meta(rd: &mut Reader<'_>) -> Result<VdiMeta, CodecError> {
+pub(super) fn read_meta(rd: &mut Reader<'_>) -> Result<VdiMeta, CodecError> {
     let resolution = rd.u32("r")?;
     if !(1..=MAX_RESOLUTION).contains(&resolution) {
         return Err(CodecError::Invalid(format!(
@@ -619,7 +674,11 @@ fn read_meta(rd: &mut Reader<'_>) -> Result<VdiMeta, CodecError> {
         .to_owned();
     Ok(VdiMeta {
         camera,
-        params: VdiParams { resolution, gamma },
+        params: VdiParams {
+            resolution,
+            gamma,
+            precision: Precision::Float32,
+        },
         step,
         termination,
         shaded,
@@ -699,7 +758,7 @@ fn read_supersegments(rd: &mut Reader<'_>, n: usize) -> Result<Vec<Supersegment>
 }
 
 /// Each pixel's list (`offsets[p]..offsets[p + 1]` of `segs`) is depth-sorted without overlap.
-fn check_depth_order(offsets: &[u32], segs: &[Supersegment]) -> Result<(), CodecError> {
+pub(super) fn check_depth_order(offsets: &[u32], segs: &[Supersegment]) -> Result<(), CodecError> {
     for w in offsets.windows(2) {
         let list = &segs[w[0] as usize..w[1] as usize];
         if list.windows(2).any(|p| p[1].z_start < p[0].z_end) {
@@ -727,7 +786,7 @@ impl<'a> Reader<'a> {
         self.bytes.len() - self.pos
     }
 
-    fn rest(&mut self) -> &'a [u8] {
+    pub(super) fn rest(&mut self) -> &'a [u8] {
         let rest = &self.bytes[self.pos..];
         self.pos = self.bytes.len();
         rest
