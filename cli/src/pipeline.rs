@@ -113,10 +113,29 @@ pub fn decision_line(d: &pb::PmDecision) -> String {
             d.reason
         );
     }
+    let precision = |bits: Option<u32>| {
+        bits.and_then(|b| insitu_core::Precision::from_bits(b).ok())
+            .map_or_else(String::new, |p| format!(" {p}"))
+    };
+    // The precision is named where it changes (or where the old one is not known).
+    let new_precision = if d.precision_bits == d.old_precision_bits {
+        String::new()
+    } else {
+        precision(d.precision_bits)
+    };
     let old = if d.old_resolution == 0 {
         "the configured P_M".to_owned()
     } else {
-        format!("r {} γ {:.4}", d.old_resolution, d.old_gamma)
+        format!(
+            "r {} γ {:.4}{}",
+            d.old_resolution,
+            d.old_gamma,
+            if new_precision.is_empty() {
+                String::new()
+            } else {
+                precision(d.old_precision_bits)
+            }
+        )
     };
     let kind = if d.corrects_version > 0 {
         format!(" (correction of v{})", d.corrects_version)
@@ -124,7 +143,7 @@ pub fn decision_line(d: &pb::PmDecision) -> String {
         String::new()
     };
     format!(
-        "P_M v{}{kind} from step {}: {old} → r {} γ {:.4} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
+        "P_M v{}{kind} from step {}: {old} → r {} γ {:.4}{new_precision} ({}); tuned on steps {:?}; predicted σ {:.1} kB, q {} dB, τ {:.3} s; {} trials, {:.1} s",
         d.pm_version,
         d.from_step,
         d.resolution,
@@ -146,8 +165,8 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "step": d.trigger_step,
         "from_step": d.from_step,
         "pm_version": d.pm_version,
-        "old": {"r": d.old_resolution, "gamma": f32_number(d.old_gamma)},
-        "new": {"r": d.resolution, "gamma": f32_number(d.gamma)},
+        "old": {"r": d.old_resolution, "gamma": f32_number(d.old_gamma), "precision_bits": d.old_precision_bits},
+        "new": {"r": d.resolution, "gamma": f32_number(d.gamma), "precision_bits": d.precision_bits},
         "characteristic_steps": d.characteristic_steps,
         "predicted": {
             "sigma_bytes": d.predicted_sigma_bytes,
@@ -463,6 +482,7 @@ impl LocalNodes {
         cfg.generation.resolution = a.pm.r;
         cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec(defaults);
+        cfg.generation.precision = a.pm.precision;
         cfg.generation.size_max = a.size_max.unwrap_or(0);
         cfg.generation.time_max = a.time_max.unwrap_or(0.0);
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global

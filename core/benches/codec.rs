@@ -57,6 +57,13 @@ fn pooled(a: &[Image], b: &[Image]) -> f64 {
     psnr_from_mse(m)
 }
 
+/// `vdi` to be written at `precision`.
+fn with_precision(vdi: &Vdi, precision: Precision) -> Vdi {
+    let mut meta = vdi.meta().clone();
+    meta.params.precision = precision;
+    Vdi::from_parts(meta, vdi.offsets().to_vec(), vdi.supersegments().to_vec()).expect("same lists")
+}
+
 fn write_planes(dir: &str, name: &str, vdi: &Vdi) {
     let segs = vdi.supersegments();
     let planes: [(&str, fn(&insitu_core::vdi::Supersegment) -> f32); 6] = [
@@ -82,12 +89,15 @@ fn write_planes(dir: &str, name: &str, vdi: &Vdi) {
     std::fs::write(
         format!("{dir}/{name}.json"),
         format!(
-            "{{\"n\": {}, \"pixels\": {}, \"depth_bound\": {}, \"color_bound_10\": {}, \"color_bound_8\": {}}}",
+            "{{\"n\": {}, \"pixels\": {}, \"depth_bound\": {}, \"color_bound_8\": {}, \"sigma_bzip2_f32\": {}, \"sigma_8bit\": {}}}",
             segs.len(),
             vdi.offsets().len() - 1,
             grid.quantum() / 2.0,
-            Precision::Bits(10).color_bound(),
-            Precision::Bits(8).color_bound()
+            Precision::Bits(8).color_bound(),
+            encode(vdi, Codec::Bzip2).expect("encodes").len(),
+            encode(&with_precision(vdi, Precision::Bits(8)), Codec::Zstd)
+                .expect("encodes")
+                .len(),
         ),
     )
     .expect("writable dir");
@@ -130,11 +140,7 @@ fn scene(name: &str, volume: &Volume, tf: &TransferFunction, pm: &[(u32, f32)], 
             (Codec::Zstd, Precision::Bits(6)),
             (Codec::Bzip2, Precision::Bits(10)),
         ] {
-            let mut v = vdi.clone();
-            let mut meta = v.meta().clone();
-            meta.params.precision = precision;
-            v = Vdi::from_parts(meta, v.offsets().to_vec(), v.supersegments().to_vec())
-                .expect("same lists");
+            let v = with_precision(&vdi, precision);
             let bytes = encode(&v, codec).expect("encodes");
             let enc = median_ms(rounds, || {
                 std::hint::black_box(encode(&v, codec).expect("encodes"));
@@ -159,6 +165,41 @@ fn scene(name: &str, volume: &Volume, tf: &TransferFunction, pm: &[(u32, f32)], 
             );
         }
     }
+}
+
+/// Across time: each step's 8-bit file (entropy stage `none`) compressed with zstd alone and
+/// with the previous step's as a raw-content dictionary, the most a predictor from the
+/// previous step at the same `P_M` could find in what zstd can match.
+fn across_time(name: &str, steps: &[Volume], tf: &TransferFunction, (r, gamma): (u32, f32)) {
+    let params = VdiParams {
+        resolution: r,
+        gamma,
+        precision: Precision::Bits(8),
+    };
+    let files: Vec<Vec<u8>> = steps
+        .iter()
+        .map(|v| {
+            let rc = Raycaster::new(v, tf, RaycastParams::default()).expect("valid params");
+            let camera = Camera::default_for_box(&v.world_box());
+            let vdi = generate(&rc, &camera, params, 0, name).expect("valid params");
+            encode(&vdi, Codec::None).expect("encodes")
+        })
+        .collect();
+    let (mut alone, mut with_previous) = (0usize, 0usize);
+    for w in files.windows(2) {
+        alone += zstd::bulk::compress(&w[1], 3).expect("compresses").len();
+        with_previous += zstd::bulk::Compressor::with_dictionary(3, &w[0])
+            .and_then(|mut c| c.compress(&w[1]))
+            .expect("compresses")
+            .len();
+    }
+    println!(
+        "{name}, r {r} γ {gamma}, 8 bits, {} steps after the first: {:.1} kB alone, {:.1} kB with the previous step as a dictionary ({:+.1} %)",
+        files.len() - 1,
+        alone as f64 / 1e3,
+        with_previous as f64 / 1e3,
+        (with_previous as f64 / alone as f64 - 1.0) * 100.0
+    );
 }
 
 fn main() {
@@ -210,5 +251,27 @@ fn main() {
             scene("ocean-step0", &ocean, &tf, &[(256, 0.02)], rounds);
         }
         _ => eprintln!("ocean skipped: needs {file} (docs/data.md)"),
+    }
+
+    println!();
+    let mut sim = GrayScott::new(64, GrayScottParams::default()).expect("grid size");
+    sim.advance(3000);
+    let steps: Vec<Volume> = (0..6)
+        .map(|_| {
+            sim.advance(100);
+            sim.v_volume()
+        })
+        .collect();
+    across_time("gray-scott-64 every 100 steps", &steps, &tf, (256, 0.025));
+    if let Some(path) = insitu_testenv::data_file(file) {
+        let steps: Vec<Volume> = (0..6)
+            .filter_map(|t| {
+                RawFormat::from_file_name(&path)
+                    .and_then(|f| f.load(&path, t, glam::Vec3::ONE))
+                    .ok()
+            })
+            .collect();
+        let (tf, _) = TransferFunction::default_for_volume(&steps[0]);
+        across_time("ocean months 0–5", &steps, &tf, (256, 0.02));
     }
 }

@@ -9,7 +9,7 @@ use crate::camera::Camera;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
 use crate::vdi::codec::{self, Codec, CodecError, DecodeLimits};
-use crate::vdi::{Vdi, VdiParams};
+use crate::vdi::{Precision, Vdi, VdiParams};
 use std::time::Instant;
 
 /// The paper's test views: the generation camera orbited by 0°, 10°, …, 60° (Sec. 6.1).
@@ -284,13 +284,14 @@ pub fn evaluate(
 }
 
 /// [`evaluate`] of a candidate whose σ was measured moments before on the same data: a size
-/// probe of the same `P_M` on the same step, whose [`Sizing`] is `known`. The VDI is generated
-/// and rendered but not encoded and decoded again: the codec is lossless (a file decodes to
-/// the VDI it was made from, bit for bit: the codec's round-trip property), so the renders,
-/// MSE and q are [`evaluate`]'s, without the codec's time (with bzip2 30–60 ms of a 190–220 ms
-/// trial on the ocean, more on a larger VDI: docs/performance.md, "The tuner's cost"). The
-/// result carries `known`'s σ and compression time with this generation's τ, and
-/// `tau_decode_secs` 0. A VDI that does not hold `known.supersegments` supersegments (not the
+/// probe of the same `P_M` on the same step, whose [`Sizing`] is `known`. At
+/// [`Precision::Float32`] the VDI is generated and rendered but not encoded and decoded
+/// again: that codec is lossless (a file decodes to the VDI it was made from, bit for bit),
+/// so the renders, MSE and q are [`evaluate`]'s, without the codec's time (with bzip2
+/// 30–60 ms of a 190–220 ms trial on the ocean: docs/performance.md, "The tuner's cost"),
+/// and `tau_decode_secs` is 0. A quantised precision is scored on the decoded file, as the
+/// viz-node scores it. The result carries `known`'s σ and compression time with this
+/// generation's τ. A VDI that does not hold `known.supersegments` supersegments (not the
 /// data or the `P_M` `known` was measured on) is encoded after all, and its own σ reported.
 ///
 /// # Errors
@@ -320,12 +321,22 @@ pub fn evaluate_sized(
         encoded(&generated, codec_kind).map(|(_, size)| size)
     }
     .and_then(|sizing| {
+        // A quantised file is scored as the viz-node sees it: decoded.
+        let (decoded, tau_decode_secs) = match params.precision {
+            Precision::Float32 => (None, 0.0),
+            Precision::Bits(_) => {
+                let bytes = codec::encode(&generated.value, codec_kind)?;
+                let t = Instant::now();
+                let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
+                (Some(decoded), t.elapsed().as_secs_f64())
+            }
+        };
         scored(
             scene,
             camera,
             (params, codec_kind),
-            (sizing, 0.0),
-            &generated.value,
+            (sizing, tau_decode_secs),
+            decoded.as_ref().unwrap_or(&generated.value),
             angles,
             references,
         )

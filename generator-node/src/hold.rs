@@ -26,6 +26,8 @@ pub struct HeldStep {
     pub raycast: RaycastParams,
     /// Codec σ is measured with.
     pub codec: Codec,
+    /// The precision its files are written at (trials measure σ with it).
+    pub precision: insitu_core::Precision,
     /// Test views, degrees.
     pub view_angles_deg: Vec<f32>,
     /// Side of the reference frames, pixels; 0: the candidate's `r` (as production with
@@ -36,7 +38,13 @@ pub struct HeldStep {
     /// σ and τ of the candidates size-probed on this step, by r and γ's bits: a full trial of
     /// one of them need not encode its VDI again
     /// ([`insitu_core::evaluate::evaluate_sized`]).
-    pub sizes: BTreeMap<(u32, u32), Sizing>,
+    pub sizes: BTreeMap<(u32, u32, u32), Sizing>,
+}
+
+/// What a size probe is kept under in [`HeldStep::sizes`]: r, γ's bits and the precision's
+/// bit count (σ depends on all three).
+pub fn size_key(p: VdiParams) -> (u32, u32, u32) {
+    (p.resolution, p.gamma.to_bits(), p.precision.bits())
 }
 
 impl HeldStep {
@@ -134,10 +142,10 @@ impl Holds {
         }
     }
 
-    /// Keeps the sizing a size probe of `params` measured on `index`.
+    /// Keeps the sizing a size probe of `params` measured on `index` ([`size_key`]).
     pub fn set_sizing(&self, index: Key, params: VdiParams, sizing: Sizing) {
         if let Some(s) = self.slots().get_mut(&index) {
-            let key = (params.resolution, params.gamma.to_bits());
+            let key = size_key(params);
             s.step.sizes.insert(key, sizing);
         }
     }
@@ -171,6 +179,7 @@ mod tests {
             }),
             raycast: RaycastParams::default(),
             codec: Codec::Zstd,
+            precision: insitu_core::Precision::Float32,
             view_angles_deg: vec![0.0],
             reference_size: 8,
             references: BTreeMap::new(),

@@ -91,6 +91,7 @@ mod tests {
             camera,
             raycast: RaycastParams::default(),
             codec: Codec::None,
+            precision: insitu_core::Precision::Float32,
             view_angles_deg: vec![0.0],
             reference_size: 0,
             references: BTreeMap::new(),

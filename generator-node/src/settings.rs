@@ -3,7 +3,7 @@
 
 use crate::config::Generation;
 use insitu_core::raycast::{RaycastParams, Shading};
-use insitu_core::VdiParams;
+use insitu_core::{Precision, VdiParams};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, tf_from_json};
 use insitu_proto::pb;
 use tonic::Status;
@@ -16,6 +16,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         step: Some(g.raycast.step),
         termination: Some(g.raycast.termination),
         codec: insitu_proto::convert::codec_to_pb(g.codec) as i32,
+        precision_bits: Some(g.params.precision.bits()),
         tf_json: g
             .tf
             .as_ref()
@@ -44,10 +45,14 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     next.pm_version = 0;
     next.scene_version = c.scene_version.unwrap_or(0);
     next.previous = None;
+    let precision = match c.precision_bits {
+        Some(bits) => Precision::from_bits(bits).map_err(|e| bad("precision_bits", &e))?,
+        None => g.params.precision,
+    };
     next.params = VdiParams {
         resolution: c.resolution,
         gamma: c.gamma,
-        precision: Default::default(),
+        precision,
     };
     next.params
         .validate()
@@ -115,10 +120,16 @@ pub fn decided(g: &Generation, d: &pb::PmDecision, begun: u64) -> Result<Generat
             d.pm_version, g.pm_version
         ));
     }
+    // A decision without a precision leaves the node's.
+    let precision = match d.precision_bits {
+        Some(bits) => Precision::from_bits(bits)
+            .map_err(|e| format!("decision version {}: {e}", d.pm_version))?,
+        None => g.params.precision,
+    };
     let params = VdiParams {
         resolution: d.resolution,
         gamma: d.gamma,
-        precision: Default::default(),
+        precision,
     };
     params
         .validate()
@@ -336,5 +347,32 @@ mod tests {
         let mut operator = to_pb(&next);
         operator.scene_version = None;
         assert_eq!(apply_config(&next, &operator).unwrap().scene_version, 0);
+    }
+
+    /// A decision's precision applies with its r and γ; one without keeps the node's; a bit
+    /// count outside 4–16 is refused with the version named, and nothing changes.
+    #[test]
+    fn a_decision_carries_the_precision_or_keeps_the_nodes() {
+        use insitu_core::Precision;
+        let g = configured();
+        assert_eq!(g.params.precision, Precision::Bits(8), "the default");
+        let kept = decided(&g, &decision(1, 0, None), 0).unwrap();
+        assert_eq!(kept.params.precision, Precision::Bits(8));
+        let mut d = decision(2, 0, None);
+        d.precision_bits = Some(6);
+        let six = decided(&kept, &d, 0).unwrap();
+        assert_eq!(
+            (six.params.resolution, six.params.precision),
+            (128, Precision::Bits(6))
+        );
+        d.pm_version = 3;
+        d.precision_bits = Some(0);
+        assert_eq!(
+            decided(&six, &d, 0).unwrap().params.precision,
+            Precision::Float32
+        );
+        d.precision_bits = Some(17);
+        let err = decided(&six, &d, 0).unwrap_err();
+        assert!(err.contains("version 3") && err.contains("17"), "{err}");
     }
 }

@@ -17,7 +17,7 @@ use crate::hold::HeldStep;
 use crate::shared::Shared;
 use crate::tuning::Tuning;
 use insitu_core::evaluate::{evaluate, evaluate_sized, generate_encoded, render_references};
-use insitu_core::{Raycaster, VdiParams};
+use insitu_core::{Precision, Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
 use insitu_proto::pb::tuner_client::TunerClient;
@@ -119,7 +119,10 @@ fn measure(
     let params = VdiParams {
         resolution: req.resolution,
         gamma: req.gamma,
-        precision: Default::default(),
+        precision: match req.precision_bits {
+            Some(bits) => Precision::from_bits(bits).map_err(|e| e.to_string())?,
+            None => h.precision,
+        },
     };
     let tf = (h.tf.0.identity_hash(), h.tf.1.as_str());
     let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());
@@ -134,7 +137,7 @@ fn measure(
         let views = &h.view_angles_deg;
         // A candidate probed on this step already: its σ is known, so its VDI is scored
         // without being encoded and decoded again (the codec is lossless).
-        let known = h.sizes.get(&(params.resolution, params.gamma.to_bits()));
+        let known = h.sizes.get(&crate::hold::size_key(params));
         let (e, _) = match known {
             Some(&known) => evaluate_sized(
                 &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare, known,
@@ -378,6 +381,7 @@ impl Link {
             pm_version: g.pm_version,
             resolution: g.params.resolution,
             gamma: g.params.gamma,
+            precision_bits: g.params.precision.bits(),
             held: tuning
                 .holds
                 .claimed_after_reconnect()

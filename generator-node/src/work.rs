@@ -413,6 +413,7 @@ pub fn for_tuner(
         .finite_range
         .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));
     let summary = pb::StepSummary {
+        precision_bits: gen.params.precision.bits(),
         step: raw.info.step,
         rank: raw.info.rank,
         world_size: raw.info.world_size,
@@ -444,6 +445,7 @@ pub fn for_tuner(
         tf: Arc::new(tf.clone()),
         raycast: gen.raycast,
         codec: gen.codec,
+        precision: gen.params.precision,
         view_angles_deg: gen.view_angles_deg.clone(),
         reference_size: gen.reference_size,
         references: Default::default(),

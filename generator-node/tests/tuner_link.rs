@@ -187,6 +187,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     );
     let trial = |id, step, r| {
         Down::Trial(pb::TrialRequest {
+            precision_bits: None,
             trial_id: id,
             step,
             resolution: r,
@@ -243,6 +244,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     send(
         &down,
         Down::Trial(pb::TrialRequest {
+            precision_bits: None,
             trial_id: 5,
             step: 0,
             resolution: 24,
@@ -298,6 +300,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         send(
             &down,
             Down::Trial(pb::TrialRequest {
+                precision_bits: None,
                 trial_id: id,
                 step: 0,
                 resolution: 16,

@@ -31,6 +31,9 @@ pub fn check_summary(s: &pb::StepSummary) -> Result<(), String> {
             s.world_size
         ));
     }
+    if let Err(e) = insitu_core::Precision::from_bits(s.precision_bits) {
+        return Err(format!("{what}: precision_bits: {e}"));
+    }
     seconds(&what, "tau_secs", s.tau_secs)
 }
 
@@ -151,6 +154,7 @@ mod tests {
     #[test]
     fn trial_results_are_checked_field_by_field() {
         let asked = pb::TrialRequest {
+            precision_bits: None,
             trial_id: 9,
             step: 4,
             resolution: 64,

@@ -28,6 +28,9 @@ pub struct GridConfig {
     pub r: String,
     /// Thresholds `γ`.
     pub gamma: String,
+    /// The VDI file's precisions, `P_M`'s third parameter: colour bits (4–16) and `f32`,
+    /// comma-separated. With several, a tuning searches (r, γ) at each and keeps the best.
+    pub precision: String,
 }
 
 impl Default for GridConfig {
@@ -35,6 +38,7 @@ impl Default for GridConfig {
         Self {
             r: "64:512:64".into(),
             gamma: "0.001:0.26:0.008".into(),
+            precision: "8".into(),
         }
     }
 }
@@ -224,6 +228,7 @@ impl Config {
             Strategy::Grid => None,
         };
         let grid = ParamGrid::parse(&self.grid.r, &self.grid.gamma)
+            .and_then(|g| g.with_precisions(&self.grid.precision))
             .map_err(|e| invalid("grid", e.to_string()))?;
         if grid.is_empty() {
             return Err(invalid("grid", "the grid is empty"));

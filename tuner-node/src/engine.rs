@@ -383,6 +383,7 @@ impl Engine {
         *self.reported.lock().unwrap_or_else(|e| e.into_inner()) = Some(Candidate {
             r: h.resolution,
             gamma: h.gamma,
+            precision: precision_of(h.precision_bits),
         });
         let (before, current) = {
             let mut s = self.state();
@@ -524,6 +525,7 @@ impl Loop {
             candidate: Candidate {
                 r: s.resolution,
                 gamma: s.gamma,
+                precision: precision_of(s.precision_bits),
             },
             sampled: s.sampled,
         });
@@ -1037,11 +1039,19 @@ fn resolve_with(cfg: &Config, utility: &str) -> Result<Resolved, crate::config::
     c.resolve()
 }
 
+/// A node's precision from the wire (a bit count outside 4..=16 reads as `f32`: the
+/// summaries and hellos were checked when they arrived).
+fn precision_of(bits: u32) -> insitu_core::Precision {
+    insitu_core::Precision::from_bits(bits).unwrap_or_default()
+}
+
 /// A candidate with nothing measured of it (a steering decision's prediction: σ and τ 0, q NaN).
 fn unmeasured(c: Candidate) -> insitu_tuner::Measurement {
     insitu_tuner::Measurement {
         r: c.r,
         gamma: c.gamma,
+        precision: c.precision,
+        sigma_paper_bytes: None,
         sizing: insitu_core::evaluate::Sizing::default(),
         tau_render_secs: 0.0,
         q_db: insitu_core::metrics::Db(f64::NAN),
@@ -1067,6 +1077,8 @@ pub(crate) fn planned(p: &Plan, q_db: f64) -> insitu_tuner::Measurement {
     insitu_tuner::Measurement {
         r: p.candidate.r,
         gamma: p.candidate.gamma,
+        precision: p.candidate.precision,
+        sigma_paper_bytes: None,
         sizing: insitu_core::evaluate::Sizing {
             sigma_bytes: p.sigma_bytes.round() as u64,
             tau_secs: if p.tau_secs.is_finite() {
@@ -1241,10 +1253,16 @@ mod tests {
         };
         let resolved = cfg.resolve().unwrap();
         let mut state = State::with_step_zero();
-        let c = Candidate { r: 64, gamma: 0.01 };
+        let c = Candidate {
+            r: 64,
+            gamma: 0.01,
+            precision: Default::default(),
+        };
         let predicted = Measurement {
             r: 64,
             gamma: 0.01,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: 900,
                 ..Sizing::default()
@@ -1378,7 +1396,11 @@ mod tests {
         for (gamma, sigma_bytes) in [(0.01, 900), (0.02, 450)] {
             l.engine.state().size_probes.push(crate::state::SizeProbe {
                 step: 0,
-                candidate: Candidate { r: 64, gamma },
+                candidate: Candidate {
+                    r: 64,
+                    gamma,
+                    precision: Default::default(),
+                },
                 sizing: Sizing {
                     sigma_bytes,
                     tau_secs: 0.01,

@@ -239,6 +239,7 @@ impl Hub {
             resolution: c.r,
             gamma: c.gamma,
             size_only,
+            precision_bits: Some(c.precision.bits()),
         };
         i.send_to(&conns, &Down::Trial(req));
         let (reply, rx) = oneshot::channel();
@@ -439,7 +440,11 @@ mod tests {
         let (tx2, _rx2) = mpsc::channel(16);
         let a = hub.connect("a", tx);
         let b = hub.connect("b", tx2);
-        let c = Candidate { r: 64, gamma: 0.01 };
+        let c = Candidate {
+            r: 64,
+            gamma: 0.01,
+            precision: Default::default(),
+        };
         hub.held(a, 5, 0);
         assert_eq!(
             hub.request_trial(5, 2, c, false).unwrap_err(),
@@ -495,7 +500,11 @@ mod tests {
         let (tx2, _rx2) = mpsc::channel(16);
         let a = hub.connect("a", tx);
         let b = hub.connect("b", tx2);
-        let c = Candidate { r: 64, gamma: 0.01 };
+        let c = Candidate {
+            r: 64,
+            gamma: 0.01,
+            precision: Default::default(),
+        };
         hub.held(a, 5, 0);
         hub.held(b, 5, 1);
         let bad: [(u64, pb::TrialResult, &str); 4] = [

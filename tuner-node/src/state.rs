@@ -280,11 +280,9 @@ impl State {
 
     /// A finished trial of `c` on `step`.
     pub fn trial(&self, step: u64, c: Candidate) -> Option<&Trial> {
-        self.trials.iter().find(|t| {
-            t.step == step
-                && t.measurement.r == c.r
-                && t.measurement.gamma.to_bits() == c.gamma.to_bits()
-        })
+        self.trials
+            .iter()
+            .find(|t| t.step == step && t.measurement.candidate().key() == c.key())
     }
 
     /// Records a trial and returns its measurement as recorded: with τ lowered to that of an
@@ -340,7 +338,7 @@ impl State {
     pub fn surface(&self, steps: &[u64]) -> Surface {
         // By candidate (r, γ's bits): the candidate, its worst σ and τ, the steps measured.
         type Worst = (Candidate, f64, f64, Vec<u64>);
-        let mut by: BTreeMap<(u32, u32), Worst> = BTreeMap::new();
+        let mut by: BTreeMap<(u32, u32, u32), Worst> = BTreeMap::new();
         let measured = self
             .size_probes
             .iter()
@@ -361,9 +359,7 @@ impl State {
                     .map(|t| (t.step, t.measurement.candidate(), t.measurement.sizing)),
             );
         for (step, c, sizing) in measured.filter(|m| steps.contains(&m.0)) {
-            let e = by
-                .entry((c.r, c.gamma.to_bits()))
-                .or_insert((c, 0.0, 0.0, Vec::new()));
+            let e = by.entry(c.key()).or_insert((c, 0.0, 0.0, Vec::new()));
             e.1 = e.1.max(sizing.sigma_bytes as f64);
             e.2 = e.2.max(sizing.tau_secs);
             if !e.3.contains(&step) {
@@ -384,11 +380,9 @@ impl State {
 
     /// A size probe of `c` on `step`, if one was run.
     fn probe(&self, step: u64, c: Candidate) -> Option<&SizeProbe> {
-        self.size_probes.iter().find(|p| {
-            p.step == step
-                && p.candidate.r == c.r
-                && p.candidate.gamma.to_bits() == c.gamma.to_bits()
-        })
+        self.size_probes
+            .iter()
+            .find(|p| p.step == step && p.candidate.key() == c.key())
     }
 
     /// Loads `dir/tuner-state.json`; `None` when there is none.
@@ -457,6 +451,8 @@ fn decision_pb(d: &Decision) -> pb::PmDecision {
         forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
         scene: None,
         steered: d.steered,
+        precision_bits: Some(d.candidate.precision.bits()),
+        old_precision_bits: d.old.map(|c| c.precision.bits()),
     }
 }
 
@@ -473,6 +469,8 @@ mod tests {
         let m = Measurement {
             r: 64,
             gamma: 0.01,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: 10,
                 supersegments: 1,
@@ -518,7 +516,11 @@ mod tests {
         use insitu_tuner::control::{Controller, Observation};
         use insitu_tuner::ParamGrid;
         let mut s = State::new(Tracker::new(0.1, 4));
-        let c = |r, gamma| Candidate { r, gamma };
+        let c = |r, gamma| Candidate {
+            r,
+            gamma,
+            precision: Default::default(),
+        };
         let probe = |candidate: Candidate, sigma_bytes: u64, tau_secs: f64, production| SizeProbe {
             step: 0,
             candidate,
@@ -554,6 +556,7 @@ mod tests {
         let grid = ParamGrid {
             rs: vec![256, 320, 384, 448],
             gammas: vec![0.001, 0.013],
+            precisions: vec![Default::default()],
         };
         let mut ctl = Controller::new((None, Some(0.01)), 0.05, grid);
         ctl.observe(Observation {
@@ -583,7 +586,11 @@ mod tests {
             tau_secs,
             ..Sizing::default()
         };
-        let c = Candidate { r: 64, gamma: 0.01 };
+        let c = Candidate {
+            r: 64,
+            gamma: 0.01,
+            precision: Default::default(),
+        };
         let probe = |step, candidate, tau| SizeProbe {
             step,
             candidate,
@@ -594,8 +601,15 @@ mod tests {
         };
         s.size_probes.push(probe(3, c, 0.012));
         s.size_probes.push(probe(4, c, 0.001));
-        s.size_probes
-            .push(probe(3, Candidate { r: 64, gamma: 0.02 }, 0.001));
+        s.size_probes.push(probe(
+            3,
+            Candidate {
+                r: 64,
+                gamma: 0.02,
+                precision: Default::default(),
+            },
+            0.001,
+        ));
         let trial = |step, tau| Trial {
             step,
             measurement: Measurement {
@@ -606,6 +620,8 @@ mod tests {
                 q_db: Db(40.0),
                 view_q_db: vec![Db(40.0)],
                 ssim: None,
+                precision: Default::default(),
+                sigma_paper_bytes: None,
             },
             ranks: 1,
             trial_secs: tau,

@@ -34,11 +34,13 @@ fn sizing(r: &pb::TrialResult) -> Sizing {
     }
 }
 
-/// A trial result as a measurement (q pooled over its views, as the viz-node pools).
-fn measurement(r: &pb::TrialResult) -> Measurement {
+/// A trial result of `c` as a measurement (q pooled over its views, as the viz-node pools).
+fn measurement(c: Candidate, r: &pb::TrialResult) -> Measurement {
     Measurement {
         r: r.resolution,
         gamma: r.gamma,
+        precision: c.precision,
+        sigma_paper_bytes: None,
         sizing: sizing(r),
         tau_render_secs: r.tau_render_secs,
         q_db: Db(pooled_psnr(&r.view_mse)),
@@ -186,7 +188,7 @@ impl Oracle for StepOracle {
             return Ok(t.measurement.clone());
         }
         let (results, secs) = self.run(c, false)?;
-        let ms: Vec<Measurement> = results.iter().map(measurement).collect();
+        let ms: Vec<Measurement> = results.iter().map(|r| measurement(c, r)).collect();
         let m = combine_ranks(&ms).map_err(|err| StudyError::Invalid(err.to_string()))?;
         let timed = m.sizing.tau_secs;
         let m = {
@@ -531,6 +533,7 @@ mod tests {
         let best = Candidate {
             r: 128,
             gamma: 0.01,
+            precision: Default::default(),
         };
         // Production at the tuned candidate came out 100× its σ on step 0: even r 64 at
         // γ 0.04 is forecast at 51 kB.
@@ -550,6 +553,8 @@ mod tests {
         let measured = Measurement {
             r: best.r,
             gamma: best.gamma,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: sigma(best),
                 tau_secs: 0.01,

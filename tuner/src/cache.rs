@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use tracing::warn;
 
 /// Bumped whenever a change to generation, codec, rendering or metrics changes measurements.
-pub const MEASUREMENT_VERSION: u32 = 1;
+pub const MEASUREMENT_VERSION: u32 = 2;
 
 /// Errors writing the cache.
 #[derive(Debug, thiserror::Error)]
@@ -39,12 +39,12 @@ pub struct Cache {
     path: Option<PathBuf>,
     key: u64,
     scene: String,
-    entries: BTreeMap<(u32, u32), Measurement>,
+    entries: BTreeMap<(u32, u32, u32), Measurement>,
     unsaved: usize,
 }
 
-fn slot(c: Candidate) -> (u32, u32) {
-    (c.r, c.gamma.to_bits())
+fn slot(c: Candidate) -> (u32, u32, u32) {
+    c.key()
 }
 
 impl Cache {

@@ -300,10 +300,10 @@ pub struct Controller {
     /// candidate measured to the others; where the data changed character, it carries that
     /// badly); each step within the budget halves its excess.
     miss: f64,
-    /// The last production step made with each candidate (by r and γ's bits) within
+    /// The last production step made with each candidate (by r, γ's bits and precision) within
     /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
     /// like today's, whatever the surface says of it.
-    seen: BTreeMap<(u32, u32), Observation>,
+    seen: BTreeMap<(u32, u32, u32), Observation>,
 }
 
 /// Production steps (counted in observations) a candidate's own measurement is remembered.
@@ -352,12 +352,11 @@ impl Controller {
             self.window.pop_front();
         }
         self.window.push_back(o);
-        self.seen
-            .insert((o.candidate.r, o.candidate.gamma.to_bits()), o);
+        self.seen.insert(o.candidate.key(), o);
         let oldest = self.seen.len().saturating_sub(MEMORY as usize);
         if oldest > 0 {
             // Forget the candidates seen longest ago.
-            let mut by_age: Vec<((u32, u32), u64)> =
+            let mut by_age: Vec<((u32, u32, u32), u64)> =
                 self.seen.iter().map(|(k, o)| (*k, o.step)).collect();
             by_age.sort_by_key(|x| x.1);
             for (k, _) in by_age.into_iter().take(oldest) {
@@ -441,7 +440,7 @@ impl Controller {
         };
         let own_sigma = self
             .seen
-            .get(&(c.r, c.gamma.to_bits()))
+            .get(&c.key())
             .filter(recent)
             .and_then(|o| ratio(o.sigma_bytes as f64, surface.sigma(c)));
         // τ measured at `c`'s resolution steps ago, grown as σ has grown since: a resolution
@@ -460,7 +459,7 @@ impl Controller {
         // `seen` is ordered by r: the first recent entry from `c.r` up is the nearest timed.
         let mut timed = self
             .seen
-            .range((c.r, 0)..)
+            .range((c.r, 0, 0)..)
             .map(|(_, o)| o)
             .filter(recent)
             .peekable();
@@ -547,7 +546,11 @@ impl Controller {
                 .iter()
                 .copied()
                 .filter(|&g| g >= lo && g <= hi)
-                .map(|gamma| Candidate { r, gamma })
+                .map(|gamma| Candidate {
+                    r,
+                    gamma,
+                    precision: tuned.precision,
+                })
                 .find(|&c| self.fits(surface, &f, c, 1.0).2)
         };
         // At least the grid's next γ above the tuned one (a coarse γ axis would otherwise
@@ -573,7 +576,11 @@ impl Controller {
             let mut best: Option<(Candidate, f64)> = None;
             for &r in rs.iter().rev() {
                 for &gamma in &self.grid.gammas {
-                    let c = Candidate { r, gamma };
+                    let c = Candidate {
+                        r,
+                        gamma,
+                        precision: tuned.precision,
+                    };
                     let load = self.forecast_at(surface, &f, c, 1.0).2;
                     if best.is_none_or(|(_, b)| load < b) {
                         best = Some((c, load));
@@ -584,6 +591,7 @@ impl Controller {
                 Candidate {
                     r: self.grid.rs.first().copied().unwrap_or(tuned.r),
                     gamma: self.grid.gammas.last().copied().unwrap_or(tuned.gamma),
+                    precision: tuned.precision,
                 },
                 |(c, _)| c,
             )
@@ -655,7 +663,11 @@ mod tests {
     use super::*;
 
     fn c(r: u32, gamma: f32) -> Candidate {
-        Candidate { r, gamma }
+        Candidate {
+            r,
+            gamma,
+            precision: Default::default(),
+        }
     }
 
     /// σ = 1e6 · (r / 256)² · (0.01 / γ) bytes: the power law the surface is built to follow.
@@ -680,6 +692,7 @@ mod tests {
         ParamGrid {
             rs: vec![64, 128, 192, 256],
             gammas: (1..=40).map(g).collect(),
+            precisions: vec![Default::default()],
         }
     }
 

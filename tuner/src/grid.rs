@@ -1,6 +1,7 @@
-//! The candidate set of `P_M = (r, γ)` (Sec. 5.5): a grid of resolutions and thresholds.
+//! The candidate set of `P_M = (r, γ, precision)` (Sec. 5.5): a grid of resolutions,
+//! thresholds and the VDI file's precisions.
 
-use insitu_core::vdi::MAX_RESOLUTION;
+use insitu_core::vdi::{Precision, VdiParams, MAX_RESOLUTION};
 use serde::{Deserialize, Serialize};
 
 /// A candidate `P_M`.
@@ -10,6 +11,43 @@ pub struct Candidate {
     pub r: u32,
     /// `γ`.
     pub gamma: f32,
+    /// The precision its file is written at (absent in records made before precision was a
+    /// parameter: those were 32-bit floats).
+    #[serde(default)]
+    pub precision: Precision,
+}
+
+impl Candidate {
+    /// What identifies it in maps: `r`, `γ`'s bits and the precision's bit count.
+    pub fn key(&self) -> (u32, u32, u32) {
+        (self.r, self.gamma.to_bits(), self.precision.bits())
+    }
+
+    /// As generation parameters.
+    pub fn params(&self) -> VdiParams {
+        VdiParams {
+            resolution: self.r,
+            gamma: self.gamma,
+            precision: self.precision,
+        }
+    }
+}
+
+impl From<VdiParams> for Candidate {
+    fn from(p: VdiParams) -> Self {
+        Self {
+            r: p.resolution,
+            gamma: p.gamma,
+            precision: p.precision,
+        }
+    }
+}
+
+/// The precisions a grid holds unless told otherwise: the nodes' default, 8 bits.
+pub const DEFAULT_PRECISIONS: [Precision; 1] = [Precision::Bits(8)];
+
+fn default_precisions() -> Vec<Precision> {
+    DEFAULT_PRECISIONS.to_vec()
 }
 
 /// Errors of a grid description.
@@ -27,23 +65,29 @@ pub enum GridError {
     },
 }
 
-/// Resolutions × thresholds, each sorted ascending without duplicates.
+/// Resolutions × thresholds × precisions, each sorted ascending without duplicates (the
+/// precisions by bit count, `f32` last).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ParamGrid {
     /// Resolutions, ascending.
     pub rs: Vec<u32>,
     /// Thresholds, ascending.
     pub gammas: Vec<f32>,
+    /// Precisions (at least one).
+    #[serde(default = "default_precisions")]
+    pub precisions: Vec<Precision>,
 }
 
 impl Default for ParamGrid {
-    /// The paper's grid: γ ∈ 0.001–0.26 step 0.004, r ∈ 160–768 step 32 (Sec. 5.5).
+    /// The paper's grid: γ ∈ 0.001–0.26 step 0.004, r ∈ 160–768 step 32 (Sec. 5.5), at
+    /// [`DEFAULT_PRECISIONS`].
     fn default() -> Self {
         Self {
             rs: (160..=768).step_by(32).collect(),
             gammas: (0..65)
                 .map(|i| (0.001 + 0.004 * f64::from(i)) as f32)
                 .collect(),
+            precisions: default_precisions(),
         }
     }
 }
@@ -118,20 +162,70 @@ impl ParamGrid {
         rs.dedup();
         gammas.sort_by(f32::total_cmp);
         gammas.dedup();
-        Ok(Self { rs, gammas })
+        Ok(Self {
+            rs,
+            gammas,
+            precisions: default_precisions(),
+        })
     }
 
-    /// Every candidate, r-major.
+    /// The grid with the precisions of `spec`: a comma-separated list of bit counts (4–16)
+    /// and `f32`, e.g. `6,8,f32`.
+    ///
+    /// # Errors
+    /// [`GridError`] naming the spec: empty, or an entry that is no precision.
+    pub fn with_precisions(mut self, spec: &str) -> Result<Self, GridError> {
+        let err = |problem: String| GridError::Range {
+            what: "precision",
+            spec: spec.to_owned(),
+            problem,
+        };
+        let mut ps = spec
+            .split(',')
+            .map(|p| p.parse::<Precision>().map_err(|e| err(e.to_string())))
+            .collect::<Result<Vec<_>, _>>()?;
+        // By bit count, f32 (0 bits on the wire) last: the coarsest first.
+        ps.sort_by_key(|p| match p {
+            Precision::Float32 => u32::MAX,
+            p => p.bits(),
+        });
+        ps.dedup();
+        self.precisions = ps;
+        Ok(self)
+    }
+
+    /// The grid at `precision` alone.
+    pub fn at(&self, precision: Precision) -> Self {
+        Self {
+            precisions: vec![precision],
+            ..self.clone()
+        }
+    }
+
+    /// The precision a single-precision grid's candidates take (the first).
+    pub fn precision(&self) -> Precision {
+        self.precisions.first().copied().unwrap_or_default()
+    }
+
+    /// Every candidate, precision-major, then r-major.
     pub fn candidates(&self) -> Vec<Candidate> {
-        self.rs
+        self.precisions
             .iter()
-            .flat_map(|&r| self.gammas.iter().map(move |&gamma| Candidate { r, gamma }))
+            .flat_map(|&precision| {
+                self.rs.iter().flat_map(move |&r| {
+                    self.gammas.iter().map(move |&gamma| Candidate {
+                        r,
+                        gamma,
+                        precision,
+                    })
+                })
+            })
             .collect()
     }
 
     /// Number of candidates.
     pub fn len(&self) -> usize {
-        self.rs.len() * self.gammas.len()
+        self.rs.len() * self.gammas.len() * self.precisions.len()
     }
 
     /// Whether there are none.
@@ -186,5 +280,24 @@ mod tests {
             ParamGrid::parse("64", "0:99999:1").unwrap().gammas.len(),
             MAX_VALUES
         );
+    }
+
+    /// Precisions parse as bit counts and `f32`, coarsest first, without duplicates; anything
+    /// else is refused with the spec named.
+    #[test]
+    fn precisions_parse_coarsest_first() {
+        let g = ParamGrid::parse("64", "0.1").unwrap();
+        assert_eq!(g.precisions, DEFAULT_PRECISIONS.to_vec());
+        let g = g.with_precisions("f32, 10,8,10").unwrap();
+        assert_eq!(
+            g.precisions,
+            vec![Precision::Bits(8), Precision::Bits(10), Precision::Float32]
+        );
+        assert_eq!(g.len(), 3);
+        assert_eq!(g.candidates()[2].precision, Precision::Float32);
+        for bad in ["3", "17", "", "8,half"] {
+            let e = g.clone().with_precisions(bad).unwrap_err().to_string();
+            assert!(e.contains("precision"), "{bad}: {e}");
+        }
     }
 }

@@ -199,6 +199,7 @@ pub fn worst_case(ms: &[Measurement]) -> Result<Measurement, LiveError> {
     Ok(Measurement {
         r: worst_q.r,
         gamma: worst_q.gamma,
+        precision: worst_q.precision,
         sizing: Sizing::worst(ms.iter().map(|m| &m.sizing)),
         tau_render_secs: max_f(|m| m.tau_render_secs),
         q_db: worst_q.q_db,
@@ -207,6 +208,10 @@ pub fn worst_case(ms: &[Measurement]) -> Result<Measurement, LiveError> {
             .iter()
             .map(|m| m.ssim)
             .try_fold(f64::INFINITY, |acc, s| s.map(|s| acc.min(s))),
+        sigma_paper_bytes: ms
+            .iter()
+            .map(|m| m.sigma_paper_bytes)
+            .try_fold(0, |acc, s| s.map(|s| acc.max(s))),
     })
 }
 
@@ -244,11 +249,16 @@ pub fn combine_ranks(ranks: &[Measurement]) -> Result<Measurement, LiveError> {
     Ok(Measurement {
         r: first.r,
         gamma: first.gamma,
+        precision: first.precision,
         sizing: Sizing::of_ranks(ranks.iter().map(|m| &m.sizing)),
         tau_render_secs: max_f(|m| m.tau_render_secs),
         q_db: Db(psnr_from_mse(pooled)),
         view_q_db: view_mse.into_iter().map(|m| Db(psnr_from_mse(m))).collect(),
         ssim: ssims.map(|s| s.iter().sum::<f64>() / s.len() as f64),
+        sigma_paper_bytes: ranks
+            .iter()
+            .map(|m| m.sigma_paper_bytes)
+            .try_fold(0, |acc, s| s.map(|s| acc + s)),
     })
 }
 
@@ -449,6 +459,8 @@ mod tests {
             .map(|c| Measurement {
                 r: c.r,
                 gamma: c.gamma,
+                precision: c.precision,
+                sigma_paper_bytes: None,
                 sizing: Sizing {
                     sigma_bytes: (scale * f64::from(c.r * c.r) / (1.0 + 40.0 * f64::from(c.gamma)))
                         as u64,
@@ -505,6 +517,7 @@ mod tests {
                 let near = Some(Candidate {
                     r: 128,
                     gamma: 0.041,
+                    precision: Default::default(),
                 });
                 for near in [None, near] {
                     let mut all = WorstCase::new(oracles(&tables));
@@ -527,6 +540,8 @@ mod tests {
         Measurement {
             r: 64,
             gamma: 0.01,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: sigma,
                 supersegments: 10,

@@ -3,6 +3,7 @@
 use crate::grid::Candidate;
 use insitu_core::evaluate::{mean_ssim, Evaluation, Sizing};
 use insitu_core::metrics::Db;
+use insitu_core::vdi::Precision;
 use serde::{Deserialize, Serialize};
 
 /// σ, q, τ and details of one candidate.
@@ -12,6 +13,10 @@ pub struct Measurement {
     pub r: u32,
     /// `γ`.
     pub gamma: f32,
+    /// The precision the file was written at (absent in records made before precision was a
+    /// parameter: 32-bit floats).
+    #[serde(default)]
+    pub precision: Precision,
     /// σ, τ and the supersegments (flattened: their keys sit beside `r` and `gamma`).
     #[serde(flatten)]
     pub sizing: Sizing,
@@ -23,6 +28,10 @@ pub struct Measurement {
     pub view_q_db: Vec<Db>,
     /// Mean SSIM over the views (none for images under 11×11).
     pub ssim: Option<f64>,
+    /// σ of the same VDI as 32-bit floats under bzip2, the paper's σ (Sec. 5.3), where an
+    /// offline study measured it beside a file of another precision or codec.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_paper_bytes: Option<u64>,
 }
 
 impl Measurement {
@@ -31,6 +40,7 @@ impl Measurement {
         Candidate {
             r: self.r,
             gamma: self.gamma,
+            precision: self.precision,
         }
     }
 
@@ -44,11 +54,13 @@ impl Measurement {
         Self {
             r: e.params.resolution,
             gamma: e.params.gamma,
+            precision: e.params.precision,
             sizing: e.sizing,
             tau_render_secs: e.tau_render_secs,
             q_db: Db(e.q_db),
             view_q_db: e.views.iter().map(|v| Db(v.q_db)).collect(),
             ssim: mean_ssim(&e.views),
+            sigma_paper_bytes: None,
         }
     }
 }

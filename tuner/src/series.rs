@@ -77,8 +77,7 @@ pub fn characteristic_steps(hists: &[[f64; BINS]], threshold: f64, max_steps: us
 }
 
 fn row(rows: &[Measurement], c: Candidate) -> Option<&Measurement> {
-    rows.iter()
-        .find(|m| m.r == c.r && m.gamma.to_bits() == c.gamma.to_bits())
+    rows.iter().find(|m| m.candidate().key() == c.key())
 }
 
 /// The conservative choice: among candidates measured on every step and feasible on all of
@@ -172,6 +171,8 @@ mod tests {
         Measurement {
             r,
             gamma: 0.1,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: sigma,
                 ..Sizing::default()

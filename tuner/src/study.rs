@@ -6,8 +6,8 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{evaluate, EvalError, Sizing};
-use insitu_core::vdi::codec::Codec;
-use insitu_core::vdi::VdiParams;
+use insitu_core::vdi::codec::{self, Codec};
+use insitu_core::vdi::{Precision, Vdi};
 use insitu_core::volume::Fnv1a;
 use insitu_core::{Camera, Image, TransferFunction};
 use std::path::Path;
@@ -220,11 +220,7 @@ impl Oracle for Study<'_> {
         let (e, _) = evaluate(
             &s.scene,
             &s.camera,
-            VdiParams {
-                resolution: c.r,
-                gamma: c.gamma,
-                precision: Default::default(),
-            },
+            c.params(),
             s.codec,
             &s.view_angles,
             &s.references,
@@ -237,7 +233,20 @@ impl Oracle for Study<'_> {
             secs = t.elapsed().as_secs_f64(),
             "measured"
         );
-        let m = Measurement::from_evaluation(&e);
+        let mut m = Measurement::from_evaluation(&e);
+        // The paper's σ beside it: the same VDI as floats under bzip2.
+        if (c.precision, s.codec) != (Precision::Float32, Codec::Bzip2) {
+            if let Some(vdi) = &self.spare {
+                let mut meta = vdi.meta().clone();
+                meta.params.precision = Precision::Float32;
+                let floats =
+                    Vdi::from_parts(meta, vdi.offsets().to_vec(), vdi.supersegments().to_vec());
+                if let Some(floats) = floats {
+                    let bytes = codec::encode(&floats, Codec::Bzip2).map_err(EvalError::from)?;
+                    m.sigma_paper_bytes = Some(bytes.len() as u64);
+                }
+            }
+        }
         self.generations += 1;
         self.generation_secs += m.sizing.tau_secs;
         self.cache.insert(m.clone())?;
@@ -258,7 +267,7 @@ impl Oracle for Study<'_> {
 /// exactly as if it had measured, without measuring again.
 pub struct TableOracle<'t> {
     rows: &'t [Measurement],
-    asked: std::collections::BTreeSet<(u32, u32)>,
+    asked: std::collections::BTreeSet<(u32, u32, u32)>,
     secs: f64,
 }
 
@@ -278,11 +287,11 @@ impl Oracle for TableOracle<'_> {
         let m = self
             .rows
             .iter()
-            .find(|m| m.r == c.r && m.gamma.to_bits() == c.gamma.to_bits())
+            .find(|m| m.candidate().key() == c.key())
             .ok_or_else(|| {
                 StudyError::Invalid(format!("r = {}, γ = {} is not in the table", c.r, c.gamma))
             })?;
-        if self.asked.insert((c.r, c.gamma.to_bits())) {
+        if self.asked.insert(c.key()) {
             self.secs += m.sizing.tau_secs;
         }
         Ok(m.clone())

@@ -276,6 +276,8 @@ mod tests {
         Measurement {
             r: 1,
             gamma: 0.1,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
             sizing: Sizing {
                 sigma_bytes: sigma,
                 tau_secs: tau,

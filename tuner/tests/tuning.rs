@@ -333,6 +333,7 @@ fn the_accuracy_sweep_shows_the_expected_trade_offs() {
         base_pm: insitu_tuner::Candidate {
             r: 32,
             gamma: 0.013,
+            precision: Default::default(),
         },
         codec: Codec::Zstd,
         backend: &insitu_core::Backend::Cpu,
@@ -457,6 +458,8 @@ impl Oracle for NoisyTimings {
             q_db: insitu_core::metrics::Db(Self::q(c)),
             view_q_db: vec![],
             ssim: None,
+            precision: Default::default(),
+            sigma_paper_bytes: None,
         })
     }
 
@@ -557,6 +560,7 @@ fn a_size_search_from_the_p_m_in_force_finds_the_same_answer_sooner() {
                 hints.push(Candidate {
                     r: grid.rs[r],
                     gamma: grid.gammas[g],
+                    precision: Default::default(),
                 });
             }
         }
@@ -564,6 +568,7 @@ fn a_size_search_from_the_p_m_in_force_finds_the_same_answer_sooner() {
         hints.push(Candidate {
             r: grid.rs[0],
             gamma: grid.gammas[grid.gammas.len() - 1],
+            precision: Default::default(),
         });
         for (k, hint) in hints.iter().enumerate() {
             let mut oracle = NoisyTimings::new(0.0, 1).produced(*hint);

@@ -52,6 +52,7 @@ pub fn run(a: Args) -> Result<()> {
         base_pm: Candidate {
             r: a.pm.r,
             gamma: a.pm.gamma,
+            precision: Default::default(),
         },
         codec,
         backend: &backend,

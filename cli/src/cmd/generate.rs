@@ -53,6 +53,7 @@ pub fn run(a: Args) -> Result<()> {
             "{}",
             serde_json::json!({
                 "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": codec_kind.name(),
+                "precision": params.precision.name(),
                 "sigma_bytes": bytes.len(), "supersegments": vdi.supersegments().len(),
                 "tau_s": tau, "tau_source": generated.source, "tau_wall_s": generated.wall_s,
                 "backend": backend.describe(),
@@ -61,13 +62,14 @@ pub fn run(a: Args) -> Result<()> {
         );
     } else {
         println!(
-            "VDI r={} gamma={} of {}: {} supersegments, sigma = {} bytes ({}), tau = {:.3} s ({}), compression {:.3} s -> {}",
+            "VDI r={} gamma={} of {}: {} supersegments, sigma = {} bytes ({}, {}), tau = {:.3} s ({}), compression {:.3} s -> {}",
             a.pm.r,
             a.pm.gamma,
             scene.volume_name,
             vdi.supersegments().len(),
             bytes.len(),
             codec_kind,
+            params.precision,
             tau,
             generated.source,
             tau_compress,

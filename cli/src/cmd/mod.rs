@@ -66,7 +66,7 @@ impl ClientTlsArgs {
     }
 }
 
-/// `P_M = (r, γ)` flags, shared by every command that makes one VDI.
+/// `P_M = (r, γ, precision)` flags, shared by every command that makes one VDI.
 #[derive(clap::Args, Debug, Clone, Copy)]
 pub struct PmArgs {
     /// VDI resolution r (r × r rays).
@@ -75,6 +75,10 @@ pub struct PmArgs {
     /// Interrupt threshold gamma.
     #[arg(long, default_value_t = 0.013, allow_negative_numbers = true)]
     pub gamma: f32,
+    /// Precision of the VDI file: colour and opacity bits (4–16; format 4, depths to 1/16 of
+    /// a ray-casting step), or f32 (lossless, format 3: the paper's sigma).
+    #[arg(long, default_value = "8")]
+    pub precision: insitu_core::Precision,
 }
 
 impl PmArgs {
@@ -83,7 +87,7 @@ impl PmArgs {
         let p = insitu_core::VdiParams {
             resolution: self.r,
             gamma: self.gamma,
-            precision: Default::default(),
+            precision: self.precision,
         };
         p.validate()?;
         Ok(p)

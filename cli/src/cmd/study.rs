@@ -7,6 +7,7 @@ use crate::scene::{Scene, SceneArgs};
 use anyhow::Result;
 use insitu_core::evaluate::DEFAULT_VIEW_ANGLES;
 use insitu_core::vdi::codec::Codec;
+use insitu_core::Precision;
 use insitu_core::Raycaster;
 use insitu_tuner::charts::{self, LadderPoint};
 use insitu_tuner::search::size_ladder;
@@ -39,6 +40,11 @@ pub struct StudyArgs {
     /// Image size of references and VDI renders: N or WxH (the paper's 768²).
     #[arg(long, default_value = "768")]
     pub size: String,
+    /// Precisions of the VDI file (P_M's third parameter): colour bits 4–16 and f32, a list
+    /// (e.g. 6,8,f32). Each candidate not at f32 with bzip2 also reports the paper's sigma
+    /// (the same VDI as floats under bzip2).
+    #[arg(long, default_value = "8")]
+    pub precision: String,
     /// Codec for sigma: bzip2 (the paper's), zstd or none.
     #[arg(long, default_value = "bzip2", value_parser = super::codec_arg)]
     pub codec: Codec,
@@ -71,7 +77,8 @@ impl Prepared {
 impl StudyArgs {
     /// Parses everything and loads the scene.
     pub fn prepare(&self) -> Result<Prepared> {
-        let grid = ParamGrid::parse(&self.r_grid, &self.gamma_grid)?;
+        let grid =
+            ParamGrid::parse(&self.r_grid, &self.gamma_grid)?.with_precisions(&self.precision)?;
         let views = if self.views.is_empty() {
             DEFAULT_VIEW_ANGLES.to_vec()
         } else {
@@ -134,7 +141,9 @@ pub struct Args {
     json: bool,
 }
 
-/// Draws the study's charts next to `prefix`; returns the files written.
+/// Draws the study's charts next to `prefix`; returns the files written. With several
+/// precisions, the map and the Pareto front are drawn for each (`PREFIX_map_8bit.png`, …) and
+/// the ladder (the best `P_M` under each size budget, Fig. 8) chooses among all of them.
 pub fn draw_charts(rows: &[Measurement], title: &str, prefix: &Path) -> Result<Vec<PathBuf>> {
     let name = |suffix: &str| {
         let stem = prefix
@@ -142,9 +151,30 @@ pub fn draw_charts(rows: &[Measurement], title: &str, prefix: &Path) -> Result<V
             .map_or_else(|| "study".into(), |s| s.to_string_lossy().into_owned());
         prefix.with_file_name(format!("{stem}_{suffix}.png"))
     };
-    let (map, par, lad) = (name("map"), name("pareto"), name("ladder"));
-    charts::study_map(rows, title, &map)?;
-    charts::pareto(rows, title, &par)?;
+    let mut precisions: Vec<_> = rows.iter().map(|m| m.precision).collect();
+    precisions.sort_by_key(|p| p.bits());
+    precisions.dedup();
+    let mut written = Vec::new();
+    for &p in &precisions {
+        let at: Vec<Measurement> = rows.iter().filter(|m| m.precision == p).cloned().collect();
+        let (suffix, title) = if precisions.len() > 1 {
+            let suffix = match p {
+                Precision::Float32 => "_f32".to_owned(),
+                Precision::Bits(b) => format!("_{b}bit"),
+            };
+            (suffix, format!("{title}, {p}"))
+        } else {
+            (String::new(), title.to_owned())
+        };
+        let (map, par) = (
+            name(&format!("map{suffix}")),
+            name(&format!("pareto{suffix}")),
+        );
+        charts::study_map(&at, &title, &map)?;
+        charts::pareto(&at, &title, &par)?;
+        written.extend([map, par]);
+    }
+    let lad = name("ladder");
     let points: Vec<LadderPoint> = size_ladder(rows)
         .into_iter()
         .filter_map(|t| {
@@ -156,7 +186,8 @@ pub fn draw_charts(rows: &[Measurement], title: &str, prefix: &Path) -> Result<V
         })
         .collect();
     charts::ladder(&points, title, &lad)?;
-    Ok(vec![map, par, lad])
+    written.push(lad);
+    Ok(written)
 }
 
 pub fn run(a: Args) -> Result<()> {
