@@ -39,6 +39,10 @@ pub struct PipelineArgs {
     /// tuner's state goes to its `tuner-state/`.
     #[arg(long)]
     pub recording: Option<PathBuf>,
+    /// Precisions the tuner chooses among with r and gamma (P_M's third parameter): colour
+    /// bits 4–16 and f32, a list; give --precision's alone to keep it.
+    #[arg(long, default_value = insitu_tuner_node::config::DEFAULT_PRECISIONS)]
+    pub tune_precisions: String,
     /// The tuner's utility: size:BYTES (Eq. 1), time:SECS (Eq. 2), size:BYTES,time:SECS, or
     /// quality:DB. Default: the command's (see its help).
     #[arg(long)]
@@ -401,19 +405,20 @@ pub struct LocalNodes {
 }
 
 /// A tuner on loopback watching the viz-node at `viz`, with its state in `recording`, and the
-/// adaptive search.
+/// adaptive search over `precisions` (a list) for `utility`.
 async fn start_tuner(
-    utility: String,
+    (utility, precisions): (String, String),
     recording: &std::path::Path,
     viz: SocketAddr,
 ) -> Result<insitu_tuner_node::RunningTuner> {
-    let cfg = insitu_tuner_node::Config {
+    let mut cfg = insitu_tuner_node::Config {
         listen: SocketAddr::from(([127, 0, 0, 1], 0)),
         state_dir: recording.join("tuner-state"),
         viz: Some(viz.to_string()),
         utility,
         ..Default::default()
     };
+    cfg.grid.precision = precisions;
     insitu_tuner_node::start(cfg)
         .await
         .context("starting the tuner")
@@ -465,7 +470,8 @@ impl LocalNodes {
                 .utility
                 .clone()
                 .unwrap_or_else(|| defaults.utility.to_owned());
-            Some(start_tuner(utility, &recording, viz.local_addr()).await?)
+            let precisions = a.tune_precisions.clone();
+            Some(start_tuner((utility, precisions), &recording, viz.local_addr()).await?)
         };
         if let (Some(t), Some(h)) = (&tuner, viz.http()) {
             h.watch_tuner(Peer::new(&t.local_addr().to_string(), None, None, false)?);

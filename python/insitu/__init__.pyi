@@ -140,15 +140,19 @@ def generate(
     *,
     r: int = 256,
     gamma: float = 0.013,
+    precision: str = "8",
     spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
     origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Vdi:
-    """The VDI of ``volume`` at P_M = (r, γ) from the default camera for its box."""
+    """The VDI of ``volume`` at P_M = (r, γ, precision) from the default camera for its box;
+    ``precision`` (colour bits "4"–"16", or "f32" for lossless floats) is what ``Vdi.save``
+    writes it at."""
 
 class Evaluation(TypedDict):
     r: int
     gamma: float
     codec: str
+    precision: str
     sigma_bytes: int
     """σ: bytes of the compressed VDI file."""
     supersegments: int
@@ -173,9 +177,11 @@ def evaluate(
     views: Optional[list[float]] = None,
     spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0),
     origin: Tuple[float, float, float] = (0.0, 0.0, 0.0),
+    precision: str = "8",
 ) -> Evaluation:
-    """σ, τ and q of P_M = (r, γ) on ``volume`` (the paper's Alg. 1, lines 11–18): the VDI
-    generated, compressed with ``codec``, rendered at the test views (orbit angles, degrees;
+    """σ, τ and q of P_M = (r, γ, precision) on ``volume`` (the paper's Alg. 1, lines
+    11–18): the VDI generated, written at ``precision`` (colour bits "4"–"16", or "f32"),
+    compressed with ``codec``, decoded, rendered at the test views (orbit angles, degrees;
     default 0 to 60 by 10) and compared with direct rendering at ``size`` × ``size``."""
 
 class Recording:

@@ -197,7 +197,8 @@ impl Vdi {
         image_array(py, &image)
     }
 
-    /// Writes the VDI file (compressed with `codec`: "zstd", "bzip2" or "none"); its σ.
+    /// Writes the VDI file (at the precision it was generated for, compressed with `codec`:
+    /// "zstd", "bzip2" or "none"); its σ.
     #[pyo3(signature = (path, codec="zstd"))]
     fn save(&self, path: PathBuf, codec: &str) -> PyResult<u64> {
         let codec: Codec = codec.parse().map_err(bad)?;
@@ -245,16 +246,19 @@ impl Vdi {
     }
 }
 
-/// Generates the VDI of `volume` at `P_M` = (r, γ) from the default camera.
+/// Generates the VDI of `volume` at `P_M` = (r, γ, precision) from the default camera;
+/// `precision` ("8", or 4–16 bits, or "f32") is what its file is written at.
 #[pyfunction]
-#[pyo3(signature = (volume, tf=None, *, r=256, gamma=0.013,
+#[pyo3(signature = (volume, tf=None, *, r=256, gamma=0.013, precision="8",
                     spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0)))]
+#[allow(clippy::too_many_arguments)]
 pub fn generate_vdi(
     py: Python<'_>,
     volume: &Bound<'_, PyAny>,
     tf: Option<&str>,
     r: u32,
     gamma: f32,
+    precision: &str,
     spacing: (f32, f32, f32),
     origin: (f32, f32, f32),
 ) -> PyResult<Vdi> {
@@ -263,7 +267,7 @@ pub fn generate_vdi(
     let params = VdiParams {
         resolution: r,
         gamma,
-        precision: Default::default(),
+        precision: precision.parse().map_err(bad)?,
     };
     params.validate().map_err(bad)?;
     let cam = Camera::default_for_box(&v.world_box());
@@ -278,11 +282,12 @@ pub fn generate_vdi(
     Ok(Vdi { vdi })
 }
 
-/// σ, τ and q of `P_M` = (r, γ) on `volume`: generated, compressed with `codec`, rendered at
-/// the test views (orbit angles, degrees) and compared with direct rendering at `size`.
+/// σ, τ and q of `P_M` = (r, γ, precision) on `volume`: generated, written at `precision`
+/// ("8", 4–16 bits, or "f32") and compressed with `codec`, decoded, rendered at the test
+/// views (orbit angles, degrees) and compared with direct rendering at `size`.
 #[pyfunction]
 #[pyo3(signature = (volume, tf=None, *, r=256, gamma=0.013, codec="zstd", size=256,
-                    views=None, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0)))]
+                    views=None, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), precision="8"))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate<'py>(
     py: Python<'py>,
@@ -295,6 +300,7 @@ pub fn evaluate<'py>(
     views: Option<Vec<f32>>,
     spacing: (f32, f32, f32),
     origin: (f32, f32, f32),
+    precision: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let v = self::volume(volume, spacing, origin)?;
     let (tf, name) = transfer_function(tf, &v)?;
@@ -302,7 +308,7 @@ pub fn evaluate<'py>(
     let params = VdiParams {
         resolution: r,
         gamma,
-        precision: Default::default(),
+        precision: precision.parse().map_err(bad)?,
     };
     params.validate().map_err(bad)?;
     let s = self::size(size)?;
@@ -345,6 +351,7 @@ pub fn evaluate<'py>(
     d.set_item("r", r)?;
     d.set_item("gamma", gamma)?;
     d.set_item("codec", codec.name())?;
+    d.set_item("precision", params.precision.name())?;
     d.set_item("sigma_bytes", eval.sizing.sigma_bytes)?;
     d.set_item("supersegments", eval.sizing.supersegments)?;
     d.set_item("tau_s", eval.sizing.tau_secs)?;

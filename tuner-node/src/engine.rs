@@ -706,7 +706,7 @@ impl Loop {
             (
                 t.clone(),
                 c.candidate,
-                s.surface(&t.characteristic_steps),
+                s.surface(&t.characteristic_steps, t.ceiling().precision),
                 s.next_version(),
             )
         };

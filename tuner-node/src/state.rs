@@ -7,6 +7,7 @@
 
 use crate::steer::{SceneState, SteerRecord};
 use insitu_core::evaluate::Sizing;
+use insitu_core::Precision;
 use insitu_proto::pb;
 use insitu_tuner::control::{Point, Surface};
 use insitu_tuner::live::{Tracker, Verdict};
@@ -335,7 +336,10 @@ impl State {
     /// look faster than production will find them; kept out, the controller's τ ratio
     /// (production τ over the trials' τ at its `P_M`) carries that difference to every
     /// candidate, the first decision included.
-    pub fn surface(&self, steps: &[u64]) -> Surface {
+    ///
+    /// Only the measurements at `precision` make it: σ at another precision is another
+    /// quantity, and a correction keeps the precision of the decision it corrects.
+    pub fn surface(&self, steps: &[u64], precision: Precision) -> Surface {
         // By candidate (r, γ's bits): the candidate, its worst σ and τ, the steps measured.
         type Worst = (Candidate, f64, f64, Vec<u64>);
         let mut by: BTreeMap<(u32, u32, u32), Worst> = BTreeMap::new();
@@ -358,7 +362,9 @@ impl State {
                     .iter()
                     .map(|t| (t.step, t.measurement.candidate(), t.measurement.sizing)),
             );
-        for (step, c, sizing) in measured.filter(|m| steps.contains(&m.0)) {
+        let wanted =
+            |m: &(u64, Candidate, Sizing)| steps.contains(&m.0) && m.1.precision == precision;
+        for (step, c, sizing) in measured.filter(wanted) {
             let e = by.entry(c.key()).or_insert((c, 0.0, 0.0, Vec::new()));
             e.1 = e.1.max(sizing.sigma_bytes as f64);
             e.2 = e.2.max(sizing.tau_secs);
@@ -550,7 +556,7 @@ mod tests {
             },
             1,
         );
-        let surface = s.surface(&[0]);
+        let surface = s.surface(&[0], Default::default());
         assert!((surface.tau(c(256, 0.013)).unwrap() - 0.003).abs() < 1e-12);
         assert!((surface.sigma(first).unwrap() - 100_000.0).abs() < 1e-6);
         let grid = ParamGrid {

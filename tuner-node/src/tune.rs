@@ -378,7 +378,7 @@ fn decide(
     trial_secs: f64,
 ) {
     let from_step = engine.decision_start();
-    let surface = engine.state().surface(&steps);
+    let surface = engine.state().surface(&steps, best.precision);
     let plan = engine
         .control()
         .choose(&surface, best.candidate(), from_step)
@@ -468,6 +468,7 @@ mod tests {
             grid: GridConfig {
                 r: "64,128".into(),
                 gamma: "0.01,0.02,0.04".into(),
+                precision: "f32".into(),
             },
             ..Default::default()
         };

@@ -26,6 +26,7 @@
 //!   budget do not flip the `P_M` back and forth, and still data changes nothing).
 
 use crate::grid::{Candidate, ParamGrid};
+use insitu_core::vdi::Precision;
 use std::collections::{BTreeMap, VecDeque};
 
 /// Production steps the controller remembers (the forecast's window).
@@ -87,6 +88,9 @@ pub struct Surface {
     sigma: BTreeMap<u32, Curve>,
     /// ln τ of the slowest timing at each resolution (see [`Surface::tau`]).
     tau: BTreeMap<u32, f64>,
+    /// The precision of its points (the first point's; points at another are left out): σ
+    /// and τ of a candidate at another precision are not on it.
+    precision: Option<Precision>,
 }
 
 impl Surface {
@@ -95,6 +99,9 @@ impl Surface {
     pub fn new(points: impl IntoIterator<Item = Point>) -> Self {
         let mut s = Self::default();
         for p in points {
+            if *s.precision.get_or_insert(p.candidate.precision) != p.candidate.precision {
+                continue;
+            }
             let (r, g) = (p.candidate.r, f64::from(p.candidate.gamma));
             if !(r > 0 && g > 0.0 && g.is_finite()) {
                 continue;
@@ -118,6 +125,9 @@ impl Surface {
 
     /// σ of `c`, bytes; `None` when nothing was measured.
     pub fn sigma(&self, c: Candidate) -> Option<f64> {
+        if self.precision.is_some_and(|p| p != c.precision) {
+            return None;
+        }
         predict(&self.sigma, c, SIGMA_SLOPE, DEFAULT_SIGMA_SLOPE)
     }
 
@@ -136,7 +146,7 @@ impl Surface {
     /// one r would have the controller raise γ — losing q — to chase a fast timing; it
     /// steps r for τ instead and keeps the finest γ there.
     pub fn tau(&self, c: Candidate) -> Option<f64> {
-        if c.r == 0 {
+        if c.r == 0 || self.precision.is_some_and(|p| p != c.precision) {
             return None;
         }
         let (r0, &slowest) = nearest(&self.tau, c.r)?;
@@ -1170,5 +1180,36 @@ mod tests {
         // Older steps than the newest are ignored.
         observed(&mut ctl, 5, c(256, g(2)), 9.0);
         assert_eq!(ctl.observations().count(), 5);
+    }
+
+    /// A surface answers for candidates at its own precision only: σ at 8 bits says nothing
+    /// of σ at 6 bits or as floats, and points at another precision are left out.
+    #[test]
+    fn a_surface_holds_one_precision() {
+        let at = |c: Candidate, precision| Candidate { precision, ..c };
+        let eight = [c(64, 0.01), c(128, 0.01), c(128, 0.02)].map(|x| at(x, Precision::Bits(8)));
+        let mut points: Vec<Point> = eight
+            .iter()
+            .map(|&c| Point {
+                candidate: c,
+                sigma_bytes: law(c),
+                tau_secs: 0.01,
+            })
+            .collect();
+        points.push(Point {
+            candidate: at(c(64, 0.02), Precision::Float32),
+            sigma_bytes: 1.0,
+            tau_secs: 1.0,
+        });
+        let s = Surface::new(points);
+        let probe = at(c(96, 0.015), Precision::Bits(8));
+        assert!(s.sigma(probe).is_some() && s.tau(probe).is_some());
+        for other in [Precision::Bits(6), Precision::Float32] {
+            assert_eq!(s.sigma(at(probe, other)), None, "{other}");
+            assert_eq!(s.tau(at(probe, other)), None, "{other}");
+        }
+        // The float point was left out: σ at r 64 follows the 8-bit law.
+        let r64 = at(c(64, 0.02), Precision::Bits(8));
+        assert!((s.sigma(r64).unwrap() / law(r64) - 1.0).abs() < 0.2);
     }
 }

@@ -95,9 +95,10 @@ pub fn run(a: Args) -> Result<()> {
     };
     let repeated = super::warm_median(again);
     println!(
-        "rendered {what} (r={}, {} supersegments){lod} at {}°, elevation {}°, zoom {} {}x{} in {:.3} s{repeated} -> {}",
+        "rendered {what} (r={}, {} supersegments, {}){lod} at {}°, elevation {}°, zoom {} {}x{} in {:.3} s{repeated} -> {}",
         vdi.resolution(),
         vdi.supersegments().len(),
+        vdi.meta().params.precision,
         a.angle,
         a.elevation,
         a.zoom,

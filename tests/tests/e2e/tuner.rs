@@ -19,8 +19,8 @@ use std::process::Command;
 /// enough to kill something in the middle of it.
 const PACED: &str = "timeout_secs = 60.0\nshare = 0.1\nburst_secs = 0.0";
 
-/// (step, r, γ bits) of every persisted trial.
-fn trials(dir: &Path) -> Vec<(u64, u64, u64)> {
+/// (step, r, γ bits, precision) of every persisted trial.
+fn trials(dir: &Path) -> Vec<(u64, u64, u64, String)> {
     state(dir)["trials"]
         .as_array()
         .unwrap()
@@ -31,6 +31,7 @@ fn trials(dir: &Path) -> Vec<(u64, u64, u64)> {
                 t["step"].as_u64().unwrap(),
                 m["r"].as_u64().unwrap(),
                 (m["gamma"].as_f64().unwrap() as f32).to_bits().into(),
+                m["precision"].as_str().unwrap_or("f32").to_owned(),
             )
         })
         .collect()
