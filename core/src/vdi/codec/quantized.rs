@@ -191,8 +191,17 @@ impl Coder {
     /// over a short extent can hold fewer levels than `b` bits have: it then stays the
     /// nearest).
     fn alpha(&self, a: f64, extent: f64) -> f32 {
-        let nearest = (-((-a).ln_1p() / extent).exp_m1()).clamp(0.0, 1.0) as f32;
         let target = (a * self.max).round() as u16;
+        if f64::from(target) >= self.max {
+            return 1.0;
+        }
+        let nearest = (-((-a).ln_1p() / extent).exp_m1()).clamp(0.0, 1.0) as f32;
+        // Rounding `â` to f32 moves `A` by at most 2⁻²⁴ where the extent is ≥ 1 and by
+        // 2⁻²⁴ / (1 − â) below it (dA/dâ = L (1 − â)^(L − 1)): far from `1` it cannot reach
+        // the next level's half-way mark, so only `â` near 1 is checked.
+        if extent >= 1.0 || 1.0 - f64::from(nearest) > 4.0 * self.max / 16_777_216.0 {
+            return nearest;
+        }
         let mut alpha = nearest;
         for _ in 0..8 {
             let level = self.opacity_level(alpha, extent);
@@ -314,12 +323,10 @@ impl Coder {
         let color: Vec<Vec<&[u8]>> = (0..4)
             .map(|_| planes(&mut rd, n, self.color_bytes))
             .collect::<Result<_, _>>()?;
-        let value = |planes: &[&[u8]], i: usize| {
-            planes
-                .iter()
-                .enumerate()
-                .fold(0u64, |v, (k, p)| v | u64::from(p[i]) << (8 * k))
-        };
+        let first = gather(&first, nonempty);
+        let gap = gather(&gap, n - nonempty);
+        let length = gather(&length, n);
+        let color: Vec<Vec<u32>> = color.iter().map(|planes| gather(planes, n)).collect();
         let too_deep =
             |q: u64| CodecError::Invalid(format!("a depth of {q} quanta (at most {MAX_QUANTA})"));
         let (mut i, mut fi, mut gi) = (0usize, 0usize, 0usize);
@@ -329,7 +336,7 @@ impl Coder {
             for _ in 0..c {
                 let start = match prev_end {
                     None => {
-                        let d = unzigzag(value(&first, fi));
+                        let d = unzigzag(u64::from(first[fi]));
                         fi += 1;
                         let s = prev_first as i64 + d;
                         if !(0..=MAX_QUANTA as i64).contains(&s) {
@@ -340,16 +347,16 @@ impl Coder {
                     }
                     Some(e) => {
                         gi += 1;
-                        e + value(&gap, gi - 1)
+                        e + u64::from(gap[gi - 1])
                     }
                 };
-                let end = start + 1 + value(&length, i);
+                let end = start + 1 + u64::from(length[i]);
                 if end > MAX_QUANTA {
                     return Err(too_deep(end));
                 }
                 let mut levels = [0f64; 4];
                 for (k, l) in levels.iter_mut().enumerate() {
-                    let v = value(&color[k], i) as f64;
+                    let v = f64::from(color[k][i]);
                     if v > self.max {
                         return Err(CodecError::Invalid(format!(
                             "a colour level {v} above {} ({} bits)",
@@ -468,6 +475,17 @@ pub(super) fn decode_parts(
     check_depth_order(&offsets, &segs)?;
     Vdi::from_parts(meta, offsets, segs)
         .ok_or_else(|| CodecError::Invalid("offsets do not match the lists".into()))
+}
+
+/// The values of a stream from its byte planes (low byte first; none: all 0).
+fn gather(planes: &[&[u8]], len: usize) -> Vec<u32> {
+    let mut out = vec![0u32; len];
+    for (k, plane) in planes.iter().enumerate() {
+        for (v, &b) in out.iter_mut().zip(plane.iter()) {
+            *v |= u32::from(b) << (8 * k);
+        }
+    }
+    out
 }
 
 /// `w` byte planes of `len` bytes each.
