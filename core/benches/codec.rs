@@ -66,7 +66,8 @@ fn with_precision(vdi: &Vdi, precision: Precision) -> Vdi {
 
 fn write_planes(dir: &str, name: &str, vdi: &Vdi) {
     let segs = vdi.supersegments();
-    let planes: [(&str, fn(&insitu_core::vdi::Supersegment) -> f32); 6] = [
+    type Plane = (&'static str, fn(&insitu_core::vdi::Supersegment) -> f32);
+    let planes: [Plane; 6] = [
         ("z_start", |s| s.z_start),
         ("z_end", |s| s.z_end),
         ("red", |s| s.color[0]),

@@ -239,7 +239,8 @@ fn hostile_heads_and_bands_are_refused_by_name() {
             .unwrap_err()
             .to_string()
     };
-    let cases: [(&str, &dyn Fn(&mut Vec<u8>), &str); 6] = [
+    type Case<'a> = (&'a str, &'a dyn Fn(&mut Vec<u8>), &'a str);
+    let cases: [Case<'_>; 6] = [
         ("precision 0", &|b| b[bits_at] = 0, "precision of 0 bits"),
         ("precision 17", &|b| b[bits_at] = 17, "precision of 17 bits"),
         (
