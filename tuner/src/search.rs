@@ -65,13 +65,18 @@ pub struct Outcome {
     pub wall_secs: f64,
 }
 
-fn outcome(
-    found: Option<(Measurement, f64)>,
-    oracle: &dyn Oracle,
-    g0: u64,
-    s0: f64,
-    t: Instant,
-) -> Outcome {
+/// When a search started: the wall clock, and the oracle's generations and their seconds.
+type Start = (Instant, u64, f64);
+
+fn started(oracle: &dyn Oracle) -> Start {
+    (
+        Instant::now(),
+        oracle.generations(),
+        oracle.generation_secs(),
+    )
+}
+
+fn outcome(found: Option<(Measurement, f64)>, oracle: &dyn Oracle, (t, g0, s0): Start) -> Outcome {
     Outcome {
         value: found.as_ref().map_or(f64::INFINITY, |(_, v)| *v),
         best: found.map(|(m, _)| m),
@@ -93,18 +98,14 @@ pub fn grid_search(
     if grid.is_empty() {
         return Err(StudyError::Invalid("the grid is empty".into()));
     }
-    let (t, g0, s0) = (
-        Instant::now(),
-        oracle.generations(),
-        oracle.generation_secs(),
-    );
+    let start = started(oracle);
     let rows = grid
         .candidates()
         .into_iter()
         .map(|c| oracle.measure(c))
         .collect::<Result<Vec<_>, _>>()?;
     let found = best(&rows, u).map(|(m, v)| (m.clone(), v));
-    Ok(outcome(found, oracle, g0, s0, t))
+    Ok(outcome(found, oracle, start))
 }
 
 /// σ of a search's size probes by (resolution index, γ index).
@@ -578,11 +579,7 @@ fn adaptive(
     if grid.precisions.len() == 1 {
         return adaptive_at(oracle, grid, target, near, interpolate);
     }
-    let (t, g0, s0) = (
-        Instant::now(),
-        oracle.generations(),
-        oracle.generation_secs(),
-    );
+    let start = started(oracle);
     let mut found: Option<(Measurement, f64)> = None;
     for &p in &grid.precisions {
         let sub = grid.at(p);
@@ -594,7 +591,7 @@ fn adaptive(
             }
         }
     }
-    Ok(outcome(found, oracle, g0, s0, t))
+    Ok(outcome(found, oracle, start))
 }
 
 /// [`adaptive`] over a grid of one precision.
@@ -605,11 +602,7 @@ fn adaptive_at(
     near: Option<Candidate>,
     interpolate: bool,
 ) -> Result<Outcome, StudyError> {
-    let (t, g0, s0) = (
-        Instant::now(),
-        oracle.generations(),
-        oracle.generation_secs(),
-    );
+    let start = started(oracle);
     let size_only = matches!(target.budgets(), (Some(_), None));
     let nearest = |xs: &[f64], x: f64| {
         (0..xs.len()).min_by(|&a, &b| (xs[a] - x).abs().total_cmp(&(xs[b] - x).abs()))
@@ -637,7 +630,7 @@ fn adaptive_at(
         interpolate,
     };
     let found = a.run()?;
-    Ok(outcome(found, a.oracle, g0, s0, t))
+    Ok(outcome(found, a.oracle, start))
 }
 
 /// The paper's ladder of size budgets (Fig. 8): from just above the smallest σ of `rows`,

@@ -7,6 +7,8 @@ use insitu_core::volume::Aabb;
 use insitu_core::Camera;
 use proptest::prelude::*;
 
+use crate::common::{fix_checksum, smooth_lists};
+
 /// A random valid VDI: r in 1..6, up to 4 depth-sorted supersegments per pixel.
 fn arb_vdi() -> impl Strategy<Value = Vdi> {
     (1u32..6, 0.0f32..0.3, any::<u64>(), "[a-z.]{0,12}").prop_flat_map(|(r, gamma, hash, name)| {
@@ -140,39 +142,11 @@ fn oversized_claims_are_refused_before_decompression() {
     ));
 }
 
-/// Recomputes the header CRC after a deliberate edit, so the edit reaches the later checks.
-fn fix_checksum(bytes: &mut [u8]) {
-    let mut h = crc32fast::Hasher::new();
-    h.update(&bytes[..28]);
-    h.update(&bytes[32..]);
-    let crc = h.finalize().to_le_bytes();
-    bytes[28..32].copy_from_slice(&crc);
-}
-
 /// A VDI of 16² pixels of `per` supersegments each (a payload of about `6 kB × per`), depths
 /// and colours varying so that it compresses like a real one, not to nothing.
 fn large_vdi(per: u32) -> Vdi {
-    let r = 16u32;
-    let mut offsets = vec![0u32];
-    let mut segs = Vec::new();
-    for p in 0..r * r {
-        for k in 0..per {
-            let x = (p * per + k) as f32;
-            let z = 1.0 + k as f32 * 0.01 + (x * 0.37).sin().abs() * 0.004;
-            segs.push(Supersegment {
-                z_start: z,
-                z_end: z + 0.005,
-                color: [
-                    (x * 0.011).sin() * 0.5 + 0.5,
-                    (x * 0.007).cos() * 0.5 + 0.5,
-                    (x * 0.003).sin().abs(),
-                ],
-                alpha: ((x * 0.013).cos() * 0.5 + 0.5).min(1.0),
-            });
-        }
-        offsets.push(segs.len() as u32);
-    }
-    Vdi::from_parts(meta(r, 7, "parts"), offsets, segs).unwrap()
+    let (offsets, segs) = smooth_lists(16, per, 1.0, 0.01);
+    Vdi::from_parts(meta(16, 7, "parts"), offsets, segs).unwrap()
 }
 
 /// The metadata of a VDI of resolution `r` seen from +z over the unit box, with TF `hash`

@@ -12,6 +12,8 @@ use insitu_core::volume::{Aabb, GrayScott, GrayScottParams};
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction};
 use proptest::prelude::*;
 
+use crate::common::{fix_checksum, smooth_lists};
+
 /// The ray-casting step of the random VDIs: a depth quantum of 1/256.
 const STEP: f32 = 0.05;
 
@@ -139,36 +141,8 @@ proptest! {
 
 /// A VDI of 64² pixels of `per` supersegments each, with smoothly varying values.
 fn large_vdi(per: u32, precision: Precision) -> Vdi {
-    let r = 64u32;
-    let mut offsets = vec![0u32];
-    let mut segs = Vec::new();
-    for p in 0..r * r {
-        for k in 0..per {
-            let x = (p * per + k) as f32;
-            let z = 6.0 + k as f32 * 0.1 + (x * 0.37).sin().abs() * 0.04;
-            segs.push(Supersegment {
-                z_start: z,
-                z_end: z + 0.05,
-                color: [
-                    (x * 0.011).sin() * 0.5 + 0.5,
-                    (x * 0.007).cos() * 0.5 + 0.5,
-                    (x * 0.003).sin().abs(),
-                ],
-                alpha: ((x * 0.013).cos() * 0.5 + 0.5).min(1.0),
-            });
-        }
-        offsets.push(segs.len() as u32);
-    }
-    Vdi::from_parts(meta(r, precision), offsets, segs).unwrap()
-}
-
-/// Recomputes the header CRC after a deliberate edit.
-fn fix_checksum(bytes: &mut [u8]) {
-    let mut h = crc32fast::Hasher::new();
-    h.update(&bytes[..28]);
-    h.update(&bytes[32..]);
-    let crc = h.finalize().to_le_bytes();
-    bytes[28..32].copy_from_slice(&crc);
+    let (offsets, segs) = smooth_lists(64, per, 6.0, 0.1);
+    Vdi::from_parts(meta(64, precision), offsets, segs).unwrap()
 }
 
 /// Where the part table starts in a file without provenance.

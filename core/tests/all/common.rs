@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests.
 
 use insitu_core::volume::RawFormat;
-use insitu_core::{Image, TransferFunction, Volume};
+use insitu_core::{Image, Supersegment, TransferFunction, Volume};
 
 /// The CT teapot, the issues' benchmark volume.
 pub const TEAPOT: &str = "teapot_256x256x178_uint8.raw";
@@ -91,4 +91,40 @@ pub fn assert_simd_matches_scalar(
         let b = generate(&scalar, cam, vp, 0, what).expect("generates");
         assert!(a == b, "{what}: SIMD and scalar VDIs differ");
     }
+}
+
+/// `r²` pixels of `per` supersegments each, the first at depth `z0` and each `spacing` after
+/// the last (jittered by up to 0.4 of it) and half of it long, colours and opacities varying
+/// smoothly: lists that compress like a real VDI's, not to nothing. The offsets and the lists.
+pub fn smooth_lists(r: u32, per: u32, z0: f32, spacing: f32) -> (Vec<u32>, Vec<Supersegment>) {
+    let mut offsets = vec![0u32];
+    let mut segs = Vec::new();
+    for p in 0..r * r {
+        for k in 0..per {
+            let x = (p * per + k) as f32;
+            let z = z0 + k as f32 * spacing + (x * 0.37).sin().abs() * 0.4 * spacing;
+            segs.push(Supersegment {
+                z_start: z,
+                z_end: z + 0.5 * spacing,
+                color: [
+                    (x * 0.011).sin() * 0.5 + 0.5,
+                    (x * 0.007).cos() * 0.5 + 0.5,
+                    (x * 0.003).sin().abs(),
+                ],
+                alpha: ((x * 0.013).cos() * 0.5 + 0.5).min(1.0),
+            });
+        }
+        offsets.push(segs.len() as u32);
+    }
+    (offsets, segs)
+}
+
+/// Recomputes a VDI file's header CRC after a deliberate edit, so that the edit reaches the
+/// checks behind the checksum.
+pub fn fix_checksum(bytes: &mut [u8]) {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&bytes[..28]);
+    h.update(&bytes[32..]);
+    let crc = h.finalize().to_le_bytes();
+    bytes[28..32].copy_from_slice(&crc);
 }
