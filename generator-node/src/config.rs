@@ -552,6 +552,10 @@ mod tests {
         };
         assert!(bad("[generation]\nresolution = 0").contains("generation.resolution"));
         assert!(bad("[generation]\ngamma = -1.0").contains("generation.resolution/gamma"));
+        for precision in ["3", "17", "\"half\""] {
+            let e = bad(&format!("[generation]\nprecision = {precision}"));
+            assert!(e.contains("precision"), "{precision}: {e}");
+        }
         let codec = bad("[generation]\ncodec = \"lzma\"");
         assert!(codec.contains("codec") && codec.contains("lzma"), "{codec}");
         assert!(bad("[queue]\nmax_items = 0\nmax_bytes = 1\npolicy = \"block\"").contains("queue"));
