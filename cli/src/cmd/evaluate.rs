@@ -120,7 +120,7 @@ fn print_json(a: &Args, s: &Said) {
         "{}",
         serde_json::json!({
             "volume": scene.volume_name, "tf": scene.tf_name,
-            "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": a.codec.name(),
+            "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": a.codec.name(), "precision": a.pm.precision.name(),
             "step": insitu_core::json::f32_number(scene.params.step), "size": [w, h],
             "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
             "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
@@ -140,9 +140,10 @@ fn print_text(a: &Args, s: &Said) {
         scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.step, w, h
     );
     println!(
-        "sigma = {} bytes ({}), {} supersegments ({:.2} per ray)",
+        "sigma = {} bytes ({}, {}), {} supersegments ({:.2} per ray)",
         eval.sizing.sigma_bytes,
         a.codec,
+        a.pm.precision,
         eval.sizing.supersegments,
         eval.sizing.supersegments as f64 / (f64::from(a.pm.r) * f64::from(a.pm.r))
     );
