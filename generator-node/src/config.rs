@@ -101,8 +101,9 @@ pub struct GenerationConfig {
     pub reference_size: u32,
     /// Hard limit on σ of a step, bytes (summed over its ranks; each rank keeps its share);
     /// 0: none. A VDI that comes out at or over it is made again at a coarser `P_M` before it
-    /// ships (γ raised, then, for a world of one rank, r lowered; τ counts every generation),
-    /// so no stored step exceeds it; one that cannot get under it is not shipped (counted as
+    /// ships (encoded again at a coarser precision, down to 6 bits, then γ raised, then, for a
+    /// world of one rank, r lowered; τ counts every try: `work::coarser`), so no stored step
+    /// exceeds it; one that cannot get under it is not shipped (counted as
     /// failed, logged).
     pub size_max: u64,
     /// Hard limit on τ of a step (its generation, every try counted), seconds; 0: none. A

@@ -12,7 +12,7 @@ use insitu_core::vdi::codec;
 use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
-use insitu_core::{Backend, Camera, Image, Raycaster, TransferFunction, Vdi, VdiParams};
+use insitu_core::{Backend, Camera, Image, Precision, Raycaster, TransferFunction, Vdi, VdiParams};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb, vec3_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
@@ -102,8 +102,13 @@ pub enum WorkError {
 /// tuning: at 2 nearly every ray closes one supersegment per run of visible samples).
 pub const MAX_LIMIT_GAMMA: f32 = 2.0;
 
-/// Generations a step may take to come under the hard limit.
+/// Tries a step may take to come under the hard limit (generations, and encodings at a
+/// coarser precision).
 pub const MAX_LIMIT_RETRIES: u32 = 8;
+
+/// The fewest colour bits the hard limit lowers a file's precision to: at 6 bits q stayed
+/// within 0.62 dB of the float VDI's on the shared volumes (docs/performance.md).
+pub const MIN_LIMIT_BITS: u8 = 6;
 
 /// Share of the time left that a generation made again under the time limit plans for: the
 /// rate the stopped one measured spreads on a busy machine.
@@ -151,13 +156,27 @@ pub fn faster(
     (r >= MIN_LIMIT_RESOLUTION).then_some(VdiParams { resolution: r, ..p })
 }
 
-/// The `P_M` a VDI whose σ is `over` times the limit is made again with: γ raised by that
-/// factor and 15 % more (σ falls about as 1/γ, Sec. 6.1), at least by a quarter, up to
-/// [`MAX_LIMIT_GAMMA`] (a step just over the limit loses little q, one far over needs few
-/// retries); from there the resolution shrunk by the factor's square root (σ ∝ r²), at least
-/// by an eighth, when `may_shrink_r` (a world of one rank: the ranks of a step must share r to
-/// be composed). `None` when neither can go further.
+/// The `P_M` a VDI whose σ is `over` times the limit is made again with. First the file's
+/// precision, which costs no generation (the same VDI encoded again): floats and more than 8
+/// bits to 8 bits (σ 1.4–4.3× smaller for ≤ 0.06 dB), then 8 or 7 bits to [`MIN_LIMIT_BITS`]
+/// (σ 15–42 % smaller). Then γ raised by the factor and 15 % more (σ falls about as 1/γ, Sec.
+/// 6.1), at least by a quarter, up to [`MAX_LIMIT_GAMMA`] (a step just over the limit loses
+/// little q, one far over needs few retries); from there the resolution shrunk by the
+/// factor's square root (σ ∝ r²), at least by an eighth, when `may_shrink_r` (a world of one
+/// rank: the ranks of a step must share r to be composed). `None` when none can go further.
 pub fn coarser(p: VdiParams, over: f64, may_shrink_r: bool) -> Option<VdiParams> {
+    let fewer = match p.precision {
+        Precision::Float32 => Some(8),
+        Precision::Bits(b) if b > 8 => Some(8),
+        Precision::Bits(b) if b > MIN_LIMIT_BITS => Some(MIN_LIMIT_BITS),
+        Precision::Bits(_) => None,
+    };
+    if let Some(bits) = fewer {
+        return Some(VdiParams {
+            precision: Precision::Bits(bits),
+            ..p
+        });
+    }
     let factor = (over * 1.15).max(1.25) as f32;
     if p.gamma < MAX_LIMIT_GAMMA {
         let gamma = (p.gamma.max(1e-3) * factor).min(MAX_LIMIT_GAMMA);
@@ -193,7 +212,7 @@ pub fn run(
     let time_limit = (gen.time_max > 0.0).then_some(gen.time_max);
     let one_rank = info.world_size <= 1;
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
-    let (generated, file, tau_secs, tau_compress_secs) = loop {
+    let (generated, file, tau_secs, tau_compress_secs) = 'generate: loop {
         let can_retry = one_rank && retries.0 < MAX_LIMIT_RETRIES;
         let spent = retries.1;
         let stop = |p: Progress| time_limit.is_some_and(|t| must_stop(t, spent, can_retry, p));
@@ -250,38 +269,59 @@ pub fn run(
                 why: "the last try finished over it",
             });
         }
-        let t = Instant::now();
-        let provenance = provenance(info, gen.pm_version, gen.scene_version);
-        let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
-            codec::encode_with_provenance(&generated.value, gen.codec, Some(&provenance))
-        })?;
-        let compress = t.elapsed().as_secs_f64();
-        let sigma = file.len() as u64;
-        let Some(limit) = limit.filter(|&l| sigma >= l) else {
-            break (generated, file, tau, compress);
-        };
-        let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
-            .filter(|_| retries.0 < MAX_LIMIT_RETRIES);
-        let Some(next) = next else {
-            return Err(WorkError::OverLimit {
-                step: info.step,
+        let mut generated = generated;
+        // This generation's encodings: a coarser precision is tried on the same VDI.
+        loop {
+            let t = Instant::now();
+            let provenance = provenance(info, gen.pm_version, gen.scene_version);
+            let file = info_span!("compress", codec = %gen.codec).in_scope(|| {
+                codec::encode_with_provenance(&generated.value, gen.codec, Some(&provenance))
+            })?;
+            let compress = t.elapsed().as_secs_f64();
+            let sigma = file.len() as u64;
+            let Some(limit) = limit.filter(|&l| sigma >= l) else {
+                let tau = generated.seconds + retries.1;
+                break 'generate (generated, file, tau, compress);
+            };
+            let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
+                .filter(|_| retries.0 < MAX_LIMIT_RETRIES);
+            let Some(next) = next else {
+                return Err(WorkError::OverLimit {
+                    step: info.step,
+                    sigma,
+                    limit,
+                    r: params.resolution,
+                    gamma: params.gamma,
+                });
+            };
+            retries.0 += 1;
+            if (next.resolution, next.gamma) == (params.resolution, params.gamma) {
+                tracing::info!(
+                    step = info.step,
+                    sigma,
+                    limit,
+                    precision = %next.precision,
+                    "σ over the hard limit: encoded again at a coarser precision"
+                );
+                generated.value.set_precision(next.precision);
+                // An encoding thrown away counts in τ, as a generation thrown away does.
+                retries.1 += compress;
+                params = next;
+                continue;
+            }
+            tracing::info!(
+                step = info.step,
                 sigma,
                 limit,
-                r: params.resolution,
-                gamma: params.gamma,
-            });
-        };
-        tracing::info!(
-            step = info.step,
-            sigma,
-            limit,
-            r = next.resolution,
-            gamma = next.gamma,
-            "σ over the hard limit: made again at a coarser P_M"
-        );
-        retries = (retries.0 + 1, retries.1 + generated.seconds + compress);
-        params = next;
-        spare = Some(generated.value);
+                r = next.resolution,
+                gamma = next.gamma,
+                "σ over the hard limit: made again at a coarser P_M"
+            );
+            retries.1 += generated.seconds + compress;
+            params = next;
+            spare = Some(generated.value);
+            continue 'generate;
+        }
     };
     let vdi = &generated.value;
     let references = if with_references {
@@ -690,12 +730,26 @@ mod tests {
     }
 
     #[test]
-    fn coarser_raises_gamma_then_lowers_r_for_one_rank_only() {
-        let p = VdiParams {
+    fn coarser_lowers_the_precision_then_raises_gamma_then_lowers_r_for_one_rank_only() {
+        // The precision first, without touching r or γ: floats and 12 bits to 8, 8 to 6.
+        let at = |precision| VdiParams {
             resolution: 256,
             gamma: 0.01,
-            precision: Default::default(),
+            precision,
         };
+        for (from, to) in [
+            (Precision::Float32, 8),
+            (Precision::Bits(12), 8),
+            (Precision::Bits(8), MIN_LIMIT_BITS),
+            (Precision::Bits(7), MIN_LIMIT_BITS),
+        ] {
+            assert_eq!(
+                coarser(at(from), 4.0, false),
+                Some(at(Precision::Bits(to))),
+                "{from}"
+            );
+        }
+        let p = at(Precision::Bits(MIN_LIMIT_BITS));
         let raised = |over| coarser(p, over, true).unwrap().gamma;
         assert!(
             (raised(1.01) - 0.0125).abs() < 1e-6,

@@ -316,6 +316,12 @@ impl Vdi {
         self.offsets[p + 1] - self.offsets[p]
     }
 
+    /// Sets the precision its file is written at (the lists are unchanged: rendering does not
+    /// depend on it).
+    pub fn set_precision(&mut self, precision: Precision) {
+        self.meta.params.precision = precision;
+    }
+
     /// Bytes held in memory by the lists (what the renderer reads).
     pub fn memory_bytes(&self) -> usize {
         self.offsets.len() * 4 + self.supersegments.len() * std::mem::size_of::<Supersegment>()
