@@ -188,6 +188,7 @@ fn row_of_vdi(path: &Path, step: u64, rank: u32) -> Result<Entry, String> {
         references: None,
         resolution: meta.params.resolution,
         gamma: meta.params.gamma,
+        precision: meta.params.precision,
         codec: codec::codec_of(&bytes).ok(),
         sizing: Sizing {
             sigma_bytes: bytes.len() as u64,

@@ -6,6 +6,7 @@
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::Db;
 use insitu_core::vdi::codec::Codec;
+use insitu_core::vdi::Precision;
 use insitu_core::volume::bricks::Brick;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -93,6 +94,10 @@ pub struct Entry {
     pub resolution: u32,
     /// `γ`.
     pub gamma: f32,
+    /// The precision the VDI file holds its supersegments at, `P_M`'s third parameter (read
+    /// from the file; absent in entries recorded before: 32-bit floats).
+    #[serde(default)]
+    pub precision: Precision,
     /// The codec of the VDI file (`None`: the generator-node did not say; `""` in the JSON).
     #[serde(with = "codec_name")]
     pub codec: Option<Codec>,
@@ -210,6 +215,7 @@ impl Entry {
             references: None,
             resolution: 0,
             gamma: 0.0,
+            precision: Precision::Float32,
             codec: None,
             sizing: Sizing::default(),
             tf_name: String::new(),

@@ -409,6 +409,7 @@ fn store_vdi(
         references: None,
         resolution: h.resolution,
         gamma: h.gamma,
+        precision: p.precision,
         codec: codec_from_pb(h.codec)?,
         sizing: Sizing {
             sigma_bytes: bytes.len() as u64,

@@ -121,6 +121,14 @@ fn two_viz_nodes_share_a_recording_by_step() {
     for step in 0..4 {
         assert!(body.contains(&format!("\"step\":{step}")), "{body}");
     }
+    // Each step names the precision its file was written at (the node's 8 bits, or the 6
+    // bits a tuning chose).
+    let steps: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let steps = steps["steps"].as_array().unwrap();
+    assert_eq!(steps.len(), 4, "{body}");
+    for s in steps {
+        assert!(matches!(s["precision"].as_str(), Some("8" | "6")), "{s}");
+    }
     let (code, _) = http(addr, "/api/render?step=3&size=32&format=png", &[]);
     assert_eq!(code, 200);
     v.terminate();
