@@ -1,7 +1,7 @@
 //! Two-level composition, the host's level (docs/scale.md). A generator-node that serves
 //! several ranks of a world composes each step's ranks before shipping: their bricks are
-//! gathered into boxes ([`box_groups`]), and each box's sub-VDIs and reference frames are
-//! composed with the code the viz-node uses ([`insitu_core::compose`]) into one part, a VDI
+//! gathered into boxes (`box_groups`, when `crate::outbox` finds the step due), and each
+//! box's sub-VDIs and reference frames are composed with the code the viz-node uses ([`insitu_core::compose`]) into one part, a VDI
 //! whose header and file name the ranks it holds (`VdiHeader.covers`) and whose brick is
 //! their box. The viz-node composes the parts as it composes ranks: what reaches it per step
 //! falls by the ranks per host for frames, files and index rows (the supersegments are the
@@ -28,7 +28,6 @@
 mod packed;
 
 use crate::config::HostConfig;
-use crate::shared::Shared;
 use crate::work::Product;
 use bytes::Bytes;
 use insitu_core::compose::{
@@ -37,16 +36,16 @@ use insitu_core::compose::{
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::window::VdiWindow;
 use insitu_core::vdi::{Supersegment, VdiMeta};
-use insitu_core::volume::bricks::{box_groups, Brick};
+use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Vdi};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_from_pb, dims_to_pb};
+use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_to_pb};
 use insitu_proto::pb;
 use packed::PackedFrames;
 use std::collections::{BTreeMap, BTreeSet, HashSet};
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use tokio::sync::Notify;
-use tracing::{info, warn};
+use tracing::warn;
 
 /// A rank's finished step: what ships (compressed VDI, frames, spool entries) and its lists in
 /// memory, for composing.
@@ -157,7 +156,7 @@ impl Finished {
     }
 
     /// The product as it ships alone, its frames unpacked.
-    fn into_product(self) -> Product {
+    pub(crate) fn into_product(self) -> Product {
         self.unpack().0
     }
 
@@ -210,7 +209,8 @@ pub struct Gather {
     compose: bool,
     wait: Duration,
     state: Mutex<State>,
-    wake: Notify,
+    /// Woken whenever a step may have become due (the shipping loop waits on it).
+    pub(crate) wake: Notify,
 }
 
 #[derive(Default)]
@@ -346,7 +346,7 @@ impl Gather {
 
     /// The steps whose parts ship at `now`, taken out (every step once closed), the earliest
     /// instant another may, and whether the gatherer is closed and empty.
-    fn take_due(&self, now: Instant) -> (Vec<Vec<Finished>>, Option<Instant>, bool) {
+    pub(crate) fn take_due(&self, now: Instant) -> (Vec<Vec<Finished>>, Option<Instant>, bool) {
         let mut s = self.state();
         let closed = s.closed;
         let mut due = Vec::new();
@@ -393,103 +393,6 @@ impl Gather {
             Due::Until(deadline)
         }
     }
-}
-
-/// Ships the gatherer's steps as their parts become due, until it is closed and empty.
-pub async fn run(shared: Arc<Shared>) {
-    let gather = shared.host.clone();
-    loop {
-        let (due, next, finished) = gather.take_due(Instant::now());
-        for ranks in due {
-            ship_step(&shared, ranks).await;
-        }
-        if finished {
-            return;
-        }
-        match next {
-            Some(t) => {
-                tokio::select! {
-                    () = gather.wake.notified() => {}
-                    () = tokio::time::sleep_until(t.into()) => {}
-                }
-            }
-            None => gather.wake.notified().await,
-        }
-    }
-}
-
-/// One step's finished ranks into the outbox: a part per box of their bricks.
-async fn ship_step(shared: &Arc<Shared>, mut ranks: Vec<Finished>) {
-    ranks.sort_by_key(|f| f.product.vdi_header.rank);
-    let held: usize = ranks.iter().map(Finished::held_bytes).sum();
-    let Some(bricks) = bricks_of(&ranks) else {
-        // Ranks that do not say where their bricks lie (or on different grids) ship alone;
-        // the viz-node names the problem.
-        return ship_alone(shared, ranks).await;
-    };
-    let groups = box_groups(&bricks);
-    let mut slots: Vec<Option<Finished>> = ranks.into_iter().map(Some).collect();
-    for (members, brick) in groups {
-        let group: Vec<Finished> = members.iter().filter_map(|&i| slots[i].take()).collect();
-        if group.len() == 1 {
-            ship_alone(shared, group).await;
-            continue;
-        }
-        let s = shared.clone();
-        let composed = tokio::task::spawn_blocking(move || {
-            let t = Instant::now();
-            let part = s.compute(|| compose_part(&group, brick));
-            (part, group, t.elapsed().as_secs_f64())
-        })
-        .await;
-        match composed {
-            Ok((Ok(part), group, secs)) => {
-                info!(
-                    step = part.vdi_header.step,
-                    ranks = ?part.vdi_header.covers,
-                    bytes = part.vdi.len(),
-                    held_while_waiting = held,
-                    secs,
-                    "composed the host's ranks into one part"
-                );
-                shared.stats.update(|c| {
-                    c.host_parts += 1;
-                    c.host_ranks += group.len() as u64;
-                    c.host_compose_secs += secs;
-                });
-                crate::node::to_outbox(shared, part).await;
-            }
-            Ok((Err(why), group, _)) => {
-                let h = &group[0].product.vdi_header;
-                warn!(step = h.step, error = %why, "the host's ranks could not be composed: they ship alone");
-                ship_alone(shared, group).await;
-            }
-            Err(e) => warn!(error = %e, "composing the host's ranks panicked; they are lost"),
-        }
-    }
-}
-
-/// Each of `ranks` into the outbox as it was made.
-async fn ship_alone(shared: &Arc<Shared>, ranks: Vec<Finished>) {
-    for f in ranks {
-        crate::node::to_outbox(shared, f.into_product()).await;
-    }
-}
-
-/// The bricks of `ranks` (sorted by rank) when all state one on the same grid.
-fn bricks_of(ranks: &[Finished]) -> Option<Vec<Brick>> {
-    let global = ranks.first()?.product.vdi_header.global_dims;
-    ranks
-        .iter()
-        .map(|f| {
-            let h = &f.product.vdi_header;
-            (h.global_dims == global).then_some(())?;
-            Some(Brick {
-                offset: dims_from_pb(h.brick_offset.as_ref())?,
-                dims: dims_from_pb(h.brick_dims.as_ref())?,
-            })
-        })
-        .collect()
 }
 
 /// Why ranks could not be composed into one part.

@@ -224,7 +224,8 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let (health, stop_server, server) = serve(&shared, &security, listener).await?;
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
-    let host = tokio::spawn(crate::host::run(shared.clone()).instrument(info_span!("host")));
+    let host =
+        tokio::spawn(crate::outbox::host_steps(shared.clone()).instrument(info_span!("host")));
     requeue(&shared, recovered);
     let shippers: Vec<_> = viz_shards
         .into_iter()
@@ -441,7 +442,7 @@ async fn worker(shared: Arc<Shared>) {
                 if let Some(f) = shared.host.finish(finished) {
                     let (product, vdi) = f.unpack();
                     spare = spare.or(vdi);
-                    to_outbox(&shared, product).await;
+                    crate::outbox::to_outbox(&shared, product).await;
                 }
             }
             Ok(Err(e)) => {
@@ -476,30 +477,6 @@ fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_s
         g.tf = Some(tf);
     }
     shared.save_run();
-}
-
-/// `product` into the outbox for the shipper; what the outbox's policy drops to make room is
-/// logged, counted (per rank) and taken out of the spool.
-pub(crate) async fn to_outbox(shared: &Shared, product: work::Product) {
-    let n = product.bytes();
-    let ranks = product.ranks().len() as u64;
-    let outbox = &shared.outboxes[shared.shard_of(product.vdi_header.step)];
-    match outbox.push(product, n).await {
-        Ok(dropped) if !dropped.is_empty() => {
-            for d in &dropped {
-                info!(
-                    step = d.vdi_header.step,
-                    rank = d.vdi_header.rank,
-                    "dropped an unshipped VDI (outbox full)"
-                );
-                shared.unspool(&d.spool);
-            }
-            let n: u64 = dropped.iter().map(|d| d.ranks().len() as u64).sum();
-            shared.stats.update(|c| c.dropped_outbox += n);
-        }
-        Ok(_) => {}
-        Err(_) => shared.stats.update(|c| c.dropped_outbox += ranks),
-    }
 }
 
 impl RunningNode {

@@ -25,7 +25,7 @@
 //! again for the same step (a generator-node restarted from its spool) has the same bytes and
 //! is stored once; τ, a measurement that differs each time, stays in the index.
 
-use super::codec::{CodecError, Reader};
+use super::codec::format::{CodecError, Reader};
 use crate::volume::bricks::Brick;
 
 /// Bytes of the block's fixed part (a block holding one rank is this long plus 4).

@@ -31,21 +31,19 @@
 //! counts agree with lengths, and that every number is finite and in range, so a decoded
 //! [`Vdi`] is safe to render.
 
+pub(super) mod format;
 pub mod quantized;
+
+use format::Reader;
+pub use format::{Codec, CodecError, FORMAT_VERSION, MAGIC};
 
 use super::provenance::Provenance;
 use super::{Precision, Supersegment, Vdi, VdiMeta, VdiParams, MAX_RESOLUTION};
 use crate::camera::Camera;
 use crate::volume::Aabb;
-use glam::Vec3;
 use rayon::prelude::*;
 use std::io::Read;
 
-/// File magic.
-pub const MAGIC: [u8; 8] = [0x89, b'V', b'D', b'I', 0x0d, 0x0a, 0x1a, 0x0a];
-/// Current format version: quantised supersegments ([`quantized`]), written for
-/// [`Precision::Bits`].
-pub const FORMAT_VERSION: u16 = 4;
 /// The version of 32-bit float planes, written for [`Precision::Float32`].
 pub const FORMAT_VERSION_FLOAT: u16 = 3;
 /// The version before provenance, still read.
@@ -68,60 +66,6 @@ pub const ZSTD_PART: usize = 8_000_000;
 const HEADER_LEN: usize = 32;
 const MAX_TF_NAME: usize = 1024;
 
-/// Compression applied to the payload. In files and JSON by its [`Codec::name`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Codec {
-    /// Stored as is.
-    None,
-    /// bzip2, block size 900k: the paper's σ (Sec. 5.3).
-    Bzip2,
-    /// zstd, level 3: much faster, similar ratio on float planes.
-    Zstd,
-}
-
-impl Codec {
-    /// All codecs.
-    pub const ALL: [Codec; 3] = [Codec::None, Codec::Bzip2, Codec::Zstd];
-
-    fn id(self) -> u8 {
-        match self {
-            Self::None => 0,
-            Self::Bzip2 => 1,
-            Self::Zstd => 2,
-        }
-    }
-
-    fn from_id(id: u8) -> Option<Self> {
-        Self::ALL.into_iter().find(|c| c.id() == id)
-    }
-
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::Bzip2 => "bzip2",
-            Self::Zstd => "zstd",
-        }
-    }
-}
-
-impl std::fmt::Display for Codec {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Codec {
-    type Err = CodecError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|c| c.name() == s.to_ascii_lowercase())
-            .ok_or_else(|| CodecError::UnknownCodecName(s.to_owned()))
-    }
-}
-
 /// Bounds applied while decoding untrusted bytes.
 #[derive(Clone, Copy, Debug)]
 pub struct DecodeLimits {
@@ -136,70 +80,6 @@ impl Default for DecodeLimits {
             max_payload_bytes: 4 << 30,
         }
     }
-}
-
-/// Why bytes are not a valid VDI file.
-#[derive(Debug, thiserror::Error)]
-pub enum CodecError {
-    /// Fewer bytes than a field needs.
-    #[error("VDI data truncated: {what} needs {needed} bytes, {available} left")]
-    Truncated {
-        /// The field being read.
-        what: &'static str,
-        /// Bytes needed.
-        needed: u64,
-        /// Bytes left.
-        available: u64,
-    },
-    /// Not a VDI file.
-    #[error("not a VDI file (bad magic)")]
-    BadMagic,
-    /// A version this build does not read.
-    #[error(
-        "VDI format version {0} is not supported (this build reads versions 1 to {FORMAT_VERSION})"
-    )]
-    UnsupportedVersion(u16),
-    /// Unknown codec byte.
-    #[error("unknown VDI codec id {0}")]
-    UnknownCodec(u8),
-    /// Unknown codec name (CLI, config).
-    #[error("unknown codec {0:?} (expected none, bzip2 or zstd)")]
-    UnknownCodecName(String),
-    /// Claimed size over the limit.
-    #[error("VDI payload of {claimed} bytes exceeds the limit of {limit} bytes")]
-    TooLarge {
-        /// Claimed payload length.
-        claimed: u64,
-        /// The limit.
-        limit: u64,
-    },
-    /// Checksum mismatch: the bytes were altered.
-    #[error("VDI checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupt")]
-    Checksum {
-        /// Stored CRC.
-        stored: u32,
-        /// Computed CRC.
-        computed: u32,
-    },
-    /// The decompressor failed.
-    #[error("VDI body does not decompress with {codec}: {source}")]
-    Decompress {
-        /// Codec used.
-        codec: Codec,
-        /// The cause.
-        source: std::io::Error,
-    },
-    /// Compression failed (I/O inside the encoder).
-    #[error("VDI compression with {codec} failed: {source}")]
-    Compress {
-        /// Codec used.
-        codec: Codec,
-        /// The cause.
-        source: std::io::Error,
-    },
-    /// A field is out of range or inconsistent with another.
-    #[error("invalid VDI: {0}")]
-    Invalid(String),
 }
 
 /// Serialises and compresses `vdi` with `codec`, its parts in parallel (on the calling
@@ -769,81 +649,4 @@ pub(super) fn check_depth_order(offsets: &[u32], segs: &[Supersegment]) -> Resul
         }
     }
     Ok(())
-}
-
-/// Bounds-checked little-endian reader.
-pub(super) struct Reader<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Reader<'a> {
-    pub(super) fn new(bytes: &'a [u8]) -> Self {
-        Self { bytes, pos: 0 }
-    }
-
-    pub(super) fn remaining(&self) -> usize {
-        self.bytes.len() - self.pos
-    }
-
-    pub(super) fn rest(&mut self) -> &'a [u8] {
-        let rest = &self.bytes[self.pos..];
-        self.pos = self.bytes.len();
-        rest
-    }
-
-    pub(super) fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
-        if n > self.remaining() {
-            return Err(CodecError::Truncated {
-                what,
-                needed: n as u64,
-                available: self.remaining() as u64,
-            });
-        }
-        let out = &self.bytes[self.pos..self.pos + n];
-        self.pos += n;
-        Ok(out)
-    }
-
-    pub(super) fn array<const N: usize>(
-        &mut self,
-        what: &'static str,
-    ) -> Result<[u8; N], CodecError> {
-        let mut a = [0u8; N];
-        a.copy_from_slice(self.take(N, what)?);
-        Ok(a)
-    }
-
-    pub(super) fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
-        Ok(self.array::<1>(what)?[0])
-    }
-
-    pub(super) fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
-        Ok(u16::from_le_bytes(self.array(what)?))
-    }
-
-    pub(super) fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
-        Ok(u32::from_le_bytes(self.array(what)?))
-    }
-
-    pub(super) fn u64(&mut self, what: &'static str) -> Result<u64, CodecError> {
-        Ok(u64::from_le_bytes(self.array(what)?))
-    }
-
-    fn finite(&mut self, what: &'static str) -> Result<f32, CodecError> {
-        let v = f32::from_le_bytes(self.array(what)?);
-        if v.is_finite() {
-            Ok(v)
-        } else {
-            Err(CodecError::Invalid(format!("{what} is {v}")))
-        }
-    }
-
-    fn vec3(&mut self, what: &'static str) -> Result<Vec3, CodecError> {
-        Ok(Vec3::new(
-            self.finite(what)?,
-            self.finite(what)?,
-            self.finite(what)?,
-        ))
-    }
 }
