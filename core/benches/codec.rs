@@ -59,9 +59,9 @@ fn pooled(a: &[Image], b: &[Image]) -> f64 {
 
 /// `vdi` to be written at `precision`.
 fn with_precision(vdi: &Vdi, precision: Precision) -> Vdi {
-    let mut meta = vdi.meta().clone();
-    meta.params.precision = precision;
-    Vdi::from_parts(meta, vdi.offsets().to_vec(), vdi.supersegments().to_vec()).expect("same lists")
+    let mut v = vdi.clone();
+    v.set_precision(precision);
+    v
 }
 
 fn write_planes(dir: &str, name: &str, vdi: &Vdi) {

@@ -7,7 +7,7 @@ use crate::measure::Measurement;
 use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{evaluate, EvalError, Sizing};
 use insitu_core::vdi::codec::{self, Codec};
-use insitu_core::vdi::{Precision, Vdi};
+use insitu_core::vdi::Precision;
 use insitu_core::volume::Fnv1a;
 use insitu_core::{Camera, Image, TransferFunction};
 use std::path::Path;
@@ -236,15 +236,11 @@ impl Oracle for Study<'_> {
         let mut m = Measurement::from_evaluation(&e);
         // The paper's σ beside it: the same VDI as floats under bzip2.
         if (c.precision, s.codec) != (Precision::Float32, Codec::Bzip2) {
-            if let Some(vdi) = &self.spare {
-                let mut meta = vdi.meta().clone();
-                meta.params.precision = Precision::Float32;
-                let floats =
-                    Vdi::from_parts(meta, vdi.offsets().to_vec(), vdi.supersegments().to_vec());
-                if let Some(floats) = floats {
-                    let bytes = codec::encode(&floats, Codec::Bzip2).map_err(EvalError::from)?;
-                    m.sigma_paper_bytes = Some(bytes.len() as u64);
-                }
+            // The spare's precision is set again by its next generation.
+            if let Some(vdi) = self.spare.as_mut() {
+                vdi.set_precision(Precision::Float32);
+                let bytes = codec::encode(vdi, Codec::Bzip2).map_err(EvalError::from)?;
+                m.sigma_paper_bytes = Some(bytes.len() as u64);
             }
         }
         self.generations += 1;

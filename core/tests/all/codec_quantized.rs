@@ -272,10 +272,8 @@ fn eight_bits_cost_no_visible_quality_on_a_generated_vdi() {
         precision: Precision::Float32,
     };
     let float = generate(&rc, &camera, params, 0, "gs").unwrap();
-    let mut m = float.meta().clone();
-    m.params.precision = Precision::Bits(8);
-    let quantised =
-        Vdi::from_parts(m, float.offsets().to_vec(), float.supersegments().to_vec()).unwrap();
+    let mut quantised = float.clone();
+    quantised.set_precision(Precision::Bits(8));
     let f_bytes = encode(&float, Codec::Bzip2).unwrap().len();
     let bytes = encode(&quantised, Codec::Zstd).unwrap();
     assert!(
