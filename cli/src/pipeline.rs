@@ -218,12 +218,17 @@ impl Budgets {
     /// Adherence of the stored VDIs (one per step, or the composed step of several ranks) to
     /// σ_target and τ_target.
     fn adherence(&self, reports: &[pb::QualityReport]) -> (Option<Adherence>, Option<Adherence>) {
-        let steps: Vec<&pb::QualityReport> = reports
+        let mut steps: Vec<&pb::QualityReport> = reports
             .iter()
             .filter(|r| r.composed || r.world_size <= 1)
             .collect();
+        // In step order: the P_M changes are counted between consecutive steps.
+        steps.sort_by_key(|r| r.step);
         let of = |b: Option<f64>, v: fn(&pb::QualityReport) -> f64| {
-            b.map(|b| Adherence::of(steps.iter().map(|r| (r.pm_version, v(r))), b))
+            b.map(|b| {
+                let of = |r: &&pb::QualityReport| (r.pm_version, (r.resolution, r.gamma), v(r));
+                Adherence::of(steps.iter().map(of), b)
+            })
         };
         (
             of(self.sigma_bytes, |r| r.sigma_bytes as f64),
@@ -752,7 +757,7 @@ impl Run<'_> {
             }
             let (sigma, tau) = Budgets::of(t).adherence(reports);
             for (what, a) in [("σ", sigma), ("τ", tau)] {
-                if let Some(a) = a {
+                if let Some(a) = a.filter(|a| a.steps > 0) {
                     println!(
                         "  {what} budget, steps made with a tuned P_M: {}",
                         a.describe()

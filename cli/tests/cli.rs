@@ -719,13 +719,14 @@ fn study_then_tune_reuses_the_cache_and_says_when_a_budget_is_infeasible() {
     assert_eq!(v["charts"].as_array().map(Vec::len), Some(0), "{v}");
     assert!(dir.path().join("t.csv").exists());
     assert!(!dir.path().join("t_map.png").exists());
-    // tune on the same scene: everything comes from the cache.
+    // tune on the same scene: everything comes from the cache; adaptive unless asked.
     let mut tune = vec!["tune", "--json", "--utility", "size:1GB"];
     tune.extend_from_slice(&common);
     let o = insitu(&tune, dir.path());
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["generated"].as_u64(), Some(0), "{v}");
+    assert_eq!(v["strategy"], "adaptive", "{v}");
     assert_eq!(
         v["best"]["gamma"].as_f64().map(|g| (g * 100.0).round()),
         Some(1.0),

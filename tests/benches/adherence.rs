@@ -4,10 +4,11 @@
 //!
 //! Per run it prints: steps made with a tuned `P_M` (after the first decision), the share of
 //! them within the budget and the worst overshoot, mean q of the sampled steps, the q regret
-//! against the best `P_M` per step in hindsight (size budgets; see [`hindsight`]), the trials'
-//! node seconds as a share of the run's wall clock, the corrections between tunings and the
-//! retries under the hard limit. Size scenarios run once more with `--size-max` at the budget,
-//! time scenarios with `--time-max`.
+//! against the best `P_M` per step in hindsight (size budgets; see [`hindsight`]), which
+//! counts the q given away to headroom, the mean share of the budget used, the trials' node
+//! seconds as a share of the run's wall clock, the corrections between tunings, the `P_M`
+//! changes per 100 tuned steps and the retries under the hard limit. Size scenarios run once
+//! more with `--size-max` at the budget, time scenarios with `--time-max`.
 //!
 //! Scenarios (the series are written once into `target/tmp/adherence/`):
 //! - `gs128`: Gray–Scott 128³ after 1500 steps, a push every 20 steps, 60 pushes (the demo
@@ -17,7 +18,9 @@
 //! - `gs256`: Gray–Scott 256³ after 500 steps, a push every 20, 20 pushes, `size:200kB`;
 //! - `ocean`: the shared ocean series (12 monthly steps), `size:150kB` (skipped without data);
 //! - `growing`: [`insitu_e2e::drift::growing_structure`] 64³, 30 steps, `size:300kB` and
-//!   `time:0.01`.
+//!   `time:0.01`;
+//! - `character`: [`insitu_e2e::drift::changing_character`] 64³, 16 steps (a smooth orbital,
+//!   then from step 8 a wave pattern of several times its σ), `size:300kB`.
 //!
 //! `cargo bench -p insitu-e2e --bench adherence`. Environment: `INSITU_BIN` the `insitu`
 //! binary to measure (default: this build's), `INSITU_ADHERENCE` a comma list of scenarios
@@ -31,11 +34,16 @@ use insitu_core::adherence::Adherence;
 use insitu_core::evaluate::{evaluate, generate_encoded, render_references, DEFAULT_VIEW_ANGLES};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
-use insitu_core::{Backend, Camera, RaycastParams, Raycaster, TransferFunction, VdiParams};
-use insitu_e2e::drift::{growing_structure, write_series, RunLines, StepLine};
+use insitu_core::{
+    Backend, Camera, Precision, RaycastParams, Raycaster, TransferFunction, VdiParams,
+};
+use insitu_e2e::drift::{changing_character, growing_structure, write_series, RunLines, StepLine};
 use insitu_tuner::ParamGrid;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+/// The precisions the tuner searches by default (the tuner-node's `[grid] precision`).
+const PRECISIONS: [Precision; 2] = [Precision::Bits(6), Precision::Bits(8)];
 
 /// A series to replay and the budgets to keep.
 struct Scenario {
@@ -102,12 +110,11 @@ fn gray_scott(
     path
 }
 
-fn growing(n: usize, steps: usize) -> PathBuf {
-    let path = work_dir().join(format!("growing_{n}x{n}x{n}x{steps}_float32.raw"));
+/// The series `name` of `steps` steps on an `n³` grid, written once from `field(n, t, steps)`.
+fn made(name: &str, n: usize, steps: usize, field: fn(usize, usize, usize) -> Vec<f32>) -> PathBuf {
+    let path = work_dir().join(format!("{name}_{n}x{n}x{n}x{steps}_float32.raw"));
     if !path.exists() {
-        write_series(&work_dir(), "growing", n, steps, |t| {
-            growing_structure(n, t, steps)
-        });
+        write_series(&work_dir(), name, n, steps, |t| field(n, t, steps));
     }
     path
 }
@@ -158,10 +165,11 @@ fn run(bin: &Path, series: &Path, tf: &Path, utility: &str, extra: &[&str]) -> R
     RunLines::parse(&String::from_utf8_lossy(&out.stdout))
 }
 
-/// The best q at step `t` of `series` under σ < `budget` over the tuner's default grid, in
-/// hindsight: at every r the smallest γ whose σ meets the budget (σ falls as γ grows:
-/// bisection), scored as the viz-node scores a step (references at side r, the default test
-/// views, zstd); the best of those q. `None` when no candidate meets the budget.
+/// The best q at step `t` of `series` under σ < `budget` over the tuner's default grid and
+/// precisions, in hindsight: at every r and precision the smallest γ whose σ meets the budget
+/// (σ falls as γ grows: bisection), scored as the viz-node scores a step (references at side
+/// r, the default test views, zstd); the best of those q. `None` when no candidate meets the
+/// budget.
 fn hindsight(
     series: &Path,
     t: usize,
@@ -178,12 +186,16 @@ fn hindsight(
     let tfid = (tf.identity_hash(), "bench");
     let mut spare = None;
     let mut best: Option<(f64, VdiParams)> = None;
-    for &r in &grid.rs {
+    for (&r, &precision) in grid
+        .rs
+        .iter()
+        .flat_map(|r| PRECISIONS.iter().map(move |p| (r, p)))
+    {
         let fits = |g: f32, spare: &mut Option<_>| {
             let p = VdiParams {
                 resolution: r,
                 gamma: g,
-                precision: Default::default(),
+                precision,
             };
             let (_, s) = generate_encoded(&scene, &camera, p, Codec::Zstd, tfid, spare).unwrap();
             (s.sigma_bytes as f64) < budget
@@ -205,7 +217,7 @@ fn hindsight(
         let p = VdiParams {
             resolution: r,
             gamma: grid.gammas[lo],
-            precision: Default::default(),
+            precision,
         };
         let (e, _) = evaluate(
             &scene,
@@ -230,10 +242,14 @@ fn row(label: String, lines: &RunLines, utility: &str, hindsight_of: Option<Hind
     let tuned: Vec<&StepLine> = lines.steps.iter().collect();
     let adherence = match (size, time) {
         (Some(b), _) => Adherence::of(
-            tuned.iter().map(|s| (s.pm_version, s.sigma_bytes as f64)),
+            tuned
+                .iter()
+                .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
             b,
         ),
-        (None, Some(b)) => Adherence::of(tuned.iter().map(|s| (s.pm_version, s.tau_secs)), b),
+        (None, Some(b)) => {
+            Adherence::of(tuned.iter().map(|s| (s.pm_version, s.pm(), s.tau_secs)), b)
+        }
         _ => Adherence::default(),
     };
     let scored: Vec<&StepLine> = tuned
@@ -325,14 +341,31 @@ fn main() {
     if wanted("growing") {
         scenarios.push(Scenario {
             name: "growing",
-            series: growing(64, 30),
+            series: made("growing", 64, 30, growing_structure),
             utilities: vec!["size:300kB", "time:0.01"],
+        });
+    }
+    if wanted("character") {
+        scenarios.push(Scenario {
+            name: "character",
+            series: made("character", 64, 16, changing_character),
+            utilities: vec!["size:300kB"],
         });
     }
     println!("binary: {}", bin.display());
     println!(
-        "{:<34} {:>6} {:>7} {:>7} {:>7} {:>8} {:>8} {:>6} {:>7}",
-        "run", "steps", "within", "worst", "mean q", "regret", "trials", "corr.", "retr/lost"
+        "{:<34} {:>6} {:>7} {:>7} {:>6} {:>7} {:>8} {:>8} {:>6} {:>8} {:>7}",
+        "run",
+        "steps",
+        "within",
+        "worst",
+        "use",
+        "mean q",
+        "regret",
+        "trials",
+        "corr.",
+        "chg/100",
+        "retr/lost"
     );
     for s in &scenarios {
         let (tf_path, tf) = tf_for(&s.series);
@@ -366,15 +399,17 @@ fn main() {
                     hind,
                 );
                 println!(
-                    "{:<34} {:>6} {:>6.0}% {:>6.2}× {:>7.2} {:>8} {:>7.1}% {:>6} {:>7}",
+                    "{:<34} {:>6} {:>6.0}% {:>6.2}× {:>5.0}% {:>7.2} {:>8} {:>7.1}% {:>6} {:>8.1} {:>7}",
                     r.label,
                     r.adherence.steps,
                     100.0 * r.adherence.share(),
                     r.adherence.worst_ratio,
+                    100.0 * r.adherence.mean_ratio,
                     r.mean_q,
                     r.regret.map_or_else(|| "-".into(), |g| format!("{g:.2}")),
                     100.0 * r.trial_share,
                     r.corrections,
+                    r.adherence.changes_per_100(),
                     format!("{}/{}", r.limit_retries, r.lost)
                 );
             }

@@ -4,8 +4,10 @@
 //! [`growing_structure`] is a deterministic field whose structure grows step by step, as a
 //! reaction front spreads: a fixed pattern of plane waves inside a ball whose radius grows
 //! linearly over the series, empty (0) outside, so each step's VDI covers more pixels with
-//! more supersegments than the last at the same `P_M`. Values stay in [0, 1] (two corner
-//! voxels pin the range, so the first step's default transfer function covers every step).
+//! more supersegments than the last at the same `P_M`. [`changing_character`] is one whose
+//! character changes abruptly half-way while its histogram stays: a smooth orbital drifting
+//! slowly, then the same orbital tiled at a third of the size. Values stay in [0, 1] (two corner voxels pin the range, so the first step's
+//! default transfer function covers every step).
 
 use std::f32::consts::TAU;
 use std::io::Write;
@@ -19,6 +21,51 @@ const MODES: u32 = 6;
 /// radius `(0.35 + 0.6 · t / (steps − 1)) · n / 2` (a one-voxel smooth edge), 0 outside; the
 /// waves' directions and phases come from a fixed hash.
 pub fn growing_structure(n: usize, t: usize, steps: usize) -> Vec<f32> {
+    let radius = (0.35 + 0.6 * t as f32 / (steps.max(2) - 1) as f32) * n as f32 / 2.0;
+    waves(n, radius)
+}
+
+/// Step `t` of `steps` of a series that changes character at `steps / 2` while its histogram
+/// does not, on an `n³` grid (x fastest), values in [0, 1]. Before: a hydrogen-like 2p
+/// orbital, `|ψ|² ∝ z² e^(−ρ)` with `ρ = |p − c| / (n / 10)` normalised to a peak of 1, whose
+/// centre `c` drifts by 0.1 n over the first half (smooth: few supersegments per ray). From
+/// `steps / 2`: the same orbital at a third of the size tiled 3 × 3 × 3 (each tile the whole
+/// field shrunk, so the values' distribution is the first half's), drifting alike: 27 lobes
+/// along the rays where there was one, several times the σ at one `P_M`. What tells the two
+/// apart is the structure, not the histogram.
+pub fn changing_character(n: usize, t: usize, steps: usize) -> Vec<f32> {
+    let half = steps / 2;
+    let (tiles, t) = if t >= half { (3, t - half) } else { (1, t) };
+    let side = n as f32;
+    let s = side / 10.0;
+    let drift = 0.1 * side * t as f32 / half.max(1) as f32;
+    let centre = [side / 2.0 - 0.05 * side + drift, side / 2.0, side / 2.0];
+    let peak = 4.0 * (-2.0f32).exp();
+    let tile = side / tiles as f32;
+    let mut v = Vec::with_capacity(n * n * n);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                // The point in the whole field that this point's tile shows.
+                let d: Vec<f32> = [x, y, z]
+                    .iter()
+                    .zip(centre)
+                    .map(|(&p, c)| ((p as f32 % tile) * tiles as f32 - c) / s)
+                    .collect();
+                let rho = d.iter().map(|a| a * a).sum::<f32>().sqrt();
+                v.push((d[2] * d[2] * (-rho).exp() / peak).clamp(0.0, 1.0));
+            }
+        }
+    }
+    v[0] = 0.0;
+    v[n * n * n - 1] = 1.0;
+    v
+}
+
+/// The wave pattern `0.5 + 0.5 · Σ_m a_m sin(k_m·p + φ_m) / Σ_m a_m` inside the ball of
+/// `radius` voxels about the grid's centre (a one-voxel smooth edge), 0 outside; corners
+/// pinned to 0 and 1.
+fn waves(n: usize, radius: f32) -> Vec<f32> {
     let modes: Vec<([f32; 3], f32, f32)> = (0..MODES)
         .map(|m| {
             let h = |i: u32| {
@@ -40,7 +87,6 @@ pub fn growing_structure(n: usize, t: usize, steps: usize) -> Vec<f32> {
         .collect();
     let total: f32 = modes.iter().map(|m| m.2).sum();
     let half = n as f32 / 2.0;
-    let radius = (0.35 + 0.6 * t as f32 / (steps.max(2) - 1) as f32) * half;
     let mut v = Vec::with_capacity(n * n * n);
     for z in 0..n {
         for y in 0..n {
@@ -108,6 +154,13 @@ pub struct StepLine {
     pub tau_secs: f64,
     /// q, dB, on sampled steps.
     pub q_db: Option<f64>,
+}
+
+impl StepLine {
+    /// Its `P_M` as `(r, γ)` (what [`insitu_core::adherence::Adherence`] counts changes of).
+    pub fn pm(&self) -> (u32, f32) {
+        (self.r, self.gamma as f32)
+    }
 }
 
 /// What a `demo` or `replay --json` run printed: its steps (one rank each), its `P_M` changes

@@ -57,6 +57,11 @@ pub struct CharacteristicConfig {
     pub threshold: f64,
     /// Most characteristic steps kept (≥ 1); the most redundant is evicted beyond it.
     pub max: usize,
+    /// A production step made under the last tuning (its decision or a correction of it)
+    /// whose σ is at least this factor over what its decision planned for it is
+    /// characteristic (> 1): its data is not what the plan was measured on, whatever its
+    /// histogram says (docs/tuning.md, "A new character").
+    pub sigma_miss: f64,
 }
 
 impl Default for CharacteristicConfig {
@@ -64,6 +69,7 @@ impl Default for CharacteristicConfig {
         Self {
             threshold: 0.15,
             max: 6,
+            sigma_miss: 1.5,
         }
     }
 }
@@ -83,6 +89,11 @@ pub struct TrialConfig {
     /// and what that tuning leaves of it lapses when it decides (re-tunes are paced by the
     /// share alone, so trials stay near `share` of a run that amortises the first tuning).
     pub burst_secs: f64,
+    /// Trial seconds a tuning for a new character (or a broken budget, or a steered utility)
+    /// may run ahead of `share`: it starts at once instead of waiting for the share to
+    /// accrue, and the trials after it wait until the share has caught up (so the long-run
+    /// share holds).
+    pub overdraft_secs: f64,
     /// How long a trial waits for a node that holds its step to (re)connect, seconds.
     pub hold_wait_secs: f64,
 }
@@ -93,6 +104,7 @@ impl Default for TrialConfig {
             timeout_secs: 120.0,
             share: 0.1,
             burst_secs: 15.0,
+            overdraft_secs: 5.0,
             hold_wait_secs: 10.0,
         }
     }
@@ -246,6 +258,12 @@ impl Config {
         if c.max == 0 {
             return Err(invalid("characteristic.max", "must be ≥ 1"));
         }
+        if !(c.sigma_miss.is_finite() && c.sigma_miss > 1.0) {
+            return Err(invalid(
+                "characteristic.sigma_miss",
+                "must be finite and > 1",
+            ));
+        }
         let t = &self.trials;
         let positive = |v: f64| v.is_finite() && v > 0.0;
         if !positive(t.timeout_secs) {
@@ -256,6 +274,9 @@ impl Config {
         }
         if !(t.burst_secs.is_finite() && t.burst_secs >= 0.0) {
             return Err(invalid("trials.burst_secs", "must be finite and ≥ 0"));
+        }
+        if !(t.overdraft_secs.is_finite() && t.overdraft_secs >= 0.0) {
+            return Err(invalid("trials.overdraft_secs", "must be finite and ≥ 0"));
         }
         if !(t.hold_wait_secs.is_finite() && t.hold_wait_secs >= 0.0) {
             return Err(invalid("trials.hold_wait_secs", "must be finite and ≥ 0"));
@@ -301,6 +322,8 @@ mod tests {
         assert!(bad("[grid]\ngamma = \"0.2:0.1:0.01\"").contains("grid"));
         assert!(bad("[characteristic]\nthreshold = 1.5").contains("characteristic.threshold"));
         assert!(bad("[characteristic]\nmax = 0").contains("characteristic.max"));
+        assert!(bad("[characteristic]\nsigma_miss = 1").contains("characteristic.sigma_miss"));
+        assert!(bad("[trials]\noverdraft_secs = -1").contains("trials.overdraft_secs"));
         assert!(bad("[trials]\nshare = 0").contains("trials.share"));
         assert!(bad("[trials]\ntimeout_secs = -1").contains("trials.timeout_secs"));
         assert!(bad("colour = 3").contains("colour"));

@@ -462,8 +462,9 @@ struct Loop {
     /// Evicted characteristic steps whose fields a running tuning may still ask trials of:
     /// released when it ends (unless characteristic again by then).
     deferred: Vec<u64>,
-    /// The P_M version of the last production step checked against the budget, and how many
-    /// steps made with it in a row ended with one whose τ broke τ_target.
+    /// The version of the tuned decision the last production step checked against the budget
+    /// was made under, and how many steps made under it in a row ended with one whose τ broke
+    /// τ_target.
     slow: (u64, u32),
     /// Whether the last tuning was cut short for a newer step (the next one is not: a field
     /// that changes character at every step would otherwise never be tuned for).
@@ -577,11 +578,11 @@ impl Loop {
         None
     }
 
-    /// Why the production step `p` (made with the version in force) starts a re-tuning, if
-    /// it does: a σ over the budget at once, a τ over it when it is the `time_breaks`-th such
-    /// step in a row.
-    fn retunes(&mut self, p: &Pending) -> Option<String> {
-        let version = p.pm_version;
+    /// Why the production step `p` (made under the tuning whose decision is version
+    /// `tuned`, or a correction of it) starts a re-tuning, if it does: a σ over the budget at
+    /// once, a τ over it when it is the `time_breaks`-th such step in a row under that tuning.
+    fn retunes(&mut self, tuned: u64, p: &Pending) -> Option<String> {
+        let version = tuned;
         let streak = if self.slow.0 == version {
             self.slow.1
         } else {
@@ -606,19 +607,36 @@ impl Loop {
         why
     }
 
-    /// The version in force, when a production step made with it that breaks the budget
-    /// should start a re-tuning: none is pending or running, and the decision was found best
-    /// on the characteristic steps as they are (after a forced step, the re-tuning that takes
-    /// it into account must finish first; after a failed one, only a new characteristic step
+    /// The version of the last tuning's decision, when no tuning is pending or running: a
+    /// production step made with it or a later version (a correction of it) is held against
+    /// what that tuning measured. `validated` also asks that the decision was found best on
+    /// the characteristic steps as they are (after a forced step, the re-tuning that takes it
+    /// into account must finish first; after a failed one, only a new characteristic step
     /// starts another).
-    fn unforced_version(&self) -> Option<u64> {
+    fn unforced_tuning(&self, validated: bool) -> Option<u64> {
         if self.dirty.is_some() || self.engine.counters().tuning {
             return None;
         }
         let s = self.engine.state();
-        s.current()
-            .filter(|_| s.validated == s.tracker.step_indices())
+        s.tuned()
+            .filter(|_| !validated || s.validated == s.tracker.step_indices())
             .map(|d| d.pm_version)
+    }
+
+    /// Whether the production step made with version `v` has a size miss (see
+    /// [`Cause::SizeMiss`]): σ at least `characteristic.sigma_miss` times `planned`, made under
+    /// the last tuning (no tuning pending or running).
+    fn size_miss(&self, v: u64, p: &Pending, planned: Option<f64>) -> Option<Cause> {
+        let threshold = self.engine.cfg.characteristic.sigma_miss;
+        let planned_bytes = planned?;
+        let tuned = self.unforced_tuning(false)?;
+        (v >= tuned && p.sigma_bytes as f64 >= threshold * planned_bytes).then_some(
+            Cause::SizeMiss {
+                sigma_bytes: p.sigma_bytes,
+                planned_bytes,
+                threshold,
+            },
+        )
     }
 
     fn force(
@@ -627,7 +645,7 @@ impl Loop {
         h: &[f64; BINS],
         world_size: u32,
         production: Option<(Candidate, insitu_core::evaluate::Sizing)>,
-        why: String,
+        cause: Cause,
     ) {
         let e = self.engine.clone();
         let evicted = {
@@ -648,10 +666,7 @@ impl Loop {
             );
             self.release_evicted(gone);
         }
-        let trigger = Trigger {
-            step,
-            cause: Cause::BrokeBudget { why },
-        };
+        let trigger = Trigger { step, cause };
         info!(step, reason = %trigger, "step becomes characteristic");
         self.mark_dirty(trigger);
     }
@@ -672,20 +687,12 @@ impl Loop {
     /// now would apply from (or a finer one clears it), pushes a correction of the tuned
     /// decision. Nothing before the first tuning, without a budget, or while no candidate of
     /// the tuning was measured.
-    fn control(&mut self, step: u64, p: &Pending) {
+    fn control(&mut self, step: u64, p: &Pending, planned_sigma_bytes: Option<f64>) {
         let e = self.engine.clone();
         let mut ctl = e.control();
         if !ctl.active() {
             return;
         }
-        // What the decision the step was made under planned for it.
-        let planned_sigma_bytes = e
-            .state()
-            .decisions
-            .iter()
-            .rev()
-            .find(|d| d.pm_version == p.pm_version && d.candidate == p.candidate)
-            .map(|d| d.predicted.sizing.sigma_bytes as f64);
         ctl.observe(Observation {
             step,
             candidate: p.candidate,
@@ -725,9 +732,10 @@ impl Loop {
             notes.push_str(INFEASIBLE);
         }
         let reason = format!(
-            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {at}; {} kB planned under {}{notes}",
+            "correction after step {step}: production σ {:.2}× the tuning's measurements at its P_M, forecast {:.2}× by step {}; {} kB planned under {}{notes}",
             k.sigma_now,
             k.sigma,
+            k.at,
             (plan.sigma_bytes / 1e3).round(),
             e.utility()
         );
@@ -769,13 +777,25 @@ impl Loop {
         if self.recent.len() > STALE_STEPS as usize {
             self.recent.pop_front();
         }
-        self.control(step, &p);
+        // What the decision the step was made under planned for it.
+        let planned = e
+            .state()
+            .decisions
+            .iter()
+            .rev()
+            .find(|d| d.pm_version == p.pm_version && d.candidate == p.candidate)
+            .map(|d| d.predicted.sizing.sigma_bytes as f64)
+            .filter(|&b| b > 0.0);
+        self.control(step, &p, planned);
         let production = Some((p.candidate, p.sizing()));
-        if self.unforced_version() == Some(p.pm_version) {
-            if let Some(why) = self.retunes(&p) {
-                self.force(step, &h, p.world_size, production, why);
-                return;
-            }
+        let cause = self.size_miss(p.pm_version, &p, planned).or_else(|| {
+            let tuned = self.unforced_tuning(true).filter(|&t| p.pm_version >= t)?;
+            let why = self.retunes(tuned, &p)?;
+            Some(Cause::BrokeBudget { why })
+        });
+        if let Some(cause) = cause {
+            self.force(step, &h, p.world_size, production, cause);
+            return;
         }
         let verdict = {
             let mut s = e.state();
@@ -842,15 +862,15 @@ impl Loop {
             .current()
             .filter(|d| !d.steered)
             .map(|d| d.predicted.q());
-        if let (Some(v), Some(pq)) = (self.unforced_version(), predicted) {
-            if v == a.pm_version && q < pq - e.cfg.q_margin_db {
+        if let (Some(v), Some(pq)) = (self.unforced_tuning(true), predicted) {
+            if a.pm_version >= v && q < pq - e.cfg.q_margin_db {
                 let h = self.recent.iter().find(|(s, _)| *s == r.step).map(|x| x.1);
                 if let Some(h) = h {
                     let why = format!(
                         "q {q:.2} dB is more than {} dB below the predicted {pq:.2} dB",
                         e.cfg.q_margin_db
                     );
-                    self.force(r.step, &h, a.world_size, None, why);
+                    self.force(r.step, &h, a.world_size, None, Cause::BrokeBudget { why });
                     return;
                 }
             }
@@ -1690,6 +1710,75 @@ mod tests {
         assert!(matches!(c, Cause::NewCharacter { .. }), "{c:?}");
         l.summary(3, summary(3, 3, 5000, 1));
         assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+    }
+
+    /// A step made with the tuned candidate (r 64, γ 0.01, planned at 900 B) and `sigma`
+    /// bytes, made with `version`, in histogram bin 3.
+    fn made(step: u64, sigma: u64, version: u64) -> pb::StepSummary {
+        pb::StepSummary {
+            resolution: 64,
+            gamma: 0.01,
+            ..summary(step, 3, sigma, version)
+        }
+    }
+
+    /// A step whose σ is 1.5× what its decision planned is characteristic though its
+    /// histogram is the characteristic step's and it is within the budget (a new character
+    /// by structure); one at 1.44× is not; none while a tuning is due.
+    #[test]
+    fn a_step_far_over_its_plan_is_a_new_character_whatever_its_histogram() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned_for(dir.path(), "size:5000", 2);
+        l.summary(1, made(1, 1300, 1));
+        assert!(l.dirty.is_none(), "{:?}", l.dirty);
+        l.summary(2, made(2, 1350, 1));
+        let d = l.dirty.clone().unwrap();
+        assert_eq!(
+            (d.step, d.cause.clone()),
+            (
+                2,
+                Cause::SizeMiss {
+                    sigma_bytes: 1350,
+                    planned_bytes: 900.0,
+                    threshold: 1.5
+                }
+            )
+        );
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+        // The next step alike, while that tuning is due, changes nothing.
+        l.summary(3, made(3, 4000, 1));
+        assert_eq!(l.dirty.as_ref().map(|d| d.step), Some(2));
+        assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+    }
+
+    /// A step made under a correction of the tuned decision that breaks the budget makes a
+    /// tuning due as one made with the tuned decision does; a step made with a version older
+    /// than the tuned one does not.
+    #[test]
+    fn a_budget_broken_under_a_correction_makes_a_tuning_due() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut l = tuned(dir.path());
+        {
+            let mut s = l.engine.state();
+            let mut d = s.current().unwrap().clone();
+            d.pm_version = 2;
+            d.candidate.gamma = 0.02;
+            d.corrects = Some(1);
+            d.predicted.sizing.sigma_bytes = 800;
+            s.decisions.push(d);
+        }
+        l.summary(
+            1,
+            pb::StepSummary {
+                gamma: 0.02,
+                ..made(1, 1100, 2)
+            },
+        );
+        let d = l.dirty.clone().unwrap();
+        assert!(
+            matches!(&d.cause, Cause::BrokeBudget { why } if why.contains("σ 1100 B")),
+            "{d:?}"
+        );
     }
 
     /// A τ over τ_target re-tunes only as the `time_breaks`-th such step in a row (made with

@@ -326,7 +326,7 @@ impl State {
 
     /// The σ/τ surface measured on `steps` (size probes and trials): each candidate's worst
     /// case over the steps, from the candidates measured on all of them (on any of them when
-    /// none was).
+    /// none was); with q where the trials scored a candidate on every step (its worst).
     ///
     /// τ comes from the trials alone. A trial is timed on a node that has just run another
     /// (one after another, its threads awake and its caches warm); a production step after
@@ -373,6 +373,18 @@ impl State {
             }
         }
         let whole = by.values().any(|e| e.3.len() == steps.len());
+        // q: the worst over the steps of the candidates the trials scored on every step.
+        let mut scored: BTreeMap<(u32, u32, u32), (Candidate, f64, Vec<u64>)> = BTreeMap::new();
+        for t in self.trials.iter().filter(|t| steps.contains(&t.step)) {
+            let c = t.measurement.candidate();
+            let e = scored
+                .entry(c.key())
+                .or_insert((c, f64::INFINITY, Vec::new()));
+            e.1 = e.1.min(t.measurement.q());
+            if !e.2.contains(&t.step) {
+                e.2.push(t.step);
+            }
+        }
         Surface::new(
             by.into_values()
                 .filter(|e| !whole || e.3.len() == steps.len())
@@ -381,6 +393,12 @@ impl State {
                     sigma_bytes,
                     tau_secs,
                 }),
+        )
+        .with_q(
+            scored
+                .into_values()
+                .filter(|e| e.2.len() == steps.len())
+                .map(|e| (e.0, e.1)),
         )
     }
 

@@ -25,6 +25,16 @@ pub enum Cause {
         /// The threshold it exceeded.
         threshold: f64,
     },
+    /// A production step whose σ came out far over what its decision planned for it: the
+    /// data changed character in a way its histogram does not show (structure, not values).
+    SizeMiss {
+        /// The step's σ, bytes (summed over its ranks).
+        sigma_bytes: u64,
+        /// What its decision planned for it, bytes.
+        planned_bytes: f64,
+        /// The factor over the plan that makes a step characteristic.
+        threshold: f64,
+    },
     /// A production step broke the budget; `why` names the indicator and by how much.
     BrokeBudget {
         /// E.g. `σ 1000 B ≥ σ_target 1000 B`.
@@ -56,6 +66,16 @@ impl fmt::Display for Trigger {
                 f,
                 "step {step} became characteristic (histogram distance {distance:.3} > threshold {threshold})"
             ),
+            Cause::SizeMiss {
+                sigma_bytes,
+                planned_bytes,
+                threshold,
+            } => write!(
+                f,
+                "step {step} became characteristic (σ {sigma_bytes} B is {:.2}× the {:.0} B its P_M was planned at, over {threshold}×: the data changed character)",
+                *sigma_bytes as f64 / planned_bytes,
+                planned_bytes
+            ),
             Cause::BrokeBudget { why } => {
                 write!(f, "production step {step} broke the budget ({why})")
             }
@@ -82,6 +102,14 @@ mod tests {
                 threshold: 0.15
             }),
             "step 7 became characteristic (histogram distance 0.200 > threshold 0.15)"
+        );
+        assert_eq!(
+            t(Cause::SizeMiss {
+                sigma_bytes: 300,
+                planned_bytes: 100.0,
+                threshold: 1.5
+            }),
+            "step 7 became characteristic (σ 300 B is 3.00× the 100 B its P_M was planned at, over 1.5×: the data changed character)"
         );
         assert_eq!(
             t(Cause::BrokeBudget {

@@ -8,7 +8,7 @@
 use crate::config::TrialConfig;
 use crate::engine::Engine;
 use crate::state::{Decision, SizeProbe, Trial};
-use crate::trigger::Trigger;
+use crate::trigger::{Cause, Trigger};
 use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
@@ -63,11 +63,28 @@ struct StepOracle {
     world_size: u32,
     generations: u64,
     generation_secs: f64,
+    /// Trial seconds this tuning may run ahead of the allowance (see [`overdraft`]).
+    overdraft: f64,
+}
+
+/// Trial seconds a tuning for `trigger` may run ahead of the allowance: a new character, a
+/// broken budget or a steered utility starts its tuning at once (`trials.overdraft_secs`), and
+/// the trials after it wait until the share has caught up; none for a resumed or interrupted
+/// tuning, or the first (the burst is its).
+fn overdraft(t: &TrialConfig, trigger: &Trigger) -> f64 {
+    match trigger.cause {
+        Cause::NewCharacter { .. }
+        | Cause::SizeMiss { .. }
+        | Cause::BrokeBudget { .. }
+        | Cause::Steered { .. } => t.overdraft_secs,
+        Cause::First | Cause::Lost { .. } | Cause::Resume => 0.0,
+    }
 }
 
 impl StepOracle {
     /// Waits until the trials may spend more (the share of the wall clock, after the burst,
-    /// which after the first tuning's decision is what that tuning used).
+    /// which after the first tuning's decision is what that tuning used, and this tuning's
+    /// overdraft).
     fn pace(&self) {
         let t = &self.engine.cfg.trials;
         while !self.engine.stopping.load(Ordering::Relaxed) {
@@ -75,7 +92,8 @@ impl StepOracle {
                 let c = self.engine.counters();
                 (c.trial_secs, c.burst_used)
             };
-            let allowed = allowance(t, burst_used, self.engine.started.elapsed().as_secs_f64());
+            let allowed = allowance(t, burst_used, self.engine.started.elapsed().as_secs_f64())
+                + self.overdraft;
             if spent <= allowed {
                 return;
             }
@@ -276,7 +294,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
         return true;
     }
     let secs0 = engine.counters().trial_secs;
-    let outcome = match search(engine, &steps, &world_sizes) {
+    let outcome = match search(engine, &steps, &world_sizes, trigger) {
         Ok(o) => o,
         Err(e) => {
             say_why_it_stopped(engine, &e);
@@ -313,7 +331,9 @@ fn search(
     engine: &Arc<Engine>,
     steps: &[u64],
     world_sizes: &std::collections::BTreeMap<u64, u32>,
+    trigger: &Trigger,
 ) -> Result<Outcome, StudyError> {
+    let overdraft = overdraft(&engine.cfg.trials, trigger);
     let oracles: Vec<Box<dyn Oracle>> = steps
         .iter()
         .map(|&step| {
@@ -323,6 +343,7 @@ fn search(
                 world_size: world_sizes.get(&step).copied().unwrap_or(1),
                 generations: 0,
                 generation_secs: 0.0,
+                overdraft,
             }) as Box<dyn Oracle>
         })
         .collect();
@@ -379,6 +400,11 @@ fn decide(
 ) {
     let from_step = engine.decision_start();
     let surface = engine.state().surface(&steps, best.precision);
+    if matches!(trigger.cause, Cause::SizeMiss { .. }) {
+        // The data changed character at the trigger step, and this surface was measured on
+        // it: production before it measured other data.
+        engine.control().rebase(trigger.step);
+    }
     let plan = engine
         .control()
         .choose(&surface, best.candidate(), from_step)
@@ -390,7 +416,14 @@ fn decide(
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     let pushed = plan.map_or(best.candidate(), |p| p.candidate);
     // After a steered scene the decision in force predicts nothing: the tuning's is pushed.
-    if old == Some(pushed) && s.current().is_some_and(|d| !d.steered) {
+    // After a correction the tuning's decision is pushed too, though the P_M is the same: the
+    // corrections that follow are made on its surface and under its ceiling, not on those of
+    // the tuning the correction adjusted (a new version of the same r and γ changes no
+    // picture).
+    if old == Some(pushed)
+        && s.current()
+            .is_some_and(|d| !d.steered && d.corrects.is_none())
+    {
         info!(r = pushed.r, gamma = pushed.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
         s.validated = steps;
         engine.save(&s);
@@ -402,12 +435,13 @@ fn decide(
             let q = crate::engine::q_on(&s, &steps, p.candidate);
             let finer = p.candidate.r == best.r && p.candidate.gamma < best.gamma;
             let reason = format!(
-                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {from_step}{}",
+                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {}{}",
                 best.r,
                 best.gamma,
                 best.q(),
                 if finer { "refined" } else { "coarsened" },
                 p.forecast.sigma,
+                p.forecast.at,
                 if p.feasible { "" } else { crate::engine::INFEASIBLE }
             );
             (
@@ -446,7 +480,6 @@ mod tests {
     use super::*;
     use crate::config::{Config, GridConfig};
     use crate::state::State;
-    use crate::trigger::Cause;
     use insitu_tuner::control::Observation;
 
     /// An engine under `utility` over the grid r 64, 128 × γ 0.01, 0.02, 0.04, whose state
@@ -575,6 +608,33 @@ mod tests {
             d.reason.contains("coarsened") && d.reason.ends_with(crate::engine::INFEASIBLE),
             "{d:?}"
         );
+    }
+
+    /// A tuning for a new character (by histogram or by σ), a broken budget or a steered
+    /// utility may run ahead of the share by the overdraft; the first (which has the burst),
+    /// a resumed one and one after a lost step may not.
+    #[test]
+    fn a_tuning_for_a_new_character_may_run_ahead_of_the_share() {
+        let t = TrialConfig::default();
+        let of = |cause| overdraft(&t, &Trigger { step: 1, cause });
+        for cause in [
+            Cause::NewCharacter {
+                distance: 0.3,
+                threshold: 0.15,
+            },
+            Cause::SizeMiss {
+                sigma_bytes: 3,
+                planned_bytes: 1.0,
+                threshold: 1.5,
+            },
+            Cause::BrokeBudget { why: "σ".into() },
+            Cause::Steered { what: "u".into() },
+        ] {
+            assert_eq!(of(cause), t.overdraft_secs);
+        }
+        for cause in [Cause::First, Cause::Resume, Cause::Lost { steps: vec![1] }] {
+            assert_eq!(of(cause), 0.0);
+        }
     }
 
     /// Before the first decision trials may use the whole burst; after it, what the first

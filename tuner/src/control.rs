@@ -88,6 +88,9 @@ pub struct Surface {
     sigma: BTreeMap<u32, Curve>,
     /// ln τ of the slowest timing at each resolution (see [`Surface::tau`]).
     tau: BTreeMap<u32, f64>,
+    /// q (dB) over ln γ at each resolution where trials scored candidates (see
+    /// [`Surface::q`]).
+    q: BTreeMap<u32, Curve>,
     /// The precision of its points (the first point's; points at another are left out): σ
     /// and τ of a candidate at another precision are not on it.
     precision: Option<Precision>,
@@ -116,6 +119,45 @@ impl Surface {
             }
         }
         s
+    }
+
+    /// The surface with the q (dB) the trials scored: `(candidate, q)` pairs, the worst case
+    /// over the characteristic steps; pairs at another precision, or with a q that is not
+    /// finite, are left out; the same candidate twice keeps the smaller q.
+    pub fn with_q(mut self, scored: impl IntoIterator<Item = (Candidate, f64)>) -> Self {
+        for (c, q) in scored {
+            let g = f64::from(c.gamma);
+            if self.precision.is_some_and(|p| p != c.precision)
+                || !(c.r > 0 && g > 0.0 && g.is_finite() && q.is_finite())
+            {
+                continue;
+            }
+            let curve = self.q.entry(c.r).or_default();
+            match curve.binary_search_by(|p| p.0.total_cmp(&g.ln())) {
+                Ok(i) => curve[i].1 = curve[i].1.min(q),
+                Err(i) => curve.insert(i, (g.ln(), q)),
+            }
+        }
+        self
+    }
+
+    /// q of `c`, dB, where the trials scored its resolution on both sides of its γ (or at its
+    /// γ): interpolated linearly in ln γ between the two nearest scored; `None` elsewhere (q
+    /// is not extrapolated, and across resolutions it is not one curve: it peaks at some r,
+    /// Fig. 7).
+    pub fn q(&self, c: Candidate) -> Option<f64> {
+        if self.precision.is_some_and(|p| p != c.precision) {
+            return None;
+        }
+        let curve = self.q.get(&c.r)?;
+        let x = f64::from(c.gamma).ln();
+        let i = curve.iter().position(|p| p.0 >= x)?;
+        let b = curve[i];
+        if b.0 == x {
+            return Some(b.1);
+        }
+        let a = curve[i.checked_sub(1)?];
+        Some(a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0))
     }
 
     /// Whether no σ was measured.
@@ -267,6 +309,13 @@ pub struct Forecast {
     /// σ, which has no timing noise, bounds it; on still data σ does not grow, and the noise
     /// of the timings is not read as growth.
     pub tau_growth_per_step: f64,
+    /// σ's growth per unit of step index as a trend to plan a horizon on (a factor): the
+    /// Theil–Sen slope over every pair of the window's steps made with one `P_M`, no more
+    /// than `sigma_growth_per_step`; `None` with fewer than three such pairs. Between steps
+    /// of different `P_M` the growth carries the surface's error at each, after a change of
+    /// character it is the jump, and between consecutive steps it is the noise of a step's σ
+    /// (±4 % at one `P_M` on still data): none is a trend.
+    pub trend_per_step: Option<f64>,
     /// The newest production step.
     pub newest: u64,
     /// The step planned for.
@@ -302,6 +351,11 @@ pub struct Controller {
     /// A step back towards the tuned `P_M` is taken only when its forecast clears the plan by
     /// this share.
     pub hysteresis: f64,
+    /// Production steps (in strides of the step index) a change of `P_M` is planned to hold
+    /// for: a new candidate is chosen for the forecast that many steps past the one it
+    /// applies from, so that on growing data it is not outgrown at once (see
+    /// [`Controller::choose`]). 0 plans for the first step alone.
+    pub horizon: u64,
     grid: ParamGrid,
     window: VecDeque<Observation>,
     /// The model's miss (≥ 1): after a step over the σ budget, its σ over what its decision
@@ -319,6 +373,26 @@ pub struct Controller {
 /// Production steps (counted in observations) a candidate's own measurement is remembered.
 pub const MEMORY: u64 = 32;
 
+/// The default [`Controller::horizon`], steps: on Gray–Scott 128³ (σ growing 4 % a step at one
+/// `P_M`) a change planned for the next step alone was outgrown two to four steps later, 10
+/// corrections in 51 steps.
+pub const HORIZON: u64 = 8;
+
+/// The least gain in predicted q (dB) that is worth a visible change of `P_M` towards a finer
+/// one at the same resolution, where the trials scored both (see [`Controller::correct`]).
+pub const Q_GAIN_DB: f64 = 0.5;
+
+/// As [`Q_GAIN_DB`] for a change of resolution: r changes less often than γ.
+pub const Q_GAIN_R_DB: f64 = 1.0;
+
+/// Where the trials did not score both, the least growth of σ (a factor over the `P_M` in
+/// force's forecast σ) that is worth a change towards a finer `P_M` at the same resolution:
+/// q rises with the bytes a VDI spends, and a change that spends few more is not seen.
+pub const SIGMA_GAIN: f64 = 1.2;
+
+/// As [`SIGMA_GAIN`] for a change of resolution.
+pub const SIGMA_GAIN_R: f64 = 1.4;
+
 impl Controller {
     /// A controller for the budgets `(σ_target bytes, τ_target seconds)` over `grid`.
     pub fn new(budgets: (Option<u64>, Option<f64>), headroom: f64, grid: ParamGrid) -> Self {
@@ -327,6 +401,7 @@ impl Controller {
             tau_target: budgets.1,
             headroom,
             hysteresis: 0.1,
+            horizon: HORIZON,
             grid,
             window: VecDeque::with_capacity(WINDOW),
             miss: 1.0,
@@ -375,6 +450,16 @@ impl Controller {
         }
     }
 
+    /// Forgets what production steps before `step` measured, and the model's miss: the data
+    /// changed character at `step`, and a tuning on it has just replaced the surface, so the
+    /// ratios of older steps to it (measured on other data) and the miss of the old surface
+    /// say nothing of what comes next.
+    pub fn rebase(&mut self, step: u64) {
+        self.window.retain(|o| o.step >= step);
+        self.seen.retain(|_, o| o.step >= step);
+        self.miss = 1.0;
+    }
+
     /// The production steps remembered, oldest first.
     pub fn observations(&self) -> impl Iterator<Item = &Observation> {
         self.window.iter()
@@ -407,6 +492,16 @@ impl Controller {
         if slopes.is_empty() {
             slopes = slope(false);
         }
+        // The trend: the Theil–Sen slope over every pair of the window's steps made with one
+        // P_M (three pairs at least), no more than the slope above.
+        let pairs: Vec<f64> = ks
+            .iter()
+            .enumerate()
+            .flat_map(|(i, a)| ks[i + 1..].iter().map(move |b| (a, b)))
+            .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
+            .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
+            .collect();
+        let trend = (pairs.len() >= 3).then(|| median(pairs));
         let slope = median(slopes).max(0.0);
         let grown = growth(slope, newest, at);
         // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
@@ -430,6 +525,7 @@ impl Controller {
             sigma_growth_per_step: slope.exp(),
             tau: tau.map_or(1.0, f64::exp),
             tau_growth_per_step: tau_slope.exp(),
+            trend_per_step: trend.map(|t| t.clamp(0.0, slope).exp()),
             newest,
             at,
         })
@@ -524,14 +620,40 @@ impl Controller {
         (sigma, tau, load <= 1.0)
     }
 
-    /// The `P_M` for step `at`: the finest candidate at a resolution no finer than `tuned`'s
-    /// whose forecast meets the plan, searched from `tuned`'s resolution down (γ from the
-    /// finest measured at that resolution up to [`gamma_span`] times `tuned`'s), else the
-    /// smallest γ that meets the plan at any lower resolution, else the candidate forecast
-    /// nearest the plan (the finest γ of equal ones).
+    /// The `P_M` from step `at` on: the finest candidate at a resolution no finer than
+    /// `tuned`'s whose forecast meets the plan, searched from `tuned`'s resolution down (γ
+    /// from the finest measured at that resolution up to [`gamma_span`] times `tuned`'s),
+    /// else the smallest γ that meets the plan at any lower resolution, else the candidate
+    /// forecast nearest the plan (the finest γ of equal ones). The forecast is the one for
+    /// [`Self::horizon`] steps past `at` by the trend ([`Forecast::trend_per_step`]), so
+    /// that the choice holds that long, where there is a trend and some candidate holds that
+    /// long; else the forecast for `at` alone.
     /// `None` before there is a forecast.
     pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
-        let f = self.forecast(surface, at)?;
+        let next = self.forecast(surface, at)?;
+        let lasting = at.saturating_add(self.horizon.saturating_mul(self.stride()));
+        if let Some(trend) = next.trend_per_step.filter(|_| lasting > at) {
+            // The forecast for `at`, carried on by the trend to the horizon (τ by no more
+            // than its own growth).
+            let steps = (lasting - at) as f64;
+            let grown = (trend.ln() * steps).min(MAX_GROWTH.ln());
+            let tau_grown = (next.tau_growth_per_step.ln().min(trend.ln()) * steps).max(0.0);
+            let f = Forecast {
+                sigma: next.sigma * grown.exp(),
+                tau: next.tau * tau_grown.min(MAX_GROWTH.ln()).exp(),
+                at: lasting,
+                ..next
+            };
+            let p = self.choose_for(surface, tuned, f);
+            if p.feasible {
+                return Some(p);
+            }
+        }
+        Some(self.choose_for(surface, tuned, next))
+    }
+
+    /// [`Self::choose`] under the forecast `f`.
+    fn choose_for(&self, surface: &Surface, tuned: Candidate, f: Forecast) -> Plan {
         let plan = |c: Candidate, feasible: bool| {
             let (sigma_bytes, tau_secs, _) = self.fits(surface, &f, c, 1.0);
             Plan {
@@ -606,16 +728,21 @@ impl Controller {
                 |(c, _)| c,
             )
         };
-        Some(match found {
+        match found {
             Some(c) => plan(c, true),
             None => plan(nearest(), false),
-        })
+        }
     }
 
-    /// A change of `P_M` for step `at`, when one is due: [`Self::choose`]'s candidate when the
-    /// `P_M` in force (`current`) misses the plan under the forecast, or when the candidate is
-    /// finer than `current` and clears the plan by the hysteresis. `None` when `current`
-    /// should stay.
+    /// A change of `P_M` from step `at`, when one is due. When the `P_M` in force (`current`)
+    /// misses the budget under the forecast for `at` (the budget is at risk; the plan, the
+    /// budget less the headroom, is what a new choice aims at): [`Self::choose`]'s candidate
+    /// at a resolution no finer than `current`'s. Otherwise only towards a finer
+    /// candidate, and only when it is worth a visible change: it clears the plan by the
+    /// hysteresis for the whole horizon, and its predicted q exceeds `current`'s by
+    /// [`Q_GAIN_DB`] ([`Q_GAIN_R_DB`] for another resolution) where the trials scored both,
+    /// elsewhere its σ forecast is [`SIGMA_GAIN`] ([`SIGMA_GAIN_R`]) times `current`'s.
+    /// `None` when `current` should stay.
     pub fn correct(
         &self,
         surface: &Surface,
@@ -623,20 +750,37 @@ impl Controller {
         current: Candidate,
         at: u64,
     ) -> Option<Plan> {
+        let next = self.forecast(surface, at)?;
+        // At risk: forecast at the budget itself (the headroom is there to absorb a step's
+        // noise, and a forecast inside it breaks nothing).
+        let budget = 1.0 / (1.0 - self.headroom).max(f64::EPSILON);
+        if !self.fits(surface, &next, current, budget).2 {
+            let ceiling = Candidate {
+                r: tuned.r.min(current.r),
+                ..tuned
+            };
+            return self
+                .choose(surface, ceiling, at)
+                .filter(|p| p.candidate != current);
+        }
         let p = self.choose(surface, tuned, at)?;
-        if p.candidate == current {
-            return None;
-        }
-        let current_fits = self.fits(surface, &p.forecast, current, 1.0).2;
-        if !current_fits {
-            return Some(p);
-        }
         let finer = p.candidate.r > current.r
             || (p.candidate.r == current.r && p.candidate.gamma < current.gamma);
         let clears = self
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
             .2;
-        (finer && clears).then_some(p)
+        (p.feasible && finer && clears && self.worth(surface, &p, current)).then_some(p)
+    }
+
+    /// Whether the finer `p` gains enough over `current` to be worth a visible change (see
+    /// [`Self::correct`]).
+    fn worth(&self, surface: &Surface, p: &Plan, current: Candidate) -> bool {
+        let other_r = p.candidate.r != current.r;
+        if let (Some(a), Some(b)) = (surface.q(p.candidate), surface.q(current)) {
+            return a - b >= if other_r { Q_GAIN_R_DB } else { Q_GAIN_DB };
+        }
+        let now = self.forecast_at(surface, &p.forecast, current, 1.0).0;
+        p.sigma_bytes >= now * if other_r { SIGMA_GAIN_R } else { SIGMA_GAIN }
     }
 }
 
@@ -828,10 +972,21 @@ mod tests {
             (f.sigma - 1.1f64.powi(4)).abs() < 1e-3,
             "one step ahead: {f:?}"
         );
+        // Planned for the next step alone (no horizon): at r 256, 1e6·0.01/γ·1.4641 ≤ 1.064e6
+        // needs γ ≥ 0.0138: the grid's next γ, 0.015.
+        ctl.horizon = 0;
         let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
-        // At r 256: 1e6·0.01/γ·1.4641 ≤ 1.064e6 needs γ ≥ 0.0138: the grid's next γ, 0.015.
         assert_eq!(p.candidate, c(256, g(3)));
         assert!(p.feasible && p.sigma_bytes <= 0.95 * 1_120_000.0);
+        // Planned to hold 8 steps (of 10): k = 1.1^12 = 3.14 by step 120; r 256 and r 192 would
+        // need γ beyond their spans, r 128 at the tuned γ holds (785 kB).
+        ctl.horizon = HORIZON;
+        let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
+        assert_eq!((p.candidate, p.forecast.at), (c(128, g(2)), 120), "{p:?}");
+        assert!(
+            (p.sigma_bytes - 250_000.0 * 1.1f64.powi(12)).abs() < 1.0,
+            "{p:?}"
+        );
         // 3 % more than the model still fits the plan: no change.
         let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
         observed(&mut ctl, 0, tuned, 1.03);
@@ -1211,5 +1366,110 @@ mod tests {
         // The float point was left out: σ at r 64 follows the 8-bit law.
         let r64 = at(c(64, 0.02), Precision::Bits(8));
         assert!((s.sigma(r64).unwrap() / law(r64) - 1.0).abs() < 0.2);
+    }
+
+    /// q is interpolated between the γ the trials scored at a resolution, the worst of a
+    /// candidate scored twice, and not extrapolated beyond them or to another resolution.
+    #[test]
+    fn q_is_read_between_scored_candidates_only() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(8))]).with_q([
+            (c(256, g(2)), 40.0),
+            (c(256, g(8)), 30.0),
+            (c(256, g(8)), 31.0),
+            (c(128, g(4)), f64::NAN),
+        ]);
+        // ln-γ halfway between 0.01 and 0.04 is 0.02.
+        assert!((s.q(c(256, g(4))).unwrap() - 35.0).abs() < 1e-9);
+        assert_eq!(s.q(c(256, g(8))), Some(30.0));
+        assert_eq!(s.q(c(256, g(1))), None, "below the scored γ");
+        assert_eq!(s.q(c(256, g(16))), None, "above");
+        assert_eq!(s.q(c(128, g(4))), None, "another resolution; NaN left out");
+    }
+
+    /// Not at risk, a finer `P_M` is taken only when it is worth a visible change: by q where
+    /// the trials scored both (0.5 dB at one resolution, 1 dB across), else by σ (20 %, 40 %).
+    #[test]
+    fn a_finer_p_m_is_taken_only_when_the_gain_is_worth_the_change() {
+        let tuned = c(256, g(2));
+        let current = c(256, g(3));
+        let base = [c(256, g(2)), c(256, g(3)), c(256, g(4))];
+        // The field shrank to k = 0.5: the tuned P_M fits with room.
+        let with_q = |q_tuned: f64| {
+            let s = surface_of(&base).with_q([(tuned, q_tuned), (current, 40.0)]);
+            let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+            observed(&mut ctl, 0, current, 0.5);
+            ctl.correct(&s, tuned, current, 10).map(|p| p.candidate)
+        };
+        assert_eq!(with_q(40.3), None, "0.3 dB is not worth a change");
+        assert_eq!(with_q(40.6), Some(tuned));
+        // Unscored: by σ, 1.5× the current's (γ 0.015 → 0.01) is worth it, 1.07× is not.
+        let s = surface_of(&base);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        observed(&mut ctl, 0, current, 0.5);
+        assert_eq!(
+            ctl.correct(&s, tuned, current, 10).map(|p| p.candidate),
+            Some(tuned)
+        );
+        let near = surface_of(&[c(256, 0.014), c(256, g(3))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let tuned = c(256, 0.014);
+        observed(&mut ctl, 0, current, 0.5);
+        assert_eq!(ctl.correct(&near, tuned, current, 10), None);
+        // Across resolutions 1 dB is needed: 0.8 dB more at the tuned r 256 is not enough.
+        let s = surface_of(&[c(256, g(2)), c(192, g(2))])
+            .with_q([(c(256, g(2)), 40.8), (c(192, g(2)), 40.0)]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        observed(&mut ctl, 0, c(192, g(2)), 0.5);
+        assert_eq!(ctl.correct(&s, c(256, g(2)), c(192, g(2)), 10), None);
+    }
+
+    /// At risk, a correction goes no finer in r than the `P_M` in force, and a change planned
+    /// for the horizon holds on data that keeps growing as forecast, where one planned for the
+    /// next step alone is outgrown at once.
+    #[test]
+    fn a_correction_planned_for_the_horizon_holds_while_the_growth_goes_on() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
+        let tuned = c(256, g(2));
+        // σ grows 5 % a step from k 1.
+        let changes = |horizon: u64| {
+            let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+            ctl.horizon = horizon;
+            let mut current = tuned;
+            let mut changes = 0;
+            for step in 0..40u64 {
+                observed(&mut ctl, step, current, 1.05f64.powi(step as i32));
+                if let Some(p) = ctl.correct(&s, tuned, current, step + 1) {
+                    assert!(p.candidate.r <= current.r || p.feasible, "{p:?}");
+                    current = p.candidate;
+                    changes += 1;
+                }
+            }
+            changes
+        };
+        let (next_only, lasting) = (changes(0), changes(HORIZON));
+        assert!(lasting * 2 <= next_only, "{lasting} vs {next_only}");
+    }
+
+    /// After a change of character the steps before it and the model's miss are forgotten.
+    #[test]
+    fn a_rebase_forgets_the_steps_before_the_change() {
+        let tuned = c(256, g(2));
+        let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+        for step in 0..4 {
+            ctl.observe(Observation {
+                step,
+                candidate: tuned,
+                sigma_bytes: if step < 3 { 500_000 } else { 2_000_000 },
+                tau_secs: 0.1,
+                planned_sigma_bytes: Some(500_000.0),
+            });
+        }
+        assert!(ctl.miss() > 1.0);
+        ctl.rebase(3);
+        assert_eq!(ctl.miss(), 1.0);
+        assert_eq!(
+            ctl.observations().map(|o| o.step).collect::<Vec<_>>(),
+            vec![3]
+        );
     }
 }

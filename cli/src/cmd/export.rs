@@ -90,13 +90,23 @@ fn budget_arg(s: &str) -> Result<(Option<f64>, Option<f64>), String> {
 fn step_values(
     e: &insitu_viz_node::index::Export,
     value: fn(&insitu_core::evaluate::Sizing) -> f64,
-) -> Vec<(u64, f64)> {
-    e.entries
+) -> Vec<(u64, (u32, f32), f64)> {
+    let mut v: Vec<(u64, (u64, (u32, f32), f64))> = e
+        .entries
         .iter()
         .filter(|x| x.world_size <= 1)
-        .map(|x| (x.pm_version, value(&x.sizing)))
-        .chain(e.steps.iter().map(|x| (x.pm_version, value(&x.sizing))))
-        .collect()
+        .map(|x| {
+            let pm = (x.resolution, x.gamma);
+            (x.step, (x.pm_version, pm, value(&x.sizing)))
+        })
+        .chain(e.steps.iter().map(|x| {
+            let pm = (x.resolution, x.gamma);
+            (x.step, (x.pm_version, pm, value(&x.sizing)))
+        }))
+        .collect();
+    // In step order: the P_M changes are counted between consecutive steps.
+    v.sort_by_key(|x| x.0);
+    v.into_iter().map(|x| x.1).collect()
 }
 
 pub fn run(a: Args) -> Result<()> {

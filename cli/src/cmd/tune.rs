@@ -25,7 +25,8 @@ pub struct Args {
     /// Default: the config's, else size:1MB.
     #[arg(long)]
     utility: Option<String>,
-    /// Search strategy. Default: the config's, else grid.
+    /// Search strategy: adaptive (seconds on a 64³ volume) or grid (every candidate, the
+    /// paper's study: minutes). Default: the config's, else adaptive.
     #[arg(long, value_enum)]
     strategy: Option<Strategy>,
     /// TOML file with `utility` and `strategy` (see deploy/tuner.toml); flags override it.
@@ -82,8 +83,8 @@ fn resolve(a: &Args) -> Result<(String, Strategy)> {
         .unwrap_or_else(|| "size:1MB".into());
     let strategy = match (a.strategy, cfg.strategy.as_deref()) {
         (Some(s), _) => s,
-        (None, None | Some("grid")) => Strategy::Grid,
-        (None, Some("adaptive")) => Strategy::Adaptive,
+        (None, Some("grid")) => Strategy::Grid,
+        (None, None | Some("adaptive")) => Strategy::Adaptive,
         (None, Some(other)) => bail!("tuner config: strategy {other:?} is not grid or adaptive"),
     };
     Ok((utility, strategy))
@@ -273,7 +274,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/tuner.toml");
         let cfg = TuneConfig::load(&path).unwrap_or_default();
         assert_eq!(cfg.utility.as_deref(), Some("size:1MB"));
-        assert_eq!(cfg.strategy.as_deref(), Some("grid"));
+        assert_eq!(cfg.strategy.as_deref(), Some("adaptive"));
         assert!(parse_utility(cfg.utility.as_deref().unwrap_or("")).is_ok());
         assert!(toml::from_str::<TuneConfig>("budget = 3").is_err());
     }

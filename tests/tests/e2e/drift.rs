@@ -55,7 +55,7 @@ fn a_growing_series_keeps_its_size_budget_after_the_first_decision() {
     let a = Adherence::of(
         run.steps
             .iter()
-            .map(|s| (s.pm_version, s.sigma_bytes as f64)),
+            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
         budget,
     );
     eprintln!("{}", a.describe());

@@ -125,7 +125,11 @@ pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
         let b = budget[key].as_f64().filter(|&b| b > 0.0)?;
         let values = steps.iter().map(|s| {
             let v = s[key].as_f64().unwrap_or(f64::NAN);
-            (s["pm_version"].as_u64().unwrap_or(0), v)
+            let pm = (
+                s["r"].as_u64().unwrap_or(0) as u32,
+                s["gamma"].as_f64().unwrap_or(0.0) as f32,
+            );
+            (s["pm_version"].as_u64().unwrap_or(0), pm, v)
         });
         Some(Adherence::of(values, b).json())
     };
