@@ -405,10 +405,27 @@ fn decide(
         // it: production before it measured other data.
         engine.control().rebase(trigger.step);
     }
-    let plan = engine
-        .control()
-        .choose(&surface, best.candidate(), from_step)
-        .filter(|p| p.candidate != best.candidate());
+    // The P_M in force, where a tuning's answer may leave it (not the nodes' configured one,
+    // which no tuning chose, nor one of an earlier scene).
+    let in_force = {
+        let s = engine.state();
+        s.current()
+            .filter(|d| !d.steered && d.scene_version == s.scene_version())
+            .map(|d| d.candidate)
+    };
+    let plan = {
+        let ctl = engine.control();
+        match in_force {
+            // A tuning changes the P_M in force as a correction would: where the budget is
+            // at risk, or where the change is worth it; else the P_M stays, under the new
+            // tuning's surface and ceiling.
+            Some(c) => ctl
+                .correct(&surface, best.candidate(), c, from_step)
+                .or_else(|| ctl.keep(&surface, c, from_step)),
+            None => ctl.choose(&surface, best.candidate(), from_step),
+        }
+    }
+    .filter(|p| p.candidate != best.candidate());
     let mut s = engine.state();
     let old = s
         .current()
@@ -416,13 +433,12 @@ fn decide(
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
     let pushed = plan.map_or(best.candidate(), |p| p.candidate);
     // After a steered scene the decision in force predicts nothing: the tuning's is pushed.
-    // After a correction the tuning's decision is pushed too, though the P_M is the same: the
-    // corrections that follow are made on its surface and under its ceiling, not on those of
-    // the tuning the correction adjusted (a new version of the same r and γ changes no
-    // picture).
+    // After a correction, or a tuning on other steps, the tuning's decision is pushed too,
+    // though the P_M is the same: the corrections that follow are made on its surface and
+    // under its ceiling (a new version of the same r and γ changes no picture).
     if old == Some(pushed)
         && s.current()
-            .is_some_and(|d| !d.steered && d.corrects.is_none())
+            .is_some_and(|d| !d.steered && d.corrects.is_none() && d.characteristic_steps == steps)
     {
         info!(r = pushed.r, gamma = pushed.gamma, steps = ?steps, trials, "re-tuned: P_M unchanged");
         s.validated = steps;
@@ -434,12 +450,18 @@ fn decide(
         Some(p) => {
             let q = crate::engine::q_on(&s, &steps, p.candidate);
             let finer = p.candidate.r == best.r && p.candidate.gamma < best.gamma;
+            let how = if Some(p.candidate) == in_force {
+                "the P_M in force kept (the budget not at risk, the change not worth it)"
+            } else if finer {
+                "refined"
+            } else {
+                "coarsened"
+            };
             let reason = format!(
-                "{trigger}; tuned r {} γ {} (q {:.2} dB), {} for production σ forecast {:.2}× the measured by step {}{}",
+                "{trigger}; tuned r {} γ {} (q {:.2} dB), {how} for production σ forecast {:.2}× the measured by step {}{}",
                 best.r,
                 best.gamma,
                 best.q(),
-                if finer { "refined" } else { "coarsened" },
                 p.forecast.sigma,
                 p.forecast.at,
                 if p.feasible { "" } else { crate::engine::INFEASIBLE }

@@ -374,9 +374,10 @@ pub struct Controller {
 pub const MEMORY: u64 = 32;
 
 /// The default [`Controller::horizon`], steps: on Gray–Scott 128³ (σ growing 4 % a step at one
-/// `P_M`) a change planned for the next step alone was outgrown two to four steps later, 10
-/// corrections in 51 steps.
-pub const HORIZON: u64 = 8;
+/// `P_M`, 60 steps under `size:1MB`) a change planned for the next step alone was outgrown two
+/// to four steps later (8 changes of r or γ in 56 steps); planned for 8 steps, 5; for 16, 4,
+/// at 70 % of the budget used on average instead of 82 % (docs/tuning.md).
+pub const HORIZON: u64 = 16;
 
 /// The least gain in predicted q (dB) that is worth a visible change of `P_M` towards a finer
 /// one at the same resolution, where the trials scored both (see [`Controller::correct`]).
@@ -770,6 +771,20 @@ impl Controller {
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
             .2;
         (p.feasible && finer && clears && self.worth(surface, &p, current)).then_some(p)
+    }
+
+    /// `c` kept from step `at`: its σ and τ under the forecast for `at`, and whether they
+    /// meet the plan. `None` before there is a forecast.
+    pub fn keep(&self, surface: &Surface, c: Candidate, at: u64) -> Option<Plan> {
+        let forecast = self.forecast(surface, at)?;
+        let (sigma_bytes, tau_secs, feasible) = self.fits(surface, &forecast, c, 1.0);
+        Some(Plan {
+            candidate: c,
+            sigma_bytes,
+            tau_secs,
+            forecast,
+            feasible,
+        })
     }
 
     /// Whether the finer `p` gains enough over `current` to be worth a visible change (see

@@ -4,7 +4,7 @@
 
 use insitu_core::adherence::Adherence;
 use insitu_e2e::bin;
-use insitu_e2e::drift::{growing_structure, write_series, RunLines};
+use insitu_e2e::drift::{changing_character, growing_structure, write_series, RunLines};
 use std::process::Command;
 
 /// Grid side and steps of the series.
@@ -12,6 +12,15 @@ const N: usize = 40;
 const STEPS: usize = 24;
 
 fn replay(series: &std::path::Path, rec: &std::path::Path, extra: &[&str]) -> RunLines {
+    replay_at(series, rec, "0.4", extra)
+}
+
+fn replay_at(
+    series: &std::path::Path,
+    rec: &std::path::Path,
+    interval: &str,
+    extra: &[&str],
+) -> RunLines {
     let out = Command::new(bin("insitu"))
         .args(["replay", "--series", series.to_str().unwrap()])
         .args(["--recording", rec.to_str().unwrap()])
@@ -23,7 +32,7 @@ fn replay(series: &std::path::Path, rec: &std::path::Path, extra: &[&str]) -> Ru
             "--json",
             "--no-http",
         ])
-        .args(["--step-interval", "0.4"])
+        .args(["--step-interval", interval])
         .args(extra)
         .env_remove("INSITU_TOKEN")
         .output()
@@ -108,4 +117,80 @@ fn no_stored_step_exceeds_the_hard_limits() {
     // The limits acted on at least half the steps: made again coarser, or refused.
     let retries = summary["limit_retries"].as_u64().unwrap_or(0);
     assert!(retries + failed >= steps as u64 / 2, "{summary}");
+}
+
+/// A series whose data changes character half-way while its histogram does not (a smooth
+/// orbital, then the same orbital tiled 3 × 3 × 3: several times the σ at one `P_M`): the
+/// first step of the new data becomes characteristic, a tuning on it decides before the run
+/// ends, the tuned steps keep the budget, and after that tuning they use most of it (the
+/// controller does not stay on the old data's model, far below the budget).
+#[test]
+fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
+    const N: usize = 64;
+    const STEPS: usize = 28;
+    let tmp = tempfile::tempdir().unwrap();
+    let series = write_series(tmp.path(), "character", N, STEPS, |t| {
+        changing_character(N, t, STEPS)
+    });
+    let budget = 300_000.0;
+    let run = replay_at(
+        &series,
+        &tmp.path().join("rec"),
+        "0.6",
+        &["--utility", "size:300kB"],
+    );
+    for s in &run.steps {
+        eprintln!("{s:?}");
+    }
+    for d in &run.decisions {
+        eprintln!("{d}");
+    }
+    assert_eq!(run.steps.len(), STEPS, "{:?}", run.summary);
+    let change = STEPS as u64 / 2;
+    // At the first decision's P_M the new data is far larger than the old.
+    let tuner = &run.summary["tuner"];
+    let characteristic: Vec<u64> = tuner["characteristic_steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(serde_json::Value::as_u64)
+        .collect();
+    assert!(
+        characteristic
+            .iter()
+            .any(|&s| (change..change + 3).contains(&s)),
+        "no characteristic step at the change (step {change}): {characteristic:?}"
+    );
+    // A tuning on the new data decided: a decision that is not a correction, triggered at or
+    // after the change.
+    let retuned = run.decisions.iter().find(|d| {
+        d["corrects_version"].is_null() && d["step"].as_u64().is_some_and(|s| s >= change)
+    });
+    let Some(retuned) = retuned else {
+        panic!("no tuning on the new data decided: {:?}", run.decisions)
+    };
+    let a = Adherence::of(
+        run.steps
+            .iter()
+            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
+        budget,
+    );
+    eprintln!("{}", a.describe());
+    assert!(a.share() >= 0.9, "{}", a.describe());
+    // After that tuning's decision, the budget is used: ≥ 75 % on average.
+    let from = retuned["from_step"].as_u64().unwrap();
+    let after = Adherence::of(
+        run.steps
+            .iter()
+            .filter(|s| s.step >= from)
+            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
+        budget,
+    );
+    eprintln!("from step {from}: {}", after.describe());
+    assert!(after.steps >= 4, "the re-tuning landed late: {after:?}");
+    assert!(
+        after.mean_ratio >= 0.75 && after.share() >= 0.9,
+        "{}",
+        after.describe()
+    );
 }
