@@ -6,8 +6,9 @@
 //! linearly over the series, empty (0) outside, so each step's VDI covers more pixels with
 //! more supersegments than the last at the same `P_M`. [`changing_character`] is one whose
 //! character changes abruptly half-way while its histogram stays: a smooth orbital drifting
-//! slowly, then the same orbital tiled at a third of the size. Values stay in [0, 1] (two corner voxels pin the range, so the first step's
-//! default transfer function covers every step).
+//! slowly, then the same orbital tiled at a third of the size. Values stay in [0, 1] (two
+//! corner voxels pin the range, so the first step's default transfer function covers every
+//! step).
 
 use std::f32::consts::TAU;
 use std::io::Write;
@@ -21,8 +22,52 @@ const MODES: u32 = 6;
 /// radius `(0.35 + 0.6 · t / (steps − 1)) · n / 2` (a one-voxel smooth edge), 0 outside; the
 /// waves' directions and phases come from a fixed hash.
 pub fn growing_structure(n: usize, t: usize, steps: usize) -> Vec<f32> {
-    let radius = (0.35 + 0.6 * t as f32 / (steps.max(2) - 1) as f32) * n as f32 / 2.0;
-    waves(n, radius)
+    let modes: Vec<([f32; 3], f32, f32)> = (0..MODES)
+        .map(|m| {
+            let h = |i: u32| {
+                let x = m
+                    .wrapping_mul(2_654_435_761)
+                    .wrapping_add(i.wrapping_mul(40_503));
+                let x = (x ^ (x >> 15)).wrapping_mul(2_246_822_519);
+                f32::from((x >> 16) as u16) / f32::from(u16::MAX)
+            };
+            let (theta, z, phase) = (TAU * h(1), 2.0 * h(2) - 1.0, TAU * h(3));
+            let s = (1.0 - z * z).sqrt();
+            let k = TAU * (2.0 + m as f32) / n as f32;
+            (
+                [k * s * theta.cos(), k * s * theta.sin(), k * z],
+                phase,
+                1.0 / (1.0 + 0.3 * m as f32),
+            )
+        })
+        .collect();
+    let total: f32 = modes.iter().map(|m| m.2).sum();
+    let half = n as f32 / 2.0;
+    let radius = (0.35 + 0.6 * t as f32 / (steps.max(2) - 1) as f32) * half;
+    let mut v = Vec::with_capacity(n * n * n);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let p = [x as f32, y as f32, z as f32];
+                let d = p
+                    .iter()
+                    .map(|c| (c - half) * (c - half))
+                    .sum::<f32>()
+                    .sqrt();
+                let inside = (radius - d + 0.5).clamp(0.0, 1.0);
+                let s: f32 = modes
+                    .iter()
+                    .map(|(k, phase, a)| {
+                        a * (k[0] * p[0] + k[1] * p[1] + k[2] * p[2] + phase).sin()
+                    })
+                    .sum();
+                v.push(inside * (0.5 + 0.5 * s / total).clamp(0.0, 1.0));
+            }
+        }
+    }
+    v[0] = 0.0;
+    v[n * n * n - 1] = 1.0;
+    v
 }
 
 /// Step `t` of `steps` of a series that changes character at `steps / 2` while its histogram
@@ -47,64 +92,10 @@ pub fn changing_character(n: usize, t: usize, steps: usize) -> Vec<f32> {
         for y in 0..n {
             for x in 0..n {
                 // The point in the whole field that this point's tile shows.
-                let d: Vec<f32> = [x, y, z]
-                    .iter()
-                    .zip(centre)
-                    .map(|(&p, c)| ((p as f32 % tile) * tiles as f32 - c) / s)
-                    .collect();
+                let p = [x, y, z].map(|p| (p as f32 % tile) * tiles as f32);
+                let d = [0, 1, 2].map(|i| (p[i] - centre[i]) / s);
                 let rho = d.iter().map(|a| a * a).sum::<f32>().sqrt();
                 v.push((d[2] * d[2] * (-rho).exp() / peak).clamp(0.0, 1.0));
-            }
-        }
-    }
-    v[0] = 0.0;
-    v[n * n * n - 1] = 1.0;
-    v
-}
-
-/// The wave pattern `0.5 + 0.5 · Σ_m a_m sin(k_m·p + φ_m) / Σ_m a_m` inside the ball of
-/// `radius` voxels about the grid's centre (a one-voxel smooth edge), 0 outside; corners
-/// pinned to 0 and 1.
-fn waves(n: usize, radius: f32) -> Vec<f32> {
-    let modes: Vec<([f32; 3], f32, f32)> = (0..MODES)
-        .map(|m| {
-            let h = |i: u32| {
-                let x = m
-                    .wrapping_mul(2_654_435_761)
-                    .wrapping_add(i.wrapping_mul(40_503));
-                let x = (x ^ (x >> 15)).wrapping_mul(2_246_822_519);
-                f32::from((x >> 16) as u16) / f32::from(u16::MAX)
-            };
-            let (theta, z, phase) = (TAU * h(1), 2.0 * h(2) - 1.0, TAU * h(3));
-            let s = (1.0 - z * z).sqrt();
-            let k = TAU * (2.0 + m as f32) / n as f32;
-            (
-                [k * s * theta.cos(), k * s * theta.sin(), k * z],
-                phase,
-                1.0 / (1.0 + 0.3 * m as f32),
-            )
-        })
-        .collect();
-    let total: f32 = modes.iter().map(|m| m.2).sum();
-    let half = n as f32 / 2.0;
-    let mut v = Vec::with_capacity(n * n * n);
-    for z in 0..n {
-        for y in 0..n {
-            for x in 0..n {
-                let p = [x as f32, y as f32, z as f32];
-                let d = p
-                    .iter()
-                    .map(|c| (c - half) * (c - half))
-                    .sum::<f32>()
-                    .sqrt();
-                let inside = (radius - d + 0.5).clamp(0.0, 1.0);
-                let s: f32 = modes
-                    .iter()
-                    .map(|(k, phase, a)| {
-                        a * (k[0] * p[0] + k[1] * p[1] + k[2] * p[2] + phase).sin()
-                    })
-                    .sum();
-                v.push(inside * (0.5 + 0.5 * s / total).clamp(0.0, 1.0));
             }
         }
     }

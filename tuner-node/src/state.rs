@@ -374,7 +374,9 @@ impl State {
         }
         let whole = by.values().any(|e| e.3.len() == steps.len());
         // q: the worst over the steps of the candidates the trials scored on every step.
-        let mut scored: BTreeMap<(u32, u32, u32), (Candidate, f64, Vec<u64>)> = BTreeMap::new();
+        // By candidate: the candidate, its worst q, the steps scored.
+        type Scored = (Candidate, f64, Vec<u64>);
+        let mut scored: BTreeMap<(u32, u32, u32), Scored> = BTreeMap::new();
         for t in self.trials.iter().filter(|t| steps.contains(&t.step)) {
             let c = t.measurement.candidate();
             let e = scored

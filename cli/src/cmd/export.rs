@@ -86,12 +86,15 @@ fn budget_arg(s: &str) -> Result<(Option<f64>, Option<f64>), String> {
     }
 }
 
-/// One value per step: single-rank entries and composed steps.
+/// A step's `(P_M version, (r, γ), value)`, as `Adherence::of` takes it.
+type Sample = (u64, (u32, f32), f64);
+
+/// One value per step, in step order: single-rank entries and composed steps.
 fn step_values(
     e: &insitu_viz_node::index::Export,
     value: fn(&insitu_core::evaluate::Sizing) -> f64,
-) -> Vec<(u64, (u32, f32), f64)> {
-    let mut v: Vec<(u64, (u64, (u32, f32), f64))> = e
+) -> Vec<Sample> {
+    let mut v: Vec<(u64, Sample)> = e
         .entries
         .iter()
         .filter(|x| x.world_size <= 1)
