@@ -995,7 +995,7 @@ mod tests {
         assert!(p.feasible && p.sigma_bytes <= 0.95 * 1_120_000.0);
         // Planned to hold 8 steps (of 10): k = 1.1^12 = 3.14 by step 120; r 256 and r 192 would
         // need γ beyond their spans, r 128 at the tuned γ holds (785 kB).
-        ctl.horizon = HORIZON;
+        ctl.horizon = 8;
         let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
         assert_eq!((p.candidate, p.forecast.at), (c(128, g(2)), 120), "{p:?}");
         assert!(
@@ -1486,5 +1486,23 @@ mod tests {
             ctl.observations().map(|o| o.step).collect::<Vec<_>>(),
             vec![3]
         );
+    }
+
+    /// A forecast inside the headroom (over the plan, under the budget) changes nothing; one at
+    /// the budget is a risk, and the change aims at the plan.
+    #[test]
+    fn only_a_forecast_at_the_budget_puts_it_at_risk() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
+        let tuned = c(256, g(2));
+        // law(tuned) = 1 MB; the plan is 0.95 × 1.1 MB = 1.045 MB, the budget 1.1 MB.
+        let at = |k: f64| {
+            let mut ctl = Controller::new((Some(1_100_000), None), 0.05, grid());
+            observed(&mut ctl, 0, tuned, k);
+            ctl.correct(&s, tuned, tuned, 1)
+        };
+        assert_eq!(at(1.07), None, "1.07 MB: over the plan, within the budget");
+        let p = at(1.12).unwrap();
+        assert_eq!(p.candidate, c(256, g(3)));
+        assert!(p.sigma_bytes <= 1_045_000.0, "{p:?}");
     }
 }
