@@ -89,8 +89,8 @@ pub struct TrialConfig {
     /// and what that tuning leaves of it lapses when it decides (re-tunes are paced by the
     /// share alone, so trials stay near `share` of a run that amortises the first tuning).
     pub burst_secs: f64,
-    /// Trial seconds a tuning for a new character (or a broken budget, or a steered utility)
-    /// may run ahead of `share`: it starts at once instead of waiting for the share to
+    /// Trial seconds a tuning for a new character (or a steered utility) may run ahead of
+    /// `share`: it starts at once instead of waiting for the share to
     /// accrue, and the trials after it wait until the share has caught up (so the long-run
     /// share holds).
     pub overdraft_secs: f64,
@@ -104,7 +104,7 @@ impl Default for TrialConfig {
             timeout_secs: 120.0,
             share: 0.1,
             burst_secs: 15.0,
-            overdraft_secs: 5.0,
+            overdraft_secs: 2.0,
             hold_wait_secs: 10.0,
         }
     }

@@ -67,17 +67,16 @@ struct StepOracle {
     overdraft: f64,
 }
 
-/// Trial seconds a tuning for `trigger` may run ahead of the allowance: a new character, a
-/// broken budget or a steered utility starts its tuning at once (`trials.overdraft_secs`), and
-/// the trials after it wait until the share has caught up; none for a resumed or interrupted
-/// tuning, or the first (the burst is its).
+/// Trial seconds a tuning for `trigger` may run ahead of the allowance: a new character or a
+/// steered utility starts its tuning at once (`trials.overdraft_secs`), and the trials after it
+/// wait until the share has caught up. None for a broken budget (drift, which the corrections
+/// keep up with meanwhile), a resumed or interrupted tuning, or the first (the burst is its).
 fn overdraft(t: &TrialConfig, trigger: &Trigger) -> f64 {
     match trigger.cause {
-        Cause::NewCharacter { .. }
-        | Cause::SizeMiss { .. }
-        | Cause::BrokeBudget { .. }
-        | Cause::Steered { .. } => t.overdraft_secs,
-        Cause::First | Cause::Lost { .. } | Cause::Resume => 0.0,
+        Cause::NewCharacter { .. } | Cause::SizeMiss { .. } | Cause::Steered { .. } => {
+            t.overdraft_secs
+        }
+        Cause::BrokeBudget { .. } | Cause::First | Cause::Lost { .. } | Cause::Resume => 0.0,
     }
 }
 
@@ -632,9 +631,9 @@ mod tests {
         );
     }
 
-    /// A tuning for a new character (by histogram or by σ), a broken budget or a steered
-    /// utility may run ahead of the share by the overdraft; the first (which has the burst),
-    /// a resumed one and one after a lost step may not.
+    /// A tuning for a new character (by histogram or by σ) or a steered utility may run ahead
+    /// of the share by the overdraft; one for a broken budget, the first (which has the
+    /// burst), a resumed one and one after a lost step may not.
     #[test]
     fn a_tuning_for_a_new_character_may_run_ahead_of_the_share() {
         let t = TrialConfig::default();
@@ -649,12 +648,16 @@ mod tests {
                 planned_bytes: 1.0,
                 threshold: 1.5,
             },
-            Cause::BrokeBudget { why: "σ".into() },
             Cause::Steered { what: "u".into() },
         ] {
             assert_eq!(of(cause), t.overdraft_secs);
         }
-        for cause in [Cause::First, Cause::Resume, Cause::Lost { steps: vec![1] }] {
+        for cause in [
+            Cause::BrokeBudget { why: "σ".into() },
+            Cause::First,
+            Cause::Resume,
+            Cause::Lost { steps: vec![1] },
+        ] {
             assert_eq!(of(cause), 0.0);
         }
     }
