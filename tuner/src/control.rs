@@ -376,8 +376,9 @@ pub const MEMORY: u64 = 32;
 /// The default [`Controller::horizon`], steps: on Gray–Scott 128³ (σ growing 4 % a step at one
 /// `P_M`, 60 steps under `size:1MB`) a change planned for the next step alone was outgrown two
 /// to four steps later (8 changes of r or γ in 56 steps); planned for 8 steps, 5; for 16, 4,
-/// at 70 % of the budget used on average instead of 82 % (docs/tuning.md).
-pub const HORIZON: u64 = 16;
+/// but at 68 % of the budget used on average instead of 82 % and a q regret of 1.8 dB instead
+/// of 0.2 (docs/tuning.md).
+pub const HORIZON: u64 = 8;
 
 /// The least gain in predicted q (dB) that is worth a visible change of `P_M` towards a finer
 /// one at the same resolution, where the trials scored both (see [`Controller::correct`]).
