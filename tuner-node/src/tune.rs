@@ -414,14 +414,21 @@ fn decide(
     };
     let plan = {
         let ctl = engine.control();
-        match in_force {
-            // A tuning changes the P_M in force as a correction would: where the budget is
-            // at risk, or where the change is worth it; else the P_M stays, under the new
-            // tuning's surface and ceiling.
-            Some(c) => ctl
+        let chosen = ctl.choose(&surface, best.candidate(), from_step);
+        match (in_force, chosen) {
+            // A tuning changes the P_M in force where the budget is at risk, where the change
+            // is worth it as a correction's would be, or where its choice is finer (a
+            // correction made on the old measurements may have gone far coarser than the new
+            // ones need); else the P_M stays, under the new tuning's surface and ceiling.
+            (Some(c), Some(p)) => ctl
                 .correct(&surface, best.candidate(), c, from_step)
+                .or_else(|| {
+                    let finer = p.candidate.r > c.r
+                        || (p.candidate.r == c.r && p.candidate.gamma < c.gamma);
+                    (finer && p.feasible).then_some(p)
+                })
                 .or_else(|| ctl.keep(&surface, c, from_step)),
-            None => ctl.choose(&surface, best.candidate(), from_step),
+            (_, chosen) => chosen,
         }
     }
     .filter(|p| p.candidate != best.candidate());

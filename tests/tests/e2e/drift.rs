@@ -147,7 +147,6 @@ fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
     }
     assert_eq!(run.steps.len(), STEPS, "{:?}", run.summary);
     let change = STEPS as u64 / 2;
-    // At the first decision's P_M the new data is far larger than the old.
     let tuner = &run.summary["tuner"];
     let characteristic: Vec<u64> = tuner["characteristic_steps"]
         .as_array()
