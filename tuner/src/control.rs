@@ -309,10 +309,9 @@ pub struct Forecast {
     /// σ, which has no timing noise, bounds it; on still data σ does not grow, and the noise
     /// of the timings is not read as growth.
     pub tau_growth_per_step: f64,
-    /// σ's growth per unit of step index as a trend to plan a horizon on (a factor): the lower
-    /// quartile of the slopes over every pair of the window's steps made with one `P_M` (a
-    /// growth most pairs show), no more than `sigma_growth_per_step`; `None` with fewer than
-    /// three such pairs. Between steps
+    /// σ's growth per unit of step index as a trend to plan a horizon on (a factor): the
+    /// Theil–Sen slope over every pair of the window's steps made with one `P_M`, no more
+    /// than `sigma_growth_per_step`; `None` with fewer than three such pairs. Between steps
     /// of different `P_M` the growth carries the surface's error at each, after a change of
     /// character it is the jump, and between consecutive steps it is the noise of a step's σ
     /// (±4 % at one `P_M` on still data): none is a trend.
@@ -495,19 +494,16 @@ impl Controller {
         if slopes.is_empty() {
             slopes = slope(false);
         }
-        // The trend: the lower quartile of the slopes over every pair of the window's steps
-        // made with one P_M (three pairs at least), no more than the slope above: a growth
-        // that most pairs show, not the noise of a step's σ (±15 % between steps of the demo's
-        // Gray–Scott 64³ at one P_M, whose median pair slope read as 3 % a step).
-        let mut pairs: Vec<f64> = ks
+        // The trend: the Theil–Sen slope over every pair of the window's steps made with one
+        // P_M (three pairs at least), no more than the slope above.
+        let pairs: Vec<f64> = ks
             .iter()
             .enumerate()
             .flat_map(|(i, a)| ks[i + 1..].iter().map(move |b| (a, b)))
             .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
             .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
             .collect();
-        pairs.sort_by(f64::total_cmp);
-        let trend = (pairs.len() >= 3).then(|| pairs[pairs.len() / 4]);
+        let trend = (pairs.len() >= 3).then(|| median(pairs));
         let slope = median(slopes).max(0.0);
         let grown = growth(slope, newest, at);
         // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
