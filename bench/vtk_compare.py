@@ -191,6 +191,11 @@ def insitu_view(exe, vdi, angle, size, out):
     return float(m[1])
 
 
+def ratio(a, b):
+    """a / b, or infinity where b rounds to no time at all (a tiny render timed as 0)."""
+    return a / b if b > 0 else float("inf")
+
+
 def psnr(a, b):
     mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
     return math.inf if mse == 0 else 10 * math.log10(255.0 ** 2 / mse)
@@ -259,14 +264,14 @@ def main():
           f"  (runs {', '.join(f'{t:.3f}' for t in t_ours)})")
     print(f"  (insitu's first render in its process, cold: {statistics.median(t_cold):.3f} s;"
           f" both sides are compared warm, VTK's after a warm-up render)")
-    print(f"  ratio VTK / insitu: {mv / mo:.2f}× (aim ≥ {RATIO_AIM:g}×);  "
+    print(f"  ratio VTK / insitu: {ratio(mv, mo):.2f}× (aim ≥ {RATIO_AIM:g}×);  "
           f"PSNR between the images: {psnr(theirs, ours):.1f} dB")
     print(f"  (minima: VTK {min(t_vtk):.3f} s, insitu {min(t_ours):.3f} s, "
-          f"ratio {min(t_vtk) / min(t_ours):.2f}×)")
+          f"ratio {ratio(min(t_vtk), min(t_ours)):.2f}×)")
     if a.row:
         with open(a.row, "a") as f:
             f.write(f"| {os.path.basename(a.volume)} | {a.angle:g}° | {mv:.3f} s | {mo:.3f} s | "
-                    f"{mv / mo:.2f}× ({min(t_vtk) / min(t_ours):.2f}×) | "
+                    f"{ratio(mv, mo):.2f}× ({ratio(min(t_vtk), min(t_ours)):.2f}×) | "
                     f"{psnr(theirs, ours):.1f} dB |\n")
     for r, _, png, times in vdis:
         m = statistics.median(times)
