@@ -102,8 +102,8 @@ pub async fn steps(State(http): State<Arc<Http>>) -> Json<Value> {
 
 /// `GET /api/series`: per stored step σ, τ, q (null when not sampled) and the P_M version,
 /// the steps where the P_M version changed, the tuner's budget, and the adherence of the steps
-/// made with a tuned P_M to it (`insitu_core::adherence`: steps, within, share, worst_ratio;
-/// null without that budget).
+/// made with a tuned P_M to it (`insitu_core::adherence`: steps, within, share, worst_ratio,
+/// mean_ratio, pm_changes, pm_changes_per_100; null without that budget).
 pub async fn series(State(http): State<Arc<Http>>) -> Json<Value> {
     let steps = all_steps(&http);
     let col = |k: &str| -> Vec<Value> { steps.iter().map(|s| s[k].clone()).collect() };
