@@ -167,6 +167,27 @@ pub struct RunLines {
 }
 
 impl RunLines {
+    /// Prints every step and decision to stderr (what a failing test shows).
+    pub fn log(&self) {
+        for s in &self.steps {
+            eprintln!("{s:?}");
+        }
+        for d in &self.decisions {
+            eprintln!("{d}");
+        }
+    }
+
+    /// Adherence of the steps from step `from` on to the size budget `budget` (bytes).
+    pub fn sigma_adherence(&self, budget: f64, from: u64) -> insitu_core::adherence::Adherence {
+        insitu_core::adherence::Adherence::of(
+            self.steps
+                .iter()
+                .filter(|s| s.step >= from)
+                .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
+            budget,
+        )
+    }
+
     /// Reads the JSON lines of `stdout` (lines that are not JSON are skipped).
     pub fn parse(stdout: &str) -> Self {
         let mut out = Self::default();

@@ -13,6 +13,7 @@ use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
 use insitu_proto::pb;
+use insitu_tuner::control::finer;
 use insitu_tuner::live::{combine_ranks, WorstCase};
 use insitu_tuner::search::{adaptive_search_near, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
@@ -422,11 +423,7 @@ fn decide(
             // ones need); else the P_M stays, under the new tuning's surface and ceiling.
             (Some(c), Some(p)) => ctl
                 .correct(&surface, best.candidate(), c, from_step)
-                .or_else(|| {
-                    let finer = p.candidate.r > c.r
-                        || (p.candidate.r == c.r && p.candidate.gamma < c.gamma);
-                    (finer && p.feasible).then_some(p)
-                })
+                .or_else(|| (finer(p.candidate, c) && p.feasible).then_some(p))
                 .or_else(|| ctl.keep(&surface, c, from_step)),
             (_, chosen) => chosen,
         }

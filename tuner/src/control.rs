@@ -766,8 +766,7 @@ impl Controller {
                 .filter(|p| p.candidate != current);
         }
         let p = self.choose(surface, tuned, at)?;
-        let finer = p.candidate.r > current.r
-            || (p.candidate.r == current.r && p.candidate.gamma < current.gamma);
+        let finer = finer(p.candidate, current);
         let clears = self
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
             .2;
@@ -798,6 +797,11 @@ impl Controller {
         let now = self.forecast_at(surface, &p.forecast, current, 1.0).0;
         p.sigma_bytes >= now * if other_r { SIGMA_GAIN_R } else { SIGMA_GAIN }
     }
+}
+
+/// Whether `a` is finer than `b`: a higher resolution, or the same with a smaller γ.
+pub fn finer(a: Candidate, b: Candidate) -> bool {
+    a.r > b.r || (a.r == b.r && a.gamma < b.gamma)
 }
 
 /// The Theil–Sen slope of `ln k` over the step index: the median of the slopes between every

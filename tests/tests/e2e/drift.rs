@@ -2,7 +2,6 @@
 //! structure grows at every step, through `insitu replay` with the tuner, judged by σ (a
 //! size, not a timing, so the outcome does not hang on this machine's speed).
 
-use insitu_core::adherence::Adherence;
 use insitu_e2e::bin;
 use insitu_e2e::drift::{changing_character, growing_structure, write_series, RunLines};
 use std::process::Command;
@@ -53,20 +52,10 @@ fn a_growing_series_keeps_its_size_budget_after_the_first_decision() {
         &tmp.path().join("rec"),
         &["--utility", "size:60kB"],
     );
-    for s in &run.steps {
-        eprintln!("{s:?}");
-    }
-    for d in &run.decisions {
-        eprintln!("{d}");
-    }
+    run.log();
     assert_eq!(run.steps.len(), STEPS, "{:?}", run.summary);
     // The field grows: at one P_M the last step's VDI is much larger than the first's.
-    let a = Adherence::of(
-        run.steps
-            .iter()
-            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
-        budget,
-    );
+    let a = run.sigma_adherence(budget, 0);
     eprintln!("{}", a.describe());
     assert!(a.steps >= STEPS / 2, "the first decision came late: {a:?}");
     assert!(
@@ -139,12 +128,7 @@ fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
         "0.6",
         &["--utility", "size:300kB"],
     );
-    for s in &run.steps {
-        eprintln!("{s:?}");
-    }
-    for d in &run.decisions {
-        eprintln!("{d}");
-    }
+    run.log();
     assert_eq!(run.steps.len(), STEPS, "{:?}", run.summary);
     let change = STEPS as u64 / 2;
     let tuner = &run.summary["tuner"];
@@ -168,23 +152,12 @@ fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
     let Some(retuned) = retuned else {
         panic!("no tuning on the new data decided: {:?}", run.decisions)
     };
-    let a = Adherence::of(
-        run.steps
-            .iter()
-            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
-        budget,
-    );
+    let a = run.sigma_adherence(budget, 0);
     eprintln!("{}", a.describe());
     assert!(a.share() >= 0.9, "{}", a.describe());
     // After that tuning's decision, the budget is used: ≥ 75 % on average.
     let from = retuned["from_step"].as_u64().unwrap();
-    let after = Adherence::of(
-        run.steps
-            .iter()
-            .filter(|s| s.step >= from)
-            .map(|s| (s.pm_version, s.pm(), s.sigma_bytes as f64)),
-        budget,
-    );
+    let after = run.sigma_adherence(budget, from);
     eprintln!("from step {from}: {}", after.describe());
     assert!(after.steps >= 4, "the re-tuning landed late: {after:?}");
     assert!(
