@@ -6,7 +6,7 @@ use glam::Vec3;
 use insitu_core::volume::{FieldAssembler, ScalarType};
 use insitu_core::Volume;
 use std::io::Read;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A sample type as files store it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -83,6 +83,7 @@ pub const PIECE: usize = 4 << 20;
 /// does not keep (i8, 32- and 64-bit integers) converted to f32, f64 narrowed to f32. Reading a
 /// field so costs the volume and one piece, not the file's bytes besides.
 pub struct Samples {
+    path: PathBuf,
     asm: FieldAssembler,
     t: Sample,
     e: Endian,
@@ -92,9 +93,21 @@ pub struct Samples {
 }
 
 impl Samples {
-    /// Room for `n` samples of `t` stored `e` (reserved at once: for data whose length was
-    /// checked against the file, or a bound the file's bytes justify).
-    pub fn new(t: Sample, e: Endian, n: usize) -> Self {
+    /// Room for `n` samples of `t` stored `e`, read from `path`: the volume's memory is
+    /// checked against the read limit ([`crate::limit`]) and `reserve` samples of it (those
+    /// the file's bytes justify: all `n` for data whose length was checked against the file,
+    /// fewer for a compressed body, which grows as it decodes) are allocated now.
+    ///
+    /// # Errors
+    /// [`ReadError::Invalid`] naming `path`: the volume over the read limit, or the memory
+    /// not to be had (naming the size).
+    pub fn new(
+        path: &Path,
+        t: Sample,
+        e: Endian,
+        n: usize,
+        reserve: usize,
+    ) -> Result<Self, ReadError> {
         let kept = match t {
             Sample::U8 => ScalarType::U8,
             Sample::U16 => ScalarType::U16,
@@ -102,13 +115,32 @@ impl Samples {
             Sample::F64 => ScalarType::F64,
             _ => ScalarType::F32,
         };
-        Self {
-            asm: FieldAssembler::new(kept, n),
+        let bytes = (n as u64).saturating_mul(FieldAssembler::kept_bytes_per_sample(kept) as u64);
+        crate::limit::check(path, &format!("a volume of {n} samples"), bytes)?;
+        let mut s = Self {
+            path: path.to_owned(),
+            asm: FieldAssembler::new(kept, 0),
             t,
             e,
             carry: Vec::new(),
             scratch: Vec::new(),
-        }
+        };
+        s.reserve(reserve.min(n))?;
+        Ok(s)
+    }
+
+    /// Room for `n` more samples, or an error naming the size the allocator refused.
+    fn reserve(&mut self, n: usize) -> Result<(), ReadError> {
+        self.asm.try_reserve(n).map_err(|_| {
+            let held = self.asm.received_bytes();
+            ReadError::invalid(
+                &self.path,
+                format!(
+                    "out of memory: {n} more samples after {} could not be allocated",
+                    crate::limit::human(held)
+                ),
+            )
+        })
     }
 
     /// Whether the pieces pass to the core unchanged (little-endian, a type it takes).
@@ -121,10 +153,14 @@ impl Samples {
     }
 
     /// Appends the next bytes of the field (a piece may split a sample anywhere).
-    pub fn push(&mut self, bytes: &[u8]) {
+    ///
+    /// # Errors
+    /// [`ReadError::Invalid`] naming the file when the memory for them cannot be had.
+    pub fn push(&mut self, bytes: &[u8]) -> Result<(), ReadError> {
+        self.reserve(bytes.len() / self.t.size() + 1)?;
         if self.as_is() {
             self.asm.push(bytes);
-            return;
+            return Ok(());
         }
         let size = self.t.size();
         let mut data = bytes;
@@ -134,7 +170,7 @@ impl Samples {
             self.carry.extend_from_slice(&data[..take]);
             data = &data[take..];
             if self.carry.len() < size {
-                return;
+                return Ok(());
             }
             let sample = std::mem::take(&mut self.carry);
             self.convert(&sample);
@@ -142,6 +178,7 @@ impl Samples {
         let whole = data.len() / size * size;
         self.convert(&data[..whole]);
         self.carry.extend_from_slice(&data[whole..]);
+        Ok(())
     }
 
     /// Whole samples, swapped or converted, to the core in its little-endian layout.
@@ -185,7 +222,7 @@ impl Samples {
             from.read_exact(&mut buf[..n]).map_err(|e| {
                 ReadError::invalid(path, format!("the data ends {} bytes early: {e}", left))
             })?;
-            self.push(&buf[..n]);
+            self.push(&buf[..n])?;
             left -= n;
         }
         if exact && from.read(&mut [0u8; 1]).is_ok_and(|k| k > 0) {

@@ -305,11 +305,24 @@ impl Decode {
     ) -> Result<Volume, ReadError> {
         let n = self.stored_samples(path)?;
         if self.packing.is_identity() && self.resample.iter().all(Option::is_none) {
-            let mut s = Samples::new(self.sample, self.endian, n);
-            fill(&mut |bytes| s.push(bytes))?;
-            return s.finish(path, self.file_dims, spacing);
+            let mut s = Samples::new(path, self.sample, self.endian, n, n)?;
+            let mut failed = None;
+            fill(&mut |bytes| {
+                if failed.is_none() {
+                    failed = s.push(bytes).err();
+                }
+            })?;
+            return match failed {
+                Some(e) => Err(e),
+                None => s.finish(path, self.file_dims, spacing),
+            };
         }
         // Unpacked and masked a piece at a time: the f32 field and one piece in memory.
+        crate::limit::check(
+            path,
+            &format!("a volume of {n} samples"),
+            (n as u64).saturating_mul(4),
+        )?;
         let mut data: Vec<f32> = Vec::with_capacity(n);
         fill(&mut |bytes| {
             data.extend(

@@ -57,6 +57,7 @@ fn sample_of(t: &TypeDescriptor) -> Option<Sample> {
 /// [`ReadError`] naming `file`: it cannot be opened, has no such dataset, or holds other
 /// than numbers.
 pub fn describe(file: &Path, dataset: &str) -> Result<(Vec<usize>, Sample), ReadError> {
+    crate::regular(file)?;
     let f = hdf5::File::open(file).map_err(|e| library(file, "HDF5 cannot open it", e))?;
     let ds = f.dataset(dataset).map_err(|e| {
         ReadError::invalid(
@@ -113,6 +114,7 @@ fn volumes(f: &hdf5::File) -> Vec<String> {
 /// [`ReadError`] naming the file: not HDF5, no such dataset, a dataset of other than three or
 /// four dimensions, or of other than numbers.
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    crate::regular(path)?;
     let f = hdf5::File::open(path).map_err(|e| library(path, "HDF5 cannot open it", e))?;
     let fields = volumes(&f);
     drop(f);
@@ -259,6 +261,7 @@ fn read_part(part: &Part, dims: [usize; 3], spacing: Vec3) -> Result<Volume, Rea
 fn read_as<T: Le>(part: &Part, dims: [usize; 3], spacing: Vec3) -> Result<Volume, ReadError> {
     use hdf5::SliceOrIndex as S;
     let path = &part.file;
+    crate::regular(path)?;
     let f = hdf5::File::open(path).map_err(|e| library(path, "HDF5 cannot open it", e))?;
     let ds = f
         .dataset(&part.dataset)
@@ -267,7 +270,7 @@ fn read_as<T: Le>(part: &Part, dims: [usize; 3], spacing: Vec3) -> Result<Volume
     let n = samples(path, &dims)?;
     let plane = nx * ny * std::mem::size_of::<T>();
     let per_slab = (crate::bytes::PIECE / plane.max(1)).clamp(1, nz.max(1));
-    let mut s = Samples::new(T::SAMPLE, Endian::Little, n);
+    let mut s = Samples::new(path, T::SAMPLE, Endian::Little, n, n)?;
     let mut bytes = Vec::with_capacity(per_slab * plane);
     let all = |n: usize| S::SliceCount {
         start: 0,
@@ -304,7 +307,7 @@ fn read_as<T: Le>(part: &Part, dims: [usize; 3], spacing: Vec3) -> Result<Volume
         for v in slab.iter() {
             v.put(&mut bytes);
         }
-        s.push(&bytes);
+        s.push(&bytes)?;
         z += k;
     }
     s.finish(path, dims, spacing)

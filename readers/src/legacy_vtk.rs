@@ -67,7 +67,7 @@ impl<'a> Words<'a> {
 /// [`ReadError`] naming the file: no `# vtk DataFile` line, another dataset, a missing
 /// keyword, an unknown type, a truncated array, or no array of that name.
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
+    let bytes = crate::read_file(path)?;
     let bad = |m: String| ReadError::invalid(path, m);
     if !bytes.starts_with(b"# vtk DataFile") {
         return Err(bad(
@@ -229,14 +229,14 @@ impl LegacyVtk {
             let len = n
                 .checked_mul(self.sample.size())
                 .ok_or_else(|| ReadError::invalid(path, "array size overflows"))?;
-            let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+            let mut f = crate::open_file(path)?;
             std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(self.offset as u64))
                 .map_err(ReadError::io(path))?;
-            let mut s = Samples::new(self.sample, Endian::Big, n);
+            let mut s = Samples::new(path, self.sample, Endian::Big, n, n)?;
             s.read_from(path, f, len, false)?;
             return s.finish(path, dims, spacing);
         }
-        let bytes = std::fs::read(path).map_err(ReadError::io(path))?;
+        let bytes = crate::read_file(path)?;
         let rest = bytes.get(self.offset..).unwrap_or_default();
         let mut w = Words {
             bytes: rest,

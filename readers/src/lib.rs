@@ -27,6 +27,7 @@ mod cf;
 #[cfg(feature = "hdf5")]
 pub mod hdf5;
 pub mod legacy_vtk;
+pub mod limit;
 pub mod netcdf3;
 #[cfg(feature = "netcdf4")]
 pub mod netcdf4;
@@ -170,6 +171,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
+    regular(path)?;
     match ext.as_str() {
         "raw" => raw::open(path),
         "nc" | "nc4" if is_hdf5(path)? => open_netcdf4(path, options),
@@ -190,10 +192,63 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
     }
 }
 
+/// Opens `path` for reading if it is a regular file (a symlink to one included): a FIFO, a
+/// socket or a device would block the reader or never end, a directory is no volume.
+///
+/// # Errors
+/// [`ReadError::Io`] when it cannot be inspected or opened, [`ReadError::Invalid`] naming
+/// what it is when it is not a regular file.
+pub(crate) fn open_file(path: &Path) -> Result<std::fs::File, ReadError> {
+    regular(path)?;
+    std::fs::File::open(path).map_err(ReadError::io(path))
+}
+
+/// The whole of `path`, a regular file.
+///
+/// # Errors
+/// As [`open_file`].
+pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, ReadError> {
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut open_file(path)?, &mut bytes).map_err(ReadError::io(path))?;
+    Ok(bytes)
+}
+
+/// Refuses what is not a regular file, naming what it is.
+///
+/// # Errors
+/// As [`open_file`].
+pub(crate) fn regular(path: &Path) -> Result<(), ReadError> {
+    let kind = std::fs::metadata(path).map_err(ReadError::io(path))?.file_type();
+    if kind.is_file() {
+        return Ok(());
+    }
+    let what = if kind.is_dir() {
+        "a directory"
+    } else if is_fifo(&kind) {
+        "a FIFO (named pipe)"
+    } else {
+        "not a regular file (a device or socket)"
+    };
+    Err(ReadError::invalid(
+        path,
+        format!("{what}: volumes are read from regular files"),
+    ))
+}
+
+#[cfg(unix)]
+fn is_fifo(kind: &std::fs::FileType) -> bool {
+    std::os::unix::fs::FileTypeExt::is_fifo(kind)
+}
+
+#[cfg(not(unix))]
+fn is_fifo(_: &std::fs::FileType) -> bool {
+    false
+}
+
 /// Whether the file starts with HDF5's signature (a netCDF-4 file does).
 fn is_hdf5(path: &Path) -> Result<bool, ReadError> {
     let mut magic = [0u8; 8];
-    let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut f = open_file(path)?;
     let n = std::io::Read::read(&mut f, &mut magic).map_err(ReadError::io(path))?;
     Ok(magic[..n] == *b"\x89HDF\r\n\x1a\n")
 }

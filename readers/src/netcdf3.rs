@@ -161,7 +161,7 @@ impl Header<'_> {
 /// such), a truncated header, an unknown or absent variable, a variable of other than three
 /// or four dimensions, non-numeric data.
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut file = crate::open_file(path)?;
     let len = file.metadata().map_err(ReadError::io(path))?.len();
     let mut head = Vec::new();
     (&mut file)
@@ -421,7 +421,7 @@ impl Variable {
         let size = self.decode.sample_size();
         let n = self.decode.stored_samples(path)?;
         let at = self.begin + self.stride * t as u64;
-        let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+        let mut file = crate::open_file(path)?;
         file.seek(SeekFrom::Start(at))
             .map_err(|e| ReadError::invalid(path, format!("step {t} at offset {at}: {e}")))?;
         // Open checked that the file holds every step's bytes; read a piece at a time.

@@ -76,7 +76,7 @@ fn vectors(path: &Path, text: &str) -> Result<Vec<[f64; 3]>, ReadError> {
 /// [`ReadError`] naming the file: no `NRRD` magic, a missing or unknown field, other than
 /// three dimensions, an encoding other than raw or gzip, axes that are not axis-aligned.
 pub fn open(path: &Path) -> Result<Dataset, ReadError> {
-    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut file = crate::open_file(path)?;
     let mut head = Vec::new();
     (&mut file)
         .take(MAX_HEADER as u64)
@@ -251,8 +251,7 @@ impl Nrrd {
         let want = samples(path, &dims)?
             .checked_mul(self.sample.size())
             .ok_or_else(|| ReadError::invalid(path, "size overflows"))?;
-        let io = ReadError::io(&self.data);
-        let file = std::fs::File::open(&self.data).map_err(io)?;
+        let file = crate::open_file(&self.data)?;
         let len = file.metadata().map_err(ReadError::io(&self.data))?.len();
         let mut from = std::io::BufReader::new(file);
         std::io::Seek::seek(&mut from, std::io::SeekFrom::Start(self.offset.min(len)))
@@ -277,7 +276,7 @@ impl Nrrd {
             // Reserved as the data decompresses (at most 1032:1, deflate's limit): a header
             // cannot make us allocate what is not there.
             let bound = (len - skipped).saturating_mul(1032) as usize / self.sample.size();
-            let mut s = Samples::new(self.sample, self.endian, n.min(bound));
+            let mut s = Samples::new(path, self.sample, self.endian, n, bound)?;
             let gz = flate2::read::MultiGzDecoder::new(from);
             s.read_from(&self.data, gz, want, true)?;
             s
@@ -285,7 +284,7 @@ impl Nrrd {
             if len - skipped < want as u64 {
                 return Err(short(len - skipped));
             }
-            let mut s = Samples::new(self.sample, self.endian, n);
+            let mut s = Samples::new(path, self.sample, self.endian, n, n)?;
             s.read_from(&self.data, from, want, false)?;
             s
         };

@@ -247,7 +247,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
                 .offset
                 .ok_or_else(|| bad(format!("array {} has no offset", a.name)))?;
             if tag.contains("encoding=\"base64\"") {
-                let all = std::fs::read(path).map_err(ReadError::io(path))?;
+                let all = crate::read_file(path)?;
                 let from = usize::try_from(start + offset)
                     .unwrap_or(usize::MAX)
                     .min(all.len());
@@ -286,7 +286,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
 /// and where `<AppendedData` starts.
 fn read_to_appended(path: &Path) -> Result<(Vec<u8>, Option<usize>), ReadError> {
     const MARK: &[u8] = b"<AppendedData";
-    let mut file = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let mut file = crate::open_file(path)?;
     let mut bytes = Vec::new();
     let mut chunk = vec![0u8; 1 << 20];
     let mut at = None;
@@ -306,6 +306,28 @@ fn read_to_appended(path: &Path) -> Result<(Vec<u8>, Option<usize>), ReadError> 
             return Ok((bytes, None));
         }
     }
+}
+
+/// Where the appended data ends: the offset of the last `</AppendedData>`, found in the
+/// file's last 64 KiB (VTK closes the element and the document right after the data).
+///
+/// # Errors
+/// [`ReadError::Invalid`] naming `path` when there is none: the file was cut short.
+fn appended_end(path: &Path, f: &mut std::fs::File, len: u64) -> Result<u64, ReadError> {
+    const CLOSE: &[u8] = b"</AppendedData>";
+    let from = len.saturating_sub(64 << 10);
+    std::io::Seek::seek(f, std::io::SeekFrom::Start(from)).map_err(ReadError::io(path))?;
+    let mut tail = Vec::new();
+    f.read_to_end(&mut tail).map_err(ReadError::io(path))?;
+    tail.windows(CLOSE.len())
+        .rposition(|w| w == CLOSE)
+        .map(|p| from + p as u64)
+        .ok_or_else(|| {
+            ReadError::invalid(
+                path,
+                "truncated: no </AppendedData> after the appended data (the file was cut short)",
+            )
+        })
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
@@ -369,11 +391,13 @@ impl Vti {
             }
             ArrayData::Base64(text) => self.decode_base64(path, text, &grid),
             ArrayData::Raw(at) => {
-                let mut f = std::fs::File::open(path).map_err(ReadError::io(path))?;
+                let mut f = crate::open_file(path)?;
                 let len = f.metadata().map_err(ReadError::io(path))?.len();
-                std::io::Seek::seek(&mut f, std::io::SeekFrom::Start((*at).min(len)))
+                // The block ends before `</AppendedData>`: what follows it is not samples.
+                let end = appended_end(path, &mut f, len)?;
+                std::io::Seek::seek(&mut f, std::io::SeekFrom::Start((*at).min(end)))
                     .map_err(ReadError::io(path))?;
-                let left = len.saturating_sub(*at);
+                let left = end.saturating_sub(*at);
                 self.read_block(path, std::io::BufReader::new(f), left, &grid)
             }
         }
@@ -407,7 +431,7 @@ impl Vti {
             if left < (w + want) as u64 {
                 return Err(short("samples"));
             }
-            let mut s = Samples::new(self.sample, self.endian, n);
+            let mut s = Samples::new(path, self.sample, self.endian, n, n)?;
             s.read_from(path, from, want, false)?;
             return s.finish(path, grid.dims, grid.spacing);
         }
@@ -438,7 +462,7 @@ impl Vti {
         // Reserved as the data decompresses (at most 1032:1, deflate's limit).
         let bound = usize::try_from(compressed.saturating_mul(1032)).unwrap_or(usize::MAX)
             / self.sample.size();
-        let mut s = Samples::new(self.sample, self.endian, n.min(bound));
+        let mut s = Samples::new(path, self.sample, self.endian, n, bound)?;
         let (mut packed, mut plain) = (Vec::new(), Vec::new());
         for (k, &c) in sizes.iter().enumerate() {
             packed.resize(c as usize, 0);
@@ -460,7 +484,7 @@ impl Vti {
                     format!("zlib block {k} holds {} bytes, not {expect}", plain.len()),
                 ));
             }
-            s.push(&plain);
+            s.push(&plain)?;
         }
         s.finish(path, grid.dims, grid.spacing)
     }

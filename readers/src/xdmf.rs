@@ -286,8 +286,7 @@ fn grids(path: &Path, root: &Element) -> Result<Vec<Uniform>, ReadError> {
 pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
     use std::io::Read;
     let mut xml = Vec::new();
-    std::fs::File::open(path)
-        .map_err(ReadError::io(path))?
+    crate::open_file(path)?
         .take(MAX_BYTES + 1)
         .read_to_end(&mut xml)
         .map_err(ReadError::io(path))?;

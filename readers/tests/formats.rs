@@ -360,6 +360,61 @@ fn nrrd_attached_detached_gzip_and_big_endian_read_as_written() {
     );
 }
 
+/// A gzip stream of `members` concatenated members, each `member` zero bytes: what a
+/// "gzip bomb" is, built cheaply (the reader takes concatenated members, as gzip does).
+fn gzip_zeros(member: usize, members: usize) -> Vec<u8> {
+    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+    gz.write_all(&vec![0u8; member]).unwrap();
+    gz.finish().unwrap().repeat(members)
+}
+
+#[test]
+fn nrrd_claims_are_checked_against_the_read_limit_and_what_is_there() {
+    let dir = tempfile::tempdir().unwrap();
+    // 16384³ bytes (4 TiB) claimed by 64 KiB of gzip: over any machine's read limit, refused
+    // before a byte is decoded.
+    let mut bomb = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 16384 16384 16384\nencoding: gzip\n\n".to_vec();
+    bomb.extend_from_slice(&gzip_zeros(1 << 20, 64));
+    refused(
+        &write(dir.path(), "bomb.nrrd", &bomb),
+        "4.0 TiB of memory, over the read limit",
+    );
+    // A gzip body holding less than its header claims ends as "early", not as a volume.
+    let mut short = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 64 64 64\nencoding: gzip\n\n".to_vec();
+    short.extend_from_slice(&gzip_zeros(1000, 3));
+    refused(&write(dir.path(), "short.nrrd", &short), "ends");
+    // And one holding more is refused too.
+    let mut long = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 8 8 8\nencoding: gzip\n\n".to_vec();
+    long.extend_from_slice(&gzip_zeros(512, 2));
+    refused(&write(dir.path(), "long.nrrd", &long), "more than");
+}
+
+#[cfg(unix)]
+#[test]
+fn fifos_and_directories_are_refused_without_blocking() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("data.raw");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    assert!(made.unwrap().success(), "mkfifo (coreutils) failed");
+    // A detached header whose data file is a FIFO: opening it would block for a writer.
+    let nhdr = write(
+        dir.path(),
+        "f.nhdr",
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: data.raw\n",
+    );
+    let e = open(&nhdr, &Options::default())
+        .and_then(|d| d.read_step(0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("data.raw: a FIFO"), "{e}");
+    let named = dir.path().join("f.vti");
+    std::fs::rename(&fifo, &named).unwrap();
+    refused(&named, "a FIFO");
+    let sub = dir.path().join("d.nrrd");
+    std::fs::create_dir(&sub).unwrap();
+    refused(&sub, "a directory");
+}
+
 // ---------------------------------------------------------------- legacy VTK
 
 #[test]
@@ -527,6 +582,22 @@ fn vti_ascii_base64_appended_and_zlib_read_as_written() {
         &write(dir.path(), "cut.vti", &file[..file.len() - 40]),
         "vti",
     );
+    // An appended raw block whose count says 96 bytes with 80 following: the closing tags
+    // after them are not samples.
+    let plain = r#"<DataArray type="Float32" Name="rho" format="appended" offset="0"/>"#;
+    let mut short = 96u32.to_le_bytes().to_vec();
+    short.extend_from_slice(&le[..80]);
+    refused(
+        &write(dir.path(), "short.vti", &vti("", plain, Some(&short))),
+        "truncated",
+    );
+    // Cut inside the data: no closing element at all.
+    let mut whole = 96u32.to_le_bytes().to_vec();
+    whole.extend_from_slice(&le);
+    let full = vti("", plain, Some(&whole));
+    check("raw.vti", full.clone());
+    let cut = &full[..full.len() - 40];
+    refused(&write(dir.path(), "cut-raw.vti", cut), "cut short");
     let rotated = String::from_utf8_lossy(&file).replace("1 0 0 0 1 0 0 0 1", "0 1 0 1 0 0 0 0 1");
     refused(
         &write(dir.path(), "rot.vti", rotated.as_bytes()),

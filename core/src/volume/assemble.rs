@@ -54,6 +54,30 @@ impl FieldAssembler {
         }
     }
 
+    /// Bytes one sample takes in memory (u8 1, u16 and i16 2, the rest 4 as f32).
+    pub fn kept_bytes_per_sample(scalar: ScalarType) -> usize {
+        match scalar {
+            ScalarType::U8 => 1,
+            ScalarType::U16 | ScalarType::I16 => 2,
+            ScalarType::F32 | ScalarType::F64 => 4,
+        }
+    }
+
+    /// Room for `voxels` more samples, or the allocator's refusal: a reader that grows a
+    /// field as its data decompresses reports a failed allocation as an error naming the
+    /// size instead of aborting. Growth is amortized as [`Vec::try_reserve`]'s.
+    ///
+    /// # Errors
+    /// [`std::collections::TryReserveError`] when the memory cannot be had.
+    pub fn try_reserve(&mut self, voxels: usize) -> Result<(), std::collections::TryReserveError> {
+        match &mut self.samples {
+            Storage::U8(v) => v.try_reserve(voxels),
+            Storage::U16(v) => v.try_reserve(voxels),
+            Storage::I16(v) => v.try_reserve(voxels),
+            Storage::F32(v) => v.try_reserve(voxels),
+        }
+    }
+
     /// Bytes pushed so far.
     pub fn received_bytes(&self) -> u64 {
         self.received

@@ -10,6 +10,7 @@ mod fields;
 mod fortran;
 mod gpu;
 mod health;
+mod hostile;
 mod install;
 mod mpi;
 mod mpi_runs;
