@@ -93,6 +93,9 @@ pub enum BackendError {
     #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] crate::gpu::GpuError),
+    /// The caller cancelled the render ([`crate::cancel::Cancel`]).
+    #[error(transparent)]
+    Cancelled(#[from] crate::cancel::Cancelled),
 }
 
 /// Where a reported time comes from.
@@ -451,17 +454,40 @@ impl SceneVdi<'_> {
         height: u32,
         termination: f32,
     ) -> Result<Timed<Image>, BackendError> {
+        self.render_until(camera, width, height, termination, None)
+    }
+
+    /// [`SceneVdi::render`] that stops when `cancel` is set: on the CPU between tiles of 16²
+    /// pixels, on the GPU (one dispatch, tens of milliseconds) before and after it.
+    ///
+    /// # Errors
+    /// As [`SceneVdi::render`]; [`BackendError::Cancelled`] when cancelled.
+    pub fn render_until(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        termination: f32,
+        cancel: Option<&crate::cancel::Cancel>,
+    ) -> Result<Timed<Image>, BackendError> {
         let start = Instant::now();
         match self {
             Self::Cpu(walker) => Ok(wall(
-                walker.render(camera, width, height, termination),
+                walker.render_until(camera, width, height, termination, cancel)?,
                 start,
             )),
             #[cfg(feature = "gpu")]
-            Self::Gpu(v) => Ok(from_kernel(
-                v.render(camera, width, height, termination)?,
-                start,
-            )),
+            Self::Gpu(v) => {
+                let stopped = || cancel.is_some_and(crate::cancel::Cancel::is_cancelled);
+                if stopped() {
+                    return Err(crate::cancel::Cancelled.into());
+                }
+                let out = v.render(camera, width, height, termination)?;
+                if stopped() {
+                    return Err(crate::cancel::Cancelled.into());
+                }
+                Ok(from_kernel(out, start))
+            }
         }
     }
 }

@@ -5,6 +5,7 @@
 //! correction, early ray termination and empty-space skipping, parallel over image tiles.
 
 use crate::camera::{Camera, ViewFrame};
+use crate::cancel::{Cancel, Cancelled};
 use crate::image::Image;
 use crate::raycast::{Coverage, FrontToBack, Raycaster};
 use rayon::prelude::*;
@@ -104,11 +105,13 @@ pub(crate) fn tiles<P: Copy + Default + Send>(
 /// `shade(i0, j0, (bw, bh), out)` filling `out` (`bw·bh` pixels, row-major) for pixels
 /// `i0..i0 + bw` × `j0..j0 + bh`, those outside the frame ignored; returns the pixels
 /// row-major from the top. Parallel over bands of `TILE` rows, each written straight into the
-/// one output buffer, as [`tiles`].
+/// one output buffer, as [`tiles`]. `cancel`, read before each tile, stops the work: the
+/// pixels left are then the default, and the caller discards them.
 pub(crate) fn blocks<P: Copy + Default + Send>(
     frame: &ViewFrame,
     shape: impl Fn(u32, u32) -> (u32, u32) + Sync,
     shade: impl Fn(u32, u32, (u32, u32), &mut [P]) + Sync,
+    cancel: Option<&Cancel>,
 ) -> Vec<P> {
     let (w, h) = (frame.width, frame.height);
     let mut pixels = vec![P::default(); w as usize * h as usize];
@@ -123,6 +126,9 @@ pub(crate) fn blocks<P: Copy + Default + Send>(
             let y1 = (y0 + TILE).min(h);
             let mut block = Vec::new();
             for x0 in (0..w).step_by(TILE as usize) {
+                if cancel.is_some_and(Cancel::is_cancelled) {
+                    return;
+                }
                 let x1 = (x0 + TILE).min(w);
                 let (bw, bh) = shape(x0, y0);
                 debug_assert!(bw > 0 && bh > 0 && TILE % bw == 0 && TILE % bh == 0);
@@ -144,12 +150,29 @@ pub(crate) fn blocks<P: Copy + Default + Send>(
 }
 
 /// [`blocks`] of RGB pixels as an [`Image`].
+#[cfg(test)]
 pub(crate) fn render_blocks(
     frame: &ViewFrame,
     shape: impl Fn(u32, u32) -> (u32, u32) + Sync,
     shade: impl Fn(u32, u32, (u32, u32), &mut [[f32; 3]]) + Sync,
 ) -> Image {
-    let pixels = blocks(frame, shape, shade);
-    Image::from_pixels(frame.width, frame.height, pixels)
-        .unwrap_or_else(|| Image::new(frame.width, frame.height))
+    render_blocks_until(frame, shape, shade, None).unwrap_or_else(|_| Image::new(0, 0))
+}
+
+/// [`render_blocks`] stopped between tiles when `cancel` is set.
+///
+/// # Errors
+/// [`Cancelled`] when it was.
+pub(crate) fn render_blocks_until(
+    frame: &ViewFrame,
+    shape: impl Fn(u32, u32) -> (u32, u32) + Sync,
+    shade: impl Fn(u32, u32, (u32, u32), &mut [[f32; 3]]) + Sync,
+    cancel: Option<&Cancel>,
+) -> Result<Image, Cancelled> {
+    let pixels = blocks(frame, shape, shade, cancel);
+    if cancel.is_some_and(Cancel::is_cancelled) {
+        return Err(Cancelled);
+    }
+    Ok(Image::from_pixels(frame.width, frame.height, pixels)
+        .unwrap_or_else(|| Image::new(frame.width, frame.height)))
 }

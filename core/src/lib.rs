@@ -31,6 +31,7 @@
 pub mod adherence;
 pub mod backend;
 pub mod camera;
+pub mod cancel;
 pub mod compose;
 pub mod dvr;
 pub mod evaluate;

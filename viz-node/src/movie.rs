@@ -4,6 +4,7 @@
 //! and the viewer's `/api/movie`.
 
 use crate::view::{self, View};
+use insitu_core::cancel::Cancel;
 use insitu_core::{Backend, Image, Vdi};
 use std::io::Write;
 use std::ops::Deref;
@@ -33,6 +34,12 @@ pub enum MovieError {
     /// `ffmpeg` failed, or its output could not be kept.
     #[error("ffmpeg: {0}")]
     Ffmpeg(String),
+    /// Another movie or large still holds the lane: try again shortly.
+    #[error("{0}")]
+    Busy(String),
+    /// Its client went away ([`Cancel`]); `ffmpeg` was stopped and nothing kept.
+    #[error("the movie was cancelled (its client went away)")]
+    Cancelled,
 }
 
 /// A movie's camera path: `start` (its elevation, zoom and frame size) orbited by
@@ -51,10 +58,12 @@ pub struct Orbit {
 
 /// Encodes `steps` steps along `orbit` into `out`: step `i`'s VDI from `load(i)` (loaded once
 /// for its frames), rendered on `backend` with the early termination `termination` gives for
-/// it. Returns the frames written.
+/// it; `cancel`, once set, stops the frame being rendered and the movie. Returns the frames
+/// written.
 ///
 /// # Errors
-/// As [`encode`]; a step that cannot be loaded or rendered is a [`MovieError::Frame`].
+/// As [`encode`]; a step that cannot be loaded or rendered is a [`MovieError::Frame`];
+/// [`MovieError::Cancelled`] when `cancel` was set.
 pub fn encode_orbit<V: Deref<Target = Vdi>>(
     out: &Path,
     orbit: &Orbit,
@@ -62,6 +71,7 @@ pub fn encode_orbit<V: Deref<Target = Vdi>>(
     backend: &Backend,
     mut load: impl FnMut(usize) -> Result<V, String>,
     termination: impl Fn(&Vdi) -> f32,
+    cancel: Option<&Cancel>,
 ) -> Result<u32, MovieError> {
     let per = orbit.frames_per_step.max(1);
     let frames = u32::try_from(steps)
@@ -70,7 +80,7 @@ pub fn encode_orbit<V: Deref<Target = Vdi>>(
         .ok_or_else(|| MovieError::BadRequest(format!("{steps} steps × {per} frames")))?;
     let size = (orbit.start.width, orbit.start.height);
     let mut shown: Option<(usize, V)> = None;
-    encode(out, size, orbit.fps, frames, |k| {
+    let made = encode(out, size, orbit.fps, frames, |k| {
         let i = (k / per) as usize;
         if shown.as_ref().is_none_or(|(j, _)| *j != i) {
             shown = Some((i, load(i)?));
@@ -82,11 +92,14 @@ pub fn encode_orbit<V: Deref<Target = Vdi>>(
             angle_deg: orbit.start.angle_deg + orbit.orbit_deg * k as f32,
             ..orbit.start
         };
-        view::render(backend, vdi, &v, termination(vdi))
+        view::render(backend, vdi, &v, termination(vdi), cancel)
             .map(|(image, _)| image)
             .map_err(|e| e.to_string())
-    })?;
-    Ok(frames)
+    });
+    match made {
+        Err(_) if cancel.is_some_and(Cancel::is_cancelled) => Err(MovieError::Cancelled),
+        other => other.map(|()| frames),
+    }
 }
 
 /// Encodes `frames` frames of `width × height` at `fps` into `out`, frame `k` rendered by
@@ -170,6 +183,10 @@ pub fn encode(
         }
         Ok(())
     })();
+    if fed.is_err() {
+        // Not waited for to finish encoding what it has: that is thrown away.
+        let _ = child.kill();
+    }
     let output = child
         .wait_with_output()
         .map_err(|e| MovieError::Ffmpeg(format!("waiting for it: {e}")));

@@ -6,6 +6,7 @@
 
 use crate::decoded::Expected;
 use crate::store::{Entry, StepEntry};
+use insitu_core::cancel::Cancel;
 use insitu_core::vdi::Vdi;
 use insitu_core::{Backend, Camera, Image};
 use serde::{Deserialize, Serialize};
@@ -35,6 +36,9 @@ pub enum ViewError {
     /// A stored file cannot be read or decoded, or rendering failed.
     #[error("{0}")]
     Failed(String),
+    /// The render was stopped: its client went away ([`Cancel`]).
+    #[error("the render was cancelled (its client went away)")]
+    Cancelled,
 }
 
 /// A camera about a stored VDI and an image size: the generation camera orbited by
@@ -207,8 +211,9 @@ pub fn level<'a>(vdi: &'a Vdi, view: &View, lod: bool) -> &'a Vdi {
     }
 }
 
-/// Renders `vdi` at `view` on `backend` with early termination `termination`; returns the
-/// image and the render's seconds (wall clock, or GPU time on the GPU backend).
+/// Renders `vdi` at `view` on `backend` with early termination `termination`, stopped between
+/// tiles when `cancel` is set; returns the image and the render's seconds (wall clock, or GPU
+/// time on the GPU backend).
 ///
 /// # Errors
 /// [`ViewError::BadRequest`] for a bad view, [`ViewError::Failed`] when rendering fails.
@@ -217,14 +222,18 @@ pub fn render(
     vdi: &Vdi,
     view: &View,
     termination: f32,
+    cancel: Option<&Cancel>,
 ) -> Result<(Image, f64), ViewError> {
     view.check(u64::MAX)?;
     let camera = view.camera(&vdi.meta().camera);
     let t = Instant::now();
     let out = backend
         .prepare_vdi(vdi)
-        .and_then(|v| v.render(&camera, view.width, view.height, termination))
-        .map_err(|e| ViewError::Failed(format!("rendering: {e}")))?;
+        .and_then(|v| v.render_until(&camera, view.width, view.height, termination, cancel))
+        .map_err(|e| match e {
+            insitu_core::backend::BackendError::Cancelled(_) => ViewError::Cancelled,
+            e => ViewError::Failed(format!("rendering: {e}")),
+        })?;
     // Wall clock whatever the backend: what a viewer waits for.
     let secs = t.elapsed().as_secs_f64();
     Ok((out.value, secs))

@@ -84,7 +84,7 @@ fn fill(stored: &Stored, dir: &Path, grid: &Grid, backend: &Backend) -> Result<u
                     width: grid.width,
                     height: grid.height,
                 };
-                let (image, _) = view::render(backend, &vdi, &v, termination)
+                let (image, _) = view::render(backend, &vdi, &v, termination, None)
                     .with_context(|| format!("step {} at phi {phi}, theta {theta}", s.step))?;
                 let file = image_name(s.step, phi, theta);
                 let path = dir.join(&file);

@@ -23,5 +23,6 @@ pub fn write(stored: &Stored, out: &Path, orbit: &Orbit, backend: &Backend) -> R
         backend,
         |i| load(i).map(Box::new),
         |v| v.meta().termination,
+        None,
     )?)
 }

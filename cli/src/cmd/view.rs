@@ -77,10 +77,10 @@ pub fn run(a: Args) -> Result<()> {
     let t = std::time::Instant::now();
     let level = view::level(&vdi, &v, a.lod);
     let level_secs = t.elapsed().as_secs_f64();
-    let (image, secs) = view::render(&backend, level, &v, termination)?;
+    let (image, secs) = view::render(&backend, level, &v, termination, None)?;
     let mut again = Vec::new();
     for _ in 1..a.repeat {
-        again.push(view::render(&backend, level, &v, termination)?.1);
+        again.push(view::render(&backend, level, &v, termination, None)?.1);
     }
     write_png(&a.out, &image)?;
     let lod = if a.lod {

@@ -18,6 +18,7 @@ mod outage;
 mod policies;
 mod python;
 mod ranks;
+mod renders;
 mod replay;
 mod shards;
 mod slurm;

@@ -12,6 +12,7 @@ use axum::http::{header, HeaderName};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use insitu_core::adherence::Adherence;
+use insitu_core::cancel::Cancel;
 use insitu_core::evaluate::Sizing;
 use insitu_core::json::f32_number;
 use serde::Deserialize;
@@ -190,7 +191,8 @@ pub struct Frame {
 }
 
 /// Renders `step` (none: the latest stored; `rank`, or composed) at `view` and encodes it as
-/// `format`, counted; both on the blocking pool under the HTTP render semaphore.
+/// `format`, counted; both on the blocking pool under the HTTP render semaphore, the render
+/// on its lane's threads ([`super::pools`]), cancelled if this future is dropped.
 ///
 /// # Errors
 /// [`ViewError`] for a bad view, a missing step, or a failed render or encoding.
@@ -230,13 +232,27 @@ pub async fn render_frame(
         http.renders.enter().await.map_err(|b| busy(b, "frames"))?,
         lane,
     );
+    // Dropped with this request (its client hung up, its socket closed): the render stops
+    // at its next tile and gives its permits back.
+    let cancel = Cancel::new();
+    let _stop = cancel.on_drop();
     let h = http.clone();
     let frame = tokio::task::spawn_blocking(move || {
         let _permit = permit;
+        let running = super::Running::start(&h);
         let vdi = h.vdi(&file)?;
         let level = view::level(&vdi, &v, lod);
+        let rendered = h.pools.install(large, || {
+            view::render(
+                &h.shared.backend,
+                level,
+                &v,
+                h.shared.termination,
+                Some(&cancel),
+            )
+        });
         let (image, render_secs) =
-            view::render(&h.shared.backend, level, &v, h.shared.termination)?;
+            running.end(rendered, |e| matches!(e, ViewError::Cancelled))?;
         let t = Instant::now();
         let bytes = view::encode(&image, format, quality)?;
         Ok::<_, ViewError>(Frame {
@@ -397,8 +413,9 @@ pub async fn reference(
     }
 }
 
-/// `GET /api/stats`: frames rendered, camera requests superseded before rendering, requests
-/// refused, sockets open, VDIs stored.
+/// `GET /api/stats`: frames rendered, camera requests superseded before rendering, renders
+/// running now and those cancelled by their client going away, requests refused, sockets
+/// open, VDIs stored.
 pub async fn stats(State(http): State<Arc<Http>>) -> Json<Value> {
     Json(super::stats(&http))
 }

@@ -23,6 +23,7 @@ pub mod live;
 pub mod movie;
 pub mod numbers;
 pub mod origin;
+pub mod pools;
 pub mod preview;
 pub mod steer;
 pub mod tls;
@@ -66,11 +67,17 @@ pub struct Http {
     renders: lanes::Lane,
     /// The lane of large stills, one at a time ([`lanes`]).
     large: lanes::Lane,
+    /// The threads interactive frames and large renders run on ([`pools`]).
+    pools: pools::Pools,
     cache: Mutex<Vec<(String, Arc<Vdi>)>>,
     /// Frames rendered (still renders and socket frames).
     pub rendered: AtomicU64,
     /// Socket camera requests replaced by a newer one before they were rendered.
     pub superseded: AtomicU64,
+    /// Renders (frames and movies) running now.
+    pub rendering: AtomicU64,
+    /// Renders and movies stopped because their client went away.
+    pub cancelled: AtomicU64,
     /// Socket requests refused (malformed JSON, bad values).
     pub refused: AtomicU64,
     /// Sockets open now.
@@ -102,9 +109,12 @@ impl Http {
             allowed: origin::Allowed::new(hosts),
             renders: lanes::Lane::new(render_concurrency, lanes::WAITING),
             large: lanes::Lane::new(1, lanes::LARGE_WAITING),
+            pools: pools::Pools::new(0),
             cache: Mutex::new(Vec::new()),
             rendered: AtomicU64::new(0),
             superseded: AtomicU64::new(0),
+            rendering: AtomicU64::new(0),
+            cancelled: AtomicU64::new(0),
             refused: AtomicU64::new(0),
             clients: AtomicU64::new(0),
             socket_idle,
@@ -262,7 +272,8 @@ impl IntoResponse for ViewError {
             ViewError::NotFound(_) => StatusCode::NOT_FOUND,
             ViewError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ViewError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
-            ViewError::Busy(_) => StatusCode::SERVICE_UNAVAILABLE,
+            // Cancelled: nobody waits for the answer.
+            ViewError::Busy(_) | ViewError::Cancelled => StatusCode::SERVICE_UNAVAILABLE,
             ViewError::Failed(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
         let message = self.to_string();
@@ -382,12 +393,39 @@ async fn style() -> impl IntoResponse {
     )
 }
 
+/// Counts a render in [`Http::rendering`] while it lives, and in [`Http::cancelled`] when
+/// it ends cancelled ([`Running::end`]).
+pub(crate) struct Running<'a>(&'a Http);
+
+impl<'a> Running<'a> {
+    pub(crate) fn start(http: &'a Http) -> Self {
+        http.rendering.fetch_add(1, Ordering::Relaxed);
+        Self(http)
+    }
+
+    /// Passes `out` through, counting it when it says the render was cancelled.
+    pub(crate) fn end<T, E>(self, out: Result<T, E>, cancelled: impl Fn(&E) -> bool) -> Result<T, E> {
+        if out.as_ref().err().is_some_and(cancelled) {
+            self.0.cancelled.fetch_add(1, Ordering::Relaxed);
+        }
+        out
+    }
+}
+
+impl Drop for Running<'_> {
+    fn drop(&mut self) {
+        self.0.rendering.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
 /// The counters of `GET /api/stats`.
 pub fn stats(http: &Http) -> serde_json::Value {
     let n = |a: &AtomicU64| a.load(Ordering::Relaxed);
     serde_json::json!({
         "rendered": n(&http.rendered),
         "superseded": n(&http.superseded),
+        "rendering": n(&http.rendering),
+        "cancelled": n(&http.cancelled),
         "refused": n(&http.refused),
         "clients": n(&http.clients),
         "vdis_stored": n(&http.shared.vdis_stored),

@@ -12,6 +12,7 @@ use axum::extract::{Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
+use insitu_core::cancel::Cancel;
 use std::sync::Arc;
 
 /// Largest frame of a movie, pixels.
@@ -64,6 +65,7 @@ pub async fn movie(
             MovieError::NoFfmpeg.to_string(),
         ),
         Err(MovieError::BadRequest(m)) => ViewError::BadRequest(m).into_response(),
+        Err(MovieError::Busy(m)) => ViewError::Busy(m).into_response(),
         Err(e) => ViewError::Failed(e.to_string()).into_response(),
     }
 }
@@ -121,11 +123,15 @@ async fn make(
     };
     first.check(MAX_PIXELS).map_err(|e| bad(e.to_string()))?;
     let lane = http.large.enter().await.map_err(|b| {
-        MovieError::Ffmpeg(format!(
+        MovieError::Busy(format!(
             "{} large renders already wait; try again shortly",
             b.waiting
         ))
     })?;
+    // Dropped with this request (its client hung up): the frame being rendered stops at its
+    // next tile, ffmpeg is stopped, and the lane is free for the next.
+    let cancel = Cancel::new();
+    let _stop = cancel.on_drop();
     let h = http.clone();
     tokio::task::spawn_blocking(move || {
         let _lane = lane;
@@ -137,14 +143,19 @@ async fn make(
             frames_per_step: per,
             fps,
         };
-        let made = crate::movie::encode_orbit(
-            &out,
-            &orbit,
-            files.len(),
-            &h.shared.backend,
-            |i| h.vdi(&files[i]).map_err(|e| e.to_string()),
-            |_| h.shared.termination,
-        );
+        let running = super::Running::start(&h);
+        let made = h.pools.install(true, || {
+            crate::movie::encode_orbit(
+                &out,
+                &orbit,
+                files.len(),
+                &h.shared.backend,
+                |i| h.vdi(&files[i]).map_err(|e| e.to_string()),
+                |_| h.shared.termination,
+                Some(&cancel),
+            )
+        });
+        let made = running.end(made, |e| matches!(e, MovieError::Cancelled));
         let bytes = made.and_then(|_| {
             std::fs::read(&out).map_err(|e| MovieError::Ffmpeg(format!("reading the movie: {e}")))
         });

@@ -25,7 +25,8 @@ mod packet;
 
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
-use crate::dvr::render_blocks;
+use crate::cancel::{Cancel, Cancelled};
+use crate::dvr::render_blocks_until;
 use crate::fastmath::{self, one_minus_exp_neg};
 use crate::image::Image;
 use crate::raycast::{chessboard_distance, Avx2, FrontToBack};
@@ -324,16 +325,33 @@ impl<'a> Walker<'a> {
     /// Renders the VDI seen by `camera` at `width × height`, stopping rays at accumulated
     /// opacity `termination` (in (0, 1]); background black.
     pub fn render(&self, camera: &Camera, width: u32, height: u32, termination: f32) -> Image {
+        self.render_until(camera, width, height, termination, None)
+            .unwrap_or_else(|_| Image::new(width, height))
+    }
+
+    /// [`Walker::render`], stopped between tiles when `cancel` is set.
+    ///
+    /// # Errors
+    /// [`Cancelled`] when it was.
+    pub fn render_until(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        termination: f32,
+        cancel: Option<&Cancel>,
+    ) -> Result<Image, Cancelled> {
         let frame = camera.frame(width, height);
         // The generation eye seen from the new camera: where the epipolar lines meet.
         let gen_eye = frame.to_eye(self.gen.eye);
-        render_blocks(
+        render_blocks_until(
             &frame,
             |x0, y0| packet::shape(&frame, gen_eye, x0, y0),
             |i0, j0, (w, _), out| {
                 let block = packet::Block::new(i0, j0, w);
                 self.integrate_packet(&frame, block, termination, out)
             },
+            cancel,
         )
     }
 
@@ -996,6 +1014,20 @@ mod tests {
                 ..cam.orbit_y(35.0)
             },
         ]
+    }
+
+    /// A render asked to stop stops: cancelled, it returns no image; never cancelled, it
+    /// equals the plain render bit for bit.
+    #[test]
+    fn a_cancelled_render_stops_and_an_uncancelled_one_is_unchanged() {
+        let (vdi, cam) = blobs();
+        let w = Walker::new(&vdi);
+        let plain = w.render(&cam, 96, 64, 0.99);
+        let go = Cancel::new();
+        let same = w.render_until(&cam, 96, 64, 0.99, Some(&go)).unwrap();
+        assert_eq!(plain.pixels(), same.pixels());
+        go.cancel();
+        assert_eq!(w.render_until(&cam, 96, 64, 0.99, Some(&go)), Err(Cancelled));
     }
 
     /// Skipping tiles by depth range, squares of empty tiles, and pixels by depth occupancy
