@@ -10,6 +10,8 @@ use insitu_core::json::f32_number;
 use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
 use insitu_proto::pb::viz_client::VizClient;
+use insitu_client::SimClient;
+use insitu_proto::auth::{AttachToken, Token};
 use insitu_proto::peer::Peer;
 use insitu_proto::{pb, transport};
 use std::net::SocketAddr;
@@ -348,15 +350,16 @@ impl Printer {
 /// # Errors
 /// When the viz-node cannot be reached.
 pub async fn print_reports(
-    viz: SocketAddr,
+    (viz, token): (SocketAddr, Option<&Token>),
     generator: Option<Arc<gen::shared::Shared>>,
     tuner: Option<&insitu_tuner_node::RunningTuner>,
     json: bool,
 ) -> Result<Printer> {
     let channel = transport::connect(&transport::uri(&viz.to_string())).await?;
-    let mut stream = VizClient::new(channel)
+    let mut stream = VizClient::with_interceptor(channel, AttachToken::new(token))
         .subscribe(pb::SubscribeRequest {})
-        .await?
+        .await
+        .map_err(|e| local_refusal(&e, "the viz-node"))?
         .into_inner();
     let mut decisions = tuner.map(|t| t.engine().subscribe());
     let budgets = tuner.map_or_else(Budgets::default, |t| Budgets::of(&t.engine().status()));
@@ -393,6 +396,17 @@ pub async fn print_reports(
     Ok(Printer { task, seen })
 }
 
+/// A refusal by the local `link` ("the viz-node"), naming it and, for a token refused, what
+/// to check.
+fn local_refusal(e: &tonic::Status, link: &str) -> anyhow::Error {
+    let hint = if e.code() == tonic::Code::Unauthenticated {
+        " (the local nodes take INSITU_TOKEN from this environment: unset it or set it to a printable token)"
+    } else {
+        ""
+    };
+    anyhow::anyhow!("subscribing to {link}'s reports: {}{hint}", e.message())
+}
+
 /// The two nodes, in process.
 pub struct LocalNodes {
     /// The generator-node.
@@ -401,6 +415,8 @@ pub struct LocalNodes {
     pub viz: insitu_viz_node::RunningViz,
     /// The tuner (none with `--no-tune`).
     pub tuner: Option<insitu_tuner_node::RunningTuner>,
+    /// The token the nodes took from `INSITU_TOKEN`, sent by the clients here.
+    pub token: Option<Token>,
     /// Print JSON lines.
     pub json: bool,
     /// Where the viz-node records.
@@ -450,6 +466,8 @@ impl LocalNodes {
         tweak: impl FnOnce(&mut gen::Config),
     ) -> Result<Self> {
         let recording = a.recording.clone().unwrap_or_else(default_recording);
+        // The nodes below read INSITU_TOKEN as daemons do, so the clients here send it too.
+        let token = Token::load(None).context("reading INSITU_TOKEN for the local nodes")?;
         let viz = insitu_viz_node::start(insitu_viz_node::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             recording_dir: recording.clone(),
@@ -479,7 +497,12 @@ impl LocalNodes {
             Some(start_tuner((utility, precisions), &recording, viz.local_addr()).await?)
         };
         if let (Some(t), Some(h)) = (&tuner, viz.http()) {
-            h.watch_tuner(Peer::new(&t.local_addr().to_string(), None, None, false)?);
+            h.watch_tuner(Peer::new(
+                &t.local_addr().to_string(),
+                token.clone(),
+                None,
+                false,
+            )?);
         }
         let mut cfg = gen::Config {
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
@@ -519,10 +542,19 @@ impl LocalNodes {
             generator,
             viz,
             tuner,
+            token,
             json: a.json,
             recording,
             keep_serving: a.keep_serving,
         })
+    }
+
+    /// A client of the local generator-node, sending the token the nodes were started with.
+    ///
+    /// # Errors
+    /// When it cannot be reached.
+    pub async fn generator_client(&self) -> Result<SimClient> {
+        Ok(SimClient::connect(&self.generator_addr(), self.token.as_ref()).await?)
     }
 
     /// The generator-node's address.
@@ -536,7 +568,7 @@ impl LocalNodes {
     /// When the viz-node cannot be reached.
     pub async fn printer(&self) -> Result<Printer> {
         print_reports(
-            self.viz.local_addr(),
+            (self.viz.local_addr(), self.token.as_ref()),
             Some(self.generator.shared().clone()),
             self.tuner.as_ref(),
             self.json,

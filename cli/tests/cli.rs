@@ -1303,7 +1303,14 @@ fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
         }
         let o = insitu(&replay, dir.path());
         assert!(!o.status.success(), "{damage}: a run started on it");
-        assert!(stderr(&o).contains("insitu recover"), "{}", stderr(&o));
+        // The advice is the command as it is typed.
+        assert!(stderr(&o).contains("insitu recover --recording"), "{}", stderr(&o));
+        // Reading it says the same, not only SQLite's words.
+        for read in [&["view", "--recording", "rec"][..], &["export", "--recording", "rec", "--out", "rows.json"]] {
+            let o = insitu(read, dir.path());
+            assert!(!o.status.success(), "{damage}: {read:?} read it");
+            assert!(stderr(&o).contains("insitu recover --recording"), "{read:?}: {}", stderr(&o));
+        }
         assert_eq!(std::fs::read(&vdi).unwrap(), original, "{damage}");
         let o = insitu(
             &["recover", "--recording", "rec", "--backend", "cpu"],

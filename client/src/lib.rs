@@ -72,8 +72,9 @@ pub enum ClientError {
     /// TLS files.
     #[error(transparent)]
     Tls(#[from] insitu_proto::tls::TlsError),
-    /// The node answered with an error (bad step, shutting down, wrong token, …).
-    #[error("generator-node refused the call: {code:?}: {message}")]
+    /// The node answered with an error (bad step, shutting down, wrong token, …), or the
+    /// call failed on the way (`Unavailable`: the node went away).
+    #[error("{}", refusal_text(*code, message))]
     Refused {
         /// gRPC status code.
         code: tonic::Code,
@@ -83,6 +84,21 @@ pub enum ClientError {
     /// The step's description is inconsistent (checked before sending).
     #[error("invalid step: {0}")]
     InvalidStep(String),
+}
+
+/// What a failed call says: what happened, and for the codes a user can act on, what to do.
+fn refusal_text(code: tonic::Code, message: &str) -> String {
+    match code {
+        tonic::Code::Unavailable => format!(
+            "the generator-node went away ({message}): it stopped or the link broke; restart \
+             it and push again (with a [spool] it resumes the steps it had acknowledged)"
+        ),
+        tonic::Code::Unauthenticated => format!(
+            "the generator-node refused the token ({message}): give the client the token the \
+             node was started with (INSITU_TOKEN or its token file)"
+        ),
+        code => format!("generator-node refused the call: {code:?}: {message}"),
+    }
 }
 
 impl From<tonic::Status> for ClientError {

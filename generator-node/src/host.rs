@@ -278,6 +278,19 @@ impl Gather {
         self.compose && world_size > 1
     }
 
+    /// What the oldest step still gathered waits for, for a flush that times out: "step 1
+    /// waits for its ranks: 1 of 4 received, shipped as it is 30 s after the last arrived".
+    pub fn waiting(&self) -> Option<String> {
+        let s = self.state();
+        let (step, p) = s.steps.iter().next()?;
+        Some(format!(
+            "step {step} waits for its ranks: {} of {} received, shipped as it is {} s after the last arrived ([host] wait_secs)",
+            p.received.len(),
+            p.world_size,
+            self.wait.as_secs_f64()
+        ))
+    }
+
     /// Rank `rank` of `step`, of a world of `world_size`, is being received.
     pub fn received(&self, step: u64, rank: u32, world_size: u32) {
         if !self.gathers(world_size) {

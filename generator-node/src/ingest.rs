@@ -142,6 +142,7 @@ pub fn check_step(
             h.rank, h.world_size
         )));
     }
+    check_world(h.world_size, brick_dims, global_dims)?;
     let spacing = h
         .spacing
         .as_ref()
@@ -192,6 +193,32 @@ pub fn check_step(
         },
         window,
     ))
+}
+
+/// Most ranks a step's world may have.
+pub const MAX_WORLD_SIZE: u32 = 1 << 20;
+
+/// Refuses a world that cannot be: over [`MAX_WORLD_SIZE`] ranks, or more ranks than the grid
+/// has room for beside this rank's brick (bricks do not overlap and each holds a voxel), so
+/// a step is never held waiting for ranks that cannot exist.
+///
+/// # Errors
+/// `INVALID_ARGUMENT` naming `world_size`, the limit or the grid.
+fn check_world(world_size: u32, brick: [usize; 3], grid: [usize; 3]) -> Result<(), Status> {
+    if world_size > MAX_WORLD_SIZE {
+        return Err(Status::invalid_argument(format!(
+            "world_size {world_size} is over the limit of {MAX_WORLD_SIZE} ranks"
+        )));
+    }
+    let voxels = |d: [usize; 3]| d.iter().map(|&n| n as u64).product::<u64>();
+    let room = voxels(grid) - voxels(brick);
+    if u64::from(world_size - 1) > room {
+        return Err(Status::invalid_argument(format!(
+            "world_size {world_size}: this rank's brick {brick:?} leaves {room} voxel(s) of the grid {grid:?} for the other {} ranks, and bricks do not overlap",
+            world_size - 1
+        )));
+    }
+    Ok(())
 }
 
 /// The field [`check_step`] chose.
@@ -476,6 +503,18 @@ mod tests {
         );
         assert!(msg(&|h| h.rank = 2).contains("rank"));
         assert!(msg(&|h| h.world_size = 0).contains("world_size"));
+        // The probe's world: four billion ranks, acknowledged and then waited for.
+        assert!(msg(&|h| {
+            h.rank = 0;
+            h.world_size = u32::MAX;
+        })
+        .contains("over the limit of 1048576 ranks"));
+        // More ranks than the grid has voxels beside this rank's brick.
+        let m = msg(&|h| {
+            h.rank = 0;
+            h.world_size = 1 << 19;
+        });
+        assert!(m.contains("leaves") && m.contains("bricks do not overlap"), "{m}");
         assert!(msg(&|h| h.spacing = Some(pb::Vec3 {
             x: 1.0,
             y: 0.0,
@@ -592,6 +631,8 @@ mod tests {
         // Cell data from one of several ranks, and on an axis of one point.
         let mut h = named();
         h.world_size = 2;
+        // The other rank's brick beside this one.
+        h.global_dims = Some(pb::Dims3 { x: 8, y: 3, z: 2 });
         assert!(msg(&h, Some("p")).contains("cell data is taken from a single rank"));
         assert!(
             check_step(&h, Some("u")).is_ok(),

@@ -303,13 +303,17 @@ impl Generator for GeneratorService {
         .await
         .map_err(|_| {
             let why = s.stats.ship_error();
+            let why = if !why.is_empty() {
+                why
+            } else if let Some(gathering) = s.host.waiting() {
+                gathering
+            } else if s.stats.get().viz_connected {
+                "the viz-node is connected: the steps are still being made or shipped".to_owned()
+            } else {
+                "is the viz-node reachable?".to_owned()
+            };
             Status::deadline_exceeded(format!(
-                "flush: not all of {target} steps were shipped within {timeout} s ({})",
-                if why.is_empty() {
-                    "is the viz-node reachable?".to_owned()
-                } else {
-                    why
-                }
+                "flush: not all of {target} steps were shipped within {timeout} s ({why})"
             ))
         })?;
         // Refusals of the flushing client's ranks since their last flush make this one fail,

@@ -218,7 +218,9 @@ pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, ReadError> {
 /// # Errors
 /// As [`open_file`].
 pub(crate) fn regular(path: &Path) -> Result<(), ReadError> {
-    let kind = std::fs::metadata(path).map_err(ReadError::io(path))?.file_type();
+    let kind = std::fs::metadata(path)
+        .map_err(ReadError::io(path))?
+        .file_type();
     if kind.is_file() {
         return Ok(());
     }

@@ -373,18 +373,22 @@ fn nrrd_claims_are_checked_against_the_read_limit_and_what_is_there() {
     let dir = tempfile::tempdir().unwrap();
     // 16384³ bytes (4 TiB) claimed by 64 KiB of gzip: over any machine's read limit, refused
     // before a byte is decoded.
-    let mut bomb = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 16384 16384 16384\nencoding: gzip\n\n".to_vec();
+    let mut bomb =
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 16384 16384 16384\nencoding: gzip\n\n"
+            .to_vec();
     bomb.extend_from_slice(&gzip_zeros(1 << 20, 64));
     refused(
         &write(dir.path(), "bomb.nrrd", &bomb),
         "4.0 TiB of memory, over the read limit",
     );
     // A gzip body holding less than its header claims ends as "early", not as a volume.
-    let mut short = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 64 64 64\nencoding: gzip\n\n".to_vec();
+    let mut short =
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 64 64 64\nencoding: gzip\n\n".to_vec();
     short.extend_from_slice(&gzip_zeros(1000, 3));
     refused(&write(dir.path(), "short.nrrd", &short), "ends");
     // And one holding more is refused too.
-    let mut long = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 8 8 8\nencoding: gzip\n\n".to_vec();
+    let mut long =
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 8 8 8\nencoding: gzip\n\n".to_vec();
     long.extend_from_slice(&gzip_zeros(512, 2));
     refused(&write(dir.path(), "long.nrrd", &long), "more than");
 }

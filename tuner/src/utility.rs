@@ -137,8 +137,9 @@ pub fn bytes_text(b: u64) -> String {
     }
 }
 
-/// A built-in utility from text: `size:2MB` (Eq. 1), `time:0.5` (Eq. 2, seconds),
-/// `size:2MB,time:0.5` (both), `quality:40` (smallest σ with q ≥ 40 dB).
+/// A built-in utility from text: `size:2MB` (Eq. 1), `time:0.5` or `time:0.5s` or
+/// `time:500ms` (Eq. 2, seconds), `size:2MB,time:0.5s` (both), `quality:40` or `quality:40dB`
+/// (smallest σ with q ≥ 40 dB).
 ///
 /// # Errors
 /// [`UtilityError`] naming the spec: unknown kind, unparsable or non-positive budget.
@@ -219,20 +220,16 @@ impl UtilitySpec {
                     size = Some(b);
                 }
                 "time" => {
-                    let t: f64 = value
-                        .trim()
-                        .parse()
-                        .map_err(|_| err("time must be seconds"))?;
+                    let t = parse_seconds(value)
+                        .ok_or_else(|| err("time must be seconds such as 0.5, 0.5s or 500ms"))?;
                     if !(t.is_finite() && t > 0.0) {
                         return Err(err("a time budget must be finite and > 0"));
                     }
                     time = Some(t);
                 }
                 "quality" => {
-                    let q: f64 = value
-                        .trim()
-                        .parse()
-                        .map_err(|_| err("quality must be dB"))?;
+                    let q = parse_db(value)
+                        .ok_or_else(|| err("quality must be dB such as 40 or 40dB"))?;
                     if !q.is_finite() {
                         return Err(err("a quality target must be finite"));
                     }
@@ -253,6 +250,30 @@ impl UtilitySpec {
             _ => return Err(err("quality cannot be combined with budgets")),
         })
     }
+}
+
+/// Seconds as text: a number, with an optional unit `s` or `ms` (`0.5`, `0.5s`, `500 ms`).
+pub fn parse_seconds(text: &str) -> Option<f64> {
+    let t = text.trim();
+    let (number, scale) = if let Some(n) = t.strip_suffix("ms") {
+        (n, 1e-3)
+    } else if let Some(n) = t.strip_suffix('s') {
+        (n, 1.0)
+    } else {
+        (t, 1.0)
+    };
+    number.trim().parse::<f64>().ok().map(|v| v * scale)
+}
+
+/// Decibels as text: a number, with an optional unit `dB` (any case: `40`, `40dB`, `40 db`).
+pub fn parse_db(text: &str) -> Option<f64> {
+    let t = text.trim();
+    let cut = t.len().saturating_sub(2);
+    let number = match (t.get(..cut), t.get(cut..)) {
+        (Some(n), Some(unit)) if unit.eq_ignore_ascii_case("db") => n,
+        _ => t,
+    };
+    number.trim().parse().ok()
 }
 
 /// The row minimising ν, or `None` when every row is infeasible (Alg. 1, lines 19–25).
@@ -303,6 +324,11 @@ mod tests {
         assert_eq!(pick("size:1kB,time:1.5"), Some(100));
         assert_eq!(pick("quality:34"), Some(200));
         assert_eq!(pick("quality:41"), None);
+        // Units as the docs write them.
+        assert_eq!(pick("time:2.5s"), Some(200));
+        assert_eq!(pick("time:2500ms"), Some(200));
+        assert_eq!(pick("quality:34dB"), Some(200));
+        assert_eq!(pick("quality:34 db"), Some(200));
     }
 
     #[test]
@@ -316,6 +342,10 @@ mod tests {
             "size",
             "quality:40,size:1MB",
             "size:3XB",
+            "time:0.5h",
+            "time:ms",
+            "quality:40€",
+            "quality:dB",
         ] {
             assert!(parse_utility(s).is_err(), "{s}");
         }

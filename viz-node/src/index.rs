@@ -409,12 +409,13 @@ fn csv_field(text: &str) -> String {
 /// process may be writing it: WAL readers see the last committed rows).
 ///
 /// # Errors
-/// [`StoreError::Corrupt`] when there is no index or it cannot be read.
+/// [`StoreError::Corrupt`] when there is no index or it cannot be read, saying how to rebuild
+/// it (`insitu recover`).
 pub fn read(dir: &Path) -> Result<(Vec<Entry>, Vec<StepEntry>), StoreError> {
     let shards = shards(dir);
     if shards.is_empty() {
-        let db = IndexDb::open(dir, false)?;
-        return Ok((db.entries()?, db.steps()?));
+        let rows = IndexDb::open(dir, false).and_then(|db| Ok((db.entries()?, db.steps()?)));
+        return rows.map_err(|e| crate::store::with_recovery_advice(e, dir));
     }
     let e = export_shards(&shards)?;
     Ok((e.entries, e.steps))
@@ -465,7 +466,7 @@ pub fn export_shards(shards: &[(PathBuf, String)]) -> Result<Export, StoreError>
         }
     };
     for (dir, shard) in shards {
-        let db = IndexDb::open(dir, false)?;
+        let db = IndexDb::open(dir, false).map_err(|e| crate::store::with_recovery_advice(e, dir))?;
         for mut e in db.entries()? {
             under(&mut e.vdi, shard);
             under(&mut e.references, shard);

@@ -98,15 +98,28 @@ pub fn rebuild(dir: &Path) -> Result<Rebuilt, StoreError> {
             done.set_aside.push((from, to));
         }
     }
-    let mut names: Vec<String> = std::fs::read_dir(dir)
+    // Each entry with whether it is a regular file (not followed: a link is not one).
+    let mut names: Vec<(String, bool)> = std::fs::read_dir(dir)
         .map_err(io(dir))?
         .filter_map(Result::ok)
-        .map(|d| d.file_name().to_string_lossy().into_owned())
+        .map(|d| {
+            let regular = d.file_type().is_ok_and(|t| t.is_file());
+            (d.file_name().to_string_lossy().into_owned(), regular)
+        })
         .collect();
     names.sort();
     let mut rows: BTreeMap<(u64, u32), Entry> = BTreeMap::new();
     let mut refs = Vec::new();
-    for name in names {
+    for (name, regular) in names {
+        if !regular {
+            if rank_file(&name).is_some() {
+                done.left_out.push((
+                    name,
+                    "not a regular file (a symbolic link, a directory or a device): recover reads the recording's own files only, never what a link points to".into(),
+                ));
+            }
+            continue;
+        }
         match rank_file(&name) {
             Some((step, rank, true)) => match row_of_vdi(&dir.join(&name), step, rank) {
                 Ok(mut e) => {
@@ -394,6 +407,22 @@ mod tests {
             codec::encode(&old, Codec::None).unwrap(),
         )
         .unwrap();
+        // A link named as a payload, to a good VDI outside the recording: never followed.
+        #[cfg(unix)]
+        {
+            let outside = tempfile::tempdir().unwrap();
+            let target = outside.path().join("elsewhere.vdi");
+            std::fs::copy(&b, &target).unwrap();
+            std::os::unix::fs::symlink(&target, dir.path().join(vdi_name(4, 0))).unwrap();
+            let done = rebuild(dir.path()).unwrap();
+            let why: BTreeMap<_, _> = done.left_out.iter().cloned().collect();
+            assert!(why[&vdi_name(4, 0)].contains("not a regular file"), "{why:?}");
+            std::fs::remove_file(dir.path().join(vdi_name(4, 0))).unwrap();
+            std::fs::remove_file(dir.path().join(INDEX_DB)).unwrap();
+            for s in ["-wal", "-shm"] {
+                let _ = std::fs::remove_file(dir.path().join(format!("{INDEX_DB}{s}")));
+            }
+        }
         let done = rebuild(dir.path()).unwrap();
         let why: BTreeMap<_, _> = done.left_out.iter().cloned().collect();
         assert!(why[&vdi_name(1, 0)].contains("step 2 rank 0"), "{why:?}");

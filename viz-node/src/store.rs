@@ -301,12 +301,12 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreErr
 }
 
 /// `e` with how to recover when it says the index of `dir` is damaged.
-fn with_recovery_advice(e: StoreError, dir: &Path) -> StoreError {
+pub fn with_recovery_advice(e: StoreError, dir: &Path) -> StoreError {
     match e {
         StoreError::Corrupt { path, problem } if path.ends_with(INDEX_DB) => StoreError::Corrupt {
             path,
             problem: format!(
-                "{problem}: restore it, or rebuild it from the recording's files with `insitu recover {}` (the damaged file is kept beside)",
+                "{problem}: restore it, or rebuild it from the recording's files with `insitu recover --recording {}` (the damaged file is kept beside)",
                 dir.display()
             ),
         },
@@ -358,7 +358,7 @@ impl Recording {
                 return Err(StoreError::Corrupt {
                     path: dir.join(INDEX_DB),
                     problem: format!(
-                        "missing or empty, but the directory holds {payloads} VDI or reference files: restore the index, rebuild it from the files with `insitu recover {}`, or record into another directory (a new index here would orphan them, and the next steps would replace their files)",
+                        "missing or empty, but the directory holds {payloads} VDI or reference files: restore the index, rebuild it from the files with `insitu recover --recording {}`, or record into another directory (a new index here would orphan them, and the next steps would replace their files)",
                         dir.display()
                     ),
                 });

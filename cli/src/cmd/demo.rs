@@ -7,7 +7,7 @@
 
 use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Result};
-use insitu_client::{SimClient, Step};
+use insitu_client::Step;
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use std::sync::Arc;
@@ -104,7 +104,7 @@ async fn demo(a: Args) -> Result<()> {
         )
     ));
     let printer = nodes.printer().await?;
-    let mut client = SimClient::connect(&nodes.generator_addr(), None).await?;
+    let mut client = nodes.generator_client().await?;
     let dims = [a.size as u32; 3];
     let mut sim_secs = 0.0;
     for k in 0..a.pushes {

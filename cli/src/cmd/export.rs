@@ -120,8 +120,9 @@ pub fn run(a: Args) -> Result<()> {
     let shards = insitu_viz_node::index::shards(&a.recording);
     let e = if shards.is_empty() {
         IndexDb::open(&a.recording, false)
-            .with_context(|| format!("{} is not a recording", a.recording.display()))?
-            .export()?
+            .and_then(|db| db.export())
+            .map_err(|e| insitu_viz_node::store::with_recovery_advice(e, &a.recording))
+            .with_context(|| format!("{} is not a readable recording", a.recording.display()))?
     } else {
         insitu_viz_node::index::export_shards(&shards)?
     };

@@ -158,7 +158,11 @@ async fn replay(a: Args, data: insitu_readers::Dataset, bricks: Vec<Brick>) -> R
         Some(_) => None,
         None => Some(LocalNodes::start(&a.pipeline, DEFAULTS, |_| {}).await?),
     };
-    let token = Token::load(a.token_file.as_deref())?;
+    // The local nodes' token when they are ours, else the one given for --generator.
+    let token = match &local {
+        Some(n) => n.token.clone(),
+        None => Token::load(a.token_file.as_deref())?,
+    };
     let addr = match (&a.generator, &local) {
         (Some(g), _) => g.clone(),
         (None, Some(n)) => n.generator_addr(),

@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long)]
     utility: Option<String>,
     /// The ray-casting sample distance, world units (finer: better q, longer τ).
-    #[arg(long)]
+    #[arg(long, value_parser = sample_distance)]
     step: Option<f32>,
     /// Gradient shading `on` or `off` (off: emission–absorption only).
     #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
@@ -47,6 +47,15 @@ pub struct Args {
     /// Print the scene in force and the steering history; change nothing.
     #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility", "step", "shading"])]
     show: bool,
+}
+
+/// A sample distance as given: a finite length > 0 (NaN would cross the wire as JSON `null`,
+/// which reads as "no change").
+fn sample_distance(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(d) if d.is_finite() && d > 0.0 => Ok(d),
+        _ => Err("the sample distance must be a finite length > 0, in world units".into()),
+    }
 }
 
 /// Sends the change and prints the tuner's answer (scene version, decision, first step made
@@ -184,11 +193,21 @@ async fn call(
         req = req.header("authorization", format!("Bearer {t}"));
     }
     let bytes = body.map_or_else(Bytes::new, |b| Bytes::from(b.to_string()));
+    if bytes.len() > insitu_viz_node::http::MAX_BODY_BYTES {
+        bail!(
+            "the request is {} bytes (its transfer function, as JSON): the viewer takes at most {} (a transfer function has a few hundred control points at most)",
+            bytes.len(),
+            insitu_viz_node::http::MAX_BODY_BYTES
+        );
+    }
     let req = req.body(Full::new(bytes))?;
     let reply = tokio::time::timeout(Duration::from_secs(30), client.request(req))
         .await
         .with_context(|| format!("{url}: no answer within 30 s"))?
-        .with_context(|| format!("{url}: cannot reach the viz-node's viewer"))?;
+        .map_err(|e| {
+            let cause = insitu_proto::peer::error_chain(&e);
+            anyhow::anyhow!("{url}: the request failed ({cause}); is the viz-node's viewer (--http) there?")
+        })?;
     let status = reply.status().as_u16();
     let text = reply.into_body().collect().await?.to_bytes();
     Ok((status, String::from_utf8_lossy(&text).into_owned()))

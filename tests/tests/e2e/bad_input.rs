@@ -86,6 +86,29 @@ fn the_generator_rejects_bad_steps_and_keeps_serving() {
             });
         }
         expect(msgs, Code::InvalidArgument, "ended after").await;
+        // A world of four billion ranks (the probe's): refused at the header, naming the
+        // limit, instead of acknowledged and waited for.
+        let world = pb::StepHeader {
+            world_size: u32::MAX,
+            ..header(good.len() as u64, pb::ScalarType::F32 as i32)
+        };
+        expect(
+            chunk::split(world, good.clone()),
+            Code::InvalidArgument,
+            "over the limit of 1048576 ranks",
+        )
+        .await;
+        // Two ranks each claiming the whole grid.
+        let twice = pb::StepHeader {
+            world_size: 2,
+            ..header(good.len() as u64, pb::ScalarType::F32 as i32)
+        };
+        expect(
+            chunk::split(twice, good.clone()),
+            Code::InvalidArgument,
+            "bricks do not overlap",
+        )
+        .await;
         // A step over the node's limit (checked before reading the payload).
         let big = header(200 * 200 * 200 * 4, pb::ScalarType::F32 as i32);
         let big = pb::StepHeader {

@@ -10,9 +10,7 @@ use std::time::{Duration, Instant};
 
 /// `insitu render --volume path` with `env`, run by `sh` under `limits` (`ulimit` options).
 fn render(path: &Path, limits: &str, env: &[(&str, &str)], out: &Path) -> Output {
-    let script = format!(
-        "{limits} exec \"$0\" render --volume \"$1\" --size 32 --out \"$2\""
-    );
+    let script = format!("{limits} exec \"$0\" render --volume \"$1\" --size 32 --out \"$2\"");
     let mut c = Command::new("sh");
     c.args(["-c", &script])
         .arg(bin("insitu"))
@@ -31,7 +29,10 @@ fn refused(out: &Output, words: &[&str]) -> String {
     for w in words {
         assert!(err.contains(w), "{err:?} lacks {w:?}");
     }
-    assert!(!err.contains("panicked") && !err.contains("backtrace"), "{err}");
+    assert!(
+        !err.contains("panicked") && !err.contains("backtrace"),
+        "{err}"
+    );
     err
 }
 
@@ -55,16 +56,26 @@ fn a_gzip_bomb_is_refused_by_the_read_limit_or_the_allocator_not_an_abort() {
     let path = bomb(tmp.path());
     let png = tmp.path().join("out.png");
     bin("insitu"); // built before the clock starts
-    // Under a 4 GiB address space the default limit is 2 GiB: refused before decoding.
+                   // Under a 4 GiB address space the default limit is 2 GiB: refused before decoding.
     let t = Instant::now();
     let out = render(&path, "ulimit -v 4194304;", &[], &png);
     refused(
         &out,
-        &["bomb.nrrd", "8.0 GiB of memory", "read limit of 2.0 GiB", "INSITU_READ_LIMIT"],
+        &[
+            "bomb.nrrd",
+            "8.0 GiB of memory",
+            "read limit of 2.0 GiB",
+            "INSITU_READ_LIMIT",
+        ],
     );
     assert!(t.elapsed() < Duration::from_secs(10), "{:?}", t.elapsed());
     // The limit raised past what the process may have: the allocation fails, and says so.
-    let out = render(&path, "ulimit -v 4194304;", &[("INSITU_READ_LIMIT", "16G")], &png);
+    let out = render(
+        &path,
+        "ulimit -v 4194304;",
+        &[("INSITU_READ_LIMIT", "16G")],
+        &png,
+    );
     refused(&out, &["bomb.nrrd", "out of memory"]);
     // A limit that is not a size is named.
     let out = render(&path, "", &[("INSITU_READ_LIMIT", "lots")], &png);
@@ -97,7 +108,11 @@ fn a_cut_short_vti_and_a_fifo_are_refused() {
     refused(&render(&path, "", &[], &png), &["cut.vti", "truncated"]);
     // A detached NRRD whose data file is a FIFO nobody writes: refused at once.
     let fifo = tmp.path().join("data.raw");
-    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
     let nhdr = tmp.path().join("f.nhdr");
     std::fs::write(
         &nhdr,

@@ -19,8 +19,7 @@ fn dense(step: u64) -> Vec<f32> {
         .map(|i| {
             let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
             let s = step as f32 * 0.3;
-            ((x as f32 * 0.31 + s).sin() * (y as f32 * 0.23).cos() + (z as f32 * 0.17).sin())
-                .abs()
+            ((x as f32 * 0.31 + s).sin() * (y as f32 * 0.23).cos() + (z as f32 * 0.17).sin()).abs()
         })
         .collect()
 }
@@ -28,7 +27,11 @@ fn dense(step: u64) -> Vec<f32> {
 /// A request sent and left unread: the client that will hang up.
 fn hold(addr: &str, target: &str) -> TcpStream {
     let mut s = TcpStream::connect(addr).unwrap();
-    write!(s, "GET {target} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").unwrap();
+    write!(
+        s,
+        "GET {target} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
     s
 }
 
@@ -89,7 +92,11 @@ fn abandoned_stills_and_movies_stop_and_free_their_lane() {
         stats(&addr)
     );
     let st = stats(&addr);
-    assert_eq!((st["cancelled"].as_u64(), st["rendered"].as_u64()), (Some(1), Some(0)), "{st}");
+    assert_eq!(
+        (st["cancelled"].as_u64(), st["rendered"].as_u64()),
+        (Some(1), Some(0)),
+        "{st}"
+    );
 
     // Movies: one renders, four wait, the sixth is turned away with Retry-After.
     if tool("ffmpeg", Need::Ffmpeg).is_some() {
@@ -103,10 +110,14 @@ fn abandoned_stills_and_movies_stop_and_free_their_lane() {
         let mut answer = String::new();
         let _ = sixth.read_to_string(&mut answer);
         assert!(
-            answer.starts_with("HTTP/1.1 503") && answer.to_ascii_lowercase().contains("retry-after: 1"),
+            answer.starts_with("HTTP/1.1 503")
+                && answer.to_ascii_lowercase().contains("retry-after: 1"),
             "{answer}"
         );
-        assert!(!ffmpeg_children(v.child.id()).is_empty(), "no ffmpeg for the running movie");
+        assert!(
+            !ffmpeg_children(v.child.id()).is_empty(),
+            "no ffmpeg for the running movie"
+        );
         drop(held);
         assert!(
             wait_until(20.0, || stats(&addr)["rendering"] == 0

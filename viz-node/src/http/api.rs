@@ -251,8 +251,7 @@ pub async fn render_frame(
                 Some(&cancel),
             )
         });
-        let (image, render_secs) =
-            running.end(rendered, |e| matches!(e, ViewError::Cancelled))?;
+        let (image, render_secs) = running.end(rendered, |e| matches!(e, ViewError::Cancelled))?;
         let t = Instant::now();
         let bytes = view::encode(&image, format, quality)?;
         Ok::<_, ViewError>(Frame {

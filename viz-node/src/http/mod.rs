@@ -198,6 +198,9 @@ impl Http {
     }
 }
 
+/// Largest request body (a steering request or preview with its transfer function), bytes.
+pub const MAX_BODY_BYTES: usize = 2 << 20;
+
 /// The router: page, API and socket, behind the token check.
 pub fn router(http: Arc<Http>) -> Router {
     Router::new()
@@ -217,6 +220,8 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/steer", axum::routing::post(steer::steer))
         .route("/api/preview", axum::routing::post(preview::preview))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })
+        // Steering and preview bodies (a transfer function): larger ones get 413.
+        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY_BYTES))
         .layer(axum::middleware::from_fn_with_state(
             http.clone(),
             require_token,
@@ -324,6 +329,16 @@ async fn require_own_origin(State(http): State<Arc<Http>>, req: Request, next: N
 
 /// [`require_own_origin`]'s check: the refusal for a foreign `Host` or `Origin`.
 fn own_origin(allowed: &origin::Allowed, req: &Request) -> Result<(), (StatusCode, String)> {
+    // Two `Host` or `Origin` headers: which one a proxy, a cache and this check would each
+    // believe differs, so none is.
+    for name in [header::HOST, header::ORIGIN] {
+        if req.headers().get_all(&name).iter().count() > 1 {
+            return Err((
+                StatusCode::BAD_REQUEST,
+                format!("the request has more than one {name} header: send one"),
+            ));
+        }
+    }
     let text = |name| req.headers().get(name).and_then(|v| v.to_str().ok());
     // HTTP/1.1 sends `Host`; HTTP/2 the URI's authority.
     let host = text(header::HOST)
@@ -404,7 +419,11 @@ impl<'a> Running<'a> {
     }
 
     /// Passes `out` through, counting it when it says the render was cancelled.
-    pub(crate) fn end<T, E>(self, out: Result<T, E>, cancelled: impl Fn(&E) -> bool) -> Result<T, E> {
+    pub(crate) fn end<T, E>(
+        self,
+        out: Result<T, E>,
+        cancelled: impl Fn(&E) -> bool,
+    ) -> Result<T, E> {
         if out.as_ref().err().is_some_and(cancelled) {
             self.0.cancelled.fetch_add(1, Ordering::Relaxed);
         }
@@ -435,6 +454,32 @@ pub fn stats(http: &Http) -> serde_json::Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_request_with_two_hosts_or_origins_is_refused() {
+        let allowed = origin::Allowed::default();
+        let req = |headers: &[(&str, &str)]| {
+            let mut b = axum::http::Request::builder().uri("/api/stats");
+            for (k, v) in headers {
+                b = b.header(*k, *v);
+            }
+            b.body(axum::body::Body::empty()).unwrap()
+        };
+        assert!(own_origin(&allowed, &req(&[("host", "127.0.0.1:8080")])).is_ok());
+        let (status, m) = own_origin(
+            &allowed,
+            &req(&[("host", "127.0.0.1:8080"), ("host", "evil.example")]),
+        )
+        .unwrap_err();
+        assert_eq!(status, StatusCode::BAD_REQUEST);
+        assert!(m.contains("more than one host header"), "{m}");
+        let two_origins = req(&[
+            ("host", "127.0.0.1:8080"),
+            ("origin", "http://127.0.0.1:8080"),
+            ("origin", "http://evil.example"),
+        ]);
+        assert_eq!(own_origin(&allowed, &two_origins).unwrap_err().0, StatusCode::BAD_REQUEST);
+    }
 
     #[test]
     fn failures_name_files_not_the_server_s_folders() {

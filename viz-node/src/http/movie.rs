@@ -11,8 +11,8 @@ use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
-use serde::Deserialize;
 use insitu_core::cancel::Cancel;
+use serde::Deserialize;
 use std::sync::Arc;
 
 /// Largest frame of a movie, pixels.

@@ -3,12 +3,16 @@
 
 use serde::{de::Error, Deserialize, Deserializer};
 
-/// An orbit angle, degrees: any finite value, reduced to (−360, 360).
+/// Largest orbit angle taken, degrees (a million: thousands of turns, each still exact).
+pub const MAX_ANGLE_DEG: f64 = 1e6;
+
+/// An orbit angle, degrees, within ±[`MAX_ANGLE_DEG`], reduced to (−360, 360).
 pub fn angle<'de, D: Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
     let v = f64::deserialize(d)?;
-    if !v.is_finite() {
+    if !(v.is_finite() && v.abs() <= MAX_ANGLE_DEG) {
         return Err(D::Error::custom(format!(
-            "angle {v} is not a finite number of degrees"
+            "angle {} is out of range: degrees within ±{MAX_ANGLE_DEG:e}",
+            shown(v)
         )));
     }
     Ok((v % 360.0) as f32)
@@ -50,11 +54,15 @@ mod tests {
 
     #[test]
     fn values_are_named_as_given_and_angles_wrap() {
-        let q: Q = serde_json::from_str(r#"{"angle": 1e308, "elevation": 10}"#).unwrap();
-        assert!(q.angle.is_finite() && q.angle.abs() < 360.0);
+        let q: Q = serde_json::from_str(r#"{"angle": -999999.5, "elevation": 10}"#).unwrap();
+        assert_eq!(q.angle, -279.5);
         assert_eq!(q.elevation, 10.0);
         let q: Q = serde_json::from_str(r#"{"angle": 370}"#).unwrap();
         assert_eq!(q.angle, 10.0);
+        for far in ["1e308", "-1e308", "1000001"] {
+            let e = serde_json::from_str::<Q>(&format!(r#"{{"angle": {far}}}"#)).unwrap_err();
+            assert!(e.to_string().contains("is out of range"), "{far}: {e}");
+        }
         let e = serde_json::from_str::<Q>(r#"{"elevation": 1e308}"#).unwrap_err();
         assert!(e.to_string().contains("1e308 is out of range"), "{e}");
     }

@@ -37,7 +37,11 @@ impl Pools {
 
     /// Runs `render` on the large renders' pool when `large`, else on the interactive one.
     pub fn install<R: Send>(&self, large: bool, render: impl FnOnce() -> R + Send) -> R {
-        let pool = if large { &self.large } else { &self.interactive };
+        let pool = if large {
+            &self.large
+        } else {
+            &self.interactive
+        };
         match pool {
             Some(p) => p.install(render),
             None => render(),

@@ -1027,7 +1027,10 @@ mod tests {
         let same = w.render_until(&cam, 96, 64, 0.99, Some(&go)).unwrap();
         assert_eq!(plain.pixels(), same.pixels());
         go.cancel();
-        assert_eq!(w.render_until(&cam, 96, 64, 0.99, Some(&go)), Err(Cancelled));
+        assert_eq!(
+            w.render_until(&cam, 96, 64, 0.99, Some(&go)),
+            Err(Cancelled)
+        );
     }
 
     /// Skipping tiles by depth range, squares of empty tiles, and pixels by depth occupancy
