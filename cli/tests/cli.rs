@@ -1065,6 +1065,43 @@ fn a_run_too_short_for_a_tuned_p_m_says_so() {
     );
 }
 
+/// The in-process nodes of `insitu demo` take INSITU_TOKEN as daemons do, and the demo's own
+/// clients send it: a token in the environment does not break the demo. A time budget is
+/// taken with its unit, as the docs write it.
+#[test]
+fn the_demo_runs_with_a_token_in_the_environment_and_units_on_its_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_insitu"))
+        .args(["demo", "--size", "16", "--warmup", "10", "--every", "10", "--pushes", "2"])
+        .args(["--utility", "time:0.5s", "--no-http"])
+        .env("INSITU_TOKEN", "x")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// What `insitu steer` can tell before it sends anything, it says: a sample distance that is
+/// not a length, a transfer function over what the viewer takes.
+#[test]
+fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = insitu(&["steer", "--viz", "127.0.0.1:9", "--step", "NaN"], dir.path());
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("finite length > 0"), "{}", stderr(&o));
+    // A 3 MB transfer function (valid JSON): over the viewer's 2 MiB, said without a connection.
+    let points: Vec<String> = (0..60_000)
+        .map(|i| format!("{{\"value\": {i}, \"rgba\": [0.5, 0.5, 0.5, 0.5]}}"))
+        .collect();
+    let big = format!("{{\"points\": [{}]}}", points.join(","));
+    std::fs::write(dir.path().join("big.json"), big).unwrap();
+    let o = insitu(&["steer", "--viz", "127.0.0.1:9", "--tf", "big.json"], dir.path());
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("the viewer takes at most 2097152"), "{e}");
+    assert!(!e.contains("cannot reach"), "{e}");
+}
+
 /// Writes a growing ball over 3 steps of 17³ (`ball_17x17x17x3_float32.raw`) in `dir` and
 /// replays it into the recording `dir/rec` as 2 ranks with frames every step (so each step is
 /// composed and scored); returns the replay's arguments.
@@ -1306,7 +1343,7 @@ fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
         // The advice is the command as it is typed.
         assert!(stderr(&o).contains("insitu recover --recording"), "{}", stderr(&o));
         // Reading it says the same, not only SQLite's words.
-        for read in [&["view", "--recording", "rec"][..], &["export", "--recording", "rec", "--out", "rows.json"]] {
+        for read in [&["view", "--recording", "rec", "--time-step", "0"][..], &["export", "--recording", "rec", "--out", "rows.json"]] {
             let o = insitu(read, dir.path());
             assert!(!o.status.success(), "{damage}: {read:?} read it");
             assert!(stderr(&o).contains("insitu recover --recording"), "{read:?}: {}", stderr(&o));

@@ -583,6 +583,20 @@ impl SimClient {
 mod tests {
     use super::*;
 
+    /// A node that went away and a refused token say what happened and what to do; other
+    /// refusals keep the node's own words.
+    #[test]
+    fn failed_calls_say_what_to_do() {
+        let text = |code, m: &str| ClientError::from(tonic::Status::new(code, m)).to_string();
+        let gone = text(tonic::Code::Unavailable, "tcp connect error");
+        assert!(gone.contains("went away (tcp connect error)"), "{gone}");
+        assert!(gone.contains("restart it and push again"), "{gone}");
+        let token = text(tonic::Code::Unauthenticated, "missing or wrong bearer token");
+        assert!(token.contains("INSITU_TOKEN"), "{token}");
+        let bad = text(tonic::Code::InvalidArgument, "dtype 42");
+        assert_eq!(bad, "generator-node refused the call: InvalidArgument: dtype 42");
+    }
+
     /// Both conversions give each value's little-endian bytes in order, NaN and infinities
     /// and signed zeros bit for bit; the owned one shares the vector's memory.
     #[test]
