@@ -5,13 +5,13 @@
 //! `--json` every line is a JSON object instead.
 
 use anyhow::{Context, Result};
+use insitu_client::SimClient;
 use insitu_core::adherence::Adherence;
 use insitu_core::json::f32_number;
 use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
-use insitu_proto::pb::viz_client::VizClient;
-use insitu_client::SimClient;
 use insitu_proto::auth::{AttachToken, Token};
+use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::Peer;
 use insitu_proto::{pb, transport};
 use std::net::SocketAddr;

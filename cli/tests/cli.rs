@@ -1072,7 +1072,9 @@ fn a_run_too_short_for_a_tuned_p_m_says_so() {
 fn the_demo_runs_with_a_token_in_the_environment_and_units_on_its_budget() {
     let dir = tempfile::tempdir().unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_insitu"))
-        .args(["demo", "--size", "16", "--warmup", "10", "--every", "10", "--pushes", "2"])
+        .args([
+            "demo", "--size", "16", "--warmup", "10", "--every", "10", "--pushes", "2",
+        ])
         .args(["--utility", "time:0.5s", "--no-http"])
         .env("INSITU_TOKEN", "x")
         .current_dir(dir.path())
@@ -1086,7 +1088,10 @@ fn the_demo_runs_with_a_token_in_the_environment_and_units_on_its_budget() {
 #[test]
 fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
     let dir = tempfile::tempdir().unwrap();
-    let o = insitu(&["steer", "--viz", "127.0.0.1:9", "--step", "NaN"], dir.path());
+    let o = insitu(
+        &["steer", "--viz", "127.0.0.1:9", "--step", "NaN"],
+        dir.path(),
+    );
     assert!(!o.status.success());
     assert!(stderr(&o).contains("finite length > 0"), "{}", stderr(&o));
     // A 3 MB transfer function (valid JSON): over the viewer's 2 MiB, said without a connection.
@@ -1095,7 +1100,10 @@ fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
         .collect();
     let big = format!("{{\"points\": [{}]}}", points.join(","));
     std::fs::write(dir.path().join("big.json"), big).unwrap();
-    let o = insitu(&["steer", "--viz", "127.0.0.1:9", "--tf", "big.json"], dir.path());
+    let o = insitu(
+        &["steer", "--viz", "127.0.0.1:9", "--tf", "big.json"],
+        dir.path(),
+    );
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(e.contains("the viewer takes at most 2097152"), "{e}");
@@ -1341,12 +1349,23 @@ fn recover_rebuilds_an_emptied_or_cut_index_from_the_files() {
         let o = insitu(&replay, dir.path());
         assert!(!o.status.success(), "{damage}: a run started on it");
         // The advice is the command as it is typed.
-        assert!(stderr(&o).contains("insitu recover --recording"), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains("insitu recover --recording"),
+            "{}",
+            stderr(&o)
+        );
         // Reading it says the same, not only SQLite's words.
-        for read in [&["view", "--recording", "rec", "--time-step", "0"][..], &["export", "--recording", "rec", "--out", "rows.json"]] {
+        for read in [
+            &["view", "--recording", "rec", "--time-step", "0"][..],
+            &["export", "--recording", "rec", "--out", "rows.json"],
+        ] {
             let o = insitu(read, dir.path());
             assert!(!o.status.success(), "{damage}: {read:?} read it");
-            assert!(stderr(&o).contains("insitu recover --recording"), "{read:?}: {}", stderr(&o));
+            assert!(
+                stderr(&o).contains("insitu recover --recording"),
+                "{read:?}: {}",
+                stderr(&o)
+            );
         }
         assert_eq!(std::fs::read(&vdi).unwrap(), original, "{damage}");
         let o = insitu(

@@ -88,8 +88,12 @@ pub enum ClientError {
 
 /// What a failed call says: what happened, and for the codes a user can act on, what to do.
 fn refusal_text(code: tonic::Code, message: &str) -> String {
+    // A call in flight when the connection drops ends `Unknown: transport error`; one
+    // started after, `Unavailable`.
+    let lost = code == tonic::Code::Unavailable
+        || (code == tonic::Code::Unknown && message.starts_with("transport error"));
     match code {
-        tonic::Code::Unavailable => format!(
+        _ if lost => format!(
             "the generator-node went away ({message}): it stopped or the link broke; restart \
              it and push again (with a [spool] it resumes the steps it had acknowledged)"
         ),
@@ -591,10 +595,18 @@ mod tests {
         let gone = text(tonic::Code::Unavailable, "tcp connect error");
         assert!(gone.contains("went away (tcp connect error)"), "{gone}");
         assert!(gone.contains("restart it and push again"), "{gone}");
-        let token = text(tonic::Code::Unauthenticated, "missing or wrong bearer token");
+        let cut = text(tonic::Code::Unknown, "transport error");
+        assert!(cut.contains("went away (transport error)"), "{cut}");
+        let token = text(
+            tonic::Code::Unauthenticated,
+            "missing or wrong bearer token",
+        );
         assert!(token.contains("INSITU_TOKEN"), "{token}");
         let bad = text(tonic::Code::InvalidArgument, "dtype 42");
-        assert_eq!(bad, "generator-node refused the call: InvalidArgument: dtype 42");
+        assert_eq!(
+            bad,
+            "generator-node refused the call: InvalidArgument: dtype 42"
+        );
     }
 
     /// Both conversions give each value's little-endian bytes in order, NaN and infinities

@@ -514,7 +514,10 @@ mod tests {
             h.rank = 0;
             h.world_size = 1 << 19;
         });
-        assert!(m.contains("leaves") && m.contains("bricks do not overlap"), "{m}");
+        assert!(
+            m.contains("leaves") && m.contains("bricks do not overlap"),
+            "{m}"
+        );
         assert!(msg(&|h| h.spacing = Some(pb::Vec3 {
             x: 1.0,
             y: 0.0,

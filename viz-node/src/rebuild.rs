@@ -416,7 +416,10 @@ mod tests {
             std::os::unix::fs::symlink(&target, dir.path().join(vdi_name(4, 0))).unwrap();
             let done = rebuild(dir.path()).unwrap();
             let why: BTreeMap<_, _> = done.left_out.iter().cloned().collect();
-            assert!(why[&vdi_name(4, 0)].contains("not a regular file"), "{why:?}");
+            assert!(
+                why[&vdi_name(4, 0)].contains("not a regular file"),
+                "{why:?}"
+            );
             std::fs::remove_file(dir.path().join(vdi_name(4, 0))).unwrap();
             std::fs::remove_file(dir.path().join(INDEX_DB)).unwrap();
             for s in ["-wal", "-shm"] {

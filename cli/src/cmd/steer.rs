@@ -206,7 +206,9 @@ async fn call(
         .with_context(|| format!("{url}: no answer within 30 s"))?
         .map_err(|e| {
             let cause = insitu_proto::peer::error_chain(&e);
-            anyhow::anyhow!("{url}: the request failed ({cause}); is the viz-node's viewer (--http) there?")
+            anyhow::anyhow!(
+                "{url}: the request failed ({cause}); is the viz-node's viewer (--http) there?"
+            )
         })?;
     let status = reply.status().as_u16();
     let text = reply.into_body().collect().await?.to_bytes();

@@ -81,3 +81,38 @@ fn replay_says_why_it_waits_while_steps_cannot_be_stored() {
     g.terminate();
     v.terminate();
 }
+
+/// A generator-node killed under a running `insitu replay` (no spool): the replay ends with
+/// an error that says the node went away and what to do, not a bare transport error.
+#[test]
+fn replay_says_the_generator_node_went_away_when_it_is_killed() {
+    use std::io::{BufRead, BufReader, Read};
+    let tmp = tempfile::tempdir().unwrap();
+    let viz_addr = format!("127.0.0.1:{}", insitu_e2e::free_port());
+    let g = generator(&small_config(&viz_addr, "block", 16), tmp.path(), &[]);
+    let series = insitu_e2e::drift::write_series(tmp.path(), "blob", 16, 3, |t| {
+        (0..16 * 16 * 16).map(|i| ((i + t) % 7) as f32).collect()
+    });
+    let mut replay = std::process::Command::new(insitu_e2e::bin("insitu"))
+        .args(["replay", "--series"])
+        .arg(&series)
+        .args(["--generator", &g.addr, "--no-tune"])
+        .env_remove("INSITU_TOKEN")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(replay.stderr.take().unwrap());
+    let mut line = String::new();
+    // Waiting for steps the absent viz-node cannot store: the node is then killed.
+    while err.read_line(&mut line).unwrap() > 0 && !line.starts_with("warning: steps not stored") {
+        line.clear();
+    }
+    g.kill();
+    let mut rest = String::new();
+    err.read_to_string(&mut rest).unwrap();
+    let status = replay.wait().unwrap();
+    assert!(!status.success(), "{rest}");
+    assert!(rest.contains("the generator-node went away"), "{rest}");
+    assert!(rest.contains("restart it"), "{rest}");
+}

@@ -478,7 +478,10 @@ mod tests {
             ("origin", "http://127.0.0.1:8080"),
             ("origin", "http://evil.example"),
         ]);
-        assert_eq!(own_origin(&allowed, &two_origins).unwrap_err().0, StatusCode::BAD_REQUEST);
+        assert_eq!(
+            own_origin(&allowed, &two_origins).unwrap_err().0,
+            StatusCode::BAD_REQUEST
+        );
     }
 
     #[test]
