@@ -19,18 +19,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// A dense, semi-transparent field: every ray crosses many samples.
-fn dense(step: u64) -> Vec<f32> {
-    let n = 64usize;
-    (0..n * n * n)
-        .map(|i| {
-            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
-            let s = step as f32 * 0.3;
-            ((x as f32 * 0.31 + s).sin() * (y as f32 * 0.23).cos() + (z as f32 * 0.17).sin()).abs()
-        })
-        .collect()
-}
-
 /// One GET to its end: the status code and the seconds it took.
 fn get(addr: &str, target: &str) -> (u16, f64) {
     let t = Instant::now();
@@ -167,9 +155,14 @@ fn main() {
         .await
         .unwrap();
         for s in 0..3 {
-            c.push_step(Step::whole_f32(s, s as f64, [64; 3], &dense(s)))
-                .await
-                .unwrap();
+            c.push_step(Step::whole_f32(
+                s,
+                s as f64,
+                [64; 3],
+                &insitu_e2e::drift::dense(s),
+            ))
+            .await
+            .unwrap();
         }
         c.flush(Duration::from_secs(300)).await.unwrap();
     });

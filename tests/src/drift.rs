@@ -215,3 +215,17 @@ impl RunLines {
         out
     }
 }
+
+/// A dense, semi-transparent 64³ field that shifts with `step` (every ray crosses many
+/// samples under the default transfer function): slow to render large, for the tests and
+/// benches of the viewer's render lanes.
+pub fn dense(step: u64) -> Vec<f32> {
+    let n = 64usize;
+    let s = step as f32 * 0.3;
+    (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+            ((x as f32 * 0.31 + s).sin() * (y as f32 * 0.23).cos() + (z as f32 * 0.17).sin()).abs()
+        })
+        .collect()
+}

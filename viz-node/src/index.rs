@@ -405,6 +405,20 @@ fn csv_field(text: &str) -> String {
     }
 }
 
+/// `e` with how to recover when it says the index of `dir` is damaged.
+pub fn with_recovery_advice(e: StoreError, dir: &Path) -> StoreError {
+    match e {
+        StoreError::Corrupt { path, problem } if path.ends_with(INDEX_DB) => StoreError::Corrupt {
+            path,
+            problem: format!(
+                "{problem}: restore it, or rebuild it from the recording's files with `insitu recover --recording {}` (the damaged file is kept beside)",
+                dir.display()
+            ),
+        },
+        other => other,
+    }
+}
+
 /// Reads the index of the recording in `dir` without creating or changing anything (another
 /// process may be writing it: WAL readers see the last committed rows).
 ///
@@ -415,7 +429,7 @@ pub fn read(dir: &Path) -> Result<(Vec<Entry>, Vec<StepEntry>), StoreError> {
     let shards = shards(dir);
     if shards.is_empty() {
         let rows = IndexDb::open(dir, false).and_then(|db| Ok((db.entries()?, db.steps()?)));
-        return rows.map_err(|e| crate::store::with_recovery_advice(e, dir));
+        return rows.map_err(|e| with_recovery_advice(e, dir));
     }
     let e = export_shards(&shards)?;
     Ok((e.entries, e.steps))
@@ -467,7 +481,7 @@ pub fn export_shards(shards: &[(PathBuf, String)]) -> Result<Export, StoreError>
     };
     for (dir, shard) in shards {
         let db =
-            IndexDb::open(dir, false).map_err(|e| crate::store::with_recovery_advice(e, dir))?;
+            IndexDb::open(dir, false).map_err(|e| with_recovery_advice(e, dir))?;
         for mut e in db.entries()? {
             under(&mut e.vdi, shard);
             under(&mut e.references, shard);

@@ -6,7 +6,7 @@
 //! so a crash never leaves a half file under a final name and the index never names a file
 //! that is not complete; [`Recording::recover`] tidies what a crash leaves on the next start.
 
-use crate::index::{IndexDb, INDEX_DB};
+use crate::index::{with_recovery_advice, IndexDb, INDEX_DB};
 pub use crate::rows::{
     composed_refs_name, composed_vdi_name, refs_name, vdi_name, Entry, Placement, Quality,
     StepEntry, StoreError,
@@ -298,20 +298,6 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), StoreErr
     let path = dir.join(name);
     insitu_core::file::write_atomic(&path, bytes, insitu_core::file::Durability::PowerLoss)
         .map_err(io(&path))
-}
-
-/// `e` with how to recover when it says the index of `dir` is damaged.
-pub fn with_recovery_advice(e: StoreError, dir: &Path) -> StoreError {
-    match e {
-        StoreError::Corrupt { path, problem } if path.ends_with(INDEX_DB) => StoreError::Corrupt {
-            path,
-            problem: format!(
-                "{problem}: restore it, or rebuild it from the recording's files with `insitu recover --recording {}` (the damaged file is kept beside)",
-                dir.display()
-            ),
-        },
-        other => other,
-    }
 }
 
 impl Recording {

@@ -121,7 +121,7 @@ pub fn run(a: Args) -> Result<()> {
     let e = if shards.is_empty() {
         IndexDb::open(&a.recording, false)
             .and_then(|db| db.export())
-            .map_err(|e| insitu_viz_node::store::with_recovery_advice(e, &a.recording))
+            .map_err(|e| insitu_viz_node::index::with_recovery_advice(e, &a.recording))
             .with_context(|| format!("{} is not a readable recording", a.recording.display()))?
     } else {
         insitu_viz_node::index::export_shards(&shards)?

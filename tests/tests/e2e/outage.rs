@@ -41,28 +41,41 @@ fn a_viz_node_outage_loses_nothing() {
     v.terminate();
 }
 
-/// `insitu replay` waiting for steps the generator-node cannot deliver (its viz-node down)
-/// says so on stderr while it waits, then finishes once the viz-node is back.
-#[test]
-fn replay_says_why_it_waits_while_steps_cannot_be_stored() {
-    use std::io::{BufRead, BufReader};
-    let tmp = tempfile::tempdir().unwrap();
-    let rec = tmp.path().join("rec");
-    let viz_addr = format!("127.0.0.1:{}", insitu_e2e::free_port());
-    let g = generator(&small_config(&viz_addr, "block", 16), tmp.path(), &[]);
-    let series = insitu_e2e::drift::write_series(tmp.path(), "blob", 16, 3, |t| {
+/// `insitu replay` of a 3-step 16³ series written in `dir`, pushing to the generator-node at
+/// `addr` without a tuner; its stderr piped, to read.
+fn replay_blob(
+    dir: &std::path::Path,
+    addr: &str,
+) -> (
+    std::process::Child,
+    std::io::BufReader<std::process::ChildStderr>,
+) {
+    let series = insitu_e2e::drift::write_series(dir, "blob", 16, 3, |t| {
         (0..16 * 16 * 16).map(|i| ((i + t) % 7) as f32).collect()
     });
     let mut replay = std::process::Command::new(insitu_e2e::bin("insitu"))
         .args(["replay", "--series"])
         .arg(&series)
-        .args(["--generator", &g.addr, "--no-tune"])
+        .args(["--generator", addr, "--no-tune"])
         .env_remove("INSITU_TOKEN")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let mut err = BufReader::new(replay.stderr.take().unwrap());
+    let err = std::io::BufReader::new(replay.stderr.take().unwrap());
+    (replay, err)
+}
+
+/// `insitu replay` waiting for steps the generator-node cannot deliver (its viz-node down)
+/// says so on stderr while it waits, then finishes once the viz-node is back.
+#[test]
+fn replay_says_why_it_waits_while_steps_cannot_be_stored() {
+    use std::io::BufRead;
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let viz_addr = format!("127.0.0.1:{}", insitu_e2e::free_port());
+    let g = generator(&small_config(&viz_addr, "block", 16), tmp.path(), &[]);
+    let (mut replay, mut err) = replay_blob(tmp.path(), &g.addr);
     let mut line = String::new();
     let warned = loop {
         line.clear();
@@ -86,23 +99,11 @@ fn replay_says_why_it_waits_while_steps_cannot_be_stored() {
 /// an error that says the node went away and what to do, not a bare transport error.
 #[test]
 fn replay_says_the_generator_node_went_away_when_it_is_killed() {
-    use std::io::{BufRead, BufReader, Read};
+    use std::io::{BufRead, Read};
     let tmp = tempfile::tempdir().unwrap();
     let viz_addr = format!("127.0.0.1:{}", insitu_e2e::free_port());
     let g = generator(&small_config(&viz_addr, "block", 16), tmp.path(), &[]);
-    let series = insitu_e2e::drift::write_series(tmp.path(), "blob", 16, 3, |t| {
-        (0..16 * 16 * 16).map(|i| ((i + t) % 7) as f32).collect()
-    });
-    let mut replay = std::process::Command::new(insitu_e2e::bin("insitu"))
-        .args(["replay", "--series"])
-        .arg(&series)
-        .args(["--generator", &g.addr, "--no-tune"])
-        .env_remove("INSITU_TOKEN")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(replay.stderr.take().unwrap());
+    let (mut replay, mut err) = replay_blob(tmp.path(), &g.addr);
     let mut line = String::new();
     // Waiting for steps the absent viz-node cannot store: the node is then killed.
     while err.read_line(&mut line).unwrap() > 0 && !line.starts_with("warning: steps not stored") {

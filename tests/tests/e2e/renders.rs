@@ -12,18 +12,6 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::Duration;
 
-/// A dense, semi-transparent 64³ field (every ray crosses many samples): slow to render large.
-fn dense(step: u64) -> Vec<f32> {
-    let n = 64usize;
-    (0..n * n * n)
-        .map(|i| {
-            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
-            let s = step as f32 * 0.3;
-            ((x as f32 * 0.31 + s).sin() * (y as f32 * 0.23).cos() + (z as f32 * 0.17).sin()).abs()
-        })
-        .collect()
-}
-
 /// A request sent and left unread: the client that will hang up.
 fn hold(addr: &str, target: &str) -> TcpStream {
     let mut s = TcpStream::connect(addr).unwrap();
@@ -70,9 +58,14 @@ fn abandoned_stills_and_movies_stop_and_free_their_lane() {
     rt().block_on(async {
         let mut c = SimClient::connect(&g.addr, None).await.unwrap();
         for s in 0..3 {
-            c.push_step(Step::whole_f32(s, s as f64, [64; 3], &dense(s)))
-                .await
-                .unwrap();
+            c.push_step(Step::whole_f32(
+                s,
+                s as f64,
+                [64; 3],
+                &insitu_e2e::drift::dense(s),
+            ))
+            .await
+            .unwrap();
         }
     });
     flush(&g.addr);
