@@ -171,9 +171,10 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    regular(path)?;
+    // Each reader opens its files through `open_file` (FIFOs and devices refused by name); the
+    // raw layout is read by the core.
     match ext.as_str() {
-        "raw" => raw::open(path),
+        "raw" => raw::open(path).and_then(|d| regular(path).map(|()| d)),
         "nc" | "nc4" if is_hdf5(path)? => open_netcdf4(path, options),
         "nc" => netcdf3::open(path, options),
         "nrrd" | "nhdr" => nrrd::open(path),

@@ -480,8 +480,7 @@ pub fn export_shards(shards: &[(PathBuf, String)]) -> Result<Export, StoreError>
         }
     };
     for (dir, shard) in shards {
-        let db =
-            IndexDb::open(dir, false).map_err(|e| with_recovery_advice(e, dir))?;
+        let db = IndexDb::open(dir, false).map_err(|e| with_recovery_advice(e, dir))?;
         for mut e in db.entries()? {
             under(&mut e.vdi, shard);
             under(&mut e.references, shard);

@@ -938,6 +938,9 @@ impl Viz for VizService {
         })?;
         let camera = r.camera.as_ref().map(camera_from_pb).transpose()?;
         let s = self.0.clone();
+        // Dropped with the call (its client went away): the render stops at its next tile.
+        let cancel = insitu_core::cancel::Cancel::new();
+        let _stop = cancel.on_drop();
         let png = tokio::task::spawn_blocking(move || {
             let _permit = permit;
             let vdi = if r.composed {
@@ -962,7 +965,7 @@ impl Viz for VizService {
             let image = s
                 .backend
                 .prepare_vdi(&vdi)
-                .and_then(|v| v.render(&cam, r.width, r.height, s.termination))
+                .and_then(|v| v.render_until(&cam, r.width, r.height, s.termination, Some(&cancel)))
                 .map_err(|e| Status::internal(format!("rendering: {e}")))?
                 .value;
             crate::view::encode(&image, crate::view::Format::Png, 0)
