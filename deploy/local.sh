@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
-# Starts a viz-node, a tuner-node and a generator-node on 127.0.0.1 (ephemeral ports) from this
-# checkout's release binaries (built first), or from prebuilt ones in INSITU_BIN_DIR (nothing
-# is built then: e.g. INSITU_BIN_DIR=/opt/insitu/bin on a machine without Rust), and keeps them
-# running until Ctrl-C, then stops them gracefully (the generator drains and prints what it
-# dropped). The tuner optimises TUNER_UTILITY (default size:1MB) and keeps its state in
-# RECORDING_DIR/tuner-state; NO_TUNE=1 starts no tuner (P_M stays as configured).
+# Starts a viz-node with its web viewer, a tuner-node and a generator-node on 127.0.0.1, wired
+# together, from this checkout's release binaries (built first), or from prebuilt ones in
+# INSITU_BIN_DIR (nothing is built then: e.g. INSITU_BIN_DIR=/opt/insitu/bin on a machine
+# without Rust), prints the viewer's URL and the generator-node's address on stdout, and keeps
+# them running until Ctrl-C (or SIGTERM), then stops them gracefully (the generator drains and
+# prints what it dropped). The viewer listens on HTTP_LISTEN (default 127.0.0.1:0, an
+# ephemeral port) and draws the tuner's budget. The tuner optimises TUNER_UTILITY (default
+# size:1MB) and keeps its state in RECORDING_DIR/tuner-state; NO_TUNE=1 starts no tuner (P_M
+# stays as configured).
 #
 #   deploy/local.sh [RECORDING_DIR] [-- extra generator-node flags]
 #
@@ -37,14 +40,33 @@ wait_addr() { # file → prints the address once the daemon has printed it
   echo "daemon did not start; see $logs" >&2; exit 1
 }
 
+wait_url() { # file → prints the viewer's URL once the viz-node has printed it
+  for _ in $(seq 200); do
+    if grep -q '^web viewer on ' "$1" 2>/dev/null; then sed -n 's/^web viewer on //p' "$1" | head -1; return; fi
+    sleep 0.05
+  done
+  echo "the viz-node printed no viewer URL; see $logs" >&2; exit 1
+}
+
+free_port() { # a port free now on 127.0.0.1 (the tuner's, which the viz-node dials for the budget)
+  python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])' 2>/dev/null
+}
+
+tuner_listen=127.0.0.1:0
+viz_tuner=()
+if [[ ${NO_TUNE:-0} != 1 ]] && port=$(free_port); then
+  tuner_listen=127.0.0.1:$port
+  viz_tuner=(--tuner "$tuner_listen")
+fi
 "$bin/viz-node" ${VIZ_CONFIG:+--config "$VIZ_CONFIG"} --listen 127.0.0.1:0 --recording-dir "$rec" \
-  >"$logs/viz.out" 2>"$logs/viz.log" &
+  --http "${HTTP_LISTEN:-127.0.0.1:0}" "${viz_tuner[@]}" >"$logs/viz.out" 2>"$logs/viz.log" &
 viz_pid=$!
 viz=$(wait_addr "$logs/viz.out")
+url=$(wait_url "$logs/viz.out")
 tuner_flag=()
 tuner_pid=
 if [[ ${NO_TUNE:-0} != 1 ]]; then
-  "$bin/tuner-node" ${TUNER_CONFIG:+--config "$TUNER_CONFIG"} --listen 127.0.0.1:0 --viz "$viz" \
+  "$bin/tuner-node" ${TUNER_CONFIG:+--config "$TUNER_CONFIG"} --listen "$tuner_listen" --viz "$viz" \
     --state-dir "$rec/tuner-state" --utility "${TUNER_UTILITY:-size:1MB}" \
     >"$logs/tuner.out" 2>"$logs/tuner.log" &
   tuner_pid=$!
@@ -65,6 +87,7 @@ stop() {
 }
 trap stop EXIT
 trap 'exit 130' INT TERM
+echo "viewer         $url"
 echo "viz-node       $viz   (recording: $rec)"
 [[ -n $tuner_pid ]] && echo "tuner-node     $tuner   (${TUNER_UTILITY:-size:1MB}; log: $logs/tuner.log)"
 echo "generator-node $gen"

@@ -98,8 +98,8 @@ fn refusal_text(code: tonic::Code, message: &str) -> String {
              it and push again (with a [spool] it resumes the steps it had acknowledged)"
         ),
         tonic::Code::Unauthenticated => format!(
-            "the generator-node refused the token ({message}): give the client the token the \
-             node was started with (INSITU_TOKEN or its token file)"
+            "the generator-node refused the token (Unauthenticated: {message}): give the \
+             client the token the node was started with (INSITU_TOKEN or its token file)"
         ),
         code => format!("generator-node refused the call: {code:?}: {message}"),
     }

@@ -12,6 +12,7 @@ mod gpu;
 mod health;
 mod hostile;
 mod install;
+mod local_sh;
 mod mpi;
 mod mpi_runs;
 mod outage;
