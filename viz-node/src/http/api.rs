@@ -22,7 +22,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// One stored step as the API shows it: its ranks and, for a world of ranks, the composed
+/// One stored step as the API shows it: its ranks (`ranks_held` counts those a host's part
+/// covers; `complete` when they are the whole world) and, for a world of ranks, the composed
 /// step (σ summed, τ of the slowest rank, q of the composition).
 pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Value {
     let world = view::world_size(ranks);
@@ -55,12 +56,24 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
             first.and_then(|e| quality(&e.quality)),
         ),
     };
-    let complete = ranks.len() as u32 >= world;
+    // The ranks stored: a host's part holds every rank it covers.
+    let held: std::collections::BTreeSet<u32> = ranks
+        .iter()
+        .flat_map(|e| {
+            if e.covers.is_empty() {
+                vec![e.rank]
+            } else {
+                e.covers.clone()
+            }
+        })
+        .collect();
+    let complete = held.len() as u32 >= world;
     json!({
         "step": step,
         "sim_time": first.map(|e| e.sim_time),
         "world_size": world,
         "ranks": rank_json,
+        "ranks_held": held.len(),
         "complete": complete,
         "partial": composed.is_some_and(|c| !c.missing.is_empty()),
         "composed": composed.is_some_and(|c| c.vdi.is_some()),
@@ -428,5 +441,26 @@ mod tests {
         assert_eq!(parse_size("256").unwrap(), (256, 256));
         assert_eq!(parse_size("320x200").unwrap(), (320, 200));
         assert!(parse_size("0x").is_err() && parse_size("-1").is_err() && parse_size("").is_err());
+    }
+
+    /// A step a host composed whole (one part covering its four ranks) is complete; two of
+    /// four ranks stored apart are not.
+    #[test]
+    fn a_host_s_part_counts_every_rank_it_covers() {
+        let part = |rank: u32, covers: &[u32]| Entry {
+            world_size: 4,
+            covers: covers.to_vec(),
+            ..Entry::empty(3, rank)
+        };
+        let whole = step_json(3, &[part(0, &[0, 1, 2, 3])], None);
+        assert_eq!(
+            (whole["ranks_held"].as_u64(), whole["complete"].as_bool()),
+            (Some(4), Some(true))
+        );
+        let half = step_json(3, &[part(0, &[]), part(1, &[])], None);
+        assert_eq!(
+            (half["ranks_held"].as_u64(), half["complete"].as_bool()),
+            (Some(2), Some(false))
+        );
     }
 }

@@ -194,7 +194,7 @@ function showPanel() {
   if (!s) return;
   const q = s.quality;
   const rows = [
-    ["step", s.step + (s.world_size > 1 ? ` (${s.ranks.length}/${s.world_size} ranks${s.partial ? ", partial" : ""})` : "")],
+    ["step", s.step + (s.world_size > 1 ? ` (${s.ranks_held}/${s.world_size} ranks${s.partial ? ", partial" : ""})` : "")],
     ["P_M", `r ${s.r}, γ ${Number(s.gamma).toFixed(4)}`],
     ["P_M version", s.pm_version],
     ["σ", `${(s.sigma_bytes / 1000).toFixed(1)} kB`],
