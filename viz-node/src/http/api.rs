@@ -23,8 +23,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// One stored step as the API shows it: its ranks (`ranks_held` counts those a host's part
-/// covers; `complete` when they are the whole world) and, for a world of ranks, the composed
-/// step (σ summed, τ of the slowest rank, q of the composition).
+/// covers; `complete` when they are the whole world and composed without `error`) and, for a
+/// world of ranks, the composed step (σ summed, τ of the slowest rank, q of the composition).
 pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Value {
     let world = view::world_size(ranks);
     let quality = |q: &Option<Quality>| {
@@ -57,17 +57,11 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
         ),
     };
     // The ranks stored: a host's part holds every rank it covers.
-    let held: std::collections::BTreeSet<u32> = ranks
-        .iter()
-        .flat_map(|e| {
-            if e.covers.is_empty() {
-                vec![e.rank]
-            } else {
-                e.covers.clone()
-            }
-        })
-        .collect();
-    let complete = held.len() as u32 >= world;
+    let held: std::collections::BTreeSet<u32> = ranks.iter().flat_map(Entry::ranks).collect();
+    // A step whose ranks could not be composed (bricks that overlap or leave a gap) failed,
+    // however many ranks it holds.
+    let error = composed.and_then(|c| c.error.clone());
+    let complete = held.len() as u32 >= world && error.is_none();
     json!({
         "step": step,
         "sim_time": first.map(|e| e.sim_time),
@@ -76,6 +70,7 @@ pub fn step_json(step: u64, ranks: &[Entry], composed: Option<&StepEntry>) -> Va
         "ranks_held": held.len(),
         "complete": complete,
         "partial": composed.is_some_and(|c| !c.missing.is_empty()),
+        "error": error,
         "composed": composed.is_some_and(|c| c.vdi.is_some()),
         "r": first.map(|e| e.resolution),
         "gamma": first.map(|e| f32_number(e.gamma)),
@@ -462,5 +457,18 @@ mod tests {
             (half["ranks_held"].as_u64(), half["complete"].as_bool()),
             (Some(2), Some(false))
         );
+        // Every rank held, but the bricks could not be composed: failed, and why.
+        let two = |rank| Entry {
+            world_size: 2,
+            ..Entry::empty(3, rank)
+        };
+        let failed = StepEntry {
+            error: Some("the bricks leave a gap at z = 32".into()),
+            ..crate::compose::step_entry(3, 2, &[&two(0), &two(1)], Vec::new())
+        };
+        let s = step_json(3, &[two(0), two(1)], Some(&failed));
+        assert_eq!(s["complete"], false, "{s}");
+        assert_eq!(s["error"], "the bricks leave a gap at z = 32", "{s}");
+        assert_eq!(step_json(3, &[two(0), two(1)], None)["error"], Value::Null);
     }
 }

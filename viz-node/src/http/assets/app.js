@@ -194,13 +194,14 @@ function showPanel() {
   if (!s) return;
   const q = s.quality;
   const rows = [
-    ["step", s.step + (s.world_size > 1 ? ` (${s.ranks_held}/${s.world_size} ranks${s.partial ? ", partial" : ""})` : "")],
+    ["step", s.step + (s.world_size > 1 ? ` (${s.ranks_held}/${s.world_size} ranks${s.partial ? ", partial" : ""}${s.error ? ", not composed" : ""})` : "")],
     ["P_M", `r ${s.r}, γ ${Number(s.gamma).toFixed(4)}`],
     ["P_M version", s.pm_version],
     ["σ", `${(s.sigma_bytes / 1000).toFixed(1)} kB`],
     ["τ", `${Number(s.tau_s).toFixed(3)} s`],
     ["q", q ? `${fmtQ(q.q_db)} dB` : "not sampled"],
   ];
+  if (s.error) rows.push(["composition", s.error]);
   if (q) {
     rows.push(["q per view", q.view_q_db.map(fmtQ).join(", ")]);
     rows.push(["SSIM", q.ssim === null ? "–" : Number(q.ssim).toFixed(4)]);
