@@ -44,6 +44,7 @@ pub mod json;
 pub mod metrics;
 pub mod raycast;
 pub mod tf;
+pub mod units;
 pub mod vdi;
 pub mod volume;
 

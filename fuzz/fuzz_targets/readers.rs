@@ -14,7 +14,7 @@ const FORMATS: [&str; 5] = ["nc", "nrrd", "vti", "vtk", "xmf"];
 fuzz_target!(|data: &[u8]| {
     static LIMIT: std::sync::Once = std::sync::Once::new();
     // Set once, before any read, on libFuzzer's one thread.
-    LIMIT.call_once(|| std::env::set_var(insitu_readers::limit::ENV, "64M"));
+    LIMIT.call_once(|| std::env::set_var(insitu_readers::limit::ENV, "64MiB"));
     let Some((&pick, file)) = data.split_first() else {
         return;
     };

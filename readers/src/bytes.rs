@@ -115,8 +115,7 @@ impl Samples {
             Sample::F64 => ScalarType::F64,
             _ => ScalarType::F32,
         };
-        let bytes = (n as u64).saturating_mul(FieldAssembler::kept_bytes_per_sample(kept) as u64);
-        crate::limit::check(path, &format!("a volume of {n} samples"), bytes)?;
+        crate::limit::check(path, n, FieldAssembler::kept_bytes_per_sample(kept))?;
         let mut s = Self {
             path: path.to_owned(),
             asm: FieldAssembler::new(kept, 0),

@@ -318,11 +318,7 @@ impl Decode {
             };
         }
         // Unpacked and masked a piece at a time: the f32 field and one piece in memory.
-        crate::limit::check(
-            path,
-            &format!("a volume of {n} samples"),
-            (n as u64).saturating_mul(4),
-        )?;
+        crate::limit::check(path, n, std::mem::size_of::<f32>())?;
         let mut data: Vec<f32> = Vec::with_capacity(n);
         fill(&mut |bytes| {
             data.extend(

@@ -2,12 +2,13 @@
 //! volume it claims is checked against this limit before a byte is allocated, and a
 //! compressed body (gzip, zlib) grows the volume as it decodes, under the same ceiling.
 //!
-//! The limit is `INSITU_READ_LIMIT` (bytes, with an optional `K`, `M`, `G`, `T` suffix in
-//! powers of 1024: `8G`, `512MiB`), else half of what the process may have: the machine's
+//! The limit is `INSITU_READ_LIMIT` (a size as budgets write it,
+//! [`insitu_core::units::parse_bytes`]: `8GiB`, `512MiB`, `8GB`), else half of what the process may have: the machine's
 //! memory (`MemTotal` of `/proc/meminfo`) or the address-space limit (`ulimit -v`), whichever
 //! is less; 16 GiB where neither can be read. An allocation that fails under the limit all the
 //! same is an error naming its size, never an abort.
 
+use insitu_core::units::parse_bytes;
 use std::path::Path;
 
 /// The environment variable that sets the limit.
@@ -21,33 +22,15 @@ pub const FALLBACK: u64 = 16 << 30;
 /// A message naming [`ENV`] and its value when the variable is set but not a size.
 pub fn limit() -> Result<u64, String> {
     match std::env::var(ENV) {
-        Ok(v) => parse_size(&v)
+        Ok(v) => parse_bytes(&v)
             .filter(|&b| b > 0)
-            .ok_or_else(|| format!("{ENV}={v:?} is not a size in bytes (e.g. 8G, 512MiB)")),
+            .ok_or_else(|| format!("{ENV}={v:?} is not a size in bytes (e.g. 8GiB, 512MiB)")),
         Err(_) => Ok(match (machine_memory(), address_space()) {
             (Some(m), Some(a)) => m.min(a) / 2,
             (Some(m), None) | (None, Some(m)) => m / 2,
             (None, None) => FALLBACK,
         }),
     }
-}
-
-/// `text` as bytes: a count with an optional `K`/`M`/`G`/`T` suffix (`KiB`… and `KB`… read
-/// alike, in powers of 1024).
-pub fn parse_size(text: &str) -> Option<u64> {
-    let t = text.trim();
-    let digits = t.find(|c: char| !c.is_ascii_digit()).unwrap_or(t.len());
-    let (n, unit) = t.split_at(digits);
-    let n: u64 = n.parse().ok()?;
-    let shift = match unit.trim().to_ascii_uppercase().as_str() {
-        "" | "B" => 0,
-        "K" | "KB" | "KIB" => 10,
-        "M" | "MB" | "MIB" => 20,
-        "G" | "GB" | "GIB" => 30,
-        "T" | "TB" | "TIB" => 40,
-        _ => return None,
-    };
-    n.checked_mul(1 << shift)
 }
 
 /// The machine's memory from `/proc/meminfo`, bytes (Linux; none elsewhere).
@@ -84,19 +67,20 @@ pub fn human(bytes: u64) -> String {
     }
 }
 
-/// Refuses a step of `bytes` in memory over the limit, naming the file, the size, the limit
-/// and how to raise it.
+/// Refuses a volume of `samples` samples of `bytes_per_sample` bytes in memory over the limit,
+/// naming the file, the size, the limit and how to raise it.
 ///
 /// # Errors
-/// [`crate::ReadError::Invalid`] naming `path` when `bytes` is over the limit or the limit is
-/// malformed.
-pub fn check(path: &Path, what: &str, bytes: u64) -> Result<(), crate::ReadError> {
+/// [`crate::ReadError::Invalid`] naming `path` when the volume is over the limit or the limit
+/// is malformed.
+pub fn check(path: &Path, samples: usize, bytes_per_sample: usize) -> Result<(), crate::ReadError> {
     let limit = limit().map_err(|m| crate::ReadError::invalid(path, m))?;
+    let bytes = (samples as u64).saturating_mul(bytes_per_sample as u64);
     if bytes > limit {
         return Err(crate::ReadError::invalid(
             path,
             format!(
-                "{what} needs {} of memory, over the read limit of {} (set {ENV} to raise it)",
+                "a volume of {samples} samples needs {} of memory, over the read limit of {} (set {ENV} to raise it)",
                 human(bytes),
                 human(limit)
             ),
@@ -108,19 +92,6 @@ pub fn check(path: &Path, what: &str, bytes: u64) -> Result<(), crate::ReadError
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn sizes_parse_in_powers_of_1024_and_nonsense_is_refused() {
-        assert_eq!(parse_size("4096"), Some(4096));
-        assert_eq!(parse_size("8G"), Some(8 << 30));
-        assert_eq!(parse_size("512MiB"), Some(512 << 20));
-        assert_eq!(parse_size(" 3 kb "), Some(3 << 10));
-        assert_eq!(parse_size("2T"), Some(2 << 40));
-        for bad in ["", "G", "1.5G", "-1", "8 GB of RAM", "99999999999999999999"] {
-            assert_eq!(parse_size(bad), None, "{bad}");
-        }
-        assert_eq!(parse_size("18446744073709551615T"), None);
-    }
 
     #[test]
     fn sizes_read_back_in_binary_units() {

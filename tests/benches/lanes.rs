@@ -10,8 +10,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use insitu_client::{SimClient, Step};
-use insitu_e2e::{bin, rt, wait_until, Daemon};
+use insitu_e2e::{bin, wait_until, Daemon};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::process::Command;
@@ -145,27 +144,7 @@ fn main() {
         &[],
         tmp.path(),
     );
-    rt().block_on(async {
-        let mut c = SimClient::connect(&g.addr, None).await.unwrap();
-        c.set_config(insitu_proto::pb::GenerationConfig {
-            resolution: 256,
-            gamma: 0.01,
-            ..Default::default()
-        })
-        .await
-        .unwrap();
-        for s in 0..3 {
-            c.push_step(Step::whole_f32(
-                s,
-                s as f64,
-                [64; 3],
-                &insitu_e2e::drift::dense(s),
-            ))
-            .await
-            .unwrap();
-        }
-        c.flush(Duration::from_secs(300)).await.unwrap();
-    });
+    insitu_e2e::drift::push_dense(&g.addr, 3);
     assert!(
         wait_until(120.0, || stat(&addr, "vdis_stored") == 3),
         "the VDIs were not stored"

@@ -229,3 +229,26 @@ pub fn dense(step: u64) -> Vec<f32> {
         })
         .collect()
 }
+
+/// Pushes `steps` steps of [`dense`] to the generator-node at `addr` at r = 256 (big enough
+/// that a 4096² still takes most of a second here) and flushes.
+///
+/// # Panics
+/// When the node cannot be reached or refuses them (a test's setup).
+pub fn push_dense(addr: &str, steps: u64) {
+    crate::rt().block_on(async {
+        let mut c = insitu_client::SimClient::connect(addr, None).await.unwrap();
+        c.set_config(insitu_proto::pb::GenerationConfig {
+            resolution: 256,
+            gamma: 0.01,
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+        for s in 0..steps {
+            let step = insitu_client::Step::whole_f32(s, s as f64, [64; 3], &dense(s));
+            c.push_step(step).await.unwrap();
+        }
+        c.flush(std::time::Duration::from_secs(300)).await.unwrap();
+    });
+}

@@ -107,25 +107,7 @@ pub struct UtilityError {
     pub problem: String,
 }
 
-/// `1.5MB`, `800kB`, `2MiB`, `123456` (bytes) → bytes.
-pub fn parse_bytes(s: &str) -> Option<u64> {
-    let s = s.trim();
-    let split = s.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(s.len());
-    let (num, unit) = s.split_at(split);
-    let v: f64 = num.trim().parse().ok()?;
-    let mul = match unit.trim() {
-        "" | "B" => 1.0,
-        "kB" | "KB" | "k" => 1e3,
-        "MB" | "M" => 1e6,
-        "GB" | "G" => 1e9,
-        "KiB" => 1024.0,
-        "MiB" => 1024.0 * 1024.0,
-        "GiB" => 1024.0 * 1024.0 * 1024.0,
-        _ => return None,
-    };
-    let b = v * mul;
-    (0.0..1.8e19).contains(&b).then_some(b.round() as u64)
-}
+pub use insitu_core::units::parse_bytes;
 
 /// Bytes as text with a decimal unit.
 pub fn bytes_text(b: u64) -> String {

@@ -2,10 +2,9 @@
 //! (counted in `/api/stats` as cancelled), its ffmpeg is gone, its lane is free, and a movie
 //! past the lane's queue is answered 503 with `Retry-After`.
 
-use crate::common::{flush, generator, small_config};
+use crate::common::{generator, small_config};
 use crate::viewer::{http, viz_with_http};
-use insitu_client::{SimClient, Step};
-use insitu_e2e::{rt, wait_until};
+use insitu_e2e::wait_until;
 use insitu_testenv::{tool, Need};
 use serde_json::Value;
 use std::io::{Read, Write};
@@ -53,22 +52,8 @@ fn abandoned_stills_and_movies_stop_and_free_their_lane() {
         .trim_start_matches("http://")
         .trim_end_matches('/')
         .to_owned();
-    let cfg = small_config(&v.addr, "block", 4).replace("resolution = 32", "resolution = 256");
-    let g = generator(&cfg, tmp.path(), &[]);
-    rt().block_on(async {
-        let mut c = SimClient::connect(&g.addr, None).await.unwrap();
-        for s in 0..3 {
-            c.push_step(Step::whole_f32(
-                s,
-                s as f64,
-                [64; 3],
-                &insitu_e2e::drift::dense(s),
-            ))
-            .await
-            .unwrap();
-        }
-    });
-    flush(&g.addr);
+    let g = generator(&small_config(&v.addr, "block", 4), tmp.path(), &[]);
+    insitu_e2e::drift::push_dense(&g.addr, 3);
     assert!(wait_until(60.0, || stats(&addr)["vdis_stored"] == 3));
 
     // A 4096² still whose client hangs up while it renders: it stops, counted as cancelled.
