@@ -6,44 +6,83 @@ use crate::common::push_steps;
 use crate::viewer::http;
 use insitu_e2e::{bin_dir, wait_until};
 use serde_json::Value;
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+use std::process::{Child, ChildStdout, Command, Stdio};
+
+/// `deploy/local.sh` running from the test's binaries, once it has printed its addresses.
+pub(crate) struct LocalSh {
+    sh: Child,
+    out: BufReader<ChildStdout>,
+    /// The viewer's `host:port`.
+    pub viewer: String,
+    /// The generator-node's address.
+    pub generator: String,
+}
+
+impl LocalSh {
+    /// Runs the script as written on `recording`, with `env` set, and reads its address lines.
+    pub fn start(recording: &Path, env: &[(&str, &str)]) -> Self {
+        insitu_e2e::ensure_built();
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/local.sh");
+        let mut sh = Command::new("bash")
+            .arg(&script)
+            .arg(recording)
+            .env("INSITU_BIN_DIR", bin_dir())
+            .envs(env.iter().copied())
+            .env_remove("INSITU_TOKEN")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut out = BufReader::new(sh.stdout.take().unwrap());
+        let (mut url, mut generator) = (None, None);
+        let mut line = String::new();
+        while generator.is_none() && out.read_line(&mut line).unwrap() > 0 {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            match words.as_slice() {
+                ["viewer", u, ..] => url = Some(u.to_string()),
+                ["generator-node", a, ..] => generator = Some(a.to_string()),
+                _ => {}
+            }
+            line.clear();
+        }
+        let url = url.expect("no viewer line");
+        let viewer = url
+            .trim_start_matches("http://")
+            .trim_end_matches('/')
+            .to_owned();
+        let generator = generator.expect("no generator-node line");
+        Self {
+            sh,
+            out,
+            viewer,
+            generator,
+        }
+    }
+
+    /// Sends SIGTERM and returns the rest of what the script printed; panics if it was killed.
+    pub fn stop(mut self) -> String {
+        let pid = self.sh.id().to_string();
+        assert!(Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success());
+        let mut rest = String::new();
+        self.out.read_to_string(&mut rest).unwrap();
+        let status = self.sh.wait().unwrap();
+        assert!(status.code().is_some(), "killed by a signal: {status:?}");
+        rest
+    }
+}
 
 #[test]
 fn local_sh_starts_the_viewer_and_the_tuner_wired_and_stops_them() {
-    insitu_e2e::ensure_built();
     let tmp = tempfile::tempdir().unwrap();
-    let rec = tmp.path().join("rec");
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/local.sh");
-    let mut sh = Command::new("bash")
-        .arg(&script)
-        .arg(&rec)
-        .env("INSITU_BIN_DIR", bin_dir())
-        .env("TUNER_UTILITY", "size:200kB")
-        .env_remove("INSITU_TOKEN")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut out = BufReader::new(sh.stdout.take().unwrap());
-    let (mut url, mut generator) = (None, None);
-    let mut line = String::new();
-    while generator.is_none() && out.read_line(&mut line).unwrap() > 0 {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        match words.as_slice() {
-            ["viewer", u, ..] => url = Some(u.to_string()),
-            ["generator-node", a, ..] => generator = Some(a.to_string()),
-            _ => {}
-        }
-        line.clear();
-    }
-    let url = url.expect("no viewer line");
-    let generator = generator.expect("no generator-node line");
-    let addr = url
-        .trim_start_matches("http://")
-        .trim_end_matches('/')
-        .to_owned();
-    push_steps(&generator, 0..2);
+    let sh = LocalSh::start(&tmp.path().join("rec"), &[("TUNER_UTILITY", "size:200kB")]);
+    let addr = sh.viewer.clone();
+    push_steps(&sh.generator, 0..2);
     assert!(
         wait_until(60.0, || http(&addr, "/api/steps", &[])
             .1
@@ -63,16 +102,7 @@ fn local_sh_starts_the_viewer_and_the_tuner_wired_and_stops_them() {
         "{}",
         http(&addr, "/api/series", &[]).1
     );
-    let pid = sh.id().to_string();
-    assert!(Command::new("kill")
-        .args(["-TERM", &pid])
-        .status()
-        .unwrap()
-        .success());
-    let mut rest = String::new();
-    std::io::Read::read_to_string(&mut out, &mut rest).unwrap();
-    let status = sh.wait().unwrap();
+    let rest = sh.stop();
     assert!(rest.contains("summary"), "{rest}");
     assert!(rest.contains("recording:"), "{rest}");
-    assert!(status.code().is_some(), "killed by a signal: {status:?}");
 }

@@ -16,6 +16,7 @@ mod local_sh;
 mod mpi;
 mod mpi_runs;
 mod outage;
+mod own_simulation;
 mod policies;
 mod python;
 mod ranks;
