@@ -16,6 +16,7 @@ pub mod cpu;
 pub mod hold;
 pub mod host;
 pub mod ingest;
+pub mod layout;
 pub mod node;
 pub mod outbox;
 pub mod pool;

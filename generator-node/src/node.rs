@@ -26,12 +26,14 @@ use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{error, info, info_span, warn, Instrument};
 
 /// What a shutdown leaves behind.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Summary {
     /// The final counters (anything unshipped at the drain deadline is in `dropped_outbox`).
     pub counters: Counters,
     /// Of those, VDIs still unshipped when the drain deadline passed.
     pub lost_at_shutdown: u64,
+    /// Steps whose ranks' bricks could not be composed, and why ([`crate::layout`]).
+    pub layout: Option<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -48,6 +50,9 @@ impl std::fmt::Display for Summary {
                 "; {} VDI(s) made again under the hard size limit ({:.3} s)",
                 c.limit_retries, c.limit_retry_secs
             )?;
+        }
+        if let Some(layout) = &self.layout {
+            write!(f, "; {layout}")?;
         }
         Ok(())
     }
@@ -220,6 +225,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
             compose: cfg.host.compose && cfg.viz.is_some(),
             ..cfg.host.clone()
         })),
+        layout: crate::layout::Layouts::default(),
     });
     let (health, stop_server, server) = serve(&shared, &security, listener).await?;
     shared.save_run();
@@ -544,6 +550,7 @@ impl RunningNode {
         Summary {
             counters: self.shared.stats.get(),
             lost_at_shutdown: lost,
+            layout: self.shared.layout.summary(),
         }
     }
 }

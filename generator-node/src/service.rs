@@ -30,6 +30,7 @@ impl GeneratorService {
             |h: &pb::StepHeader| {
                 let wanted = self.wanted_field(h.step);
                 let (info, window) = check_step(h, wanted.as_deref())?;
+                self.0.layout.admit(&info)?;
                 Ok((
                     info,
                     window,
@@ -81,6 +82,7 @@ impl GeneratorService {
         }
         let wanted = self.wanted_field(header.step);
         let (info, mut window) = check_step(&header, wanted.as_deref())?;
+        self.0.layout.admit(&info)?;
         let file = shm.open(&step.path, total)?;
         let mut field = info.assembler(self.0.spare_fields.take());
         let field = tokio::task::spawn_blocking(move || {
@@ -97,6 +99,8 @@ impl GeneratorService {
     /// As [`Self::spool`] and [`Self::enqueue`].
     async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
         self.spool(&mut raw).await?;
+        // Checked once the step's ranks are all in; logged the first time it fails.
+        let _ = self.0.layout.record(&raw.info);
         self.propose_scene(&raw);
         let (dropped, received) = self.enqueue(raw).await?;
         let s = &self.0;
@@ -168,19 +172,24 @@ impl GeneratorService {
             r.retain(|k| !(ranks.is_empty() || ranks.contains(k)));
             if !o.error.is_empty() && r.len() < before {
                 // The viz-node's reason names the step.
-                errors.push(o.error);
+                errors.push((o.step, o.error));
             }
             if r.is_empty() {
                 composing.remove(&o.step);
             }
         }
-        (!errors.is_empty()).then(|| {
-            format!(
-                "flush: {} step(s) of your ranks could not be composed at the viz-node: {}",
-                errors.len(),
-                errors.join("; ")
-            )
-        })
+        errors.sort_unstable();
+        let (_, first) = errors.first()?;
+        // One reason, the first step's: a decomposition at fault repeats it at every step.
+        let mut steps: Vec<String> = errors.iter().take(10).map(|(s, _)| s.to_string()).collect();
+        if errors.len() > steps.len() {
+            steps.push("…".into());
+        }
+        Some(format!(
+            "flush: {} step(s) of your ranks could not be composed at the viz-node (steps {}); the first: {first}",
+            errors.len(),
+            steps.join(", ")
+        ))
     }
 
     /// Reports `raw`'s value range to the scene agreement while no TF is fixed.

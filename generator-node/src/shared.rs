@@ -62,6 +62,8 @@ pub struct Shared {
     pub shared_memory: Option<crate::shm::SharedMemory>,
     /// The ranks of steps in flight, composed into the host's parts before they ship.
     pub host: Arc<crate::host::Gather>,
+    /// The ranks' bricks, checked once a step's ranks are all in ([`crate::layout`]).
+    pub layout: crate::layout::Layouts,
 }
 
 impl Shared {

@@ -339,14 +339,20 @@ impl Client {
         slf
     }
 
-    #[pyo3(signature = (*_exc))]
+    /// Closes (flushing). When the block is left by an exception, that exception is the one
+    /// raised: a failed close then (e.g. a flush reporting the same fault again) does not
+    /// stack a second traceback on it.
+    #[pyo3(signature = (*exc))]
     fn __exit__(
         &mut self,
         py: Python<'_>,
-        _exc: &Bound<'_, pyo3::types::PyTuple>,
+        exc: &Bound<'_, pyo3::types::PyTuple>,
     ) -> PyResult<bool> {
-        self.close(py, None)?;
-        Ok(false)
+        let raising = exc.get_item(0).is_ok_and(|t| !t.is_none());
+        match self.close(py, None) {
+            Err(e) if !raising => Err(e),
+            _ => Ok(false),
+        }
     }
 
     fn __repr__(&self) -> String {

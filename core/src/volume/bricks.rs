@@ -97,7 +97,7 @@ pub fn grid_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>> 
 }
 
 /// What is wrong with a step's bricks.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum DecompositionError {
     /// A brick reaches outside the grid or has a zero size.
     #[error(
@@ -122,7 +122,7 @@ pub enum DecompositionError {
         b: u32,
     },
     /// The bricks leave part of the grid uncovered.
-    #[error("the bricks of ranks {ranks:?} cover {covered} of the grid's {total} cells")]
+    #[error("the bricks of ranks {ranks:?} cover {covered} of the grid's {total} cells{}", .fix.as_ref().map(|f| format!(": {f}")).unwrap_or_default())]
     Gap {
         /// The ranks present.
         ranks: Vec<u32>,
@@ -130,7 +130,70 @@ pub enum DecompositionError {
         covered: u128,
         /// Cells of the grid.
         total: u128,
+        /// Where the gap lies and how to close it, when it lies between two neighbouring
+        /// bricks ([`GapFix`]).
+        fix: Option<GapFix>,
     },
+}
+
+/// A gap between two neighbouring bricks, and the fix: the lower brick ends one plane short
+/// of its neighbour's first plane (blocks laid out without a shared plane, as array splits
+/// and ADIOS2 writers lay them out), so it must repeat that plane.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GapFix {
+    /// The rank whose brick ends short.
+    pub rank: u32,
+    /// The axis, 0–2 for x–y–z.
+    pub axis: usize,
+    /// The brick's last point on that axis; the cells from it to the next point lie in no
+    /// brick.
+    pub last: usize,
+    /// The brick's points on that axis now (it needs one more).
+    pub points: usize,
+}
+
+impl std::fmt::Display for GapFix {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let axis = ["x", "y", "z"][self.axis.min(2)];
+        write!(
+            f,
+            "the cells between {axis} = {} and {axis} = {} lie in no brick; neighbouring bricks share their boundary plane, so rank {}'s brick must include {axis} = {} (n{axis} {}, not {})",
+            self.last,
+            self.last + 1,
+            self.rank,
+            self.last + 1,
+            self.points + 1,
+            self.points
+        )
+    }
+}
+
+/// The first brick that ends one point short of a neighbour: a brick starting at its last
+/// point + 1 on one axis whose extent overlaps it on the other two (`range`: a brick's cells
+/// per axis, as [`check`] measures them).
+fn gap_fix(
+    bricks: &[(u32, Brick)],
+    range: impl Fn(&Brick, usize) -> (usize, usize),
+) -> Option<GapFix> {
+    bricks.iter().find_map(|&(rank, a)| {
+        (0..3).find_map(|axis| {
+            let last = a.offset[axis] + a.dims[axis] - 1;
+            let neighbour = bricks.iter().any(|(_, b)| {
+                b.offset[axis] == last + 1
+                    && (0..3).filter(|&k| k != axis).all(|k| {
+                        let (a0, a1) = range(&a, k);
+                        let (b0, b1) = range(b, k);
+                        a0.max(b0) < a1.min(b1)
+                    })
+            });
+            neighbour.then_some(GapFix {
+                rank,
+                axis,
+                last,
+                points: a.dims[axis],
+            })
+        })
+    })
 }
 
 /// Checks that `bricks` (rank, brick) lie inside `global`, that their cells are disjoint
@@ -194,6 +257,7 @@ pub fn check(
                 ranks: bricks.iter().map(|(r, _)| *r).collect(),
                 covered,
                 total,
+                fix: gap_fix(bricks, range),
             });
         }
     }
@@ -370,11 +434,66 @@ mod tests {
             dims: [10, 10, 5],
         };
         check(g, &[(0, a), (1, e)], true).unwrap();
-        // Disjoint voxels leave the cells between z = 5 and z = 6 uncovered.
+        // Disjoint voxels leave the cells between z = 5 and z = 6 uncovered: rank 0's brick
+        // must repeat z = 6.
+        let gap = check(g, &[(0, a), (1, d)], true).unwrap_err();
+        let DecompositionError::Gap { fix, covered, .. } = &gap else {
+            panic!("{gap:?}")
+        };
+        assert_eq!(*covered, 9 * 9 * 8);
+        assert_eq!(
+            fix,
+            &Some(GapFix {
+                rank: 0,
+                axis: 2,
+                last: 5,
+                points: 6
+            })
+        );
+        assert!(
+            gap.to_string().ends_with(
+                "the cells between z = 5 and z = 6 lie in no brick; neighbouring bricks share their boundary plane, so rank 0's brick must include z = 6 (nz 7, not 6)"
+            ),
+            "{gap}"
+        );
+        // The fix makes the bricks tile the grid.
+        let fixed = Brick {
+            dims: [10, 10, 7],
+            ..a
+        };
+        check(g, &[(0, fixed), (1, d)], true).unwrap();
+        // A missing brick (nothing starts where the last one ends) has no such fix.
+        let half = Brick {
+            offset: [0, 0, 0],
+            dims: [10, 5, 10],
+        };
         assert!(matches!(
-            check(g, &[(0, a), (1, d)], true),
-            Err(DecompositionError::Gap { .. })
+            check(g, &[(0, half)], true),
+            Err(DecompositionError::Gap { fix: None, .. })
         ));
+        // Side by side on x with a gap, each half of y: the fix names the axis and the rank.
+        let left = Brick {
+            offset: [0, 0, 0],
+            dims: [5, 10, 10],
+        };
+        let right = Brick {
+            offset: [5, 0, 0],
+            dims: [5, 10, 10],
+        };
+        let DecompositionError::Gap { fix, .. } =
+            check(g, &[(3, left), (4, right)], true).unwrap_err()
+        else {
+            panic!()
+        };
+        assert_eq!(
+            fix,
+            Some(GapFix {
+                rank: 3,
+                axis: 0,
+                last: 4,
+                points: 5
+            })
+        );
     }
 
     #[test]

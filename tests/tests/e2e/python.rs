@@ -4,8 +4,9 @@
 //! exception its stub names, a closed client and a dead daemon are errors), and the mpi4py
 //! example runs under mpirun on 4 ranks and on 1 with the same picture.
 
-use crate::common::{generator, index, small_config, viz};
+use crate::common::{generator, index, small_config, steps, viz};
 use crate::mpi_runs::{assert_same_picture, run, SMALL};
+use insitu_e2e::wait_until;
 use std::process::Command;
 
 #[test]
@@ -104,4 +105,67 @@ fn the_python_offline_functions_keep_their_invariants() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(stdout.ends_with("ok\n"), "{stdout}");
+}
+
+/// Two disjoint z-halves (as one splits an array) pushed as two ranks from Python: the push
+/// after the first whole step is refused, naming the gap and the fix; leaving the `with` block
+/// raises that one error alone; the node's summary counts the step, and the viewer's index
+/// says why it was not composed.
+#[test]
+fn disjoint_halves_are_named_at_the_next_push_with_their_fix() {
+    let Some(python) = insitu_testenv::python_package() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = generator(&small_config(&v.addr, "block", 4), tmp.path(), &[]);
+    let script = r#"
+import sys, numpy as np, insitu
+n = 32
+field = np.random.default_rng(1).random((n, n, n), dtype=np.float32)
+with insitu.Client(sys.argv[1]) as c:
+    for step in range(5):
+        for rank in range(2):
+            half = np.ascontiguousarray(field[rank * 16:(rank + 1) * 16])
+            c.push(step, half, offset=(0, 0, rank * 16), global_dims=(n, n, n), rank=rank,
+                   world_size=2)
+        print("pushed", step, flush=True)
+"#;
+    let out = Command::new(python)
+        .args(["-c", script, &g.addr])
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(!out.status.success(), "{stdout}{stderr}");
+    assert_eq!(stdout, "pushed 0\n", "{stderr}");
+    assert_eq!(stderr.matches("Traceback").count(), 1, "{stderr}");
+    for part in [
+        "insitu.RefusedError",
+        "step 1 rank 0: not taken",
+        "found when step 0 had all its ranks",
+        "the cells between z = 15 and z = 16 lie in no brick",
+        "rank 0's brick must include z = 16 (nz 17, not 16)",
+    ] {
+        assert!(stderr.contains(part), "{part}: {stderr}");
+    }
+    let summary = g.terminate();
+    assert!(
+        summary.contains("1 step(s) whose ranks' bricks cannot be composed (first: step 0)"),
+        "{summary}"
+    );
+    assert!(wait_until(30.0, || steps(&rec).iter().any(|s| s.step == 0)));
+    let s0 = steps(&rec).into_iter().find(|s| s.step == 0).unwrap();
+    assert!(
+        s0.error
+            .as_deref()
+            .is_some_and(|e| e.contains("must include z = 16")),
+        "{:?}",
+        s0.error
+    );
+    v.terminate();
 }

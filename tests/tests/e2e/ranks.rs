@@ -543,6 +543,12 @@ fn bad_decompositions_are_refused_naming_the_step_and_ranks() {
         err.contains("step 3") && err.contains("[0, 1]") && err.contains("cover"),
         "{err}"
     );
+    // Where the gap lies, and the fix.
+    assert!(
+        err.contains("the cells between z = 7 and z = 8 lie in no brick")
+            && err.contains("rank 0's brick must include z = 8 (nz 9, not 8)"),
+        "{err}"
+    );
     assert!(s3.vdi.is_none());
     v.terminate();
 }
