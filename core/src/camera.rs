@@ -94,6 +94,40 @@ impl Camera {
         }
     }
 
+    /// The zoom, a scale of this camera's eye–target distance as [`Self::orbit`] applies it,
+    /// at which every corner of `b` projects within `margin` (in (0, 1]) of the half extents
+    /// of a `width × height` image: the view that fits the box, its direction kept. For a
+    /// corner `c` (relative to the target) with view coordinates `x`, `y` and depth `f` along
+    /// the view direction, the depth at zoom `s` is `f + d·s`, and `|x| ≤ margin·tan(fov_x/2)·
+    /// (f + d·s)` gives `s ≥ (|x| / (margin·tan(fov_x/2)) − f) / d` (the same on y); the
+    /// answer is the largest bound over the corners. 1 for an invalid camera or box.
+    pub fn fit_zoom(&self, b: &Aabb, width: u32, height: u32, margin: f32) -> f32 {
+        let d = (self.eye - self.target).length();
+        let margin = margin.clamp(1e-3, 1.0);
+        if !(self.is_valid() && d > 0.0 && b.min.is_finite() && b.max.is_finite()) {
+            return 1.0;
+        }
+        let f = self.frame(width, height);
+        let (tx, ty) = (margin * f.tan_half_x, margin * f.tan_half_y);
+        let fit = (0..8)
+            .map(|k| {
+                let corner = Vec3::new(
+                    if k & 1 == 0 { b.min.x } else { b.max.x },
+                    if k & 2 == 0 { b.min.y } else { b.max.y },
+                    if k & 4 == 0 { b.min.z } else { b.max.z },
+                ) - self.target;
+                let depth = corner.dot(f.forward);
+                let need = (corner.dot(f.right).abs() / tx).max(corner.dot(f.up).abs() / ty);
+                (need - depth) / d
+            })
+            .fold(f32::MIN, f32::max);
+        if fit.is_finite() && fit > 0.0 {
+            fit
+        } else {
+            1.0
+        }
+    }
+
     /// Whether the camera is usable: finite, eye ≠ target, up not parallel to the view
     /// direction, field of view in (0, 180).
     pub fn is_valid(&self) -> bool {
@@ -202,6 +236,51 @@ impl ViewFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fit_zoom_frames_the_box_head_on_and_from_any_side() {
+        // A cube of side 2 at the origin seen head-on from +z at distance 10, fov 30°: its
+        // near face (depth −1 along the view) needs tan(15°)·(10 s − 1) = 1.
+        let cube = Aabb {
+            min: Vec3::splat(-1.0),
+            max: Vec3::splat(1.0),
+        };
+        let cam = Camera {
+            eye: Vec3::new(0.0, 0.0, 10.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            fov_y_deg: 30.0,
+        };
+        let s = cam.fit_zoom(&cube, 64, 64, 1.0);
+        let expect = (1.0 / 15f32.to_radians().tan() + 1.0) / 10.0;
+        assert!((s - expect).abs() < 1e-5, "{s} vs {expect}");
+        // A wide image fits on y; a margin moves the eye back by its inverse, nearly.
+        assert!((cam.fit_zoom(&cube, 128, 64, 1.0) - expect).abs() < 1e-5);
+        assert!(cam.fit_zoom(&cube, 64, 64, 0.9) > s);
+        // From any orbit, at the fit the box's footprint touches the frame's edge and stays inside.
+        for (angle, elevation) in [(0.0, 0.0), (30.0, 20.0), (135.0, -60.0), (270.0, 89.0)] {
+            let view = cam.orbit(angle, elevation, 1.0);
+            let fitted = view.orbit(0.0, 0.0, view.fit_zoom(&cube, 100, 100, 1.0));
+            let (xs, ys) = fitted.frame(100, 100).footprint(&cube);
+            assert!(
+                xs.start <= 2 || ys.start <= 2,
+                "{angle} {elevation}: {xs:?} {ys:?}"
+            );
+            assert!(
+                xs.end >= 98 || ys.end >= 98,
+                "{angle} {elevation}: {xs:?} {ys:?}"
+            );
+        }
+        // The default camera of a box shows it with room around it; the fit is closer.
+        let default = Camera::default_for_box(&cube);
+        assert!(default.fit_zoom(&cube, 64, 64, 0.95) < 1.0);
+        // Nonsense in, no zoom change out.
+        let nan = Aabb {
+            min: Vec3::NAN,
+            max: Vec3::ONE,
+        };
+        assert_eq!(cam.fit_zoom(&nan, 64, 64, 1.0), 1.0);
+    }
 
     fn unit_box() -> Aabb {
         Aabb {

@@ -345,6 +345,8 @@ pub fn run(
             tau_compress_secs,
             tf_hash,
             tf_name: tf.1.clone(),
+            // A few hundred bytes beside a VDI of kilobytes to megabytes.
+            tf_json: serde_json::to_string(&tf.0).unwrap_or_default(),
             tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
             backend: backend.describe(),
             pm_version: gen.pm_version,

@@ -20,6 +20,7 @@ pub mod scene;
 pub mod score;
 pub mod service;
 pub mod store;
+pub mod tfs;
 pub mod view;
 
 pub use config::Config;

@@ -391,6 +391,12 @@ fn store_vdi(
     if let Some(p) = provenance {
         check_provenance(&what, h, (placement, &ranks), &p)?;
     }
+    // Kept for the viewer's legend; a bad one costs the legend, not the VDI.
+    if !h.tf_json.is_empty() {
+        if let Err(e) = crate::tfs::keep(s.recording.dir(), h.tf_hash, &h.tf_json) {
+            warn!(step = h.step, rank = h.rank, error = %e, "the VDI's transfer function was not kept");
+        }
+    }
     let p = vdi.meta().params;
     if p.resolution != h.resolution || p.gamma.to_bits() != h.gamma.to_bits() {
         return Err(Status::invalid_argument(format!(

@@ -18,6 +18,9 @@ pub const MAX_SIDE: u32 = 8192;
 /// Zoom range (eye–target distance over the generation camera's).
 pub const ZOOM_RANGE: (f32, f32) = (0.05, 20.0);
 
+/// The part of the image's half extents a fitted view's box fills ([`View::fit_zoom`]).
+pub const FIT_MARGIN: f32 = 0.9;
+
 /// Why a view cannot be served. The HTTP layer maps the kinds to 404, 400, 413 and 500.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ViewError {
@@ -114,6 +117,16 @@ impl View {
     /// The camera of this view about `generation` (the VDI's own camera).
     pub fn camera(&self, generation: &Camera) -> Camera {
         generation.orbit(self.angle_deg, self.elevation_deg, self.zoom)
+    }
+
+    /// The zoom at which this view's direction about `generation` frames `volume_box`, the
+    /// box filling [`FIT_MARGIN`] of the image's half extents ([`Camera::fit_zoom`]), within
+    /// [`ZOOM_RANGE`]: the viewer's default.
+    pub fn fit_zoom(&self, generation: &Camera, volume_box: &insitu_core::volume::Aabb) -> f32 {
+        let unzoomed = Self { zoom: 1.0, ..*self }.camera(generation);
+        unzoomed
+            .fit_zoom(volume_box, self.width, self.height, FIT_MARGIN)
+            .clamp(ZOOM_RANGE.0, ZOOM_RANGE.1)
     }
 }
 

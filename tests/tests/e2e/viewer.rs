@@ -226,13 +226,43 @@ pub(crate) async fn screenshot(c: &Client, shots: &Path, name: &str) {
     std::fs::write(shots.join(name), c.screenshot().await.unwrap()).unwrap();
 }
 
-/// The first still frame is the latest step's and not blank, and the charts hold one point
-/// per stored step (q on the sampled ones); returns that frame.
+/// The first still frame is the latest step's, zoomed to fit (the box drawn over it reaches
+/// 90 % of the way to the frame's edge, as the server's fit and the page's projection agree),
+/// with its colour legend, and not blank; the charts hold one point per stored step (q on
+/// the sampled ones); returns that frame.
 async fn first_frame_and_charts(c: &Client, shots: &Path) -> Image {
-    let first = wait_frame(c, 20.0, |d| d["kind"] == "still").await;
+    let first = wait_frame(c, 20.0, |d| d["kind"] == "still" && d["zoom"] != "1").await;
     assert_eq!(first["step"], "5", "follows the latest step: {first}");
     let img0 = image_of(c, "frame").await;
     assert!(not_blank(&img0), "the first frame is blank");
+    let overlay = js(
+        c,
+        "const o = document.getElementById('overlay').dataset;
+         done({edges: o.edges, reach: o.reach});",
+    )
+    .await;
+    assert_eq!(overlay["edges"], "12", "{overlay}");
+    let reach: f64 = overlay["reach"].as_str().unwrap().parse().unwrap();
+    assert!(
+        (0.87..=0.93).contains(&reach),
+        "box reach {reach}: {overlay}"
+    );
+    let t = Instant::now();
+    while js(
+        c,
+        "const b = document.getElementById('legend-bar').dataset.hash;
+         done(b !== undefined && b === document.getElementById('frame').dataset.tf
+              && document.getElementById('legend-lo').textContent !== '');",
+    )
+    .await
+        != Value::Bool(true)
+    {
+        assert!(
+            t.elapsed().as_secs() < 20,
+            "no colour legend for the frame's TF"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     screenshot(c, shots, "viewer-first.png").await;
 
     // The charts hold one point per stored step.

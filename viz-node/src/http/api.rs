@@ -196,6 +196,14 @@ pub struct Frame {
     pub encode_secs: f64,
     /// Resolution of the VDI level it was rendered from.
     pub vdi_resolution: u32,
+    /// The camera it was rendered from.
+    pub camera: insitu_core::Camera,
+    /// The zoom that frames the volume from this direction ([`View::fit_zoom`]).
+    pub fit_zoom: f32,
+    /// The volume's world box (the page draws it).
+    pub volume_box: insitu_core::volume::Aabb,
+    /// The transfer function's name and identity hash.
+    pub tf: (String, u64),
 }
 
 /// Renders `step` (none: the latest stored; `rank`, or composed) at `view` and encodes it as
@@ -262,12 +270,17 @@ pub async fn render_frame(
         let (image, render_secs) = running.end(rendered, |e| matches!(e, ViewError::Cancelled))?;
         let t = Instant::now();
         let bytes = view::encode(&image, format, quality)?;
+        let meta = vdi.meta();
         Ok::<_, ViewError>(Frame {
             step,
             bytes,
             render_secs,
             encode_secs: t.elapsed().as_secs_f64(),
             vdi_resolution: level.resolution(),
+            camera: v.camera(&meta.camera),
+            fit_zoom: v.fit_zoom(&meta.camera, &meta.volume_box),
+            volume_box: meta.volume_box,
+            tf: (meta.tf_name.clone(), meta.tf_hash),
         })
     })
     .await

@@ -3,8 +3,10 @@
 //! In: camera requests as JSON text, `{"id", "step" (null: the latest), "rank" (null:
 //! composed), "angle", "elevation", "zoom", "width", "height", "format": "jpeg"|"png",
 //! "quality", "lod"}`. Out: for each frame a JSON text `{"frame": id, "step", "rank", "format",
-//! "width", "height", "bytes", "render_ms", "encode_ms", "vdi_resolution", "superseded"}`
-//! followed by the image
+//! "width", "height", "bytes", "render_ms", "encode_ms", "vdi_resolution", "superseded",
+//! "camera": {"eye", "target", "up", "fov_y_deg"} (the camera rendered), "fit_zoom" (the zoom
+//! that frames the volume from this direction), "box": {"min", "max"} (the volume's world
+//! box), "tf": {"name", "hash"}}` followed by the image
 //! as one binary message; `{"event": "stored", "step", "rank"}` whenever the viz-node stores
 //! a VDI (so a page following the latest step needs no reload); `{"error": message, "id"}`
 //! for a request that cannot be served (the socket stays open).
@@ -280,6 +282,15 @@ async fn frame(
         "encode_ms": f.encode_secs * 1e3,
         "vdi_resolution": f.vdi_resolution,
         "superseded": http.superseded.load(Ordering::Relaxed),
+        "camera": {
+            "eye": f.camera.eye.to_array(),
+            "target": f.camera.target.to_array(),
+            "up": f.camera.up.to_array(),
+            "fov_y_deg": f.camera.fov_y_deg,
+        },
+        "fit_zoom": f.fit_zoom,
+        "box": {"min": f.volume_box.min.to_array(), "max": f.volume_box.max.to_array()},
+        "tf": {"name": f.tf.0, "hash": format!("{:016x}", f.tf.1)},
     });
     Ok((header, f.bytes))
 }

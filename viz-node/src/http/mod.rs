@@ -19,6 +19,7 @@ pub mod api;
 pub mod cap;
 pub mod conn;
 pub mod lanes;
+pub mod legend;
 pub mod live;
 pub mod movie;
 pub mod numbers;
@@ -217,6 +218,7 @@ pub fn router(http: Arc<Http>) -> Router {
         .route("/api/live", get(live::upgrade))
         .route("/api/scene", get(steer::scene))
         .route("/api/colormaps", get(steer::colormaps))
+        .route("/api/tf", get(legend::tf))
         .route("/api/steer", axum::routing::post(steer::steer))
         .route("/api/preview", axum::routing::post(preview::preview))
         .fallback(|| async { error(StatusCode::NOT_FOUND, "no such page or API".into()) })

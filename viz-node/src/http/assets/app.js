@@ -8,6 +8,11 @@ const $ = (id) => document.getElementById(id);
 
 const STILL_DELAY_MS = 300; // the still frame follows this long after the last camera change
 const view = { angle: 0, elevation: 0, zoom: 1 };
+// The first frame's fit zoom is applied (and again after "reset view" or "fit"): the volume
+// fills the frame by default.
+let fitPending = true;
+let shownHeader = null; // the header of the frame on screen (its camera, box, TF)
+let legendHash = null; // the TF the legend shows
 let steps = []; // from /api/steps
 let series = null; // from /api/series
 let shownStep = null; // the step on screen (null: none yet)
@@ -119,16 +124,137 @@ function connect() {
       zoom: String(view.zoom),
       width: String(h.width),
       vdiResolution: String(h.vdi_resolution),
+      tf: h.tf ? h.tf.hash : "",
     });
     $("frame-info").textContent =
       `step ${h.step} · ${h.format} ${h.width}² from r = ${h.vdi_resolution} · ` +
       `${(h.bytes / 1024).toFixed(1)} KiB · ` +
       `render ${h.render_ms.toFixed(1)} ms · encode ${h.encode_ms.toFixed(1)} ms`;
+    shownHeader = h;
+    drawOverlay();
+    drawLegend(h.tf);
     if (shownStep !== h.step) {
       shownStep = h.step;
       showPanel();
     }
+    if (fitPending && h.fit_zoom) {
+      fitPending = false;
+      if (Math.abs(h.fit_zoom - view.zoom) > 0.005 * view.zoom) {
+        view.zoom = h.fit_zoom;
+        request(false);
+      }
+    }
   };
+}
+
+// Where world point `p` lands in a `w × h` image seen by `cam` ({eye, target, up, fov_y_deg}),
+// as the renderer casts its rays (core/src/camera.rs, ViewFrame::ray); null behind the eye.
+function project(cam, p, w, h) {
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const unit = (a) => { const n = Math.hypot(...a) || 1; return a.map((v) => v / n); };
+  const forward = unit(sub(cam.target, cam.eye));
+  const right = unit(cross(forward, cam.up));
+  const up = cross(right, forward);
+  const e = sub(p, cam.eye);
+  const z = dot(e, forward);
+  if (!(z > 1e-6)) return null;
+  const ty = Math.tan((cam.fov_y_deg * Math.PI) / 360);
+  const tx = ty * (w / h);
+  return [((dot(e, right) / z / tx + 1) / 2) * w, ((1 - dot(e, up) / z / ty) / 2) * h];
+}
+
+// The volume's bounding box over the frame, its three edges from the lower corner coloured
+// as the axes (x red, y green, z blue) and labelled.
+function drawOverlay() {
+  const c = $("overlay");
+  const img = $("frame");
+  const [W, H] = [img.clientWidth, img.clientHeight];
+  if (c.width !== W || c.height !== H) Object.assign(c, { width: W, height: H });
+  const g = c.getContext("2d");
+  g.clearRect(0, 0, W, H);
+  const h = shownHeader;
+  c.dataset.edges = "0";
+  if (!$("show-box").checked || !h || !h.camera || !h.box) return;
+  const { min, max } = h.box;
+  const corner = (k) => [k & 1 ? max[0] : min[0], k & 2 ? max[1] : min[1], k & 4 ? max[2] : min[2]];
+  // The image is square in a square element: pixels scale by W / width.
+  const at = (k) => {
+    const q = project(h.camera, corner(k), h.width, h.height);
+    return q && [(q[0] * W) / h.width, (q[1] * H) / h.height];
+  };
+  // How far the box reaches towards the frame's edges (1: it touches one), for scripts and tests.
+  const reach = [...Array(8).keys()].map(at).filter(Boolean)
+    .map(([x, y]) => Math.max(Math.abs(x / W - 0.5), Math.abs(y / H - 0.5)) * 2);
+  c.dataset.reach = reach.length === 8 ? Math.max(...reach).toFixed(3) : "";
+  const axes = { 1: ["#e55", "x"], 2: ["#5c5", "y"], 4: ["#59f", "z"] };
+  let drawn = 0;
+  g.lineWidth = 1;
+  for (let a = 0; a < 8; a++) {
+    for (const bit of [1, 2, 4]) {
+      if (a & bit) continue;
+      const [p, q] = [at(a), at(a | bit)];
+      if (!p || !q) continue;
+      const axis = a === 0 ? axes[bit] : null;
+      g.strokeStyle = axis ? axis[0] : "rgba(200, 200, 200, 0.55)";
+      g.beginPath();
+      g.moveTo(p[0], p[1]);
+      g.lineTo(q[0], q[1]);
+      g.stroke();
+      if (axis) {
+        g.fillStyle = axis[0];
+        g.font = "12px monospace";
+        g.fillText(axis[1], q[0] + 3, q[1] - 3);
+      }
+      drawn++;
+    }
+  }
+  c.dataset.edges = String(drawn);
+}
+
+// The colour legend of the frame's transfer function: colour along its domain, opacity as the
+// curve above, the domain's ends and the TF's name. `tf`: {name, hash} from the frame header.
+async function drawLegend(tf) {
+  $("legend").hidden = !$("show-legend").checked;
+  if (!tf || tf.hash === legendHash) return;
+  legendHash = tf.hash;
+  $("legend-name").textContent = tf.name;
+  const bar = $("legend-bar");
+  const g = bar.getContext("2d");
+  g.clearRect(0, 0, bar.width, bar.height);
+  const r = await fetch(withToken(`api/tf?hash=${tf.hash}`)).catch(() => null);
+  const body = r && r.ok ? await r.json() : null;
+  if (!body || !body.tf) {
+    $("legend-lo").textContent = "";
+    $("legend-hi").textContent = "";
+    $("legend-name").textContent = `${tf.name} (colours not held by this viewer)`;
+    return;
+  }
+  const { domain, points } = body.tf;
+  const at = (x) => {
+    let i = 0;
+    while (i < points.length - 1 && points[i + 1][0] < x) i++;
+    const [a, b] = [points[i], points[Math.min(i + 1, points.length - 1)]];
+    const t = b[0] > a[0] ? Math.max(0, Math.min(1, (x - a[0]) / (b[0] - a[0]))) : 0;
+    return a.map((v, k) => v + (b[k] - v) * t);
+  };
+  const [w, hgt] = [bar.width, bar.height];
+  const strip = Math.round(hgt / 2);
+  g.strokeStyle = "#ddd";
+  g.beginPath();
+  for (let x = 0; x < w; x++) {
+    const [, cr, cg, cb, ca] = at(x / (w - 1));
+    g.fillStyle = `rgb(${cr * 255}, ${cg * 255}, ${cb * 255})`;
+    g.fillRect(x, hgt - strip, 1, strip);
+    const y = hgt - strip - 1 - ca * (hgt - strip - 2);
+    if (x === 0) g.moveTo(x, y); else g.lineTo(x, y);
+  }
+  g.stroke();
+  const fmt = (v) => Number(v).toPrecision(4);
+  $("legend-lo").textContent = fmt(domain[0]);
+  $("legend-hi").textContent = fmt(domain[1]);
+  bar.dataset.hash = tf.hash;
 }
 
 async function getJson(path) {
@@ -327,9 +453,17 @@ function wire() {
     request(true);
   }, { passive: false });
   $("reset").onclick = () => {
-    Object.assign(view, { angle: 0, elevation: 0, zoom: 1 });
+    Object.assign(view, { angle: 0, elevation: 0 });
+    fitPending = true;
     request(false);
   };
+  $("fit").onclick = () => {
+    fitPending = true;
+    request(false);
+  };
+  $("show-box").onchange = drawOverlay;
+  $("show-legend").onchange = () => { $("legend").hidden = !$("show-legend").checked; };
+  window.addEventListener("resize", drawOverlay);
   $("slider").oninput = () => {
     $("follow").checked = false;
     shownStep = steps[Number($("slider").value)]?.step ?? null;
