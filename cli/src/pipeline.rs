@@ -363,6 +363,9 @@ pub async fn print_reports(
         .into_inner();
     let mut decisions = tuner.map(|t| t.engine().subscribe());
     let budgets = tuner.map_or_else(Budgets::default, |t| Budgets::of(&t.engine().status()));
+    // Said once, at the first step made before any decision: a run that ends before the
+    // first tuning learns it from its first lines.
+    let mut untuned_notice = tuner.map(|t| untuned_notice(&t.engine().utility(), budgets));
     let seen = Arc::new(Mutex::new(Seen::default()));
     let c = seen.clone();
     let task = tokio::spawn(async move {
@@ -370,6 +373,13 @@ pub async fn print_reports(
             tokio::select! {
                 r = stream.next() => {
                     let Some(Ok(r)) = r else { break };
+                    if r.pm_version == 0 && !json {
+                        if let Some(notice) = untuned_notice.take() {
+                            println!("{notice}");
+                        }
+                    } else if r.pm_version > 0 {
+                        untuned_notice = None;
+                    }
                     if json {
                         println!("{}", report_json(&r, budgets));
                     } else {
@@ -394,6 +404,18 @@ pub async fn print_reports(
         }
     });
     Ok(Printer { task, seen })
+}
+
+/// What a run's first lines say while no decision is in force: where `P_M` comes from until
+/// the tuner's first one, and what keeps a size or time budget meanwhile (`utility`: its
+/// description).
+pub fn untuned_notice(utility: &str, budgets: Budgets) -> String {
+    let first = "P_M v0 is the generator-node's configured one until the tuner's first decision, which follows its first tuning (trials on the first characteristic step, seconds)";
+    if budgets.sigma_bytes.is_some() || budgets.tau_secs.is_some() {
+        format!("{first}; until then a step of a one-rank world over the budget ({utility}) lowers r for the steps after it")
+    } else {
+        format!("{first} ({utility})")
+    }
 }
 
 /// A refusal by the local `link` ("the viz-node"), naming it and, for a token refused, what

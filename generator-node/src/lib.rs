@@ -12,6 +12,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod config;
+pub mod correct;
 pub mod cpu;
 pub mod hold;
 pub mod host;

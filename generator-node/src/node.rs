@@ -34,6 +34,9 @@ pub struct Summary {
     pub lost_at_shutdown: u64,
     /// Steps whose ranks' bricks could not be composed, and why ([`crate::layout`]).
     pub layout: Option<String>,
+    /// Steps made at an r the node lowered before the tuner's first decision
+    /// ([`crate::correct`]).
+    pub correction: Option<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -51,8 +54,8 @@ impl std::fmt::Display for Summary {
                 c.limit_retries, c.limit_retry_secs
             )?;
         }
-        if let Some(layout) = &self.layout {
-            write!(f, "; {layout}")?;
+        for note in [&self.layout, &self.correction].into_iter().flatten() {
+            write!(f, "; {note}")?;
         }
         Ok(())
     }
@@ -395,6 +398,7 @@ async fn worker(shared: Arc<Shared>) {
             }
         }
         let with_refs = gen.reference_every > 0 && step % gen.reference_every == 0;
+        let pm_version = gen.pm_version;
         let s = shared.clone();
         let reused = spare.take();
         let lane = shared.lane.lock().await;
@@ -430,6 +434,8 @@ async fn worker(shared: Arc<Shared>) {
             Ok(Ok((finished, tf, for_tuner, reusable))) => {
                 spare = reusable;
                 if let Some(t) = &shared.tuning {
+                    t.correction
+                        .after_step(&shared, &finished.product.vdi_header, pm_version);
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);
@@ -551,6 +557,11 @@ impl RunningNode {
             counters: self.shared.stats.get(),
             lost_at_shutdown: lost,
             layout: self.shared.layout.summary(),
+            correction: self
+                .shared
+                .tuning
+                .as_ref()
+                .and_then(|t| t.correction.summary()),
         }
     }
 }

@@ -299,6 +299,10 @@ fn answer(
             warn!(error = %e.message, "the tuner refused a message");
             None
         }
+        Down::Budget(b) => {
+            tuning.correction.set_budget(b);
+            None
+        }
     }
 }
 

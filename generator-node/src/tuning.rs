@@ -31,6 +31,8 @@ pub struct Tuning {
     /// the last step's: a trial's τ is then what production pays
     /// ([`insitu_core::evaluate::generate_encoded`]). Trials run one at a time.
     pub(crate) spare: Mutex<Option<insitu_core::vdi::Vdi>>,
+    /// The tuner's budget, kept by the node until the first decision ([`crate::correct`]).
+    pub correction: crate::correct::Correction,
 }
 
 impl Tuning {
@@ -50,6 +52,7 @@ impl Tuning {
                 since_trial: AtomicU64::new(0),
                 interleave,
                 spare: Mutex::new(None),
+                correction: Default::default(),
             },
             rx,
         )

@@ -398,19 +398,20 @@ async fn made(
     rank: u32,
 ) -> (u64, u32) {
     let whole = field(16, t);
-    let z0 = 7 * rank as usize;
+    // z 0–8 and 8–15: the halves share the plane z = 8.
+    let (z0, nz) = (8 * rank as usize, 9 - rank as usize);
     let step = insitu_client::Step {
         step: t,
         sim_time: t as f64,
         dtype: insitu_client::ScalarType::F32,
         global_dims: [16, 16, 16],
         brick_offset: [0, 0, z0 as u32],
-        brick_dims: [16, 16, 9],
+        brick_dims: [16, 16, nz as u32],
         rank,
         world_size: 2,
         spacing: [1.0; 3],
         origin: [0.0; 3],
-        data: insitu_client::f32_bytes(&whole[z0 * 256..(z0 + 9) * 256]),
+        data: insitu_client::f32_bytes(&whole[z0 * 256..(z0 + nz) * 256]),
         fields: Vec::new(),
     };
     client.push_step(step).await.unwrap();

@@ -306,6 +306,16 @@ impl Engine {
         self.resolved().utility.describe()
     }
 
+    /// The budget the nodes keep until the first decision ([`pb::NodeBudget`]).
+    pub fn node_budget(&self) -> pb::NodeBudget {
+        let (sigma, tau) = self.resolved().budgets;
+        pb::NodeBudget {
+            sigma_bytes: sigma.unwrap_or(0),
+            tau_secs: tau.unwrap_or(0.0),
+            utility: self.utility(),
+        }
+    }
+
     pub(crate) fn save(&self, s: &State) {
         if let Err(e) = s.save(&self.cfg.state_dir) {
             warn!(error = %e, "could not persist the tuner state");
@@ -399,6 +409,7 @@ impl Engine {
             (before, s.current().map(|d| s.message(d)))
         };
         info!(node = %h.node_id, pm_version = h.pm_version, r = h.resolution, gamma = h.gamma, held = h.held.len(), "node attached");
+        self.hub.send(conn, Down::Budget(self.node_budget()));
         if let Some(d) = current.filter(|d| d.pm_version > h.pm_version) {
             // A node that holds neither (a restart): the decision before first, in force for
             // every step before the current one's switch, so that a step it receives late is
@@ -695,6 +706,14 @@ impl Loop {
     /// the tuning was measured.
     fn control(&mut self, step: u64, p: &Pending, planned_sigma_bytes: Option<f64>) {
         let e = self.engine.clone();
+        // A step made before any decision at an r the node lowered itself to keep the budget
+        // (generator-node/src/correct.rs) is no plan of the tuner's, and its candidate lies off
+        // the tuning's grid: its σ against the surface's interpolation would be read as
+        // growth. Only steps at the configured P_M or a decision's inform the forecast.
+        let configured = *e.reported.lock().unwrap_or_else(|p| p.into_inner());
+        if p.pm_version == 0 && configured.is_some_and(|c| c != p.candidate) {
+            return;
+        }
         let mut ctl = e.control();
         if !ctl.active() {
             return;
@@ -980,6 +999,7 @@ impl Loop {
             let retune = !s.tracker.steps.is_empty() && change.scene.is_none();
             drop(s);
             info!(utility = %e.utility(), who = %req.who, "utility steered");
+            e.hub.broadcast(&Down::Budget(e.node_budget()));
             if retune {
                 self.mark_dirty(Trigger {
                     step: newest,

@@ -106,3 +106,48 @@ fn local_sh_starts_the_viewer_and_the_tuner_wired_and_stops_them() {
     assert!(rest.contains("summary"), "{rest}");
     assert!(rest.contains("recording:"), "{rest}");
 }
+
+/// A run shorter than the first tuning, pushed as fast as the node takes it (the Rust example
+/// of docs/own-simulation.md: 10 steps of 64³, about 60 kB a step at the configured r 256)
+/// under a 20 kB budget: the node lowers r after the first step on its own, so every later
+/// step made before the tuner's first decision keeps the budget, and the summary says so.
+#[test]
+fn a_short_fast_run_keeps_the_budget_from_its_second_step() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let sh = LocalSh::start(&rec, &[("TUNER_UTILITY", "size:20kB")]);
+    let out = Command::new(bin_dir().join("examples/blob"))
+        .arg(&sh.generator)
+        .env_remove("INSITU_TOKEN")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rest = sh.stop();
+    let entries = crate::common::index(&rec);
+    let rows: Vec<(u64, u64, u32, u64)> = entries
+        .iter()
+        .map(|e| (e.step, e.pm_version, e.resolution, e.sizing.sigma_bytes))
+        .collect();
+    assert_eq!(rows.len(), 10, "{rows:?}");
+    assert!(
+        rows[0].3 > 20_000,
+        "the first step must break the budget: {rows:?}"
+    );
+    let untuned: Vec<_> = rows[1..].iter().filter(|r| r.1 == 0).collect();
+    assert!(!untuned.is_empty(), "{rows:?}");
+    for r in &untuned {
+        assert!(r.2 < 256 && r.3 <= 20_000, "step {}: {rows:?}", r.0);
+    }
+    assert!(
+        rest.contains(&format!(
+            "{} step(s) (1–{}) made at r lowered by the node",
+            untuned.len(),
+            untuned.last().unwrap().0
+        )),
+        "{rest}"
+    );
+}

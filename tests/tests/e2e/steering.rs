@@ -725,11 +725,13 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
         drag(&c, "frame", (0.0, 0.0), (-120.0, 0.0)).await;
         let shown = wait_frame(&c, 20.0, |d| d["kind"] == "still" && d["angle"] != "0").await;
         let angle: f32 = shown["angle"].as_str().unwrap().parse().unwrap();
+        // The page shows the volume zoomed to fit: the view generated from is that zoom's.
+        let zoom: f32 = shown["zoom"].as_str().unwrap().parse().unwrap();
         let reply = apply(&c, "generate-here", 2).await;
         c.close().await.unwrap();
-        (angle, reply)
+        (angle, zoom, reply)
     });
-    let (angle, reply) = generated;
+    let (angle, zoom, reply) = generated;
     let version = reply["pm_version"].as_u64().unwrap();
     let from2 = reply["from_step"].as_u64().unwrap();
     assert!(wait_until(30.0, || status(&g.addr).pm_version >= version));
@@ -738,10 +740,10 @@ fn the_page_steers_the_transfer_function_by_dragging_and_generates_from_its_view
     let last = index(rec).into_iter().max_by_key(|e| e.step).unwrap();
     assert_eq!(last.scene_version, 2);
     let moved = load_vdi(rec, &last).meta().camera;
-    let expected = camera.orbit(angle, 0.0, 1.0);
+    let expected = camera.orbit(angle, 0.0, zoom);
     assert!(
         (moved.eye - expected.eye).length() < 1e-2 * expected.eye.length().max(1.0),
-        "generated from the page's view at {angle}°: {moved:?} against {expected:?}"
+        "generated from the page's view at {angle}° and zoom {zoom}: {moved:?} against {expected:?}"
     );
     // q at the new view rises: the same data (the blob repeats every 8 steps) generated from
     // the old view before the switch and from the new one after it, each rendered at the new

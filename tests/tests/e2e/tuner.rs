@@ -552,7 +552,11 @@ fn bad_input_is_refused_clearly_and_nothing_is_persisted() {
             .await
             .unwrap()
             .into_inner();
-        let m = down.message().await.unwrap().unwrap();
+        // The budget comes first, at the hello; then the refusal.
+        let mut m = down.message().await.unwrap().unwrap();
+        if matches!(m.msg, Some(Down::Budget(_))) {
+            m = down.message().await.unwrap().unwrap();
+        }
         drop(tx);
         m
     });

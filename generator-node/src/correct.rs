@@ -1,0 +1,189 @@
+//! Before the tuner's first decision the node keeps the tuner's budget itself: a simulation
+//! that pushes fast, or a run shorter than the first tuning, would otherwise make every step at
+//! the configured `P_M` (4× over a 1 MB budget at r 256 on a 64³ field). The tuner sends its
+//! budget when the node attaches ([`pb::NodeBudget`]); after each step of a world of one rank
+//! made while no decision is in force, a σ or τ over the budget lowers r for the steps not
+//! begun yet as if both grew as r^1.5 ([`GROWTH`]), with 10 % headroom, on multiples of 16
+//! pixels. r only goes down here: spending headroom is the tuner's, which measures q. The
+//! tuner's first decision takes over; the node's summary counts the steps made under such a
+//! correction.
+//!
+//! A world of several ranks is left to the tuner: its ranks must share one `P_M` to be
+//! composed, and no node alone sees the step's σ.
+
+use crate::shared::Shared;
+use insitu_proto::pb;
+use std::sync::Mutex;
+use tracing::info;
+
+/// The part of the budget a corrected r aims at.
+pub const HEADROOM: f64 = 0.9;
+
+/// The exponent of r that σ and τ are taken to grow with. The rays grow as r², but
+/// neighbouring lists compress together: on a 64³ blob σ fell 2.86× from r 256 to r 128
+/// (r^1.52). The smaller exponent lowers r further, so the first correction lands within the
+/// budget where σ grows as r², and below it where it grows slower.
+pub const GROWTH: f64 = 1.5;
+
+/// Corrected resolutions are multiples of this, pixels.
+pub const R_STEP: u32 = 16;
+
+/// The lowest resolution a correction goes to, pixels.
+pub const MIN_R: u32 = 32;
+
+/// The resolution to make the next steps at after one of resolution `r` came out at `sigma`
+/// bytes and `tau` seconds against `budget` (a zero budget is none): `None` when it kept the
+/// budget (or r is at [`MIN_R`] already), else `r · (HEADROOM / excess)^(1 / GROWTH)` rounded
+/// down to a multiple of [`R_STEP`], at least [`MIN_R`], where the excess is the larger of σ
+/// and τ over their budgets.
+pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudget) -> Option<u32> {
+    let size = (budget.sigma_bytes > 0).then(|| sigma as f64 / budget.sigma_bytes as f64);
+    let time = (budget.tau_secs > 0.0 && tau.is_finite()).then(|| tau / budget.tau_secs);
+    let excess = size.into_iter().chain(time).fold(0.0, f64::max);
+    if !(excess > 1.0) {
+        return None;
+    }
+    let scaled = f64::from(r) * (HEADROOM / excess).powf(1.0 / GROWTH);
+    let next = ((scaled / f64::from(R_STEP)).floor() as u32 * R_STEP).max(MIN_R);
+    (next < r).then_some(next)
+}
+
+#[derive(Debug, Default)]
+struct State {
+    budget: Option<pb::NodeBudget>,
+    /// Steps made under a correction: how many, the first and the last.
+    steps: u64,
+    first: Option<u64>,
+    last: u64,
+    /// The resolution the node last corrected to, and from which step.
+    corrected: Option<(u32, u64)>,
+}
+
+/// The node's own correction of `P_M` before the tuner's first decision.
+#[derive(Debug, Default)]
+pub struct Correction(Mutex<State>);
+
+impl Correction {
+    fn state(&self) -> std::sync::MutexGuard<'_, State> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The tuner's budget, as it sent it.
+    pub fn set_budget(&self, budget: pb::NodeBudget) {
+        info!(sigma_bytes = budget.sigma_bytes, tau_secs = budget.tau_secs, utility = %budget.utility, "the tuner's budget, kept by the node until its first decision");
+        self.state().budget = Some(budget);
+    }
+
+    /// After a step whose VDI has header `h`, made under settings of decision `pm_version`
+    /// (0: none yet): counts it if it was made under a correction, and lowers r for the steps
+    /// not begun yet when it broke the budget (logged).
+    pub fn after_step(&self, shared: &Shared, h: &pb::VdiHeader, pm_version: u64) {
+        let mut s = self.state();
+        if pm_version != 0 || h.world_size != 1 {
+            return;
+        }
+        if s.corrected.is_some_and(|(_, from)| h.step >= from) {
+            s.steps += 1;
+            s.first.get_or_insert(h.step);
+            s.last = s.last.max(h.step);
+        }
+        let Some(budget) = &s.budget else {
+            return;
+        };
+        let Some(next) = corrected_resolution(h.resolution, h.total_bytes, h.tau_secs, budget)
+        else {
+            return;
+        };
+        let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
+        if g.pm_version != 0 || g.params.resolution <= next {
+            return;
+        }
+        let begun = shared.begun.load(std::sync::atomic::Ordering::SeqCst);
+        info!(
+            step = h.step,
+            sigma_bytes = h.total_bytes,
+            tau_secs = h.tau_secs,
+            budget = %budget.utility,
+            r = h.resolution,
+            next_r = next,
+            from_step = begun,
+            "no decision from the tuner yet: the node lowers r to keep the budget"
+        );
+        g.params.resolution = next;
+        drop(g);
+        shared.save_run();
+        s.corrected = Some((next, s.corrected.map_or(begun, |(_, from)| from.min(begun))));
+    }
+
+    /// For the node's summary: the steps made under the node's correction, or `None`.
+    pub fn summary(&self) -> Option<String> {
+        let s = self.state();
+        let (r, _) = s.corrected?;
+        let first = s.first?;
+        Some(format!(
+            "{} step(s) ({first}–{}) made at r lowered by the node (last r {r}) to keep the tuner's budget before its first decision",
+            s.steps, s.last
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn budget(sigma_bytes: u64, tau_secs: f64) -> pb::NodeBudget {
+        pb::NodeBudget {
+            sigma_bytes,
+            tau_secs,
+            utility: String::new(),
+        }
+    }
+
+    #[test]
+    fn r_falls_as_sigma_would_grow_as_r_to_the_1_5_with_headroom() {
+        // 4.2 MB against 1 MB: r 256 · (0.9 / 4.2)^(2/3) = 91.7 → 80.
+        assert_eq!(
+            corrected_resolution(256, 4_200_000, 0.1, &budget(1_000_000, 0.0)),
+            Some(80)
+        );
+        // Growing as r^1.5 or as r², the next step lands within the budget.
+        for growth in [GROWTH, 2.0] {
+            let predicted = 4_200_000.0 * (80.0f64 / 256.0).powf(growth);
+            assert!(predicted < 0.9 * 1_000_000.0, "{growth}: {predicted}");
+        }
+        // Within the budget: nothing to correct; no budget: nothing either.
+        assert_eq!(
+            corrected_resolution(256, 900_000, 0.1, &budget(1_000_000, 0.0)),
+            None
+        );
+        assert_eq!(
+            corrected_resolution(256, 9_000_000, 9.0, &budget(0, 0.0)),
+            None
+        );
+        // A time budget: τ 2 s against 0.5 s → r 256 · (0.9 / 4)^(2/3) = 94.7 → 80.
+        assert_eq!(corrected_resolution(256, 1, 2.0, &budget(0, 0.5)), Some(80));
+        // Both: the larger excess wins (τ's 4× over σ's 2×).
+        assert_eq!(
+            corrected_resolution(256, 2_000_000, 2.0, &budget(1_000_000, 0.5)),
+            Some(80)
+        );
+        // Just over: a small step down (1.1×: r 256 · 0.874 = 223.9 → 208).
+        assert_eq!(
+            corrected_resolution(256, 1_100_000, 0.0, &budget(1_000_000, 0.0)),
+            Some(208)
+        );
+        // Never below the floor, and no change at it; NaN τ is no measurement.
+        assert_eq!(
+            corrected_resolution(64, 100_000_000, 0.0, &budget(1_000, 0.0)),
+            Some(MIN_R)
+        );
+        assert_eq!(
+            corrected_resolution(MIN_R, 100_000_000, 0.0, &budget(1_000, 0.0)),
+            None
+        );
+        assert_eq!(
+            corrected_resolution(256, 1, f64::NAN, &budget(0, 0.5)),
+            None
+        );
+    }
+}
