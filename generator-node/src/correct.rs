@@ -40,7 +40,7 @@ pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudge
     let size = (budget.sigma_bytes > 0).then(|| sigma as f64 / budget.sigma_bytes as f64);
     let time = (budget.tau_secs > 0.0 && tau.is_finite()).then(|| tau / budget.tau_secs);
     let excess = size.into_iter().chain(time).fold(0.0, f64::max);
-    if !(excess > 1.0) {
+    if excess <= 1.0 {
         return None;
     }
     let scaled = f64::from(r) * (HEADROOM / excess).powf(1.0 / GROWTH);
