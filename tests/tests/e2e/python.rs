@@ -169,3 +169,91 @@ with insitu.Client(sys.argv[1]) as c:
     );
     v.terminate();
 }
+
+/// The `insitu` command the wheel installs: `view` draws a stored step as the core renders it
+/// (≥ 40 dB, 8-bit PNG), `export` lists the stored steps, another command runs the Rust
+/// `insitu` from `INSITU_BIN_DIR`, and without it the command says how to build it.
+#[test]
+fn the_package_s_insitu_command_views_exports_and_hands_the_rest_to_rust() {
+    let Some(python) = insitu_testenv::python_package() else {
+        return;
+    };
+    let command = python.with_file_name("insitu");
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let g = generator(&small_config(&v.addr, "block", 4), tmp.path(), &[]);
+    crate::common::push_steps(&g.addr, 0..2);
+    assert!(wait_until(30.0, || index(&rec).len() == 2));
+    let run = |args: &[&str], bin_dir: &std::path::Path| {
+        Command::new(&command)
+            .args(args)
+            .env("INSITU_BIN_DIR", bin_dir)
+            .output()
+            .unwrap()
+    };
+    let bins = insitu_e2e::bin_dir();
+    let png = tmp.path().join("step1.png");
+    let recording = rec.to_str().unwrap();
+    let out = run(
+        &[
+            "view",
+            "--recording",
+            recording,
+            "--time-step",
+            "1",
+            "--size",
+            "64",
+            "--angle",
+            "30",
+            "--out",
+            png.to_str().unwrap(),
+        ],
+        &bins,
+    );
+    assert!(out.status.success(), "{out:?}");
+    let shown = image::open(&png).unwrap().to_rgb8();
+    let shown = insitu_core::Image::from_pixels(
+        64,
+        64,
+        shown
+            .pixels()
+            .map(|p| p.0.map(|v| f32::from(v) / 255.0))
+            .collect(),
+    )
+    .unwrap();
+    let entry = index(&rec).into_iter().find(|e| e.step == 1).unwrap();
+    let vdi = crate::common::load_vdi(&rec, &entry);
+    let view = vdi.meta().camera.orbit_y(30.0);
+    let core = insitu_core::vdi::render::render(&vdi, &view, 64, 64, 0.99);
+    let q = insitu_core::metrics::psnr(&shown, &core).unwrap();
+    assert!(q >= 40.0, "insitu view vs the core's render: {q:.1} dB");
+    // export: the stored steps.
+    let out = run(
+        &["export", "--recording", recording, "--format", "json"],
+        &bins,
+    );
+    assert!(out.status.success(), "{out:?}");
+    let steps: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let listed: Vec<u64> = steps
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["step"].as_u64().unwrap())
+        .collect();
+    assert_eq!(listed, [0, 1]);
+    // Another command is the Rust one's.
+    let out = run(&["health", "--help"], &bins);
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("gRPC health check"),
+        "{out:?}"
+    );
+    let out = run(&["health", "--help"], tmp.path());
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("cargo build --release -p insitu-cli"),
+        "{out:?}"
+    );
+    g.terminate();
+    v.terminate();
+}
