@@ -412,7 +412,7 @@ pub async fn print_reports(
 pub fn untuned_notice(utility: &str, budgets: Budgets) -> String {
     let first = "P_M v0 is the generator-node's configured one until the tuner's first decision, which follows its first tuning (trials on the first characteristic step, seconds)";
     if budgets.sigma_bytes.is_some() || budgets.tau_secs.is_some() {
-        format!("{first}; until then a step of a one-rank world over the budget ({utility}) lowers r for the steps after it")
+        format!("{first}; until then a step over the budget ({utility}) lowers r for the steps after it, on a node that holds all of its world's ranks")
     } else {
         format!("{first} ({utility})")
     }

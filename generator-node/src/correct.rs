@@ -1,15 +1,16 @@
 //! Before the tuner's first decision the node keeps the tuner's budget itself: a simulation
 //! that pushes fast, or a run shorter than the first tuning, would otherwise make every step at
 //! the configured `P_M` (4× over a 1 MB budget at r 256 on a 64³ field). The tuner sends its
-//! budget when the node attaches ([`pb::NodeBudget`]); after each step of a world of one rank
-//! made while no decision is in force, a σ or τ over the budget lowers r for the steps not
-//! begun yet as if both grew as r^1.5 ([`GROWTH`]), with 10 % headroom, on multiples of 16
-//! pixels. r only goes down here: spending headroom is the tuner's, which measures q. The
-//! tuner's first decision takes over; the node's summary counts the steps made under such a
-//! correction.
+//! budget when the node attaches ([`pb::NodeBudget`]); after each whole step made while no
+//! decision is in force (σ summed over its ranks, τ of the slowest), a σ or τ over the budget
+//! lowers r for the steps no rank of which has begun, as if both grew as r^1.5 ([`GROWTH`]),
+//! with 10 % headroom, on multiples of 16 pixels. r only goes down here: spending headroom is
+//! the tuner's, which measures q. The tuner's first decision takes over; the node's summary
+//! counts the steps made under such a correction.
 //!
-//! A world of several ranks is left to the tuner: its ranks must share one `P_M` to be
-//! composed, and no node alone sees the step's σ.
+//! Only a node that holds every rank of its world sees whole steps
+//! ([`crate::layout::Layouts::whole_world_here`]); a world spread over several nodes is left
+//! to the tuner, since its ranks must share one `P_M` to be composed.
 
 use crate::shared::Shared;
 use insitu_proto::pb;
@@ -48,9 +49,14 @@ pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudge
     (next < r).then_some(next)
 }
 
+/// Steps whose ranks are still being made, kept at most (older ones are forgotten).
+const MAX_PENDING: usize = 64;
+
 #[derive(Debug, Default)]
 struct State {
     budget: Option<pb::NodeBudget>,
+    /// Steps of several ranks being made: ranks done, σ summed, τ of the slowest, r.
+    pending: std::collections::BTreeMap<u64, (u32, u64, f64, u32)>,
     /// Steps made under a correction: how many, the first and the last.
     steps: u64,
     first: Option<u64>,
@@ -74,14 +80,40 @@ impl Correction {
         self.state().budget = Some(budget);
     }
 
-    /// After a step whose VDI has header `h`, made under settings of decision `pm_version`
-    /// (0: none yet): counts it if it was made under a correction, and lowers r for the steps
-    /// not begun yet when it broke the budget (logged).
-    pub fn after_step(&self, shared: &Shared, h: &pb::VdiHeader, pm_version: u64) {
+    /// After a rank whose VDI has header `h` was made under settings of decision
+    /// `pm_version` (0: none yet), on a node that holds every rank of its world
+    /// (`whole_world`): once its step's ranks are all made, counts the step if it was made
+    /// under a correction, and lowers r for the steps no rank of which has begun when it broke
+    /// the budget (logged).
+    pub fn after_step(
+        &self,
+        shared: &Shared,
+        h: &pb::VdiHeader,
+        pm_version: u64,
+        whole_world: bool,
+    ) {
         let mut s = self.state();
-        if pm_version != 0 || h.world_size != 1 {
+        if pm_version != 0 || !whole_world {
             return;
         }
+        let (sigma, tau, r) = if h.world_size <= 1 {
+            (h.total_bytes, h.tau_secs, h.resolution)
+        } else {
+            let e = s.pending.entry(h.step).or_insert((0, 0, 0.0, h.resolution));
+            e.0 += 1;
+            e.1 += h.total_bytes;
+            e.2 = e.2.max(h.tau_secs);
+            if e.0 < h.world_size {
+                while s.pending.len() > MAX_PENDING {
+                    s.pending.pop_first();
+                }
+                return;
+            }
+            match s.pending.remove(&h.step) {
+                Some((_, sigma, tau, r)) => (sigma, tau, r),
+                None => return,
+            }
+        };
         if s.corrected.is_some_and(|(_, from)| h.step >= from) {
             s.steps += 1;
             s.first.get_or_insert(h.step);
@@ -90,8 +122,7 @@ impl Correction {
         let Some(budget) = &s.budget else {
             return;
         };
-        let Some(next) = corrected_resolution(h.resolution, h.total_bytes, h.tau_secs, budget)
-        else {
+        let Some(next) = corrected_resolution(r, sigma, tau, budget) else {
             return;
         };
         let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
@@ -101,15 +132,19 @@ impl Correction {
         let begun = shared.begun.load(std::sync::atomic::Ordering::SeqCst);
         info!(
             step = h.step,
-            sigma_bytes = h.total_bytes,
-            tau_secs = h.tau_secs,
+            sigma_bytes = sigma,
+            tau_secs = tau,
             budget = %budget.utility,
-            r = h.resolution,
+            r,
             next_r = next,
             from_step = begun,
             "no decision from the tuner yet: the node lowers r to keep the budget"
         );
-        g.params.resolution = next;
+        // From the first step no rank of which has begun: a step's ranks share one P_M.
+        let mut lowered = g.clone();
+        lowered.params.resolution = next;
+        crate::settings::switch_at(&g, &mut lowered, begun, begun);
+        *g = lowered;
         drop(g);
         shared.save_run();
         s.corrected = Some((next, s.corrected.map_or(begun, |(_, from)| from.min(begun))));

@@ -46,6 +46,8 @@ struct State {
     bad_steps: u64,
     /// Pushes refused for their layout.
     refused: u64,
+    /// The largest world whose ranks all pushed one step here.
+    whole: u32,
 }
 
 /// The layouts of the worlds pushing to this node.
@@ -99,6 +101,7 @@ impl Layouts {
             return None;
         }
         let layout = s.pending.remove(&info.step)?;
+        s.whole = s.whole.max(info.world_size);
         if s.good.as_ref() == Some(&layout) {
             return None;
         }
@@ -123,6 +126,12 @@ impl Layouts {
                 Some(why)
             }
         }
+    }
+
+    /// Whether every rank of a world of `world_size` pushed a step here (a world of one
+    /// always does): this node then sees whole steps.
+    pub fn whole_world_here(&self, world_size: u32) -> bool {
+        world_size <= 1 || self.state().whole >= world_size
     }
 
     /// For the node's summary: the steps whose bricks could not be composed, the pushes
@@ -209,6 +218,7 @@ mod tests {
             assert!(l.record(&info(step, 1, 4, 4)).is_none());
         }
         assert!(l.summary().is_none());
+        assert!(l.whole_world_here(2) && l.whole_world_here(1) && !l.whole_world_here(3));
         let mut lone = info(0, 0, 0, 4);
         lone.world_size = 1;
         assert!(l.record(&lone).is_none());

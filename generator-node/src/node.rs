@@ -434,8 +434,13 @@ async fn worker(shared: Arc<Shared>) {
             Ok(Ok((finished, tf, for_tuner, reusable))) => {
                 spare = reusable;
                 if let Some(t) = &shared.tuning {
-                    t.correction
-                        .after_step(&shared, &finished.product.vdi_header, pm_version);
+                    let whole = shared.layout.whole_world_here(raw_world_size);
+                    t.correction.after_step(
+                        &shared,
+                        &finished.product.vdi_header,
+                        pm_version,
+                        whole,
+                    );
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);

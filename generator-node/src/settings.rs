@@ -138,9 +138,18 @@ pub fn decided(g: &Generation, d: &pb::PmDecision, begun: u64) -> Result<Generat
         Some(s) => steered(g, s).map_err(|e| format!("decision version {}: {e}", d.pm_version))?,
         None => g.clone(),
     };
-    let from_step = d.from_step.max(begun);
+    switch_at(g, &mut next, d.from_step.max(begun), begun);
+    next.params = params;
+    next.pm_version = d.pm_version;
+    Ok(next)
+}
+
+/// Makes `next` the settings from `from_step` on, `g` (the settings now) those of the steps
+/// before it, with `begun` the first step no rank of which has begun: every rank of a step
+/// keeps the settings its first rank was made with.
+pub fn switch_at(g: &Generation, next: &mut Generation, from_step: u64, begun: u64) {
     if g.previous.is_some() && begun < g.from_step {
-        // An earlier decision not yet in force: the settings before it stay until this one.
+        // An earlier change not yet in force: the settings before it stay until this one.
         next.from_step = g.from_step.max(from_step);
     } else {
         let mut before = g.clone();
@@ -148,9 +157,6 @@ pub fn decided(g: &Generation, d: &pb::PmDecision, begun: u64) -> Result<Generat
         next.previous = Some(Box::new(before));
         next.from_step = from_step;
     }
-    next.params = params;
-    next.pm_version = d.pm_version;
-    Ok(next)
 }
 
 /// `g` under the steered scene `s`.

@@ -151,3 +151,73 @@ fn a_short_fast_run_keeps_the_budget_from_its_second_step() {
         "{rest}"
     );
 }
+
+/// As above with two ranks on the one node (z-halves sharing the plane z = 32) pushed as fast
+/// as the node takes them under a 20 kB budget: the node sums a step's σ over its ranks and
+/// lowers r for whole steps, so every step composes and each after the first made before a
+/// decision keeps the budget.
+#[test]
+fn two_ranks_on_one_node_keep_the_budget_from_their_second_step() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let sh = LocalSh::start(&rec, &[("TUNER_UTILITY", "size:20kB")]);
+    const N: usize = 64;
+    insitu_e2e::rt().block_on(async {
+        let mut c = insitu_client::SimClient::connect(&sh.generator, None)
+            .await
+            .unwrap();
+        for step in 0..8u64 {
+            let cx = 16.0 + 2.0 * step as f32;
+            let field: Vec<f32> = (0..N * N * N)
+                .map(|i| ((i % N) as f32, (i / N % N) as f32, (i / (N * N)) as f32))
+                .map(|(x, y, z)| {
+                    (-((x - cx).powi(2) + (y - 32.0).powi(2) + (z - 32.0).powi(2)) / 128.0).exp()
+                })
+                .collect();
+            for (rank, z0, nz) in [(0u32, 0usize, 33usize), (1, 32, 32)] {
+                let s = insitu_client::Step {
+                    step,
+                    sim_time: step as f64,
+                    dtype: insitu_client::ScalarType::F32,
+                    global_dims: [N as u32; 3],
+                    brick_offset: [0, 0, z0 as u32],
+                    brick_dims: [N as u32, N as u32, nz as u32],
+                    rank,
+                    world_size: 2,
+                    spacing: [1.0; 3],
+                    origin: [0.0; 3],
+                    data: insitu_client::f32_bytes(&field[z0 * N * N..(z0 + nz) * N * N]),
+                    fields: Vec::new(),
+                };
+                c.push_step(s).await.unwrap();
+            }
+        }
+        c.close(std::time::Duration::from_secs(120)).await.unwrap();
+    });
+    assert!(wait_until(60.0, || crate::common::steps(&rec).len() == 8));
+    let rest = sh.stop();
+    let steps = crate::common::steps(&rec);
+    let rows: Vec<(u64, u64, u32, u64, bool)> = steps
+        .iter()
+        .map(|s| {
+            (
+                s.step,
+                s.pm_version,
+                s.resolution,
+                s.sizing.sigma_bytes,
+                s.error.is_none() && s.vdi.is_some(),
+            )
+        })
+        .collect();
+    assert!(rows.iter().all(|r| r.4), "every step composes: {rows:?}");
+    assert!(
+        rows[0].3 > 20_000,
+        "the first step must break the budget: {rows:?}"
+    );
+    let untuned: Vec<_> = rows[1..].iter().filter(|r| r.1 == 0).collect();
+    assert!(!untuned.is_empty(), "{rows:?}");
+    for r in &untuned {
+        assert!(r.2 < 256 && r.3 <= 20_000, "step {}: {rows:?}", r.0);
+    }
+    assert!(rest.contains("made at r lowered by the node"), "{rest}");
+}
