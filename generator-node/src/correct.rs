@@ -12,9 +12,9 @@
 //! ([`crate::layout::Layouts::whole_world_here`]); a world spread over several nodes is left
 //! to the tuner, since its ranks must share one `P_M` to be composed.
 
-use crate::shared::Shared;
+use crate::config::Generation;
 use insitu_proto::pb;
-use std::sync::Mutex;
+use std::sync::{Mutex, RwLock};
 use tracing::info;
 
 /// The part of the budget a corrected r aims at.
@@ -83,18 +83,20 @@ impl Correction {
     /// After a rank whose VDI has header `h` was made under settings of decision
     /// `pm_version` (0: none yet), on a node that holds every rank of its world
     /// (`whole_world`): once its step's ranks are all made, counts the step if it was made
-    /// under a correction, and lowers r for the steps no rank of which has begun when it broke
-    /// the budget (logged).
+    /// under a correction, and when it broke the budget lowers r in `generation` for the steps
+    /// from `begun` (the first no rank of which has begun) on (logged). Returns whether it
+    /// changed the settings (the caller records them).
     pub fn after_step(
         &self,
-        shared: &Shared,
+        generation: &RwLock<Generation>,
+        begun: u64,
         h: &pb::VdiHeader,
         pm_version: u64,
         whole_world: bool,
-    ) {
+    ) -> bool {
         let mut s = self.state();
         if pm_version != 0 || !whole_world {
-            return;
+            return false;
         }
         let (sigma, tau, r) = if h.world_size <= 1 {
             (h.total_bytes, h.tau_secs, h.resolution)
@@ -107,11 +109,11 @@ impl Correction {
                 while s.pending.len() > MAX_PENDING {
                     s.pending.pop_first();
                 }
-                return;
+                return false;
             }
             match s.pending.remove(&h.step) {
                 Some((_, sigma, tau, r)) => (sigma, tau, r),
-                None => return,
+                None => return false,
             }
         };
         if s.corrected.is_some_and(|(_, from)| h.step >= from) {
@@ -120,16 +122,15 @@ impl Correction {
             s.last = s.last.max(h.step);
         }
         let Some(budget) = &s.budget else {
-            return;
+            return false;
         };
         let Some(next) = corrected_resolution(r, sigma, tau, budget) else {
-            return;
+            return false;
         };
-        let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
+        let mut g = generation.write().unwrap_or_else(|e| e.into_inner());
         if g.pm_version != 0 || g.params.resolution <= next {
-            return;
+            return false;
         }
-        let begun = shared.begun.load(std::sync::atomic::Ordering::SeqCst);
         info!(
             step = h.step,
             sigma_bytes = sigma,
@@ -146,8 +147,8 @@ impl Correction {
         crate::settings::switch_at(&g, &mut lowered, begun, begun);
         *g = lowered;
         drop(g);
-        shared.save_run();
         s.corrected = Some((next, s.corrected.map_or(begun, |(_, from)| from.min(begun))));
+        true
     }
 
     /// For the node's summary: the steps made under the node's correction, or `None`.

@@ -435,12 +435,13 @@ async fn worker(shared: Arc<Shared>) {
                 spare = reusable;
                 if let Some(t) = &shared.tuning {
                     let whole = shared.layout.whole_world_here(raw_world_size);
-                    t.correction.after_step(
-                        &shared,
-                        &finished.product.vdi_header,
-                        pm_version,
-                        whole,
-                    );
+                    let begun = shared.begun.load(Ordering::SeqCst);
+                    let h = &finished.product.vdi_header;
+                    if t.correction
+                        .after_step(&shared.generation, begun, h, pm_version, whole)
+                    {
+                        shared.save_run();
+                    }
                     t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);

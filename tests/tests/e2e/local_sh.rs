@@ -127,26 +127,17 @@ fn a_short_fast_run_keeps_the_budget_from_its_second_step() {
         String::from_utf8_lossy(&out.stderr)
     );
     let rest = sh.stop();
-    let entries = crate::common::index(&rec);
-    let rows: Vec<(u64, u64, u32, u64)> = entries
+    let rows: Vec<(u64, u64, u32, u64)> = crate::common::index(&rec)
         .iter()
         .map(|e| (e.step, e.pm_version, e.resolution, e.sizing.sigma_bytes))
         .collect();
     assert_eq!(rows.len(), 10, "{rows:?}");
-    assert!(
-        rows[0].3 > 20_000,
-        "the first step must break the budget: {rows:?}"
-    );
-    let untuned: Vec<_> = rows[1..].iter().filter(|r| r.1 == 0).collect();
-    assert!(!untuned.is_empty(), "{rows:?}");
-    for r in &untuned {
-        assert!(r.2 < 256 && r.3 <= 20_000, "step {}: {rows:?}", r.0);
-    }
+    let untuned = kept_from_the_second_step(&rows, 20_000);
     assert!(
         rest.contains(&format!(
             "{} step(s) (1–{}) made at r lowered by the node",
             untuned.len(),
-            untuned.last().unwrap().0
+            untuned.last().unwrap()
         )),
         "{rest}"
     );
@@ -197,27 +188,40 @@ fn two_ranks_on_one_node_keep_the_budget_from_their_second_step() {
     assert!(wait_until(60.0, || crate::common::steps(&rec).len() == 8));
     let rest = sh.stop();
     let steps = crate::common::steps(&rec);
-    let rows: Vec<(u64, u64, u32, u64, bool)> = steps
+    for s in &steps {
+        assert!(
+            s.error.is_none() && s.vdi.is_some(),
+            "step {} did not compose: {s:?}",
+            s.step
+        );
+    }
+    let rows: Vec<(u64, u64, u32, u64)> = steps
         .iter()
-        .map(|s| {
-            (
-                s.step,
-                s.pm_version,
-                s.resolution,
-                s.sizing.sigma_bytes,
-                s.error.is_none() && s.vdi.is_some(),
-            )
-        })
+        .map(|s| (s.step, s.pm_version, s.resolution, s.sizing.sigma_bytes))
         .collect();
-    assert!(rows.iter().all(|r| r.4), "every step composes: {rows:?}");
+    kept_from_the_second_step(&rows, 20_000);
+    assert!(rest.contains("made at r lowered by the node"), "{rest}");
+}
+
+/// A run's steps as (step, P_M version, r, σ) under a budget of `budget` bytes: the first
+/// broke it at the configured r 256, and every later one made before a decision kept it at a
+/// lowered r. Returns those later steps (at least one).
+fn kept_from_the_second_step(rows: &[(u64, u64, u32, u64)], budget: u64) -> Vec<u64> {
     assert!(
-        rows[0].3 > 20_000,
+        rows[0].2 == 256 && rows[0].3 > budget,
         "the first step must break the budget: {rows:?}"
     );
-    let untuned: Vec<_> = rows[1..].iter().filter(|r| r.1 == 0).collect();
-    assert!(!untuned.is_empty(), "{rows:?}");
-    for r in &untuned {
-        assert!(r.2 < 256 && r.3 <= 20_000, "step {}: {rows:?}", r.0);
-    }
-    assert!(rest.contains("made at r lowered by the node"), "{rest}");
+    let untuned: Vec<u64> = rows[1..]
+        .iter()
+        .filter(|r| r.1 == 0)
+        .map(|r| {
+            assert!(r.2 < 256 && r.3 <= budget, "step {}: {rows:?}", r.0);
+            r.0
+        })
+        .collect();
+    assert!(
+        !untuned.is_empty(),
+        "no step before the first decision: {rows:?}"
+    );
+    untuned
 }
