@@ -32,16 +32,23 @@ pub const R_STEP: u32 = 16;
 /// The lowest resolution a correction goes to, pixels.
 pub const MIN_R: u32 = 32;
 
+/// The least excess over the budget the node corrects: a smaller miss is left to the tuner,
+/// whose first decision follows. The node's step knows nothing of q, and a step it makes
+/// off the tuning's grid of r tells the tuner's forecast nothing (it leaves such steps out),
+/// so on a series that grows it took the first decision's view of the growth away (a growing
+/// series' first miss is 1.2×; with the node correcting it, a later step came out at 1.30×).
+pub const MIN_EXCESS: f64 = 1.25;
+
 /// The resolution to make the next steps at after one of resolution `r` came out at `sigma`
-/// bytes and `tau` seconds against `budget` (a zero budget is none): `None` when it kept the
-/// budget (or r is at [`MIN_R`] already), else `r · (HEADROOM / excess)^(1 / GROWTH)` rounded
+/// bytes and `tau` seconds against `budget` (a zero budget is none): `None` when it missed the
+/// budget by less than [`MIN_EXCESS`] (or r is at [`MIN_R`] already), else `r · (HEADROOM / excess)^(1 / GROWTH)` rounded
 /// down to a multiple of [`R_STEP`], at least [`MIN_R`], where the excess is the larger of σ
 /// and τ over their budgets.
 pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudget) -> Option<u32> {
     let size = (budget.sigma_bytes > 0).then(|| sigma as f64 / budget.sigma_bytes as f64);
     let time = (budget.tau_secs > 0.0 && tau.is_finite()).then(|| tau / budget.tau_secs);
     let excess = size.into_iter().chain(time).fold(0.0, f64::max);
-    if excess <= 1.0 {
+    if excess < MIN_EXCESS {
         return None;
     }
     let scaled = f64::from(r) * (HEADROOM / excess).powf(1.0 / GROWTH);
@@ -203,10 +210,15 @@ mod tests {
             corrected_resolution(256, 2_000_000, 2.0, &budget(1_000_000, 0.5)),
             Some(80)
         );
-        // Just over: a small step down (1.1×: r 256 · 0.874 = 223.9 → 208).
+        // A small miss is the tuner's; from 1.25× the node steps down (r 256 · 0.806 = 206.4
+        // → 192).
         assert_eq!(
-            corrected_resolution(256, 1_100_000, 0.0, &budget(1_000_000, 0.0)),
-            Some(208)
+            corrected_resolution(256, 1_200_000, 0.0, &budget(1_000_000, 0.0)),
+            None
+        );
+        assert_eq!(
+            corrected_resolution(256, 1_250_000, 0.0, &budget(1_000_000, 0.0)),
+            Some(192)
         );
         // Never below the floor, and no change at it; NaN τ is no measurement.
         assert_eq!(

@@ -52,14 +52,20 @@ function interactiveSide(full) {
   return Math.max(Math.min(MIN_INTERACTIVE_SIDE, quarter), Math.min(quarter, fit));
 }
 
+// The camera each request asked for, by id: a frame is labelled with its own, not with the
+// view at the time it arrives (a request may have moved the view since).
+const asked = new Map();
+
 // Asks for a frame: interactive (JPEG, at most ¼ area, see `interactiveSide`, from the VDI
 // level that matches its size) or still (full PNG from the full VDI).
 function request(interactive) {
   if (!socket || socket.readyState !== WebSocket.OPEN) return;
   const full = side();
   const px = interactive ? interactiveSide(full) : full;
+  const id = nextId++;
+  asked.set(id, { angle: view.angle, elevation: view.elevation, zoom: view.zoom });
   socket.send(JSON.stringify({
-    id: nextId++,
+    id,
     step: selectedStep(),
     rank: selectedRank(),
     angle: view.angle,
@@ -114,14 +120,16 @@ function connect() {
     const old = img.src;
     img.src = URL.createObjectURL(ev.data);
     if (old) URL.revokeObjectURL(old);
+    const shot = asked.get(h.frame) || view;
+    for (const id of asked.keys()) if (id <= h.frame) asked.delete(id);
     Object.assign(img.dataset, {
       frame: String(h.frame),
       step: String(h.step),
       rank: h.rank === null || h.rank === undefined ? "all" : String(h.rank),
       kind: h.format === "png" ? "still" : "interactive",
-      angle: String(view.angle),
-      elevation: String(view.elevation),
-      zoom: String(view.zoom),
+      angle: String(shot.angle),
+      elevation: String(shot.elevation),
+      zoom: String(shot.zoom),
       width: String(h.width),
       vdiResolution: String(h.vdi_resolution),
       tf: h.tf ? h.tf.hash : "",
