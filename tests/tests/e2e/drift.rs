@@ -1,6 +1,8 @@
 //! The tuner keeps a size budget while the data drifts: a deterministic series whose
-//! structure grows at every step, through `insitu replay` with the tuner, judged by σ (a
-//! size, not a timing, so the outcome does not hang on this machine's speed).
+//! structure grows at every step, through `insitu replay` with the tuner, judged by σ. The
+//! steps are paced as a simulation's, so which steps a decision reaches depends on how fast
+//! the trials run: these tests run in the `timed` binary, one at a time, with nothing beside
+//! them (beside a browser test, a tuning landed a step late and a step came out at 1.30×).
 
 use insitu_e2e::bin;
 use insitu_e2e::drift::{changing_character, growing_structure, write_series, RunLines};
@@ -42,6 +44,7 @@ fn replay_at(
 
 #[test]
 fn a_growing_series_keeps_its_size_budget_after_the_first_decision() {
+    let _alone = crate::alone();
     let tmp = tempfile::tempdir().unwrap();
     let series = write_series(tmp.path(), "growing", N, STEPS, |t| {
         growing_structure(N, t, STEPS)
@@ -73,6 +76,7 @@ fn a_growing_series_keeps_its_size_budget_after_the_first_decision() {
 /// are made again to get there, and every step is stored or counted as failed.
 #[test]
 fn no_stored_step_exceeds_the_hard_limits() {
+    let _alone = crate::alone();
     let tmp = tempfile::tempdir().unwrap();
     let steps = 12;
     let series = write_series(tmp.path(), "growing", N, steps, |t| {
@@ -115,6 +119,7 @@ fn no_stored_step_exceeds_the_hard_limits() {
 /// controller does not stay on the old data's model, far below the budget).
 #[test]
 fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
+    let _alone = crate::alone();
     const N: usize = 64;
     const STEPS: usize = 28;
     let tmp = tempfile::tempdir().unwrap();

@@ -4,7 +4,6 @@
 
 mod bad_input;
 mod common;
-mod drift;
 mod faults;
 mod fields;
 mod fortran;

@@ -1,4 +1,5 @@
-//! Tests whose assertions read wall-clock timings: τ against a time budget.
+//! Tests whose assertions read wall-clock timings: τ against a time budget, and the budget
+//! kept on series replayed at a simulation's pace.
 //!
 //! They live in their own binary because `cargo test` runs test binaries one after another,
 //! so nothing else of the workspace's tests runs beside them, and within it they run one at
@@ -15,6 +16,10 @@ mod common;
 #[allow(dead_code)]
 #[path = "../e2e/tuned.rs"]
 mod tuned;
+// The budget kept on series replayed at a simulation's pace: whether a tuning lands before the
+// steps it is for depends on how fast the trials run, which a busy neighbour halves.
+#[path = "../e2e/drift.rs"]
+mod drift;
 
 use std::sync::{Mutex, MutexGuard};
 use tuned::{as_found, decision, decision_trial, state, tuned_ocean, tuner_status};
