@@ -2,9 +2,9 @@
 //! that pushes fast, or a run shorter than the first tuning, would otherwise make every step at
 //! the configured `P_M` (4× over a 1 MB budget at r 256 on a 64³ field). The tuner sends its
 //! budget when the node attaches ([`pb::NodeBudget`]); after each whole step made while no
-//! decision is in force (σ summed over its ranks, τ of the slowest), a σ or τ over the budget
-//! lowers r for the steps no rank of which has begun, as if both grew as r^1.5 ([`GROWTH`]),
-//! with 10 % headroom, on multiples of 16 pixels. r only goes down here: spending headroom is
+//! decision is in force (σ summed over its ranks, τ of the slowest), a σ or τ [`MIN_EXCESS`]
+//! over the budget or more lowers r for the steps no rank of which has begun, as if both grew
+//! as r^1.5 ([`GROWTH`]), with 10 % headroom, on multiples of 16 pixels. r only goes down here: spending headroom is
 //! the tuner's, which measures q. The tuner's first decision takes over; the node's summary
 //! counts the steps made under such a correction.
 //!
@@ -33,17 +33,16 @@ pub const R_STEP: u32 = 16;
 pub const MIN_R: u32 = 32;
 
 /// The least excess over the budget the node corrects: a smaller miss is left to the tuner,
-/// whose first decision follows. The node's step knows nothing of q, and a step it makes
-/// off the tuning's grid of r tells the tuner's forecast nothing (it leaves such steps out),
-/// so on a series that grows it took the first decision's view of the growth away (a growing
-/// series' first miss is 1.2×; with the node correcting it, a later step came out at 1.30×).
+/// whose first decision follows. The node's correction knows nothing of q, and a step it makes
+/// off the tuning's grid of r tells the tuner's forecast nothing (it leaves such steps out), so
+/// on a growing series a corrected 1.2× miss took the first decision's view of the growth away.
 pub const MIN_EXCESS: f64 = 1.25;
 
 /// The resolution to make the next steps at after one of resolution `r` came out at `sigma`
 /// bytes and `tau` seconds against `budget` (a zero budget is none): `None` when it missed the
-/// budget by less than [`MIN_EXCESS`] (or r is at [`MIN_R`] already), else `r · (HEADROOM / excess)^(1 / GROWTH)` rounded
-/// down to a multiple of [`R_STEP`], at least [`MIN_R`], where the excess is the larger of σ
-/// and τ over their budgets.
+/// budget by less than [`MIN_EXCESS`] (or r is at [`MIN_R`] already), else
+/// `r · (HEADROOM / excess)^(1 / GROWTH)` rounded down to a multiple of [`R_STEP`], at least
+/// [`MIN_R`], where the excess is the larger of σ and τ over their budgets.
 pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudget) -> Option<u32> {
     let size = (budget.sigma_bytes > 0).then(|| sigma as f64 / budget.sigma_bytes as f64);
     let time = (budget.tau_secs > 0.0 && tau.is_finite()).then(|| tau / budget.tau_secs);
