@@ -89,7 +89,10 @@ trap stop EXIT
 trap 'exit 130' INT TERM
 echo "viewer         $url"
 echo "viz-node       $viz   (recording: $rec)"
-[[ -n $tuner_pid ]] && echo "tuner-node     $tuner   (${TUNER_UTILITY:-size:1MB}; log: $logs/tuner.log)"
+if [[ -n $tuner_pid ]]; then
+  echo "tuner-node     $tuner   (${TUNER_UTILITY:-size:1MB}; log: $logs/tuner.log)"
+  echo "               the first steps use the generator-node's P_M until the tuner's first decision (after its first tuning, seconds); until then the node lowers r itself when a step misses the budget by 1.25x or more"
+fi
 echo "generator-node $gen"
 echo "push with: $bin/insitu replay --series <4-D raw file> --generator $gen    (Ctrl-C stops the daemons)"
 wait "$gen_pid"
