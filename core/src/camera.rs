@@ -109,13 +109,11 @@ impl Camera {
         }
         let f = self.frame(width, height);
         let (tx, ty) = (margin * f.tan_half_x, margin * f.tan_half_y);
-        let fit = (0..8)
-            .map(|k| {
-                let corner = Vec3::new(
-                    if k & 1 == 0 { b.min.x } else { b.max.x },
-                    if k & 2 == 0 { b.min.y } else { b.max.y },
-                    if k & 4 == 0 { b.min.z } else { b.max.z },
-                ) - self.target;
+        let fit = b
+            .corners()
+            .into_iter()
+            .map(|corner| {
+                let corner = corner - self.target;
                 let depth = corner.dot(f.forward);
                 let need = (corner.dot(f.right).abs() / tx).max(corner.dot(f.up).abs() / ty);
                 (need - depth) / d
@@ -187,12 +185,7 @@ impl ViewFrame {
     pub fn footprint(&self, b: &Aabb) -> (std::ops::Range<u32>, std::ops::Range<u32>) {
         let whole = (0..self.width, 0..self.height);
         let (mut x0, mut x1, mut y0, mut y1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
-        for k in 0..8 {
-            let corner = Vec3::new(
-                if k & 1 == 0 { b.min.x } else { b.max.x },
-                if k & 2 == 0 { b.min.y } else { b.max.y },
-                if k & 4 == 0 { b.min.z } else { b.max.z },
-            );
+        for corner in b.corners() {
             let e = self.to_eye(corner);
             // In front by more than a thousandth of the corner's distance (NaN is not).
             if e.z.partial_cmp(&(1e-3 * e.length())) != Some(std::cmp::Ordering::Greater) {

@@ -46,7 +46,7 @@ struct State {
     bad_steps: u64,
     /// Pushes refused for their layout.
     refused: u64,
-    /// The largest world whose ranks all pushed one step here.
+    /// The world size of the last step whose ranks all pushed here.
     whole: u32,
 }
 
@@ -101,7 +101,7 @@ impl Layouts {
             return None;
         }
         let layout = s.pending.remove(&info.step)?;
-        s.whole = s.whole.max(info.world_size);
+        s.whole = info.world_size;
         if s.good.as_ref() == Some(&layout) {
             return None;
         }
@@ -131,7 +131,7 @@ impl Layouts {
     /// Whether every rank of a world of `world_size` pushed a step here (a world of one
     /// always does): this node then sees whole steps.
     pub fn whole_world_here(&self, world_size: u32) -> bool {
-        world_size <= 1 || self.state().whole >= world_size
+        world_size <= 1 || self.state().whole == world_size
     }
 
     /// For the node's summary: the steps whose bricks could not be composed, the pushes

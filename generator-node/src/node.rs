@@ -442,7 +442,7 @@ async fn worker(shared: Arc<Shared>) {
                     {
                         shared.save_run();
                     }
-                    t.after_step(for_tuner, shared.begun.load(Ordering::SeqCst));
+                    t.after_step(for_tuner, begun);
                 }
                 keep_tf(&shared, tf, raw_world_size);
                 let (retries, retry_secs) = finished.product.limit_retries;

@@ -169,22 +169,17 @@ impl std::fmt::Display for GapFix {
 }
 
 /// The first brick that ends one point short of a neighbour: a brick starting at its last
-/// point + 1 on one axis whose extent overlaps it on the other two (`range`: a brick's cells
-/// per axis, as [`check`] measures them).
+/// point + 1 on one axis whose cells overlap it on the other two (`meet`: whether two bricks'
+/// cells overlap along an axis, as [`check`] tests them).
 fn gap_fix(
     bricks: &[(u32, Brick)],
-    range: impl Fn(&Brick, usize) -> (usize, usize),
+    meet: impl Fn(&Brick, &Brick, usize) -> bool,
 ) -> Option<GapFix> {
     bricks.iter().find_map(|&(rank, a)| {
         (0..3).find_map(|axis| {
             let last = a.offset[axis] + a.dims[axis] - 1;
             let neighbour = bricks.iter().any(|(_, b)| {
-                b.offset[axis] == last + 1
-                    && (0..3).filter(|&k| k != axis).all(|k| {
-                        let (a0, a1) = range(&a, k);
-                        let (b0, b1) = range(b, k);
-                        a0.max(b0) < a1.min(b1)
-                    })
+                b.offset[axis] == last + 1 && (0..3).filter(|&k| k != axis).all(|k| meet(&a, b, k))
             });
             neighbour.then_some(GapFix {
                 rank,
@@ -235,13 +230,15 @@ pub fn check(
             })
             .product()
     };
+    // Whether two bricks' cells overlap along axis `k`.
+    let meet = |a: &Brick, b: &Brick, k: usize| {
+        let (a0, a1) = range(a, k);
+        let (b0, b1) = range(b, k);
+        a0.max(b0) < a1.min(b1)
+    };
     for (i, (ra, a)) in bricks.iter().enumerate() {
         for (rb, b) in &bricks[i + 1..] {
-            let overlaps = (0..3).all(|k| {
-                let (a0, a1) = range(a, k);
-                let (b0, b1) = range(b, k);
-                a0.max(b0) < a1.min(b1)
-            });
+            let overlaps = (0..3).all(|k| meet(a, b, k));
             if overlaps || (a == b && measure(a) == 0) {
                 return Err(DecompositionError::Overlap { a: *ra, b: *rb });
             }
@@ -257,7 +254,7 @@ pub fn check(
                 ranks: bricks.iter().map(|(r, _)| *r).collect(),
                 covered,
                 total,
-                fix: gap_fix(bricks, range),
+                fix: gap_fix(bricks, meet),
             });
         }
     }

@@ -322,6 +322,17 @@ impl Aabb {
         0.5 * (self.max - self.min).length()
     }
 
+    /// The eight corners, corner `k` taking `max` on x, y, z where bit 0, 1, 2 of `k` is set.
+    pub fn corners(&self) -> [Vec3; 8] {
+        std::array::from_fn(|k| {
+            Vec3::new(
+                if k & 1 == 0 { self.min.x } else { self.max.x },
+                if k & 2 == 0 { self.min.y } else { self.max.y },
+                if k & 4 == 0 { self.min.z } else { self.max.z },
+            )
+        })
+    }
+
     /// Parameter interval `[t_near, t_far]` where `origin + t·dir` is inside the box
     /// (slab method; `inv_dir` is `1 / dir` per component, infinities allowed). Returns an
     /// empty interval (`t_near > t_far`) when the ray misses.

@@ -290,7 +290,7 @@ pub async fn render_frame(
 }
 
 /// The query string as `T`, or a bad request naming what is wrong.
-fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, ViewError> {
+pub(super) fn query<T>(q: Result<Query<T>, QueryRejection>) -> Result<T, ViewError> {
     q.map(|Query(q)| q)
         .map_err(|e| ViewError::BadRequest(e.body_text()))
 }
