@@ -2,10 +2,14 @@
 //! buffer upload and read-back, and the buffers kept between calls.
 //!
 //! What a call costs besides its kernels is the host's side of the transfers, and on a
-//! discrete GPU that dominates unless buffers are reused and bytes are copied once: the
-//! kernels' scratch buffers (per-ray slots, counts, image bands) and the read-back buffer are
-//! kept for the next call instead of being allocated (and zeroed) again, and read-back data
-//! goes from the mapped buffer straight into its destination.
+//! discrete GPU that dominates unless buffers are reused, bytes are copied once and the
+//! copies overlap the kernels:
+//! - a submission carries its passes, their timestamps and the copy of its output into a
+//!   read-back buffer, so it costs one wait and one mapping ([`Gpu::submit`]);
+//! - results read back in parts are pipelined: the host copies one part into place while
+//!   the device runs the next ([`Gpu::pipelined`]), with large copies spread over threads;
+//! - scratch buffers (counts, offsets, image bands, supersegments) and read-back buffers are
+//!   kept for the next call instead of being allocated (and zeroed) again.
 
 use super::GpuError;
 use std::borrow::Cow;
@@ -21,7 +25,7 @@ const MIN_BUFFER: usize = 32;
 /// or lost device must not hang the caller).
 pub const SUBMISSION_TIMEOUT: Duration = Duration::from_secs(300);
 
-/// Largest read-back buffer kept for the next read, bytes (a larger one is freed after use).
+/// Most bytes of read-back buffers kept for the next reads (the largest that fit are kept).
 const STAGING_KEPT: u64 = 256 << 20;
 
 /// Most bytes of scratch buffers kept for the next kernels: the largest are kept while they
@@ -38,8 +42,8 @@ pub struct Gpu {
     timestamps: bool,
     /// First asynchronous failure (device lost, uncaptured error), reported by the next call.
     failure: Arc<Mutex<Option<String>>>,
-    /// The read-back buffer (MAP_READ | COPY_DST) kept from the last read.
-    staging: Mutex<Option<wgpu::Buffer>>,
+    /// Read-back buffers (MAP_READ | COPY_DST) not in use, kept for the next reads.
+    staging: Mutex<Vec<wgpu::Buffer>>,
     /// Scratch storage buffers (STORAGE | COPY_SRC) not in use, kept for the next kernels.
     scratch: Mutex<Vec<wgpu::Buffer>>,
 }
@@ -113,7 +117,7 @@ impl Gpu {
             info,
             timestamps,
             failure,
-            staging: Mutex::new(None),
+            staging: Mutex::new(Vec::new()),
             scratch: Mutex::new(Vec::new()),
         })
     }
@@ -279,85 +283,149 @@ impl Gpu {
         })
     }
 
-    /// Encodes one compute pass with `pipeline`, `groups` bind groups and a dispatch of
-    /// `workgroups`, submits it and waits. Returns the kernel time in seconds from GPU
-    /// timestamps, or `None` when the adapter has none.
+    /// Encodes `passes` (one compute pass each, in order, each timed when the adapter has
+    /// timestamps) and a copy of `output`'s first `size` bytes into a read-back buffer, and
+    /// submits them as one command buffer without waiting: [`Submitted::finish`] waits and
+    /// hands the bytes over. One submission and one mapping per call keeps the host's share of
+    /// a kernel to a single round trip.
     ///
     /// # Errors
-    /// Validation, out-of-memory, device loss or a wait past [`SUBMISSION_TIMEOUT`].
-    pub(super) fn dispatch(
+    /// Validation or out-of-memory errors, or an earlier device loss.
+    pub(super) fn submit(
         &self,
         label: &str,
-        pipeline: &wgpu::ComputePipeline,
-        groups: &[&wgpu::BindGroup],
-        workgroups: [u32; 3],
-    ) -> Result<Option<f64>, GpuError> {
-        let query = self.timestamps.then(|| {
-            let set = self.device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: 2,
-            });
-            let resolve = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("timestamps resolve"),
-                size: 16,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            (set, resolve)
+        passes: &[Pass<'_>],
+        output: Option<(&wgpu::Buffer, u64)>,
+    ) -> Result<Submitted<'_>, GpuError> {
+        let size = output.map_or(0, |(_, s)| s);
+        let copied = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        // Timestamps (u64 pairs) follow the output in the read-back buffer.
+        let stamps_at = copied.next_multiple_of(8);
+        let stamps = if self.timestamps {
+            2 * passes.len() as u32
+        } else {
+            0
+        };
+        let total = (stamps_at + 8 * u64::from(stamps)).max(MIN_BUFFER as u64);
+        let kept = self.staging.lock().ok().and_then(|mut pool| {
+            let best = (0..pool.len())
+                .filter(|&i| pool[i].size() >= total)
+                .min_by_key(|&i| pool[i].size())?;
+            Some(pool.swap_remove(best))
         });
-        self.scoped(label, || {
+        let (staging, index) = self.scoped(label, || {
+            let staging = kept.unwrap_or_else(|| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("read-back"),
+                    size: total,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            });
+            let query = (stamps > 0).then(|| {
+                let set = self.device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("timestamps"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count: stamps,
+                });
+                let resolve = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("timestamps resolve"),
+                    size: 8 * u64::from(stamps),
+                    usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                    mapped_at_creation: false,
+                });
+                (set, resolve)
+            });
             let mut encoder = self
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
-            {
+            for (k, p) in passes.iter().enumerate() {
                 let timestamp_writes =
                     query
                         .as_ref()
                         .map(|(set, _)| wgpu::ComputePassTimestampWrites {
                             query_set: set,
-                            beginning_of_pass_write_index: Some(0),
-                            end_of_pass_write_index: Some(1),
+                            beginning_of_pass_write_index: Some(2 * k as u32),
+                            end_of_pass_write_index: Some(2 * k as u32 + 1),
                         });
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some(label),
+                    label: Some(p.label),
                     timestamp_writes,
                 });
-                pass.set_pipeline(pipeline);
-                for (i, g) in groups.iter().enumerate() {
+                pass.set_pipeline(p.pipeline);
+                for (i, g) in p.groups.iter().enumerate() {
                     pass.set_bind_group(i as u32, *g, &[]);
                 }
-                pass.dispatch_workgroups(workgroups[0], workgroups[1], workgroups[2]);
+                let [x, y, z] = p.workgroups;
+                pass.dispatch_workgroups(x, y, z);
+            }
+            if let Some((buffer, _)) = output {
+                if copied > 0 {
+                    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, copied);
+                }
             }
             if let Some((set, resolve)) = &query {
-                encoder.resolve_query_set(set, 0..2, resolve, 0);
+                encoder.resolve_query_set(set, 0..stamps, resolve, 0);
+                encoder.copy_buffer_to_buffer(
+                    resolve,
+                    0,
+                    &staging,
+                    stamps_at,
+                    8 * u64::from(stamps),
+                );
             }
-            self.queue.submit([encoder.finish()]);
-            Ok(())
+            let index = self.queue.submit([encoder.finish()]);
+            Ok((staging, index))
         })?;
-        self.wait(label)?;
-        match &query {
-            None => Ok(None),
-            Some((_, resolve)) => {
-                let mut stamps = [0u64; 2];
-                self.read_with(resolve, 16, |b| {
-                    for (t, w) in stamps.iter_mut().zip(b.chunks_exact(8)) {
-                        let mut le = [0u8; 8];
-                        le.copy_from_slice(w);
-                        *t = u64::from_le_bytes(le);
-                    }
-                })?;
-                let ticks = stamps[1].saturating_sub(stamps[0]);
-                let period_ns = f64::from(self.queue.get_timestamp_period());
-                Ok(Some(ticks as f64 * period_ns * 1e-9))
-            }
-        }
+        // One message: the mapping callback never waits on it.
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        staging.map_async(wgpu::MapMode::Read, ..total, move |r| {
+            let _ = tx.send(r);
+        });
+        Ok(Submitted {
+            gpu: self,
+            staging: Some(staging),
+            index,
+            size,
+            stamps_at,
+            stamps,
+            mapped_bytes: total,
+            mapped: rx,
+        })
     }
 
-    /// Waits for all submitted work.
-    fn wait(&self, what: &str) -> Result<(), GpuError> {
+    /// Runs `jobs` through `submit` and `consume` with two in flight: the host consumes job
+    /// k's bytes (copies them into place) while the device runs job k + 1, so a result read
+    /// back in parts costs little more than its kernels. Returns the kernels' total time.
+    ///
+    /// # Errors
+    /// The first error of `submit` or of a submission.
+    pub(super) fn pipelined<'g, J>(
+        &'g self,
+        jobs: impl IntoIterator<Item = J>,
+        mut submit: impl FnMut(&J) -> Result<Submitted<'g>, GpuError>,
+        mut consume: impl FnMut(J, &[u8]),
+    ) -> Result<Option<f64>, GpuError> {
+        let mut kernel_s = Some(0.0);
+        let mut pending: Option<(J, Submitted<'g>)> = None;
+        for job in jobs {
+            let next = submit(&job)?;
+            if let Some((done, s)) = pending.replace((job, next)) {
+                let ((), t) = s.finish(|b| consume(done, b))?;
+                add_time(&mut kernel_s, t);
+            }
+        }
+        if let Some((done, s)) = pending {
+            let ((), t) = s.finish(|b| consume(done, b))?;
+            add_time(&mut kernel_s, t);
+        }
+        Ok(kernel_s)
+    }
+
+    /// Waits for submission `index`.
+    fn wait(&self, index: wgpu::SubmissionIndex, what: &str) -> Result<(), GpuError> {
         match self.device.poll(wgpu::PollType::Wait {
-            submission_index: None,
+            submission_index: Some(index),
             timeout: Some(SUBMISSION_TIMEOUT),
         }) {
             Ok(_) => self.check_failure(),
@@ -369,70 +437,110 @@ impl Gpu {
         }
     }
 
-    /// Copies the first `size` bytes of `buffer` (usage COPY_SRC) into a read-back buffer and
-    /// hands them to `consume` while it is mapped, so that they are copied once, into their
-    /// destination. The read-back buffer is kept for the next read.
+    /// Keeps a read-back buffer for later calls while the kept ones fit [`STAGING_KEPT`].
+    fn keep_staging(&self, buffer: wgpu::Buffer) {
+        let Ok(mut pool) = self.staging.lock() else {
+            return;
+        };
+        pool.push(buffer);
+        keep_largest(&mut pool, STAGING_KEPT);
+    }
+}
+
+/// Keeps the largest buffers of `pool` whose sizes sum to at most `cap` bytes.
+fn keep_largest(pool: &mut Vec<wgpu::Buffer>, cap: u64) {
+    pool.sort_unstable_by_key(|b| std::cmp::Reverse(b.size()));
+    let mut total = 0;
+    pool.retain(|b| {
+        let keep = total + b.size() <= cap;
+        if keep {
+            total += b.size();
+        }
+        keep
+    });
+}
+
+/// Adds kernel times; `None` as soon as one part had no timestamp.
+pub(super) fn add_time(total: &mut Option<f64>, t: Option<f64>) {
+    *total = match (*total, t) {
+        (Some(a), Some(b)) => Some(a + b),
+        _ => None,
+    };
+}
+
+/// One compute pass of a [`Gpu::submit`]: a pipeline, its bind groups in order, a dispatch.
+pub(super) struct Pass<'a> {
+    pub label: &'static str,
+    pub pipeline: &'a wgpu::ComputePipeline,
+    pub groups: &'a [&'a wgpu::BindGroup],
+    pub workgroups: [u32; 3],
+}
+
+/// A submission in flight from [`Gpu::submit`].
+pub(super) struct Submitted<'g> {
+    gpu: &'g Gpu,
+    /// `Some` until finished; mapped once the submission completes.
+    staging: Option<wgpu::Buffer>,
+    index: wgpu::SubmissionIndex,
+    /// Bytes of output at the start of `staging`.
+    size: u64,
+    /// Where the timestamps start in `staging`, and how many there are.
+    stamps_at: u64,
+    stamps: u32,
+    /// Bytes of `staging` mapped.
+    mapped_bytes: u64,
+    mapped: std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+}
+
+impl Submitted<'_> {
+    /// Waits for the submission, hands its output bytes to `consume` while they are mapped
+    /// (so they are copied once, into their destination), and returns what `consume` returned
+    /// with the passes' kernel time in seconds (`None` without timestamps). The read-back
+    /// buffer is kept for later calls.
     ///
     /// # Errors
-    /// Validation, out-of-memory, device loss, a wait past [`SUBMISSION_TIMEOUT`], or a
-    /// mapping that fails or never completes.
-    pub(super) fn read_with<T>(
-        &self,
-        buffer: &wgpu::Buffer,
-        size: u64,
+    /// Device loss, a wait past [`SUBMISSION_TIMEOUT`], or a mapping that fails or never
+    /// completes.
+    pub(super) fn finish<T>(
+        mut self,
         consume: impl FnOnce(&[u8]) -> T,
-    ) -> Result<T, GpuError> {
-        if size == 0 {
-            return Ok(consume(&[]));
-        }
-        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-        let kept = self
-            .staging
-            .lock()
-            .ok()
-            .and_then(|mut s| s.take_if(|b| b.size() >= padded));
-        let staging = self.scoped("read-back", || {
-            let staging = kept.unwrap_or_else(|| {
-                self.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("read-back"),
-                    size: padded,
-                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                })
-            });
-            let mut encoder = self
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
-            self.queue.submit([encoder.finish()]);
-            Ok(staging)
-        })?;
-        // One message: the mapping callback never waits on it.
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        staging.map_async(wgpu::MapMode::Read, ..padded, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait("read-back")?;
-        match rx.recv_timeout(Duration::from_secs(1)) {
+    ) -> Result<(T, Option<f64>), GpuError> {
+        let gpu = self.gpu;
+        gpu.wait(self.index.clone(), "read-back")?;
+        match self.mapped.recv_timeout(Duration::from_secs(1)) {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(GpuError::Lost(format!("read-back mapping: {e}"))),
             Err(_) => return Err(GpuError::Lost("read-back mapping never completed".into())),
         }
-        let out = {
+        let staging = self
+            .staging
+            .take()
+            .ok_or_else(|| GpuError::Lost("read-back buffer already released".into()))?;
+        let (out, kernel_s) = {
             let view = staging
-                .get_mapped_range(..padded)
+                .get_mapped_range(..self.mapped_bytes)
                 .map_err(|e| GpuError::Lost(format!("read-back view: {e}")))?;
-            consume(&view[..size as usize])
+            let out = consume(&view[..self.size as usize]);
+            let kernel_s = (self.stamps > 0).then(|| {
+                let at = self.stamps_at as usize;
+                let ticks: u64 = view[at..at + 8 * self.stamps as usize]
+                    .chunks_exact(16)
+                    .map(|pair| {
+                        let word = |b: &[u8]| {
+                            let mut le = [0u8; 8];
+                            le.copy_from_slice(b);
+                            u64::from_le_bytes(le)
+                        };
+                        word(&pair[8..]).saturating_sub(word(&pair[..8]))
+                    })
+                    .sum();
+                ticks as f64 * f64::from(gpu.queue.get_timestamp_period()) * 1e-9
+            });
+            (out, kernel_s)
         };
         staging.unmap();
-        if staging.size() <= STAGING_KEPT {
-            if let Ok(mut s) = self.staging.lock() {
-                if s.as_ref().is_none_or(|b| b.size() < staging.size()) {
-                    *s = Some(staging);
-                }
-            }
-        }
-        Ok(out)
+        gpu.keep_staging(staging);
+        Ok((out, kernel_s))
     }
 }
 
@@ -452,6 +560,11 @@ impl Scratch<'_> {
         self.buffer.as_ref().unwrap_or_else(|| unreachable!())
     }
 
+    /// The size asked for, bytes.
+    pub(super) fn size(&self) -> u64 {
+        self.size
+    }
+
     /// The first `size` bytes of the buffer, as a binding.
     pub(super) fn binding(&self) -> wgpu::BindingResource<'_> {
         wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -468,15 +581,7 @@ impl Drop for Scratch<'_> {
             return;
         };
         pool.push(buffer);
-        pool.sort_unstable_by_key(|b| std::cmp::Reverse(b.size()));
-        let mut total = 0;
-        pool.retain(|b| {
-            let keep = total + b.size() <= SCRATCH_KEPT;
-            if keep {
-                total += b.size();
-            }
-            keep
-        });
+        keep_largest(&mut pool, SCRATCH_KEPT);
     }
 }
 
@@ -526,26 +631,24 @@ pub(super) fn le_bytes<T: bytemuck::Pod>(values: &[T]) -> Cow<'_, [u8]> {
     }
 }
 
+/// Bytes per piece of a parallel copy out of a mapping.
+const COPY_PIECE: usize = 1 << 20;
+
 /// Fills `out` from the little-endian bytes the kernels wrote (`bytes.len()` equal to
-/// `out`'s size in bytes): one copy on a little-endian host. `T` as for [`le_bytes`].
+/// `out`'s size in bytes): one copy on a little-endian host, in pieces on the worker threads
+/// when it is large (a fresh destination's pages fault in on every thread at once, and one
+/// core's copy bandwidth is a fraction of the memory's). `T` as for [`le_bytes`].
 pub(super) fn copy_from_le<T: bytemuck::Pod>(bytes: &[u8], out: &mut [T]) {
+    use rayon::prelude::*;
     let dst: &mut [u8] = bytemuck::cast_slice_mut(out);
-    dst.copy_from_slice(bytes);
+    if dst.len() > 4 * COPY_PIECE {
+        dst.par_chunks_mut(COPY_PIECE)
+            .zip(bytes.par_chunks(COPY_PIECE))
+            .for_each(|(d, s)| d.copy_from_slice(s));
+    } else {
+        dst.copy_from_slice(bytes);
+    }
     if cfg!(target_endian = "big") {
         dst.chunks_exact_mut(4).for_each(<[u8]>::reverse);
-    }
-}
-
-/// Appends to `out` the values of the little-endian bytes the kernels wrote (a whole number
-/// of `T`): one copy on a little-endian host when `bytes` is aligned for `T` (mapped ranges
-/// are), without first filling `out` with zeros. `T` as for [`le_bytes`].
-pub(super) fn extend_from_le<T: bytemuck::Pod>(bytes: &[u8], out: &mut Vec<T>) {
-    match bytemuck::try_cast_slice::<u8, T>(bytes) {
-        Ok(values) if cfg!(target_endian = "little") => out.extend_from_slice(values),
-        _ => {
-            let start = out.len();
-            out.resize(start + bytes.len() / std::mem::size_of::<T>(), T::zeroed());
-            copy_from_le(bytes, &mut out[start..]);
-        }
     }
 }

@@ -8,7 +8,7 @@ const PRELUDE: &str = include_str!("shaders/prelude.wgsl");
 const COMMON: &str = include_str!("shaders/common.wgsl");
 const DVR: &str = include_str!("shaders/dvr.wgsl");
 const GENERATE: &str = include_str!("shaders/generate.wgsl");
-const COMPACT: &str = include_str!("shaders/compact.wgsl");
+const SCAN: &str = include_str!("shaders/scan.wgsl");
 const RENDER: &str = include_str!("shaders/render.wgsl");
 
 /// Layouts and pipelines of every kernel.
@@ -16,12 +16,13 @@ pub(super) struct Kernels {
     pub scene_layout: wgpu::BindGroupLayout,
     pub dvr_out_layout: wgpu::BindGroupLayout,
     pub generate_out_layout: wgpu::BindGroupLayout,
-    pub compact_layout: wgpu::BindGroupLayout,
+    pub scan_layout: wgpu::BindGroupLayout,
     pub render_layout: wgpu::BindGroupLayout,
     /// Indexed by `shaded as usize`.
     pub dvr: [wgpu::ComputePipeline; 2],
     pub generate: [wgpu::ComputePipeline; 2],
-    pub compact: wgpu::ComputePipeline,
+    /// The prefix sum's three passes: blocks, block totals, block offsets added back.
+    pub scan: [wgpu::ComputePipeline; 3],
     pub render: wgpu::ComputePipeline,
 }
 
@@ -124,15 +125,7 @@ impl Kernels {
         );
         let dvr_out_layout = layout("dvr out", &[storage(0, false)]);
         let generate_out_layout = layout("generate out", &[storage(0, false), storage(1, false)]);
-        let compact_layout = layout(
-            "compact",
-            &[
-                uniform(0),
-                storage(1, true),
-                storage(2, true),
-                storage(3, false),
-            ],
-        );
+        let scan_layout = layout("scan", &[uniform(0), storage(1, false), storage(2, false)]);
         let render_layout = layout(
             "render",
             &[
@@ -145,7 +138,7 @@ impl Kernels {
         );
         let dvr_module = shader_module(device, "dvr", &[PRELUDE, COMMON, DVR]);
         let generate_module = shader_module(device, "generate", &[PRELUDE, COMMON, GENERATE]);
-        let compact_module = shader_module(device, "compact", &[PRELUDE, COMPACT]);
+        let scan_module = shader_module(device, "scan", &[SCAN]);
         let render_module = shader_module(device, "render", &[PRELUDE, RENDER]);
         let shade = |on: bool| [("SHADE", if on { 1.0 } else { 0.0 })];
         let dvr = [false, true].map(|on| {
@@ -168,14 +161,16 @@ impl Kernels {
                 &shade(on),
             )
         });
-        let compact = compute_pipeline(
-            device,
-            "compact",
-            &compact_module,
-            "compact_main",
-            &[&compact_layout],
-            &[],
-        );
+        let scan = ["scan_blocks", "scan_sums", "scan_add"].map(|entry_point| {
+            compute_pipeline(
+                device,
+                entry_point,
+                &scan_module,
+                entry_point,
+                &[&scan_layout],
+                &[],
+            )
+        });
         let render = compute_pipeline(
             device,
             "render",
@@ -191,11 +186,11 @@ impl Kernels {
             scene_layout,
             dvr_out_layout,
             generate_out_layout,
-            compact_layout,
+            scan_layout,
             render_layout,
             dvr,
             generate,
-            compact,
+            scan,
             render,
         })
     }

@@ -1,6 +1,6 @@
 //! A volume and transfer function uploaded to the GPU: reference DVR and VDI generation.
 
-use super::context::{copy_from_le, extend_from_le, le_bytes, Scratch, Uniform};
+use super::context::{add_time, copy_from_le, le_bytes, Pass, Scratch, Submitted, Uniform};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -11,13 +11,13 @@ use crate::vdi::{generate::meta_for, Supersegment, Vdi, VdiParams};
 pub(super) const SEGMENT_BYTES: u64 = 24;
 // Read back and uploaded as they lie in memory (`le_bytes`, `copy_from_le`).
 const _: () = assert!(std::mem::size_of::<Supersegment>() == SEGMENT_BYTES as usize);
-/// Per-ray supersegment budget of the first generation pass; a band whose rays need more is
-/// run again with the next power of two above the largest count.
-pub const INITIAL_BUDGET: u32 = 16;
-/// Most bytes of per-ray slots in one generation band. A larger per-ray budget makes more,
-/// shorter bands rather than a larger buffer: the slots stay within what the device keeps
-/// between calls, and the memory a generation holds does not grow with its longest list.
-const SLOTS_PER_BAND: u64 = 512 << 20;
+/// Counts per workgroup of the prefix sum (`scan.wgsl`'s `BLOCK`).
+const SCAN_BLOCK: u64 = 1024;
+/// Parts a result is read back in, so that the host copies one while the device runs the
+/// next ([`Gpu::pipelined`]).
+const READ_PARTS: u64 = 4;
+/// Fewest bytes in one part: below it a part's submission costs more than the overlap saves.
+const MIN_PART_BYTES: u64 = 1 << 20;
 /// Largest κ stored in the classification texture: `a = 1` has κ = ∞, which WGSL may not
 /// represent; `e^(−1e30·ℓ)` is 0 for any step, so the opacity is still exactly 1.
 const KAPPA_MAX: f32 = 1e30;
@@ -33,9 +33,6 @@ pub struct GpuScene<'g, 'v> {
     color_view: wgpu::TextureView,
     extinction_view: wgpu::TextureView,
     macro_cells: wgpu::Buffer,
-    /// Per-ray budget that sufficed last time: later generations of the scene (a study's many
-    /// candidates, the frames of a time series) start there instead of overflowing again.
-    budget: std::sync::atomic::AtomicU32,
 }
 
 /// An image or VDI with the kernel time spent making it.
@@ -47,12 +44,22 @@ pub struct KernelRun<T> {
     pub kernel_s: Option<f64>,
 }
 
-/// Adds kernel times; `None` as soon as one pass had no timestamp.
-fn add_time(total: &mut Option<f64>, t: Option<f64>) {
-    *total = match (*total, t) {
-        (Some(a), Some(b)) => Some(a + b),
-        _ => None,
-    };
+/// What a dispatch of the scene's kernels does (`Params.image.w` and `Params.band` of
+/// `common.wgsl`), and its band of rows.
+#[derive(Clone, Copy)]
+enum Work {
+    /// Reference DVR of `rows` rows.
+    Dvr { rows: u32 },
+    /// Counting the supersegments of `rows` rows with interrupt threshold `gamma`.
+    Count { gamma: f32, rows: u32 },
+    /// Writing them: `rows` rows starting `first_row` rows into the counted band, whose
+    /// first supersegment has offset `first` in the band.
+    Write {
+        gamma: f32,
+        rows: u32,
+        first_row: u32,
+        first: u32,
+    },
 }
 
 fn texture_view(
@@ -178,7 +185,6 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 color_view,
                 extinction_view,
                 macro_cells,
-                budget: std::sync::atomic::AtomicU32::new(INITIAL_BUDGET),
             })
         })
     }
@@ -194,14 +200,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
     }
 
     /// The uniform block of `common.wgsl` for `camera` at `width × height`, band from `row0`.
-    fn params(
-        &self,
-        camera: &Camera,
-        width: u32,
-        height: u32,
-        row0: u32,
-        extra: (f32, u32),
-    ) -> Uniform {
+    fn params(&self, camera: &Camera, width: u32, height: u32, row0: u32, work: Work) -> Uniform {
         let f = camera.frame(width, height);
         let rc = self.raycaster.params();
         let volume = self.raycaster.volume();
@@ -212,12 +211,20 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let s = rc.shading.unwrap_or_default();
         let grid = self.raycaster.macro_grid();
         let cells = grid.cells();
-        let (gamma, budget) = extra;
-        // Generation (a VDI budget) stops rays at its own threshold, the DVR at the render one.
-        let termination = if budget > 0 {
-            rc.generation_stop()
-        } else {
-            rc.termination
+        let (gamma, code, band) = match work {
+            Work::Dvr { rows } => (0.0, 0, [rows, 0, 0, 0]),
+            Work::Count { gamma, rows } => (gamma, 1, [rows, 0, 0, 0]),
+            Work::Write {
+                gamma,
+                rows,
+                first_row,
+                first,
+            } => (gamma, 2, [rows, first_row, first, 0]),
+        };
+        // Generation stops rays at its own threshold, the DVR at the render one.
+        let termination = match work {
+            Work::Dvr { .. } => rc.termination,
+            _ => rc.generation_stop(),
         };
         Uniform::default()
             .frame(&f, rc.step)
@@ -243,7 +250,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 cells[2] as u32,
                 grid.cell_size() as u32,
             ])
-            .uvec4([width, height, row0, budget])
+            .uvec4([width, height, row0, code])
+            .uvec4(band)
     }
 
     fn scene_group(&self, uniform: &Uniform) -> wgpu::BindGroup {
@@ -266,7 +274,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
     }
 
     /// Reference DVR of `camera`'s view at `width × height` (mirrors [`crate::dvr::render`]),
-    /// in bands of rows whose output fits one storage binding.
+    /// in bands of rows whose output fits one storage binding, read back while the next runs.
     ///
     /// # Errors
     /// [`GpuError::Limit`] when one row of the image exceeds the storage-binding or dispatch
@@ -277,28 +285,29 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         width: u32,
         height: u32,
     ) -> Result<KernelRun<Image>, GpuError> {
-        image_in_bands(self.gpu, width, height, "DVR", |row0, rows, out| {
-            let scene = self.scene_group(&self.params(camera, width, height, row0, (0.0, 0)));
-            let out_group = self.gpu.bind_group(
-                "dvr out",
-                &self.gpu.kernels.dvr_out_layout,
-                &[out.binding()],
-            );
-            self.gpu.dispatch(
-                "dvr",
-                &self.gpu.kernels.dvr[self.shaded()],
-                &[&scene, &out_group],
-                [width.div_ceil(8), rows.div_ceil(8), 1],
-            )
+        let gpu = self.gpu;
+        image_in_bands(gpu, width, height, "DVR", |row0, rows, out| {
+            let work = Work::Dvr { rows };
+            let scene = self.scene_group(&self.params(camera, width, height, row0, work));
+            let out_group =
+                gpu.bind_group("dvr out", &gpu.kernels.dvr_out_layout, &[out.binding()]);
+            let pass = Pass {
+                label: "dvr",
+                pipeline: &gpu.kernels.dvr[self.shaded()],
+                groups: &[&scene, &out_group],
+                workgroups: [width.div_ceil(8), rows.div_ceil(8), 1],
+            };
+            gpu.submit("dvr", &[pass], Some((out.buffer(), out.size())))
         })
     }
 
-    /// VDI generation `R` for `params` (mirrors [`crate::vdi::generate::generate`]): one
-    /// invocation per ray writes up to a per-ray budget of supersegments, the host prefix-sums
-    /// the counts, and a compaction kernel packs the band into the compact list layout. Bands
-    /// of rows keep every buffer under the storage-binding limit; a band with a ray over the
-    /// budget is run again with a larger budget (its time counts), and the scene keeps that
-    /// budget for its next generations.
+    /// VDI generation `R` for `params` (mirrors [`crate::vdi::generate::generate`]), in
+    /// two passes over the same rays: the first counts each ray's supersegments and a prefix
+    /// sum on the device turns the counts into the list offsets; the second writes each
+    /// ray's supersegments at its offset, in parts read back while the next part runs. The
+    /// lists are made in the compact layout on the device, and every buffer is as large as
+    /// the VDI needs. Rows are counted in bands whose offsets fit one storage binding, and
+    /// written in parts whose supersegments do.
     ///
     /// # Errors
     /// [`GpuError::Params`] for bad `params` or a degenerate camera; [`GpuError::Limit`] when
@@ -315,65 +324,64 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         if !camera.is_valid() {
             return Err(crate::vdi::VdiParamError::Camera(*camera).into());
         }
+        let gpu = self.gpu;
         let r = params.resolution;
-        let mut budget = self.budget.load(std::sync::atomic::Ordering::Relaxed);
+        // Rows per counted band: its counts and one more (the band's total) fit one binding.
+        let mut rows = band_rows(gpu, r, 4, "VDI row of counts")?;
+        if u64::from(rows) * u64::from(r) * 4 + 4 > gpu.max_storage_binding() {
+            rows -= 1;
+        }
+        if rows == 0 {
+            return Err(GpuError::Limit {
+                what: "VDI row of counts and its total".into(),
+                needed: u64::from(r) * 4 + 4,
+                limit: gpu.max_storage_binding(),
+                name: "max_storage_buffer_binding_size",
+            });
+        }
         let mut offsets = Vec::with_capacity(r as usize * r as usize + 1);
         offsets.push(0u32);
         let mut supersegments: Vec<Supersegment> = Vec::new();
         let mut kernel_s = Some(0.0);
         let mut row0 = 0;
         while row0 < r {
-            let per_ray = u64::from(budget) * SEGMENT_BYTES;
-            let rows = band_rows(self.gpu, r, per_ray, "VDI row of per-ray budgets")?
-                .min((SLOTS_PER_BAND / (u64::from(r) * per_ray)).max(1) as u32);
             let n = rows.min(r - row0);
-            let rays = u64::from(r) * u64::from(n);
-            let slots = self.gpu.scratch("vdi slots", rays * per_ray);
-            let counts_buf = self.gpu.scratch("vdi counts", rays * 4);
-            let scene = self.scene_group(&self.params(camera, r, r, row0, (params.gamma, budget)));
-            let out_group = self.gpu.bind_group(
-                "generate out",
-                &self.gpu.kernels.generate_out_layout,
-                &[slots.binding(), counts_buf.binding()],
-            );
-            let t = self.gpu.dispatch(
-                "generate",
-                &self.gpu.kernels.generate[self.shaded()],
-                &[&scene, &out_group],
-                [r.div_ceil(8), n.div_ceil(8), 1],
-            )?;
+            let (counting, band) = self.count(camera, r, params.gamma, row0, n)?;
+            let (appended, t) = counting.finish(|b| append_offsets(b, &mut offsets))?;
+            appended?;
             add_time(&mut kernel_s, t);
-            let mut counts = Vec::with_capacity(rays as usize);
-            self.gpu.read_with(counts_buf.buffer(), rays * 4, |b| {
-                extend_from_le(b, &mut counts)
-            })?;
-            let most = counts.iter().copied().max().unwrap_or(0);
-            if most > budget {
-                budget = most.checked_next_power_of_two().unwrap_or(most);
-                self.budget
-                    .fetch_max(budget, std::sync::atomic::Ordering::Relaxed);
-                continue;
-            }
-            // Band-local prefix offsets, then the global ones.
-            let mut local = Vec::with_capacity(counts.len() + 1);
-            local.push(0u32);
-            let mut acc = 0u64;
-            for &c in &counts {
-                acc += u64::from(c);
-                local.push(acc as u32);
-            }
-            let base = u64::from(offsets.last().copied().unwrap_or(0));
-            if base + acc > u64::from(u32::MAX) {
-                return Err(GpuError::Limit {
-                    what: "supersegments in one VDI".into(),
-                    needed: base + acc,
-                    limit: u64::from(u32::MAX),
-                    name: "u32 offsets",
-                });
-            }
-            offsets.extend(local[1..].iter().map(|&o| base as u32 + o));
-            if acc > 0 {
-                let t = self.compact(&slots, &local, rays, budget, &mut supersegments)?;
+            let local = &offsets[offsets.len() - (r * n) as usize - 1..];
+            let band_first = local[0];
+            let total = (local[local.len() - 1] - band_first) as usize;
+            if total > 0 {
+                let start = supersegments.len();
+                if start == 0 {
+                    supersegments = bytemuck::zeroed_vec(total);
+                } else {
+                    supersegments.resize(start + total, Supersegment::default());
+                }
+                let parts = write_parts(gpu, local, r)?;
+                let out = &mut supersegments[start..];
+                let t = gpu.pipelined(
+                    parts,
+                    |&(a, b)| {
+                        let first = local[(a * r) as usize] - band_first;
+                        let last = local[(b * r) as usize] - band_first;
+                        let work = Work::Write {
+                            gamma: params.gamma,
+                            rows: b - a,
+                            first_row: a,
+                            first,
+                        };
+                        let bytes = u64::from(last - first) * SEGMENT_BYTES;
+                        self.write(camera, r, row0 + a, work, &band, bytes)
+                    },
+                    |(a, b), bytes| {
+                        let first = (local[(a * r) as usize] - band_first) as usize;
+                        let last = (local[(b * r) as usize] - band_first) as usize;
+                        copy_from_le(bytes, &mut out[first..last]);
+                    },
+                )?;
                 add_time(&mut kernel_s, t);
             }
             row0 += n;
@@ -391,76 +399,207 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         })
     }
 
-    /// Packs a band's slots into contiguous supersegments (as many as the last of
-    /// `local_offsets`) appended to `out`; returns the kernel time.
-    fn compact(
+    /// Submits the counting pass over `rows` rows from `row0` and the prefix sum of its
+    /// counts; the submission's output is the band's `rays + 1` offsets.
+    fn count(
         &self,
-        slots: &Scratch,
-        local_offsets: &[u32],
-        rays: u64,
-        budget: u32,
-        out: &mut Vec<Supersegment>,
-    ) -> Result<Option<f64>, GpuError> {
-        let total = u64::from(local_offsets.last().copied().unwrap_or(0));
+        camera: &Camera,
+        r: u32,
+        gamma: f32,
+        row0: u32,
+        rows: u32,
+    ) -> Result<(Submitted<'g>, Scratch<'g>), GpuError> {
         let gpu = self.gpu;
-        let groups = rays.div_ceil(64);
-        let max_x = u64::from(gpu.limits.max_compute_workgroups_per_dimension);
-        let gx = groups.min(max_x);
-        let gy = groups.div_ceil(gx);
-        let uniform = Uniform::default().uvec4([rays as u32, budget, gx as u32, 0]);
-        let params = gpu.uniform("compact params", &uniform);
-        let offsets = gpu.buffer_init(
-            "compact offsets",
-            &le_bytes(local_offsets),
-            wgpu::BufferUsages::STORAGE,
+        let k = &gpu.kernels;
+        let rays = u64::from(r) * u64::from(rows);
+        let offsets = gpu.scratch("vdi offsets", (rays + 1) * 4);
+        let blocks = rays.div_ceil(SCAN_BLOCK);
+        let sums = gpu.scratch("vdi block sums", blocks * 4);
+        // Counting writes no supersegments; its binding is a placeholder.
+        let none = gpu.scratch("no supersegments", 0);
+        let work = Work::Count { gamma, rows };
+        let scene = self.scene_group(&self.params(camera, r, r, row0, work));
+        let out = gpu.bind_group(
+            "count out",
+            &k.generate_out_layout,
+            &[none.binding(), offsets.binding()],
         );
-        let bytes = total * SEGMENT_BYTES;
-        let packed = gpu.scratch("vdi packed", bytes);
-        let group = gpu.bind_group(
-            "compact",
-            &gpu.kernels.compact_layout,
+        let max_x = u64::from(gpu.limits.max_compute_workgroups_per_dimension);
+        let gx = blocks.min(max_x);
+        let gy = blocks.div_ceil(gx.max(1));
+        let uniform = Uniform::default().uvec4([rays as u32, blocks as u32, gx as u32, 0]);
+        let scan_params = gpu.uniform("scan params", &uniform);
+        let scan = gpu.bind_group(
+            "scan",
+            &k.scan_layout,
             &[
-                params.as_entire_binding(),
-                slots.binding(),
-                offsets.as_entire_binding(),
-                packed.binding(),
+                scan_params.as_entire_binding(),
+                offsets.binding(),
+                sums.binding(),
             ],
         );
-        let t = gpu.dispatch(
-            "compact",
-            &gpu.kernels.compact,
-            &[&group],
-            [gx as u32, gy as u32, 1],
+        let grid = [gx as u32, gy as u32, 1];
+        let passes = [
+            Pass {
+                label: "count supersegments",
+                pipeline: &k.generate[self.shaded()],
+                groups: &[&scene, &out],
+                workgroups: [r.div_ceil(8), rows.div_ceil(8), 1],
+            },
+            Pass {
+                label: "scan blocks",
+                pipeline: &k.scan[0],
+                groups: &[&scan],
+                workgroups: grid,
+            },
+            Pass {
+                label: "scan block totals",
+                pipeline: &k.scan[1],
+                groups: &[&scan],
+                workgroups: [1, 1, 1],
+            },
+            Pass {
+                label: "add block offsets",
+                pipeline: &k.scan[2],
+                groups: &[&scan],
+                workgroups: grid,
+            },
+        ];
+        let submitted = gpu.submit(
+            "counting",
+            &passes,
+            Some((offsets.buffer(), (rays + 1) * 4)),
         )?;
-        gpu.read_with(packed.buffer(), bytes, |b| extend_from_le(b, out))?;
-        Ok(t)
+        Ok((submitted, offsets))
+    }
+
+    /// Submits the writing pass of `work`'s rows (from image row `row0`) into a buffer of
+    /// `bytes`, the part's supersegments, read with the band's `offsets`.
+    fn write(
+        &self,
+        camera: &Camera,
+        r: u32,
+        row0: u32,
+        work: Work,
+        offsets: &Scratch<'_>,
+        bytes: u64,
+    ) -> Result<Submitted<'g>, GpuError> {
+        let gpu = self.gpu;
+        let rows = match work {
+            Work::Dvr { rows } | Work::Count { rows, .. } | Work::Write { rows, .. } => rows,
+        };
+        let segments = gpu.scratch("vdi supersegments", bytes);
+        let scene = self.scene_group(&self.params(camera, r, r, row0, work));
+        let out = gpu.bind_group(
+            "write out",
+            &gpu.kernels.generate_out_layout,
+            &[segments.binding(), offsets.binding()],
+        );
+        let pass = Pass {
+            label: "write supersegments",
+            pipeline: &gpu.kernels.generate[self.shaded()],
+            groups: &[&scene, &out],
+            workgroups: [r.div_ceil(8), rows.div_ceil(8), 1],
+        };
+        gpu.submit("writing", &[pass], Some((segments.buffer(), bytes)))
     }
 }
 
+/// Appends a counted band's offsets (`bytes`: its `rays + 1` little-endian `u32`s, from 0)
+/// to `offsets`, shifted by the last offset there.
+///
+/// # Errors
+/// [`GpuError::Limit`] when the VDI's supersegments exceed `u32::MAX` (the device's sums wrap,
+/// which shows as a decrease).
+fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<(), GpuError> {
+    let mut local = vec![0u32; bytes.len() / 4];
+    copy_from_le(bytes, &mut local);
+    let base = offsets.last().copied().unwrap_or(0);
+    let wrapped = local.windows(2).any(|w| w[1] < w[0]);
+    let end = u64::from(base) + u64::from(local.last().copied().unwrap_or(0));
+    if wrapped || end > u64::from(u32::MAX) {
+        return Err(GpuError::Limit {
+            what: "supersegments in one VDI".into(),
+            needed: end.max(u64::from(u32::MAX) + 1),
+            limit: u64::from(u32::MAX),
+            name: "u32 offsets",
+        });
+    }
+    offsets.extend(local.iter().skip(1).map(|&o| base + o));
+    Ok(())
+}
+
+/// The parts a counted band's rows are written in, `(first row, end row)` within the band:
+/// about [`READ_PARTS`] parts of at least [`MIN_PART_BYTES`], each within one storage
+/// binding. `local` holds the band's `r · rows + 1` offsets; rows without supersegments are
+/// left out.
+///
+/// # Errors
+/// [`GpuError::Limit`] when one row's supersegments exceed a binding.
+fn write_parts(gpu: &Gpu, local: &[u32], r: u32) -> Result<Vec<(u32, u32)>, GpuError> {
+    let rows = ((local.len() - 1) / r as usize) as u32;
+    let at = |row: u32| u64::from(local[(row * r) as usize]) * SEGMENT_BYTES;
+    let limit = gpu.max_storage_binding();
+    let target = (at(rows) - at(0))
+        .div_ceil(READ_PARTS)
+        .max(MIN_PART_BYTES)
+        .min(limit);
+    let mut parts = Vec::new();
+    let mut a = 0;
+    while a < rows {
+        let mut b = a + 1;
+        if at(b) - at(a) > limit {
+            return Err(GpuError::Limit {
+                what: format!("supersegments of VDI row {a}"),
+                needed: at(b) - at(a),
+                limit,
+                name: "max_storage_buffer_binding_size",
+            });
+        }
+        while b < rows && at(b + 1) - at(a) <= target {
+            b += 1;
+        }
+        if at(b) > at(a) {
+            parts.push((a, b));
+        }
+        a = b;
+    }
+    Ok(parts)
+}
 /// An RGB image rendered in bands of rows whose output (12 bytes a pixel) fits one storage
-/// binding: `run(row0, rows, out)` dispatches a kernel writing the band into `out` and
-/// returns its kernel time.
-pub(super) fn image_in_bands(
-    gpu: &Gpu,
+/// binding, about [`READ_PARTS`] of them of at least [`MIN_PART_BYTES`], each read back
+/// while the next runs: `submit(row0, rows, out)` submits a kernel writing the band into
+/// `out` with `out` as its output.
+pub(super) fn image_in_bands<'g>(
+    gpu: &'g Gpu,
     width: u32,
     height: u32,
     what: &str,
-    mut run: impl FnMut(u32, u32, &Scratch) -> Result<Option<f64>, GpuError>,
+    mut submit: impl FnMut(u32, u32, &Scratch<'g>) -> Result<Submitted<'g>, GpuError>,
 ) -> Result<KernelRun<Image>, GpuError> {
-    let rows = band_rows(gpu, width, 12, &format!("{what} image row"))?;
+    let row_bytes = u64::from(width) * 12;
+    let most = band_rows(gpu, width, 12, &format!("{what} image row"))?;
+    let part = u64::from(height)
+        .div_ceil(READ_PARTS)
+        .max(MIN_PART_BYTES.div_ceil(row_bytes))
+        .next_multiple_of(8);
+    let rows = most.min(part.min(u64::from(u32::MAX)) as u32);
     let mut image = Image::new(width, height);
-    let mut kernel_s = Some(0.0);
-    let mut row0 = 0;
-    while row0 < height {
-        let n = rows.min(height - row0);
-        let bytes = u64::from(width) * u64::from(n) * 12;
-        let out = gpu.scratch(what, bytes);
-        add_time(&mut kernel_s, run(row0, n, &out)?);
-        let start = (row0 * width) as usize;
-        let band = &mut image.pixels_mut()[start..start + (width * n) as usize];
-        gpu.read_with(out.buffer(), bytes, |b| copy_from_le(b, band))?;
-        row0 += n;
-    }
+    let bands = (0..height)
+        .step_by(rows as usize)
+        .map(|row0| (row0, rows.min(height - row0)));
+    let pixels = image.pixels_mut();
+    let kernel_s = gpu.pipelined(
+        bands,
+        |&(row0, n)| {
+            let out = gpu.scratch(what, u64::from(width) * u64::from(n) * 12);
+            submit(row0, n, &out)
+        },
+        |(row0, n), bytes| {
+            let start = (row0 * width) as usize;
+            copy_from_le(bytes, &mut pixels[start..start + (width * n) as usize]);
+        },
+    )?;
     Ok(KernelRun {
         value: image,
         kernel_s,

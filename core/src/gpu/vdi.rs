@@ -1,6 +1,6 @@
 //! A VDI uploaded to the GPU and rendered from new cameras.
 
-use super::context::{le_bytes, Uniform};
+use super::context::{le_bytes, Pass, Uniform};
 use super::scene::{image_in_bands, KernelRun, SEGMENT_BYTES};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
@@ -85,7 +85,8 @@ impl<'g> GpuVdi<'g> {
                 .frame(&g, 0.0)
                 .vec4([b.min.x, b.min.y, b.min.z, 0.0])
                 .vec4([b.max.x, b.max.y, b.max.z, 0.0])
-                .uvec4([width, height, row0, r]);
+                .uvec4([width, height, row0, r])
+                .uvec4([rows, 0, 0, 0]);
             let params = gpu.uniform("render params", &uniform);
             let group = gpu.bind_group(
                 "render",
@@ -98,12 +99,13 @@ impl<'g> GpuVdi<'g> {
                     self.tile_depth.as_entire_binding(),
                 ],
             );
-            gpu.dispatch(
-                "render",
-                &gpu.kernels.render,
-                &[&group],
-                [width.div_ceil(8), rows.div_ceil(8), 1],
-            )
+            let pass = Pass {
+                label: "render",
+                pipeline: &gpu.kernels.render,
+                groups: &[&group],
+                workgroups: [width.div_ceil(8), rows.div_ceil(8), 1],
+            };
+            gpu.submit("render", &[pass], Some((out.buffer(), out.size())))
         })
     }
 }

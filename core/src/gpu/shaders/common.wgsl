@@ -16,7 +16,9 @@ struct Params {
     shading: vec4<f32>,      // ambient, diffuse, specular, shininess
     dims: vec4<u32>,         // nx, ny, nz, empty-space skipping on (1) / off (0)
     cells: vec4<u32>,        // macro cells per axis, w their side in voxels
-    image: vec4<u32>,        // width, height, first row of this band, per-ray budget
+    image: vec4<u32>,        // width, height, first row of this band, work (0 DVR, 1 count, 2 write)
+    band: vec4<u32>,         // rows in this band; generation: its first row within the counted
+                             // band, and the offset of its first supersegment
 };
 
 @group(0) @binding(0) var<uniform> P: Params;

@@ -8,7 +8,7 @@ fn dvr_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     let row = gid.y;
     let j = P.image.z + row;
-    if (i >= P.image.x || j >= P.image.y) {
+    if (i >= P.image.x || j >= P.image.y || row >= P.band.x) {
         return;
     }
     let ray = pixel_ray(i, j);

@@ -1,11 +1,13 @@
 // VDI generation R (Sec. 3.2, 5.2): one invocation per ray of a band of rows of the r × r
 // generation image. Samples are merged front to back into the open supersegment until
-// ‖â·ĉ − a·c‖₂ ≥ γ (mirrors `vdi::generate`'s builder). Each ray writes at most `budget`
-// supersegments to its slot of `segments` and its full count to `counts`; the host re-runs a
-// band whose rays overflowed with a larger budget, then `compact.wgsl` packs the slots.
+// ‖â·ĉ − a·c‖₂ ≥ γ (mirrors `vdi::generate`'s builder). Run twice over the same rays with the
+// same arithmetic: counting (work 1) stores each ray's number of supersegments in `offsets`,
+// `scan.wgsl` turns the counts into list offsets, and writing (work 2) stores each ray's
+// supersegments at its offset, less the band's first, in `segments`: the compact list layout,
+// with no per-ray slots to size and no copy between layouts.
 
 @group(1) @binding(0) var<storage, read_write> segments: array<Segment>;
-@group(1) @binding(1) var<storage, read_write> counts: array<u32>;
+@group(1) @binding(1) var<storage, read_write> offsets: array<u32>;
 
 struct Open {
     last_index: u32,
@@ -58,12 +60,18 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     let row = gid.y;
     let j = P.image.z + row;
-    if (i >= r || j >= P.image.y) {
+    if (i >= r || j >= P.image.y || row >= P.band.x) {
         return;
     }
-    let local = i + r * row;
-    let budget = P.image.w;
-    let base = local * budget;
+    // The ray's index within the counted band, and in writing its list's place in `segments`.
+    let local = i + r * (row + P.band.y);
+    let write = P.image.w == 2u;
+    var at = 0u;
+    var end = 0u;
+    if (write) {
+        at = offsets[local] - P.band.z;
+        end = offsets[local + 1u] - P.band.z;
+    }
     let ray = pixel_ray(i, j);
     let z_per_t = dot(ray.dir, P.forward.xyz);
     let gamma_sq = P.box_max.w * P.box_max.w;
@@ -103,8 +111,9 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             o.unit_over_total = ratio(o.unit, o.total);
         } else {
             if (has_open) {
-                if (n < budget) {
-                    segments[base + n] = close(o, z_per_t);
+                if (at < end) {
+                    segments[at] = close(o, z_per_t);
+                    at += 1u;
                 }
                 n += 1u;
             }
@@ -117,10 +126,12 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     if (has_open) {
-        if (n < budget) {
-            segments[base + n] = close(o, z_per_t);
+        if (at < end) {
+            segments[at] = close(o, z_per_t);
         }
         n += 1u;
     }
-    counts[local] = n;
+    if (!write) {
+        offsets[local] = n;
+    }
 }

@@ -16,6 +16,7 @@ struct RenderParams {
     box_min: vec4<f32>,
     box_max: vec4<f32>,
     image: vec4<u32>,      // width, height, first row of this band, r
+    band: vec4<u32>,       // x: rows in this band
 };
 
 @group(0) @binding(0) var<uniform> P: RenderParams;
@@ -292,7 +293,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     let row = gid.y;
     let j = P.image.z + row;
-    if (i >= P.image.x || j >= P.image.y) {
+    if (i >= P.image.x || j >= P.image.y || row >= P.band.x) {
         return;
     }
     let w = f32(P.image.x);
