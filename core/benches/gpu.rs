@@ -1,6 +1,8 @@
-//! GPU against CPU for the three kernels (issue: GPU path): reference DVR, VDI generation
-//! (r = 768 and 256, γ = 0.013) and VDI rendering from 30°, on the teapot (768², step 0.5,
-//! `data/tf/teapot.json`) and on an analytic 256³ field, at 768² and 1920×1080.
+//! GPU against CPU for the three kernels: reference DVR, VDI generation (r = 768 and 256,
+//! γ = 0.013) and VDI rendering from 30°, on the teapot (768², step 0.5,
+//! `data/tf/teapot.json`) and on an analytic 256³ field, at 768² and 1920×1080; and
+//! generation alone on the same field at 432³ for r = 160, 352 and 544, the volume size and
+//! resolutions of the seed paper's generation times (Sec. 6, a GTX 980).
 //!
 //! A bench binary rather than criterion: each GPU row reports two times, the wall clock of
 //! the call (uploads of the camera, read-back of the result) and the kernel time from GPU
@@ -50,9 +52,9 @@ fn row(what: &str, cpu: (f64, f64, &str), gpu: (f64, f64, &str)) {
 
 fn bench_scene(
     name: &str,
-    volume: &Volume,
-    tf: &TransferFunction,
+    (volume, tf): (&Volume, &TransferFunction),
     sizes: &[(u32, u32)],
+    resolutions: &[u32],
     backends: (&Backend, &Backend),
     runs: usize,
 ) {
@@ -70,7 +72,7 @@ fn bench_scene(
             time(runs, || gpu.dvr(&cam, w, h).unwrap()),
         );
     }
-    for r in [768, 256] {
+    for &r in resolutions {
         let p = VdiParams {
             resolution: r,
             gamma: 0.013,
@@ -81,6 +83,9 @@ fn bench_scene(
             time(runs, || cpu.generate(&cam, p, 0, name).unwrap()),
             time(runs, || gpu.generate(&cam, p, 0, name).unwrap()),
         );
+        if sizes.is_empty() {
+            continue;
+        }
         let vdi = cpu.generate(&cam, p, 0, name).unwrap().value;
         let (cv, gv) = (
             cpu.prepare_vdi(&vdi).unwrap(),
@@ -120,20 +125,41 @@ fn main() {
     );
     let sizes = [(768, 768), (1920, 1080)];
     match common::teapot() {
-        Ok((v, tf)) => bench_scene("teapot", &v, &tf, &sizes, (&cpu, &gpu), runs),
+        Ok((v, tf)) => bench_scene("teapot", (&v, &tf), &sizes, &[768, 256], (&cpu, &gpu), runs),
         Err(e) => eprintln!("skipping the teapot: {e}"),
     }
-    // A smooth 256³ field with structure at several scales (no data files needed).
-    let n = 256usize;
-    let field = Volume::from_fn([n, n, n], |x, y, z| {
-        let p = [x, y, z].map(|c| c as f32 / n as f32 * std::f32::consts::TAU);
-        (p[0] * 2.0).sin() * (p[1] * 3.0).cos() + (p[2] * 1.5).sin() * 0.5 + 1.5
-    })
-    .unwrap();
     let tf = TransferFunction::from_json(
         r#"{"domain": [0, 3], "points": [[0,0,0,0,0],[0.45,0.1,0.3,0.9,0],[0.6,0.2,0.8,0.4,0.05],[0.8,1,0.8,0.2,0.2],[1,1,1,1,0.6]]}"#,
         "waves",
     )
     .unwrap();
-    bench_scene("waves 256³", &field, &tf, &sizes, (&cpu, &gpu), runs);
+    let field = waves(256);
+    let backends = (&cpu, &gpu);
+    bench_scene(
+        "waves 256³",
+        (&field, &tf),
+        &sizes,
+        &[768, 256],
+        backends,
+        runs,
+    );
+    drop(field);
+    let field = waves(432);
+    bench_scene(
+        "waves 432³",
+        (&field, &tf),
+        &[],
+        &[160, 352, 544],
+        backends,
+        runs,
+    );
+}
+
+/// A smooth n³ field with structure at several scales (no data files needed).
+fn waves(n: usize) -> Volume {
+    Volume::from_fn([n, n, n], |x, y, z| {
+        let p = [x, y, z].map(|c| c as f32 / n as f32 * std::f32::consts::TAU);
+        (p[0] * 2.0).sin() * (p[1] * 3.0).cos() + (p[2] * 1.5).sin() * 0.5 + 1.5
+    })
+    .unwrap()
 }

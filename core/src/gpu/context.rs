@@ -30,7 +30,7 @@ const STAGING_KEPT: u64 = 256 << 20;
 
 /// Most bytes of scratch buffers kept for the next kernels: the largest are kept while they
 /// fit under it, the others freed.
-const SCRATCH_KEPT: u64 = 1 << 30;
+const SCRATCH_KEPT: u64 = 2 << 30;
 
 /// An opened GPU: adapter, device, queue, the limits granted and the compiled kernels.
 pub struct Gpu {
@@ -405,21 +405,21 @@ impl Gpu {
         jobs: impl IntoIterator<Item = J>,
         mut submit: impl FnMut(&J) -> Result<Submitted<'g>, GpuError>,
         mut consume: impl FnMut(J, &[u8]),
-    ) -> Result<Option<f64>, GpuError> {
-        let mut kernel_s = Some(0.0);
+    ) -> Result<KernelTime, GpuError> {
+        let mut time = KernelTime::default();
         let mut pending: Option<(J, Submitted<'g>)> = None;
         for job in jobs {
             let next = submit(&job)?;
             if let Some((done, s)) = pending.replace((job, next)) {
                 let ((), t) = s.finish(|b| consume(done, b))?;
-                add_time(&mut kernel_s, t);
+                time.add(t);
             }
         }
         if let Some((done, s)) = pending {
             let ((), t) = s.finish(|b| consume(done, b))?;
-            add_time(&mut kernel_s, t);
+            time.add(t);
         }
-        Ok(kernel_s)
+        Ok(time)
     }
 
     /// Waits for submission `index`.
@@ -460,12 +460,42 @@ fn keep_largest(pool: &mut Vec<wgpu::Buffer>, cap: u64) {
     });
 }
 
-/// Adds kernel times; `None` as soon as one part had no timestamp.
-pub(super) fn add_time(total: &mut Option<f64>, t: Option<f64>) {
-    *total = match (*total, t) {
-        (Some(a), Some(b)) => Some(a + b),
-        _ => None,
-    };
+/// The GPU timestamps of a call's passes, in ticks (`None` once one submission had none).
+/// A pass's beginning may be stamped before the work queued ahead of it has ended, so the
+/// kernel time is the length of the passes' union, not the sum of their lengths.
+#[derive(Debug)]
+pub(super) struct KernelTime(Option<Vec<[u64; 2]>>);
+
+impl Default for KernelTime {
+    fn default() -> Self {
+        Self(Some(Vec::new()))
+    }
+}
+
+impl KernelTime {
+    /// Adds `other`'s passes.
+    pub(super) fn add(&mut self, other: KernelTime) {
+        match (&mut self.0, other.0) {
+            (Some(a), Some(b)) => a.extend(b),
+            _ => self.0 = None,
+        }
+    }
+
+    /// Seconds the device spent in the passes: the length of the union of their intervals.
+    pub(super) fn seconds(&self, gpu: &Gpu) -> Option<f64> {
+        let mut intervals = self.0.clone()?;
+        intervals.sort_unstable();
+        let mut ticks = 0u64;
+        let mut covered = 0u64;
+        for [begin, end] in intervals {
+            let begin = begin.max(covered);
+            if end > begin {
+                ticks += end - begin;
+                covered = end;
+            }
+        }
+        Some(ticks as f64 * f64::from(gpu.queue.get_timestamp_period()) * 1e-9)
+    }
 }
 
 /// One compute pass of a [`Gpu::submit`]: a pipeline, its bind groups in order, a dispatch.
@@ -495,8 +525,7 @@ pub(super) struct Submitted<'g> {
 impl Submitted<'_> {
     /// Waits for the submission, hands its output bytes to `consume` while they are mapped
     /// (so they are copied once, into their destination), and returns what `consume` returned
-    /// with the passes' kernel time in seconds (`None` without timestamps). The read-back
-    /// buffer is kept for later calls.
+    /// with the passes' timestamps. The read-back buffer is kept for later calls.
     ///
     /// # Errors
     /// Device loss, a wait past [`SUBMISSION_TIMEOUT`], or a mapping that fails or never
@@ -504,7 +533,7 @@ impl Submitted<'_> {
     pub(super) fn finish<T>(
         mut self,
         consume: impl FnOnce(&[u8]) -> T,
-    ) -> Result<(T, Option<f64>), GpuError> {
+    ) -> Result<(T, KernelTime), GpuError> {
         let gpu = self.gpu;
         gpu.wait(self.index.clone(), "read-back")?;
         match self.mapped.recv_timeout(Duration::from_secs(1)) {
@@ -521,21 +550,17 @@ impl Submitted<'_> {
                 .get_mapped_range(..self.mapped_bytes)
                 .map_err(|e| GpuError::Lost(format!("read-back view: {e}")))?;
             let out = consume(&view[..self.size as usize]);
-            let kernel_s = (self.stamps > 0).then(|| {
-                let at = self.stamps_at as usize;
-                let ticks: u64 = view[at..at + 8 * self.stamps as usize]
-                    .chunks_exact(16)
-                    .map(|pair| {
-                        let word = |b: &[u8]| {
-                            let mut le = [0u8; 8];
-                            le.copy_from_slice(b);
-                            u64::from_le_bytes(le)
-                        };
-                        word(&pair[8..]).saturating_sub(word(&pair[..8]))
-                    })
-                    .sum();
-                ticks as f64 * f64::from(gpu.queue.get_timestamp_period()) * 1e-9
-            });
+            let word = |at: usize| {
+                let mut le = [0u8; 8];
+                le.copy_from_slice(&view[at..at + 8]);
+                u64::from_le_bytes(le)
+            };
+            let at = self.stamps_at as usize;
+            let kernel_s = KernelTime((self.stamps > 0).then(|| {
+                (0..self.stamps as usize / 2)
+                    .map(|k| [word(at + 16 * k), word(at + 16 * k + 8)])
+                    .collect()
+            }));
             (out, kernel_s)
         };
         staging.unmap();

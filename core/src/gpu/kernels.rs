@@ -124,7 +124,10 @@ impl Kernels {
             ],
         );
         let dvr_out_layout = layout("dvr out", &[storage(0, false)]);
-        let generate_out_layout = layout("generate out", &[storage(0, false), storage(1, false)]);
+        let generate_out_layout = layout(
+            "generate out",
+            &[storage(0, false), storage(1, false), storage(2, false)],
+        );
         let scan_layout = layout("scan", &[uniform(0), storage(1, false), storage(2, false)]);
         let render_layout = layout(
             "render",

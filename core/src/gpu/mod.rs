@@ -22,7 +22,7 @@ mod scene;
 mod vdi;
 
 pub use context::{Gpu, SUBMISSION_TIMEOUT};
-pub use scene::{GpuScene, KernelRun};
+pub use scene::{GpuScene, KernelRun, INITIAL_BUDGET};
 pub use vdi::GpuVdi;
 
 /// Errors of the GPU backend.

@@ -1,6 +1,6 @@
 //! A volume and transfer function uploaded to the GPU: reference DVR and VDI generation.
 
-use super::context::{add_time, copy_from_le, le_bytes, Pass, Scratch, Submitted, Uniform};
+use super::context::{copy_from_le, le_bytes, KernelTime, Pass, Scratch, Submitted, Uniform};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -13,11 +13,13 @@ pub(super) const SEGMENT_BYTES: u64 = 24;
 const _: () = assert!(std::mem::size_of::<Supersegment>() == SEGMENT_BYTES as usize);
 /// Counts per workgroup of the prefix sum (`scan.wgsl`'s `BLOCK`).
 const SCAN_BLOCK: u64 = 1024;
-/// Parts a result is read back in, so that the host copies one while the device runs the
-/// next ([`Gpu::pipelined`]).
-const READ_PARTS: u64 = 4;
-/// Fewest bytes in one part: below it a part's submission costs more than the overlap saves.
-const MIN_PART_BYTES: u64 = 1 << 20;
+/// Per-ray slot budget of a scene's first generation; later ones use the next power of two
+/// above the longest list seen, within [`SLOTS_BYTES`].
+pub const INITIAL_BUDGET: u32 = 16;
+/// Most bytes of per-ray slots in one counted band. A ray whose list is longer than its slots
+/// is marched again when written; on the H200 one march of every ray and a copy cost about
+/// half of two marches (teapot and a 432³ field, r 256–768).
+const SLOTS_BYTES: u64 = 1 << 30;
 /// Largest κ stored in the classification texture: `a = 1` has κ = ∞, which WGSL may not
 /// represent; `e^(−1e30·ℓ)` is 0 for any step, so the opacity is still exactly 1.
 const KAPPA_MAX: f32 = 1e30;
@@ -33,6 +35,9 @@ pub struct GpuScene<'g, 'v> {
     color_view: wgpu::TextureView,
     extinction_view: wgpu::TextureView,
     macro_cells: wgpu::Buffer,
+    /// Per-ray slot budget for the next generation: the scene's generations (a study's
+    /// candidates, a series' views) have lists of similar lengths.
+    budget: std::sync::atomic::AtomicU32,
 }
 
 /// An image or VDI with the kernel time spent making it.
@@ -50,15 +55,18 @@ pub struct KernelRun<T> {
 enum Work {
     /// Reference DVR of `rows` rows.
     Dvr { rows: u32 },
-    /// Counting the supersegments of `rows` rows with interrupt threshold `gamma`.
-    Count { gamma: f32, rows: u32 },
+    /// Counting the supersegments of `rows` rows with interrupt threshold `gamma`, keeping
+    /// up to `budget` of them per ray.
+    Count { gamma: f32, rows: u32, budget: u32 },
     /// Writing them: `rows` rows starting `first_row` rows into the counted band, whose
-    /// first supersegment has offset `first` in the band.
+    /// first supersegment has offset `first` in the band; lists of at most `budget` are
+    /// copied from their slots.
     Write {
         gamma: f32,
         rows: u32,
         first_row: u32,
         first: u32,
+        budget: u32,
     },
 }
 
@@ -185,6 +193,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                 color_view,
                 extinction_view,
                 macro_cells,
+                budget: std::sync::atomic::AtomicU32::new(INITIAL_BUDGET),
             })
         })
     }
@@ -213,13 +222,18 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let cells = grid.cells();
         let (gamma, code, band) = match work {
             Work::Dvr { rows } => (0.0, 0, [rows, 0, 0, 0]),
-            Work::Count { gamma, rows } => (gamma, 1, [rows, 0, 0, 0]),
+            Work::Count {
+                gamma,
+                rows,
+                budget,
+            } => (gamma, 1, [rows, 0, 0, budget]),
             Work::Write {
                 gamma,
                 rows,
                 first_row,
                 first,
-            } => (gamma, 2, [rows, first_row, first, 0]),
+                budget,
+            } => (gamma, 2, [rows, first_row, first, budget]),
         };
         // Generation stops rays at its own threshold, the DVR at the render one.
         let termination = match work {
@@ -301,13 +315,14 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         })
     }
 
-    /// VDI generation `R` for `params` (mirrors [`crate::vdi::generate::generate`]), in
-    /// two passes over the same rays: the first counts each ray's supersegments and a prefix
-    /// sum on the device turns the counts into the list offsets; the second writes each
-    /// ray's supersegments at its offset, in parts read back while the next part runs. The
-    /// lists are made in the compact layout on the device, and every buffer is as large as
-    /// the VDI needs. Rows are counted in bands whose offsets fit one storage binding, and
-    /// written in parts whose supersegments do.
+    /// VDI generation `R` for `params` (mirrors [`crate::vdi::generate::generate`]), its
+    /// compact lists made on the device in two passes: the first marches every ray, counts
+    /// its supersegments and keeps up to a per-ray budget of them in slots, and a prefix sum
+    /// turns the counts into the list offsets; the second writes each ray's list at its
+    /// offset, copied from its slots or, for a ray longer than the budget, marched again.
+    /// The budget grows to the longest list seen (within [`SLOTS_BYTES`]) for the scene's
+    /// next generations. Rows are counted in bands whose offsets fit one storage binding, and
+    /// written in parts whose supersegments do, each read back while the next runs.
     ///
     /// # Errors
     /// [`GpuError::Params`] for bad `params` or a degenerate camera; [`GpuError::Limit`] when
@@ -342,15 +357,19 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let mut offsets = Vec::with_capacity(r as usize * r as usize + 1);
         offsets.push(0u32);
         let mut supersegments: Vec<Supersegment> = Vec::new();
-        let mut kernel_s = Some(0.0);
+        let mut time = KernelTime::default();
         let mut row0 = 0;
         while row0 < r {
             let n = rows.min(r - row0);
             let (counting, band) = self.count(camera, r, params.gamma, row0, n)?;
             let (appended, t) = counting.finish(|b| append_offsets(b, &mut offsets))?;
             appended?;
-            add_time(&mut kernel_s, t);
+            time.add(t);
             let local = &offsets[offsets.len() - (r * n) as usize - 1..];
+            let most = local.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+            let next = most.checked_next_power_of_two().unwrap_or(most);
+            self.budget
+                .fetch_max(next, std::sync::atomic::Ordering::Relaxed);
             let band_first = local[0];
             let total = (local[local.len() - 1] - band_first) as usize;
             if total > 0 {
@@ -372,6 +391,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                             rows: b - a,
                             first_row: a,
                             first,
+                            budget: band.budget,
                         };
                         let bytes = u64::from(last - first) * SEGMENT_BYTES;
                         self.write(camera, r, row0 + a, work, &band, bytes)
@@ -382,7 +402,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                         copy_from_le(bytes, &mut out[first..last]);
                     },
                 )?;
-                add_time(&mut kernel_s, t);
+                time.add(t);
             }
             row0 += n;
         }
@@ -395,7 +415,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         })?;
         Ok(KernelRun {
             value: vdi,
-            kernel_s,
+            kernel_s: time.seconds(gpu),
         })
     }
 
@@ -408,21 +428,30 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         gamma: f32,
         row0: u32,
         rows: u32,
-    ) -> Result<(Submitted<'g>, Scratch<'g>), GpuError> {
+    ) -> Result<(Submitted<'g>, CountedBand<'g>), GpuError> {
         let gpu = self.gpu;
         let k = &gpu.kernels;
         let rays = u64::from(r) * u64::from(rows);
         let offsets = gpu.scratch("vdi offsets", (rays + 1) * 4);
         let blocks = rays.div_ceil(SCAN_BLOCK);
         let sums = gpu.scratch("vdi block sums", blocks * 4);
-        // Counting writes no supersegments; its binding is a placeholder.
+        let per_ray = rays * SEGMENT_BYTES;
+        let room = SLOTS_BYTES.min(gpu.max_storage_binding()) / per_ray;
+        let learned = self.budget.load(std::sync::atomic::Ordering::Relaxed);
+        let budget = u64::from(learned).min(room) as u32;
+        let slots = gpu.scratch("vdi slots", u64::from(budget) * per_ray);
+        // Counting writes no list; its binding is a placeholder.
         let none = gpu.scratch("no supersegments", 0);
-        let work = Work::Count { gamma, rows };
+        let work = Work::Count {
+            gamma,
+            rows,
+            budget,
+        };
         let scene = self.scene_group(&self.params(camera, r, r, row0, work));
         let out = gpu.bind_group(
             "count out",
             &k.generate_out_layout,
-            &[none.binding(), offsets.binding()],
+            &[none.binding(), offsets.binding(), slots.binding()],
         );
         let max_x = u64::from(gpu.limits.max_compute_workgroups_per_dimension);
         let gx = blocks.min(max_x);
@@ -470,18 +499,25 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             &passes,
             Some((offsets.buffer(), (rays + 1) * 4)),
         )?;
-        Ok((submitted, offsets))
+        Ok((
+            submitted,
+            CountedBand {
+                offsets,
+                slots,
+                budget,
+            },
+        ))
     }
 
     /// Submits the writing pass of `work`'s rows (from image row `row0`) into a buffer of
-    /// `bytes`, the part's supersegments, read with the band's `offsets`.
+    /// `bytes`, the part's supersegments, with the counted `band`'s offsets and slots.
     fn write(
         &self,
         camera: &Camera,
         r: u32,
         row0: u32,
         work: Work,
-        offsets: &Scratch<'_>,
+        band: &CountedBand<'_>,
         bytes: u64,
     ) -> Result<Submitted<'g>, GpuError> {
         let gpu = self.gpu;
@@ -493,7 +529,11 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         let out = gpu.bind_group(
             "write out",
             &gpu.kernels.generate_out_layout,
-            &[segments.binding(), offsets.binding()],
+            &[
+                segments.binding(),
+                band.offsets.binding(),
+                band.slots.binding(),
+            ],
         );
         let pass = Pass {
             label: "write supersegments",
@@ -503,6 +543,14 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         };
         gpu.submit("writing", &[pass], Some((segments.buffer(), bytes)))
     }
+}
+
+/// A counted band's buffers on the device: its `rays + 1` list offsets and its per-ray slots
+/// of `budget` supersegments each.
+struct CountedBand<'g> {
+    offsets: Scratch<'g>,
+    slots: Scratch<'g>,
+    budget: u32,
 }
 
 /// Appends a counted band's offsets (`bytes`: its `rays + 1` little-endian `u32`s, from 0)
@@ -529,10 +577,10 @@ fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<(), GpuError> 
     Ok(())
 }
 
-/// The parts a counted band's rows are written in, `(first row, end row)` within the band:
-/// about [`READ_PARTS`] parts of at least [`MIN_PART_BYTES`], each within one storage
-/// binding. `local` holds the band's `r · rows + 1` offsets; rows without supersegments are
-/// left out.
+/// The parts a counted band's rows are written in, `(first row, end row)` within the band,
+/// each as large as one storage binding allows (one on most devices: splitting a kernel into
+/// parts cost more on the H200 than overlapping their read-backs saved). `local` holds the
+/// band's `r · rows + 1` offsets; rows without supersegments are left out.
 ///
 /// # Errors
 /// [`GpuError::Limit`] when one row's supersegments exceed a binding.
@@ -540,10 +588,6 @@ fn write_parts(gpu: &Gpu, local: &[u32], r: u32) -> Result<Vec<(u32, u32)>, GpuE
     let rows = ((local.len() - 1) / r as usize) as u32;
     let at = |row: u32| u64::from(local[(row * r) as usize]) * SEGMENT_BYTES;
     let limit = gpu.max_storage_binding();
-    let target = (at(rows) - at(0))
-        .div_ceil(READ_PARTS)
-        .max(MIN_PART_BYTES)
-        .min(limit);
     let mut parts = Vec::new();
     let mut a = 0;
     while a < rows {
@@ -556,7 +600,7 @@ fn write_parts(gpu: &Gpu, local: &[u32], r: u32) -> Result<Vec<(u32, u32)>, GpuE
                 name: "max_storage_buffer_binding_size",
             });
         }
-        while b < rows && at(b + 1) - at(a) <= target {
+        while b < rows && at(b + 1) - at(a) <= limit {
             b += 1;
         }
         if at(b) > at(a) {
@@ -567,9 +611,9 @@ fn write_parts(gpu: &Gpu, local: &[u32], r: u32) -> Result<Vec<(u32, u32)>, GpuE
     Ok(parts)
 }
 /// An RGB image rendered in bands of rows whose output (12 bytes a pixel) fits one storage
-/// binding, about [`READ_PARTS`] of them of at least [`MIN_PART_BYTES`], each read back
-/// while the next runs: `submit(row0, rows, out)` submits a kernel writing the band into
-/// `out` with `out` as its output.
+/// binding (one band on most devices), each read back while the next runs:
+/// `submit(row0, rows, out)` submits a kernel writing the band into `out` with `out` as its
+/// output.
 pub(super) fn image_in_bands<'g>(
     gpu: &'g Gpu,
     width: u32,
@@ -577,19 +621,13 @@ pub(super) fn image_in_bands<'g>(
     what: &str,
     mut submit: impl FnMut(u32, u32, &Scratch<'g>) -> Result<Submitted<'g>, GpuError>,
 ) -> Result<KernelRun<Image>, GpuError> {
-    let row_bytes = u64::from(width) * 12;
-    let most = band_rows(gpu, width, 12, &format!("{what} image row"))?;
-    let part = u64::from(height)
-        .div_ceil(READ_PARTS)
-        .max(MIN_PART_BYTES.div_ceil(row_bytes))
-        .next_multiple_of(8);
-    let rows = most.min(part.min(u64::from(u32::MAX)) as u32);
+    let rows = band_rows(gpu, width, 12, &format!("{what} image row"))?;
     let mut image = Image::new(width, height);
     let bands = (0..height)
         .step_by(rows as usize)
         .map(|row0| (row0, rows.min(height - row0)));
     let pixels = image.pixels_mut();
-    let kernel_s = gpu.pipelined(
+    let time = gpu.pipelined(
         bands,
         |&(row0, n)| {
             let out = gpu.scratch(what, u64::from(width) * u64::from(n) * 12);
@@ -602,7 +640,7 @@ pub(super) fn image_in_bands<'g>(
     )?;
     Ok(KernelRun {
         value: image,
-        kernel_s,
+        kernel_s: time.seconds(gpu),
     })
 }
 

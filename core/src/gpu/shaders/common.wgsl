@@ -18,7 +18,7 @@ struct Params {
     cells: vec4<u32>,        // macro cells per axis, w their side in voxels
     image: vec4<u32>,        // width, height, first row of this band, work (0 DVR, 1 count, 2 write)
     band: vec4<u32>,         // rows in this band; generation: its first row within the counted
-                             // band, and the offset of its first supersegment
+                             // band, the offset of its first supersegment, per-ray slots
 };
 
 @group(0) @binding(0) var<uniform> P: Params;

@@ -1,13 +1,16 @@
 // VDI generation R (Sec. 3.2, 5.2): one invocation per ray of a band of rows of the r × r
 // generation image. Samples are merged front to back into the open supersegment until
-// ‖â·ĉ − a·c‖₂ ≥ γ (mirrors `vdi::generate`'s builder). Run twice over the same rays with the
-// same arithmetic: counting (work 1) stores each ray's number of supersegments in `offsets`,
-// `scan.wgsl` turns the counts into list offsets, and writing (work 2) stores each ray's
-// supersegments at its offset, less the band's first, in `segments`: the compact list layout,
-// with no per-ray slots to size and no copy between layouts.
+// ‖â·ĉ − a·c‖₂ ≥ γ (mirrors `vdi::generate`'s builder). Two passes over the same rays with
+// the same arithmetic make the compact list layout on the device:
+// - counting (work 1) stores each ray's number of supersegments in `offsets` and its first
+//   `budget` supersegments in its slots; `scan.wgsl` then turns the counts into offsets;
+// - writing (work 2) stores each ray's list at its offset, less the part's first, in
+//   `segments`: copied from its slots when they held it all, else marched again.
+// Only rays longer than the budget are marched twice; with a budget of 0 every ray is.
 
 @group(1) @binding(0) var<storage, read_write> segments: array<Segment>;
 @group(1) @binding(1) var<storage, read_write> offsets: array<u32>;
+@group(1) @binding(2) var<storage, read_write> slots: array<Segment>;
 
 struct Open {
     last_index: u32,
@@ -54,6 +57,20 @@ fn close(o: Open, z_per_t: f32) -> Segment {
         clamp(o.unit, 0.0, 1.0));
 }
 
+// Stores a ray's `n`-th supersegment: in writing at `*at` (below `end`), in counting in its
+// slot while `n` is within the budget.
+fn store(write: bool, at: ptr<function, u32>, end: u32, slot: u32, budget: u32, n: u32,
+         seg: Segment) {
+    if (write) {
+        if (*at < end) {
+            segments[*at] = seg;
+            *at += 1u;
+        }
+    } else if (n < budget) {
+        slots[slot] = seg;
+    }
+}
+
 @compute @workgroup_size(8, 8)
 fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = P.image.x;
@@ -66,11 +83,19 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // The ray's index within the counted band, and in writing its list's place in `segments`.
     let local = i + r * (row + P.band.y);
     let write = P.image.w == 2u;
+    let budget = P.band.w;
+    let slot = local * budget;
     var at = 0u;
     var end = 0u;
     if (write) {
         at = offsets[local] - P.band.z;
         end = offsets[local + 1u] - P.band.z;
+        if (end - at <= budget) {
+            for (var k = 0u; at + k < end; k++) {
+                segments[at + k] = slots[slot + k];
+            }
+            return;
+        }
     }
     let ray = pixel_ray(i, j);
     let z_per_t = dot(ray.dir, P.forward.xyz);
@@ -111,10 +136,7 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             o.unit_over_total = ratio(o.unit, o.total);
         } else {
             if (has_open) {
-                if (at < end) {
-                    segments[at] = close(o, z_per_t);
-                    at += 1u;
-                }
+                store(write, &at, end, slot + n, budget, n, close(o, z_per_t));
                 n += 1u;
             }
             o = open_new(s);
@@ -126,9 +148,7 @@ fn generate_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     if (has_open) {
-        if (at < end) {
-            segments[at] = close(o, z_per_t);
-        }
+        store(write, &at, end, slot + n, budget, n, close(o, z_per_t));
         n += 1u;
     }
     if (!write) {
