@@ -362,11 +362,10 @@ impl<'g, 'v> GpuScene<'g, 'v> {
         while row0 < r {
             let n = rows.min(r - row0);
             let (counting, band) = self.count(camera, r, params.gamma, row0, n)?;
-            let (appended, t) = counting.finish(|b| append_offsets(b, &mut offsets))?;
-            appended?;
+            let (most, t) = counting.finish(|b| append_offsets(b, &mut offsets))?;
+            let most = most?;
             time.add(t);
             let local = &offsets[offsets.len() - (r * n) as usize - 1..];
-            let most = local.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
             let next = most.checked_next_power_of_two().unwrap_or(most);
             self.budget
                 .fetch_max(next, std::sync::atomic::Ordering::Relaxed);
@@ -407,7 +406,8 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             row0 += n;
         }
         let meta = meta_for(self.raycaster, camera, params, tf_hash, tf_name);
-        let vdi = Vdi::from_parts(meta, offsets, supersegments).ok_or(GpuError::Limit {
+        // The offsets were checked as they were read back.
+        let vdi = Vdi::from_sorted_parts(meta, offsets, supersegments).ok_or(GpuError::Limit {
             what: "VDI list layout".into(),
             needed: 0,
             limit: 0,
@@ -554,18 +554,33 @@ struct CountedBand<'g> {
 }
 
 /// Appends a counted band's offsets (`bytes`: its `rays + 1` little-endian `u32`s, from 0)
-/// to `offsets`, shifted by the last offset there.
+/// to `offsets`, shifted by the last offset there, checking them as they go by; returns the
+/// longest list's length. One pass over the mapped bytes.
 ///
 /// # Errors
 /// [`GpuError::Limit`] when the VDI's supersegments exceed `u32::MAX` (the device's sums wrap,
 /// which shows as a decrease).
-fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<(), GpuError> {
-    let mut local = vec![0u32; bytes.len() / 4];
-    copy_from_le(bytes, &mut local);
+fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<u32, GpuError> {
+    let converted;
+    let words: &[u32] = match bytemuck::try_cast_slice(bytes) {
+        Ok(w) if cfg!(target_endian = "little") => w,
+        _ => {
+            let mut w = vec![0u32; bytes.len() / 4];
+            copy_from_le(bytes, &mut w);
+            converted = w;
+            &converted
+        }
+    };
     let base = offsets.last().copied().unwrap_or(0);
-    let wrapped = local.windows(2).any(|w| w[1] < w[0]);
-    let end = u64::from(base) + u64::from(local.last().copied().unwrap_or(0));
-    if wrapped || end > u64::from(u32::MAX) {
+    let (mut prev, mut most, mut wrapped) = (0u32, 0u32, false);
+    offsets.extend(words.iter().skip(1).map(|&o| {
+        wrapped |= o < prev;
+        most = most.max(o.wrapping_sub(prev));
+        prev = o;
+        base.wrapping_add(o)
+    }));
+    let end = u64::from(base) + u64::from(prev);
+    if wrapped || words.first().is_some_and(|&w| w != 0) || end > u64::from(u32::MAX) {
         return Err(GpuError::Limit {
             what: "supersegments in one VDI".into(),
             needed: end.max(u64::from(u32::MAX) + 1),
@@ -573,8 +588,7 @@ fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<(), GpuError> 
             name: "u32 offsets",
         });
     }
-    offsets.extend(local.iter().skip(1).map(|&o| base + o));
-    Ok(())
+    Ok(most)
 }
 
 /// The parts a counted band's rows are written in, `(first row, end row)` within the band,

@@ -271,11 +271,23 @@ impl Vdi {
         offsets: Vec<u32>,
         supersegments: Vec<Supersegment>,
     ) -> Option<Self> {
+        if !offsets.windows(2).all(|w| w[0] <= w[1]) {
+            return None;
+        }
+        Self::from_sorted_parts(meta, offsets, supersegments)
+    }
+
+    /// [`Self::from_parts`] for offsets the caller has already found non-decreasing (the GPU
+    /// path checks them as it reads them back); the other checks are made.
+    pub(crate) fn from_sorted_parts(
+        meta: VdiMeta,
+        offsets: Vec<u32>,
+        supersegments: Vec<Supersegment>,
+    ) -> Option<Self> {
         let r = meta.params.resolution as usize;
         let ok = offsets.len() == r * r + 1
             && offsets.first() == Some(&0)
-            && offsets.last().map(|&l| l as usize) == Some(supersegments.len())
-            && offsets.windows(2).all(|w| w[0] <= w[1]);
+            && offsets.last().map(|&l| l as usize) == Some(supersegments.len());
         ok.then_some(Self {
             meta,
             offsets,
