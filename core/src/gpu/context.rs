@@ -656,24 +656,29 @@ pub(super) fn le_bytes<T: bytemuck::Pod>(values: &[T]) -> Cow<'_, [u8]> {
     }
 }
 
-/// Bytes per piece of a parallel copy out of a mapping.
-const COPY_PIECE: usize = 1 << 20;
+/// Fewest bytes read out of a mapping on the worker threads rather than on the caller's.
+const PARALLEL_BYTES: usize = 1 << 20;
 
-/// Fills `out` from the little-endian bytes the kernels wrote (`bytes.len()` equal to
-/// `out`'s size in bytes): one copy on a little-endian host, in pieces on the worker threads
-/// when it is large (a fresh destination's pages fault in on every thread at once, and one
-/// core's copy bandwidth is a fraction of the memory's). `T` as for [`le_bytes`].
-pub(super) fn copy_from_le<T: bytemuck::Pod>(bytes: &[u8], out: &mut [T]) {
+/// Appends to `out` the values of the little-endian bytes the kernels wrote (a whole number
+/// of `T`), written straight into `out`'s new room: no zero-filling first (a freed image
+/// reused by the allocator would be cleared on one thread), and on the worker threads when
+/// large, so the mapping is read and fresh pages fault in on every core at once. `T` as for
+/// [`le_bytes`].
+pub(super) fn extend_from_le<T: bytemuck::Pod + Send + Sync>(bytes: &[u8], out: &mut Vec<T>) {
     use rayon::prelude::*;
-    let dst: &mut [u8] = bytemuck::cast_slice_mut(out);
-    if dst.len() > 4 * COPY_PIECE {
-        dst.par_chunks_mut(COPY_PIECE)
-            .zip(bytes.par_chunks(COPY_PIECE))
-            .for_each(|(d, s)| d.copy_from_slice(s));
+    let size = std::mem::size_of::<T>();
+    let value = |chunk: &[u8]| {
+        let mut v: T = bytemuck::pod_read_unaligned(chunk);
+        if cfg!(target_endian = "big") {
+            bytemuck::bytes_of_mut(&mut v)
+                .chunks_exact_mut(4)
+                .for_each(<[u8]>::reverse);
+        }
+        v
+    };
+    if bytes.len() >= PARALLEL_BYTES {
+        out.par_extend(bytes.par_chunks_exact(size).map(value));
     } else {
-        dst.copy_from_slice(bytes);
-    }
-    if cfg!(target_endian = "big") {
-        dst.chunks_exact_mut(4).for_each(<[u8]>::reverse);
+        out.extend(bytes.chunks_exact(size).map(value));
     }
 }

@@ -1,6 +1,6 @@
 //! A volume and transfer function uploaded to the GPU: reference DVR and VDI generation.
 
-use super::context::{copy_from_le, le_bytes, KernelTime, Pass, Scratch, Submitted, Uniform};
+use super::context::{extend_from_le, le_bytes, KernelTime, Pass, Scratch, Submitted, Uniform};
 use super::{Gpu, GpuError};
 use crate::camera::Camera;
 use crate::image::Image;
@@ -9,7 +9,7 @@ use crate::vdi::{generate::meta_for, Supersegment, Vdi, VdiParams};
 
 /// Bytes of one supersegment on the GPU (six `f32`, the layout of [`Supersegment`]).
 pub(super) const SEGMENT_BYTES: u64 = 24;
-// Read back and uploaded as they lie in memory (`le_bytes`, `copy_from_le`).
+// Read back and uploaded as they lie in memory (`le_bytes`, `extend_from_le`).
 const _: () = assert!(std::mem::size_of::<Supersegment>() == SEGMENT_BYTES as usize);
 /// Counts per workgroup of the prefix sum (`scan.wgsl`'s `BLOCK`).
 const SCAN_BLOCK: u64 = 1024;
@@ -372,14 +372,9 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             let band_first = local[0];
             let total = (local[local.len() - 1] - band_first) as usize;
             if total > 0 {
-                let start = supersegments.len();
-                if start == 0 {
-                    supersegments = bytemuck::zeroed_vec(total);
-                } else {
-                    supersegments.resize(start + total, Supersegment::default());
-                }
+                supersegments.reserve(total);
                 let parts = write_parts(gpu, local, r)?;
-                let out = &mut supersegments[start..];
+                // Parts are consumed in order, each appending its rows' lists.
                 let t = gpu.pipelined(
                     parts,
                     |&(a, b)| {
@@ -395,11 +390,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
                         let bytes = u64::from(last - first) * SEGMENT_BYTES;
                         self.write(camera, r, row0 + a, work, &band, bytes)
                     },
-                    |(a, b), bytes| {
-                        let first = (local[(a * r) as usize] - band_first) as usize;
-                        let last = (local[(b * r) as usize] - band_first) as usize;
-                        copy_from_le(bytes, &mut out[first..last]);
-                    },
+                    |_, bytes| extend_from_le(bytes, &mut supersegments),
                 )?;
                 time.add(t);
             }
@@ -554,33 +545,29 @@ struct CountedBand<'g> {
 }
 
 /// Appends a counted band's offsets (`bytes`: its `rays + 1` little-endian `u32`s, from 0)
-/// to `offsets`, shifted by the last offset there, checking them as they go by; returns the
-/// longest list's length. One pass over the mapped bytes.
+/// to `offsets`, shifted by the last offset there, and checks them; returns the longest
+/// list's length. Read out of the mapping once, on the worker threads.
 ///
 /// # Errors
 /// [`GpuError::Limit`] when the VDI's supersegments exceed `u32::MAX` (the device's sums wrap,
 /// which shows as a decrease).
 fn append_offsets(bytes: &[u8], offsets: &mut Vec<u32>) -> Result<u32, GpuError> {
-    let converted;
-    let words: &[u32] = match bytemuck::try_cast_slice(bytes) {
-        Ok(w) if cfg!(target_endian = "little") => w,
-        _ => {
-            let mut w = vec![0u32; bytes.len() / 4];
-            copy_from_le(bytes, &mut w);
-            converted = w;
-            &converted
-        }
-    };
+    use rayon::prelude::*;
+    let start = offsets.len();
     let base = offsets.last().copied().unwrap_or(0);
-    let (mut prev, mut most, mut wrapped) = (0u32, 0u32, false);
-    offsets.extend(words.iter().skip(1).map(|&o| {
-        wrapped |= o < prev;
-        most = most.max(o.wrapping_sub(prev));
-        prev = o;
-        base.wrapping_add(o)
-    }));
-    let end = u64::from(base) + u64::from(prev);
-    if wrapped || words.first().is_some_and(|&w| w != 0) || end > u64::from(u32::MAX) {
+    let first_is_zero = bytes.get(..4).is_some_and(|b| b == [0; 4]);
+    extend_from_le(bytes.get(4..).unwrap_or(&[]), offsets);
+    if base != 0 {
+        offsets[start..]
+            .par_iter_mut()
+            .for_each(|o| *o = o.wrapping_add(base));
+    }
+    let (wrapped, most) = offsets[start.saturating_sub(1)..]
+        .par_windows(2)
+        .map(|w| (w[1] < w[0], w[1].wrapping_sub(w[0])))
+        .reduce(|| (false, 0), |a, b| (a.0 | b.0, a.1.max(b.1)));
+    let end = u64::from(base) + u64::from(offsets[offsets.len() - 1].wrapping_sub(base));
+    if wrapped || !first_is_zero || end > u64::from(u32::MAX) {
         return Err(GpuError::Limit {
             what: "supersegments in one VDI".into(),
             needed: end.max(u64::from(u32::MAX) + 1),
@@ -636,22 +623,24 @@ pub(super) fn image_in_bands<'g>(
     mut submit: impl FnMut(u32, u32, &Scratch<'g>) -> Result<Submitted<'g>, GpuError>,
 ) -> Result<KernelRun<Image>, GpuError> {
     let rows = band_rows(gpu, width, 12, &format!("{what} image row"))?;
-    let mut image = Image::new(width, height);
     let bands = (0..height)
         .step_by(rows as usize)
         .map(|row0| (row0, rows.min(height - row0)));
-    let pixels = image.pixels_mut();
+    let expected = width as usize * height as usize;
+    let mut pixels: Vec<[f32; 3]> = Vec::with_capacity(expected);
+    // Bands are consumed in order, each appending its rows.
     let time = gpu.pipelined(
         bands,
         |&(row0, n)| {
             let out = gpu.scratch(what, u64::from(width) * u64::from(n) * 12);
             submit(row0, n, &out)
         },
-        |(row0, n), bytes| {
-            let start = (row0 * width) as usize;
-            copy_from_le(bytes, &mut pixels[start..start + (width * n) as usize]);
-        },
+        |_, bytes| extend_from_le(bytes, &mut pixels),
     )?;
+    let read = pixels.len();
+    let image = Image::from_pixels(width, height, pixels).ok_or_else(|| {
+        GpuError::Validation(format!("{what}: {read} of {expected} pixels read back"))
+    })?;
     Ok(KernelRun {
         value: image,
         kernel_s: time.seconds(gpu),
