@@ -69,9 +69,9 @@ fn march(raycaster: &Raycaster, frame: &ViewFrame, i: u32, j: u32) -> ([f32; 3],
 /// the top. Parallel over bands of `TILE` rows, each walked in `TILE × TILE` tiles (neighbouring
 /// rays, neighbouring voxels), written straight into the one output buffer: no per-tile
 /// allocation, so a large image costs one buffer, which goes back to the system when dropped
-/// (per-tile vectors spread over the worker threads' heaps used to stay resident after large
-/// renders). [`blocks`] with one pixel a block, written out: the DVR's per-pixel
-/// march was 10–15 % slower behind a block's buffer.
+/// (per-tile vectors spread over the worker threads' heaps would stay resident after large
+/// renders). [`blocks`] with one pixel a block, written out: the DVR's per-pixel march
+/// measures 10–15 % slower behind a block's buffer.
 pub(crate) fn tiles<P: Copy + Default + Send>(
     frame: &ViewFrame,
     shade: impl Fn(u32, u32) -> P + Sync,

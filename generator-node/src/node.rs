@@ -13,6 +13,7 @@ use crate::work;
 use insitu_core::backend::{BackendChoice, BackendError};
 use insitu_proto::health::Health;
 use insitu_proto::pb::generator_server::GeneratorServer;
+use insitu_proto::peer::Peer;
 use insitu_proto::security::{Security, SecurityError};
 use insitu_proto::transport;
 use std::net::SocketAddr;
@@ -155,13 +156,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         &cfg.tls,
         cfg.insecure,
     )?;
-    let viz = security.peer_for("viz", cfg.viz.as_deref())?;
-    let mut viz_shards: Vec<insitu_proto::peer::Peer> = viz.iter().cloned().collect();
-    for addr in &cfg.viz_shards {
-        if let Some(p) = security.peer_for("viz", Some(addr))? {
-            viz_shards.push(p);
-        }
-    }
+    let (viz, viz_shards) = viz_peers(&cfg, &security)?;
     let tuner_peer = security.peer_for("tuner", cfg.tuner.as_deref())?;
     let choice = cfg.backend;
     let backend = select_backend(choice).await?;
@@ -236,19 +231,9 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     let host =
         tokio::spawn(crate::outbox::host_steps(shared.clone()).instrument(info_span!("host")));
     requeue(&shared, recovered);
-    let shippers: Vec<_> = viz_shards
-        .into_iter()
-        .enumerate()
-        .map(|(k, viz)| {
-            let s = Shipper::new(viz, Duration::from_secs_f64(cfg.max_backoff_secs));
-            tokio::spawn(
-                s.run(shared.clone(), k)
-                    .instrument(info_span!("shipper", shard = k)),
-            )
-        })
-        .collect();
+    let backoff = Duration::from_secs_f64(cfg.max_backoff_secs);
+    let shippers = spawn_shippers(&shared, viz_shards, backoff);
     let tuner = tuner.map(|(peer, tuning, summaries)| {
-        let backoff = Duration::from_secs_f64(cfg.max_backoff_secs);
         let link =
             crate::tuner_link::Link::new(peer, backoff, format!("{addr}/{}", std::process::id()));
         let run = link.run(shared.clone(), tuning, summaries);
@@ -267,6 +252,40 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         tuner,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
+}
+
+/// The viz-node to ship to (`viz`) and every shard's, `viz` first.
+///
+/// # Errors
+/// [`StartError`] for an address that does not resolve or lacks its security.
+fn viz_peers(cfg: &Config, security: &Security) -> Result<(Option<Peer>, Vec<Peer>), StartError> {
+    let viz = security.peer_for("viz", cfg.viz.as_deref())?;
+    let mut shards: Vec<Peer> = viz.iter().cloned().collect();
+    for addr in &cfg.viz_shards {
+        if let Some(p) = security.peer_for("viz", Some(addr))? {
+            shards.push(p);
+        }
+    }
+    Ok((viz, shards))
+}
+
+/// One shipper a viz-node shard, each on its own task.
+fn spawn_shippers(
+    shared: &Arc<Shared>,
+    shards: Vec<Peer>,
+    backoff: Duration,
+) -> Vec<JoinHandle<()>> {
+    shards
+        .into_iter()
+        .enumerate()
+        .map(|(k, viz)| {
+            let s = Shipper::new(viz, backoff);
+            tokio::spawn(
+                s.run(shared.clone(), k)
+                    .instrument(info_span!("shipper", shard = k)),
+            )
+        })
+        .collect()
 }
 
 /// The gRPC service of `shared` (behind `security`'s token check, with the health service)

@@ -4,10 +4,9 @@
 //! into a field of an earlier step it costs none. A receive, the queue and the worker each
 //! hold a field while a simulation pushes back to back, so one spare is often not enough: the
 //! worker hands its field back while the next push is already being received into a fresh
-//! one, and the fields of steps the queue's policy drops (`latest-only`) used to be freed.
+//! one, and the fields of steps the queue's policy drops (`latest-only`) would be freed.
 //! [`SpareFields`] keeps a few, from generated and dropped steps alike. The node's resident
-//! memory therefore includes idle fields between pushes: one always (as before there were
-//! spares), a second only while both fit the byte bound the node gives (its queue's
+//! memory therefore includes idle fields between pushes: one always, a second only while both fit the byte bound the node gives (its queue's
 //! `max_bytes`, the memory the operator set aside for waiting steps), so that large bricks do
 //! not double what a node holds idle.
 

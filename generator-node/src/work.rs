@@ -223,35 +223,9 @@ pub fn run(
         let generated = match attempt {
             Attempt::Done(generated) => generated,
             Attempt::Stopped { spare: s, progress } => {
-                let limit = time_limit.unwrap_or(0.0);
                 retries = (retries.0 + 1, retries.1 + progress.seconds);
-                let over = |why| WorkError::OverTime {
-                    step: info.step,
-                    spent: retries.1,
-                    limit,
-                    r: params.resolution,
-                    gamma: params.gamma,
-                    why,
-                };
-                if !can_retry {
-                    return Err(over(if one_rank {
-                        "no retry left"
-                    } else {
-                        "the ranks of a step share r"
-                    }));
-                }
-                let next = faster(params, progress, limit - retries.1, one_rank)
-                    .ok_or_else(|| over("no resolution fits the time left"))?;
-                tracing::info!(
-                    step = info.step,
-                    done = progress.done,
-                    seconds = progress.seconds,
-                    setup = progress.setup,
-                    limit,
-                    r = next.resolution,
-                    "τ would overrun the hard limit: made again at a lower resolution"
-                );
-                params = next;
+                let limit = time_limit.unwrap_or(0.0);
+                params = after_overrun(info, params, progress, (limit, retries.1), can_retry)?;
                 spare = Some(s);
                 continue;
             }
@@ -323,39 +297,15 @@ pub fn run(
             continue 'generate;
         }
     };
-    let vdi = &generated.value;
-    let references = if with_references {
-        Some(references(&scene, &camera, raw, gen)?)
-    } else {
-        None
-    };
-    // Every field named: a field added to the header is a compile error here until it is set.
+    let references = with_references
+        .then(|| references(&scene, &camera, raw, gen))
+        .transpose()?;
+    let taus = (tau_secs, tau_compress_secs);
+    let vdi_header = header(backend, raw, gen, tf, &generated, (params, &file), taus);
     let product = Product {
         vdi_header: pb::VdiHeader {
-            step: info.step,
-            sim_time: info.sim_time,
-            rank: info.rank,
-            world_size: info.world_size,
-            resolution: params.resolution,
-            gamma: params.gamma,
-            codec: codec_to_pb(gen.codec) as i32,
-            total_bytes: file.len() as u64,
-            supersegments: vdi.supersegments().len() as u64,
-            tau_secs,
-            tau_compress_secs,
-            tf_hash,
-            tf_name: tf.1.clone(),
-            // A few hundred bytes beside a VDI of kilobytes to megabytes.
-            tf_json: serde_json::to_string(&tf.0).unwrap_or_default(),
-            tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
-            backend: backend.describe(),
-            pm_version: gen.pm_version,
-            global_dims: Some(dims_to_pb(info.global_dims)),
-            brick_offset: Some(dims_to_pb(info.brick_offset)),
-            brick_dims: Some(dims_to_pb(info.brick_dims)),
             with_references: references.is_some(),
-            covers: Vec::new(),
-            scene_version: gen.scene_version,
+            ..vdi_header
         },
         vdi: Bytes::from(file),
         references,
@@ -363,6 +313,90 @@ pub fn run(
         limit_retries: retries,
     };
     Ok((product, generated.value))
+}
+
+/// The P_M to make `info`'s step again with after a generation stopped at `progress` because
+/// τ would overrun the hard limit: `(limit, spent)` seconds, `spent` by every try so far.
+///
+/// # Errors
+/// [`WorkError::OverTime`] when no retry is left (or the ranks of a step share r) or no
+/// resolution fits the time left.
+fn after_overrun(
+    info: &StepInfo,
+    params: VdiParams,
+    progress: Progress,
+    (limit, spent): (f64, f64),
+    can_retry: bool,
+) -> Result<VdiParams, WorkError> {
+    let one_rank = info.world_size <= 1;
+    let over = |why| WorkError::OverTime {
+        step: info.step,
+        spent,
+        limit,
+        r: params.resolution,
+        gamma: params.gamma,
+        why,
+    };
+    if !can_retry {
+        return Err(over(if one_rank {
+            "no retry left"
+        } else {
+            "the ranks of a step share r"
+        }));
+    }
+    let next = faster(params, progress, limit - spent, one_rank)
+        .ok_or_else(|| over("no resolution fits the time left"))?;
+    tracing::info!(
+        step = info.step,
+        done = progress.done,
+        seconds = progress.seconds,
+        setup = progress.setup,
+        limit,
+        r = next.resolution,
+        "τ would overrun the hard limit: made again at a lower resolution"
+    );
+    Ok(next)
+}
+
+/// The header of the VDI `file` made of `raw` at `params`: τ and τ_compress as `taus`, no
+/// reference frames.
+fn header(
+    backend: &Backend,
+    raw: &RawStep,
+    gen: &Generation,
+    tf: &(TransferFunction, String),
+    generated: &insitu_core::backend::Timed<Vdi>,
+    (params, file): (VdiParams, &[u8]),
+    (tau_secs, tau_compress_secs): (f64, f64),
+) -> pb::VdiHeader {
+    let info = &raw.info;
+    // Every field named: a field added to the header is a compile error here until it is set.
+    pb::VdiHeader {
+        step: info.step,
+        sim_time: info.sim_time,
+        rank: info.rank,
+        world_size: info.world_size,
+        resolution: params.resolution,
+        gamma: params.gamma,
+        codec: codec_to_pb(gen.codec) as i32,
+        total_bytes: file.len() as u64,
+        supersegments: generated.value.supersegments().len() as u64,
+        tau_secs,
+        tau_compress_secs,
+        tf_hash: tf.0.identity_hash(),
+        tf_name: tf.1.clone(),
+        // A few hundred bytes beside a VDI of kilobytes to megabytes.
+        tf_json: serde_json::to_string(&tf.0).unwrap_or_default(),
+        tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
+        backend: backend.describe(),
+        pm_version: gen.pm_version,
+        global_dims: Some(dims_to_pb(info.global_dims)),
+        brick_offset: Some(dims_to_pb(info.brick_offset)),
+        brick_dims: Some(dims_to_pb(info.brick_dims)),
+        with_references: false,
+        covers: Vec::new(),
+        scene_version: gen.scene_version,
+    }
 }
 
 /// Where the VDI of `info`'s step and rank comes from, as its file carries it.

@@ -1,6 +1,6 @@
 //! HTTP/2 settings for bulk transfers and per-message limits.
 //!
-//! Default windows cap loopback at 185–320 MB/s (STACK.md). With the field converted as it
+//! Default windows cap loopback at 185–320 MB/s. With the field converted as it
 //! arrives (the generator-node's receive), the windows were the limit again: pushes of 64 MiB
 //! steps (`cargo bench -p insitu-e2e --bench pipeline`, 2-core VM) ran at 0.74–0.79 GB/s with
 //! 16 MiB stream / 32 MiB connection windows, 0.87–0.95 GB/s with 32 / 64 MiB and no better

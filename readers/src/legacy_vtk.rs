@@ -61,6 +61,58 @@ impl<'a> Words<'a> {
     }
 }
 
+/// A `SCALARS` array whose keyword `w` has just read: its name, type and where its values
+/// start; `w` is left past them. `count` is the `POINT_DATA` count read before it.
+///
+/// # Errors
+/// [`ReadError`] naming the file and the array: an unknown type, several components, no
+/// `LOOKUP_TABLE` line, no `POINT_DATA` before it, or values cut short.
+fn scalars(
+    path: &Path,
+    w: &mut Words,
+    count: Option<usize>,
+    binary: bool,
+) -> Result<(String, Sample, usize), ReadError> {
+    let bad = |m: String| ReadError::invalid(path, m);
+    let name = w.next().unwrap_or_default().to_owned();
+    let t = w.next().unwrap_or_default();
+    let sample =
+        sample_type(t).ok_or_else(|| bad(format!("SCALARS {name}: unknown type {t:?}")))?;
+    // An optional component count, then LOOKUP_TABLE on its own line.
+    let mut next = w.next();
+    if let Some(c) = next.filter(|c| c.parse::<u32>().is_ok()) {
+        if c != "1" {
+            return Err(bad(format!("SCALARS {name}: {c} components (one is read)")));
+        }
+        next = w.next();
+    }
+    if next == Some("LOOKUP_TABLE") {
+        w.next();
+    } else {
+        return Err(bad(format!("SCALARS {name}: no LOOKUP_TABLE line")));
+    }
+    w.end_line();
+    let n = count.ok_or_else(|| bad("SCALARS before POINT_DATA".into()))?;
+    let start = w.pos;
+    // Past the array.
+    if binary {
+        let len = n
+            .checked_mul(sample.size())
+            .ok_or_else(|| bad("array size overflows".into()))?;
+        w.pos = w
+            .pos
+            .checked_add(len)
+            .filter(|&p| p <= w.bytes.len())
+            .ok_or_else(|| bad(format!("truncated: SCALARS {name} needs {len} bytes")))?;
+    } else {
+        for k in 0..n {
+            w.next()
+                .ok_or_else(|| bad(format!("truncated: SCALARS {name} has {k} of {n} values")))?;
+        }
+    }
+    Ok((name, sample, start))
+}
+
 /// Opens a legacy VTK structured-points file, choosing `options.field`.
 ///
 /// # Errors
@@ -127,47 +179,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
                 count = Some(n as usize);
             }
             "CELL_DATA" => return Err(bad("CELL_DATA: only point data is read".into())),
-            "SCALARS" => {
-                let name = w.next().unwrap_or_default().to_owned();
-                let t = w.next().unwrap_or_default();
-                let sample = sample_type(t)
-                    .ok_or_else(|| bad(format!("SCALARS {name}: unknown type {t:?}")))?;
-                // An optional component count, then LOOKUP_TABLE on its own line.
-                let mut next = w.next();
-                if let Some(c) = next.filter(|c| c.parse::<u32>().is_ok()) {
-                    if c != "1" {
-                        return Err(bad(format!("SCALARS {name}: {c} components (one is read)")));
-                    }
-                    next = w.next();
-                }
-                if next == Some("LOOKUP_TABLE") {
-                    w.next();
-                } else {
-                    return Err(bad(format!("SCALARS {name}: no LOOKUP_TABLE line")));
-                }
-                w.end_line();
-                let n = count.ok_or_else(|| bad("SCALARS before POINT_DATA".into()))?;
-                arrays.push((name.clone(), sample, w.pos));
-                // Past the array.
-                if binary {
-                    let len = n
-                        .checked_mul(sample.size())
-                        .ok_or_else(|| bad("array size overflows".into()))?;
-                    w.pos = w
-                        .pos
-                        .checked_add(len)
-                        .filter(|&p| p <= bytes.len())
-                        .ok_or_else(|| {
-                            bad(format!("truncated: SCALARS {name} needs {len} bytes"))
-                        })?;
-                } else {
-                    for k in 0..n {
-                        w.next().ok_or_else(|| {
-                            bad(format!("truncated: SCALARS {name} has {k} of {n} values"))
-                        })?;
-                    }
-                }
-            }
+            "SCALARS" => arrays.push(scalars(path, &mut w, count, binary)?),
             "VECTORS"
             | "METADATA"
             | "NORMALS"
@@ -190,15 +202,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         )));
     }
     let names: Vec<String> = arrays.iter().map(|a| a.0.clone()).collect();
-    let chosen = match &options.field {
-        Some(f) => arrays
-            .iter()
-            .find(|a| &a.0 == f)
-            .ok_or_else(|| bad(format!("no array {f:?}; arrays here: {}", names.join(", "))))?,
-        None => arrays
-            .first()
-            .ok_or_else(|| bad("no SCALARS array".into()))?,
-    };
+    let chosen = &arrays[crate::chosen(path, &names, options.field.as_deref(), "array")?];
     Ok(Dataset {
         path: path.to_owned(),
         dims,

@@ -336,6 +336,30 @@ pub(crate) fn numbers(
     Ok(v)
 }
 
+/// Which of `names` (a file's fields, in order) to read: `wanted`, else the first. `what` is
+/// the fields' kind as the error names it ("point-data array", "SCALARS array").
+///
+/// # Errors
+/// [`ReadError`] naming the file: `wanted` is not among `names` (which it lists), or there is
+/// no field at all.
+pub(crate) fn chosen(
+    path: &Path,
+    names: &[String],
+    wanted: Option<&str>,
+    what: &str,
+) -> Result<usize, ReadError> {
+    match wanted {
+        Some(f) => names.iter().position(|n| n == f).ok_or_else(|| {
+            ReadError::invalid(
+                path,
+                format!("no {what} {f:?}; {what}s here: {}", names.join(", ")),
+            )
+        }),
+        None if names.is_empty() => Err(ReadError::invalid(path, format!("no {what}"))),
+        None => Ok(0),
+    }
+}
+
 /// `dims` multiplied out, or an error naming them when the count overflows.
 pub(crate) fn samples(path: &Path, dims: &[usize]) -> Result<usize, ReadError> {
     dims.iter()

@@ -153,29 +153,15 @@ impl Header<'_> {
     }
 }
 
-/// Opens a NetCDF classic file, choosing `options.field` (else the first variable of three or
-/// four dimensions that is not a coordinate).
+/// The header of a classic file in `head`: the record count, the dimensions and the numeric
+/// variables (character variables left out).
 ///
 /// # Errors
-/// [`ReadError`] naming the file: not a classic NetCDF file (a netCDF-4/HDF5 one is named as
-/// such), a truncated header, an unknown or absent variable, a variable of other than three
-/// or four dimensions, non-numeric data.
-pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    let mut file = crate::open_file(path)?;
-    let len = file.metadata().map_err(ReadError::io(path))?.len();
-    let mut head = Vec::new();
-    (&mut file)
-        .take(len.min(MAX_HEADER))
-        .read_to_end(&mut head)
-        .map_err(ReadError::io(path))?;
-    if head.starts_with(b"\x89HDF") {
-        return Err(ReadError::invalid(
-            path,
-            "a netCDF-4 (HDF5) file: this build reads NetCDF classic (CDF-1, 2, 5) only",
-        ));
-    }
+/// [`ReadError`] naming the file: no CDF magic, an unknown version, a truncated header, a
+/// dimension id out of range, an unknown type.
+fn parse_header(path: &Path, head: &[u8]) -> Result<(u64, Vec<Dim>, Vec<Var>), ReadError> {
     let mut h = Header {
-        c: Cursor::new(path, &head),
+        c: Cursor::new(path, head),
         path,
         wide: false,
         long_offsets: false,
@@ -241,29 +227,23 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
             });
         }
     }
-    // A record's size: every record variable's slab, padded to 4 bytes unless it is the only one.
-    let is_record = |v: &Var| v.dims.first().is_some_and(|&d| dims[d].len == 0);
-    let slab = |v: &Var| -> u64 {
-        v.dims
-            .iter()
-            .skip(usize::from(is_record(v)))
-            .map(|&d| dims[d].len)
-            .product::<u64>()
-            .saturating_mul(v.sample.size() as u64)
-    };
-    let record_vars: Vec<&Var> = vars.iter().filter(|v| is_record(v)).collect();
-    let recsize: u64 = if record_vars.len() == 1 {
-        slab(record_vars[0])
-    } else {
-        record_vars.iter().map(|v| slab(v).div_ceil(4) * 4).sum()
-    };
-    let is_coord = |v: &Var| v.dims.len() == 1 && dims[v.dims[0]].name == v.name;
-    let volumes: Vec<&Var> = vars
-        .iter()
-        .filter(|v| (3..=4).contains(&v.dims.len()) && !is_coord(v))
-        .collect();
-    let var = match &options.field {
-        Some(name) => vars.iter().find(|v| &v.name == name).ok_or_else(|| {
+    Ok((numrecs, dims, vars))
+}
+
+/// The variable to read: `field`, else the first of `volumes` (those of three or four
+/// dimensions that are not coordinates).
+///
+/// # Errors
+/// [`ReadError`] naming the file: no such variable (the volumes listed), none of three or four
+/// dimensions, or the one named has another number of dimensions.
+fn choose<'v>(
+    path: &Path,
+    vars: &'v [Var],
+    volumes: &[&'v Var],
+    field: Option<&str>,
+) -> Result<&'v Var, ReadError> {
+    let var = match field {
+        Some(name) => vars.iter().find(|v| v.name == name).ok_or_else(|| {
             ReadError::invalid(
                 path,
                 format!(
@@ -291,6 +271,92 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
             ),
         ));
     }
+    Ok(var)
+}
+
+/// The grid's axes, x first, each with its coordinate variable's values where the file has
+/// one (`cv` named as its dimension).
+///
+/// # Errors
+/// [`ReadError`] naming the file when a coordinate variable cannot be read.
+fn axes(
+    file: &mut std::fs::File,
+    path: &Path,
+    (vars, dims): (&[Var], &[Dim]),
+    var: &Var,
+    file_dims: [usize; 3],
+) -> Result<[Axis; 3], ReadError> {
+    let k = var.dims.len();
+    let is_coord = |v: &Var| v.dims.len() == 1 && dims[v.dims[0]].name == v.name;
+    // The axes from the coordinate variables, x first.
+    let mut axes = Vec::with_capacity(3);
+    for (a, &n) in file_dims.iter().enumerate() {
+        let d = var.dims[k - 1 - a];
+        let coordinate = match vars.iter().find(|v| is_coord(v) && v.dims[0] == d) {
+            Some(cv) => Some(Coordinate {
+                name: cv.name.clone(),
+                values: read_coords(file, path, cv, n)?,
+                units: cv
+                    .attrs
+                    .iter()
+                    .find(|a| a.name == "units")
+                    .and_then(|a| a.text.clone()),
+            }),
+            None => None,
+        };
+        axes.push(Axis {
+            dim: dims[d].name.clone(),
+            coordinate,
+        });
+    }
+    axes.try_into()
+        .map_err(|_| ReadError::invalid(path, "three axes"))
+}
+
+/// Opens a NetCDF classic file, choosing `options.field` (else the first variable of three or
+/// four dimensions that is not a coordinate).
+///
+/// # Errors
+/// [`ReadError`] naming the file: not a classic NetCDF file (a netCDF-4/HDF5 one is named as
+/// such), a truncated header, an unknown or absent variable, a variable of other than three
+/// or four dimensions, non-numeric data.
+pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    let mut file = crate::open_file(path)?;
+    let len = file.metadata().map_err(ReadError::io(path))?.len();
+    let mut head = Vec::new();
+    (&mut file)
+        .take(len.min(MAX_HEADER))
+        .read_to_end(&mut head)
+        .map_err(ReadError::io(path))?;
+    if head.starts_with(b"\x89HDF") {
+        return Err(ReadError::invalid(
+            path,
+            "a netCDF-4 (HDF5) file: this build reads NetCDF classic (CDF-1, 2, 5) only",
+        ));
+    }
+    let (numrecs, dims, vars) = parse_header(path, &head)?;
+    // A record's size: every record variable's slab, padded to 4 bytes unless it is the only one.
+    let is_record = |v: &Var| v.dims.first().is_some_and(|&d| dims[d].len == 0);
+    let slab = |v: &Var| -> u64 {
+        v.dims
+            .iter()
+            .skip(usize::from(is_record(v)))
+            .map(|&d| dims[d].len)
+            .product::<u64>()
+            .saturating_mul(v.sample.size() as u64)
+    };
+    let record_vars: Vec<&Var> = vars.iter().filter(|v| is_record(v)).collect();
+    let recsize: u64 = if record_vars.len() == 1 {
+        slab(record_vars[0])
+    } else {
+        record_vars.iter().map(|v| slab(v).div_ceil(4) * 4).sum()
+    };
+    let is_coord = |v: &Var| v.dims.len() == 1 && dims[v.dims[0]].name == v.name;
+    let volumes: Vec<&Var> = vars
+        .iter()
+        .filter(|v| (3..=4).contains(&v.dims.len()) && !is_coord(v))
+        .collect();
+    let var = choose(path, &vars, &volumes, options.field.as_deref())?;
     let len_of = |d: usize| -> u64 {
         if dims[d].len == 0 {
             numrecs
@@ -339,30 +405,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         },
         var.sample,
     );
-    // The axes from the coordinate variables, x first.
-    let mut axes = Vec::with_capacity(3);
-    for (a, &n) in file_dims.iter().enumerate() {
-        let d = var.dims[k - 1 - a];
-        let coordinate = match vars.iter().find(|v| is_coord(v) && v.dims[0] == d) {
-            Some(cv) => Some(Coordinate {
-                name: cv.name.clone(),
-                values: read_coords(&mut file, path, cv, n)?,
-                units: cv
-                    .attrs
-                    .iter()
-                    .find(|a| a.name == "units")
-                    .and_then(|a| a.text.clone()),
-            }),
-            None => None,
-        };
-        axes.push(Axis {
-            dim: dims[d].name.clone(),
-            coordinate,
-        });
-    }
-    let axes: [Axis; 3] = axes
-        .try_into()
-        .map_err(|_| ReadError::invalid(path, "three axes"))?;
+    let axes = axes(&mut file, path, (&vars, &dims), var, file_dims)?;
     let grid = cf::grid(
         path,
         file_dims,

@@ -70,25 +70,12 @@ fn vectors(path: &Path, text: &str) -> Result<Vec<[f64; 3]>, ReadError> {
         .collect()
 }
 
-/// Opens an NRRD file (`.nrrd`, or a detached `.nhdr`).
+/// The header's `field: value` lines (keys lower-cased; comments skipped) and where the
+/// header ends: at the first empty line, or the end of `head` (a detached header).
 ///
 /// # Errors
-/// [`ReadError`] naming the file: no `NRRD` magic, a missing or unknown field, other than
-/// three dimensions, an encoding other than raw or gzip, axes that are not axis-aligned.
-pub fn open(path: &Path) -> Result<Dataset, ReadError> {
-    let mut file = crate::open_file(path)?;
-    let mut head = Vec::new();
-    (&mut file)
-        .take(MAX_HEADER as u64)
-        .read_to_end(&mut head)
-        .map_err(ReadError::io(path))?;
-    if !head.starts_with(b"NRRD000") {
-        return Err(ReadError::invalid(
-            path,
-            "not an NRRD file (no NRRD000x magic)",
-        ));
-    }
-    // The header ends at the first empty line (or the end of a detached header).
+/// [`ReadError`] naming the file and a line that is not `field: value`.
+fn header_fields(path: &Path, head: &[u8]) -> Result<(Vec<(String, String)>, usize), ReadError> {
     let mut end = head.len();
     let mut fields = Vec::new();
     let mut pos = 0;
@@ -120,6 +107,71 @@ pub fn open(path: &Path) -> Result<Dataset, ReadError> {
             })?;
         fields.push((key.trim().to_ascii_lowercase(), value.trim().to_owned()));
     }
+    Ok((fields, end))
+}
+
+/// The grid spacing from the `space directions` field (axis-aligned and positive), else the
+/// `spacings` field, else 1 on every axis.
+///
+/// # Errors
+/// [`ReadError`] naming the file and the field: not three vectors or numbers, or a rotated
+/// or flipped grid.
+fn spacing_of(
+    path: &Path,
+    directions: Option<&str>,
+    spacings: Option<&str>,
+) -> Result<[f64; 3], ReadError> {
+    let mut spacing = [1.0f64; 3];
+    if let Some(dirs) = directions {
+        let v = vectors(path, dirs)?;
+        if v.len() != 3 {
+            return Err(ReadError::invalid(
+                path,
+                format!("space directions {dirs:?}: need three vectors"),
+            ));
+        }
+        for (a, d) in v.iter().enumerate() {
+            let off_axis = (0..3).any(|k| k != a && d[k] != 0.0);
+            if off_axis || d[a].partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return Err(ReadError::invalid(
+                    path,
+                    format!("space directions {dirs:?} are not axis-aligned and positive: rotated or flipped grids are not read"),
+                ));
+            }
+            spacing[a] = d[a];
+        }
+    } else if let Some(s) = spacings {
+        let v: Vec<f64> = s
+            .split_whitespace()
+            .map(str::parse)
+            .collect::<Result<_, _>>()
+            .map_err(|_| ReadError::invalid(path, format!("spacings {s:?} are not numbers")))?;
+        spacing = v
+            .try_into()
+            .map_err(|_| ReadError::invalid(path, "spacings must give three numbers"))?;
+    }
+    Ok(spacing)
+}
+
+/// Opens an NRRD file (`.nrrd`, or a detached `.nhdr`).
+///
+/// # Errors
+/// [`ReadError`] naming the file: no `NRRD` magic, a missing or unknown field, other than
+/// three dimensions, an encoding other than raw or gzip, axes that are not axis-aligned.
+pub fn open(path: &Path) -> Result<Dataset, ReadError> {
+    let mut file = crate::open_file(path)?;
+    let mut head = Vec::new();
+    (&mut file)
+        .take(MAX_HEADER as u64)
+        .read_to_end(&mut head)
+        .map_err(ReadError::io(path))?;
+    if !head.starts_with(b"NRRD000") {
+        return Err(ReadError::invalid(
+            path,
+            "not an NRRD file (no NRRD000x magic)",
+        ));
+    }
+    let (fields, end) = header_fields(path, &head)?;
     let get = |k: &str| fields.iter().find(|(f, _)| f == k).map(|(_, v)| v.as_str());
     let need = |k: &str| get(k).ok_or_else(|| ReadError::invalid(path, format!("no {k:?} field")));
     let sample = sample_type(need("type")?)
@@ -163,35 +215,7 @@ pub fn open(path: &Path) -> Result<Dataset, ReadError> {
             ))
         }
     };
-    let mut spacing = [1.0f64; 3];
-    if let Some(dirs) = get("space directions") {
-        let v = vectors(path, dirs)?;
-        if v.len() != 3 {
-            return Err(ReadError::invalid(
-                path,
-                format!("space directions {dirs:?}: need three vectors"),
-            ));
-        }
-        for (a, d) in v.iter().enumerate() {
-            let off_axis = (0..3).any(|k| k != a && d[k] != 0.0);
-            if off_axis || d[a].partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                return Err(ReadError::invalid(
-                    path,
-                    format!("space directions {dirs:?} are not axis-aligned and positive: rotated or flipped grids are not read"),
-                ));
-            }
-            spacing[a] = d[a];
-        }
-    } else if let Some(s) = get("spacings") {
-        let v: Vec<f64> = s
-            .split_whitespace()
-            .map(str::parse)
-            .collect::<Result<_, _>>()
-            .map_err(|_| ReadError::invalid(path, format!("spacings {s:?} are not numbers")))?;
-        spacing = v
-            .try_into()
-            .map_err(|_| ReadError::invalid(path, "spacings must give three numbers"))?;
-    }
+    let spacing = spacing_of(path, get("space directions"), get("spacings"))?;
     let origin = match get("space origin") {
         Some(o) => match vectors(path, o)?.as_slice() {
             [v] => *v,

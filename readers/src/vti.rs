@@ -9,7 +9,7 @@
 //! size][compressed size per block][blocks…]`, each header word of `header_type`.
 
 use crate::bytes::{Endian, Sample, Samples};
-use crate::{check_grid, numbers, samples, Dataset, Options, ReadError, Source};
+use crate::{check_grid, chosen, numbers, samples, Dataset, Options, ReadError, Source};
 use base64::Engine as _;
 use glam::Vec3;
 use insitu_core::Volume;
@@ -76,6 +76,81 @@ fn attr(e: &BytesStart, key: &str) -> Option<String> {
         .and_then(|a| a.unescape_value().ok().map(|v| v.into_owned()))
 }
 
+/// The `VTKFile` element's byte order, header width and compression.
+///
+/// # Errors
+/// [`ReadError`] naming the file for another dataset type or an unknown compressor.
+fn file_attributes(path: &Path, e: &BytesStart) -> Result<(Endian, bool, bool), ReadError> {
+    let bad = |m: String| ReadError::invalid(path, m);
+    let kind = attr(e, "type").unwrap_or_default();
+    if kind != "ImageData" {
+        return Err(bad(format!("a VTK {kind:?} file: only ImageData is read")));
+    }
+    let endian = match attr(e, "byte_order").as_deref() {
+        Some("BigEndian") => Endian::Big,
+        _ => Endian::Little,
+    };
+    let wide_header = attr(e, "header_type").as_deref() == Some("UInt64");
+    let zlib = match attr(e, "compressor").as_deref() {
+        None | Some("") => false,
+        Some("vtkZLibDataCompressor") => true,
+        Some(other) => return Err(bad(format!("compressor {other}: only zlib is read"))),
+    };
+    Ok((endian, wide_header, zlib))
+}
+
+/// An `ImageData` element's whole extent, and its origin and spacing where it gives them.
+type ImageGrid = (Vec<f64>, Option<Vec3>, Option<Vec3>);
+
+/// The `ImageData` element's [`ImageGrid`].
+///
+/// # Errors
+/// [`ReadError`] naming the file for a missing extent, bad numbers or a rotated grid.
+fn image_data(path: &Path, e: &BytesStart) -> Result<ImageGrid, ReadError> {
+    let bad = |m: String| ReadError::invalid(path, m);
+    let ext = attr(e, "WholeExtent").ok_or_else(|| bad("ImageData has no WholeExtent".into()))?;
+    let extent = numbers(path, "WholeExtent", &ext, 6)?;
+    let triple = |name: &str| -> Result<Option<Vec3>, ReadError> {
+        attr(e, name)
+            .map(|o| {
+                let v = numbers(path, name, &o, 3)?;
+                Ok(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+            })
+            .transpose()
+    };
+    let (origin, spacing) = (triple("Origin")?, triple("Spacing")?);
+    if let Some(d) = attr(e, "Direction") {
+        let v = numbers(path, "Direction", &d, 9)?;
+        if v != [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] {
+            return Err(bad(format!(
+                "Direction {d:?}: only axis-aligned grids (the identity) are read"
+            )));
+        }
+    }
+    Ok((extent, origin, spacing))
+}
+
+/// A point-data `DataArray` element, its text not read yet.
+///
+/// # Errors
+/// [`ReadError`] naming the file and the array for an unknown type.
+fn data_array(path: &Path, e: &BytesStart) -> Result<Array, ReadError> {
+    let name = attr(e, "Name").unwrap_or_default();
+    let t = attr(e, "type").unwrap_or_default();
+    let sample = sample_type(&t)
+        .ok_or_else(|| ReadError::invalid(path, format!("array {name}: unknown type {t:?}")))?;
+    Ok(Array {
+        name,
+        sample,
+        components: attr(e, "NumberOfComponents")
+            .and_then(|c| c.parse().ok())
+            .unwrap_or(1),
+        format: attr(e, "format").unwrap_or_else(|| "ascii".into()),
+        offset: attr(e, "offset").and_then(|o| o.parse().ok()),
+        text: String::new(),
+    })
+}
+
 /// Opens a `.vti` file, choosing `options.field`.
 ///
 /// # Errors
@@ -102,44 +177,12 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         };
         match &event {
             Event::Start(e) | Event::Empty(e) => match e.name().as_ref() {
-                b"VTKFile" => {
-                    let kind = attr(e, "type").unwrap_or_default();
-                    if kind != "ImageData" {
-                        return Err(bad(format!("a VTK {kind:?} file: only ImageData is read")));
-                    }
-                    endian = match attr(e, "byte_order").as_deref() {
-                        Some("BigEndian") => Endian::Big,
-                        _ => Endian::Little,
-                    };
-                    wide_header = attr(e, "header_type").as_deref() == Some("UInt64");
-                    zlib = match attr(e, "compressor").as_deref() {
-                        None | Some("") => false,
-                        Some("vtkZLibDataCompressor") => true,
-                        Some(other) => {
-                            return Err(bad(format!("compressor {other}: only zlib is read")))
-                        }
-                    };
-                }
+                b"VTKFile" => (endian, wide_header, zlib) = file_attributes(path, e)?,
                 b"ImageData" => {
-                    let ext = attr(e, "WholeExtent")
-                        .ok_or_else(|| bad("ImageData has no WholeExtent".into()))?;
-                    extent = Some(numbers(path, "WholeExtent", &ext, 6)?);
-                    if let Some(o) = attr(e, "Origin") {
-                        let v = numbers(path, "Origin", &o, 3)?;
-                        origin = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
-                    }
-                    if let Some(s) = attr(e, "Spacing") {
-                        let v = numbers(path, "Spacing", &s, 3)?;
-                        spacing = Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32);
-                    }
-                    if let Some(d) = attr(e, "Direction") {
-                        let v = numbers(path, "Direction", &d, 9)?;
-                        if v != [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] {
-                            return Err(bad(format!(
-                                "Direction {d:?}: only axis-aligned grids (the identity) are read"
-                            )));
-                        }
-                    }
+                    let grid = image_data(path, e)?;
+                    extent = Some(grid.0);
+                    origin = grid.1.unwrap_or(origin);
+                    spacing = grid.2.unwrap_or(spacing);
                 }
                 b"Piece" => {
                     pieces += 1;
@@ -157,20 +200,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
                     active = attr(e, "Scalars");
                 }
                 b"DataArray" if in_points => {
-                    let name = attr(e, "Name").unwrap_or_default();
-                    let t = attr(e, "type").unwrap_or_default();
-                    let sample = sample_type(&t)
-                        .ok_or_else(|| bad(format!("array {name}: unknown type {t:?}")))?;
-                    let a = Array {
-                        name,
-                        sample,
-                        components: attr(e, "NumberOfComponents")
-                            .and_then(|c| c.parse().ok())
-                            .unwrap_or(1),
-                        format: attr(e, "format").unwrap_or_else(|| "ascii".into()),
-                        offset: attr(e, "offset").and_then(|o| o.parse().ok()),
-                        text: String::new(),
-                    };
+                    let a = data_array(path, e)?;
                     if matches!(event, Event::Start(_)) {
                         open_array = Some(a);
                     } else {
@@ -195,30 +225,13 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         buf.clear();
     }
     let extent = extent.ok_or_else(|| bad("no ImageData element".into()))?;
-    let mut dims = [0usize; 3];
-    for a in 0..3 {
-        let n = extent[2 * a + 1] - extent[2 * a] + 1.0;
-        if !((1.0..1e9).contains(&n) && n.fract() == 0.0) {
-            return Err(bad(format!("WholeExtent {extent:?} is not a grid")));
-        }
-        dims[a] = n as usize;
-    }
+    let dims = extent_dims(path, &extent)?;
     // VTK places the sample (i, j, k) of the extent at origin + (i, j, k) · spacing.
     let origin = origin + Vec3::new(extent[0] as f32, extent[2] as f32, extent[4] as f32) * spacing;
     check_grid(path, dims, spacing, origin)?;
     let names: Vec<String> = arrays.iter().map(|a| a.name.clone()).collect();
     let wanted = options.field.clone().or(active);
-    let chosen = match &wanted {
-        Some(f) => arrays.iter().position(|a| &a.name == f),
-        None => (!arrays.is_empty()).then_some(0),
-    }
-    .ok_or_else(|| match &wanted {
-        Some(f) => bad(format!(
-            "no point-data array {f:?}; arrays here: {}",
-            names.join(", ")
-        )),
-        None => bad("no point-data array".into()),
-    })?;
+    let chosen = chosen(path, &names, wanted.as_deref(), "point-data array")?;
     let a = arrays.swap_remove(chosen);
     if a.components != 1 {
         return Err(bad(format!(
@@ -229,38 +242,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
     let data = match a.format.as_str() {
         "ascii" => ArrayData::Ascii(a.text),
         "binary" => ArrayData::Base64(a.text),
-        "appended" => {
-            let at = appended.ok_or_else(|| {
-                bad(format!(
-                    "array {} is appended, but there is no AppendedData",
-                    a.name
-                ))
-            })?;
-            let head = &bytes[at..];
-            let tag_end =
-                find(head, b">").ok_or_else(|| bad("AppendedData is not closed".into()))?;
-            let tag = String::from_utf8_lossy(&head[..tag_end]);
-            let underscore = find(&head[tag_end..], b"_")
-                .ok_or_else(|| bad("AppendedData has no '_' mark".into()))?;
-            let start = (at + tag_end + underscore + 1) as u64;
-            let offset = a
-                .offset
-                .ok_or_else(|| bad(format!("array {} has no offset", a.name)))?;
-            if tag.contains("encoding=\"base64\"") {
-                let all = crate::read_file(path)?;
-                let from = usize::try_from(start + offset)
-                    .unwrap_or(usize::MAX)
-                    .min(all.len());
-                let text: String = all[from..]
-                    .iter()
-                    .take_while(|&&b| b != b'<')
-                    .map(|&b| b as char)
-                    .collect();
-                ArrayData::Base64(text)
-            } else {
-                ArrayData::Raw(start + offset)
-            }
-        }
+        "appended" => appended_data(path, &bytes, appended, &a)?,
         other => return Err(bad(format!("array {}: format {other:?}", a.name))),
     };
     Ok(Dataset {
@@ -280,6 +262,69 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
             data,
         }),
     })
+}
+
+/// The grid's points per axis of a `WholeExtent` (`x0 x1 y0 y1 z0 z1`).
+///
+/// # Errors
+/// [`ReadError`] naming the file when an axis is not a count of points.
+fn extent_dims(path: &Path, extent: &[f64]) -> Result<[usize; 3], ReadError> {
+    let mut dims = [0usize; 3];
+    for a in 0..3 {
+        let n = extent[2 * a + 1] - extent[2 * a] + 1.0;
+        if !((1.0..1e9).contains(&n) && n.fract() == 0.0) {
+            return Err(ReadError::invalid(
+                path,
+                format!("WholeExtent {extent:?} is not a grid"),
+            ));
+        }
+        dims[a] = n as usize;
+    }
+    Ok(dims)
+}
+
+/// Where array `a`'s data lies in the `<AppendedData>` block that starts at `appended` in
+/// `bytes`: raw from an offset, or base64 text.
+///
+/// # Errors
+/// [`ReadError`] naming the file and the array: no block, an unclosed tag, no `_` mark, no
+/// offset.
+fn appended_data(
+    path: &Path,
+    bytes: &[u8],
+    appended: Option<usize>,
+    a: &Array,
+) -> Result<ArrayData, ReadError> {
+    let bad = |m: String| ReadError::invalid(path, m);
+    let at = appended.ok_or_else(|| {
+        bad(format!(
+            "array {} is appended, but there is no AppendedData",
+            a.name
+        ))
+    })?;
+    let head = &bytes[at..];
+    let tag_end = find(head, b">").ok_or_else(|| bad("AppendedData is not closed".into()))?;
+    let tag = String::from_utf8_lossy(&head[..tag_end]);
+    let underscore =
+        find(&head[tag_end..], b"_").ok_or_else(|| bad("AppendedData has no '_' mark".into()))?;
+    let start = (at + tag_end + underscore + 1) as u64;
+    let offset = a
+        .offset
+        .ok_or_else(|| bad(format!("array {} has no offset", a.name)))?;
+    if tag.contains("encoding=\"base64\"") {
+        let all = crate::read_file(path)?;
+        let from = usize::try_from(start + offset)
+            .unwrap_or(usize::MAX)
+            .min(all.len());
+        let text: String = all[from..]
+            .iter()
+            .take_while(|&&b| b != b'<')
+            .map(|&b| b as char)
+            .collect();
+        Ok(ArrayData::Base64(text))
+    } else {
+        Ok(ArrayData::Raw(start + offset))
+    }
 }
 
 /// The file's bytes up to a little past `<AppendedData …>_` (all of it when there is none),

@@ -50,7 +50,7 @@ pub fn bin_dir() -> PathBuf {
 /// In the dev profile this is `cargo test --workspace --no-run`: the very feature resolution of
 /// `cargo test --workspace` (CI's command), so right after it nothing is rebuilt. A narrower
 /// `cargo build -p …` resolves dependency features differently (dev-dependencies take part in
-/// one and not the other) and used to rebuild minutes of dependencies in CI. Benchmarks
+/// one and not the other) and would rebuild minutes of dependencies in CI. Benchmarks
 /// (release) build just the binaries and the library.
 pub fn ensure_built() {
     static BUILT: OnceLock<()> = OnceLock::new();

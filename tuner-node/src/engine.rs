@@ -980,34 +980,8 @@ impl Loop {
             .map_or(0.0, |d| d.as_secs_f64());
         let newest = self.recent.back().map_or(0, |(s, _)| *s);
         if let (Some(u), Some(r)) = (change.utility.clone(), resolved) {
-            *e.resolved.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(r);
-            e.restart_control();
-            let mut s = e.state();
-            s.utility = Some(u.clone());
-            s.steering.push(SteerRecord {
-                scene_version: 0,
-                pm_version: 0,
-                from_step: 0,
-                standing: Standing::Applied,
-                change: format!("utility {u}"),
-                who: req.who.clone(),
-                at_unix_secs: at,
-            });
-            // The decision in force was found best for the old utility.
-            s.validated.clear();
-            e.save(&s);
-            let retune = !s.tracker.steps.is_empty() && change.scene.is_none();
-            drop(s);
-            info!(utility = %e.utility(), who = %req.who, "utility steered");
-            e.hub.broadcast(&Down::Budget(e.node_budget()));
-            if retune {
-                self.mark_dirty(Trigger {
-                    step: newest,
-                    cause: Cause::Steered {
-                        what: format!("utility {u}"),
-                    },
-                });
-            }
+            let retune_from = change.scene.is_none().then_some(newest);
+            self.steer_utility(u, r, (&req.who, at), retune_from);
         }
         let Some((mut next, candidate)) = change.scene.zip(carrier) else {
             return Ok(pb::SteerReply {
@@ -1088,6 +1062,47 @@ impl Loop {
             utility: e.utility(),
             superseded,
         })
+    }
+
+    /// A steered utility `u` (resolved as `r`) put in force: recorded, the nodes told their
+    /// budget, and the characteristic steps re-tuned from `retune_from` where there are some
+    /// (`None` when a scene change in the same request starts the tuner afresh anyway).
+    fn steer_utility(
+        &mut self,
+        u: String,
+        r: Resolved,
+        (who, at): (&str, f64),
+        retune_from: Option<u64>,
+    ) {
+        let e = self.engine.clone();
+        *e.resolved.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(r);
+        e.restart_control();
+        let mut s = e.state();
+        s.utility = Some(u.clone());
+        s.steering.push(SteerRecord {
+            scene_version: 0,
+            pm_version: 0,
+            from_step: 0,
+            standing: Standing::Applied,
+            change: format!("utility {u}"),
+            who: who.to_string(),
+            at_unix_secs: at,
+        });
+        // The decision in force was found best for the old utility.
+        s.validated.clear();
+        e.save(&s);
+        let retune = retune_from.filter(|_| !s.tracker.steps.is_empty());
+        drop(s);
+        info!(utility = %e.utility(), who = %who, "utility steered");
+        e.hub.broadcast(&Down::Budget(e.node_budget()));
+        if let Some(step) = retune {
+            self.mark_dirty(Trigger {
+                step,
+                cause: Cause::Steered {
+                    what: format!("utility {u}"),
+                },
+            });
+        }
     }
 }
 

@@ -250,17 +250,23 @@ fn bands_and_parts_give_the_same_result_as_one_pass() {
     );
 }
 
-#[test]
-fn counted_bands_join_into_the_vdi_of_one_band() {
-    let Some(shared) = gpu() else { return };
+/// A 24×20×16 volume of a ball of radius 8 (values falling from 8 at its centre), a ramp
+/// over its range, and the default camera.
+fn ball() -> (Volume, TransferFunction, Camera) {
     let v = Volume::from_fn([24, 20, 16], |x, y, z| {
         let d = Vec3::new(x as f32 - 12.0, y as f32 - 9.0, z as f32 - 8.0).length();
         (8.0 - d).max(0.0)
     })
     .unwrap();
-    let tf = TransferFunction::default_for_range(0.0, 8.0);
-    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     let cam = Camera::default_for_box(&v.world_box());
+    (v, TransferFunction::default_for_range(0.0, 8.0), cam)
+}
+
+#[test]
+fn counted_bands_join_into_the_vdi_of_one_band() {
+    let Some(shared) = gpu() else { return };
+    let (v, tf, cam) = ball();
+    let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     // γ = 10 merges every run of samples: at most one supersegment a ray (960 bytes a row).
     let params = VdiParams {
         resolution: 40,
@@ -296,14 +302,8 @@ fn counted_bands_join_into_the_vdi_of_one_band() {
 #[test]
 fn vdis_cross_between_backends_through_the_codec() {
     let Some(gpu) = gpu() else { return };
-    let v = Volume::from_fn([24, 20, 16], |x, y, z| {
-        let d = Vec3::new(x as f32 - 12.0, y as f32 - 9.0, z as f32 - 8.0).length();
-        (8.0 - d).max(0.0)
-    })
-    .unwrap();
-    let tf = TransferFunction::default_for_range(0.0, 8.0);
+    let (v, tf, cam) = ball();
     let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
-    let cam = Camera::default_for_box(&v.world_box());
     let params = VdiParams {
         resolution: 48,
         gamma: 0.01,

@@ -1,4 +1,4 @@
-//! gRPC health checking on the three daemons (STYLE.md, "tonic-health for readiness"): each
+//! gRPC health checking on the three daemons (tonic-health, for readiness): each
 //! answers `SERVING` for itself and its named service from its first connection on, without a
 //! token; `insitu health` waits for that and says what it got otherwise; and on SIGTERM a
 //! watcher sees `NOT_SERVING`, then its stream ends, and the daemon exits (an open watch does
