@@ -1084,16 +1084,23 @@ fn the_demo_runs_with_a_token_in_the_environment_and_units_on_its_budget() {
 }
 
 /// What `insitu steer` can tell before it sends anything, it says: a sample distance that is
-/// not a length, a transfer function over what the viewer takes.
+/// not a length (and `--step` for one), a transfer function over what the viewer takes.
 #[test]
 fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
     let dir = tempfile::tempdir().unwrap();
     let o = insitu(
-        &["steer", "--viz", "127.0.0.1:9", "--step", "NaN"],
+        &["steer", "--viz", "127.0.0.1:9", "--sample-distance", "NaN"],
         dir.path(),
     );
     assert!(!o.status.success());
     assert!(stderr(&o).contains("finite length > 0"), "{}", stderr(&o));
+    // `--step` is a time step's word: the flag is refused and the right one named.
+    let o = insitu(
+        &["steer", "--viz", "127.0.0.1:9", "--step", "0.25"],
+        dir.path(),
+    );
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--sample-distance"), "{}", stderr(&o));
     // A 3 MB transfer function (valid JSON): over the viewer's 2 MiB, said without a connection.
     let points: Vec<String> = (0..60_000)
         .map(|i| format!("{{\"value\": {i}, \"rgba\": [0.5, 0.5, 0.5, 0.5]}}"))

@@ -74,8 +74,11 @@ pub struct GenerationConfig {
     pub resolution: u32,
     /// `γ`: interrupt threshold of the merge criterion.
     pub gamma: f32,
-    /// Ray-casting step, world units.
-    pub step: f32,
+    /// Ray-casting sample distance, world units.
+    pub sample_distance: f32,
+    /// Refused with a message naming `sample_distance` (a step is a time step).
+    #[serde(rename = "step", skip_serializing)]
+    pub old_step: Option<f32>,
     /// Early-termination opacity of the reference frames (DVR).
     pub termination: f32,
     /// Early-termination opacity of VDI generation rays; unset: off, rays run to the box exit
@@ -123,7 +126,8 @@ impl Default for GenerationConfig {
         Self {
             resolution: 256,
             gamma: 0.013,
-            step: DEFAULT_STEP,
+            sample_distance: DEFAULT_STEP,
+            old_step: None,
             termination: DEFAULT_TERMINATION,
             generation_termination: DEFAULT_GENERATION_TERMINATION,
             codec: Codec::Bzip2,
@@ -467,15 +471,21 @@ impl GenerationConfig {
         params
             .validate()
             .map_err(|e| invalid("generation.resolution/gamma/precision", e.to_string()))?;
+        if self.old_step.is_some() {
+            return Err(invalid(
+                "generation.step",
+                "not a key: the ray-casting sample distance is `sample_distance` (world units)",
+            ));
+        }
         let raycast = RaycastParams {
-            step: self.step,
+            step: self.sample_distance,
             termination: self.termination,
             generation_termination: self.generation_termination,
             ..Default::default()
         };
         raycast.validate().map_err(|e| {
             invalid(
-                "generation.step/termination/generation_termination",
+                "generation.sample_distance/termination/generation_termination",
                 e.to_string(),
             )
         })?;
@@ -557,6 +567,10 @@ mod tests {
             let e = bad(&format!("[generation]\nprecision = {precision}"));
             assert!(e.contains("precision"), "{precision}: {e}");
         }
+        // The sample distance has its own name; `step` is a time step's word.
+        let step = bad("[generation]\nstep = 0.25");
+        assert!(step.contains("`sample_distance`"), "{step}");
+        assert!(bad("[generation]\nsample_distance = -1.0").contains("sample_distance"));
         let codec = bad("[generation]\ncodec = \"lzma\"");
         assert!(codec.contains("codec") && codec.contains("lzma"), "{codec}");
         assert!(bad("[queue]\nmax_items = 0\nmax_bytes = 1\npolicy = \"block\"").contains("queue"));

@@ -13,7 +13,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
     pb::GenerationConfig {
         resolution: g.params.resolution,
         gamma: g.params.gamma,
-        step: Some(g.raycast.step),
+        sample_distance: Some(g.raycast.step),
         termination: Some(g.raycast.termination),
         codec: insitu_proto::convert::codec_to_pb(g.codec) as i32,
         precision_bits: Some(g.params.precision.bits()),
@@ -58,14 +58,14 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
         .validate()
         .map_err(|e| bad("resolution/gamma", &e))?;
     next.raycast = RaycastParams {
-        step: c.step.unwrap_or(g.raycast.step),
+        step: c.sample_distance.unwrap_or(g.raycast.step),
         termination: c.termination.unwrap_or(g.raycast.termination),
         shading: shading(c.shading, g.raycast.shading),
         ..g.raycast
     };
     next.raycast
         .validate()
-        .map_err(|e| bad("step/termination", &e))?;
+        .map_err(|e| bad("sample_distance/termination", &e))?;
     if let Some(codec) = codec_from_pb(c.codec)? {
         next.codec = codec;
     }
@@ -184,7 +184,7 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
         );
     }
     next.raycast = RaycastParams {
-        step: s.step.unwrap_or(g.raycast.step),
+        step: s.sample_distance.unwrap_or(g.raycast.step),
         shading: shading(s.shading, g.raycast.shading),
         ..g.raycast
     };
@@ -243,7 +243,7 @@ mod tests {
             tf_name: Some("steered".into()),
             field: Some(field.into()),
             camera: None,
-            step: None,
+            sample_distance: None,
             shading: None,
         }
     }
@@ -301,7 +301,7 @@ mod tests {
             "emission–absorption by default"
         );
         let mut s = scene(1, "u");
-        s.step = Some(0.25);
+        s.sample_distance = Some(0.25);
         s.shading = Some(true);
         let next = decided(&g, &decision(1, 10, Some(s)), 0).unwrap();
         let before = next.clone().for_step(9);
@@ -321,7 +321,7 @@ mod tests {
         assert!(later.raycast.shading.is_none());
         assert_eq!(later.raycast.step, 0.25);
         let mut bad = scene(3, "u");
-        bad.step = Some(-1.0);
+        bad.sample_distance = Some(-1.0);
         let e = decided(&later, &decision(3, 30, Some(bad)), 0).unwrap_err();
         assert!(e.contains("scene 3: sample distance"), "{e}");
     }

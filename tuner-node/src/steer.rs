@@ -61,9 +61,10 @@ pub struct SceneState {
     pub field: Option<String>,
     /// The generation camera.
     pub camera: Option<CameraSpec>,
-    /// The ray-casting sample distance, world units.
-    #[serde(default)]
-    pub step: Option<f32>,
+    /// The ray-casting sample distance, world units (read as `step` too, the key of older
+    /// state files).
+    #[serde(default, alias = "step")]
+    pub sample_distance: Option<f32>,
     /// Gradient shading on.
     #[serde(default)]
     pub shading: Option<bool>,
@@ -78,7 +79,7 @@ impl SceneState {
             tf_name: self.tf_name.clone(),
             field: self.field.clone(),
             camera: self.camera.as_ref().map(|c| camera_to_pb(&c.camera())),
-            step: self.step,
+            sample_distance: self.sample_distance,
             shading: self.shading,
         }
     }
@@ -258,27 +259,25 @@ pub fn check(
         ));
         next.camera = Some(CameraSpec::of(&cam));
     }
-    if let Some(step) = req.step {
-        if !(step.is_finite() && step > 0.0) {
-            return Err(format!(
-                "step: the sample distance {step} is not a finite length > 0"
-            ));
+    if let Some(d) = req.sample_distance {
+        if !(d.is_finite() && d > 0.0) {
+            return Err(format!("sample_distance: {d} is not a finite length > 0"));
         }
         if let Some(b) = domain.bounds {
             let diagonal = (b.max - b.min).length();
-            if step > diagonal {
+            if d > diagonal {
                 return Err(format!(
-                    "step: the sample distance {step} is longer than the domain's diagonal {diagonal}; rays would take at most one sample"
+                    "sample_distance: {d} is longer than the domain's diagonal {diagonal}; rays would take at most one sample"
                 ));
             }
-            if step * MAX_SAMPLES_PER_RAY < diagonal {
+            if d * MAX_SAMPLES_PER_RAY < diagonal {
                 return Err(format!(
-                    "step: the sample distance {step} would take more than {MAX_SAMPLES_PER_RAY} samples along the domain's diagonal {diagonal}"
+                    "sample_distance: {d} would take more than {MAX_SAMPLES_PER_RAY} samples along the domain's diagonal {diagonal}"
                 ));
             }
         }
-        words.push(format!("sample distance {step}"));
-        next.step = Some(step);
+        words.push(format!("sample distance {d}"));
+        next.sample_distance = Some(d);
     }
     if let Some(on) = req.shading {
         words.push(format!("shading {}", if on { "on" } else { "off" }));
@@ -413,7 +412,7 @@ mod tests {
         };
         let c = check(
             &pb::SteerRequest {
-                step: Some(0.25),
+                sample_distance: Some(0.25),
                 shading: Some(true),
                 ..Default::default()
             },
@@ -422,10 +421,13 @@ mod tests {
         )
         .unwrap();
         let next = c.scene.unwrap();
-        assert_eq!((next.step, next.shading), (Some(0.25), Some(true)));
+        assert_eq!(
+            (next.sample_distance, next.shading),
+            (Some(0.25), Some(true))
+        );
         assert_eq!(c.words, "sample distance 0.25; shading on");
         let pb = next.to_pb();
-        assert_eq!((pb.step, pb.shading), (Some(0.25), Some(true)));
+        assert_eq!((pb.sample_distance, pb.shading), (Some(0.25), Some(true)));
         // Shading off again when it is off is no scene change.
         let c = check(
             &pb::SteerRequest {
@@ -520,12 +522,15 @@ mod tests {
         ] {
             let e = refused(
                 pb::SteerRequest {
-                    step: Some(step),
+                    sample_distance: Some(step),
                     ..Default::default()
                 },
                 &d,
             );
-            assert!(e.starts_with("step:") && e.contains(why), "{step}: {e}");
+            assert!(
+                e.starts_with("sample_distance:") && e.contains(why),
+                "{step}: {e}"
+            );
         }
         let e = refused(
             pb::SteerRequest {

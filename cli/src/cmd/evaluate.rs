@@ -121,7 +121,7 @@ fn print_json(a: &Args, s: &Said) {
         serde_json::json!({
             "volume": scene.volume_name, "tf": scene.tf_name,
             "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": a.codec.name(), "precision": a.pm.precision.name(),
-            "step": insitu_core::json::f32_number(scene.params.step), "size": [w, h],
+            "sample_distance": insitu_core::json::f32_number(scene.params.step), "size": [w, h],
             "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
             "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
             "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,

@@ -37,7 +37,10 @@ pub struct Args {
     utility: Option<String>,
     /// The ray-casting sample distance, world units (finer: better q, longer τ).
     #[arg(long, value_parser = sample_distance)]
-    step: Option<f32>,
+    sample_distance: Option<f32>,
+    /// Refused with a message naming `--sample-distance` (a step is a time step).
+    #[arg(long = "step", hide = true, value_parser = refused_step)]
+    old_step: Option<f32>,
     /// Gradient shading `on` or `off` (off: emission–absorption only).
     #[arg(long, value_parser = clap::builder::BoolishValueParser::new())]
     shading: Option<bool>,
@@ -45,8 +48,13 @@ pub struct Args {
     #[arg(long)]
     token_file: Option<PathBuf>,
     /// Print the scene in force and the steering history; change nothing.
-    #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility", "step", "shading"])]
+    #[arg(long, conflicts_with_all = ["tf", "field", "camera", "utility", "sample_distance", "shading"])]
     show: bool,
+}
+
+/// `--step`, always refused: the flag is `--sample-distance`.
+fn refused_step(_: &str) -> Result<f32, String> {
+    Err("--step is not a steering flag: the ray-casting sample distance is --sample-distance (world units)".into())
 }
 
 /// A sample distance as given: a finite length > 0 (NaN would cross the wire as JSON `null`,
@@ -133,14 +141,14 @@ fn body(a: &Args) -> Result<Value> {
     if let Some(u) = &a.utility {
         b.insert("utility".into(), u.clone().into());
     }
-    if let Some(step) = a.step {
-        b.insert("step".into(), step.into());
+    if let Some(d) = a.sample_distance {
+        b.insert("sample_distance".into(), d.into());
     }
     if let Some(on) = a.shading {
         b.insert("shading".into(), on.into());
     }
     if b.is_empty() {
-        bail!("nothing to steer: give --tf, --field, --camera, --step, --shading or --utility (or --show)");
+        bail!("nothing to steer: give --tf, --field, --camera, --sample-distance, --shading or --utility (or --show)");
     }
     Ok(Value::Object(b))
 }

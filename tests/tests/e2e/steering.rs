@@ -205,6 +205,8 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
             "degenerate",
         ),
         (r#"{"camera": {"step": 99, "angle": 10}}"#, 400, "step 99"),
+        // The sample distance has its own name; `step` is a time step.
+        (r#"{"step": 0.25}"#, 400, "\"sample_distance\""),
         (r#"{"utility": "size:lots"}"#, 400, "utility"),
         ("{}", 400, "nothing to change"),
     ] {
@@ -539,7 +541,11 @@ fn four_ranks_on_two_nodes_switch_at_one_step_and_a_restarted_node_keeps_each_st
     }
 
     // Sample distance and shading; the second node killed before any step is made with them.
-    let reply = steered(&run.http, &run.g.addr, r#"{"step": 0.25, "shading": true}"#);
+    let reply = steered(
+        &run.http,
+        &run.g.addr,
+        r#"{"sample_distance": 0.25, "shading": true}"#,
+    );
     assert_eq!(reply["scene_version"], 2, "{reply}");
     let from2 = reply["from_step"].as_u64().unwrap();
     assert!(from2 > from + 3, "{reply}");

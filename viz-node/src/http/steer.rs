@@ -7,8 +7,9 @@
 //! - `GET /api/colormaps`: the colour maps the page's transfer-function editor offers
 //!   (`colorous`), each sampled at [`COLORMAP_SAMPLES`] even steps as `[r, g, b]` in [0, 1].
 //! - `POST /api/steer`: a change, `{"tf": {…}, "tf_name": "…", "field": "…", "camera": {…},
-//!   "step": 0.5, "shading": true, "utility": "…"}` (any of them; `step` is the ray-casting
-//!   sample distance in world units). A camera is either explicit, `{"eye": [x, y, z],
+//!   "sample_distance": 0.5, "shading": true, "utility": "…"}` (any of them; the ray-casting
+//!   sample distance in world units; a top-level `step` is refused with a message naming
+//!   `sample_distance`, as `step` elsewhere is a time step). A camera is either explicit, `{"eye": [x, y, z],
 //!   "target": [x, y, z], "up": [x, y, z], "fov_y_deg": 30}` (world units; `up` and the field
 //!   of view optional), or a view of a stored step as the page orbits it, `{"step": s,
 //!   "angle": a, "elevation": e, "zoom": z}` ("generate from here": that step's generation
@@ -86,9 +87,12 @@ pub struct SteerBody {
     /// The tuner's utility, e.g. `size:1MB`.
     utility: Option<String>,
     /// The ray-casting sample distance, world units.
-    step: Option<f32>,
+    sample_distance: Option<f32>,
     /// Gradient shading on or off.
     shading: Option<bool>,
+    /// Refused: the sample distance is `sample_distance` (a `step` is a time step).
+    #[serde(default, rename = "step")]
+    old_step: Option<serde_json::Value>,
 }
 
 /// A camera as a steering request gives it.
@@ -175,7 +179,7 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
             "tf_name": scene.tf_name,
             "field": scene.field,
             "camera": scene.camera.as_ref().map(camera_json),
-            "step": scene.step,
+            "sample_distance": scene.sample_distance,
             "shading": scene.shading,
         },
         "history": steering,
@@ -311,6 +315,12 @@ pub(super) fn tuner_refused(s: &tonic::Status) -> Response {
 /// # Errors
 /// A message naming the bad part (a view of a step not stored, a bad view).
 async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, String> {
+    if b.old_step.is_some() {
+        return Err(
+            "\"step\" is not a steering key: the ray-casting sample distance is \"sample_distance\" (world units)"
+                .into(),
+        );
+    }
     let camera = match b.camera {
         None => None,
         Some(c) => Some(c.camera(http).await?),
@@ -321,7 +331,7 @@ async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, Str
         field: b.field,
         camera: camera.as_ref().map(camera_to_pb),
         utility: b.utility,
-        step: b.step,
+        sample_distance: b.sample_distance,
         shading: b.shading,
         who: "the viewer's steering API".into(),
     })

@@ -670,7 +670,7 @@ async function loadScene() {
   const sc = s.scene;
   $("steer-scene").textContent =
     `scene ${sc.version}` + (sc.tf_name ? `, ${sc.tf_name}` : "") + (sc.field ? `, field ${sc.field}` : "") +
-    (sc.step != null ? `, sample distance ${sc.step}` : "") + (sc.shading ? ", shaded" : "") +
+    (sc.sample_distance != null ? `, sample distance ${sc.sample_distance}` : "") + (sc.shading ? ", shaded" : "") +
     `; ${s.utility}`;
   const field = $("steer-field");
   const names = s.fields || [];
@@ -678,7 +678,9 @@ async function loadScene() {
     field.replaceChildren(...names.map((n) => new Option(n, n)));
   }
   if (sc.field) field.value = sc.field;
-  if (sc.step != null && document.activeElement !== $("steer-step")) $("steer-step").value = sc.step;
+  if (sc.sample_distance != null && document.activeElement !== $("steer-sample-distance")) {
+    $("steer-sample-distance").value = sc.sample_distance;
+  }
   if (sc.shading != null) $("steer-shading").checked = sc.shading;
   if (s.histogram) {
     tf.histogram = s.histogram;
@@ -748,8 +750,8 @@ async function wireSteering() {
   $("utility-apply").onclick = () => steer({ utility: $("steer-utility").value.trim() });
   $("sampling-apply").onclick = () => {
     const body = { shading: $("steer-shading").checked };
-    const step = $("steer-step").value.trim();
-    if (step !== "") body.step = Number(step);
+    const distance = $("steer-sample-distance").value.trim();
+    if (distance !== "") body.sample_distance = Number(distance);
     return steer(body);
   };
   drawTf();
