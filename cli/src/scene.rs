@@ -115,7 +115,7 @@ impl SceneArgs {
             }
         };
         let params = RaycastParams {
-            step: self.step,
+            sample_distance: self.step,
             termination: self.termination,
             generation_termination: self.generation_termination.0,
             shading: self.shading.then(Shading::default),

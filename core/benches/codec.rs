@@ -80,7 +80,7 @@ fn write_planes(dir: &str, name: &str, vdi: &Vdi) {
         std::fs::write(format!("{dir}/{name}.{plane}.f32"), bytes).expect("writable dir");
     }
     let max_z = segs.iter().fold(0.0f32, |m, s| m.max(s.z_end));
-    let grid = DepthGrid::new(vdi.meta().step, max_z);
+    let grid = DepthGrid::new(vdi.meta().sample_distance, max_z);
     let counts: Vec<u8> = vdi
         .offsets()
         .windows(2)

@@ -60,7 +60,7 @@ fn mismatch(a: &VdiMeta, b: &VdiMeta) -> Option<&'static str> {
         Some("P_M (r, γ)")
     } else if a.tf_hash != b.tf_hash {
         Some("transfer function")
-    } else if a.step.to_bits() != b.step.to_bits() {
+    } else if a.sample_distance.to_bits() != b.sample_distance.to_bits() {
         Some("ray-casting step")
     } else if a.termination.to_bits() != b.termination.to_bits() {
         Some("termination")

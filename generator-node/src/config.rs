@@ -478,7 +478,7 @@ impl GenerationConfig {
             ));
         }
         let raycast = RaycastParams {
-            step: self.sample_distance,
+            sample_distance: self.sample_distance,
             termination: self.termination,
             generation_termination: self.generation_termination,
             ..Default::default()

@@ -13,7 +13,7 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
     pb::GenerationConfig {
         resolution: g.params.resolution,
         gamma: g.params.gamma,
-        sample_distance: Some(g.raycast.step),
+        sample_distance: Some(g.raycast.sample_distance),
         termination: Some(g.raycast.termination),
         codec: insitu_proto::convert::codec_to_pb(g.codec) as i32,
         precision_bits: Some(g.params.precision.bits()),
@@ -58,7 +58,7 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
         .validate()
         .map_err(|e| bad("resolution/gamma", &e))?;
     next.raycast = RaycastParams {
-        step: c.sample_distance.unwrap_or(g.raycast.step),
+        sample_distance: c.sample_distance.unwrap_or(g.raycast.sample_distance),
         termination: c.termination.unwrap_or(g.raycast.termination),
         shading: shading(c.shading, g.raycast.shading),
         ..g.raycast
@@ -184,7 +184,7 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
         );
     }
     next.raycast = RaycastParams {
-        step: s.sample_distance.unwrap_or(g.raycast.step),
+        sample_distance: s.sample_distance.unwrap_or(g.raycast.sample_distance),
         shading: shading(s.shading, g.raycast.shading),
         ..g.raycast
     };
@@ -307,7 +307,7 @@ mod tests {
         let before = next.clone().for_step(9);
         let after = next.clone().for_step(10);
         assert_eq!(before.raycast, g.raycast);
-        assert_eq!(after.raycast.step, 0.25);
+        assert_eq!(after.raycast.sample_distance, 0.25);
         assert!(after.raycast.shading.is_some());
         assert_eq!(after.raycast.termination, g.raycast.termination);
         let back = apply_config(&configured(), &to_pb(&after)).unwrap();
@@ -319,7 +319,7 @@ mod tests {
             .unwrap()
             .for_step(20);
         assert!(later.raycast.shading.is_none());
-        assert_eq!(later.raycast.step, 0.25);
+        assert_eq!(later.raycast.sample_distance, 0.25);
         let mut bad = scene(3, "u");
         bad.sample_distance = Some(-1.0);
         let e = decided(&later, &decision(3, 30, Some(bad)), 0).unwrap_err();

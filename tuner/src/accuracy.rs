@@ -181,14 +181,17 @@ pub fn sweep(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
 fn dvr_rows(s: &Sweep) -> Result<Vec<AccuracyRow>, AccuracyError> {
     let mut rows = Vec::new();
     let truth_params = RaycastParams {
-        step: s.base.step / 4.0,
+        sample_distance: s.base.sample_distance / 4.0,
         termination: 1.0,
         ..s.base
     };
     let (truth, _) = dvr_at(s, truth_params)?;
-    let b = s.base.step;
+    let b = s.base.sample_distance;
     for step in [b / 2.0, b, 2.0 * b, 4.0 * b] {
-        let p = RaycastParams { step, ..s.base };
+        let p = RaycastParams {
+            sample_distance: step,
+            ..s.base
+        };
         rows.push(dvr_row(
             s,
             "ray-casting step",

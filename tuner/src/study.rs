@@ -103,7 +103,7 @@ impl<'a> StudyScene<'a> {
         }
         h.write(&size.0.to_le_bytes());
         h.write(&size.1.to_le_bytes());
-        h.write(&p.step.to_bits().to_le_bytes());
+        h.write(&p.sample_distance.to_bits().to_le_bytes());
         h.write(&p.termination.to_bits().to_le_bytes());
         h.write(&[u8::from(p.shading.is_some())]);
         h.write(codec.name().as_bytes());
@@ -114,7 +114,7 @@ impl<'a> StudyScene<'a> {
             "tf {tf_name}, views {view_angles:?}, {}×{}, step {}, termination {}, shading {}, codec {codec}, {backend}",
             size.0,
             size.1,
-            p.step,
+            p.sample_distance,
             p.termination,
             p.shading.is_some()
         );

@@ -78,7 +78,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     println!(
         "{} with {} | base: step {}, termination {}, r = {}, γ = {}, {codec}; views {views:?} at {size}²",
-        scene.volume_name, scene.tf_name, scene.params.step, scene.params.termination, a.pm.r, a.pm.gamma
+        scene.volume_name, scene.tf_name, scene.params.sample_distance, scene.params.termination, a.pm.r, a.pm.gamma
     );
     println!(
         "{:<32} {:>12} {:>9} {:>10}  {:<16} {:>10}",

@@ -121,7 +121,7 @@ fn print_json(a: &Args, s: &Said) {
         serde_json::json!({
             "volume": scene.volume_name, "tf": scene.tf_name,
             "r": a.pm.r, "gamma": insitu_core::json::f32_number(a.pm.gamma), "codec": a.codec.name(), "precision": a.pm.precision.name(),
-            "sample_distance": insitu_core::json::f32_number(scene.params.step), "size": [w, h],
+            "sample_distance": insitu_core::json::f32_number(scene.params.sample_distance), "size": [w, h],
             "sigma_bytes": eval.sizing.sigma_bytes, "supersegments": eval.sizing.supersegments,
             "tau_s": eval.sizing.tau_secs, "tau_compress_s": eval.sizing.tau_compress_secs,
             "tau_decode_s": eval.tau_decode_secs, "tau_render_s": eval.tau_render_secs,
@@ -137,7 +137,7 @@ fn print_text(a: &Args, s: &Said) {
     let (scene, eval, (w, h)) = (s.scene, s.eval, s.size);
     println!(
         "{} with {} | r = {}, gamma = {}, step = {}, {}x{}",
-        scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.step, w, h
+        scene.volume_name, scene.tf_name, a.pm.r, a.pm.gamma, scene.params.sample_distance, w, h
     );
     println!(
         "sigma = {} bytes ({}, {}), {} supersegments ({:.2} per ray)",

@@ -55,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
         w,
         h,
         a.angle,
-        scene.params.step,
+        scene.params.sample_distance,
         image.seconds,
         a.out.display()
     );

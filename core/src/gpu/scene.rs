@@ -241,7 +241,7 @@ impl<'g, 'v> GpuScene<'g, 'v> {
             _ => rc.generation_stop(),
         };
         Uniform::default()
-            .frame(&f, rc.step)
+            .frame(&f, rc.sample_distance)
             .vec4([b.min.x, b.min.y, b.min.z, termination])
             .vec4([b.max.x, b.max.y, b.max.z, gamma])
             .vec4([inv.x, inv.y, inv.z, lo])

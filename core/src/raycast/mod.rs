@@ -70,7 +70,7 @@ pub enum RaycastError {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RaycastParams {
     /// Sample spacing along rays, world units (> 0).
-    pub step: f32,
+    pub sample_distance: f32,
     /// Early ray termination: stop once accumulated opacity reaches this (in (0, 1]; 1 only
     /// stops at full opacity).
     pub termination: f32,
@@ -89,7 +89,7 @@ pub struct RaycastParams {
 impl Default for RaycastParams {
     fn default() -> Self {
         Self {
-            step: DEFAULT_STEP,
+            sample_distance: DEFAULT_STEP,
             termination: DEFAULT_TERMINATION,
             generation_termination: DEFAULT_GENERATION_TERMINATION,
             shading: None,
@@ -105,10 +105,10 @@ impl RaycastParams {
     /// [`RaycastError::Invalid`] for a step that is not finite and positive or a termination
     /// threshold outside (0, 1].
     pub fn validate(&self) -> Result<(), RaycastError> {
-        if !(self.step.is_finite() && self.step > 0.0) {
+        if !(self.sample_distance.is_finite() && self.sample_distance > 0.0) {
             return Err(RaycastError::Invalid(format!(
                 "step {} must be finite and > 0",
-                self.step
+                self.sample_distance
             )));
         }
         if !(self.termination > 0.0 && self.termination <= 1.0) {
@@ -229,7 +229,7 @@ impl<'a> Raycaster<'a> {
         params: RaycastParams,
     ) -> Result<Self, RaycastError> {
         params.validate()?;
-        let lut = Lut::new(tf, params.step);
+        let lut = Lut::new(tf, params.sample_distance);
         let visible_groups = simd::visible_groups(&lut);
         let grid = MacroGrid::new(volume, &lut);
         let [nx, ny, nz] = volume.dims();
@@ -391,7 +391,7 @@ impl<'a> Raycaster<'a> {
         if t_far.is_nan() || t_in.is_nan() || t_far <= t_in {
             return;
         }
-        let step = self.params.step;
+        let step = self.params.sample_distance;
         let length = t_far - t_in;
         let n_full_f = (length / step).floor().min(u32::MAX as f32 / 2.0);
         let n_full = n_full_f as u32;
@@ -663,7 +663,7 @@ mod tests {
                 &v,
                 &tf,
                 RaycastParams {
-                    step,
+                    sample_distance: step,
                     ..Default::default()
                 },
             )
@@ -937,7 +937,7 @@ mod tests {
             (&ball, 0.5, 290.0, 30.0),
         ] {
             let params = RaycastParams {
-                step,
+                sample_distance: step,
                 ..Default::default()
             };
             let with = Raycaster::new(v, &tf, params).unwrap();

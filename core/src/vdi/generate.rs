@@ -336,7 +336,7 @@ pub(crate) fn meta_for(
     VdiMeta {
         camera: *camera,
         params,
-        step: rc_params.step,
+        sample_distance: rc_params.sample_distance,
         termination: rc_params.termination,
         shaded: rc_params.shading.is_some(),
         volume_box: *raycaster.bounds(),
@@ -598,7 +598,7 @@ mod tests {
         )
         .unwrap();
         let params = RaycastParams {
-            step: 0.05,
+            sample_distance: 0.05,
             ..Default::default()
         };
         let rc = Raycaster::new(&volume, &tf, params).unwrap();

@@ -38,7 +38,7 @@ pub fn halve(vdi: &Vdi) -> Option<Vdi> {
     }
     let half = r / 2;
     let gamma_sq = vdi.meta().params.gamma.powi(2);
-    let min_len = 0.5 * vdi.meta().step;
+    let min_len = 0.5 * vdi.meta().sample_distance;
     let rows: Vec<(Vec<u32>, Vec<Supersegment>)> = (0..half)
         .into_par_iter()
         .map_init(Vec::new, |bounds, j| {
@@ -222,7 +222,7 @@ mod tests {
                 gamma,
                 precision: Default::default(),
             },
-            step: 0.2,
+            sample_distance: 0.2,
             termination: 0.99,
             shaded: false,
             volume_box: Aabb {

@@ -213,8 +213,8 @@ pub struct VdiMeta {
     pub camera: Camera,
     /// `P_M`.
     pub params: VdiParams,
-    /// Ray-casting step used, world units.
-    pub step: f32,
+    /// Ray-casting sample distance used, world units.
+    pub sample_distance: f32,
     /// Early-termination threshold used.
     pub termination: f32,
     /// Whether samples were shaded.

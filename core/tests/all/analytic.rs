@@ -124,7 +124,7 @@ fn max_error(case: &Case, image: &insitu_core::Image, cam: &Camera, off: bool) -
 fn check(case: &Case, steps: &[f32], name: &str) {
     for &step in steps {
         let params = RaycastParams {
-            step,
+            sample_distance: step,
             termination: 1.0,
             ..Default::default()
         };

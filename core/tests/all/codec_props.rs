@@ -51,7 +51,7 @@ fn arb_vdi() -> impl Strategy<Value = Vdi> {
                     gamma,
                     precision: Default::default(),
                 },
-                step: 0.5,
+                sample_distance: 0.5,
                 termination: 0.99,
                 shaded: hash % 2 == 0,
                 volume_box: Aabb {
@@ -164,7 +164,7 @@ fn meta(resolution: u32, tf_hash: u64, tf_name: &str) -> VdiMeta {
             gamma: 0.01,
             precision: Default::default(),
         },
-        step: 0.5,
+        sample_distance: 0.5,
         termination: 0.99,
         shaded: false,
         volume_box: Aabb {

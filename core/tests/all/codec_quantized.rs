@@ -30,7 +30,7 @@ fn meta(resolution: u32, precision: Precision) -> VdiMeta {
             gamma: 0.01,
             precision,
         },
-        step: STEP,
+        sample_distance: STEP,
         termination: 0.99,
         shaded: false,
         volume_box: Aabb {

@@ -224,7 +224,7 @@ fn extreme_gamma_and_resolution() {
 #[test]
 fn step_larger_than_the_volume() {
     let params = RaycastParams {
-        step: 1000.0,
+        sample_distance: 1000.0,
         ..Default::default()
     };
     exercise(&blob(), &ramp_tf(), params, VP, None, "huge step");

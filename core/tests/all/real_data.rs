@@ -148,7 +148,7 @@ fn simd_and_scalar_paths_agree_bit_for_bit() {
         for params in [
             RaycastParams::default(),
             RaycastParams {
-                step: 0.37,
+                sample_distance: 0.37,
                 termination: 1.0,
                 ..Default::default()
             },

@@ -413,7 +413,7 @@ fn dvr_like(
 ) -> Image {
     let tf = TransferFunction::from_json(tf_json, "reference").unwrap();
     let params = RaycastParams {
-        step: like.step,
+        sample_distance: like.sample_distance,
         termination: like.termination,
         ..RaycastParams::default()
     };
@@ -565,7 +565,11 @@ fn four_ranks_on_two_nodes_switch_at_one_step_and_a_restarted_node_keeps_each_st
         let meta = load_vdi(rec, &e).meta().clone();
         let steered = e.step >= from2;
         assert_eq!(
-            (meta.shaded, meta.step == 0.25, meta.tf_name.as_str()),
+            (
+                meta.shaded,
+                meta.sample_distance == 0.25,
+                meta.tf_name.as_str()
+            ),
             (steered, steered, "red"),
             "step {} ranks {:?}",
             e.step,

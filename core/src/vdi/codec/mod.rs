@@ -209,7 +209,7 @@ pub(super) fn write_meta(out: &mut Vec<u8>, m: &VdiMeta) {
     let f = |out: &mut Vec<u8>, v: f32| out.extend_from_slice(&v.to_le_bytes());
     out.extend_from_slice(&m.params.resolution.to_le_bytes());
     f(out, m.params.gamma);
-    f(out, m.step);
+    f(out, m.sample_distance);
     f(out, m.termination);
     out.push(u8::from(m.shaded));
     for v in [m.camera.eye, m.camera.target, m.camera.up] {
@@ -559,7 +559,7 @@ pub(super) fn read_meta(rd: &mut Reader<'_>) -> Result<VdiMeta, CodecError> {
             gamma,
             precision: Precision::Float32,
         },
-        step,
+        sample_distance: step,
         termination,
         shaded,
         volume_box,

@@ -111,7 +111,7 @@ pub(super) fn encode_parts(
     Precision::from_bits(u32::from(bits)).map_err(|e| CodecError::Invalid(e.to_string()))?;
     let segs = vdi.supersegments();
     let max_z = segs.iter().fold(0.0f32, |m, s| m.max(s.z_end));
-    let grid = DepthGrid::new(vdi.meta().step, max_z);
+    let grid = DepthGrid::new(vdi.meta().sample_distance, max_z);
     let bands = bands(vdi.offsets());
     let mut head = Vec::with_capacity(256 + 12 * bands.len());
     write_meta(&mut head, vdi.meta());

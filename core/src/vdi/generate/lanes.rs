@@ -479,7 +479,7 @@ mod tests {
             (&long, &opaque, 0.7, Some(1.0)),
         ] {
             let params = RaycastParams {
-                step,
+                sample_distance: step,
                 generation_termination: termination,
                 ..Default::default()
             };
