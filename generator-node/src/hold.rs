@@ -159,7 +159,8 @@ impl Holds {
     }
 
     /// Bytes held.
-    pub fn bytes(&self) -> u64 {
+    #[cfg(test)]
+    fn bytes(&self) -> u64 {
         self.slots().values().map(|s| s.step.bytes()).sum()
     }
 }

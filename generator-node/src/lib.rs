@@ -8,34 +8,40 @@
 //! With a tuner configured, the node dials out to it ([`tuner_link`], with its state in [`tuning`]): a summary per step up,
 //! claims on [`hold`]s of fields, trials and `P_M` decisions down.
 //! [`node`] wires it together and shuts it down gracefully; [`config`] is the TOML file.
+//!
+//! The public surface is what other crates use: [`start`], [`Config`] (and [`config`]'s
+//! types), [`RunningNode`], the [`shared`] state the CLI's pipeline reads, and
+//! [`ingest::check_header`] for the fuzz targets. Every other module is private; these docs
+//! link them, so read them with `cargo doc -p insitu-generator-node --document-private-items`.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
+#![allow(rustdoc::private_intra_doc_links)]
 
 pub mod config;
-pub mod correct;
-pub mod cpu;
-pub mod hold;
-pub mod host;
+mod correct;
+mod cpu;
+mod hold;
+mod host;
 pub mod ingest;
-pub mod layout;
-pub mod node;
-pub mod outbox;
-pub mod pool;
-pub mod preview;
-pub mod queue;
-pub mod refusals;
-pub mod scene;
-pub mod service;
-pub mod settings;
+mod layout;
+mod node;
+mod outbox;
+mod pool;
+mod preview;
+mod queue;
+mod refusals;
+mod scene;
+mod service;
+mod settings;
 pub mod shared;
-pub mod ship;
-pub mod shm;
-pub mod spare;
-pub mod spool;
-pub mod stats;
-pub mod tuner_link;
-pub mod tuning;
-pub mod work;
+mod ship;
+mod shm;
+mod spare;
+mod spool;
+mod stats;
+mod tuner_link;
+mod tuning;
+mod work;
 
 pub use config::Config;
 pub use node::{start, RunningNode, StartError, Summary};

@@ -204,7 +204,6 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         refusals: Default::default(),
         composing: Default::default(),
-        viz: viz.clone(),
         viz_shards: viz_shards.clone(),
         begun: Default::default(),
         spool,

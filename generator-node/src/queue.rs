@@ -192,16 +192,6 @@ impl<T> BoundedQueue<T> {
         self.changed.notify_waiters();
     }
 
-    /// Removes and returns everything waiting (used when a drain deadline passes).
-    pub fn drain(&self) -> Vec<T> {
-        let mut s = self.lock();
-        s.bytes = 0;
-        let out = s.items.drain(..).map(|(it, _)| it).collect();
-        drop(s);
-        self.changed.notify_waiters();
-        out
-    }
-
     /// Items waiting.
     pub fn len(&self) -> usize {
         self.lock().items.len()

@@ -14,67 +14,65 @@ use std::sync::{Arc, RwLock};
 /// State shared by the service, the worker and the shipper.
 pub struct Shared {
     /// Steps waiting for generation.
-    pub queue: BoundedQueue<RawStep>,
+    pub(crate) queue: BoundedQueue<RawStep>,
     /// Current settings (a worker takes a snapshot per step).
-    pub generation: RwLock<Generation>,
+    pub(crate) generation: RwLock<Generation>,
     /// Counters.
     pub stats: Arc<Stats>,
     /// Largest accepted step, bytes.
-    pub max_step_bytes: u64,
+    pub(crate) max_step_bytes: u64,
     /// Whether a viz-node is configured.
-    pub shipping: bool,
+    pub(crate) shipping: bool,
     /// Finished VDIs waiting to be shipped, one outbox per viz-node shard (one without
     /// shards): step `s` waits in the `s mod n`-th.
-    pub outboxes: Vec<Arc<BoundedQueue<crate::work::Product>>>,
+    pub(crate) outboxes: Vec<Arc<BoundedQueue<crate::work::Product>>>,
     /// Where VDIs and reference frames are made.
     pub backend: insitu_core::Backend,
     /// Production steps and the tuner's trials take turns on this lane.
-    pub lane: tokio::sync::Mutex<()>,
+    pub(crate) lane: tokio::sync::Mutex<()>,
     /// The link to the tuner, when one is configured.
-    pub tuning: Option<Arc<crate::tuning::Tuning>>,
+    pub(crate) tuning: Option<Arc<crate::tuning::Tuning>>,
     /// The viz-node's refusals per rank, until a flush of that rank's client reports them.
-    pub refusals: crate::refusals::Refusals,
-    /// The viz-node, when VDIs are shipped (where the world's scene is agreed).
-    pub viz: Option<insitu_proto::peer::Peer>,
-    /// Every viz-node shard, `viz` first (asked how composing their steps came out).
-    pub viz_shards: Vec<insitu_proto::peer::Peer>,
+    pub(crate) refusals: crate::refusals::Refusals,
+    /// Every viz-node shard, the configured viz-node first (asked how composing their steps came out).
+    pub(crate) viz_shards: Vec<insitu_proto::peer::Peer>,
     /// Steps of several ranks whose VDIs this node shipped, with those ranks, until a flush
     /// of each rank's client has heard how composing the step came out.
-    pub composing:
+    pub(crate) composing:
         std::sync::Mutex<std::collections::BTreeMap<u64, std::collections::BTreeSet<u32>>>,
     /// The first step index no rank of which this node has begun to generate: a tuner's
     /// decision applies from it at the earliest.
-    pub begun: std::sync::atomic::AtomicU64,
+    pub(crate) begun: std::sync::atomic::AtomicU64,
     /// The durable spool, when configured.
-    pub spool: Option<Arc<crate::spool::Spool>>,
+    pub(crate) spool: Option<Arc<crate::spool::Spool>>,
     /// This run's identity (`PushReply.epoch`).
-    pub epoch: u64,
+    pub(crate) epoch: u64,
     /// Where the world's default transfer function is agreed (the viz-node), when one is
     /// configured and the config names no transfer function.
-    pub scene: Option<Arc<crate::scene::SceneLink>>,
+    pub(crate) scene: Option<Arc<crate::scene::SceneLink>>,
     /// The node's worker threads (`threads` and `nice` in the config, [`crate::pool`]).
-    pub pool: Arc<rayon::ThreadPool>,
+    pub(crate) pool: Arc<rayon::ThreadPool>,
     /// Fields of settled steps (generated or dropped): the next pushes are received into
     /// their memory (beyond what the queue counts: one, and a second within the queue's
     /// `max_bytes`; see [`crate::spare`]).
-    pub spare_fields: crate::spare::SpareFields,
+    pub(crate) spare_fields: crate::spare::SpareFields,
     /// Where steps pushed through shared memory are read from; `None`: streamed only.
-    pub shared_memory: Option<crate::shm::SharedMemory>,
+    pub(crate) shared_memory: Option<crate::shm::SharedMemory>,
     /// The ranks of steps in flight, composed into the host's parts before they ship.
-    pub host: Arc<crate::host::Gather>,
+    pub(crate) host: Arc<crate::host::Gather>,
     /// The ranks' bricks, checked once a step's ranks are all in ([`crate::layout`]).
-    pub layout: crate::layout::Layouts,
+    pub(crate) layout: crate::layout::Layouts,
 }
 
 impl Shared {
     /// Runs CPU work (generation, reference frames, trials) on the node's worker threads:
     /// `f` itself and every rayon loop inside it.
-    pub fn compute<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+    pub(crate) fn compute<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
         self.pool.install(f)
     }
 
     /// A snapshot of the current settings.
-    pub fn generation(&self) -> Generation {
+    pub(crate) fn generation(&self) -> Generation {
         self.generation
             .read()
             .unwrap_or_else(|e| e.into_inner())
@@ -128,12 +126,12 @@ impl Shared {
 
     /// The shard (index into [`Self::outboxes`] and [`Self::viz_shards`]) that step `step`
     /// goes to: `step mod n`.
-    pub fn shard_of(&self, step: u64) -> usize {
+    pub(crate) fn shard_of(&self, step: u64) -> usize {
         (step % self.outboxes.len().max(1) as u64) as usize
     }
 
     /// Removes settled steps' files (name, bytes) from the spool (no-op without one).
-    pub fn unspool<'a>(&self, spool: impl IntoIterator<Item = &'a (String, u64)>) {
+    pub(crate) fn unspool<'a>(&self, spool: impl IntoIterator<Item = &'a (String, u64)>) {
         if let Some(sp) = &self.spool {
             for (name, bytes) in spool {
                 sp.remove(name, *bytes);
@@ -143,7 +141,7 @@ impl Shared {
 
     /// Records the current generation settings in the spool (no-op without one), so that a
     /// restarted node continues the same scene.
-    pub fn save_run(&self) {
+    pub(crate) fn save_run(&self) {
         if let Some(sp) = &self.spool {
             let g = self.generation();
             if let Err(e) = sp.save_run(g.pm_version, &to_pb(&g)) {
