@@ -240,13 +240,7 @@ impl Gpu {
     /// the requested size whatever buffer lies under it.
     pub(super) fn scratch(&self, label: &str, size: u64) -> Scratch<'_> {
         let size = size.max(MIN_BUFFER as u64).next_multiple_of(4);
-        let kept = self.scratch.lock().ok().and_then(|mut pool| {
-            let best = (0..pool.len())
-                .filter(|&i| pool[i].size() >= size)
-                .min_by_key(|&i| pool[i].size())?;
-            Some(pool.swap_remove(best))
-        });
-        let buffer = kept.unwrap_or_else(|| {
+        let buffer = take_fitting(&self.scratch, size).unwrap_or_else(|| {
             self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size,
@@ -307,12 +301,7 @@ impl Gpu {
             0
         };
         let total = (stamps_at + 8 * u64::from(stamps)).max(MIN_BUFFER as u64);
-        let kept = self.staging.lock().ok().and_then(|mut pool| {
-            let best = (0..pool.len())
-                .filter(|&i| pool[i].size() >= total)
-                .min_by_key(|&i| pool[i].size())?;
-            Some(pool.swap_remove(best))
-        });
+        let kept = take_fitting(&self.staging, total);
         let (staging, index) = self.scoped(label, || {
             let staging = kept.unwrap_or_else(|| {
                 self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -445,6 +434,15 @@ impl Gpu {
         pool.push(buffer);
         keep_largest(&mut pool, STAGING_KEPT);
     }
+}
+
+/// The smallest buffer of `pool` of at least `size` bytes, taken out of it.
+fn take_fitting(pool: &Mutex<Vec<wgpu::Buffer>>, size: u64) -> Option<wgpu::Buffer> {
+    let mut pool = pool.lock().ok()?;
+    let best = (0..pool.len())
+        .filter(|&i| pool[i].size() >= size)
+        .min_by_key(|&i| pool[i].size())?;
+    Some(pool.swap_remove(best))
 }
 
 /// Keeps the largest buffers of `pool` whose sizes sum to at most `cap` bytes.

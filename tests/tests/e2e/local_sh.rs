@@ -121,11 +121,7 @@ fn a_short_fast_run_keeps_the_budget_from_its_second_step() {
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    crate::common::succeeded("the Rust example", out);
     let rest = sh.stop();
     let rows: Vec<(u64, u64, u32, u64)> = crate::common::index(&rec)
         .iter()

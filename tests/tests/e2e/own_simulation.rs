@@ -3,7 +3,7 @@
 //! `deploy/local.sh` started, stores every step, and its picture is not blank and matches the
 //! Rust example's (≥ 40 dB at three views).
 
-use crate::common::{index, load_vdi};
+use crate::common::{index, load_vdi, succeeded};
 use crate::local_sh::LocalSh;
 use insitu_core::metrics::psnr;
 use insitu_core::vdi::{render, Vdi};
@@ -75,12 +75,7 @@ fn run_example(what: &str, program: &[&std::ffi::OsStr]) -> Vdi {
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{what}: {stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = succeeded(what, out);
     assert!(
         stdout.contains("pushed 10 steps of 64^3"),
         "{what}: {stdout}"
