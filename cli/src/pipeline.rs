@@ -699,6 +699,23 @@ impl Totals {
     }
 }
 
+/// The decisions among `decisions` that change r, γ or the precision: a re-tuning that keeps the
+/// `P_M` in force is a new version (the corrections after it use its measurements) but no
+/// change a viewer sees.
+fn changes_of_pm(decisions: &[pb::PmDecision]) -> usize {
+    decisions
+        .iter()
+        .filter(|d| {
+            (d.resolution, d.gamma.to_bits(), d.precision_bits)
+                != (
+                    d.old_resolution,
+                    d.old_gamma.to_bits(),
+                    d.old_precision_bits,
+                )
+        })
+        .count()
+}
+
 impl Run<'_> {
     fn json(&self, generator: &str) -> serde_json::Value {
         let reports = &self.seen.reports;
@@ -713,7 +730,8 @@ impl Run<'_> {
                 "mean_tau_s": t.mean_tau_secs,
                 "q_db_min": t.q.map(|q| crate::cmd::q_json(q.1)),
                 "q_db_max": t.q.map(|q| crate::cmd::q_json(q.2)),
-                "pm_changes": self.seen.decisions.len(),
+                "decisions_seen": self.seen.decisions.len(),
+                "pm_changes": changes_of_pm(&self.seen.decisions),
                 "tuner": self.tuner.map(|t| {
                     let (sigma, tau) = Budgets::of(t).adherence(reports);
                     serde_json::json!({
@@ -788,9 +806,10 @@ impl Run<'_> {
         println!("  recording: {}", self.recording.display());
         if let Some(t) = self.tuner {
             println!(
-                "  tuner ({}): {} P_M change(s), characteristic steps {:?}, {} trials of which {} size probes ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
+                "  tuner ({}): {} decision(s), {} changing P_M, characteristic steps {:?}, {} trials of which {} size probes ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
                 t.utility,
                 self.seen.decisions.len(),
+                changes_of_pm(&self.seen.decisions),
                 t.characteristic_steps,
                 t.trials_run,
                 t.size_probes,
@@ -800,7 +819,7 @@ impl Run<'_> {
             );
             if t.corrections > 0 || t.tunings_superseded > 0 {
                 println!(
-                    "  of the P_M changes, {} correction(s) between tunings from the production steps; {} tuning(s) cut short for a newer characteristic step",
+                    "  of the decisions, {} correction(s) between tunings from the production steps; {} tuning(s) cut short for a newer characteristic step",
                     t.corrections, t.tunings_superseded
                 );
             }

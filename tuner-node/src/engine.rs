@@ -738,7 +738,7 @@ impl Loop {
             (
                 t.clone(),
                 c.candidate,
-                s.surface(&t.characteristic_steps, t.ceiling().precision),
+                s.surface(&t.characteristic_steps),
                 s.next_version(),
             )
         };

@@ -7,7 +7,6 @@
 
 use crate::steer::{SceneState, SteerRecord};
 use insitu_core::evaluate::Sizing;
-use insitu_core::Precision;
 use insitu_proto::pb;
 use insitu_tuner::control::{Point, Surface};
 use insitu_tuner::live::{Tracker, Verdict};
@@ -337,9 +336,10 @@ impl State {
     /// (production τ over the trials' τ at its `P_M`) carries that difference to every
     /// candidate, the first decision included.
     ///
-    /// Only the measurements at `precision` make it: σ at another precision is another
-    /// quantity, and a correction keeps the precision of the decision it corrects.
-    pub fn surface(&self, steps: &[u64], precision: Precision) -> Surface {
+    /// Each precision is a layer of its own (σ at another precision is another quantity, and
+    /// a correction keeps the precision of the decision it corrects), and "measured on all of
+    /// the steps" is asked of each precision apart.
+    pub fn surface(&self, steps: &[u64]) -> Surface {
         // By candidate (r, γ's bits): the candidate, its worst σ and τ, the steps measured.
         type Worst = (Candidate, f64, f64, Vec<u64>);
         let mut by: BTreeMap<(u32, u32, u32), Worst> = BTreeMap::new();
@@ -362,9 +362,7 @@ impl State {
                     .iter()
                     .map(|t| (t.step, t.measurement.candidate(), t.measurement.sizing)),
             );
-        let wanted =
-            |m: &(u64, Candidate, Sizing)| steps.contains(&m.0) && m.1.precision == precision;
-        for (step, c, sizing) in measured.filter(wanted) {
+        for (step, c, sizing) in measured.filter(|m| steps.contains(&m.0)) {
             let e = by.entry(c.key()).or_insert((c, 0.0, 0.0, Vec::new()));
             e.1 = e.1.max(sizing.sigma_bytes as f64);
             e.2 = e.2.max(sizing.tau_secs);
@@ -372,7 +370,12 @@ impl State {
                 e.3.push(step);
             }
         }
-        let whole = by.values().any(|e| e.3.len() == steps.len());
+        // The precisions with a candidate measured on every step.
+        let whole: Vec<u32> = by
+            .values()
+            .filter(|e| e.3.len() == steps.len())
+            .map(|e| e.0.precision.bits())
+            .collect();
         // q: the worst over the steps of the candidates the trials scored on every step.
         // By candidate: the candidate, its worst q, the steps scored.
         type Scored = (Candidate, f64, Vec<u64>);
@@ -389,7 +392,7 @@ impl State {
         }
         Surface::new(
             by.into_values()
-                .filter(|e| !whole || e.3.len() == steps.len())
+                .filter(|e| !whole.contains(&e.0.precision.bits()) || e.3.len() == steps.len())
                 .map(|(candidate, sigma_bytes, tau_secs, _)| Point {
                     candidate,
                     sigma_bytes,
@@ -576,7 +579,7 @@ mod tests {
             },
             1,
         );
-        let surface = s.surface(&[0], Default::default());
+        let surface = s.surface(&[0]);
         assert!((surface.tau(c(256, 0.013)).unwrap() - 0.003).abs() < 1e-12);
         assert!((surface.sigma(first).unwrap() - 100_000.0).abs() < 1e-6);
         let grid = ParamGrid {

@@ -399,7 +399,7 @@ fn decide(
     trial_secs: f64,
 ) {
     let from_step = engine.decision_start();
-    let surface = engine.state().surface(&steps, best.precision);
+    let surface = engine.state().surface(&steps);
     if matches!(trigger.cause, Cause::SizeMiss { .. }) {
         // The data changed character at the trigger step, and this surface was measured on
         // it: production before it measured other data.

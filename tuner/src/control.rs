@@ -26,7 +26,6 @@
 //!   budget do not flip the `P_M` back and forth, and still data changes nothing).
 
 use crate::grid::{Candidate, ParamGrid};
-use insitu_core::vdi::Precision;
 use std::collections::{BTreeMap, VecDeque};
 
 /// Production steps the controller remembers (the forecast's window).
@@ -82,18 +81,25 @@ pub struct Point {
 /// A measured `(ln γ, ln value)` curve at one resolution.
 type Curve = Vec<(f64, f64)>;
 
-/// σ and τ over the candidate plane, from measured points.
+/// σ, τ and q at one precision, by resolution.
 #[derive(Clone, Debug, Default)]
-pub struct Surface {
+struct Layer {
     sigma: BTreeMap<u32, Curve>,
     /// ln τ of the slowest timing at each resolution (see [`Surface::tau`]).
     tau: BTreeMap<u32, f64>,
     /// q (dB) over ln γ at each resolution where trials scored candidates (see
     /// [`Surface::q`]).
     q: BTreeMap<u32, Curve>,
-    /// The precision of its points (the first point's; points at another are left out): σ
-    /// and τ of a candidate at another precision are not on it.
-    precision: Option<Precision>,
+}
+
+/// σ and τ over the candidate plane, from measured points, each precision on its own: σ at
+/// 8 bits says nothing of σ at 6 bits or as floats, so a candidate is read from the points of
+/// its own precision only. A surface holds every precision its points came at, so that a
+/// production step made at one precision (the nodes' configured `P_M`, say) gives the
+/// controller its ratio while the tuning chose another.
+#[derive(Clone, Debug, Default)]
+pub struct Surface {
+    layers: BTreeMap<u32, Layer>,
 }
 
 impl Surface {
@@ -102,19 +108,21 @@ impl Surface {
     pub fn new(points: impl IntoIterator<Item = Point>) -> Self {
         let mut s = Self::default();
         for p in points {
-            if *s.precision.get_or_insert(p.candidate.precision) != p.candidate.precision {
-                continue;
-            }
             let (r, g) = (p.candidate.r, f64::from(p.candidate.gamma));
             if !(r > 0 && g > 0.0 && g.is_finite()) {
                 continue;
             }
+            let layer = s.layers.entry(p.candidate.precision.bits()).or_default();
             let valid = |v: f64| v > 0.0 && v.is_finite();
             if valid(p.sigma_bytes) {
-                insert(s.sigma.entry(r).or_default(), g.ln(), p.sigma_bytes.ln());
+                insert(
+                    layer.sigma.entry(r).or_default(),
+                    g.ln(),
+                    p.sigma_bytes.ln(),
+                );
             }
             if valid(p.tau_secs) {
-                let slowest = s.tau.entry(r).or_insert(f64::NEG_INFINITY);
+                let slowest = layer.tau.entry(r).or_insert(f64::NEG_INFINITY);
                 *slowest = slowest.max(p.tau_secs.ln());
             }
         }
@@ -122,17 +130,16 @@ impl Surface {
     }
 
     /// The surface with the q (dB) the trials scored: `(candidate, q)` pairs, the worst case
-    /// over the characteristic steps; pairs at another precision, or with a q that is not
-    /// finite, are left out; the same candidate twice keeps the smaller q.
+    /// over the characteristic steps; pairs with a q that is not finite are left out; the same
+    /// candidate twice keeps the smaller q.
     pub fn with_q(mut self, scored: impl IntoIterator<Item = (Candidate, f64)>) -> Self {
         for (c, q) in scored {
             let g = f64::from(c.gamma);
-            if self.precision.is_some_and(|p| p != c.precision)
-                || !(c.r > 0 && g > 0.0 && g.is_finite() && q.is_finite())
-            {
+            if !(c.r > 0 && g > 0.0 && g.is_finite() && q.is_finite()) {
                 continue;
             }
-            let curve = self.q.entry(c.r).or_default();
+            let layer = self.layers.entry(c.precision.bits()).or_default();
+            let curve = layer.q.entry(c.r).or_default();
             match curve.binary_search_by(|p| p.0.total_cmp(&g.ln())) {
                 Ok(i) => curve[i].1 = curve[i].1.min(q),
                 Err(i) => curve.insert(i, (g.ln(), q)),
@@ -141,15 +148,16 @@ impl Surface {
         self
     }
 
+    fn layer(&self, c: Candidate) -> Option<&Layer> {
+        self.layers.get(&c.precision.bits())
+    }
+
     /// q of `c`, dB, where the trials scored its resolution on both sides of its γ (or at its
-    /// γ): interpolated linearly in ln γ between the two nearest scored; `None` elsewhere (q
-    /// is not extrapolated, and across resolutions it is not one curve: it peaks at some r,
-    /// Fig. 7).
+    /// γ), at its precision: interpolated linearly in ln γ between the two nearest scored;
+    /// `None` elsewhere (q is not extrapolated, and across resolutions it is not one curve: it
+    /// peaks at some r, Fig. 7).
     pub fn q(&self, c: Candidate) -> Option<f64> {
-        if self.precision.is_some_and(|p| p != c.precision) {
-            return None;
-        }
-        let curve = self.q.get(&c.r)?;
+        let curve = self.layer(c)?.q.get(&c.r)?;
         let x = f64::from(c.gamma).ln();
         let i = curve.iter().position(|p| p.0 >= x)?;
         let b = curve[i];
@@ -162,36 +170,33 @@ impl Surface {
 
     /// Whether no σ was measured.
     pub fn is_empty(&self) -> bool {
-        self.sigma.is_empty()
+        self.layers.values().all(|l| l.sigma.is_empty())
     }
 
-    /// σ of `c`, bytes; `None` when nothing was measured.
+    /// σ of `c`, bytes; `None` when nothing was measured at its precision.
     pub fn sigma(&self, c: Candidate) -> Option<f64> {
-        if self.precision.is_some_and(|p| p != c.precision) {
-            return None;
-        }
-        predict(&self.sigma, c, SIGMA_SLOPE, DEFAULT_SIGMA_SLOPE)
+        predict(&self.layer(c)?.sigma, c, SIGMA_SLOPE, DEFAULT_SIGMA_SLOPE)
     }
 
-    /// The smallest γ measured at the resolution that stands for `r` (the nearest measured, in
-    /// ln r): below it σ is extrapolated.
-    pub fn gamma_floor(&self, r: u32) -> Option<f32> {
-        nearest(&self.sigma, r)
+    /// The smallest γ measured at `c`'s precision at the resolution that stands for `c.r`
+    /// (the nearest measured, in ln r): below it σ is extrapolated.
+    pub fn gamma_floor(&self, c: Candidate) -> Option<f32> {
+        nearest(&self.layer(c)?.sigma, c.r)
             .and_then(|(_, c)| c.first())
             .map(|p| p.0.exp() as f32)
     }
 
-    /// τ of `c`, seconds: the largest τ measured at the resolution nearest `c`'s (in ln r),
-    /// whatever the γ, scaled by `(r / r_measured)²`; `None` when no τ was measured. τ falls
-    /// only a little as γ grows (fewer supersegments to close and write), less than two
-    /// timings of one candidate differ on a busy machine, so a curve through the timings at
-    /// one r would have the controller raise γ — losing q — to chase a fast timing; it
-    /// steps r for τ instead and keeps the finest γ there.
+    /// τ of `c`, seconds: the largest τ measured at its precision at the resolution nearest
+    /// `c`'s (in ln r), whatever the γ, scaled by `(r / r_measured)²`; `None` when no τ was
+    /// measured. τ falls only a little as γ grows (fewer supersegments to close and write),
+    /// less than two timings of one candidate differ on a busy machine, so a curve through
+    /// the timings at one r would have the controller raise γ — losing q — to chase a fast
+    /// timing; it steps r for τ instead and keeps the finest γ there.
     pub fn tau(&self, c: Candidate) -> Option<f64> {
-        if c.r == 0 || self.precision.is_some_and(|p| p != c.precision) {
+        if c.r == 0 {
             return None;
         }
-        let (r0, &slowest) = nearest(&self.tau, c.r)?;
+        let (r0, &slowest) = nearest(&self.layer(c)?.tau, c.r)?;
         Some((slowest + 2.0 * (f64::from(c.r).ln() - f64::from(r0).ln())).exp())
     }
 }
@@ -356,14 +361,23 @@ pub struct Controller {
     /// applies from, so that on growing data it is not outgrown at once (see
     /// [`Controller::choose`]). 0 plans for the first step alone.
     pub horizon: u64,
+    /// Production steps in a row the `P_M` in force must have been made on before a correction
+    /// takes a finer resolution (γ at its own resolution may change before): r changes less
+    /// often than γ, and a resolution left for a coarser one on forecast growth is not taken
+    /// back on the first steps that grew less than forecast. At most [`WINDOW`].
+    pub dwell: u64,
     grid: ParamGrid,
     window: VecDeque<Observation>,
     /// The model's miss (≥ 1): after a step over the σ budget, its σ over what its decision
     /// planned for it. Plans are made for the budget divided by it, so the next `P_M` allows
     /// for the error the model has just shown (the forecast's ratio carries what one
     /// candidate measured to the others; where the data changed character, it carries that
-    /// badly); each step within the budget halves its excess.
+    /// badly); each step within the budget halves its excess. A step made more than
+    /// [`Self::horizon`] steps into its `P_M`'s run is past what its plan was made for: its
+    /// excess is growth the next plan's forecast reads, not an error of the model.
     miss: f64,
+    /// The candidate of the newest step and how many steps in a row were made with it.
+    run: Option<(Candidate, u64)>,
     /// The last production step made with each candidate (by r, γ's bits and precision) within
     /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
     /// like today's, whatever the surface says of it.
@@ -379,6 +393,11 @@ pub const MEMORY: u64 = 32;
 /// but at 68 % of the budget used on average instead of 82 % and a q regret of 1.8 dB instead
 /// of 0.2 (docs/tuning.md).
 pub const HORIZON: u64 = 8;
+
+/// The default [`Controller::dwell`], steps: on Gray–Scott 128³ under `size:1MB` a correction to
+/// a coarser resolution planned for [`HORIZON`] steps of growth was taken back five steps
+/// later, when the growth paused, and left again when it resumed.
+pub const DWELL: u64 = HORIZON;
 
 /// The least gain in predicted q (dB) that is worth a visible change of `P_M` towards a finer
 /// one at the same resolution, where the trials scored both (see [`Controller::correct`]).
@@ -404,9 +423,11 @@ impl Controller {
             headroom,
             hysteresis: 0.1,
             horizon: HORIZON,
+            dwell: DWELL,
             grid,
             window: VecDeque::with_capacity(WINDOW),
             miss: 1.0,
+            run: None,
             seen: BTreeMap::new(),
         }
     }
@@ -427,9 +448,16 @@ impl Controller {
         if self.window.back().is_some_and(|b| o.step <= b.step) {
             return;
         }
+        let run = match self.run {
+            Some((c, n)) if c == o.candidate => n + 1,
+            _ => 1,
+        };
+        self.run = Some((o.candidate, run));
         if let Some(target) = self.sigma_target {
             let sigma = o.sigma_bytes as f64;
-            let planned = o.planned_sigma_bytes.filter(|p| p.is_finite() && *p > 0.0);
+            let planned = o
+                .planned_sigma_bytes
+                .filter(|p| p.is_finite() && *p > 0.0 && run <= self.horizon.max(1));
             self.miss = match planned {
                 Some(p) if sigma > target => (sigma / p).clamp(1.0, MAX_GROWTH),
                 _ => 1.0 + (self.miss - 1.0) / 2.0,
@@ -460,6 +488,7 @@ impl Controller {
         self.window.retain(|o| o.step >= step);
         self.seen.retain(|_, o| o.step >= step);
         self.miss = 1.0;
+        self.run = None;
     }
 
     /// The production steps remembered, oldest first.
@@ -540,7 +569,8 @@ impl Controller {
     /// surface can be off at one candidate (measured on other steps, interpolated, or for τ
     /// scaled by r² from a resolution whose fixed costs dominate its timing), and a `P_M` that
     /// overshot on its own step is not taken back on the strength of other candidates' ratios.
-    fn ratios(&self, surface: &Surface, f: &Forecast, c: Candidate) -> (f64, f64) {
+    /// The third value says whether `c`'s σ was measured by production (its own ratio).
+    fn ratios(&self, surface: &Surface, f: &Forecast, c: Candidate) -> (f64, f64, bool) {
         let memory = MEMORY * self.stride();
         let recent = |o: &&Observation| f.newest.saturating_sub(o.step) <= memory;
         let ratio = |measured: f64, modelled: Option<f64>| {
@@ -579,6 +609,7 @@ impl Controller {
         (
             own_sigma.map_or(f.sigma, |k| k.max(f.sigma)),
             own_tau.map_or(f.tau, |k| k.max(f.tau)),
+            own_sigma.is_some(),
         )
     }
 
@@ -602,13 +633,14 @@ impl Controller {
         c: Candidate,
         margin: f64,
     ) -> (f64, f64, f64) {
-        let (k_sigma, k_tau) = self.ratios(surface, f, c);
+        let (k_sigma, k_tau, measured) = self.ratios(surface, f, c);
         let sigma = surface.sigma(c).map_or(f64::INFINITY, |s| s * k_sigma);
         let tau = surface.tau(c).map_or(f64::NAN, |t| t * k_tau);
         let plan = |t: f64| (1.0 - self.headroom) * t * margin;
-        let sigma_load = self
-            .sigma_target
-            .map_or(0.0, |t| sigma / (plan(t) / self.miss));
+        // The model's miss is an error of the surface's reading of a candidate; one that
+        // production made recently is read from its own σ.
+        let miss = if measured { 1.0 } else { self.miss };
+        let sigma_load = self.sigma_target.map_or(0.0, |t| sigma / (plan(t) / miss));
         let tau_load = match self.tau_target {
             Some(t) if !tau.is_nan() => tau / plan(t),
             _ => 0.0,
@@ -698,7 +730,8 @@ impl Controller {
                 // not an extrapolation below it. At the tuned resolution too: there q only
                 // rises as γ falls (Sec. 6.1), so a γ finer than the tuned one that the
                 // forecast lets through is better on the data as it is now.
-                let floor = surface.gamma_floor(r).map_or(0.0, |g| g * (1.0 - 1e-6));
+                let at_r = Candidate { r, ..tuned };
+                let floor = surface.gamma_floor(at_r).map_or(0.0, |g| g * (1.0 - 1e-6));
                 first_fit(r, floor, span(r).max(floor))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
@@ -740,7 +773,8 @@ impl Controller {
     /// misses the budget under the forecast for `at` (the budget is at risk; the plan, the
     /// budget less the headroom, is what a new choice aims at): [`Self::choose`]'s candidate
     /// at a resolution no finer than `current`'s. Otherwise only towards a finer
-    /// candidate, and only when it is worth a visible change: it clears the plan by the
+    /// candidate, and only when it is worth a visible change: at a finer resolution only after
+    /// `current` has held for [`Self::dwell`] steps, it clears the plan by the
     /// hysteresis for the whole horizon, and its predicted q exceeds `current`'s by
     /// [`Q_GAIN_DB`] ([`Q_GAIN_R_DB`] for another resolution) where the trials scored both,
     /// elsewhere its σ forecast is [`SIGMA_GAIN`] ([`SIGMA_GAIN_R`]) times `current`'s.
@@ -765,7 +799,21 @@ impl Controller {
                 .choose(surface, ceiling, at)
                 .filter(|p| p.candidate != current);
         }
-        let p = self.choose(surface, tuned, at)?;
+        let held = self
+            .window
+            .iter()
+            .rev()
+            .take_while(|o| o.candidate == current)
+            .count() as u64;
+        let ceiling = if held >= self.dwell.min(WINDOW as u64) {
+            tuned
+        } else {
+            Candidate {
+                r: tuned.r.min(current.r),
+                ..tuned
+            }
+        };
+        let p = self.choose(surface, ceiling, at)?;
         let finer = finer(p.candidate, current);
         let clears = self
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
@@ -835,6 +883,7 @@ fn growth(slope: f64, from: u64, to: u64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use insitu_core::vdi::Precision;
 
     fn c(r: u32, gamma: f32) -> Candidate {
         Candidate {
@@ -975,6 +1024,42 @@ mod tests {
         assert!((ctl.miss() - 1.25).abs() < 1e-9);
         ctl.observe(step(5, 700_000, None));
         assert!((ctl.miss() - 1.125).abs() < 1e-9);
+    }
+
+    /// The miss is the model's: a step past the horizon its plan was made for sets none (its
+    /// excess is growth), and the `P_M` in force, read from its own σ, is not held to it.
+    #[test]
+    fn the_miss_is_the_models_not_the_growth_past_a_plan_nor_the_p_m_in_forces() {
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
+        let tuned = c(256, g(2));
+        let step = |step, sigma_bytes| Observation {
+            step,
+            candidate: tuned,
+            sigma_bytes,
+            tau_secs: 0.1,
+            planned_sigma_bytes: Some(700_000.0),
+        };
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        for k in 0..HORIZON {
+            ctl.observe(step(k, 700_000));
+        }
+        // The horizon's steps were planned at 700 kB; the next, over the budget, is past it.
+        ctl.observe(step(HORIZON, 1_200_000));
+        assert_eq!(ctl.miss(), 1.0);
+        // A miss set by a new candidate's first step: the P_M in force at 70 % of the budget
+        // is not at risk, though 70 % × 1.5 would be.
+        let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+        let other = c(128, g(2));
+        ctl.observe(Observation {
+            candidate: other,
+            ..step(0, 1_500_000)
+        });
+        ctl.observe(Observation {
+            planned_sigma_bytes: None,
+            ..step(1, 700_000)
+        });
+        assert!(ctl.miss() > 1.2);
+        assert_eq!(ctl.correct(&s, tuned, tuned, 2), None);
     }
 
     #[test]
@@ -1357,10 +1442,10 @@ mod tests {
         assert_eq!(ctl.observations().count(), 5);
     }
 
-    /// A surface answers for candidates at its own precision only: σ at 8 bits says nothing
-    /// of σ at 6 bits or as floats, and points at another precision are left out.
+    /// A candidate is read from the points of its own precision only: σ at 8 bits says
+    /// nothing of σ at 6 bits or as floats; a surface holds each precision its points came at.
     #[test]
-    fn a_surface_holds_one_precision() {
+    fn a_surface_keeps_each_precision_apart() {
         let at = |c: Candidate, precision| Candidate { precision, ..c };
         let eight = [c(64, 0.01), c(128, 0.01), c(128, 0.02)].map(|x| at(x, Precision::Bits(8)));
         let mut points: Vec<Point> = eight
@@ -1371,21 +1456,61 @@ mod tests {
                 tau_secs: 0.01,
             })
             .collect();
+        let float = at(c(64, 0.02), Precision::Float32);
         points.push(Point {
-            candidate: at(c(64, 0.02), Precision::Float32),
+            candidate: float,
             sigma_bytes: 1.0,
             tau_secs: 1.0,
         });
         let s = Surface::new(points);
         let probe = at(c(96, 0.015), Precision::Bits(8));
         assert!(s.sigma(probe).is_some() && s.tau(probe).is_some());
-        for other in [Precision::Bits(6), Precision::Float32] {
-            assert_eq!(s.sigma(at(probe, other)), None, "{other}");
-            assert_eq!(s.tau(at(probe, other)), None, "{other}");
-        }
-        // The float point was left out: σ at r 64 follows the 8-bit law.
+        assert_eq!(s.sigma(at(probe, Precision::Bits(6))), None);
+        assert_eq!(s.tau(at(probe, Precision::Bits(6))), None);
+        // The float point is a layer of its own: σ at r 64 at 8 bits follows the 8-bit law,
+        // and the float candidate reads its own point.
         let r64 = at(c(64, 0.02), Precision::Bits(8));
         assert!((s.sigma(r64).unwrap() / law(r64) - 1.0).abs() < 0.2);
+        assert!((s.sigma(float).unwrap() - 1.0).abs() < 1e-9);
+        assert!((s.tau(float).unwrap() - 1.0).abs() < 1e-9);
+    }
+
+    /// A production step made at another precision than the tuning chose (the nodes'
+    /// configured `P_M` before the first decision) gives the forecast its ratio, so the first
+    /// decision is planned for the growth seen since the characteristic step.
+    #[test]
+    fn growth_seen_at_another_precision_reaches_the_first_decision() {
+        let at = |c: Candidate, precision| Candidate { precision, ..c };
+        let cs = [c(64, g(1)), c(64, g(4)), c(128, g(1)), c(128, g(4))];
+        let points = cs
+            .iter()
+            .flat_map(|&x| [Precision::Bits(6), Precision::Bits(8)].map(|p| at(x, p)))
+            .map(|x| Point {
+                candidate: x,
+                sigma_bytes: law(x)
+                    * if x.precision == Precision::Bits(8) {
+                        1.3
+                    } else {
+                        1.0
+                    },
+                tau_secs: 0.01,
+            });
+        let s = Surface::new(points);
+        let configured = at(c(128, g(2)), Precision::Bits(8));
+        let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+        // Made at 8 bits (whose points lie 1.3× the law), growing 10 % a step: 1.6× its
+        // surface by the newest.
+        for step in 0..6u64 {
+            observed(&mut ctl, step, configured, 1.3 * 1.1f64.powi(step as i32));
+        }
+        let f = ctl
+            .forecast(&s, 6)
+            .expect("a forecast from the 8-bit steps");
+        assert!(f.sigma_now > 1.4, "{f:?}");
+        let tuned = at(c(128, g(1)), Precision::Bits(6));
+        let p = ctl.choose(&s, tuned, 6).unwrap();
+        assert_eq!(p.candidate.precision, Precision::Bits(6));
+        assert!(p.sigma_bytes > s.sigma(p.candidate).unwrap() * 1.4, "{p:?}");
     }
 
     /// q is interpolated between the γ the trials scored at a resolution, the worst of a
@@ -1404,6 +1529,28 @@ mod tests {
         assert_eq!(s.q(c(256, g(1))), None, "below the scored γ");
         assert_eq!(s.q(c(256, g(16))), None, "above");
         assert_eq!(s.q(c(128, g(4))), None, "another resolution; NaN left out");
+    }
+
+    /// A finer resolution is taken back only after the `P_M` in force has held for the dwell:
+    /// the field that grew less than forecast for a few steps may grow again.
+    #[test]
+    fn a_finer_resolution_waits_for_the_dwell() {
+        let tuned = c(256, g(2));
+        let current = c(128, g(2));
+        let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2)), c(128, g(4))]);
+        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        // The field shrank to k = 0.5 after the coarsening: r 256 fits with room.
+        for step in 0..DWELL {
+            observed(&mut ctl, step, current, 0.5);
+            let taken = ctl
+                .correct(&s, tuned, current, step + 1)
+                .map(|p| p.candidate);
+            if step + 1 < DWELL {
+                assert_eq!(taken, None, "after {} steps", step + 1);
+            } else {
+                assert_eq!(taken, Some(tuned), "after the dwell");
+            }
+        }
     }
 
     /// Not at risk, a finer `P_M` is taken only when it is worth a visible change: by q where
