@@ -81,13 +81,14 @@ pub struct TrialConfig {
     /// A trial whose results do not arrive within this many seconds is abandoned (and with it
     /// the tuning that asked for it; the previous decision stays).
     pub timeout_secs: f64,
-    /// Share of the wall clock the trials may take in the long run, in (0, 1]: trials (their
-    /// wall clock on the nodes) may use `burst_secs + share × seconds since start`; beyond
-    /// that the next trial waits.
+    /// Share of the wall clock the trials may take, in (0, 1]: trials (their wall clock on
+    /// the nodes) may use `max(burst, share × seconds since start)`; beyond that the next
+    /// trial waits.
     pub share: f64,
-    /// Trial seconds allowed before the share applies: it lets the first tuning run at once,
-    /// and what that tuning leaves of it lapses when it decides (re-tunes are paced by the
-    /// share alone, so trials stay near `share` of a run that amortises the first tuning).
+    /// Trial seconds allowed before the share has accrued them: it lets the first tuning run
+    /// at once, and what that tuning leaves of it lapses when it decides. It is an advance on
+    /// the share: later trials wait until the share has caught up with what the first tuning
+    /// used, so the trials keep to `share` of any run longer than that.
     pub burst_secs: f64,
     /// Trial seconds a tuning for a new character (or a steered utility) may run ahead of
     /// `share`: it starts at once instead of waiting for the share to

@@ -50,11 +50,15 @@ fn measurement(c: Candidate, r: &pb::TrialResult) -> Measurement {
     }
 }
 
-/// Node seconds of trials allowed `elapsed` seconds after the start: the burst (until the first
-/// tuning decides, then what it used of it, `burst_used`) plus the share of the wall clock.
+/// Node seconds of trials allowed `elapsed` seconds after the start: the share of the wall
+/// clock, or the burst where that is more (until the first tuning decides the whole burst,
+/// then what that tuning used of it, `burst_used`). The burst is an advance on the share, not
+/// an addition to it: trials after the first tuning wait until the share has caught up with
+/// it, so over a run longer than `burst_used / share` the trials take the share, the first
+/// tuning included.
 fn allowance(t: &TrialConfig, burst_used: Option<f64>, elapsed: f64) -> f64 {
     let burst = burst_used.map_or(t.burst_secs, |b| b.clamp(0.0, t.burst_secs));
-    burst + t.share * elapsed
+    burst.max(t.share * elapsed)
 }
 
 /// The measurements of one characteristic step, through the nodes that hold it.
@@ -667,18 +671,24 @@ mod tests {
     }
 
     /// Before the first decision trials may use the whole burst; after it, what the first
-    /// tuning used of it and the share of the wall clock, never more than before.
+    /// tuning used of it until the share has caught up, then the share alone.
     #[test]
-    fn the_burst_left_by_the_first_tuning_lapses() {
+    fn the_burst_is_an_advance_on_the_share() {
         let t = TrialConfig {
             share: 0.1,
             burst_secs: 15.0,
             ..TrialConfig::default()
         };
         assert_eq!(allowance(&t, None, 0.0), 15.0);
-        assert!((allowance(&t, None, 60.0) - 21.0).abs() < 1e-12);
-        assert!((allowance(&t, Some(1.5), 60.0) - 7.5).abs() < 1e-12);
-        assert!((allowance(&t, Some(40.0), 60.0) - 21.0).abs() < 1e-12);
+        assert_eq!(allowance(&t, None, 60.0), 15.0);
+        assert!((allowance(&t, None, 200.0) - 20.0).abs() < 1e-12);
+        assert_eq!(
+            allowance(&t, Some(2.5), 10.0),
+            2.5,
+            "repaying the first tuning"
+        );
+        assert!((allowance(&t, Some(2.5), 60.0) - 6.0).abs() < 1e-12);
+        assert_eq!(allowance(&t, Some(40.0), 60.0), 15.0);
         assert!((allowance(&t, Some(-1.0), 10.0) - 1.0).abs() < 1e-12);
     }
 }

@@ -664,6 +664,18 @@ impl Controller {
     /// long; else the forecast for `at` alone.
     /// `None` before there is a forecast.
     pub fn choose(&self, surface: &Surface, tuned: Candidate, at: u64) -> Option<Plan> {
+        self.choose_below(surface, tuned, tuned.r, at)
+    }
+
+    /// [`Self::choose`] at resolutions no finer than `r_max` (the `P_M` in force's, where a
+    /// correction may not go finer).
+    fn choose_below(
+        &self,
+        surface: &Surface,
+        tuned: Candidate,
+        r_max: u32,
+        at: u64,
+    ) -> Option<Plan> {
         let next = self.forecast(surface, at)?;
         let lasting = at.saturating_add(self.horizon.saturating_mul(self.stride()));
         if let Some(trend) = next.trend_per_step.filter(|_| lasting > at) {
@@ -678,16 +690,16 @@ impl Controller {
                 at: lasting,
                 ..next
             };
-            let p = self.choose_for(surface, tuned, f);
+            let p = self.choose_for(surface, tuned, r_max, f);
             if p.feasible {
                 return Some(p);
             }
         }
-        Some(self.choose_for(surface, tuned, next))
+        Some(self.choose_for(surface, tuned, r_max, next))
     }
 
-    /// [`Self::choose`] under the forecast `f`.
-    fn choose_for(&self, surface: &Surface, tuned: Candidate, f: Forecast) -> Plan {
+    /// [`Self::choose_below`] under the forecast `f`.
+    fn choose_for(&self, surface: &Surface, tuned: Candidate, r_max: u32, f: Forecast) -> Plan {
         let plan = |c: Candidate, feasible: bool| {
             let (sigma_bytes, tau_secs, _) = self.fits(surface, &f, c, 1.0);
             Plan {
@@ -704,7 +716,7 @@ impl Controller {
             .iter()
             .rev()
             .copied()
-            .filter(|&r| r <= tuned.r)
+            .filter(|&r| r <= tuned.r.min(r_max))
             .collect();
         let first_fit = |r: u32, lo: f32, hi: f32| {
             self.grid
@@ -729,9 +741,16 @@ impl Controller {
                 // The finest γ measured at the resolution (or where its σ is modelled from),
                 // not an extrapolation below it. At the tuned resolution too: there q only
                 // rises as γ falls (Sec. 6.1), so a γ finer than the tuned one that the
-                // forecast lets through is better on the data as it is now.
+                // forecast lets through is better on the data as it is now — under a size
+                // budget, only where production came in under the tuning's measurements by
+                // the hysteresis (k ≤ 0.9; a step's σ spreads ±4 % on still data): else the
+                // tuning measured what fits, and a finer γ between its probes is the
+                // surface's guess at the budget's edge.
                 let at_r = Candidate { r, ..tuned };
-                let floor = surface.gamma_floor(at_r).map_or(0.0, |g| g * (1.0 - 1e-6));
+                let mut floor = surface.gamma_floor(at_r).map_or(0.0, |g| g * (1.0 - 1e-6));
+                if r == tuned.r && self.sigma_target.is_some() && f.sigma > 1.0 - self.hysteresis {
+                    floor = floor.max(tuned.gamma * (1.0 - 1e-6));
+                }
                 first_fit(r, floor, span(r).max(floor))
             })
             .or_else(|| rs.iter().find_map(|&r| first_fit(r, 0.0, f32::INFINITY)));
@@ -791,12 +810,8 @@ impl Controller {
         // noise, and a forecast inside it breaks nothing).
         let budget = 1.0 / (1.0 - self.headroom).max(f64::EPSILON);
         if !self.fits(surface, &next, current, budget).2 {
-            let ceiling = Candidate {
-                r: tuned.r.min(current.r),
-                ..tuned
-            };
             return self
-                .choose(surface, ceiling, at)
+                .choose_below(surface, tuned, current.r, at)
                 .filter(|p| p.candidate != current);
         }
         let held = self
@@ -805,15 +820,12 @@ impl Controller {
             .rev()
             .take_while(|o| o.candidate == current)
             .count() as u64;
-        let ceiling = if held >= self.dwell.min(WINDOW as u64) {
-            tuned
+        let r_max = if held >= self.dwell.min(WINDOW as u64) {
+            tuned.r
         } else {
-            Candidate {
-                r: tuned.r.min(current.r),
-                ..tuned
-            }
+            current.r
         };
-        let p = self.choose(surface, ceiling, at)?;
+        let p = self.choose_below(surface, tuned, r_max, at)?;
         let finer = finer(p.candidate, current);
         let clears = self
             .fits(surface, &p.forecast, p.candidate, 1.0 - self.hysteresis)
@@ -1529,6 +1541,24 @@ mod tests {
         assert_eq!(s.q(c(256, g(1))), None, "below the scored γ");
         assert_eq!(s.q(c(256, g(16))), None, "above");
         assert_eq!(s.q(c(128, g(4))), None, "another resolution; NaN left out");
+    }
+
+    /// At the tuned resolution a γ finer than the tuned one is taken only where production came
+    /// in under the tuning's measurements by the hysteresis: else the tuning measured what
+    /// fits, and the surface between its probes is a guess at the budget's edge.
+    #[test]
+    fn the_tuned_gamma_is_refined_only_where_the_data_shrank() {
+        let s = surface_of(&[c(256, g(1)), c(256, g(4))]);
+        let tuned = c(256, g(4));
+        let chosen = |k: f64| {
+            let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+            observed(&mut ctl, 0, tuned, k);
+            ctl.choose(&s, tuned, 1).map(|p| p.candidate)
+        };
+        // By the surface γ 0.01 (1.0 MB) would fit the 1.064 MB plan at k = 1.
+        assert_eq!(chosen(1.0), Some(tuned));
+        assert_eq!(chosen(0.95), Some(tuned), "within a step's noise");
+        assert_eq!(chosen(0.5), Some(c(256, g(1))));
     }
 
     /// A finer resolution is taken back only after the `P_M` in force has held for the dwell:
