@@ -996,6 +996,45 @@ mod tests {
         );
     }
 
+    /// On slowly drifting data (σ at every candidate growing 1 % a step, with ±3 % of noise
+    /// per step) the `P_M` changes a few times per 100 steps and r fewer times than γ,
+    /// while every step keeps the budget.
+    #[test]
+    fn slow_drift_changes_the_p_m_rarely() {
+        let rs = [64u32, 128, 192, 256];
+        let s = surface_of(
+            &rs.iter()
+                .flat_map(|&r| [g(1), g(2), g(4), g(8), g(16), g(32)].map(|x| c(r, x)))
+                .collect::<Vec<_>>(),
+        );
+        let budget = 1_120_000.0;
+        let mut ctl = Controller::new((Some(budget as u64), None), 0.05, grid());
+        let tuned = c(256, g(2));
+        let mut current = tuned;
+        let (mut changes, mut r_changes) = (0, 0);
+        for step in 0..100u64 {
+            // A fixed pattern of noise within ±3 %.
+            let noise = 1.0 + 0.03 * ((step * 7919 % 13) as f64 / 6.0 - 1.0);
+            let k = 1.01f64.powi(step as i32) * noise;
+            assert!(
+                law(current) * k < budget,
+                "step {step}: {current:?} at k {k:.3}"
+            );
+            observed(&mut ctl, step, current, k);
+            if let Some(p) = ctl.correct(&s, tuned, current, step + 1) {
+                changes += 1;
+                r_changes += usize::from(p.candidate.r != current.r);
+                current = p.candidate;
+            }
+        }
+        // σ grows 2.7× over the run: γ alone absorbs 1.33× at a resolution before r falls.
+        assert!(changes <= 5, "{changes} changes");
+        assert!(
+            r_changes <= 2 && r_changes < changes,
+            "{r_changes} of {changes}"
+        );
+    }
+
     /// A step over the budget makes the next plans allow for how far it exceeded what its
     /// decision planned (the model's miss); each step within the budget halves the excess;
     /// steps within the budget (still data) never set one, and a step without a known plan
