@@ -27,7 +27,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 
 /// Steps kept waiting for their last rank or their q before they are given up.
 const STALE_STEPS: u64 = 32;
@@ -745,6 +745,16 @@ impl Loop {
         let Some(plan) = ctl.correct(&surface, tuned.ceiling(), current, at) else {
             return;
         };
+        debug!(
+            step,
+            r = plan.candidate.r,
+            gamma = plan.candidate.gamma,
+            surface_sigma = surface.sigma(plan.candidate),
+            planned_sigma = plan.sigma_bytes,
+            k = plan.forecast.sigma,
+            steps = ?tuned.characteristic_steps,
+            "correction planned"
+        );
         let miss = ctl.miss();
         let broke = ctl
             .sigma_target
