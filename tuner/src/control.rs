@@ -238,11 +238,7 @@ fn nearest<V>(by_r: &BTreeMap<u32, V>, r: u32) -> Option<(u32, &V)> {
 
 /// A value at `c`: interpolated on the curve of the nearest measured resolution (in ln r),
 /// scaled by `(r / r_measured)²`; beyond the curve's ends, extended with the end segment's
-/// slope within `bounds` (lowest, highest, highest beyond the measured). A resolution measured
-/// at one γ only takes the shape of the nearest resolution measured at several, where that
-/// reaches above its γ: σ's slope over γ is not one power law (it flattens at small γ, more so
-/// at a small r), and the pooled slope of whole curves read r 128's σ at γ 0.009 from its
-/// γ 0.001 at half what it was.
+/// slope within `bounds` (lowest, highest, highest beyond the measured).
 fn predict(
     curves: &BTreeMap<u32, Curve>,
     c: Candidate,
@@ -257,50 +253,29 @@ fn predict(
     let (r0, curve) = nearest(curves, c.r).filter(|(_, c)| !c.is_empty())?;
     let x = g.ln();
     let y = if curve.len() == 1 {
-        let p = curve[0];
-        let shaped = (x > p.0)
-            .then(|| {
-                let several: BTreeMap<u32, &Curve> = curves
-                    .iter()
-                    .filter(|(_, c)| c.len() >= 2)
-                    .map(|(&r, c)| (r, c))
-                    .collect();
-                let (_, other) = nearest(&several, r0)?;
-                let rise =
-                    on_curve(other, x, bounds, default) - on_curve(other, p.0, bounds, default);
-                let slope = rise / (x - p.0);
-                slope.is_finite().then(|| slope.clamp(bounds.0, bounds.1))
-            })
-            .flatten();
-        let slope = shaped.unwrap_or_else(|| pooled_slope(curves, bounds, default).min(bounds.2));
-        p.1 + slope * (x - p.0)
+        curve[0].1 + pooled_slope(curves, bounds, default).min(bounds.2) * (x - curve[0].0)
     } else {
-        on_curve(curve, x, bounds, default)
+        // The segment containing x, or the end segment nearest it.
+        let i = curve
+            .iter()
+            .position(|p| p.0 >= x)
+            .unwrap_or(curve.len())
+            .clamp(1, curve.len() - 1);
+        let (a, b) = (curve[i - 1], curve[i]);
+        let s = ((b.1 - a.1) / (b.0 - a.0)).clamp(bounds.0, bounds.2);
+        if x <= b.0 && x >= a.0 {
+            // Inside: straight interpolation (through both points).
+            a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
+        } else if x < a.0 {
+            // Below the measured γ σ is taken to rise at least as 1/γ: the end segment may lie
+            // where σ flattens, and a low guess there would overshoot.
+            a.1 + s.min(default) * (x - a.0)
+        } else {
+            b.1 + s * (x - b.0)
+        }
     };
     let scale = 2.0 * (lr - f64::from(r0).ln());
     Some((y + scale).exp())
-}
-
-/// ln of the value at `x` (ln γ) on a curve of two points or more (see [`predict`]).
-fn on_curve(curve: &Curve, x: f64, bounds: (f64, f64, f64), default: f64) -> f64 {
-    // The segment containing x, or the end segment nearest it.
-    let i = curve
-        .iter()
-        .position(|p| p.0 >= x)
-        .unwrap_or(curve.len())
-        .clamp(1, curve.len() - 1);
-    let (a, b) = (curve[i - 1], curve[i]);
-    let s = ((b.1 - a.1) / (b.0 - a.0)).clamp(bounds.0, bounds.2);
-    if x <= b.0 && x >= a.0 {
-        // Inside: straight interpolation (through both points).
-        a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
-    } else if x < a.0 {
-        // Below the measured γ σ is taken to rise at least as 1/γ: the end segment may lie
-        // where σ flattens, and a low guess there would overshoot.
-        a.1 + s.min(default) * (x - a.0)
-    } else {
-        b.1 + s * (x - b.0)
-    }
 }
 
 /// A production step as the controller sees it.
@@ -1516,30 +1491,6 @@ mod tests {
         // Older steps than the newest are ignored.
         observed(&mut ctl, 5, c(256, g(2)), 9.0);
         assert_eq!(ctl.observations().count(), 5);
-    }
-
-    /// A resolution measured at one γ takes the shape of the nearest one measured at several
-    /// above that γ (the growing series' step 10 at 6 bits: r 192 measured at three γ, r 128
-    /// at γ 0.001 only; r 128 at γ 0.009 measured 64.8 kB).
-    #[test]
-    fn a_resolution_measured_once_takes_its_neighbours_shape() {
-        let point = |r, gamma, sigma_bytes| Point {
-            candidate: c(r, gamma),
-            sigma_bytes,
-            tau_secs: 0.01,
-        };
-        let s = Surface::new([
-            point(192, 0.001, 218_185.0),
-            point(192, 0.009, 135_092.0),
-            point(192, 0.017, 97_673.0),
-            point(128, 0.001, 99_223.0),
-        ]);
-        let at = s.sigma(c(128, 0.009)).unwrap();
-        assert!((at / (99_223.0 * 135_092.0 / 218_185.0) - 1.0).abs() < 1e-6, "{at}");
-        assert!((at / 64_756.0 - 1.0).abs() < 0.1, "{at}");
-        // Below its one γ σ still rises at least as γ^−½.
-        let below = s.sigma(c(128, 0.0005)).unwrap();
-        assert!(below >= 99_223.0 * 2f64.sqrt() * 0.999, "{below}");
     }
 
     /// A candidate is read from the points of its own precision only: σ at 8 bits says
