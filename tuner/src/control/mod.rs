@@ -158,7 +158,8 @@ pub struct Controller {
     /// [`Self::horizon`] steps into its `P_M`'s run is past what its plan was made for: its
     /// excess is growth the next plan's forecast reads, not an error of the model.
     miss: f64,
-    /// The candidate of the newest step and how many steps in a row were made with it.
+    /// The candidate of the newest step and how many steps in a row were made with it (what the
+    /// dwell and the miss read).
     run: Option<(Candidate, u64)>,
     /// The last production step made with each candidate (by r, γ's bits and precision) within
     /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
@@ -270,7 +271,16 @@ impl Controller {
         self.window.retain(|o| o.step >= step);
         self.seen.retain(|_, o| o.step >= step);
         self.miss = 1.0;
-        self.run = None;
+        // The run of the newest candidate among the steps kept.
+        self.run = self.window.back().map(|newest| {
+            let n = self
+                .window
+                .iter()
+                .rev()
+                .take_while(|o| o.candidate == newest.candidate)
+                .count();
+            (newest.candidate, n as u64)
+        });
     }
 
     /// The production steps remembered, oldest first.
@@ -596,12 +606,10 @@ impl Controller {
                 .choose_below(surface, tuned, current.r, at)
                 .filter(|p| p.candidate != current);
         }
-        let held = self
-            .window
-            .iter()
-            .rev()
-            .take_while(|o| o.candidate == current)
-            .count() as u64;
+        let held = match self.run {
+            Some((c, n)) if c == current => n,
+            _ => 0,
+        };
         let r_max = if held >= self.dwell.min(WINDOW as u64) {
             tuned.r
         } else {
