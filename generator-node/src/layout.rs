@@ -1,28 +1,59 @@
-//! The ranks' bricks, checked at the first step whose ranks have all arrived here: bricks that
-//! cannot tile the grid (two disjoint halves leave the cells between them in no brick) are
-//! named once per run with their fix, the steps they make are counted, and later pushes of
-//! the same bricks are refused at their header, so a simulation hears of its decomposition at
-//! its next push rather than at the end of the run.
+//! The ranks' bricks of the worlds pushing to this node.
+//!
+//! **Checked** at the first step whose ranks have all arrived here: bricks that cannot tile
+//! the grid (a real hole, or overlap) are named once per run, the steps they make are
+//! counted, and later pushes of the same bricks are refused at their header, so a simulation
+//! hears of its decomposition at its next push rather than at the end of the run.
+//!
+//! **Grown** where they tile the grid's points without sharing a plane (as one splits an
+//! array, and as ADIOS2 writers lay out blocks; `insitu_core::volume::tiling`): each push
+//! leaves its low faces here as it arrives, and before a rank's brick is made the worker
+//! grows it by its neighbours' faces ([`Layouts::growth`]), so the bricks it ships share their
+//! boundary planes and compose without seams. The first step of a world waits (at most the
+//! host's `wait_secs`) for its ranks to show how they tile; a world whose ranks do not all
+//! push here is not waited for again, and its bricks are made as pushed (the viz-node names
+//! the cells they leave out).
 //!
 //! Only a world whose ranks all push to this node can be checked here; a world spread over
 //! several nodes is checked by the viz-node when it composes (docs/ranks-and-clients.md).
 
 use crate::ingest::StepInfo;
-use insitu_core::volume::bricks::{self, Brick, DecompositionError};
+use insitu_core::volume::bricks::{Brick, DecompositionError};
+use insitu_core::volume::tiling::{self, Tiling};
+use insitu_core::volume::{Volume, VolumeError};
 use std::collections::BTreeMap;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::Notify;
 use tonic::Status;
 use tracing::warn;
 
-/// Steps whose ranks are not all in, kept at most: a node that serves part of a world never
-/// sees one whole, and forgets the oldest.
+/// Steps whose ranks are not all in or not all made, kept at most: a node that serves part of
+/// a world never sees one whole, and forgets the oldest.
 const MAX_PENDING: usize = 64;
+
+/// How long a brick that grows waits for its neighbours' faces once the world is known to
+/// push here whole, seconds: past it, the brick is made as pushed.
+const FACES_WAIT_SECS: f64 = 60.0;
 
 /// A world's bricks, by rank, on one grid.
 #[derive(Clone, Debug, PartialEq)]
 struct Layout {
     global: [usize; 3],
     bricks: BTreeMap<u32, Brick>,
+}
+
+impl Layout {
+    /// The bricks as `tiling` takes them, in rank order.
+    fn placed(&self) -> Vec<(u32, Brick)> {
+        self.bricks.iter().map(|(r, b)| (*r, *b)).collect()
+    }
+
+    /// How rank `rank`'s brick is made under `tiling` (as pushed when not of this layout).
+    fn made(&self, tiling: &Tiling, rank: u32) -> Option<Brick> {
+        let i = self.bricks.keys().position(|&r| r == rank)?;
+        Some(tiling.made(i, self.bricks[&rank]))
+    }
 }
 
 /// A layout that cannot tile its grid.
@@ -34,12 +65,24 @@ struct Bad {
     why: DecompositionError,
 }
 
+/// A step whose ranks are not all in, or not all made.
+#[derive(Debug)]
+struct Pending {
+    layout: Layout,
+    /// Each rank's low faces, where its bricks may grow.
+    faces: BTreeMap<u32, Arc<Vec<(Brick, Volume)>>>,
+    /// How the bricks tile, once all are in (`None` after: they do not).
+    tiling: Option<Option<Tiling>>,
+    /// Ranks whose worker has asked for its growth, or that were dropped.
+    done: usize,
+}
+
 #[derive(Debug, Default)]
 struct State {
-    /// Bricks of the steps whose ranks are not all in yet.
-    pending: BTreeMap<u64, Layout>,
-    /// The last whole layout that tiled its grid (not checked again).
-    good: Option<Layout>,
+    /// The steps in flight of worlds of several ranks.
+    pending: BTreeMap<u64, Pending>,
+    /// The last whole layout that tiled its grid, and how (not checked again).
+    good: Option<(Layout, Tiling)>,
     /// The last whole layout that did not.
     bad: Option<Bad>,
     /// Steps whose whole layout did not tile the grid.
@@ -48,15 +91,65 @@ struct State {
     refused: u64,
     /// The world size of the last step whose ranks all pushed here.
     whole: u32,
+    /// A first step's ranks did not all arrive within the wait: the world pushes to several
+    /// nodes, and no brick waits for a layout again until a whole one is seen.
+    apart: bool,
+}
+
+/// How a rank's brick is made ([`Layouts::growth`]).
+#[derive(Debug)]
+pub enum Growth {
+    /// As pushed.
+    AsPushed,
+    /// Grown to `brick` from the neighbours' low faces `faces` (every rank's, its own passed over).
+    Grow {
+        /// The brick grown.
+        brick: Brick,
+        /// Every rank's low faces at this step.
+        faces: Vec<Arc<Vec<(Brick, Volume)>>>,
+    },
+}
+
+impl Growth {
+    /// The field of `info`'s brick grown (its info's brick made the grown one); the field as
+    /// pushed when there is nothing to grow.
+    ///
+    /// # Errors
+    /// [`VolumeError`] when the faces do not fill the grown brick (cannot happen for faces
+    /// of bricks that tile the points).
+    pub fn apply(
+        &self,
+        info: &mut StepInfo,
+        field: &Volume,
+    ) -> Result<Option<Volume>, VolumeError> {
+        let Growth::Grow { brick, faces } = self else {
+            return Ok(None);
+        };
+        let own = Brick {
+            offset: info.brick_offset,
+            dims: info.brick_dims,
+        };
+        let pieces: Vec<(Brick, &Volume)> = faces
+            .iter()
+            .flat_map(|f| f.iter().map(|(b, v)| (*b, v)))
+            .collect();
+        let grown = tiling::grow(field, &own, brick, &pieces)?;
+        info.brick_dims = brick.dims;
+        Ok(Some(grown))
+    }
 }
 
 /// The layouts of the worlds pushing to this node.
 #[derive(Debug, Default)]
-pub struct Layouts(Mutex<State>);
+pub struct Layouts {
+    state: Mutex<State>,
+    /// Rings when a step's ranks are all in.
+    whole_step: Notify,
+}
 
 impl Layouts {
     fn state(&self) -> std::sync::MutexGuard<'_, State> {
-        self.0.lock().unwrap_or_else(|e| e.into_inner())
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Refuses a push whose brick belongs to a layout already found not to tile its grid.
@@ -82,49 +175,177 @@ impl Layouts {
         Err(Status::failed_precondition(message))
     }
 
-    /// Records a received step's brick; once its step's ranks are all in, checks that their
-    /// bricks tile the grid. Returns the fault the first time a layout shows it (logged).
-    pub fn record(&self, info: &StepInfo) -> Option<DecompositionError> {
+    /// Records a received step's brick, and its low faces (`field`'s) where it may give a
+    /// neighbour's growth; once its step's ranks are all in, checks how their bricks tile the
+    /// grid. Returns the fault the first time a layout shows it (logged).
+    pub fn record(&self, info: &StepInfo, field: &Volume) -> Option<DecompositionError> {
         if info.world_size < 2 {
             return None;
         }
+        let brick = brick_of(info);
         let mut s = self.state();
-        let entry = s.pending.entry(info.step).or_insert_with(|| Layout {
-            global: info.global_dims,
-            bricks: BTreeMap::new(),
+        // A layout known to share its planes needs no faces.
+        let shared = s.good.as_ref().is_some_and(|(l, t)| {
+            *t == Tiling::Shared
+                && l.global == info.global_dims
+                && l.bricks.get(&info.rank) == Some(&brick)
         });
-        entry.bricks.insert(info.rank, brick_of(info));
-        if entry.bricks.len() < info.world_size as usize {
-            while s.pending.len() > MAX_PENDING {
-                s.pending.pop_first();
-            }
+        // Nor does a world that pushes to several nodes, as far as this node knows.
+        let apart = s.apart && s.good.is_none();
+        let faces = if shared || apart || !brick.offset.iter().any(|&o| o > 0) {
+            None
+        } else {
+            tiling::low_faces(field, &brick).ok().map(Arc::new)
+        };
+        let entry = s.pending.entry(info.step).or_insert_with(|| Pending {
+            layout: Layout {
+                global: info.global_dims,
+                bricks: BTreeMap::new(),
+            },
+            faces: BTreeMap::new(),
+            tiling: None,
+            done: 0,
+        });
+        entry.layout.bricks.insert(info.rank, brick);
+        if let Some(f) = faces {
+            entry.faces.insert(info.rank, f);
+        }
+        let all_in = entry.layout.bricks.len() >= info.world_size as usize;
+        if !all_in || entry.tiling.is_some() {
+            drop(s);
+            self.trim();
             return None;
         }
-        let layout = s.pending.remove(&info.step)?;
+        let layout = entry.layout.clone();
+        let (tiling, fault) = self.judge(&mut s, info.step, layout);
+        if let Some(p) = s.pending.get_mut(&info.step) {
+            p.tiling = Some(tiling);
+        }
         s.whole = info.world_size;
-        if s.good.as_ref() == Some(&layout) {
-            return None;
+        drop(s);
+        self.whole_step.notify_waiters();
+        self.trim();
+        fault
+    }
+
+    /// How a whole step's `layout` tiles its grid, from the last one judged when it is the
+    /// same; a new fault is logged and returned.
+    fn judge(
+        &self,
+        s: &mut State,
+        step: u64,
+        layout: Layout,
+    ) -> (Option<Tiling>, Option<DecompositionError>) {
+        if let Some((good, tiling)) = &s.good {
+            if *good == layout {
+                return (Some(tiling.clone()), None);
+            }
         }
         if s.bad.as_ref().is_some_and(|b| b.layout == layout) {
             s.bad_steps += 1;
-            return None;
+            return (None, None);
         }
-        let placed: Vec<(u32, Brick)> = layout.bricks.iter().map(|(r, b)| (*r, *b)).collect();
-        match bricks::check(layout.global, &placed, true) {
-            Ok(()) => {
-                s.good = Some(layout);
-                None
+        match tiling::tiling(layout.global, &layout.placed()) {
+            Ok(tiling) => {
+                s.apart = false;
+                s.good = Some((layout, tiling.clone()));
+                (Some(tiling), None)
             }
             Err(why) => {
-                warn!(step = info.step, error = %why, "the ranks' bricks cannot be composed; later pushes of these bricks are refused");
+                warn!(step, error = %why, "the ranks' bricks cannot be composed; later pushes of these bricks are refused");
                 s.bad_steps += 1;
                 s.bad = Some(Bad {
                     layout,
-                    step: info.step,
+                    step,
                     why: why.clone(),
                 });
-                Some(why)
+                (None, Some(why))
             }
+        }
+    }
+
+    /// Keeps at most [`MAX_PENDING`] steps in flight, the oldest forgotten.
+    fn trim(&self) {
+        let mut s = self.state();
+        while s.pending.len() > MAX_PENDING {
+            s.pending.pop_first();
+        }
+    }
+
+    /// How `info`'s brick is made: grown when its step's bricks tile the grid's points
+    /// without sharing a plane. `Err(deadline)` while its step's other ranks are still to
+    /// come and it must wait for them (asked again when [`Layouts::changed`] rings or at the
+    /// deadline): at most `first_wait` after `since` (when it was first asked) on a world's
+    /// first step, [`FACES_WAIT_SECS`] once its bricks are known to grow. A brick made as
+    /// pushed where it should have grown is logged; the viz-node names the cells it leaves
+    /// out. Each rank is counted made once it gets its answer.
+    ///
+    /// # Errors
+    /// The instant to ask again by, as above.
+    pub fn decide(
+        &self,
+        info: &StepInfo,
+        first_wait: Duration,
+        since: Instant,
+    ) -> Result<Growth, Instant> {
+        let growth = self.decision(info, first_wait, since)?;
+        self.made(info.step);
+        Ok(growth)
+    }
+
+    fn decision(
+        &self,
+        info: &StepInfo,
+        first_wait: Duration,
+        since: Instant,
+    ) -> Result<Growth, Instant> {
+        let brick = brick_of(info);
+        let may_grow = (0..3).any(|a| brick.offset[a] + brick.dims[a] < info.global_dims[a]);
+        if info.world_size < 2 || !may_grow {
+            return Ok(Growth::AsPushed);
+        }
+        let mut s = self.state();
+        if let Some(t) = s.pending.get(&info.step).and_then(|p| p.tiling.as_ref()) {
+            return Ok(grown(&s, info, t.as_ref()));
+        }
+        // Not all in yet: what the last whole layout says of this brick.
+        let known = s.good.as_ref().filter(|(l, _)| {
+            l.global == info.global_dims
+                && l.bricks.len() == info.world_size as usize
+                && l.bricks.get(&info.rank) == Some(&brick)
+        });
+        let deadline = match known {
+            Some((l, t)) if l.made(t, info.rank) == Some(brick) => return Ok(Growth::AsPushed),
+            Some(_) => since + Duration::from_secs_f64(FACES_WAIT_SECS),
+            None if s.apart => return Ok(Growth::AsPushed),
+            None => since + first_wait,
+        };
+        if Instant::now() < deadline {
+            return Err(deadline);
+        }
+        if known.is_some() {
+            warn!(step = info.step, rank = info.rank, "a neighbour's faces did not arrive: the brick is made as pushed, and the cells between it and that neighbour are left out");
+        } else {
+            s.apart = true;
+            warn!(step = info.step, rank = info.rank, world_size = info.world_size, "the world's ranks did not all push here within the host's wait: its bricks are made as pushed (bricks laid out without a shared plane are grown only where one node receives them all)");
+        }
+        Ok(Growth::AsPushed)
+    }
+
+    /// Rings when a step's ranks are all in (a brick that waits for them may be decided).
+    pub fn changed(&self) -> tokio::sync::futures::Notified<'_> {
+        self.whole_step.notified()
+    }
+
+    /// Counts one of `step`'s ranks as made (or dropped); the step is forgotten once all are.
+    pub fn made(&self, step: u64) {
+        let mut s = self.state();
+        let Some(p) = s.pending.get_mut(&step) else {
+            return;
+        };
+        p.done += 1;
+        if p.tiling.is_some() && p.done >= p.layout.bricks.len() {
+            s.pending.remove(&step);
         }
     }
 
@@ -146,6 +367,21 @@ impl Layouts {
     }
 }
 
+/// The growth of `info`'s brick under its step's `tiling` (`None`: it does not tile).
+fn grown(s: &State, info: &StepInfo, tiling: Option<&Tiling>) -> Growth {
+    let Some(p) = s.pending.get(&info.step) else {
+        return Growth::AsPushed;
+    };
+    let made = tiling.and_then(|t| p.layout.made(t, info.rank));
+    match made {
+        Some(brick) if brick != brick_of(info) => Growth::Grow {
+            brick,
+            faces: p.faces.values().cloned().collect(),
+        },
+        _ => Growth::AsPushed,
+    }
+}
+
 fn brick_of(info: &StepInfo) -> Brick {
     Brick {
         offset: info.brick_offset,
@@ -154,78 +390,4 @@ fn brick_of(info: &StepInfo) -> Brick {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::Vec3;
-    use insitu_core::volume::ScalarType;
-
-    fn info(step: u64, rank: u32, z0: usize, nz: usize) -> StepInfo {
-        StepInfo {
-            step,
-            sim_time: 0.0,
-            rank,
-            world_size: 2,
-            dtype: ScalarType::F32,
-            global_dims: [8, 8, 8],
-            brick_offset: [0, 0, z0],
-            brick_dims: [8, 8, nz],
-            spacing: Vec3::ONE,
-            origin: Vec3::ZERO,
-        }
-    }
-
-    #[test]
-    fn disjoint_halves_are_named_once_and_their_later_pushes_refused() {
-        let l = Layouts::default();
-        l.admit(&info(0, 0, 0, 4)).unwrap();
-        assert!(l.record(&info(0, 0, 0, 4)).is_none(), "rank 1 not in yet");
-        let why = l.record(&info(0, 1, 4, 4)).unwrap();
-        assert!(
-            why.to_string()
-                .contains("rank 0's brick must include z = 4 (nz 5, not 4)"),
-            "{why}"
-        );
-        // Step 1's pushes of the same bricks are refused at their header, naming step 0.
-        for rank in [0, 1] {
-            let z0 = 4 * rank as usize;
-            let refused = l.admit(&info(1, rank, z0, 4)).unwrap_err();
-            assert_eq!(refused.code(), tonic::Code::FailedPrecondition);
-            assert!(
-                refused.message().starts_with(&format!(
-                    "step 1 rank {rank}: not taken, the ranks' bricks cannot be composed (found when step 0 had all its ranks)"
-                )),
-                "{}",
-                refused.message()
-            );
-        }
-        // The fixed bricks are taken, checked and found whole.
-        l.admit(&info(2, 0, 0, 5)).unwrap();
-        assert!(l.record(&info(2, 0, 0, 5)).is_none());
-        assert!(l.record(&info(2, 1, 4, 4)).is_none());
-        let summary = l.summary().unwrap();
-        assert!(
-            summary.starts_with("1 step(s) whose ranks' bricks cannot be composed (first: step 0), 2 later push(es) of them refused: "),
-            "{summary}"
-        );
-    }
-
-    #[test]
-    fn bricks_that_tile_the_grid_pass_and_a_lone_rank_is_not_checked() {
-        let l = Layouts::default();
-        for step in 0..3 {
-            l.admit(&info(step, 0, 0, 5)).unwrap();
-            assert!(l.record(&info(step, 0, 0, 5)).is_none());
-            assert!(l.record(&info(step, 1, 4, 4)).is_none());
-        }
-        assert!(l.summary().is_none());
-        assert!(l.whole_world_here(2) && l.whole_world_here(1) && !l.whole_world_here(3));
-        let mut lone = info(0, 0, 0, 4);
-        lone.world_size = 1;
-        assert!(l.record(&lone).is_none());
-        // A node serving part of a world forgets the oldest of the steps it never sees whole.
-        for step in 0..200 {
-            assert!(l.record(&info(step, 0, 0, 5)).is_none());
-        }
-        assert!(l.state().pending.len() <= MAX_PENDING);
-    }
-}
+mod tests;

@@ -20,7 +20,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, RwLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tokio_stream::wrappers::TcpListenerStream;
@@ -378,9 +378,11 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<RawStep>) {
         for raw in recovered {
             // A part of the earlier run may be stored already: these ship rank by rank.
             shared.host.alone(raw.info.step, raw.info.rank);
+            let _ = shared.layout.record(&raw.info, &raw.field);
             let bytes = raw.bytes();
             if let Ok(dropped) = shared.queue.push(raw, bytes).await {
                 for d in dropped {
+                    shared.layout.made(d.info.step);
                     shared.unspool(d.spooled().as_ref());
                     shared.stats.update(|c| c.dropped_queue += 1);
                 }
@@ -401,7 +403,9 @@ fn new_epoch() -> u64 {
 async fn worker(shared: Arc<Shared>) {
     // The last step's VDI (already compressed into its product): the next one reuses its memory.
     let mut spare = None;
-    while let Some(raw) = shared.queue.pop().await {
+    // Steps whose bricks wait for their neighbours' faces.
+    let mut parked = Vec::new();
+    while let Some((mut raw, growth)) = next(&shared, &mut parked).await {
         let (step, rank, raw_world_size) = (raw.info.step, raw.info.rank, raw.info.world_size);
         let spooled = raw.spooled();
         // Begun before the snapshot: a decision applied in between takes effect after it.
@@ -422,10 +426,13 @@ async fn worker(shared: Arc<Shared>) {
         let lane = shared.lane.lock().await;
         let result = tokio::task::spawn_blocking(move || {
             s.compute(|| {
+                let grow_secs = grow(&s, &mut raw, &growth);
                 let tf = gen.tf.take().unwrap_or_else(|| {
                     insitu_core::TransferFunction::default_for_volume(&raw.field)
                 });
-                let (product, vdi) = work::run(&s.backend, &raw, &gen, &tf, with_refs, reused)?;
+                let (mut product, vdi) = work::run(&s.backend, &raw, &gen, &tf, with_refs, reused)?;
+                // Growing the brick is part of making it.
+                product.vdi_header.tau_secs += grow_secs;
                 // Only while the tuner listens: otherwise nobody would read the summary, and
                 // the field's memory receives the next step.
                 let for_tuner = if s.tuning.as_ref().is_some_and(|t| t.connected()) {
@@ -495,6 +502,73 @@ async fn worker(shared: Arc<Shared>) {
             }
         }
     }
+}
+
+/// The next step to make and how its brick grows ([`crate::layout`]): a parked step whose
+/// neighbours have come, else the queue's next. A step whose brick must wait for its
+/// neighbours' faces is parked beside the queue, so that the queue keeps taking pushes: the
+/// neighbours' pushes may be waiting behind it. After the queue closes, parked steps are made
+/// as pushed. `None` when the queue is closed and empty and nothing is parked.
+async fn next(
+    shared: &Shared,
+    parked: &mut Vec<(RawStep, Instant)>,
+) -> Option<(RawStep, crate::layout::Growth)> {
+    let wait = shared.host.wait();
+    loop {
+        // Taken before the looks, so that a step completed in between still wakes the wait.
+        let changed = shared.layout.changed();
+        let mut earliest: Option<Instant> = None;
+        for i in 0..parked.len() {
+            let (raw, since) = &parked[i];
+            match shared.layout.decide(&raw.info, wait, *since) {
+                Ok(growth) => return Some((parked.remove(i).0, growth)),
+                Err(d) => earliest = Some(earliest.map_or(d, |e| e.min(d))),
+            }
+        }
+        let deadline = async {
+            match earliest {
+                Some(d) => tokio::time::sleep_until(d.into()).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            raw = shared.queue.pop() => {
+                let Some(raw) = raw else {
+                    if parked.is_empty() {
+                        return None;
+                    }
+                    let (raw, _) = parked.remove(0);
+                    shared.layout.made(raw.info.step);
+                    return Some((raw, crate::layout::Growth::AsPushed));
+                };
+                let since = Instant::now();
+                match shared.layout.decide(&raw.info, wait, since) {
+                    Ok(growth) => return Some((raw, growth)),
+                    Err(_) => parked.push((raw, since)),
+                }
+            }
+            () = changed => {}
+            () = deadline => {}
+        }
+    }
+}
+
+/// Grows `raw`'s brick by its neighbours' faces as `growth` says (its field's old memory
+/// kept for the next push); returns the seconds it took. A growth that fails leaves the
+/// brick as pushed, logged (the viz-node then names the cells it leaves out).
+fn grow(shared: &Shared, raw: &mut RawStep, growth: &crate::layout::Growth) -> f64 {
+    let t = std::time::Instant::now();
+    match growth.apply(&mut raw.info, &raw.field) {
+        Ok(Some(grown)) => {
+            let pushed = std::mem::replace(&mut raw.field, grown);
+            shared.spare_fields.put(pushed);
+        }
+        Ok(None) => return 0.0,
+        Err(e) => {
+            warn!(step = raw.info.step, rank = raw.info.rank, error = %e, "the brick could not be grown by its neighbours' faces: made as pushed");
+        }
+    }
+    t.elapsed().as_secs_f64()
 }
 
 /// The first step's transfer function kept for the rest of the run (and recorded in the

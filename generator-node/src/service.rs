@@ -100,7 +100,7 @@ impl GeneratorService {
     async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
         self.spool(&mut raw).await?;
         // Checked once the step's ranks are all in; logged the first time it fails.
-        let _ = self.0.layout.record(&raw.info);
+        let _ = self.0.layout.record(&raw.info, &raw.field);
         self.propose_scene(&raw);
         let (dropped, received) = self.enqueue(raw).await?;
         let s = &self.0;
@@ -234,6 +234,7 @@ impl GeneratorService {
         for d in dropped {
             info!(step = d.info.step, rank = d.info.rank, policy = %self.0.queue.policy(), "dropped a queued step");
             self.0.host.settled(d.info.step, d.info.rank);
+            self.0.layout.made(d.info.step);
             self.0.unspool(d.spooled().as_ref());
             self.0.spare_fields.put(d.field);
         }

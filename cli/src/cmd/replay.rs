@@ -8,7 +8,7 @@ use crate::pipeline::{Defaults, LocalNodes, PipelineArgs};
 use anyhow::{bail, Context, Result};
 use insitu_client::{f32_bytes, Peer, ScalarType, SimClient, Step};
 use insitu_core::vdi::codec::Codec;
-use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
+use insitu_core::volume::bricks::{block_bricks, grid_bricks, split_ranks, Brick};
 use insitu_core::{TransferFunction, Volume};
 use insitu_proto::auth::Token;
 use insitu_proto::convert::codec_to_pb;
@@ -41,6 +41,11 @@ pub struct Args {
     /// Cut the grid SXxSYxSZ times instead (e.g. 2x2x1); --ranks must then be SX·SY·SZ or 1.
     #[arg(long, value_parser = parse_split)]
     split: Option<[usize; 3]>,
+    /// Cut the bricks as one splits an array, each point in one brick and no plane shared
+    /// (as ADIOS2 writers lay out blocks); the generator-node grows them by their
+    /// neighbours' first planes before it makes them.
+    #[arg(long)]
+    blocks: bool,
     /// Replay only the first N steps (default: all).
     #[arg(long)]
     steps: Option<usize>,
@@ -122,7 +127,8 @@ fn bricks_for(a: &Args, dims: [usize; 3]) -> Result<Vec<Brick>> {
             )
         })?,
     };
-    grid_bricks(dims, split).with_context(|| {
+    let cut = if a.blocks { block_bricks } else { grid_bricks };
+    cut(dims, split).with_context(|| {
         format!(
             "--split {}x{}x{}: the grid {dims:?} has fewer cells than that on some axis",
             split[0], split[1], split[2]

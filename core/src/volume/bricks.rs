@@ -6,7 +6,9 @@
 //! world box runs from its first to its last voxel centre, so with shared planes the bricks'
 //! boxes tile the global box exactly; without them, the cell between two bricks would belong
 //! to neither and show as a seam. A simulation with halo cells sends its owned voxels plus
-//! the first halo plane on the upper side of each axis that has a neighbour.
+//! the first halo plane on the upper side of each axis that has a neighbour. Bricks that tile
+//! the points without sharing a plane (as arrays are split) are grown to this convention by
+//! the generator-node that receives them ([`super::tiling`]) before they are made.
 
 use super::{Volume, VolumeError, VoxelSlice};
 use glam::Vec3;
@@ -96,6 +98,31 @@ pub fn grid_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>> 
     Some(out)
 }
 
+/// The blocks of `global` cut `split` times per axis **without** shared planes, as one splits
+/// an array (and as ADIOS2 writers lay blocks out): each point in one block, as even as
+/// integer planes allow, rank order as in [`grid_bricks`]. Such blocks are grown to share
+/// their planes before they are made ([`super::tiling`]). Returns `None` when an axis is cut
+/// more often than it has points.
+pub fn block_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>> {
+    if (0..3).any(|a| split[a] == 0 || split[a] > global[a]) {
+        return None;
+    }
+    let edges = |a: usize, k: usize| (k * global[a] / split[a], (k + 1) * global[a] / split[a]);
+    let mut out = Vec::with_capacity(split.iter().product());
+    for kz in 0..split[2] {
+        for ky in 0..split[1] {
+            for kx in 0..split[0] {
+                let r = [edges(0, kx), edges(1, ky), edges(2, kz)];
+                out.push(Brick {
+                    offset: r.map(|(a, _)| a),
+                    dims: r.map(|(a, b)| b - a),
+                });
+            }
+        }
+    }
+    Some(out)
+}
+
 /// What is wrong with a step's bricks.
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum DecompositionError {
@@ -134,11 +161,25 @@ pub enum DecompositionError {
         /// bricks ([`GapFix`]).
         fix: Option<GapFix>,
     },
+    /// Bricks that share no point (laid out without a shared plane) leave points of the grid
+    /// in no brick ([`super::tiling::tiling`]).
+    #[error("the bricks of ranks {ranks:?} hold {held} of the grid's {total} points{}", .hole.as_ref().map(|h| format!(": {h}")).unwrap_or_default())]
+    Missing {
+        /// The ranks present.
+        ranks: Vec<u32>,
+        /// Points held.
+        held: u128,
+        /// Points of the grid.
+        total: u128,
+        /// The first hole found beside a brick.
+        hole: Option<super::tiling::Hole>,
+    },
 }
 
-/// A gap between two neighbouring bricks, and the fix: the lower brick ends one plane short
-/// of its neighbour's first plane (blocks laid out without a shared plane, as array splits
-/// and ADIOS2 writers lay them out), so it must repeat that plane.
+/// A gap between two neighbouring bricks that arrived apart: the lower brick ends one plane
+/// short of its neighbour's first plane (blocks laid out without a shared plane, as array
+/// splits and ADIOS2 writers lay them out). A generator-node that receives both fills it
+/// ([`super::tiling`]); where they were made apart, the lower brick must repeat that plane.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct GapFix {
     /// The rank whose brick ends short.
@@ -157,7 +198,7 @@ impl std::fmt::Display for GapFix {
         let axis = ["x", "y", "z"][self.axis.min(2)];
         write!(
             f,
-            "the cells between {axis} = {} and {axis} = {} lie in no brick; neighbouring bricks share their boundary plane, so rank {}'s brick must include {axis} = {} (n{axis} {}, not {})",
+            "the cells between {axis} = {} and {axis} = {} lie in no brick: a generator-node that receives both neighbours fills them, but these were made on different nodes; push them to one node, or let rank {}'s brick include {axis} = {} (n{axis} {}, not {})",
             self.last,
             self.last + 1,
             self.rank,
@@ -449,7 +490,7 @@ mod tests {
         );
         assert!(
             gap.to_string().ends_with(
-                "the cells between z = 5 and z = 6 lie in no brick; neighbouring bricks share their boundary plane, so rank 0's brick must include z = 6 (nz 7, not 6)"
+                "the cells between z = 5 and z = 6 lie in no brick: a generator-node that receives both neighbours fills them, but these were made on different nodes; push them to one node, or let rank 0's brick include z = 6 (nz 7, not 6)"
             ),
             "{gap}"
         );

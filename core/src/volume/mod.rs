@@ -10,6 +10,7 @@ mod assemble;
 pub mod bricks;
 mod gray_scott;
 mod raw;
+pub mod tiling;
 mod voxels;
 
 pub use assemble::FieldAssembler;

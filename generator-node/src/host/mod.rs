@@ -268,6 +268,11 @@ impl Gather {
         }
     }
 
+    /// `[host]`'s `wait_secs`.
+    pub fn wait(&self) -> Duration {
+        self.wait
+    }
+
     fn state(&self) -> std::sync::MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
