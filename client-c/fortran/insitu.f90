@@ -15,8 +15,9 @@
 !> INSITU_REFUSED, INSITU_TIMEOUT, INSITU_INTERNAL); on anything but INSITU_OK, insitu_error()
 !> says why. Dims and offsets are (x, y, z) and count grid points, offsets from 0 as in the C
 !> API: a rank's brick is field(1:nx, 1:ny, 1:nz) of a Fortran array, which is x fastest in
-!> memory, so a contiguous array is sent as it is. Where a neighbouring rank follows along an
-!> axis, the brick repeats that neighbour's first plane (bricks share their boundary planes).
+!> memory, so a contiguous array is sent as it is. Bricks share their boundary planes (where a
+!> neighbouring rank follows along an axis, the brick repeats that neighbour's first plane) or
+!> split the points without overlap, as one splits an array.
 module insitu
   use, intrinsic :: iso_c_binding
   use, intrinsic :: iso_fortran_env, only: real32, real64

@@ -241,8 +241,9 @@ InsituStatus insitu_connect_tls(const char *addr,
  * `brick_dims[0]·brick_dims[1]·brick_dims[2]` values of `dtype` (an [`InsituDtype`]), x
  * fastest. `global_dims`, `brick_offset` and `brick_dims` point to 3 values each and count
  * grid points: `global_dims` the whole grid's, `brick_offset` the brick's first point in it,
- * `brick_dims` its points, and where a neighbouring rank's brick follows along an axis the
- * brick repeats that neighbour's first plane (so bricks share their boundary planes).
+ * `brick_dims` its points; bricks share their boundary planes (where a neighbouring rank's
+ * brick follows along an axis, the brick repeats that neighbour's first plane) or split the
+ * points without overlap, as one splits an array.
  * `spacing` points to 3 positive world units between points, or is null for (1, 1, 1).
  * `0 ≤ rank < world_size`. On success, `*out` (if not null) receives the node's counters.
  *

@@ -28,10 +28,12 @@
 //! client (it frees it).
 //!
 //! **Bricks.** Dims count grid points. `global_dims` is the whole grid's, `brick_offset` a
-//! rank's first point in it and `brick_dims` its points; where a neighbouring rank's brick
-//! follows along an axis, the brick repeats that neighbour's first plane, so neighbouring
-//! bricks share their boundary plane. A simulation with halo cells sends its owned points plus
-//! the first halo plane on the upper side of every axis that has a neighbour.
+//! rank's first point in it and `brick_dims` its points. Bricks either share their boundary
+//! plane (where a neighbouring rank's brick follows along an axis, the brick repeats that
+//! neighbour's first plane: a simulation with halo cells sends its owned points plus the first
+//! halo plane on the upper side of every axis that has a neighbour), or split the points
+//! without overlap, as one splits an array; a generator-node that receives both neighbours
+//! then grows the lower brick by the upper's first plane.
 
 use insitu_client::{
     BearerToken, Bytes, ClientError, GeneratorStatus, Peer, ScalarType, SimClient, Step, TlsFiles,
@@ -329,8 +331,9 @@ unsafe fn with_client(
 /// `brick_dims[0]·brick_dims[1]·brick_dims[2]` values of `dtype` (an [`InsituDtype`]), x
 /// fastest. `global_dims`, `brick_offset` and `brick_dims` point to 3 values each and count
 /// grid points: `global_dims` the whole grid's, `brick_offset` the brick's first point in it,
-/// `brick_dims` its points, and where a neighbouring rank's brick follows along an axis the
-/// brick repeats that neighbour's first plane (so bricks share their boundary planes).
+/// `brick_dims` its points; bricks share their boundary planes (where a neighbouring rank's
+/// brick follows along an axis, the brick repeats that neighbour's first plane) or split the
+/// points without overlap, as one splits an array.
 /// `spacing` points to 3 positive world units between points, or is null for (1, 1, 1).
 /// `0 ≤ rank < world_size`. On success, `*out` (if not null) receives the node's counters.
 ///

@@ -111,8 +111,8 @@ pub enum Growth {
 }
 
 impl Growth {
-    /// The field of `info`'s brick grown (its info's brick made the grown one); the field as
-    /// pushed when there is nothing to grow.
+    /// The field of `info`'s brick grown, in the memory of `spare` where there is one (its
+    /// info's brick made the grown one); `None` when there is nothing to grow.
     ///
     /// # Errors
     /// [`VolumeError`] when the faces do not fill the grown brick (cannot happen for faces
@@ -121,6 +121,7 @@ impl Growth {
         &self,
         info: &mut StepInfo,
         field: &Volume,
+        spare: Option<Volume>,
     ) -> Result<Option<Volume>, VolumeError> {
         let Growth::Grow { brick, faces } = self else {
             return Ok(None);
@@ -133,7 +134,7 @@ impl Growth {
             .iter()
             .flat_map(|f| f.iter().map(|(b, v)| (*b, v)))
             .collect();
-        let grown = tiling::grow(field, &own, brick, &pieces)?;
+        let grown = tiling::grow(field, &own, brick, &pieces, spare)?;
         info.brick_dims = brick.dims;
         Ok(Some(grown))
     }

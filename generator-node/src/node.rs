@@ -553,17 +553,20 @@ async fn next(
     }
 }
 
-/// Grows `raw`'s brick by its neighbours' faces as `growth` says (its field's old memory
-/// kept for the next push); returns the seconds it took. A growth that fails leaves the
+/// Grows `raw`'s brick by its neighbours' faces as `growth` says, in the memory of a settled
+/// step's field (the field as pushed kept for the next push); returns the seconds it took. A growth that fails leaves the
 /// brick as pushed, logged (the viz-node then names the cells it leaves out).
 fn grow(shared: &Shared, raw: &mut RawStep, growth: &crate::layout::Growth) -> f64 {
-    let t = std::time::Instant::now();
-    match growth.apply(&mut raw.info, &raw.field) {
+    if matches!(growth, crate::layout::Growth::AsPushed) {
+        return 0.0;
+    }
+    let t = Instant::now();
+    match growth.apply(&mut raw.info, &raw.field, shared.spare_fields.take()) {
         Ok(Some(grown)) => {
             let pushed = std::mem::replace(&mut raw.field, grown);
             shared.spare_fields.put(pushed);
         }
-        Ok(None) => return 0.0,
+        Ok(None) => {}
         Err(e) => {
             warn!(step = raw.info.step, rank = raw.info.rank, error = %e, "the brick could not be grown by its neighbours' faces: made as pushed");
         }

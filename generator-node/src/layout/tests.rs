@@ -74,7 +74,7 @@ async fn disjoint_halves_grow_into_the_whole_field_s_bricks() {
         let grows = growth(&l, &lower, WAIT).await;
         let mut grown_info = lower.clone();
         let grown = grows
-            .apply(&mut grown_info, &field(&lower))
+            .apply(&mut grown_info, &field(&lower), None)
             .unwrap()
             .expect("the lower half grows");
         assert_eq!(grown_info.brick_dims, [N, N, 5]);

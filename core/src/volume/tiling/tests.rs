@@ -73,7 +73,7 @@ fn grown_bricks_hold_the_whole_field_s_values_in_every_type() {
         assert_eq!(face_points, low_points, "{split:?}");
         let pieces: Vec<(Brick, &Volume)> = faces.iter().map(|(b, v)| (*b, v)).collect();
         for ((_, b), g) in disjoint.iter().zip(&grown) {
-            let made = grow(&whole.brick(b).unwrap(), b, g, &pieces).unwrap();
+            let made = grow(&whole.brick(b).unwrap(), b, g, &pieces, None).unwrap();
             assert_eq!(made, whole.brick(g).unwrap(), "{split:?} {b:?} → {g:?}");
             assert_eq!(made.origin(), Vec3::from_array(b.offset.map(|o| o as f32)));
         }
@@ -96,6 +96,7 @@ fn grown_bricks_hold_the_whole_field_s_values_in_every_type() {
         &halves[0].1,
         &grown[0],
         &[(upper[0].0, &upper[0].1)],
+        Some(whole.clone()),
     )
     .unwrap();
     assert!(matches!(made.voxels(), VoxelSlice::U8(_)));
@@ -111,10 +112,19 @@ fn a_missing_face_a_real_hole_and_shared_points_are_refused_by_name() {
     };
     let whole = field(global);
     let lower = whole.brick(&halves[0].1).unwrap();
-    let err = grow(&lower, &halves[0].1, &grown[0], &[]).unwrap_err();
+    let err = grow(&lower, &halves[0].1, &grown[0], &[], None).unwrap_err();
     assert!(
         err.to_string()
-            .contains("its neighbours' faces filled 0 of the 64 points"),
+            .contains("its neighbours' faces do not hold the point (0, 0, 4)"),
+        "{err}"
+    );
+    // A face given twice fills its points twice.
+    let upper = whole.brick(&halves[1].1).unwrap();
+    let faces = low_faces(&upper, &halves[1].1).unwrap();
+    let twice = [(faces[0].0, &faces[0].1), (faces[0].0, &faces[0].1)];
+    let err = grow(&lower, &halves[0].1, &grown[0], &twice, None).unwrap_err();
+    assert!(
+        err.to_string().contains("hold twice the point (0, 0, 4)"),
         "{err}"
     );
     // A face of another type.
@@ -123,10 +133,12 @@ fn a_missing_face_a_real_hole_and_shared_points_are_refused_by_name() {
         offset: [0, 0, 4],
         dims: [8, 8, 1],
     };
-    assert!(grow(&lower, &halves[0].1, &grown[0], &[(place, &face)])
-        .unwrap_err()
-        .to_string()
-        .contains("not of the brick's type"));
+    assert!(
+        grow(&lower, &halves[0].1, &grown[0], &[(place, &face)], None)
+            .unwrap_err()
+            .to_string()
+            .contains("not of the brick's type")
+    );
     // z 0..=3 and 6..=7: the points z = 4..=5 lie in no brick.
     let holed = [
         halves[0],
