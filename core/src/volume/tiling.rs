@@ -84,7 +84,7 @@ pub fn tiling(global: [usize; 3], bricks: &[(u32, Brick)]) -> Result<Tiling, Dec
         .iter()
         .map(|(_, a)| {
             let mut g = *a;
-            for axis in 0..3 {
+            for (axis, &n) in global.iter().enumerate() {
                 let end = a.offset[axis] + a.dims[axis];
                 let neighbour = bricks.iter().any(|(_, b)| {
                     b.offset[axis] == end
@@ -92,7 +92,7 @@ pub fn tiling(global: [usize; 3], bricks: &[(u32, Brick)]) -> Result<Tiling, Dec
                             .filter(|&k| k != axis)
                             .all(|k| meet(points(a, k), points(b, k)))
                 });
-                if end < global[axis] && neighbour {
+                if end < n && neighbour {
                     g.dims[axis] += 1;
                 }
             }

@@ -72,7 +72,7 @@ async fn disjoint_halves_grow_into_the_whole_field_s_bricks() {
         // The upper half reaches the grid's end: made as pushed.
         assert!(matches!(growth(&l, &upper, WAIT).await, Growth::AsPushed));
         let grows = growth(&l, &lower, WAIT).await;
-        let mut grown_info = lower.clone();
+        let mut grown_info = lower;
         let grown = grows
             .apply(&mut grown_info, &field(&lower), None)
             .unwrap()
@@ -97,7 +97,6 @@ async fn a_brick_waits_for_its_neighbour_s_faces() {
     assert!(record(&l, &lower).is_none());
     let waiting = {
         let l = l.clone();
-        let lower = lower.clone();
         tokio::spawn(async move { growth(&l, &lower, WAIT).await })
     };
     tokio::time::sleep(Duration::from_millis(50)).await;

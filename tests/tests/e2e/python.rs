@@ -134,7 +134,7 @@ with insitu.Client(sys.argv[1]) as c:
                    global_dims=(n, n, n), rank=rank, world_size=2)
         print("pushed", step, flush=True)
 "#;
-        let out = Command::new(python)
+        let out = Command::new(&python)
             .args(["-c", script, &g.addr, &upper.to_string()])
             .env_remove("INSITU_TOKEN")
             .output()

@@ -34,8 +34,8 @@ fn shared_planes_stay_and_disjoint_points_grow_into_a_tiling_of_the_cells() {
         // Each brick grows by one point exactly on the axes where it does not reach the end.
         for ((_, b), g) in disjoint.iter().zip(&grown) {
             assert_eq!(g.offset, b.offset);
-            for a in 0..3 {
-                let inner = b.offset[a] + b.dims[a] < global[a];
+            for (a, &n) in global.iter().enumerate() {
+                let inner = b.offset[a] + b.dims[a] < n;
                 assert_eq!(g.dims[a], b.dims[a] + usize::from(inner), "{split:?} {b:?}");
             }
         }
