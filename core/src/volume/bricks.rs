@@ -123,6 +123,31 @@ pub fn block_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>>
     Some(out)
 }
 
+/// A hole beside a brick: the points past its end on one axis, up to the next brick beside
+/// it (or the grid's end), that no brick holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Hole {
+    /// The rank whose brick the hole lies beside.
+    pub rank: u32,
+    /// The axis, 0–2 for x–y–z.
+    pub axis: usize,
+    /// The first point of the hole on that axis.
+    pub first: usize,
+    /// The last point of the hole.
+    pub last: usize,
+}
+
+impl std::fmt::Display for Hole {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let axis = ["x", "y", "z"][self.axis.min(2)];
+        write!(
+            f,
+            "beside rank {}'s brick, no brick holds the points {axis} = {}..={}",
+            self.rank, self.first, self.last
+        )
+    }
+}
+
 /// What is wrong with a step's bricks.
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum DecompositionError {
@@ -172,7 +197,7 @@ pub enum DecompositionError {
         /// Points of the grid.
         total: u128,
         /// The first hole found beside a brick.
-        hole: Option<super::tiling::Hole>,
+        hole: Option<Hole>,
     },
 }
 

@@ -11,7 +11,7 @@
 //! plane on each axis where it does not start at 0, cut into disjoint pieces, about
 //! `3 n²` points of an `n³` brick.
 
-use super::bricks::{check, Brick, DecompositionError};
+use super::bricks::{check, Brick, DecompositionError, Hole};
 use super::voxels::{Storage, PAD};
 use super::{Volume, VolumeError, VoxelSlice};
 
@@ -108,31 +108,6 @@ pub fn tiling(global: [usize; 3], bricks: &[(u32, Brick)]) -> Result<Tiling, Dec
         .collect();
     check(global, &placed, true)?;
     Ok(Tiling::Disjoint(grown))
-}
-
-/// A hole beside a brick: the points past its end on one axis, up to the next brick beside
-/// it (or the grid's end), that no brick holds.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Hole {
-    /// The rank whose brick the hole lies beside.
-    pub rank: u32,
-    /// The axis, 0–2 for x–y–z.
-    pub axis: usize,
-    /// The first point of the hole on that axis.
-    pub first: usize,
-    /// The last point of the hole.
-    pub last: usize,
-}
-
-impl std::fmt::Display for Hole {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let axis = ["x", "y", "z"][self.axis.min(2)];
-        write!(
-            f,
-            "beside rank {}'s brick, no brick holds the points {axis} = {}..={}",
-            self.rank, self.first, self.last
-        )
-    }
 }
 
 /// The first brick whose next point on some axis lies in no brick beside it.
