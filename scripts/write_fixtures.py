@@ -1,6 +1,6 @@
 """Writes the readers' test files with the reference libraries: VTK (vtkXMLImageDataWriter,
-vtkStructuredPointsWriter), pynrrd, netCDF4 (classic and netCDF-4) and h5py (with XDMF
-descriptions), from synthetic fields with several arrays, a
+vtkStructuredPointsWriter), pynrrd, netCDF4 (classic and netCDF-4), h5py (with XDMF
+descriptions) and ADIOS2 (BP5, several blocks per step), from synthetic fields with several arrays, a
 non-zero origin, anisotropic spacing, packed integers, fill values, big-endian and compressed
 variants. Beside each the expected samples as raw files (x fastest, little-endian) and a
 manifest.json that says, for every file, the field, the grid (dims, origin, spacing, steps), the
@@ -279,6 +279,53 @@ def hdf5_files(out, entries):
                         expect=expect(out, "xdmf_mask", [steps[0]["mask"]])))
 
 
+def adios2_files(out, entries):
+    """ADIOS2 BP5 written through ADIOS2's own Python API (the PyPI wheel): each step's global
+    arrays put as two blocks split in z, as two writer ranks would put them (disjoint, no
+    shared plane), grid attributes beside; and a file of what the reader refuses."""
+    import adios2
+    from adios2 import bindings
+
+    steps = [fields(t) for t in range(STEPS)]
+    nx, ny, nz = DIMS
+    cut = nz // 2
+    io = adios2.Adios().declare_io("fixtures")
+    io.set_engine("BP5")
+    shape = [nz, ny, nx]
+    variables = {k: io.define_variable(k, steps[0][k][:cut], shape, [0, 0, 0], [cut, ny, nx])
+                 for k in ("rho", "temp", "mask", "level")}
+    io.define_attribute("spacing", np.array(SPACING, dtype=np.float64))
+    io.define_attribute("origin", np.array(ORIGIN, dtype=np.float64))
+    engine = io.open(os.path.join(out, "adios2_series.bp"), bindings.Mode.Write)
+    for s in steps:
+        engine.begin_step()
+        for k, v in variables.items():
+            for lo, hi in ((0, cut), (cut, nz)):
+                v.set_selection([[lo, 0, 0], [hi - lo, ny, nx]])
+                engine.put(v, np.ascontiguousarray(s[k][lo:hi]), bindings.Mode.Sync)
+        engine.end_step()
+    engine.close()
+    for k in ("rho", "temp", "mask", "level"):
+        entries.append(dict(file="adios2_series.bp", field=k, steps=STEPS, bounds=None,
+                            needs="adios2",
+                            expect=expect(out, f"adios2_{k}", [s[k] for s in steps])))
+    # What a volume is not: a 2-D array, a value, strings, a 3-D complex array.
+    io = adios2.Adios().declare_io("refused")
+    io.set_engine("BP5")
+    flat = np.zeros((ny, nx), dtype=np.float32)
+    plane = io.define_variable("plane", flat, [ny, nx], [0, 0], [ny, nx])
+    time = io.define_variable("time", np.zeros(1))
+    waves = np.zeros((2, 2, 2), dtype=np.complex64)
+    wave = io.define_variable("wave", waves, [2, 2, 2], [0, 0, 0], [2, 2, 2])
+    engine = io.open(os.path.join(out, "adios2_refused.bp"), bindings.Mode.Write)
+    engine.begin_step()
+    engine.put(plane, flat, bindings.Mode.Sync)
+    engine.put(time, np.array([1.5]), bindings.Mode.Sync)
+    engine.put(wave, waves, bindings.Mode.Sync)
+    engine.end_step()
+    engine.close()
+
+
 def main():
     # netCDF4 warns that a native fill value meets a big-endian variable; it stores it right.
     warnings.filterwarnings("ignore", "endian-ness of dtype")
@@ -289,6 +336,7 @@ def main():
     nrrd_files(out, entries)
     netcdf_files(out, entries)
     hdf5_files(out, entries)
+    adios2_files(out, entries)
     grid = dict(dims=list(DIMS), origin=list(ORIGIN), spacing=list(SPACING))
     with open(os.path.join(out, "manifest.json"), "w") as fh:
         json.dump(dict(grid=grid, files=entries), fh, indent=1)

@@ -55,7 +55,7 @@ pub enum Endian {
 }
 
 /// The `i`-th sample of `bytes` as f64.
-fn value(bytes: &[u8], i: usize, t: Sample, e: Endian) -> f64 {
+pub(crate) fn value(bytes: &[u8], i: usize, t: Sample, e: Endian) -> f64 {
     let n = t.size();
     let mut b = [0u8; 8];
     b[..n].copy_from_slice(&bytes[i * n..(i + 1) * n]);

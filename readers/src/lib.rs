@@ -12,6 +12,7 @@
 //! | `.vtk` | legacy VTK STRUCTURED_POINTS, ASCII or binary | [`legacy_vtk`] |
 //! | `.h5`, `.hdf5` | an HDF5 dataset (feature `hdf5`) | `hdf5` |
 //! | `.xmf`, `.xdmf` | XDMF: a 3DCoRectMesh over HDF5 datasets (reading: feature `hdf5`) | [`xdmf`] |
+//! | `.bp`, `.bp4`, `.bp5` | ADIOS2 BP files: a 3-D global array per step (feature `adios2`) | `adios2` |
 //!
 //! The readers of netCDF-4 and HDF5 link Unidata's netCDF-C and the HDF Group's HDF5 (Debian's
 //! `libnetcdf-dev`, `libhdf5-dev`) and are built only with their features; without them such a
@@ -22,6 +23,8 @@
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 
+#[cfg(feature = "adios2")]
+pub mod adios2;
 pub mod bytes;
 mod cf;
 #[cfg(feature = "hdf5")]
@@ -121,6 +124,8 @@ enum Source {
     Nrrd(nrrd::Nrrd),
     Vti(vti::Vti),
     LegacyVtk(legacy_vtk::LegacyVtk),
+    #[cfg(feature = "adios2")]
+    Adios2(Box<adios2::File>),
 }
 
 impl Dataset {
@@ -149,6 +154,8 @@ impl Dataset {
             Source::Nrrd(n) => n.read(&self.path, self.dims, self.spacing)?,
             Source::Vti(v) => v.read(&self.path, self.dims, self.spacing)?,
             Source::LegacyVtk(v) => v.read(&self.path, self.dims, self.spacing)?,
+            #[cfg(feature = "adios2")]
+            Source::Adios2(f) => f.read_step(t, self.dims, self.spacing)?,
         };
         volume
             .with_origin(self.origin)
@@ -158,7 +165,8 @@ impl Dataset {
 
 /// The formats [`open`] reads, by extension.
 pub const EXTENSIONS: &[&str] = &[
-    "raw", "nc", "nc4", "nrrd", "nhdr", "vti", "vtk", "h5", "hdf5", "xmf", "xdmf",
+    "raw", "nc", "nc4", "nrrd", "nhdr", "vti", "vtk", "h5", "hdf5", "xmf", "xdmf", "bp", "bp4",
+    "bp5",
 ];
 
 /// Opens `path`, choosing the reader by its extension.
@@ -182,6 +190,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         "vtk" => legacy_vtk::open(path, options),
         "h5" | "hdf5" => open_hdf5(path, options),
         "xmf" | "xdmf" => xdmf::open(path, options),
+        "bp" | "bp4" | "bp5" => open_adios2(path, options),
         other => Err(ReadError::invalid(
             path,
             format!(
@@ -281,6 +290,21 @@ fn open_hdf5(path: &Path, _: &Options) -> Result<Dataset, ReadError> {
         path,
         "an HDF5 file: this build reads HDF5 only with `--features hdf5` (needs Debian's \
          libhdf5-dev)",
+    ))
+}
+
+#[cfg(feature = "adios2")]
+fn open_adios2(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    adios2::open(path, options)
+}
+
+#[cfg(not(feature = "adios2"))]
+fn open_adios2(path: &Path, _: &Options) -> Result<Dataset, ReadError> {
+    Err(ReadError::invalid(
+        path,
+        "an ADIOS2 BP file: this build reads ADIOS2 only with `--features adios2` (needs \
+         ADIOS2's C library: `pip install adios2` and ADIOS2_DIR set to its package \
+         directory, or an ADIOS2 install)",
     ))
 }
 

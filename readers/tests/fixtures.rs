@@ -1,5 +1,5 @@
 //! Each reader against files the reference libraries wrote (`scripts/write-fixtures.sh`: PyPI's
-//! vtk, pynrrd, netCDF4 and h5py, XDMF beside): every variant's samples equal the source arrays bit for bit, every
+//! vtk, pynrrd, netCDF4, h5py and ADIOS2's own, XDMF beside): every variant's samples equal the source arrays bit for bit, every
 //! step of a series, and the grid lands where the writer put it — where VTK's own reader puts
 //! its bounds, for the formats VTK reads.
 
@@ -31,6 +31,7 @@ fn files_written_by_the_reference_libraries_read_as_their_source() {
             let built = match feature {
                 "netcdf4" => cfg!(feature = "netcdf4"),
                 "hdf5" => cfg!(feature = "hdf5"),
+                "adios2" => cfg!(feature = "adios2"),
                 other => panic!("{name}: unknown feature {other}"),
             };
             if !built {

@@ -1,0 +1,631 @@
+//! ADIOS2 output read through ADIOS2's C library (the wheel `adios2` from PyPI ships it, as do
+//! Spack and the distributions), behind the `adios2` feature: BP4/BP5 files written by any
+//! ADIOS2 writer (`insitu render --volume run.bp`, `insitu replay --series run.bp`), and live
+//! SST streams a generator-node reads step by step ([`Stream`]).
+//!
+//! What is read: a **global array** of three dimensions, named by `--var` (else the first
+//! such variable), one time step per ADIOS2 step. Its Shape is the grid: ADIOS2 presents it
+//! row-major to this reader (a Fortran writer's dimensions come reversed), so the last
+//! dimension is x, the fastest, and the first is z. The blocks the writer's ranks `Put` are
+//! the library's business: a selection of the global array is read whole, whichever blocks
+//! hold it. Spacing and origin come from attributes where the writer stores them —
+//! `VAR/spacing` and `VAR/origin`, else `spacing` and `origin`, three numbers each in x, y, z
+//! order — and are otherwise a unit grid at the origin (said in [`crate::Dataset::notes`]).
+//!
+//! Types: every integer and float type, kept as the core keeps them (u8, u16, i16, f32,
+//! f64; others converted to f32); strings, complex numbers and long doubles are refused by
+//! name, as is a variable that is not 3-D or not a global array, and a selection outside the
+//! Shape.
+//!
+//! The C library is called only here and in `ffi`; each call's soundness is argued beside it.
+
+#![allow(unsafe_code)]
+
+mod ffi;
+
+use crate::bytes::{Endian, Sample, Samples};
+use crate::{Dataset, Options, ReadError, Source};
+use glam::Vec3;
+use insitu_core::Volume;
+use std::ffi::{CStr, CString};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Duration;
+
+/// An ADIOS2 engine the reader opens.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Engine {
+    /// A BP4 or BP5 file (directory) read step by step; the library tells which.
+    File,
+    /// A live SST stream, found through the `NAME.sst` contact file the writer leaves in its
+    /// working directory (a shared file system, or the same directory).
+    Sst,
+}
+
+impl Engine {
+    fn name(self) -> &'static CStr {
+        match self {
+            Self::File => c"BPFile",
+            Self::Sst => c"SST",
+        }
+    }
+}
+
+/// What a variable holds, as this reader sees it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Variable {
+    /// Its name.
+    pub name: String,
+    /// The global Shape as grid dims (x, y, z): the Shape reversed.
+    pub dims: [usize; 3],
+    /// The type of its samples.
+    pub sample: Sample,
+}
+
+/// How a step began.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// A step is open; its ADIOS2 index.
+    Ready(usize),
+    /// None came within the timeout; the stream is still open.
+    NotReady,
+    /// The writer closed the stream: no more steps.
+    End,
+}
+
+/// An open ADIOS2 engine: one ADIOS object, one IO, one engine, all closed on drop.
+pub struct Stream {
+    name: PathBuf,
+    adios: *mut ffi::adios2_adios,
+    io: *mut ffi::adios2_io,
+    engine: *mut ffi::adios2_engine,
+    /// The bytes of the last selection read, kept for the next.
+    scratch: Vec<u8>,
+}
+
+// SAFETY: the handles belong to this value alone and ADIOS2 keeps no thread-local state for
+// them; `&mut self` on every call that touches the engine keeps calls serial.
+unsafe impl Send for Stream {}
+
+impl std::fmt::Debug for Stream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Stream").field("name", &self.name).finish()
+    }
+}
+
+fn c_string(name: &Path, what: &str, s: &str) -> Result<CString, ReadError> {
+    CString::new(s).map_err(|_| ReadError::invalid(name, format!("{what} {s:?} holds a NUL byte")))
+}
+
+impl Stream {
+    /// Opens `name` with `engine` for reading step by step, with ADIOS2 engine `parameters`
+    /// (e.g. SST's `DataTransport`). An SST stream waits at most `open_timeout` for its
+    /// writer (SST's `OpenTimeoutSecs`).
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream: ADIOS2 cannot open it (no such file; no SST writer
+    /// within the timeout, which it names), a parameter it refuses.
+    pub fn open(
+        name: &Path,
+        engine: Engine,
+        parameters: &[(String, String)],
+        open_timeout: Duration,
+    ) -> Result<Self, ReadError> {
+        Self::open_mode(name, engine, parameters, open_timeout, ffi::MODE_READ)
+    }
+
+    fn open_mode(
+        name: &Path,
+        engine: Engine,
+        parameters: &[(String, String)],
+        open_timeout: Duration,
+        mode: ffi::adios2_mode,
+    ) -> Result<Self, ReadError> {
+        let c_name = c_string(name, "stream name", &name.to_string_lossy())?;
+        // SAFETY: plain constructor; null on failure, checked.
+        let adios = unsafe { ffi::adios2_init_serial() };
+        if adios.is_null() {
+            return Err(ReadError::invalid(name, "ADIOS2 could not be initialised"));
+        }
+        let mut s = Self {
+            name: name.to_owned(),
+            adios,
+            io: std::ptr::null_mut(),
+            engine: std::ptr::null_mut(),
+            scratch: Vec::new(),
+        };
+        // SAFETY: `adios` is live; the name is a NUL-terminated string that outlives the call.
+        s.io = unsafe { ffi::adios2_declare_io(adios, c"insitu".as_ptr()) };
+        if s.io.is_null() {
+            return Err(ReadError::invalid(name, "ADIOS2 declared no IO"));
+        }
+        // SAFETY: `io` is live; the strings outlive the calls.
+        s.check(
+            unsafe { ffi::adios2_set_engine(s.io, engine.name().as_ptr()) },
+            "setting the engine",
+        )?;
+        let mut all = parameters.to_vec();
+        if engine == Engine::Sst && !parameters.iter().any(|(k, _)| k == "OpenTimeoutSecs") {
+            all.push((
+                "OpenTimeoutSecs".into(),
+                open_timeout.as_secs().max(1).to_string(),
+            ));
+        }
+        for (k, v) in &all {
+            let (ck, cv) = (c_string(name, "parameter", k)?, c_string(name, "value", v)?);
+            // SAFETY: as above.
+            s.check(
+                unsafe { ffi::adios2_set_parameter(s.io, ck.as_ptr(), cv.as_ptr()) },
+                &format!("parameter {k}={v}"),
+            )?;
+        }
+        // SAFETY: as above; null when the engine cannot open, checked.
+        s.engine = unsafe { ffi::adios2_open(s.io, c_name.as_ptr(), mode) };
+        if s.engine.is_null() {
+            let why = match engine {
+                Engine::Sst => format!(
+                    "no SST writer opened it within {} s (its contact file {}.sst is looked \
+                     for in this directory)",
+                    open_timeout.as_secs().max(1),
+                    name.display()
+                ),
+                Engine::File => "ADIOS2 cannot open it as a BP file (missing, truncated or \
+                                 not BP3/BP4/BP5)"
+                    .into(),
+            };
+            return Err(ReadError::invalid(name, why));
+        }
+        Ok(s)
+    }
+
+    /// The stream's name as opened.
+    pub fn name(&self) -> &Path {
+        &self.name
+    }
+
+    fn check(&self, code: ffi::adios2_error, what: &str) -> Result<(), ReadError> {
+        if code == ffi::ERROR_NONE {
+            return Ok(());
+        }
+        let kind = match code {
+            1 => "invalid argument",
+            2 => "system error",
+            3 => "runtime error",
+            _ => "exception",
+        };
+        Err(ReadError::invalid(
+            &self.name,
+            format!("{what}: ADIOS2 reports a {kind} (its message is on standard error)"),
+        ))
+    }
+
+    /// Waits at most `timeout` for the next step.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream when ADIOS2 reports an error (a truncated file, a
+    /// writer gone without closing).
+    pub fn begin_step(&mut self, timeout: Duration) -> Result<Step, ReadError> {
+        let mut status = ffi::STEP_OK;
+        // SAFETY: `engine` is live; `status` outlives the call.
+        let code = unsafe {
+            ffi::adios2_begin_step(
+                self.engine,
+                ffi::STEP_MODE_READ,
+                timeout.as_secs_f32(),
+                &mut status,
+            )
+        };
+        self.check(code, "beginning a step")?;
+        match status {
+            ffi::STEP_OK => {
+                let mut step = 0usize;
+                // SAFETY: as above.
+                let code = unsafe { ffi::adios2_current_step(&mut step, self.engine) };
+                self.check(code, "the current step")?;
+                Ok(Step::Ready(step))
+            }
+            ffi::STEP_NOT_READY => Ok(Step::NotReady),
+            ffi::STEP_END_OF_STREAM => Ok(Step::End),
+            _ => Err(ReadError::invalid(
+                &self.name,
+                "beginning a step: ADIOS2 reports an error of the stream",
+            )),
+        }
+    }
+
+    /// Ends the step begun.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream when ADIOS2 reports an error.
+    pub fn end_step(&mut self) -> Result<(), ReadError> {
+        // SAFETY: `engine` is live.
+        let code = unsafe { ffi::adios2_end_step(self.engine) };
+        self.check(code, "ending a step")
+    }
+
+    /// The names of the variables of the current step (or of the file).
+    pub fn variables(&self) -> Vec<String> {
+        let mut n = 0usize;
+        // SAFETY: `io` is live; the array and its strings are malloc'd by the library and
+        // freed here after being copied.
+        unsafe {
+            let names = ffi::adios2_available_variables(self.io, &mut n);
+            if names.is_null() {
+                return Vec::new();
+            }
+            let out = (0..n)
+                .filter_map(|i| {
+                    let p = *names.add(i);
+                    (!p.is_null()).then(|| {
+                        let s = CStr::from_ptr(p).to_string_lossy().into_owned();
+                        free(p.cast());
+                        s
+                    })
+                })
+                .collect();
+            free(names.cast());
+            let mut out: Vec<String> = out;
+            out.sort();
+            out
+        }
+    }
+
+    /// The 3-D global arrays among [`Self::variables`].
+    pub fn volumes(&self) -> Vec<String> {
+        self.variables()
+            .into_iter()
+            .filter(|v| self.variable(v).is_ok())
+            .collect()
+    }
+
+    fn handle(&self, var: &str) -> Result<*mut ffi::adios2_variable, ReadError> {
+        let c = c_string(&self.name, "variable", var)?;
+        // SAFETY: `io` is live; null when absent, checked.
+        let h = unsafe { ffi::adios2_inquire_variable(self.io, c.as_ptr()) };
+        if h.is_null() {
+            let known = self.variables();
+            return Err(ReadError::invalid(
+                &self.name,
+                format!(
+                    "no variable {var:?} in this step; variables here: {}",
+                    if known.is_empty() {
+                        "none".into()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            ));
+        }
+        Ok(h)
+    }
+
+    /// What `var` holds.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream and the variable: absent, not a global array, not
+    /// 3-D, or of a type this reader does not take.
+    pub fn variable(&self, var: &str) -> Result<Variable, ReadError> {
+        let h = self.handle(var)?;
+        let bad = |what: String| ReadError::invalid(&self.name, format!("variable {var}: {what}"));
+        let (mut shape_id, mut ndims, mut t) = (0, 0usize, 0);
+        // SAFETY: `h` is live while `io` is; the out-parameters outlive the calls.
+        unsafe {
+            self.check(ffi::adios2_variable_shapeid(&mut shape_id, h), var)?;
+            self.check(ffi::adios2_variable_ndims(&mut ndims, h), var)?;
+            self.check(ffi::adios2_variable_type(&mut t, h), var)?;
+        }
+        if shape_id != ffi::SHAPE_GLOBAL_ARRAY {
+            return Err(bad(
+                "not a global array (a value, or a local array without a Shape): a volume is \
+                 a 3-D global array"
+                    .into(),
+            ));
+        }
+        if ndims != 3 {
+            return Err(bad(format!(
+                "{ndims}-D: a volume is a 3-D global array (z, y, x), one ADIOS2 step per time step"
+            )));
+        }
+        let mut shape = [0usize; 3];
+        // SAFETY: `shape` has room for the three dimensions checked above.
+        unsafe { self.check(ffi::adios2_variable_shape(shape.as_mut_ptr(), h), var)? };
+        let sample = match t {
+            ffi::TYPE_INT8 => Sample::I8,
+            ffi::TYPE_UINT8 => Sample::U8,
+            ffi::TYPE_INT16 => Sample::I16,
+            ffi::TYPE_UINT16 => Sample::U16,
+            ffi::TYPE_INT32 => Sample::I32,
+            ffi::TYPE_UINT32 => Sample::U32,
+            ffi::TYPE_INT64 => Sample::I64,
+            ffi::TYPE_UINT64 => Sample::U64,
+            ffi::TYPE_FLOAT => Sample::F32,
+            ffi::TYPE_DOUBLE => Sample::F64,
+            ffi::TYPE_STRING => return Err(bad("holds strings, not numbers".into())),
+            other => {
+                return Err(bad(format!(
+                    "of ADIOS2 type {other} (complex or long double): volumes are integers or \
+                     floats"
+                )))
+            }
+        };
+        Ok(Variable {
+            name: var.to_owned(),
+            dims: [shape[2], shape[1], shape[0]],
+            sample,
+        })
+    }
+
+    /// Reads the box `offset + [0, count)` (x, y, z, in grid points) of `var` in the current
+    /// step (or, for a file opened by [`open`], of step `step`) into `self`'s scratch bytes,
+    /// in the variable's own type; returns them with that type.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream and variable: as [`Self::variable`], a box outside
+    /// the Shape (naming both), a box over the read limit, or ADIOS2 failing to read it.
+    pub fn read_bytes(
+        &mut self,
+        var: &str,
+        offset: [usize; 3],
+        count: [usize; 3],
+        step: Option<usize>,
+    ) -> Result<(&[u8], Sample), ReadError> {
+        let v = self.variable(var)?;
+        let inside = (0..3).all(|a| {
+            count[a] > 0
+                && offset[a]
+                    .checked_add(count[a])
+                    .is_some_and(|end| end <= v.dims[a])
+        });
+        if !inside {
+            return Err(ReadError::invalid(
+                &self.name,
+                format!(
+                    "variable {var}: the selection at {offset:?} of {count:?} points (x, y, z) \
+                     lies outside its Shape {:?}",
+                    v.dims
+                ),
+            ));
+        }
+        let n = crate::samples(&self.name, &count)?;
+        crate::limit::check(&self.name, n, v.sample.size())?;
+        let bytes = n * v.sample.size();
+        self.scratch.clear();
+        self.scratch.try_reserve_exact(bytes).map_err(|_| {
+            ReadError::invalid(
+                &self.name,
+                format!("out of memory: {bytes} bytes for variable {var}"),
+            )
+        })?;
+        self.scratch.resize(bytes, 0);
+        let h = self.handle(var)?;
+        let (start, count_zyx) = (
+            [offset[2], offset[1], offset[0]],
+            [count[2], count[1], count[0]],
+        );
+        // SAFETY: `h` and `engine` are live; the selection arrays hold three entries; the
+        // scratch buffer holds exactly the selection's samples in the variable's own type, as
+        // a synchronous get writes them.
+        unsafe {
+            self.check(
+                ffi::adios2_set_selection(h, 3, start.as_ptr(), count_zyx.as_ptr()),
+                &format!("selecting {var}"),
+            )?;
+            if let Some(t) = step {
+                self.check(
+                    ffi::adios2_set_step_selection(h, t, 1),
+                    &format!("selecting step {t} of {var}"),
+                )?;
+            }
+            let code = ffi::adios2_get(
+                self.engine,
+                h,
+                self.scratch.as_mut_ptr().cast(),
+                ffi::MODE_SYNC,
+            );
+            self.check(code, &format!("reading {var}"))?;
+        }
+        Ok((&self.scratch, v.sample))
+    }
+
+    /// The box of [`Self::read_bytes`] as a volume at `spacing` (placed at the origin).
+    ///
+    /// # Errors
+    /// As [`Self::read_bytes`].
+    pub fn read(
+        &mut self,
+        var: &str,
+        offset: [usize; 3],
+        count: [usize; 3],
+        step: Option<usize>,
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let name = self.name.clone();
+        let (bytes, sample) = self.read_bytes(var, offset, count, step)?;
+        let n = bytes.len() / sample.size();
+        let mut s = Samples::new(&name, sample, Endian::Little, n, n)?;
+        s.push(bytes)?;
+        s.finish(&name, count, spacing)
+    }
+
+    /// The numbers of attribute `name` (none when absent or text).
+    pub fn numbers(&self, name: &str) -> Option<Vec<f64>> {
+        let c = CString::new(name).ok()?;
+        // SAFETY: `io` is live; null when absent, checked.
+        let a = unsafe { ffi::adios2_inquire_attribute(self.io, c.as_ptr()) };
+        if a.is_null() {
+            return None;
+        }
+        let (mut t, mut n) = (0, 0usize);
+        // SAFETY: `a` is live; the out-parameters outlive the calls.
+        unsafe {
+            if ffi::adios2_attribute_type(&mut t, a) != ffi::ERROR_NONE
+                || ffi::adios2_attribute_size(&mut n, a) != ffi::ERROR_NONE
+            {
+                return None;
+            }
+        }
+        let size = match t {
+            ffi::TYPE_INT8 | ffi::TYPE_UINT8 => 1,
+            ffi::TYPE_INT16 | ffi::TYPE_UINT16 => 2,
+            ffi::TYPE_INT32 | ffi::TYPE_UINT32 | ffi::TYPE_FLOAT => 4,
+            ffi::TYPE_INT64 | ffi::TYPE_UINT64 | ffi::TYPE_DOUBLE => 8,
+            _ => return None,
+        };
+        if n == 0 || n > 64 {
+            return None;
+        }
+        let mut bytes = vec![0u8; n * size];
+        let mut got = 0usize;
+        // SAFETY: `bytes` holds the attribute's `n` values of `size` bytes.
+        if unsafe { ffi::adios2_attribute_data(bytes.as_mut_ptr().cast(), &mut got, a) }
+            != ffi::ERROR_NONE
+        {
+            return None;
+        }
+        let sample = match t {
+            ffi::TYPE_INT8 => Sample::I8,
+            ffi::TYPE_UINT8 => Sample::U8,
+            ffi::TYPE_INT16 => Sample::I16,
+            ffi::TYPE_UINT16 => Sample::U16,
+            ffi::TYPE_INT32 => Sample::I32,
+            ffi::TYPE_UINT32 => Sample::U32,
+            ffi::TYPE_INT64 => Sample::I64,
+            ffi::TYPE_UINT64 => Sample::U64,
+            ffi::TYPE_FLOAT => Sample::F32,
+            _ => Sample::F64,
+        };
+        Some(
+            (0..n.min(got.max(1)))
+                .map(|i| crate::bytes::value(&bytes, i, sample, Endian::Little))
+                .collect(),
+        )
+    }
+
+    /// Spacing and origin of `var`'s grid from its attributes (`VAR/spacing`, `VAR/origin`,
+    /// else `spacing`, `origin`; x, y, z), and a note where they are missing.
+    pub fn grid(&self, var: &str) -> (Vec3, Vec3, Option<String>) {
+        let three = |what: &str| {
+            [format!("{var}/{what}"), what.to_owned()]
+                .iter()
+                .find_map(|n| self.numbers(n))
+                .filter(|v| v.len() == 3 && v.iter().all(|x| x.is_finite()))
+                .map(|v| Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+        };
+        let spacing = three("spacing").filter(|s| s.min_element() > 0.0);
+        let origin = three("origin");
+        let note = spacing.is_none().then(|| {
+            format!(
+                "no attribute {var}/spacing or spacing (three positive numbers, x y z): unit \
+                 spacing from the origin"
+            )
+        });
+        (
+            spacing.unwrap_or(Vec3::ONE),
+            origin.unwrap_or(Vec3::ZERO),
+            note,
+        )
+    }
+}
+
+impl Drop for Stream {
+    fn drop(&mut self) {
+        // SAFETY: each handle is closed once, engine before ADIOS, and not used after.
+        unsafe {
+            if !self.engine.is_null() {
+                ffi::adios2_close(self.engine);
+            }
+            ffi::adios2_finalize(self.adios);
+        }
+    }
+}
+
+extern "C" {
+    /// The C library's `free`, for the names `adios2_available_variables` allocates.
+    fn free(p: *mut std::ffi::c_void);
+}
+
+/// A BP file opened for reading any step: the engine, behind a lock (reads are serial).
+#[derive(Debug)]
+pub struct File {
+    stream: Mutex<Stream>,
+    var: String,
+}
+
+/// Whether `path` looks like a BP file or directory (`.bp`, `.bp4`, `.bp5`).
+pub fn is_bp(path: &Path) -> bool {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .is_some_and(|e| matches!(e.as_str(), "bp" | "bp4" | "bp5"))
+}
+
+/// Opens a BP file (BP4 or BP5: a directory; BP3: a file) as a dataset of the global array
+/// `options.field` (else the first 3-D global array by name), one step per ADIOS2 step.
+///
+/// # Errors
+/// [`ReadError`] naming the file: ADIOS2 cannot open it, no 3-D global array, or the chosen
+/// variable absent, not 3-D, of a type not taken, or without steps.
+pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    if !path.exists() {
+        return Err(ReadError::invalid(path, "no such BP file or directory"));
+    }
+    let stream = Stream::open_mode(
+        path,
+        Engine::File,
+        &[],
+        Duration::from_secs(1),
+        ffi::MODE_READ_RANDOM_ACCESS,
+    )?;
+    let fields = stream.volumes();
+    let var = match &options.field {
+        Some(v) => v.clone(),
+        None => fields.first().cloned().ok_or_else(|| {
+            ReadError::invalid(
+                path,
+                format!(
+                    "no 3-D global array; variables here: {}",
+                    stream.variables().join(", ")
+                ),
+            )
+        })?,
+    };
+    let v = stream.variable(&var)?;
+    let h = stream.handle(&var)?;
+    let mut steps = 0usize;
+    // SAFETY: `h` is live while the stream is.
+    stream.check(unsafe { ffi::adios2_variable_steps(&mut steps, h) }, &var)?;
+    if steps == 0 {
+        return Err(ReadError::invalid(
+            path,
+            format!("variable {var} has no step"),
+        ));
+    }
+    let (spacing, origin, note) = stream.grid(&var);
+    crate::check_grid(path, v.dims, spacing, origin)?;
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims: v.dims,
+        steps,
+        spacing,
+        origin,
+        field: var.clone(),
+        fields,
+        notes: note.into_iter().collect(),
+        source: Source::Adios2(Box::new(File {
+            stream: Mutex::new(stream),
+            var,
+        })),
+    })
+}
+
+impl File {
+    /// Step `t` as a volume of `dims` at `spacing`.
+    pub(crate) fn read_step(
+        &self,
+        t: usize,
+        dims: [usize; 3],
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let mut s = self.stream.lock().unwrap_or_else(|e| e.into_inner());
+        s.read(&self.var, [0; 3], dims, Some(t), spacing)
+    }
+}

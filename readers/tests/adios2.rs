@@ -1,0 +1,130 @@
+//! The ADIOS2 reader against BP5 files ADIOS2's own Python API wrote (`scripts/write-fixtures.sh`):
+//! what it refuses, by name. The samples themselves are checked with every other reader's in
+//! `fixtures.rs`.
+
+#![cfg(feature = "adios2")]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use insitu_readers::adios2::{Engine, Stream};
+use insitu_readers::{open, Options};
+use std::path::Path;
+use std::time::Duration;
+
+fn field(name: &str) -> Options {
+    Options {
+        field: Some(name.into()),
+        ..Options::default()
+    }
+}
+
+fn refusal(path: &Path, var: &str) -> String {
+    open(path, &field(var)).unwrap_err().to_string()
+}
+
+#[test]
+fn what_is_not_a_volume_is_refused_by_name() {
+    let Some(dir) = insitu_testenv::fixture_dir() else {
+        return;
+    };
+    let bad = dir.join("adios2_refused.bp");
+    let e = refusal(&bad, "plane");
+    assert!(e.contains("variable plane: 2-D"), "{e}");
+    let e = refusal(&bad, "time");
+    assert!(e.contains("variable time: not a global array"), "{e}");
+    let e = refusal(&bad, "wave");
+    assert!(e.contains("variable wave: of ADIOS2 type"), "{e}");
+    let e = refusal(&bad, "rho");
+    assert!(
+        e.contains("no variable \"rho\"") && e.contains("plane, time, wave"),
+        "{e}"
+    );
+    // None named: the file holds no 3-D global array of numbers.
+    let e = open(&bad, &Options::default()).unwrap_err().to_string();
+    assert!(e.contains("no 3-D global array"), "{e}");
+}
+
+#[test]
+fn a_selection_outside_the_shape_is_refused_naming_both() {
+    let Some(dir) = insitu_testenv::fixture_dir() else {
+        return;
+    };
+    let path = dir.join("adios2_series.bp");
+    let mut s = Stream::open(&path, Engine::File, &[], Duration::from_secs(1)).unwrap();
+    assert!(matches!(
+        s.begin_step(Duration::from_secs(5)).unwrap(),
+        insitu_readers::adios2::Step::Ready(0)
+    ));
+    let v = s.variable("rho").unwrap();
+    assert_eq!(v.dims, [12, 10, 8]);
+    let e = s
+        .read_bytes("rho", [0, 0, 4], [12, 10, 5], None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("variable rho") && e.contains("[0, 0, 4] of [12, 10, 5]") && e.contains("[12, 10, 8]"),
+        "{e}"
+    );
+    // A box across the writer's two blocks reads as the whole field's box.
+    let whole = s.read("rho", [0; 3], [12, 10, 8], None, glam::Vec3::ONE).unwrap();
+    let part = s.read("rho", [2, 1, 3], [5, 4, 3], None, glam::Vec3::ONE).unwrap();
+    for z in 0..3 {
+        for y in 0..4 {
+            for x in 0..5 {
+                let (a, b) = (
+                    part.data()[x + 5 * (y + 4 * z)],
+                    whole.data()[(x + 2) + 12 * ((y + 1) + 10 * (z + 3))],
+                );
+                assert_eq!(a.to_bits(), b.to_bits(), "({x}, {y}, {z})");
+            }
+        }
+    }
+    s.end_step().unwrap();
+    assert_eq!(
+        s.begin_step(Duration::from_secs(5)).unwrap(),
+        insitu_readers::adios2::Step::Ready(1)
+    );
+}
+
+#[test]
+fn a_truncated_or_missing_file_and_a_stream_that_never_opens_are_named() {
+    let Some(dir) = insitu_testenv::fixture_dir() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let cut = tmp.path().join("cut.bp");
+    std::fs::create_dir(&cut).unwrap();
+    for f in std::fs::read_dir(dir.join("adios2_series.bp")).unwrap() {
+        let f = f.unwrap();
+        std::fs::copy(f.path(), cut.join(f.file_name())).unwrap();
+    }
+    // The metadata cut to half: the index promises steps the file does not describe. (A data
+    // file cut short is not refused: ADIOS2 reads a BP file while its writer may still be
+    // writing, and waits for the rest.)
+    let data = cut.join("md.0");
+    let n = std::fs::metadata(&data).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&data)
+        .unwrap()
+        .set_len(n / 2)
+        .unwrap();
+    let e = open(&cut, &field("rho"))
+        .and_then(|d| (0..d.steps).try_for_each(|t| d.read_step(t).map(drop)))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cut.bp"), "{e}");
+    let e = refusal(&tmp.path().join("none.bp"), "rho");
+    assert!(e.contains("none.bp: no such BP file"), "{e}");
+    // No writer: the timeout is named.
+    let start = std::time::Instant::now();
+    let e = Stream::open(
+        &tmp.path().join("nobody"),
+        Engine::Sst,
+        &[],
+        Duration::from_secs(1),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no SST writer opened it within 1 s"), "{e}");
+    assert!(start.elapsed() < Duration::from_secs(30));
+}
