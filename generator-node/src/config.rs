@@ -209,6 +209,55 @@ pub struct Config {
     /// streamed only. Clients use it on their own: one on the same host (the same Linux boot
     /// id) that can write there sends its steps that way.
     pub shared_memory_dir: Option<PathBuf>,
+    /// `[adios2]`: steps read from an ADIOS2 stream or BP file instead of (or besides) pushes
+    /// (`crate::adios2_input`; the cargo feature `adios2`).
+    pub adios2: Option<Adios2Input>,
+}
+
+/// `[adios2]`: an ADIOS2 writer's output as this node's input: every step of a 3-D global
+/// array, this node's part of it read as one rank (docs/ranks-and-clients.md).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Adios2Input {
+    /// The stream's name as the writer opened it (SST: its contact file is `NAME.sst` in
+    /// this node's working directory), or a BP file (`.bp`, `.bp4`, `.bp5`: read step by
+    /// step as it is written).
+    pub stream: PathBuf,
+    /// The variable (else `generation.field`, else the first 3-D global array by name).
+    #[serde(default)]
+    pub var: Option<String>,
+    /// This node's part and the number of parts the array is split into (nodes reading the
+    /// same stream): part `i` of `n` is rank `i` of a world of `n`, its brick one of `n` that
+    /// share their boundary planes (`[0, 1]`: the whole array).
+    #[serde(default = "whole")]
+    pub part: [u32; 2],
+    /// How long to wait for an SST writer to open the stream, seconds.
+    #[serde(default = "default_open_timeout")]
+    pub open_timeout_secs: f64,
+    /// ADIOS2 engine parameters (e.g. SST's `DataTransport = "WAN"`).
+    #[serde(default)]
+    pub parameters: std::collections::BTreeMap<String, String>,
+}
+
+fn whole() -> [u32; 2] {
+    [0, 1]
+}
+
+fn default_open_timeout() -> f64 {
+    60.0
+}
+
+impl Adios2Input {
+    /// A stream read whole, with the defaults.
+    pub fn new(stream: PathBuf) -> Self {
+        Self {
+            stream,
+            var: None,
+            part: whole(),
+            open_timeout_secs: default_open_timeout(),
+            parameters: Default::default(),
+        }
+    }
 }
 
 /// `[host]`: the ranks of one step that this node serves are composed into box-shaped parts
@@ -288,6 +337,7 @@ impl Default for Config {
             spool: None,
             host: HostConfig::default(),
             shared_memory_dir: Some(PathBuf::from("/dev/shm")),
+            adios2: None,
         }
     }
 }
@@ -451,6 +501,28 @@ impl Config {
         }
         if !(self.host.wait_secs.is_finite() && (0.0..=3600.0).contains(&self.host.wait_secs)) {
             return Err(invalid("host.wait_secs", "must be seconds in [0, 3600]"));
+        }
+        if let Some(a) = &self.adios2 {
+            if !cfg!(feature = "adios2") {
+                return Err(invalid(
+                    "adios2",
+                    "this generator-node was built without ADIOS2; build it with `--features \
+                     adios2` (ADIOS2's C library, docs/ranks-and-clients.md)",
+                ));
+            }
+            let [part, parts] = a.part;
+            if parts == 0 || part >= parts {
+                return Err(invalid(
+                    "adios2.part",
+                    format!("[{part}, {parts}]: part i of n needs 0 ≤ i < n"),
+                ));
+            }
+            if !(a.open_timeout_secs.is_finite() && a.open_timeout_secs > 0.0) {
+                return Err(invalid(
+                    "adios2.open_timeout_secs",
+                    "must be finite and > 0",
+                ));
+            }
         }
         Ok(())
     }

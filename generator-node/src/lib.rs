@@ -17,6 +17,8 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used))]
 #![allow(rustdoc::private_intra_doc_links)]
 
+#[cfg(feature = "adios2")]
+mod adios2_input;
 pub mod config;
 mod correct;
 mod cpu;

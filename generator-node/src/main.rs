@@ -54,12 +54,30 @@ struct Args {
     /// the CPU).
     #[arg(long)]
     backend: Option<insitu_core::BackendChoice>,
+    /// Read steps from this ADIOS2 stream (SST: the name the writer opened; or a `.bp` file)
+    /// besides any pushes; the variable is `--field` (else the first 3-D global array).
+    #[arg(long, value_name = "STREAM")]
+    adios2: Option<PathBuf>,
+    /// This node's part of the ADIOS2 array: `I/N`, part I of N nodes reading it (default
+    /// 0/1, the whole array).
+    #[arg(long, value_name = "I/N", requires = "adios2", value_parser = part)]
+    adios2_part: Option<[u32; 2]>,
     /// CPU threads for generation, references and trials (0: one per core).
     #[arg(long)]
     threads: Option<usize>,
     /// Nice level of those threads, 0–19 (0: the process's own priority).
     #[arg(long)]
     nice: Option<i32>,
+}
+
+/// `I/N` as `[I, N]`.
+fn part(s: &str) -> Result<[u32; 2], String> {
+    let bad = || format!("{s:?}: a part is I/N, e.g. 0/2");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    Ok([
+        i.trim().parse().map_err(|_| bad())?,
+        n.trim().parse().map_err(|_| bad())?,
+    ])
 }
 
 fn config(a: Args) -> Result<Config> {
@@ -81,6 +99,17 @@ fn config(a: Args) -> Result<Config> {
     }
     if let Some(v) = a.nice {
         c.nice = v;
+    }
+    if let Some(stream) = a.adios2 {
+        let mut input = c
+            .adios2
+            .take()
+            .unwrap_or_else(|| insitu_generator_node::config::Adios2Input::new(stream.clone()));
+        input.stream = stream;
+        if let Some(p) = a.adios2_part {
+            input.part = p;
+        }
+        c.adios2 = Some(input);
     }
     if let Some(v) = a.queue_steps {
         c.queue.max_items = v;

@@ -38,6 +38,8 @@ pub struct Summary {
     /// Steps made at an r the node lowered before the tuner's first decision
     /// ([`crate::correct`]).
     pub correction: Option<String>,
+    /// How the ADIOS2 input ended, and after which step (`[adios2]`).
+    pub input: Option<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -55,7 +57,10 @@ impl std::fmt::Display for Summary {
                 c.limit_retries, c.limit_retry_secs
             )?;
         }
-        for note in [&self.layout, &self.correction].into_iter().flatten() {
+        for note in [&self.layout, &self.correction, &self.input]
+            .into_iter()
+            .flatten()
+        {
             write!(f, "; {note}")?;
         }
         Ok(())
@@ -135,6 +140,8 @@ pub struct RunningNode {
     host: JoinHandle<()>,
     shippers: Vec<JoinHandle<()>>,
     tuner: Option<JoinHandle<()>>,
+    #[cfg(feature = "adios2")]
+    input: Option<crate::adios2_input::Input>,
     drain_timeout: Duration,
 }
 
@@ -238,6 +245,11 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         let run = link.run(shared.clone(), tuning, summaries);
         tokio::spawn(run.instrument(info_span!("tuner")))
     });
+    #[cfg(feature = "adios2")]
+    let input = cfg.adios2.clone().map(|mut a| {
+        a.var = a.var.or_else(|| cfg.generation.field.clone());
+        crate::adios2_input::Input::spawn(shared.clone(), a, tokio::runtime::Handle::current())
+    });
     info!(%addr, tls = security.serves_tls(), viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
     Ok(RunningNode {
         addr,
@@ -249,6 +261,8 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         host,
         shippers,
         tuner,
+        #[cfg(feature = "adios2")]
+        input,
         drain_timeout: Duration::from_secs_f64(cfg.drain_timeout_secs),
     })
 }
@@ -608,6 +622,14 @@ impl RunningNode {
     pub async fn shutdown(self) -> Summary {
         self.health.draining().await;
         self.shared.queue.close();
+        // The queue closed first: a step the input waits to queue is refused, not waited on.
+        #[cfg(feature = "adios2")]
+        let input = match self.input {
+            Some(i) => i.finish().await,
+            None => None,
+        };
+        #[cfg(not(feature = "adios2"))]
+        let input = None;
         let _ = self.stop_server.send(());
         if let Err(e) = self.server.await {
             warn!(error = %e, "server task ended abnormally");
@@ -663,6 +685,7 @@ impl RunningNode {
                 .tuning
                 .as_ref()
                 .and_then(|t| t.correction.summary()),
+            input,
         }
     }
 }

@@ -46,7 +46,7 @@ impl GeneratorService {
 
     /// The field the scene in force for `step` renders, by name (`None`: each step's first);
     /// a step's other fields are passed over as they arrive.
-    fn wanted_field(&self, step: u64) -> Option<String> {
+    pub(crate) fn wanted_field(&self, step: u64) -> Option<String> {
         self.0
             .generation
             .read()
@@ -97,7 +97,7 @@ impl GeneratorService {
     ///
     /// # Errors
     /// As [`Self::spool`] and [`Self::enqueue`].
-    async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
+    pub(crate) async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
         self.spool(&mut raw).await?;
         // Checked once the step's ranks are all in; logged the first time it fails.
         let _ = self.0.layout.record(&raw.info, &raw.field);

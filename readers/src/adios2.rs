@@ -139,11 +139,9 @@ impl Stream {
         if s.io.is_null() {
             return Err(ReadError::invalid(name, "ADIOS2 declared no IO"));
         }
-        // SAFETY: `io` is live; the strings outlive the calls.
-        s.check(
-            unsafe { ffi::adios2_set_engine(s.io, engine.name().as_ptr()) },
-            "setting the engine",
-        )?;
+        // SAFETY: `io` is live; the engine's name is a static C string.
+        let code = unsafe { ffi::adios2_set_engine(s.io, engine.name().as_ptr()) };
+        s.check(code, "setting the engine")?;
         let mut all = parameters.to_vec();
         if engine == Engine::Sst && !parameters.iter().any(|(k, _)| k == "OpenTimeoutSecs") {
             all.push((
@@ -153,13 +151,12 @@ impl Stream {
         }
         for (k, v) in &all {
             let (ck, cv) = (c_string(name, "parameter", k)?, c_string(name, "value", v)?);
-            // SAFETY: as above.
-            s.check(
-                unsafe { ffi::adios2_set_parameter(s.io, ck.as_ptr(), cv.as_ptr()) },
-                &format!("parameter {k}={v}"),
-            )?;
+            // SAFETY: `io` is live; both strings outlive the call.
+            let code = unsafe { ffi::adios2_set_parameter(s.io, ck.as_ptr(), cv.as_ptr()) };
+            s.check(code, &format!("parameter {k}={v}"))?;
         }
-        // SAFETY: as above; null when the engine cannot open, checked.
+        // SAFETY: `io` is live; the name outlives the call; null when the engine cannot
+        // open, checked.
         s.engine = unsafe { ffi::adios2_open(s.io, c_name.as_ptr(), mode) };
         if s.engine.is_null() {
             let why = match engine {

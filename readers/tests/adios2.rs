@@ -61,12 +61,18 @@ fn a_selection_outside_the_shape_is_refused_naming_both() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("variable rho") && e.contains("[0, 0, 4] of [12, 10, 5]") && e.contains("[12, 10, 8]"),
+        e.contains("variable rho")
+            && e.contains("[0, 0, 4] of [12, 10, 5]")
+            && e.contains("[12, 10, 8]"),
         "{e}"
     );
     // A box across the writer's two blocks reads as the whole field's box.
-    let whole = s.read("rho", [0; 3], [12, 10, 8], None, glam::Vec3::ONE).unwrap();
-    let part = s.read("rho", [2, 1, 3], [5, 4, 3], None, glam::Vec3::ONE).unwrap();
+    let whole = s
+        .read("rho", [0; 3], [12, 10, 8], None, glam::Vec3::ONE)
+        .unwrap();
+    let part = s
+        .read("rho", [2, 1, 3], [5, 4, 3], None, glam::Vec3::ONE)
+        .unwrap();
     for z in 0..3 {
         for y in 0..4 {
             for x in 0..5 {

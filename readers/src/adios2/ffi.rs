@@ -99,10 +99,14 @@ extern "C" {
     pub fn adios2_available_variables(io: *mut adios2_io, size: *mut usize) -> *mut *mut c_char;
     pub fn adios2_inquire_variable(io: *mut adios2_io, name: *const c_char)
         -> *mut adios2_variable;
-    pub fn adios2_variable_ndims(ndims: *mut usize, variable: *const adios2_variable)
-        -> adios2_error;
-    pub fn adios2_variable_shape(shape: *mut usize, variable: *const adios2_variable)
-        -> adios2_error;
+    pub fn adios2_variable_ndims(
+        ndims: *mut usize,
+        variable: *const adios2_variable,
+    ) -> adios2_error;
+    pub fn adios2_variable_shape(
+        shape: *mut usize,
+        variable: *const adios2_variable,
+    ) -> adios2_error;
     pub fn adios2_variable_shapeid(
         shapeid: *mut c_int,
         variable: *const adios2_variable,
@@ -111,8 +115,10 @@ extern "C" {
         t: *mut adios2_type,
         variable: *const adios2_variable,
     ) -> adios2_error;
-    pub fn adios2_variable_steps(steps: *mut usize, variable: *const adios2_variable)
-        -> adios2_error;
+    pub fn adios2_variable_steps(
+        steps: *mut usize,
+        variable: *const adios2_variable,
+    ) -> adios2_error;
     pub fn adios2_set_selection(
         variable: *mut adios2_variable,
         ndims: usize,
@@ -124,14 +130,18 @@ extern "C" {
         step_start: usize,
         step_count: usize,
     ) -> adios2_error;
-    pub fn adios2_inquire_attribute(io: *mut adios2_io, name: *const c_char)
-        -> *mut adios2_attribute;
+    pub fn adios2_inquire_attribute(
+        io: *mut adios2_io,
+        name: *const c_char,
+    ) -> *mut adios2_attribute;
     pub fn adios2_attribute_type(
         t: *mut adios2_type,
         attribute: *const adios2_attribute,
     ) -> adios2_error;
-    pub fn adios2_attribute_size(size: *mut usize, attribute: *const adios2_attribute)
-        -> adios2_error;
+    pub fn adios2_attribute_size(
+        size: *mut usize,
+        attribute: *const adios2_attribute,
+    ) -> adios2_error;
     pub fn adios2_attribute_data(
         data: *mut std::ffi::c_void,
         size: *mut usize,

@@ -1,0 +1,208 @@
+//! Steps read from an ADIOS2 writer's output (`[adios2]`, feature `adios2`): an SST stream
+//! while the simulation runs, or a BP file step by step. A writer that already describes its
+//! output through ADIOS2 changes its engine to SST (or its file's name) and nothing else.
+//!
+//! One thread owns the ADIOS2 engine (its calls block). For each step it reads this node's
+//! part of the global array — part `i` of `n` is the `i`-th of `n` bricks that share their
+//! boundary planes ([`bricks::grid_bricks`]), so the nodes that split one array compose
+//! without seams and without exchanging a plane — and hands it to the same path as a
+//! pushed step (layout check, spool, queue), as rank `i` of a world of `n`. The queue's
+//! policy applies: with `block`, a node that falls behind holds the writer back (SST's
+//! queue fills), as a push would.
+//!
+//! The stream ends when the writer closes it, when the writer goes away (SST reports an
+//! error), or at shutdown; [`Input::finish`] says which, and after which step.
+
+use crate::config::Adios2Input;
+use crate::ingest::{RawStep, StepInfo};
+use crate::service::GeneratorService;
+use crate::shared::Shared;
+use insitu_core::volume::{bricks, ScalarType, VoxelSlice};
+use insitu_readers::adios2::{Engine, Step, Stream};
+use insitu_readers::{adios2, ReadError};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tracing::{info, warn};
+
+/// How long one wait for a step lasts before the stop flag is looked at again.
+const POLL: Duration = Duration::from_millis(250);
+
+/// The reading thread, and how it ended.
+pub struct Input {
+    stop: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
+    end: Arc<Mutex<Option<String>>>,
+}
+
+/// What has been read: steps, and the last one.
+#[derive(Default)]
+struct Progress {
+    steps: u64,
+    last: Option<usize>,
+}
+
+impl Progress {
+    fn describe(&self, stream: &std::path::Path, how: &str) -> String {
+        match self.last {
+            Some(last) => format!(
+                "ADIOS2 stream {}: {} step(s) read, the last step {last}; {how}",
+                stream.display(),
+                self.steps
+            ),
+            None => format!("ADIOS2 stream {}: no step read; {how}", stream.display()),
+        }
+    }
+}
+
+impl Input {
+    /// Starts reading `input` into `shared`'s queue on a thread of its own; steps are
+    /// accepted through the tokio runtime `rt`.
+    pub fn spawn(shared: Arc<Shared>, input: Adios2Input, rt: tokio::runtime::Handle) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let end = Arc::new(Mutex::new(None));
+        let (s, e) = (stop.clone(), end.clone());
+        let thread = std::thread::spawn(move || {
+            let mut progress = Progress::default();
+            let how = match read(&shared, &input, &rt, &s, &mut progress) {
+                Ok(how) => how,
+                Err(e) => {
+                    warn!(error = %e, "the ADIOS2 input stopped");
+                    format!("stopped by an error: {e}")
+                }
+            };
+            let note = progress.describe(&input.stream, &how);
+            info!("{note}");
+            *e.lock().unwrap_or_else(|e| e.into_inner()) = Some(note);
+        });
+        Self { stop, thread, end }
+    }
+
+    /// Stops reading (at the next step or wait) and says how the stream ended.
+    pub async fn finish(self) -> Option<String> {
+        self.stop.store(true, Ordering::Relaxed);
+        let thread = self.thread;
+        let _ = tokio::task::spawn_blocking(move || thread.join()).await;
+        self.end.lock().unwrap_or_else(|e| e.into_inner()).take()
+    }
+}
+
+/// Reads steps until the stream ends or `stop` is set; says how it ended.
+fn read(
+    shared: &Arc<Shared>,
+    input: &Adios2Input,
+    rt: &tokio::runtime::Handle,
+    stop: &AtomicBool,
+    progress: &mut Progress,
+) -> Result<String, ReadError> {
+    let engine = if adios2::is_bp(&input.stream) {
+        Engine::File
+    } else {
+        Engine::Sst
+    };
+    let parameters: Vec<(String, String)> = input
+        .parameters
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let timeout = Duration::from_secs_f64(input.open_timeout_secs);
+    let mut stream = Stream::open(&input.stream, engine, &parameters, timeout)?;
+    info!(stream = %input.stream.display(), ?engine, part = ?input.part, "reading an ADIOS2 stream");
+    let service = GeneratorService(shared.clone());
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return Ok("stopped at shutdown".into());
+        }
+        let step = match stream.begin_step(POLL) {
+            Ok(Step::Ready(step)) => step,
+            Ok(Step::NotReady) => continue,
+            Ok(Step::End) => return Ok("the writer closed the stream".into()),
+            // SST: the writer went away without closing; what was read stays.
+            Err(e) => return Ok(format!("the writer went away ({e})")),
+        };
+        let raw = brick(shared, &service, &mut stream, input, step)?;
+        stream.end_step()?;
+        let (n, rank) = (raw.info.step, raw.info.rank);
+        if let Err(status) = rt.block_on(service.accept(raw)) {
+            return Ok(format!(
+                "step {n} (rank {rank}) not taken: {}",
+                status.message()
+            ));
+        }
+        progress.steps += 1;
+        progress.last = Some(step);
+    }
+}
+
+/// This node's brick of ADIOS2 step `step`, as a received step.
+fn brick(
+    shared: &Arc<Shared>,
+    service: &GeneratorService,
+    stream: &mut Stream,
+    input: &Adios2Input,
+    step: usize,
+) -> Result<RawStep, ReadError> {
+    let var = service
+        .wanted_field(step as u64)
+        .or_else(|| input.var.clone())
+        .or_else(|| stream.volumes().into_iter().next())
+        .ok_or_else(|| ReadError::Invalid {
+            path: input.stream.clone(),
+            problem: format!(
+                "step {step} holds no 3-D global array; variables here: {}",
+                stream.variables().join(", ")
+            ),
+        })?;
+    let v = stream.variable(&var)?;
+    let [part, parts] = input.part;
+    let own = bricks::split_ranks(parts as usize, v.dims)
+        .and_then(|split| bricks::grid_bricks(v.dims, split))
+        .and_then(|b| b.get(part as usize).copied())
+        .ok_or_else(|| ReadError::Invalid {
+            path: input.stream.clone(),
+            problem: format!(
+                "variable {var}: a grid of {:?} points cannot be split into {parts} parts that \
+                 share their planes",
+                v.dims
+            ),
+        })?;
+    let (spacing, origin, _) = stream.grid(&var);
+    let field = stream.read(&var, own.offset, own.dims, None, spacing)?;
+    let info = StepInfo {
+        step: step as u64,
+        sim_time: step as f64,
+        rank: part,
+        world_size: parts,
+        // The type kept (a type the core does not keep arrives as f32).
+        dtype: match field.voxels() {
+            VoxelSlice::U8(_) => ScalarType::U8,
+            VoxelSlice::U16(_) => ScalarType::U16,
+            VoxelSlice::I16(_) => ScalarType::I16,
+            VoxelSlice::F32(_) => ScalarType::F32,
+        },
+        global_dims: v.dims,
+        brick_offset: own.offset,
+        brick_dims: own.dims,
+        spacing,
+        origin,
+    };
+    let at = origin + glam::Vec3::from(own.offset.map(|o| o as f32)) * spacing;
+    let field = field.with_origin(at).map_err(|e| ReadError::Invalid {
+        path: input.stream.clone(),
+        problem: format!("step {step}: {e}"),
+    })?;
+    shared
+        .layout
+        .admit(&info)
+        .map_err(|status| ReadError::Invalid {
+            path: input.stream.clone(),
+            problem: format!("step {step}: {}", status.message()),
+        })?;
+    Ok(RawStep {
+        info,
+        field,
+        spool: None,
+        fields: vec![var.clone()],
+        field_name: Some(var),
+    })
+}
