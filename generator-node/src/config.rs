@@ -655,5 +655,15 @@ mod tests {
         assert!(bad("nice = 20").contains("nice"));
         assert!(bad("colour = 3").contains("colour"));
         assert!(bad("[generation]\ntf = \"/no/such/tf.json\"").contains("generation.tf"));
+        // An ADIOS2 input: its part checked where it can be read, the feature named where not.
+        let part = bad("[adios2]\nstream = \"gs\"\npart = [2, 2]");
+        if cfg!(feature = "adios2") {
+            assert!(
+                part.contains("adios2.part") && part.contains("[2, 2]"),
+                "{part}"
+            );
+        } else {
+            assert!(part.contains("--features adios2"), "{part}");
+        }
     }
 }
