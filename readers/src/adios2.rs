@@ -326,19 +326,10 @@ impl Stream {
         let mut shape = [0usize; 3];
         // SAFETY: `shape` has room for the three dimensions checked above.
         unsafe { self.check(ffi::adios2_variable_shape(shape.as_mut_ptr(), h), var)? };
-        let sample = match t {
-            ffi::TYPE_INT8 => Sample::I8,
-            ffi::TYPE_UINT8 => Sample::U8,
-            ffi::TYPE_INT16 => Sample::I16,
-            ffi::TYPE_UINT16 => Sample::U16,
-            ffi::TYPE_INT32 => Sample::I32,
-            ffi::TYPE_UINT32 => Sample::U32,
-            ffi::TYPE_INT64 => Sample::I64,
-            ffi::TYPE_UINT64 => Sample::U64,
-            ffi::TYPE_FLOAT => Sample::F32,
-            ffi::TYPE_DOUBLE => Sample::F64,
-            ffi::TYPE_STRING => return Err(bad("holds strings, not numbers".into())),
-            other => {
+        let sample = match (sample_of(t), t) {
+            (Some(s), _) => s,
+            (None, ffi::TYPE_STRING) => return Err(bad("holds strings, not numbers".into())),
+            (None, other) => {
                 return Err(bad(format!(
                     "of ADIOS2 type {other} (complex or long double): volumes are integers or \
                      floats"
@@ -461,13 +452,8 @@ impl Stream {
                 return None;
             }
         }
-        let size = match t {
-            ffi::TYPE_INT8 | ffi::TYPE_UINT8 => 1,
-            ffi::TYPE_INT16 | ffi::TYPE_UINT16 => 2,
-            ffi::TYPE_INT32 | ffi::TYPE_UINT32 | ffi::TYPE_FLOAT => 4,
-            ffi::TYPE_INT64 | ffi::TYPE_UINT64 | ffi::TYPE_DOUBLE => 8,
-            _ => return None,
-        };
+        let sample = sample_of(t)?;
+        let size = sample.size();
         if n == 0 || n > 64 {
             return None;
         }
@@ -479,18 +465,6 @@ impl Stream {
         {
             return None;
         }
-        let sample = match t {
-            ffi::TYPE_INT8 => Sample::I8,
-            ffi::TYPE_UINT8 => Sample::U8,
-            ffi::TYPE_INT16 => Sample::I16,
-            ffi::TYPE_UINT16 => Sample::U16,
-            ffi::TYPE_INT32 => Sample::I32,
-            ffi::TYPE_UINT32 => Sample::U32,
-            ffi::TYPE_INT64 => Sample::I64,
-            ffi::TYPE_UINT64 => Sample::U64,
-            ffi::TYPE_FLOAT => Sample::F32,
-            _ => Sample::F64,
-        };
         Some(
             (0..n.min(got.max(1)))
                 .map(|i| crate::bytes::value(&bytes, i, sample, Endian::Little))
@@ -522,6 +496,23 @@ impl Stream {
             note,
         )
     }
+}
+
+/// The sample type of ADIOS2 type `t`, for the integer and float types.
+fn sample_of(t: ffi::adios2_type) -> Option<Sample> {
+    Some(match t {
+        ffi::TYPE_INT8 => Sample::I8,
+        ffi::TYPE_UINT8 => Sample::U8,
+        ffi::TYPE_INT16 => Sample::I16,
+        ffi::TYPE_UINT16 => Sample::U16,
+        ffi::TYPE_INT32 => Sample::I32,
+        ffi::TYPE_UINT32 => Sample::U32,
+        ffi::TYPE_INT64 => Sample::I64,
+        ffi::TYPE_UINT64 => Sample::U64,
+        ffi::TYPE_FLOAT => Sample::F32,
+        ffi::TYPE_DOUBLE => Sample::F64,
+        _ => return None,
+    })
 }
 
 impl Drop for Stream {
