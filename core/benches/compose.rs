@@ -18,17 +18,8 @@ use insitu_core::volume::{GrayScott, GrayScottParams};
 use insitu_core::{dvr, Camera, RaycastParams, Raycaster, TransferFunction, Vdi};
 use std::time::Instant;
 
-fn env(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+mod common;
+use common::{env, median};
 
 fn main() {
     let n = env("INSITU_BENCH_N", 256);

@@ -24,6 +24,7 @@ use rayon::prelude::*;
 use std::time::Instant;
 
 mod common;
+use common::median;
 
 const SIZE: u32 = 768;
 const ROUNDS: usize = 3;
@@ -67,11 +68,6 @@ fn resample<T: Copy + Default + Send>(src: &Volume, n: usize, convert: fn(f32) -
             }
         });
     data
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// One size and type, in this (child) process: prints one table row.

@@ -15,17 +15,8 @@ use insitu_core::volume::tiling::{grow, low_faces, tiling, Tiling};
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 use std::time::Instant;
 
-fn env(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
+mod common;
+use common::{env, median};
 
 fn timed<T>(rounds: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut out = None;

@@ -1,5 +1,6 @@
 //! What the benchmarks share: the shared volumes and their transfer functions, above all the
-//! teapot scene (256×256×178 u8 with `teapot.json`, found by `insitu_testenv`: docs/data.md).
+//! teapot scene (256×256×178 u8 with `teapot.json`, found by `insitu_testenv`: docs/data.md),
+//! and the reading of their parameters and timings.
 
 use insitu_core::volume::RawFormat;
 use insitu_core::{TransferFunction, Volume};
@@ -32,4 +33,20 @@ pub fn shared(file: &str, tf: Option<&str>) -> Result<(Volume, TransferFunction)
         }
     };
     Ok((volume, tf))
+}
+
+/// The environment variable `name` as a count, else `default` (unset or not a number).
+#[allow(dead_code)] // not every bench takes parameters
+pub fn env(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// The median of `v` (the upper one of an even count); `v` must not be empty.
+#[allow(dead_code)] // not every bench takes medians of its own
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
