@@ -73,29 +73,33 @@ pub fn grid_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>> 
     if (0..3).any(|a| split[a] == 0 || (split[a] > 1 && split[a] > global[a] - 1)) {
         return None;
     }
-    let edges = |a: usize, k: usize| {
+    // Brick k's points on an axis: from its first cut to the next, that plane included.
+    Some(cut(split, |a, k| {
         if split[a] == 1 {
-            (0, global[a] - 1)
+            (0, global[a])
         } else {
-            (
-                k * (global[a] - 1) / split[a],
-                (k + 1) * (global[a] - 1) / split[a],
-            )
+            let first = k * (global[a] - 1) / split[a];
+            (first, (k + 1) * (global[a] - 1) / split[a] - first + 1)
         }
-    };
+    }))
+}
+
+/// The `split[0]·split[1]·split[2]` bricks whose offset and size on axis `a` for the `k`-th
+/// cut are `span(a, k)`, in rank order (x fastest).
+fn cut(split: [usize; 3], span: impl Fn(usize, usize) -> (usize, usize)) -> Vec<Brick> {
     let mut out = Vec::with_capacity(split.iter().product());
     for kz in 0..split[2] {
         for ky in 0..split[1] {
             for kx in 0..split[0] {
-                let r = [edges(0, kx), edges(1, ky), edges(2, kz)];
+                let r = [span(0, kx), span(1, ky), span(2, kz)];
                 out.push(Brick {
-                    offset: r.map(|(a, _)| a),
-                    dims: r.map(|(a, b)| b - a + 1),
+                    offset: r.map(|(o, _)| o),
+                    dims: r.map(|(_, n)| n),
                 });
             }
         }
     }
-    Some(out)
+    out
 }
 
 /// The blocks of `global` cut `split` times per axis **without** shared planes, as one splits
@@ -107,20 +111,10 @@ pub fn block_bricks(global: [usize; 3], split: [usize; 3]) -> Option<Vec<Brick>>
     if (0..3).any(|a| split[a] == 0 || split[a] > global[a]) {
         return None;
     }
-    let edges = |a: usize, k: usize| (k * global[a] / split[a], (k + 1) * global[a] / split[a]);
-    let mut out = Vec::with_capacity(split.iter().product());
-    for kz in 0..split[2] {
-        for ky in 0..split[1] {
-            for kx in 0..split[0] {
-                let r = [edges(0, kx), edges(1, ky), edges(2, kz)];
-                out.push(Brick {
-                    offset: r.map(|(a, _)| a),
-                    dims: r.map(|(a, b)| b - a),
-                });
-            }
-        }
-    }
-    Some(out)
+    Some(cut(split, |a, k| {
+        let first = k * global[a] / split[a];
+        (first, (k + 1) * global[a] / split[a] - first)
+    }))
 }
 
 /// A hole beside a brick: the points past its end on one axis, up to the next brick beside
