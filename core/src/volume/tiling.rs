@@ -45,6 +45,13 @@ fn meet((a0, a1): (usize, usize), (b0, b1): (usize, usize)) -> bool {
     a0.max(b0) < a1.min(b1)
 }
 
+/// Whether `b` lies beside `a` along `axis`: their points meet on the two other axes.
+fn beside(a: &Brick, b: &Brick, axis: usize) -> bool {
+    (0..3)
+        .filter(|&k| k != axis)
+        .all(|k| meet(points(a, k), points(b, k)))
+}
+
 fn count(b: &Brick) -> u128 {
     b.dims.iter().map(|&n| n as u128).product()
 }
@@ -86,12 +93,9 @@ pub fn tiling(global: [usize; 3], bricks: &[(u32, Brick)]) -> Result<Tiling, Dec
             let mut g = *a;
             for (axis, &n) in global.iter().enumerate() {
                 let end = a.offset[axis] + a.dims[axis];
-                let neighbour = bricks.iter().any(|(_, b)| {
-                    b.offset[axis] == end
-                        && (0..3)
-                            .filter(|&k| k != axis)
-                            .all(|k| meet(points(a, k), points(b, k)))
-                });
+                let neighbour = bricks
+                    .iter()
+                    .any(|(_, b)| b.offset[axis] == end && beside(a, b, axis));
                 if end < n && neighbour {
                     g.dims[axis] += 1;
                 }
@@ -118,14 +122,9 @@ fn hole(global: [usize; 3], bricks: &[(u32, Brick)]) -> Option<Hole> {
             if end >= global[axis] {
                 return None;
             }
-            let beside = |b: &Brick| {
-                (0..3)
-                    .filter(|&k| k != axis)
-                    .all(|k| meet(points(&a, k), points(b, k)))
-            };
             let next = bricks
                 .iter()
-                .filter(|(_, b)| beside(b) && b.offset[axis] + b.dims[axis] > end)
+                .filter(|(_, b)| beside(&a, b, axis) && b.offset[axis] + b.dims[axis] > end)
                 .map(|(_, b)| b.offset[axis])
                 .min()
                 .unwrap_or(global[axis]);
@@ -213,51 +212,25 @@ pub fn grow(
     }
     let spare = spare.map(Volume::into_storage);
     let n = grown.dims.iter().product::<usize>();
-    let grown_volume = match (field.voxels(), spare) {
-        (VoxelSlice::U8(d), spare) => {
-            let out = reuse(spare, n + PAD, |s| match s {
-                Storage::U8(v) => Some(v),
+    // One arm per stored type: the spare's memory of that type, the pieces' samples of it.
+    macro_rules! grow_as {
+        ($d:expr, $variant:ident, $extra:expr, $build:path) => {{
+            let out = reuse(spare, n + $extra, |s| match s {
+                Storage::$variant(v) => Some(v),
                 _ => None,
             });
-            let data = fill(d, own, grown, pieces, out, |v| match v {
-                VoxelSlice::U8(p) => Some(p),
+            let data = fill($d, own, grown, pieces, out, |v| match v {
+                VoxelSlice::$variant(p) => Some(p),
                 _ => None,
             })?;
-            Volume::from_u8(grown.dims, field.spacing(), data)
-        }
-        (VoxelSlice::U16(d), spare) => {
-            let out = reuse(spare, n + PAD / 2, |s| match s {
-                Storage::U16(v) => Some(v),
-                _ => None,
-            });
-            let data = fill(d, own, grown, pieces, out, |v| match v {
-                VoxelSlice::U16(p) => Some(p),
-                _ => None,
-            })?;
-            Volume::from_u16(grown.dims, field.spacing(), data)
-        }
-        (VoxelSlice::I16(d), spare) => {
-            let out = reuse(spare, n + PAD / 2, |s| match s {
-                Storage::I16(v) => Some(v),
-                _ => None,
-            });
-            let data = fill(d, own, grown, pieces, out, |v| match v {
-                VoxelSlice::I16(p) => Some(p),
-                _ => None,
-            })?;
-            Volume::from_i16(grown.dims, field.spacing(), data)
-        }
-        (VoxelSlice::F32(d), spare) => {
-            let out = reuse(spare, n, |s| match s {
-                Storage::F32(v) => Some(v),
-                _ => None,
-            });
-            let data = fill(d, own, grown, pieces, out, |v| match v {
-                VoxelSlice::F32(p) => Some(p),
-                _ => None,
-            })?;
-            Volume::new(grown.dims, field.spacing(), data)
-        }
+            $build(grown.dims, field.spacing(), data)
+        }};
+    }
+    let grown_volume = match field.voxels() {
+        VoxelSlice::U8(d) => grow_as!(d, U8, PAD, Volume::from_u8),
+        VoxelSlice::U16(d) => grow_as!(d, U16, PAD / 2, Volume::from_u16),
+        VoxelSlice::I16(d) => grow_as!(d, I16, PAD / 2, Volume::from_i16),
+        VoxelSlice::F32(d) => grow_as!(d, F32, 0, Volume::new),
     }?;
     let shift = glam::Vec3::new(
         own.offset[0] as f32 - grown.offset[0] as f32,
