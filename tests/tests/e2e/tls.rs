@@ -74,12 +74,20 @@ fn client_tls(ca: &Path, id: Option<&(PathBuf, PathBuf)>) -> TlsFiles {
 
 /// Connects and asks for the status: the first call is where a refused client certificate
 /// shows (TLS 1.3 checks it after the client's handshake completes).
+/// The node's status through `peer`, or why not. A refusal may also be no answer: under TLS
+/// 1.3 the client finishes its handshake before the server checks its certificate, and the
+/// server's alert can go unread, so the call is bounded.
 fn status_with(peer: Peer) -> Result<insitu_client::GeneratorStatus, String> {
     rt().block_on(async {
-        let mut c = SimClient::connect_with(peer)
+        let call = async {
+            let mut c = SimClient::connect_with(peer)
+                .await
+                .map_err(|e| e.to_string())?;
+            c.status().await.map_err(|e| e.to_string())
+        };
+        tokio::time::timeout(Duration::from_secs(20), call)
             .await
-            .map_err(|e| e.to_string())?;
-        c.status().await.map_err(|e| e.to_string())
+            .unwrap_or_else(|_| Err("no answer within 20 s".into()))
     })
 }
 
