@@ -129,7 +129,10 @@ pub async fn check(peer: &Peer, service: &str) -> Result<ServingStatus, ProbeErr
 }
 
 /// Checks `service` at `peer` every `interval` until it is `SERVING` or `timeout` has passed
-/// (a daemon still starting refuses connections: that counts as not yet).
+/// (a daemon still starting refuses connections: that counts as not yet). Each check is bounded
+/// by what is left of `timeout`: a server that never answers (e.g. one that refused this
+/// client's certificate after a TLS 1.3 handshake the client saw complete) ends the wait on
+/// time.
 ///
 /// # Errors
 /// [`ProbeError::Timeout`] with the last answer; [`ProbeError::UnknownService`] at once (a
@@ -142,11 +145,12 @@ pub async fn wait_serving(
 ) -> Result<(), ProbeError> {
     let deadline = tokio::time::Instant::now() + timeout;
     loop {
-        let last = match check(peer, service).await {
-            Ok(ServingStatus::Serving) => return Ok(()),
-            Ok(other) => format!("{other}"),
-            Err(e @ ProbeError::UnknownService { .. }) => return Err(e),
-            Err(e) => e.to_string(),
+        let last = match tokio::time::timeout_at(deadline, check(peer, service)).await {
+            Ok(Ok(ServingStatus::Serving)) => return Ok(()),
+            Ok(Ok(other)) => format!("{other}"),
+            Ok(Err(e @ ProbeError::UnknownService { .. })) => return Err(e),
+            Ok(Err(e)) => e.to_string(),
+            Err(_) => "no answer".to_owned(),
         };
         if tokio::time::Instant::now() + interval > deadline {
             return Err(ProbeError::Timeout {
@@ -243,6 +247,37 @@ mod tests {
         assert!(matches!(err, ProbeError::Timeout { .. }), "{text}");
         assert!(text.contains(&port.to_string()), "{text}");
         assert!(text.contains("no daemon answers"), "{text}");
+    }
+
+    #[tokio::test]
+    async fn a_server_that_never_answers_ends_the_wait_on_time() {
+        // Takes the connection and says nothing, as a server does that refused a TLS 1.3
+        // client's certificate after the client saw its handshake complete.
+        let listener = tokio::net::TcpListener::bind(("127.0.0.1", 0))
+            .await
+            .unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let silent = tokio::spawn(async move {
+            let mut held = Vec::new();
+            while let Ok((socket, _)) = listener.accept().await {
+                held.push(socket);
+            }
+        });
+        let peer = Peer::new(&format!("127.0.0.1:{port}"), None, None, false).unwrap();
+        let wait = wait_serving(
+            &peer,
+            "",
+            Duration::from_millis(300),
+            Duration::from_millis(50),
+        );
+        let err = tokio::time::timeout(Duration::from_secs(10), wait)
+            .await
+            .expect("the wait ends by its own timeout")
+            .unwrap_err();
+        let text = err.to_string();
+        assert!(matches!(err, ProbeError::Timeout { .. }), "{text}");
+        assert!(text.contains("no answer"), "{text}");
+        silent.abort();
     }
 
     #[tokio::test]

@@ -110,6 +110,10 @@ pub fn bin(name: &str) -> PathBuf {
     bin_dir().join(name)
 }
 
+/// How long [`Daemon::terminate`] waits for a daemon to exit after SIGTERM (its graceful
+/// shutdown drains queued steps, which can take a while on a loaded machine).
+pub const STOP_WITHIN: Duration = Duration::from_secs(120);
+
 /// A daemon process; killed on drop if still running.
 pub struct Daemon {
     /// The process.
@@ -176,16 +180,36 @@ impl Daemon {
     }
 
     /// Sends SIGTERM, waits, and returns the rest of its stdout (e.g. the summary).
+    ///
+    /// # Panics
+    /// When it has not exited [`STOP_WITHIN`] after the signal (it is then killed, and the
+    /// panic quotes its log): a daemon that ignores SIGTERM is a defect, not a slow test.
     pub fn terminate(mut self) -> String {
         let _ = Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status();
-        let mut rest = String::new();
-        if let Some(mut s) = self.stdout.take() {
-            let _ = s.read_to_string(&mut rest);
+        let reader = self.stdout.take().map(|mut s| {
+            std::thread::spawn(move || {
+                let mut rest = String::new();
+                let _ = s.read_to_string(&mut rest);
+                rest
+            })
+        });
+        let deadline = std::time::Instant::now() + STOP_WITHIN;
+        while matches!(self.child.try_wait(), Ok(None)) {
+            if std::time::Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                panic!(
+                    "pid {} did not stop within {} s of SIGTERM; log:\n{}",
+                    self.child.id(),
+                    STOP_WITHIN.as_secs(),
+                    std::fs::read_to_string(&self.log).unwrap_or_default()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
         }
-        let _ = self.child.wait();
-        rest
+        reader.and_then(|r| r.join().ok()).unwrap_or_default()
     }
 
     /// Sends `signal` (e.g. `STOP`, `CONT`) to the process with `kill`.

@@ -16,12 +16,15 @@ pub struct Args {
     #[arg(long, default_value = "")]
     service: String,
     /// Wait up to SECS seconds for SERVING (a daemon still starting counts as not yet), checking
-    /// every 0.1 s. Without it, one check.
+    /// every 0.1 s. Without it, one check, which gets 10 s to answer.
     #[arg(long, value_name = "SECS")]
     wait: Option<f64>,
     #[command(flatten)]
     tls: super::ClientTlsArgs,
 }
+
+/// How long one check without `--wait` waits for its answer.
+const ONE_CHECK: Duration = Duration::from_secs(10);
 
 /// Prints `SERVING` and succeeds, or fails saying what the daemon answered or why none did.
 pub fn run(a: Args) -> Result<()> {
@@ -39,9 +42,15 @@ pub fn run(a: Args) -> Result<()> {
             Some(timeout) => {
                 wait_serving(&peer, &a.service, timeout, Duration::from_millis(100)).await?
             }
-            None => match check(&peer, &a.service).await? {
-                ServingStatus::Serving => {}
-                other => bail!("{} answers {other}", peer.uri()),
+            None => match tokio::time::timeout(ONE_CHECK, check(&peer, &a.service)).await {
+                Ok(Ok(ServingStatus::Serving)) => {}
+                Ok(Ok(other)) => bail!("{} answers {other}", peer.uri()),
+                Ok(Err(e)) => return Err(e.into()),
+                Err(_) => bail!(
+                    "{} gave no answer within {} s",
+                    peer.uri(),
+                    ONE_CHECK.as_secs()
+                ),
             },
         }
         println!("SERVING");

@@ -72,8 +72,6 @@ fn client_tls(ca: &Path, id: Option<&(PathBuf, PathBuf)>) -> TlsFiles {
     }
 }
 
-/// Connects and asks for the status: the first call is where a refused client certificate
-/// shows (TLS 1.3 checks it after the client's handshake completes).
 /// The node's status through `peer`, or why not. A refusal may also be no answer: under TLS
 /// 1.3 the client finishes its handshake before the server checks its certificate, and the
 /// server's alert can go unread, so the call is bounded.
@@ -140,7 +138,7 @@ reference_every = 2
     let g = loopback(&gen.addr);
 
     // The simulation, with its certificate: steps reach the recording, scored.
-    rt().block_on(async {
+    let pushed = async {
         let tls = client_tls(&ca.pem, Some(&sim)).client().unwrap();
         let peer = Peer::new(&g, Some(token.clone()), tls, false).unwrap();
         assert!(peer.uri().starts_with("https://"));
@@ -152,7 +150,9 @@ reference_every = 2
         }
         let st = c.flush(Duration::from_secs(120)).await.unwrap();
         assert_eq!((st.steps_shipped, st.failed), (4, 0));
-    });
+    };
+    rt().block_on(async { tokio::time::timeout(Duration::from_secs(180), pushed).await })
+        .expect("four steps pushed and flushed over mutual TLS within 180 s");
     let rec = d.join("rec");
     let ok = insitu_e2e::wait_until(60.0, || {
         let e = index(&rec);
