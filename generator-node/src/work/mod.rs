@@ -231,17 +231,25 @@ pub fn run(
             }
         };
         // τ counts every generation of the step, the ones thrown away too.
-        let tau = generated.seconds + retries.1;
-        if let Some(limit) = time_limit.filter(|&t| tau > t) {
-            // A band that ran past the limit, or the GPU's kernel that runs whole.
-            return Err(WorkError::OverTime {
-                step: info.step,
-                spent: tau,
-                limit,
-                r: params.resolution,
-                gamma: params.gamma,
-                why: "the last try finished over it",
-            });
+        let over_time = |tau: f64, params: VdiParams, why| {
+            time_limit
+                .filter(|&t| tau > t)
+                .map(|limit| WorkError::OverTime {
+                    step: info.step,
+                    spent: tau,
+                    limit,
+                    r: params.resolution,
+                    gamma: params.gamma,
+                    why,
+                })
+        };
+        // A band that ran past the limit, or the GPU's kernel that runs whole.
+        if let Some(e) = over_time(
+            generated.seconds + retries.1,
+            params,
+            "the last try finished over it",
+        ) {
+            return Err(e);
         }
         let mut generated = generated;
         // This generation's encodings: a coarser precision is tried on the same VDI.
@@ -255,6 +263,14 @@ pub fn run(
             let sigma = file.len() as u64;
             let Some(limit) = limit.filter(|&l| sigma >= l) else {
                 let tau = generated.seconds + retries.1;
+                // Encodings thrown away for the size limit count in τ too.
+                if let Some(e) = over_time(
+                    tau,
+                    params,
+                    "encoding again for the size limit took it over",
+                ) {
+                    return Err(e);
+                }
                 break 'generate (generated, file, tau, compress);
             };
             let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)

@@ -165,6 +165,41 @@ pub struct Controller {
     /// [`MEMORY`] steps of the newest: σ measured there is what that candidate gives on data
     /// like today's, whatever the surface says of it.
     seen: BTreeMap<(u32, u32, u32), Observation>,
+    /// The growth of σ per step (`ln`, ≥ 0) that the steps forgotten by the last
+    /// [`Self::rebase`] showed: consecutive steps and every pair at one `P_M`, where the
+    /// surface cancels out, so it outlives the surface it was read against. It stands in until
+    /// the steps after the change show their own.
+    carried: Option<Growth>,
+}
+
+/// σ's growth per step, `ln` of the factor: between consecutive steps (the slope) and over
+/// every pair (the trend, three pairs at least), at one `P_M` each.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Growth {
+    slope: Option<f64>,
+    trend: Option<f64>,
+}
+
+impl Growth {
+    /// The growth `(step, P_M, ln k)` shows, slopes and pairs taken at one `P_M`.
+    fn of(ks: &[(u64, Candidate, f64)]) -> Self {
+        let slopes: Vec<f64> = ks
+            .windows(2)
+            .filter(|w| w[1].0 > w[0].0 && w[0].1 == w[1].1)
+            .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
+            .collect();
+        let pairs: Vec<f64> = ks
+            .iter()
+            .enumerate()
+            .flat_map(|(i, a)| ks[i + 1..].iter().map(move |b| (a, b)))
+            .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
+            .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
+            .collect();
+        Self {
+            slope: (!slopes.is_empty()).then(|| median(slopes)),
+            trend: (pairs.len() >= 3).then(|| median(pairs)),
+        }
+    }
 }
 
 /// Production steps (counted in observations) a candidate's own measurement is remembered.
@@ -212,6 +247,7 @@ impl Controller {
             miss: 1.0,
             run: None,
             seen: BTreeMap::new(),
+            carried: None,
         }
     }
 
@@ -266,8 +302,23 @@ impl Controller {
     /// Forgets what production steps before `step` measured, and the model's miss: the data
     /// changed character at `step`, and a tuning on it has just replaced the surface, so the
     /// ratios of older steps to it (measured on other data) and the miss of the old surface
-    /// say nothing of what comes next.
+    /// say nothing of what comes next. How fast σ grew at one `P_M` is kept, and forecasts
+    /// with it until the steps from `step` on show their own: a decision lands steps after its
+    /// tuning began, and a field that grew 19 % a step before a re-tune (the growing series)
+    /// went on growing after it, where a forecast without growth put the third step of the
+    /// new `P_M` at 1.30× the budget.
     pub fn rebase(&mut self, step: u64) {
+        let raw: Vec<(u64, Candidate, f64)> = self
+            .window
+            .iter()
+            .map(|o| (o.step, o.candidate, (o.sigma_bytes.max(1) as f64).ln()))
+            .collect();
+        let before = Growth::of(&raw);
+        let carried = self.carried.unwrap_or_default();
+        self.carried = Some(Growth {
+            slope: before.slope.or(carried.slope),
+            trend: before.trend.or(carried.trend),
+        });
         self.window.retain(|o| o.step >= step);
         self.seen.retain(|_, o| o.step >= step);
         self.miss = 1.0;
@@ -302,30 +353,27 @@ impl Controller {
             .collect();
         let &(newest, _, now) = ks.last()?;
         // Growth per step: the median slope between consecutive steps made with the same
-        // P_M, which the surface's error does not touch; while every step has a P_M of its own
-        // (corrections at each step), between any consecutive steps (an error of the surface
-        // at one P_M is then a jump between two steps, which the median passes over).
-        let slope = |same: bool| -> Vec<f64> {
-            ks.windows(2)
-                .filter(|w| w[1].0 > w[0].0 && (!same || w[0].1 == w[1].1))
-                .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
-                .collect()
-        };
-        let mut slopes = slope(true);
-        if slopes.is_empty() {
-            slopes = slope(false);
-        }
-        // The trend: the Theil–Sen slope over every pair of the window's steps made with one
-        // P_M (three pairs at least), no more than the slope above.
-        let pairs: Vec<f64> = ks
-            .iter()
-            .enumerate()
-            .flat_map(|(i, a)| ks[i + 1..].iter().map(move |b| (a, b)))
-            .filter(|(a, b)| a.1 == b.1 && b.0 > a.0)
-            .map(|(a, b)| (b.2 - a.2) / (b.0 - a.0) as f64)
-            .collect();
-        let trend = (pairs.len() >= 3).then(|| median(pairs));
-        let slope = median(slopes).max(0.0);
+        // P_M, which the surface's error does not touch; before the steps since a change of
+        // character have one, the growth the steps before it showed; while every step has a
+        // P_M of its own (corrections at each step), between any consecutive steps (an error
+        // of the surface at one P_M is then a jump between two steps, which the median passes
+        // over). The trend: the Theil–Sen slope over every pair of the window's steps made with
+        // one P_M (three pairs at least), no more than the slope.
+        let own = Growth::of(&ks);
+        let carried = self.carried.unwrap_or_default();
+        let slope = own
+            .slope
+            .or(carried.slope)
+            .unwrap_or_else(|| {
+                median(
+                    ks.windows(2)
+                        .filter(|w| w[1].0 > w[0].0)
+                        .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
+                        .collect(),
+                )
+            })
+            .max(0.0);
+        let trend = own.trend.or(carried.trend);
         let grown = growth(slope, newest, at);
         // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
         // largest (the slowest step, grown as the data has grown since).

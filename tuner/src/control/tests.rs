@@ -724,6 +724,33 @@ fn a_rebase_forgets_the_steps_before_the_change() {
     );
 }
 
+/// A re-tune on a growing field: the growth the steps before it showed (20 % a step at one
+/// `P_M`) forecasts the steps after it until they show their own, and then theirs does.
+#[test]
+fn a_rebase_keeps_the_growth_until_the_new_steps_show_theirs() {
+    let tuned = c(256, g(2));
+    let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+    for step in 0..4 {
+        observed(&mut ctl, step, tuned, 0.5 * 1.2f64.powi(step as i32));
+    }
+    ctl.rebase(3);
+    // The tuning on step 3 measured its data: k = 1 there on the new surface.
+    let s = Surface::new([Point {
+        candidate: tuned,
+        sigma_bytes: law(tuned) * 0.5 * 1.2f64.powi(3),
+        tau_secs: 0.1,
+    }]);
+    let f = ctl.forecast(&s, 5).unwrap();
+    assert!((f.sigma_now - 1.0).abs() < 1e-6, "{f:?}");
+    assert!((f.sigma / f.sigma_now - 1.44).abs() < 0.01, "{f:?}");
+    let trend = f.trend_per_step.unwrap();
+    assert!((trend - 1.2).abs() < 0.01, "{f:?}");
+    // Two steps of the new data at one P_M growing 5 % a step: theirs now.
+    observed(&mut ctl, 4, tuned, 0.5 * 1.2f64.powi(3) * 1.05);
+    let f = ctl.forecast(&s, 6).unwrap();
+    assert!((f.sigma_growth_per_step - 1.05).abs() < 0.01, "{f:?}");
+}
+
 /// A forecast inside the headroom (over the plan, under the budget) changes nothing; one at
 /// the budget is a risk, and the change aims at the plan.
 #[test]
