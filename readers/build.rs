@@ -4,7 +4,8 @@
 //! directory `<prefix>/lib/cmake/adios2`), else the linker's default paths. The directory is
 //! written into the readers' own test binaries' run path and passed to dependents as
 //! `DEP_ADIOS2_C_LIBDIR` (the `links` key), so their binaries find it without
-//! `LD_LIBRARY_PATH`.
+//! `LD_LIBRARY_PATH`. Where the library's header declares the text-attribute calls that ask
+//! for lengths first, `cfg(adios2_string_data)` turns on reading text attributes (openPMD).
 
 use std::path::{Path, PathBuf};
 
@@ -29,13 +30,40 @@ fn library_dir(root: &Path) -> Option<PathBuf> {
     candidates.into_iter().find(|d| holds_library(d))
 }
 
+/// Whether the C API's header beside `root` (or in the system's include directories)
+/// declares the length-first text attribute calls (`adios2_attribute_string_data`): then
+/// `cfg(adios2_string_data)`, and openPMD's text attributes can be read.
+fn string_data(root: Option<&Path>) -> bool {
+    let header = "adios2/c/adios2_c_attribute.h";
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    if let Some(root) = root {
+        dirs.push(root.join("include"));
+        // <prefix>/lib/cmake/adios2 → <prefix>/include
+        if let Some(prefix) = root.ancestors().nth(3) {
+            dirs.push(prefix.join("include"));
+        }
+    }
+    dirs.extend(["/usr/include", "/usr/local/include"].map(PathBuf::from));
+    dirs.iter().any(|d| {
+        let Ok(text) = std::fs::read_to_string(d.join(header)) else {
+            return false;
+        };
+        println!("cargo:rerun-if-changed={}", d.join(header).display());
+        text.contains("adios2_attribute_string_data_array")
+    })
+}
+
 fn main() {
     println!("cargo:rerun-if-env-changed=ADIOS2_DIR");
+    println!("cargo::rustc-check-cfg=cfg(adios2_string_data)");
     if std::env::var_os("CARGO_FEATURE_ADIOS2").is_none() {
         return;
     }
-    if let Some(root) = std::env::var_os("ADIOS2_DIR") {
-        let root = PathBuf::from(root);
+    let root = std::env::var_os("ADIOS2_DIR").map(PathBuf::from);
+    if string_data(root.as_deref()) {
+        println!("cargo:rustc-cfg=adios2_string_data");
+    }
+    if let Some(root) = root {
         let Some(dir) = library_dir(&root) else {
             println!(
                 "cargo:warning=ADIOS2_DIR={} holds no libadios2_c (looked in it, lib/, lib64/, \

@@ -1,6 +1,6 @@
 """Writes the readers' test files with the reference libraries: VTK (vtkXMLImageDataWriter,
 vtkStructuredPointsWriter), pynrrd, netCDF4 (classic and netCDF-4), h5py (with XDMF
-descriptions) and ADIOS2 (BP5, several blocks per step), from synthetic fields with several arrays, a
+descriptions), ADIOS2 (BP5, several blocks per step) and openPMD-api (openPMD over BP5), from synthetic fields with several arrays, a
 non-zero origin, anisotropic spacing, packed integers, fill values, big-endian and compressed
 variants. Beside each the expected samples as raw files (x fastest, little-endian) and a
 manifest.json that says, for every file, the field, the grid (dims, origin, spacing, steps), the
@@ -326,6 +326,100 @@ def adios2_files(out, entries):
     engine.close()
 
 
+def openpmd_files(out, entries):
+    """openPMD series written by openPMD-api (the PyPI wheel `openpmd-api`) through its ADIOS2
+    backend (BP5), in each iteration encoding: iterations as groups of one file, as files, and
+    as ADIOS2 steps of one variable. The meshes' axes are labelled in several orders, so that
+    the reader must honour axisLabels, dataOrder, gridSpacing, gridGlobalOffset and position
+    to give the samples and grid of the other readers; and a file of meshes it refuses."""
+    import openpmd_api as io
+
+    nx, ny, nz = DIMS
+    spacing_zyx = list(SPACING[::-1])
+    origin_zyx = list(ORIGIN[::-1])
+
+    def scalar(mesh, a):
+        rc = mesh[io.Mesh_Record_Component.SCALAR]
+        rc.reset_dataset(io.Dataset(a.dtype, a.shape))
+        rc.store_chunk(np.ascontiguousarray(a))
+
+    def meshes(iteration, f):
+        # rho: C order, labelled z, y, x — the arrays as the other readers' files hold them.
+        rho = iteration.meshes["rho"]
+        rho.axis_labels = ["z", "y", "x"]
+        rho.grid_spacing = spacing_zyx
+        rho.grid_global_offset = origin_zyx
+        scalar(rho, f["rho"])
+        # E: C order labelled x, y, z, so each component is stored [x][y][z] (transposed);
+        # its samples sit half a cell along x into their cells (position), which the offset
+        # takes back, so the grid is the other readers'.
+        e = iteration.meshes["E"]
+        e.axis_labels = ["x", "y", "z"]
+        e.grid_spacing = list(SPACING)
+        e.grid_global_offset = [ORIGIN[0] - 0.5 * SPACING[0], ORIGIN[1], ORIGIN[2]]
+        for comp, key in (("x", "temp"), ("y", "level"), ("z", "mask")):
+            c = e[comp]
+            c.set_attribute("position", [0.5, 0.0, 0.0])  # as double, as C++ writers store it
+            a = f[key].transpose(2, 1, 0)
+            c.reset_dataset(io.Dataset(a.dtype, a.shape))
+            c.store_chunk(np.ascontiguousarray(a))
+        # level_f: Fortran order labelled x, y, z: the array ADIOS2 presents is [z][y][x].
+        lf = iteration.meshes["level_f"]
+        lf.data_order = "F"
+        lf.axis_labels = ["x", "y", "z"]
+        lf.grid_spacing = list(SPACING)
+        lf.grid_global_offset = list(ORIGIN)
+        scalar(lf, f["level"])
+
+    steps = [fields(t) for t in range(STEPS)]
+    # Iterations 0, 100, 200 as groups of one file.
+    series = io.Series(os.path.join(out, "openpmd_groups.bp5"), io.Access.create)
+    for t, f in enumerate(steps):
+        it = series.iterations[100 * t]
+        meshes(it, f)
+        series.flush()
+        it.close()
+    series.close()
+    # The same as one file per iteration, and as steps of one variable.
+    series = io.Series(os.path.join(out, "openpmd_files_%T.bp5"), io.Access.create)
+    for t, f in enumerate(steps):
+        it = series.iterations[t]
+        meshes(it, f)
+        it.close()
+    series.close()
+    series = io.Series(os.path.join(out, "openpmd_steps.bp5"), io.Access.create,
+                       '{"iteration_encoding": "variable_based"}')
+    for t, f in enumerate(steps):
+        it = series.write_iterations()[t]
+        meshes(it, f)
+        it.close()
+    series.close()
+    for key, mesh in (("rho", "rho"), ("temp", "E/x"), ("level", "E/y"), ("mask", "E/z"),
+                      ("level", "level_f")):
+        exp = expect(out, f"adios2_{key}", [s[key] for s in steps])
+        for file in ("openpmd_groups.bp5", "openpmd_steps.bp5"):
+            entries.append(dict(file=file, field=mesh, steps=STEPS, bounds=None,
+                                needs="adios2", expect=exp))
+        entries.append(dict(file="openpmd_files_1.bp5", field=mesh, steps=1, bounds=None,
+                            needs="adios2",
+                            expect=expect(out, f"openpmd_{key}_1", [steps[1][key]])))
+    # What is not a volume: a 2-D mesh, a thetaMode mesh, labels that are not x, y, z.
+    series = io.Series(os.path.join(out, "openpmd_refused.bp5"), io.Access.create)
+    it = series.iterations[0]
+    cube = np.zeros((2, 3, 4), dtype=np.float32)
+    scalar(it.meshes["plane"], np.zeros((3, 4), dtype=np.float32))
+    er = it.meshes["Er"]
+    er.geometry = io.Geometry.thetaMode
+    er.axis_labels = ["r", "z"]
+    scalar(er, cube)
+    odd = it.meshes["odd"]
+    odd.axis_labels = ["a", "b", "c"]
+    scalar(odd, cube)
+    series.flush()
+    it.close()
+    series.close()
+
+
 def main():
     # netCDF4 warns that a native fill value meets a big-endian variable; it stores it right.
     warnings.filterwarnings("ignore", "endian-ness of dtype")
@@ -337,6 +431,7 @@ def main():
     netcdf_files(out, entries)
     hdf5_files(out, entries)
     adios2_files(out, entries)
+    openpmd_files(out, entries)
     grid = dict(dims=list(DIMS), origin=list(ORIGIN), spacing=list(SPACING))
     with open(os.path.join(out, "manifest.json"), "w") as fh:
         json.dump(dict(grid=grid, files=entries), fh, indent=1)

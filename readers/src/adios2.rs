@@ -22,6 +22,7 @@
 #![allow(unsafe_code)]
 
 mod ffi;
+pub mod openpmd;
 
 use crate::bytes::{Endian, Sample, Samples};
 use crate::{Dataset, Options, ReadError, Source};
@@ -437,12 +438,7 @@ impl Stream {
 
     /// The numbers of attribute `name` (none when absent or text).
     pub fn numbers(&self, name: &str) -> Option<Vec<f64>> {
-        let c = CString::new(name).ok()?;
-        // SAFETY: `io` is live; null when absent, checked.
-        let a = unsafe { ffi::adios2_inquire_attribute(self.io, c.as_ptr()) };
-        if a.is_null() {
-            return None;
-        }
+        let a = self.attribute(name)?;
         let (mut t, mut n) = (0, 0usize);
         // SAFETY: `a` is live; the out-parameters outlive the calls.
         unsafe {
@@ -470,6 +466,107 @@ impl Stream {
                 .map(|i| crate::bytes::value(&bytes, i, sample, Endian::Little))
                 .collect(),
         )
+    }
+
+    fn attribute(&self, name: &str) -> Option<*mut ffi::adios2_attribute> {
+        let c = CString::new(name).ok()?;
+        // SAFETY: `io` is live; null when absent, checked.
+        let a = unsafe { ffi::adios2_inquire_attribute(self.io, c.as_ptr()) };
+        (!a.is_null()).then_some(a)
+    }
+
+    /// Whether attribute `name` exists (in the current step, or in the file).
+    pub fn has_attribute(&self, name: &str) -> bool {
+        self.attribute(name).is_some()
+    }
+
+    /// The text of attribute `name`, one string per element (none when absent, not text, of
+    /// more than 64 elements, or where this build's ADIOS2 cannot tell a text's length before
+    /// copying it: see `build.rs`).
+    #[cfg(adios2_string_data)]
+    pub fn texts(&self, name: &str) -> Option<Vec<String>> {
+        let a = self.attribute(name)?;
+        let (mut t, mut n, mut single) = (0, 0usize, 0);
+        // SAFETY: `a` is live; the out-parameters outlive the calls.
+        unsafe {
+            if ffi::adios2_attribute_type(&mut t, a) != ffi::ERROR_NONE
+                || ffi::adios2_attribute_size(&mut n, a) != ffi::ERROR_NONE
+                || ffi::adios2_attribute_is_value(&mut single, a) != ffi::ERROR_NONE
+            {
+                return None;
+            }
+        }
+        if t != ffi::TYPE_STRING || n == 0 || n > 64 {
+            return None;
+        }
+        let text = |mut b: Vec<u8>, len: usize| {
+            b.truncate(len);
+            String::from_utf8_lossy(&b).into_owned()
+        };
+        if single != 0 {
+            let mut len = 0usize;
+            // SAFETY: a null buffer asks for the length only; then the buffer holds it and
+            // the terminating NUL the library may write.
+            unsafe {
+                if ffi::adios2_attribute_string_data(a, std::ptr::null_mut(), &mut len)
+                    != ffi::ERROR_NONE
+                    || len > 1 << 16
+                {
+                    return None;
+                }
+                let mut b = vec![0u8; len + 1];
+                if ffi::adios2_attribute_string_data(a, b.as_mut_ptr().cast(), &mut len)
+                    != ffi::ERROR_NONE
+                {
+                    return None;
+                }
+                return Some(vec![text(b, len)]);
+            }
+        }
+        let mut lens = vec![0usize; n];
+        // SAFETY: `lens` holds the `n` elements' lengths; each buffer then holds its
+        // element and a terminating NUL, and the pointer array outlives the call.
+        unsafe {
+            if ffi::adios2_attribute_string_data_array(a, std::ptr::null_mut(), lens.as_mut_ptr())
+                != ffi::ERROR_NONE
+                || lens.iter().any(|&l| l > 1 << 16)
+            {
+                return None;
+            }
+            let mut bufs: Vec<Vec<u8>> = lens.iter().map(|&l| vec![0u8; l + 1]).collect();
+            let mut ptrs: Vec<*mut std::ffi::c_char> =
+                bufs.iter_mut().map(|b| b.as_mut_ptr().cast()).collect();
+            if ffi::adios2_attribute_string_data_array(a, ptrs.as_mut_ptr(), lens.as_mut_ptr())
+                != ffi::ERROR_NONE
+            {
+                return None;
+            }
+            Some(
+                bufs.into_iter()
+                    .zip(lens)
+                    .map(|(b, l)| text(b, l))
+                    .collect(),
+            )
+        }
+    }
+
+    /// Without the length-first calls no text attribute is read (see `build.rs`).
+    #[cfg(not(adios2_string_data))]
+    pub fn texts(&self, _name: &str) -> Option<Vec<String>> {
+        None
+    }
+
+    /// The first step of the file that holds `var` (random-access files only).
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream and the variable: absent, or ADIOS2 failing.
+    pub fn first_step(&self, var: &str) -> Result<usize, ReadError> {
+        let h = self.handle(var)?;
+        let mut start = 0usize;
+        // SAFETY: `h` is live while the stream is.
+        let code = unsafe { ffi::adios2_variable_steps_start(&mut start, h) };
+        self.check(code, var)?;
+        Ok(start)
     }
 
     /// Spacing and origin of `var`'s grid from its attributes (`VAR/spacing`, `VAR/origin`,
@@ -537,6 +634,8 @@ extern "C" {
 pub struct File {
     stream: Mutex<Stream>,
     var: String,
+    /// For an openPMD mesh: where each iteration lies and how its samples are ordered.
+    openpmd: Option<(Vec<openpmd::Iteration>, openpmd::Layout)>,
 }
 
 /// Whether `path` looks like a BP file or directory (`.bp`, `.bp4`, `.bp5`).
@@ -563,6 +662,9 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         Duration::from_secs(1),
         ffi::MODE_READ_RANDOM_ACCESS,
     )?;
+    if openpmd::is_openpmd(&stream) {
+        return open_openpmd(path, stream, options);
+    }
     let fields = stream.volumes();
     let var = match &options.field {
         Some(v) => v.clone(),
@@ -601,6 +703,94 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         source: Source::Adios2(Box::new(File {
             stream: Mutex::new(stream),
             var,
+            openpmd: None,
+        })),
+    })
+}
+
+/// [`open`] for an openPMD series: the mesh `options.field` (else the first 3-D one by name),
+/// one step per iteration.
+fn open_openpmd(path: &Path, stream: Stream, options: &Options) -> Result<Dataset, ReadError> {
+    let meshes = openpmd::meshes(&stream, |var| {
+        let mut steps = 0usize;
+        stream.handle(var).map_or(0, |h| {
+            // SAFETY: `h` is live while the stream is.
+            let code = unsafe { ffi::adios2_variable_steps(&mut steps, h) };
+            if code == ffi::ERROR_NONE {
+                steps
+            } else {
+                0
+            }
+        })
+    });
+    let is_volume = |m: &openpmd::Mesh| {
+        m.iterations
+            .first()
+            .is_some_and(|i| stream.variable(&i.var).is_ok())
+    };
+    let fields: Vec<String> = meshes
+        .iter()
+        .filter(|m| is_volume(m))
+        .map(|m| m.name.clone())
+        .collect();
+    let names = || {
+        let all: Vec<&str> = meshes.iter().map(|m| m.name.as_str()).collect();
+        if all.is_empty() {
+            "none".to_owned()
+        } else {
+            all.join(", ")
+        }
+    };
+    let name = match &options.field {
+        Some(f) => f.clone(),
+        None => fields.first().cloned().ok_or_else(|| {
+            ReadError::invalid(
+                path,
+                format!(
+                    "openPMD series without a 3-D mesh; meshes here: {}",
+                    names()
+                ),
+            )
+        })?,
+    };
+    let Some(mesh) = meshes.iter().find(|m| m.name == name) else {
+        return Err(ReadError::invalid(
+            path,
+            format!("no openPMD mesh {name:?}; meshes here: {}", names()),
+        ));
+    };
+    let Some(first) = mesh.iterations.first() else {
+        return Err(ReadError::invalid(
+            path,
+            format!("openPMD mesh {name} has no iteration"),
+        ));
+    };
+    let layout = openpmd::layout(&stream, &name, &first.var)?;
+    crate::check_grid(path, layout.dims, layout.spacing, layout.origin)?;
+    let numbers: Vec<String> = mesh
+        .iterations
+        .iter()
+        .map(|i| i.number.to_string())
+        .collect();
+    let mut notes = vec![format!(
+        "openPMD mesh {name}: iteration{} {}",
+        if numbers.len() == 1 { "" } else { "s" },
+        numbers.join(", ")
+    )];
+    notes.extend(layout.notes.iter().cloned());
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims: layout.dims,
+        steps: mesh.iterations.len(),
+        spacing: layout.spacing,
+        origin: layout.origin,
+        field: name,
+        fields,
+        notes,
+        source: Source::Adios2(Box::new(File {
+            stream: Mutex::new(stream),
+            var: first.var.clone(),
+            openpmd: Some((mesh.iterations.clone(), layout)),
         })),
     })
 }
@@ -614,6 +804,53 @@ impl File {
         spacing: Vec3,
     ) -> Result<Volume, ReadError> {
         let mut s = self.stream.lock().unwrap_or_else(|e| e.into_inner());
-        s.read(&self.var, [0; 3], dims, Some(t), spacing)
+        let Some((iterations, layout)) = &self.openpmd else {
+            return s.read(&self.var, [0; 3], dims, Some(t), spacing);
+        };
+        let Some(it) = iterations.get(t) else {
+            return Err(ReadError::invalid(
+                &s.name,
+                format!("openPMD mesh: no step {t}"),
+            ));
+        };
+        let step = match it.step {
+            Some(step) => step,
+            None => s.first_step(&it.var)?,
+        };
+        let name = s.name.clone();
+        // The array whole, in its own dimension order (x, y, z as ADIOS2 presents it).
+        let v = s.variable(&it.var)?;
+        let whole = [v.dims[0], v.dims[1], v.dims[2]];
+        if axes_dims(layout, whole) != dims {
+            return Err(ReadError::invalid(
+                &name,
+                format!(
+                    "openPMD mesh, iteration {}: {} points (x, y, z) where the first \
+                     iteration had {dims:?}",
+                    it.number,
+                    axes_dims(layout, whole).map(|d| d.to_string()).join(" × ")
+                ),
+            ));
+        }
+        let (bytes, sample) = s.read_bytes(&it.var, [0; 3], whole, Some(step))?;
+        let shape = [whole[2], whole[1], whole[0]];
+        let ordered;
+        let bytes = if layout.is_zyx() {
+            bytes
+        } else {
+            ordered = openpmd::reorder(bytes, sample.size(), shape, layout.axes);
+            &ordered
+        };
+        let n = bytes.len() / sample.size();
+        let mut samples = Samples::new(&name, sample, Endian::Little, n, n)?;
+        samples.push(bytes)?;
+        samples.finish(&name, dims, spacing)
     }
+}
+
+/// The dims (x, y, z) of an array whose ADIOS2 dims are `whole` (x, y, z as ADIOS2 presents
+/// it: the Shape reversed), ordered as `layout` says.
+fn axes_dims(layout: &openpmd::Layout, whole: [usize; 3]) -> [usize; 3] {
+    let shape = [whole[2], whole[1], whole[0]];
+    layout.axes.map(|d| shape[d])
 }

@@ -134,3 +134,39 @@ fn a_truncated_or_missing_file_and_a_stream_that_never_opens_are_named() {
     assert!(e.contains("no SST writer opened it within 1 s"), "{e}");
     assert!(start.elapsed() < Duration::from_secs(30));
 }
+
+/// openPMD meshes are fields by record (and component), iterations are steps; what is not a
+/// 3-D cartesian mesh labelled x, y, z is refused naming the mesh. The samples and grids are
+/// checked with every other reader's in `fixtures.rs`.
+#[test]
+fn openpmd_meshes_are_fields_and_what_is_not_a_volume_is_refused_by_name() {
+    let Some(dir) = insitu_testenv::fixture_dir() else {
+        return;
+    };
+    let d = open(&dir.join("openpmd_groups.bp5"), &Options::default()).unwrap();
+    assert_eq!(d.fields, ["E/x", "E/y", "E/z", "level_f", "rho"]);
+    assert_eq!((d.field.as_str(), d.steps), ("E/x", 3));
+    assert!(
+        d.notes.iter().any(|n| n.contains("iterations 0, 100, 200")),
+        "{:?}",
+        d.notes
+    );
+    let steps = open(&dir.join("openpmd_steps.bp5"), &field("rho")).unwrap();
+    assert_eq!(steps.steps, 3);
+
+    let bad = dir.join("openpmd_refused.bp5");
+    let e = refusal(&bad, "plane");
+    assert!(e.contains("/data/0/meshes/plane: 2-D"), "{e}");
+    let e = refusal(&bad, "Er");
+    assert!(e.contains("openPMD mesh Er: geometry \"thetaMode\""), "{e}");
+    let e = refusal(&bad, "odd");
+    assert!(
+        e.contains("openPMD mesh odd: axisLabels [\"a\", \"b\", \"c\"]"),
+        "{e}"
+    );
+    let e = refusal(&bad, "nope");
+    assert!(
+        e.contains("no openPMD mesh \"nope\"; meshes here: Er, odd, plane"),
+        "{e}"
+    );
+}

@@ -147,4 +147,29 @@ extern "C" {
         size: *mut usize,
         attribute: *const adios2_attribute,
     ) -> adios2_error;
+    pub fn adios2_variable_steps_start(
+        steps_start: *mut usize,
+        variable: *const adios2_variable,
+    ) -> adios2_error;
+}
+
+// Text attributes with their lengths asked first. Older libraries copy a string attribute
+// into a buffer whose size they are not told, so this reader calls only these, where the
+// build found them in the library's header (`build.rs`).
+#[cfg(adios2_string_data)]
+extern "C" {
+    pub fn adios2_attribute_is_value(
+        result: *mut c_int,
+        attribute: *const adios2_attribute,
+    ) -> adios2_error;
+    pub fn adios2_attribute_string_data(
+        attribute: *const adios2_attribute,
+        data: *mut c_char,
+        length: *mut usize,
+    ) -> adios2_error;
+    pub fn adios2_attribute_string_data_array(
+        attribute: *const adios2_attribute,
+        data: *mut *mut c_char,
+        lengths: *mut usize,
+    ) -> adios2_error;
 }
