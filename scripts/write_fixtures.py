@@ -397,7 +397,7 @@ def openpmd_files(out, entries):
     for key, mesh in (("rho", "rho"), ("temp", "E/x"), ("level", "E/y"), ("mask", "E/z"),
                       ("level", "level_f")):
         exp = expect(out, f"adios2_{key}", [s[key] for s in steps])
-        for file in ("openpmd_groups.bp5", "openpmd_steps.bp5"):
+        for file in ("openpmd_groups.bp5", "openpmd_steps.bp5", "openpmd_files_%T.bp5"):
             entries.append(dict(file=file, field=mesh, steps=STEPS, bounds=None,
                                 needs="adios2", expect=exp))
         entries.append(dict(file="openpmd_files_1.bp5", field=mesh, steps=1, bounds=None,

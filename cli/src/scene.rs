@@ -13,13 +13,14 @@ pub const DEFAULT_SOURCE: &str = "gray-scott:64:1000";
 /// Where the data comes from and how it is classified and sampled.
 #[derive(Args, Debug, Clone)]
 pub struct SceneArgs {
-    /// Volume: a file (`.vti`, `.vtk`, `.nrrd`/`.nhdr`, `.nc`, `.h5`, `.xmf`, or raw
+    /// Volume: a file (`.vti`, `.vtk`, `.nrrd`/`.nhdr`, `.nc`, `.h5`, `.xmf`, ADIOS2 `.bp`/`.bp5`
+    /// with openPMD meshes read as such and `run_%T.bp5` for one file per iteration, or raw
     /// `<name>_<X>x<Y>x<Z>[x<T>]_<type>.raw`; docs/data.md), or `gray-scott:N[:STEPS]` (the
     /// built-in simulation). Default: the built-in Gray–Scott run.
     #[arg(long)]
     pub volume: Option<String>,
     /// The field to render from a file with several (a VTK array, a NetCDF variable, an HDF5
-    /// dataset's path, an XDMF attribute).
+    /// dataset's path, an XDMF attribute, an ADIOS2 variable, an openPMD mesh: `rho`, `E/x`).
     /// Default: the file's active scalars, else its first.
     #[arg(long, visible_aliases = ["var", "dataset"])]
     pub field: Option<String>,

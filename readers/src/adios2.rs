@@ -645,6 +645,131 @@ pub fn is_bp(path: &Path) -> bool {
         .is_some_and(|e| matches!(e.as_str(), "bp" | "bp4" | "bp5"))
 }
 
+/// Whether `path` names a series of BP files by openPMD's pattern: `%T` (or `%0NT`, padded)
+/// standing for the iteration number (`run_%T.bp5`).
+pub fn is_series(path: &Path) -> bool {
+    series_pattern(path).is_some()
+}
+
+/// The text before and after the `%T` (or `%0NT`) of `path`'s file name.
+fn series_pattern(path: &Path) -> Option<(String, String)> {
+    let name = path.file_name()?.to_str()?;
+    let (before, rest) = name.split_once('%')?;
+    let width = rest.find('T')?;
+    rest[..width]
+        .bytes()
+        .all(|b| b.is_ascii_digit())
+        .then(|| (before.to_owned(), rest[width + 1..].to_owned()))
+}
+
+/// A series of BP files, one iteration each (openPMD's file-based iteration encoding), read
+/// as the steps of one dataset.
+#[derive(Debug)]
+pub struct Series {
+    /// The files, by iteration ascending.
+    files: Vec<PathBuf>,
+}
+
+/// Opens the files `path`'s pattern matches (`run_%T.bp5`: `run_0.bp5`, `run_100.bp5`, …;
+/// iteration numbers in any width) as one dataset, a step per file by iteration, each file
+/// read as [`open`] reads it with `options`.
+///
+/// # Errors
+/// [`ReadError`] naming the pattern or a file: no file matches, the first file cannot be
+/// read (as [`open`]), or holds more than one step.
+pub fn open_series(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
+    let Some((before, after)) = series_pattern(path) else {
+        return open(path, options);
+    };
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let entries = std::fs::read_dir(&dir).map_err(crate::ReadError::io(&dir))?;
+    let mut files: Vec<(u64, PathBuf)> = entries
+        .filter_map(Result::ok)
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let digits = name.strip_prefix(&before)?.strip_suffix(&after)?;
+            let n = (!digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
+                .then(|| digits.parse::<u64>().ok())??;
+            Some((n, e.path()))
+        })
+        .collect();
+    files.sort();
+    let Some((_, first)) = files.first() else {
+        return Err(ReadError::invalid(
+            path,
+            format!(
+                "no file in {} matches {before}<iteration>{after} (%T stands for the iteration)",
+                dir.display()
+            ),
+        ));
+    };
+    let d = open(first, options)?;
+    if d.steps != 1 {
+        return Err(ReadError::invalid(
+            first,
+            format!(
+                "holds {} steps; in a series named by %T each file holds one iteration",
+                d.steps
+            ),
+        ));
+    }
+    let numbers: Vec<String> = files.iter().map(|f| f.0.to_string()).collect();
+    let mut notes = d.notes;
+    notes.push(format!(
+        "{} file{} for iterations {}",
+        files.len(),
+        if files.len() == 1 { "" } else { "s" },
+        numbers.join(", ")
+    ));
+    Ok(Dataset {
+        path: path.to_owned(),
+        dims: d.dims,
+        steps: files.len(),
+        spacing: d.spacing,
+        origin: d.origin,
+        field: d.field,
+        fields: d.fields,
+        notes,
+        source: Source::Adios2Series(Series {
+            files: files.into_iter().map(|f| f.1).collect(),
+        }),
+    })
+}
+
+impl Series {
+    /// Step `t` of `series`: its file's only step, which must lie on the series' grid.
+    pub(crate) fn read_step(&self, t: usize, series: &Dataset) -> Result<Volume, ReadError> {
+        let Some(file) = self.files.get(t) else {
+            return Err(ReadError::invalid(&series.path, format!("no step {t}")));
+        };
+        let options = Options {
+            field: Some(series.field.clone()),
+            ..Options::default()
+        };
+        let d = open(file, &options)?;
+        if (d.dims, d.spacing, d.origin) != (series.dims, series.spacing, series.origin) {
+            return Err(ReadError::invalid(
+                file,
+                format!(
+                    "{} on a grid of {:?} points, spacing {}, origin {}, where the series' first \
+                     file has {:?}, {}, {}",
+                    d.field,
+                    d.dims,
+                    d.spacing,
+                    d.origin,
+                    series.dims,
+                    series.spacing,
+                    series.origin
+                ),
+            ));
+        }
+        d.read_step(0)
+    }
+}
+
 /// Opens a BP file (BP4 or BP5: a directory; BP3: a file) as a dataset of the global array
 /// `options.field` (else the first 3-D global array by name), one step per ADIOS2 step.
 ///

@@ -126,6 +126,8 @@ enum Source {
     LegacyVtk(legacy_vtk::LegacyVtk),
     #[cfg(feature = "adios2")]
     Adios2(Box<adios2::File>),
+    #[cfg(feature = "adios2")]
+    Adios2Series(adios2::Series),
 }
 
 impl Dataset {
@@ -156,6 +158,8 @@ impl Dataset {
             Source::LegacyVtk(v) => v.read(&self.path, self.dims, self.spacing)?,
             #[cfg(feature = "adios2")]
             Source::Adios2(f) => f.read_step(t, self.dims, self.spacing)?,
+            #[cfg(feature = "adios2")]
+            Source::Adios2Series(s) => s.read_step(t, self)?,
         };
         volume
             .with_origin(self.origin)
@@ -295,7 +299,11 @@ fn open_hdf5(path: &Path, _: &Options) -> Result<Dataset, ReadError> {
 
 #[cfg(feature = "adios2")]
 fn open_adios2(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
-    adios2::open(path, options)
+    if adios2::is_series(path) {
+        adios2::open_series(path, options)
+    } else {
+        adios2::open(path, options)
+    }
 }
 
 #[cfg(not(feature = "adios2"))]

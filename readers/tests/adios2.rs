@@ -153,6 +153,20 @@ fn openpmd_meshes_are_fields_and_what_is_not_a_volume_is_refused_by_name() {
     );
     let steps = open(&dir.join("openpmd_steps.bp5"), &field("rho")).unwrap();
     assert_eq!(steps.steps, 3);
+    let files = open(&dir.join("openpmd_files_%T.bp5"), &field("rho")).unwrap();
+    assert_eq!(files.steps, 3);
+    assert!(
+        files
+            .notes
+            .iter()
+            .any(|n| n.contains("3 files for iterations 0, 1, 2")),
+        "{:?}",
+        files.notes
+    );
+    let e = open(&dir.join("openpmd_none_%06T.bp5"), &field("rho"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("matches openpmd_none_<iteration>.bp5"), "{e}");
 
     let bad = dir.join("openpmd_refused.bp5");
     let e = refusal(&bad, "plane");

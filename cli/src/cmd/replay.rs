@@ -19,7 +19,8 @@ use std::time::{Duration, Instant};
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The series: a NetCDF or HDF5 file whose variable or dataset has a time dimension
-    /// (`--var`, `--dataset`), an XDMF temporal collection, a raw file
+    /// (`--var`, `--dataset`), an XDMF temporal collection, an ADIOS2 BP file or openPMD
+    /// series (`run.bp5`, `run_%T.bp5`; feature `adios2`), a raw file
     /// `<name>_<X>x<Y>x<Z>x<T>_<type>.raw`, or any volume file (`.vti`, `.vtk`, `.nrrd`: one
     /// step); docs/data.md.
     #[arg(long)]
