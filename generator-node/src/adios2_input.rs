@@ -10,6 +10,10 @@
 //! policy applies: with `block`, a node that falls behind holds the writer back (SST's
 //! queue fills), as a push would.
 //!
+//! A writer that goes through openPMD-api is read as openPMD: the field is a mesh by name,
+//! each node's part is cut on the mesh's axes as labelled, read in the writer's order and put
+//! x fastest (`insitu_readers::adios2::openpmd`).
+//!
 //! The stream ends when the writer closes it, when the writer goes away (SST reports an
 //! error), or at shutdown; [`Input::finish`] says which, and after which step.
 
@@ -142,32 +146,29 @@ fn brick(
     input: &Adios2Input,
     step: usize,
 ) -> Result<RawStep, ReadError> {
-    let var = service
+    let wanted = service
         .wanted_field(step as u64)
-        .or_else(|| input.var.clone())
-        .or_else(|| stream.volumes().into_iter().next())
-        .ok_or_else(|| ReadError::Invalid {
-            path: input.stream.clone(),
-            problem: format!(
-                "step {step} holds no 3-D global array; variables here: {}",
-                stream.variables().join(", ")
-            ),
-        })?;
-    let v = stream.variable(&var)?;
+        .or_else(|| input.var.clone());
+    let source = Source::of(stream, wanted, &input.stream, step)?;
+    let (var, dims) = (source.name().to_owned(), source.dims());
     let [part, parts] = input.part;
-    let own = bricks::split_ranks(parts as usize, v.dims)
-        .and_then(|split| bricks::grid_bricks(v.dims, split))
+    let own = bricks::split_ranks(parts as usize, dims)
+        .and_then(|split| bricks::grid_bricks(dims, split))
         .and_then(|b| b.get(part as usize).copied())
         .ok_or_else(|| ReadError::Invalid {
             path: input.stream.clone(),
             problem: format!(
-                "variable {var}: a grid of {:?} points cannot be split into {parts} parts that \
-                 share their planes",
-                v.dims
+                "variable {var}: a grid of {dims:?} points cannot be split into {parts} parts \
+                 that share their planes",
             ),
         })?;
-    let (spacing, origin, _) = stream.grid(&var);
-    let field = stream.read(&var, own.offset, own.dims, None, spacing)?;
+    let (spacing, origin) = source.grid();
+    let field = match &source {
+        Source::Array { var, grid, .. } => stream.read(var, own.offset, own.dims, None, grid.0)?,
+        Source::Mesh { var, layout, .. } => {
+            stream.read_mesh(var, layout, own.offset, own.dims, None, spacing)?
+        }
+    };
     let info = StepInfo {
         step: step as u64,
         sim_time: step as f64,
@@ -180,7 +181,7 @@ fn brick(
             VoxelSlice::I16(_) => ScalarType::I16,
             VoxelSlice::F32(_) => ScalarType::F32,
         },
-        global_dims: v.dims,
+        global_dims: dims,
         brick_offset: own.offset,
         brick_dims: own.dims,
         spacing,
@@ -205,4 +206,101 @@ fn brick(
         fields: vec![var.clone()],
         field_name: Some(var),
     })
+}
+
+/// What a step's field is read from: a plain 3-D global array, or an openPMD mesh (its
+/// variable in this step, and how its axes lie).
+enum Source {
+    Array {
+        var: String,
+        dims: [usize; 3],
+        /// Spacing and origin.
+        grid: (glam::Vec3, glam::Vec3),
+    },
+    Mesh {
+        name: String,
+        var: String,
+        layout: adios2::openpmd::Layout,
+    },
+}
+
+impl Source {
+    /// The field `wanted` (else the first) of the current step of `stream`: an openPMD mesh
+    /// by its name where the writer is openPMD, else a global array.
+    fn of(
+        stream: &Stream,
+        wanted: Option<String>,
+        path: &std::path::Path,
+        step: usize,
+    ) -> Result<Self, ReadError> {
+        let missing = |what: &str, here: String| ReadError::Invalid {
+            path: path.to_owned(),
+            problem: format!("step {step} holds no {what}; here: {here}"),
+        };
+        if adios2::openpmd::is_openpmd(stream) {
+            // This step's meshes: one variable each (steps of one variable, or this
+            // iteration's group).
+            let meshes = adios2::openpmd::meshes(stream, |_| 1);
+            let names = || {
+                meshes
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let mesh = match &wanted {
+                Some(w) => meshes.iter().find(|m| &m.name == w),
+                None => meshes.first(),
+            };
+            let Some((name, it)) = mesh.and_then(|m| Some((&m.name, m.iterations.last()?))) else {
+                let what = wanted.map_or("openPMD mesh".into(), |w| format!("openPMD mesh {w:?}"));
+                return Err(missing(&what, names()));
+            };
+            let layout = adios2::openpmd::layout(stream, name, &it.var)?;
+            return Ok(Self::Mesh {
+                name: name.clone(),
+                var: it.var.clone(),
+                layout,
+            });
+        }
+        let var = match wanted {
+            Some(w) => w,
+            None => stream
+                .volumes()
+                .into_iter()
+                .next()
+                .ok_or_else(|| missing("3-D global array", stream.variables().join(", ")))?,
+        };
+        let dims = stream.variable(&var)?.dims;
+        let (spacing, origin, _) = stream.grid(&var);
+        Ok(Self::Array {
+            var,
+            dims,
+            grid: (spacing, origin),
+        })
+    }
+
+    /// The field's name: the variable, or the mesh (`rho`, `E/x`).
+    fn name(&self) -> &str {
+        match self {
+            Self::Array { var, .. } => var,
+            Self::Mesh { name, .. } => name,
+        }
+    }
+
+    /// The grid's points (x, y, z).
+    fn dims(&self) -> [usize; 3] {
+        match self {
+            Self::Array { dims, .. } => *dims,
+            Self::Mesh { layout, .. } => layout.dims,
+        }
+    }
+
+    /// Spacing and origin.
+    fn grid(&self) -> (glam::Vec3, glam::Vec3) {
+        match self {
+            Self::Array { grid, .. } => *grid,
+            Self::Mesh { layout, .. } => (layout.spacing, layout.origin),
+        }
+    }
 }

@@ -436,6 +436,59 @@ impl Stream {
         s.finish(&name, count, spacing)
     }
 
+    /// The box `offset + [0, count)` (x, y, z of the mesh, in grid points) of openPMD mesh
+    /// variable `var` laid out as `layout` says, as a volume at `spacing` (placed at the
+    /// origin): the samples read in the writer's order and reordered x fastest.
+    ///
+    /// # Errors
+    /// As [`Self::read_bytes`]; and where the variable's Shape no longer matches `layout`.
+    pub fn read_mesh(
+        &mut self,
+        var: &str,
+        layout: &openpmd::Layout,
+        offset: [usize; 3],
+        count: [usize; 3],
+        step: Option<usize>,
+        spacing: Vec3,
+    ) -> Result<Volume, ReadError> {
+        let name = self.name.clone();
+        let v = self.variable(var)?;
+        let shape = [v.dims[2], v.dims[1], v.dims[0]];
+        let dims = layout.axes.map(|d| shape[d]);
+        if dims != layout.dims {
+            return Err(ReadError::invalid(
+                &name,
+                format!(
+                    "openPMD mesh {var}: {dims:?} points (x, y, z) where its first step had {:?}",
+                    layout.dims
+                ),
+            ));
+        }
+        // The box in the array's own dimensions (0 the slowest).
+        let (mut at, mut size) = ([0usize; 3], [0usize; 3]);
+        for a in 0..3 {
+            at[layout.axes[a]] = offset[a];
+            size[layout.axes[a]] = count[a];
+        }
+        let (bytes, sample) = self.read_bytes(
+            var,
+            [at[2], at[1], at[0]],
+            [size[2], size[1], size[0]],
+            step,
+        )?;
+        let ordered;
+        let bytes = if layout.is_zyx() {
+            bytes
+        } else {
+            ordered = openpmd::reorder(bytes, sample.size(), size, layout.axes);
+            &ordered
+        };
+        let n = bytes.len() / sample.size();
+        let mut samples = Samples::new(&name, sample, Endian::Little, n, n)?;
+        samples.push(bytes)?;
+        samples.finish(&name, count, spacing)
+    }
+
     /// The numbers of attribute `name` (none when absent or text).
     pub fn numbers(&self, name: &str) -> Option<Vec<f64>> {
         let a = self.attribute(name)?;
@@ -942,40 +995,6 @@ impl File {
             Some(step) => step,
             None => s.first_step(&it.var)?,
         };
-        let name = s.name.clone();
-        // The array whole, in its own dimension order (x, y, z as ADIOS2 presents it).
-        let v = s.variable(&it.var)?;
-        let whole = [v.dims[0], v.dims[1], v.dims[2]];
-        if axes_dims(layout, whole) != dims {
-            return Err(ReadError::invalid(
-                &name,
-                format!(
-                    "openPMD mesh, iteration {}: {} points (x, y, z) where the first \
-                     iteration had {dims:?}",
-                    it.number,
-                    axes_dims(layout, whole).map(|d| d.to_string()).join(" × ")
-                ),
-            ));
-        }
-        let (bytes, sample) = s.read_bytes(&it.var, [0; 3], whole, Some(step))?;
-        let shape = [whole[2], whole[1], whole[0]];
-        let ordered;
-        let bytes = if layout.is_zyx() {
-            bytes
-        } else {
-            ordered = openpmd::reorder(bytes, sample.size(), shape, layout.axes);
-            &ordered
-        };
-        let n = bytes.len() / sample.size();
-        let mut samples = Samples::new(&name, sample, Endian::Little, n, n)?;
-        samples.push(bytes)?;
-        samples.finish(&name, dims, spacing)
+        s.read_mesh(&it.var, layout, [0; 3], dims, Some(step), spacing)
     }
-}
-
-/// The dims (x, y, z) of an array whose ADIOS2 dims are `whole` (x, y, z as ADIOS2 presents
-/// it: the Shape reversed), ordered as `layout` says.
-fn axes_dims(layout: &openpmd::Layout, whole: [usize; 3]) -> [usize; 3] {
-    let shape = [whole[2], whole[1], whole[0]];
-    layout.axes.map(|d| shape[d])
 }

@@ -5,13 +5,16 @@ split in z without a shared plane, then the step ends. The fields are read from 
 client too.
 
     python adios2_writer.py NAME DIR NX NY NZ STEPS [--engine SST|BP5] [--blocks K]
-                            [--readers R] [--vanish-after S]
+                            [--readers R] [--vanish-after S] [--openpmd]
 
 NAME is the stream (SST: the contact file NAME.sst) or the BP file; DIR holds step_T.raw.
 --vanish-after S ends the process without closing the stream a second after step S, as a
 simulation that crashes while computing the next step would (an SST step lives in the
 writer's memory until its readers have fetched it: a step a reader had not fetched dies with
 the writer).
+--openpmd writes the field as openPMD-api does (the PyPI wheel `openpmd-api`), as the mesh
+`density` of each iteration, labelled x, y, z in C order (so stored [x][y][z], transposed from
+the raw files' order), in blocks split along x.
 """
 
 import argparse
@@ -34,7 +37,10 @@ def main():
     p.add_argument("--blocks", type=int, default=2)
     p.add_argument("--readers", type=int, default=1)
     p.add_argument("--vanish-after", type=int, default=None)
+    p.add_argument("--openpmd", action="store_true")
     a = p.parse_args()
+    if a.openpmd:
+        return openpmd(a)
     nx, ny, nz = a.dims
     io = adios2.Adios().declare_io("simulation")
     io.set_engine(a.engine)
@@ -59,6 +65,39 @@ def main():
             time.sleep(1.0)
             os._exit(0)
     engine.close()
+    return 0
+
+
+def openpmd(a):
+    import json
+
+    import openpmd_api as io
+
+    nx, ny, nz = a.dims
+    engine = {"type": a.engine.lower()}
+    if a.engine.upper() == "SST":
+        # Under SST's default BP5 marshalling openPMD's string-array attributes (axisLabels)
+        # arrive empty; BP marshalling carries them.
+        engine["parameters"] = {"RendezvousReaderCount": str(a.readers), "QueueLimit": "4",
+                                "MarshalMethod": "BP"}
+    series = io.Series(a.name + (".sst" if a.engine.upper() == "SST" else ""),
+                       io.Access.create, json.dumps({"adios2": {"engine": engine}}))
+    cuts = [nx * k // a.blocks for k in range(a.blocks + 1)]
+    for t in range(a.steps):
+        field = np.fromfile(os.path.join(a.dir, f"step_{t}.raw"), dtype="<f4").reshape(nz, ny, nx)
+        xyz = field.transpose(2, 1, 0)
+        it = series.write_iterations()[t]
+        mesh = it.meshes["density"]
+        mesh.axis_labels = ["x", "y", "z"]
+        mesh.grid_spacing = [1.0, 1.0, 1.0]
+        mesh.grid_global_offset = [0.0, 0.0, 0.0]
+        rc = mesh[io.Mesh_Record_Component.SCALAR]
+        rc.reset_dataset(io.Dataset(xyz.dtype, xyz.shape))
+        for lo, hi in zip(cuts, cuts[1:]):
+            rc.store_chunk(np.ascontiguousarray(xyz[lo:hi]), [lo, 0, 0], [hi - lo, ny, nz])
+        it.close()
+        print(f"wrote step {t}", flush=True)
+    series.close()
     return 0
 
 

@@ -203,9 +203,17 @@ pub fn layout(s: &Stream, name: &str, var: &str) -> Result<Layout, ReadError> {
     let index = match ["x", "y", "z"].map(index_of) {
         [Some(x), Some(y), Some(z)] if labels.len() == 3 => [x, y, z],
         _ => {
+            // Seen with openPMD-api 0.17 writing SST and ADIOS2 2.12 reading: under SST's
+            // default BP5 marshalling a string-array attribute arrives as one empty string.
+            let hint = if labels.iter().all(String::is_empty) {
+                " (an SST writer's string arrays arrive empty under SST's default marshalling: \
+                 give the writer the SST parameter MarshalMethod=BP)"
+            } else {
+                ""
+            };
             return Err(bad(format!(
-                "axisLabels {labels:?}: a volume's labels are x, y and z in some order"
-            )))
+                "axisLabels {labels:?}: a volume's labels are x, y and z in some order{hint}"
+            )));
         }
     };
     // Index i of the writer's operator is array dimension i in C order, 2 − i in F order
