@@ -30,7 +30,7 @@ use glam::Vec3;
 use insitu_core::Volume;
 use std::ffi::{CStr, CString};
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// An ADIOS2 engine the reader opens.
@@ -682,10 +682,12 @@ extern "C" {
     fn free(p: *mut std::ffi::c_void);
 }
 
-/// A BP file opened for reading any step: the engine, behind a lock (reads are serial).
+/// A BP file opened for reading any step: the engine, behind a lock (reads are serial; each
+/// runs on a thread of its own, so that a read ADIOS2 never finishes is abandoned on time).
 #[derive(Debug)]
 pub struct File {
-    stream: Mutex<Stream>,
+    stream: Arc<Mutex<Stream>>,
+    path: PathBuf,
     var: String,
     /// For an openPMD mesh: where each iteration lies and how its samples are ordered.
     openpmd: Option<(Vec<openpmd::Iteration>, openpmd::Layout)>,
@@ -879,7 +881,8 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         fields,
         notes: note.into_iter().collect(),
         source: Source::Adios2(Box::new(File {
-            stream: Mutex::new(stream),
+            stream: Arc::new(Mutex::new(stream)),
+            path: path.to_owned(),
             var,
             openpmd: None,
         })),
@@ -966,7 +969,8 @@ fn open_openpmd(path: &Path, stream: Stream, options: &Options) -> Result<Datase
         fields,
         notes,
         source: Source::Adios2(Box::new(File {
-            stream: Mutex::new(stream),
+            stream: Arc::new(Mutex::new(stream)),
+            path: path.to_owned(),
             var: first.var.clone(),
             openpmd: Some((mesh.iterations.clone(), layout)),
         })),
@@ -981,20 +985,52 @@ impl File {
         dims: [usize; 3],
         spacing: Vec3,
     ) -> Result<Volume, ReadError> {
-        let mut s = self.stream.lock().unwrap_or_else(|e| e.into_inner());
-        let Some((iterations, layout)) = &self.openpmd else {
-            return s.read(&self.var, [0; 3], dims, Some(t), spacing);
+        let stream = self.stream.clone();
+        let (var, openpmd) = (self.var.clone(), self.openpmd.clone());
+        let read = move || {
+            let mut s = stream.lock().unwrap_or_else(|e| e.into_inner());
+            let Some((iterations, layout)) = &openpmd else {
+                return s.read(&var, [0; 3], dims, Some(t), spacing);
+            };
+            let Some(it) = iterations.get(t) else {
+                return Err(ReadError::invalid(
+                    &s.name,
+                    format!("openPMD mesh: no step {t}"),
+                ));
+            };
+            let step = match it.step {
+                Some(step) => step,
+                None => s.first_step(&it.var)?,
+            };
+            s.read_mesh(&it.var, layout, [0; 3], dims, Some(step), spacing)
         };
-        let Some(it) = iterations.get(t) else {
-            return Err(ReadError::invalid(
-                &s.name,
-                format!("openPMD mesh: no step {t}"),
-            ));
-        };
-        let step = match it.step {
-            Some(step) => step,
-            None => s.first_step(&it.var)?,
-        };
-        s.read_mesh(&it.var, layout, [0; 3], dims, Some(step), spacing)
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(read());
+        });
+        // ADIOS2 waits at the end of a data file for the rest, as if its writer were still
+        // writing: a file cut short would hold the read forever.
+        let bytes = dims.iter().product::<usize>() * 8;
+        let limit = READ_WAIT + Duration::from_secs_f64(bytes as f64 / READ_RATE);
+        rx.recv_timeout(limit).unwrap_or_else(|_| {
+            Err(ReadError::invalid(
+                &self.path,
+                format!(
+                    "step {t} of {}: no data from ADIOS2 within {:.0} s; a data file \
+                     (data.N) is shorter than the metadata says (cut short?), and ADIOS2 waits \
+                     for the rest as if a writer were still writing",
+                    self.var,
+                    limit.as_secs_f64()
+                ),
+            ))
+        })
     }
 }
+
+/// How long a step's read from a BP file may take before it is given up as waiting on data
+/// that is not there, beyond the time to read its bytes at [`READ_RATE`].
+pub const READ_WAIT: Duration = Duration::from_secs(15);
+
+/// The slowest read rate a BP file's step is allowed, bytes per second (a parallel file
+/// system under load).
+const READ_RATE: f64 = 50e6;

@@ -97,28 +97,42 @@ fn a_truncated_or_missing_file_and_a_stream_that_never_opens_are_named() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let cut = tmp.path().join("cut.bp");
-    std::fs::create_dir(&cut).unwrap();
-    for f in std::fs::read_dir(dir.join("adios2_series.bp")).unwrap() {
-        let f = f.unwrap();
-        std::fs::copy(f.path(), cut.join(f.file_name())).unwrap();
-    }
-    // The metadata cut to half: the index promises steps the file does not describe. (A data
-    // file cut short is not refused: ADIOS2 reads a BP file while its writer may still be
-    // writing, and waits for the rest.)
-    let data = cut.join("md.0");
-    let n = std::fs::metadata(&data).unwrap().len();
-    std::fs::OpenOptions::new()
-        .write(true)
-        .open(&data)
-        .unwrap()
-        .set_len(n / 2)
-        .unwrap();
-    let e = open(&cut, &field("rho"))
-        .and_then(|d| (0..d.steps).try_for_each(|t| d.read_step(t).map(drop)))
-        .unwrap_err()
-        .to_string();
+    let cut_copy = |name: &str, file: &str, keep: fn(u64) -> u64| {
+        let cut = tmp.path().join(name);
+        std::fs::create_dir(&cut).unwrap();
+        for f in std::fs::read_dir(dir.join("adios2_series.bp")).unwrap() {
+            let f = f.unwrap();
+            std::fs::copy(f.path(), cut.join(f.file_name())).unwrap();
+        }
+        let part = cut.join(file);
+        let n = std::fs::metadata(&part).unwrap().len();
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open(&part)
+            .unwrap()
+            .set_len(keep(n))
+            .unwrap();
+        cut
+    };
+    let read_all = |path: &Path| {
+        open(path, &field("rho"))
+            .and_then(|d| (0..d.steps).try_for_each(|t| d.read_step(t).map(drop)))
+            .unwrap_err()
+            .to_string()
+    };
+    // The metadata cut to half: the index promises steps the file does not describe.
+    let e = read_all(&cut_copy("cut.bp", "md.0", |n| n / 2));
     assert!(e.contains("cut.bp"), "{e}");
+    // The data cut short, inside the last step: ADIOS2 waits for the rest as if a writer
+    // were still writing; the read is given up on time and says why.
+    let start = std::time::Instant::now();
+    let e = read_all(&cut_copy("short.bp", "data.0", |n| n * 7 / 10));
+    assert!(
+        e.contains("short.bp: step 2 of rho: no data from ADIOS2 within")
+            && e.contains("shorter than the metadata says"),
+        "{e}"
+    );
+    assert!(start.elapsed() < insitu_readers::adios2::READ_WAIT * 2);
     let e = refusal(&tmp.path().join("none.bp"), "rho");
     assert!(e.contains("none.bp: no such BP file"), "{e}");
     // No writer: the timeout is named.
