@@ -1004,7 +1004,7 @@ impl File {
             };
             s.read_mesh(&it.var, layout, [0; 3], dims, Some(step), spacing)
         };
-        let (tx, rx) = std::sync::mpsc::channel();
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
         std::thread::spawn(move || {
             let _ = tx.send(read());
         });
