@@ -29,18 +29,25 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tracing::{info, warn};
 
-/// How long one wait for a step lasts before the stop flag is looked at again.
+/// How long one wait for a step of a BP file lasts before the stop flag is looked at again.
 const POLL: Duration = Duration::from_millis(250);
+
+/// How long [`Input::finish`] waits for the reading thread. An SST reader waits for its next
+/// step without a timeout (see `Stream::begin_step`), so at shutdown it may be waiting on a
+/// writer that sends nothing more: it is then left to the process's exit.
+const STOP_WAIT: Duration = Duration::from_secs(1);
 
 /// The reading thread, and how it ended.
 pub struct Input {
     stop: Arc<AtomicBool>,
     thread: std::thread::JoinHandle<()>,
     end: Arc<Mutex<Option<String>>>,
+    progress: Arc<Mutex<Progress>>,
+    stream: std::path::PathBuf,
 }
 
 /// What has been read: steps, and the last one.
-#[derive(Default)]
+#[derive(Clone, Copy, Default)]
 struct Progress {
     steps: u64,
     last: Option<usize>,
@@ -65,30 +72,50 @@ impl Input {
     pub fn spawn(shared: Arc<Shared>, input: Adios2Input, rt: tokio::runtime::Handle) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let end = Arc::new(Mutex::new(None));
-        let (s, e) = (stop.clone(), end.clone());
+        let progress = Arc::new(Mutex::new(Progress::default()));
+        let (s, e, p) = (stop.clone(), end.clone(), progress.clone());
+        let stream = input.stream.clone();
         let thread = std::thread::spawn(move || {
-            let mut progress = Progress::default();
-            let how = match read(&shared, &input, &rt, &s, &mut progress) {
+            let how = match read(&shared, &input, &rt, &s, &p) {
                 Ok(how) => how,
                 Err(e) => {
                     warn!(error = %e, "the ADIOS2 input stopped");
                     format!("stopped by an error: {e}")
                 }
             };
-            let note = progress.describe(&input.stream, &how);
+            let note = lock(&p).describe(&input.stream, &how);
             info!("{note}");
             *e.lock().unwrap_or_else(|e| e.into_inner()) = Some(note);
         });
-        Self { stop, thread, end }
+        Self {
+            stop,
+            thread,
+            end,
+            progress,
+            stream,
+        }
     }
 
-    /// Stops reading (at the next step or wait) and says how the stream ended.
+    /// Stops reading (at the next step or wait, within [`STOP_WAIT`]) and says how the
+    /// stream ended.
     pub async fn finish(self) -> Option<String> {
         self.stop.store(true, Ordering::Relaxed);
+        let deadline = tokio::time::Instant::now() + STOP_WAIT;
+        while !self.thread.is_finished() && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        if !self.thread.is_finished() {
+            let how = "stopped at shutdown while waiting for the writer's next step";
+            return Some(lock(&self.progress).describe(&self.stream, how));
+        }
         let thread = self.thread;
         let _ = tokio::task::spawn_blocking(move || thread.join()).await;
         self.end.lock().unwrap_or_else(|e| e.into_inner()).take()
     }
+}
+
+fn lock(p: &Mutex<Progress>) -> std::sync::MutexGuard<'_, Progress> {
+    p.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Reads steps until the stream ends or `stop` is set; says how it ended.
@@ -97,7 +124,7 @@ fn read(
     input: &Adios2Input,
     rt: &tokio::runtime::Handle,
     stop: &AtomicBool,
-    progress: &mut Progress,
+    progress: &Mutex<Progress>,
 ) -> Result<String, ReadError> {
     let engine = if adios2::is_bp(&input.stream) {
         Engine::File
@@ -117,7 +144,12 @@ fn read(
         if stop.load(Ordering::Relaxed) {
             return Ok("stopped at shutdown".into());
         }
-        let step = match stream.begin_step(POLL) {
+        // SST waits without a timer (`Stream::begin_step`); a file is polled.
+        let wait = (engine == Engine::File).then_some(POLL);
+        let step = match stream.begin_step(wait) {
+            Ok(Step::Ready(_)) if stop.load(Ordering::Relaxed) => {
+                return Ok("stopped at shutdown".into())
+            }
             Ok(Step::Ready(step)) => step,
             Ok(Step::NotReady) => continue,
             Ok(Step::End) => return Ok("the writer closed the stream".into()),
@@ -133,8 +165,9 @@ fn read(
                 status.message()
             ));
         }
-        progress.steps += 1;
-        progress.last = Some(step);
+        let mut p = lock(progress);
+        p.steps += 1;
+        p.last = Some(step);
     }
 }
 

@@ -197,22 +197,24 @@ impl Stream {
         ))
     }
 
-    /// Waits at most `timeout` for the next step.
+    /// Waits at most `timeout` for the next step (`None`: until one comes or the stream
+    /// ends).
+    ///
+    /// An SST reader should wait without a timeout: SST arms an EVPath timer for a finite one
+    /// and removes it when the step comes first, and that removal crashed the process now and
+    /// then (a SIGSEGV in `CMremove_task`, about one run in four of 17 steps of 64 MiB with
+    /// the wheel 2.12).
     ///
     /// # Errors
     /// [`ReadError`] naming the stream when ADIOS2 reports an error (a truncated file, a
     /// writer gone without closing).
-    pub fn begin_step(&mut self, timeout: Duration) -> Result<Step, ReadError> {
+    pub fn begin_step(&mut self, timeout: Option<Duration>) -> Result<Step, ReadError> {
         let mut status = ffi::STEP_OK;
+        // ADIOS2's "no timeout": a negative number of seconds.
+        let secs = timeout.map_or(-1.0, |t| t.as_secs_f32());
         // SAFETY: `engine` is live; `status` outlives the call.
-        let code = unsafe {
-            ffi::adios2_begin_step(
-                self.engine,
-                ffi::STEP_MODE_READ,
-                timeout.as_secs_f32(),
-                &mut status,
-            )
-        };
+        let code =
+            unsafe { ffi::adios2_begin_step(self.engine, ffi::STEP_MODE_READ, secs, &mut status) };
         self.check(code, "beginning a step")?;
         match status {
             ffi::STEP_OK => {

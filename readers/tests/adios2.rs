@@ -51,7 +51,7 @@ fn a_selection_outside_the_shape_is_refused_naming_both() {
     let path = dir.join("adios2_series.bp");
     let mut s = Stream::open(&path, Engine::File, &[], Duration::from_secs(1)).unwrap();
     assert!(matches!(
-        s.begin_step(Duration::from_secs(5)).unwrap(),
+        s.begin_step(Some(Duration::from_secs(5))).unwrap(),
         insitu_readers::adios2::Step::Ready(0)
     ));
     let v = s.variable("rho").unwrap();
@@ -86,7 +86,7 @@ fn a_selection_outside_the_shape_is_refused_naming_both() {
     }
     s.end_step().unwrap();
     assert_eq!(
-        s.begin_step(Duration::from_secs(5)).unwrap(),
+        s.begin_step(Some(Duration::from_secs(5))).unwrap(),
         insitu_readers::adios2::Step::Ready(1)
     );
 }

@@ -5,13 +5,16 @@ split in z without a shared plane, then the step ends. The fields are read from 
 client too.
 
     python adios2_writer.py NAME DIR NX NY NZ STEPS [--engine SST|BP5] [--blocks K]
-                            [--readers R] [--vanish-after S] [--openpmd]
+                            [--readers R] [--vanish-after S] [--openpmd] [--synthetic]
+                            [--param KEY=VALUE ...]
 
 NAME is the stream (SST: the contact file NAME.sst) or the BP file; DIR holds step_T.raw.
 --vanish-after S ends the process without closing the stream a second after step S, as a
 simulation that crashes while computing the next step would (an SST step lives in the
 writer's memory until its readers have fetched it: a step a reader had not fetched dies with
 the writer).
+--param passes an SST engine parameter (e.g. WANDataTransport=enet).
+--synthetic writes (i mod 977) + t in place of step_T.raw, for the throughput bench.
 --openpmd writes the field as openPMD-api does (the PyPI wheel `openpmd-api`), as the mesh
 `density` of each iteration, labelled x, y, z in C order (so stored [x][y][z], transposed from
 the raw files' order), in blocks split along x.
@@ -38,6 +41,8 @@ def main():
     p.add_argument("--readers", type=int, default=1)
     p.add_argument("--vanish-after", type=int, default=None)
     p.add_argument("--openpmd", action="store_true")
+    p.add_argument("--synthetic", action="store_true")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     a = p.parse_args()
     if a.openpmd:
         return openpmd(a)
@@ -45,7 +50,8 @@ def main():
     io = adios2.Adios().declare_io("simulation")
     io.set_engine(a.engine)
     if a.engine.upper() == "SST":
-        io.set_parameters({"RendezvousReaderCount": str(a.readers), "QueueLimit": "4"})
+        io.set_parameters({"RendezvousReaderCount": str(a.readers), "QueueLimit": "4",
+                           **dict(kv.split("=", 1) for kv in a.param)})
     cuts = [nz * k // a.blocks for k in range(a.blocks + 1)]
     shape = [nz, ny, nx]
     var = io.define_variable("density", np.zeros((1, ny, nx), dtype=np.float32), shape,
@@ -53,8 +59,12 @@ def main():
     io.define_attribute("spacing", np.array([1.0, 1.0, 1.0]))
     io.define_attribute("origin", np.array([0.0, 0.0, 0.0]))
     engine = io.open(a.name, bindings.Mode.Write)
+    base = (np.arange(nx * ny * nz, dtype=np.float32) % 977).reshape(nz, ny, nx)
     for t in range(a.steps):
-        field = np.fromfile(os.path.join(a.dir, f"step_{t}.raw"), dtype="<f4").reshape(nz, ny, nx)
+        if a.synthetic:
+            field = base + np.float32(t)
+        else:
+            field = np.fromfile(os.path.join(a.dir, f"step_{t}.raw"), dtype="<f4").reshape(nz, ny, nx)
         engine.begin_step()
         for lo, hi in zip(cuts, cuts[1:]):
             var.set_selection([[lo, 0, 0], [hi - lo, ny, nx]])
