@@ -432,10 +432,7 @@ impl Stream {
     ) -> Result<Volume, ReadError> {
         let name = self.name.clone();
         let (bytes, sample) = self.read_bytes(var, offset, count, step)?;
-        let n = bytes.len() / sample.size();
-        let mut s = Samples::new(&name, sample, Endian::Little, n, n)?;
-        s.push(bytes)?;
-        s.finish(&name, count, spacing)
+        volume(&name, bytes, sample, count, spacing)
     }
 
     /// The box `offset + [0, count)` (x, y, z of the mesh, in grid points) of openPMD mesh
@@ -485,10 +482,7 @@ impl Stream {
             ordered = openpmd::reorder(bytes, sample.size(), size, layout.axes);
             &ordered
         };
-        let n = bytes.len() / sample.size();
-        let mut samples = Samples::new(&name, sample, Endian::Little, n, n)?;
-        samples.push(bytes)?;
-        samples.finish(&name, count, spacing)
+        volume(&name, bytes, sample, count, spacing)
     }
 
     /// The numbers of attribute `name` (none when absent or text).
@@ -648,6 +642,21 @@ impl Stream {
             note,
         )
     }
+}
+
+/// `bytes`, samples of `sample` (little-endian, x fastest), as a volume of `dims` at
+/// `spacing`, the core's types kept and others converted to f32.
+fn volume(
+    name: &Path,
+    bytes: &[u8],
+    sample: Sample,
+    dims: [usize; 3],
+    spacing: Vec3,
+) -> Result<Volume, ReadError> {
+    let n = bytes.len() / sample.size();
+    let mut samples = Samples::new(name, sample, Endian::Little, n, n)?;
+    samples.push(bytes)?;
+    samples.finish(name, dims, spacing)
 }
 
 /// The sample type of ADIOS2 type `t`, for the integer and float types.

@@ -157,11 +157,16 @@ fn same_pictures(pushed: &Path, streamed: &Path, what: &str) {
     }
 }
 
-#[test]
-fn an_sst_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
-    let Some(python) = insitu_testenv::fixture_python() else {
-        return;
-    };
+/// The steps written by `writer_args`' writer as `stream`, read by two nodes half the array
+/// each (`var`, else the first), drawn as the same field pushed whole through our client
+/// (≥ 40 dB at four views, `what` in the log); returns the nodes' summaries.
+fn two_nodes_draw_the_pushed_field(
+    python: &Path,
+    stream: &str,
+    writer_args: &[&str],
+    var: Option<&str>,
+    what: &str,
+) -> Vec<String> {
     let tmp = tempfile::tempdir().unwrap();
     write_fields(tmp.path());
     let runtime = rt();
@@ -172,14 +177,17 @@ fn an_sst_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
         .block_on(start(node_config(&v1.addr, None)))
         .unwrap();
     push_whole(&node.local_addr().to_string());
-    // The same field written over SST as two blocks, read by two nodes, half the array each.
+    // The same field written as two blocks, read by two nodes, half the array each.
     let streamed = tmp.path().join("streamed");
     let v2 = start_viz(&streamed, "127.0.0.1:0", &[], tmp.path());
-    let stream = tmp.path().join("simulation");
-    let mut w = writer(&python, &stream, tmp.path(), &["--readers", "2"]);
+    let stream = tmp.path().join(stream);
+    let mut args = vec!["--readers", "2"];
+    args.extend_from_slice(writer_args);
+    let mut w = writer(python, &stream, tmp.path(), &args);
     let nodes: Vec<RunningNode> = (0..2)
         .map(|part| {
             let mut input = Adios2Input::new(stream.clone());
+            input.var = var.map(str::to_owned);
             input.part = [part, 2];
             input.open_timeout_secs = 60.0;
             runtime
@@ -191,16 +199,26 @@ fn an_sst_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
     let all = |rec: &Path, composed| recorded(rec, composed).len() == STEPS as usize;
     assert!(wait_until(90.0, || all(&pushed, false) && all(&streamed, true)));
     let summaries = shutdown(nodes);
+    shutdown(vec![node]);
+    same_pictures(&pushed, &streamed, what);
+    v1.terminate();
+    v2.terminate();
+    summaries
+}
+
+#[test]
+fn an_sst_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
+    let Some(python) = insitu_testenv::fixture_python() else {
+        return;
+    };
+    let summaries =
+        two_nodes_draw_the_pushed_field(&python, "simulation", &[], None, "SST in two parts");
     for s in &summaries {
         assert!(
             s.contains("3 step(s) read, the last step 2; the writer closed the stream"),
             "{s}"
         );
     }
-    shutdown(vec![node]);
-    same_pictures(&pushed, &streamed, "SST in two parts");
-    v1.terminate();
-    v2.terminate();
 }
 
 /// An openPMD writer (openPMD-api over SST) whose mesh is labelled x, y, z in C order, stored
@@ -211,45 +229,16 @@ fn an_openpmd_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
     let Some(python) = insitu_testenv::fixture_python() else {
         return;
     };
-    let tmp = tempfile::tempdir().unwrap();
-    write_fields(tmp.path());
-    let runtime = rt();
-    let pushed = tmp.path().join("pushed");
-    let v1 = start_viz(&pushed, "127.0.0.1:0", &[], tmp.path());
-    let node = runtime
-        .block_on(start(node_config(&v1.addr, None)))
-        .unwrap();
-    push_whole(&node.local_addr().to_string());
-    let streamed = tmp.path().join("streamed");
-    let v2 = start_viz(&streamed, "127.0.0.1:0", &[], tmp.path());
-    let stream = tmp.path().join("pic");
-    let mut w = writer(
+    let summaries = two_nodes_draw_the_pushed_field(
         &python,
-        &stream,
-        tmp.path(),
-        &["--readers", "2", "--openpmd"],
+        "pic",
+        &["--openpmd"],
+        Some("density"),
+        "openPMD over SST in two parts",
     );
-    let nodes: Vec<RunningNode> = (0..2)
-        .map(|part| {
-            let mut input = Adios2Input::new(stream.clone());
-            input.var = Some("density".into());
-            input.part = [part, 2];
-            input.open_timeout_secs = 60.0;
-            runtime
-                .block_on(start(node_config(&v2.addr, Some(input))))
-                .unwrap()
-        })
-        .collect();
-    assert!(w.wait().unwrap().success(), "the writer failed");
-    let all = |rec: &Path, composed| recorded(rec, composed).len() == STEPS as usize;
-    assert!(wait_until(90.0, || all(&pushed, false) && all(&streamed, true)));
-    for s in shutdown(nodes) {
+    for s in &summaries {
         assert!(s.contains("3 step(s) read, the last step 2;"), "{s}");
     }
-    shutdown(vec![node]);
-    same_pictures(&pushed, &streamed, "openPMD over SST in two parts");
-    v1.terminate();
-    v2.terminate();
 }
 
 #[test]
