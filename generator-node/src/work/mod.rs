@@ -230,27 +230,16 @@ pub fn run(
                 continue;
             }
         };
-        // τ counts every generation of the step, the ones thrown away too.
-        let over_time = |tau: f64, params: VdiParams, why| {
-            time_limit
-                .filter(|&t| tau > t)
-                .map(|limit| WorkError::OverTime {
-                    step: info.step,
-                    spent: tau,
-                    limit,
-                    r: params.resolution,
-                    gamma: params.gamma,
-                    why,
-                })
-        };
-        // A band that ran past the limit, or the GPU's kernel that runs whole.
-        if let Some(e) = over_time(
+        // τ counts every generation of the step, the ones thrown away too. A band that ran
+        // past the limit, or the GPU's kernel that runs whole:
+        let why = "the last try finished over it";
+        within_time(
+            info.step,
+            time_limit,
             generated.seconds + retries.1,
             params,
-            "the last try finished over it",
-        ) {
-            return Err(e);
-        }
+            why,
+        )?;
         let mut generated = generated;
         // This generation's encodings: a coarser precision is tried on the same VDI.
         loop {
@@ -264,13 +253,8 @@ pub fn run(
             let Some(limit) = limit.filter(|&l| sigma >= l) else {
                 let tau = generated.seconds + retries.1;
                 // Encodings thrown away for the size limit count in τ too.
-                if let Some(e) = over_time(
-                    tau,
-                    params,
-                    "encoding again for the size limit took it over",
-                ) {
-                    return Err(e);
-                }
+                let why = "encoding again for the size limit took it over";
+                within_time(info.step, time_limit, tau, params, why)?;
                 break 'generate (generated, file, tau, compress);
             };
             let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
@@ -329,6 +313,28 @@ pub fn run(
         limit_retries: retries,
     };
     Ok((product, generated.value))
+}
+
+/// [`WorkError::OverTime`] for step `step` when `tau` seconds (every try counted) exceed the
+/// hard limit `time_limit`, the last try at `params`; `why` says how it came over.
+fn within_time(
+    step: u64,
+    time_limit: Option<f64>,
+    tau: f64,
+    params: VdiParams,
+    why: &'static str,
+) -> Result<(), WorkError> {
+    match time_limit.filter(|&t| tau > t) {
+        Some(limit) => Err(WorkError::OverTime {
+            step,
+            spent: tau,
+            limit,
+            r: params.resolution,
+            gamma: params.gamma,
+            why,
+        }),
+        None => Ok(()),
+    }
 }
 
 /// The P_M to make `info`'s step again with after a generation stopped at `progress` because
