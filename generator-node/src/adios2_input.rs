@@ -47,7 +47,7 @@ pub struct Input {
 }
 
 /// What has been read: steps, and the last one.
-#[derive(Clone, Copy, Default)]
+#[derive(Default)]
 struct Progress {
     steps: u64,
     last: Option<usize>,
@@ -197,7 +197,7 @@ fn brick(
         })?;
     let (spacing, origin) = source.grid();
     let field = match &source {
-        Source::Array { var, grid, .. } => stream.read(var, own.offset, own.dims, None, grid.0)?,
+        Source::Array { var, .. } => stream.read(var, own.offset, own.dims, None, spacing)?,
         Source::Mesh { var, layout, .. } => {
             stream.read_mesh(var, layout, own.offset, own.dims, None, spacing)?
         }

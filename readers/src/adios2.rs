@@ -605,6 +605,19 @@ impl Stream {
         None
     }
 
+    /// How many steps of the file hold `var` (random-access files only).
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream and the variable: absent, or ADIOS2 failing.
+    pub fn steps(&self, var: &str) -> Result<usize, ReadError> {
+        let h = self.handle(var)?;
+        let mut steps = 0usize;
+        // SAFETY: `h` is live while the stream is.
+        let code = unsafe { ffi::adios2_variable_steps(&mut steps, h) };
+        self.check(code, var)?;
+        Ok(steps)
+    }
+
     /// The first step of the file that holds `var` (random-access files only).
     ///
     /// # Errors
@@ -711,6 +724,13 @@ pub fn is_bp(path: &Path) -> bool {
         .is_some_and(|e| matches!(e.as_str(), "bp" | "bp4" | "bp5"))
 }
 
+/// "iteration 7" or "iterations 0, 100, 200", for the notes.
+fn iterations(numbers: impl ExactSizeIterator<Item = u64>) -> String {
+    let plural = if numbers.len() == 1 { "" } else { "s" };
+    let list: Vec<String> = numbers.map(|n| n.to_string()).collect();
+    format!("iteration{plural} {}", list.join(", "))
+}
+
 /// Whether `path` names a series of BP files by openPMD's pattern: `%T` (or `%0NT`, padded)
 /// standing for the iteration number (`run_%T.bp5`).
 pub fn is_series(path: &Path) -> bool {
@@ -782,13 +802,12 @@ pub fn open_series(path: &Path, options: &Options) -> Result<Dataset, ReadError>
             ),
         ));
     }
-    let numbers: Vec<String> = files.iter().map(|f| f.0.to_string()).collect();
     let mut notes = d.notes;
     notes.push(format!(
-        "{} file{} for iterations {}",
+        "{} file{} for {}",
         files.len(),
         if files.len() == 1 { "" } else { "s" },
-        numbers.join(", ")
+        iterations(files.iter().map(|f| f.0))
     ));
     Ok(Dataset {
         path: path.to_owned(),
@@ -870,10 +889,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
         })?,
     };
     let v = stream.variable(&var)?;
-    let h = stream.handle(&var)?;
-    let mut steps = 0usize;
-    // SAFETY: `h` is live while the stream is.
-    stream.check(unsafe { ffi::adios2_variable_steps(&mut steps, h) }, &var)?;
+    let steps = stream.steps(&var)?;
     if steps == 0 {
         return Err(ReadError::invalid(
             path,
@@ -903,18 +919,7 @@ pub fn open(path: &Path, options: &Options) -> Result<Dataset, ReadError> {
 /// [`open`] for an openPMD series: the mesh `options.field` (else the first 3-D one by name),
 /// one step per iteration.
 fn open_openpmd(path: &Path, stream: Stream, options: &Options) -> Result<Dataset, ReadError> {
-    let meshes = openpmd::meshes(&stream, |var| {
-        let mut steps = 0usize;
-        stream.handle(var).map_or(0, |h| {
-            // SAFETY: `h` is live while the stream is.
-            let code = unsafe { ffi::adios2_variable_steps(&mut steps, h) };
-            if code == ffi::ERROR_NONE {
-                steps
-            } else {
-                0
-            }
-        })
-    });
+    let meshes = openpmd::meshes(&stream, |var| stream.steps(var).unwrap_or(0));
     let is_volume = |m: &openpmd::Mesh| {
         m.iterations
             .first()
@@ -959,16 +964,8 @@ fn open_openpmd(path: &Path, stream: Stream, options: &Options) -> Result<Datase
     };
     let layout = openpmd::layout(&stream, &name, &first.var)?;
     crate::check_grid(path, layout.dims, layout.spacing, layout.origin)?;
-    let numbers: Vec<String> = mesh
-        .iterations
-        .iter()
-        .map(|i| i.number.to_string())
-        .collect();
-    let mut notes = vec![format!(
-        "openPMD mesh {name}: iteration{} {}",
-        if numbers.len() == 1 { "" } else { "s" },
-        numbers.join(", ")
-    )];
+    let numbers = iterations(mesh.iterations.iter().map(|i| i.number));
+    let mut notes = vec![format!("openPMD mesh {name}: {numbers}")];
     notes.extend(layout.notes.iter().cloned());
     Ok(Dataset {
         path: path.to_owned(),

@@ -183,11 +183,7 @@ struct Growth {
 impl Growth {
     /// The growth `(step, P_M, ln k)` shows, slopes and pairs taken at one `P_M`.
     fn of(ks: &[(u64, Candidate, f64)]) -> Self {
-        let slopes: Vec<f64> = ks
-            .windows(2)
-            .filter(|w| w[1].0 > w[0].0 && w[0].1 == w[1].1)
-            .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
-            .collect();
+        let slopes = consecutive(ks, true);
         let pairs: Vec<f64> = ks
             .iter()
             .enumerate()
@@ -200,6 +196,23 @@ impl Growth {
             trend: (pairs.len() >= 3).then(|| median(pairs)),
         }
     }
+
+    /// Each part of `self`, else of `other`.
+    fn or(self, other: Self) -> Self {
+        Self {
+            slope: self.slope.or(other.slope),
+            trend: self.trend.or(other.trend),
+        }
+    }
+}
+
+/// The slopes of `ln k` between consecutive steps of `ks` (`(step, P_M, ln k)`), only between
+/// steps of one `P_M` where `same_pm`.
+fn consecutive(ks: &[(u64, Candidate, f64)], same_pm: bool) -> Vec<f64> {
+    ks.windows(2)
+        .filter(|w| w[1].0 > w[0].0 && (!same_pm || w[0].1 == w[1].1))
+        .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
+        .collect()
 }
 
 /// Production steps (counted in observations) a candidate's own measurement is remembered.
@@ -313,12 +326,7 @@ impl Controller {
             .iter()
             .map(|o| (o.step, o.candidate, (o.sigma_bytes.max(1) as f64).ln()))
             .collect();
-        let before = Growth::of(&raw);
-        let carried = self.carried.unwrap_or_default();
-        self.carried = Some(Growth {
-            slope: before.slope.or(carried.slope),
-            trend: before.trend.or(carried.trend),
-        });
+        self.carried = Some(Growth::of(&raw).or(self.carried.unwrap_or_default()));
         self.window.retain(|o| o.step >= step);
         self.seen.retain(|_, o| o.step >= step);
         self.miss = 1.0;
@@ -359,21 +367,12 @@ impl Controller {
         // of the surface at one P_M is then a jump between two steps, which the median passes
         // over). The trend: the Theil–Sen slope over every pair of the window's steps made with
         // one P_M (three pairs at least), no more than the slope.
-        let own = Growth::of(&ks);
-        let carried = self.carried.unwrap_or_default();
-        let slope = own
+        let seen = Growth::of(&ks).or(self.carried.unwrap_or_default());
+        let slope = seen
             .slope
-            .or(carried.slope)
-            .unwrap_or_else(|| {
-                median(
-                    ks.windows(2)
-                        .filter(|w| w[1].0 > w[0].0)
-                        .map(|w| (w[1].2 - w[0].2) / (w[1].0 - w[0].0) as f64)
-                        .collect(),
-                )
-            })
+            .unwrap_or_else(|| median(consecutive(&ks, false)))
             .max(0.0);
-        let trend = own.trend.or(carried.trend);
+        let trend = seen.trend;
         let grown = growth(slope, newest, at);
         // τ: ln k of each step of the window, carried forward to `at` by τ's growth, and the
         // largest (the slowest step, grown as the data has grown since).
