@@ -106,7 +106,10 @@ fn abandoned_stills_and_movies_stop_and_free_their_lane() {
             stats(&addr),
             ffmpeg_children(v.child.id())
         );
-        assert_eq!(stats(&addr)["cancelled"], 2, "{}", stats(&addr));
+        // The running movie is cancelled; a waiting one may take the freed lane before the
+        // server has read its client's hang-up, and is then cancelled too, never finished.
+        let cancelled = stats(&addr)["cancelled"].as_u64().unwrap_or(0);
+        assert!((2..=6).contains(&cancelled), "{}", stats(&addr));
     }
 
     // The lane is free: a 2048² still is rendered, not refused.
