@@ -5,7 +5,7 @@ use crate::offline::{image_array, Vdi};
 use insitu_core::raycast::DEFAULT_TERMINATION;
 use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::render;
-use insitu_viz_node::rows::{Entry, StepEntry};
+use insitu_recording::rows::{Entry, StepEntry};
 use numpy::PyArray3;
 use pyo3::exceptions::{PyKeyError, PyValueError};
 use pyo3::prelude::*;
@@ -77,7 +77,7 @@ pub struct Recording {
 impl Recording {
     #[new]
     fn new(path: PathBuf) -> PyResult<Self> {
-        let (entries, composed) = insitu_viz_node::index::read(&path)
+        let (entries, composed) = insitu_recording::index::read(&path)
             .map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
         let mut steps: Vec<Stored> = composed.into_iter().map(Stored::Composed).collect();
         steps.extend(

@@ -33,7 +33,7 @@ use insitu_core::volume::bricks::{grid_bricks, split_ranks, Brick};
 use insitu_core::volume::{GrayScott, GrayScottParams};
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Vdi, VdiParams, Volume};
 use insitu_e2e::{rt, start_viz, Daemon};
-use insitu_viz_node::store::{Entry, StepEntry};
+use insitu_recording::store::{Entry, StepEntry};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -142,7 +142,7 @@ struct Run {
 }
 
 fn index(rec: &Path) -> (Vec<Entry>, Vec<StepEntry>) {
-    insitu_viz_node::index::read(rec).unwrap_or_default()
+    insitu_recording::index::read(rec).unwrap_or_default()
 }
 
 fn host_compose_secs(rt: &tokio::runtime::Runtime, addrs: &[String]) -> f64 {
@@ -504,7 +504,7 @@ fn ingest() {
         bytes / secs / 1e9,
         count as f64 / secs
     );
-    let db = insitu_viz_node::index::IndexDb::open(dir.path(), true).unwrap();
+    let db = insitu_recording::index::IndexDb::open(dir.path(), true).unwrap();
     let rows = 2000u64;
     let t = Instant::now();
     for k in 0..rows {

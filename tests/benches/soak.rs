@@ -279,7 +279,7 @@ durable = true
         }
         false
     });
-    let read = || insitu_viz_node::index::read(&rec).map_or_else(|_| Vec::new(), |(e, _)| e);
+    let read = || insitu_recording::index::read(&rec).map_or_else(|_| Vec::new(), |(e, _)| e);
     let sampled = acked.iter().filter(|s| *s % REFERENCE_EVERY == 0).count();
     wait_until(120.0, || {
         read()

@@ -84,7 +84,7 @@ fn main() {
     });
     assert!(
         insitu_e2e::wait_until(120.0, || {
-            insitu_viz_node::index::read(&rec)
+            insitu_recording::index::read(&rec)
                 .is_ok_and(|(e, _)| e.iter().filter(|e| e.vdi.is_some()).count() == 2)
         }),
         "the two teapot VDIs were not stored"

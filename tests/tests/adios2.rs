@@ -86,7 +86,7 @@ fn decode_file(path: &Path) -> Vdi {
 
 /// Every step's VDI in a recording: a world of one's rows, or a world's composed steps.
 fn recorded(rec: &Path, composed: bool) -> Vec<(u64, PathBuf)> {
-    let Ok((entries, steps)) = insitu_viz_node::index::read(rec) else {
+    let Ok((entries, steps)) = insitu_recording::index::read(rec) else {
         return Vec::new();
     };
     if !composed {

@@ -5,18 +5,17 @@
 //! ([`insitu_core::compose::compose_frames`]), and the composed VDI scored against the
 //! composed frames: that is the step's q.
 
-use crate::decoded::Kept;
 use crate::score::score;
-use crate::store::{
-    composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References, StepEntry,
-    StoreError,
-};
 use insitu_core::compose::{compose_frames, compose_vdis, BrickFrame, ComposeError};
-use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::{self, Brick, DecompositionError};
 use insitu_core::{Backend, Vdi};
+use insitu_recording::decoded::Kept;
+use insitu_recording::store::{
+    composed_refs_name, composed_vdi_name, write_atomic, Entry, Recording, References, StepEntry,
+    StoreError,
+};
 use std::sync::Arc;
 
 /// Why a step could not be composed; each names the step and the ranks.
@@ -177,7 +176,7 @@ pub fn compose_step(
     } else {
         (None, None)
     };
-    let mut entry = step_entry(step, world_size, &ready, missing);
+    let mut entry = StepEntry::of_ranks(step, world_size, &ready, missing);
     entry.sizing.supersegments = composed.supersegments().len() as u64;
     Ok(Some(StepEntry {
         vdi: Some(vdi_name),
@@ -266,33 +265,6 @@ fn store_composed(
     let name = composed_vdi_name(step);
     write_atomic(rec.dir(), &name, &file)?;
     Ok(name)
-}
-
-/// A step's entry from its ranks: their [`Sizing::of_ranks`] (σ and supersegments summed, τ of
-/// the slowest), `P_M` and codec of the first; nothing composed yet (no files, no q, no error).
-pub fn step_entry(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32>) -> StepEntry {
-    let first = ranks.first();
-    StepEntry {
-        step,
-        world_size,
-        ranks: {
-            let mut all: Vec<u32> = ranks.iter().flat_map(|e| e.ranks()).collect();
-            all.sort_unstable();
-            all
-        },
-        missing,
-        vdi: None,
-        references: None,
-        sizing: Sizing::of_ranks(ranks.iter().map(|e| &e.sizing)),
-        resolution: first.map_or(0, |e| e.resolution),
-        gamma: first.map_or(0.0, |e| e.gamma),
-        pm_version: first.map_or(0, |e| e.pm_version),
-        scene_version: first.map_or(0, |e| e.scene_version),
-        codec: first.and_then(|e| e.codec),
-        quality: None,
-        error: None,
-        compose_secs: 0.0,
-    }
 }
 
 /// The whole domain's reference frames from the ranks' (RGB + opacity), each view

@@ -9,17 +9,12 @@
 
 pub mod compose;
 pub mod config;
-pub mod decoded;
 pub mod http;
-pub mod index;
 pub mod movie;
 pub mod node;
-pub mod rebuild;
-pub mod rows;
 pub mod scene;
 pub mod score;
 pub mod service;
-pub mod store;
 pub mod tfs;
 pub mod view;
 

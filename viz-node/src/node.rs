@@ -2,13 +2,10 @@
 
 use crate::config::Config;
 use crate::config::ConfigError;
-use crate::decoded::Kept;
 use crate::http::tls::HttpsError;
 use crate::http::Http;
 use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
-use crate::store::Recording;
-use crate::store::StoreError;
 use insitu_core::backend::{BackendChoice, BackendError};
 use insitu_core::Backend;
 use insitu_proto::auth::{check_bind, AuthError};
@@ -16,6 +13,9 @@ use insitu_proto::health::Health;
 use insitu_proto::pb::viz_server::VizServer;
 use insitu_proto::security::{Security, SecurityError};
 use insitu_proto::transport;
+use insitu_recording::decoded::Kept;
+use insitu_recording::store::Recording;
+use insitu_recording::store::StoreError;
 use std::collections::HashSet;
 use std::net::SocketAddr;
 use std::sync::atomic::AtomicU64;
@@ -134,7 +134,7 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
     let (listener, addr) = bind("listen", cfg.listen).await?;
     // An archive is served as it is: nothing tidied, scored or composed.
     let recovery = if cfg.read_only {
-        crate::store::Recovery::default()
+        insitu_recording::store::Recovery::default()
     } else {
         recording.recover()?
     };
@@ -264,7 +264,7 @@ async fn start_http(
 /// Logs what the recording's recovery found and queues the work a crash interrupted: scoring
 /// of steps stored without q, composition of multi-rank steps not composed (now when complete,
 /// else after the timeout).
-fn resume(shared: &Arc<Shared>, r: crate::store::Recovery) {
+fn resume(shared: &Arc<Shared>, r: insitu_recording::store::Recovery) {
     if !r.temp_removed.is_empty() {
         info!(files = ?r.temp_removed, "removed temporary files left by an interrupted write");
     }

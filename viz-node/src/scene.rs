@@ -11,8 +11,8 @@
 //! reaches it and it owns the recording that must stay consistent; without a viz-node a
 //! generator-node falls back to its own brick's range (and says so).
 
-use crate::store::{write_atomic, StoreError};
 use insitu_core::TransferFunction;
+use insitu_recording::store::{write_atomic, StoreError};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -2,10 +2,10 @@
 //! (Alg. 1, lines 13–17, through [`insitu_core::evaluate::score_views`]: PSNR per view, pooled
 //! as the PSNR of the mean MSE; SSIM beside it).
 
-use crate::store::{Db, Quality, References};
 use insitu_core::evaluate::{mean_ssim, score_views, EvalError};
 use insitu_core::metrics;
 use insitu_core::{Backend, Vdi};
+use insitu_recording::store::{Db, Quality, References};
 
 /// Renders `vdi` on `backend` at each view of `refs` (same size as the frames) and scores it.
 ///

@@ -4,11 +4,11 @@
 //! checks on a request, and the encoding of the frame. Shared by the web viewer
 //! ([`crate::http`]), the `Render` call and `insitu view --recording`.
 
-use crate::decoded::Expected;
-use crate::store::{Entry, StepEntry};
 use insitu_core::cancel::Cancel;
 use insitu_core::vdi::Vdi;
 use insitu_core::{Backend, Camera, Image};
+use insitu_recording::decoded::Expected;
+use insitu_recording::store::{Entry, StepEntry};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -210,7 +210,7 @@ pub fn world_size(ranks: &[Entry]) -> u32 {
 /// # Errors
 /// [`ViewError::Failed`] naming the file (also when it is not the VDI its row describes).
 pub fn load_vdi(dir: &Path, file: &VdiFile) -> Result<Vdi, ViewError> {
-    crate::decoded::read_vdi(dir, &file.name, file.expected)
+    insitu_recording::decoded::read_vdi(dir, &file.name, file.expected)
         .map_err(|e| ViewError::Failed(e.to_string()))
 }
 
@@ -397,7 +397,7 @@ mod tests {
         assert!(e.to_string().contains("rank 1 has no VDI"), "{e}");
         let composed = StepEntry {
             vdi: Some("c4.vdi".into()),
-            ..crate::compose::step_entry(4, 2, &[], vec![])
+            ..StepEntry::of_ranks(4, 2, &[], vec![])
         };
         assert_eq!(
             vdi_file(4, None, &world, Some(&composed)).unwrap().name,
@@ -410,7 +410,7 @@ mod tests {
         // A step that cannot compose says why, not that it will later.
         let failed = StepEntry {
             error: Some("bricks of ranks [0, 1] do not cover the grid".into()),
-            ..crate::compose::step_entry(4, 2, &[], vec![])
+            ..StepEntry::of_ranks(4, 2, &[], vec![])
         };
         let e = vdi_file(4, None, &world, Some(&failed)).unwrap_err();
         assert!(

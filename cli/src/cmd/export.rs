@@ -5,7 +5,7 @@
 
 use anyhow::{Context, Result};
 use insitu_core::adherence::Adherence;
-use insitu_viz_node::index::IndexDb;
+use insitu_recording::index::IndexDb;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -91,7 +91,7 @@ type Sample = (u64, (u32, f32), f64);
 
 /// One value per step, in step order: single-rank entries and composed steps.
 fn step_values(
-    e: &insitu_viz_node::index::Export,
+    e: &insitu_recording::index::Export,
     value: fn(&insitu_core::evaluate::Sizing) -> f64,
 ) -> Vec<Sample> {
     let mut v: Vec<(u64, Sample)> = e
@@ -117,14 +117,14 @@ pub fn run(a: Args) -> Result<()> {
         return render(&a);
     }
     // A recording shared by step among viz-nodes: every shard's rows (docs/scale.md).
-    let shards = insitu_viz_node::index::shards(&a.recording);
+    let shards = insitu_recording::index::shards(&a.recording);
     let e = if shards.is_empty() {
         IndexDb::open(&a.recording, false)
             .and_then(|db| db.export())
-            .map_err(|e| insitu_viz_node::index::with_recovery_advice(e, &a.recording))
+            .map_err(|e| insitu_recording::index::with_recovery_advice(e, &a.recording))
             .with_context(|| format!("{} is not a readable recording", a.recording.display()))?
     } else {
-        insitu_viz_node::index::export_shards(&shards)?
+        insitu_recording::index::export_shards(&shards)?
     };
     let text = match a.format {
         Format::Json => {
@@ -142,7 +142,7 @@ pub fn run(a: Args) -> Result<()> {
             #[derive(serde::Serialize)]
             struct WithAdherence<'a> {
                 #[serde(flatten)]
-                export: &'a insitu_viz_node::index::Export,
+                export: &'a insitu_recording::index::Export,
                 #[serde(skip_serializing_if = "Option::is_none")]
                 adherence: Option<serde_json::Value>,
             }
@@ -151,7 +151,7 @@ pub fn run(a: Args) -> Result<()> {
                 adherence,
             })? + "\n"
         }
-        Format::Csv => with_ratios(&insitu_viz_node::index::csv(&e), a.budget),
+        Format::Csv => with_ratios(&insitu_recording::index::csv(&e), a.budget),
     };
     match &a.out {
         Some(path) => crate::output::write_atomic(path, text.as_bytes())?,

@@ -26,7 +26,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let dir = &a.recording;
-    let done = insitu_viz_node::rebuild::rebuild(dir)
+    let done = insitu_recording::rebuild::rebuild(dir)
         .with_context(|| format!("rebuilding the index of {}", dir.display()))?;
     for (from, to) in &done.set_aside {
         println!("kept the damaged {from} as {to}");
@@ -41,7 +41,7 @@ pub fn run(a: Args) -> Result<()> {
     for (file, why) in &done.left_out {
         println!("left out {file}: {why}");
     }
-    let todo = insitu_viz_node::store::Recording::open(dir)?.recover()?;
+    let todo = insitu_recording::store::Recording::open(dir)?.recover()?;
     let work = todo.unscored.len() + todo.uncomposed.len();
     if a.no_score || work == 0 {
         if work > 0 {
@@ -58,7 +58,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Scores and composes what the rebuilt index lacks on a viz-node in this process (loopback,
 /// no viewer), waiting until its recovery finds nothing left.
-async fn score(a: &Args, todo: insitu_viz_node::store::Recovery) -> Result<()> {
+async fn score(a: &Args, todo: insitu_recording::store::Recovery) -> Result<()> {
     println!(
         "scoring {} steps and composing {} ...",
         todo.unscored.len(),

@@ -43,7 +43,7 @@ impl Stored {
     /// # Errors
     /// When `dir` is not a readable recording.
     pub fn read(dir: &Path) -> Result<Self> {
-        let (entries, composed) = insitu_viz_node::index::read(dir)
+        let (entries, composed) = insitu_recording::index::read(dir)
             .with_context(|| format!("{} is not a readable recording", dir.display()))?;
         let mut numbers: Vec<u64> = entries.iter().map(|e| e.step).collect();
         numbers.sort_unstable();

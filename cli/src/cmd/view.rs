@@ -122,7 +122,7 @@ fn source(a: &Args) -> Result<(Vdi, String)> {
             (vdi, path.display().to_string())
         }
         (None, Some(dir), Some(step)) => {
-            let (entries, steps) = insitu_viz_node::index::read(dir)
+            let (entries, steps) = insitu_recording::index::read(dir)
                 .with_context(|| format!("{} is not a readable recording", dir.display()))?;
             let (ranks, others): (Vec<_>, Vec<_>) =
                 entries.into_iter().partition(|e| e.step == step);

@@ -6,7 +6,7 @@ use insitu_core::vdi::codec::{decode, DecodeLimits};
 use insitu_core::vdi::render;
 use insitu_core::Vdi;
 use insitu_e2e::{rt, Daemon};
-use insitu_viz_node::store::{Entry, References, StepEntry};
+use insitu_recording::store::{Entry, References, StepEntry};
 use std::path::Path;
 use std::process::{Child, Output};
 
@@ -83,12 +83,12 @@ pub fn generator(toml: &str, logs: &Path, envs: &[(&str, &str)]) -> Daemon {
 
 /// The recording's index entries (none before the viz-node made the index).
 pub fn index(dir: &Path) -> Vec<Entry> {
-    insitu_viz_node::index::read(dir).map_or_else(|_| Vec::new(), |(e, _)| e)
+    insitu_recording::index::read(dir).map_or_else(|_| Vec::new(), |(e, _)| e)
 }
 
 /// The recording's composed steps.
 pub fn steps(dir: &Path) -> Vec<StepEntry> {
-    insitu_viz_node::index::read(dir).map_or_else(|_| Vec::new(), |(_, s)| s)
+    insitu_recording::index::read(dir).map_or_else(|_| Vec::new(), |(_, s)| s)
 }
 
 /// Decodes a stored VDI.

@@ -11,7 +11,7 @@ use insitu_core::{Backend, Camera, RaycastParams, Raycaster, TransferFunction, V
 use insitu_e2e::{rt, wait_until};
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{chunk, pb, transport};
-use insitu_viz_node::store::{Entry, Recording, References};
+use insitu_recording::store::{Entry, Recording, References};
 use tonic::Code;
 
 /// A small VDI file of a blob, with its reference frames at 0° and 40°.

@@ -140,7 +140,7 @@ fn hosts_composing_first_store_the_one_level_picture_and_q() {
             );
             assert!(b.missing.is_empty() && b.error.is_none(), "{b:?}");
             // The parts that reached the viz-node: 4 VDIs of one rank, or 1 of all four.
-            let of = |parts: &[insitu_viz_node::store::Entry]| -> Vec<Vec<u32>> {
+            let of = |parts: &[insitu_recording::store::Entry]| -> Vec<Vec<u32>> {
                 parts
                     .iter()
                     .filter(|e| e.step == a.step)

@@ -6,7 +6,7 @@ use crate::common::{generator, small_config, succeeded};
 use crate::ranks::slab;
 use crate::viewer::{http, viz_with_http};
 use insitu_e2e::{bin, rt, wait_until, Daemon};
-use insitu_viz_node::index;
+use insitu_recording::index;
 use std::process::Command;
 
 #[test]

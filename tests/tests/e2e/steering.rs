@@ -451,8 +451,8 @@ fn push_four_ranks(hosts: [&str; 2], range: std::ops::Range<u64>) {
 }
 
 /// Waits until steps `0..end` are stored whole (every rank composed) and returns them.
-fn whole_steps(rec: &Path, end: u64) -> Vec<insitu_viz_node::rows::StepEntry> {
-    let whole = |s: &insitu_viz_node::rows::StepEntry| {
+fn whole_steps(rec: &Path, end: u64) -> Vec<insitu_recording::rows::StepEntry> {
+    let whole = |s: &insitu_recording::rows::StepEntry| {
         s.missing.is_empty() && s.error.is_none() && s.vdi.is_some()
     };
     let done = wait_until(60.0, || {

@@ -4,7 +4,6 @@
 //! 500 (a stored file cannot be read).
 
 use super::Http;
-use crate::store::{Entry, Quality, StepEntry};
 use crate::view::{self, Format, View, ViewError};
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -15,6 +14,7 @@ use insitu_core::adherence::Adherence;
 use insitu_core::cancel::Cancel;
 use insitu_core::evaluate::Sizing;
 use insitu_core::json::f32_number;
+use insitu_recording::store::{Entry, Quality, StepEntry};
 use serde::Deserialize;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
@@ -401,8 +401,8 @@ pub async fn reference(
     };
     let path = rec.dir().join(&name);
     let out = tokio::task::spawn_blocking(move || {
-        let refs =
-            crate::store::References::read(&path).map_err(|e| ViewError::Failed(e.to_string()))?;
+        let refs = insitu_recording::store::References::read(&path)
+            .map_err(|e| ViewError::Failed(e.to_string()))?;
         let frame = refs.frames.get(q.view).ok_or_else(|| {
             ViewError::NotFound(format!(
                 "view {} is not among the {} test views",
@@ -477,7 +477,7 @@ mod tests {
         };
         let failed = StepEntry {
             error: Some("the bricks leave a gap at z = 32".into()),
-            ..crate::compose::step_entry(3, 2, &[&two(0), &two(1)], Vec::new())
+            ..StepEntry::of_ranks(3, 2, &[&two(0), &two(1)], Vec::new())
         };
         let s = step_json(3, &[two(0), two(1)], Some(&failed));
         assert_eq!(s["complete"], false, "{s}");

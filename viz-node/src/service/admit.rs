@@ -321,7 +321,7 @@ pub(super) fn held_elsewhere(
 /// # Errors
 /// `INVALID_ARGUMENT` naming the contradiction.
 pub(super) fn check_against_stored(
-    rec: &crate::store::Recording,
+    rec: &insitu_recording::store::Recording,
     h: &pb::VdiHeader,
     ranks: &[u32],
     placement: Option<Placement>,

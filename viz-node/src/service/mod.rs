@@ -2,10 +2,8 @@
 
 mod admit;
 
-use crate::decoded::{read_vdi, Expected, Kept};
 use crate::scene::SceneAgreement;
 use crate::score::score;
-use crate::store::{Entry, Placement, Quality, Recording, References, StepEntry, StoreError};
 use admit::{placement, reference_camera, store_references, store_vdi};
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::{self, DecodeLimits};
@@ -16,6 +14,10 @@ use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb, tau_sour
 use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::peer::Backoff;
 use insitu_proto::{chunk, pb};
+use insitu_recording::decoded::{read_vdi, Expected, Kept};
+use insitu_recording::store::{
+    Entry, Placement, Quality, Recording, References, StepEntry, StoreError,
+};
 use std::collections::HashSet;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -258,7 +260,7 @@ impl Shared {
                 let missing = crate::compose::missing(&ranks, world_size);
                 StepEntry {
                     error: Some(err.to_string()),
-                    ..crate::compose::step_entry(
+                    ..StepEntry::of_ranks(
                         step,
                         world_size,
                         &ranks.iter().collect::<Vec<_>>(),

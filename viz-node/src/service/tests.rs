@@ -5,7 +5,7 @@ use super::*;
 
 fn part(step: u64, rank: u32, covers: &[u32], pm_version: u64) -> Entry {
     Entry {
-        vdi: Some(crate::store::vdi_name(step, rank)),
+        vdi: Some(insitu_recording::store::vdi_name(step, rank)),
         covers: covers.to_vec(),
         pm_version,
         world_size: 4,

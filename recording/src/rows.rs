@@ -292,6 +292,33 @@ impl Entry {
 }
 
 impl StepEntry {
+    /// A step's entry from its ranks: their [`Sizing::of_ranks`] (σ and supersegments summed, τ of
+    /// the slowest), `P_M` and codec of the first; nothing composed yet (no files, no q, no error).
+    pub fn of_ranks(step: u64, world_size: u32, ranks: &[&Entry], missing: Vec<u32>) -> Self {
+        let first = ranks.first();
+        Self {
+            step,
+            world_size,
+            ranks: {
+                let mut all: Vec<u32> = ranks.iter().flat_map(|e| e.ranks()).collect();
+                all.sort_unstable();
+                all
+            },
+            missing,
+            vdi: None,
+            references: None,
+            sizing: Sizing::of_ranks(ranks.iter().map(|e| &e.sizing)),
+            resolution: first.map_or(0, |e| e.resolution),
+            gamma: first.map_or(0.0, |e| e.gamma),
+            pm_version: first.map_or(0, |e| e.pm_version),
+            scene_version: first.map_or(0, |e| e.scene_version),
+            codec: first.and_then(|e| e.codec),
+            quality: None,
+            error: None,
+            compose_secs: 0.0,
+        }
+    }
+
     /// As [`Entry::confine_names`], for a composed step's files ([`composed_vdi_name`],
     /// [`composed_refs_name`]).
     pub fn confine_names(&mut self) -> Vec<String> {

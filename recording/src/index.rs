@@ -509,7 +509,7 @@ mod tests {
         let db = IndexDb::open(dir.path(), true).unwrap();
         db.put_step(&StepEntry {
             error: Some("step 3: bricks of ranks [0, 1] do not cover the grid".into()),
-            ..crate::compose::step_entry(3, 2, &[], vec![])
+            ..StepEntry::of_ranks(3, 2, &[], vec![])
         })
         .unwrap();
         let csv = db.export_csv().unwrap();
