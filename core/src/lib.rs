@@ -30,6 +30,7 @@
 
 pub mod adherence;
 pub mod backend;
+pub mod budget;
 pub mod camera;
 pub mod cancel;
 pub mod compose;

@@ -2,6 +2,7 @@
 //! `deploy/generator-node.toml`), overridden by command-line flags.
 
 use crate::queue::Policy;
+use insitu_core::budget::Budgets;
 use insitu_core::raycast::{
     RaycastParams, DEFAULT_GENERATION_TERMINATION, DEFAULT_STEP, DEFAULT_TERMINATION,
 };
@@ -102,20 +103,21 @@ pub struct GenerationConfig {
     pub reference_every: u64,
     /// Side of the reference frames, pixels; 0 = `resolution`.
     pub reference_size: u32,
-    /// Hard limit on σ of a step, bytes (summed over its ranks; each rank keeps its share);
-    /// 0: none. A VDI that comes out at or over it is made again at a coarser `P_M` before it
+    /// Hard limit on σ of a step, bytes (> 0; summed over its ranks; each rank keeps its
+    /// share); unset: none. A VDI that comes out at or over it is made again at a coarser `P_M` before it
     /// ships (encoded again at a coarser precision, down to 6 bits, then γ raised, then, for a
     /// world of one rank, r lowered; τ counts every try: `work::coarser`), so no stored step
     /// exceeds it; one that cannot get under it is not shipped (counted as
     /// failed, logged).
-    pub size_max: u64,
-    /// Hard limit on τ of a step (its generation, every try counted), seconds; 0: none. A
+    pub size_max: Option<u64>,
+    /// Hard limit on τ of a step (its generation, every try counted), seconds (> 0); unset:
+    /// none. A
     /// generation that would overrun it is stopped between bands of rows and the step made
     /// again at a resolution its measured rate fits into the time left (a world of one rank:
     /// the ranks of a step share r), so no stored step's τ exceeds it; one that cannot fit is
     /// not shipped (counted as failed, logged). On the GPU the kernel runs whole: a step over
     /// the limit there is not shipped.
-    pub time_max: f64,
+    pub time_max: Option<f64>,
     /// The field to render from steps that carry named fields (Blueprint `fields/<name>`);
     /// unset: each step's first. A step that names none holds one field, which is rendered.
     pub field: Option<String>,
@@ -137,8 +139,8 @@ impl Default for GenerationConfig {
             view_angles_deg: insitu_core::evaluate::DEFAULT_VIEW_ANGLES.to_vec(),
             reference_every: 10,
             reference_size: 0,
-            size_max: 0,
-            time_max: 0.0,
+            size_max: None,
+            time_max: None,
             field: None,
         }
     }
@@ -361,10 +363,8 @@ pub struct Generation {
     pub reference_every: u64,
     /// Reference side (0 = `r`).
     pub reference_size: u32,
-    /// Hard limit on a step's σ, bytes (0: none; see `GenerationConfig::size_max`).
-    pub size_max: u64,
-    /// Hard limit on a step's τ, seconds (0: none; see `GenerationConfig::time_max`).
-    pub time_max: f64,
+    /// Hard limits on a step's σ and τ (see `GenerationConfig::size_max` and `time_max`).
+    pub limits: Budgets,
     /// The field to render by name; `None`: each step's first.
     pub field: Option<String>,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
@@ -587,10 +587,16 @@ impl GenerationConfig {
         if self.reference_size > insitu_core::vdi::MAX_RESOLUTION {
             return Err(invalid("generation.reference_size", "too large"));
         }
-        if !(self.time_max.is_finite() && self.time_max >= 0.0) {
+        if self.size_max == Some(0) {
+            return Err(invalid(
+                "generation.size_max",
+                "0 bytes is no size; leave the key out for no limit",
+            ));
+        }
+        if let Some(t) = self.time_max.filter(|t| !(t.is_finite() && *t > 0.0)) {
             return Err(invalid(
                 "generation.time_max",
-                format!("{} is not a time in seconds ≥ 0", self.time_max),
+                format!("{t} is not a time in seconds > 0; leave the key out for no limit"),
             ));
         }
         if let Some(f) = &self.field {
@@ -605,8 +611,10 @@ impl GenerationConfig {
             view_angles_deg: self.view_angles_deg.clone(),
             reference_every: self.reference_every,
             reference_size: self.reference_size,
-            size_max: self.size_max,
-            time_max: self.time_max,
+            limits: Budgets {
+                size_bytes: self.size_max,
+                time_secs: self.time_max,
+            },
             field: self.field.clone(),
             pm_version: 0,
             scene_version: 0,
@@ -655,6 +663,20 @@ mod tests {
         assert!(bad("nice = 20").contains("nice"));
         assert!(bad("colour = 3").contains("colour"));
         assert!(bad("[generation]\ntf = \"/no/such/tf.json\"").contains("generation.tf"));
+        // No limit is the key left out, not a zero.
+        let zero = bad("[generation]\nsize_max = 0");
+        assert!(zero.contains("generation.size_max") && zero.contains("leave the key out"));
+        assert!(bad("[generation]\ntime_max = 0.0").contains("generation.time_max"));
+        assert!(bad("[generation]\ntime_max = -1.0").contains("generation.time_max"));
+        let limits = |toml: &str| {
+            toml::from_str::<Config>(toml)
+                .unwrap()
+                .generation()
+                .unwrap()
+        };
+        let both = limits("[generation]\nsize_max = 1000\ntime_max = 0.5").limits;
+        assert_eq!((both.size_bytes, both.time_secs), (Some(1000), Some(0.5)));
+        assert!(limits("").limits.is_none());
         // An ADIOS2 input: its part checked where it can be read, the feature named where not.
         let part = bad("[adios2]\nstream = \"gs\"\npart = [2, 2]");
         if cfg!(feature = "adios2") {

@@ -13,6 +13,7 @@
 //! to the tuner, since its ranks must share one `P_M` to be composed.
 
 use crate::config::Generation;
+use insitu_core::budget::Budgets;
 use insitu_proto::pb;
 use std::sync::{Mutex, RwLock};
 use tracing::info;
@@ -39,13 +40,13 @@ pub const MIN_R: u32 = 32;
 pub const MIN_EXCESS: f64 = 1.25;
 
 /// The resolution to make the next steps at after one of resolution `r` came out at `sigma`
-/// bytes and `tau` seconds against `budget` (a zero budget is none): `None` when it missed the
+/// bytes and `tau` seconds against `budget`: `None` when it missed the
 /// budget by less than [`MIN_EXCESS`] (or r is at [`MIN_R`] already), else
 /// `r · (HEADROOM / excess)^(1 / GROWTH)` rounded down to a multiple of [`R_STEP`], at least
 /// [`MIN_R`], where the excess is the larger of σ and τ over their budgets.
-pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &pb::NodeBudget) -> Option<u32> {
-    let size = (budget.sigma_bytes > 0).then(|| sigma as f64 / budget.sigma_bytes as f64);
-    let time = (budget.tau_secs > 0.0 && tau.is_finite()).then(|| tau / budget.tau_secs);
+pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &Budgets) -> Option<u32> {
+    let tau = if tau.is_finite() { tau } else { 0.0 };
+    let (size, time) = budget.ratios(sigma as f64, tau);
     let excess = size.into_iter().chain(time).fold(0.0, f64::max);
     if excess < MIN_EXCESS {
         return None;
@@ -60,7 +61,8 @@ const MAX_PENDING: usize = 64;
 
 #[derive(Debug, Default)]
 struct State {
-    budget: Option<pb::NodeBudget>,
+    /// The tuner's budgets and its utility as it describes it.
+    budget: Option<(Budgets, String)>,
     /// Steps of several ranks being made: ranks done, σ summed, τ of the slowest, r.
     pending: std::collections::BTreeMap<u64, (u32, u64, f64, u32)>,
     /// Steps made under a correction: how many, the first and the last.
@@ -83,7 +85,8 @@ impl Correction {
     /// The tuner's budget, as it sent it.
     pub fn set_budget(&self, budget: pb::NodeBudget) {
         info!(sigma_bytes = budget.sigma_bytes, tau_secs = budget.tau_secs, utility = %budget.utility, "the tuner's budget, kept by the node until its first decision");
-        self.state().budget = Some(budget);
+        let budgets = Budgets::from_wire(budget.sigma_bytes, budget.tau_secs);
+        self.state().budget = Some((budgets, budget.utility));
     }
 
     /// After a rank whose VDI has header `h` was made under settings of decision
@@ -127,7 +130,7 @@ impl Correction {
             s.first.get_or_insert(h.step);
             s.last = s.last.max(h.step);
         }
-        let Some(budget) = &s.budget else {
+        let Some((budget, utility)) = &s.budget else {
             return false;
         };
         let Some(next) = corrected_resolution(r, sigma, tau, budget) else {
@@ -141,7 +144,7 @@ impl Correction {
             step = h.step,
             sigma_bytes = sigma,
             tau_secs = tau,
-            budget = %budget.utility,
+            budget = %utility,
             r,
             next_r = next,
             from_step = begun,
@@ -173,12 +176,9 @@ impl Correction {
 mod tests {
     use super::*;
 
-    fn budget(sigma_bytes: u64, tau_secs: f64) -> pb::NodeBudget {
-        pb::NodeBudget {
-            sigma_bytes,
-            tau_secs,
-            utility: String::new(),
-        }
+    /// Budgets as the wire carries them (0: none).
+    fn budget(sigma_bytes: u64, tau_secs: f64) -> Budgets {
+        Budgets::from_wire(sigma_bytes, tau_secs)
     }
 
     #[test]

@@ -130,11 +130,12 @@ fn tf_for(series: &Path) -> (PathBuf, TransferFunction) {
     (path, tf)
 }
 
+/// σ_target as a float of bytes and τ_target in seconds, of `utility`.
 fn budgets(utility: &str) -> (Option<f64>, Option<f64>) {
-    let (size, time) = insitu_tuner::utility::UtilitySpec::parse(utility)
+    let b = insitu_tuner::utility::UtilitySpec::parse(utility)
         .unwrap()
         .budgets();
-    (size.map(|b| b as f64), time)
+    (b.size_bytes.map(|b| b as f64), b.time_secs)
 }
 
 fn run(bin: &Path, series: &Path, tf: &Path, utility: &str, extra: &[&str]) -> RunLines {

@@ -4,7 +4,7 @@
 pub use insitu_proto::daemon::ConfigError;
 use insitu_proto::daemon::{load_toml, DaemonConfig};
 use insitu_proto::tls::TlsFiles;
-use insitu_tuner::utility::{Utility, UtilitySpec};
+use insitu_tuner::utility::{Budgets, Utility, UtilitySpec};
 use insitu_tuner::ParamGrid;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
@@ -201,9 +201,16 @@ pub struct Resolved {
     pub target: Option<UtilitySpec>,
     /// Candidates.
     pub grid: ParamGrid,
-    /// σ_target (bytes) and τ_target (seconds) of the utility, where it has them: what a
-    /// production step is checked against.
-    pub budgets: (Option<u64>, Option<f64>),
+    /// ν as configured, parsed: its budgets ([`Resolved::budgets`]) or its quality target.
+    pub spec: UtilitySpec,
+}
+
+impl Resolved {
+    /// σ_target and τ_target of the utility, where it has them: what a production step is
+    /// checked against.
+    pub fn budgets(&self) -> Budgets {
+        self.spec.budgets()
+    }
 }
 
 impl DaemonConfig for Config {
@@ -293,7 +300,7 @@ impl Config {
             plan: plan.utility(),
             target,
             grid,
-            budgets: spec.budgets(),
+            spec,
         })
     }
 }
@@ -334,7 +341,13 @@ mod tests {
             .unwrap()
             .resolve()
             .unwrap();
-        assert_eq!(r.budgets, (Some(1_000_000), Some(2.0)));
+        assert_eq!(
+            r.budgets(),
+            Budgets {
+                size_bytes: Some(1_000_000),
+                time_secs: Some(2.0)
+            }
+        );
         assert_eq!(r.plan.describe(), "max q with σ < 950.0 kB and τ < 1.9 s");
     }
 }

@@ -543,6 +543,7 @@ mod tests {
     #[test]
     fn production_tau_reaches_the_plan_as_a_ratio_not_through_the_surface() {
         use insitu_tuner::control::{Controller, Observation};
+        use insitu_tuner::utility::Budgets;
         use insitu_tuner::ParamGrid;
         let mut s = State::new(Tracker::new(0.1, 4));
         let c = |r, gamma| Candidate {
@@ -587,7 +588,7 @@ mod tests {
             gammas: vec![0.001, 0.013],
             precisions: vec![Default::default()],
         };
-        let mut ctl = Controller::new((None, Some(0.01)), 0.05, grid);
+        let mut ctl = Controller::new(Budgets::time(0.01), 0.05, grid);
         ctl.observe(Observation {
             step: 0,
             candidate: first,

@@ -17,6 +17,7 @@ use insitu_tuner::control::finer;
 use insitu_tuner::live::{combine_ranks, WorstCase};
 use insitu_tuner::search::{adaptive_search_near, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
+use insitu_tuner::utility::Budgets;
 use insitu_tuner::{Candidate, Measurement};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -353,7 +354,7 @@ fn search(
         .collect();
     let r = engine.resolved();
     let mut oracle =
-        WorstCase::new(oracles).with_budgets(r.target.map_or((None, None), |t| t.budgets()));
+        WorstCase::new(oracles).with_budgets(r.target.map_or(Budgets::NONE, |t| t.budgets()));
     // Size probes start at the P_M in force (before the first decision, the one the nodes
     // reported): the answer is most often near it.
     let in_force = engine

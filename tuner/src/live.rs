@@ -20,6 +20,7 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use crate::series::{distance, BINS};
 use crate::study::{Oracle, StudyError};
+use insitu_core::budget::Budgets;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{mse_from_psnr, psnr_from_mse, Db};
 pub use insitu_core::volume::histogram;
@@ -268,7 +269,7 @@ pub struct WorstCase<'o> {
     steps: Vec<Box<dyn Oracle + 'o>>,
     /// σ_target (bytes) and τ_target (seconds): a size probe that breaks either on one step is
     /// not run on the others.
-    budgets: (Option<u64>, Option<f64>),
+    budgets: Budgets,
     /// σ (bytes) and τ (seconds) of each step at the last size probe that reached it (0
     /// before any).
     last: Vec<(u64, f64)>,
@@ -280,20 +281,20 @@ impl<'o> WorstCase<'o> {
         let n = steps.len();
         Self {
             steps,
-            budgets: (None, None),
+            budgets: Budgets::NONE,
             last: vec![(0, 0.0); n],
         }
     }
 
-    /// The same, for a search under σ_target `size` (bytes) and/or τ_target `time` (seconds):
+    /// The same, for a search under `budgets` (σ_target and/or τ_target):
     /// a size probe visits the steps largest σ first (under a size budget, else largest τ
     /// first; as the last probe found them) and stops at the first step whose σ or τ reaches
     /// its budget. The candidate is then infeasible whatever the other steps give, and the σ
     /// and τ returned are those measured so far (lower bounds of the worst case, one at or over
     /// its budget). On drifting data the newest characteristic step is usually the largest by
     /// far, so a re-tune's probes over the budget cost one step instead of all of them.
-    pub fn with_budgets(mut self, (size, time): (Option<u64>, Option<f64>)) -> Self {
-        self.budgets = (size, time);
+    pub fn with_budgets(mut self, budgets: Budgets) -> Self {
+        self.budgets = budgets;
         self
     }
 }
@@ -311,7 +312,7 @@ impl Oracle for WorstCase<'_> {
     /// The largest σ and τ over the steps (as [`worst_case`] takes them); under a budget, up
     /// to the first step that breaks it ([`WorstCase::with_budgets`]).
     fn measure_sizing(&mut self, c: Candidate) -> Result<Sizing, StudyError> {
-        let (size, time) = self.budgets;
+        let (size, time) = (self.budgets.size_bytes, self.budgets.time_secs);
         let mut order: Vec<usize> = (0..self.steps.len()).collect();
         if size.is_some() {
             order.sort_by_key(|&i| std::cmp::Reverse(self.last[i].0));

@@ -107,6 +107,7 @@ pub struct UtilityError {
     pub problem: String,
 }
 
+pub use insitu_core::budget::Budgets;
 pub use insitu_core::units::parse_bytes;
 
 /// Bytes as text with a decimal unit.
@@ -157,12 +158,16 @@ impl UtilitySpec {
     }
 
     /// σ_target (bytes) and τ_target (seconds), where the utility has them.
-    pub fn budgets(self) -> (Option<u64>, Option<f64>) {
-        match self {
+    pub fn budgets(self) -> Budgets {
+        let (size_bytes, time_secs) = match self {
             Self::Size(s) => (Some(s), None),
             Self::Time(t) => (None, Some(t)),
             Self::SizeAndTime(s, t) => (Some(s), Some(t)),
             Self::Quality(_) => (None, None),
+        };
+        Budgets {
+            size_bytes,
+            time_secs,
         }
     }
 

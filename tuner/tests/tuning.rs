@@ -499,7 +499,7 @@ fn time_budgets_are_searched_adaptively_despite_noisy_timings() {
                 UtilitySpec::Time(tau_target),
                 UtilitySpec::SizeAndTime(600_000, tau_target),
             ] {
-                let (sigma_target, _) = spec.budgets();
+                let sigma_target = spec.budgets().size_bytes;
                 let robust = grid
                     .candidates()
                     .into_iter()

@@ -5,6 +5,7 @@
 
 use anyhow::{Context, Result};
 use insitu_core::adherence::Adherence;
+use insitu_core::budget::Budgets;
 use insitu_recording::index::IndexDb;
 use std::path::PathBuf;
 
@@ -24,7 +25,7 @@ pub struct Args {
     /// JSON then carries `adherence` (`sigma`, `tau`: steps made with a tuned P_M, within,
     /// share, worst_ratio), and the CSV a `sigma_budget_ratio` and `tau_budget_ratio` column.
     #[arg(long, value_parser = budget_arg)]
-    budget: Option<(Option<f64>, Option<f64>)>,
+    budget: Option<Budgets>,
     /// Render every step (composed over its ranks) at the --phi × --theta grid into this
     /// Cinema database (Spec D: `data.csv` with `time,phi,theta`, the step's P_M and metrics,
     /// `FILE`; the PNGs under `image/`), e.g. `run.cdb`. It must not exist yet.
@@ -78,12 +79,11 @@ pub enum Format {
 }
 
 /// `--budget`: σ_target and τ_target of a utility spec with at least one of them.
-fn budget_arg(s: &str) -> Result<(Option<f64>, Option<f64>), String> {
+fn budget_arg(s: &str) -> Result<Budgets, String> {
     let spec = insitu_tuner::utility::UtilitySpec::parse(s).map_err(|e| e.to_string())?;
-    match spec.budgets() {
-        (None, None) => Err(format!("{s:?} states no size or time budget")),
-        (size, time) => Ok((size.map(|b| b as f64), time)),
-    }
+    Some(spec.budgets())
+        .filter(|b| !b.is_none())
+        .ok_or_else(|| format!("{s:?} states no size or time budget"))
 }
 
 /// A step's `(P_M version, (r, γ), value)`, as `Adherence::of` takes it.
@@ -128,13 +128,13 @@ pub fn run(a: Args) -> Result<()> {
     };
     let text = match a.format {
         Format::Json => {
-            let adherence = a.budget.map(|(size, time)| {
+            let adherence = a.budget.map(|b| {
                 let of = |b: Option<f64>, f: fn(&insitu_core::evaluate::Sizing) -> f64| {
                     b.map(|b| Adherence::of(step_values(&e, f), b).json())
                 };
                 serde_json::json!({
-                    "sigma": of(size, |s| s.sigma_bytes as f64),
-                    "tau": of(time, |s| s.tau_secs),
+                    "sigma": of(b.size_bytes.map(|b| b as f64), |s| s.sigma_bytes as f64),
+                    "tau": of(b.time_secs, |s| s.tau_secs),
                 })
             });
             // Serialised directly (γ as written: an f32 through a serde_json::Value would
@@ -210,8 +210,8 @@ fn render(a: &Args) -> Result<()> {
 }
 
 /// The CSV with σ and τ over the budget appended to each line (empty without that budget).
-fn with_ratios(csv: &str, budget: Option<(Option<f64>, Option<f64>)>) -> String {
-    let Some((size, time)) = budget else {
+fn with_ratios(csv: &str, budget: Option<Budgets>) -> String {
+    let Some(budget) = budget else {
         return csv.to_owned();
     };
     let mut out = String::with_capacity(csv.len() * 5 / 4);
@@ -223,12 +223,15 @@ fn with_ratios(csv: &str, budget: Option<(Option<f64>, Option<f64>)>) -> String 
         }
         // The 7th and 8th columns: sigma_bytes, tau_secs (no field before them holds a comma).
         let cols: Vec<&str> = line.split(',').collect();
-        let ratio = |col: usize, b: Option<f64>| {
-            let v = cols.get(col).and_then(|c| c.parse::<f64>().ok());
-            v.zip(b)
-                .map_or_else(String::new, |(v, b)| format!("{}", v / b))
+        // A column that does not parse reads as NaN, and its ratio is left empty.
+        let value = |col: usize| cols.get(col).and_then(|c| c.parse::<f64>().ok());
+        let (sigma, tau) =
+            budget.ratios(value(6).unwrap_or(f64::NAN), value(7).unwrap_or(f64::NAN));
+        let text = |r: Option<f64>| {
+            r.filter(|r| !r.is_nan())
+                .map_or_else(String::new, |r| format!("{r}"))
         };
-        out.push_str(&format!(",{},{}\n", ratio(6, size), ratio(7, time)));
+        out.push_str(&format!(",{},{}\n", text(sigma), text(tau)));
     }
     out
 }

@@ -10,6 +10,7 @@ mod summary;
 use anyhow::{Context, Result};
 use insitu_client::SimClient;
 use insitu_core::adherence::Adherence;
+use insitu_core::budget::Budgets;
 use insitu_core::json::f32_number;
 use insitu_core::vdi::codec::Codec;
 use insitu_generator_node::{self as gen, Policy};
@@ -233,8 +234,8 @@ impl LocalNodes {
         cfg.generation.gamma = a.pm.gamma;
         cfg.generation.codec = a.codec(defaults);
         cfg.generation.precision = a.pm.precision;
-        cfg.generation.size_max = a.size_max.unwrap_or(0);
-        cfg.generation.time_max = a.time_max.unwrap_or(0.0);
+        cfg.generation.size_max = a.size_max;
+        cfg.generation.time_max = a.time_max;
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global
         // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
         // simulation's steps, and τ counts their time).

@@ -87,61 +87,46 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
     })
 }
 
-/// The tuner's budgets, σ_target in bytes and τ_target in seconds (none without a tuner or
-/// where its utility has none): what every step is shown against.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Budgets {
-    /// σ_target, bytes.
-    pub sigma_bytes: Option<f64>,
-    /// τ_target, seconds.
-    pub tau_secs: Option<f64>,
+/// The tuner's budgets as its status carries them (none without a tuner or where its
+/// utility has none): what every step is shown against.
+pub fn budgets_of(s: &pb::TunerStatus) -> Budgets {
+    Budgets::from_wire(s.sigma_target_bytes, s.tau_target_secs)
 }
 
-impl Budgets {
-    /// The budgets of a tuner's status (0 there: none).
-    pub fn of(s: &pb::TunerStatus) -> Self {
-        Self {
-            sigma_bytes: (s.sigma_target_bytes > 0).then_some(s.sigma_target_bytes as f64),
-            tau_secs: (s.tau_target_secs > 0.0).then_some(s.tau_target_secs),
-        }
-    }
+/// σ and τ of a report over `budgets`.
+fn ratios(budgets: &Budgets, r: &pb::QualityReport) -> (Option<f64>, Option<f64>) {
+    budgets.ratios(r.sigma_bytes as f64, r.tau_secs)
+}
 
-    /// σ and τ of a report over their budgets.
-    fn ratios(&self, r: &pb::QualityReport) -> (Option<f64>, Option<f64>) {
-        (
-            self.sigma_bytes.map(|b| r.sigma_bytes as f64 / b),
-            self.tau_secs.map(|b| r.tau_secs / b),
-        )
-    }
-
-    /// Adherence of the stored VDIs (one per step, or the composed step of several ranks) to
-    /// σ_target and τ_target.
-    pub(super) fn adherence(
-        &self,
-        reports: &[pb::QualityReport],
-    ) -> (Option<Adherence>, Option<Adherence>) {
-        let mut steps: Vec<&pb::QualityReport> = reports
-            .iter()
-            .filter(|r| r.composed || r.world_size <= 1)
-            .collect();
-        // In step order: the P_M changes are counted between consecutive steps.
-        steps.sort_by_key(|r| r.step);
-        let of = |b: Option<f64>, v: fn(&pb::QualityReport) -> f64| {
-            b.map(|b| {
-                let of = |r: &&pb::QualityReport| (r.pm_version, (r.resolution, r.gamma), v(r));
-                Adherence::of(steps.iter().map(of), b)
-            })
-        };
-        (
-            of(self.sigma_bytes, |r| r.sigma_bytes as f64),
-            of(self.tau_secs, |r| r.tau_secs),
-        )
-    }
+/// Adherence of the stored VDIs (one per step, or the composed step of several ranks) to
+/// σ_target and τ_target.
+pub(super) fn adherence(
+    budgets: &Budgets,
+    reports: &[pb::QualityReport],
+) -> (Option<Adherence>, Option<Adherence>) {
+    let mut steps: Vec<&pb::QualityReport> = reports
+        .iter()
+        .filter(|r| r.composed || r.world_size <= 1)
+        .collect();
+    // In step order: the P_M changes are counted between consecutive steps.
+    steps.sort_by_key(|r| r.step);
+    let of = |b: Option<f64>, v: fn(&pb::QualityReport) -> f64| {
+        b.map(|b| {
+            let of = |r: &&pb::QualityReport| (r.pm_version, (r.resolution, r.gamma), v(r));
+            Adherence::of(steps.iter().map(of), b)
+        })
+    };
+    (
+        of(budgets.size_bytes.map(|b| b as f64), |r| {
+            r.sigma_bytes as f64
+        }),
+        of(budgets.time_secs, |r| r.tau_secs),
+    )
 }
 
 /// A stored VDI as the JSON line of `--json`, with σ and τ over the budgets.
 pub fn report_json(r: &pb::QualityReport, budgets: Budgets) -> serde_json::Value {
-    let (sigma_ratio, tau_ratio) = budgets.ratios(r);
+    let (sigma_ratio, tau_ratio) = ratios(&budgets, r);
     serde_json::json!({
         "step": r.step,
         "rank": r.rank,
@@ -190,7 +175,7 @@ pub fn report_line(r: &pb::QualityReport, budgets: Budgets, queue: Option<(u32, 
             format!(" ({:.0} %{mark})", 100.0 * x)
         })
     };
-    let (sigma_ratio, tau_ratio) = budgets.ratios(r);
+    let (sigma_ratio, tau_ratio) = ratios(&budgets, r);
     format!(
         "step {:>6}  {who}  v{}  r {:>4}  γ {:.4}  σ {:>9.1} kB{}  τ {:.3} s{}  q {q}{queue}",
         r.step,
@@ -262,7 +247,7 @@ pub async fn print_reports(
         .map_err(|e| local_refusal(&e, "the viz-node"))?
         .into_inner();
     let mut decisions = tuner.map(|t| t.engine().subscribe());
-    let budgets = tuner.map_or_else(Budgets::default, |t| Budgets::of(&t.engine().status()));
+    let budgets = tuner.map_or_else(Budgets::default, |t| budgets_of(&t.engine().status()));
     // Said once, at the first step made before any decision: a run that ends before the
     // first tuning learns it from its first lines.
     let mut untuned_notice = tuner.map(|t| untuned_notice(&t.engine().utility(), budgets));
@@ -311,7 +296,7 @@ pub async fn print_reports(
 /// description).
 pub fn untuned_notice(utility: &str, budgets: Budgets) -> String {
     let first = "P_M v0 is the generator-node's configured one until the tuner's first decision, which follows its first tuning (trials on the first characteristic step, seconds)";
-    if budgets.sigma_bytes.is_some() || budgets.tau_secs.is_some() {
+    if !budgets.is_none() {
         format!("{first}; until then a step over the budget ({utility}) lowers r for the steps after it, on a node that holds all of its world's ranks")
     } else {
         format!("{first} ({utility})")

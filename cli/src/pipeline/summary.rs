@@ -95,7 +95,7 @@ impl Run<'_> {
                 "decisions_seen": self.seen.decisions.len(),
                 "pm_changes": changes_of_pm(&self.seen.decisions),
                 "tuner": self.tuner.map(|t| {
-                    let (sigma, tau) = Budgets::of(t).adherence(reports);
+                    let (sigma, tau) = adherence(&budgets_of(t), reports);
                     serde_json::json!({
                     "utility": t.utility,
                     "sigma_adherence": sigma.as_ref().map(Adherence::json),
@@ -190,7 +190,7 @@ impl Run<'_> {
                     "  no stored step was made with a tuned P_M: a decision applies from the first step no node had begun when it was made (docs/tuning.md, \"When a decision applies\"), so a run needs steps after the first tuning; push more steps, or fewer between tunings"
                 );
             }
-            let (sigma, tau) = Budgets::of(t).adherence(reports);
+            let (sigma, tau) = adherence(&budgets_of(t), reports);
             for (what, a) in [("σ", sigma), ("τ", tau)] {
                 if let Some(a) = a.filter(|a| a.steps > 0) {
                     println!(

@@ -208,8 +208,11 @@ pub fn run(
     let tf_hash = tf.0.identity_hash();
     let info = &raw.info;
     // The hard limit is the step's; each rank keeps its share.
-    let limit = (gen.size_max > 0).then(|| gen.size_max / u64::from(info.world_size.max(1)));
-    let time_limit = (gen.time_max > 0.0).then_some(gen.time_max);
+    let limit = gen
+        .limits
+        .size_bytes
+        .map(|b| b / u64::from(info.world_size.max(1)));
+    let time_limit = gen.limits.time_secs;
     let one_rank = info.world_size <= 1;
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
     let (generated, file, tau_secs, tau_compress_secs) = 'generate: loop {

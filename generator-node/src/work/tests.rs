@@ -30,7 +30,8 @@ fn busy_step() -> RawStep {
     info.with_field(field).unwrap()
 }
 
-fn generation(size_max: u64) -> Generation {
+/// A small generation with the hard size limit `size_max` (bytes; `None`: none).
+fn generation(size_max: Option<u64>) -> Generation {
     let mut g = crate::config::GenerationConfig {
         resolution: 48,
         gamma: 0.001,
@@ -48,11 +49,19 @@ fn generation(size_max: u64) -> Generation {
 fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
     let raw = busy_step();
     let tf = TransferFunction::default_for_volume(&raw.field);
-    let (free, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
+    let (free, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
     let sigma = free.vdi.len() as u64;
     assert_eq!(free.limit_retries, (0, 0.0));
     let limit = sigma / 3;
-    let (p, _) = run(&Backend::Cpu, &raw, &generation(limit), &tf, false, None).unwrap();
+    let (p, _) = run(
+        &Backend::Cpu,
+        &raw,
+        &generation(Some(limit)),
+        &tf,
+        false,
+        None,
+    )
+    .unwrap();
     let h = &p.vdi_header;
     assert!(h.total_bytes < limit, "{} ≥ {limit}", h.total_bytes);
     assert_eq!(h.total_bytes, p.vdi.len() as u64);
@@ -61,7 +70,7 @@ fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
     assert!(h.gamma > 0.001 && h.pm_version == 3, "{h:?}");
     assert!(h.tau_secs >= p.limit_retries.1);
     // A limit no P_M meets: not shipped, and the error names the step and the limit.
-    let e = run(&Backend::Cpu, &raw, &generation(1), &tf, false, None).unwrap_err();
+    let e = run(&Backend::Cpu, &raw, &generation(Some(1)), &tf, false, None).unwrap_err();
     assert!(
         matches!(
             e,
@@ -81,8 +90,8 @@ fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
 fn a_step_made_again_has_the_same_bytes_and_says_where_it_belongs() {
     let raw = busy_step();
     let tf = TransferFunction::default_for_volume(&raw.field);
-    let (a, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
-    let (b, _) = run(&Backend::Cpu, &raw, &generation(0), &tf, false, None).unwrap();
+    let (a, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
+    let (b, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
     assert_ne!(a.vdi_header.tau_secs, 0.0);
     assert_eq!(a.vdi, b.vdi, "a step made again differs");
     let p = codec::provenance(&a.vdi).unwrap().unwrap();
@@ -102,8 +111,8 @@ fn a_step_made_again_has_the_same_bytes_and_says_where_it_belongs() {
 }
 
 fn timed(time_max: f64, resolution: u32) -> Generation {
-    let mut g = generation(0);
-    g.time_max = time_max;
+    let mut g = generation(None);
+    g.limits.time_secs = Some(time_max);
     g.params.resolution = resolution;
     g
 }

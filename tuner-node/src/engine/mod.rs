@@ -215,7 +215,7 @@ impl Engine {
                 stopping: AtomicBool::new(false),
                 progress: Mutex::new(Progress::default()),
                 control: Mutex::new(Controller::new(
-                    resolved.budgets,
+                    resolved.budgets(),
                     cfg.headroom,
                     resolved.grid.clone(),
                 )),
@@ -257,7 +257,7 @@ impl Engine {
     /// it learnt was for another budget or scene).
     fn restart_control(&self) {
         let r = self.resolved();
-        *self.control() = Controller::new(r.budgets, self.cfg.headroom, r.grid.clone());
+        *self.control() = Controller::new(r.budgets(), self.cfg.headroom, r.grid.clone());
     }
 
     pub(crate) fn domain(&self) -> std::sync::MutexGuard<'_, Domain> {
@@ -308,10 +308,10 @@ impl Engine {
 
     /// The budget the nodes keep until the first decision ([`pb::NodeBudget`]).
     pub fn node_budget(&self) -> pb::NodeBudget {
-        let (sigma, tau) = self.resolved().budgets;
+        let (sigma_bytes, tau_secs) = self.resolved().budgets().to_wire();
         pb::NodeBudget {
-            sigma_bytes: sigma.unwrap_or(0),
-            tau_secs: tau.unwrap_or(0.0),
+            sigma_bytes,
+            tau_secs,
             utility: self.utility(),
         }
     }
@@ -327,8 +327,8 @@ impl Engine {
         let s = self.state();
         let c = self.counters();
         let cur = s.current();
-        let budgets = self.resolved().budgets;
-        let spec = s.utility.as_deref().unwrap_or(&self.cfg.utility);
+        let resolved = self.resolved();
+        let (sigma_target_bytes, tau_target_secs) = resolved.budgets().to_wire();
         let (fields, hist) = {
             let d = self.domain();
             (d.fields.clone(), d.histogram.clone().unwrap_or_default())
@@ -355,10 +355,10 @@ impl Engine {
             quality_reports: c.quality_reports,
             trial_cpu_secs: c.trial_cpu_secs,
             size_probe_cpu_secs: c.size_probe_cpu_secs,
-            sigma_target_bytes: budgets.0.unwrap_or(0),
-            tau_target_secs: budgets.1.unwrap_or(0.0),
-            q_target_db: match UtilitySpec::parse(spec) {
-                Ok(UtilitySpec::Quality(q)) => q,
+            sigma_target_bytes,
+            tau_target_secs,
+            q_target_db: match resolved.spec {
+                UtilitySpec::Quality(q) => q,
                 _ => 0.0,
             },
             scene: Some(s.scene().to_pb()),

@@ -87,7 +87,8 @@ impl Loop {
 
     /// σ and τ of a production step against the budget (σ summed over ranks, τ the slowest).
     fn over_budget(&self, p: &Pending) -> Option<Break> {
-        let (size, time) = self.engine.resolved().budgets;
+        let budgets = self.engine.resolved().budgets();
+        let (size, time) = (budgets.size_bytes, budgets.time_secs);
         if let Some(t) = size.filter(|&t| p.sigma_bytes >= t) {
             return Some(Break::Size(format!(
                 "σ {} B ≥ σ_target {t} B",

@@ -30,6 +30,7 @@ mod surface;
 pub use surface::{Point, Surface};
 
 use crate::grid::{Candidate, ParamGrid};
+use insitu_core::budget::Budgets;
 use std::collections::{BTreeMap, VecDeque};
 
 /// Production steps the controller remembers (the forecast's window).
@@ -246,11 +247,11 @@ pub const SIGMA_GAIN: f64 = 1.2;
 pub const SIGMA_GAIN_R: f64 = 1.4;
 
 impl Controller {
-    /// A controller for the budgets `(σ_target bytes, τ_target seconds)` over `grid`.
-    pub fn new(budgets: (Option<u64>, Option<f64>), headroom: f64, grid: ParamGrid) -> Self {
+    /// A controller for `budgets` over `grid`.
+    pub fn new(budgets: Budgets, headroom: f64, grid: ParamGrid) -> Self {
         Self {
-            sigma_target: budgets.0.map(|b| b as f64),
-            tau_target: budgets.1,
+            sigma_target: budgets.size_bytes.map(|b| b as f64),
+            tau_target: budgets.time_secs,
             headroom,
             hysteresis: 0.1,
             horizon: HORIZON,

@@ -51,7 +51,7 @@ fn observed(ctl: &mut Controller, step: u64, at: Candidate, k: f64) {
 fn still_data_changes_nothing() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(192, g(4))]);
     // Budget: the tuned P_M (256, g(2)) at 1 MB sits just under a 1.06 MB plan.
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, g(2));
     for step in 0..20 {
         observed(&mut ctl, step * 10, tuned, 1.0);
@@ -76,7 +76,7 @@ fn slow_drift_changes_the_p_m_rarely() {
             .collect::<Vec<_>>(),
     );
     let budget = 1_120_000.0;
-    let mut ctl = Controller::new((Some(budget as u64), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(budget as u64), 0.05, grid());
     let tuned = c(256, g(2));
     let mut current = tuned;
     let (mut changes, mut r_changes) = (0, 0);
@@ -118,8 +118,8 @@ fn a_step_over_the_budget_tightens_the_plans_until_steps_land_within_it() {
         tau_secs: 0.1,
         planned_sigma_bytes: planned,
     };
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
-    let mut blind = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
+    let mut blind = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     for k in 0..3 {
         ctl.observe(step(k, 1_000_000, Some(1_000_000.0)));
         blind.observe(step(k, 1_000_000, None));
@@ -158,7 +158,7 @@ fn the_miss_is_the_models_not_the_growth_past_a_plan_nor_the_p_m_in_forces() {
         tau_secs: 0.1,
         planned_sigma_bytes: Some(700_000.0),
     };
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     for k in 0..HORIZON {
         ctl.observe(step(k, 700_000));
     }
@@ -167,7 +167,7 @@ fn the_miss_is_the_models_not_the_growth_past_a_plan_nor_the_p_m_in_forces() {
     assert_eq!(ctl.miss(), 1.0);
     // A miss set by a new candidate's first step: the P_M in force at 70 % of the budget
     // is not at risk, though 70 % × 1.5 would be.
-    let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_000_000), 0.05, grid());
     let other = c(128, g(2));
     ctl.observe(Observation {
         candidate: other,
@@ -184,7 +184,7 @@ fn the_miss_is_the_models_not_the_growth_past_a_plan_nor_the_p_m_in_forces() {
 #[test]
 fn growth_is_forecast_and_the_p_m_stepped_to_meet_the_budget() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, g(2));
     // σ grows 10 % per step of 10: k = 1.1^(n).
     for n in 0..4 {
@@ -212,7 +212,7 @@ fn growth_is_forecast_and_the_p_m_stepped_to_meet_the_budget() {
         "{p:?}"
     );
     // 3 % more than the model still fits the plan: no change.
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, tuned, 1.03);
     assert_eq!(ctl.correct(&s, tuned, tuned, 10), None);
 }
@@ -220,7 +220,7 @@ fn growth_is_forecast_and_the_p_m_stepped_to_meet_the_budget() {
 #[test]
 fn the_resolution_drops_when_gamma_alone_would_go_too_far() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, g(2));
     // σ at 6× the model: with γ up to the grid's next (0.015), r 256 (needs γ 0.056) and
     // r 192 (0.032) miss the plan; r 128 (0.014) meets it.
@@ -228,7 +228,7 @@ fn the_resolution_drops_when_gamma_alone_would_go_too_far() {
     let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
     assert_eq!(p.candidate, c(128, g(3)));
     // Beyond every span: the largest r with any γ that meets the plan (r 128, γ ≥ 0.141).
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, tuned, 60.0);
     let p = ctl.correct(&s, tuned, tuned, 10).unwrap();
     assert_eq!(p.candidate, c(128, g(29)), "{p:?}");
@@ -248,7 +248,7 @@ fn gamma_absorbs_what_lies_between_a_resolution_and_the_next_lower() {
     assert_eq!(spans, [2.0, 2.0, 1.5, 256.0 / 192.0]);
     assert_eq!(gamma_span(&[256], 256), GAMMA_SPAN);
     let s = surface_of(&[c(256, g(2)), c(256, g(8)), c(128, g(4)), c(64, g(2))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, g(8));
     // k = 25 against a 1.064 MB plan: r 256 (γ ≤ 0.053) and r 192 (γ ≤ 0.06) miss it;
     // r 128 meets it from γ 0.0587 (≤ 0.08).
@@ -261,7 +261,7 @@ fn gamma_absorbs_what_lies_between_a_resolution_and_the_next_lower() {
 #[test]
 fn a_shrinking_field_steps_back_only_past_the_hysteresis_and_never_past_the_tuned_resolution() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(192, g(1))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, g(2));
     let current = c(256, g(4));
     // At γ 0.02 the field measures k = 1.05: the tuned γ 0.01 would forecast 1.05 MB, under
@@ -276,7 +276,7 @@ fn a_shrinking_field_steps_back_only_past_the_hysteresis_and_never_past_the_tune
     // With γ 0.005 measured at r 256 too, and k = 0.4: the finer γ fits (0.4 × 2 MB), at
     // the tuned resolution, not a finer one.
     let s = surface_of(&[c(256, g(1)), c(256, g(2)), c(256, g(4))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, current, 0.4);
     let p = ctl.correct(&s, tuned, current, 10).unwrap();
     assert_eq!(p.candidate, c(256, g(1)), "{p:?}");
@@ -291,7 +291,7 @@ fn a_time_budget_is_planned_for_the_slowest_recent_step() {
         sigma_bytes: 1e3,
         tau_secs: tau(r),
     }));
-    let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
     let tuned = c(256, g(2));
     for (step, t) in [(0, 0.08), (1, 0.12), (2, 0.09)] {
         ctl.observe(Observation {
@@ -323,7 +323,7 @@ fn a_time_budget_forecasts_growth_that_sigma_confirms_and_no_more() {
         tau_secs: 0.05,
     }]);
     let run = |sigma_growth: f64, tau_of: &dyn Fn(u64) -> f64| {
-        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
         for step in 0..6 {
             ctl.observe(Observation {
                 planned_sigma_bytes: None,
@@ -378,7 +378,7 @@ fn a_resolution_left_while_the_field_grew_is_not_taken_back_on_its_old_timing() 
         }),
     );
     let run = |tau_growth: f64, sigma_growth: f64| {
-        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
         // r 128 at step 0 (k 1.6), then ten steps at r 64 (k 0.5, τ growing by
         // `tau_growth` a step, σ by `sigma_growth`): step 0 has left the window of 8.
         let at = |step: u64, candidate: Candidate, tau_secs: f64, sigma: f64| Observation {
@@ -420,7 +420,7 @@ fn a_resolution_production_has_not_timed_takes_the_ratio_of_a_finer_one() {
         },
     ));
     let run = |fine_tau: f64| {
-        let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
         let at = |step: u64, candidate: Candidate, tau_secs: f64| Observation {
             planned_sigma_bytes: None,
             step,
@@ -465,7 +465,7 @@ fn a_fast_timing_at_a_coarse_gamma_is_not_chased() {
         assert!((s.tau(c(256, gamma)).unwrap() - 0.12).abs() < 1e-12);
     }
     assert!((s.tau(c(192, g(8))).unwrap() - 0.0675).abs() < 1e-12);
-    let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
     let tuned = c(256, g(8));
     ctl.observe(Observation {
         planned_sigma_bytes: None,
@@ -492,7 +492,7 @@ fn a_time_budget_keeps_a_slow_resolutions_own_timing_and_its_fallback_keeps_gamm
         tau_secs,
     };
     let s = Surface::new([point(256, 0.05), point(128, 0.03)]);
-    let mut ctl = Controller::new((None, Some(0.1)), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::time(0.1), 0.05, grid());
     let tuned = c(256, g(2));
     let at = |ctl: &mut Controller, step: u64, candidate: Candidate, tau_secs: f64| {
         ctl.observe(Observation {
@@ -522,7 +522,7 @@ fn a_time_budget_keeps_a_slow_resolutions_own_timing_and_its_fallback_keeps_gamm
 #[test]
 fn a_candidate_that_overshot_on_its_own_step_is_not_taken_back_on_others_ratios() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let (tuned, coarse) = (c(256, g(2)), c(256, g(4)));
     // The tuned P_M measured 20 % over its model (over the plan); the coarser one then
     // measures 0.9 of its own: by the window's ratio the tuned one would fit again
@@ -545,7 +545,7 @@ fn a_candidate_that_overshot_on_its_own_step_is_not_taken_back_on_others_ratios(
 #[test]
 fn a_surface_error_at_a_new_candidate_is_not_read_as_growth() {
     let s = surface_of(&[c(256, g(2)), c(256, g(4))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     for step in [0, 10, 20] {
         observed(&mut ctl, step, c(256, g(2)), 1.0);
     }
@@ -581,7 +581,7 @@ fn growth_seen_at_another_precision_reaches_the_first_decision() {
         });
     let s = Surface::new(points);
     let configured = at(c(128, g(2)), Precision::Bits(8));
-    let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_000_000), 0.05, grid());
     // Made at 8 bits (whose points lie 1.3× the law), growing 10 % a step: 1.6× its
     // surface by the newest.
     for step in 0..6u64 {
@@ -605,7 +605,7 @@ fn the_tuned_gamma_is_refined_only_where_the_data_shrank() {
     let s = surface_of(&[c(256, g(1)), c(256, g(4))]);
     let tuned = c(256, g(4));
     let chosen = |k: f64| {
-        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
         observed(&mut ctl, 0, tuned, k);
         ctl.choose(&s, tuned, 1).map(|p| p.candidate)
     };
@@ -622,7 +622,7 @@ fn a_finer_resolution_waits_for_the_dwell() {
     let tuned = c(256, g(2));
     let current = c(128, g(2));
     let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2)), c(128, g(4))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     // The field shrank to k = 0.5 after the coarsening: r 256 fits with room.
     for step in 0..DWELL {
         observed(&mut ctl, step, current, 0.5);
@@ -647,7 +647,7 @@ fn a_finer_p_m_is_taken_only_when_the_gain_is_worth_the_change() {
     // The field shrank to k = 0.5: the tuned P_M fits with room.
     let with_q = |q_tuned: f64| {
         let s = surface_of(&base).with_q([(tuned, q_tuned), (current, 40.0)]);
-        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
         observed(&mut ctl, 0, current, 0.5);
         ctl.correct(&s, tuned, current, 10).map(|p| p.candidate)
     };
@@ -655,21 +655,21 @@ fn a_finer_p_m_is_taken_only_when_the_gain_is_worth_the_change() {
     assert_eq!(with_q(40.6), Some(tuned));
     // Unscored: by σ, 1.5× the current's (γ 0.015 → 0.01) is worth it, 1.07× is not.
     let s = surface_of(&base);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, current, 0.5);
     assert_eq!(
         ctl.correct(&s, tuned, current, 10).map(|p| p.candidate),
         Some(tuned)
     );
     let near = surface_of(&[c(256, 0.014), c(256, g(3))]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     let tuned = c(256, 0.014);
     observed(&mut ctl, 0, current, 0.5);
     assert_eq!(ctl.correct(&near, tuned, current, 10), None);
     // Across resolutions 1 dB is needed: 0.8 dB more at the tuned r 256 is not enough.
     let s = surface_of(&[c(256, g(2)), c(192, g(2))])
         .with_q([(c(256, g(2)), 40.8), (c(192, g(2)), 40.0)]);
-    let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, c(192, g(2)), 0.5);
     assert_eq!(ctl.correct(&s, c(256, g(2)), c(192, g(2)), 10), None);
 }
@@ -683,7 +683,7 @@ fn a_correction_planned_for_the_horizon_holds_while_the_growth_goes_on() {
     let tuned = c(256, g(2));
     // σ grows 5 % a step from k 1.
     let changes = |horizon: u64| {
-        let mut ctl = Controller::new((Some(1_120_000), None), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
         ctl.horizon = horizon;
         let mut current = tuned;
         let mut changes = 0;
@@ -705,7 +705,7 @@ fn a_correction_planned_for_the_horizon_holds_while_the_growth_goes_on() {
 #[test]
 fn a_rebase_forgets_the_steps_before_the_change() {
     let tuned = c(256, g(2));
-    let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_000_000), 0.05, grid());
     for step in 0..4 {
         ctl.observe(Observation {
             step,
@@ -729,7 +729,7 @@ fn a_rebase_forgets_the_steps_before_the_change() {
 #[test]
 fn a_rebase_keeps_the_growth_until_the_new_steps_show_theirs() {
     let tuned = c(256, g(2));
-    let mut ctl = Controller::new((Some(1_000_000), None), 0.05, grid());
+    let mut ctl = Controller::new(Budgets::size(1_000_000), 0.05, grid());
     for step in 0..4 {
         observed(&mut ctl, step, tuned, 0.5 * 1.2f64.powi(step as i32));
     }
@@ -759,7 +759,7 @@ fn only_a_forecast_at_the_budget_puts_it_at_risk() {
     let tuned = c(256, g(2));
     // law(tuned) = 1 MB; the plan is 0.95 × 1.1 MB = 1.045 MB, the budget 1.1 MB.
     let at = |k: f64| {
-        let mut ctl = Controller::new((Some(1_100_000), None), 0.05, grid());
+        let mut ctl = Controller::new(Budgets::size(1_100_000), 0.05, grid());
         observed(&mut ctl, 0, tuned, k);
         ctl.correct(&s, tuned, tuned, 1)
     };

@@ -153,7 +153,8 @@ impl Adaptive<'_> {
             let m = self.measure(ri, gi)?;
             return Ok(self.feasible(&m));
         }
-        let (sigma_target, tau_target) = self.target.budgets();
+        let budgets = self.target.budgets();
+        let (sigma_target, tau_target) = (budgets.size_bytes, budgets.time_secs);
         if let (Some(t), Some(known)) = (sigma_target, &self.sigma) {
             if let Some(&sigma) = known.get(&(ri, gi)) {
                 return Ok(sigma < t);
@@ -170,7 +171,7 @@ impl Adaptive<'_> {
     /// σ of this search's probes and the size budget, where the γ axis is interpolated.
     fn interpolation(&self) -> Option<(&ProbedSigma, f64)> {
         let known = self.sigma.as_ref().filter(|_| self.interpolate)?;
-        Some((known, self.target.budgets().0? as f64))
+        Some((known, self.target.budgets().size_bytes? as f64))
     }
 
     fn ln_gamma(&self, k: usize) -> f64 {
@@ -274,7 +275,7 @@ impl Adaptive<'_> {
         let n = self.grid.gammas.len();
         let forward = !matches!(self.target, UtilitySpec::Quality(_));
         let gamma_index = |k: usize| if forward { k } else { n - 1 - k };
-        let k = if self.target.budgets().1.is_some() {
+        let k = if self.target.budgets().time_secs.is_some() {
             self.gallop(ri)?
         } else {
             self.bisect(ri, forward)?
@@ -403,7 +404,7 @@ impl Adaptive<'_> {
     }
 
     fn run(&mut self) -> Result<Option<(Measurement, f64)>, StudyError> {
-        if self.target.budgets().1.is_some() {
+        if self.target.budgets().time_secs.is_some() {
             return self.sweep();
         }
         let n = self.grid.rs.len();
@@ -603,7 +604,8 @@ fn adaptive_at(
     interpolate: bool,
 ) -> Result<Outcome, StudyError> {
     let start = started(oracle);
-    let size_only = matches!(target.budgets(), (Some(_), None));
+    let budgets = target.budgets();
+    let size_only = budgets.size_bytes.is_some() && budgets.time_secs.is_none();
     let nearest = |xs: &[f64], x: f64| {
         (0..xs.len()).min_by(|&a, &b| (xs[a] - x).abs().total_cmp(&(xs[b] - x).abs()))
     };

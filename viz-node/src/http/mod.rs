@@ -38,6 +38,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::serve::ListenerExt;
 use axum::{Json, Router};
+use insitu_core::budget::Budgets;
 use insitu_core::Vdi;
 use insitu_proto::auth::Token;
 use insitu_proto::pb;
@@ -162,11 +163,11 @@ impl Http {
         let v = match tokio::time::timeout(Duration::from_secs(1), ask).await {
             Ok(Some(s)) => {
                 let s = s.into_inner();
-                let some = |x: f64| (x > 0.0).then_some(x);
+                let budgets = Budgets::from_wire(s.sigma_target_bytes, s.tau_target_secs);
                 serde_json::json!({
-                    "sigma_bytes": (s.sigma_target_bytes > 0).then_some(s.sigma_target_bytes),
-                    "tau_s": some(s.tau_target_secs),
-                    "q_db": some(s.q_target_db),
+                    "sigma_bytes": budgets.size_bytes,
+                    "tau_s": budgets.time_secs,
+                    "q_db": (s.q_target_db > 0.0).then_some(s.q_target_db),
                     "utility": s.utility,
                 })
             }
