@@ -110,9 +110,10 @@ fn a_step_made_again_has_the_same_bytes_and_says_where_it_belongs() {
     );
 }
 
-fn timed(time_max: f64, resolution: u32) -> Generation {
+/// A generation at `resolution` under the hard time limit `time_max` (seconds; `None`: none).
+fn timed(time_max: Option<f64>, resolution: u32) -> Generation {
     let mut g = generation(None);
-    g.limits.time_secs = Some(time_max);
+    g.limits.time_secs = time_max;
     g.params.resolution = resolution;
     g
 }
@@ -127,7 +128,7 @@ fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
     let tf = TransferFunction::default_for_volume(&raw.field);
     let free = |g: &Generation| run(&Backend::Cpu, &raw, g, &tf, false, None);
     let tau = (0..3)
-        .map(|_| free(&timed(0.0, 256)).map(|(p, _)| p.vdi_header.tau_secs))
+        .map(|_| free(&timed(None, 256)).map(|(p, _)| p.vdi_header.tau_secs))
         .collect::<Result<Vec<_>, _>>()
         .unwrap()
         .into_iter()
@@ -135,7 +136,7 @@ fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
     let limit = tau / 3.0;
     let (mut shipped, mut refused) = (0, Vec::new());
     for _ in 0..5 {
-        match free(&timed(limit, 256)) {
+        match free(&timed(Some(limit), 256)) {
             Ok((p, _)) => {
                 let h = &p.vdi_header;
                 assert!(h.tau_secs <= limit, "τ {} over {limit}", h.tau_secs);
@@ -153,11 +154,11 @@ fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
         shipped >= 1,
         "no step made again under {limit} s (free τ {tau} s) in 5 tries: {refused:#?}"
     );
-    let e = free(&timed(1e-7, 256)).unwrap_err();
+    let e = free(&timed(Some(1e-7), 256)).unwrap_err();
     assert!(matches!(e, WorkError::OverTime { step: 7, .. }), "{e}");
     let mut two = busy_step();
     two.info.world_size = 2;
-    let e = run(&Backend::Cpu, &two, &timed(1e-7, 256), &tf, false, None).unwrap_err();
+    let e = run(&Backend::Cpu, &two, &timed(Some(1e-7), 256), &tf, false, None).unwrap_err();
     assert!(e.to_string().contains("share r"), "{e}");
 }
 
