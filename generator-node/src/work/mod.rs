@@ -6,6 +6,7 @@ use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
 use insitu_core::backend::{Attempt, BackendError, Scene};
+use insitu_core::budget::Budgets;
 use insitu_core::compose::frame_to_le_bytes;
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
@@ -208,11 +209,7 @@ pub fn run(
     let tf_hash = tf.0.identity_hash();
     let info = &raw.info;
     // The hard limit is the step's; each rank keeps its share.
-    let limit = gen
-        .limits
-        .size_bytes
-        .map(|b| b / u64::from(info.world_size.max(1)));
-    let time_limit = gen.limits.time_secs;
+    let (limit, time_limit) = rank_limits(&gen.limits, info.world_size);
     let one_rank = info.world_size <= 1;
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
     let (generated, file, tau_secs, tau_compress_secs) = 'generate: loop {
@@ -316,6 +313,13 @@ pub fn run(
         limit_retries: retries,
     };
     Ok((product, generated.value))
+}
+
+/// A rank's hard limits from its world's (`world_size` ranks): its share of σ's (each rank
+/// keeps `1/world_size` of it) and τ's whole (the ranks run side by side).
+fn rank_limits(limits: &Budgets, world_size: u32) -> (Option<u64>, Option<f64>) {
+    let share = limits.size_bytes.map(|b| b / u64::from(world_size.max(1)));
+    (share, limits.time_secs)
 }
 
 /// [`WorkError::OverTime`] for step `step` when `tau` seconds (every try counted) exceed the

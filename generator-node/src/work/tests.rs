@@ -158,7 +158,15 @@ fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
     assert!(matches!(e, WorkError::OverTime { step: 7, .. }), "{e}");
     let mut two = busy_step();
     two.info.world_size = 2;
-    let e = run(&Backend::Cpu, &two, &timed(Some(1e-7), 256), &tf, false, None).unwrap_err();
+    let e = run(
+        &Backend::Cpu,
+        &two,
+        &timed(Some(1e-7), 256),
+        &tf,
+        false,
+        None,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("share r"), "{e}");
 }
 
