@@ -110,9 +110,9 @@ impl SceneArgs {
                 TransferFunction::load(path)?
             }
             None => {
-                let (tf, name) = TransferFunction::default_for_volume(&volume);
-                tf_name = name;
-                tf
+                let named = TransferFunction::default_for_volume(&volume);
+                tf_name = named.name;
+                named.tf
             }
         };
         let params = RaycastParams {

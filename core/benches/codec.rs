@@ -216,7 +216,7 @@ fn main() {
     let mut sim = GrayScott::new(64, GrayScottParams::default()).expect("grid size");
     sim.advance(3000);
     let gs = sim.v_volume();
-    let (tf, _) = TransferFunction::default_for_volume(&gs);
+    let tf = TransferFunction::default_for_volume(&gs).tf;
     scene(
         "gray-scott-64",
         &gs,
@@ -248,7 +248,7 @@ fn main() {
         RawFormat::from_file_name(&path).and_then(|f| f.load(&path, 0, glam::Vec3::ONE))
     }) {
         Some(Ok(ocean)) => {
-            let (tf, _) = TransferFunction::default_for_volume(&ocean);
+            let tf = TransferFunction::default_for_volume(&ocean).tf;
             scene("ocean-step0", &ocean, &tf, &[(256, 0.02)], rounds);
         }
         _ => eprintln!("ocean skipped: needs {file} (docs/data.md)"),
@@ -272,7 +272,7 @@ fn main() {
                     .ok()
             })
             .collect();
-        let (tf, _) = TransferFunction::default_for_volume(&steps[0]);
+        let tf = TransferFunction::default_for_volume(&steps[0]).tf;
         across_time("ocean months 0–5", &steps, &tf, (256, 0.02));
     }
 }

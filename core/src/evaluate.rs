@@ -8,6 +8,7 @@ use crate::backend::{BackendError, Scene, SceneVdi, TimeSource, Timed};
 use crate::camera::Camera;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
+use crate::tf::TfIdentity;
 use crate::vdi::codec::{self, Codec, CodecError, DecodeLimits};
 use crate::vdi::{Precision, Vdi, VdiParams};
 use std::time::Instant;
@@ -223,10 +224,10 @@ pub fn generate_encoded(
     camera: &Camera,
     params: VdiParams,
     codec_kind: Codec,
-    (tf_hash, tf_name): (u64, &str),
+    tf: TfIdentity<'_>,
     spare: &mut Option<Vdi>,
 ) -> Result<(Vec<u8>, Sizing), EvalError> {
-    let generated = scene.generate_reusing(camera, params, tf_hash, tf_name, spare.take())?;
+    let generated = scene.generate_reusing(camera, params, tf.hash, tf.name, spare.take())?;
     let encoded = encoded(&generated, codec_kind);
     *spare = Some(generated.value);
     encoded
@@ -250,8 +251,8 @@ fn encoded(generated: &Timed<Vdi>, codec_kind: Codec) -> Result<(Vec<u8>, Sizing
 /// Measures `params`: generate, encode, decode, render at each angle and compare with
 /// `references` (one per angle, from [`render_references`]), generation and rendering on the
 /// scene's backend. The VDI is rendered from the decoded file, so what is scored is what a
-/// viz-node would see. Returns the VDI renders too. `tf` is the TF's identity hash and name
-/// (recorded in the VDI); `spare` as in [`generate_encoded`].
+/// viz-node would see. Returns the VDI renders too. `tf` is the TF's identity (recorded in the
+/// VDI); `spare` as in [`generate_encoded`].
 ///
 /// # Errors
 /// [`EvalError`] for bad parameters, a codec failure, references that do not match, or a
@@ -264,7 +265,7 @@ pub fn evaluate(
     codec_kind: Codec,
     angles: &[f32],
     references: &[Image],
-    tf: (u64, &str),
+    tf: TfIdentity<'_>,
     spare: &mut Option<Vdi>,
 ) -> Result<(Evaluation, Vec<Image>), EvalError> {
     one_reference_per_view(angles, references)?;
@@ -305,12 +306,12 @@ pub fn evaluate_sized(
     codec_kind: Codec,
     angles: &[f32],
     references: &[Image],
-    tf: (u64, &str),
+    tf: TfIdentity<'_>,
     spare: &mut Option<Vdi>,
     known: Sizing,
 ) -> Result<(Evaluation, Vec<Image>), EvalError> {
     one_reference_per_view(angles, references)?;
-    let generated = scene.generate_reusing(camera, params, tf.0, tf.1, spare.take())?;
+    let generated = scene.generate_reusing(camera, params, tf.hash, tf.name, spare.take())?;
     let sized = generated.value.supersegments().len() as u64 == known.supersegments;
     let result = if sized {
         Ok(Sizing {
@@ -399,7 +400,7 @@ fn scored(
 mod tests {
     use super::*;
     use crate::raycast::{RaycastParams, Raycaster};
-    use crate::tf::TransferFunction;
+    use crate::tf::{NamedTf, TransferFunction};
     use crate::volume::Volume;
 
     fn sizing(sigma_bytes: u64, supersegments: u64, tau_secs: f64, compress: f64) -> Sizing {
@@ -432,7 +433,8 @@ mod tests {
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let scene = Scene::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
-        let tf = (tf.identity_hash(), "ramp");
+        let named = NamedTf::new(tf, "ramp");
+        let tf = named.identity();
         let at = |resolution, gamma| VdiParams {
             resolution,
             gamma,
@@ -474,7 +476,8 @@ mod tests {
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let scene = Scene::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box());
-        let tf = (tf.identity_hash(), "ramp");
+        let named = NamedTf::new(tf, "ramp");
+        let tf = named.identity();
         let angles = [0.0, 40.0, 160.0];
         let refs = render_references(&scene, &camera, &angles, 32).unwrap();
         for precision in [Precision::Float32, Precision::Bits(8)] {
@@ -487,7 +490,7 @@ mod tests {
         scene: &Scene,
         camera: &Camera,
         (angles, refs): (&[f32], &[Image]),
-        tf: (u64, &str),
+        tf: TfIdentity<'_>,
         precision: Precision,
     ) {
         let params = VdiParams {

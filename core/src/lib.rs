@@ -53,6 +53,6 @@ pub use backend::{Backend, BackendChoice};
 pub use camera::{Camera, Ray};
 pub use image::Image;
 pub use raycast::{RaycastParams, Raycaster, Shading};
-pub use tf::TransferFunction;
+pub use tf::{NamedTf, TfIdentity, TransferFunction};
 pub use vdi::{Precision, Supersegment, Vdi, VdiParams};
 pub use volume::Volume;

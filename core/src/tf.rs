@@ -139,8 +139,8 @@ impl TransferFunction {
 
     /// [`Self::default_for_range`] with its name, `default[lo, hi]`: what every node, the CLI
     /// and the recording call the default over that range (so agreeing nodes name it alike).
-    pub fn default_named(lo: f32, hi: f32) -> (Self, String) {
-        (
+    pub fn default_named(lo: f32, hi: f32) -> NamedTf {
+        NamedTf::new(
             Self::default_for_range(lo, hi),
             format!("default[{lo}, {hi}]"),
         )
@@ -148,7 +148,7 @@ impl TransferFunction {
 
     /// [`Self::default_named`] over `volume`'s finite values ([`crate::Volume::finite_range`]; over
     /// [0, 1] when it has none, e.g. all NaN).
-    pub fn default_for_volume(volume: &crate::volume::Volume) -> (Self, String) {
+    pub fn default_for_volume(volume: &crate::volume::Volume) -> NamedTf {
         let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
         Self::default_named(lo, hi)
     }
@@ -189,6 +189,45 @@ impl TransferFunction {
         }
         h.finish()
     }
+}
+
+/// A transfer function with the name it goes by: a file's stem, `default` for one made over
+/// the data's range, a steered scene's label. The name travels with the function into every
+/// VDI made with it (its provenance, [`TfIdentity`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedTf {
+    /// The function.
+    pub tf: TransferFunction,
+    /// Its name.
+    pub name: String,
+}
+
+impl NamedTf {
+    /// `tf` named `name`.
+    pub fn new(tf: TransferFunction, name: impl Into<String>) -> Self {
+        Self {
+            tf,
+            name: name.into(),
+        }
+    }
+
+    /// What a VDI made with it records: its identity hash and name.
+    pub fn identity(&self) -> TfIdentity<'_> {
+        TfIdentity {
+            hash: self.tf.identity_hash(),
+            name: &self.name,
+        }
+    }
+}
+
+/// What a VDI records of the transfer function it was made with: the function's
+/// [`TransferFunction::identity_hash`] and its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TfIdentity<'a> {
+    /// [`TransferFunction::identity_hash`] of the function.
+    pub hash: u64,
+    /// Its name ([`NamedTf::name`]).
+    pub name: &'a str,
 }
 
 /// One classification entry: colour, per-unit-length extinction and the opacity of a full step.

@@ -8,7 +8,7 @@ use insitu_core::raycast::{
 };
 use insitu_core::vdi::codec::Codec;
 use insitu_core::BackendChoice;
-use insitu_core::{Camera, Precision, TransferFunction, VdiParams};
+use insitu_core::{Camera, NamedTf, Precision, TransferFunction, VdiParams};
 
 /// The default precision of the VDI files a node writes: 8 bits of colour and opacity.
 pub const DEFAULT_PRECISION: Precision = Precision::Bits(8);
@@ -104,19 +104,18 @@ pub struct GenerationConfig {
     /// Side of the reference frames, pixels; 0 = `resolution`.
     pub reference_size: u32,
     /// Hard limit on σ of a step, bytes (> 0; summed over its ranks; each rank keeps its
-    /// share); unset: none. A VDI that comes out at or over it is made again at a coarser `P_M` before it
-    /// ships (encoded again at a coarser precision, down to 6 bits, then γ raised, then, for a
-    /// world of one rank, r lowered; τ counts every try: `work::coarser`), so no stored step
-    /// exceeds it; one that cannot get under it is not shipped (counted as
-    /// failed, logged).
+    /// share); unset: none. A VDI that comes out at or over it is made again at a coarser
+    /// `P_M` before it ships (encoded again at a coarser precision, down to 6 bits, then γ
+    /// raised, then, for a world of one rank, r lowered; τ counts every try:
+    /// `work::coarser`), so no stored step exceeds it; one that cannot get under it is not
+    /// shipped (counted as failed, logged).
     pub size_max: Option<u64>,
     /// Hard limit on τ of a step (its generation, every try counted), seconds (> 0); unset:
-    /// none. A
-    /// generation that would overrun it is stopped between bands of rows and the step made
-    /// again at a resolution its measured rate fits into the time left (a world of one rank:
-    /// the ranks of a step share r), so no stored step's τ exceeds it; one that cannot fit is
-    /// not shipped (counted as failed, logged). On the GPU the kernel runs whole: a step over
-    /// the limit there is not shipped.
+    /// none. A generation that would overrun it is stopped between bands of rows and the step
+    /// made again at a resolution its measured rate fits into the time left (a world of one
+    /// rank: the ranks of a step share r), so no stored step's τ exceeds it; one that cannot
+    /// fit is not shipped (counted as failed, logged). On the GPU the kernel runs whole: a
+    /// step over the limit there is not shipped.
     pub time_max: Option<f64>,
     /// The field to render from steps that carry named fields (Blueprint `fields/<name>`);
     /// unset: each step's first. A step that names none holds one field, which is rendered.
@@ -354,7 +353,7 @@ pub struct Generation {
     /// Codec.
     pub codec: Codec,
     /// Transfer function and its name; `None` until the first step picks a default.
-    pub tf: Option<(TransferFunction, String)>,
+    pub tf: Option<NamedTf>,
     /// Camera; `None`: default for the global box.
     pub camera: Option<Camera>,
     /// Test views, degrees.
@@ -570,7 +569,7 @@ impl GenerationConfig {
                     || p.display().to_string(),
                     |n| n.to_string_lossy().into_owned(),
                 );
-                Some((tf, name))
+                Some(NamedTf::new(tf, name))
             }
             None => None,
         };

@@ -9,7 +9,7 @@
 use insitu_core::evaluate::Sizing;
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::VdiParams;
-use insitu_core::{raycast::RaycastParams, Camera, Image, TransferFunction, Volume};
+use insitu_core::{raycast::RaycastParams, Camera, Image, NamedTf, Volume};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
@@ -19,7 +19,7 @@ pub struct HeldStep {
     /// The field (this node's brick).
     pub volume: Arc<Volume>,
     /// Transfer function and name.
-    pub tf: Arc<(TransferFunction, String)>,
+    pub tf: Arc<NamedTf>,
     /// Generation camera.
     pub camera: Camera,
     /// Ray-casting step and termination.
@@ -173,7 +173,10 @@ mod tests {
     fn step(n: usize) -> HeldStep {
         HeldStep {
             volume: Arc::new(Volume::new([n, 1, 1], Vec3::ONE, vec![0.0; n]).unwrap()),
-            tf: Arc::new((TransferFunction::default_for_range(0.0, 1.0), "t".into())),
+            tf: Arc::new(NamedTf::new(
+                insitu_core::TransferFunction::default_for_range(0.0, 1.0),
+                "t",
+            )),
             camera: Camera::default_for_box(&insitu_core::volume::Aabb {
                 min: Vec3::ZERO,
                 max: Vec3::ONE,

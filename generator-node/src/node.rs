@@ -11,6 +11,7 @@ use crate::spool::{Spool, SpoolError};
 use crate::stats::{Counters, Stats};
 use crate::work;
 use insitu_core::backend::{BackendChoice, BackendError};
+use insitu_core::NamedTf;
 use insitu_proto::health::Health;
 use insitu_proto::pb::generator_server::GeneratorServer;
 use insitu_proto::peer::Peer;
@@ -343,7 +344,7 @@ fn open_spool(
                 problem: e.message().to_owned(),
             })?;
         generation.pm_version = version;
-        info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.1), "continuing the run configuration recorded in the spool");
+        info!(r = generation.params.resolution, gamma = generation.params.gamma, pm_version = version, tf = ?generation.tf.as_ref().map(|t| &t.name), "continuing the run configuration recorded in the spool");
     }
     Ok((Some(Arc::new(spool)), steps))
 }
@@ -590,16 +591,16 @@ fn grow(shared: &Shared, raw: &mut RawStep, growth: &crate::layout::Growth) -> f
 
 /// The first step's transfer function kept for the rest of the run (and recorded in the
 /// spool's `run.pb`); later steps' are the same one, so nothing changes.
-fn keep_tf(shared: &Shared, tf: (insitu_core::TransferFunction, String), world_size: u32) {
+fn keep_tf(shared: &Shared, tf: NamedTf, world_size: u32) {
     {
         let mut g = shared.generation.write().unwrap_or_else(|e| e.into_inner());
         if g.tf.is_some() {
             return;
         }
         if shared.scene.is_none() && world_size > 1 {
-            warn!(tf = %tf.1, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
+            warn!(tf = %tf.name, "no transfer function configured and no viz-node to agree one with: this rank's default over its own brick's range may differ from other ranks'");
         } else {
-            info!(tf = %tf.1, "using the transfer function for the rest of the run");
+            info!(tf = %tf.name, "using the transfer function for the rest of the run");
         }
         g.tf = Some(tf);
     }

@@ -72,7 +72,7 @@ mod tests {
     use crate::hold::HeldStep;
     use insitu_core::raycast::RaycastParams;
     use insitu_core::vdi::codec::Codec;
-    use insitu_core::{Camera, TransferFunction, Volume};
+    use insitu_core::{Camera, NamedTf, TransferFunction, Volume};
     use std::collections::BTreeMap;
     use std::sync::Arc;
 
@@ -87,7 +87,7 @@ mod tests {
         let tf = TransferFunction::from_json(TF, "own").unwrap();
         let step = HeldStep {
             volume: Arc::new(volume),
-            tf: Arc::new((tf, "own".into())),
+            tf: Arc::new(NamedTf::new(tf, "own")),
             camera,
             raycast: RaycastParams::default(),
             codec: Codec::None,

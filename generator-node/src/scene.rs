@@ -6,7 +6,7 @@
 //! others are still in the queue, and they must have reported for the answer to come.
 
 use crate::ingest::RawStep;
-use insitu_core::TransferFunction;
+use insitu_core::{NamedTf, TransferFunction};
 use insitu_proto::pb;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::{is_transient, Backoff, Peer};
@@ -16,9 +16,6 @@ use std::time::Duration;
 use tokio::sync::watch;
 use tracing::{info, warn};
 
-/// The agreed transfer function and its name.
-pub type Agreed = (TransferFunction, String);
-
 /// The link to the viz-node's scene agreement.
 pub struct SceneLink {
     peer: Peer,
@@ -26,7 +23,7 @@ pub struct SceneLink {
     proposed: Mutex<HashSet<u32>>,
     /// `Some(Ok)`: agreed; `Some(Err)`: the viz-node refused for a reason retrying cannot fix
     /// (a wrong token, a second world size), and this node uses its own brick's range.
-    agreed: watch::Sender<Option<Result<Agreed, String>>>,
+    agreed: watch::Sender<Option<Result<NamedTf, String>>>,
     stats: Arc<crate::stats::Stats>,
 }
 
@@ -97,7 +94,7 @@ impl SceneLink {
             match self.call(p).await {
                 Ok(a) => {
                     let result = TransferFunction::from_json(&a.tf_json, &a.tf_name)
-                        .map(|tf| (tf, a.tf_name.clone()))
+                        .map(|tf| NamedTf::new(tf, a.tf_name.clone()))
                         .map_err(|e| format!("the viz-node's transfer function is invalid: {e}"));
                     match &result {
                         Ok(_) => {
@@ -152,7 +149,7 @@ impl SceneLink {
 
     /// Waits for the agreed transfer function; `None` when the viz-node refused to agree (the
     /// node then uses its own default, as without a viz-node).
-    pub async fn wait(&self) -> Option<Agreed> {
+    pub async fn wait(&self) -> Option<NamedTf> {
         let mut rx = self.agreed.subscribe();
         rx.wait_for(Option::is_some)
             .await

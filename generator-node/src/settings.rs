@@ -3,7 +3,7 @@
 
 use crate::config::Generation;
 use insitu_core::raycast::{RaycastParams, Shading};
-use insitu_core::{Precision, VdiParams};
+use insitu_core::{NamedTf, Precision, VdiParams};
 use insitu_proto::convert::{camera_from_pb, codec_from_pb, tf_from_json};
 use insitu_proto::pb;
 use tonic::Status;
@@ -20,8 +20,8 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         tf_json: g
             .tf
             .as_ref()
-            .and_then(|(tf, _)| serde_json::to_string(tf).ok()),
-        tf_name: g.tf.as_ref().map(|(_, n)| n.clone()),
+            .and_then(|t| serde_json::to_string(&t.tf).ok()),
+        tf_name: g.tf.as_ref().map(|t| t.name.clone()),
         camera: g.camera.as_ref().map(insitu_proto::convert::camera_to_pb),
         view_angles_deg: g.view_angles_deg.clone(),
         reference_every: u32::try_from(g.reference_every).ok(),
@@ -72,7 +72,7 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     if let Some(json) = &c.tf_json {
         let name = c.tf_name.clone().unwrap_or_else(|| "pushed".into());
         let tf = tf_from_json(json, &name).map_err(|e| bad("tf_json", &e))?;
-        next.tf = Some((tf, name));
+        next.tf = Some(NamedTf::new(tf, name));
     }
     if let Some(cam) = &c.camera {
         next.camera = Some(camera_from_pb(cam)?);
@@ -170,7 +170,7 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
         let name = s.tf_name.clone().unwrap_or_else(|| "steered".into());
         let tf = tf_from_json(json, &name)
             .map_err(|e| format!("scene {}: transfer function: {e}", s.version))?;
-        next.tf = Some((tf, name));
+        next.tf = Some(NamedTf::new(tf, name));
     }
     if let Some(f) = &s.field {
         crate::ingest::check_field_name(f)
@@ -207,7 +207,7 @@ fn shading(asked: Option<bool>, was: Option<Shading>) -> Option<Shading> {
 mod tests {
     use super::*;
     use crate::config::GenerationConfig;
-    use insitu_core::TransferFunction;
+    use insitu_core::{NamedTf, TransferFunction};
 
     const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
 
@@ -218,9 +218,9 @@ mod tests {
         }
         .resolve()
         .unwrap();
-        g.tf = Some((
+        g.tf = Some(NamedTf::new(
             TransferFunction::from_json(TF, "own").unwrap(),
-            "own".into(),
+            "own",
         ));
         g
     }
@@ -256,10 +256,10 @@ mod tests {
         let after = next.clone().for_step(10);
         assert_eq!((before.scene_version, before.pm_version), (0, 0));
         assert_eq!(before.field.as_deref(), Some("u"));
-        assert_eq!(before.tf.as_ref().unwrap().1, "own");
+        assert_eq!(before.tf.as_ref().unwrap().name, "own");
         assert_eq!((after.scene_version, after.pm_version), (1, 1));
         assert_eq!(after.field.as_deref(), Some("v"));
-        assert_eq!(after.tf.as_ref().unwrap().1, "steered");
+        assert_eq!(after.tf.as_ref().unwrap().name, "steered");
         assert_eq!(
             after.camera, g.camera,
             "a part not steered stays the node's own"
@@ -348,7 +348,7 @@ mod tests {
         let back = apply_config(&configured(), &to_pb(&next)).unwrap();
         assert_eq!(back.scene_version, 1);
         assert_eq!(back.field.as_deref(), Some("v"));
-        assert_eq!(back.tf.as_ref().unwrap().1, "steered");
+        assert_eq!(back.tf.as_ref().unwrap().name, "steered");
         // An operator's config carries none: the configured scene.
         let mut operator = to_pb(&next);
         operator.scene_version = None;

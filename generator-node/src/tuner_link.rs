@@ -42,7 +42,7 @@ pub fn apply_decision(shared: &Shared, d: &pb::PmDecision) -> Result<(), String>
     let begun = shared.begun.load(Ordering::SeqCst);
     let next = crate::settings::decided(&g, d, begun)?;
     if next.scene_version != g.scene_version {
-        info!(scene_version = next.scene_version, from_step = next.from_step, tf = ?next.tf.as_ref().map(|t| &t.1), field = ?next.field, "applying the steered scene");
+        info!(scene_version = next.scene_version, from_step = next.from_step, tf = ?next.tf.as_ref().map(|t| &t.name), field = ?next.field, "applying the steered scene");
     }
     info!(
         pm_version = d.pm_version,
@@ -111,7 +111,7 @@ fn measure(
     req: &pb::TrialRequest,
     out: &mut pb::TrialResult,
 ) -> Result<(), String> {
-    let raycaster = Raycaster::new(&h.volume, &h.tf.0, h.raycast).map_err(|e| e.to_string())?;
+    let raycaster = Raycaster::new(&h.volume, &h.tf.tf, h.raycast).map_err(|e| e.to_string())?;
     let scene = shared
         .backend
         .prepare(&raycaster)
@@ -124,7 +124,7 @@ fn measure(
             None => h.precision,
         },
     };
-    let tf = (h.tf.0.identity_hash(), h.tf.1.as_str());
+    let tf = h.tf.identity();
     let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());
     let size = if req.size_only {
         let size = generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare)

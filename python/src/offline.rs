@@ -7,7 +7,10 @@ use insitu_core::file::{write_atomic, Durability};
 use insitu_core::raycast::DEFAULT_TERMINATION;
 use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
 use insitu_core::vdi::{generate, render};
-use insitu_core::{Backend, Camera, Image, RaycastParams, Raycaster, TransferFunction, VdiParams};
+use insitu_core::{
+    Backend, Camera, Image, NamedTf, RaycastParams, Raycaster, TfIdentity, TransferFunction,
+    VdiParams,
+};
 use numpy::ndarray::Array3;
 use numpy::{
     IntoPyArray, PyArray3, PyArrayDescrMethods, PyReadonlyArray3, PyUntypedArray,
@@ -74,19 +77,16 @@ fn volume(
 
 /// `tf` as a transfer function: JSON text (docs/conventions.md format) or a file holding it;
 /// none: the default ramp over the volume's range.
-fn transfer_function(
-    tf: Option<&str>,
-    v: &insitu_core::Volume,
-) -> PyResult<(TransferFunction, String)> {
+fn transfer_function(tf: Option<&str>, v: &insitu_core::Volume) -> PyResult<NamedTf> {
     match tf {
         None => Ok(TransferFunction::default_for_volume(v)),
-        Some(t) if t.trim_start().starts_with('{') => Ok((
+        Some(t) if t.trim_start().starts_with('{') => Ok(NamedTf::new(
             TransferFunction::from_json(t, "python").map_err(bad)?,
-            "python".into(),
+            "python",
         )),
-        Some(path) => Ok((
+        Some(path) => Ok(NamedTf::new(
             TransferFunction::load(std::path::Path::new(path)).map_err(bad)?,
-            path.to_owned(),
+            path,
         )),
     }
 }
@@ -143,7 +143,7 @@ pub fn render_volume<'py>(
     origin: (f32, f32, f32),
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     let v = self::volume(volume, spacing, origin)?;
-    let (tf, _) = transfer_function(tf, &v)?;
+    let tf = transfer_function(tf, &v)?.tf;
     let cam = orbit(&Camera::default_for_box(&v.world_box()), angle, elevation)?;
     let s = self::size(size)?;
     let image = py
@@ -263,7 +263,7 @@ pub fn generate_vdi(
     origin: (f32, f32, f32),
 ) -> PyResult<Vdi> {
     let v = self::volume(volume, spacing, origin)?;
-    let (tf, name) = transfer_function(tf, &v)?;
+    let NamedTf { tf, name } = transfer_function(tf, &v)?;
     let params = VdiParams {
         resolution: r,
         gamma,
@@ -303,7 +303,7 @@ pub fn evaluate<'py>(
     precision: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let v = self::volume(volume, spacing, origin)?;
-    let (tf, name) = transfer_function(tf, &v)?;
+    let NamedTf { tf, name } = transfer_function(tf, &v)?;
     let codec: Codec = codec.parse().map_err(bad)?;
     let params = VdiParams {
         resolution: r,
@@ -340,7 +340,10 @@ pub fn evaluate<'py>(
                 codec,
                 &angles,
                 &references,
-                (tf.identity_hash(), &name),
+                TfIdentity {
+                    hash: tf.identity_hash(),
+                    name: &name,
+                },
                 &mut None,
             )
             .map(|(e, _)| e)

@@ -35,7 +35,7 @@ use insitu_core::evaluate::{evaluate, generate_encoded, render_references, DEFAU
 use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
 use insitu_core::{
-    Backend, Camera, Precision, RaycastParams, Raycaster, TransferFunction, VdiParams,
+    Backend, Camera, Precision, RaycastParams, Raycaster, TfIdentity, TransferFunction, VdiParams,
 };
 use insitu_e2e::drift::{changing_character, growing_structure, write_series, RunLines, StepLine};
 use insitu_tuner::ParamGrid;
@@ -124,7 +124,7 @@ fn made(name: &str, n: usize, steps: usize, field: fn(usize, usize, usize) -> Ve
 fn tf_for(series: &Path) -> (PathBuf, TransferFunction) {
     let format = RawFormat::from_file_name(series).unwrap();
     let first = format.load(series, 0, Vec3::ONE).unwrap();
-    let (tf, _) = TransferFunction::default_for_volume(&first);
+    let tf = TransferFunction::default_for_volume(&first).tf;
     let path = series.with_extension("tf.json");
     std::fs::write(&path, serde_json::to_string(&tf).unwrap()).unwrap();
     (path, tf)
@@ -184,7 +184,10 @@ fn hindsight(
     let backend = Backend::Cpu;
     let scene = backend.prepare(&rc).unwrap();
     let camera = Camera::default_for_box(&volume.world_box());
-    let tfid = (tf.identity_hash(), "bench");
+    let tfid = TfIdentity {
+        hash: tf.identity_hash(),
+        name: "bench",
+    };
     let mut spare = None;
     let mut best: Option<(f64, VdiParams)> = None;
     for (&r, &precision) in grid

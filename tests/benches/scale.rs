@@ -163,7 +163,7 @@ fn tf_of(data: &[Vec<f32>]) -> TransferFunction {
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
             (a.min(v), b.max(v))
         });
-    TransferFunction::default_named(lo, hi).0
+    TransferFunction::default_named(lo, hi).tf
 }
 
 fn run(n: usize, r: u32, ranks: usize, nodes: usize, two_level: bool, data: &[Vec<f32>]) -> Run {
@@ -445,7 +445,7 @@ fn ingest() {
         (1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() / 40.0).max(0.0)
     })
     .unwrap();
-    let (tf, _) = TransferFunction::default_named(0.0, 1.0);
+    let tf = TransferFunction::default_named(0.0, 1.0).tf;
     let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     let params = VdiParams {
         resolution: 512,

@@ -6,6 +6,7 @@ use crate::grid::Candidate;
 use crate::measure::Measurement;
 use insitu_core::backend::{BackendError, Scene};
 use insitu_core::evaluate::{evaluate, EvalError, Sizing};
+use insitu_core::tf::TfIdentity;
 use insitu_core::vdi::codec::{self, Codec};
 use insitu_core::vdi::Precision;
 use insitu_core::volume::Fnv1a;
@@ -224,7 +225,10 @@ impl Oracle for Study<'_> {
             s.codec,
             &s.view_angles,
             &s.references,
-            (s.tf_hash, &s.tf_name),
+            TfIdentity {
+                hash: s.tf_hash,
+                name: &s.tf_name,
+            },
             &mut self.spare,
         )?;
         tracing::debug!(

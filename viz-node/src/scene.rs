@@ -68,10 +68,10 @@ impl Proposals {
             (Some(lo), Some(hi)) => (lo as f32, hi as f32),
             _ => (0.0, 1.0),
         };
-        let (tf, tf_name) = TransferFunction::default_named(lo, hi);
+        let named = TransferFunction::default_named(lo, hi);
         Agreed {
-            tf,
-            tf_name,
+            tf: named.tf,
+            tf_name: named.name,
             world_size,
             step: self.step,
             ranks: self.ranges.keys().copied().collect(),

@@ -8,7 +8,7 @@ use crate::scene::{Scene, SceneArgs};
 use anyhow::{Context, Result};
 use insitu_core::evaluate::{evaluate, Evaluation, DEFAULT_VIEW_ANGLES};
 use insitu_core::vdi::codec::Codec;
-use insitu_core::{Image, Raycaster};
+use insitu_core::{Image, Raycaster, TfIdentity};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -71,7 +71,10 @@ pub fn run(a: Args) -> Result<()> {
         a.codec,
         &angles,
         &references,
-        (scene.tf.identity_hash(), &scene.tf_name),
+        TfIdentity {
+            hash: scene.tf.identity_hash(),
+            name: &scene.tf_name,
+        },
         &mut None,
     )?;
     pb.finish_and_clear();

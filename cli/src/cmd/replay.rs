@@ -222,7 +222,10 @@ fn scene_config(a: &Args, first: &Volume) -> Result<pb::GenerationConfig> {
             p.file_name()
                 .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
         ),
-        None => TransferFunction::default_for_volume(first),
+        None => {
+            let named = TransferFunction::default_for_volume(first);
+            (named.tf, named.name)
+        }
     };
     Ok(pb::GenerationConfig {
         resolution: a.pipeline.pm.r,

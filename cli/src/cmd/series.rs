@@ -72,7 +72,8 @@ fn load_steps(a: &Args) -> Result<Vec<Scene>> {
             });
         let (lo, hi) = if lo <= hi { (lo, hi) } else { (0.0, 1.0) };
         for s in &mut scenes {
-            (s.tf, s.tf_name) = TransferFunction::default_named(lo, hi);
+            let named = TransferFunction::default_named(lo, hi);
+            (s.tf, s.tf_name) = (named.tf, named.name);
         }
     }
     Ok(scenes)

@@ -263,7 +263,7 @@ fn eight_bits_cost_no_visible_quality_on_a_generated_vdi() {
     let mut sim = GrayScott::new(48, GrayScottParams::default()).unwrap();
     sim.advance(1500);
     let volume = sim.v_volume();
-    let (tf, _) = TransferFunction::default_for_volume(&volume);
+    let tf = TransferFunction::default_for_volume(&volume).tf;
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
     let camera = Camera::default_for_box(&volume.world_box());
     let params = VdiParams {

@@ -4,7 +4,7 @@ use crate::common::{assert_valid, shared_scenes as scenes, shared_tf, shared_vol
 use insitu_core::evaluate::{evaluate, render_references};
 use insitu_core::vdi::codec::Codec;
 use insitu_core::vdi::{generate::generate, render, VdiParams};
-use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, Volume};
+use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TfIdentity, Volume};
 
 use crate::common::TEAPOT;
 
@@ -68,7 +68,10 @@ fn teapot_quality_falls_smoothly_off_view() {
         Codec::Zstd,
         &angles,
         &refs,
-        (tf.identity_hash(), "teapot"),
+        TfIdentity {
+            hash: tf.identity_hash(),
+            name: "teapot",
+        },
         &mut None,
     )
     .unwrap();

@@ -13,7 +13,7 @@ use insitu_core::vdi::codec;
 use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
-use insitu_core::{Backend, Camera, Image, Precision, Raycaster, TransferFunction, Vdi, VdiParams};
+use insitu_core::{Backend, Camera, Image, NamedTf, Precision, Raycaster, Vdi, VdiParams};
 use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb, vec3_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
@@ -199,14 +199,14 @@ pub fn run(
     backend: &Backend,
     raw: &RawStep,
     gen: &Generation,
-    tf: &(TransferFunction, String),
+    tf: &NamedTf,
     with_references: bool,
     spare: Option<Vdi>,
 ) -> Result<(Product, Vdi), WorkError> {
-    let raycaster = Raycaster::new(&raw.field, &tf.0, gen.raycast)?;
+    let raycaster = Raycaster::new(&raw.field, &tf.tf, gen.raycast)?;
     let scene = backend.prepare(&raycaster)?;
     let camera = gen.camera_for(&raw.info);
-    let tf_hash = tf.0.identity_hash();
+    let tf_hash = tf.tf.identity_hash();
     let info = &raw.info;
     // The hard limit is the step's; each rank keeps its share.
     let (limit, time_limit) = rank_limits(&gen.limits, info.world_size);
@@ -218,7 +218,7 @@ pub fn run(
         let stop = |p: Progress| time_limit.is_some_and(|t| must_stop(t, spent, can_retry, p));
         let attempt = info_span!("generate", r = params.resolution, gamma = params.gamma)
             .in_scope(|| {
-                scene.generate_until(&camera, params, tf_hash, &tf.1, spare.take(), &stop)
+                scene.generate_until(&camera, params, tf_hash, &tf.name, spare.take(), &stop)
             })?;
         let generated = match attempt {
             Attempt::Done(generated) => generated,
@@ -393,7 +393,7 @@ fn header(
     backend: &Backend,
     raw: &RawStep,
     gen: &Generation,
-    tf: &(TransferFunction, String),
+    tf: &NamedTf,
     generated: &insitu_core::backend::Timed<Vdi>,
     (params, file): (VdiParams, &[u8]),
     (tau_secs, tau_compress_secs): (f64, f64),
@@ -412,10 +412,10 @@ fn header(
         supersegments: generated.value.supersegments().len() as u64,
         tau_secs,
         tau_compress_secs,
-        tf_hash: tf.0.identity_hash(),
-        tf_name: tf.1.clone(),
+        tf_hash: tf.tf.identity_hash(),
+        tf_name: tf.name.clone(),
         // A few hundred bytes beside a VDI of kilobytes to megabytes.
-        tf_json: serde_json::to_string(&tf.0).unwrap_or_default(),
+        tf_json: serde_json::to_string(&tf.tf).unwrap_or_default(),
         tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
         backend: backend.describe(),
         pm_version: gen.pm_version,
@@ -507,10 +507,10 @@ fn references(
 pub fn for_tuner(
     raw: RawStep,
     gen: &Generation,
-    tf: &(TransferFunction, String),
+    tf: &NamedTf,
     product: &Product,
 ) -> (pb::StepSummary, crate::hold::HeldStep) {
-    let [lo, hi] = tf.0.domain;
+    let [lo, hi] = tf.tf.domain;
     let domain = raw.info.global_box();
     let volume = raw.field;
     let h = insitu_core::volume::histogram(&volume.data(), lo, hi);

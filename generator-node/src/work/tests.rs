@@ -48,7 +48,7 @@ fn generation(size_max: Option<u64>) -> Generation {
 #[test]
 fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
     let raw = busy_step();
-    let tf = TransferFunction::default_for_volume(&raw.field);
+    let tf = insitu_core::TransferFunction::default_for_volume(&raw.field);
     let (free, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
     let sigma = free.vdi.len() as u64;
     assert_eq!(free.limit_retries, (0, 0.0));
@@ -89,7 +89,7 @@ fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
 #[test]
 fn a_step_made_again_has_the_same_bytes_and_says_where_it_belongs() {
     let raw = busy_step();
-    let tf = TransferFunction::default_for_volume(&raw.field);
+    let tf = insitu_core::TransferFunction::default_for_volume(&raw.field);
     let (a, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
     let (b, _) = run(&Backend::Cpu, &raw, &generation(None), &tf, false, None).unwrap();
     assert_ne!(a.vdi_header.tau_secs, 0.0);
@@ -126,7 +126,7 @@ fn timed(time_max: Option<f64>, resolution: u32) -> Generation {
 fn a_generation_that_would_overrun_the_time_limit_is_made_again_smaller() {
     const TRIES: usize = 20;
     let raw = busy_step();
-    let tf = TransferFunction::default_for_volume(&raw.field);
+    let tf = insitu_core::TransferFunction::default_for_volume(&raw.field);
     let free = |g: &Generation| run(&Backend::Cpu, &raw, g, &tf, false, None);
     let tau = (0..3)
         .map(|_| free(&timed(None, 256)).map(|(p, _)| p.vdi_header.tau_secs))

@@ -685,7 +685,7 @@ fn bad_decompositions_are_refused_naming_the_step_and_ranks() {
 /// r 32, γ 0.01 and a fixed transfer function over [0, 3] (the slabs' values): steps are
 /// made without waiting for the world to agree one.
 fn fixed_tf_config() -> pb::GenerationConfig {
-    let (tf, _) = TransferFunction::default_named(0.0, 3.0);
+    let tf = TransferFunction::default_named(0.0, 3.0).tf;
     pb::GenerationConfig {
         resolution: 32,
         gamma: 0.01,
