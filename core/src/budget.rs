@@ -55,6 +55,18 @@ impl Budgets {
         (self.size_bytes.unwrap_or(0), self.time_secs.unwrap_or(0.0))
     }
 
+    /// One rank's share of a world's budgets, `ranks` ranks side by side: `1/ranks` of the
+    /// size (σ of a step is summed over its ranks; at least 1 byte), the whole time (τ of a
+    /// step is its slowest rank's).
+    pub fn share(&self, ranks: u32) -> Self {
+        Self {
+            size_bytes: self
+                .size_bytes
+                .map(|b| (b / u64::from(ranks.max(1))).max(1)),
+            time_secs: self.time_secs,
+        }
+    }
+
     /// σ over σ_target and τ over τ_target (`sigma_bytes` bytes, `tau_secs` seconds), each
     /// where its budget is set.
     pub fn ratios(&self, sigma_bytes: f64, tau_secs: f64) -> (Option<f64>, Option<f64>) {
@@ -86,5 +98,18 @@ mod tests {
         let size = Budgets::size(400);
         assert_eq!(size.ratios(500.0, 2.0), (Some(1.25), None));
         assert_eq!(Budgets::NONE.ratios(500.0, 2.0), (None, None));
+    }
+
+    #[test]
+    fn a_rank_keeps_its_share_of_the_size_and_the_whole_time() {
+        let world = Budgets {
+            size_bytes: Some(1000),
+            time_secs: Some(0.5),
+        };
+        let rank = world.share(4);
+        assert_eq!((rank.size_bytes, rank.time_secs), (Some(250), Some(0.5)));
+        assert_eq!(world.share(0), world);
+        assert_eq!(Budgets::size(3).share(8).size_bytes, Some(1));
+        assert!(Budgets::NONE.share(2).is_none());
     }
 }

@@ -158,12 +158,7 @@ fn run(bin: &Path, series: &Path, tf: &Path, utility: &str, extra: &[&str]) -> R
         .env_remove("INSITU_TOKEN")
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    RunLines::parse(&String::from_utf8_lossy(&out.stdout))
+    RunLines::parse(&insitu_e2e::succeeded("replay", out))
 }
 
 /// The best q at step `t` of `series` under σ < `budget` over the tuner's default grid and

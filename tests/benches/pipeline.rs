@@ -109,12 +109,7 @@ fn ingest_with(tmp: &std::path::Path, program: &[&std::ffi::OsStr], extra: &[&st
         .args(extra)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    print!("{}", String::from_utf8_lossy(&out.stdout));
+    print!("{}", insitu_e2e::succeeded("the ingest client", out));
     g.terminate();
 }
 

@@ -148,12 +148,7 @@ fn main() {
                 .args(params)
                 .output()
                 .unwrap();
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            print!("{}", String::from_utf8_lossy(&out.stdout));
+            print!("{}", insitu_e2e::succeeded("the SST measurement", out));
         }
         client();
     }

@@ -13,6 +13,20 @@ use std::time::Duration;
 pub mod browser;
 pub mod drift;
 
+/// The standard output of the command `what` (`out`), once it has succeeded.
+///
+/// # Panics
+/// When it failed, with its standard error and output.
+pub fn succeeded(what: &str, out: std::process::Output) -> String {
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{what} failed: {}\n{text}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
 /// A loopback port nobody listens on right now (for a daemon that starts later).
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")

@@ -6,7 +6,6 @@ use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
 use insitu_core::backend::{Attempt, BackendError, Scene};
-use insitu_core::budget::Budgets;
 use insitu_core::compose::frame_to_le_bytes;
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
@@ -204,12 +203,13 @@ pub fn run(
     spare: Option<Vdi>,
 ) -> Result<(Product, Vdi), WorkError> {
     let raycaster = Raycaster::new(&raw.field, &tf.tf, gen.raycast)?;
+    let id = tf.identity();
     let scene = backend.prepare(&raycaster)?;
     let camera = gen.camera_for(&raw.info);
-    let tf_hash = tf.tf.identity_hash();
     let info = &raw.info;
     // The hard limit is the step's; each rank keeps its share.
-    let (limit, time_limit) = rank_limits(&gen.limits, info.world_size);
+    let own = gen.limits.share(info.world_size);
+    let (limit, time_limit) = (own.size_bytes, own.time_secs);
     let one_rank = info.world_size <= 1;
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
     let (generated, file, tau_secs, tau_compress_secs) = 'generate: loop {
@@ -218,7 +218,7 @@ pub fn run(
         let stop = |p: Progress| time_limit.is_some_and(|t| must_stop(t, spent, can_retry, p));
         let attempt = info_span!("generate", r = params.resolution, gamma = params.gamma)
             .in_scope(|| {
-                scene.generate_until(&camera, params, tf_hash, &tf.name, spare.take(), &stop)
+                scene.generate_until(&camera, params, id.hash, id.name, spare.take(), &stop)
             })?;
         let generated = match attempt {
             Attempt::Done(generated) => generated,
@@ -313,13 +313,6 @@ pub fn run(
         limit_retries: retries,
     };
     Ok((product, generated.value))
-}
-
-/// A rank's hard limits from its world's (`world_size` ranks): its share of σ's (each rank
-/// keeps `1/world_size` of it) and τ's whole (the ranks run side by side).
-fn rank_limits(limits: &Budgets, world_size: u32) -> (Option<u64>, Option<f64>) {
-    let share = limits.size_bytes.map(|b| b / u64::from(world_size.max(1)));
-    (share, limits.time_secs)
 }
 
 /// [`WorkError::OverTime`] for step `step` when `tau` seconds (every try counted) exceed the

@@ -17,16 +17,7 @@ pub fn replayed(out: Output) -> String {
     succeeded("replay", out)
 }
 
-/// The standard output of the command `what` (`out`), once it has succeeded.
-pub fn succeeded(what: &str, out: Output) -> String {
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what} failed: {}\n{text}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
-}
+pub use insitu_e2e::succeeded;
 
 /// [`replayed`] of a replay started in the background with its output piped.
 pub fn finish(child: Child) -> String {

@@ -14,7 +14,7 @@ use insitu_core::metrics::psnr;
 use insitu_core::vdi::render::render;
 use insitu_core::{Camera, Image, RaycastParams, Raycaster, TransferFunction, Volume};
 
-use insitu_e2e::{bin, rt, wait_until, Daemon};
+use insitu_e2e::{bin, rt, succeeded, wait_until, Daemon};
 use serde_json::Value;
 use std::path::Path;
 use std::process::Command;
@@ -295,12 +295,7 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
             .env("INSITU_STEER_TOKEN", STEER_TOKEN)
             .output()
             .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        serde_json::from_slice::<Value>(&out.stdout).unwrap()
+        serde_json::from_str::<Value>(&succeeded("insitu steer", out)).unwrap()
     };
     let reply = cli(&["--field", "v"]);
     assert_eq!(reply["scene_version"], 2, "{reply}");
