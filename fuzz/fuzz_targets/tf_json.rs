@@ -1,4 +1,4 @@
-//! The transfer-function parser on arbitrary text (SetConfig's `tf_json`, `--tf` files): a
+//! The transfer-function parser on arbitrary text (`--tf` files, the viewer's steering and preview bodies): a
 //! valid TF or an error; a valid TF classifies every value (NaN and infinities included)
 //! into colours and opacities in [0, 1].
 #![no_main]

@@ -5,7 +5,7 @@
 use glam::Vec3;
 use insitu_core::volume::{Aabb, FieldAssembler, ScalarType};
 use insitu_core::Volume;
-use insitu_proto::convert::dtype_from_pb;
+use insitu_proto::convert::wire_enum;
 use insitu_proto::pb;
 use tonic::Status;
 
@@ -237,7 +237,7 @@ fn choose_field<'a>(
 ) -> Result<(Chosen<'a>, FieldWindow), Status> {
     let points: u64 = brick_dims.iter().map(|&d| d as u64).product();
     if h.fields.is_empty() {
-        let dtype = dtype_from_pb(h.dtype)?;
+        let dtype = wire_enum::<pb::ScalarType>(h.dtype, "dtype").and_then(ScalarType::try_from)?;
         let expected = points * dtype.size_bytes() as u64;
         if h.total_bytes != expected {
             return Err(Status::invalid_argument(format!(
@@ -270,9 +270,11 @@ fn choose_field<'a>(
                 f.name
             )));
         }
-        let dtype = dtype_from_pb(f.dtype).map_err(|e| {
-            Status::invalid_argument(format!("field {:?}: {}", f.name, e.message()))
-        })?;
+        let dtype = wire_enum::<pb::ScalarType>(f.dtype, "dtype")
+            .and_then(ScalarType::try_from)
+            .map_err(|e| {
+                Status::invalid_argument(format!("field {:?}: {}", f.name, e.message()))
+            })?;
         let association = pb::Association::try_from(f.association).map_err(|_| {
             Status::invalid_argument(format!(
                 "field {:?}: unknown association {}",

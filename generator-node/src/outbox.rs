@@ -5,7 +5,6 @@ use crate::host::{compose_part, Finished};
 use crate::shared::Shared;
 use crate::work::Product;
 use insitu_core::volume::bricks::{box_groups, Brick};
-use insitu_proto::convert::dims_from_pb;
 use std::sync::Arc;
 use std::time::Instant;
 use tracing::{info, warn};
@@ -124,8 +123,8 @@ fn bricks_of(ranks: &[Finished]) -> Option<Vec<Brick>> {
             let h = &f.product.vdi_header;
             (h.global_dims == global).then_some(())?;
             Some(Brick {
-                offset: dims_from_pb(h.brick_offset.as_ref())?,
-                dims: dims_from_pb(h.brick_dims.as_ref())?,
+                offset: h.brick_offset.as_ref().map(<[usize; 3]>::from)?,
+                dims: h.brick_dims.as_ref().map(<[usize; 3]>::from)?,
             })
         })
         .collect()

@@ -6,8 +6,8 @@
 
 use crate::hold::Holds;
 use insitu_core::compose::window_of;
-use insitu_core::{dvr, Raycaster};
-use insitu_proto::convert::{camera_from_pb, preview_frame_to_pb, preview_size, tf_from_json};
+use insitu_core::{dvr, Camera, Raycaster};
+use insitu_proto::convert::{preview_frame_to_pb, preview_size, tf_field};
 use insitu_proto::pb;
 use std::time::Instant;
 
@@ -29,11 +29,12 @@ pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> 
         Ok(s) => s,
         Err(e) => return vec![refused(0, e)],
     };
-    let tf = match tf_from_json(&req.tf_json, "preview") {
-        Ok(tf) => tf,
-        Err(e) => return vec![refused(0, format!("tf_json: {e}"))],
+    let tf = match tf_field(req.tf.as_ref(), Some(&req.legacy_tf_json)) {
+        Ok(Some(tf)) => tf,
+        Ok(None) => return vec![refused(0, "tf: no transfer function to preview".into())],
+        Err(e) => return vec![refused(0, e)],
     };
-    let asked = match req.camera.as_ref().map(camera_from_pb).transpose() {
+    let asked = match req.camera.as_ref().map(Camera::try_from).transpose() {
         Ok(c) => c,
         Err(e) => return vec![refused(0, format!("camera: {}", e.message()))],
     };
@@ -102,12 +103,13 @@ mod tests {
     }
 
     fn req(tf_json: &str, size: u32) -> pb::PreviewRequest {
+        let tf = TransferFunction::from_json(tf_json, "test").unwrap();
         pb::PreviewRequest {
             preview_id: 7,
             step: Some(4),
-            tf_json: tf_json.into(),
-            camera: None,
+            tf: Some(pb::TransferFunction::from(&tf)),
             size,
+            ..Default::default()
         }
     }
 
@@ -149,7 +151,15 @@ mod tests {
             assert_eq!(f.len(), 1);
             f[0].error.clone()
         };
-        assert!(one(req("{", 32)).starts_with("tf_json:"));
+        let mut bad = req(TF, 32);
+        bad.tf.as_mut().unwrap().domain_lo = f64::INFINITY;
+        assert!(one(bad).starts_with("tf: transfer function on the wire: domain"));
+        let mut none = req(TF, 32);
+        none.tf = None;
+        assert_eq!(one(none), "tf: no transfer function to preview");
+        let mut old = req(TF, 32);
+        old.legacy_tf_json = TF.into();
+        assert!(one(old).starts_with("tf_json:"));
         assert!(one(req(TF, 8)).contains("not in 16..=512"));
         assert!(one(req(TF, 4096)).contains("not in 16..=512"));
         let mut other = req(TF, 32);

@@ -6,7 +6,8 @@
 //! others are still in the queue, and they must have reported for the answer to come.
 
 use crate::ingest::RawStep;
-use insitu_core::{NamedTf, TransferFunction};
+use insitu_core::NamedTf;
+use insitu_proto::convert::tf_field;
 use insitu_proto::pb;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::{is_transient, Backoff, Peer};
@@ -93,9 +94,11 @@ impl SceneLink {
             }
             match self.call(p).await {
                 Ok(a) => {
-                    let result = TransferFunction::from_json(&a.tf_json, &a.tf_name)
-                        .map(|tf| NamedTf::new(tf, a.tf_name.clone()))
-                        .map_err(|e| format!("the viz-node's transfer function is invalid: {e}"));
+                    let result = match tf_field(a.tf.as_ref(), None) {
+                        Ok(Some(tf)) => Ok(NamedTf::new(tf, a.tf_name.clone())),
+                        Ok(None) => Err("the viz-node's agreement carries no transfer function (a viz-node older than this node?)".into()),
+                        Err(e) => Err(format!("the viz-node's transfer function is invalid: {e}")),
+                    };
                     match &result {
                         Ok(_) => {
                             info!(tf = %a.tf_name, ranks = a.world_size, "the world agreed on a transfer function");

@@ -3,8 +3,9 @@
 
 use crate::config::Generation;
 use insitu_core::raycast::{RaycastParams, Shading};
-use insitu_core::{NamedTf, Precision, VdiParams};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb, tf_from_json};
+use insitu_core::vdi::codec::Codec;
+use insitu_core::{Camera, NamedTf, Precision, VdiParams};
+use insitu_proto::convert::{tf_field, wire_enum};
 use insitu_proto::pb;
 use tonic::Status;
 
@@ -15,14 +16,12 @@ pub fn to_pb(g: &Generation) -> pb::GenerationConfig {
         gamma: g.params.gamma,
         sample_distance: Some(g.raycast.sample_distance),
         termination: Some(g.raycast.termination),
-        codec: insitu_proto::convert::codec_to_pb(g.codec) as i32,
+        codec: pb::Codec::from(g.codec) as i32,
         precision_bits: Some(g.params.precision.bits()),
-        tf_json: g
-            .tf
-            .as_ref()
-            .and_then(|t| serde_json::to_string(&t.tf).ok()),
+        tf: g.tf.as_ref().map(|t| pb::TransferFunction::from(&t.tf)),
+        legacy_tf_json: None,
         tf_name: g.tf.as_ref().map(|t| t.name.clone()),
-        camera: g.camera.as_ref().map(insitu_proto::convert::camera_to_pb),
+        camera: g.camera.as_ref().map(pb::Camera::from),
         view_angles_deg: g.view_angles_deg.clone(),
         reference_every: u32::try_from(g.reference_every).ok(),
         reference_size: Some(g.reference_size),
@@ -66,16 +65,17 @@ pub fn apply_config(g: &Generation, c: &pb::GenerationConfig) -> Result<Generati
     next.raycast
         .validate()
         .map_err(|e| bad("sample_distance/termination", &e))?;
-    if let Some(codec) = codec_from_pb(c.codec)? {
+    if let Some(codec) = Option::<Codec>::from(wire_enum::<pb::Codec>(c.codec, "codec")?) {
         next.codec = codec;
     }
-    if let Some(json) = &c.tf_json {
+    if let Some(tf) =
+        tf_field(c.tf.as_ref(), c.legacy_tf_json.as_deref()).map_err(Status::invalid_argument)?
+    {
         let name = c.tf_name.clone().unwrap_or_else(|| "pushed".into());
-        let tf = tf_from_json(json, &name).map_err(|e| bad("tf_json", &e))?;
         next.tf = Some(NamedTf::new(tf, name));
     }
     if let Some(cam) = &c.camera {
-        next.camera = Some(camera_from_pb(cam)?);
+        next.camera = Some(Camera::try_from(cam)?);
     }
     if !c.view_angles_deg.is_empty() {
         if c.view_angles_deg.iter().any(|a| !a.is_finite()) {
@@ -166,10 +166,10 @@ pub fn switch_at(g: &Generation, next: &mut Generation, from_step: u64, begun: u
 fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
     let mut next = g.clone();
     next.scene_version = s.version;
-    if let Some(json) = &s.tf_json {
+    if let Some(tf) = tf_field(s.tf.as_ref(), s.legacy_tf_json.as_deref())
+        .map_err(|e| format!("scene {}: {e}", s.version))?
+    {
         let name = s.tf_name.clone().unwrap_or_else(|| "steered".into());
-        let tf = tf_from_json(json, &name)
-            .map_err(|e| format!("scene {}: transfer function: {e}", s.version))?;
         next.tf = Some(NamedTf::new(tf, name));
     }
     if let Some(f) = &s.field {
@@ -179,7 +179,7 @@ fn steered(g: &Generation, s: &pb::Scene) -> Result<Generation, String> {
     }
     if let Some(c) = &s.camera {
         next.camera = Some(
-            camera_from_pb(c)
+            Camera::try_from(c)
                 .map_err(|e| format!("scene {}: camera: {}", s.version, e.message()))?,
         );
     }
@@ -239,12 +239,12 @@ mod tests {
     fn scene(version: u64, field: &str) -> pb::Scene {
         pb::Scene {
             version,
-            tf_json: Some(TF.replace("0.8]", "0.2]")),
+            tf: Some(pb::TransferFunction::from(
+                &TransferFunction::from_json(&TF.replace("0.8]", "0.2]"), "steered").unwrap(),
+            )),
             tf_name: Some("steered".into()),
             field: Some(field.into()),
-            camera: None,
-            sample_distance: None,
-            shading: None,
+            ..Default::default()
         }
     }
 
@@ -330,9 +330,25 @@ mod tests {
     fn a_bad_scene_is_refused_and_nothing_changes() {
         let g = configured();
         let mut bad = scene(1, "v");
-        bad.tf_json = Some("{".into());
+        bad.tf.as_mut().unwrap().points[1].x = -1.0;
         let e = decided(&g, &decision(1, 0, Some(bad)), 0).unwrap_err();
-        assert!(e.contains("scene 1: transfer function"), "{e}");
+        assert!(
+            e.contains("scene 1: tf: transfer function on the wire"),
+            "{e}"
+        );
+        // JSON text from an older tuner is refused by name, not ignored.
+        let mut old = scene(1, "v");
+        old.tf = None;
+        old.legacy_tf_json = Some(TF.into());
+        let e = decided(&g, &decision(1, 0, Some(old)), 0).unwrap_err();
+        assert!(
+            e.contains("scene 1: tf_json") && e.contains("send `tf`"),
+            "{e}"
+        );
+        let mut pushed = to_pb(&g);
+        pushed.legacy_tf_json = Some(TF.into());
+        let e = apply_config(&g, &pushed).unwrap_err();
+        assert!(e.message().contains("no longer taken"), "{}", e.message());
         let e = decided(&g, &decision(1, 0, Some(scene(1, "a\nb"))), 0).unwrap_err();
         assert!(e.contains("scene 1: field"), "{e}");
         let old = decided(&g, &decision(3, 0, None), 0).unwrap();

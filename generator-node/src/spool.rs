@@ -79,12 +79,12 @@ fn write_file(dir: &Path, name: &str, bytes: &[u8], durable: bool) -> Result<(),
 }
 
 fn header_of(raw: &RawStep) -> pb::StepHeader {
-    let d = insitu_proto::convert::dims_to_pb;
+    let d = pb::Dims3::from;
     pb::StepHeader {
         step: raw.info.step,
         sim_time: raw.info.sim_time,
         // The field as held (u8, u16 or f32), which is what the data bytes below are.
-        dtype: insitu_proto::convert::dtype_to_pb(raw.field.voxels().scalar_type()) as i32,
+        dtype: pb::ScalarType::from(raw.field.voxels().scalar_type()) as i32,
         global_dims: Some(d(raw.info.global_dims)),
         brick_offset: Some(d(raw.info.brick_offset)),
         brick_dims: Some(d(raw.info.brick_dims)),
@@ -278,12 +278,22 @@ impl Spool {
         write_file(&self.dir, RUN_CONFIG, &bytes, self.durable)
     }
 
-    /// The run configuration a previous run recorded, if any.
+    /// The run configuration a previous run recorded, if any. A record whose transfer
+    /// function is JSON text (written before the typed field) is read into the typed field,
+    /// so that a spool outlives the upgrade; JSON that does not parse is left for
+    /// [`crate::settings::apply_config`] to refuse by name.
     pub fn load_run(&self) -> Option<(u64, pb::GenerationConfig)> {
         let bytes = std::fs::read(self.dir.join(RUN_CONFIG)).ok()?;
         let (v, rest) = bytes.split_at_checked(8)?;
         let version = u64::from_le_bytes(v.try_into().ok()?);
-        Some((version, pb::GenerationConfig::decode(rest).ok()?))
+        let mut run = pb::GenerationConfig::decode(rest).ok()?;
+        if let Some(json) = run.legacy_tf_json.as_deref().filter(|_| run.tf.is_none()) {
+            if let Ok(tf) = insitu_core::TransferFunction::from_json(json, RUN_CONFIG) {
+                run.tf = Some(pb::TransferFunction::from(&tf));
+                run.legacy_tf_json = None;
+            }
+        }
+        Some((version, run))
     }
 }
 
@@ -358,5 +368,29 @@ mod tests {
             .path()
             .join("step_0000000000000099_s1_r0.step.bad")
             .exists());
+    }
+
+    /// A run record written when the transfer function travelled as JSON text reads back
+    /// with it typed (the spool outlives the upgrade); the typed record round-trips.
+    #[test]
+    fn a_run_record_with_the_transfer_function_as_text_reads_back_typed() {
+        let dir = tempfile::tempdir().unwrap();
+        let (spool, _) = Spool::open(dir.path(), false, 1 << 20).unwrap();
+        let json = r#"{"domain":[0,4],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
+        let old = pb::GenerationConfig {
+            resolution: 64,
+            legacy_tf_json: Some(json.into()),
+            tf_name: Some("old".into()),
+            ..Default::default()
+        };
+        spool.save_run(3, &old).unwrap();
+        let (version, run) = spool.load_run().unwrap();
+        let tf = insitu_core::TransferFunction::from_json(json, "t").unwrap();
+        assert_eq!(version, 3);
+        assert_eq!(run.tf, Some(pb::TransferFunction::from(&tf)));
+        assert_eq!(run.legacy_tf_json, None);
+        assert_eq!(run.tf_name.as_deref(), Some("old"));
+        spool.save_run(4, &run).unwrap();
+        assert_eq!(spool.load_run().unwrap(), (4, run));
     }
 }

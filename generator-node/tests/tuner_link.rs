@@ -220,9 +220,15 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         Down::Preview(pb::PreviewRequest {
             preview_id: id,
             step: Some(step),
-            tf_json: r#"{"domain":[0,1],"points":[[0,0,0,1,0],[1,0,0,1,0.9]]}"#.into(),
-            camera: None,
+            tf: Some(pb::TransferFunction::from(
+                &insitu_core::TransferFunction::from_json(
+                    r#"{"domain":[0,1],"points":[[0,0,0,1,0],[1,0,0,1,0.9]]}"#,
+                    "blue",
+                )
+                .unwrap(),
+            )),
             size: 32,
+            ..Default::default()
         })
     };
     send(&down, preview(8, 0));

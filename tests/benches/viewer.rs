@@ -14,6 +14,7 @@
 
 use insitu_client::{SimClient, Step};
 use insitu_core::volume::RawFormat;
+use insitu_core::TransferFunction;
 use insitu_e2e::browser::{browser, js, start_driver};
 use insitu_e2e::{data_file, rt, tf_file, Daemon};
 use insitu_proto::pb;
@@ -62,7 +63,7 @@ fn main() {
     );
     let format = RawFormat::from_file_name(&path).unwrap();
     let bytes = std::fs::read(&path).unwrap();
-    let tf_json = std::fs::read_to_string(&tf_path).unwrap();
+    let tf = pb::TransferFunction::from(&TransferFunction::load(&tf_path).unwrap());
     let dims = format.dims.map(|d| d as u32);
     rt().block_on(async {
         let mut c = SimClient::connect(&g.addr, None).await.unwrap();
@@ -70,7 +71,7 @@ fn main() {
             c.set_config(pb::GenerationConfig {
                 resolution: r,
                 gamma: 0.013,
-                tf_json: Some(tf_json.clone()),
+                tf: Some(tf.clone()),
                 tf_name: Some("teapot.json".into()),
                 ..Default::default()
             })

@@ -8,9 +8,7 @@ use crate::engine::Engine;
 use crate::hub::PreviewReply;
 use insitu_core::compose::{compose_frames, BrickFrame};
 use insitu_core::{Camera, Image};
-use insitu_proto::convert::{
-    camera_from_pb, preview_size, preview_window_from_pb, tf_from_json, MAX_TF_JSON,
-};
+use insitu_proto::convert::{preview_size, preview_window_from_pb, tf_field};
 use insitu_proto::pb;
 use std::time::{Duration, Instant};
 use tonic::Status;
@@ -29,16 +27,11 @@ pub const TIMEOUT: Duration = Duration::from_secs(30);
 pub async fn preview(e: &Engine, mut req: pb::PreviewRequest) -> Result<pb::PreviewReply, Status> {
     let t0 = Instant::now();
     let size = preview_size(req.size).map_err(Status::invalid_argument)?;
-    if req.tf_json.len() > MAX_TF_JSON {
-        return Err(Status::invalid_argument(format!(
-            "tf_json: {} bytes, more than {MAX_TF_JSON}",
-            req.tf_json.len()
-        )));
-    }
-    tf_from_json(&req.tf_json, "preview")
-        .map_err(|e| Status::invalid_argument(format!("tf_json: {e}")))?;
+    tf_field(req.tf.as_ref(), Some(&req.legacy_tf_json))
+        .map_err(Status::invalid_argument)?
+        .ok_or_else(|| Status::invalid_argument("tf: no transfer function to preview"))?;
     if let Some(c) = &req.camera {
-        camera_from_pb(c)
+        Camera::try_from(c)
             .map_err(|e| Status::invalid_argument(format!("camera: {}", e.message())))?;
     }
     let world_size = e.domain().world_size;
@@ -95,7 +88,7 @@ pub fn compose(frames: &[pb::PreviewFrame], size: u32) -> Result<Image, String> 
         .first()
         .and_then(|f| f.camera.as_ref())
         .ok_or("no frame carries the camera")?;
-    let camera: Camera = camera_from_pb(camera).map_err(|e| e.message().to_owned())?;
+    let camera: Camera = Camera::try_from(camera).map_err(|e| e.message().to_owned())?;
     let windows = frames
         .iter()
         .map(|f| preview_window_from_pb(f, size))

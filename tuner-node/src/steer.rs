@@ -10,9 +10,10 @@
 //! node's own (its config, or the default the world agreed).
 
 use insitu_core::volume::Aabb;
-use insitu_proto::convert::{camera_from_pb, camera_to_pb, tf_from_json, vec3_from_pb};
+use insitu_core::{Camera, TransferFunction};
+use insitu_proto::convert::tf_field;
 use insitu_proto::pb;
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize};
 
 /// A generation camera as persisted: eye, target and up (world units) and the vertical field
 /// of view (degrees).
@@ -53,8 +54,10 @@ impl CameraSpec {
 pub struct SceneState {
     /// Version (0: never steered, the configured scene).
     pub version: u64,
-    /// Transfer function (docs/conventions.md format).
-    pub tf_json: Option<String>,
+    /// Transfer function (a JSON object in the state file; read from `tf_json`, JSON text,
+    /// in state files written before it was typed).
+    #[serde(default, alias = "tf_json", deserialize_with = "tf_or_text")]
+    pub tf: Option<TransferFunction>,
     /// Its name in VDI metadata.
     pub tf_name: Option<String>,
     /// The field rendered, by name.
@@ -75,14 +78,35 @@ impl SceneState {
     pub fn to_pb(&self) -> pb::Scene {
         pb::Scene {
             version: self.version,
-            tf_json: self.tf_json.clone(),
+            tf: self.tf.as_ref().map(pb::TransferFunction::from),
+            legacy_tf_json: None,
             tf_name: self.tf_name.clone(),
             field: self.field.clone(),
-            camera: self.camera.as_ref().map(|c| camera_to_pb(&c.camera())),
+            camera: self.camera.as_ref().map(|c| pb::Camera::from(&c.camera())),
             sample_distance: self.sample_distance,
             shading: self.shading,
         }
     }
+}
+
+/// A persisted transfer function: a JSON object, or the JSON text of older state files; either
+/// checked as a file's is.
+fn tf_or_text<'de, D: Deserializer<'de>>(d: D) -> Result<Option<TransferFunction>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Persisted {
+        Object(TransferFunction),
+        Text(String),
+    }
+    let tf = match Option::<Persisted>::deserialize(d)? {
+        None => return Ok(None),
+        Some(Persisted::Object(tf)) => tf,
+        Some(Persisted::Text(json)) => {
+            TransferFunction::from_json(&json, "tf_json").map_err(serde::de::Error::custom)?
+        }
+    };
+    tf.validate("tf").map_err(serde::de::Error::custom)?;
+    Ok(Some(tf))
 }
 
 /// Where a steering change stands.
@@ -179,8 +203,8 @@ impl Domain {
         self.world_size = s.world_size.max(1);
         self.fields.clone_from(&s.fields);
         if let (Some(min), Some(max)) = (
-            vec3_from_pb(s.box_min.as_ref()),
-            vec3_from_pb(s.box_max.as_ref()),
+            s.box_min.as_ref().map(glam::Vec3::from),
+            s.box_max.as_ref().map(glam::Vec3::from),
         ) {
             if min.is_finite() && max.is_finite() && min.cmple(max).all() {
                 self.bounds = Some(Aabb { min, max });
@@ -222,18 +246,17 @@ pub fn check(
 ) -> Result<Change, String> {
     let mut next = scene.clone();
     let mut words = Vec::new();
-    if let Some(json) = &req.tf_json {
+    if let Some(tf) = tf_field(req.tf.as_ref(), req.legacy_tf_json.as_deref())? {
         let name = req
             .tf_name
             .clone()
             .filter(|n| !n.trim().is_empty())
             .unwrap_or_else(|| "steered".into());
-        tf_from_json(json, &name).map_err(|e| format!("tf_json: {e}"))?;
         words.push(format!("transfer function \"{name}\""));
-        next.tf_json = Some(json.clone());
+        next.tf = Some(tf);
         next.tf_name = Some(name);
     } else if req.tf_name.is_some() {
-        return Err("tf_name without tf_json: name the transfer function you send".into());
+        return Err("tf_name without tf: name the transfer function you send".into());
     }
     if let Some(field) = &req.field {
         check_field(field, domain)?;
@@ -241,7 +264,7 @@ pub fn check(
         next.field = Some(field.clone());
     }
     if let Some(c) = &req.camera {
-        let cam = camera_from_pb(c).map_err(|e| e.message().to_owned())?;
+        let cam = Camera::try_from(c).map_err(|e| e.message().to_owned())?;
         if let Some(b) = domain.bounds {
             if cam.eye.cmpge(b.min).all() && cam.eye.cmple(b.max).all() {
                 return Err(format!(
@@ -331,6 +354,10 @@ mod tests {
 
     const TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
 
+    fn wire_tf() -> pb::TransferFunction {
+        pb::TransferFunction::from(&TransferFunction::from_json(TF, "t").unwrap())
+    }
+
     fn domain() -> Domain {
         Domain {
             seen: true,
@@ -360,6 +387,35 @@ mod tests {
         }
     }
 
+    /// The state file keeps the transfer function as a JSON object and reads it back
+    /// equal; a state file written when it was JSON text (`tf_json`) reads the same; a broken
+    /// one is refused, not taken.
+    #[test]
+    fn the_persisted_transfer_function_reads_back_from_either_form() {
+        let tf = TransferFunction::from_json(TF, "t").unwrap();
+        let scene = SceneState {
+            version: 2,
+            tf: Some(tf.clone()),
+            tf_name: Some("warm".into()),
+            ..Default::default()
+        };
+        let text = serde_json::to_string(&scene).unwrap();
+        assert!(text.contains(r#""tf":{"domain""#), "{text}");
+        assert_eq!(serde_json::from_str::<SceneState>(&text).unwrap(), scene);
+        let old = format!(
+            r#"{{"version":2,"tf_json":{},"tf_name":"warm"}}"#,
+            serde_json::to_string(TF).unwrap()
+        );
+        assert_eq!(serde_json::from_str::<SceneState>(&old).unwrap(), scene);
+        let broken = r#"{"version":2,"tf":{"domain":[1,0],"points":[[0,0,0,0,0]]}}"#;
+        let e = serde_json::from_str::<SceneState>(broken)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("domain"), "{e}");
+        let none = serde_json::from_str::<SceneState>(r#"{"version":0}"#).unwrap();
+        assert_eq!(none.tf, None);
+    }
+
     #[test]
     fn each_part_changes_the_scene_it_names_and_keeps_the_rest() {
         let mut scene = SceneState {
@@ -369,7 +425,7 @@ mod tests {
         };
         let c = check(
             &pb::SteerRequest {
-                tf_json: Some(TF.into()),
+                tf: Some(wire_tf()),
                 tf_name: Some("warm".into()),
                 camera: Some(camera([5.0, 5.0, 40.0])),
                 ..Default::default()
@@ -379,7 +435,7 @@ mod tests {
         )
         .unwrap();
         let next = c.scene.unwrap();
-        assert_eq!(next.tf_json.as_deref(), Some(TF));
+        assert_eq!(next.tf, Some(TransferFunction::from_json(TF, "t").unwrap()));
         assert_eq!(next.tf_name.as_deref(), Some("warm"));
         assert_eq!(next.field.as_deref(), Some("u"), "the field stays");
         assert_eq!(next.camera.unwrap().eye, [5.0, 5.0, 40.0]);
@@ -448,12 +504,12 @@ mod tests {
         let d = domain();
         let e = refused(
             pb::SteerRequest {
-                tf_json: Some("{not json".into()),
+                tf: Some(pb::TransferFunction::default()),
                 ..Default::default()
             },
             &d,
         );
-        assert!(e.starts_with("tf_json:"), "{e}");
+        assert!(e.starts_with("tf: transfer function on the wire"), "{e}");
         let e = refused(
             pb::SteerRequest {
                 field: Some("w".into()),
@@ -508,7 +564,7 @@ mod tests {
             },
             &d,
         );
-        assert!(e.contains("tf_name without tf_json"), "{e}");
+        assert!(e.contains("tf_name without tf"), "{e}");
         let e = refused(pb::SteerRequest::default(), &d);
         assert!(e.starts_with("nothing to change"), "{e}");
         // The box's diagonal is 10·√3 ≈ 17.3.

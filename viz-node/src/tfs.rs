@@ -4,20 +4,15 @@
 //! viewer's colour legend reads them (`GET /api/tf`), a steered one included.
 
 use insitu_core::TransferFunction;
+use insitu_proto::pb;
 use std::path::{Path, PathBuf};
 
 /// The recording's folder of transfer functions.
 pub const TF_DIR: &str = "tf";
 
-/// Largest transfer function kept, bytes of JSON (as the generation config takes).
-pub const MAX_TF_BYTES: usize = 1 << 20;
-
 /// Why a VDI's transfer function was not kept.
 #[derive(Debug, thiserror::Error)]
 pub enum TfKeepError {
-    /// Over [`MAX_TF_BYTES`].
-    #[error("transfer function of {0} bytes is over the {MAX_TF_BYTES}-byte limit")]
-    TooLarge(usize),
     /// Not a valid transfer function.
     #[error(transparent)]
     Invalid(#[from] insitu_core::tf::TfError),
@@ -29,6 +24,9 @@ pub enum TfKeepError {
         /// The JSON's.
         found: u64,
     },
+    /// It could not be written as JSON.
+    #[error("transfer function as JSON: {0}")]
+    Json(#[from] serde_json::Error),
     /// The file could not be written.
     #[error("{}: {source}", path.display())]
     Io {
@@ -43,20 +41,18 @@ fn path(dir: &Path, hash: u64) -> PathBuf {
     dir.join(TF_DIR).join(format!("{hash:016x}.json"))
 }
 
-/// Keeps `json`, the transfer function whose identity is `hash`, in the recording at `dir`
-/// unless it holds it already; returns whether it wrote it.
+/// Keeps `tf`, the transfer function whose identity is `hash` (a VDI header's, as it came
+/// over the wire), as JSON in the recording at `dir` unless it holds it already; returns
+/// whether it wrote it.
 ///
 /// # Errors
-/// [`TfKeepError`]: too large, invalid, a hash that does not match, or the write failing.
-pub fn keep(dir: &Path, hash: u64, json: &str) -> Result<bool, TfKeepError> {
+/// [`TfKeepError`]: invalid, a hash that does not match, or the write failing.
+pub fn keep(dir: &Path, hash: u64, tf: &pb::TransferFunction) -> Result<bool, TfKeepError> {
     let file = path(dir, hash);
     if file.is_file() {
         return Ok(false);
     }
-    if json.len() > MAX_TF_BYTES {
-        return Err(TfKeepError::TooLarge(json.len()));
-    }
-    let tf = TransferFunction::from_json(json, "the VDI header's transfer function")?;
+    let tf = TransferFunction::try_from(tf)?;
     let found = tf.identity_hash();
     if found != hash {
         return Err(TfKeepError::Mismatch { said: hash, found });
@@ -68,7 +64,7 @@ pub fn keep(dir: &Path, hash: u64, json: &str) -> Result<bool, TfKeepError> {
     std::fs::create_dir_all(dir.join(TF_DIR)).map_err(io)?;
     insitu_core::file::write_atomic(
         &file,
-        json.as_bytes(),
+        serde_json::to_string(&tf)?.as_bytes(),
         insitu_core::file::Durability::PowerLoss,
     )
     .map_err(io)?;
@@ -93,23 +89,20 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let tf = TransferFunction::default_for_range(-1.0, 3.0);
         let hash = tf.identity_hash();
-        let json = serde_json::to_string(&tf).unwrap();
+        let wire = pb::TransferFunction::from(&tf);
         assert!(read(dir.path(), hash).is_none());
-        assert!(keep(dir.path(), hash, &json).unwrap());
-        assert!(!keep(dir.path(), hash, &json).unwrap(), "kept once");
+        assert!(keep(dir.path(), hash, &wire).unwrap());
+        assert!(!keep(dir.path(), hash, &wire).unwrap(), "kept once");
         assert_eq!(read(dir.path(), hash), Some(tf.clone()));
         assert!(matches!(
-            keep(dir.path(), hash ^ 1, &json),
+            keep(dir.path(), hash ^ 1, &wire),
             Err(TfKeepError::Mismatch { .. })
         ));
+        let mut bad = wire.clone();
+        bad.domain_lo = 10.0;
         assert!(matches!(
-            keep(dir.path(), 7, "{\"domain\": [1, 0], \"points\": []}"),
+            keep(dir.path(), 7, &bad),
             Err(TfKeepError::Invalid(_))
-        ));
-        let huge = " ".repeat(MAX_TF_BYTES + 1);
-        assert!(matches!(
-            keep(dir.path(), 8, &huge),
-            Err(TfKeepError::TooLarge(_))
         ));
         assert!(!dir
             .path()

@@ -11,7 +11,6 @@ use insitu_core::vdi::codec::Codec;
 use insitu_core::volume::bricks::{block_bricks, grid_bricks, split_ranks, Brick};
 use insitu_core::{TransferFunction, Volume};
 use insitu_proto::auth::Token;
-use insitu_proto::convert::codec_to_pb;
 use insitu_proto::pb;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -230,8 +229,8 @@ fn scene_config(a: &Args, first: &Volume) -> Result<pb::GenerationConfig> {
     Ok(pb::GenerationConfig {
         resolution: a.pipeline.pm.r,
         gamma: a.pipeline.pm.gamma,
-        codec: codec_to_pb(a.pipeline.codec(DEFAULTS)) as i32,
-        tf_json: Some(serde_json::to_string(&tf)?),
+        codec: pb::Codec::from(a.pipeline.codec(DEFAULTS)) as i32,
+        tf: Some(pb::TransferFunction::from(&tf)),
         tf_name: Some(tf_name),
         reference_every: Some(
             u32::try_from(a.sample_every).context("--sample-every is too large")?,

@@ -7,8 +7,10 @@ use bytes::Bytes;
 use http_body_util::{BodyExt, Full};
 use hyper_util::client::legacy::Client;
 use hyper_util::rt::TokioExecutor;
+use insitu_core::TransferFunction;
+use insitu_viz_node::http::steer::{CameraBody, SteerBody};
 use insitu_viz_node::node::STEER_TOKEN_ENV;
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -115,46 +117,29 @@ fn token(file: Option<&PathBuf>) -> Result<Option<String>> {
     Ok(raw.map(|t| t.trim().to_owned()).filter(|t| !t.is_empty()))
 }
 
-/// The request's JSON body.
-fn body(a: &Args) -> Result<Value> {
-    let mut b = serde_json::Map::new();
+/// The request's body: the viewer's own type, the transfer function read and checked here.
+fn body(a: &Args) -> Result<SteerBody> {
+    let mut b = SteerBody::default();
     if let Some(path) = &a.tf {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("--tf {}", path.display()))?;
-        let tf: Value = serde_json::from_str(&text)
-            .with_context(|| format!("--tf {}: not JSON", path.display()))?;
-        b.insert("tf".into(), tf);
-        let name = a
+        b.tf = Some(TransferFunction::load(path).context("--tf")?);
+        b.tf_name = a
             .tf_name
             .clone()
             .or_else(|| path.file_stem().map(|s| s.to_string_lossy().into_owned()));
-        if let Some(name) = name {
-            b.insert("tf_name".into(), name.into());
-        }
     }
-    if let Some(f) = &a.field {
-        b.insert("field".into(), f.clone().into());
-    }
-    if let Some(c) = &a.camera {
-        b.insert("camera".into(), camera(c)?);
-    }
-    if let Some(u) = &a.utility {
-        b.insert("utility".into(), u.clone().into());
-    }
-    if let Some(d) = a.sample_distance {
-        b.insert("sample_distance".into(), d.into());
-    }
-    if let Some(on) = a.shading {
-        b.insert("shading".into(), on.into());
-    }
+    b.field.clone_from(&a.field);
+    b.camera = a.camera.as_deref().map(camera).transpose()?;
+    b.utility.clone_from(&a.utility);
+    b.sample_distance = a.sample_distance;
+    b.shading = a.shading;
     if b.is_empty() {
         bail!("nothing to steer: give --tf, --field, --camera, --sample-distance, --shading or --utility (or --show)");
     }
-    Ok(Value::Object(b))
+    Ok(b)
 }
 
 /// `--camera` as the API takes it.
-fn camera(s: &str) -> Result<Value> {
+fn camera(s: &str) -> Result<CameraBody> {
     let numbers = |t: &str| -> Result<Vec<f32>> {
         t.split(',')
             .map(|x| {
@@ -168,19 +153,28 @@ fn camera(s: &str) -> Result<Value> {
     };
     if let Some(view) = s.strip_prefix("view:") {
         let v = numbers(view)?;
-        return match v[..] {
-            [angle, elevation] => Ok(json!({"angle": angle, "elevation": elevation})),
-            [angle, elevation, zoom] => {
-                Ok(json!({"angle": angle, "elevation": elevation, "zoom": zoom}))
-            }
+        let (angle, elevation, zoom) = match v[..] {
+            [angle, elevation] => (angle, elevation, 1.0),
+            [angle, elevation, zoom] => (angle, elevation, zoom),
             _ => bail!("--camera {s}: view:ANGLE,ELEVATION[,ZOOM]"),
         };
+        return Ok(CameraBody::View {
+            step: None,
+            angle,
+            elevation,
+            zoom,
+        });
     }
     let Some((eye, target)) = s.split_once(':') else {
         bail!("--camera {s}: EX,EY,EZ:TX,TY,TZ or view:ANGLE,ELEVATION[,ZOOM]");
     };
     match (&numbers(eye)?[..], &numbers(target)?[..]) {
-        (&[ex, ey, ez], &[tx, ty, tz]) => Ok(json!({"eye": [ex, ey, ez], "target": [tx, ty, tz]})),
+        (&[ex, ey, ez], &[tx, ty, tz]) => Ok(CameraBody::Explicit {
+            eye: [ex, ey, ez],
+            target: [tx, ty, tz],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 30.0,
+        }),
         _ => bail!("--camera {s}: eye and target take three numbers each"),
     }
 }
@@ -190,7 +184,7 @@ async fn call(
     method: &str,
     url: &str,
     token: Option<String>,
-    body: Option<Value>,
+    body: Option<SteerBody>,
 ) -> Result<(u16, String)> {
     let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
     let mut req = hyper::Request::builder()
@@ -200,7 +194,10 @@ async fn call(
     if let Some(t) = token {
         req = req.header("authorization", format!("Bearer {t}"));
     }
-    let bytes = body.map_or_else(Bytes::new, |b| Bytes::from(b.to_string()));
+    let bytes = match body {
+        Some(b) => Bytes::from(serde_json::to_vec(&b)?),
+        None => Bytes::new(),
+    };
     if bytes.len() > insitu_viz_node::http::MAX_BODY_BYTES {
         bail!(
             "the request is {} bytes (its transfer function, as JSON): the viewer takes at most {} (a transfer function has a few hundred control points at most)",
@@ -230,15 +227,16 @@ mod tests {
 
     #[test]
     fn cameras_parse_as_the_api_takes_them_and_bad_ones_are_named() {
+        let json = |c: CameraBody| serde_json::to_value(c).unwrap();
         assert_eq!(
-            camera("1,2,30:1,2,3").unwrap(),
-            json!({"eye": [1.0, 2.0, 30.0], "target": [1.0, 2.0, 3.0]})
+            json(camera("1,2,30:1,2,3").unwrap()),
+            serde_json::json!({"eye": [1.0, 2.0, 30.0], "target": [1.0, 2.0, 3.0], "up": [0.0, 1.0, 0.0], "fov_y_deg": 30.0})
         );
         assert_eq!(
-            camera("view:45,10").unwrap(),
-            json!({"angle": 45.0, "elevation": 10.0})
+            json(camera("view:45,10").unwrap()),
+            serde_json::json!({"angle": 45.0, "elevation": 10.0, "zoom": 1.0})
         );
-        assert_eq!(camera("view:0,0,1.5").unwrap()["zoom"], json!(1.5));
+        assert_eq!(json(camera("view:0,0,1.5").unwrap())["zoom"], 1.5);
         for bad in [
             "1,2:3,4,5",
             "view:1",

@@ -38,7 +38,7 @@ use insitu_core::vdi::window::VdiWindow;
 use insitu_core::vdi::{Supersegment, VdiMeta};
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Camera, Vdi};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb, dims_to_pb};
+use insitu_proto::convert::wire_enum;
 use insitu_proto::pb;
 use packed::PackedFrames;
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -459,7 +459,8 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         .ok_or(PartError::NoProvenance { rank: lead.rank })?;
     provenance.placement = provenance.placement.map(|(global, _)| (global, brick));
     provenance.covers = covers.clone();
-    let codec = codec_from_pb(lead.codec)
+    let codec = wire_enum::<pb::Codec>(lead.codec, "codec")
+        .map(Option::<Codec>::from)
         .ok()
         .flatten()
         .unwrap_or(Codec::Zstd);
@@ -475,8 +476,8 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         supersegments: vdi.supersegments().len() as u64,
         tau_secs: slowest,
         tau_compress_secs,
-        brick_offset: Some(dims_to_pb(brick.offset)),
-        brick_dims: Some(dims_to_pb(brick.dims)),
+        brick_offset: Some(pb::Dims3::from(brick.offset)),
+        brick_dims: Some(pb::Dims3::from(brick.dims)),
         with_references: references.is_some(),
         covers,
         ..lead.clone()
@@ -528,7 +529,7 @@ fn compose_references(
         .camera
         .as_ref()
         .ok_or_else(|| PartError::Frames("no camera".into()))
-        .and_then(|c| camera_from_pb(c).map_err(|e| PartError::Frames(e.message().into())))?;
+        .and_then(|c| Camera::try_from(c).map_err(|e| PartError::Frames(e.message().into())))?;
     let (w, h) = (lead.width, lead.height);
     let per_view = w as usize * h as usize * 16;
     let views = lead.view_angles_deg.len();

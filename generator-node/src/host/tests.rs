@@ -58,7 +58,7 @@ fn finished(step: u64, rank: u32, world: u32, b: Brick, frames: bool) -> Finishe
             rank,
             width: 24,
             height: 24,
-            camera: Some(insitu_proto::convert::camera_to_pb(&camera)),
+            camera: Some(pb::Camera::from(&camera)),
             view_angles_deg: angles.clone(),
             total_bytes: bytes.len() as u64,
             opacity: true,
@@ -77,9 +77,9 @@ fn finished(step: u64, rank: u32, world: u32, b: Brick, frames: bool) -> Finishe
                 codec: pb::Codec::Zstd as i32,
                 total_bytes: file.len() as u64,
                 tau_secs: 0.1 * f64::from(rank + 1),
-                global_dims: Some(dims_to_pb(GLOBAL)),
-                brick_offset: Some(dims_to_pb(b.offset)),
-                brick_dims: Some(dims_to_pb(b.dims)),
+                global_dims: Some(pb::Dims3::from(GLOBAL)),
+                brick_offset: Some(pb::Dims3::from(b.offset)),
+                brick_dims: Some(pb::Dims3::from(b.dims)),
                 with_references: frames,
                 ..Default::default()
             },
@@ -132,7 +132,7 @@ fn a_part_is_its_ranks_composed_and_names_them() {
         (rh.covers.clone(), rh.total_bytes),
         (vec![0, 1, 2, 3], bytes.len() as u64)
     );
-    let camera = camera_from_pb(rh.camera.as_ref().unwrap()).unwrap();
+    let camera = Camera::try_from(rh.camera.as_ref().unwrap()).unwrap();
     for (v, &angle) in rh.view_angles_deg.iter().enumerate() {
         let per = 24 * 24 * 16;
         let (got, got_opacity) = rgba_frame(&bytes[v * per..(v + 1) * per], (24, 24));

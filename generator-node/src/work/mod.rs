@@ -13,7 +13,6 @@ use insitu_core::vdi::generate::Progress;
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::Brick;
 use insitu_core::{Backend, Camera, Image, NamedTf, Precision, Raycaster, Vdi, VdiParams};
-use insitu_proto::convert::{camera_to_pb, codec_to_pb, dims_to_pb, vec3_to_pb};
 use insitu_proto::pb;
 use std::sync::Arc;
 use std::time::Instant;
@@ -400,7 +399,7 @@ fn header(
         world_size: info.world_size,
         resolution: params.resolution,
         gamma: params.gamma,
-        codec: codec_to_pb(gen.codec) as i32,
+        codec: pb::Codec::from(gen.codec) as i32,
         total_bytes: file.len() as u64,
         supersegments: generated.value.supersegments().len() as u64,
         tau_secs,
@@ -408,13 +407,13 @@ fn header(
         tf_hash: tf.tf.identity_hash(),
         tf_name: tf.name.clone(),
         // A few hundred bytes beside a VDI of kilobytes to megabytes.
-        tf_json: serde_json::to_string(&tf.tf).unwrap_or_default(),
-        tau_source: insitu_proto::convert::tau_source_to_pb(generated.source) as i32,
+        tf: Some(pb::TransferFunction::from(&tf.tf)),
+        tau_source: pb::TauSource::from(generated.source) as i32,
         backend: backend.describe(),
         pm_version: gen.pm_version,
-        global_dims: Some(dims_to_pb(info.global_dims)),
-        brick_offset: Some(dims_to_pb(info.brick_offset)),
-        brick_dims: Some(dims_to_pb(info.brick_dims)),
+        global_dims: Some(pb::Dims3::from(info.global_dims)),
+        brick_offset: Some(pb::Dims3::from(info.brick_offset)),
+        brick_dims: Some(pb::Dims3::from(info.brick_dims)),
         with_references: false,
         covers: Vec::new(),
         scene_version: gen.scene_version,
@@ -485,7 +484,7 @@ fn references(
         rank: raw.info.rank,
         width: size,
         height: size,
-        camera: Some(camera_to_pb(camera)),
+        camera: Some(pb::Camera::from(camera)),
         view_angles_deg: views.clone(),
         total_bytes: bytes.len() as u64,
         opacity,
@@ -534,8 +533,8 @@ pub fn for_tuner(
         begun: 0,
         scene_version: gen.scene_version,
         fields: raw.fields.clone(),
-        box_min: Some(vec3_to_pb(domain.min)),
-        box_max: Some(vec3_to_pb(domain.max)),
+        box_min: Some(pb::Vec3::from(domain.min)),
+        box_max: Some(pb::Vec3::from(domain.max)),
     };
     let held = crate::hold::HeldStep {
         camera: gen.camera_for(&raw.info),

@@ -251,7 +251,7 @@ fn a_killed_generator_with_a_spool_loses_nothing_it_acknowledged() {
             c.set_config(pb::GenerationConfig {
                 resolution: 40,
                 gamma: 0.01,
-                tf_json: Some(serde_json::to_string(&tf).unwrap()),
+                tf: Some(pb::TransferFunction::from(&tf)),
                 tf_name: Some("pushed".into()),
                 ..Default::default()
             })
@@ -729,7 +729,7 @@ fn a_host_killed_holding_composed_and_uncomposed_ranks_loses_nothing() {
         c.set_config(pb::GenerationConfig {
             resolution: 32,
             gamma: 0.01,
-            tf_json: Some(serde_json::to_string(&tf).unwrap()),
+            tf: Some(pb::TransferFunction::from(&tf)),
             tf_name: Some("fixed".into()),
             ..Default::default()
         })

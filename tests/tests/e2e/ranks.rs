@@ -689,7 +689,7 @@ fn fixed_tf_config() -> pb::GenerationConfig {
     pb::GenerationConfig {
         resolution: 32,
         gamma: 0.01,
-        tf_json: Some(serde_json::to_string(&tf).unwrap()),
+        tf: Some(pb::TransferFunction::from(&tf)),
         tf_name: Some("fixed".into()),
         ..Default::default()
     }

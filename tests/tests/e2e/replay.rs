@@ -3,7 +3,6 @@
 use crate::common::{generator, index, load_vdi, local_q, replayed, viz};
 use insitu_core::vdi::render;
 use insitu_e2e::{bin, ocean, Daemon};
-use insitu_proto::convert::camera_to_pb;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::{pb, transport};
 use std::process::Command;
@@ -81,7 +80,7 @@ fn ocean_replay_is_stored_counted_and_scored_like_locally() {
         let req = pb::RenderRequest {
             step: 5,
             rank: 0,
-            camera: Some(camera_to_pb(&camera)),
+            camera: Some(pb::Camera::from(&camera)),
             width: 40,
             height: 24,
             composed: false,

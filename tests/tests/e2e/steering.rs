@@ -187,7 +187,7 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
         (
             r#"{"tf": {"domain": [1, 0], "points": []}}"#,
             400,
-            "tf_json",
+            "tf: transfer function in the request: domain [1, 0]",
         ),
         (
             r#"{"field": "w"}"#,
@@ -229,7 +229,7 @@ fn the_scene_is_steered_from_the_viewer_applied_from_one_step_recorded_and_kept_
         (
             r#"{"tf": {"domain": [1, 0], "points": []}}"#,
             400,
-            "tf_json",
+            "tf: transfer function in the request: domain [1, 0]",
         ),
         (
             &format!(r#"{{"tf": {RED}, "step": 9999}}"#),

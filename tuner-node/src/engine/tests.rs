@@ -239,6 +239,10 @@ fn still_data_keeps_the_p_m_and_drifting_data_gets_a_correction_from_the_next_st
 
 const STEERED_TF: &str = r#"{"domain":[0,1],"points":[[0,0,0,0,0],[1,1,0.5,0,0.8]]}"#;
 
+fn steered_tf() -> pb::TransferFunction {
+    pb::TransferFunction::from(&insitu_core::TransferFunction::from_json(STEERED_TF, "t").unwrap())
+}
+
 fn named(mut s: pb::StepSummary, scene_version: u64) -> pb::StepSummary {
     s.scene_version = scene_version;
     s.fields = vec!["u".into(), "v".into()];
@@ -254,7 +258,7 @@ fn a_steered_scene_is_versioned_pushed_and_tuned_for_afresh_and_a_later_change_s
     assert_eq!(l.engine.state().tracker.step_indices(), [0]);
     let reply = l
         .steer(pb::SteerRequest {
-            tf_json: Some(STEERED_TF.into()),
+            tf: Some(steered_tf()),
             tf_name: Some("warm".into()),
             who: "test".into(),
             ..Default::default()
@@ -389,7 +393,7 @@ fn steering_refuses_what_it_cannot_apply_and_changes_nothing() {
     let e = refused(
         &mut l,
         pb::SteerRequest {
-            tf_json: Some(STEERED_TF.into()),
+            tf: Some(steered_tf()),
             ..Default::default()
         },
     );

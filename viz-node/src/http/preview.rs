@@ -16,7 +16,7 @@ use super::{error, Http};
 use axum::extract::State;
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
-use insitu_proto::convert::camera_to_pb;
+use insitu_core::TransferFunction;
 use insitu_proto::pb;
 use serde::Deserialize;
 use std::sync::Arc;
@@ -29,8 +29,9 @@ const PREVIEW_WAIT: Duration = Duration::from_secs(35);
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PreviewBody {
-    /// Transfer function (docs/conventions.md format), as a JSON object.
-    tf: serde_json::Value,
+    /// Transfer function (docs/conventions.md format), as a JSON object, checked where it is
+    /// read.
+    tf: TransferFunction,
     /// The view.
     camera: Option<CameraBody>,
     /// The held step to render.
@@ -57,16 +58,19 @@ pub async fn preview(State(http): State<Arc<Http>>, headers: HeaderMap, body: St
     let camera = match b.camera {
         None => None,
         Some(c) => match c.camera(&http).await {
-            Ok(c) => Some(camera_to_pb(&c)),
+            Ok(c) => Some(pb::Camera::from(&c)),
             Err(e) => return error(StatusCode::BAD_REQUEST, e),
         },
     };
+    if let Err(e) = b.tf.validate("in the request") {
+        return error(StatusCode::BAD_REQUEST, format!("tf: {e}"));
+    }
     let request = pb::PreviewRequest {
-        preview_id: 0,
         step: b.step,
-        tf_json: b.tf.to_string(),
+        tf: Some(pb::TransferFunction::from(&b.tf)),
         camera,
         size: b.size.unwrap_or(0),
+        ..Default::default()
     };
     let call = async {
         tuner_client(&peer)

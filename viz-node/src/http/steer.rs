@@ -26,13 +26,12 @@ use axum::extract::State;
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use insitu_core::Camera;
+use insitu_core::{Camera, TransferFunction};
 use insitu_proto::auth::AttachToken;
-use insitu_proto::convert::camera_to_pb;
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_client::TunerClient;
 use insitu_proto::peer::Peer;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::sync::Arc;
 use std::time::Duration;
@@ -72,49 +71,76 @@ pub async fn colormaps() -> Response {
 /// How long a steering request waits for the tuner.
 pub(super) const TUNER_WAIT: Duration = Duration::from_secs(10);
 
-/// A steering request's body.
-#[derive(Debug, Deserialize)]
+/// A steering request's body, as the page and `insitu steer` send it and this API reads it:
+/// every part optional, unset parts left out.
+#[derive(Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SteerBody {
-    /// Transfer function (docs/conventions.md format), as a JSON object.
-    tf: Option<serde_json::Value>,
+    /// Transfer function (docs/conventions.md format), as a JSON object, checked where it is
+    /// read.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tf: Option<TransferFunction>,
     /// Its name.
-    tf_name: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tf_name: Option<String>,
     /// The field to render.
-    field: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub field: Option<String>,
     /// The generation camera.
-    camera: Option<CameraBody>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraBody>,
     /// The tuner's utility, e.g. `size:1MB`.
-    utility: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub utility: Option<String>,
     /// The ray-casting sample distance, world units.
-    sample_distance: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sample_distance: Option<f32>,
     /// Gradient shading on or off.
-    shading: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shading: Option<bool>,
     /// Refused: the sample distance is `sample_distance` (a `step` is a time step).
-    #[serde(default, rename = "step")]
+    #[serde(default, rename = "step", skip_serializing)]
     old_step: Option<serde_json::Value>,
 }
 
+impl SteerBody {
+    /// Whether it asks for no change at all.
+    pub fn is_empty(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
 /// A camera as a steering request gives it.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
 #[serde(untagged, deny_unknown_fields)]
-pub(super) enum CameraBody {
-    /// World coordinates.
+pub enum CameraBody {
+    /// World coordinates: eye and target, `up` (default +y) and the vertical field of view in
+    /// degrees (default 30).
     Explicit {
+        /// Eye position.
         eye: [f32; 3],
+        /// Point looked at.
         target: [f32; 3],
+        /// Up hint.
         #[serde(default = "y_up")]
         up: [f32; 3],
+        /// Vertical field of view, degrees.
         #[serde(default = "thirty")]
         fov_y_deg: f32,
     },
-    /// A stored step's generation camera orbited as the page shows it.
+    /// A stored step's generation camera (unset: the newest step's) orbited as the page shows
+    /// it: azimuth and elevation in degrees, zoom 1 the generation camera's distance.
     View {
+        /// The stored step.
+        #[serde(skip_serializing_if = "Option::is_none")]
         step: Option<u64>,
+        /// Azimuth about +y, degrees.
         #[serde(default)]
         angle: f32,
+        /// Elevation, degrees.
         #[serde(default)]
         elevation: f32,
+        /// Zoom (> 1 nearer).
         #[serde(default = "one")]
         zoom: f32,
     },
@@ -157,10 +183,10 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
         }
     };
     let scene = s.scene.unwrap_or_default();
-    let tf: Option<serde_json::Value> = scene
-        .tf_json
-        .as_deref()
-        .and_then(|t| serde_json::from_str(t).ok());
+    let tf = scene
+        .tf
+        .as_ref()
+        .and_then(|t| TransferFunction::try_from(t).ok());
     let steering: Vec<serde_json::Value> = s
         .steering
         .iter()
@@ -309,8 +335,8 @@ pub(super) fn tuner_refused(s: &tonic::Status) -> Response {
     error(status, s.message().to_owned())
 }
 
-/// The tuner's request for `b`: the transfer function as JSON text, a view's camera made
-/// from its step's generation camera.
+/// The tuner's request for `b`: the transfer function checked and typed for the wire, a
+/// view's camera made from its step's generation camera.
 ///
 /// # Errors
 /// A message naming the bad part (a view of a step not stored, a bad view).
@@ -325,15 +351,20 @@ async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, Str
         None => None,
         Some(c) => Some(c.camera(http).await?),
     };
+    if let Some(tf) = &b.tf {
+        tf.validate("in the request")
+            .map_err(|e| format!("tf: {e}"))?;
+    }
     Ok(pb::SteerRequest {
-        tf_json: b.tf.map(|v| v.to_string()),
+        tf: b.tf.as_ref().map(pb::TransferFunction::from),
         tf_name: b.tf_name,
         field: b.field,
-        camera: camera.as_ref().map(camera_to_pb),
+        camera: camera.as_ref().map(pb::Camera::from),
         utility: b.utility,
         sample_distance: b.sample_distance,
         shading: b.shading,
         who: "the viewer's steering API".into(),
+        legacy_tf_json: None,
     })
 }
 
@@ -456,5 +487,31 @@ mod tests {
         ] {
             assert!(serde_json::from_str::<SteerBody>(bad).is_err(), "{bad}");
         }
+    }
+
+    /// What `insitu steer` sends (the type serialized) reads back as the same request; unset
+    /// parts are left out, so the empty body is `{}`, which asks for nothing.
+    #[test]
+    fn a_body_written_by_the_type_reads_back_the_same() {
+        let b = SteerBody {
+            tf: Some(TransferFunction::default_for_range(-2.0, 5.0)),
+            tf_name: Some("warm".into()),
+            camera: Some(CameraBody::View {
+                step: None,
+                angle: 30.0,
+                elevation: -10.0,
+                zoom: 1.5,
+            }),
+            sample_distance: Some(0.25),
+            ..Default::default()
+        };
+        let text = serde_json::to_string(&b).unwrap();
+        assert_eq!(serde_json::from_str::<SteerBody>(&text).unwrap(), b);
+        assert!(
+            !text.contains("field") && !text.contains("\"step\""),
+            "{text}"
+        );
+        assert_eq!(serde_json::to_string(&SteerBody::default()).unwrap(), "{}");
+        assert!(SteerBody::default().is_empty() && !b.is_empty());
     }
 }

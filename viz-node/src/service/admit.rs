@@ -42,8 +42,8 @@ pub(super) fn store_vdi(
         check_provenance(&what, h, (placement, &ranks), &p)?;
     }
     // Kept for the viewer's legend; a bad one costs the legend, not the VDI.
-    if !h.tf_json.is_empty() {
-        if let Err(e) = crate::tfs::keep(s.recording.dir(), h.tf_hash, &h.tf_json) {
+    if let Some(tf) = &h.tf {
+        if let Err(e) = crate::tfs::keep(s.recording.dir(), h.tf_hash, tf) {
             warn!(step = h.step, rank = h.rank, error = %e, "the VDI's transfer function was not kept");
         }
     }
@@ -54,7 +54,8 @@ pub(super) fn store_vdi(
             h.resolution, h.gamma, p.resolution, p.gamma
         )));
     }
-    let tau_source = tau_source_from_pb(h.tau_source)
+    let tau_source = wire_enum::<pb::TauSource>(h.tau_source, "tau_source")
+        .map(TimeSource::from)
         .map_err(|e| Status::invalid_argument(format!("{what}: {}", e.message())))?;
     let meta = Entry {
         step: h.step,
@@ -66,7 +67,7 @@ pub(super) fn store_vdi(
         resolution: h.resolution,
         gamma: h.gamma,
         precision: p.precision,
-        codec: codec_from_pb(h.codec)?,
+        codec: wire_enum::<pb::Codec>(h.codec, "codec").map(Option::<Codec>::from)?,
         sizing: Sizing {
             sigma_bytes: bytes.len() as u64,
             supersegments: vdi.supersegments().len() as u64,
@@ -185,7 +186,7 @@ pub(super) fn reference_camera(h: &pb::ReferenceHeader) -> Result<insitu_core::C
         .camera
         .as_ref()
         .ok_or_else(|| Status::invalid_argument("camera is missing"))?;
-    camera_from_pb(camera)
+    Camera::try_from(camera)
 }
 
 /// Parses received reference frames (`bytes`, with their header `h` and its `camera`) and
@@ -230,7 +231,7 @@ pub(super) fn store_references(
 /// # Errors
 /// `INVALID_ARGUMENT` when only part of it is set or it does not fit the grid.
 pub(super) fn placement(h: &pb::VdiHeader) -> Result<Option<Placement>, Status> {
-    let d = |v: &Option<pb::Dims3>| insitu_proto::convert::dims_from_pb(v.as_ref());
+    let d = |v: &Option<pb::Dims3>| v.as_ref().map(<[usize; 3]>::from);
     match (d(&h.global_dims), d(&h.brick_offset), d(&h.brick_dims)) {
         (None, None, None) => Ok(None),
         (Some(global_dims), Some(offset), Some(dims)) => {

@@ -5,12 +5,13 @@ mod admit;
 use crate::scene::SceneAgreement;
 use crate::score::score;
 use admit::{placement, reference_camera, store_references, store_vdi};
+use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
-use insitu_core::vdi::codec::{self, DecodeLimits};
+use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
 use insitu_core::vdi::provenance::Provenance;
 use insitu_core::volume::bricks::{self, Brick};
-use insitu_core::{Backend, Vdi};
-use insitu_proto::convert::{camera_from_pb, codec_from_pb, codec_to_pb, tau_source_from_pb};
+use insitu_core::{Backend, Camera, Vdi};
+use insitu_proto::convert::wire_enum;
 use insitu_proto::pb::viz_server::Viz;
 use insitu_proto::peer::Backoff;
 use insitu_proto::{chunk, pb};
@@ -115,7 +116,7 @@ pub fn step_report(s: &StepEntry) -> pb::QualityReport {
         rank: 0,
         resolution: s.resolution,
         gamma: s.gamma,
-        codec: s.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
+        codec: s.codec.map_or(pb::Codec::Unspecified, pb::Codec::from) as i32,
         path: s.vdi.clone().unwrap_or_default(),
         pm_version: s.pm_version,
         scene_version: s.scene_version,
@@ -134,7 +135,7 @@ pub fn report(e: &Entry) -> pb::QualityReport {
         rank: e.rank,
         resolution: e.resolution,
         gamma: e.gamma,
-        codec: e.codec.map_or(pb::Codec::Unspecified, codec_to_pb) as i32,
+        codec: e.codec.map_or(pb::Codec::Unspecified, pb::Codec::from) as i32,
         path: e.vdi.clone().unwrap_or_default(),
         pm_version: e.pm_version,
         scene_version: e.scene_version,
@@ -398,7 +399,8 @@ impl VizService {
     async fn ship_vdi_inner(&self, mut stream: Streaming<pb::VdiChunk>) -> Result<Entry, Status> {
         self.0.writable("a VDI")?;
         let (h, bytes) = chunk::receive(&mut stream, self.0.max_vdi_bytes, |h: &pb::VdiHeader| {
-            codec_from_pb(h.codec)?
+            wire_enum::<pb::Codec>(h.codec, "codec")
+                .map(Option::<Codec>::from)?
                 .ok_or_else(|| Status::invalid_argument("codec is unspecified"))?;
             Ok(())
         })
@@ -563,10 +565,8 @@ impl Viz for VizService {
             .scene
             .propose(&p, Duration::from_secs_f64(wait))
             .await?;
-        let tf_json =
-            serde_json::to_string(&a.tf).map_err(|e| Status::internal(format!("scene: {e}")))?;
         Ok(Response::new(pb::SceneAgreement {
-            tf_json,
+            tf: Some(pb::TransferFunction::from(&a.tf)),
             tf_name: a.tf_name,
             world_size: a.world_size,
         }))
@@ -599,7 +599,7 @@ impl Viz for VizService {
                 "every render slot is busy (render_concurrency); try again shortly",
             )
         })?;
-        let camera = r.camera.as_ref().map(camera_from_pb).transpose()?;
+        let camera = r.camera.as_ref().map(Camera::try_from).transpose()?;
         let s = self.0.clone();
         // Dropped with the call (its client went away): the render stops at its next tile.
         let cancel = insitu_core::cancel::Cancel::new();
