@@ -13,11 +13,11 @@ use insitu_core::{Camera, NamedTf, Precision, TransferFunction, VdiParams};
 /// The default precision of the VDI files a node writes: 8 bits of colour and opacity.
 pub const DEFAULT_PRECISION: Precision = Precision::Bits(8);
 pub use insitu_proto::daemon::ConfigError;
-use insitu_proto::daemon::{load_toml, DaemonConfig};
+use insitu_proto::daemon::{DaemonConfig, ServeKeys};
 use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Limits and policy of a bounded queue.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -444,25 +444,27 @@ fn invalid(key: &'static str, problem: impl Into<String>) -> ConfigError {
 }
 
 impl DaemonConfig for Config {
+    fn serve(&self) -> ServeKeys<'_> {
+        ServeKeys {
+            listen: self.listen,
+            insecure: self.insecure,
+            tls: &self.tls,
+            token_file: self.token_file.as_deref(),
+        }
+    }
     fn listen_mut(&mut self) -> &mut SocketAddr {
         &mut self.listen
     }
     fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
         &mut self.token_file
     }
+    /// [`Config::generation`], its result dropped.
+    fn validate(&self) -> Result<(), ConfigError> {
+        self.generation().map(|_| ())
+    }
 }
 
 impl Config {
-    /// Reads and validates a TOML file.
-    ///
-    /// # Errors
-    /// [`ConfigError`] naming the file or key.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let cfg: Self = load_toml(path)?;
-        cfg.generation()?;
-        Ok(cfg)
-    }
-
     /// Checks the limits and resolves the generation settings
     /// ([`GenerationConfig::resolve`]).
     ///
@@ -629,7 +631,8 @@ mod tests {
 
     #[test]
     fn the_documented_example_parses_and_matches_the_defaults() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/generator-node.toml");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/generator-node.toml");
         let cfg = Config::load(&path).unwrap();
         assert_eq!(cfg, Config::default());
     }

@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::Parser;
 use insitu_generator_node::{start, Config, Policy};
-use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs, DaemonConfig};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -136,7 +136,7 @@ fn config(a: Args) -> Result<Config> {
     if a.field.is_some() {
         g.field = a.field;
     }
-    c.generation()?;
+    c.validate()?;
     Ok(c)
 }
 

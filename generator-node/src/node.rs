@@ -1,7 +1,7 @@
 //! A running generator-node: the gRPC server, the generation worker and the shipper, wired
 //! together, with a graceful shutdown that drains what it can and says what it dropped.
 
-use crate::config::{Config, ConfigError, Generation, SpoolConfig};
+use crate::config::{Config, Generation, SpoolConfig};
 use crate::ingest::RawStep;
 use crate::queue::BoundedQueue;
 use crate::service::GeneratorService;
@@ -10,9 +10,8 @@ use crate::ship::Shipper;
 use crate::spool::{Spool, SpoolError};
 use crate::stats::{Counters, Stats};
 use crate::work;
-use insitu_core::backend::{BackendChoice, BackendError};
 use insitu_core::NamedTf;
-use insitu_proto::health::Health;
+use insitu_proto::daemon::{bind, select_backend, DaemonConfig, ServeError, Served};
 use insitu_proto::pb::generator_server::GeneratorServer;
 use insitu_proto::peer::Peer;
 use insitu_proto::security::{Security, SecurityError};
@@ -22,9 +21,7 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
-use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{error, info, info_span, warn, Instrument};
 
 /// What a shutdown leaves behind.
@@ -71,12 +68,10 @@ impl std::fmt::Display for Summary {
 /// Why a node did not start; each names the input at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
-    /// The configuration.
+    /// The configuration, the token, TLS files or a peer's address, the compute backend, the
+    /// listening address.
     #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// The token, TLS files or a peer address.
-    #[error(transparent)]
-    Security(#[from] SecurityError),
+    Serve(#[from] ServeError),
     /// The spool directory.
     #[error("spool {}: {source}", dir.display())]
     Spool {
@@ -93,30 +88,6 @@ pub enum StartError {
         /// Why.
         problem: String,
     },
-    /// The compute backend.
-    #[error("backend {choice}: {source}")]
-    Backend {
-        /// The choice configured.
-        choice: BackendChoice,
-        /// Why.
-        source: BackendError,
-    },
-    /// The backend's selection did not finish (it panicked).
-    #[error("backend {choice}: its selection did not finish: {source}")]
-    BackendTask {
-        /// The choice configured.
-        choice: BackendChoice,
-        /// Why.
-        source: tokio::task::JoinError,
-    },
-    /// The listening address.
-    #[error("cannot listen on {addr}: {source}")]
-    Listen {
-        /// The address configured.
-        addr: SocketAddr,
-        /// Why.
-        source: std::io::Error,
-    },
     /// The worker pool of `threads`.
     #[error("threads = {threads}: cannot start the worker threads: {source}")]
     Threads {
@@ -127,16 +98,10 @@ pub enum StartError {
     },
 }
 
-/// The gRPC server's task.
-type ServerTask = JoinHandle<Result<(), tonic::transport::Error>>;
-
 /// A started node.
 pub struct RunningNode {
-    addr: SocketAddr,
     shared: Arc<Shared>,
-    health: Health,
-    stop_server: oneshot::Sender<()>,
-    server: ServerTask,
+    served: Served,
     worker: JoinHandle<()>,
     host: JoinHandle<()>,
     shippers: Vec<JoinHandle<()>>,
@@ -152,31 +117,20 @@ pub struct RunningNode {
 /// [`StartError`]: a bad config, token, TLS file or spool, a non-loopback address without a
 /// token, no backend, or a bind failure.
 pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
-    let mut generation = cfg.generation()?;
+    let mut generation = cfg.generation().map_err(ServeError::from)?;
     let (spool, recovered) = match &cfg.spool {
         Some(sc) => open_spool(sc, &mut generation)?,
         None => (None, Vec::new()),
     };
     let tf_configured = generation.tf.is_some();
-    let security = Security::load(
-        cfg.listen,
-        cfg.token_file.as_deref(),
-        &cfg.tls,
-        cfg.insecure,
-    )?;
-    let (viz, viz_shards) = viz_peers(&cfg, &security)?;
-    let tuner_peer = security.peer_for("tuner", cfg.tuner.as_deref())?;
-    let choice = cfg.backend;
-    let backend = select_backend(choice).await?;
+    let security = cfg.serve().security().map_err(ServeError::from)?;
+    let (viz, viz_shards) = viz_peers(&cfg, &security).map_err(ServeError::from)?;
+    let tuner_peer = security
+        .peer_for("tuner", cfg.tuner.as_deref())
+        .map_err(ServeError::from)?;
+    let backend = select_backend(cfg.backend).await?;
     info!("generating on {}", backend.describe());
-    let listen = |source| StartError::Listen {
-        addr: cfg.listen,
-        source,
-    };
-    let listener = tokio::net::TcpListener::bind(cfg.listen)
-        .await
-        .map_err(listen)?;
-    let addr = listener.local_addr().map_err(listen)?;
+    let (listener, addr) = bind("listen", cfg.listen).await?;
     let stats = Arc::new(Stats::default());
     // With a tuner: the node's side of the link, and the channel of step summaries to it.
     let tuner = tuner_peer.map(|peer| {
@@ -232,7 +186,10 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         })),
         layout: crate::layout::Layouts::default(),
     });
-    let (health, stop_server, server) = serve(&shared, &security, listener).await?;
+    let svc = GeneratorServer::new(GeneratorService(shared.clone()))
+        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+    let served = Served::start((listener, addr), &security, svc).await?;
     shared.save_run();
     let worker = tokio::spawn(worker(shared.clone()));
     let host =
@@ -253,11 +210,8 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
     });
     info!(%addr, tls = security.serves_tls(), viz = ?cfg.viz, tuner = ?cfg.tuner, policy = %cfg.queue.policy, "generator-node listening");
     Ok(RunningNode {
-        addr,
         shared,
-        health,
-        stop_server,
-        server,
+        served,
         worker,
         host,
         shippers,
@@ -272,7 +226,10 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
 ///
 /// # Errors
 /// [`StartError`] for an address that does not resolve or lacks its security.
-fn viz_peers(cfg: &Config, security: &Security) -> Result<(Option<Peer>, Vec<Peer>), StartError> {
+fn viz_peers(
+    cfg: &Config,
+    security: &Security,
+) -> Result<(Option<Peer>, Vec<Peer>), SecurityError> {
     let viz = security.peer_for("viz", cfg.viz.as_deref())?;
     let mut shards: Vec<Peer> = viz.iter().cloned().collect();
     for addr in &cfg.viz_shards {
@@ -300,29 +257,6 @@ fn spawn_shippers(
             )
         })
         .collect()
-}
-
-/// The gRPC service of `shared` (behind `security`'s token check, with the health service)
-/// served on `listener` until the returned sender fires or is dropped.
-async fn serve(
-    shared: &Arc<Shared>,
-    security: &Security,
-    listener: tokio::net::TcpListener,
-) -> Result<(Health, oneshot::Sender<()>, ServerTask), StartError> {
-    let (stop, stopped) = oneshot::channel::<()>();
-    let svc = GeneratorServer::new(GeneratorService(shared.clone()))
-        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
-    let svc = tonic::service::interceptor::InterceptedService::new(svc, security.require_token());
-    let (health, health_svc) = Health::serving::<GeneratorServer<GeneratorService>>().await;
-    let server = security
-        .server()?
-        .add_service(svc)
-        .add_service(health_svc)
-        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
-            let _ = stopped.await;
-        });
-    Ok((health, stop, tokio::spawn(server)))
 }
 
 /// The spool in `sc.dir` and the steps it holds; where it recorded the run's configuration
@@ -363,14 +297,6 @@ fn shared_memory(dir: Option<&std::path::Path>) -> Option<crate::shm::SharedMemo
             None
         }
     }
-}
-
-/// [`insitu_core::Backend::select`] off the runtime (a GPU's set-up blocks).
-async fn select_backend(choice: BackendChoice) -> Result<insitu_core::Backend, StartError> {
-    tokio::task::spawn_blocking(move || insitu_core::Backend::select(choice))
-        .await
-        .map_err(|source| StartError::BackendTask { choice, source })?
-        .map_err(|source| StartError::Backend { choice, source })
 }
 
 /// Queues the steps an earlier run acknowledged and did not deliver, in the background (the
@@ -610,7 +536,7 @@ fn keep_tf(shared: &Shared, tf: NamedTf, world_size: u32) {
 impl RunningNode {
     /// The address the server listens on (the actual port when 0 was asked for).
     pub fn local_addr(&self) -> SocketAddr {
-        self.addr
+        self.served.local_addr()
     }
 
     /// Shared state (status, counters).
@@ -621,7 +547,7 @@ impl RunningNode {
     /// Stops taking steps, generates what is queued and ships it for up to the drain timeout,
     /// and counts whatever is left as dropped (a spool keeps it for the next run).
     pub async fn shutdown(self) -> Summary {
-        self.health.draining().await;
+        self.served.draining().await;
         self.shared.queue.close();
         // The queue closed first: a step the input waits to queue is refused, not waited on.
         #[cfg(feature = "adios2")]
@@ -631,10 +557,7 @@ impl RunningNode {
         };
         #[cfg(not(feature = "adios2"))]
         let input = None;
-        let _ = self.stop_server.send(());
-        if let Err(e) = self.server.await {
-            warn!(error = %e, "server task ended abnormally");
-        }
+        self.served.stop().await;
         // One deadline for generating what is queued and shipping it: with the viz-node away
         // the worker would wait for room in a full outbox (or for the world's TF) for ever.
         let deadline = tokio::time::Instant::now() + self.drain_timeout;
@@ -697,7 +620,7 @@ mod tests {
 
     fn cpu() -> Config {
         Config {
-            backend: BackendChoice::Cpu,
+            backend: insitu_core::BackendChoice::Cpu,
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             ..Config::default()
         }
@@ -718,7 +641,7 @@ mod tests {
             panic!("a taken port started");
         };
         assert!(
-            matches!(&err, StartError::Listen { addr: a, .. } if *a == addr),
+            matches!(&err, StartError::Serve(ServeError::Listen { addr: a, .. }) if *a == addr),
             "{err:?}"
         );
         let said = insitu_proto::peer::error_chain(&err);

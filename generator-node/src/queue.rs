@@ -25,12 +25,13 @@ pub enum Policy {
 }
 
 /// A queue policy for the wire (`GeneratorStatus.queue_policy`).
-pub fn policy_to_pb(p: Policy) -> insitu_proto::pb::QueuePolicy {
-    use insitu_proto::pb::QueuePolicy as Pb;
-    match p {
-        Policy::Block => Pb::Block,
-        Policy::DropOldest => Pb::DropOldest,
-        Policy::LatestOnly => Pb::LatestOnly,
+impl From<Policy> for insitu_proto::pb::QueuePolicy {
+    fn from(p: Policy) -> Self {
+        match p {
+            Policy::Block => Self::Block,
+            Policy::DropOldest => Self::DropOldest,
+            Policy::LatestOnly => Self::LatestOnly,
+        }
     }
 }
 

@@ -93,7 +93,7 @@ impl Shared {
             queue_depth: self.queue.len() as u32,
             queue_limit: self.queue.max_items() as u32,
             queue_bytes: self.queue.bytes(),
-            queue_policy: crate::queue::policy_to_pb(self.queue.policy()) as i32,
+            queue_policy: pb::QueuePolicy::from(self.queue.policy()) as i32,
             outbox_depth: self.outboxes.iter().map(|o| o.len()).sum::<usize>() as u32,
             steps_received: c.received,
             steps_generated: c.generated,

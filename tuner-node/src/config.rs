@@ -2,13 +2,13 @@
 //! `deploy/tuner-node.toml`), overridden by command-line flags.
 
 pub use insitu_proto::daemon::ConfigError;
-use insitu_proto::daemon::{load_toml, DaemonConfig};
+use insitu_proto::daemon::{DaemonConfig, ServeKeys};
 use insitu_proto::tls::TlsFiles;
 use insitu_tuner::utility::{Budgets, Utility, UtilitySpec};
 use insitu_tuner::ParamGrid;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// How candidates are searched.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -214,25 +214,27 @@ impl Resolved {
 }
 
 impl DaemonConfig for Config {
+    fn serve(&self) -> ServeKeys<'_> {
+        ServeKeys {
+            listen: self.listen,
+            insecure: self.insecure,
+            tls: &self.tls,
+            token_file: self.token_file.as_deref(),
+        }
+    }
     fn listen_mut(&mut self) -> &mut SocketAddr {
         &mut self.listen
     }
     fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
         &mut self.token_file
     }
+    /// [`Config::resolve`], its result dropped.
+    fn validate(&self) -> Result<(), ConfigError> {
+        self.resolve().map(|_| ())
+    }
 }
 
 impl Config {
-    /// Reads and validates a TOML file.
-    ///
-    /// # Errors
-    /// [`ConfigError`] naming the file or key.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let cfg: Self = load_toml(path)?;
-        cfg.resolve()?;
-        Ok(cfg)
-    }
-
     /// Checks every key and parses the utility and the grid.
     ///
     /// # Errors
@@ -311,7 +313,8 @@ mod tests {
 
     #[test]
     fn the_documented_example_parses_and_matches_the_defaults() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/tuner-node.toml");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/tuner-node.toml");
         assert_eq!(Config::load(&path).unwrap(), Config::default());
     }
 

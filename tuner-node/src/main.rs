@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use clap::Parser;
-use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs, DaemonConfig};
 use insitu_tuner_node::{start, Config};
 use std::path::PathBuf;
 
@@ -39,7 +39,7 @@ fn config(a: Args) -> Result<Config> {
     if let Some(v) = a.utility {
         c.utility = v;
     }
-    c.resolve()?;
+    c.validate()?;
     Ok(c)
 }
 

@@ -2,53 +2,36 @@
 //! quality reports.
 
 use crate::config::Config;
-use crate::config::ConfigError;
 use crate::engine::{Engine, Event};
 use crate::service::TunerService;
 use crate::state::{State, StateError};
-use insitu_proto::health::Health;
+use insitu_proto::daemon::{bind, DaemonConfig, ServeError, Served};
 use insitu_proto::pb;
 use insitu_proto::pb::tuner_server::TunerServer;
 use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::{error_chain, Backoff, Peer};
-use insitu_proto::security::{Security, SecurityError};
 use insitu_tuner::live::Tracker;
 use std::net::SocketAddr;
 use std::sync::Arc;
-use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{info, warn};
 
 /// Why a tuner-node did not start; each names the input at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
-    /// The configuration.
+    /// The configuration, the token, TLS files or the viz-node's address, the listening
+    /// address.
     #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// The token, TLS files or the viz-node's address.
-    #[error(transparent)]
-    Security(#[from] SecurityError),
+    Serve(#[from] ServeError),
     /// The state directory (the errors name the file).
     #[error(transparent)]
     State(#[from] StateError),
-    /// The listening address.
-    #[error("cannot listen on {addr}: {source}")]
-    Listen {
-        /// The address configured.
-        addr: SocketAddr,
-        /// Why.
-        source: std::io::Error,
-    },
 }
 
 /// A started tuner.
 pub struct RunningTuner {
-    addr: SocketAddr,
     engine: Arc<Engine>,
-    health: Health,
-    stop: oneshot::Sender<()>,
-    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    served: Served,
     tasks: Vec<JoinHandle<()>>,
 }
 
@@ -58,16 +41,15 @@ pub struct RunningTuner {
 /// [`StartError`]: a bad config, token or TLS file, a non-loopback address without a token,
 /// an unreadable or unwritable state file, or a bind failure.
 pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
-    let resolved = cfg.resolve()?;
-    let security = Security::load(
-        cfg.listen,
-        cfg.token_file.as_deref(),
-        &cfg.tls,
-        cfg.insecure,
-    )?;
+    let resolved = cfg.resolve().map_err(ServeError::from)?;
+    let security = cfg.serve().security().map_err(ServeError::from)?;
     let mut watched = Vec::new();
     for addr in cfg.viz.iter().chain(&cfg.viz_shards) {
-        watched.extend(security.peer_for("viz", Some(addr))?);
+        watched.extend(
+            security
+                .peer_for("viz", Some(addr))
+                .map_err(ServeError::from)?,
+        );
     }
     let state = match State::load(&cfg.state_dir)? {
         Some(s) => {
@@ -89,42 +71,23 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
             s
         }
     };
-    let listen = |source| StartError::Listen {
-        addr: cfg.listen,
-        source,
-    };
-    let listener = tokio::net::TcpListener::bind(cfg.listen)
-        .await
-        .map_err(listen)?;
-    let addr = listener.local_addr().map_err(listen)?;
+    let bound = bind("listen", cfg.listen).await?;
     let (engine, events) = Engine::new(cfg, resolved, state, crate::tune::tune);
     let mut tasks = vec![tokio::spawn(engine.clone().run(events))];
     // Every shard's reports: each step's q comes from the shard that stored it.
     for viz in watched {
         tasks.push(tokio::spawn(watch(viz, engine.clone())));
     }
-    let svc = tonic::service::interceptor::InterceptedService::new(
+    let served = Served::start(
+        bound,
+        &security,
         TunerServer::new(TunerService(engine.clone())),
-        security.require_token(),
-    );
-    let (health, health_svc) = Health::serving::<TunerServer<TunerService>>().await;
-    let (stop, stopped) = oneshot::channel::<()>();
-    let server = tokio::spawn(
-        security
-            .server()?
-            .add_service(svc)
-            .add_service(health_svc)
-            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
-                let _ = stopped.await;
-            }),
-    );
-    info!(%addr, utility = %engine.utility(), "tuner-node listening");
+    )
+    .await?;
+    info!(addr = %served.local_addr(), utility = %engine.utility(), "tuner-node listening");
     Ok(RunningTuner {
-        addr,
         engine,
-        health,
-        stop,
-        server,
+        served,
         tasks,
     })
 }
@@ -161,7 +124,7 @@ async fn watch(viz: Peer, engine: Arc<Engine>) {
 impl RunningTuner {
     /// The address served.
     pub fn local_addr(&self) -> SocketAddr {
-        self.addr
+        self.served.local_addr()
     }
 
     /// The engine (status, decisions).
@@ -171,14 +134,13 @@ impl RunningTuner {
 
     /// Stops serving; the state is already on disk.
     pub async fn shutdown(self) {
-        self.health.draining().await;
+        self.served.draining().await;
         self.engine
             .stopping
             .store(true, std::sync::atomic::Ordering::Relaxed);
-        let _ = self.stop.send(());
         for t in &self.tasks {
             t.abort();
         }
-        let _ = self.server.await;
+        self.served.stop().await;
     }
 }

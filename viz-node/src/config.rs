@@ -3,11 +3,11 @@
 
 use insitu_core::BackendChoice;
 pub use insitu_proto::daemon::ConfigError;
-use insitu_proto::daemon::{load_toml, DaemonConfig};
+use insitu_proto::daemon::{DaemonConfig, ServeKeys};
 use insitu_proto::tls::TlsFiles;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// The whole file.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -111,38 +111,25 @@ impl Default for Config {
 }
 
 impl DaemonConfig for Config {
+    fn serve(&self) -> ServeKeys<'_> {
+        ServeKeys {
+            listen: self.listen,
+            insecure: self.insecure,
+            tls: &self.tls,
+            token_file: self.token_file.as_deref(),
+        }
+    }
     fn listen_mut(&mut self) -> &mut SocketAddr {
         &mut self.listen
     }
     fn token_file_mut(&mut self) -> &mut Option<PathBuf> {
         &mut self.token_file
     }
-}
-
-impl Config {
-    /// Reads and validates a TOML file.
-    ///
-    /// # Errors
-    /// [`ConfigError`] naming the file or key.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let cfg: Self = load_toml(path)?;
-        cfg.validate()?;
-        Ok(cfg)
-    }
-
-    /// The viewer's connection timeouts.
-    pub fn http_timeouts(&self) -> crate::http::conn::Timeouts {
-        crate::http::conn::Timeouts {
-            header: std::time::Duration::from_secs_f64(self.http_header_timeout_secs),
-            idle: std::time::Duration::from_secs_f64(self.http_idle_secs),
-        }
-    }
-
     /// Checks the values.
     ///
     /// # Errors
     /// [`ConfigError::Invalid`].
-    pub fn validate(&self) -> Result<(), ConfigError> {
+    fn validate(&self) -> Result<(), ConfigError> {
         if !(self.termination > 0.0 && self.termination <= 1.0) {
             return Err(ConfigError::Invalid {
                 key: "termination",
@@ -185,13 +172,23 @@ impl Config {
     }
 }
 
+impl Config {
+    /// The viewer's connection timeouts.
+    pub fn http_timeouts(&self) -> crate::http::conn::Timeouts {
+        crate::http::conn::Timeouts {
+            header: std::time::Duration::from_secs_f64(self.http_header_timeout_secs),
+            idle: std::time::Duration::from_secs_f64(self.http_idle_secs),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn the_documented_example_parses_and_matches_the_defaults() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/viz-node.toml");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/viz-node.toml");
         assert_eq!(Config::load(&path).unwrap(), Config::default());
         assert!(toml::from_str::<Config>("termination = 0.0")
             .unwrap()

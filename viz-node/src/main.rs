@@ -2,7 +2,7 @@
 //! overrides, serves until SIGINT/SIGTERM.
 
 use clap::Parser;
-use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs};
+use insitu_proto::daemon::{run_main, shutdown_signal, CommonArgs, DaemonConfig};
 use insitu_viz_node::{start, Config};
 use std::net::SocketAddr;
 use std::path::PathBuf;

@@ -1,17 +1,14 @@
 //! A running viz-node: the gRPC server and the scoring task.
 
 use crate::config::Config;
-use crate::config::ConfigError;
 use crate::http::tls::HttpsError;
 use crate::http::Http;
 use crate::scene::SceneAgreement;
 use crate::service::{scorer, Shared, VizService};
-use insitu_core::backend::{BackendChoice, BackendError};
-use insitu_core::Backend;
 use insitu_proto::auth::{check_bind, AuthError};
-use insitu_proto::health::Health;
+use insitu_proto::daemon::{bind, select_backend, DaemonConfig, ServeError, Served};
 use insitu_proto::pb::viz_server::VizServer;
-use insitu_proto::security::{Security, SecurityError};
+use insitu_proto::security::Security;
 use insitu_proto::transport;
 use insitu_recording::decoded::Kept;
 use insitu_recording::store::Recording;
@@ -23,8 +20,6 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::task::JoinHandle;
-use tokio_stream::wrappers::TcpListenerStream;
-use tonic::service::interceptor::InterceptedService;
 use tracing::info;
 
 /// The environment variable that holds the steering token when `steer_token_file` is unset.
@@ -33,41 +28,13 @@ pub const STEER_TOKEN_ENV: &str = "INSITU_STEER_TOKEN";
 /// Why a viz-node did not start; each names the input at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
-    /// The configuration.
+    /// The configuration, the token, TLS files or a peer's address, the compute backend, a
+    /// listening address (`listen`, or `http_listen` for the web viewer).
     #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// The token, TLS files or a peer address.
-    #[error(transparent)]
-    Security(#[from] SecurityError),
+    Serve(#[from] ServeError),
     /// The recording directory, its index or its scene (the errors name the file).
     #[error("recording: {0}")]
     Recording(#[from] StoreError),
-    /// The compute backend.
-    #[error("backend {choice}: {source}")]
-    Backend {
-        /// The choice configured.
-        choice: BackendChoice,
-        /// Why.
-        source: BackendError,
-    },
-    /// The backend's selection did not finish (it panicked).
-    #[error("backend {choice}: its selection did not finish: {source}")]
-    BackendTask {
-        /// The choice configured.
-        choice: BackendChoice,
-        /// Why.
-        source: tokio::task::JoinError,
-    },
-    /// A listening address (`listen`, or `http_listen` for the web viewer).
-    #[error("cannot listen on {addr} ({key}): {source}")]
-    Listen {
-        /// The config key.
-        key: &'static str,
-        /// The address configured.
-        addr: SocketAddr,
-        /// Why.
-        source: std::io::Error,
-    },
     /// The web viewer's HTTPS configuration.
     #[error("http_listen: {0}")]
     Https(#[from] HttpsError),
@@ -86,11 +53,8 @@ pub enum StartError {
 
 /// A started viz-node.
 pub struct RunningViz {
-    addr: SocketAddr,
     shared: Arc<Shared>,
-    health: Health,
-    stop: oneshot::Sender<()>,
-    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    served: Served,
     http: Option<HttpParts>,
 }
 
@@ -109,13 +73,8 @@ struct HttpParts {
 /// [`StartError`]: a bad config, token or TLS file, a non-loopback address without a token,
 /// a corrupt index, no backend, or a bind failure.
 pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
-    cfg.validate()?;
-    let security = Security::load(
-        cfg.listen,
-        cfg.token_file.as_deref(),
-        &cfg.tls,
-        cfg.insecure,
-    )?;
+    cfg.validate().map_err(ServeError::from)?;
+    let security = cfg.serve().security().map_err(ServeError::from)?;
     let recording = if cfg.read_only {
         Recording::open_read_only(&cfg.recording_dir)?
     } else {
@@ -125,13 +84,9 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
         &cfg.recording_dir,
         Duration::from_secs_f64(cfg.compose_timeout_secs),
     )?;
-    let choice = cfg.backend;
-    let backend = tokio::task::spawn_blocking(move || Backend::select(choice))
-        .await
-        .map_err(|source| StartError::BackendTask { choice, source })?
-        .map_err(|source| StartError::Backend { choice, source })?;
+    let backend = select_backend(cfg.backend).await?;
     tracing::info!("rendering on {}", backend.describe());
-    let (listener, addr) = bind("listen", cfg.listen).await?;
+    let bound = bind("listen", cfg.listen).await?;
     // An archive is served as it is: nothing tidied, scored or composed.
     let recovery = if cfg.read_only {
         insitu_recording::store::Recovery::default()
@@ -167,42 +122,17 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
     let svc = VizServer::new(VizService(shared.clone()))
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
-    let svc = InterceptedService::new(svc, security.require_token());
-    let (health, health_svc) = Health::serving::<VizServer<VizService>>().await;
-    let (stop, stopped) = oneshot::channel::<()>();
-    let server = tokio::spawn(
-        security
-            .server()?
-            .add_service(svc)
-            .add_service(health_svc)
-            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async {
-                let _ = stopped.await;
-            }),
-    );
-    info!(%addr, tls = security.serves_tls(), recording = %cfg.recording_dir.display(), "viz-node listening");
+    let served = Served::start(bound, &security, svc).await?;
+    info!(addr = %served.local_addr(), tls = security.serves_tls(), recording = %cfg.recording_dir.display(), "viz-node listening");
     let http = match cfg.http_listen {
         Some(at) => Some(start_http(at, &cfg, &security, shared.clone()).await?),
         None => None,
     };
     Ok(RunningViz {
-        addr,
         shared,
-        health,
-        stop,
-        server,
+        served,
         http,
     })
-}
-
-/// A listener on `addr` (config key `key`) and the address it got.
-async fn bind(
-    key: &'static str,
-    addr: SocketAddr,
-) -> Result<(tokio::net::TcpListener, SocketAddr), StartError> {
-    let listen = |source| StartError::Listen { key, addr, source };
-    let listener = tokio::net::TcpListener::bind(addr).await.map_err(listen)?;
-    let got = listener.local_addr().map_err(listen)?;
-    Ok((listener, got))
 }
 
 /// Binds and serves the web viewer ([`crate::http`]).
@@ -234,7 +164,10 @@ async fn start_http(
         )
         .steering(steer_token),
     );
-    if let Some(peer) = security.peer_for("tuner", cfg.tuner.as_deref())? {
+    if let Some(peer) = security
+        .peer_for("tuner", cfg.tuner.as_deref())
+        .map_err(ServeError::from)?
+    {
         http.watch_tuner(peer);
     }
     let (stop, stopped) = oneshot::channel::<()>();
@@ -301,7 +234,7 @@ fn resume(shared: &Arc<Shared>, r: insitu_recording::store::Recovery) {
 impl RunningViz {
     /// The address served (the actual port when 0 was asked for).
     pub fn local_addr(&self) -> SocketAddr {
-        self.addr
+        self.served.local_addr()
     }
 
     /// The web viewer's address, when `http_listen` is set.
@@ -326,13 +259,12 @@ impl RunningViz {
 
     /// Stops serving after in-flight calls finish.
     pub async fn shutdown(self) {
-        self.health.draining().await;
+        self.served.draining().await;
         let http = self.http.map(|h| {
             let _ = h.stop.send(());
             h.server
         });
-        let _ = self.stop.send(());
-        let _ = self.server.await;
+        self.served.stop().await;
         if let Some(server) = http {
             // Open sockets keep a graceful shutdown waiting; the page reconnects to a new node.
             server.abort();
@@ -350,7 +282,7 @@ mod tests {
     async fn start_errors_name_the_input_at_fault() {
         let dir = tempfile::tempdir().unwrap();
         let cpu = |recording_dir| Config {
-            backend: BackendChoice::Cpu,
+            backend: insitu_core::BackendChoice::Cpu,
             listen: SocketAddr::from(([127, 0, 0, 1], 0)),
             recording_dir,
             ..Config::default()
@@ -373,7 +305,7 @@ mod tests {
             panic!("a taken port started");
         };
         assert!(
-            matches!(&err, StartError::Listen { key: "http_listen", addr: a, .. } if *a == addr),
+            matches!(&err, StartError::Serve(ServeError::Listen { key: "http_listen", addr: a, .. }) if *a == addr),
             "{err:?}"
         );
     }

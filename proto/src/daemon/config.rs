@@ -1,7 +1,9 @@
-//! What the daemons do the same way (feature `daemon`): logging to stderr, waiting for
-//! SIGINT/SIGTERM, reading a TOML config file with errors that name the file, and the flags
-//! they all take ([`CommonArgs`]).
+//! A daemon's configuration: its TOML file read with errors that name the file or key, the
+//! keys every daemon has for serving ([`ServeKeys`]), and the flags every daemon takes
+//! ([`CommonArgs`]) laid over the file.
 
+use crate::security::{Security, SecurityError};
+use crate::tls::TlsFiles;
 use serde::de::DeserializeOwned;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -64,12 +66,57 @@ pub struct CommonArgs {
     pub token_file: Option<PathBuf>,
 }
 
-/// A daemon's configuration, as far as [`CommonArgs`] sets it.
+/// The keys every daemon's file has for serving, as one daemon's config holds them (each
+/// config declares them at the top level of its file, where they are documented with the
+/// daemon's defaults).
+#[derive(Clone, Copy, Debug)]
+pub struct ServeKeys<'a> {
+    /// `listen`: the address to serve on (port 0: ephemeral).
+    pub listen: SocketAddr,
+    /// `insecure`: allow a non-loopback `listen` without a token or TLS (and the token sent in
+    /// clear text to the peers the daemon dials).
+    pub insecure: bool,
+    /// `[tls]`: certificate, key, CA, mutual TLS.
+    pub tls: &'a TlsFiles,
+    /// `token_file`: the bearer token's file (else `INSITU_TOKEN`).
+    pub token_file: Option<&'a Path>,
+}
+
+impl ServeKeys<'_> {
+    /// The token, TLS and `insecure` setting the daemon serves and dials with.
+    ///
+    /// # Errors
+    /// [`SecurityError`]: an unreadable token or TLS file, or a non-loopback `listen` without
+    /// a token and TLS unless `insecure`.
+    pub fn security(&self) -> Result<Security, SecurityError> {
+        Security::load(self.listen, self.token_file, self.tls, self.insecure)
+    }
+}
+
+/// A daemon's configuration: read from its TOML file ([`DaemonConfig::load`]), laid under
+/// [`CommonArgs`], checked as a whole.
 pub trait DaemonConfig: Default + DeserializeOwned {
-    /// The address to serve on.
+    /// Its serving keys.
+    fn serve(&self) -> ServeKeys<'_>;
+    /// The address to serve on, for `--listen`.
     fn listen_mut(&mut self) -> &mut SocketAddr;
-    /// The token file.
+    /// The token file, for `--token-file`.
     fn token_file_mut(&mut self) -> &mut Option<PathBuf>;
+    /// Checks the values.
+    ///
+    /// # Errors
+    /// [`ConfigError::Invalid`] naming the first bad key.
+    fn validate(&self) -> Result<(), ConfigError>;
+
+    /// Reads and checks a TOML file.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file or key.
+    fn load(path: &Path) -> Result<Self, ConfigError> {
+        let cfg: Self = load_toml(path)?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
 }
 
 impl CommonArgs {
@@ -94,55 +141,6 @@ impl CommonArgs {
     }
 }
 
-/// Logs to stderr at `RUST_LOG` or `info` (coloured only on a terminal).
-pub fn init_tracing() {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        // Colours only on a terminal: logs redirected to files stay plain text.
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
-}
-
-/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
-pub async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        if let Ok(mut term) = signal(SignalKind::terminate()) {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-            return;
-        }
-    }
-    let _ = tokio::signal::ctrl_c().await;
-}
-
-/// Runs a daemon's `main` on a multi-threaded tokio runtime: prints its error chain and exits
-/// non-zero on failure (also when the runtime cannot be started).
-pub fn run_main(
-    main: impl std::future::Future<Output = anyhow::Result<()>>,
-) -> std::process::ExitCode {
-    init_tracing();
-    let result = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .map_err(anyhow::Error::from)
-        .and_then(|rt| rt.block_on(main));
-    match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {}", crate::peer::error_chain(e.as_ref()));
-            std::process::ExitCode::FAILURE
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -153,10 +151,22 @@ mod tests {
     struct Cfg {
         listen: Option<SocketAddr>,
         token_file: Option<PathBuf>,
+        tls: TlsFiles,
         other: u32,
     }
 
     impl DaemonConfig for Cfg {
+        fn serve(&self) -> ServeKeys<'_> {
+            ServeKeys {
+                listen: self.listen.unwrap_or(SocketAddr::from(([127, 0, 0, 1], 1))),
+                insecure: false,
+                tls: &self.tls,
+                token_file: self.token_file.as_deref(),
+            }
+        }
+        fn validate(&self) -> Result<(), ConfigError> {
+            Ok(())
+        }
         fn listen_mut(&mut self) -> &mut SocketAddr {
             self.listen
                 .get_or_insert(SocketAddr::from(([127, 0, 0, 1], 1)))
