@@ -225,11 +225,14 @@ impl Backend {
     /// # Errors
     /// `BackendError::Gpu` (feature `gpu`) when the scene exceeds a device limit or the device
     /// fails.
-    pub fn prepare<'a>(&'a self, raycaster: &'a Raycaster<'a>) -> Result<Scene<'a>, BackendError> {
+    pub fn prepare<'a>(
+        &'a self,
+        raycaster: &'a Raycaster<'a>,
+    ) -> Result<PreparedVolume<'a>, BackendError> {
         match self {
-            Self::Cpu => Ok(Scene::Cpu(raycaster)),
+            Self::Cpu => Ok(PreparedVolume::Cpu(raycaster)),
             #[cfg(feature = "gpu")]
-            Self::Gpu(g) => Ok(Scene::Gpu(Box::new(crate::gpu::GpuScene::new(
+            Self::Gpu(g) => Ok(PreparedVolume::Gpu(Box::new(crate::gpu::GpuVolume::new(
                 g, raycaster,
             )?))),
         }
@@ -240,22 +243,22 @@ impl Backend {
     /// # Errors
     /// `BackendError::Gpu` (feature `gpu`) when the VDI exceeds the storage-binding limit or
     /// the device fails.
-    pub fn prepare_vdi<'a>(&'a self, vdi: &'a Vdi) -> Result<SceneVdi<'a>, BackendError> {
+    pub fn prepare_vdi<'a>(&'a self, vdi: &'a Vdi) -> Result<PreparedVdi<'a>, BackendError> {
         match self {
-            Self::Cpu => Ok(SceneVdi::Cpu(render::Walker::new(vdi))),
+            Self::Cpu => Ok(PreparedVdi::Cpu(render::Walker::new(vdi))),
             #[cfg(feature = "gpu")]
-            Self::Gpu(g) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(g, vdi)?)),
+            Self::Gpu(g) => Ok(PreparedVdi::Gpu(crate::gpu::GpuVdi::new(g, vdi)?)),
         }
     }
 }
 
 /// A scene prepared on a backend: reference DVR and VDI generation for any camera.
-pub enum Scene<'a> {
+pub enum PreparedVolume<'a> {
     /// The CPU path reads the ray-caster directly.
     Cpu(&'a Raycaster<'a>),
     /// Uploaded to the GPU.
     #[cfg(feature = "gpu")]
-    Gpu(Box<crate::gpu::GpuScene<'a, 'a>>),
+    Gpu(Box<crate::gpu::GpuVolume<'a, 'a>>),
 }
 
 #[cfg(feature = "gpu")]
@@ -287,7 +290,7 @@ fn wall<T>(value: T, start: Instant) -> Timed<T> {
     }
 }
 
-impl Scene<'_> {
+impl PreparedVolume<'_> {
     /// The backend, as [`Backend::describe`] says it.
     pub fn describe(&self) -> String {
         match self {
@@ -310,11 +313,11 @@ impl Scene<'_> {
     ///
     /// # Errors
     /// As [`Backend::prepare_vdi`].
-    pub fn prepare_vdi<'v>(&'v self, vdi: &'v Vdi) -> Result<SceneVdi<'v>, BackendError> {
+    pub fn prepare_vdi<'v>(&'v self, vdi: &'v Vdi) -> Result<PreparedVdi<'v>, BackendError> {
         match self {
-            Self::Cpu(_) => Ok(SceneVdi::Cpu(render::Walker::new(vdi))),
+            Self::Cpu(_) => Ok(PreparedVdi::Cpu(render::Walker::new(vdi))),
             #[cfg(feature = "gpu")]
-            Self::Gpu(s) => Ok(SceneVdi::Gpu(crate::gpu::GpuVdi::new(s.gpu(), vdi)?)),
+            Self::Gpu(s) => Ok(PreparedVdi::Gpu(crate::gpu::GpuVdi::new(s.gpu(), vdi)?)),
         }
     }
 
@@ -419,7 +422,7 @@ impl Scene<'_> {
     }
 }
 
-/// How a generation under a stop rule ended ([`Scene::generate_until`]).
+/// How a generation under a stop rule ended ([`PreparedVolume::generate_until`]).
 #[derive(Debug)]
 pub enum Attempt {
     /// The whole VDI, timed.
@@ -434,7 +437,7 @@ pub enum Attempt {
 }
 
 /// A VDI prepared on a backend for rendering from any camera.
-pub enum SceneVdi<'a> {
+pub enum PreparedVdi<'a> {
     /// The CPU path: the lists with the walk's per-VDI tables.
     Cpu(render::Walker<'a>),
     /// Uploaded to the GPU.
@@ -442,7 +445,7 @@ pub enum SceneVdi<'a> {
     Gpu(crate::gpu::GpuVdi<'a>),
 }
 
-impl SceneVdi<'_> {
+impl PreparedVdi<'_> {
     /// VDI rendering `I` from `camera` at `width × height` ([`crate::vdi::render::render`]).
     ///
     /// # Errors
@@ -457,11 +460,11 @@ impl SceneVdi<'_> {
         self.render_until(camera, width, height, termination, None)
     }
 
-    /// [`SceneVdi::render`] that stops when `cancel` is set: on the CPU between tiles of 16²
+    /// [`PreparedVdi::render`] that stops when `cancel` is set: on the CPU between tiles of 16²
     /// pixels, on the GPU (one dispatch, tens of milliseconds) before and after it.
     ///
     /// # Errors
-    /// As [`SceneVdi::render`]; [`BackendError::Cancelled`] when cancelled.
+    /// As [`PreparedVdi::render`]; [`BackendError::Cancelled`] when cancelled.
     pub fn render_until(
         &self,
         camera: &Camera,

@@ -4,7 +4,7 @@
 //! Reference images depend only on the scene and the views, so they are rendered once
 //! ([`render_references`]) and reused across candidates ([`evaluate`]).
 
-use crate::backend::{BackendError, Scene, SceneVdi, TimeSource, Timed};
+use crate::backend::{BackendError, PreparedVdi, PreparedVolume, TimeSource, Timed};
 use crate::camera::Camera;
 use crate::image::Image;
 use crate::metrics::{self, MetricError};
@@ -76,7 +76,7 @@ pub struct Evaluation {
 /// # Errors
 /// [`BackendError`] from the GPU path.
 pub fn render_references(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     angles: &[f32],
     size: u32,
@@ -92,7 +92,7 @@ pub fn render_references(
 /// with the other ranks' ([`crate::compose::compose_frames`]). Rendered on the CPU whatever
 /// the scene's backend (the GPU kernels write colour only).
 pub fn render_references_with_opacity(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     angles: &[f32],
     size: u32,
@@ -113,7 +113,7 @@ pub fn render_references_with_opacity(
 /// [`EvalError::ReferenceCount`] when there is not one reference per angle;
 /// [`EvalError::Metric`] when images cannot be compared; [`EvalError::Backend`] from the GPU.
 pub fn score_views(
-    vdi: &SceneVdi,
+    vdi: &PreparedVdi,
     camera: &Camera,
     angles: &[f32],
     references: &[Image],
@@ -213,14 +213,14 @@ impl Sizing {
 ///
 /// The VDI is generated into `spare`'s allocations when it holds one (the VDI of an earlier
 /// call) and left there for the next call, as a generator-node generates each step into the
-/// last step's VDI ([`Scene::generate_reusing`]): τ then counts what production pays per
+/// last step's VDI ([`PreparedVolume::generate_reusing`]): τ then counts what production pays per
 /// step, not the first touch of a fresh VDI's memory (about 7–14 % of τ on the teapot at
 /// r = 768, nothing measurable at r ≤ 256). `&mut None` generates afresh.
 ///
 /// # Errors
 /// [`EvalError`] for bad parameters, a codec failure or a GPU failure.
 pub fn generate_encoded(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     params: VdiParams,
     codec_kind: Codec,
@@ -259,7 +259,7 @@ fn encoded(generated: &Timed<Vdi>, codec_kind: Codec) -> Result<(Vec<u8>, Sizing
 /// GPU failure.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     params: VdiParams,
     codec_kind: Codec,
@@ -300,7 +300,7 @@ pub fn evaluate(
 /// As [`evaluate`].
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_sized(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     params: VdiParams,
     codec_kind: Codec,
@@ -365,7 +365,7 @@ fn one_reference_per_view(angles: &[f32], references: &[Image]) -> Result<(), Ev
 /// The scoring shared by [`evaluate`] and [`evaluate_sized`]: `vdi` rendered at each angle
 /// and compared with `references`, with the sizing and decoding time measured before.
 fn scored(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     (params, codec): (VdiParams, Codec),
     (sizing, tau_decode_secs): (Sizing, f64),
@@ -431,7 +431,7 @@ mod tests {
     fn generating_into_a_spare_gives_the_file_generated_afresh() {
         let (volume, tf) = small_scene();
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
-        let scene = Scene::Cpu(&rc);
+        let scene = PreparedVolume::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box()).orbit_y(25.0);
         let named = NamedTf::new(tf, "ramp");
         let tf = named.identity();
@@ -474,7 +474,7 @@ mod tests {
     fn a_sized_candidate_scores_as_the_full_evaluation_without_the_codec() {
         let (volume, tf) = small_scene();
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
-        let scene = Scene::Cpu(&rc);
+        let scene = PreparedVolume::Cpu(&rc);
         let camera = Camera::default_for_box(&volume.world_box());
         let named = NamedTf::new(tf, "ramp");
         let tf = named.identity();
@@ -487,7 +487,7 @@ mod tests {
 
     /// [`a_sized_candidate_scores_as_the_full_evaluation_without_the_codec`] at `precision`.
     fn sized_against_full(
-        scene: &Scene,
+        scene: &PreparedVolume,
         camera: &Camera,
         (angles, refs): (&[f32], &[Image]),
         tf: TfIdentity<'_>,

@@ -168,7 +168,7 @@ fn measure(
 /// The backend's failure, in words.
 fn references(
     tuning: &Tuning,
-    scene: &insitu_core::backend::Scene,
+    scene: &insitu_core::backend::PreparedVolume,
     key: (u64, u32),
     h: &HeldStep,
     resolution: u32,

@@ -15,7 +15,7 @@
 
 use crate::grid::Candidate;
 use crate::measure::Measurement;
-use crate::study::{Oracle, Study, StudyError, StudyScene};
+use crate::study::{Oracle, Study, StudyError, StudySetup};
 use insitu_core::backend::BackendError;
 use insitu_core::evaluate::EvalError;
 use insitu_core::metrics::{mse, pooled_psnr};
@@ -150,7 +150,7 @@ fn vdi_rows(
 
 /// A study of the sweep's scene as `rc` ray-casts it (uncached: each row is measured afresh).
 fn study_of<'a>(s: &Sweep<'a>, rc: &'a Raycaster<'a>) -> Result<Study<'a>, AccuracyError> {
-    let scene = StudyScene::new(
+    let scene = StudySetup::new(
         s.backend.prepare(rc)?,
         s.volume.content_hash(),
         s.tf,

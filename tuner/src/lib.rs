@@ -33,5 +33,5 @@ pub mod utility;
 
 pub use grid::{Candidate, ParamGrid};
 pub use measure::Measurement;
-pub use study::{Oracle, Study, StudyScene, TableOracle};
+pub use study::{Oracle, Study, StudySetup, TableOracle};
 pub use utility::{parse_utility, Utility};

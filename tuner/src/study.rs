@@ -4,7 +4,7 @@
 use crate::cache::{Cache, CacheError};
 use crate::grid::Candidate;
 use crate::measure::Measurement;
-use insitu_core::backend::{BackendError, Scene};
+use insitu_core::backend::{BackendError, PreparedVolume};
 use insitu_core::evaluate::{evaluate, EvalError, Sizing};
 use insitu_core::tf::TfIdentity;
 use insitu_core::vdi::codec::{self, Codec};
@@ -55,8 +55,8 @@ pub trait Oracle {
 }
 
 /// What a study measures: the scene, the test views and their reference images.
-pub struct StudyScene<'a> {
-    scene: Scene<'a>,
+pub struct StudySetup<'a> {
+    scene: PreparedVolume<'a>,
     camera: Camera,
     view_angles: Vec<f32>,
     references: Vec<Image>,
@@ -67,14 +67,14 @@ pub struct StudyScene<'a> {
     description: String,
 }
 
-impl<'a> StudyScene<'a> {
+impl<'a> StudySetup<'a> {
     /// Renders the reference image of each view (`width × height`) once.
     ///
     /// `volume_hash` is [`insitu_core::Volume::content_hash`] of the scene's volume. The
     /// backend is part of the identity (τ depends on it).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        scene: Scene<'a>,
+        scene: PreparedVolume<'a>,
         volume_hash: u64,
         tf: &TransferFunction,
         tf_name: &str,
@@ -149,7 +149,7 @@ impl<'a> StudyScene<'a> {
 
 /// A study of one scene: measures candidates, caching every result.
 pub struct Study<'a> {
-    scene: StudyScene<'a>,
+    scene: StudySetup<'a>,
     cache: Cache,
     generations: u64,
     generation_secs: f64,
@@ -160,7 +160,7 @@ pub struct Study<'a> {
 
 impl<'a> Study<'a> {
     /// A study whose results persist in `cache_dir` (or only in memory when `None`).
-    pub fn new(scene: StudyScene<'a>, cache_dir: Option<&Path>) -> Self {
+    pub fn new(scene: StudySetup<'a>, cache_dir: Option<&Path>) -> Self {
         let cache = match cache_dir {
             Some(dir) => Cache::open(dir, scene.key, &scene.description),
             None => Cache::in_memory(scene.key),
@@ -206,7 +206,7 @@ impl<'a> Study<'a> {
     }
 
     /// The scene.
-    pub fn scene(&self) -> &StudyScene<'a> {
+    pub fn scene(&self) -> &StudySetup<'a> {
         &self.scene
     }
 }

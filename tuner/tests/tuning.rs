@@ -9,7 +9,7 @@ use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 use insitu_tuner::search::{adaptive_search, grid_search, size_ladder};
 use insitu_tuner::study::StudyError;
 use insitu_tuner::utility::{best, QualityTarget, SizeBudget, UtilitySpec};
-use insitu_tuner::{Candidate, Measurement, Oracle, ParamGrid, Study, StudyScene, TableOracle};
+use insitu_tuner::{Candidate, Measurement, Oracle, ParamGrid, Study, StudySetup, TableOracle};
 use std::collections::BTreeSet;
 
 fn blob() -> Volume {
@@ -21,14 +21,14 @@ fn blob() -> Volume {
     .unwrap()
 }
 
-fn scene<'a>(v: &'a Volume, tf: &TransferFunction, size: u32, codec: Codec) -> StudyScene<'a> {
+fn scene<'a>(v: &'a Volume, tf: &TransferFunction, size: u32, codec: Codec) -> StudySetup<'a> {
     // The scene borrows its ray-caster; a test's few small ones may live to the end.
     let rc: &'a Raycaster<'a> = Box::leak(Box::new(
         Raycaster::new(v, tf, RaycastParams::default()).unwrap(),
     ));
     let cam = Camera::default_for_box(&v.world_box());
-    StudyScene::new(
-        insitu_core::backend::Scene::Cpu(rc),
+    StudySetup::new(
+        insitu_core::backend::PreparedVolume::Cpu(rc),
         v.content_hash(),
         tf,
         "tf",

@@ -12,7 +12,7 @@ use insitu_core::Raycaster;
 use insitu_tuner::charts::{self, LadderPoint};
 use insitu_tuner::search::size_ladder;
 use insitu_tuner::utility::{best, SizeBudget};
-use insitu_tuner::{report, Measurement, Oracle, ParamGrid, Study, StudyScene};
+use insitu_tuner::{report, Measurement, Oracle, ParamGrid, Study, StudySetup};
 use std::path::Path;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -98,7 +98,7 @@ impl StudyArgs {
     /// A study of `p` with its ray-caster `rc` (references rendered here, once).
     pub fn study<'a>(&self, p: &'a Prepared, rc: &'a Raycaster<'a>) -> Result<Study<'a>> {
         let s = &p.scene;
-        let scene = StudyScene::new(
+        let scene = StudySetup::new(
             p.backend.prepare(rc)?,
             s.volume.content_hash(),
             &s.tf,

@@ -7,8 +7,8 @@
 //!
 //! - [`Gpu`]: adapter, device, limits, kernels; [`Gpu::new`] fails with
 //!   [`GpuError::NoAdapter`] when there is none, the caller's signal to use the CPU.
-//! - [`GpuScene`]: a volume (3D texture), transfer function (1D textures) and macro-cell grid
-//!   uploaded once, then [`GpuScene::dvr`] and [`GpuScene::generate`] per camera.
+//! - [`GpuVolume`]: a volume (3D texture), transfer function (1D textures) and macro-cell grid
+//!   uploaded once, then [`GpuVolume::dvr`] and [`GpuVolume::generate`] per camera.
 //! - [`GpuVdi`]: a VDI's compact lists in storage buffers, [`GpuVdi::render`] per camera.
 //!
 //! Kernel times come from GPU timestamps when the adapter has them (the paper's τ is kernel
@@ -22,7 +22,7 @@ mod scene;
 mod vdi;
 
 pub use context::{Gpu, SUBMISSION_TIMEOUT};
-pub use scene::{GpuScene, KernelRun, INITIAL_BUDGET};
+pub use scene::{GpuVolume, KernelRun, INITIAL_BUDGET};
 pub use vdi::GpuVdi;
 
 /// Errors of the GPU backend.

@@ -28,7 +28,7 @@ const KAPPA_MAX: f32 = 1e30;
 /// interpolation in the shader, as on the CPU: exact, and NaN-aware, which hardware filtering
 /// with its 8-bit weights is not), the transfer function as two 1D textures, the macro-cell
 /// visibility as a storage buffer.
-pub struct GpuScene<'g, 'v> {
+pub struct GpuVolume<'g, 'v> {
     gpu: &'g Gpu,
     raycaster: &'v Raycaster<'v>,
     volume_view: wgpu::TextureView,
@@ -107,7 +107,7 @@ fn texture_view(
     texture.create_view(&wgpu::TextureViewDescriptor::default())
 }
 
-impl<'g, 'v> GpuScene<'g, 'v> {
+impl<'g, 'v> GpuVolume<'g, 'v> {
     /// Uploads `raycaster`'s volume, classification table and macro-cell grid.
     ///
     /// # Errors

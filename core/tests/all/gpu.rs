@@ -4,7 +4,7 @@
 use crate::common::{assert_valid, shared_scenes};
 use crate::hard_cases::assert_vdi_finite;
 use glam::Vec3;
-use insitu_core::gpu::{Gpu, GpuError, GpuScene, GpuVdi};
+use insitu_core::gpu::{Gpu, GpuError, GpuVdi, GpuVolume};
 use insitu_core::vdi::codec::{decode, encode, Codec, DecodeLimits};
 use insitu_core::vdi::{generate::generate, render, VdiParams};
 use insitu_core::{dvr, metrics, Camera, RaycastParams, Raycaster, TransferFunction, Vdi, Volume};
@@ -31,7 +31,7 @@ pub fn gpu() -> Option<&'static Gpu> {
 /// CPU's VDI renders on the GPU.
 pub fn exercise(rc: &Raycaster, cam: &Camera, vp: VdiParams, cpu_vdi: &Vdi, what: &str) {
     let Some(gpu) = gpu() else { return };
-    let scene = GpuScene::new(gpu, rc).unwrap();
+    let scene = GpuVolume::new(gpu, rc).unwrap();
     let vdi = scene.generate(cam, vp, 0, what).unwrap().value;
     assert_vdi_finite(&vdi, &format!("GPU {what}"));
     let on_gpu = GpuVdi::new(gpu, &vdi).unwrap();
@@ -78,7 +78,7 @@ fn gpu_matches_cpu_on_real_data() {
     for (name, volume, tf) in shared_scenes() {
         let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
         let cam = Camera::default_for_box(&volume.world_box());
-        let scene = GpuScene::new(gpu, &rc).unwrap();
+        let scene = GpuVolume::new(gpu, &rc).unwrap();
         let cpu_dvr = dvr::render(&rc, &cam, size_u, size_u);
         let gpu_dvr = scene.dvr(&cam, size_u, size_u).unwrap().value;
         assert_valid(&gpu_dvr, name);
@@ -128,7 +128,7 @@ fn gpu_matches_cpu_on_real_data() {
             ..Default::default()
         };
         let rc = Raycaster::new(&volume, &tf, shaded).unwrap();
-        let gpu_shaded = GpuScene::new(gpu, &rc)
+        let gpu_shaded = GpuVolume::new(gpu, &rc)
             .unwrap()
             .dvr(&cam, size_u, size_u)
             .unwrap()
@@ -161,7 +161,7 @@ fn bands_and_parts_give_the_same_result_as_one_pass() {
         gamma: 0.0,
         precision: Default::default(),
     };
-    let whole = GpuScene::new(shared, &rc).unwrap();
+    let whole = GpuVolume::new(shared, &rc).unwrap();
     let reference_vdi = whole.generate(&cam, params, 0, "t").unwrap().value;
     let most = (0..40 * 40).map(|p| reference_vdi.count(p)).max().unwrap();
     assert!(
@@ -174,7 +174,7 @@ fn bands_and_parts_give_the_same_result_as_one_pass() {
     // 64 KiB per binding: the rows' supersegments (~38 KiB a row) written one row a part.
     let mut mid = Gpu::new(true).unwrap();
     mid.cap_storage_binding(64 << 10);
-    let vdi = GpuScene::new(&mid, &rc)
+    let vdi = GpuVolume::new(&mid, &rc)
         .unwrap()
         .generate(&cam, params, 0, "t")
         .unwrap()
@@ -192,7 +192,7 @@ fn bands_and_parts_give_the_same_result_as_one_pass() {
     let mut tiny = Gpu::new(true).unwrap();
     tiny.cap_storage_binding(4 << 10);
     let reference_dvr = whole.dvr(&cam, 40, 40).unwrap().value;
-    let dvr_img = GpuScene::new(&tiny, &rc)
+    let dvr_img = GpuVolume::new(&tiny, &rc)
         .unwrap()
         .dvr(&cam, 40, 40)
         .unwrap()
@@ -239,7 +239,7 @@ fn bands_and_parts_give_the_same_result_as_one_pass() {
         "{err}"
     );
     // So is a generation row whose supersegments cannot fit: 40 rays × ~40 × 24 bytes > 4 KiB.
-    let err = GpuScene::new(&tiny, &rc)
+    let err = GpuVolume::new(&tiny, &rc)
         .unwrap()
         .generate(&cam, params, 0, "t")
         .err()
@@ -273,7 +273,7 @@ fn counted_bands_join_into_the_vdi_of_one_band() {
         gamma: 10.0,
         precision: Default::default(),
     };
-    let whole = GpuScene::new(shared, &rc)
+    let whole = GpuVolume::new(shared, &rc)
         .unwrap()
         .generate(&cam, params, 0, "t")
         .unwrap()
@@ -286,7 +286,7 @@ fn counted_bands_join_into_the_vdi_of_one_band() {
     // 1 KiB per binding: the counts of 6 rows (and the total) a band, 7 bands.
     let mut small = Gpu::new(true).unwrap();
     small.cap_storage_binding(1 << 10);
-    let banded = GpuScene::new(&small, &rc)
+    let banded = GpuVolume::new(&small, &rc)
         .unwrap()
         .generate(&cam, params, 0, "t")
         .unwrap()
@@ -309,7 +309,7 @@ fn vdis_cross_between_backends_through_the_codec() {
         gamma: 0.01,
         precision: Default::default(),
     };
-    let gpu_vdi = GpuScene::new(gpu, &rc)
+    let gpu_vdi = GpuVolume::new(gpu, &rc)
         .unwrap()
         .generate(&cam, params, tf.identity_hash(), "blob")
         .unwrap()
@@ -345,7 +345,7 @@ fn kept_buffers_leave_no_trace_in_later_results() {
     let (v, tf, cam) = striped();
     let rc = Raycaster::new(&v, &tf, RaycastParams::default()).unwrap();
     let view = cam.orbit_y(30.0);
-    let scene = GpuScene::new(&fresh, &rc).unwrap();
+    let scene = GpuVolume::new(&fresh, &rc).unwrap();
     let small = VdiParams {
         resolution: 24,
         gamma: 0.02,

@@ -54,7 +54,7 @@ fn teapot_quality_falls_smoothly_off_view() {
     let rc = Raycaster::new(&volume, &tf, RaycastParams::default()).unwrap();
     let cam = Camera::default_for_box(&volume.world_box());
     let angles = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0];
-    let scene = insitu_core::backend::Scene::Cpu(&rc);
+    let scene = insitu_core::backend::PreparedVolume::Cpu(&rc);
     let refs = render_references(&scene, &cam, &angles, 256).unwrap();
     let params = VdiParams {
         resolution: 256,

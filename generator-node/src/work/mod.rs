@@ -5,7 +5,7 @@
 use crate::config::Generation;
 use crate::ingest::{RawStep, StepInfo};
 use bytes::Bytes;
-use insitu_core::backend::{Attempt, BackendError, Scene};
+use insitu_core::backend::{Attempt, BackendError, PreparedVolume};
 use insitu_core::compose::frame_to_le_bytes;
 use insitu_core::evaluate::{render_references, render_references_with_opacity};
 use insitu_core::vdi::codec;
@@ -455,7 +455,7 @@ fn provenance(info: &StepInfo, pm_version: u64, scene_version: u64) -> Provenanc
 /// on `scene`, as `views × h × w × (3 | 4)` little-endian f32 (see `ReferenceHeader`), with
 /// their header.
 fn references(
-    scene: &Scene,
+    scene: &PreparedVolume,
     camera: &Camera,
     raw: &RawStep,
     gen: &Generation,
