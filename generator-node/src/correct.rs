@@ -84,9 +84,9 @@ impl Correction {
 
     /// The tuner's budget, as it sent it.
     pub fn set_budget(&self, budget: pb::NodeBudget) {
-        info!(sigma_bytes = budget.sigma_bytes, tau_secs = budget.tau_secs, utility = %budget.utility, "the tuner's budget, kept by the node until its first decision");
+        info!(sigma_bytes = budget.sigma_bytes, tau_secs = budget.tau_secs, utility = %budget.utility_description, "the tuner's budget, kept by the node until its first decision");
         let budgets = Budgets::from_wire(budget.sigma_bytes, budget.tau_secs);
-        self.state().budget = Some((budgets, budget.utility));
+        self.state().budget = Some((budgets, budget.utility_description));
     }
 
     /// After a rank whose VDI has header `h` was made under settings of decision

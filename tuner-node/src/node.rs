@@ -84,7 +84,7 @@ pub async fn start(cfg: Config) -> Result<RunningTuner, StartError> {
         TunerServer::new(TunerService(engine.clone())),
     )
     .await?;
-    info!(addr = %served.local_addr(), utility = %engine.utility(), "tuner-node listening");
+    info!(addr = %served.local_addr(), utility = %engine.utility_description(), "tuner-node listening");
     Ok(RunningTuner {
         engine,
         served,

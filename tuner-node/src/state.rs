@@ -98,8 +98,9 @@ pub struct Decision {
     pub trials: u64,
     /// Their seconds on the nodes.
     pub trial_secs: f64,
-    /// The utility.
-    pub utility: String,
+    /// The utility it optimised, in words (`utility` in state files written before).
+    #[serde(alias = "utility")]
+    pub utility_description: String,
     /// The first step made with it (see `PmDecision.from_step`); 0 in states written before.
     #[serde(default)]
     pub from_step: u64,
@@ -163,7 +164,7 @@ pub struct State {
     /// Every steering change, oldest first.
     #[serde(default)]
     pub steering: Vec<SteerRecord>,
-    /// The utility as last steered (`None`: the configured one).
+    /// The utility as last steered, as a spec (`size:1MB`; `None`: the configured one).
     #[serde(default)]
     pub utility: Option<String>,
 }
@@ -474,7 +475,7 @@ fn decision_pb(d: &Decision) -> pb::PmDecision {
         old_resolution: d.old.map_or(0, |c| c.r),
         old_gamma: d.old.map_or(0.0, |c| c.gamma),
         trigger_step: d.trigger_step,
-        utility: d.utility.clone(),
+        utility_description: d.utility_description.clone(),
         from_step: d.from_step,
         corrects_version: d.corrects.unwrap_or(0),
         forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
@@ -518,11 +519,36 @@ mod tests {
             trial_secs: 0.2,
             run_by: 1,
         });
+        s.decisions.push(Decision {
+            pm_version: 4,
+            candidate: m.candidate(),
+            old: None,
+            characteristic_steps: vec![3],
+            predicted: m.clone(),
+            reason: "test".into(),
+            trigger_step: 3,
+            trials: 1,
+            trial_secs: 0.2,
+            utility_description: "max q with σ < 1.0 MB".into(),
+            from_step: 4,
+            corrects: None,
+            tuned: None,
+            forecast_ratio: None,
+            scene_version: 0,
+            steered: false,
+        });
         s.highest_seen = 4;
         assert_eq!(s.next_version(), 5);
         s.save(dir.path()).unwrap();
         let back = State::load(dir.path()).unwrap().unwrap();
         assert_eq!(back, s);
+        // A state file written when a decision's utility description was keyed `utility`.
+        let text = std::fs::read_to_string(dir.path().join(STATE_FILE)).unwrap();
+        assert_eq!(text.matches("\"utility_description\"").count(), 1);
+        let old = text.replace("\"utility_description\"", "\"utility\"");
+        std::fs::write(dir.path().join(STATE_FILE), old).unwrap();
+        assert_eq!(State::load(dir.path()).unwrap().unwrap(), s);
+        s.save(dir.path()).unwrap();
         assert!(back.trial(3, m.candidate()).is_some());
         assert!(back.trial(4, m.candidate()).is_none());
         // Only the state file is left behind (no temporaries).

@@ -309,7 +309,7 @@ pub(crate) fn tune(engine: &Arc<Engine>, trigger: &Trigger) -> bool {
     let trial_secs = engine.counters().trial_secs - secs0;
     let Some(best) = outcome.best else {
         engine.counters().tunings_infeasible += 1;
-        warn!(steps = ?steps, utility = %engine.utility(), "no candidate meets the budget on every characteristic step; the decision in force stays");
+        warn!(steps = ?steps, utility = %engine.utility_description(), "no candidate meets the budget on every characteristic step; the decision in force stays");
         return true;
     };
     if engine.state().scene_version() != scene {
@@ -492,7 +492,7 @@ fn decide(
         trigger_step: trigger.step,
         trials,
         trial_secs,
-        utility: engine.utility(),
+        utility_description: engine.utility_description(),
         from_step,
         corrects: None,
         tuned,

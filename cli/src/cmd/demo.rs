@@ -99,7 +99,7 @@ async fn demo(a: Args) -> Result<()> {
             |t| format!(
                 "; tuner {} optimising {}",
                 t.local_addr(),
-                t.engine().utility()
+                t.engine().utility_description()
             )
         )
     ));

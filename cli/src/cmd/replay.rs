@@ -195,7 +195,7 @@ async fn replay(a: Args, data: insitu_readers::Dataset, bricks: Vec<Brick>) -> R
             .map_or_else(String::new, |t| format!(
                 "; tuner {} optimising {}",
                 t.local_addr(),
-                t.engine().utility()
+                t.engine().utility_description()
             ))
     );
     if a.pipeline.json {

@@ -79,7 +79,7 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "trials": d.trials,
         "trial_secs": d.trial_secs,
         "reason": d.reason,
-        "utility": d.utility,
+        "utility": d.utility_description,
         "corrects_version": (d.corrects_version > 0).then_some(d.corrects_version),
         "forecast_ratio": (d.forecast_ratio > 0.0).then_some(d.forecast_ratio),
         "scene_version": d.scene.as_ref().map_or(0, |s| s.version),
@@ -250,7 +250,8 @@ pub async fn print_reports(
     let budgets = tuner.map_or_else(Budgets::default, |t| budgets_of(&t.engine().status()));
     // Said once, at the first step made before any decision: a run that ends before the
     // first tuning learns it from its first lines.
-    let mut untuned_notice = tuner.map(|t| untuned_notice(&t.engine().utility(), budgets));
+    let mut untuned_notice =
+        tuner.map(|t| untuned_notice(&t.engine().utility_description(), budgets));
     let seen = Arc::new(Mutex::new(Seen::default()));
     let c = seen.clone();
     let task = tokio::spawn(async move {

@@ -97,7 +97,7 @@ impl Run<'_> {
                 "tuner": self.tuner.map(|t| {
                     let (sigma, tau) = adherence(&budgets_of(t), reports);
                     serde_json::json!({
-                    "utility": t.utility,
+                    "utility": t.utility_description,
                     "sigma_adherence": sigma.as_ref().map(Adherence::json),
                     "tau_adherence": tau.as_ref().map(Adherence::json),
                     "corrections": t.corrections,
@@ -169,7 +169,7 @@ impl Run<'_> {
         if let Some(t) = self.tuner {
             println!(
                 "  tuner ({}): {} decision(s), {} changing P_M, characteristic steps {:?}, {} trials of which {} size probes ({:.1} s on the nodes), {} answered from earlier trials, {} failed",
-                t.utility,
+                t.utility_description,
                 self.seen.decisions.len(),
                 changes_of_pm(&self.seen.decisions),
                 t.characteristic_steps,

@@ -302,7 +302,7 @@ impl Engine {
     }
 
     /// The utility's description.
-    pub fn utility(&self) -> String {
+    pub fn utility_description(&self) -> String {
         self.resolved().utility.describe()
     }
 
@@ -312,7 +312,7 @@ impl Engine {
         pb::NodeBudget {
             sigma_bytes,
             tau_secs,
-            utility: self.utility(),
+            utility_description: self.utility_description(),
         }
     }
 
@@ -346,7 +346,7 @@ impl Engine {
             trial_secs: c.trial_secs,
             retunes: c.retunes,
             decisions: c.decisions,
-            utility: self.utility(),
+            utility_description: self.utility_description(),
             tuning: c.tuning,
             size_probes: c.size_probes,
             tunings_infeasible: c.tunings_infeasible,

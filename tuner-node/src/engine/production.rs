@@ -295,7 +295,7 @@ impl Loop {
             k.sigma,
             k.at,
             (plan.sigma_bytes / 1e3).round(),
-            e.utility()
+            e.utility_description()
         );
         let q = q_on(&e.state(), &tuned.characteristic_steps, plan.candidate);
         e.publish(Decision {
@@ -308,7 +308,7 @@ impl Loop {
             trigger_step: step,
             trials: 0,
             trial_secs: 0.0,
-            utility: e.utility(),
+            utility_description: e.utility_description(),
             from_step: at,
             corrects: Some(tuned.pm_version),
             tuned: None,

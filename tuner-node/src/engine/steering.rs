@@ -70,7 +70,7 @@ impl Loop {
         let Some((mut next, candidate)) = change.scene.zip(carrier) else {
             return Ok(pb::SteerReply {
                 scene_version: scene.version,
-                utility: e.utility(),
+                utility_description: e.utility_description(),
                 ..Default::default()
             });
         };
@@ -130,7 +130,7 @@ impl Loop {
             trigger_step: newest,
             trials: 0,
             trial_secs: 0.0,
-            utility: e.utility(),
+            utility_description: e.utility_description(),
             from_step,
             corrects: None,
             tuned: None,
@@ -143,7 +143,7 @@ impl Loop {
             scene_version: version,
             pm_version,
             from_step,
-            utility: e.utility(),
+            utility_description: e.utility_description(),
             superseded,
         })
     }
@@ -177,7 +177,7 @@ impl Loop {
         e.save(&s);
         let retune = retune_from.filter(|_| !s.tracker.steps.is_empty());
         drop(s);
-        info!(utility = %e.utility(), who = %who, "utility steered");
+        info!(utility = %e.utility_description(), who = %who, "utility steered");
         e.hub.broadcast(&Down::Budget(e.node_budget()));
         if let Some(step) = retune {
             self.mark_dirty(Trigger {

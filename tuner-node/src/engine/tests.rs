@@ -67,7 +67,7 @@ fn tuned_for(dir: &std::path::Path, utility: &str, time_breaks: u32) -> Loop {
         trigger_step: 0,
         trials: 0,
         trial_secs: 0.0,
-        utility: "size".into(),
+        utility_description: "size".into(),
         from_step: 0,
         corrects: None,
         tuned: None,
@@ -412,9 +412,9 @@ fn a_steered_utility_sets_the_budget_and_re_tunes_over_the_characteristic_steps(
         .unwrap();
     assert_eq!((reply.scene_version, reply.pm_version), (0, 0));
     assert!(
-        reply.utility.contains("2.0 kB") || reply.utility.contains("2000"),
+        reply.utility_description.contains("2.0 kB") || reply.utility_description.contains("2000"),
         "{}",
-        reply.utility
+        reply.utility_description
     );
     assert_eq!(l.engine.status().sigma_target_bytes, 2000);
     assert!(matches!(

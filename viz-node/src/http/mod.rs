@@ -168,7 +168,7 @@ impl Http {
                     "sigma_bytes": budgets.size_bytes,
                     "tau_s": budgets.time_secs,
                     "q_db": (s.q_target_db > 0.0).then_some(s.q_target_db),
-                    "utility": s.utility,
+                    "utility": s.utility_description,
                 })
             }
             // Unreachable: the last budget read, if any (a budget changes only with the

@@ -210,7 +210,7 @@ pub async fn scene(State(http): State<Arc<Http>>) -> Response {
         },
         "history": steering,
         "fields": s.fields,
-        "utility": s.utility,
+        "utility": s.utility_description,
         "configured_tf": http.shared.scene.agreed().map(|a| a.tf),
         "histogram": (!s.histogram.is_empty()).then(|| json!({
             "step": s.histogram_step,
@@ -277,7 +277,7 @@ pub async fn steer(State(http): State<Arc<Http>>, headers: HeaderMap, body: Stri
             "scene_version": r.scene_version,
             "pm_version": r.pm_version,
             "from_step": r.from_step,
-            "utility": r.utility,
+            "utility": r.utility_description,
             "superseded": r.superseded,
         }))
         .into_response(),
