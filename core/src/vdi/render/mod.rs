@@ -21,17 +21,23 @@
 //! (spans, occupancy tests, compositing) runs eight lanes wide. The single-ray walk below is
 //! what each lane does, and the reference the packets are tested against.
 
+mod composite;
 mod packet;
+mod tables;
+
+use composite::*;
+pub(crate) use tables::WalkTables;
+use tables::*;
+pub use tables::{tile_depth_ranges, SKIP_TILE};
 
 use super::{Supersegment, Vdi};
 use crate::camera::{Camera, Ray, ViewFrame};
 use crate::cancel::{Cancel, Cancelled};
 use crate::dvr::render_blocks_until;
-use crate::fastmath::{self, one_minus_exp_neg};
+use crate::fastmath;
 use crate::image::Image;
-use crate::raycast::{chessboard_distance, Avx2, FrontToBack};
+use crate::raycast::Avx2;
 use glam::Vec3;
-use rayon::prelude::*;
 
 /// Renders `vdi` seen by `camera` at `width × height`, stopping each ray once its accumulated
 /// opacity reaches `termination` (in (0, 1]); background black. For several views of one VDI,
@@ -40,207 +46,10 @@ pub fn render(vdi: &Vdi, camera: &Camera, width: u32, height: u32, termination: 
     Walker::new(vdi).render(camera, width, height, termination)
 }
 
-/// Side, in generation pixels, of the tiles the walk skips when they hold no supersegment
-/// (the 2D analogue of macro-cell empty-space skipping).
-pub const SKIP_TILE: i64 = 1 << SKIP_SHIFT;
-/// `log2(SKIP_TILE)`.
-const SKIP_SHIFT: i64 = 3;
-
-/// Depth range `[z_min, z_max]` of the supersegments in each `SKIP_TILE × SKIP_TILE` tile of
-/// the generation image, row-major, `⌈r / SKIP_TILE⌉²` entries; `[f32::MAX, −f32::MAX]` for an
-/// empty tile (shared with the GPU walk). The walk skips a tile whose depth range the ray's
-/// depth over the tile does not meet: empty tiles, and content the ray passes in front of or
-/// behind.
-pub fn tile_depth_ranges(vdi: &Vdi) -> Vec<[f32; 2]> {
-    let r = vdi.resolution() as usize;
-    let tile = SKIP_TILE as usize;
-    let tiles_x = r.div_ceil(tile);
-    let mut ranges = vec![[f32::MAX, -f32::MAX]; tiles_x * tiles_x];
-    // A row of tiles per task.
-    ranges
-        .par_chunks_mut(tiles_x.max(1))
-        .enumerate()
-        .for_each(|(ty, row)| {
-            for j in ty * tile..((ty + 1) * tile).min(r) {
-                for i in 0..r {
-                    let list = vdi.pixel(i as u32, j as u32);
-                    if let (Some(first), Some(last)) = (list.first(), list.last()) {
-                        let range = &mut row[i / tile];
-                        range[0] = range[0].min(first.z_start);
-                        range[1] = range[1].max(last.z_end);
-                    }
-                }
-            }
-        });
-    ranges
-}
-
 /// A projection shorter than this (generation pixels) along an axis does not step along it
 /// (a point where both are: the ray passes through the generation eye, as every ray of the
 /// generation view does).
 const DEGENERATE_PX: f32 = 1e-3;
-
-/// Depth bins of the occupancy masks ([`DepthBins`]): one bit each in a `u64`.
-const DEPTH_BINS: u32 = 64;
-
-/// Nearest depth the walk considers (the generation frustum's near plane, eye-space units):
-/// depths below it are taken as it when inverted.
-const NEAR_DEPTH: f32 = 1e-6;
-
-/// Inverse depth `w = 1 / z` (`z` raised to [`NEAR_DEPTH`] first, NaN included): along a ray's
-/// projection into the generation image `w` is affine in the segment parameter `u`
-/// (perspective-correct interpolation), so the walk tracks it with a multiply-add per pixel.
-#[inline]
-fn inverse_depth(z: f32) -> f32 {
-    1.0 / z.max(NEAR_DEPTH)
-}
-
-/// The generation range of inverse depth cut into [`DEPTH_BINS`] equal bins, so that a set
-/// of depth intervals can be summarised as a 64-bit occupancy mask (a froxel grid's column,
-/// its slices uniform in `1/z` as a perspective depth buffer's are: the 3-D analogue of the
-/// tiles' depth range, which cannot see the gaps between structures).
-///
-/// Exact for skipping: an inverse depth `w` falls in bin `⌊(w − w₀)·n⌋` (clamped), and both
-/// that and [`inverse_depth`] are monotonic in `f32` too, so two depth intervals that share a
-/// depth share a bin, and an interval whose mask misses a list's mask meets none of its
-/// supersegments.
-#[derive(Clone, Copy)]
-struct DepthBins {
-    /// Inverse depth where bin 0 starts.
-    w0: f32,
-    /// Bins per unit of inverse depth.
-    per_unit: f32,
-}
-
-impl DepthBins {
-    /// Bins spanning the inverse depths `[w_min, w_max]`; any range for an empty VDI.
-    fn new(w_min: f32, w_max: f32) -> Self {
-        let extent = w_max - w_min;
-        if extent.is_finite() && extent > 0.0 {
-            Self {
-                w0: w_min,
-                per_unit: DEPTH_BINS as f32 / extent,
-            }
-        } else {
-            Self {
-                w0: if w_min.is_finite() { w_min } else { 0.0 },
-                per_unit: 1.0,
-            }
-        }
-    }
-
-    /// The bin holding inverse depth `w`, clamped to the bins (NaN goes to bin 0).
-    #[inline]
-    fn bin(self, w: f32) -> u32 {
-        // Clamped as a float first (`max` takes NaN to 0), so the conversion needs no
-        // saturation of its own.
-        let x = ((w - self.w0) * self.per_unit)
-            .max(0.0)
-            .min((DEPTH_BINS - 1) as f32);
-        x as u32
-    }
-
-    /// The bits of the bins that the inverse depths `[wa, wb]` (either order) touch.
-    #[inline]
-    fn mask(self, wa: f32, wb: f32) -> u64 {
-        bits(self.bin(wa.min(wb)), self.bin(wa.max(wb)))
-    }
-
-    /// The bins `w ± margin` spans: where a crossing found at inverse depth `w`, up to
-    /// `margin`, may lie.
-    #[inline]
-    fn around(self, w: f32, margin: f32) -> [u32; 2] {
-        [self.bin(w - margin), self.bin(w + margin)]
-    }
-}
-
-/// The bits `lo ..= hi` (both below [`DEPTH_BINS`], `lo ≤ hi`; none when `lo > hi`).
-#[inline]
-fn bits(lo: u32, hi: u32) -> u64 {
-    (u64::MAX >> (DEPTH_BINS - 1 - hi)) & (u64::MAX << lo)
-}
-
-/// The bits of the bins between two crossings' [`DepthBins::around`]: those a pixel's depth
-/// span between them may touch.
-#[inline]
-fn between([lo_a, hi_a]: [u32; 2], [lo_b, hi_b]: [u32; 2]) -> u64 {
-    bits(lo_a.min(lo_b), hi_a.max(hi_b))
-}
-
-/// The per-VDI constants of the walk: tile depth ranges and empty-tile distances, depth
-/// occupancy masks per pixel, and packed search keys (8 bytes per supersegment), built once
-/// per VDI and kept with it ([`Vdi`]'s derived data).
-#[derive(Clone)]
-pub(crate) struct WalkTables {
-    /// Tiles per row of the generation image.
-    tiles_x: i64,
-    /// Inverse-depth range `[1/z_max, 1/z_min]` of each `SKIP_TILE²` tile's supersegments
-    /// ([`tile_depth_ranges`] inverted; `[f32::MAX, −f32::MAX]` for an empty tile).
-    tile_w: Vec<[f32; 2]>,
-    /// Per tile, the chessboard distance in tiles to the nearest tile with a supersegment
-    /// (0 for such a tile, at most 255): an empty tile at distance `d` is the centre of a
-    /// square of `2d − 1` empty tiles a side, which the walk leaves in one jump (the 2-D
-    /// analogue of the marcher's empty-cube leaps). On the teapot at r = 768 from 30°,
-    /// 2.8 M of the 3.9 M tiles skipped per frame were empty.
-    tile_reach: Vec<u8>,
-    /// How depths map to the bits of the masks.
-    bins: DepthBins,
-    /// Per pixel (`i + r·j`), the depth bins its supersegments touch: a pixel whose mask
-    /// misses the ray's depth span there is passed without searching its list.
-    pixel_bins: Vec<u64>,
-    /// Per supersegment, packed: `z_end` (the depth searches touch two cache lines where the
-    /// 24-byte supersegments would take four) and the extinction `κ = −ln(1 − â)` per unit
-    /// length (so `α' = 1 − e^(−ℓ·κ)` costs one call-free [`one_minus_exp_neg`], not a `powf`;
-    /// `â = 1` gives `κ = ∞` and `α' = 1`).
-    keys: Vec<[f32; 2]>,
-}
-
-impl WalkTables {
-    /// Two passes over `vdi`'s pixels and supersegments.
-    pub(crate) fn new(vdi: &Vdi) -> Self {
-        let r = vdi.resolution() as usize;
-        let tile_depth = tile_depth_ranges(vdi);
-        let tile_w: Vec<[f32; 2]> = tile_depth
-            .iter()
-            .map(|&[z_min, z_max]| {
-                if z_min <= z_max {
-                    [inverse_depth(z_max), inverse_depth(z_min)]
-                } else {
-                    [f32::MAX, -f32::MAX]
-                }
-            })
-            .collect();
-        let (w_min, w_max) = tile_w.iter().fold((f32::MAX, -f32::MAX), |(lo, hi), w| {
-            (lo.min(w[0]), hi.max(w[1]))
-        });
-        let bins = DepthBins::new(w_min, w_max);
-        let mut pixel_bins = vec![0u64; r * r];
-        pixel_bins
-            .par_chunks_mut(r.max(1))
-            .enumerate()
-            .for_each(|(j, row)| {
-                for (i, m) in row.iter_mut().enumerate() {
-                    *m = vdi.pixel(i as u32, j as u32).iter().fold(0, |m, s| {
-                        m | bins.mask(inverse_depth(s.z_start), inverse_depth(s.z_end))
-                    });
-                }
-            });
-        let tiles_x = r.div_ceil(SKIP_TILE as usize);
-        let occupied: Vec<bool> = tile_depth.iter().map(|d| d[0] <= d[1]).collect();
-        Self {
-            tiles_x: tiles_x as i64,
-            tile_reach: chessboard_distance([tiles_x, tiles_x, 1], &occupied),
-            tile_w,
-            bins,
-            pixel_bins,
-            keys: vdi
-                .supersegments()
-                .par_iter()
-                .map(|s| [s.z_end, s.extinction()])
-                .collect(),
-        }
-    }
-}
 
 /// A VDI prepared for rendering from many cameras: its generation frame and its walk tables
 /// (built on the VDI's first render and kept with it).
@@ -843,116 +652,6 @@ impl Axis {
             -fastmath::ceil(-p) as i64
         };
         c.clamp(lo, hi - 1)
-    }
-}
-
-/// Front-to-back accumulator of one ray: the DVR's ([`FrontToBack`]), fed supersegments.
-#[derive(Clone, Copy)]
-struct Accum {
-    ray: FrontToBack,
-    /// Stop once transmittance falls to this.
-    threshold: f32,
-}
-
-impl Accum {
-    /// An empty ray that stops at accumulated opacity `termination`.
-    fn new(termination: f32) -> Self {
-        Self {
-            ray: FrontToBack::new(termination),
-            threshold: 1.0 - termination,
-        }
-    }
-
-    /// Adds a frustum of extinction `kappa` = `−ln(1 − â)` passed over world length `len`;
-    /// returns true when the ray is done.
-    #[inline]
-    fn add(&mut self, s: &Supersegment, kappa: f32, len: f32) -> bool {
-        if len > 0.0 && s.alpha > 0.0 {
-            // â = 1 gives κ = ∞ and α' = 1.
-            self.ray.blend(one_minus_exp_neg(len * kappa), s.color);
-        }
-        self.ray.transmittance <= self.threshold
-    }
-}
-
-/// Longest list searched by a scan rather than by bisection (the lists the teapot's
-/// r = 768 VDI composites hold 19 supersegments on average; 16 was slower, 64 the same).
-const LINEAR_SEARCH_MAX: usize = 32;
-
-/// Composites the supersegments of one pixel list met by the ray over `[ta, tb]`, where the
-/// generation depth is `z(t)`; `keys` holds the list's `[z_end, −ln(1 − â)]`. Returns true
-/// when the ray is done.
-#[inline(always)]
-fn composite_span(
-    list: &[Supersegment],
-    keys: &[[f32; 2]],
-    z: Lin,
-    ta: f32,
-    tb: f32,
-    acc: &mut Accum,
-) -> bool {
-    let span = tb - ta;
-    let (za, zb) = (z.at(ta), z.at(tb));
-    if z.f1 > 0.0 {
-        let first = ending_after(keys, za);
-        for (s, k) in list[first..].iter().zip(&keys[first..]) {
-            if s.z_start >= zb {
-                break;
-            }
-            let len = ((s.z_end.min(zb) - s.z_start.max(za)) / z.f1).clamp(0.0, span);
-            if acc.add(s, k[1], len) {
-                return true;
-            }
-        }
-        return false;
-    }
-    if z.f1 < 0.0 {
-        let end = starting_before(list, za);
-        for (s, k) in list[..end].iter().zip(&keys[..end]).rev() {
-            if s.z_end <= zb {
-                break;
-            }
-            let len = ((s.z_end.min(za) - s.z_start.max(zb)) / -z.f1).clamp(0.0, span);
-            if acc.add(s, k[1], len) {
-                return true;
-            }
-        }
-        return false;
-    }
-    let first = ending_after(keys, za);
-    if let (Some(s), Some(k)) = (list.get(first), keys.get(first)) {
-        if s.z_start <= za && acc.add(s, k[1], span) {
-            return true;
-        }
-    }
-    false
-}
-
-/// The first supersegment of a list (sorted and disjoint; `keys` its `[z_end, κ]`) that ends
-/// after depth `z`: where a ray going deeper from `z` starts. Short lists are scanned:
-/// independent loads in order, where a binary search's loads each wait on the one before
-/// (12 % of the teapot r = 768 frame from 30°).
-#[inline(always)]
-fn ending_after(keys: &[[f32; 2]], z: f32) -> usize {
-    if keys.len() <= LINEAR_SEARCH_MAX {
-        keys.iter().position(|k| k[0] > z).unwrap_or(keys.len())
-    } else {
-        keys.partition_point(|k| k[0] <= z)
-    }
-}
-
-/// How many supersegments of a sorted, disjoint list start before depth `z` (they are its
-/// first ones): where a ray going shallower from `z` starts, counting down. Short lists are
-/// scanned from their end, past those beyond `z` only, not through the ones the ray will
-/// composite (the view from behind: 7–9 % of a frame).
-#[inline(always)]
-fn starting_before(list: &[Supersegment], z: f32) -> usize {
-    if list.len() <= LINEAR_SEARCH_MAX {
-        list.iter()
-            .rposition(|s| s.z_start < z)
-            .map_or(0, |i| i + 1)
-    } else {
-        list.partition_point(|s| s.z_start < z)
     }
 }
 
