@@ -1101,11 +1101,13 @@ fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
     );
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--sample-distance"), "{}", stderr(&o));
-    // A 3 MB transfer function (valid JSON): over the viewer's 2 MiB, said without a connection.
-    let points: Vec<String> = (0..60_000)
-        .map(|i| format!("{{\"value\": {i}, \"rgba\": [0.5, 0.5, 0.5, 0.5]}}"))
+    // A valid transfer function of 3 MB: over the viewer's 2 MiB, said without a connection.
+    let n = 100_000;
+    let points: Vec<String> = (0..n)
+        .map(|i| format!("[{:.8}, 0.5, 0.5, 0.5, 0.5]", i as f64 / (n - 1) as f64))
         .collect();
-    let big = format!("{{\"points\": [{}]}}", points.join(","));
+    let big = format!("{{\"domain\": [0, 1], \"points\": [{}]}}", points.join(","));
+    assert!(big.len() > 3_000_000);
     std::fs::write(dir.path().join("big.json"), big).unwrap();
     let o = insitu(
         &["steer", "--viz", "127.0.0.1:9", "--tf", "big.json"],
@@ -1114,7 +1116,28 @@ fn steer_refuses_what_the_viewer_would_refuse_before_sending() {
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(e.contains("the viewer takes at most 2097152"), "{e}");
-    assert!(!e.contains("cannot reach"), "{e}");
+    assert!(!e.contains("request failed"), "{e}");
+    // One that is not a transfer function, or breaks a rule, is named before anything is sent.
+    for (text, says) in [
+        (
+            r#"{"points": [{"value": 1}]}"#,
+            "not valid JSON of the form",
+        ),
+        (
+            r#"{"domain": [1, 0], "points": [[0, 0, 0, 0, 0]]}"#,
+            "domain [1, 0]",
+        ),
+    ] {
+        std::fs::write(dir.path().join("bad.json"), text).unwrap();
+        let o = insitu(
+            &["steer", "--viz", "127.0.0.1:9", "--tf", "bad.json"],
+            dir.path(),
+        );
+        assert!(!o.status.success());
+        let e = stderr(&o);
+        assert!(e.contains("--tf") && e.contains(says), "{e}");
+        assert!(!e.contains("request failed"), "{e}");
+    }
 }
 
 /// Writes a growing ball over 3 steps of 17³ (`ball_17x17x17x3_float32.raw`) in `dir` and

@@ -12,12 +12,18 @@
 //! - *encoding*: the codec, which is σ.
 //!
 //! Medians of `INSITU_BENCH_ROUNDS` (default 9). Run: `cargo bench -p insitu-core --bench probe`.
+//!
+//! A second table asks whether a probe could measure σ with the fast codec and map it to the
+//! run's: over a grid of candidates and two precisions, each VDI encoded with bzip2 and with
+//! zstd, the ratio σ_bzip2 / σ_zstd, and the error of estimating every candidate's σ_bzip2 as
+//! σ_zstd times the ratio of one calibration candidate (the first of the grid) of the same
+//! step.
 
 #![allow(clippy::expect_used)] // a benchmark without its data or parameters cannot run
 
 use insitu_core::vdi::codec::{encode, Codec};
 use insitu_core::vdi::generate::{generate, generate_into};
-use insitu_core::vdi::VdiParams;
+use insitu_core::vdi::{Precision, VdiParams};
 use insitu_core::volume::{GrayScott, GrayScottParams, RawFormat};
 use insitu_core::{Camera, RaycastParams, Raycaster, TransferFunction, Volume};
 use std::hint::black_box;
@@ -88,6 +94,48 @@ fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], r
     }
 }
 
+/// σ with bzip2 against σ with zstd over a grid of candidates at `precision` (see the module's
+/// docs), with the encodings' times.
+fn proxy(name: &str, volume: &Volume, precision: Precision) {
+    let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
+    let tf = TransferFunction::default_for_range(lo, hi);
+    let camera = Camera::default_for_box(&volume.world_box());
+    let rc = Raycaster::new(volume, &tf, RaycastParams::default()).expect("valid params");
+    println!("{name}, {precision:?}: σ by bzip2 estimated from zstd");
+    println!("| r | γ | σ bzip2 kB | bzip2 ms | σ zstd kB | zstd ms | ratio | estimate's error |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut calibration = None;
+    let mut worst: f64 = 0.0;
+    for r in [256, 192, 128, 384] {
+        for gamma in [0.01, 0.002, 0.005, 0.02, 0.04] {
+            let params = VdiParams {
+                resolution: r,
+                gamma,
+                precision,
+            };
+            let vdi = generate(&rc, &camera, params, 0, "").expect("valid");
+            let timed = |codec| {
+                let t = Instant::now();
+                let n = encode(&vdi, codec).expect("encodes").len();
+                (n as f64, t.elapsed().as_secs_f64() * 1e3)
+            };
+            let (b, tb) = timed(Codec::Bzip2);
+            let (z, tz) = timed(Codec::Zstd);
+            let ratio = b / z;
+            let k = *calibration.get_or_insert(ratio);
+            let error = k * z / b - 1.0;
+            worst = worst.max(error.abs());
+            println!(
+                "| {r} | {gamma} | {:.0} | {tb:.1} | {:.0} | {tz:.1} | {ratio:.3} | {:+.1} % |",
+                b / 1e3,
+                z / 1e3,
+                100.0 * error
+            );
+        }
+    }
+    println!("worst error {:.1} %\n", 100.0 * worst);
+}
+
 fn main() {
     let rounds: usize = std::env::var("INSITU_BENCH_ROUNDS")
         .ok()
@@ -120,4 +168,8 @@ fn main() {
         &[(256, 0.02), (192, 0.01), (128, 0.005)],
         rounds,
     );
+    for precision in [Precision::Bits(8), Precision::Float32] {
+        proxy("ocean 180×90×19, first step", &ocean, precision);
+        proxy("Gray–Scott 128³ after 1500 steps", &gs, precision);
+    }
 }
