@@ -2,6 +2,7 @@
 //! an error naming the key; never a panic.
 #![no_main]
 
+use insitu_proto::daemon::DaemonConfig;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
@@ -9,12 +10,12 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     if let Ok(c) = toml::from_str::<insitu_generator_node::config::Config>(text) {
-        let _ = c.generation();
+        let _ = c.validate();
     }
     if let Ok(c) = toml::from_str::<insitu_viz_node::Config>(text) {
         let _ = c.validate();
     }
     if let Ok(c) = toml::from_str::<insitu_tuner_node::config::Config>(text) {
-        let _ = c.resolve();
+        let _ = c.validate();
     }
 });
