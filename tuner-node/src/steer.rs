@@ -233,9 +233,9 @@ pub struct Change {
 /// refuses it) with the rest of its configuration.
 ///
 /// # Errors
-/// A message naming the bad part and why: a transfer function over
-/// [`insitu_proto::convert::MAX_TF_JSON`] or that
-/// does not parse, a field the steps do not carry (or before any step named its fields), a
+/// A message naming the bad part and why: a transfer function that breaks a rule or has
+/// more than [`insitu_proto::convert::MAX_TF_POINTS`] points (or comes as JSON text from an
+/// older peer), a field the steps do not carry (or before any step named its fields), a
 /// degenerate camera or one whose eye lies inside the domain's box, a sample distance not
 /// finite and > 0, longer than the domain's diagonal or taking more than
 /// [`MAX_SAMPLES_PER_RAY`] along it, an empty utility, or a request that changes nothing.

@@ -35,6 +35,19 @@ pub enum Cause {
         /// The factor over the plan that makes a step characteristic.
         threshold: f64,
     },
+    /// While a tuning for a step that missed its plan was due or running, a later step made
+    /// with the same `P_M` came out far over that step's σ: the data changed character again,
+    /// and the tuning for the earlier step would not represent it.
+    SizeJump {
+        /// The step's σ, bytes (summed over its ranks).
+        sigma_bytes: u64,
+        /// The step the tuning was due for.
+        than_step: u64,
+        /// Its σ, bytes.
+        than_bytes: u64,
+        /// The factor over it that makes a step characteristic.
+        threshold: f64,
+    },
     /// A production step broke the budget; `why` names the indicator and by how much.
     BrokeBudget {
         /// E.g. `σ 1000 B ≥ σ_target 1000 B`.
@@ -76,6 +89,16 @@ impl fmt::Display for Trigger {
                 *sigma_bytes as f64 / planned_bytes,
                 planned_bytes
             ),
+            Cause::SizeJump {
+                sigma_bytes,
+                than_step,
+                than_bytes,
+                threshold,
+            } => write!(
+                f,
+                "step {step} became characteristic (σ {sigma_bytes} B is {:.2}× the {than_bytes} B of step {than_step} at the same P_M, over {threshold}×, while a tuning for that step was due: the data changed character again)",
+                *sigma_bytes as f64 / (*than_bytes).max(1) as f64,
+            ),
             Cause::BrokeBudget { why } => {
                 write!(f, "production step {step} broke the budget ({why})")
             }
@@ -110,6 +133,15 @@ mod tests {
                 threshold: 1.5
             }),
             "step 7 became characteristic (σ 300 B is 3.00× the 100 B its P_M was planned at, over 1.5×: the data changed character)"
+        );
+        assert_eq!(
+            t(Cause::SizeJump {
+                sigma_bytes: 300,
+                than_step: 5,
+                than_bytes: 150,
+                threshold: 1.5
+            }),
+            "step 7 became characteristic (σ 300 B is 2.00× the 150 B of step 5 at the same P_M, over 1.5×, while a tuning for that step was due: the data changed character again)"
         );
         assert_eq!(
             t(Cause::BrokeBudget {

@@ -79,9 +79,10 @@ struct StepOracle {
 /// keep up with meanwhile), a resumed or interrupted tuning, or the first (the burst is its).
 fn overdraft(t: &TrialConfig, trigger: &Trigger) -> f64 {
     match trigger.cause {
-        Cause::NewCharacter { .. } | Cause::SizeMiss { .. } | Cause::Steered { .. } => {
-            t.overdraft_secs
-        }
+        Cause::NewCharacter { .. }
+        | Cause::SizeMiss { .. }
+        | Cause::SizeJump { .. }
+        | Cause::Steered { .. } => t.overdraft_secs,
         Cause::BrokeBudget { .. } | Cause::First | Cause::Lost { .. } | Cause::Resume => 0.0,
     }
 }
@@ -405,7 +406,10 @@ fn decide(
 ) {
     let from_step = engine.decision_start();
     let surface = engine.state().surface(&steps);
-    if matches!(trigger.cause, Cause::SizeMiss { .. }) {
+    if matches!(
+        trigger.cause,
+        Cause::SizeMiss { .. } | Cause::SizeJump { .. }
+    ) {
         // The data changed character at the trigger step, and this surface was measured on
         // it: production before it measured other data.
         engine.control().rebase(trigger.step);
@@ -655,6 +659,12 @@ mod tests {
             Cause::SizeMiss {
                 sigma_bytes: 3,
                 planned_bytes: 1.0,
+                threshold: 1.5,
+            },
+            Cause::SizeJump {
+                sigma_bytes: 3,
+                than_step: 0,
+                than_bytes: 1,
                 threshold: 1.5,
             },
             Cause::Steered { what: "u".into() },

@@ -482,6 +482,20 @@ struct Loop {
     cut_last: bool,
     /// The `P_M` of the last production step completed.
     last_candidate: Option<Candidate>,
+    /// The last step made characteristic by σ evidence, with the version and `P_M` it was
+    /// made with and its σ: while the tuning for it is due or running, a later step made
+    /// with the same `P_M` far over this σ is a change of character again
+    /// ([`crate::trigger::Cause::SizeJump`]).
+    missed: Option<Missed>,
+}
+
+/// A step made characteristic because its σ missed its plan ([`Loop::missed`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Missed {
+    step: u64,
+    pm_version: u64,
+    candidate: Candidate,
+    sigma_bytes: u64,
 }
 
 /// How a production step broke the budget.
@@ -603,6 +617,7 @@ impl Engine {
             slow: (0, 0),
             cut_last: false,
             last_candidate: None,
+            missed: None,
         };
         // The running tuning gives back its trigger and whether it finished.
         let mut tuning: Option<JoinHandle<(bool, Trigger)>> = None;
@@ -648,6 +663,10 @@ impl Engine {
                         self.counters().tunings_superseded += 1;
                     }
                     l.tuning_ended();
+                    // A tuning that decided with no newer one due has taken the missed step in.
+                    if matches!(done, Some((true, _))) && l.dirty.is_none() {
+                        l.missed = None;
+                    }
                     if let Some((false, trigger)) = done {
                         let wait = Duration::from_secs_f64(self.cfg.trials.timeout_secs);
                         retry = Some((tokio::time::Instant::now() + wait, trigger));

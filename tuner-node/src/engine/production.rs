@@ -159,7 +159,9 @@ impl Loop {
     fn size_miss(&self, v: u64, p: &Pending, planned: Option<f64>, steady: bool) -> Option<Cause> {
         let threshold = self.engine.cfg.characteristic.sigma_miss;
         let planned_bytes = planned.filter(|_| steady)?;
-        let tuned = self.unforced_tuning(false)?;
+        let Some(tuned) = self.unforced_tuning(false) else {
+            return self.size_jump(v, p, threshold);
+        };
         (v >= tuned && p.sigma_bytes as f64 >= threshold * planned_bytes).then_some(
             Cause::SizeMiss {
                 sigma_bytes: p.sigma_bytes,
@@ -167,6 +169,22 @@ impl Loop {
                 threshold,
             },
         )
+    }
+
+    /// While the tuning for the last step that missed its plan is due or running: whether the
+    /// production step made with version `v` (with the `P_M` of the step before) is that
+    /// step's `P_M` at `threshold` times its σ or more ([`Cause::SizeJump`]). A field that
+    /// drifts within a factor of `threshold` of it is left to that tuning.
+    fn size_jump(&self, v: u64, p: &Pending, threshold: f64) -> Option<Cause> {
+        let m = self
+            .missed
+            .filter(|m| m.pm_version == v && m.candidate == p.candidate && m.sigma_bytes > 0)?;
+        (p.sigma_bytes as f64 >= threshold * m.sigma_bytes as f64).then_some(Cause::SizeJump {
+            sigma_bytes: p.sigma_bytes,
+            than_step: m.step,
+            than_bytes: m.sigma_bytes,
+            threshold,
+        })
     }
 
     fn force(
@@ -358,6 +376,14 @@ impl Loop {
                 Some(Cause::BrokeBudget { why })
             });
         if let Some(cause) = cause {
+            if matches!(cause, Cause::SizeMiss { .. } | Cause::SizeJump { .. }) {
+                self.missed = Some(Missed {
+                    step,
+                    pm_version: p.pm_version,
+                    candidate: p.candidate,
+                    sigma_bytes: p.sigma_bytes,
+                });
+            }
             self.force(step, &h, p.world_size, production, cause);
             return;
         }

@@ -87,6 +87,7 @@ fn tuned_for(dir: &std::path::Path, utility: &str, time_breaks: u32) -> Loop {
         slow: (0, 0),
         cut_last: false,
         last_candidate: None,
+        missed: None,
     }
 }
 
@@ -494,7 +495,9 @@ fn made(step: u64, sigma: u64, version: u64) -> pb::StepSummary {
 
 /// A step whose σ is 1.5× what its decision planned is characteristic though its
 /// histogram is the characteristic step's and it is within the budget (a new character
-/// by structure); one at 1.44× is not; none while a tuning is due.
+/// by structure); one at 1.44× is not. While the tuning for it is due, a step within 1.5× of
+/// its σ changes nothing, and one at 1.5× of it or more is characteristic too: the data
+/// changed character again, which a tuning for the earlier step would not see.
 #[test]
 fn a_step_far_over_its_plan_is_a_new_character_whatever_its_histogram() {
     let dir = tempfile::tempdir().unwrap();
@@ -516,9 +519,28 @@ fn a_step_far_over_its_plan_is_a_new_character_whatever_its_histogram() {
     );
     assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
     // The next step alike, while that tuning is due, changes nothing.
-    l.summary(3, made(3, 4000, 1));
+    l.summary(3, made(3, 2000, 1));
     assert_eq!(l.dirty.as_ref().map(|d| d.step), Some(2));
     assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2]);
+    // One at 1.5× step 2's σ with the same P_M: a new character again, tuned for with it.
+    l.summary(4, made(4, 2025, 1));
+    let d = l.dirty.clone().unwrap();
+    assert_eq!(
+        (d.step, d.cause),
+        (
+            4,
+            Cause::SizeJump {
+                sigma_bytes: 2025,
+                than_step: 2,
+                than_bytes: 1350,
+                threshold: 1.5
+            }
+        )
+    );
+    assert_eq!(l.engine.state().tracker.step_indices(), vec![0, 2, 4]);
+    // Measured against the newest such step now: 1.49× of step 4's changes nothing.
+    l.summary(5, made(5, 3000, 1));
+    assert_eq!(l.dirty.as_ref().map(|d| d.step), Some(4));
 }
 
 /// A step made under a correction of the tuned decision that breaks the budget makes no
