@@ -7,7 +7,7 @@
 use crate::hold::Holds;
 use insitu_core::compose::window_of;
 use insitu_core::{dvr, Camera, Raycaster};
-use insitu_proto::convert::{preview_frame_to_pb, preview_size, tf_field};
+use insitu_proto::convert::{preview_frame_to_pb, preview_size, preview_tf};
 use insitu_proto::pb;
 use std::time::Instant;
 
@@ -29,9 +29,8 @@ pub fn render(holds: &Holds, req: &pb::PreviewRequest) -> Vec<pb::PreviewFrame> 
         Ok(s) => s,
         Err(e) => return vec![refused(0, e)],
     };
-    let tf = match tf_field(req.tf.as_ref(), Some(&req.legacy_tf_json)) {
-        Ok(Some(tf)) => tf,
-        Ok(None) => return vec![refused(0, "tf: no transfer function to preview".into())],
+    let tf = match preview_tf(req) {
+        Ok(tf) => tf,
         Err(e) => return vec![refused(0, e)],
     };
     let asked = match req.camera.as_ref().map(Camera::try_from).transpose() {

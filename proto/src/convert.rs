@@ -232,6 +232,16 @@ pub fn tf_field(
         .map_err(|e| format!("tf: {e}"))
 }
 
+/// The transfer function a preview asks for ([`tf_field`] of `req`): a preview without one is
+/// refused.
+///
+/// # Errors
+/// As [`tf_field`], and `tf: no transfer function to preview` when it is unset.
+pub fn preview_tf(req: &pb::PreviewRequest) -> Result<TransferFunction, String> {
+    tf_field(req.tf.as_ref(), Some(&req.legacy_tf_json))?
+        .ok_or_else(|| "tf: no transfer function to preview".to_owned())
+}
+
 /// A wire enum from the `i32` prost stores, `field` naming it in the error.
 ///
 /// # Errors

@@ -8,8 +8,7 @@ use insitu_core::raycast::DEFAULT_TERMINATION;
 use insitu_core::vdi::codec::{self, Codec, DecodeLimits};
 use insitu_core::vdi::{generate, render};
 use insitu_core::{
-    Backend, Camera, Image, NamedTf, RaycastParams, Raycaster, TfIdentity, TransferFunction,
-    VdiParams,
+    Backend, Camera, Image, NamedTf, RaycastParams, Raycaster, TransferFunction, VdiParams,
 };
 use numpy::ndarray::Array3;
 use numpy::{
@@ -303,7 +302,7 @@ pub fn evaluate<'py>(
     precision: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let v = self::volume(volume, spacing, origin)?;
-    let NamedTf { tf, name } = transfer_function(tf, &v)?;
+    let named = transfer_function(tf, &v)?;
     let codec: Codec = codec.parse().map_err(bad)?;
     let params = VdiParams {
         resolution: r,
@@ -321,8 +320,8 @@ pub fn evaluate<'py>(
     let cam = Camera::default_for_box(&v.world_box());
     let eval = py
         .detach(|| -> Result<insitu_core::evaluate::Evaluation, String> {
-            let rc =
-                Raycaster::new(&v, &tf, RaycastParams::default()).map_err(|e| e.to_string())?;
+            let rc = Raycaster::new(&v, &named.tf, RaycastParams::default())
+                .map_err(|e| e.to_string())?;
             let scene = Backend::Cpu.prepare(&rc).map_err(|e| e.to_string())?;
             let mut references = Vec::with_capacity(angles.len());
             for &a in &angles {
@@ -340,10 +339,7 @@ pub fn evaluate<'py>(
                 codec,
                 &angles,
                 &references,
-                TfIdentity {
-                    hash: tf.identity_hash(),
-                    name: &name,
-                },
+                named.identity(),
                 &mut None,
             )
             .map(|(e, _)| e)

@@ -8,7 +8,7 @@ use crate::engine::Engine;
 use crate::hub::PreviewReply;
 use insitu_core::compose::{compose_frames, BrickFrame};
 use insitu_core::{Camera, Image};
-use insitu_proto::convert::{preview_size, preview_window_from_pb, tf_field};
+use insitu_proto::convert::{preview_size, preview_tf, preview_window_from_pb};
 use insitu_proto::pb;
 use std::time::{Duration, Instant};
 use tonic::Status;
@@ -27,9 +27,7 @@ pub const TIMEOUT: Duration = Duration::from_secs(30);
 pub async fn preview(e: &Engine, mut req: pb::PreviewRequest) -> Result<pb::PreviewReply, Status> {
     let t0 = Instant::now();
     let size = preview_size(req.size).map_err(Status::invalid_argument)?;
-    tf_field(req.tf.as_ref(), Some(&req.legacy_tf_json))
-        .map_err(Status::invalid_argument)?
-        .ok_or_else(|| Status::invalid_argument("tf: no transfer function to preview"))?;
+    preview_tf(&req).map_err(Status::invalid_argument)?;
     if let Some(c) = &req.camera {
         Camera::try_from(c)
             .map_err(|e| Status::invalid_argument(format!("camera: {}", e.message())))?;

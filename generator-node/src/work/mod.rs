@@ -404,8 +404,9 @@ fn header(
         supersegments: generated.value.supersegments().len() as u64,
         tau_secs,
         tau_compress_secs,
-        tf_hash: tf.tf.identity_hash(),
-        tf_name: tf.name.clone(),
+        // As the VDI records them (its provenance, which the viz-node checks against these).
+        tf_hash: generated.value.meta().tf_hash,
+        tf_name: generated.value.meta().tf_name.clone(),
         // A few hundred bytes beside a VDI of kilobytes to megabytes.
         tf: Some(pb::TransferFunction::from(&tf.tf)),
         tau_source: pb::TauSource::from(generated.source) as i32,

@@ -11,7 +11,7 @@
 //! `x-insitu-render-secs` (the slowest node), `x-insitu-secs` (at the tuner). Behind the
 //! steering token, as steering is: it spends the nodes' time.
 
-use super::steer::{steering_peer, tuner_client, tuner_refused, CameraBody};
+use super::steer::{steering_peer, tuner_client, tuner_refused, wire_tf, CameraBody};
 use super::{error, Http};
 use axum::extract::State;
 use axum::http::{header, HeaderMap, StatusCode};
@@ -62,12 +62,13 @@ pub async fn preview(State(http): State<Arc<Http>>, headers: HeaderMap, body: St
             Err(e) => return error(StatusCode::BAD_REQUEST, e),
         },
     };
-    if let Err(e) = b.tf.validate("in the request") {
-        return error(StatusCode::BAD_REQUEST, format!("tf: {e}"));
-    }
+    let tf = match wire_tf(&b.tf) {
+        Ok(tf) => tf,
+        Err(e) => return error(StatusCode::BAD_REQUEST, e),
+    };
     let request = pb::PreviewRequest {
         step: b.step,
-        tf: Some(pb::TransferFunction::from(&b.tf)),
+        tf: Some(tf),
         camera,
         size: b.size.unwrap_or(0),
         ..Default::default()

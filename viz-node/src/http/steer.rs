@@ -351,12 +351,8 @@ async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, Str
         None => None,
         Some(c) => Some(c.camera(http).await?),
     };
-    if let Some(tf) = &b.tf {
-        tf.validate("in the request")
-            .map_err(|e| format!("tf: {e}"))?;
-    }
     Ok(pb::SteerRequest {
-        tf: b.tf.as_ref().map(pb::TransferFunction::from),
+        tf: b.tf.as_ref().map(wire_tf).transpose()?,
         tf_name: b.tf_name,
         field: b.field,
         camera: camera.as_ref().map(pb::Camera::from),
@@ -366,6 +362,17 @@ async fn request(http: &Arc<Http>, b: SteerBody) -> Result<pb::SteerRequest, Str
         who: "the viewer's steering API".into(),
         legacy_tf_json: None,
     })
+}
+
+/// A request body's transfer function checked (as a file's is) and typed for the tuner: a
+/// broken one is refused here, before the tuner is called.
+///
+/// # Errors
+/// `tf: transfer function in the request: …` naming the broken rule.
+pub(super) fn wire_tf(tf: &TransferFunction) -> Result<pb::TransferFunction, String> {
+    tf.validate("in the request")
+        .map_err(|e| format!("tf: {e}"))?;
+    Ok(pb::TransferFunction::from(tf))
 }
 
 impl CameraBody {
