@@ -2,59 +2,24 @@
 //! that pushes fast, or a run shorter than the first tuning, would otherwise make every step at
 //! the configured `P_M` (4× over a 1 MB budget at r 256 on a 64³ field). The tuner sends its
 //! budget when the node attaches ([`pb::NodeBudget`]); after each whole step made while no
-//! decision is in force (σ summed over its ranks, τ of the slowest), a σ or τ [`MIN_EXCESS`]
-//! over the budget or more lowers r for the steps no rank of which has begun, as if both grew
-//! as r^1.5 ([`GROWTH`]), with 10 % headroom, on multiples of 16 pixels. r only goes down here: spending headroom is
-//! the tuner's, which measures q. The tuner's first decision takes over; the node's summary
-//! counts the steps made under such a correction.
+//! decision is in force (σ summed over its ranks, τ of the slowest), a σ or τ
+//! [`insitu_core::budget::MIN_EXCESS`] over the budget or more lowers r for the steps no rank
+//! of which has begun ([`insitu_core::budget::lowered_resolution`]). r only goes down here:
+//! spending headroom is the tuner's, which measures q. The tuner's first decision takes over;
+//! the node's summary counts the steps made under such a correction.
 //!
 //! Only a node that holds every rank of its world sees whole steps
-//! ([`crate::layout::Layouts::whole_world_here`]); a world spread over several nodes is left
-//! to the tuner, since its ranks must share one `P_M` to be composed.
+//! ([`crate::layout::Layouts::whole_world_here`]). For a world spread over several nodes the
+//! tuner, which sees every rank's summary, lowers r by the same rule in a provisional decision
+//! (`PmDecision.provisional`) that all of them apply from one step, so the ranks share one
+//! `P_M`; the summary counts the steps made under those too.
 
 use crate::config::Generation;
-use insitu_core::budget::Budgets;
+use insitu_core::budget::{lowered_resolution, Budgets};
 use insitu_proto::pb;
+use std::collections::BTreeSet;
 use std::sync::{Mutex, RwLock};
 use tracing::info;
-
-/// The part of the budget a corrected r aims at.
-pub const HEADROOM: f64 = 0.9;
-
-/// The exponent of r that σ and τ are taken to grow with. The rays grow as r², but
-/// neighbouring lists compress together: on a 64³ blob σ fell 2.86× from r 256 to r 128
-/// (r^1.52). The smaller exponent lowers r further, so the first correction lands within the
-/// budget where σ grows as r², and below it where it grows slower.
-pub const GROWTH: f64 = 1.5;
-
-/// Corrected resolutions are multiples of this, pixels.
-pub const R_STEP: u32 = 16;
-
-/// The lowest resolution a correction goes to, pixels.
-pub const MIN_R: u32 = 32;
-
-/// The least excess over the budget the node corrects: a smaller miss is left to the tuner,
-/// whose first decision follows. The node's correction knows nothing of q, and a step it makes
-/// off the tuning's grid of r tells the tuner's forecast nothing (it leaves such steps out), so
-/// on a growing series a corrected 1.2× miss took the first decision's view of the growth away.
-pub const MIN_EXCESS: f64 = 1.25;
-
-/// The resolution to make the next steps at after one of resolution `r` came out at `sigma`
-/// bytes and `tau` seconds against `budget`: `None` when it missed the
-/// budget by less than [`MIN_EXCESS`] (or r is at [`MIN_R`] already), else
-/// `r · (HEADROOM / excess)^(1 / GROWTH)` rounded down to a multiple of [`R_STEP`], at least
-/// [`MIN_R`], where the excess is the larger of σ and τ over their budgets.
-pub fn corrected_resolution(r: u32, sigma: u64, tau: f64, budget: &Budgets) -> Option<u32> {
-    let tau = if tau.is_finite() { tau } else { 0.0 };
-    let (size, time) = budget.ratios(sigma as f64, tau);
-    let excess = size.into_iter().chain(time).fold(0.0, f64::max);
-    if excess < MIN_EXCESS {
-        return None;
-    }
-    let scaled = f64::from(r) * (HEADROOM / excess).powf(1.0 / GROWTH);
-    let next = ((scaled / f64::from(R_STEP)).floor() as u32 * R_STEP).max(MIN_R);
-    (next < r).then_some(next)
-}
 
 /// Steps whose ranks are still being made, kept at most (older ones are forgotten).
 const MAX_PENDING: usize = 64;
@@ -65,12 +30,47 @@ struct State {
     budget: Option<(Budgets, String)>,
     /// Steps of several ranks being made: ranks done, σ summed, τ of the slowest, r.
     pending: std::collections::BTreeMap<u64, (u32, u64, f64, u32)>,
-    /// Steps made under a correction: how many, the first and the last.
+    /// Steps made under the node's own correction.
+    by_node: Lowered,
+    /// The step the node's correction applies from.
+    corrected_from: Option<u64>,
+    /// Steps made under the tuner's provisional decisions.
+    by_tuner: Lowered,
+    /// The versions of the tuner's provisional decisions.
+    provisional: BTreeSet<u64>,
+}
+
+/// Steps made at a lowered r: how many, the first and the last, and the last r.
+#[derive(Debug, Default)]
+struct Lowered {
     steps: u64,
     first: Option<u64>,
-    last: u64,
-    /// The resolution the node last corrected to, and from which step.
-    corrected: Option<(u32, u64)>,
+    last: Option<u64>,
+    r: u32,
+}
+
+impl Lowered {
+    /// Counts `step` (made at `r`) once, however many of its ranks the node made: ranks arrive
+    /// in step order but may interleave with the next step's, so a step is counted when it is
+    /// newer than the last counted.
+    fn count(&mut self, step: u64, r: u32) {
+        if self.last.is_some_and(|l| step <= l) {
+            return;
+        }
+        self.steps += 1;
+        self.first.get_or_insert(step);
+        self.last = Some(step);
+        self.r = r;
+    }
+
+    /// "N step(s) (a–b) made at r lowered by `by` (last r R)", or `None` when none was.
+    fn describe(&self, by: &str) -> Option<String> {
+        let (first, last) = (self.first?, self.last?);
+        Some(format!(
+            "{} step(s) ({first}–{last}) made at r lowered by {by} (last r {})",
+            self.steps, self.r
+        ))
+    }
 }
 
 /// The node's own correction of `P_M` before the tuner's first decision.
@@ -89,6 +89,16 @@ impl Correction {
         self.state().budget = Some((budgets, budget.utility_description));
     }
 
+    /// The tuner's provisional decision `d` (made before its first tuning, for a world spread
+    /// over several nodes): the steps made under it are counted.
+    pub fn provisional(&self, d: &pb::PmDecision) {
+        let mut s = self.state();
+        s.provisional.insert(d.pm_version);
+        while s.provisional.len() > MAX_PENDING {
+            s.provisional.pop_first();
+        }
+    }
+
     /// After a rank whose VDI has header `h` was made under settings of decision
     /// `pm_version` (0: none yet), on a node that holds every rank of its world
     /// (`whole_world`): once its step's ranks are all made, counts the step if it was made
@@ -104,6 +114,9 @@ impl Correction {
         whole_world: bool,
     ) -> bool {
         let mut s = self.state();
+        if s.provisional.contains(&pm_version) {
+            s.by_tuner.count(h.step, h.resolution);
+        }
         if pm_version != 0 || !whole_world {
             return false;
         }
@@ -125,15 +138,13 @@ impl Correction {
                 None => return false,
             }
         };
-        if s.corrected.is_some_and(|(_, from)| h.step >= from) {
-            s.steps += 1;
-            s.first.get_or_insert(h.step);
-            s.last = s.last.max(h.step);
+        if s.corrected_from.is_some_and(|from| h.step >= from) {
+            s.by_node.count(h.step, r);
         }
         let Some((budget, utility)) = &s.budget else {
             return false;
         };
-        let Some(next) = corrected_resolution(r, sigma, tau, budget) else {
+        let Some(next) = lowered_resolution(r, sigma, tau, budget) else {
             return false;
         };
         let mut g = generation.write().unwrap_or_else(|e| e.into_inner());
@@ -156,19 +167,23 @@ impl Correction {
         crate::settings::switch_at(&g, &mut lowered, begun, begun);
         *g = lowered;
         drop(g);
-        s.corrected = Some((next, s.corrected.map_or(begun, |(_, from)| from.min(begun))));
+        s.corrected_from = Some(s.corrected_from.map_or(begun, |from| from.min(begun)));
         true
     }
 
-    /// For the node's summary: the steps made under the node's correction, or `None`.
+    /// For the node's summary: the steps made at an r lowered before the tuner's first
+    /// decision, by the node or by the tuner, or `None`.
     pub fn summary(&self) -> Option<String> {
         let s = self.state();
-        let (r, _) = s.corrected?;
-        let first = s.first?;
-        Some(format!(
-            "{} step(s) ({first}–{}) made at r lowered by the node (last r {r}) to keep the tuner's budget before its first decision",
-            s.steps, s.last
-        ))
+        let node = s.by_node.describe("the node");
+        let tuner = s.by_tuner.describe("the tuner's provisional decisions");
+        let both: Vec<String> = node.into_iter().chain(tuner).collect();
+        (!both.is_empty()).then(|| {
+            format!(
+                "{} to keep the tuner's budget before its first decision",
+                both.join(", ")
+            )
+        })
     }
 }
 
@@ -176,61 +191,76 @@ impl Correction {
 mod tests {
     use super::*;
 
-    /// Budgets as the wire carries them (0: none).
-    fn budget(sigma_bytes: u64, tau_secs: f64) -> Budgets {
-        Budgets::from_wire(sigma_bytes, tau_secs)
+    fn header(step: u64, rank: u32, world_size: u32, r: u32, sigma: u64) -> pb::VdiHeader {
+        pb::VdiHeader {
+            step,
+            rank,
+            world_size,
+            resolution: r,
+            total_bytes: sigma,
+            tau_secs: 0.01,
+            ..Default::default()
+        }
+    }
+
+    fn budget(c: &Correction) {
+        c.set_budget(pb::NodeBudget {
+            sigma_bytes: 20_000,
+            tau_secs: 0.0,
+            utility_description: "max q with σ < 20.0 kB".into(),
+        });
     }
 
     #[test]
-    fn r_falls_as_sigma_would_grow_as_r_to_the_1_5_with_headroom() {
-        // 4.2 MB against 1 MB: r 256 · (0.9 / 4.2)^(2/3) = 91.7 → 80.
-        assert_eq!(
-            corrected_resolution(256, 4_200_000, 0.1, &budget(1_000_000, 0.0)),
-            Some(80)
-        );
-        // Growing as r^1.5 or as r², the next step lands within the budget.
-        for growth in [GROWTH, 2.0] {
-            let predicted = 4_200_000.0 * (80.0f64 / 256.0).powf(growth);
-            assert!(predicted < 0.9 * 1_000_000.0, "{growth}: {predicted}");
+    fn a_whole_world_is_lowered_by_the_node_and_its_steps_counted() {
+        let c = Correction::default();
+        budget(&c);
+        let g = RwLock::new(crate::config::Config::default().generation().unwrap());
+        let r0 = g.read().unwrap().params.resolution;
+        // One rank of two is not a step; the second makes it whole: 63 kB against 20 kB.
+        assert!(!c.after_step(&g, 1, &header(0, 0, 2, r0, 40_000), 0, true));
+        assert!(c.after_step(&g, 1, &header(0, 1, 2, r0, 23_000), 0, true));
+        let r = g.read().unwrap().params.resolution;
+        assert_eq!(Some(r), lowered_resolution(r0, 63_000, 0.01, &Budgets::size(20_000)));
+        // Steps from 1 on, made at the lowered r within the budget, are counted once each.
+        for step in 1..4 {
+            for rank in 0..2 {
+                assert!(!c.after_step(&g, step + 1, &header(step, rank, 2, r, 9_000), 0, true));
+            }
         }
-        // Within the budget: nothing to correct; no budget: nothing either.
-        assert_eq!(
-            corrected_resolution(256, 900_000, 0.1, &budget(1_000_000, 0.0)),
-            None
+        let s = c.summary().unwrap();
+        assert!(
+            s.starts_with(&format!("3 step(s) (1–3) made at r lowered by the node (last r {r})")),
+            "{s}"
         );
+        // A world not all here is left alone.
+        let c = Correction::default();
+        budget(&c);
+        assert!(!c.after_step(&g, 1, &header(0, 0, 1, r, 90_000), 0, false));
+        assert_eq!(c.summary(), None);
+    }
+
+    #[test]
+    fn steps_under_the_tuner_s_provisional_decisions_are_counted_once_each() {
+        let c = Correction::default();
+        budget(&c);
+        let g = RwLock::new(crate::config::Config::default().generation().unwrap());
+        let before = g.read().unwrap().params;
+        c.provisional(&pb::PmDecision {
+            pm_version: 1,
+            resolution: 96,
+            provisional: true,
+            ..Default::default()
+        });
+        // This node holds rank 1 of each step, then both ranks of step 4; version 2 is no
+        // provisional decision, so step 5 is not counted.
+        for (step, rank, v) in [(2, 1, 1), (3, 1, 1), (4, 0, 1), (4, 1, 1), (5, 1, 2)] {
+            assert!(!c.after_step(&g, step + 1, &header(step, rank, 2, 96, 90_000), v, false));
+        }
+        assert_eq!(g.read().unwrap().params, before, "the node changes nothing itself");
         assert_eq!(
-            corrected_resolution(256, 9_000_000, 9.0, &budget(0, 0.0)),
-            None
-        );
-        // A time budget: τ 2 s against 0.5 s → r 256 · (0.9 / 4)^(2/3) = 94.7 → 80.
-        assert_eq!(corrected_resolution(256, 1, 2.0, &budget(0, 0.5)), Some(80));
-        // Both: the larger excess wins (τ's 4× over σ's 2×).
-        assert_eq!(
-            corrected_resolution(256, 2_000_000, 2.0, &budget(1_000_000, 0.5)),
-            Some(80)
-        );
-        // A small miss is the tuner's; from 1.25× the node steps down (r 256 · 0.806 = 206.4
-        // → 192).
-        assert_eq!(
-            corrected_resolution(256, 1_200_000, 0.0, &budget(1_000_000, 0.0)),
-            None
-        );
-        assert_eq!(
-            corrected_resolution(256, 1_250_000, 0.0, &budget(1_000_000, 0.0)),
-            Some(192)
-        );
-        // Never below the floor, and no change at it; NaN τ is no measurement.
-        assert_eq!(
-            corrected_resolution(64, 100_000_000, 0.0, &budget(1_000, 0.0)),
-            Some(MIN_R)
-        );
-        assert_eq!(
-            corrected_resolution(MIN_R, 100_000_000, 0.0, &budget(1_000, 0.0)),
-            None
-        );
-        assert_eq!(
-            corrected_resolution(256, 1, f64::NAN, &budget(0, 0.5)),
-            None
+            c.summary().as_deref(),
+            Some("3 step(s) (2–4) made at r lowered by the tuner's provisional decisions (last r 96) to keep the tuner's budget before its first decision")
         );
     }
 }

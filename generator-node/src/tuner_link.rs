@@ -285,6 +285,9 @@ fn answer(
             _ => None,
         },
         Down::Decision(d) => {
+            if d.provisional {
+                tuning.correction.provisional(&d);
+            }
             let error = apply_decision(shared, &d).err().unwrap_or_default();
             if !error.is_empty() {
                 warn!(%error, "refused a decision");

@@ -124,6 +124,11 @@ pub struct Decision {
     /// tuning's nor a correction.
     #[serde(default)]
     pub steered: bool,
+    /// A decision made before the first tuning's from a production step's σ and τ alone, for
+    /// a world spread over several nodes ([`insitu_core::budget::lowered_resolution`]):
+    /// neither a tuning's nor a correction of one, and nothing predicted.
+    #[serde(default)]
+    pub provisional: bool,
 }
 
 impl Decision {
@@ -223,12 +228,13 @@ impl State {
         self.decisions.last()
     }
 
-    /// The newest decision a tuning made (corrections between tunings and steering left out).
+    /// The newest decision a tuning made (corrections between tunings, steering and
+    /// provisional decisions left out).
     pub fn tuned(&self) -> Option<&Decision> {
         self.decisions
             .iter()
             .rev()
-            .find(|d| d.corrects.is_none() && !d.steered)
+            .find(|d| d.corrects.is_none() && !d.steered && !d.provisional)
     }
 
     /// The candidate a decision version stands for (`None`: unknown or version 0).
@@ -481,6 +487,7 @@ fn decision_pb(d: &Decision) -> pb::PmDecision {
         forecast_ratio: d.forecast_ratio.unwrap_or(0.0),
         scene: None,
         steered: d.steered,
+        provisional: d.provisional,
         precision_bits: Some(d.candidate.precision.bits()),
         old_precision_bits: d.old.map(|c| c.precision.bits()),
     }
@@ -536,6 +543,7 @@ mod tests {
             forecast_ratio: None,
             scene_version: 0,
             steered: false,
+            provisional: false,
         });
         s.highest_seen = 4;
         assert_eq!(s.next_version(), 5);

@@ -414,12 +414,12 @@ fn decide(
         // it: production before it measured other data.
         engine.control().rebase(trigger.step);
     }
-    // The P_M in force, where a tuning's answer may leave it (not the nodes' configured one,
-    // which no tuning chose, nor one of an earlier scene).
+    // The P_M in force, where a tuning's answer may leave it (not the nodes' configured one
+    // nor a provisional one, which no tuning chose, nor one of an earlier scene).
     let in_force = {
         let s = engine.state();
         s.current()
-            .filter(|d| !d.steered && d.scene_version == s.scene_version())
+            .filter(|d| !d.steered && !d.provisional && d.scene_version == s.scene_version())
             .map(|d| d.candidate)
     };
     let plan = {
@@ -503,6 +503,7 @@ fn decide(
         forecast_ratio: forecast,
         scene_version: 0,
         steered: false,
+        provisional: false,
     };
     s.validated = d.characteristic_steps.clone();
     drop(s);

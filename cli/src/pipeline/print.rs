@@ -16,6 +16,12 @@ pub fn decision_line(d: &pb::PmDecision) -> String {
             d.reason
         );
     }
+    if d.provisional {
+        return format!(
+            "P_M v{} (provisional) from step {}: r {} → r {} γ {:.4} ({})",
+            d.pm_version, d.from_step, d.old_resolution, d.resolution, d.gamma, d.reason
+        );
+    }
     let precision = |bits: Option<u32>| {
         bits.and_then(|b| insitu_core::Precision::from_bits(b).ok())
             .map_or_else(String::new, |p| format!(" {p}"))
@@ -68,6 +74,7 @@ pub fn decision_json(d: &pb::PmDecision) -> serde_json::Value {
         "step": d.trigger_step,
         "from_step": d.from_step,
         "pm_version": d.pm_version,
+        "provisional": d.provisional,
         "old": {"r": d.old_resolution, "gamma": f32_number(d.old_gamma), "precision_bits": d.old_precision_bits},
         "new": {"r": d.resolution, "gamma": f32_number(d.gamma), "precision_bits": d.precision_bits},
         "characteristic_steps": d.characteristic_steps,

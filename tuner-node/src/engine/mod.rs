@@ -82,6 +82,8 @@ pub struct Counters {
     pub decisions: u64,
     /// Of `decisions`, corrections between tunings (closed-loop control).
     pub corrections: u64,
+    /// Of `decisions`, provisional ones before the first tuning's (a world spread over nodes).
+    pub provisional: u64,
     /// Tunings cut short for a newer characteristic step.
     pub tunings_superseded: u64,
     /// Quality reports received (from every viz-node shard watched).
@@ -290,6 +292,7 @@ impl Engine {
             let mut c = self.counters();
             c.decisions += 1;
             c.corrections += u64::from(d.corrects.is_some());
+            c.provisional += u64::from(d.provisional);
         }
         info!(scene_version = d.scene_version, pm_version = d.pm_version, from_step = d.from_step, r = d.candidate.r, gamma = d.candidate.gamma, old = ?d.old, steps = ?d.characteristic_steps, sigma = d.predicted.sizing.sigma_bytes, q_db = d.predicted.q(), tau = d.predicted.sizing.tau_secs, forecast = ?d.forecast_ratio, trials = d.trials, trial_secs = d.trial_secs, reason = %d.reason, "new P_M");
         self.hub.broadcast(&Down::Decision(m.clone()));
@@ -351,6 +354,7 @@ impl Engine {
             size_probes: c.size_probes,
             tunings_infeasible: c.tunings_infeasible,
             corrections: c.corrections,
+            provisional_decisions: c.provisional,
             tunings_superseded: c.tunings_superseded,
             quality_reports: c.quality_reports,
             trial_cpu_secs: c.trial_cpu_secs,
@@ -443,6 +447,8 @@ struct Pending {
     /// The `P_M` the production VDIs were made with (the first rank's).
     candidate: Candidate,
     sampled: bool,
+    /// The connections (nodes) whose summaries these are.
+    nodes: Vec<u64>,
 }
 
 impl Pending {
@@ -532,6 +538,21 @@ pub(crate) fn q_on(s: &State, steps: &[u64], c: Candidate) -> f64 {
         .map(|&step| s.trial(step, c).map(|t| t.measurement.q()))
         .try_fold(f64::INFINITY, |lo, q| q.map(|q| lo.min(q)))
         .unwrap_or(f64::NAN)
+}
+
+/// A candidate with nothing measured of it (the prediction of a steering or provisional decision: σ and τ 0, q NaN).
+pub(crate) fn unmeasured(c: Candidate) -> insitu_tuner::Measurement {
+    insitu_tuner::Measurement {
+        r: c.r,
+        gamma: c.gamma,
+        precision: c.precision,
+        sigma_paper_bytes: None,
+        sizing: insitu_core::evaluate::Sizing::default(),
+        tau_render_secs: 0.0,
+        q_db: insitu_core::metrics::Db(f64::NAN),
+        view_q_db: Vec::new(),
+        ssim: None,
+    }
 }
 
 /// A plan as the predicted measurement of a decision: σ and τ forecast, q as measured (`q_db`).
@@ -682,6 +703,7 @@ impl Engine {
 }
 
 mod production;
+mod provisional;
 mod steering;
 #[cfg(test)]
 mod tests;

@@ -54,7 +54,11 @@ impl Loop {
                 precision: precision_of(s.precision_bits),
             },
             sampled: s.sampled,
+            nodes: Vec::new(),
         });
+        if !p.nodes.contains(&conn) {
+            p.nodes.push(conn);
+        }
         for (c, &n) in p.counts.iter_mut().zip(&s.histogram) {
             *c += n;
         }
@@ -220,10 +224,16 @@ impl Loop {
     }
 
     /// A tuning is due for `trigger`; a running one is cut short for it, unless the last one
-    /// was or no decision is in force yet (the first decision, even on fewer steps, is worth
-    /// more than a better one later: the nodes run on the configured P_M until it comes).
+    /// was or no decision but a provisional one is in force yet (the first decision, even on
+    /// fewer steps, is worth more than a better one later: the nodes run on the configured or
+    /// a provisional P_M until it comes).
     pub(super) fn mark_dirty(&mut self, trigger: Trigger) {
-        let decided = self.engine.state().current().is_some();
+        let decided = self
+            .engine
+            .state()
+            .decisions
+            .iter()
+            .any(|d| !d.provisional);
         if decided && self.engine.counters().tuning && !self.cut_last {
             self.engine.superseded.store(true, Ordering::SeqCst);
         }
@@ -333,6 +343,7 @@ impl Loop {
             forecast_ratio: Some(k.sigma),
             scene_version: 0,
             steered: false,
+            provisional: false,
         });
     }
 
@@ -353,16 +364,25 @@ impl Loop {
         if self.recent.len() > STALE_STEPS as usize {
             self.recent.pop_front();
         }
-        // What the decision the step was made under planned for it.
-        let planned = e
-            .state()
-            .decisions
-            .iter()
-            .rev()
-            .find(|d| d.pm_version == p.pm_version && d.candidate == p.candidate)
-            .map(|d| d.predicted.sizing.sigma_bytes as f64)
-            .filter(|&b| b > 0.0);
-        self.control(step, &p, planned);
+        // What the decision the step was made under planned for it, and whether it was
+        // provisional: such a step's r lies off the tuning's grid, like one the node lowered.
+        let (planned, provisional) = {
+            let s = e.state();
+            let d = s
+                .decisions
+                .iter()
+                .rev()
+                .find(|d| d.pm_version == p.pm_version && d.candidate == p.candidate);
+            (
+                d.map(|d| d.predicted.sizing.sigma_bytes as f64)
+                    .filter(|&b| b > 0.0),
+                d.is_some_and(|d| d.provisional),
+            )
+        };
+        if !provisional {
+            self.control(step, &p, planned);
+        }
+        self.provisional(step, &p);
         let production = Some((p.candidate, p.sizing()));
         let steady = self.last_candidate.replace(p.candidate) == Some(p.candidate);
         let cause = self

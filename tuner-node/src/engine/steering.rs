@@ -137,6 +137,7 @@ impl Loop {
             forecast_ratio: None,
             scene_version: version,
             steered: true,
+            provisional: false,
         });
         info!(scene_version = version, pm_version, from_step, superseded = ?superseded, change = %change.words, "scene steered");
         Ok(pb::SteerReply {
@@ -187,20 +188,5 @@ impl Loop {
                 },
             });
         }
-    }
-}
-
-/// A candidate with nothing measured of it (a steering decision's prediction: σ and τ 0, q NaN).
-fn unmeasured(c: Candidate) -> insitu_tuner::Measurement {
-    insitu_tuner::Measurement {
-        r: c.r,
-        gamma: c.gamma,
-        precision: c.precision,
-        sigma_paper_bytes: None,
-        sizing: insitu_core::evaluate::Sizing::default(),
-        tau_render_secs: 0.0,
-        q_db: insitu_core::metrics::Db(f64::NAN),
-        view_q_db: Vec::new(),
-        ssim: None,
     }
 }

@@ -36,7 +36,6 @@ fn tuned_for(dir: &std::path::Path, utility: &str, time_breaks: u32) -> Loop {
         time_breaks,
         ..Default::default()
     };
-    let resolved = cfg.resolve().unwrap();
     let mut state = State::with_step_zero();
     let c = Candidate {
         r: 64,
@@ -74,8 +73,15 @@ fn tuned_for(dir: &std::path::Path, utility: &str, time_breaks: u32) -> Loop {
         forecast_ratio: None,
         scene_version: 0,
         steered: false,
+        provisional: false,
     });
     state.validated = vec![0];
+    over(cfg, state)
+}
+
+/// The engine's loop under `cfg` over `state`, with nothing pending.
+fn over(cfg: Config, state: State) -> Loop {
+    let resolved = cfg.resolve().unwrap();
     let (engine, _rx) = Engine::new(cfg, resolved, state, |_, _| true);
     Loop {
         engine,
@@ -651,4 +657,78 @@ fn decisions_apply_from_the_first_step_no_node_had_begun() {
     // Step indices are the nodes' to choose: a huge jump saturates, it does not wrap.
     assert_eq!(p.saw(u64::MAX - 1, u64::MAX, 1), u64::MAX - 1);
     assert_eq!(p.decision_start(), u64::MAX);
+}
+
+/// Rank `rank` of 2 of `step`, made at r `r` (γ 0.013) with decision `version`, from connection
+/// `conn`, at σ `sigma` bytes.
+fn rank_of_two(step: u64, rank: u32, r: u32, version: u64, sigma: u64) -> pb::StepSummary {
+    pb::StepSummary {
+        rank,
+        world_size: 2,
+        resolution: r,
+        gamma: 0.013,
+        precision_bits: 8,
+        begun: step + 1,
+        ..summary(step, 3, sigma, version)
+    }
+}
+
+#[test]
+fn a_world_spread_over_nodes_keeps_the_budget_before_the_first_tuning() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = Config {
+        state_dir: dir.path().to_owned(),
+        utility: "size:20000".into(),
+        ..Default::default()
+    };
+    let mut l = over(cfg, State::new(insitu_tuner::live::Tracker::new(0.15, 4)));
+    let current = |l: &Loop| l.engine.state().current().cloned();
+    // Step 0's two ranks from two nodes: 63 kB against 20 kB (3.15×) at r 256 lowers r to
+    // 256 · (0.9 / 3.15)^(2/3) = 111 → 96, γ and precision kept, from a step no node began.
+    l.summary(1, rank_of_two(0, 0, 256, 0, 40_000));
+    assert!(current(&l).is_none(), "one rank is not a step");
+    l.summary(2, rank_of_two(0, 1, 256, 0, 23_000));
+    let d = current(&l).expect("a provisional decision");
+    assert!(d.provisional && d.corrects.is_none() && !d.steered, "{d:?}");
+    assert_eq!((d.pm_version, d.candidate.r, d.candidate.gamma), (1, 96, 0.013));
+    assert_eq!(d.candidate.precision.bits(), 8);
+    assert_eq!(d.old.map(|c| c.r), Some(256));
+    assert_eq!(d.from_step, l.engine.decision_start());
+    assert!(d.from_step >= 2, "step 1 may have begun: {}", d.from_step);
+    assert!(d.reason.contains("2 ranks on 2 nodes"), "{}", d.reason);
+    assert!(l.engine.state().tuned().is_none());
+    assert_eq!(l.engine.status().provisional_decisions, 1);
+    // A step made before it applied, over the budget too: already taken up.
+    l.summary(1, rank_of_two(1, 0, 256, 0, 40_000));
+    l.summary(2, rank_of_two(1, 1, 256, 0, 23_000));
+    assert_eq!(current(&l).map(|d| d.pm_version), Some(1));
+    // Under it, 1.5× over: lowered again (96 · (0.9 / 1.5)^(2/3) = 68.3 → 64); 1.2× over
+    // afterwards is left to the tuning.
+    l.summary(1, rank_of_two(2, 0, 96, 1, 15_000));
+    l.summary(2, rank_of_two(2, 1, 96, 1, 15_000));
+    let d = current(&l).unwrap();
+    assert_eq!((d.pm_version, d.candidate.r, d.provisional), (2, 64, true));
+    l.summary(1, rank_of_two(3, 0, 64, 2, 12_000));
+    l.summary(2, rank_of_two(3, 1, 64, 2, 12_000));
+    assert_eq!(current(&l).map(|d| d.pm_version), Some(2));
+    // The controller's forecast leaves the provisional steps out (their r is off the grid).
+    let observed: Vec<u64> = l.engine.control().observations().map(|o| o.step).collect();
+    assert_eq!(observed, vec![0, 1]);
+    // A world whose ranks are all on one node: that node keeps the budget itself.
+    l.summary(1, rank_of_two(4, 0, 64, 2, 40_000));
+    l.summary(1, rank_of_two(4, 1, 64, 2, 40_000));
+    assert_eq!(current(&l).map(|d| d.pm_version), Some(2));
+    // After a tuning's decision, production steps are the controller's, not this rule's.
+    let tuned = Decision {
+        pm_version: 3,
+        provisional: false,
+        characteristic_steps: vec![0],
+        reason: "tuned".into(),
+        ..d
+    };
+    l.engine.state().decisions.push(tuned);
+    l.summary(1, rank_of_two(5, 0, 64, 3, 40_000));
+    l.summary(2, rank_of_two(5, 1, 64, 3, 40_000));
+    assert!(current(&l).is_some_and(|d| d.pm_version >= 3 && !d.provisional));
+    assert_eq!(l.engine.status().provisional_decisions, 2);
 }

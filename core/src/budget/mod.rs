@@ -4,6 +4,9 @@
 
 use serde::{Deserialize, Serialize};
 
+mod lowering;
+pub use lowering::{lowered_resolution, GROWTH, HEADROOM, MIN_EXCESS, MIN_R, R_STEP};
+
 /// A size budget (bytes) and a time budget (seconds), each where one is set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Budgets {
