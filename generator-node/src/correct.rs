@@ -221,7 +221,10 @@ mod tests {
         assert!(!c.after_step(&g, 1, &header(0, 0, 2, r0, 40_000), 0, true));
         assert!(c.after_step(&g, 1, &header(0, 1, 2, r0, 23_000), 0, true));
         let r = g.read().unwrap().params.resolution;
-        assert_eq!(Some(r), lowered_resolution(r0, 63_000, 0.01, &Budgets::size(20_000)));
+        assert_eq!(
+            Some(r),
+            lowered_resolution(r0, 63_000, 0.01, &Budgets::size(20_000))
+        );
         // Steps from 1 on, made at the lowered r within the budget, are counted once each.
         for step in 1..4 {
             for rank in 0..2 {
@@ -230,7 +233,9 @@ mod tests {
         }
         let s = c.summary().unwrap();
         assert!(
-            s.starts_with(&format!("3 step(s) (1–3) made at r lowered by the node (last r {r})")),
+            s.starts_with(&format!(
+                "3 step(s) (1–3) made at r lowered by the node (last r {r})"
+            )),
             "{s}"
         );
         // A world not all here is left alone.
@@ -257,7 +262,11 @@ mod tests {
         for (step, rank, v) in [(2, 1, 1), (3, 1, 1), (4, 0, 1), (4, 1, 1), (5, 1, 2)] {
             assert!(!c.after_step(&g, step + 1, &header(step, rank, 2, 96, 90_000), v, false));
         }
-        assert_eq!(g.read().unwrap().params, before, "the node changes nothing itself");
+        assert_eq!(
+            g.read().unwrap().params,
+            before,
+            "the node changes nothing itself"
+        );
         assert_eq!(
             c.summary().as_deref(),
             Some("3 step(s) (2–4) made at r lowered by the tuner's provisional decisions (last r 96) to keep the tuner's budget before its first decision")

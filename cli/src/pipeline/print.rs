@@ -305,7 +305,7 @@ pub async fn print_reports(
 pub fn untuned_notice(utility: &str, budgets: Budgets) -> String {
     let first = "P_M v0 is the generator-node's configured one until the tuner's first decision, which follows its first tuning (trials on the first characteristic step, seconds)";
     if !budgets.is_none() {
-        format!("{first}; until then a step over the budget ({utility}) lowers r for the steps after it, on a node that holds all of its world's ranks")
+        format!("{first}; until then a step over the budget ({utility}) lowers r for the steps after it (by the node that holds all of a world's ranks, else by the tuner)")
     } else {
         format!("{first} ({utility})")
     }

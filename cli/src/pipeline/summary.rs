@@ -101,6 +101,7 @@ impl Run<'_> {
                     "sigma_adherence": sigma.as_ref().map(Adherence::json),
                     "tau_adherence": tau.as_ref().map(Adherence::json),
                     "corrections": t.corrections,
+                    "provisional_decisions": t.provisional_decisions,
                     "tunings_superseded": t.tunings_superseded,
                     "characteristic_steps": t.characteristic_steps,
                     "trials_run": t.trials_run,

@@ -100,9 +100,6 @@ mod tests {
             lowered_resolution(MIN_R, 100_000_000, 0.0, &budget(1_000, 0.0)),
             None
         );
-        assert_eq!(
-            lowered_resolution(256, 1, f64::NAN, &budget(0, 0.5)),
-            None
-        );
+        assert_eq!(lowered_resolution(256, 1, f64::NAN, &budget(0, 0.5)), None);
     }
 }

@@ -101,6 +101,33 @@ pub fn field(n: u32, step: u64) -> Vec<f32> {
         .collect()
 }
 
+/// Step `step` of a 64³ f32 Gaussian blob moving along x (2 points a step) as a world of two
+/// ranks, the z-halves sharing the plane z = 32 (points 0–32 and 32–63).
+pub fn blob_halves(step: u64) -> [Step; 2] {
+    const N: usize = 64;
+    let cx = 16.0 + 2.0 * step as f32;
+    let field: Vec<f32> = (0..N * N * N)
+        .map(|i| ((i % N) as f32, (i / N % N) as f32, (i / (N * N)) as f32))
+        .map(|(x, y, z)| {
+            (-((x - cx).powi(2) + (y - 32.0).powi(2) + (z - 32.0).powi(2)) / 128.0).exp()
+        })
+        .collect();
+    [(0u32, 0usize, 33usize), (1, 32, 32)].map(|(rank, z0, nz)| Step {
+        step,
+        sim_time: step as f64,
+        dtype: insitu_client::ScalarType::F32,
+        global_dims: [N as u32; 3],
+        brick_offset: [0, 0, z0 as u32],
+        brick_dims: [N as u32, N as u32, nz as u32],
+        rank,
+        world_size: 2,
+        spacing: [1.0; 3],
+        origin: [0.0; 3],
+        data: insitu_client::f32_bytes(&field[z0 * N * N..(z0 + nz) * N * N]),
+        fields: Vec::new(),
+    })
+}
+
 /// Pushes steps `range` of [`field`] (16³), returning the replies.
 pub fn push_steps(addr: &str, range: std::ops::Range<u64>) -> Vec<insitu_client::PushReply> {
     rt().block_on(async {

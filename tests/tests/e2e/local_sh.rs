@@ -148,34 +148,12 @@ fn two_ranks_on_one_node_keep_the_budget_from_their_second_step() {
     let tmp = tempfile::tempdir().unwrap();
     let rec = tmp.path().join("rec");
     let sh = LocalSh::start(&rec, &[("TUNER_UTILITY", "size:20kB")]);
-    const N: usize = 64;
     insitu_e2e::rt().block_on(async {
         let mut c = insitu_client::SimClient::connect(&sh.generator, None)
             .await
             .unwrap();
         for step in 0..8u64 {
-            let cx = 16.0 + 2.0 * step as f32;
-            let field: Vec<f32> = (0..N * N * N)
-                .map(|i| ((i % N) as f32, (i / N % N) as f32, (i / (N * N)) as f32))
-                .map(|(x, y, z)| {
-                    (-((x - cx).powi(2) + (y - 32.0).powi(2) + (z - 32.0).powi(2)) / 128.0).exp()
-                })
-                .collect();
-            for (rank, z0, nz) in [(0u32, 0usize, 33usize), (1, 32, 32)] {
-                let s = insitu_client::Step {
-                    step,
-                    sim_time: step as f64,
-                    dtype: insitu_client::ScalarType::F32,
-                    global_dims: [N as u32; 3],
-                    brick_offset: [0, 0, z0 as u32],
-                    brick_dims: [N as u32, N as u32, nz as u32],
-                    rank,
-                    world_size: 2,
-                    spacing: [1.0; 3],
-                    origin: [0.0; 3],
-                    data: insitu_client::f32_bytes(&field[z0 * N * N..(z0 + nz) * N * N]),
-                    fields: Vec::new(),
-                };
+            for s in crate::common::blob_halves(step) {
                 c.push_step(s).await.unwrap();
             }
         }

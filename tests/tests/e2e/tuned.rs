@@ -65,7 +65,12 @@ hold_wait_secs = 2.0
 /// A generator-node shipping to `viz` and dialling `tuner`, once its stream to the tuner is up
 /// (steps made before that are not summarised: there is no one to send them to).
 pub(crate) fn tuned_generator(viz: &str, tuner: &str, logs: &Path) -> Daemon {
-    let toml = small_config(viz, "block", 16).replace(
+    tuned_generator_from(&small_config(viz, "block", 16), tuner, logs)
+}
+
+/// As [`tuned_generator`] with the config `toml` ([`small_config`] or one made from it).
+pub(crate) fn tuned_generator_from(toml: &str, tuner: &str, logs: &Path) -> Daemon {
+    let toml = toml.replace(
         "max_backoff_secs = 0.2",
         &format!("max_backoff_secs = 0.2\ntuner = \"{tuner}\""),
     );

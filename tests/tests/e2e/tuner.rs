@@ -3,8 +3,8 @@
 
 use crate::common::{finish, flush, free_port, index, status, steps, viz};
 use crate::tuned::{
-    client, decision, decision_trial, replay, state, tuned_generator, tuned_ocean, tuner_paced,
-    tuner_status,
+    client, decision, decision_trial, replay, state, tuned_generator, tuned_generator_from,
+    tuned_ocean, tuner_paced, tuner_status,
 };
 use insitu_client::{SimClient, Step};
 use insitu_e2e::{bin, rt, wait_until, Daemon};
@@ -18,6 +18,10 @@ use std::process::Command;
 /// Trials may use 10 % of the wall clock and nothing more: a tuning then takes seconds, long
 /// enough to kill something in the middle of it.
 const PACED: &str = "timeout_secs = 60.0\nshare = 0.1\nburst_secs = 0.0";
+
+/// The budget of the two-node run, as the utility writes it and in bytes.
+const BLOB_BUDGET: &str = "20kB";
+const BLOB_BUDGET_BYTES: u64 = 20_000;
 
 /// (step, r, γ bits, precision) of every persisted trial.
 fn trials(dir: &Path) -> Vec<(u64, u64, u64, String)> {
@@ -192,6 +196,96 @@ fn with_four_ranks_the_predicted_q_is_the_composed_steps() {
         d.resolution, d.gamma, d.from_step, d.predicted_q_db
     );
     o.stop();
+}
+
+/// A world of two ranks (the 64³ blob's z-halves) pushed to two generator-nodes, one rank each,
+/// a step every 0.2 s, under a budget step 0 breaks ≥ 2.5× at r 256: no node sees a
+/// whole step, so the tuner lowers r in a provisional decision from step 0's σ summed over both
+/// nodes. Every step made under a provisional decision keeps the budget, every step composes
+/// (its ranks share one P_M), and each node's summary counts the steps.
+#[test]
+fn a_world_spread_over_two_nodes_keeps_the_budget_before_the_first_tuning() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    let v = viz(&rec, "127.0.0.1:0", tmp.path());
+    let listen = format!("127.0.0.1:{}", free_port());
+    let t = tuner_paced(
+        &tmp.path().join("state"),
+        &listen,
+        &v.addr,
+        &format!("size:{BLOB_BUDGET}"),
+        // Trials at 2 % of the wall clock: the first tuning outlasts the run.
+        "timeout_secs = 60.0\nshare = 0.02\nburst_secs = 0.0",
+        tmp.path(),
+    );
+    let toml = crate::common::small_config(&v.addr, "block", 16)
+        .replace("resolution = 32", "resolution = 256");
+    let nodes = [0, 1].map(|_| tuned_generator_from(&toml, &t.addr, tmp.path()));
+    // A step every 0.2 s: the first step waits up to the host's 2 s for ranks that go to the
+    // other node, so the provisional decision applies some ten steps later.
+    const STEPS: u64 = 24;
+    rt().block_on(async {
+        let mut clients = Vec::new();
+        for g in &nodes {
+            clients.push(SimClient::connect(&g.addr, None).await.unwrap());
+        }
+        for step in 0..STEPS {
+            for (c, s) in clients.iter_mut().zip(crate::common::blob_halves(step)) {
+                c.push_step(s).await.unwrap();
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+        }
+        for c in clients {
+            c.close(std::time::Duration::from_secs(120)).await.unwrap();
+        }
+    });
+    assert!(wait_until(60.0, || steps(&rec).len() == STEPS as usize));
+    let provisional: BTreeSet<u64> = (1..=tuner_status(&t.addr).pm_version)
+        .filter_map(|v| decision(&t.addr, v).ok())
+        .filter(|d| d.provisional)
+        .map(|d| d.pm_version)
+        .collect();
+    let logs = nodes.map(Daemon::terminate);
+    let rows: Vec<(u64, u64, u32, u64)> = steps(&rec)
+        .iter()
+        .map(|s| {
+            assert!(
+                s.error.is_none() && s.vdi.is_some(),
+                "step {} did not compose: {s:?}",
+                s.step
+            );
+            (s.step, s.pm_version, s.resolution, s.sizing.sigma_bytes)
+        })
+        .collect();
+    assert!(
+        rows[0].2 == 256 && rows[0].3 * 10 >= BLOB_BUDGET_BYTES * 25,
+        "step 0 must break the budget 2.5× or more: {rows:?}"
+    );
+    let lowered: Vec<&(u64, u64, u32, u64)> =
+        rows.iter().filter(|r| provisional.contains(&r.1)).collect();
+    assert!(
+        !lowered.is_empty(),
+        "no step made under a provisional decision: {rows:?}\n{}",
+        std::fs::read_to_string(&t.log).unwrap_or_default()
+    );
+    for r in &lowered {
+        assert!(
+            r.2 < 256 && r.3 <= BLOB_BUDGET_BYTES,
+            "step {}: {rows:?}",
+            r.0
+        );
+    }
+    for log in &logs {
+        assert!(
+            log.contains("made at r lowered by the tuner's provisional decisions"),
+            "{log}"
+        );
+    }
+    eprintln!(
+        "two nodes, size:{BLOB_BUDGET}: provisional versions {provisional:?}, steps {rows:?}"
+    );
+    t.terminate();
+    v.terminate();
 }
 
 #[test]

@@ -228,12 +228,7 @@ impl Loop {
     /// fewer steps, is worth more than a better one later: the nodes run on the configured or
     /// a provisional P_M until it comes).
     pub(super) fn mark_dirty(&mut self, trigger: Trigger) {
-        let decided = self
-            .engine
-            .state()
-            .decisions
-            .iter()
-            .any(|d| !d.provisional);
+        let decided = self.engine.state().decisions.iter().any(|d| !d.provisional);
         if decided && self.engine.counters().tuning && !self.cut_last {
             self.engine.superseded.store(true, Ordering::SeqCst);
         }

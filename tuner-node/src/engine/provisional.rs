@@ -30,8 +30,7 @@ impl Loop {
             return false;
         }
         let budgets = e.resolved().budgets();
-        let Some(r) = lowered_resolution(p.candidate.r, p.sigma_bytes, p.tau_secs, &budgets)
-        else {
+        let Some(r) = lowered_resolution(p.candidate.r, p.sigma_bytes, p.tau_secs, &budgets) else {
             return false;
         };
         let candidate = Candidate { r, ..p.candidate };

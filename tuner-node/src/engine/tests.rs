@@ -690,7 +690,10 @@ fn a_world_spread_over_nodes_keeps_the_budget_before_the_first_tuning() {
     l.summary(2, rank_of_two(0, 1, 256, 0, 23_000));
     let d = current(&l).expect("a provisional decision");
     assert!(d.provisional && d.corrects.is_none() && !d.steered, "{d:?}");
-    assert_eq!((d.pm_version, d.candidate.r, d.candidate.gamma), (1, 96, 0.013));
+    assert_eq!(
+        (d.pm_version, d.candidate.r, d.candidate.gamma),
+        (1, 96, 0.013)
+    );
     assert_eq!(d.candidate.precision.bits(), 8);
     assert_eq!(d.old.map(|c| c.r), Some(256));
     assert_eq!(d.from_step, l.engine.decision_start());
