@@ -10,12 +10,19 @@
 //! leaves its low faces here as it arrives, and before a rank's brick is made the worker
 //! grows it by its neighbours' faces ([`Layouts::growth`]), so the bricks it ships share their
 //! boundary planes and compose without seams. The first step of a world waits (at most the
-//! host's `wait_secs`) for its ranks to show how they tile; a world whose ranks do not all
-//! push here is not waited for again, and its bricks are made as pushed (the viz-node names
+//! host's `wait_secs`) for its ranks to show how they tile.
+//!
+//! **Exchanged** where a world's ranks do not all push here (known once its first step's
+//! ranks have not all come within that wait) and a viz-node is configured: each of its bricks
+//! is posted to the viz-node with its low faces ([`Layouts::posts`], sent by
+//! [`crate::faces`]), the other nodes' bricks and faces come back ([`Layouts::remote`]), and a
+//! brick that grows waits for them (at most twice the host's wait) as for a neighbour pushed
+//! here. Without a viz-node, or past that wait, bricks are made as pushed (the viz-node names
 //! the cells they leave out).
 //!
-//! Only a world whose ranks all push to this node can be checked here; a world spread over
-//! several nodes is checked by the viz-node when it composes (docs/ranks-and-clients.md).
+//! Only a world whose ranks all push to this node is checked here before it is made; a world
+//! spread over several nodes is checked by the viz-node when it composes
+//! (docs/ranks-and-clients.md).
 
 use crate::ingest::StepInfo;
 use insitu_core::volume::bricks::{Brick, DecompositionError};
@@ -26,7 +33,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 use tonic::Status;
-use tracing::warn;
+use tracing::{info, warn};
 
 /// Steps whose ranks are not all in or not all made, kept at most: a node that serves part of
 /// a world never sees one whole, and forgets the oldest.
@@ -68,6 +75,7 @@ struct Bad {
 /// A step whose ranks are not all in, or not all made.
 #[derive(Debug)]
 struct Pending {
+    world_size: u32,
     layout: Layout,
     /// Each rank's low faces, where its bricks may grow.
     faces: BTreeMap<u32, Arc<Vec<(Brick, Volume)>>>,
@@ -75,6 +83,8 @@ struct Pending {
     tiling: Option<Option<Tiling>>,
     /// Ranks whose worker has asked for its growth, or that were dropped.
     done: usize,
+    /// Ranks pushed to other nodes, known from the exchange (never made here).
+    remote: usize,
 }
 
 #[derive(Debug, Default)]
@@ -92,8 +102,14 @@ struct State {
     /// The world size of the last step whose ranks all pushed here.
     whole: u32,
     /// A first step's ranks did not all arrive within the wait: the world pushes to several
-    /// nodes, and no brick waits for a layout again until a whole one is seen.
+    /// nodes, and no brick waits for a layout again until a whole one is seen (but for the
+    /// exchange's answer, where there is one).
     apart: bool,
+    /// Bricks to post to the viz-node for the exchange: (step, rank, whether a brick of this
+    /// node at the step waits for the answer).
+    to_post: Vec<(u64, u32, bool)>,
+    /// The (step, rank)s posted, the newest kept.
+    posted: std::collections::BTreeSet<(u64, u32)>,
 }
 
 /// How a rank's brick is made ([`Layouts::growth`]).
@@ -107,6 +123,8 @@ pub enum Growth {
         brick: Brick,
         /// Every rank's low faces at this step.
         faces: Vec<Arc<Vec<(Brick, Volume)>>>,
+        /// Whether some came from another node (the exchange).
+        across: bool,
     },
 }
 
@@ -123,7 +141,7 @@ impl Growth {
         field: &Volume,
         spare: Option<Volume>,
     ) -> Result<Option<Volume>, VolumeError> {
-        let Growth::Grow { brick, faces } = self else {
+        let Growth::Grow { brick, faces, .. } = self else {
             return Ok(None);
         };
         let own = Brick {
@@ -146,11 +164,30 @@ pub struct Layouts {
     state: Mutex<State>,
     /// Rings when a step's ranks are all in.
     whole_step: Notify,
+    /// Whether bricks of a world spread over nodes are exchanged through the viz-node.
+    exchange: bool,
 }
+
+/// What a brick gives or takes across nodes ([`Layouts::posts`], [`Layouts::remote`]): its
+/// rank, its points and its low faces.
+pub type Placed = (u32, Brick, Arc<Vec<(Brick, Volume)>>);
+
+/// How much longer than the host's wait a brick of a world spread over nodes waits for the
+/// exchange's answer.
+const EXCHANGE_WAITS: u32 = 2;
 
 impl Layouts {
     fn state(&self) -> std::sync::MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Layouts whose worlds spread over nodes exchange their bricks' faces (`exchange`: a
+    /// viz-node is configured).
+    pub fn new(exchange: bool) -> Self {
+        Self {
+            exchange,
+            ..Self::default()
+        }
     }
 
     /// Refuses a push whose brick belongs to a layout already found not to tile its grid.
@@ -191,14 +228,20 @@ impl Layouts {
                 && l.global == info.global_dims
                 && l.bricks.get(&info.rank) == Some(&brick)
         });
-        // Nor does a world that pushes to several nodes, as far as this node knows.
-        let apart = s.apart && s.good.is_none();
+        // Nor does a world that pushes to several nodes, as far as this node knows, unless
+        // its bricks are exchanged; those are posted as they come.
+        let apart = s.apart && s.good.is_none() && !self.exchange;
+        if s.apart && self.exchange && !shared {
+            s.to_post
+                .push((info.step, info.rank, may_grow(&brick, info.global_dims)));
+        }
         let faces = if shared || apart || !brick.offset.iter().any(|&o| o > 0) {
             None
         } else {
             tiling::low_faces(field, &brick).ok().map(Arc::new)
         };
         let entry = s.pending.entry(info.step).or_insert_with(|| Pending {
+            world_size: info.world_size,
             layout: Layout {
                 global: info.global_dims,
                 bricks: BTreeMap::new(),
@@ -206,6 +249,7 @@ impl Layouts {
             faces: BTreeMap::new(),
             tiling: None,
             done: 0,
+            remote: 0,
         });
         entry.layout.bricks.insert(info.rank, brick);
         if let Some(f) = faces {
@@ -218,11 +262,14 @@ impl Layouts {
             return None;
         }
         let layout = entry.layout.clone();
-        let (tiling, fault) = self.judge(&mut s, info.step, layout);
+        let remote = entry.remote > 0;
+        let (tiling, fault) = self.judge(&mut s, info.step, layout, remote);
         if let Some(p) = s.pending.get_mut(&info.step) {
             p.tiling = Some(tiling);
         }
-        s.whole = info.world_size;
+        if !remote {
+            s.whole = info.world_size;
+        }
         drop(s);
         self.whole_step.notify_waiters();
         self.trim();
@@ -236,6 +283,7 @@ impl Layouts {
         s: &mut State,
         step: u64,
         layout: Layout,
+        remote: bool,
     ) -> (Option<Tiling>, Option<DecompositionError>) {
         if let Some((good, tiling)) = &s.good {
             if *good == layout {
@@ -248,7 +296,8 @@ impl Layouts {
         }
         match tiling::tiling(layout.global, &layout.placed()) {
             Ok(tiling) => {
-                s.apart = false;
+                // A layout completed by the exchange is still spread over nodes.
+                s.apart &= remote;
                 s.good = Some((layout, tiling.clone()));
                 (Some(tiling), None)
             }
@@ -301,8 +350,11 @@ impl Layouts {
         since: Instant,
     ) -> Result<Growth, Instant> {
         let brick = brick_of(info);
-        let may_grow = (0..3).any(|a| brick.offset[a] + brick.dims[a] < info.global_dims[a]);
-        if info.world_size < 2 || !may_grow {
+        let grows = may_grow(&brick, info.global_dims);
+        // A brick that gives faces learns on the first step, as one that grows does, whether
+        // its neighbours push here, and posts its faces where they do not.
+        let gives = self.exchange && brick.offset.iter().any(|&o| o > 0);
+        if info.world_size < 2 || !(grows || gives) {
             return Ok(Growth::AsPushed);
         }
         let mut s = self.state();
@@ -315,22 +367,109 @@ impl Layouts {
                 && l.bricks.len() == info.world_size as usize
                 && l.bricks.get(&info.rank) == Some(&brick)
         });
+        let exchanged = since + first_wait * EXCHANGE_WAITS;
         let deadline = match known {
             Some((l, t)) if l.made(t, info.rank) == Some(brick) => return Ok(Growth::AsPushed),
+            Some(_) if s.apart => exchanged,
             Some(_) => since + Duration::from_secs_f64(FACES_WAIT_SECS),
+            None if s.apart && self.exchange && grows => exchanged,
             None if s.apart => return Ok(Growth::AsPushed),
             None => since + first_wait,
         };
         if Instant::now() < deadline {
             return Err(deadline);
         }
-        if known.is_some() {
+        if known.is_some() || s.apart {
             warn!(step = info.step, rank = info.rank, "a neighbour's faces did not arrive: the brick is made as pushed, and the cells between it and that neighbour are left out");
-        } else {
-            s.apart = true;
-            warn!(step = info.step, rank = info.rank, world_size = info.world_size, "the world's ranks did not all push here within the host's wait: its bricks are made as pushed (bricks laid out without a shared plane are grown only where one node receives them all)");
+            return Ok(Growth::AsPushed);
+        }
+        s.apart = true;
+        if !self.exchange {
+            warn!(step = info.step, rank = info.rank, world_size = info.world_size, "the world's ranks did not all push here within the host's wait: its bricks are made as pushed (bricks laid out without a shared plane are grown only where one node receives them all, or with a viz-node to exchange their faces through)");
+            return Ok(Growth::AsPushed);
+        }
+        info!(step = info.step, world_size = info.world_size, "the world's ranks do not all push here: their bricks' faces are exchanged through the viz-node");
+        // Every brick received so far is posted; the steps after this one were received
+        // before the world was known to be apart, and kept their faces.
+        let due: Vec<(u64, u32, bool)> = s
+            .pending
+            .iter()
+            .flat_map(|(&step, p)| {
+                p.layout
+                    .bricks
+                    .iter()
+                    .map(move |(&rank, b)| (step, rank, may_grow(b, p.layout.global)))
+            })
+            .collect();
+        s.to_post.extend(due);
+        if grows {
+            return Err(Instant::now() + first_wait * EXCHANGE_WAITS);
         }
         Ok(Growth::AsPushed)
+    }
+
+    /// The bricks to post to the viz-node for the exchange, by step: (step, world size, grid,
+    /// bricks, whether a brick of this node waits for the answer). Each (step, rank) once.
+    pub fn posts(&self) -> Vec<(u64, u32, [usize; 3], Vec<Placed>, bool)> {
+        let mut s = self.state();
+        let due = std::mem::take(&mut s.to_post);
+        let mut out: BTreeMap<u64, (u32, [usize; 3], Vec<Placed>, bool)> = BTreeMap::new();
+        for (step, rank, waits) in due {
+            if !s.posted.insert((step, rank)) {
+                continue;
+            }
+            let Some(p) = s.pending.get(&step) else {
+                continue;
+            };
+            let Some(&brick) = p.layout.bricks.get(&rank) else {
+                continue;
+            };
+            let faces = p.faces.get(&rank).cloned().unwrap_or_default();
+            let e = out
+                .entry(step)
+                .or_insert((p.world_size, p.layout.global, Vec::new(), false));
+            e.2.push((rank, brick, faces));
+            e.3 |= waits;
+        }
+        while s.posted.len() > 4 * MAX_PENDING {
+            s.posted.pop_first();
+        }
+        out.into_iter()
+            .map(|(step, (w, g, b, waits))| (step, w, g, b, waits))
+            .collect()
+    }
+
+    /// The bricks of `step` posted by every node (`bricks`, this node's among them): those of
+    /// ranks not received here join the step's layout, and once every rank is in its tiling
+    /// is judged and the bricks waiting for it are decided.
+    pub fn remote(&self, step: u64, bricks: Vec<Placed>) {
+        let mut s = self.state();
+        let Some(p) = s.pending.get_mut(&step) else {
+            return;
+        };
+        if p.tiling.is_some() {
+            return;
+        }
+        for (rank, brick, faces) in bricks {
+            if p.layout.bricks.contains_key(&rank) {
+                continue;
+            }
+            p.layout.bricks.insert(rank, brick);
+            if !faces.is_empty() {
+                p.faces.insert(rank, faces);
+            }
+            p.remote += 1;
+        }
+        if p.layout.bricks.len() < p.world_size as usize {
+            return;
+        }
+        let layout = p.layout.clone();
+        let (tiling, _) = self.judge(&mut s, step, layout, true);
+        if let Some(p) = s.pending.get_mut(&step) {
+            p.tiling = Some(tiling);
+        }
+        drop(s);
+        self.whole_step.notify_waiters();
     }
 
     /// Rings when a step's ranks are all in (a brick that waits for them may be decided).
@@ -345,7 +484,7 @@ impl Layouts {
             return;
         };
         p.done += 1;
-        if p.tiling.is_some() && p.done >= p.layout.bricks.len() {
+        if p.tiling.is_some() && p.done + p.remote >= p.layout.bricks.len() {
             s.pending.remove(&step);
         }
     }
@@ -378,9 +517,16 @@ fn grown(s: &State, info: &StepInfo, tiling: Option<&Tiling>) -> Growth {
         Some(brick) if brick != brick_of(info) => Growth::Grow {
             brick,
             faces: p.faces.values().cloned().collect(),
+            across: p.remote > 0,
         },
         _ => Growth::AsPushed,
     }
+}
+
+/// Whether `brick` may grow (it ends short of `global` on some axis, where a neighbour may
+/// start one point past its end).
+fn may_grow(brick: &Brick, global: [usize; 3]) -> bool {
+    (0..3).any(|a| brick.offset[a] + brick.dims[a] < global[a])
 }
 
 fn brick_of(info: &StepInfo) -> Brick {

@@ -22,6 +22,7 @@ mod adios2_input;
 pub mod config;
 mod correct;
 mod cpu;
+mod faces;
 mod hold;
 mod host;
 pub mod ingest;

@@ -184,7 +184,8 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
             compose: cfg.host.compose && cfg.viz.is_some(),
             ..cfg.host.clone()
         })),
-        layout: crate::layout::Layouts::default(),
+        // With a viz-node, the bricks of a world spread over nodes meet there.
+        layout: crate::layout::Layouts::new(cfg.viz.is_some()),
     });
     let svc = GeneratorServer::new(GeneratorService(shared.clone()))
         .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
@@ -320,6 +321,7 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<RawStep>) {
             // A part of the earlier run may be stored already: these ship rank by rank.
             shared.host.alone(raw.info.step, raw.info.rank);
             let _ = shared.layout.record(&raw.info, &raw.field);
+            crate::faces::send(&shared);
             let bytes = raw.bytes();
             if let Ok(dropped) = shared.queue.push(raw, bytes).await {
                 for d in dropped {
@@ -451,7 +453,7 @@ async fn worker(shared: Arc<Shared>) {
 /// neighbours' pushes may be waiting behind it. After the queue closes, parked steps are made
 /// as pushed. `None` when the queue is closed and empty and nothing is parked.
 async fn next(
-    shared: &Shared,
+    shared: &Arc<Shared>,
     parked: &mut Vec<(RawStep, Instant)>,
 ) -> Option<(RawStep, crate::layout::Growth)> {
     let wait = shared.host.wait();
@@ -461,7 +463,10 @@ async fn next(
         let mut earliest: Option<Instant> = None;
         for i in 0..parked.len() {
             let (raw, since) = &parked[i];
-            match shared.layout.decide(&raw.info, wait, *since) {
+            let decided = shared.layout.decide(&raw.info, wait, *since);
+            // A world found spread over nodes posts its bricks' faces now.
+            crate::faces::send(shared);
+            match decided {
                 Ok(growth) => return Some((parked.remove(i).0, growth)),
                 Err(d) => earliest = Some(earliest.map_or(d, |e| e.min(d))),
             }
@@ -483,7 +488,9 @@ async fn next(
                     return Some((raw, crate::layout::Growth::AsPushed));
                 };
                 let since = Instant::now();
-                match shared.layout.decide(&raw.info, wait, since) {
+                let decided = shared.layout.decide(&raw.info, wait, since);
+                crate::faces::send(shared);
+                match decided {
                     Ok(growth) => return Some((raw, growth)),
                     Err(_) => parked.push((raw, since)),
                 }
@@ -506,6 +513,9 @@ fn grow(shared: &Shared, raw: &mut RawStep, growth: &crate::layout::Growth) -> f
         Ok(Some(grown)) => {
             let pushed = std::mem::replace(&mut raw.field, grown);
             shared.spare_fields.put(pushed);
+            if matches!(growth, crate::layout::Growth::Grow { across: true, .. }) {
+                shared.stats.update(|c| c.bricks_grown_across += 1);
+            }
         }
         Ok(None) => {}
         Err(e) => {

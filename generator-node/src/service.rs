@@ -101,6 +101,7 @@ impl GeneratorService {
         self.spool(&mut raw).await?;
         // Checked once the step's ranks are all in; logged the first time it fails.
         let _ = self.0.layout.record(&raw.info, &raw.field);
+        crate::faces::send(&self.0);
         self.propose_scene(&raw);
         let (dropped, received) = self.enqueue(raw).await?;
         let s = &self.0;

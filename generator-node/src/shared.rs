@@ -121,6 +121,9 @@ impl Shared {
             shared_memory_dir,
             host_id,
             shared_pushes: c.shared_pushes,
+            faces_sent_bytes: c.faces_sent_bytes,
+            faces_received_bytes: c.faces_received_bytes,
+            bricks_grown_across: c.bricks_grown_across,
         }
     }
 

@@ -39,6 +39,11 @@ pub struct Counters {
     pub trial_cpu_secs: f64,
     /// Steps received through shared memory (`crate::shm`).
     pub shared_pushes: u64,
+    /// Bytes of faces posted to the viz-node and received from it (`crate::faces`).
+    pub faces_sent_bytes: u64,
+    pub faces_received_bytes: u64,
+    /// Bricks grown by faces that came from another node.
+    pub bricks_grown_across: u64,
     /// Whether the last attempt to reach the viz-node succeeded.
     pub viz_connected: bool,
     /// Whether the stream to the tuner is up.

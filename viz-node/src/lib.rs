@@ -9,6 +9,7 @@
 
 pub mod compose;
 pub mod config;
+pub mod faces;
 pub mod http;
 pub mod movie;
 pub mod node;

@@ -116,6 +116,7 @@ pub async fn start(cfg: Config) -> Result<RunningViz, StartError> {
         reports_sent: AtomicU64::new(0),
         rejected: AtomicU64::new(0),
         read_only: cfg.read_only,
+        faces: Default::default(),
     });
     tokio::spawn(scorer(shared.clone(), score_rx));
     resume(&shared, recovery);

@@ -190,3 +190,62 @@ async fn shared_planes_keep_no_faces_and_a_lone_rank_is_not_checked() {
     }
     assert!(l.state().pending.len() <= MAX_PENDING);
 }
+
+/// Node `a` receives the lower z-half (points 0–3), node `b` the upper (4–7) of each step:
+/// after the first step's wait each posts its bricks, the upper one with its low face; fed
+/// the other's posts (as the viz-node relays them), the lower brick grows into the bricks of
+/// the whole field's layout, from a face that came from the other node, and so do the later
+/// steps' without a first wait.
+#[tokio::test]
+async fn halves_on_two_nodes_grow_by_the_faces_they_exchange() {
+    let (a, b) = (Layouts::new(true), Layouts::new(true));
+    let short = Duration::from_millis(100);
+    let exchange = |from: &Layouts, to: &Layouts| {
+        for (step, world_size, global, bricks, _) in from.posts() {
+            assert_eq!((world_size, global), (2, [N; 3]));
+            to.remote(step, bricks);
+        }
+    };
+    for step in 0..3 {
+        let (lower, upper) = (info(step, 0, 0, 4), info(step, 1, 4, 4));
+        assert!(record(&a, &lower).is_none() && record(&b, &upper).is_none());
+        // The upper brick does not grow: made as pushed (after the first step's wait).
+        assert!(matches!(growth(&b, &upper, short).await, Growth::AsPushed));
+        // The viz-node's relay, every 10 ms, until the lower brick is decided.
+        let waiting = growth(&a, &lower, short);
+        tokio::pin!(waiting);
+        let grown = loop {
+            tokio::select! {
+                g = &mut waiting => break g,
+                () = tokio::time::sleep(Duration::from_millis(10)) => {
+                    exchange(&b, &a);
+                    exchange(&a, &b);
+                }
+            }
+        };
+        match grown {
+            Growth::Grow {
+                brick,
+                across,
+                ref faces,
+            } => {
+                assert_eq!(
+                    (brick.offset, brick.dims, across),
+                    ([0; 3], [N, N, 5], true)
+                );
+                let mut grown_info = lower.clone();
+                let v = grown
+                    .apply(&mut grown_info, &field(&lower), None)
+                    .unwrap()
+                    .unwrap();
+                let expected = whole().brick(&brick).unwrap();
+                assert_eq!(v.voxels().to_le_bytes(), expected.voxels().to_le_bytes());
+                assert!(!faces.is_empty());
+            }
+            other => panic!("step {step}: {other:?}"),
+        }
+    }
+    // Nothing is posted twice.
+    assert!(a.posts().is_empty() && b.posts().is_empty());
+    assert!(!a.whole_world_here(2) && !b.whole_world_here(2));
+}

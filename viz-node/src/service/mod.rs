@@ -80,6 +80,8 @@ pub struct Shared {
     pub rejected: AtomicU64,
     /// Serving a read-only archive: every item shipped is refused.
     pub read_only: bool,
+    /// The faces of bricks that grow across generator-nodes (`ExchangeFaces`).
+    pub faces: crate::faces::Faces,
 }
 
 impl Shared {
@@ -547,6 +549,15 @@ impl Viz for VizService {
             })
             .collect();
         Ok(Response::new(pb::StepOutcomesReply { outcomes }))
+    }
+
+    async fn exchange_faces(
+        &self,
+        request: Request<pb::FacesOffer>,
+    ) -> Result<Response<pb::FacesReply>, Status> {
+        self.0.writable("an exchange of faces")?;
+        let bricks = self.0.faces.exchange(request.into_inner()).await?;
+        Ok(Response::new(pb::FacesReply { bricks }))
     }
 
     async fn agree_scene(
