@@ -24,7 +24,14 @@ pub fn send(shared: &Arc<Shared>) {
     if shared.viz_shards.is_empty() {
         return;
     }
-    for (step, world_size, global, bricks, waits) in shared.layout.posts() {
+    for crate::layout::Post {
+        step,
+        world_size,
+        global,
+        bricks,
+        waits,
+    } in shared.layout.posts()
+    {
         let wait = if waits {
             shared.host.wait() * 2
         } else {

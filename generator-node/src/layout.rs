@@ -172,6 +172,21 @@ pub struct Layouts {
 /// rank, its points and its low faces.
 pub type Placed = (u32, Brick, Arc<Vec<(Brick, Volume)>>);
 
+/// One step's bricks to post for the exchange ([`Layouts::posts`]).
+#[derive(Debug)]
+pub struct Post {
+    /// The step.
+    pub step: u64,
+    /// Its world's size.
+    pub world_size: u32,
+    /// The grid, points.
+    pub global: [usize; 3],
+    /// This node's bricks of the step not posted yet.
+    pub bricks: Vec<Placed>,
+    /// Whether a brick of this node at the step waits for the other nodes' bricks.
+    pub waits: bool,
+}
+
 /// How much longer than the host's wait a brick of a world spread over nodes waits for the
 /// exchange's answer.
 const EXCHANGE_WAITS: u32 = 2;
@@ -408,12 +423,11 @@ impl Layouts {
         Ok(Growth::AsPushed)
     }
 
-    /// The bricks to post to the viz-node for the exchange, by step: (step, world size, grid,
-    /// bricks, whether a brick of this node waits for the answer). Each (step, rank) once.
-    pub fn posts(&self) -> Vec<(u64, u32, [usize; 3], Vec<Placed>, bool)> {
+    /// The bricks to post to the viz-node for the exchange, by step; each (step, rank) once.
+    pub fn posts(&self) -> Vec<Post> {
         let mut s = self.state();
         let due = std::mem::take(&mut s.to_post);
-        let mut out: BTreeMap<u64, (u32, [usize; 3], Vec<Placed>, bool)> = BTreeMap::new();
+        let mut out: BTreeMap<u64, Post> = BTreeMap::new();
         for (step, rank, waits) in due {
             if !s.posted.insert((step, rank)) {
                 continue;
@@ -425,18 +439,20 @@ impl Layouts {
                 continue;
             };
             let faces = p.faces.get(&rank).cloned().unwrap_or_default();
-            let e = out
-                .entry(step)
-                .or_insert((p.world_size, p.layout.global, Vec::new(), false));
-            e.2.push((rank, brick, faces));
-            e.3 |= waits;
+            let e = out.entry(step).or_insert(Post {
+                step,
+                world_size: p.world_size,
+                global: p.layout.global,
+                bricks: Vec::new(),
+                waits: false,
+            });
+            e.bricks.push((rank, brick, faces));
+            e.waits |= waits;
         }
         while s.posted.len() > 4 * MAX_PENDING {
             s.posted.pop_first();
         }
-        out.into_iter()
-            .map(|(step, (w, g, b, waits))| (step, w, g, b, waits))
-            .collect()
+        out.into_values().collect()
     }
 
     /// The bricks of `step` posted by every node (`bricks`, this node's among them): those of

@@ -148,7 +148,7 @@ pub fn check(offer: &pb::FacesOffer) -> Result<[u32; 3], Status> {
         .global_dims
         .map(|d| [d.x, d.y, d.z])
         .ok_or_else(|| bad("no global_dims".into()))?;
-    if offer.world_size < 2 || global.iter().any(|&n| n == 0) {
+    if offer.world_size < 2 || global.contains(&0) {
         return Err(bad(format!(
             "faces are exchanged for a world of 2 ranks or more on a grid of points, not {} on {global:?}",
             offer.world_size

@@ -201,9 +201,9 @@ async fn halves_on_two_nodes_grow_by_the_faces_they_exchange() {
     let (a, b) = (Layouts::new(true), Layouts::new(true));
     let short = Duration::from_millis(100);
     let exchange = |from: &Layouts, to: &Layouts| {
-        for (step, world_size, global, bricks, _) in from.posts() {
-            assert_eq!((world_size, global), (2, [N; 3]));
-            to.remote(step, bricks);
+        for p in from.posts() {
+            assert_eq!((p.world_size, p.global), (2, [N; 3]));
+            to.remote(p.step, p.bricks);
         }
     };
     for step in 0..3 {
@@ -233,7 +233,7 @@ async fn halves_on_two_nodes_grow_by_the_faces_they_exchange() {
                     (brick.offset, brick.dims, across),
                     ([0; 3], [N, N, 5], true)
                 );
-                let mut grown_info = lower.clone();
+                let mut grown_info = lower;
                 let v = grown
                     .apply(&mut grown_info, &field(&lower), None)
                     .unwrap()
