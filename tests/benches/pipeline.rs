@@ -12,11 +12,12 @@
 //!    shared memory, streamed, through shared memory to a node on one thread, and to a node
 //!    below the simulation's priority), in alternating rounds (`INSITU_OVERHEAD_ROUNDS`,
 //!    default 5): the median ratio and its range, and the node's lag behind the simulation;
-//! 3. end-to-end latency from push to the viz-node's report of the stored VDI.
+//! 3. end-to-end latency from push to the viz-node's report of the stored VDI;
+//! 4. the exchange of faces through the viz-node for bricks split across generator-nodes.
 //!
 //! `cargo bench -p insitu-e2e --bench pipeline [-- PART]` (only the parts whose name holds
 //! `PART`: `ingest_rust`, `ingest_c`, `ingest_fortran`, `ingest_python`, `simulation_overhead`,
-//! `latency`). Numbers depend on
+//! `latency`, `faces`). Numbers depend on
 //! the cores the simulation and the generator-node share: on a 2-core machine they compete.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -411,6 +412,66 @@ fn latency(tmp: &std::path::Path) {
     v.terminate();
 }
 
+/// 4. The exchange of faces across generator-nodes (`Viz.ExchangeFaces`) for a 256³ f32 field
+///    split into z-halves without a shared plane: each step, two clients post at once as two
+///    nodes would, the lower half's brick (it grows, and waits for the answer) and the upper
+///    half's with its low face (256 × 256 f32, 256 KiB); the time until both answers.
+fn faces_exchange(tmp: &std::path::Path) {
+    let rec = tmp.join("rec-faces");
+    let v = insitu_e2e::start_viz(&rec, "127.0.0.1:0", &[], tmp);
+    let n = 256u32;
+    let dims = |x, y, z| Some(pb::Dims3 { x, y, z });
+    let half = |rank: u32| pb::BrickFaces {
+        rank,
+        offset: dims(0, 0, 128 * rank),
+        dims: dims(n, n, 128),
+        faces: if rank == 1 {
+            vec![pb::Face {
+                offset: dims(0, 0, 128),
+                dims: dims(n, n, 1),
+                dtype: pb::ScalarType::F32 as i32,
+                values: vec![7u8; (n * n * 4) as usize].into(),
+            }]
+        } else {
+            Vec::new()
+        },
+    };
+    let times = rt().block_on(async {
+        let channel = transport::connect(&transport::uri(&v.addr)).await.unwrap();
+        let client = VizClient::new(channel)
+            .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(transport::MAX_MESSAGE_BYTES);
+        let mut times = Vec::new();
+        for step in 0..40u64 {
+            let offer = |rank: u32| pb::FacesOffer {
+                step,
+                world_size: 2,
+                global_dims: dims(n, n, n),
+                bricks: vec![half(rank)],
+                wait_secs: 10.0,
+            };
+            let (mut a, mut b) = (client.clone(), client.clone());
+            let t = Instant::now();
+            let (lower, upper) =
+                tokio::join!(a.exchange_faces(offer(0)), b.exchange_faces(offer(1)));
+            let elapsed = t.elapsed().as_secs_f64();
+            assert_eq!(lower.unwrap().into_inner().bricks.len(), 2);
+            assert_eq!(upper.unwrap().into_inner().bricks.len(), 2);
+            times.push(elapsed);
+        }
+        times
+    });
+    let mut sorted = times[5..].to_vec();
+    sorted.sort_by(f64::total_cmp);
+    println!(
+        "exchange of faces, 256³ f32 in two z-halves (the upper half's 256 KiB face posted and relayed to the lower half): median {:.2} ms, max {:.2} ms over {} steps (after 5 warm-up)",
+        sorted[sorted.len() / 2] * 1e3,
+        sorted[sorted.len() - 1] * 1e3,
+        sorted.len()
+    );
+    v.terminate();
+}
+
 /// One part of the benchmark, run in a temporary directory.
 type Part = fn(&std::path::Path);
 
@@ -426,13 +487,14 @@ fn main() {
         .find(|a| !a.starts_with("--"))
         .unwrap_or_default();
     let tmp = tempfile::tempdir().unwrap();
-    let parts: [(&str, Part); 6] = [
+    let parts: [(&str, Part); 7] = [
         ("ingest_rust", ingest),
         ("ingest_c", ingest_c),
         ("ingest_fortran", ingest_fortran),
         ("ingest_python", ingest_python),
         ("simulation_overhead", simulation_overhead),
         ("latency", latency),
+        ("faces", faces_exchange),
     ];
     for (name, part) in parts {
         if name.contains(&filter) {
