@@ -105,9 +105,8 @@ struct State {
     /// nodes, and no brick waits for a layout again until a whole one is seen (but for the
     /// exchange's answer, where there is one).
     apart: bool,
-    /// Bricks to post to the viz-node for the exchange: (step, rank, whether a brick of this
-    /// node at the step waits for the answer).
-    to_post: Vec<(u64, u32, bool)>,
+    /// Bricks to post to the viz-node for the exchange, one [`Post`] of one brick each.
+    to_post: Vec<Post>,
     /// The (step, rank)s posted, the newest kept.
     posted: std::collections::BTreeSet<(u64, u32)>,
 }
@@ -187,6 +186,20 @@ pub struct Post {
     pub waits: bool,
 }
 
+impl Post {
+    /// `placed`, a brick of `step` of a world of `world_size` ranks on a grid of `global`
+    /// points, waiting for the answer where it grows.
+    fn one(world_size: u32, global: [usize; 3], step: u64, placed: Placed) -> Self {
+        Self {
+            step,
+            world_size,
+            global,
+            waits: may_grow(&placed.1, global),
+            bricks: vec![placed],
+        }
+    }
+}
+
 /// How much longer than the host's wait a brick of a world spread over nodes waits for the
 /// exchange's answer.
 const EXCHANGE_WAITS: u32 = 2;
@@ -246,15 +259,20 @@ impl Layouts {
         // Nor does a world that pushes to several nodes, as far as this node knows, unless
         // its bricks are exchanged; those are posted as they come.
         let apart = s.apart && s.good.is_none() && !self.exchange;
-        if s.apart && self.exchange && !shared {
-            s.to_post
-                .push((info.step, info.rank, may_grow(&brick, info.global_dims)));
-        }
         let faces = if shared || apart || !brick.offset.iter().any(|&o| o > 0) {
             None
         } else {
             tiling::low_faces(field, &brick).ok().map(Arc::new)
         };
+        if s.apart && self.exchange && !shared {
+            let placed = (info.rank, brick, faces.clone().unwrap_or_default());
+            s.to_post.push(Post::one(
+                info.world_size,
+                info.global_dims,
+                info.step,
+                placed,
+            ));
+        }
         let entry = s.pending.entry(info.step).or_insert_with(|| Pending {
             world_size: info.world_size,
             layout: Layout {
@@ -406,14 +424,14 @@ impl Layouts {
         info!(step = info.step, world_size = info.world_size, "the world's ranks do not all push here: their bricks' faces are exchanged through the viz-node");
         // Every brick received so far is posted; the steps after this one were received
         // before the world was known to be apart, and kept their faces.
-        let due: Vec<(u64, u32, bool)> = s
+        let due: Vec<Post> = s
             .pending
             .iter()
             .flat_map(|(&step, p)| {
-                p.layout
-                    .bricks
-                    .iter()
-                    .map(move |(&rank, b)| (step, rank, may_grow(b, p.layout.global)))
+                p.layout.bricks.iter().map(move |(&rank, &b)| {
+                    let faces = p.faces.get(&rank).cloned().unwrap_or_default();
+                    Post::one(p.world_size, p.layout.global, step, (rank, b, faces))
+                })
             })
             .collect();
         s.to_post.extend(due);
@@ -428,26 +446,22 @@ impl Layouts {
         let mut s = self.state();
         let due = std::mem::take(&mut s.to_post);
         let mut out: BTreeMap<u64, Post> = BTreeMap::new();
-        for (step, rank, waits) in due {
-            if !s.posted.insert((step, rank)) {
+        for post in due {
+            let fresh: Vec<Placed> = post
+                .bricks
+                .into_iter()
+                .filter(|(rank, _, _)| s.posted.insert((post.step, *rank)))
+                .collect();
+            if fresh.is_empty() {
                 continue;
             }
-            let Some(p) = s.pending.get(&step) else {
-                continue;
-            };
-            let Some(&brick) = p.layout.bricks.get(&rank) else {
-                continue;
-            };
-            let faces = p.faces.get(&rank).cloned().unwrap_or_default();
-            let e = out.entry(step).or_insert(Post {
-                step,
-                world_size: p.world_size,
-                global: p.layout.global,
+            let e = out.entry(post.step).or_insert(Post {
                 bricks: Vec::new(),
                 waits: false,
+                ..post
             });
-            e.bricks.push((rank, brick, faces));
-            e.waits |= waits;
+            e.bricks.extend(fresh);
+            e.waits |= post.waits;
         }
         while s.posted.len() > 4 * MAX_PENDING {
             s.posted.pop_first();
@@ -496,11 +510,15 @@ impl Layouts {
     /// Counts one of `step`'s ranks as made (or dropped); the step is forgotten once all are.
     pub fn made(&self, step: u64) {
         let mut s = self.state();
+        let apart = s.apart;
         let Some(p) = s.pending.get_mut(&step) else {
             return;
         };
         p.done += 1;
-        if p.tiling.is_some() && p.done + p.remote >= p.layout.bricks.len() {
+        // Once every rank received here is made, a step whose world is spread over nodes
+        // needs nothing more here (what it posts was taken when it was due).
+        let local_made = p.done + p.remote >= p.layout.bricks.len();
+        if local_made && (p.tiling.is_some() || apart) {
             s.pending.remove(&step);
         }
     }

@@ -245,7 +245,8 @@ async fn halves_on_two_nodes_grow_by_the_faces_they_exchange() {
             other => panic!("step {step}: {other:?}"),
         }
     }
-    // Nothing is posted twice.
+    // Nothing is posted twice, and nothing of a made step is kept.
     assert!(a.posts().is_empty() && b.posts().is_empty());
+    assert!(a.state().pending.is_empty() && b.state().pending.is_empty());
     assert!(!a.whole_world_here(2) && !b.whole_world_here(2));
 }
