@@ -5,8 +5,10 @@
 //! One thread owns the ADIOS2 engine (its calls block). For each step it reads this node's
 //! part of the global array — part `i` of `n` is the `i`-th of `n` bricks that share their
 //! boundary planes ([`bricks::grid_bricks`]), so the nodes that split one array compose
-//! without seams and without exchanging a plane — and hands it to the same path as a
-//! pushed step (layout check, spool, queue), as rank `i` of a world of `n`. The queue's
+//! without seams and without exchanging a plane; or, `as_written`, the one block a writer
+//! that opens a stream of its own put, whose neighbours' planes come through the exchange of
+//! faces ([`crate::layout`]) — and hands it to the same path as a pushed step (layout check,
+//! spool, queue), as rank `i` of a world of `n`. The queue's
 //! policy applies: with `block`, a node that falls behind holds the writer back (SST's
 //! queue fills), as a push would.
 //!
@@ -185,16 +187,20 @@ fn brick(
     let source = Source::of(stream, wanted, &input.stream, step)?;
     let (var, dims) = (source.name().to_owned(), source.dims());
     let [part, parts] = input.part;
-    let own = bricks::split_ranks(parts as usize, dims)
-        .and_then(|split| bricks::grid_bricks(dims, split))
-        .and_then(|b| b.get(part as usize).copied())
-        .ok_or_else(|| ReadError::Invalid {
-            path: input.stream.clone(),
-            problem: format!(
-                "variable {var}: a grid of {dims:?} points cannot be split into {parts} parts \
-                 that share their planes",
-            ),
-        })?;
+    let own = if input.as_written {
+        written(stream, &source, input, step)?
+    } else {
+        bricks::split_ranks(parts as usize, dims)
+            .and_then(|split| bricks::grid_bricks(dims, split))
+            .and_then(|b| b.get(part as usize).copied())
+            .ok_or_else(|| ReadError::Invalid {
+                path: input.stream.clone(),
+                problem: format!(
+                    "variable {var}: a grid of {dims:?} points cannot be split into {parts} \
+                     parts that share their planes",
+                ),
+            })?
+    };
     let (spacing, origin) = source.grid();
     let field = match &source {
         Source::Array { var, .. } => stream.read(var, own.offset, own.dims, None, spacing)?,
@@ -239,6 +245,38 @@ fn brick(
         fields: vec![var.clone()],
         field_name: Some(var),
     })
+}
+
+/// The one block the writer put of `source` in step `step`, as this node's brick
+/// (`as_written`).
+///
+/// # Errors
+/// [`ReadError`] naming the stream and variable: an openPMD mesh (its blocks are read by
+/// `part`), or a step that holds other than one block.
+fn written(
+    stream: &Stream,
+    source: &Source,
+    input: &Adios2Input,
+    step: usize,
+) -> Result<bricks::Brick, ReadError> {
+    let bad = |problem: String| ReadError::Invalid {
+        path: input.stream.clone(),
+        problem,
+    };
+    let Source::Array { var, .. } = source else {
+        return Err(bad(format!(
+            "mesh {}: as_written reads a plain global array's block; read an openPMD mesh by part",
+            source.name()
+        )));
+    };
+    match stream.blocks(var, step)?.as_slice() {
+        [brick] => Ok(*brick),
+        blocks => Err(bad(format!(
+            "variable {var}: step {step} holds {} blocks; as_written reads the one block of a \
+             writer that opens a stream of its own (read a stream of several blocks by part)",
+            blocks.len()
+        ))),
+    }
 }
 
 /// What a step's field is read from: a plain 3-D global array, or an openPMD mesh (its

@@ -232,6 +232,13 @@ pub struct Adios2Input {
     /// share their boundary planes (`[0, 1]`: the whole array).
     #[serde(default = "whole")]
     pub part: [u32; 2],
+    /// Read the one block the writer put in each step as it lies, as rank `i` of a world of
+    /// `n` (`part`): for writers that each open a stream of their own (ADIOS2 on
+    /// `MPI_COMM_SELF`, or a serial build in each process), whose blocks split the array
+    /// without a shared plane; neighbours read by other nodes exchange their boundary planes
+    /// through the viz-node.
+    #[serde(default)]
+    pub as_written: bool,
     /// How long to wait for an SST writer to open the stream, seconds.
     #[serde(default = "default_open_timeout")]
     pub open_timeout_secs: f64,
@@ -255,6 +262,7 @@ impl Adios2Input {
             stream,
             var: None,
             part: whole(),
+            as_written: false,
             open_timeout_secs: default_open_timeout(),
             parameters: Default::default(),
         }

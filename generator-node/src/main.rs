@@ -62,6 +62,11 @@ struct Args {
     /// 0/1, the whole array).
     #[arg(long, value_name = "I/N", requires = "adios2", value_parser = part)]
     adios2_part: Option<[u32; 2]>,
+    /// Read the one block the ADIOS2 writer put in each step as it lies, as rank I of N
+    /// (`--adios2-part`): a writer that opens a stream of its own; neighbours on other nodes
+    /// exchange their planes through the viz-node.
+    #[arg(long, requires = "adios2")]
+    adios2_as_written: bool,
     /// CPU threads for generation, references and trials (0: one per core).
     #[arg(long)]
     threads: Option<usize>,
@@ -109,6 +114,7 @@ fn config(a: Args) -> Result<Config> {
         if let Some(p) = a.adios2_part {
             input.part = p;
         }
+        input.as_written |= a.adios2_as_written;
         c.adios2 = Some(input);
     }
     if let Some(v) = a.queue_steps {

@@ -198,3 +198,37 @@ fn openpmd_meshes_are_fields_and_what_is_not_a_volume_is_refused_by_name() {
         "{e}"
     );
 }
+
+/// The blocks the writer put, as bricks of the grid: the fixture's two z-halves (8 points:
+/// z 0–3 and 4–7) of every variable, in every step.
+#[test]
+fn the_blocks_written_read_back_as_bricks() {
+    let Some(dir) = insitu_testenv::fixture_dir() else {
+        return;
+    };
+    let path = dir.join("adios2_series.bp");
+    let mut s = Stream::open(&path, Engine::File, &[], Duration::from_secs(1)).unwrap();
+    let mut steps = 0;
+    while let insitu_readers::adios2::Step::Ready(step) =
+        s.begin_step(Some(Duration::from_secs(5))).unwrap()
+    {
+        for var in ["rho", "temp"] {
+            let blocks = s.blocks(var, step).unwrap();
+            let got: Vec<([usize; 3], [usize; 3])> =
+                blocks.iter().map(|b| (b.offset, b.dims)).collect();
+            assert_eq!(
+                got,
+                [([0, 0, 0], [12, 10, 4]), ([0, 0, 4], [12, 10, 4])],
+                "{var} step {step}"
+            );
+        }
+        s.end_step().unwrap();
+        steps += 1;
+    }
+    assert!(steps >= 2, "{steps} steps");
+    assert!(s
+        .blocks("nothing", 0)
+        .unwrap_err()
+        .to_string()
+        .contains("no variable"));
+}

@@ -5,14 +5,16 @@ split in z without a shared plane, then the step ends. The fields are read from 
 client too.
 
     python adios2_writer.py NAME DIR NX NY NZ STEPS [--engine SST|BP5] [--blocks K]
-                            [--readers R] [--vanish-after S] [--openpmd] [--synthetic]
-                            [--param KEY=VALUE ...]
+                            [--own-block B] [--readers R] [--vanish-after S] [--openpmd]
+                            [--synthetic] [--param KEY=VALUE ...]
 
 NAME is the stream (SST: the contact file NAME.sst) or the BP file; DIR holds step_T.raw.
 --vanish-after S ends the process without closing the stream a second after step S, as a
 simulation that crashes while computing the next step would (an SST step lives in the
 writer's memory until its readers have fetched it: a step a reader had not fetched dies with
 the writer).
+--own-block B puts block B of the K alone, as one of K writer processes that each open a
+stream of their own (ADIOS2 on MPI_COMM_SELF) would.
 --param passes an SST engine parameter (e.g. WANDataTransport=enet).
 --synthetic writes (i mod 977) + t in place of step_T.raw, for the throughput bench.
 --openpmd writes the field as openPMD-api does (the PyPI wheel `openpmd-api`), as the mesh
@@ -38,6 +40,7 @@ def main():
     p.add_argument("steps", type=int)
     p.add_argument("--engine", default="SST")
     p.add_argument("--blocks", type=int, default=2)
+    p.add_argument("--own-block", type=int, default=None)
     p.add_argument("--readers", type=int, default=1)
     p.add_argument("--vanish-after", type=int, default=None)
     p.add_argument("--openpmd", action="store_true")
@@ -66,7 +69,9 @@ def main():
         else:
             field = np.fromfile(os.path.join(a.dir, f"step_{t}.raw"), dtype="<f4").reshape(nz, ny, nx)
         engine.begin_step()
-        for lo, hi in zip(cuts, cuts[1:]):
+        for b, (lo, hi) in enumerate(zip(cuts, cuts[1:])):
+            if a.own_block is not None and b != a.own_block:
+                continue
             var.set_selection([[lo, 0, 0], [hi - lo, ny, nx]])
             engine.put(var, np.ascontiguousarray(field[lo:hi]), bindings.Mode.Sync)
         engine.end_step()

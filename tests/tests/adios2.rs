@@ -221,6 +221,94 @@ fn an_sst_stream_read_by_two_nodes_draws_as_the_field_pushed_whole() {
     }
 }
 
+/// Two writer processes, each opening a stream of its own and putting its own block (z
+/// 0–15 and 16–32 of 33 points: no plane shared), read by two nodes as written: the nodes
+/// exchange the seam's plane through the viz-node, and the composed picture is the field
+/// pushed whole (≥ 40 dB at four views).
+#[test]
+fn writers_of_a_block_each_read_as_written_by_two_nodes_draw_the_pushed_field() {
+    let Some(python) = insitu_testenv::fixture_python() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    write_fields(tmp.path());
+    let runtime = rt();
+    let pushed = tmp.path().join("pushed");
+    let v1 = start_viz(&pushed, "127.0.0.1:0", &[], tmp.path());
+    let node = runtime
+        .block_on(start(node_config(&v1.addr, None)))
+        .unwrap();
+    push_whole(&node.local_addr().to_string());
+    let streamed = tmp.path().join("streamed");
+    let v2 = start_viz(&streamed, "127.0.0.1:0", &[], tmp.path());
+    let mut writers = Vec::new();
+    let mut nodes = Vec::new();
+    for block in 0..2u32 {
+        let stream = tmp.path().join(format!("simulation.{block}"));
+        let b = block.to_string();
+        writers.push(writer(&python, &stream, tmp.path(), &["--own-block", &b]));
+        let mut input = Adios2Input::new(stream);
+        input.part = [block, 2];
+        input.as_written = true;
+        nodes.push(
+            runtime
+                .block_on(start(node_config(&v2.addr, Some(input))))
+                .unwrap(),
+        );
+    }
+    for mut w in writers {
+        assert!(w.wait().unwrap().success(), "a writer failed");
+    }
+    let all = |rec: &Path, composed| recorded(rec, composed).len() == STEPS as usize;
+    assert!(wait_until(90.0, || all(&pushed, false) && all(&streamed, true)));
+    let grown: u64 = nodes
+        .iter()
+        .map(|n| n.shared().status().bricks_grown_across)
+        .sum();
+    let summaries = shutdown(nodes);
+    shutdown(vec![node]);
+    same_pictures(&pushed, &streamed, "two writers' blocks read as written");
+    assert_eq!(
+        grown, STEPS,
+        "the lower block grows by the upper's plane every step"
+    );
+    for s in &summaries {
+        assert!(
+            s.contains("3 step(s) read, the last step 2; the writer closed the stream"),
+            "{s}"
+        );
+    }
+    v1.terminate();
+    v2.terminate();
+}
+
+/// A stream of several blocks read as written is refused by name.
+#[test]
+fn a_stream_of_several_blocks_read_as_written_is_refused_by_name() {
+    let Some(python) = insitu_testenv::fixture_python() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    write_fields(tmp.path());
+    let v = start_viz(&tmp.path().join("rec"), "127.0.0.1:0", &[], tmp.path());
+    let stream = tmp.path().join("two-blocks.bp");
+    let mut w = writer(&python, &stream, tmp.path(), &["--engine", "BP5"]);
+    assert!(w.wait().unwrap().success(), "the writer failed");
+    let mut input = Adios2Input::new(stream);
+    input.as_written = true;
+    let node = rt()
+        .block_on(start(node_config(&v.addr, Some(input))))
+        .unwrap();
+    // The file is whole: its first step is read, and refused, at once.
+    std::thread::sleep(std::time::Duration::from_secs(3));
+    let summary = shutdown(vec![node]).remove(0);
+    assert!(
+        summary.contains("step 0 holds 2 blocks; as_written reads the one block"),
+        "{summary}"
+    );
+    v.terminate();
+}
+
 /// An openPMD writer (openPMD-api over SST) whose mesh is labelled x, y, z in C order, stored
 /// transposed from the volume's order: the nodes read its mesh by name, put x fastest, and draw
 /// the field pushed whole.

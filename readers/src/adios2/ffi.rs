@@ -1,6 +1,6 @@
 //! The part of ADIOS2's C API (`adios2_c.h`, version 2.9 and later) the reader calls: an
 //! ADIOS object, an IO with its engine and parameters, steps, variables (shape, type,
-//! selections, gets) and attributes. Declared by hand, not generated: the API is stable and
+//! selections, gets, the blocks written) and attributes. Declared by hand, not generated: the API is stable and
 //! these are its few calls.
 
 #![allow(non_camel_case_types)]
@@ -66,8 +66,47 @@ pub const TYPE_UINT64: adios2_type = 12;
 /// `adios2_shapeid`.
 pub const SHAPE_GLOBAL_ARRAY: c_int = 1;
 
+/// `union adios2_PrimitiveStdtypeUnion`: its largest member is a `long double` (16 bytes,
+/// 16-aligned on x86-64 and aarch64); only its size and alignment matter here.
+#[repr(C, align(16))]
+pub struct adios2_union {
+    _bytes: [u8; 16],
+}
+
+/// `adios2_blockinfo`: one block a writer put in a step (`Start`, `Count` in the variable's
+/// own dimension order, `Dims` entries each).
+#[repr(C)]
+#[allow(non_snake_case)]
+pub struct adios2_blockinfo {
+    pub WriterID: c_int,
+    pub BlockID: usize,
+    pub Start: *mut usize,
+    pub Count: *mut usize,
+    pub MinUnion: adios2_union,
+    pub MaxUnion: adios2_union,
+    pub Value: adios2_union,
+}
+
+/// `adios2_varinfo`: a variable's blocks in a step.
+#[repr(C)]
+#[allow(non_snake_case)]
+pub struct adios2_varinfo {
+    pub Dims: c_int,
+    pub Shape: *mut usize,
+    pub IsValue: c_int,
+    pub IsReverseDims: c_int,
+    pub nblocks: usize,
+    pub BlocksInfo: *mut adios2_blockinfo,
+}
+
 extern "C" {
     pub fn adios2_init_serial() -> *mut adios2_adios;
+    pub fn adios2_inquire_blockinfo(
+        engine: *mut adios2_engine,
+        variable: *mut adios2_variable,
+        step: usize,
+    ) -> *mut adios2_varinfo;
+    pub fn adios2_free_blockinfo(data_blocks: *mut adios2_varinfo);
     pub fn adios2_finalize(adios: *mut adios2_adios) -> adios2_error;
     pub fn adios2_declare_io(adios: *mut adios2_adios, name: *const c_char) -> *mut adios2_io;
     pub fn adios2_set_engine(io: *mut adios2_io, engine_type: *const c_char) -> adios2_error;

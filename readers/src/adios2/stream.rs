@@ -6,6 +6,7 @@ use super::{ffi, openpmd};
 use crate::bytes::{Endian, Sample, Samples};
 use crate::ReadError;
 use glam::Vec3;
+use insitu_core::volume::bricks::Brick;
 use insitu_core::Volume;
 use std::ffi::{CStr, CString};
 use std::path::{Path, PathBuf};
@@ -394,6 +395,54 @@ impl Stream {
             self.check(code, &format!("reading {var}"))?;
         }
         Ok((&self.scratch, v.sample))
+    }
+
+    /// The blocks the writers put of `var` in step `step` (the current one of a stream), as
+    /// bricks of the grid (offset and count in points, x, y, z), in the order ADIOS2 lists
+    /// them (writer, then block).
+    ///
+    /// # Errors
+    /// [`ReadError`] naming the stream and variable: as [`Self::variable`], or ADIOS2 telling
+    /// nothing of its blocks.
+    pub fn blocks(&self, var: &str, step: usize) -> Result<Vec<Brick>, ReadError> {
+        self.variable(var)?;
+        let h = self.handle(var)?;
+        // SAFETY: `engine` and `h` are live; the library allocates the answer, which is read
+        // within its `nblocks` entries of `Dims` (3, checked) starts and counts each, and freed
+        // once here.
+        unsafe {
+            let info = ffi::adios2_inquire_blockinfo(self.engine, h, step);
+            if info.is_null() {
+                return Err(ReadError::invalid(
+                    &self.name,
+                    format!("variable {var}: ADIOS2 lists no blocks of it in step {step}"),
+                ));
+            }
+            let i = &*info;
+            let mut out = Vec::new();
+            if i.Dims == 3 && !i.BlocksInfo.is_null() {
+                for b in std::slice::from_raw_parts(i.BlocksInfo, i.nblocks) {
+                    if b.Start.is_null() || b.Count.is_null() {
+                        continue;
+                    }
+                    let start = std::slice::from_raw_parts(b.Start, 3);
+                    let count = std::slice::from_raw_parts(b.Count, 3);
+                    out.push(Brick {
+                        offset: [start[2], start[1], start[0]],
+                        dims: [count[2], count[1], count[0]],
+                    });
+                }
+            }
+            let dims = i.Dims;
+            ffi::adios2_free_blockinfo(info);
+            if dims != 3 {
+                return Err(ReadError::invalid(
+                    &self.name,
+                    format!("variable {var}: its blocks have {dims} dimensions, not 3"),
+                ));
+            }
+            Ok(out)
+        }
     }
 
     /// The box of [`Self::read_bytes`] as a volume at `spacing` (placed at the origin).
