@@ -168,6 +168,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         composing: Default::default(),
         viz_shards: viz_shards.clone(),
         begun: Default::default(),
+        received: Default::default(),
         spool,
         epoch: new_epoch(),
         spare_fields: crate::spare::SpareFields::new(cfg.queue.max_bytes),
@@ -320,6 +321,9 @@ fn requeue(shared: &Arc<Shared>, recovered: Vec<RawStep>) {
         for raw in recovered {
             // A part of the earlier run may be stored already: these ship rank by rank.
             shared.host.alone(raw.info.step, raw.info.rank);
+            shared
+                .received
+                .fetch_max(raw.info.step + 1, Ordering::SeqCst);
             let _ = shared.layout.record(&raw.info, &raw.field);
             crate::faces::send(&shared);
             let bytes = raw.bytes();
@@ -410,7 +414,7 @@ async fn worker(shared: Arc<Shared>) {
                     {
                         shared.save_run();
                     }
-                    t.after_step(for_tuner, begun);
+                    t.after_step(for_tuner, begun, shared.received.load(Ordering::SeqCst));
                 }
                 keep_tf(&shared, tf, raw_world_size);
                 let (retries, retry_secs) = finished.product.limit_retries;

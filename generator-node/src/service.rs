@@ -99,6 +99,9 @@ impl GeneratorService {
     /// As [`Self::spool`] and [`Self::enqueue`].
     pub(crate) async fn accept(&self, mut raw: RawStep) -> Result<Response<pb::PushReply>, Status> {
         self.spool(&mut raw).await?;
+        self.0
+            .received
+            .fetch_max(raw.info.step + 1, std::sync::atomic::Ordering::SeqCst);
         // Checked once the step's ranks are all in; logged the first time it fails.
         let _ = self.0.layout.record(&raw.info, &raw.field);
         crate::faces::send(&self.0);

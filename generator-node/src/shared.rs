@@ -43,6 +43,9 @@ pub struct Shared {
     /// The first step index no rank of which this node has begun to generate: a tuner's
     /// decision applies from it at the earliest.
     pub(crate) begun: std::sync::atomic::AtomicU64,
+    /// The first step index past every step this node has received (queued or parked): a
+    /// step not received cannot have begun (`StepSummary.received`).
+    pub(crate) received: std::sync::atomic::AtomicU64,
     /// The durable spool, when configured.
     pub(crate) spool: Option<Arc<crate::spool::Spool>>,
     /// This run's identity (`PushReply.epoch`).

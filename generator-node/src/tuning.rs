@@ -68,15 +68,22 @@ impl Tuning {
     }
 
     /// After every production step, with its summary and field when the tuner listens (see
-    /// [`crate::work::for_tuner`]) and the first step no rank of which the node has begun:
+    /// [`crate::work::for_tuner`]), the first step no rank of which the node has begun and the
+    /// first past every step it has received:
     /// holds the field (when there is room) and sends the summary.
-    pub fn after_step(&self, for_tuner: Option<(pb::StepSummary, HeldStep)>, begun: u64) {
+    pub fn after_step(
+        &self,
+        for_tuner: Option<(pb::StepSummary, HeldStep)>,
+        begun: u64,
+        received: u64,
+    ) {
         self.since_trial.fetch_add(1, Ordering::Relaxed);
         let Some((mut summary, held)) = for_tuner else {
             return;
         };
         summary.held = self.holds.offer((summary.step, summary.rank), held);
         summary.begun = begun;
+        summary.received = received;
         if let Err(e) = self.summaries.try_send(summary) {
             warn!(error = %e, "step summary not sent to the tuner (backlog full)");
         }

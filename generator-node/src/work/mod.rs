@@ -532,6 +532,7 @@ pub fn for_tuner(
         sampled: product.references.is_some(),
         // Set when it is sent (`Tuning::after_step`).
         begun: 0,
+        received: 0,
         scene_version: gen.scene_version,
         fields: raw.fields.clone(),
         box_min: Some(pb::Vec3::from(domain.min)),

@@ -139,12 +139,15 @@ pub(crate) struct Progress {
     stride: u64,
     begun: u64,
     nodes: Vec<u64>,
+    /// The first step past every step any node had received, as its summaries said.
+    received: u64,
 }
 
 impl Progress {
     /// Records a summarised step from connection `conn`, whose node had not begun step
     /// `begun` (0: unknown); returns the newest step.
-    fn saw(&mut self, step: u64, begun: u64, conn: u64) -> u64 {
+    fn saw(&mut self, step: u64, begun: u64, received: u64, conn: u64) -> u64 {
+        self.received = self.received.max(received);
         match self.newest {
             Some(n) if step < n => return n,
             Some(n) if step == n => {}
@@ -168,18 +171,28 @@ impl Progress {
     /// step on the stride past the newest step summarised and past every step its nodes had
     /// begun, one stride further when several nodes summarised it (one may begin the next
     /// step before the decision reaches it; a node applies a decision only from a step it
-    /// has not begun, so all must agree on one no node can have begun). Without `begun`
-    /// (older nodes) two strides past the newest step. 0 before any summary.
+    /// has not begun, so all must agree on one no node can have begun), and then past every
+    /// step any of them had received (a node may begin those before the decision reaches
+    /// it). Without `begun` (older nodes) two strides past the newest step. 0 before any
+    /// summary.
     pub(crate) fn decision_start(&self) -> u64 {
         let Some(n) = self.newest else { return 0 };
         let stride = self.stride.max(1);
+        let several = self.nodes.len() > 1;
         let strides = if self.begun == 0 {
             2
         } else {
             let past = self.begun.saturating_sub(n).max(1).div_ceil(stride);
-            past + u64::from(self.nodes.len() > 1)
+            past + u64::from(several)
         };
-        n.saturating_add(stride.saturating_mul(strides))
+        // Several nodes: past every step any of them had received too, since one may begin
+        // those before the decision reaches it and the others.
+        let received = if several {
+            self.received.saturating_sub(n).div_ceil(stride)
+        } else {
+            0
+        };
+        n.saturating_add(stride.saturating_mul(strides.max(received)))
     }
 }
 

@@ -38,7 +38,7 @@ impl Loop {
             .progress
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .saw(s.step, s.begun, conn);
+            .saw(s.step, s.begun, s.received, conn);
         let p = self.pending.entry(s.step).or_insert(Pending {
             world_size: s.world_size,
             counts: [0; BINS],

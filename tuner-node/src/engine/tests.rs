@@ -633,29 +633,38 @@ fn a_time_break_retunes_only_when_it_repeats() {
 
 /// A decision applies from the first step on the stride that no node had begun when the
 /// newest step was summarised: one stride past it when one idle node serves the world,
-/// past the steps a node had begun, one stride more for several nodes, two strides
-/// without the nodes' `begun`; a late summary of an older step changes nothing.
+/// past the steps a node had begun, one stride more for several nodes and past every step any
+/// of them had received, two strides without the nodes' `begun`; a late summary of an older
+/// step changes nothing.
 #[test]
 fn decisions_apply_from_the_first_step_no_node_had_begun() {
     let mut p = Progress::default();
     assert_eq!(p.decision_start(), 0);
     // An older node (no `begun`): two strides.
-    assert_eq!(p.saw(2000, 0, 1), 2000);
+    assert_eq!(p.saw(2000, 0, 0, 1), 2000);
     assert_eq!(p.decision_start(), 2002);
     // One node, idle after step 2100 (stride 100): the next step.
-    assert_eq!(p.saw(2100, 2101, 1), 2100);
+    assert_eq!(p.saw(2100, 2101, 0, 1), 2100);
     assert_eq!(p.decision_start(), 2200);
-    assert_eq!(p.saw(2000, 2001, 1), 2100, "another rank's older step");
+    assert_eq!(p.saw(2000, 2001, 0, 1), 2100, "another rank's older step");
     assert_eq!(p.decision_start(), 2200);
     // The node had begun step 2200 already: the one after.
-    assert_eq!(p.saw(2100, 2201, 1), 2100);
+    assert_eq!(p.saw(2100, 2201, 0, 1), 2100);
     assert_eq!(p.decision_start(), 2300);
     // Two nodes summarised step 2200, neither had begun more: one stride of margin.
-    p.saw(2200, 2201, 1);
-    p.saw(2200, 2201, 2);
+    p.saw(2200, 2201, 0, 1);
+    p.saw(2200, 2201, 0, 2);
     assert_eq!(p.decision_start(), 2400);
+    // One of them had received steps up to 2600 (queued behind a wait): past those.
+    p.saw(2200, 2201, 2601, 2);
+    assert_eq!(p.decision_start(), 2700);
+    // A node alone applies from its own first step not begun: what it received is no matter.
+    let mut one = Progress::default();
+    one.saw(100, 101, 900, 1);
+    one.saw(200, 201, 900, 1);
+    assert_eq!(one.decision_start(), 300);
     // Step indices are the nodes' to choose: a huge jump saturates, it does not wrap.
-    assert_eq!(p.saw(u64::MAX - 1, u64::MAX, 1), u64::MAX - 1);
+    assert_eq!(p.saw(u64::MAX - 1, u64::MAX, 0, 1), u64::MAX - 1);
     assert_eq!(p.decision_start(), u64::MAX);
 }
 
