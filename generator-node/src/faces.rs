@@ -12,7 +12,6 @@ use insitu_core::volume::bricks::Brick;
 use insitu_core::volume::{ScalarType, Volume};
 use insitu_proto::convert::wire_enum;
 use insitu_proto::pb;
-use insitu_proto::pb::viz_client::VizClient;
 use std::sync::Arc;
 use tracing::warn;
 
@@ -44,36 +43,18 @@ pub fn send(shared: &Arc<Shared>) {
             bricks: bricks.iter().map(brick_faces).collect(),
             wait_secs: wait.as_secs_f64(),
         };
-        let sent: u64 = offer
-            .bricks
-            .iter()
-            .flat_map(|b| &b.faces)
-            .map(|f| f.values.len() as u64)
-            .sum();
+        let sent = faces_bytes(&offer.bricks);
         shared.stats.update(|c| c.faces_sent_bytes += sent);
         let peer = shared.viz_shards[shared.shard_of(step)].clone();
         let shared = shared.clone();
         tokio::spawn(async move {
             let reply = async {
-                let channel = peer.connect().await.map_err(|e| {
-                    tonic::Status::unavailable(format!(
-                        "viz-node {}: {}",
-                        peer.uri(),
-                        insitu_proto::peer::error_chain(&e)
-                    ))
-                })?;
-                let mut client = VizClient::with_interceptor(channel, peer.auth())
-                    .max_decoding_message_size(insitu_proto::transport::MAX_MESSAGE_BYTES);
+                let mut client = crate::ship::connect(&peer).await?;
                 Ok::<_, tonic::Status>(client.exchange_faces(offer).await?.into_inner())
             };
             match reply.await {
                 Ok(r) if waits => {
-                    let received: u64 = r
-                        .bricks
-                        .iter()
-                        .flat_map(|b| &b.faces)
-                        .map(|f| f.values.len() as u64)
-                        .sum();
+                    let received = faces_bytes(&r.bricks);
                     shared.stats.update(|c| c.faces_received_bytes += received);
                     match r.bricks.iter().map(placed).collect::<Result<Vec<_>, _>>() {
                         Ok(bricks) => shared.layout.remote(step, bricks),
@@ -89,6 +70,15 @@ pub fn send(shared: &Arc<Shared>) {
             }
         });
     }
+}
+
+/// Bytes of samples in `bricks`' faces.
+fn faces_bytes(bricks: &[pb::BrickFaces]) -> u64 {
+    bricks
+        .iter()
+        .flat_map(|b| &b.faces)
+        .map(|f| f.values.len() as u64)
+        .sum()
 }
 
 /// A brick and its faces as the wire carries them.

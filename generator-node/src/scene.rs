@@ -9,7 +9,6 @@ use crate::ingest::RawStep;
 use insitu_core::NamedTf;
 use insitu_proto::convert::tf_field;
 use insitu_proto::pb;
-use insitu_proto::pb::viz_client::VizClient;
 use insitu_proto::peer::{is_transient, Backoff, Peer};
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
@@ -139,14 +138,7 @@ impl SceneLink {
     }
 
     async fn call(&self, p: pb::SceneProposal) -> Result<pb::SceneAgreement, tonic::Status> {
-        let channel = self.peer.connect().await.map_err(|e| {
-            tonic::Status::unavailable(format!(
-                "viz-node {}: {}",
-                self.peer.uri(),
-                insitu_proto::peer::error_chain(&e)
-            ))
-        })?;
-        let mut client = VizClient::with_interceptor(channel, self.peer.auth());
+        let mut client = crate::ship::connect(&self.peer).await?;
         Ok(client.agree_scene(p).await?.into_inner())
     }
 
@@ -170,14 +162,7 @@ pub async fn step_outcomes(
     peer: &Peer,
     steps: Vec<u64>,
 ) -> Result<Vec<pb::StepOutcome>, tonic::Status> {
-    let channel = peer.connect().await.map_err(|e| {
-        tonic::Status::unavailable(format!(
-            "viz-node {}: {}",
-            peer.uri(),
-            insitu_proto::peer::error_chain(&e)
-        ))
-    })?;
-    let mut client = VizClient::with_interceptor(channel, peer.auth());
+    let mut client = crate::ship::connect(peer).await?;
     let reply = client
         .step_outcomes(pb::StepOutcomesRequest { steps })
         .await?;

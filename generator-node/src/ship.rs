@@ -15,7 +15,21 @@ use tonic::transport::Channel;
 use tonic::{Code, Status};
 use tracing::{info, info_span, warn, Instrument};
 
-type Client = VizClient<InterceptedService<Channel, AttachToken>>;
+/// A client of the viz-node's `Viz` service, with the node's token.
+pub(crate) type Client = VizClient<InterceptedService<Channel, AttachToken>>;
+
+/// A client of the viz-node `peer`, messages up to the transport's limit.
+///
+/// # Errors
+/// `UNAVAILABLE` naming the viz-node and why it could not be reached.
+pub(crate) async fn connect(peer: &Peer) -> Result<Client, Status> {
+    let channel = peer.connect().await.map_err(|e| {
+        Status::unavailable(format!("viz-node {}: {}", peer.uri(), error_chain(&e)))
+    })?;
+    Ok(VizClient::with_interceptor(channel, peer.auth())
+        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES))
+}
 
 /// Ships the outbox to one viz-node.
 pub struct Shipper {
@@ -39,14 +53,7 @@ impl Shipper {
 
     async fn client(&mut self) -> Result<&mut Client, Status> {
         if self.client.is_none() {
-            let channel = self.peer.connect().await.map_err(|e| {
-                Status::unavailable(format!("viz-node {}: {}", self.peer.uri(), error_chain(&e)))
-            })?;
-            self.client = Some(
-                VizClient::with_interceptor(channel, self.peer.auth())
-                    .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
-                    .max_encoding_message_size(transport::MAX_MESSAGE_BYTES),
-            );
+            self.client = Some(connect(&self.peer).await?);
         }
         // Just set when it was `None`.
         self.client

@@ -137,6 +137,21 @@ fn push_whole(addr: &str) {
     });
 }
 
+/// The steps' fields written into `dir` for the writers, and pushed whole through our client
+/// to a node of their own on `runtime` (which must outlive it): the recording, its viz-node
+/// and the node.
+fn pushed_whole(
+    dir: &Path,
+    runtime: &tokio::runtime::Runtime,
+) -> (PathBuf, insitu_e2e::Daemon, RunningNode) {
+    write_fields(dir);
+    let pushed = dir.join("pushed");
+    let v = start_viz(&pushed, "127.0.0.1:0", &[], dir);
+    let node = runtime.block_on(start(node_config(&v.addr, None))).unwrap();
+    push_whole(&node.local_addr().to_string());
+    (pushed, v, node)
+}
+
 /// Each composed step of `streamed` draws as the step of `pushed` at four views (≥ 40 dB).
 fn same_pictures(pushed: &Path, streamed: &Path, what: &str) {
     let (a, b) = (recorded(pushed, false), recorded(streamed, true));
@@ -168,15 +183,8 @@ fn two_nodes_draw_the_pushed_field(
     what: &str,
 ) -> Vec<String> {
     let tmp = tempfile::tempdir().unwrap();
-    write_fields(tmp.path());
     let runtime = rt();
-    // The field pushed whole through our client.
-    let pushed = tmp.path().join("pushed");
-    let v1 = start_viz(&pushed, "127.0.0.1:0", &[], tmp.path());
-    let node = runtime
-        .block_on(start(node_config(&v1.addr, None)))
-        .unwrap();
-    push_whole(&node.local_addr().to_string());
+    let (pushed, v1, node) = pushed_whole(tmp.path(), &runtime);
     // The same field written as two blocks, read by two nodes, half the array each.
     let streamed = tmp.path().join("streamed");
     let v2 = start_viz(&streamed, "127.0.0.1:0", &[], tmp.path());
@@ -231,14 +239,8 @@ fn writers_of_a_block_each_read_as_written_by_two_nodes_draw_the_pushed_field() 
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    write_fields(tmp.path());
     let runtime = rt();
-    let pushed = tmp.path().join("pushed");
-    let v1 = start_viz(&pushed, "127.0.0.1:0", &[], tmp.path());
-    let node = runtime
-        .block_on(start(node_config(&v1.addr, None)))
-        .unwrap();
-    push_whole(&node.local_addr().to_string());
+    let (pushed, v1, node) = pushed_whole(tmp.path(), &runtime);
     let streamed = tmp.path().join("streamed");
     let v2 = start_viz(&streamed, "127.0.0.1:0", &[], tmp.path());
     let mut writers = Vec::new();
