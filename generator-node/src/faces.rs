@@ -49,7 +49,7 @@ pub fn send(shared: &Arc<Shared>) {
         let shared = shared.clone();
         tokio::spawn(async move {
             let reply = async {
-                let mut client = crate::ship::connect(&peer).await?;
+                let mut client = crate::viz_link::connect(&peer).await?;
                 Ok::<_, tonic::Status>(client.exchange_faces(offer).await?.into_inner())
             };
             match reply.await {

@@ -44,6 +44,7 @@ mod spool;
 mod stats;
 mod tuner_link;
 mod tuning;
+mod viz_link;
 mod work;
 
 pub use config::Config;

@@ -138,7 +138,7 @@ impl SceneLink {
     }
 
     async fn call(&self, p: pb::SceneProposal) -> Result<pb::SceneAgreement, tonic::Status> {
-        let mut client = crate::ship::connect(&self.peer).await?;
+        let mut client = crate::viz_link::connect(&self.peer).await?;
         Ok(client.agree_scene(p).await?.into_inner())
     }
 
@@ -162,7 +162,7 @@ pub async fn step_outcomes(
     peer: &Peer,
     steps: Vec<u64>,
 ) -> Result<Vec<pb::StepOutcome>, tonic::Status> {
-    let mut client = crate::ship::connect(peer).await?;
+    let mut client = crate::viz_link::connect(peer).await?;
     let reply = client
         .step_outcomes(pb::StepOutcomesRequest { steps })
         .await?;

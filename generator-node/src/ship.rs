@@ -3,33 +3,14 @@
 //! acknowledged it (stored it), or when it fails with an error that retrying cannot fix.
 
 use crate::stats::Stats;
+use crate::viz_link::{connect, Client};
 use crate::work::Product;
-use insitu_proto::auth::AttachToken;
-use insitu_proto::pb::viz_client::VizClient;
-use insitu_proto::peer::{error_chain, is_transient, Backoff, Peer};
-use insitu_proto::{chunk, pb, transport};
+use insitu_proto::peer::{is_transient, Backoff, Peer};
+use insitu_proto::{chunk, pb};
 use std::sync::Arc;
 use std::time::Duration;
-use tonic::codegen::InterceptedService;
-use tonic::transport::Channel;
 use tonic::{Code, Status};
 use tracing::{info, info_span, warn, Instrument};
-
-/// A client of the viz-node's `Viz` service, with the node's token.
-pub(crate) type Client = VizClient<InterceptedService<Channel, AttachToken>>;
-
-/// A client of the viz-node `peer`, messages up to the transport's limit.
-///
-/// # Errors
-/// `UNAVAILABLE` naming the viz-node and why it could not be reached.
-pub(crate) async fn connect(peer: &Peer) -> Result<Client, Status> {
-    let channel = peer.connect().await.map_err(|e| {
-        Status::unavailable(format!("viz-node {}: {}", peer.uri(), error_chain(&e)))
-    })?;
-    Ok(VizClient::with_interceptor(channel, peer.auth())
-        .max_decoding_message_size(transport::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(transport::MAX_MESSAGE_BYTES))
-}
 
 /// Ships the outbox to one viz-node.
 pub struct Shipper {
