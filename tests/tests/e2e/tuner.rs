@@ -223,7 +223,7 @@ fn a_world_spread_over_two_nodes_keeps_the_budget_before_the_first_tuning() {
     let nodes = [0, 1].map(|_| tuned_generator_from(&toml, &t.addr, tmp.path()));
     // A step every 0.2 s: the first step waits up to the host's 2 s for ranks that go to the
     // other node, so the provisional decision applies some ten steps later.
-    const STEPS: u64 = 24;
+    const STEPS: u64 = 30;
     rt().block_on(async {
         let mut clients = Vec::new();
         for g in &nodes {

@@ -141,39 +141,21 @@ pub(crate) struct Progress {
     nodes: Vec<u64>,
     /// The first step past every step any node had received, as its summaries said.
     received: u64,
-    /// When `received` last grew, and to what.
-    received_at: Option<(Instant, u64)>,
-    /// Seconds between step indices arriving at the nodes (smoothed), once measured.
-    step_secs: Option<f64>,
+    /// Every connection that has summarised a step: a world served by several nodes may have
+    /// the newest step summarised by one of them only.
+    summarising: std::collections::BTreeSet<u64>,
 }
 
-/// How long a decision may take to reach every node of a world, seconds: where several nodes
-/// serve it, a decision applies past the steps the simulation pushes in that time.
-const DECISION_LATENCY_SECS: f64 = 1.0;
-
-/// The most strides [`DECISION_LATENCY_SECS`] adds.
-const MAX_LATENCY_STRIDES: u64 = 16;
-
-/// The strides added for it before the pace of the steps is measured.
-const UNMEASURED_LATENCY_STRIDES: u64 = 4;
+/// Where several nodes serve a world, the strides a decision applies beyond the steps they
+/// had received: what the simulation may push while the decision travels to every node.
+const LATENCY_STRIDES: u64 = 4;
 
 impl Progress {
     /// Records a summarised step from connection `conn`, whose node had not begun step
     /// `begun` (0: unknown); returns the newest step.
     fn saw(&mut self, step: u64, begun: u64, received: u64, conn: u64) -> u64 {
-        self.saw_at(step, begun, received, conn, Instant::now())
-    }
-
-    /// [`Self::saw`] at `now`.
-    fn saw_at(&mut self, step: u64, begun: u64, received: u64, conn: u64, now: Instant) -> u64 {
-        if received > self.received {
-            if let Some((t0, r0)) = self.received_at {
-                let secs = now.duration_since(t0).as_secs_f64() / (received - r0) as f64;
-                self.step_secs = Some(self.step_secs.map_or(secs, |s| 0.5 * (s + secs)));
-            }
-            self.received_at = Some((now, received));
-            self.received = received;
-        }
+        self.received = self.received.max(received);
+        self.summarising.insert(conn);
         match self.newest {
             Some(n) if step < n => return n,
             Some(n) if step == n => {}
@@ -199,14 +181,13 @@ impl Progress {
     /// step before the decision reaches it; a node applies a decision only from a step it
     /// has not begun, so all must agree on one no node can have begun), and then past every
     /// step any of them had received (a node may begin those before the decision reaches
-    /// it), plus the steps the simulation pushes in [`DECISION_LATENCY_SECS`] beyond the
-    /// first (at most [`MAX_LATENCY_STRIDES`]; [`UNMEASURED_LATENCY_STRIDES`] before that pace
-    /// is measured). Without `begun` (older nodes) two strides
+    /// it), plus [`LATENCY_STRIDES`] for what is pushed while the decision travels. Without
+    /// `begun` (older nodes) two strides
     /// past the newest step. 0 before any summary.
     pub(crate) fn decision_start(&self) -> u64 {
         let Some(n) = self.newest else { return 0 };
         let stride = self.stride.max(1);
-        let several = self.nodes.len() > 1;
+        let several = self.nodes.len() > 1 || self.summarising.len() > 1;
         let strides = if self.begun == 0 {
             2
         } else {
@@ -217,11 +198,10 @@ impl Progress {
         // those before the decision reaches it and the others.
         // ... and past what the simulation pushes while the decision travels.
         let (received, latency) = if several {
-            let latency = self.step_secs.map_or(UNMEASURED_LATENCY_STRIDES, |secs| {
-                let strides = DECISION_LATENCY_SECS / (secs * stride as f64);
-                (strides.ceil() as u64).clamp(1, MAX_LATENCY_STRIDES) - 1
-            });
-            (self.received.saturating_sub(n).div_ceil(stride), latency)
+            (
+                self.received.saturating_sub(n).div_ceil(stride),
+                LATENCY_STRIDES,
+            )
         } else {
             (0, 0)
         };
