@@ -179,33 +179,37 @@ impl Progress {
     /// step on the stride past the newest step summarised and past every step its nodes had
     /// begun, one stride further when several nodes summarised it (one may begin the next
     /// step before the decision reaches it; a node applies a decision only from a step it
-    /// has not begun, so all must agree on one no node can have begun), and then past every
-    /// step any of them had received (a node may begin those before the decision reaches
-    /// it), plus [`LATENCY_STRIDES`] for what is pushed while the decision travels. Without
-    /// `begun` (older nodes) two strides
-    /// past the newest step. 0 before any summary.
+    /// has not begun, so all must agree on one no node can have begun). Without `begun`
+    /// (older nodes) two strides past the newest step. 0 before any summary.
     pub(crate) fn decision_start(&self) -> u64 {
         let Some(n) = self.newest else { return 0 };
         let stride = self.stride.max(1);
-        let several = self.nodes.len() > 1 || self.summarising.len() > 1;
         let strides = if self.begun == 0 {
             2
         } else {
             let past = self.begun.saturating_sub(n).max(1).div_ceil(stride);
-            past + u64::from(several)
+            past + u64::from(self.nodes.len() > 1)
         };
-        // Several nodes: past every step any of them had received too, since one may begin
-        // those before the decision reaches it and the others.
-        // ... and past what the simulation pushes while the decision travels.
-        let (received, latency) = if several {
-            (
-                self.received.saturating_sub(n).div_ceil(stride),
-                LATENCY_STRIDES,
-            )
-        } else {
-            (0, 0)
-        };
-        n.saturating_add(stride.saturating_mul(strides.max(received).saturating_add(latency)))
+        n.saturating_add(stride.saturating_mul(strides))
+    }
+
+    /// Where a decision made now applies for a world that may be in a burst of steps (the
+    /// provisional decisions, made right after a spread world's first step): as
+    /// [`Self::decision_start`], and where several nodes have summarised steps, past every
+    /// step any of them had received (a node may begin those before the decision reaches it)
+    /// and [`LATENCY_STRIDES`] more for what is pushed while the decision travels.
+    pub(crate) fn spread_start(&self) -> u64 {
+        let start = self.decision_start();
+        let Some(n) = self.newest else { return start };
+        if self.summarising.len() < 2 {
+            return start;
+        }
+        let stride = self.stride.max(1);
+        let received = self.received.saturating_sub(n).div_ceil(stride);
+        let past = n.saturating_add(stride.saturating_mul(received));
+        start
+            .max(past)
+            .saturating_add(stride.saturating_mul(LATENCY_STRIDES))
     }
 }
 
@@ -302,6 +306,14 @@ impl Engine {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .decision_start()
+    }
+
+    /// Where a provisional decision made now applies (see [`Progress::spread_start`]).
+    pub(crate) fn spread_start(&self) -> u64 {
+        self.progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .spread_start()
     }
 
     /// Records `d` as the decision in force (persisted), counts it and pushes it to every

@@ -55,7 +55,7 @@ impl Loop {
             trials: 0,
             trial_secs: 0.0,
             utility_description,
-            from_step: e.decision_start(),
+            from_step: e.spread_start(),
             corrects: None,
             tuned: None,
             forecast_ratio: None,

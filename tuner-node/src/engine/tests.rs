@@ -651,22 +651,24 @@ fn decisions_apply_from_the_first_step_no_node_had_begun() {
     // The node had begun step 2200 already: the one after.
     assert_eq!(p.saw(2100, 2201, 0, 1), 2100);
     assert_eq!(p.decision_start(), 2300);
-    // Two nodes summarised step 2200, neither had begun more: one stride of margin, and 4
-    // for what is pushed while the decision travels.
+    // Two nodes summarised step 2200, neither had begun more: one stride of margin.
     p.saw(2200, 2201, 0, 1);
     p.saw(2200, 2201, 0, 2);
-    assert_eq!(p.decision_start(), 2400 + 400);
-    // One of them had received steps up to 2600 (queued behind a wait): past those.
+    assert_eq!(p.decision_start(), 2400);
+    // A provisional decision, right after a spread world's first step: 4 more strides for
+    // what is pushed while it travels, and past every step received (queued behind a wait).
+    assert_eq!(p.spread_start(), 2400 + 400);
     p.saw(2200, 2201, 2601, 2);
-    assert_eq!(p.decision_start(), 2700 + 400);
+    assert_eq!(p.spread_start(), 2700 + 400);
     // The newest step summarised by one of the two nodes only: still a world of several.
     p.saw(2300, 2301, 2601, 1);
-    assert_eq!(p.decision_start(), 2700 + 400);
+    assert_eq!(p.spread_start(), 2700 + 400);
     // A node alone applies from its own first step not begun: what it received is no matter.
     let mut one = Progress::default();
     one.saw(100, 101, 900, 1);
     one.saw(200, 201, 900, 1);
     assert_eq!(one.decision_start(), 300);
+    assert_eq!(one.spread_start(), 300);
     // Step indices are the nodes' to choose: a huge jump saturates, it does not wrap.
     assert_eq!(p.saw(u64::MAX - 1, u64::MAX, 0, 1), u64::MAX - 1);
     assert_eq!(p.decision_start(), u64::MAX);
@@ -709,7 +711,7 @@ fn a_world_spread_over_nodes_keeps_the_budget_before_the_first_tuning() {
     );
     assert_eq!(d.candidate.precision.bits(), 8);
     assert_eq!(d.old.map(|c| c.r), Some(256));
-    assert_eq!(d.from_step, l.engine.decision_start());
+    assert_eq!(d.from_step, l.engine.spread_start());
     assert!(d.from_step >= 2, "step 1 may have begun: {}", d.from_step);
     assert!(d.reason.contains("2 ranks on 2 nodes"), "{}", d.reason);
     assert!(l.engine.state().tuned().is_none());
