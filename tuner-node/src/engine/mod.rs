@@ -146,8 +146,8 @@ pub(crate) struct Progress {
     summarising: std::collections::BTreeSet<u64>,
 }
 
-/// Where several nodes serve a world, the strides a decision applies beyond the steps they
-/// had received: what the simulation may push while the decision travels to every node.
+/// Where several nodes serve a world, the strides a provisional decision applies beyond the
+/// steps they had received: what the simulation may push while it travels to every node.
 const LATENCY_STRIDES: u64 = 4;
 
 impl Progress {
