@@ -94,6 +94,108 @@ fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], r
     }
 }
 
+/// Times the pieces of a full trial of each `(r, γ)` of `candidates` on `volume` at 8 bits, as
+/// the generator-node runs one after a size probe of the same candidate: the reference frames
+/// at side r (once per step and side, kept), the generation, the walker's set-up, the test
+/// views' renders, MSE and SSIM each timed alone one view after another, and the views rendered
+/// and scored as a trial runs them (`score_views`: the scores of the views side by side).
+fn full_trial(name: &str, volume: &Volume, candidates: &[(u32, f32)], rounds: usize) {
+    use insitu_core::evaluate::{render_references, score_views, DEFAULT_VIEW_ANGLES};
+    use insitu_core::Backend;
+    let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
+    let tf = TransferFunction::default_for_range(lo, hi);
+    let camera = Camera::default_for_box(&volume.world_box());
+    let rc = Raycaster::new(volume, &tf, RaycastParams::default()).expect("valid params");
+    let backend = Backend::Cpu;
+    let scene = backend.prepare(&rc).expect("the CPU prepares");
+    let views = DEFAULT_VIEW_ANGLES;
+    println!(
+        "{name}, a full trial at 8 bits, {} views, medians of {rounds} (ms)",
+        views.len()
+    );
+    println!("| r | γ | references | generation | walker | renders | MSE | SSIM | views scored | trial without references |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for &(r, gamma) in candidates {
+        let params = VdiParams {
+            resolution: r,
+            gamma,
+            precision: Precision::Bits(8),
+        };
+        let mut refs = Vec::new();
+        let references = median_ms(
+            rounds,
+            || {},
+            || refs = render_references(&scene, &camera, &views, r).expect("renders"),
+        );
+        let mut vdi = None;
+        let generation = median_ms(
+            rounds,
+            || {},
+            || vdi = Some(generate(&rc, &camera, params, 0, "").expect("valid")),
+        );
+        let vdi = vdi.expect("generated");
+        let walker = median_ms(
+            rounds,
+            || {},
+            || {
+                black_box(scene.prepare_vdi(&vdi).expect("prepares"));
+            },
+        );
+        let prepared = scene.prepare_vdi(&vdi).expect("prepares");
+        let mut images = Vec::new();
+        let renders = median_ms(
+            rounds,
+            || {},
+            || {
+                images = views
+                    .iter()
+                    .map(|&a| {
+                        let frame = camera.orbit_y(a);
+                        prepared
+                            .render(&frame, r, r, rc.params().termination)
+                            .expect("renders")
+                            .value
+                    })
+                    .collect();
+            },
+        );
+        let pairs = || images.iter().zip(&refs);
+        let mse = median_ms(
+            rounds,
+            || {},
+            || {
+                for (a, b) in pairs() {
+                    black_box(insitu_core::metrics::mse(a, b).expect("same size"));
+                }
+            },
+        );
+        let ssim = median_ms(
+            rounds,
+            || {},
+            || {
+                for (a, b) in pairs() {
+                    black_box(insitu_core::metrics::ssim(a, b).expect("same size"));
+                }
+            },
+        );
+        let scored = median_ms(
+            rounds,
+            || {},
+            || {
+                let termination = rc.params().termination;
+                black_box(
+                    score_views(&prepared, &camera, &views, &refs, termination).expect("scores"),
+                );
+            },
+        );
+        println!(
+            "| {r} | {gamma} | {references:.1} | {generation:.1} | {walker:.1} | {renders:.1} | {mse:.1} | {ssim:.1} | {scored:.1} | {:.1} |",
+            generation + walker + scored
+        );
+    }
+    println!();
+}
+
 /// σ with bzip2 against σ with zstd over a grid of candidates at `precision` (see the module's
 /// docs), with the encodings' times.
 fn proxy(name: &str, volume: &Volume, precision: Precision) {
@@ -153,6 +255,12 @@ fn main() {
         &[(256, 0.04), (192, 0.03), (128, 0.01)],
         rounds,
     );
+    full_trial(
+        "Gray–Scott 128³ after 1500 steps",
+        &gs,
+        &[(192, 0.03), (320, 0.04), (448, 0.05)],
+        rounds,
+    );
     let file = "ocean_temp_ts_180x90x19x12_float32.raw";
     let Some(path) = insitu_testenv::data_file(file) else {
         eprintln!("ocean skipped: needs {file} (docs/data.md)");
@@ -168,6 +276,15 @@ fn main() {
         &[(256, 0.02), (192, 0.01), (128, 0.005)],
         rounds,
     );
+    full_trial(
+        "ocean 180×90×19, first step",
+        &ocean,
+        &[(192, 0.01), (320, 0.03), (448, 0.06)],
+        rounds,
+    );
+    if std::env::var("INSITU_PROBE_PROXY").is_ok_and(|v| v == "0") {
+        return;
+    }
     for precision in [Precision::Bits(8), Precision::Float32] {
         proxy("ocean 180×90×19, first step", &ocean, precision);
         proxy("Gray–Scott 128³ after 1500 steps", &gs, precision);

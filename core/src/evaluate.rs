@@ -36,6 +36,14 @@ pub enum EvalError {
         /// Views asked for.
         views: usize,
     },
+    /// A VDI scored as a size probe's is not the one that probe made.
+    #[error("the VDI holds {held} supersegments, not the {probed} its size probe measured")]
+    NotTheProbes {
+        /// Supersegments of the VDI given.
+        held: u64,
+        /// Supersegments the probe measured.
+        probed: u64,
+    },
 }
 
 /// Quality at one test view.
@@ -108,6 +116,9 @@ pub fn render_references_with_opacity(
 /// Renders `vdi` at each test view (`camera` orbited by each angle, at its reference's size)
 /// and scores it against `references` (Alg. 1, lines 13–17). Returns the per-view scores,
 /// the renders, and the total render time in seconds (kernel time on a GPU with timestamps).
+/// The renders run one after another (each on every thread of the pool); the views' MSE and
+/// SSIM, each one image's work on one thread, run side by side once all are rendered (the
+/// same values: each view's scores are computed as alone).
 ///
 /// # Errors
 /// [`EvalError::ReferenceCount`] when there is not one reference per angle;
@@ -119,24 +130,29 @@ pub fn score_views(
     references: &[Image],
     termination: f32,
 ) -> Result<(Vec<ViewScore>, Vec<Image>, f64), EvalError> {
+    use rayon::prelude::*;
     one_reference_per_view(angles, references)?;
-    let mut views = Vec::with_capacity(angles.len());
     let mut images = Vec::with_capacity(angles.len());
     let mut render_secs = 0.0;
     for (&angle_deg, reference) in angles.iter().zip(references) {
         let (w, h) = (reference.width(), reference.height());
         let rendered = vdi.render(&camera.orbit_y(angle_deg), w, h, termination)?;
         render_secs += rendered.seconds;
-        let image = rendered.value;
-        let mse = metrics::mse(&image, reference)?;
-        views.push(ViewScore {
-            angle_deg,
-            mse,
-            q_db: metrics::psnr_from_mse(mse),
-            ssim: metrics::ssim(&image, reference).ok(),
-        });
-        images.push(image);
+        images.push(rendered.value);
     }
+    let views = angles
+        .par_iter()
+        .zip(images.par_iter().zip(references))
+        .map(|(&angle_deg, (image, reference))| {
+            let mse = metrics::mse(image, reference)?;
+            Ok(ViewScore {
+                angle_deg,
+                mse,
+                q_db: metrics::psnr_from_mse(mse),
+                ssim: metrics::ssim(image, reference).ok(),
+            })
+        })
+        .collect::<Result<Vec<_>, MetricError>>()?;
     Ok((views, images, render_secs))
 }
 
@@ -323,30 +339,91 @@ pub fn evaluate_sized(
         encoded(&generated, codec_kind).map(|(_, size)| size)
     }
     .and_then(|sizing| {
-        // A quantised file is scored as the viz-node sees it: decoded. What decoding
-        // changes is the quantisation alone (the entropy coder is lossless), so the file is
-        // written and read without one: the same VDI, without the codec's time.
-        let (decoded, tau_decode_secs) = match params.precision {
-            Precision::Float32 => (None, 0.0),
-            Precision::Bits(_) => {
-                let bytes = codec::encode(&generated.value, Codec::None)?;
-                let t = Instant::now();
-                let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
-                (Some(decoded), t.elapsed().as_secs_f64())
-            }
-        };
-        scored(
+        scored_as_decoded(
             scene,
             camera,
             (params, codec_kind),
-            (sizing, tau_decode_secs),
-            decoded.as_ref().unwrap_or(&generated.value),
+            sizing,
+            &generated.value,
             angles,
             references,
         )
     });
     *spare = Some(generated.value);
     result
+}
+
+/// [`evaluate_sized`] of the VDI its size probe made moments before: `vdi`, generated with
+/// `params` from the same data and camera by the probe whose sizing is `known` (a trial's
+/// spare VDI, left there by [`generate_encoded`]). It is scored without being generated again,
+/// with the probe's σ and τ: generation is deterministic, so the renders, MSE and q are those
+/// [`evaluate_sized`] gives (tested), without a second generation's time (a fifth to a
+/// quarter of a trial's scoring at r ≥ 320). A VDI that does not hold `known.supersegments`
+/// supersegments is refused as not the probe's.
+///
+/// # Errors
+/// [`EvalError::ReferenceCount`]; [`EvalError::NotTheProbes`] for a VDI the probe did not
+/// make; as [`evaluate`] for the codec and the backend.
+pub fn evaluate_probed(
+    scene: &PreparedVolume,
+    camera: &Camera,
+    (params, codec_kind): (VdiParams, Codec),
+    angles: &[f32],
+    references: &[Image],
+    vdi: &Vdi,
+    known: Sizing,
+) -> Result<(Evaluation, Vec<Image>), EvalError> {
+    one_reference_per_view(angles, references)?;
+    let held = vdi.supersegments().len() as u64;
+    if held != known.supersegments {
+        return Err(EvalError::NotTheProbes {
+            held,
+            probed: known.supersegments,
+        });
+    }
+    scored_as_decoded(
+        scene,
+        camera,
+        (params, codec_kind),
+        known,
+        vdi,
+        angles,
+        references,
+    )
+}
+
+/// The scoring of [`evaluate_sized`] and [`evaluate_probed`]: `vdi` scored as the viz-node
+/// sees its file, with `sizing` measured before.
+fn scored_as_decoded(
+    scene: &PreparedVolume,
+    camera: &Camera,
+    (params, codec_kind): (VdiParams, Codec),
+    sizing: Sizing,
+    vdi: &Vdi,
+    angles: &[f32],
+    references: &[Image],
+) -> Result<(Evaluation, Vec<Image>), EvalError> {
+    // A quantised file is scored as the viz-node sees it: decoded. What decoding
+    // changes is the quantisation alone (the entropy coder is lossless), so the file is
+    // written and read without one: the same VDI, without the codec's time.
+    let (decoded, tau_decode_secs) = match params.precision {
+        Precision::Float32 => (None, 0.0),
+        Precision::Bits(_) => {
+            let bytes = codec::encode(vdi, Codec::None)?;
+            let t = Instant::now();
+            let decoded = codec::decode(&bytes, &DecodeLimits::default())?;
+            (Some(decoded), t.elapsed().as_secs_f64())
+        }
+    };
+    scored(
+        scene,
+        camera,
+        (params, codec_kind),
+        (sizing, tau_decode_secs),
+        decoded.as_ref().unwrap_or(vdi),
+        angles,
+        references,
+    )
 }
 
 /// [`EvalError::ReferenceCount`] unless there is one reference per view angle (checked before
@@ -557,6 +634,24 @@ mod tests {
         .unwrap();
         assert_eq!(measured.sizing.sigma_bytes, full.sizing.sigma_bytes);
         assert_eq!(measured.sizing.supersegments, full.sizing.supersegments);
+        // The probe's own VDI, scored without generating it again: the same renders and q,
+        // with the probe's σ and τ; a VDI the probe did not make is refused.
+        let (_, again) =
+            generate_encoded(scene, camera, params, Codec::Bzip2, tf, &mut spare).unwrap();
+        let vdi = spare.as_ref().unwrap();
+        let key = (params, Codec::Bzip2);
+        let (probed, probed_images) =
+            evaluate_probed(scene, camera, key, angles, refs, vdi, again).unwrap();
+        assert_eq!(probed_images, full_images);
+        assert_eq!(mse(&probed), mse(&full));
+        assert_eq!(probed.q_db.to_bits(), full.q_db.to_bits());
+        assert_eq!(probed.sizing, again);
+        let refused = evaluate_probed(scene, camera, key, angles, refs, vdi, stale);
+        assert!(
+            matches!(refused, Err(EvalError::NotTheProbes { held, probed })
+                if held == again.supersegments && probed == stale.supersegments),
+            "{refused:?}"
+        );
     }
 
     #[test]

@@ -16,7 +16,9 @@
 use crate::hold::HeldStep;
 use crate::shared::Shared;
 use crate::tuning::Tuning;
-use insitu_core::evaluate::{evaluate, evaluate_sized, generate_encoded, render_references};
+use insitu_core::evaluate::{
+    evaluate, evaluate_probed, evaluate_sized, generate_encoded, render_references,
+};
 use insitu_core::{Precision, Raycaster, VdiParams};
 use insitu_proto::pb;
 use insitu_proto::pb::node_message::Msg as Up;
@@ -126,24 +128,48 @@ fn measure(
     };
     let tf = h.tf.identity();
     let mut spare = tuning.spare.lock().unwrap_or_else(|e| e.into_inner());
+    let this = Some((req.step, rank, params));
+    let probed = std::mem::take(&mut spare.probed) == this && req.reuse_probe;
     let size = if req.size_only {
-        let size = generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare)
+        let size = generate_encoded(&scene, &h.camera, params, h.codec, tf, &mut spare.vdi)
             .map_err(|e| e.to_string())?
             .1;
+        spare.probed = this;
         tuning.holds.set_sizing((req.step, rank), params, size);
         size
     } else {
         let refs = references(tuning, &scene, (req.step, rank), h, req.resolution, out)?;
         let views = &h.view_angles_deg;
         // A candidate probed on this step already: its σ is known, so its VDI is scored
-        // without being encoded and decoded again (the codec is lossless).
+        // without being encoded and decoded again (the codec is lossless), and where the
+        // probe was the last trial and the tuner lets its τ stand, without being generated
+        // again.
         let known = h.sizes.get(&crate::hold::size_key(params));
-        let (e, _) = match known {
-            Some(&known) => evaluate_sized(
-                &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare, known,
+        let (e, _) = match (known, &spare.vdi) {
+            (Some(&known), Some(vdi)) if probed => {
+                let key = (params, h.codec);
+                evaluate_probed(&scene, &h.camera, key, views, &refs, vdi, known)
+            }
+            (Some(&known), _) => evaluate_sized(
+                &scene,
+                &h.camera,
+                params,
+                h.codec,
+                views,
+                &refs,
+                tf,
+                &mut spare.vdi,
+                known,
             ),
-            None => evaluate(
-                &scene, &h.camera, params, h.codec, views, &refs, tf, &mut spare,
+            (None, _) => evaluate(
+                &scene,
+                &h.camera,
+                params,
+                h.codec,
+                views,
+                &refs,
+                tf,
+                &mut spare.vdi,
             ),
         }
         .map_err(|e| e.to_string())?;

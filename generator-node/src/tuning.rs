@@ -14,6 +14,17 @@ use tracing::warn;
 /// rather than production waiting.
 const SUMMARY_BACKLOG: usize = 1024;
 
+/// The last trial's VDI, and what made it when that was a size probe.
+#[derive(Default)]
+pub(crate) struct TrialSpare {
+    /// The VDI, or none before the first trial.
+    pub(crate) vdi: Option<insitu_core::vdi::Vdi>,
+    /// The held step (step, rank) and `P_M` of the size probe that made `vdi`; `None` when
+    /// a full trial made it (or nothing has). A full trial of the same candidate scores it
+    /// without generating it again ([`insitu_core::evaluate::evaluate_probed`]).
+    pub(crate) probed: Option<(u64, u32, insitu_core::VdiParams)>,
+}
+
 /// The tuner side of a node's shared state.
 pub struct Tuning {
     /// Fields held for trials.
@@ -30,7 +41,7 @@ pub struct Tuning {
     /// The last trial's VDI, whose allocations the next trial reuses, as production reuses
     /// the last step's: a trial's τ is then what production pays
     /// ([`insitu_core::evaluate::generate_encoded`]). Trials run one at a time.
-    pub(crate) spare: Mutex<Option<insitu_core::vdi::Vdi>>,
+    pub(crate) spare: Mutex<TrialSpare>,
     /// The tuner's budget, kept by the node until the first decision ([`crate::correct`]).
     pub correction: crate::correct::Correction,
 }
@@ -51,7 +62,7 @@ impl Tuning {
                 epoch: AtomicU64::new(0),
                 since_trial: AtomicU64::new(0),
                 interleave,
-                spare: Mutex::new(None),
+                spare: Mutex::new(TrialSpare::default()),
                 correction: Default::default(),
             },
             rx,

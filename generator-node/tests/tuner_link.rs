@@ -193,6 +193,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
             resolution: r,
             gamma: 0.01,
             size_only: false,
+            reuse_probe: false,
         })
     };
     send(&down, trial(1, 0, 24));
@@ -256,6 +257,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
             resolution: 24,
             gamma: 0.01,
             size_only: true,
+            reuse_probe: false,
         }),
     );
     let Up::Trial(probe) = next(&mut up).await else {
@@ -280,10 +282,47 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (probe.sigma_bytes, probe.supersegments)
     );
     assert_eq!(sized.tau_compress_secs, probe.tau_compress_secs);
+    // A probe again, then a full trial that may score the VDI it left: the same scores, with
+    // the probe's σ and τ (nothing generated again).
+    let probe_again = Down::Trial(pb::TrialRequest {
+        trial_id: 10,
+        resolution: 24,
+        gamma: 0.01,
+        size_only: true,
+        ..Default::default()
+    });
+    send(&down, probe_again);
+    let Up::Trial(second_probe) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    let after_probe = Down::Trial(pb::TrialRequest {
+        trial_id: 11,
+        resolution: 24,
+        gamma: 0.01,
+        reuse_probe: true,
+        ..Default::default()
+    });
+    send(&down, after_probe);
+    let Up::Trial(reused) = next(&mut up).await else {
+        panic!("expected a trial result")
+    };
+    assert!(reused.error.is_empty(), "{}", reused.error);
+    assert_eq!(reused.view_mse, r.view_mse, "scored as the full trial");
+    assert_eq!(
+        (reused.sigma_bytes, reused.supersegments, reused.tau_secs),
+        (
+            second_probe.sigma_bytes,
+            second_probe.supersegments,
+            second_probe.tau_secs
+        ),
+        "σ and τ are the probe's"
+    );
     // Each trial's CPU time is counted on the node, and the node's status sums them inside
     // its process's CPU time.
-    let trials_cpu =
-        r.trial_cpu_secs + again.trial_cpu_secs + probe.trial_cpu_secs + sized.trial_cpu_secs;
+    let trials_cpu = [&r, &again, &probe, &sized, &second_probe, &reused]
+        .iter()
+        .map(|t| t.trial_cpu_secs)
+        .sum::<f64>();
     assert!(
         r.trial_cpu_secs > 0.0 && again.trial_cpu_secs > 0.0 && probe.trial_cpu_secs > 0.0,
         "{} {} {}",
@@ -312,6 +351,7 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
                 resolution: 16,
                 gamma: 0.01,
                 size_only: true,
+                reuse_probe: false,
             }),
         );
     }

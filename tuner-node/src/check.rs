@@ -160,6 +160,7 @@ mod tests {
             resolution: 64,
             gamma: 0.01,
             size_only: false,
+            reuse_probe: false,
         };
         let good = pb::TrialResult {
             trial_id: 9,

@@ -16,6 +16,18 @@ use tracing::info;
 /// The sending half of a node's stream.
 pub type NodeTx = mpsc::Sender<Result<pb::TunerMessage, Status>>;
 
+/// What a trial measures ([`Hub::request_trial`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrialKind {
+    /// σ and τ alone: a size probe.
+    SizeProbe,
+    /// σ, τ and the views' scores, τ timed on a generation of its own.
+    Full,
+    /// A full trial that may score the VDI its size probe left on the node (τ the probe's):
+    /// under a size budget alone, where τ decides nothing.
+    AfterProbe,
+}
+
 /// Why a trial failed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrialFailure {
@@ -227,7 +239,7 @@ impl Hub {
         step: u64,
         world_size: u32,
         c: Candidate,
-        size_only: bool,
+        kind: TrialKind,
     ) -> Result<(u64, oneshot::Receiver<TrialReply>), NotHeld> {
         let mut i = self.inner();
         let ranks = i.held_whole(step, world_size)?;
@@ -238,8 +250,9 @@ impl Hub {
             step,
             resolution: c.r,
             gamma: c.gamma,
-            size_only,
+            size_only: kind == TrialKind::SizeProbe,
             precision_bits: Some(c.precision.bits()),
+            reuse_probe: kind == TrialKind::AfterProbe,
         };
         i.send_to(&conns, &Down::Trial(req));
         let (reply, rx) = oneshot::channel();
@@ -447,7 +460,7 @@ mod tests {
         };
         hub.held(a, 5, 0);
         assert_eq!(
-            hub.request_trial(5, 2, c, false).unwrap_err(),
+            hub.request_trial(5, 2, c, TrialKind::Full).unwrap_err(),
             NotHeld::Ranks {
                 step: 5,
                 held: 1,
@@ -455,7 +468,7 @@ mod tests {
             }
         );
         hub.held(b, 5, 1);
-        let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
+        let (id, mut done) = hub.request_trial(5, 2, c, TrialKind::Full).unwrap();
         assert!(matches!(
             rx.try_recv().unwrap().unwrap().msg,
             Some(Down::Trial(pb::TrialRequest {
@@ -470,24 +483,24 @@ mod tests {
         hub.trial_result(b, result(id, 1, "")).unwrap();
         assert_eq!(done.try_recv().unwrap().unwrap().len(), 2);
         // A node that goes away fails the trial at once, and its holds are forgotten.
-        let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
+        let (id, mut done) = hub.request_trial(5, 2, c, TrialKind::Full).unwrap();
         assert_eq!(hub.disconnect(b).as_deref(), Some("b"));
         let failure = done.try_recv().unwrap().unwrap_err();
         assert!(failure.step_lost && failure.message.contains("disconnected"));
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
-        assert!(hub.request_trial(5, 2, c, false).is_err());
+        assert!(hub.request_trial(5, 2, c, TrialKind::Full).is_err());
         // An error from a rank fails the trial; an abandoned trial refuses late results.
-        let (id, mut done) = hub.request_trial(5, 1, c, false).unwrap();
+        let (id, mut done) = hub.request_trial(5, 1, c, TrialKind::Full).unwrap();
         hub.trial_result(a, result(id, 0, "step 5 is not held"))
             .unwrap();
         let failure = done.try_recv().unwrap().unwrap_err();
         assert!(failure.step_lost && failure.message.contains("not held"));
         assert!(
-            hub.request_trial(5, 1, c, false).is_err(),
+            hub.request_trial(5, 1, c, TrialKind::Full).is_err(),
             "the refusing node no longer holds it"
         );
         hub.held(a, 5, 0);
-        let (id, _done) = hub.request_trial(5, 1, c, false).unwrap();
+        let (id, _done) = hub.request_trial(5, 1, c, TrialKind::Full).unwrap();
         hub.abandon(id);
         assert!(hub.trial_result(a, result(id, 0, "")).is_err());
         assert_eq!(hub.nodes(), 1);
@@ -536,7 +549,7 @@ mod tests {
             (a, result(0, 0, ""), "rank 0 answered twice"),
         ];
         for (conn, r, needle) in bad {
-            let (id, mut done) = hub.request_trial(5, 2, c, false).unwrap();
+            let (id, mut done) = hub.request_trial(5, 2, c, TrialKind::Full).unwrap();
             let r = pb::TrialResult { trial_id: id, ..r };
             if needle.contains("twice") {
                 hub.trial_result(conn, r.clone()).unwrap();

@@ -7,6 +7,7 @@
 
 use crate::config::TrialConfig;
 use crate::engine::Engine;
+use crate::hub::TrialKind;
 use crate::state::{Decision, SizeProbe, Trial};
 use crate::trigger::{Cause, Trigger};
 use insitu_core::backend::TimeSource;
@@ -71,6 +72,9 @@ struct StepOracle {
     generation_secs: f64,
     /// Trial seconds this tuning may run ahead of the allowance (see [`overdraft`]).
     overdraft: f64,
+    /// Whether the target is a size budget alone: τ then decides nothing, and a full trial
+    /// may score the VDI its size probe left ([`TrialKind::AfterProbe`]).
+    size_alone: bool,
 }
 
 /// Trial seconds a tuning for `trigger` may run ahead of the allowance: a new character or a
@@ -122,6 +126,15 @@ impl StepOracle {
 }
 
 impl StepOracle {
+    /// The kind of trial that measures σ and τ (`size_only`), or everything.
+    fn kind(&self, size_only: bool) -> TrialKind {
+        match (size_only, self.size_alone) {
+            (true, _) => TrialKind::SizeProbe,
+            (false, true) => TrialKind::AfterProbe,
+            (false, false) => TrialKind::Full,
+        }
+    }
+
     /// Asks the nodes holding the step for a trial of `c` (paced by the trial budget) and
     /// waits for every rank's result; counts it and returns the results with their node
     /// seconds (the slowest rank's).
@@ -136,7 +149,7 @@ impl StepOracle {
         let (id, rx) = loop {
             match e
                 .hub
-                .request_trial(self.step, self.world_size, c, size_only)
+                .request_trial(self.step, self.world_size, c, self.kind(size_only))
             {
                 Ok(x) => break x,
                 Err(_) if Instant::now() < deadline => {
@@ -340,6 +353,9 @@ fn search(
     trigger: &Trigger,
 ) -> Result<Outcome, StudyError> {
     let overdraft = overdraft(&engine.cfg.trials, trigger);
+    let r = engine.resolved();
+    let budgets = r.target.map_or(Budgets::NONE, |t| t.budgets());
+    let size_alone = budgets.size_bytes.is_some() && budgets.time_secs.is_none();
     let oracles: Vec<Box<dyn Oracle>> = steps
         .iter()
         .map(|&step| {
@@ -350,12 +366,11 @@ fn search(
                 generations: 0,
                 generation_secs: 0.0,
                 overdraft,
+                size_alone,
             }) as Box<dyn Oracle>
         })
         .collect();
-    let r = engine.resolved();
-    let mut oracle =
-        WorstCase::new(oracles).with_budgets(r.target.map_or(Budgets::NONE, |t| t.budgets()));
+    let mut oracle = WorstCase::new(oracles).with_budgets(budgets);
     // Size probes start at the P_M in force (before the first decision, the one the nodes
     // reported): the answer is most often near it.
     let in_force = engine
