@@ -11,7 +11,11 @@
 //! - *generation, same r*: into a spare of this resolution (no estimate);
 //! - *encoding*: the codec, which is σ.
 //!
-//! Medians of `INSITU_BENCH_ROUNDS` (default 9). Run: `cargo bench -p insitu-core --bench probe`.
+//! A full trial is timed the same way: the references, the generation, the walker, the test
+//! views' renders, MSE and SSIM, and the views rendered and scored as a trial runs them.
+//!
+//! Medians of `INSITU_BENCH_ROUNDS` (default 9). Run: `cargo bench -p insitu-core --bench probe`
+//! (`INSITU_PROBE_PROXY=0` leaves out the codec table below).
 //!
 //! A second table asks whether a probe could measure σ with the fast codec and map it to the
 //! run's: over a grid of candidates and two precisions, each VDI encoded with bzip2 and with
