@@ -45,12 +45,16 @@ pub fn send(shared: &Arc<Shared>) {
         };
         let sent = faces_bytes(&offer.bricks);
         shared.stats.update(|c| c.faces_sent_bytes += sent);
-        let peer = shared.viz_shards[shared.shard_of(step)].clone();
+        let shard = shared.shard_of(step);
         let shared = shared.clone();
         tokio::spawn(async move {
             let reply = async {
-                let mut client = crate::viz_link::connect(&peer).await?;
-                Ok::<_, tonic::Status>(client.exchange_faces(offer).await?.into_inner())
+                let peer = &shared.viz_shards[shard];
+                let client = shared.faces_clients[shard]
+                    .get_or_try_init(|| crate::viz_link::connect(peer))
+                    .await?;
+                let reply = client.clone().exchange_faces(offer).await?;
+                Ok::<_, tonic::Status>(reply.into_inner())
             };
             match reply.await {
                 Ok(r) if waits => {

@@ -166,6 +166,7 @@ pub async fn start(cfg: Config) -> Result<RunningNode, StartError> {
         tuning: tuner.as_ref().map(|(_, t, _)| t.clone()),
         refusals: Default::default(),
         composing: Default::default(),
+        faces_clients: viz_shards.iter().map(|_| Default::default()).collect(),
         viz_shards: viz_shards.clone(),
         begun: Default::default(),
         received: Default::default(),

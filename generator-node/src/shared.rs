@@ -36,6 +36,9 @@ pub struct Shared {
     pub(crate) refusals: crate::refusals::Refusals,
     /// Every viz-node shard, the configured viz-node first (asked how composing their steps came out).
     pub(crate) viz_shards: Vec<insitu_proto::peer::Peer>,
+    /// A client of each shard for the exchange of faces, connected on its first post and kept
+    /// (the channel reconnects by itself), so a step's post pays no connection of its own.
+    pub(crate) faces_clients: Vec<tokio::sync::OnceCell<crate::viz_link::Client>>,
     /// Steps of several ranks whose VDIs this node shipped, with those ranks, until a flush
     /// of each rank's client has heard how composing the step came out.
     pub(crate) composing:

@@ -5,6 +5,7 @@
 //! each then grows its bricks by its neighbours' faces as a node holding the whole world does.
 //! The viz-node only relays: it checks what it keeps, and forgets the oldest steps.
 
+use insitu_core::volume::ScalarType;
 use insitu_proto::convert::wire_enum;
 use insitu_proto::pb;
 use std::collections::BTreeMap;
@@ -180,16 +181,13 @@ pub fn check(offer: &pb::FacesOffer) -> Result<[u32; 3], Status> {
             let what = format!("rank {}'s face", b.rank);
             let points = inside(&what, f.offset, f.dims)?;
             let dtype = wire_enum::<pb::ScalarType>(f.dtype, "dtype")
+                .and_then(ScalarType::try_from)
                 .map_err(|e| bad(format!("{what}: {}", e.message())))?;
-            let size: u64 = match dtype {
-                pb::ScalarType::U8 => 1,
-                pb::ScalarType::U16 | pb::ScalarType::I16 => 2,
-                pb::ScalarType::F32 => 4,
-                pb::ScalarType::F64 | pb::ScalarType::Unspecified => {
-                    return Err(bad(format!("{what}: samples of {dtype:?} are not kept")))
-                }
-            };
-            if points.checked_mul(size) != Some(f.values.len() as u64) {
+            // A field is stored in 8, 16 or 32 bits (f64 is converted on receipt).
+            if dtype == ScalarType::F64 {
+                return Err(bad(format!("{what}: samples of {dtype:?} are not kept")));
+            }
+            if points.checked_mul(dtype.size_bytes() as u64) != Some(f.values.len() as u64) {
                 return Err(bad(format!(
                     "{what}: {} bytes for {points} samples of {dtype:?}",
                     f.values.len()
