@@ -9,7 +9,7 @@
 //! by probing about five resolutions spread over the r axis and climbing to better
 //! neighbours; resolutions above the first one where even the largest γ misses the budget are
 //! skipped. Started from the `P_M` in force (a live tuning), the search walks instead from
-//! its resolution outwards in both directions at doubling strides while the answers improve,
+//! its resolution outwards in both directions (strides 1, 1, 2, 4, …) while the answers improve,
 //! then climbs from the best: the answer is usually near the `P_M` in force, and the
 //! resolutions far above it are the dearest to measure. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
@@ -430,7 +430,8 @@ impl Adaptive<'_> {
     }
 
     /// Under a size budget, from the resolution of the `P_M` in force (`start`) along the r
-    /// axis: in each direction at doubling strides (1, 2, 4, … resolutions) while each is
+    /// axis: in each direction at doubling strides after a second single step (1, 1, 2, 4, …
+    /// resolutions) while each is
     /// better than the best so far (upwards also ending at the first resolution that cannot
     /// meet the budget: σ rises with r), then by single resolutions to better neighbours of
     /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
@@ -447,8 +448,12 @@ impl Adaptive<'_> {
             &[false]
         };
         for &up in directions {
-            let (mut at, mut stride) = (start, 1);
+            let (mut at, mut taken) = (start, 0u32);
             loop {
+                // Strides 1, 1, 2, 4, …: a second single step before doubling, so that an
+                // answer one resolution past the first improvement (the common case) is not
+                // overshot by a dearer resolution that the climb would not have measured.
+                let stride = 1usize << taken.saturating_sub(1);
                 let next = if up {
                     (at + stride).min(last)
                 } else {
@@ -464,7 +469,8 @@ impl Adaptive<'_> {
                     None if !up && best.is_none() => {}
                     _ => break,
                 }
-                (at, stride) = (next, stride * 2);
+                at = next;
+                taken += 1;
             }
         }
         self.climb_from(best)
