@@ -154,6 +154,43 @@ fn a_search_from_a_resolution_that_cannot_meet_the_budget_probes_no_larger_one()
     );
 }
 
+/// From a `P_M` in force one resolution below the answer, the walk up takes a second single
+/// step before doubling: it finds the plain search's answer without measuring any resolution
+/// more than one above it (with strides 1, 2, … it measured the one two above the answer,
+/// the dearest of the walk, which the climb does not need).
+#[test]
+fn a_walk_from_just_below_the_answer_measures_nothing_two_resolutions_above_it() {
+    let grid = ParamGrid::parse("128:768:32", "0.001:0.26:0.004").unwrap();
+    let mut checked = 0;
+    for budget in [150_000u64, 400_000, 1_000_000, 3_000_000] {
+        let spec = UtilitySpec::Size(budget);
+        let plain = adaptive(&mut Model::new(0.8, 0.0), &grid, spec, None, true).unwrap();
+        let answer = plain.best.as_ref().map(Measurement::candidate).unwrap();
+        let at = grid.rs.iter().position(|&r| r == answer.r).unwrap();
+        if at == 0 || at + 2 >= grid.rs.len() {
+            continue;
+        }
+        let near = Candidate {
+            r: grid.rs[at - 1],
+            ..answer
+        };
+        let mut walked = Model::new(0.8, 0.0);
+        let found = adaptive(&mut walked, &grid, spec, Some(near), true).unwrap();
+        assert_eq!(
+            found.best.as_ref().map(Measurement::candidate),
+            Some(answer),
+            "{budget}"
+        );
+        let highest = walked.asked.iter().map(|c| c.r).max().unwrap();
+        assert!(highest <= grid.rs[at + 1], "{budget}: {:?}", walked.asked);
+        checked += 1;
+    }
+    assert!(
+        checked >= 2,
+        "only {checked} budgets had an answer inside the r axis"
+    );
+}
+
 /// Under a time budget: a resolution that misses at its smallest and its largest γ costs
 /// those two probes, the sweep stops after two such in a row, and the answer is the
 /// exhaustive grid's — also where τ crosses the budget inside a resolution's γ axis.
