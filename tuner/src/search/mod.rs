@@ -9,8 +9,8 @@
 //! by probing about five resolutions spread over the r axis and climbing to better
 //! neighbours; resolutions above the first one where even the largest γ misses the budget are
 //! skipped. Started from the `P_M` in force (a live tuning), the search walks instead from
-//! its resolution outwards in both directions (strides 1, 1, 2, 4, …) while the answers improve,
-//! then climbs from the best: the answer is usually near the `P_M` in force, and the
+//! its resolution outwards in both directions (strides 1, 1, 2, 4, …) while the answers
+//! improve, then climbs from the best: the answer is usually near the `P_M` in force, and the
 //! resolutions far above it are the dearest to measure. For a quality target it is the mirror
 //! image: the largest γ whose q still meets the target, then the r with the smallest σ.
 //!
@@ -431,9 +431,8 @@ impl Adaptive<'_> {
 
     /// Under a size budget, from the resolution of the `P_M` in force (`start`) along the r
     /// axis: in each direction at doubling strides after a second single step (1, 1, 2, 4, …
-    /// resolutions) while each is
-    /// better than the best so far (upwards also ending at the first resolution that cannot
-    /// meet the budget: σ rises with r), then by single resolutions to better neighbours of
+    /// resolutions) while each is better than the best so far (upwards also ending at the
+    /// first resolution that cannot meet the budget: σ rises with r), then by single resolutions to better neighbours of
     /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
     /// `P_M` in force, and the resolutions far above it are the dearest to measure (a full
     /// trial at r = 512 costs about five at r = 192), so the spread over the whole axis is not
