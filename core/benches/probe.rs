@@ -105,7 +105,8 @@ fn probe(name: &str, volume: &Volume, codec: Codec, candidates: &[(u32, f32)], r
 /// and scored as a trial runs them (`score_views`: the scores of the views side by side).
 fn full_trial(name: &str, volume: &Volume, candidates: &[(u32, f32)], rounds: usize) {
     use insitu_core::evaluate::{render_references, score_views, DEFAULT_VIEW_ANGLES};
-    use insitu_core::Backend;
+    use insitu_core::metrics::{self, MetricError};
+    use insitu_core::{Backend, Image};
     let (lo, hi) = volume.finite_range().unwrap_or((0.0, 1.0));
     let tf = TransferFunction::default_for_range(lo, hi);
     let camera = Camera::default_for_box(&volume.world_box());
@@ -163,25 +164,19 @@ fn full_trial(name: &str, volume: &Volume, candidates: &[(u32, f32)], rounds: us
                     .collect();
             },
         );
-        let pairs = || images.iter().zip(&refs);
-        let mse = median_ms(
-            rounds,
-            || {},
-            || {
-                for (a, b) in pairs() {
-                    black_box(insitu_core::metrics::mse(a, b).expect("same size"));
-                }
-            },
-        );
-        let ssim = median_ms(
-            rounds,
-            || {},
-            || {
-                for (a, b) in pairs() {
-                    black_box(insitu_core::metrics::ssim(a, b).expect("same size"));
-                }
-            },
-        );
+        // A metric over every view, one after another.
+        let each_view = |metric: fn(&Image, &Image) -> Result<f64, MetricError>| {
+            median_ms(
+                rounds,
+                || {},
+                || {
+                    for (a, b) in images.iter().zip(&refs) {
+                        black_box(metric(a, b).expect("same size"));
+                    }
+                },
+            )
+        };
+        let (mse, ssim) = (each_view(metrics::mse), each_view(metrics::ssim));
         let scored = median_ms(
             rounds,
             || {},

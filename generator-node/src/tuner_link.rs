@@ -145,32 +145,15 @@ fn measure(
         // probe was the last trial and the tuner lets its τ stand, without being generated
         // again.
         let known = h.sizes.get(&crate::hold::size_key(params));
-        let (e, _) = match (known, &spare.vdi) {
+        let (e, _) = match (known, &mut spare.vdi) {
             (Some(&known), Some(vdi)) if probed => {
                 let key = (params, h.codec);
                 evaluate_probed(&scene, &h.camera, key, views, &refs, vdi, known)
             }
-            (Some(&known), _) => evaluate_sized(
-                &scene,
-                &h.camera,
-                params,
-                h.codec,
-                views,
-                &refs,
-                tf,
-                &mut spare.vdi,
-                known,
+            (Some(&known), vdi) => evaluate_sized(
+                &scene, &h.camera, params, h.codec, views, &refs, tf, vdi, known,
             ),
-            (None, _) => evaluate(
-                &scene,
-                &h.camera,
-                params,
-                h.codec,
-                views,
-                &refs,
-                tf,
-                &mut spare.vdi,
-            ),
+            (None, vdi) => evaluate(&scene, &h.camera, params, h.codec, views, &refs, tf, vdi),
         }
         .map_err(|e| e.to_string())?;
         out.tau_render_secs = e.tau_render_secs;

@@ -248,18 +248,19 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
         (9, "step 77 is not held here")
     );
     // A size probe: the same σ and supersegments, no views and no scoring.
-    send(
-        &down,
+    // The candidate of the full trials above on step 0, as a size probe or a full trial that
+    // may score the VDI the probe left.
+    let on_step_0 = |id, size_only, reuse_probe| {
         Down::Trial(pb::TrialRequest {
-            precision_bits: None,
-            trial_id: 5,
-            step: 0,
+            trial_id: id,
             resolution: 24,
             gamma: 0.01,
-            size_only: true,
-            reuse_probe: false,
-        }),
-    );
+            size_only,
+            reuse_probe,
+            ..Default::default()
+        })
+    };
+    send(&down, on_step_0(5, true, false));
     let Up::Trial(probe) = next(&mut up).await else {
         panic!("expected a trial result")
     };
@@ -284,25 +285,11 @@ async fn the_node_summarises_runs_trials_and_applies_decisions() {
     assert_eq!(sized.tau_compress_secs, probe.tau_compress_secs);
     // A probe again, then a full trial that may score the VDI it left: the same scores, with
     // the probe's σ and τ (nothing generated again).
-    let probe_again = Down::Trial(pb::TrialRequest {
-        trial_id: 10,
-        resolution: 24,
-        gamma: 0.01,
-        size_only: true,
-        ..Default::default()
-    });
-    send(&down, probe_again);
+    send(&down, on_step_0(10, true, false));
     let Up::Trial(second_probe) = next(&mut up).await else {
         panic!("expected a trial result")
     };
-    let after_probe = Down::Trial(pb::TrialRequest {
-        trial_id: 11,
-        resolution: 24,
-        gamma: 0.01,
-        reuse_probe: true,
-        ..Default::default()
-    });
-    send(&down, after_probe);
+    send(&down, on_step_0(11, false, true));
     let Up::Trial(reused) = next(&mut up).await else {
         panic!("expected a trial result")
     };
