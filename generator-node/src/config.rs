@@ -12,6 +12,10 @@ use insitu_core::{Camera, NamedTf, Precision, TransferFunction, VdiParams};
 
 /// The default precision of the VDI files a node writes: 8 bits of colour and opacity.
 pub const DEFAULT_PRECISION: Precision = Precision::Bits(8);
+
+/// The default guard on the tuner's size budget (`generation.size_guard`): a step over 1.25×
+/// the budget is made again toward it.
+pub const DEFAULT_SIZE_GUARD: f64 = 1.25;
 pub use insitu_proto::daemon::ConfigError;
 use insitu_proto::daemon::{DaemonConfig, ServeKeys};
 use insitu_proto::tls::TlsFiles;
@@ -117,6 +121,14 @@ pub struct GenerationConfig {
     /// fit is not shipped (counted as failed, logged). On the GPU the kernel runs whole: a
     /// step over the limit there is not shipped.
     pub time_max: Option<f64>,
+    /// The guard on the tuner's size budget, a ratio (≥ 1; 0: off; default
+    /// [`DEFAULT_SIZE_GUARD`]). A step made under a decision of the tuner whose σ comes out
+    /// over this many times the tuner's size budget is made again toward the budget, as the
+    /// hard limit makes a step (`work::coarser`, at most [`crate::work::MAX_GUARD_RETRIES`]
+    /// tries), and shipped at its last try whatever that came to: a step the decision did not
+    /// foresee (the first of a new character) ships near the budget instead of several times
+    /// it, and none is lost. Not applied with `time_max` (a try made again could break it).
+    pub size_guard: f64,
     /// The field to render from steps that carry named fields (Blueprint `fields/<name>`);
     /// unset: each step's first. A step that names none holds one field, which is rendered.
     pub field: Option<String>,
@@ -140,6 +152,7 @@ impl Default for GenerationConfig {
             reference_size: 0,
             size_max: None,
             time_max: None,
+            size_guard: DEFAULT_SIZE_GUARD,
             field: None,
         }
     }
@@ -372,6 +385,13 @@ pub struct Generation {
     pub reference_size: u32,
     /// Hard limits on a step's σ and τ (see `GenerationConfig::size_max` and `time_max`).
     pub limits: Budgets,
+    /// The guard's ratio to the tuner's size budget (see `GenerationConfig::size_guard`);
+    /// `None`: off.
+    pub size_guard: Option<f64>,
+    /// The tuner's size budget for a whole step, bytes, while a decision of the tuner is in
+    /// force (set per step by the node); `None` otherwise. With `size_guard`, what the guard
+    /// holds σ against.
+    pub tuner_size_budget: Option<u64>,
     /// The field to render by name; `None`: each step's first.
     pub field: Option<String>,
     /// Version of the tuner's decision `params` came from (0: the config or an operator).
@@ -608,6 +628,15 @@ impl GenerationConfig {
                 format!("{t} is not a time in seconds > 0; leave the key out for no limit"),
             ));
         }
+        if !(self.size_guard == 0.0 || (self.size_guard.is_finite() && self.size_guard >= 1.0)) {
+            return Err(invalid(
+                "generation.size_guard",
+                format!(
+                    "{} is not a ratio ≥ 1 of the tuner's size budget; 0 turns the guard off",
+                    self.size_guard
+                ),
+            ));
+        }
         if let Some(f) = &self.field {
             crate::ingest::check_field_name(f).map_err(|e| invalid("generation.field", e))?;
         }
@@ -624,6 +653,8 @@ impl GenerationConfig {
                 size_bytes: self.size_max,
                 time_secs: self.time_max,
             },
+            size_guard: (self.size_guard > 0.0).then_some(self.size_guard),
+            tuner_size_budget: None,
             field: self.field.clone(),
             pm_version: 0,
             scene_version: 0,
@@ -687,6 +718,12 @@ mod tests {
         let both = limits("[generation]\nsize_max = 1000\ntime_max = 0.5").limits;
         assert_eq!((both.size_bytes, both.time_secs), (Some(1000), Some(0.5)));
         assert!(limits("").limits.is_none());
+        // The guard: a ratio ≥ 1, 0 for off, 1.25 by default.
+        assert_eq!(limits("").size_guard, Some(DEFAULT_SIZE_GUARD));
+        assert_eq!(limits("[generation]\nsize_guard = 0.0").size_guard, None);
+        assert_eq!(limits("[generation]\nsize_guard = 2.0").size_guard, Some(2.0));
+        assert!(bad("[generation]\nsize_guard = 0.5").contains("generation.size_guard"));
+        assert!(bad("[generation]\nsize_guard = nan").contains("generation.size_guard"));
         // An ADIOS2 input: its part checked where it can be read, the feature named where not.
         let part = bad("[adios2]\nstream = \"gs\"\npart = [2, 2]");
         if cfg!(feature = "adios2") {

@@ -89,6 +89,11 @@ impl Correction {
         self.state().budget = Some((budgets, budget.utility_description));
     }
 
+    /// The tuner's size budget for a whole step, bytes, once it has sent one with a size term.
+    pub fn size_budget(&self) -> Option<u64> {
+        self.state().budget.as_ref().and_then(|(b, _)| b.size_bytes)
+    }
+
     /// The tuner's provisional decision `d` (made before its first tuning, for a world spread
     /// over several nodes): the steps made under it are counted.
     pub fn provisional(&self, d: &pb::PmDecision) {

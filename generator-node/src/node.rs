@@ -361,6 +361,13 @@ async fn worker(shared: Arc<Shared>) {
         let mut gen = shared
             .generation()
             .for_step_holding(step, raw.field_name.as_deref());
+        // The guard holds a step made under the tuner's decision to the tuner's budget.
+        if gen.pm_version > 0 {
+            gen.tuner_size_budget = shared
+                .tuning
+                .as_ref()
+                .and_then(|t| t.correction.size_budget());
+        }
         if gen.tf.is_none() {
             if let Some(scene) = &shared.scene {
                 // The first step of a run with no TF configured: wait for the world's.
@@ -381,6 +388,9 @@ async fn worker(shared: Arc<Shared>) {
                 let (mut product, vdi) = work::run(&s.backend, &raw, &gen, &tf, with_refs, reused)?;
                 // Growing the brick is part of making it.
                 product.vdi_header.tau_secs += grow_secs;
+                if let Some(f) = &mut product.first_try {
+                    f.tau_secs += grow_secs;
+                }
                 // Only while the tuner listens: otherwise nobody would read the summary, and
                 // the field's memory receives the next step.
                 let for_tuner = if s.tuning.as_ref().is_some_and(|t| t.connected()) {

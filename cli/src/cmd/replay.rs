@@ -88,6 +88,11 @@ pub fn run(a: Args) -> Result<()> {
     if a.pipeline.size_max.is_some() && a.generator.is_some() {
         bail!("--size-max is for the local nodes: a running generator-node takes generation.size_max from its config");
     }
+    if a.pipeline.size_guard != insitu_generator_node::config::DEFAULT_SIZE_GUARD
+        && a.generator.is_some()
+    {
+        bail!("--size-guard is for the local nodes: a running generator-node takes generation.size_guard from its config");
+    }
     if a.pipeline.time_max.is_some() && a.generator.is_some() {
         bail!("--time-max is for the local nodes: a running generator-node takes generation.time_max from its config");
     }

@@ -68,6 +68,11 @@ pub struct PipelineArgs {
     /// step that cannot fit is not stored; the summary counts the retries).
     #[arg(long, value_parser = time_max_arg)]
     pub time_max: Option<f64>,
+    /// Guard on the tuner's size budget, a ratio (0: off): a step made under the tuner's
+    /// decision whose sigma comes out over this many times the budget is made again toward it
+    /// and shipped at its last try (none is lost).
+    #[arg(long, default_value_t = gen::config::DEFAULT_SIZE_GUARD, value_parser = size_guard_arg)]
+    pub size_guard: f64,
     /// Print one JSON object per line (per stored VDI, per P_M change, and a final summary).
     #[arg(long)]
     pub json: bool,
@@ -87,6 +92,14 @@ fn size_max_arg(s: &str) -> Result<u64, String> {
     insitu_tuner::utility::parse_bytes(s)
         .filter(|&b| b > 0)
         .ok_or_else(|| format!("{s:?} is not a size in bytes (e.g. 1MB, 500kB)"))
+}
+
+/// `--size-guard`: 0, or a finite ratio ≥ 1.
+fn size_guard_arg(s: &str) -> Result<f64, String> {
+    s.parse::<f64>()
+        .ok()
+        .filter(|&g| g == 0.0 || (g.is_finite() && g >= 1.0))
+        .ok_or_else(|| format!("{s:?} is not a ratio ≥ 1 of the budget, nor 0 for off"))
 }
 
 /// `--time-max`: seconds, finite and > 0.
@@ -236,6 +249,7 @@ impl LocalNodes {
         cfg.generation.precision = a.pm.precision;
         cfg.generation.size_max = a.size_max;
         cfg.generation.time_max = a.time_max;
+        cfg.generation.size_guard = a.size_guard;
         // A pool of its own, as the daemon in its own process has (0 would be rayon's global
         // pool, where a generation's jobs queue behind the viz-node's scoring, or a built-in
         // simulation's steps, and τ counts their time).

@@ -493,6 +493,8 @@ pub fn compose_part(group: &[Finished], brick: Brick) -> Result<Product, PartErr
         limit_retries: group.iter().fold((0, 0.0), |(n, s), f| {
             (n + f.product.limit_retries.0, s + f.product.limit_retries.1)
         }),
+        // Each rank's first try went to the tuner with its own summary.
+        first_try: None,
     })
 }
 

@@ -87,6 +87,7 @@ fn finished(step: u64, rank: u32, world: u32, b: Brick, frames: bool) -> Finishe
             references,
             spool: vec![(format!("s{step}r{rank}"), 10)],
             limit_retries: (1, 0.5),
+            first_try: None,
         },
         vdi,
     )

@@ -18,6 +18,9 @@ use std::sync::Arc;
 use std::time::Instant;
 use tracing::info_span;
 
+mod guard;
+pub use guard::{Guard, MAX_GUARD_RETRIES};
+
 /// A finished step, ready to ship.
 #[derive(Debug, Clone)]
 pub struct Product {
@@ -34,6 +37,21 @@ pub struct Product {
     /// (`generation.size_max`) or τ would have (`generation.time_max`), and their seconds
     /// (generation and compression of the VDIs thrown away, the stopped generations' time).
     pub limit_retries: (u32, f64),
+    /// The step's first try, when it was made again coarser for its size (the hard limit or
+    /// the guard): what the decided `P_M` came to on this step, which the tuner is told.
+    pub first_try: Option<FirstTry>,
+}
+
+/// What a step's first try came to: the decided `P_M`, σ of its file (bytes) and its
+/// generation's seconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FirstTry {
+    /// The `P_M` the step was decided at.
+    pub params: VdiParams,
+    /// σ of the first try's file, bytes.
+    pub sigma_bytes: u64,
+    /// Its generation's seconds.
+    pub tau_secs: f64,
 }
 
 impl Product {
@@ -181,6 +199,12 @@ pub fn coarser(p: VdiParams, over: f64, may_shrink_r: bool) -> Option<VdiParams>
         let gamma = (p.gamma.max(1e-3) * factor).min(MAX_LIMIT_GAMMA);
         return Some(VdiParams { gamma, ..p });
     }
+    shrunk(p, over, may_shrink_r)
+}
+
+/// `p` with r shrunk by the square root of `over` (σ ∝ r²), at least by an eighth, where
+/// `may_shrink_r`; `None` where it may not or r would not shrink.
+fn shrunk(p: VdiParams, over: f64, may_shrink_r: bool) -> Option<VdiParams> {
     let r = (f64::from(p.resolution) / over.max(1.0).sqrt()).min(f64::from(p.resolution) * 0.875);
     let r = r.floor() as u32;
     (may_shrink_r && r >= 1 && r < p.resolution).then_some(VdiParams { resolution: r, ..p })
@@ -210,6 +234,9 @@ pub fn run(
     let own = gen.limits.share(info.world_size);
     let (limit, time_limit) = (own.size_bytes, own.time_secs);
     let one_rank = info.world_size <= 1;
+    let guard = Guard::of(gen, info.world_size);
+    // The step's tries (`P_M`, σ), for the guard's next; the first for the tuner.
+    let (mut first_try, mut tries) = (None, Vec::new());
     let (mut params, mut spare, mut retries) = (gen.params, spare, (0u32, 0.0));
     let (generated, file, tau_secs, tau_compress_secs) = 'generate: loop {
         let can_retry = one_rank && retries.0 < MAX_LIMIT_RETRIES;
@@ -249,16 +276,35 @@ pub fn run(
             })?;
             let compress = t.elapsed().as_secs_f64();
             let sigma = file.len() as u64;
-            let Some(limit) = limit.filter(|&l| sigma >= l) else {
-                let tau = generated.seconds + retries.1;
-                // Encodings thrown away for the size limit count in τ too.
-                let why = "encoding again for the size limit took it over";
-                within_time(info.step, time_limit, tau, params, why)?;
-                break 'generate (generated, file, tau, compress);
+            // What the step's first try (the decided `P_M`) came to, for the tuner.
+            first_try.get_or_insert(FirstTry {
+                params,
+                sigma_bytes: sigma,
+                tau_secs: generated.seconds,
+            });
+            tries.push((params, sigma));
+            let hard = limit.filter(|&l| sigma >= l);
+            let guarded = guard.filter(|g| sigma > g.trigger && retries.0 < MAX_GUARD_RETRIES);
+            let (next, aim) = match (hard, guarded) {
+                (None, None) => {
+                    let tau = generated.seconds + retries.1;
+                    // Encodings thrown away for the size limit count in τ too.
+                    let why = "encoding again for the size limit took it over";
+                    within_time(info.step, time_limit, tau, params, why)?;
+                    break 'generate (generated, file, tau, compress);
+                }
+                (Some(l), _) => {
+                    let next = coarser(params, sigma as f64 / l as f64, one_rank);
+                    (next.filter(|_| retries.0 < MAX_LIMIT_RETRIES), l)
+                }
+                (None, Some(g)) => (g.next(&tries, one_rank), g.aim),
             };
-            let next = coarser(params, sigma as f64 / limit as f64, info.world_size <= 1)
-                .filter(|_| retries.0 < MAX_LIMIT_RETRIES);
             let Some(next) = next else {
+                let Some(limit) = hard else {
+                    // The guard ships the last try, whatever it came to.
+                    let tau = generated.seconds + retries.1;
+                    break 'generate (generated, file, tau, compress);
+                };
                 return Err(WorkError::OverLimit {
                     step: info.step,
                     sigma,
@@ -268,13 +314,18 @@ pub fn run(
                 });
             };
             retries.0 += 1;
+            let why = if hard.is_some() {
+                "σ over the hard limit"
+            } else {
+                "σ over the guard on the tuner's budget"
+            };
             if (next.resolution, next.gamma) == (params.resolution, params.gamma) {
                 tracing::info!(
                     step = info.step,
                     sigma,
-                    limit,
+                    toward = aim,
                     precision = %next.precision,
-                    "σ over the hard limit: encoded again at a coarser precision"
+                    "{why}: encoded again at a coarser precision"
                 );
                 generated.value.set_precision(next.precision);
                 // An encoding thrown away counts in τ, as a generation thrown away does.
@@ -285,10 +336,10 @@ pub fn run(
             tracing::info!(
                 step = info.step,
                 sigma,
-                limit,
+                toward = aim,
                 r = next.resolution,
                 gamma = next.gamma,
-                "σ over the hard limit: made again at a coarser P_M"
+                "{why}: made again at a coarser P_M"
             );
             retries.1 += generated.seconds + compress;
             params = next;
@@ -310,6 +361,7 @@ pub fn run(
         references,
         spool: raw.spooled().into_iter().collect(),
         limit_retries: retries,
+        first_try: first_try.filter(|f| f.params != params),
     };
     Ok((product, generated.value))
 }
@@ -510,6 +562,21 @@ pub fn for_tuner(
     let (min, max) = h
         .finite_range
         .map_or((f64::NAN, f64::NAN), |(a, b)| (f64::from(a), f64::from(b)));
+    // What the decided P_M came to, where the step was made again coarser for its size: the
+    // decision's evidence (a step over the budget makes a tuning due, one far over its plan
+    // is characteristic), which the VDI shipped would hide.
+    let (resolution, gamma, sigma_bytes, tau_secs) = match product.first_try {
+        Some(f) => (
+            f.params.resolution,
+            f.params.gamma,
+            f.sigma_bytes,
+            f.tau_secs,
+        ),
+        None => {
+            let h = &product.vdi_header;
+            (h.resolution, h.gamma, h.total_bytes, h.tau_secs)
+        }
+    };
     let summary = pb::StepSummary {
         precision_bits: gen.params.precision.bits(),
         step: raw.info.step,
@@ -524,11 +591,11 @@ pub fn for_tuner(
         voxels: volume.voxels().len() as u64,
         held: false,
         pm_version: gen.pm_version,
-        // The P_M the VDI was made with (coarser than the version's after the hard limit).
-        resolution: product.vdi_header.resolution,
-        gamma: product.vdi_header.gamma,
-        sigma_bytes: product.vdi_header.total_bytes,
-        tau_secs: product.vdi_header.tau_secs,
+        // The P_M the VDI was made with (coarser than the version's after a time limit).
+        resolution,
+        gamma,
+        sigma_bytes,
+        tau_secs,
         sampled: product.references.is_some(),
         // Set when it is sent (`Tuning::after_step`).
         begun: 0,

@@ -84,6 +84,57 @@ fn a_vdi_over_the_hard_limit_is_made_again_coarser_and_ships_under_it() {
     );
 }
 
+/// The guard on the tuner's budget: a step over `size_guard` times it is made again toward it
+/// and shipped; the tuner is told what the decided `P_M` came to; a budget no try meets still
+/// ships (nothing is lost), and a step within the guard, a guard turned off or a time limit
+/// leaves the step as made.
+#[test]
+fn a_step_far_over_the_tuner_s_budget_is_made_again_toward_it_and_the_tuner_told_its_first_try() {
+    let raw = busy_step();
+    let tf = insitu_core::TransferFunction::default_for_volume(&raw.field);
+    let g = generation(None);
+    let (free, _) = run(&Backend::Cpu, &raw, &g, &tf, false, None).unwrap();
+    let sigma = free.vdi.len() as u64;
+    assert!(free.first_try.is_none());
+    let with = |budget: u64| Generation {
+        tuner_size_budget: Some(budget),
+        ..g.clone()
+    };
+    // Twice the budget: made again at a larger γ, within the guard.
+    let guarded = with(sigma / 2);
+    let (p, _) = run(&Backend::Cpu, &raw, &guarded, &tf, false, None).unwrap();
+    let h = &p.vdi_header;
+    assert!(
+        h.total_bytes as f64 <= 1.25 * (sigma / 2) as f64,
+        "{} B against a budget of {} B",
+        h.total_bytes,
+        sigma / 2
+    );
+    assert!(h.gamma > 0.001 && h.resolution == 48, "{h:?}");
+    assert!(p.limit_retries.0 >= 1 && h.tau_secs >= p.limit_retries.1);
+    let first = p.first_try.unwrap();
+    assert_eq!((first.params, first.sigma_bytes), (g.params, sigma));
+    let (summary, _) = for_tuner(busy_step(), &guarded, &tf, &p);
+    assert_eq!(
+        (summary.sigma_bytes, summary.resolution, summary.gamma),
+        (sigma, 48, 0.001)
+    );
+    // A budget no try meets: shipped at the last try after the guard's tries.
+    let (p, _) = run(&Backend::Cpu, &raw, &with(1), &tf, false, None).unwrap();
+    assert_eq!(p.limit_retries.0, MAX_GUARD_RETRIES);
+    assert!(p.vdi_header.total_bytes < sigma);
+    // Within the guard, with it off, or under a time limit: as made.
+    let mut off = with(sigma / 2);
+    off.size_guard = None;
+    let mut timed = with(sigma / 2);
+    timed.limits.time_secs = Some(60.0);
+    for g in [with(sigma), off, timed] {
+        let (p, _) = run(&Backend::Cpu, &raw, &g, &tf, false, None).unwrap();
+        assert_eq!((p.vdi.len() as u64, p.limit_retries.0), (sigma, 0));
+        assert!(p.first_try.is_none());
+    }
+}
+
 /// A step made again (a node restarted from its spool) gives the same file, which the
 /// viz-node then stores once; the file says which step, rank and brick it is.
 #[test]
