@@ -721,7 +721,10 @@ mod tests {
         // The guard: a ratio ≥ 1, 0 for off, 1.25 by default.
         assert_eq!(limits("").size_guard, Some(DEFAULT_SIZE_GUARD));
         assert_eq!(limits("[generation]\nsize_guard = 0.0").size_guard, None);
-        assert_eq!(limits("[generation]\nsize_guard = 2.0").size_guard, Some(2.0));
+        assert_eq!(
+            limits("[generation]\nsize_guard = 2.0").size_guard,
+            Some(2.0)
+        );
         assert!(bad("[generation]\nsize_guard = 0.5").contains("generation.size_guard"));
         assert!(bad("[generation]\nsize_guard = nan").contains("generation.size_guard"));
         // An ADIOS2 input: its part checked where it can be read, the feature named where not.

@@ -14,6 +14,9 @@ struct Model {
     /// τ = `tau_scale` · r² · (1.1 − γ) seconds: r² rays, a little less work as γ grows
     /// (0: no τ).
     tau_scale: f64,
+    /// q capped at a ceiling (dB) plus a slope (dB per unit of r): a precision's ceiling,
+    /// where neighbouring resolutions differ by hundredths of a dB (`None`: no ceiling).
+    plateau: Option<(f64, f64)>,
     generations: u64,
     /// Every candidate probed or measured, in order.
     asked: Vec<Candidate>,
@@ -36,6 +39,7 @@ impl Model {
             exponent,
             bumps,
             tau_scale: 0.0,
+            plateau: None,
             generations: 0,
             asked: Vec::new(),
         }
@@ -50,7 +54,10 @@ impl Oracle for Model {
             gamma: c.gamma,
             sizing: self.measure_sizing(c)?,
             tau_render_secs: 0.0,
-            q_db: Db(20.0 + 8.0 * (r / 64.0).ln() - 40.0 * gamma - precision_cost(c).1),
+            q_db: Db(self.plateau.iter().fold(
+                20.0 + 8.0 * (r / 64.0).ln() - 40.0 * gamma - precision_cost(c).1,
+                |q, &(ceiling, slope)| q.min(ceiling) + slope * r,
+            )),
             view_q_db: vec![],
             ssim: None,
             precision: c.precision,
@@ -189,6 +196,56 @@ fn a_walk_from_just_below_the_answer_measures_nothing_two_resolutions_above_it()
         checked >= 2,
         "only {checked} budgets had an answer inside the r axis"
     );
+}
+
+/// On a plateau of q (a precision's ceiling, neighbouring resolutions 0.032 dB apart), the
+/// walk from the `P_M` in force does not follow gains below [`WALK_MARGIN_DB`] up the r axis
+/// to the dearest resolutions: it measures one resolution above the start, and no neighbour
+/// of its answer is better by the margin or more. Without the margin it walks to the top.
+#[test]
+fn on_a_plateau_of_q_the_walk_does_not_follow_gains_below_the_margin() {
+    let grid = ParamGrid::parse("128:768:32", "0.001:0.26:0.004").unwrap();
+    let spec = UtilitySpec::Size(3_000_000);
+    let start = Candidate {
+        r: 256,
+        gamma: 0.009,
+        precision: Precision::Bits(8),
+    };
+    let mut model = Model::new(0.8, 0.0);
+    model.plateau = Some((30.0, 0.001));
+    let found = adaptive(&mut model, &grid, spec, Some(start), true).unwrap();
+    let highest = model.asked.iter().map(|c| c.r).max().unwrap();
+    assert!(highest <= 288, "{:?}", model.asked);
+    let best = found.best.unwrap();
+    let q = |r: u32| {
+        let mut m = Model::new(0.8, 0.0);
+        m.plateau = model.plateau;
+        adaptive(
+            &mut m,
+            &ParamGrid {
+                rs: vec![r],
+                ..grid.clone()
+            },
+            spec,
+            None,
+            true,
+        )
+        .unwrap()
+        .best
+        .map_or(f64::NEG_INFINITY, |b| b.q())
+    };
+    for r in [best.r - 32, best.r + 32] {
+        assert!(q(r) < best.q() + WALK_MARGIN_DB, "r {r} against {best:?}");
+    }
+    // The plateau is one: the grid's best is far up the axis.
+    let mut all = Model::new(0.8, 0.0);
+    all.plateau = model.plateau;
+    let u = spec.utility();
+    let top = grid_search(&mut all, &grid, u.as_ref())
+        .unwrap()
+        .best
+        .unwrap();
+    assert!(top.r > 288 && top.q() > best.q(), "{top:?}");
 }
 
 /// Under a time budget: a resolution that misses at its smallest and its largest γ costs
