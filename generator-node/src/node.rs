@@ -51,7 +51,7 @@ impl std::fmt::Display for Summary {
         if c.limit_retries > 0 {
             write!(
                 f,
-                "; {} VDI(s) made again under the hard size limit ({:.3} s)",
+                "; {} VDI(s) made again under the hard limits or the guard on the tuner's budget ({:.3} s)",
                 c.limit_retries, c.limit_retry_secs
             )?;
         }

@@ -161,7 +161,7 @@ impl Run<'_> {
         }
         if s.limit_retries > 0 {
             println!(
-                "  hard limit: {} generation(s) made again at a coarser P_M, {:.3} s of generation thrown away (steps that could not keep it are counted as failed)",
+                "  hard limit and guard: {} generation(s) made again at a coarser P_M, {:.3} s of generation thrown away (steps that could not keep a hard limit are counted as failed)",
                 s.limit_retries, s.limit_retry_secs
             );
         }
