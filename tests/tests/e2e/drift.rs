@@ -160,6 +160,10 @@ fn a_change_of_character_is_tuned_on_and_the_budget_is_kept_and_used() {
     let a = run.sigma_adherence(budget, 0);
     eprintln!("{}", a.describe());
     assert!(a.share() >= 0.9, "{}", a.describe());
+    // The change itself, which no forecast saw, ships within the guard (1.25× the budget),
+    // made again where it came out over; the tuner saw what the decided P_M came to (the
+    // characteristic step above).
+    assert!(a.worst_ratio <= 1.25, "{}", a.describe());
     // After that tuning's decision, the budget is used: ≥ 75 % on average.
     let from = retuned["from_step"].as_u64().unwrap();
     let after = run.sigma_adherence(budget, from);
