@@ -34,7 +34,8 @@ pub struct Product {
     /// removed once the VDI is settled.
     pub spool: Vec<(String, u64)>,
     /// Generations made again at a coarser `P_M` because σ came out over the hard limit
-    /// (`generation.size_max`) or τ would have (`generation.time_max`), and their seconds
+    /// (`generation.size_max`) or the guard (`generation.size_guard`), or τ would have
+    /// overrun `generation.time_max`, and their seconds
     /// (generation and compression of the VDIs thrown away, the stopped generations' time).
     pub limit_retries: (u32, f64),
     /// The step's first try, when it was made again coarser for its size (the hard limit or
@@ -283,64 +284,22 @@ pub fn run(
                 tau_secs: generated.seconds,
             });
             tries.push((params, sigma));
-            let hard = limit.filter(|&l| sigma >= l);
-            let guarded = guard.filter(|g| sigma > g.trigger && retries.0 < MAX_GUARD_RETRIES);
-            let (next, aim) = match (hard, guarded) {
-                (None, None) => {
-                    let tau = generated.seconds + retries.1;
-                    // Encodings thrown away for the size limit count in τ too.
-                    let why = "encoding again for the size limit took it over";
-                    within_time(info.step, time_limit, tau, params, why)?;
-                    break 'generate (generated, file, tau, compress);
-                }
-                (Some(l), _) => {
-                    let next = coarser(params, sigma as f64 / l as f64, one_rank);
-                    (next.filter(|_| retries.0 < MAX_LIMIT_RETRIES), l)
-                }
-                (None, Some(g)) => (g.next(&tries, one_rank), g.aim),
-            };
-            let Some(next) = next else {
-                let Some(limit) = hard else {
-                    // The guard ships the last try, whatever it came to.
-                    let tau = generated.seconds + retries.1;
-                    break 'generate (generated, file, tau, compress);
-                };
-                return Err(WorkError::OverLimit {
-                    step: info.step,
-                    sigma,
-                    limit,
-                    r: params.resolution,
-                    gamma: params.gamma,
-                });
+            let sizes = (limit, guard, one_rank);
+            let Some(next) = after_try(info.step, &tries, sizes, retries.0)? else {
+                let tau = generated.seconds + retries.1;
+                // Encodings thrown away for the size limit count in τ too.
+                let why = "encoding again for the size limit took it over";
+                within_time(info.step, time_limit, tau, params, why)?;
+                break 'generate (generated, file, tau, compress);
             };
             retries.0 += 1;
-            let why = if hard.is_some() {
-                "σ over the hard limit"
-            } else {
-                "σ over the guard on the tuner's budget"
-            };
             if (next.resolution, next.gamma) == (params.resolution, params.gamma) {
-                tracing::info!(
-                    step = info.step,
-                    sigma,
-                    toward = aim,
-                    precision = %next.precision,
-                    "{why}: encoded again at a coarser precision"
-                );
                 generated.value.set_precision(next.precision);
                 // An encoding thrown away counts in τ, as a generation thrown away does.
                 retries.1 += compress;
                 params = next;
                 continue;
             }
-            tracing::info!(
-                step = info.step,
-                sigma,
-                toward = aim,
-                r = next.resolution,
-                gamma = next.gamma,
-                "{why}: made again at a coarser P_M"
-            );
             retries.1 += generated.seconds + compress;
             params = next;
             spare = Some(generated.value);
@@ -364,6 +323,68 @@ pub fn run(
         first_try: first_try.filter(|f| f.params != params),
     };
     Ok((product, generated.value))
+}
+
+/// After the try of step `step` that made the last of `tries` (`P_M`, σ in bytes), under
+/// the hard limit, the guard and whether r may shrink (`sizes`), `retries` tries made again
+/// so far: the `P_M` to make it again with (logged), or `None` to ship it. Over the hard
+/// limit it is [`coarser`]; over the guard's trigger, the guard's next (which ships the last
+/// try when it has none).
+///
+/// # Errors
+/// [`WorkError::OverLimit`] when σ is over the hard limit and no try is left.
+fn after_try(
+    step: u64,
+    tries: &[(VdiParams, u64)],
+    (limit, guard, one_rank): (Option<u64>, Option<Guard>, bool),
+    retries: u32,
+) -> Result<Option<VdiParams>, WorkError> {
+    let Some(&(params, sigma)) = tries.last() else {
+        return Ok(None);
+    };
+    let hard = limit.filter(|&l| sigma >= l);
+    let guarded = guard.filter(|g| sigma > g.trigger && retries < MAX_GUARD_RETRIES);
+    let (next, toward, why) = match (hard, guarded) {
+        (None, None) => return Ok(None),
+        (Some(l), _) => {
+            let next = coarser(params, sigma as f64 / l as f64, one_rank);
+            let next = next.filter(|_| retries < MAX_LIMIT_RETRIES);
+            (next, l, "σ over the hard limit")
+        }
+        (None, Some(g)) => (
+            g.next(tries, one_rank),
+            g.aim,
+            "σ over the guard on the tuner's budget",
+        ),
+    };
+    let Some(next) = next else {
+        return match hard {
+            // The guard ships the last try, whatever it came to.
+            None => Ok(None),
+            Some(limit) => Err(WorkError::OverLimit {
+                step,
+                sigma,
+                limit,
+                r: params.resolution,
+                gamma: params.gamma,
+            }),
+        };
+    };
+    if (next.resolution, next.gamma) == (params.resolution, params.gamma) {
+        let precision = next.precision;
+        tracing::info!(step, sigma, toward, %precision, "{why}: encoded again at a coarser precision");
+    } else {
+        let (r, gamma) = (next.resolution, next.gamma);
+        tracing::info!(
+            step,
+            sigma,
+            toward,
+            r,
+            gamma,
+            "{why}: made again at a coarser P_M"
+        );
+    }
+    Ok(Some(next))
 }
 
 /// [`WorkError::OverTime`] for step `step` when `tau` seconds (every try counted) exceed the
