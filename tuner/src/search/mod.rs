@@ -439,9 +439,9 @@ impl Adaptive<'_> {
 
     /// Under a size budget, from the resolution of the `P_M` in force (`start`) along the r
     /// axis: in each direction at doubling strides after a second single step (1, 1, 2, 4, …
-    /// resolutions) while each is better than the best so far (upwards also ending at the
-    /// first resolution that cannot meet the budget: σ rises with r), then by single resolutions to better neighbours of
-    /// the best ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
+    /// resolutions) while each is better than the best so far by [`WALK_MARGIN_DB`] (upwards
+    /// also ending at the first resolution that cannot meet the budget: σ rises with r), then
+    /// by single resolutions to neighbours better by as much ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
     /// `P_M` in force, and the resolutions far above it are the dearest to measure (a full
     /// trial at r = 512 costs about five at r = 192), so the spread over the whole axis is not
     /// paid.

@@ -44,6 +44,14 @@ impl Model {
             asked: Vec::new(),
         }
     }
+
+    /// The model with q capped at `plateau` (see [`Model::plateau`]).
+    fn on_plateau(plateau: (f64, f64)) -> Self {
+        Self {
+            plateau: Some(plateau),
+            ..Self::new(0.8, 0.0)
+        }
+    }
 }
 
 impl Oracle for Model {
@@ -211,17 +219,15 @@ fn on_a_plateau_of_q_the_walk_does_not_follow_gains_below_the_margin() {
         gamma: 0.009,
         precision: Precision::Bits(8),
     };
-    let mut model = Model::new(0.8, 0.0);
-    model.plateau = Some((30.0, 0.001));
+    let plateau = (30.0, 0.001);
+    let mut model = Model::on_plateau(plateau);
     let found = adaptive(&mut model, &grid, spec, Some(start), true).unwrap();
     let highest = model.asked.iter().map(|c| c.r).max().unwrap();
     assert!(highest <= 288, "{:?}", model.asked);
     let best = found.best.unwrap();
     let q = |r: u32| {
-        let mut m = Model::new(0.8, 0.0);
-        m.plateau = model.plateau;
         adaptive(
-            &mut m,
+            &mut Model::on_plateau(plateau),
             &ParamGrid {
                 rs: vec![r],
                 ..grid.clone()
@@ -238,10 +244,8 @@ fn on_a_plateau_of_q_the_walk_does_not_follow_gains_below_the_margin() {
         assert!(q(r) < best.q() + WALK_MARGIN_DB, "r {r} against {best:?}");
     }
     // The plateau is one: the grid's best is far up the axis.
-    let mut all = Model::new(0.8, 0.0);
-    all.plateau = model.plateau;
     let u = spec.utility();
-    let top = grid_search(&mut all, &grid, u.as_ref())
+    let top = grid_search(&mut Model::on_plateau(plateau), &grid, u.as_ref())
         .unwrap()
         .best
         .unwrap();
