@@ -120,12 +120,15 @@ fn made(name: &str, n: usize, steps: usize, field: fn(usize, usize, usize) -> Ve
 }
 
 /// The transfer function of a run: the default ramp over the first step's range, written
-/// next to the series (the replay and the hindsight search use the same one).
+/// into the bench's folder (the shared data may be read-only) under the series' name (the
+/// replay and the hindsight search use the same one).
 fn tf_for(series: &Path) -> (PathBuf, TransferFunction) {
     let format = RawFormat::from_file_name(series).unwrap();
     let first = format.load(series, 0, Vec3::ONE).unwrap();
     let tf = TransferFunction::default_for_volume(&first).tf;
-    let path = series.with_extension("tf.json");
+    let path = work_dir()
+        .join(series.file_name().unwrap())
+        .with_extension("tf.json");
     std::fs::write(&path, serde_json::to_string(&tf).unwrap()).unwrap();
     (path, tf)
 }

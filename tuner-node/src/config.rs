@@ -34,7 +34,8 @@ pub struct GridConfig {
     /// Thresholds `γ`.
     pub gamma: String,
     /// The VDI file's precisions, `P_M`'s third parameter: colour bits (4–16) and `f32`,
-    /// comma-separated. With several, a tuning searches (r, γ) at each and keeps the best.
+    /// comma-separated. With several, the first tuning (and one for a steered utility)
+    /// searches (r, γ) at each and keeps the best; re-tunes search at the precision it chose.
     /// Default [`DEFAULT_PRECISIONS`].
     pub precision: String,
 }

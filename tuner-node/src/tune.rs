@@ -13,13 +13,14 @@ use crate::trigger::{Cause, Trigger};
 use insitu_core::backend::TimeSource;
 use insitu_core::evaluate::Sizing;
 use insitu_core::metrics::{pooled_psnr, Db};
+use insitu_core::Precision;
 use insitu_proto::pb;
 use insitu_tuner::control::finer;
 use insitu_tuner::live::{combine_ranks, WorstCase};
 use insitu_tuner::search::{adaptive_search_near, grid_search, Outcome};
 use insitu_tuner::study::{Oracle, StudyError};
 use insitu_tuner::utility::Budgets;
-use insitu_tuner::{Candidate, Measurement};
+use insitu_tuner::{Candidate, Measurement, ParamGrid};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -378,9 +379,30 @@ fn search(
         .current()
         .map(|d| d.candidate)
         .or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
+    let tuned = engine.state().tuned().map(|d| d.candidate.precision);
+    let grid = grid_for(&r.grid, tuned, &trigger.cause);
     match r.target {
-        Some(t) => adaptive_search_near(&mut oracle, &r.grid, t, in_force),
-        None => grid_search(&mut oracle, &r.grid, r.plan.as_ref()),
+        Some(t) => adaptive_search_near(&mut oracle, &grid, t, in_force),
+        None => grid_search(&mut oracle, &grid, r.plan.as_ref()),
+    }
+}
+
+/// The grid a tuning for `cause` searches: `grid` at the precision a tuning last chose
+/// (`tuned`) for a re-tune, every precision of `grid` for the first tuning, one for a steered
+/// utility (a new budget can make another precision the best buy), or while no tuning has
+/// chosen one among them. A re-tune follows the data's character (its resolution and γ);
+/// which precision buys the most picture per byte is the budget's choice more than the
+/// data's, and searching the others again doubled a re-tune's trials (docs/tuning.md,
+/// "Re-tunes that keep up").
+fn grid_for(grid: &ParamGrid, tuned: Option<Precision>, cause: &Cause) -> ParamGrid {
+    match tuned {
+        Some(p)
+            if !matches!(cause, Cause::First | Cause::Steered { .. })
+                && grid.precisions.contains(&p) =>
+        {
+            grid.at(p)
+        }
+        _ => grid.clone(),
     }
 }
 
@@ -694,6 +716,43 @@ mod tests {
             Cause::Lost { steps: vec![1] },
         ] {
             assert_eq!(of(cause), 0.0);
+        }
+    }
+
+    /// A re-tune searches the precision the last tuning chose; the first tuning, a steered
+    /// one, and any before a tuning chose a precision of the grid search every precision.
+    #[test]
+    fn a_re_tune_searches_the_precision_a_tuning_chose() {
+        let grid = ParamGrid::parse("64:512:64", "0.001:0.26:0.008")
+            .unwrap()
+            .with_precisions("6,8")
+            .unwrap();
+        let six = Some(Precision::Bits(6));
+        let retunes = [
+            Cause::NewCharacter {
+                distance: 0.3,
+                threshold: 0.15,
+            },
+            Cause::BrokeBudget { why: "σ".into() },
+            Cause::Resume,
+            Cause::Lost { steps: vec![1] },
+        ];
+        for cause in &retunes {
+            let g = grid_for(&grid, six, cause);
+            assert_eq!(g.precisions, vec![Precision::Bits(6)], "{cause:?}");
+            assert_eq!(
+                (g.rs.clone(), g.gammas.clone()),
+                (grid.rs.clone(), grid.gammas.clone())
+            );
+            assert_eq!(grid_for(&grid, None, cause).precisions, grid.precisions);
+            assert_eq!(
+                grid_for(&grid, Some(Precision::Float32), cause).precisions,
+                grid.precisions,
+                "a precision off the grid"
+            );
+        }
+        for cause in [Cause::First, Cause::Steered { what: "u".into() }] {
+            assert_eq!(grid_for(&grid, six, &cause).precisions, grid.precisions);
         }
     }
 
