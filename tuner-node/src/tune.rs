@@ -391,9 +391,10 @@ fn search(
 /// (`tuned`) for a re-tune, every precision of `grid` for the first tuning, one for a steered
 /// utility (a new budget can make another precision the best buy), or while no tuning has
 /// chosen one among them. A re-tune follows the data's character (its resolution and γ);
-/// which precision buys the most picture per byte is the budget's choice more than the
-/// data's, and searching the others again doubled a re-tune's trials (docs/tuning.md,
-/// "Re-tunes that keep up").
+/// searching the other precisions again doubled its probes, so a re-tune for a new character
+/// often did not finish within its share. The cost: where σ outgrows the budget, a coarser
+/// precision may have become the better buy (docs/tuning.md, "Re-tunes at the chosen
+/// precision").
 fn grid_for(grid: &ParamGrid, tuned: Option<Precision>, cause: &Cause) -> ParamGrid {
     match tuned {
         Some(p)
