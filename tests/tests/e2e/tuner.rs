@@ -570,12 +570,17 @@ fn a_generator_that_hangs_then_dies_during_trials_leaves_the_decision_in_force()
     // precision, not from where the first tuning started); none decided on step 6, whose
     // trials failed and whose node died.
     let s = tuner_status(&t.addr);
-    let decisions = state(&st)["decisions"].as_array().unwrap().clone();
-    for d in decisions.iter().filter(|d| {
-        d["pm_version"].as_u64() > Some(first.pm_version)
-            && d["corrects"].is_null()
-            && d["provisional"] != true
-    }) {
+    let persisted = state(&st);
+    for d in persisted["decisions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|d| {
+            d["pm_version"].as_u64() > Some(first.pm_version)
+                && d["corrects"].is_null()
+                && d["provisional"] != true
+        })
+    {
         let steps = d["characteristic_steps"].as_array().unwrap();
         assert!(
             !steps.iter().any(|x| x.as_u64() == Some(6)),

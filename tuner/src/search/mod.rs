@@ -443,10 +443,10 @@ impl Adaptive<'_> {
     /// axis: in each direction at doubling strides after a second single step (1, 1, 2, 4, …
     /// resolutions) while each is better than the best so far by [`WALK_MARGIN_DB`] (upwards
     /// also ending at the first resolution that cannot meet the budget: σ rises with r), then
-    /// by single resolutions to neighbours better by as much ([`Adaptive::climb_from`]). The answer of a re-tune is most often near the
-    /// `P_M` in force, and the resolutions far above it are the dearest to measure (a full
-    /// trial at r = 512 costs about five at r = 192), so the spread over the whole axis is not
-    /// paid.
+    /// by single resolutions to neighbours better by as much ([`Adaptive::climb_from`]). The
+    /// answer of a re-tune is most often near the `P_M` in force, and the resolutions far above
+    /// it are the dearest to measure (a full trial at r = 512 costs about five at r = 192), so
+    /// the spread over the whole axis is not paid.
     fn gallop_r(&mut self, start: usize) -> Result<Option<(Measurement, f64)>, StudyError> {
         let last = self.grid.rs.len() - 1;
         let margin = self.margin();
