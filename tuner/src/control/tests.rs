@@ -202,9 +202,21 @@ fn growth_is_forecast_and_the_p_m_stepped_to_meet_the_budget() {
     let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
     assert_eq!(p.candidate, c(256, g(3)));
     assert!(p.feasible && p.sigma_bytes <= 0.95 * 1_120_000.0);
-    // Planned to hold 8 steps (of 10): k = 1.1^12 = 3.14 by step 120; r 256 and r 192 would
-    // need γ beyond their spans, r 128 at the tuned γ holds (785 kB).
+    // Planned to hold 8 steps (of 10), or until σ has grown 1.6×, whichever comes first: by
+    // step 120 k would be 1.1^12 = 3.14, where only r 128 holds; σ grows 1.6× in
+    // ln 1.6 / (ln 1.1 / 10) = 49.3 steps, so the plan is for step 90, k = 1.1^9 = 2.36:
+    // r 256 would need γ ≥ 0.0222, beyond its span; r 192 γ 0.015 holds (884 kB).
     ctl.horizon = 8;
+    let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
+    assert_eq!((p.candidate, p.forecast.at), (c(192, g(3)), 90), "{p:?}");
+    let k = 1.1f64.powi(9);
+    assert!(
+        (p.sigma_bytes - 1e6 * 0.5625 * (0.01 / 0.015) * k).abs() < 1.0,
+        "{p:?}"
+    );
+    // Without the bound on growth, the plan is for all 8 steps: r 256 and r 192 would need γ
+    // beyond their spans, r 128 at the tuned γ holds (785 kB).
+    ctl.plan_growth = f64::INFINITY;
     let p = ctl.correct(&s, tuned, tuned, 40).unwrap();
     assert_eq!((p.candidate, p.forecast.at), (c(128, g(2)), 120), "{p:?}");
     assert!(
@@ -215,6 +227,27 @@ fn growth_is_forecast_and_the_p_m_stepped_to_meet_the_budget() {
     let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
     observed(&mut ctl, 0, tuned, 1.03);
     assert_eq!(ctl.correct(&s, tuned, tuned, 10), None);
+}
+
+/// The bound on growth shortens plans only where σ grows fast: 4–6 % a step (Gray–Scott 128³
+/// in its bursts) grows at most 1.59× over the 8-step horizon, under `PLAN_GROWTH`, and the
+/// plan is for 8 steps on; 12 % a step (the growing series) reaches 1.6× in
+/// ln 1.6 / ln 1.12 = 4.1 steps, so the plan is for 5 steps on.
+#[test]
+fn slow_drift_plans_for_the_horizon_and_fast_growth_for_its_growth() {
+    let s = surface_of(&[c(256, g(2)), c(256, g(4)), c(128, g(2))]);
+    let tuned = c(256, g(2));
+    for (rate, ahead) in [(1.04f64, HORIZON), (1.06, HORIZON), (1.12, 5)] {
+        let mut ctl = Controller::new(Budgets::size(1_120_000), 0.05, grid());
+        // Six steps growing up to the budget (1.12 MB) at the tuned P_M: the next is at risk.
+        let steps = 6u64;
+        let start = 1.12 / rate.powi(steps as i32 - 1);
+        for n in 0..steps {
+            observed(&mut ctl, n, tuned, start * rate.powi(n as i32));
+        }
+        let p = ctl.correct(&s, tuned, tuned, steps).unwrap();
+        assert_eq!(p.forecast.at, steps + ahead, "{rate}: {p:?}");
+    }
 }
 
 #[test]
