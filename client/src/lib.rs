@@ -88,10 +88,12 @@ pub enum ClientError {
 
 /// What a failed call says: what happened, and for the codes a user can act on, what to do.
 fn refusal_text(code: tonic::Code, message: &str) -> String {
-    // A call in flight when the connection drops ends `Unknown: transport error`; one
-    // started after, `Unavailable`.
+    // A call in flight when the connection drops ends `Unknown: transport error`, or
+    // `Cancelled: operation was canceled` where hyper's connection task ended under it (a node
+    // killed mid-call); one started after, `Unavailable`.
     let lost = code == tonic::Code::Unavailable
-        || (code == tonic::Code::Unknown && message.starts_with("transport error"));
+        || (code == tonic::Code::Unknown && message.starts_with("transport error"))
+        || (code == tonic::Code::Cancelled && message.starts_with("operation was canceled"));
     match code {
         _ if lost => format!(
             "the generator-node went away ({message}): it stopped or the link broke; restart \
@@ -597,6 +599,12 @@ mod tests {
         assert!(gone.contains("restart it and push again"), "{gone}");
         let cut = text(tonic::Code::Unknown, "transport error");
         assert!(cut.contains("went away (transport error)"), "{cut}");
+        let killed = text(tonic::Code::Cancelled, "operation was canceled");
+        assert!(
+            killed.contains("went away (operation was canceled)"),
+            "{killed}"
+        );
+        assert!(killed.contains("restart it"), "{killed}");
         let token = text(
             tonic::Code::Unauthenticated,
             "missing or wrong bearer token",

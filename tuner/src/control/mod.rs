@@ -234,7 +234,7 @@ pub const HORIZON: u64 = 8;
 /// whichever is fewer. On the growing series (8–16 % a step) the 8 steps of [`HORIZON`] came
 /// to 1.9–3.3×, so the first steps of each plan used a third to a half of the budget. At 1.4×
 /// the bound also cut Gray–Scott 128³'s plans short in its bursts of growth (4 % a step on
-/// average, up to 6 %): 13 changes per 100 steps instead of 6–9, at 1 dB less mean q; at
+/// average, up to 6 %): 13 changes per 100 steps instead of 6–9, up to 1 dB less mean q; at
 /// 1.6× its plans keep the 8 steps (docs/tuning.md, "Plans bounded by growth").
 pub const PLAN_GROWTH: f64 = 1.6;
 
@@ -533,7 +533,7 @@ impl Controller {
         let horizon = self.horizon.saturating_mul(self.stride());
         if let Some(trend) = next.trend_per_step.filter(|_| horizon > 0) {
             // The forecast for `at`, carried on by the trend to the horizon (τ by no more
-            // than its own growth), or as far as the trend grows σ by `PLAN_GROWTH`.
+            // than its own growth), or only as far as the trend grows σ by `plan_growth`.
             let to_growth = self.plan_growth.ln() / trend.ln().max(f64::MIN_POSITIVE);
             let lasting = at.saturating_add((to_growth.ceil().min(horizon as f64) as u64).max(1));
             let steps = (lasting - at) as f64;
