@@ -373,15 +373,16 @@ fn search(
         .collect();
     let mut oracle = WorstCase::new(oracles).with_budgets(budgets);
     // Size probes start at the P_M in force (before the first decision, the one the nodes
-    // reported): the answer is most often near it.
-    // A re-tune searches at the precision the last tuning chose (`grid_for`).
+    // reported): the answer is most often near it. A re-tune searches at the precision the
+    // last tuning chose (`grid_for`).
     let (current, tuned) = {
         let s = engine.state();
-        let candidate = |d: &Decision| d.candidate;
-        (s.current().map(candidate), s.tuned().map(candidate))
+        (
+            s.current().map(|d| d.candidate),
+            s.tuned().map(|d| d.candidate.precision),
+        )
     };
     let in_force = current.or(*engine.reported.lock().unwrap_or_else(|e| e.into_inner()));
-    let tuned = tuned.map(|c| c.precision);
     let grid = grid_for(&r.grid, tuned, &trigger.cause);
     match r.target {
         Some(t) => adaptive_search_near(&mut oracle, &grid, t, in_force),
